@@ -1,0 +1,28 @@
+// Sample records shared by drivers, storage, analysis and the daemon.
+#pragma once
+
+#include <cstdint>
+
+namespace gyrotherm {
+
+// One gyro sample of the configured axis.
+struct GyroSample {
+  // Station seconds. As produced by the reader: the station clock; once
+  // stored: seconds since the run's start.
+  double t_s = 0;
+  double rate_dph = 0;  // rate about the configured axis, °/h
+  uint8_t seq = 0;      // the frame's sequence counter (0..127 for KVH 1750)
+  uint8_t status = 0;   // the frame's status byte as sent
+  int16_t temp_c = 0;   // gyro's internal temperature as sent, °C
+};
+
+// One control-loop reading of the station's temperatures, °C.
+struct TemperatureSample {
+  double t_s = 0;  // same convention as GyroSample::t_s
+  double setpoint_c = 0;
+  double chamber_c = 0;
+  double top_c = 0;
+  double side_c = 0;
+};
+
+}  // namespace gyrotherm

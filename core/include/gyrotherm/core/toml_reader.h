@@ -1,0 +1,89 @@
+// Strict reading of TOML files (station config, schedules, simulator).
+//
+// A TableReader hands out the keys of one table with type checks, remembers
+// which keys were read, and on finish() reports every key nobody asked for.
+// Problems are collected, not thrown: a technician sees every error of a file
+// at once, each as "file:line: key.path: what is wrong".
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <optional>
+#include <set>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include <toml++/toml.h>
+
+#include "gyrotherm/core/result.h"
+
+namespace gyrotherm {
+
+class TomlErrors {
+ public:
+  explicit TomlErrors(std::string file) : file_(std::move(file)) {}
+  void add(int line, std::string_view key_path, std::string_view message);
+  bool empty() const { return messages_.empty(); }
+  const std::vector<std::string>& messages() const { return messages_; }
+  const std::string& file() const { return file_; }
+  // All messages, one per line.
+  std::string joined() const;
+
+ private:
+  std::string file_;
+  std::vector<std::string> messages_;
+};
+
+// Parses a whole file. A syntax error is reported (file:line) into `errors`
+// and yields nullopt.
+std::optional<toml::table> parse_toml_file(const std::string& path, TomlErrors& errors);
+std::optional<toml::table> parse_toml_string(std::string_view text, TomlErrors& errors);
+
+class TableReader {
+ public:
+  // `path` is the dotted name of this table ("" for the root).
+  TableReader(const toml::table& table, std::string path, TomlErrors& errors);
+
+  // Each getter: nullopt if absent; an error (and nullopt) if of the wrong type.
+  std::optional<double> number(std::string_view key);  // integer or float
+  std::optional<int64_t> integer(std::string_view key);
+  std::optional<std::string> string(std::string_view key);
+  std::optional<bool> boolean(std::string_view key);
+  std::optional<TableReader> table(std::string_view key);
+  const toml::array* array(std::string_view key);
+  // Marks a key as known without reading it (sections read elsewhere).
+  void skip(std::string_view key);
+
+  // Range-checked number with a default. Reports "must be in [lo, hi]".
+  double number_in(std::string_view key, double default_value, double lo, double hi);
+  // A required number/string: reports "missing" when absent.
+  std::optional<double> required_number(std::string_view key);
+  std::optional<std::string> required_string(std::string_view key);
+  // A string that must be one of `allowed`.
+  std::optional<std::string> choice(std::string_view key, const std::vector<std::string>& allowed,
+                                    std::optional<std::string> default_value);
+
+  // Reports an error located at `key` (or at the table when absent).
+  void error(std::string_view key, std::string_view message);
+  // Reports every key that was not read, skipped or expected.
+  void finish();
+
+  std::string key_path(std::string_view key) const;
+  int line_of(std::string_view key) const;
+  const toml::table& raw() const { return *table_; }
+  TomlErrors& errors() const { return *errors_; }
+
+ private:
+  const toml::node* get(std::string_view key);
+
+  const toml::table* table_;
+  std::string path_;
+  TomlErrors* errors_;
+  std::set<std::string, std::less<>> used_;
+};
+
+// "integer", "string", "table", ... for error messages.
+std::string_view toml_type_name(const toml::node& node);
+
+}  // namespace gyrotherm
