@@ -1,0 +1,111 @@
+// Table I statistics of the reference paper (DESIGN.md §7).
+//
+// Per soak acquisition window, on the *analysis series*: the gyro rate
+// averaged into consecutive bins of bin_s (default 1 s, the paper's 1 Hz
+// sampling; bins start at the window's first sample; a partial last bin is
+// dropped; data already spaced >= bin_s is used as is), and the temperatures
+// averaged over the same bins. Then: n, duration, mean shell temperature
+// ((top + side) / 2), zero-bias mean, sample standard deviation (ddof = 1),
+// and the standard deviation after a 101-point centred moving average (the
+// mean of each 101 consecutive points, the n - 100 full windows only, then
+// ddof = 1); and the bias with the Earth-rate component removed.
+#pragma once
+
+#include <cstddef>
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "gyrotherm/core/result.h"
+#include "gyrotherm/core/samples.h"
+
+namespace gyrotherm::analysis {
+
+enum class AxisOrientation { kUp, kDown, kHorizontal };
+Result<AxisOrientation> parse_orientation(std::string_view s);  // "up", "down", "horizontal"
+std::string_view to_string(AxisOrientation o);
+
+// Earth-rate component seen by the sensitive axis, °/h:
+// up: +15.041067 x sin(lat); down: the negative; horizontal: 0 (axis taken as
+// east-west; a north-pointing axis would see 15.041067 x cos(lat)).
+double earth_rate_component_dph(double latitude_deg, AxisOrientation orientation);
+
+// Plain statistics, accurate to ~1e-12 relative on well-scaled data
+// (two-pass sums in long double). Empty or too-short input gives NaN; a NaN
+// or infinite input gives NaN.
+double mean(std::span<const double> x);
+double std_ddof1(std::span<const double> x);
+// Std (ddof = 1) of the means of every `window` consecutive points (the
+// n - window + 1 full windows). NaN when fewer than window + 1 points or
+// window == 0. O(n): a running sum of the mean-subtracted data in long double.
+double moving_average_std(std::span<const double> x, std::size_t window);
+// Least-squares slope of y on t (units of y per unit of t). NaN for < 2 points,
+// sizes that differ, or all t equal.
+double linear_slope(std::span<const double> t, std::span<const double> y);
+
+// The analysis series of one window.
+struct AnalysisSeries {
+  std::vector<double> t_s;       // bin start times (or the samples' times, if used as is)
+  std::vector<double> rate_dph;  // bin means
+  std::vector<double> top_c;     // temperatures over the same bins
+  std::vector<double> side_c;
+  double bin_s = 1.0;            // effective spacing
+  bool binned = true;            // false when the data was used as is
+};
+
+struct Table1Options {
+  double bin_s = 1.0;
+  std::size_t ma_window = 101;
+  double earth_rate_dph = 0.0;  // removed from the mean for bias_mean_earth_removed_dph
+
+  // False with a message when a value is out of range (bin_s <= 0, window < 2).
+  bool IsValid(std::string* error) const;
+};
+
+// Builds the analysis series from the raw window: gyro samples binned as
+// above; for each bin the temperature samples inside it are averaged, and a
+// bin with none takes the linear interpolation of the neighbouring samples.
+//
+// Precisely (t0 = the first gyro sample's time, all times station seconds):
+// - The sample spacing tau is the median of the gyro time differences (a
+//   single sample: tau = bin_s). The data covers [t0, t_last + tau).
+// - If tau >= bin_s (within 1e-9 relative) the samples are used as is:
+//   binned = false, bin_s = tau, t_s = the samples' times; sample i stands for
+//   [t_i, t_{i+1}) (the last for [t_last, t_last + tau)) when temperatures are
+//   matched to it.
+// - Otherwise bin k is [t0 + k*bin_s, t0 + (k+1)*bin_s); a sample goes to bin
+//   floor((t - t0)/bin_s + 1e-9), so a time stamp a rounding error short of a
+//   boundary counts in the later bin. A bin is complete when its end is
+//   <= t_last + tau + 1e-9*bin_s: 10 Hz samples at t0 ... t0 + 1199.9 give
+//   exactly 1200 bins. The incomplete last bin, if any, is dropped with its
+//   samples. A bin with no gyro sample inside the range (a gap in the stream)
+//   is dropped too, not interpolated: t_s then jumps, and n x bin_s counts
+//   only the time with data. rate_dph is the mean of the bin's samples.
+// - Temperatures: top_c and side_c of a bin are the means of the temperature
+//   samples inside it (same boundary rule); a bin with none takes the linear
+//   interpolation of the temperature series at the bin centre, top and side
+//   separately, clamped to the first/last sample outside their range.
+// Errors (permanent, the message names the index and t_s): no gyro samples,
+// no temperature samples, gyro or temperature times not strictly increasing,
+// a non-finite time, rate, top_c or side_c; bin_s not positive and finite.
+// Allocates O(gyro.size() + temps.size()).
+Result<AnalysisSeries> make_analysis_series(std::span<const GyroSample> gyro,
+                                            std::span<const TemperatureSample> temps,
+                                            double bin_s);
+
+struct Table1Row {
+  std::size_t n = 0;
+  double duration_s = 0;   // n x bin spacing
+  double temp_mean_c = 0;
+  double bias_mean_dph = 0;
+  double bias_std_dph = 0;
+  double bias_std_ma_dph = 0;  // NaN when n <= ma_window
+  double bias_mean_earth_removed_dph = 0;
+};
+
+// Errors: invalid options (the IsValid message); n < 2; the series' vectors
+// of different lengths; a non-finite value in the series.
+Result<Table1Row> table1_row(const AnalysisSeries& series, const Table1Options& options);
+
+}  // namespace gyrotherm::analysis

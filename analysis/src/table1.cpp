@@ -1,0 +1,291 @@
+// Analysis series (binning) and Table I rows; see table1.h for the rules.
+#include "gyrotherm/analysis/table1.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <limits>
+
+#include "gyrotherm/core/units.h"
+
+namespace gyrotherm::analysis {
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+// Relative to the bin width: how far short of a boundary a time stamp may be
+// and still count in the later bin.
+constexpr double kBoundaryTol = 1e-9;
+
+std::string lower(std::string_view s) {
+  std::string out(s);
+  for (char& c : out) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return out;
+}
+
+Status check_gyro(std::span<const GyroSample> gyro) {
+  for (std::size_t i = 0; i < gyro.size(); ++i) {
+    const GyroSample& g = gyro[i];
+    if (!std::isfinite(g.t_s)) {
+      return Error::Permanent(fmt::format("gyro sample {}: time is not finite ({})", i, g.t_s));
+    }
+    if (!std::isfinite(g.rate_dph)) {
+      return Error::Permanent(
+          fmt::format("gyro sample {} at t_s={}: rate is not finite ({})", i, g.t_s, g.rate_dph));
+    }
+    if (i > 0 && !(g.t_s > gyro[i - 1].t_s)) {
+      return Error::Permanent(
+          fmt::format("gyro sample {}: time t_s={} does not increase (previous sample at t_s={})",
+                      i, g.t_s, gyro[i - 1].t_s));
+    }
+  }
+  return Status::Ok();
+}
+
+Status check_temps(std::span<const TemperatureSample> temps) {
+  for (std::size_t i = 0; i < temps.size(); ++i) {
+    const TemperatureSample& s = temps[i];
+    if (!std::isfinite(s.t_s)) {
+      return Error::Permanent(
+          fmt::format("temperature sample {}: time is not finite ({})", i, s.t_s));
+    }
+    if (!std::isfinite(s.top_c) || !std::isfinite(s.side_c)) {
+      return Error::Permanent(
+          fmt::format("temperature sample {} at t_s={}: top_c={} side_c={} is not finite", i, s.t_s,
+                      s.top_c, s.side_c));
+    }
+    if (i > 0 && !(s.t_s > temps[i - 1].t_s)) {
+      return Error::Permanent(fmt::format(
+          "temperature sample {}: time t_s={} does not increase (previous sample at t_s={})", i,
+          s.t_s, temps[i - 1].t_s));
+    }
+  }
+  return Status::Ok();
+}
+
+double median_spacing(std::span<const GyroSample> gyro) {
+  std::vector<double> d(gyro.size() - 1);
+  for (std::size_t i = 1; i < gyro.size(); ++i) d[i - 1] = gyro[i].t_s - gyro[i - 1].t_s;
+  const std::size_t mid = d.size() / 2;
+  std::nth_element(d.begin(), d.begin() + mid, d.end());
+  if (d.size() % 2 == 1) return d[mid];
+  const double upper = d[mid];
+  const double lower_mid = *std::max_element(d.begin(), d.begin() + mid);
+  return (lower_mid + upper) / 2;
+}
+
+// Linear interpolation of the temperature series at t, clamped at the ends.
+struct TopSide {
+  double top_c;
+  double side_c;
+};
+TopSide interpolate(std::span<const TemperatureSample> temps, double t) {
+  if (t <= temps.front().t_s) return {temps.front().top_c, temps.front().side_c};
+  if (t >= temps.back().t_s) return {temps.back().top_c, temps.back().side_c};
+  const auto hi = std::upper_bound(temps.begin(), temps.end(), t,
+                                   [](double v, const TemperatureSample& s) { return v < s.t_s; });
+  const TemperatureSample& b = *hi;
+  const TemperatureSample& a = *(hi - 1);
+  const double f = (t - a.t_s) / (b.t_s - a.t_s);
+  return {a.top_c + f * (b.top_c - a.top_c), a.side_c + f * (b.side_c - a.side_c)};
+}
+
+// Per-bin sums of the temperature samples, then means or interpolation.
+struct TempAccumulator {
+  std::vector<double> top_sum, side_sum;
+  std::vector<std::size_t> count;
+  explicit TempAccumulator(std::size_t bins) : top_sum(bins), side_sum(bins), count(bins) {}
+  void add(std::size_t bin, const TemperatureSample& s) {
+    top_sum[bin] += s.top_c;
+    side_sum[bin] += s.side_c;
+    ++count[bin];
+  }
+  TopSide get(std::size_t bin, std::span<const TemperatureSample> temps, double centre_s) const {
+    if (count[bin] == 0) return interpolate(temps, centre_s);
+    const double c = static_cast<double>(count[bin]);
+    return {top_sum[bin] / c, side_sum[bin] / c};
+  }
+};
+
+AnalysisSeries as_is(std::span<const GyroSample> gyro, std::span<const TemperatureSample> temps,
+                     double tau) {
+  AnalysisSeries out;
+  out.binned = false;
+  out.bin_s = tau;
+  const std::size_t n = gyro.size();
+  auto end_of = [&](std::size_t i) { return i + 1 < n ? gyro[i + 1].t_s : gyro[i].t_s + tau; };
+  TempAccumulator acc(n);
+  // Both series increase: one sweep matches each temperature to its sample.
+  std::size_t i = 0;
+  for (const TemperatureSample& s : temps) {
+    if (s.t_s < gyro.front().t_s) continue;
+    while (i < n && s.t_s >= end_of(i)) ++i;
+    if (i == n) break;
+    acc.add(i, s);
+  }
+  out.t_s.reserve(n);
+  out.rate_dph.reserve(n);
+  out.top_c.reserve(n);
+  out.side_c.reserve(n);
+  for (std::size_t k = 0; k < n; ++k) {
+    const TopSide ts = acc.get(k, temps, (gyro[k].t_s + end_of(k)) / 2);
+    out.t_s.push_back(gyro[k].t_s);
+    out.rate_dph.push_back(gyro[k].rate_dph);
+    out.top_c.push_back(ts.top_c);
+    out.side_c.push_back(ts.side_c);
+  }
+  return out;
+}
+
+AnalysisSeries binned(std::span<const GyroSample> gyro, std::span<const TemperatureSample> temps,
+                      double bin_s, double tau) {
+  AnalysisSeries out;
+  out.binned = true;
+  out.bin_s = bin_s;
+  const double t0 = gyro.front().t_s;
+  const double covered_bins = ((gyro.back().t_s - t0) + tau) / bin_s + kBoundaryTol;
+  const auto nbins = static_cast<std::size_t>(std::floor(covered_bins));
+  // The bin of time t, or -1 before t0 / nbins and beyond past the last complete bin.
+  auto bin_of = [&](double t) -> std::ptrdiff_t {
+    const double k = std::floor((t - t0) / bin_s + kBoundaryTol);
+    if (k < 0) return -1;
+    if (k >= static_cast<double>(nbins)) return static_cast<std::ptrdiff_t>(nbins);
+    return static_cast<std::ptrdiff_t>(k);
+  };
+
+  TempAccumulator acc(nbins);
+  for (const TemperatureSample& s : temps) {
+    const std::ptrdiff_t k = bin_of(s.t_s);
+    if (k >= 0 && static_cast<std::size_t>(k) < nbins) acc.add(static_cast<std::size_t>(k), s);
+  }
+
+  const std::size_t reserve = std::min(nbins, gyro.size());
+  out.t_s.reserve(reserve);
+  out.rate_dph.reserve(reserve);
+  out.top_c.reserve(reserve);
+  out.side_c.reserve(reserve);
+  std::vector<double> rates;
+  std::size_t i = 0;
+  while (i < gyro.size()) {
+    const std::ptrdiff_t k = bin_of(gyro[i].t_s);
+    if (static_cast<std::size_t>(k) >= nbins) break;  // the partial last bin
+    rates.clear();
+    while (i < gyro.size() && bin_of(gyro[i].t_s) == k) rates.push_back(gyro[i++].rate_dph);
+    const double start_s = t0 + static_cast<double>(k) * bin_s;
+    const TopSide ts = acc.get(static_cast<std::size_t>(k), temps, start_s + bin_s / 2);
+    out.t_s.push_back(start_s);
+    out.rate_dph.push_back(mean(rates));
+    out.top_c.push_back(ts.top_c);
+    out.side_c.push_back(ts.side_c);
+  }
+  return out;
+}
+
+}  // namespace
+
+Result<AxisOrientation> parse_orientation(std::string_view s) {
+  const std::string v = lower(s);
+  if (v == "up") return AxisOrientation::kUp;
+  if (v == "down") return AxisOrientation::kDown;
+  if (v == "horizontal") return AxisOrientation::kHorizontal;
+  return Error::Permanent(
+      fmt::format("unknown axis orientation '{}' (expected up, down or horizontal)", s));
+}
+
+std::string_view to_string(AxisOrientation o) {
+  switch (o) {
+    case AxisOrientation::kUp:
+      return "up";
+    case AxisOrientation::kDown:
+      return "down";
+    case AxisOrientation::kHorizontal:
+      return "horizontal";
+  }
+  return "unknown";
+}
+
+double earth_rate_component_dph(double latitude_deg, AxisOrientation orientation) {
+  const double vertical = units::kEarthRateDph * std::sin(units::deg_to_rad(latitude_deg));
+  switch (orientation) {
+    case AxisOrientation::kUp:
+      return vertical;
+    case AxisOrientation::kDown:
+      return -vertical;
+    case AxisOrientation::kHorizontal:
+      return 0.0;
+  }
+  return kNaN;
+}
+
+bool Table1Options::IsValid(std::string* error) const {
+  auto fail = [&](std::string msg) {
+    if (error != nullptr) *error = std::move(msg);
+    return false;
+  };
+  if (!(bin_s > 0) || !std::isfinite(bin_s)) {
+    return fail(fmt::format("bin_s must be a positive number of seconds, got {}", bin_s));
+  }
+  if (ma_window < 2) {
+    return fail(fmt::format("ma_window must be at least 2 points, got {}", ma_window));
+  }
+  if (!std::isfinite(earth_rate_dph)) {
+    return fail(fmt::format("earth_rate_dph must be finite, got {}", earth_rate_dph));
+  }
+  return true;
+}
+
+Result<AnalysisSeries> make_analysis_series(std::span<const GyroSample> gyro,
+                                            std::span<const TemperatureSample> temps,
+                                            double bin_s) {
+  if (!(bin_s > 0) || !std::isfinite(bin_s)) {
+    return Error::Permanent(
+        fmt::format("bin_s must be a positive number of seconds, got {}", bin_s));
+  }
+  if (gyro.empty()) return Error::Permanent("no gyro samples in the window");
+  if (temps.empty()) return Error::Permanent("no temperature samples in the window");
+  if (Status st = check_gyro(gyro); !st.ok()) return st.error();
+  if (Status st = check_temps(temps); !st.ok()) return st.error();
+
+  const double tau = gyro.size() > 1 ? median_spacing(gyro) : bin_s;
+  if (tau >= bin_s * (1 - kBoundaryTol)) return as_is(gyro, temps, tau);
+  return binned(gyro, temps, bin_s, tau);
+}
+
+Result<Table1Row> table1_row(const AnalysisSeries& series, const Table1Options& options) {
+  std::string why;
+  if (!options.IsValid(&why)) return Error::Permanent("invalid Table I options: " + why);
+  const std::size_t n = series.rate_dph.size();
+  if (series.top_c.size() != n || series.side_c.size() != n) {
+    return Error::Permanent(
+        fmt::format("analysis series has {} rates but {} top and {} side temperatures", n,
+                    series.top_c.size(), series.side_c.size()));
+  }
+  if (n < 2) {
+    return Error::Permanent(
+        fmt::format("a Table I row needs at least 2 points in the analysis series, got {}", n));
+  }
+  std::vector<double> shell_c(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!std::isfinite(series.rate_dph[i]) || !std::isfinite(series.top_c[i]) ||
+        !std::isfinite(series.side_c[i])) {
+      const double t = i < series.t_s.size() ? series.t_s[i] : kNaN;
+      return Error::Permanent(fmt::format(
+          "analysis series point {} at t_s={}: rate_dph={} top_c={} side_c={} is not finite", i, t,
+          series.rate_dph[i], series.top_c[i], series.side_c[i]));
+    }
+    shell_c[i] = (series.top_c[i] + series.side_c[i]) / 2;
+  }
+
+  Table1Row row;
+  row.n = n;
+  row.duration_s = static_cast<double>(n) * series.bin_s;
+  row.temp_mean_c = mean(shell_c);
+  row.bias_mean_dph = mean(series.rate_dph);
+  row.bias_std_dph = std_ddof1(series.rate_dph);
+  row.bias_std_ma_dph = moving_average_std(series.rate_dph, options.ma_window);
+  row.bias_mean_earth_removed_dph = row.bias_mean_dph - options.earth_rate_dph;
+  return row;
+}
+
+}  // namespace gyrotherm::analysis

@@ -1,0 +1,304 @@
+// Binning rules, temperatures, Earth rate and Table I rows on small inputs
+// whose answers are known by construction.
+#include "gyrotherm/analysis/table1.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <vector>
+
+namespace gyrotherm::analysis {
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+std::vector<GyroSample> gyro_at(double t0, double dt, std::size_t n, double rate_dph = 8.0) {
+  std::vector<GyroSample> out(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    out[i].t_s = t0 + dt * static_cast<double>(i);
+    out[i].rate_dph = rate_dph;
+  }
+  return out;
+}
+
+std::vector<TemperatureSample> temps_at(double t0, double dt, std::size_t n, double top_c,
+                                        double side_c) {
+  std::vector<TemperatureSample> out(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    out[i].t_s = t0 + dt * static_cast<double>(i);
+    out[i].top_c = top_c;
+    out[i].side_c = side_c;
+  }
+  return out;
+}
+
+TEST(Orientation, ParsesAndPrints) {
+  for (AxisOrientation o :
+       {AxisOrientation::kUp, AxisOrientation::kDown, AxisOrientation::kHorizontal}) {
+    auto parsed = parse_orientation(to_string(o));
+    ASSERT_TRUE(parsed.ok());
+    EXPECT_EQ(*parsed, o);
+  }
+  ASSERT_TRUE(parse_orientation("Up").ok());
+  auto bad = parse_orientation("sideways");
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.error().message.find("sideways"), std::string::npos);
+  EXPECT_FALSE(bad.error().transient);
+}
+
+TEST(EarthRate, PaperLatitude) {
+  // 15.041067 x sin(31.9°) = 7.9483 °/h: most of Table I's ~8 °/h.
+  const double up = earth_rate_component_dph(31.9, AxisOrientation::kUp);
+  EXPECT_NEAR(up, 7.95, 0.005);
+  EXPECT_NEAR(up, 15.041067 * std::sin(31.9 * M_PI / 180.0), 1e-13);
+  EXPECT_EQ(earth_rate_component_dph(31.9, AxisOrientation::kDown), -up);
+  EXPECT_EQ(earth_rate_component_dph(31.9, AxisOrientation::kHorizontal), 0.0);
+  EXPECT_NEAR(earth_rate_component_dph(90.0, AxisOrientation::kUp), 15.041067, 1e-12);
+  EXPECT_NEAR(earth_rate_component_dph(-30.0, AxisOrientation::kUp), -15.041067 / 2, 1e-12);
+}
+
+TEST(Table1Options, Validity) {
+  std::string why;
+  EXPECT_TRUE(Table1Options{}.IsValid(&why));
+  Table1Options o;
+  o.bin_s = 0;
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_NE(why.find("bin_s"), std::string::npos);
+  o = {};
+  o.bin_s = kNaN;
+  EXPECT_FALSE(o.IsValid(nullptr));
+  o = {};
+  o.ma_window = 1;
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_NE(why.find("ma_window"), std::string::npos);
+  o = {};
+  o.earth_rate_dph = kNaN;
+  EXPECT_FALSE(o.IsValid(&why));
+}
+
+TEST(AnalysisSeries, TenHertzOverTwentyMinutesGivesExactly1200Bins) {
+  // 12000 samples at t0 ... t0 + 1199.9: covered until t0 + 1200.
+  const auto gyro = gyro_at(1234.5, 0.1, 12000);
+  const auto temps = temps_at(1234.5, 1.0, 1200, 30.0, 29.0);
+  auto s = make_analysis_series(gyro, temps, 1.0);
+  ASSERT_TRUE(s.ok()) << s.error().message;
+  EXPECT_TRUE(s->binned);
+  EXPECT_EQ(s->bin_s, 1.0);
+  ASSERT_EQ(s->rate_dph.size(), 1200u);
+  ASSERT_EQ(s->t_s.size(), 1200u);
+  EXPECT_EQ(s->t_s.front(), 1234.5);
+  EXPECT_NEAR(s->t_s.back(), 1234.5 + 1199, 1e-9);
+  for (double r : s->rate_dph) ASSERT_NEAR(r, 8.0, 1e-14);
+}
+
+TEST(AnalysisSeries, EachBinHoldsItsTenSamples) {
+  // Rate = bin index, so a sample put in the wrong bin shows in the mean.
+  std::vector<GyroSample> gyro = gyro_at(0.0, 0.1, 12000);
+  for (std::size_t i = 0; i < gyro.size(); ++i) gyro[i].rate_dph = static_cast<double>(i / 10);
+  auto s = make_analysis_series(gyro, temps_at(0, 1, 10, 20, 20), 1.0);
+  ASSERT_TRUE(s.ok());
+  ASSERT_EQ(s->rate_dph.size(), 1200u);
+  for (std::size_t k = 0; k < 1200; ++k) ASSERT_EQ(s->rate_dph[k], static_cast<double>(k)) << k;
+}
+
+TEST(AnalysisSeries, PartialLastBinIsDropped) {
+  const auto temps = temps_at(0, 1, 100, 20, 20);
+  // 12005 samples: the data covers 1200.5 s; bin 1200 is half full.
+  auto gyro = gyro_at(0.0, 0.1, 12005);
+  gyro.back().rate_dph = 1e6;  // would show if the partial bin were kept
+  auto s = make_analysis_series(gyro, temps, 1.0);
+  ASSERT_TRUE(s.ok());
+  EXPECT_EQ(s->rate_dph.size(), 1200u);
+  EXPECT_EQ(s->rate_dph.back(), 8.0);
+  // 12010 samples: bin 1200 is complete.
+  auto s2 = make_analysis_series(gyro_at(0.0, 0.1, 12010), temps, 1.0);
+  ASSERT_TRUE(s2.ok());
+  EXPECT_EQ(s2->rate_dph.size(), 1201u);
+  // 9 samples at 10 Hz do not fill a single 1 s bin.
+  auto s3 = make_analysis_series(gyro_at(0.0, 0.1, 9), temps, 1.0);
+  ASSERT_TRUE(s3.ok());
+  EXPECT_TRUE(s3->rate_dph.empty());
+}
+
+TEST(AnalysisSeries, OneHertzDataIsUsedAsIs) {
+  std::vector<GyroSample> gyro = gyro_at(10.0, 1.0, 50);
+  for (std::size_t i = 0; i < gyro.size(); ++i) gyro[i].rate_dph = static_cast<double>(i);
+  auto s = make_analysis_series(gyro, temps_at(10, 1, 50, 20, 20), 1.0);
+  ASSERT_TRUE(s.ok());
+  EXPECT_FALSE(s->binned);
+  EXPECT_EQ(s->bin_s, 1.0);
+  ASSERT_EQ(s->rate_dph.size(), 50u);
+  for (std::size_t i = 0; i < 50; ++i) {
+    EXPECT_EQ(s->t_s[i], gyro[i].t_s);
+    EXPECT_EQ(s->rate_dph[i], gyro[i].rate_dph);
+  }
+  // Slower than bin_s: used as is, the spacing is the median one.
+  auto slow = make_analysis_series(gyro_at(0.0, 2.0, 20), temps_at(0, 1, 50, 20, 20), 1.0);
+  ASSERT_TRUE(slow.ok());
+  EXPECT_FALSE(slow->binned);
+  EXPECT_EQ(slow->bin_s, 2.0);
+  EXPECT_EQ(slow->rate_dph.size(), 20u);
+}
+
+TEST(AnalysisSeries, GapBinsAreDroppedNotInterpolated) {
+  // 10 Hz over 100 s with nothing in [40, 45).
+  std::vector<GyroSample> gyro;
+  for (const GyroSample& g : gyro_at(0.0, 0.1, 1000)) {
+    if (g.t_s < 40.0 - 1e-9 || g.t_s >= 45.0 - 1e-9) gyro.push_back(g);
+  }
+  auto s = make_analysis_series(gyro, temps_at(0, 1, 100, 20, 20), 1.0);
+  ASSERT_TRUE(s.ok());
+  EXPECT_TRUE(s->binned);
+  ASSERT_EQ(s->t_s.size(), 95u);
+  EXPECT_NEAR(s->t_s[39], 39.0, 1e-12);
+  EXPECT_NEAR(s->t_s[40], 45.0, 1e-12);
+}
+
+TEST(AnalysisSeries, TemperaturesAveragedInsideABin) {
+  const auto gyro = gyro_at(0.0, 0.1, 30);  // 3 bins
+  std::vector<TemperatureSample> temps = {{0.2, 0, 0, 10.0, 20.0},
+                                          {0.7, 0, 0, 12.0, 21.0},   // bin 0
+                                          {1.5, 0, 0, 14.0, 22.0},   // bin 1
+                                          {2.0, 0, 0, 16.0, 23.0}};  // bin 2 (on its boundary)
+  auto s = make_analysis_series(gyro, temps, 1.0);
+  ASSERT_TRUE(s.ok());
+  ASSERT_EQ(s->top_c.size(), 3u);
+  EXPECT_EQ(s->top_c[0], 11.0);
+  EXPECT_EQ(s->side_c[0], 20.5);
+  EXPECT_EQ(s->top_c[1], 14.0);
+  EXPECT_EQ(s->side_c[1], 22.0);
+  EXPECT_EQ(s->top_c[2], 16.0);
+  EXPECT_EQ(s->side_c[2], 23.0);
+}
+
+TEST(AnalysisSeries, BinsWithoutTemperatureInterpolateAtTheCentre) {
+  const auto gyro = gyro_at(0.0, 0.1, 100);  // bins 0..9, centres 0.5 ... 9.5
+  // Top rises 1 °C/s, side falls 2 °C/s between samples at 2.2 and 7.2.
+  std::vector<TemperatureSample> temps = {{2.2, 0, 0, 10.0, 50.0}, {7.2, 0, 0, 15.0, 40.0}};
+  auto s = make_analysis_series(gyro, temps, 1.0);
+  ASSERT_TRUE(s.ok());
+  ASSERT_EQ(s->top_c.size(), 10u);
+  EXPECT_EQ(s->top_c[0], 10.0);  // before the first sample: clamped
+  EXPECT_EQ(s->side_c[1], 50.0);
+  EXPECT_EQ(s->top_c[2], 10.0);  // sample inside
+  EXPECT_NEAR(s->top_c[4], 10.0 + (4.5 - 2.2), 1e-12);
+  EXPECT_NEAR(s->side_c[4], 50.0 - 2.0 * (4.5 - 2.2), 1e-12);
+  EXPECT_NEAR(s->top_c[6], 10.0 + (6.5 - 2.2), 1e-12);
+  EXPECT_EQ(s->top_c[7], 15.0);  // sample inside
+  EXPECT_EQ(s->top_c[9], 15.0);  // after the last sample: clamped
+  EXPECT_EQ(s->side_c[9], 40.0);
+}
+
+TEST(AnalysisSeries, AsIsSamplesTakeTemperaturesFromTheirInterval) {
+  const auto gyro = gyro_at(0.0, 2.0, 4);  // intervals [0,2) [2,4) [4,6) [6,8)
+  std::vector<TemperatureSample> temps = {
+      {0.5, 0, 0, 1.0, 1.0}, {1.5, 0, 0, 3.0, 3.0}, {6.5, 0, 0, 9.0, 9.0}};
+  auto s = make_analysis_series(gyro, temps, 1.0);
+  ASSERT_TRUE(s.ok());
+  EXPECT_FALSE(s->binned);
+  EXPECT_EQ(s->top_c[0], 2.0);
+  EXPECT_NEAR(s->top_c[1], 3.0 + 6.0 * (3.0 - 1.5) / 5.0, 1e-12);  // centre 3
+  EXPECT_NEAR(s->top_c[2], 3.0 + 6.0 * (5.0 - 1.5) / 5.0, 1e-12);  // centre 5
+  EXPECT_EQ(s->top_c[3], 9.0);
+}
+
+TEST(AnalysisSeries, Errors) {
+  const auto gyro = gyro_at(0.0, 0.1, 100);
+  const auto temps = temps_at(0, 1, 10, 20, 20);
+  auto no_gyro = make_analysis_series({}, temps, 1.0);
+  ASSERT_FALSE(no_gyro.ok());
+  EXPECT_NE(no_gyro.error().message.find("no gyro"), std::string::npos);
+  auto no_temps = make_analysis_series(gyro, {}, 1.0);
+  ASSERT_FALSE(no_temps.ok());
+  EXPECT_NE(no_temps.error().message.find("no temperature"), std::string::npos);
+  EXPECT_FALSE(make_analysis_series(gyro, temps, 0.0).ok());
+  EXPECT_FALSE(make_analysis_series(gyro, temps, -1.0).ok());
+
+  auto back = gyro;
+  back[37].t_s = back[36].t_s;
+  auto r = make_analysis_series(back, temps, 1.0);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("gyro sample 37"), std::string::npos) << r.error().message;
+  EXPECT_NE(r.error().message.find("does not increase"), std::string::npos);
+  EXPECT_FALSE(r.error().transient);
+
+  auto nan_rate = gyro;
+  nan_rate[5].rate_dph = kNaN;
+  r = make_analysis_series(nan_rate, temps, 1.0);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("gyro sample 5"), std::string::npos) << r.error().message;
+
+  auto nan_time = gyro;
+  nan_time[0].t_s = kNaN;
+  EXPECT_FALSE(make_analysis_series(nan_time, temps, 1.0).ok());
+
+  auto bad_temps = temps;
+  bad_temps[3].side_c = std::numeric_limits<double>::infinity();
+  r = make_analysis_series(gyro, bad_temps, 1.0);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("temperature sample 3"), std::string::npos);
+
+  bad_temps = temps;
+  bad_temps[4].t_s = 1.0;
+  r = make_analysis_series(gyro, bad_temps, 1.0);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("temperature sample 4"), std::string::npos);
+}
+
+AnalysisSeries series_of(std::vector<double> rate_dph, double top_c, double side_c) {
+  AnalysisSeries s;
+  for (std::size_t i = 0; i < rate_dph.size(); ++i) s.t_s.push_back(static_cast<double>(i));
+  s.top_c.assign(rate_dph.size(), top_c);
+  s.side_c.assign(rate_dph.size(), side_c);
+  s.rate_dph = std::move(rate_dph);
+  return s;
+}
+
+TEST(Table1Row, ByHand) {
+  Table1Options o;
+  o.earth_rate_dph = 2.5;
+  auto row = table1_row(series_of({1, 2, 3, 4, 5}, 30.0, 20.0), o);
+  ASSERT_TRUE(row.ok()) << row.error().message;
+  EXPECT_EQ(row->n, 5u);
+  EXPECT_EQ(row->duration_s, 5.0);
+  EXPECT_EQ(row->temp_mean_c, 25.0);
+  EXPECT_EQ(row->bias_mean_dph, 3.0);
+  EXPECT_NEAR(row->bias_std_dph, std::sqrt(2.5), 1e-15);
+  EXPECT_TRUE(std::isnan(row->bias_std_ma_dph));  // n <= 101
+  EXPECT_EQ(row->bias_mean_earth_removed_dph, 0.5);
+
+  o.ma_window = 3;
+  auto row3 = table1_row(series_of({1, 2, 3, 4, 5, 6, 10}, 30.0, 20.0), o);
+  ASSERT_TRUE(row3.ok());
+  EXPECT_NEAR(row3->bias_std_ma_dph, std::sqrt(14.8 / 4), 1e-14);
+}
+
+TEST(Table1Row, DurationUsesTheBinSpacing) {
+  AnalysisSeries s = series_of({1, 2, 3}, 20, 20);
+  s.bin_s = 2.0;
+  auto row = table1_row(s, {});
+  ASSERT_TRUE(row.ok());
+  EXPECT_EQ(row->duration_s, 6.0);
+}
+
+TEST(Table1Row, Errors) {
+  auto one = table1_row(series_of({1}, 20, 20), {});
+  ASSERT_FALSE(one.ok());
+  EXPECT_NE(one.error().message.find("at least 2"), std::string::npos);
+  Table1Options bad;
+  bad.ma_window = 0;
+  auto invalid = table1_row(series_of({1, 2, 3}, 20, 20), bad);
+  ASSERT_FALSE(invalid.ok());
+  EXPECT_NE(invalid.error().message.find("ma_window"), std::string::npos);
+  AnalysisSeries ragged = series_of({1, 2, 3}, 20, 20);
+  ragged.side_c.pop_back();
+  EXPECT_FALSE(table1_row(ragged, {}).ok());
+  AnalysisSeries nan = series_of({1, kNaN, 3}, 20, 20);
+  auto r = table1_row(nan, {});
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("point 1"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace gyrotherm::analysis
