@@ -1,0 +1,66 @@
+// Schedule files (TOML) -> a validated, expanded plan of steps.
+//
+// A schedule is a list of [[step]] tables: soak, ramp, hold, repeat (with its
+// own [[step.steps]]). Durations are in minutes of station time, temperatures
+// in °C, rates in °C/min; docs/schedules.md lists every key and default.
+// Validation against the station (temperature limits, max ramp rate) happens
+// here too, so a bad schedule is refused with every error listed by file,
+// line and key, and nothing runs.
+#pragma once
+
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "gyrotherm/core/result.h"
+
+namespace gyrotherm::schedules {
+
+enum class StepKind { kSoak, kRamp, kHold };
+std::string_view to_string(StepKind kind);
+
+// One executable step of the expanded plan (repeats unrolled).
+struct PlanStep {
+  StepKind kind = StepKind::kSoak;
+  std::string label;          // "soak 20 °C", shown to technicians
+  int source_line = 0;        // line of the [[step]] in the schedule file
+  double setpoint_c = 0;      // soak/hold set point; ramp target
+  // soak
+  double tolerance_c = 0.5;             // chamber and shell within ± of the set point
+  double stability_c_per_min = 0.02;   // shell |dT/dt| limit for the gate
+  double stability_window_s = 600;     // gate evaluated over this window
+  double settle_timeout_s = 3 * 3600;  // gate must hold within this time
+  double acquire_s = 0;                // acquisition after the gate held
+  // ramp
+  double rate_c_per_min = 0;
+  // hold
+  double hold_s = 0;
+  // any: turntable rate during the step, °/s (0: at rest)
+  double table_rate_dps = 0;
+};
+
+struct Plan {
+  std::string name;
+  std::string description;
+  std::string source_path;
+  std::vector<PlanStep> steps;
+
+  // Station seconds of acquisition and ramp time (excludes settling).
+  double nominal_duration_s() const;
+};
+
+// The station's limits a schedule is checked against.
+struct StationLimits {
+  double min_temp_c = -20.0;
+  double max_temp_c = 60.0;
+  double max_ramp_c_per_min = 2.0;
+};
+
+// Parses and validates. On failure the error lists every problem, one per
+// line, as "file:line: key: message".
+Result<Plan> load_schedule(const std::string& path, const StationLimits& limits);
+Result<Plan> parse_schedule(std::string_view toml_text, const std::string& source_name,
+                            const StationLimits& limits);
+
+}  // namespace gyrotherm::schedules
