@@ -1,0 +1,86 @@
+// GyroReader: serial line -> frame parser -> timestamped samples, on its own
+// thread.
+//
+// Timestamps come from the gyro's own sample clock: t = anchor + n / rate_hz,
+// where n counts frames since the anchor including frames missed according to
+// the sequence counter. The anchor is the station clock at the first frame
+// and is re-taken whenever the estimate drifts from the station clock by more
+// than max(2 s, 0.05 wall s x time_scale) (stream stalled, port reopened).
+// Frames whose configured axis is flagged invalid in the status byte are
+// counted and not emitted. The port is reopened with backoff (100 ms doubling
+// to 5 s wall) after a hang-up or when it cannot be opened; nothing of this
+// stops the thread.
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <span>
+#include <string>
+#include <thread>
+
+#include "gyrotherm/core/clock.h"
+#include "gyrotherm/core/samples.h"
+#include "gyrotherm/drivers/frame_parser.h"
+#include "gyrotherm/drivers/serial_port.h"
+
+namespace gyrotherm::drivers {
+
+enum class AngleUnit { kRad, kDeg };
+enum class OutputKind { kRate, kDeltaAngle };  // rate: unit/s; delta: unit per sample
+
+struct GyroFormat {
+  AngleUnit unit = AngleUnit::kRad;
+  OutputKind kind = OutputKind::kRate;
+  int axis = 2;           // 0 = X, 1 = Y, 2 = Z
+  double rate_hz = 10.0;  // the device's output rate (station time)
+};
+
+// Converts one axis value as sent into °/h.
+double to_rate_dph(float value, const GyroFormat& format);
+
+struct GyroReaderHealth {
+  bool connected = false;
+  uint64_t samples = 0;          // samples emitted
+  uint64_t invalid_samples = 0;  // frames whose axis-valid bit was clear
+  ParserCounters parser;         // frames, CRC failures, skipped bytes, gaps
+  uint64_t reopens = 0;          // times the port was (re)opened after the first
+  uint64_t read_errors = 0;
+  double last_sample_station_s = -1;  // station time of the last sample, -1 if none
+  std::string last_error;
+};
+
+class GyroReader {
+ public:
+  using Sink = std::function<void(std::span<const GyroSample>)>;
+
+  // `sink` is called on the reader thread with each batch of samples (t_s in
+  // station seconds); it must not block for long.
+  GyroReader(SerialOptions serial, GyroFormat format, std::unique_ptr<FrameParser> parser,
+             const Clock& clock, Sink sink);
+  ~GyroReader();  // stops the thread
+
+  void start();
+  void stop();  // idempotent; joins the thread
+  GyroReaderHealth health() const;
+
+ private:
+  void run();
+  // Waits `wall` or until stop(); returns false when stopping.
+  bool wait_unless_stopped(std::chrono::milliseconds wall);
+
+  SerialOptions serial_;
+  GyroFormat format_;
+  std::unique_ptr<FrameParser> parser_;
+  const Clock& clock_;
+  Sink sink_;
+  std::atomic<bool> stop_{false};
+  std::thread thread_;
+  mutable std::mutex mu_;
+  std::condition_variable stop_cv_;  // wakes the backoff wait on stop()
+  GyroReaderHealth health_;
+};
+
+}  // namespace gyrotherm::drivers

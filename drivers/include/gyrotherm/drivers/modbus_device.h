@@ -1,0 +1,86 @@
+// A Modbus device (chamber controller, probe module) reached through libmodbus.
+//
+// Reads and writes physical values through RegisterSpecs. Connection loss is
+// transient: the next call reconnects, at most once per backoff interval
+// (doubling from 100 ms to 5 s of wall time), so a dead device costs the
+// control loop a timeout, not a hang. Every request and error is counted for
+// the health report. Thread-safe: calls are serialised by an internal mutex.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <string>
+
+#include "gyrotherm/core/result.h"
+#include "gyrotherm/drivers/registers.h"
+
+typedef struct _modbus modbus_t;  // libmodbus handle
+
+namespace gyrotherm::drivers {
+
+struct ModbusEndpoint {
+  std::string transport = "tcp";   // "tcp" or "rtu"
+  std::string host = "127.0.0.1";  // tcp
+  int port = 502;                  // tcp
+  std::string device;              // rtu: serial device path
+  int baud = 19200;                // rtu
+  char parity = 'N';               // rtu: 'N', 'E', 'O'
+  int data_bits = 8;               // rtu
+  int stop_bits = 1;               // rtu
+  int unit_id = 1;
+  double response_timeout_s = 0.5;  // wall seconds per request
+
+  std::string describe() const;  // "tcp 127.0.0.1:502 unit 1"
+};
+
+struct DeviceHealth {
+  bool connected = false;
+  std::string last_success_utc;  // wall time of the last successful request, "" if none
+  uint64_t requests = 0;
+  uint64_t errors = 0;
+  uint64_t reconnects = 0;
+  std::string last_error;
+  double last_latency_ms = 0;
+};
+
+class ModbusDevice {
+ public:
+  ModbusDevice(std::string name, ModbusEndpoint endpoint);
+  ~ModbusDevice();
+  ModbusDevice(const ModbusDevice&) = delete;
+  ModbusDevice& operator=(const ModbusDevice&) = delete;
+
+  // Connects now (reconnecting if connected). Transient error when the
+  // device is unreachable, permanent on a bad endpoint (unknown transport...).
+  Status connect();
+  // Reads one value. Errors name the device, the register and the cause.
+  Result<double> read(const RegisterSpec& spec);
+  // Writes one value (holding registers only; an input register is a
+  // permanent error).
+  Status write(const RegisterSpec& spec, double value);
+
+  DeviceHealth health() const;
+  const std::string& name() const { return name_; }
+  const ModbusEndpoint& endpoint() const { return endpoint_; }
+
+ private:
+  // `op` ("read holding register 2782") goes into the error message.
+  Status connect_locked(const std::string& op);
+  Status ensure_connected_locked(const std::string& op);
+  void disconnect_locked();
+  void record_error_locked(const std::string& what);
+
+  std::string name_;
+  ModbusEndpoint endpoint_;
+  mutable std::mutex mu_;
+  modbus_t* ctx_ = nullptr;  // owned; freed in disconnect_locked()
+  DeviceHealth health_;
+  std::chrono::steady_clock::time_point next_attempt_{};
+  std::chrono::milliseconds backoff_{100};
+  bool ever_connected_ = false;  // for counting reconnects
+  std::string connect_error_;    // cause of the last failed connect
+};
+
+}  // namespace gyrotherm::drivers

@@ -1,0 +1,307 @@
+// SerialPort and GyroReader through real pseudo-terminals.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <functional>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "gyrotherm/core/clock.h"
+#include "gyrotherm/drivers/gyro_reader.h"
+#include "gyrotherm/drivers/kvh1750.h"
+#include "gyrotherm/drivers/pty.h"
+#include "gyrotherm/drivers/serial_port.h"
+
+namespace gyrotherm::drivers {
+namespace {
+
+using namespace std::chrono_literals;
+
+// Polls `cond` until it holds or 5 s (wall) pass.
+bool wait_for(const std::function<bool()>& cond, std::chrono::milliseconds limit = 5000ms) {
+  const auto deadline = std::chrono::steady_clock::now() + limit;
+  while (std::chrono::steady_clock::now() < deadline) {
+    if (cond()) return true;
+    std::this_thread::sleep_for(2ms);
+  }
+  return cond();
+}
+
+Pty open_pty() {
+  auto pty = Pty::open(/*nonblocking_master=*/true);
+  if (!pty.ok()) {
+    ADD_FAILURE() << pty.error().message;
+    std::abort();
+  }
+  return std::move(pty).value();
+}
+
+GyroFrame frame(uint8_t seq, float z, uint8_t status = 0x77) {
+  GyroFrame f;
+  f.gyro = {0.5f, -0.5f, z};
+  f.accel = {0.0f, 0.0f, -1.0f};
+  f.status = status;
+  f.seq = seq;
+  f.temp_c = 25;
+  return f;
+}
+
+void send(Pty& pty, const GyroFrame& f) {
+  const auto bytes = encode_kvh1750(f);
+  const Status s = pty.write_master(bytes);
+  ASSERT_TRUE(s.ok()) << s.error().message;
+}
+
+// Collects what the reader's sink receives.
+class Collector {
+ public:
+  GyroReader::Sink sink() {
+    return [this](std::span<const GyroSample> batch) {
+      std::lock_guard lock(mu_);
+      samples_.insert(samples_.end(), batch.begin(), batch.end());
+    };
+  }
+  std::size_t size() const {
+    std::lock_guard lock(mu_);
+    return samples_.size();
+  }
+  std::vector<GyroSample> samples() const {
+    std::lock_guard lock(mu_);
+    return samples_;
+  }
+
+ private:
+  mutable std::mutex mu_;
+  std::vector<GyroSample> samples_;
+};
+
+class TempDir {
+ public:
+  TempDir() {
+    std::string tmpl = (std::filesystem::temp_directory_path() / "gyrotherm-XXXXXX").string();
+    path_ = ::mkdtemp(tmpl.data()) ? tmpl : "";
+  }
+  ~TempDir() {
+    if (!path_.empty()) std::filesystem::remove_all(path_);
+  }
+  std::filesystem::path path() const { return path_; }
+
+ private:
+  std::filesystem::path path_;
+};
+
+// Atomically points `link` at `target`.
+void point_symlink(const std::filesystem::path& link, const std::string& target) {
+  const auto tmp = link.string() + ".new";
+  std::filesystem::remove(tmp);
+  std::filesystem::create_symlink(target, tmp);
+  std::filesystem::rename(tmp, link);
+}
+
+TEST(ToRateDph, Conversions) {
+  GyroFormat f;
+  f.unit = AngleUnit::kDeg;
+  f.kind = OutputKind::kRate;
+  EXPECT_DOUBLE_EQ(to_rate_dph(0.25f, f), 900.0);  // 0.25 °/s
+  f.unit = AngleUnit::kRad;
+  EXPECT_NEAR(to_rate_dph(1.0f, f), 180.0 / M_PI * 3600.0, 1e-9);
+  f.kind = OutputKind::kDeltaAngle;
+  f.unit = AngleUnit::kDeg;
+  f.rate_hz = 100;
+  EXPECT_NEAR(to_rate_dph(0.001f, f), 360.0, 1e-4);  // 1 m° per 10 ms sample = 0.1 °/s
+  f.unit = AngleUnit::kRad;
+  f.rate_hz = 1000;
+  EXPECT_NEAR(to_rate_dph(1e-6f, f), 1e-3 * 180.0 / M_PI * 3600.0, 1e-6);
+}
+
+TEST(SerialPort, ReadsAndWritesThroughAPty) {
+  Pty pty = open_pty();
+  auto port = SerialPort::open({pty.slave_path(), 921600, Parity::kNone});
+  ASSERT_TRUE(port.ok()) << port.error().message;
+
+  std::array<uint8_t, 64> buf{};
+  auto none = port->read(buf, 10ms);
+  ASSERT_TRUE(none.ok());
+  EXPECT_EQ(*none, 0u);
+
+  // Bytes a cooked line discipline would translate or swallow.
+  const std::vector<uint8_t> raw = {0x0D, 0x0A, 0x03, 0x11, 0x13, 0x7F, 0x00, 0xFF};
+  ASSERT_TRUE(pty.write_master(raw).ok());
+  std::vector<uint8_t> got;
+  ASSERT_TRUE(wait_for([&] {
+    auto n = port->read(buf, 20ms);
+    if (n.ok()) got.insert(got.end(), buf.begin(), buf.begin() + *n);
+    return got.size() >= raw.size();
+  }));
+  EXPECT_EQ(got, raw);
+
+  ASSERT_TRUE(port->write(raw).ok());
+  std::vector<uint8_t> back;
+  ASSERT_TRUE(wait_for([&] {
+    const ssize_t n = ::read(pty.master_fd(), buf.data(), buf.size());
+    if (n > 0) back.insert(back.end(), buf.begin(), buf.begin() + n);
+    return back.size() >= raw.size();
+  }));
+  EXPECT_EQ(back, raw);
+}
+
+TEST(SerialPort, OpenErrors) {
+  auto missing = SerialPort::open({"/dev/gyrotherm-no-such-tty", 921600, Parity::kNone});
+  ASSERT_FALSE(missing.ok());
+  EXPECT_TRUE(missing.error().transient);
+  EXPECT_NE(missing.error().message.find("/dev/gyrotherm-no-such-tty"), std::string::npos);
+
+  Pty pty = open_pty();
+  auto bad_baud = SerialPort::open({pty.slave_path(), 12345, Parity::kNone});
+  ASSERT_FALSE(bad_baud.ok());
+  EXPECT_FALSE(bad_baud.error().transient);
+  EXPECT_NE(bad_baud.error().message.find("12345"), std::string::npos);
+
+  EXPECT_TRUE(SerialPort::open({pty.slave_path(), 19200, Parity::kEven}).ok());
+  EXPECT_EQ(*parse_parity("odd"), Parity::kOdd);
+  EXPECT_FALSE(parse_parity("mark").ok());
+}
+
+TEST(SerialPort, HangUpIsATransientError) {
+  Pty pty = open_pty();
+  auto port = SerialPort::open({pty.slave_path(), 921600, Parity::kNone});
+  ASSERT_TRUE(port.ok());
+  pty.close_master();
+  std::array<uint8_t, 64> buf{};
+  Result<std::size_t> r = std::size_t{0};
+  ASSERT_TRUE(wait_for([&] {
+    r = port->read(buf, 20ms);
+    return !r.ok();
+  }));
+  EXPECT_TRUE(r.error().transient);
+  EXPECT_NE(r.error().message.find("hang-up"), std::string::npos) << r.error().message;
+}
+
+GyroFormat deg_rate_10hz() {
+  GyroFormat f;
+  f.unit = AngleUnit::kDeg;
+  f.kind = OutputKind::kRate;
+  f.axis = 2;
+  f.rate_hz = 10.0;
+  return f;
+}
+
+TEST(GyroReader, TimestampsFromTheSampleCounter) {
+  Pty pty = open_pty();
+  ManualClock clock(100.0);
+  Collector got;
+  auto parser = make_frame_parser("kvh1750");
+  ASSERT_TRUE(parser.ok());
+  GyroReader reader({pty.slave_path(), 921600, Parity::kNone}, deg_rate_10hz(),
+                    std::move(parser).value(), clock, got.sink());
+  reader.start();
+  ASSERT_TRUE(wait_for([&] { return reader.health().connected; }));
+
+  // 0.01 °/s = 36 °/h. Sequence 0..9, then 11 (10 lost), then an invalid Z.
+  for (uint8_t s = 0; s < 10; ++s) send(pty, frame(s, 0.01f));
+  send(pty, frame(11, 0.02f));
+  send(pty, frame(12, 0.03f, /*status=*/0x73));  // Z gyro invalid
+  send(pty, frame(13, 0.04f, /*status=*/0x04));  // only Z valid
+  ASSERT_TRUE(wait_for([&] { return got.size() >= 12 && reader.health().invalid_samples >= 1; }));
+
+  const auto s = got.samples();
+  ASSERT_EQ(s.size(), 12u);
+  for (int i = 0; i < 10; ++i) {
+    EXPECT_NEAR(s[i].t_s, 100.0 + 0.1 * i, 1e-9) << i;
+    EXPECT_NEAR(s[i].rate_dph, 36.0, 1e-3);
+    EXPECT_EQ(s[i].seq, i);
+    EXPECT_EQ(s[i].temp_c, 25);
+  }
+  EXPECT_NEAR(s[10].t_s, 101.1, 1e-9);  // the lost frame keeps its slot
+  EXPECT_NEAR(s[10].rate_dph, 72.0, 1e-3);
+  EXPECT_NEAR(s[11].t_s, 101.3, 1e-9);
+  EXPECT_NEAR(s[11].rate_dph, 144.0, 1e-3);
+  EXPECT_EQ(s[11].status, 0x04);
+
+  // Stream stalled for a long time: the next frame re-anchors on the clock.
+  clock.set(500.0);
+  send(pty, frame(14, 0.01f));
+  ASSERT_TRUE(wait_for([&] { return got.size() >= 13; }));
+  EXPECT_NEAR(got.samples()[12].t_s, 500.0, 1e-9);
+
+  const GyroReaderHealth h = reader.health();
+  EXPECT_TRUE(h.connected);
+  EXPECT_EQ(h.samples, 13u);
+  EXPECT_EQ(h.invalid_samples, 1u);
+  EXPECT_EQ(h.parser.frames_ok, 14u);
+  EXPECT_EQ(h.parser.sequence_gaps, 1u);
+  EXPECT_EQ(h.parser.frames_missed, 1u);
+  EXPECT_EQ(h.parser.crc_failures, 0u);
+  EXPECT_DOUBLE_EQ(h.last_sample_station_s, 500.0);
+  EXPECT_EQ(h.reopens, 0u);
+  reader.stop();
+  reader.stop();  // idempotent
+}
+
+TEST(GyroReader, SurvivesHangUpAndReopensThroughASymlink) {
+  TempDir dir;
+  ASSERT_FALSE(dir.path().empty());
+  const auto link = dir.path() / "gyro";
+  Pty first = open_pty();
+  point_symlink(link, first.slave_path());
+
+  ManualClock clock(10.0);
+  Collector got;
+  GyroReader reader({link.string(), 921600, Parity::kNone}, deg_rate_10hz(),
+                    std::make_unique<Kvh1750Parser>(), clock, got.sink());
+  reader.start();
+  ASSERT_TRUE(wait_for([&] { return reader.health().connected; }));
+  send(first, frame(0, 0.01f));
+  send(first, frame(1, 0.01f));
+  ASSERT_TRUE(wait_for([&] { return got.size() >= 2; }));
+
+  first.close_master();
+  ASSERT_TRUE(wait_for([&] {
+    const auto h = reader.health();
+    return !h.connected && h.read_errors >= 1;
+  }));
+  EXPECT_FALSE(reader.health().last_error.empty());
+
+  Pty second = open_pty();
+  point_symlink(link, second.slave_path());
+  ASSERT_TRUE(wait_for([&] {
+    const auto h = reader.health();
+    return h.connected && h.reopens >= 1;
+  }));
+
+  // A new stream: its counter starts anywhere and is not a gap after reopen.
+  clock.set(20.0);
+  send(second, frame(90, 0.02f));
+  send(second, frame(91, 0.02f));
+  ASSERT_TRUE(wait_for([&] { return got.size() >= 4; }));
+  const auto s = got.samples();
+  EXPECT_NEAR(s[2].t_s, 20.0, 1e-9);
+  EXPECT_NEAR(s[3].t_s, 20.1, 1e-9);
+  EXPECT_NEAR(s[3].rate_dph, 72.0, 1e-3);
+  const auto h = reader.health();
+  EXPECT_EQ(h.parser.sequence_gaps, 0u);
+  EXPECT_EQ(h.samples, 4u);
+}
+
+TEST(GyroReader, MissingDeviceKeepsRetryingAndStopsPromptly) {
+  ManualClock clock;
+  Collector got;
+  GyroReader reader({"/dev/gyrotherm-no-such-tty", 921600, Parity::kNone}, deg_rate_10hz(),
+                    std::make_unique<Kvh1750Parser>(), clock, got.sink());
+  reader.start();
+  ASSERT_TRUE(wait_for([&] { return !reader.health().last_error.empty(); }));
+  const auto h = reader.health();
+  EXPECT_FALSE(h.connected);
+  EXPECT_NE(h.last_error.find("/dev/gyrotherm-no-such-tty"), std::string::npos);
+  const auto t0 = std::chrono::steady_clock::now();
+  reader.stop();
+  EXPECT_LT(std::chrono::steady_clock::now() - t0, 1s);
+}
+
+}  // namespace
+}  // namespace gyrotherm::drivers
