@@ -1,0 +1,148 @@
+// The station database (SQLite, WAL mode): schema, migrations, records.
+//
+// One database per station. The schema is a user interface (people query it
+// with sqlite3); it is documented in docs/storage.md and versioned in the
+// `meta` table (key 'schema_version'); open() applies every migration the
+// file lacks, in one transaction each.
+//
+// A Database object owns one connection and is not thread-safe: each thread
+// (control loop, sample writer, HTTP readers, CLI) opens its own. WAL lets
+// readers work while a run is being written; busy_timeout is 5 s.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <utility>
+#include <vector>
+
+#include "gyrotherm/core/result.h"
+#include "gyrotherm/core/samples.h"
+
+struct sqlite3;
+
+namespace gyrotherm::storage {
+
+inline constexpr int kSchemaVersion = 1;
+
+struct RunRecord {
+  int64_t id = 0;
+  std::string schedule_name;
+  std::string state;        // queued, ramping, settling, acquiring, ..., completed, failed
+  std::string started_utc;  // ISO-8601 UTC wall time; "" = now (create_run)
+  std::string ended_utc;    // "" while running
+  double time_scale = 1.0;
+  double latitude_deg = 0;
+  std::string orientation;  // up, down, horizontal
+  std::string config_json;  // the station config the run used
+};
+
+struct SegmentRecord {
+  int64_t id = 0;
+  int64_t run_id = 0;
+  int index = 0;                   // position in the expanded schedule, from 0
+  std::string kind;                // soak, ramp, hold
+  std::string label;               // e.g. "soak 20 °C (step 1)"
+  double setpoint_c = 0;           // soak/hold set point, ramp target
+  double ramp_rate_c_per_min = 0;  // ramps only
+  // Station seconds since run start; nullopt until reached.
+  double t_start_s = 0;
+  std::optional<double> t_settled_s;
+  std::optional<double> t_acquire_start_s;
+  std::optional<double> t_acquire_end_s;
+  std::optional<double> t_end_s;
+  double paused_s = 0;  // station seconds excluded from acquisition
+  std::string state;    // running, completed, failed, aborted
+};
+
+struct EventRecord {
+  int64_t id = 0;
+  std::optional<int64_t> run_id;
+  double t_s = 0;        // station seconds since run start (0 without run)
+  std::string wall_utc;  // ISO-8601 UTC; "" = now (add_event)
+  std::string kind;      // state, interlock, device, info, error
+  std::string from_state;
+  std::string to_state;
+  std::string message;  // what a technician reads
+};
+
+// One Table I row (DESIGN.md §7) with the inputs it was computed with.
+struct SegmentStatsRecord {
+  int64_t segment_id = 0;
+  int64_t run_id = 0;
+  int segment_index = 0;
+  double setpoint_c = 0;
+  int64_t n = 0;
+  double duration_s = 0;
+  double temp_mean_c = 0;
+  double bias_mean_dph = 0;
+  double bias_std_dph = 0;
+  double bias_std_ma_dph = 0;  // after the ma_window-point moving average
+  double bias_mean_earth_removed_dph = 0;
+  double bin_s = 1.0;
+  int ma_window = 101;
+  double earth_rate_dph = 0;        // the component that was removed
+  double t_from_s = 0, t_to_s = 0;  // window, station s since run start
+  std::string computed_utc;         // ISO-8601 UTC; "" = now
+};
+
+class Database {
+ public:
+  // Opens or creates `path`, sets WAL and busy_timeout, migrates to
+  // kSchemaVersion. Errors name the file. A file with a newer schema than this
+  // build knows is a permanent error (never downgraded).
+  static Result<Database> open(const std::string& path);
+  // Opens an existing database read-only (for the CLI and HTTP readers); no
+  // migration. Error if it does not exist or its schema is unknown.
+  static Result<Database> open_read_only(const std::string& path);
+
+  Database(Database&& other) noexcept;
+  Database& operator=(Database&& other) noexcept;
+  Database(const Database&) = delete;
+  Database& operator=(const Database&) = delete;
+  ~Database();
+
+  Result<int> schema_version();
+
+  // Runs.
+  Result<int64_t> create_run(const RunRecord& run);  // id and ended_utc ignored
+  // ended: stamps ended_utc with the current wall time; otherwise clears it
+  // (a resumed interrupted run is running again).
+  Status set_run_state(int64_t run_id, std::string_view state, bool ended);
+  Result<std::vector<RunRecord>> runs();
+  Result<RunRecord> run(int64_t run_id);
+
+  // Segments: one per step execution.
+  Result<int64_t> create_segment(const SegmentRecord& segment);  // id ignored
+  Status update_segment(const SegmentRecord& segment);           // by id
+  Result<std::vector<SegmentRecord>> segments(int64_t run_id);
+
+  // Events.
+  Result<int64_t> add_event(const EventRecord& event);
+  Result<std::vector<EventRecord>> events(int64_t run_id);
+
+  // Table I rows.
+  Status put_segment_stats(const SegmentStatsRecord& stats);  // insert or replace by segment
+  // All rows (run_id nullopt) or one run's, ordered by run, segment index.
+  Result<std::vector<SegmentStatsRecord>> segment_stats(std::optional<int64_t> run_id);
+
+  // Samples in [t_from_s, t_to_s) of a run, ordered by time (t_s relative to
+  // run start). For analysis windows; not for whole 10-M-sample runs.
+  Result<std::vector<GyroSample>> gyro_samples(int64_t run_id, double t_from_s, double t_to_s);
+  Result<std::vector<TemperatureSample>> temperature_samples(int64_t run_id, double t_from_s,
+                                                             double t_to_s);
+  Result<int64_t> count_gyro_samples(int64_t run_id);
+
+  // Direct SQL for statements the API above does not cover (tests, tools).
+  Status exec(std::string_view sql);
+  sqlite3* handle() { return db_; }
+  const std::string& path() const { return path_; }
+
+ private:
+  Database(sqlite3* db, std::string path) : db_(db), path_(std::move(path)) {}
+  sqlite3* db_ = nullptr;  // owned
+  std::string path_;
+};
+
+}  // namespace gyrotherm::storage

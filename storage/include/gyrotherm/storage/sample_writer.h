@@ -1,0 +1,80 @@
+// SampleWriter: batched, asynchronous insertion of gyro and temperature
+// samples.
+//
+// Acquisition threads push samples into an in-memory batch (a mutex and a
+// vector append; never a disk wait); a writer thread with its own connection
+// commits the batch in one transaction at least every commit_interval (wall
+// time), so a crash loses at most the last uncommitted interval. If the disk
+// stalls, the batch grows up to max_pending samples, after which the oldest
+// pending samples are dropped and counted (acquisition is never blocked);
+// gyro samples go first, temperatures (one a second) only when no gyro
+// sample is left to drop. The batch being committed counts as pending.
+// A failing commit is retried on the next interval; the error is kept for
+// the health report.
+#pragma once
+
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <span>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "gyrotherm/core/result.h"
+#include "gyrotherm/core/samples.h"
+
+namespace gyrotherm::storage {
+
+struct SampleWriterOptions {
+  std::chrono::milliseconds commit_interval{500};  // wall time between commits
+  std::size_t max_pending = 4'000'000;             // samples held before dropping
+};
+
+struct SampleWriterStats {
+  uint64_t gyro_rows = 0;         // committed
+  uint64_t temperature_rows = 0;  // committed
+  uint64_t commits = 0;
+  uint64_t commit_failures = 0;
+  uint64_t dropped = 0;       // samples dropped because the queue was full
+                              // (or still uncommitted when stop() failed)
+  uint64_t rejected = 0;      // refused at push: t_s not finite, or pushed after stop()
+  uint64_t duplicates = 0;    // ignored at commit: (run_id, t_s) already stored
+  std::size_t pending = 0;    // samples waiting for the next commit
+  double last_commit_ms = 0;  // duration of the last commit, wall ms
+  double max_commit_ms = 0;
+  std::string last_error;  // of the most recent failed commit; kept after recovery
+};
+
+class SampleWriter {
+ public:
+  // Opens its own connection to `db_path` (created/migrated as by
+  // Database::open) and starts the writer thread.
+  static Result<std::unique_ptr<SampleWriter>> start(const std::string& db_path,
+                                                     SampleWriterOptions options = {});
+  ~SampleWriter();  // stop()
+
+  // Thread-safe; t_s must already be relative to the run's start. A sample
+  // with a non-finite t_s is refused (stats().rejected); one whose
+  // (run_id, t_s) is already stored is ignored at commit (stats().duplicates).
+  void push_gyro(int64_t run_id, std::span<const GyroSample> samples);
+  void push_temperature(int64_t run_id, const TemperatureSample& sample);
+
+  // Blocks until everything pushed before the call is committed (or the
+  // commit failed). Returns the commit's status; on failure the rows stay
+  // pending for the next attempt. After stop(): Ok if nothing is pending.
+  Status flush();
+  // Commits what is pending and stops the thread. Idempotent.
+  void stop();
+
+  SampleWriterStats stats() const;
+
+ private:
+  SampleWriter() = default;
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace gyrotherm::storage

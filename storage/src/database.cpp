@@ -1,0 +1,562 @@
+#include "gyrotherm/storage/database.h"
+
+#include <fmt/format.h>
+#include <sqlite3.h>
+
+#include <charconv>
+#include <utility>
+
+#include "gyrotherm/core/clock.h"
+#include "migrations.h"
+#include "sqlite_util.h"
+
+namespace gyrotherm::storage {
+
+using internal::sqlite_error;
+using internal::Stmt;
+
+namespace {
+
+constexpr int kBusyTimeoutMs = 5000;
+
+// Rolls back unless commit() succeeded.
+class Transaction {
+ public:
+  Transaction(sqlite3* db, const std::string& path) : db_(db), path_(path) {}
+  ~Transaction() {
+    if (open_) (void)internal::exec(db_, path_, "ROLLBACK");
+  }
+  Status begin_immediate() {
+    Status s = internal::exec(db_, path_, "BEGIN IMMEDIATE");
+    open_ = s.ok();
+    return s;
+  }
+  Status commit() {
+    Status s = internal::exec(db_, path_, "COMMIT");
+    if (s.ok()) open_ = false;
+    return s;
+  }
+
+ private:
+  sqlite3* db_;
+  const std::string& path_;
+  bool open_ = false;
+};
+
+Result<bool> table_exists(sqlite3* db, const std::string& path, const char* name) {
+  auto st = Stmt::prepare(db, path, "SELECT 1 FROM sqlite_master WHERE type='table' AND name=?");
+  if (!st) return st.error();
+  st->bind(1, std::string_view(name));
+  const int rc = st->step();
+  if (rc == SQLITE_ROW) return true;
+  if (rc == SQLITE_DONE) return false;
+  return sqlite_error(db, path, "reading the schema");
+}
+
+// 0 for an empty file (no tables at all). Refuses an SQLite file that has
+// tables but no meta table: it belongs to something else.
+Result<int> read_schema_version(sqlite3* db, const std::string& path) {
+  auto has_meta = table_exists(db, path, "meta");
+  if (!has_meta) return has_meta.error();
+  if (!*has_meta) {
+    auto st = Stmt::prepare(db, path, "SELECT count(*) FROM sqlite_master");
+    if (!st) return st.error();
+    if (st->step() != SQLITE_ROW) return sqlite_error(db, path, "reading the schema");
+    if (st->column_int64(0) != 0) {
+      return Error::Permanent(fmt::format(
+          "storage: {}: not a gyrotherm database (it has tables but no meta table)", path));
+    }
+    return 0;
+  }
+  auto st = Stmt::prepare(db, path, "SELECT value FROM meta WHERE key='schema_version'");
+  if (!st) return st.error();
+  const int rc = st->step();
+  if (rc == SQLITE_DONE) {
+    return Error::Permanent(
+        fmt::format("storage: {}: meta table has no 'schema_version' row", path));
+  }
+  if (rc != SQLITE_ROW) return sqlite_error(db, path, "reading the schema version");
+  const std::string text = st->column_text(0);
+  int version = 0;
+  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), version);
+  if (ec != std::errc() || end != text.data() + text.size() || version < 0) {
+    return Error::Permanent(fmt::format(
+        "storage: {}: meta 'schema_version' is not a version number: '{}'", path, text));
+  }
+  return version;
+}
+
+Error newer_schema_error(const std::string& path, int version) {
+  return Error::Permanent(
+      fmt::format("storage: {}: database has schema version {}, newer than this build's {}; "
+                  "use a newer gyrotherm (databases are never downgraded)",
+                  path, version, kSchemaVersion));
+}
+
+Status migrate(sqlite3* db, const std::string& path) {
+  auto current = read_schema_version(db, path);
+  if (!current) return current.error();
+  if (*current > kSchemaVersion) return newer_schema_error(path, *current);
+  if (*current == kSchemaVersion) return Status::Ok();
+
+  for (const internal::Migration& m : internal::migrations()) {
+    Transaction txn(db, path);
+    if (Status s = txn.begin_immediate(); !s) return s;
+    // Read again under the write lock: another connection may have migrated.
+    auto version = read_schema_version(db, path);
+    if (!version) return version.error();
+    if (*version > kSchemaVersion) return newer_schema_error(path, *version);
+    if (*version >= m.version) continue;  // rolls back the empty transaction
+    if (*version != m.version - 1) {
+      return Error::Permanent(
+          fmt::format("storage: {}: schema version {} cannot be migrated by step {} ({})", path,
+                      *version, m.version, m.name));
+    }
+    const std::string what = fmt::format("migrating to schema version {} ({})", m.version, m.name);
+    if (*version == 0) {
+      if (Status s = internal::exec(db, path,
+                                    "CREATE TABLE meta(key TEXT PRIMARY KEY, value TEXT NOT NULL)");
+          !s) {
+        return Error{fmt::format("{} [{}]", s.error().message, what), s.error().transient};
+      }
+    }
+    if (Status s = internal::exec(db, path, m.sql); !s) {
+      return Error{fmt::format("{} [{}]", s.error().message, what), s.error().transient};
+    }
+    auto st = Stmt::prepare(db, path,
+                            "INSERT INTO meta(key, value) VALUES('schema_version', ?) "
+                            "ON CONFLICT(key) DO UPDATE SET value = excluded.value");
+    if (!st) return st.error();
+    st->bind(1, std::string_view(std::to_string(m.version)));
+    if (st->step() != SQLITE_DONE) return sqlite_error(db, path, what);
+    auto created =
+        Stmt::prepare(db, path, "INSERT OR IGNORE INTO meta(key, value) VALUES('created_utc', ?)");
+    if (!created) return created.error();
+    created->bind(1, std::string_view(wall_time_utc_iso()));
+    if (created->step() != SQLITE_DONE) return sqlite_error(db, path, what);
+    if (Status s = txn.commit(); !s) return s;
+  }
+  return Status::Ok();
+}
+
+Status expect_done(Stmt& st, sqlite3* db, const std::string& path, std::string_view what) {
+  if (st.step() != SQLITE_DONE) return sqlite_error(db, path, what);
+  return Status::Ok();
+}
+
+std::string now_if_empty(const std::string& utc) { return utc.empty() ? wall_time_utc_iso() : utc; }
+
+constexpr const char* kRunColumns =
+    "id, schedule_name, state, started_utc, ended_utc, time_scale, latitude_deg, orientation, "
+    "config_json";
+
+RunRecord read_run(const Stmt& st) {
+  RunRecord r;
+  r.id = st.column_int64(0);
+  r.schedule_name = st.column_text(1);
+  r.state = st.column_text(2);
+  r.started_utc = st.column_text(3);
+  r.ended_utc = st.column_text(4);
+  r.time_scale = st.column_double(5);
+  r.latitude_deg = st.column_double(6);
+  r.orientation = st.column_text(7);
+  r.config_json = st.column_text(8);
+  return r;
+}
+
+constexpr const char* kSegmentColumns =
+    "id, run_id, idx, kind, label, setpoint_c, ramp_rate_c_per_min, t_start_s, t_settled_s, "
+    "t_acquire_start_s, t_acquire_end_s, t_end_s, paused_s, state";
+
+SegmentRecord read_segment(const Stmt& st) {
+  SegmentRecord s;
+  s.id = st.column_int64(0);
+  s.run_id = st.column_int64(1);
+  s.index = static_cast<int>(st.column_int64(2));
+  s.kind = st.column_text(3);
+  s.label = st.column_text(4);
+  s.setpoint_c = st.column_double(5);
+  s.ramp_rate_c_per_min = st.column_double(6);
+  s.t_start_s = st.column_double(7);
+  s.t_settled_s = st.column_optional_double(8);
+  s.t_acquire_start_s = st.column_optional_double(9);
+  s.t_acquire_end_s = st.column_optional_double(10);
+  s.t_end_s = st.column_optional_double(11);
+  s.paused_s = st.column_double(12);
+  s.state = st.column_text(13);
+  return s;
+}
+
+// Binds the segment's fields from parameter `first` on, in kSegmentColumns
+// order without id.
+void bind_segment(Stmt& st, const SegmentRecord& s, int first) {
+  int i = first;
+  st.bind(i++, s.run_id);
+  st.bind(i++, s.index);
+  st.bind(i++, std::string_view(s.kind));
+  st.bind(i++, std::string_view(s.label));
+  st.bind(i++, s.setpoint_c);
+  st.bind(i++, s.ramp_rate_c_per_min);
+  st.bind(i++, s.t_start_s);
+  st.bind(i++, s.t_settled_s);
+  st.bind(i++, s.t_acquire_start_s);
+  st.bind(i++, s.t_acquire_end_s);
+  st.bind(i++, s.t_end_s);
+  st.bind(i++, s.paused_s);
+  st.bind(i++, std::string_view(s.state));
+}
+
+constexpr const char* kStatsColumns =
+    "segment_id, run_id, segment_index, setpoint_c, n, duration_s, temp_mean_c, bias_mean_dph, "
+    "bias_std_dph, bias_std_ma_dph, bias_mean_earth_removed_dph, bin_s, ma_window, "
+    "earth_rate_dph, t_from_s, t_to_s, computed_utc";
+
+}  // namespace
+
+Result<Database> Database::open(const std::string& path) {
+  sqlite3* raw = nullptr;
+  const int rc =
+      sqlite3_open_v2(path.c_str(), &raw, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE, nullptr);
+  Database db(raw, path);  // owns the handle even when opening failed
+  if (rc != SQLITE_OK) return sqlite_error(raw, path, "cannot open");
+  sqlite3_extended_result_codes(raw, 1);
+  sqlite3_busy_timeout(raw, kBusyTimeoutMs);
+
+  {
+    auto st = Stmt::prepare(raw, path, "PRAGMA journal_mode=WAL");
+    if (!st) return st.error();
+    if (st->step() != SQLITE_ROW) return sqlite_error(raw, path, "enabling WAL");
+    const std::string mode = st->column_text(0);
+    if (mode != "wal" && mode != "memory") {
+      return Error::Permanent(fmt::format(
+          "storage: {}: cannot enable WAL journal mode (got '{}'); is the file on a network "
+          "filesystem?",
+          path, mode));
+    }
+  }
+  if (Status s = internal::exec(raw, path, "PRAGMA synchronous=NORMAL; PRAGMA foreign_keys=ON");
+      !s) {
+    return s.error();
+  }
+  if (Status s = migrate(raw, path); !s) return s.error();
+  return db;
+}
+
+Result<Database> Database::open_read_only(const std::string& path) {
+  sqlite3* raw = nullptr;
+  const int rc = sqlite3_open_v2(path.c_str(), &raw, SQLITE_OPEN_READONLY, nullptr);
+  Database db(raw, path);
+  if (rc != SQLITE_OK) return sqlite_error(raw, path, "cannot open read-only");
+  sqlite3_extended_result_codes(raw, 1);
+  sqlite3_busy_timeout(raw, kBusyTimeoutMs);
+  auto version = read_schema_version(raw, path);
+  if (!version) return version.error();
+  if (*version == 0) {
+    return Error::Permanent(fmt::format("storage: {}: not a gyrotherm database (empty)", path));
+  }
+  if (*version > kSchemaVersion) return newer_schema_error(path, *version);
+  if (*version < kSchemaVersion) {
+    return Error::Permanent(fmt::format(
+        "storage: {}: database has schema version {}, older than this build's {}; open it "
+        "once read-write (gyrothermd, or gyrotherm on the file) to migrate it",
+        path, *version, kSchemaVersion));
+  }
+  return db;
+}
+
+Database::Database(Database&& other) noexcept
+    : db_(std::exchange(other.db_, nullptr)), path_(std::move(other.path_)) {}
+
+Database& Database::operator=(Database&& other) noexcept {
+  if (this != &other) {
+    sqlite3_close_v2(db_);
+    db_ = std::exchange(other.db_, nullptr);
+    path_ = std::move(other.path_);
+  }
+  return *this;
+}
+
+Database::~Database() { sqlite3_close_v2(db_); }
+
+Result<int> Database::schema_version() { return read_schema_version(db_, path_); }
+
+Result<int64_t> Database::create_run(const RunRecord& run) {
+  auto st = Stmt::prepare(db_, path_,
+                          "INSERT INTO runs(schedule_name, state, started_utc, ended_utc, "
+                          "time_scale, latitude_deg, orientation, config_json) "
+                          "VALUES(?, ?, ?, NULL, ?, ?, ?, ?)");
+  if (!st) return st.error();
+  st->bind(1, std::string_view(run.schedule_name));
+  st->bind(2, std::string_view(run.state));
+  st->bind(3, std::string_view(now_if_empty(run.started_utc)));
+  st->bind(4, run.time_scale);
+  st->bind(5, run.latitude_deg);
+  st->bind(6, std::string_view(run.orientation));
+  st->bind(7, std::string_view(run.config_json));
+  if (Status s = expect_done(*st, db_, path_, "creating a run"); !s) return s.error();
+  return static_cast<int64_t>(sqlite3_last_insert_rowid(db_));
+}
+
+Status Database::set_run_state(int64_t run_id, std::string_view state, bool ended) {
+  auto st = Stmt::prepare(db_, path_, "UPDATE runs SET state = ?, ended_utc = ? WHERE id = ?");
+  if (!st) return st.error();
+  st->bind(1, state);
+  if (ended) {
+    st->bind(2, std::string_view(wall_time_utc_iso()));
+  } else {
+    st->bind_null(2);
+  }
+  st->bind(3, run_id);
+  const std::string what = fmt::format("setting run {} state to '{}'", run_id, state);
+  if (Status s = expect_done(*st, db_, path_, what); !s) return s;
+  if (sqlite3_changes(db_) == 0) {
+    return Error::Permanent(fmt::format("storage: {}: {}: no such run", path_, what));
+  }
+  return Status::Ok();
+}
+
+Result<std::vector<RunRecord>> Database::runs() {
+  auto st = Stmt::prepare(db_, path_, fmt::format("SELECT {} FROM runs ORDER BY id", kRunColumns));
+  if (!st) return st.error();
+  std::vector<RunRecord> out;
+  int rc;
+  while ((rc = st->step()) == SQLITE_ROW) out.push_back(read_run(*st));
+  if (rc != SQLITE_DONE) return sqlite_error(db_, path_, "reading runs");
+  return out;
+}
+
+Result<RunRecord> Database::run(int64_t run_id) {
+  auto st = Stmt::prepare(db_, path_, fmt::format("SELECT {} FROM runs WHERE id = ?", kRunColumns));
+  if (!st) return st.error();
+  st->bind(1, run_id);
+  const int rc = st->step();
+  if (rc == SQLITE_ROW) return read_run(*st);
+  if (rc == SQLITE_DONE) {
+    return Error::Permanent(fmt::format("storage: {}: no run with id {}", path_, run_id));
+  }
+  return sqlite_error(db_, path_, fmt::format("reading run {}", run_id));
+}
+
+Result<int64_t> Database::create_segment(const SegmentRecord& segment) {
+  auto st = Stmt::prepare(db_, path_,
+                          "INSERT INTO segments(run_id, idx, kind, label, setpoint_c, "
+                          "ramp_rate_c_per_min, t_start_s, t_settled_s, t_acquire_start_s, "
+                          "t_acquire_end_s, t_end_s, paused_s, state) "
+                          "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  if (!st) return st.error();
+  bind_segment(*st, segment, 1);
+  if (Status s =
+          expect_done(*st, db_, path_,
+                      fmt::format("creating segment {} of run {}", segment.index, segment.run_id));
+      !s) {
+    return s.error();
+  }
+  return static_cast<int64_t>(sqlite3_last_insert_rowid(db_));
+}
+
+Status Database::update_segment(const SegmentRecord& segment) {
+  auto st = Stmt::prepare(db_, path_,
+                          "UPDATE segments SET run_id = ?, idx = ?, kind = ?, label = ?, "
+                          "setpoint_c = ?, ramp_rate_c_per_min = ?, t_start_s = ?, "
+                          "t_settled_s = ?, t_acquire_start_s = ?, t_acquire_end_s = ?, "
+                          "t_end_s = ?, paused_s = ?, state = ? WHERE id = ?");
+  if (!st) return st.error();
+  bind_segment(*st, segment, 1);
+  st->bind(14, segment.id);
+  const std::string what = fmt::format("updating segment {}", segment.id);
+  if (Status s = expect_done(*st, db_, path_, what); !s) return s;
+  if (sqlite3_changes(db_) == 0) {
+    return Error::Permanent(fmt::format("storage: {}: {}: no such segment", path_, what));
+  }
+  return Status::Ok();
+}
+
+Result<std::vector<SegmentRecord>> Database::segments(int64_t run_id) {
+  auto st = Stmt::prepare(
+      db_, path_,
+      fmt::format("SELECT {} FROM segments WHERE run_id = ? ORDER BY idx, id", kSegmentColumns));
+  if (!st) return st.error();
+  st->bind(1, run_id);
+  std::vector<SegmentRecord> out;
+  int rc;
+  while ((rc = st->step()) == SQLITE_ROW) out.push_back(read_segment(*st));
+  if (rc != SQLITE_DONE) {
+    return sqlite_error(db_, path_, fmt::format("reading segments of run {}", run_id));
+  }
+  return out;
+}
+
+Result<int64_t> Database::add_event(const EventRecord& event) {
+  auto st = Stmt::prepare(db_, path_,
+                          "INSERT INTO events(run_id, t_s, wall_utc, kind, from_state, to_state, "
+                          "message) VALUES(?, ?, ?, ?, ?, ?, ?)");
+  if (!st) return st.error();
+  st->bind(1, event.run_id);
+  st->bind(2, event.t_s);
+  st->bind(3, std::string_view(now_if_empty(event.wall_utc)));
+  st->bind(4, std::string_view(event.kind));
+  st->bind_text_or_null(5, event.from_state);
+  st->bind_text_or_null(6, event.to_state);
+  st->bind(7, std::string_view(event.message));
+  if (Status s = expect_done(*st, db_, path_, fmt::format("adding a '{}' event", event.kind)); !s) {
+    return s.error();
+  }
+  return static_cast<int64_t>(sqlite3_last_insert_rowid(db_));
+}
+
+Result<std::vector<EventRecord>> Database::events(int64_t run_id) {
+  auto st = Stmt::prepare(db_, path_,
+                          "SELECT id, run_id, t_s, wall_utc, kind, from_state, to_state, message "
+                          "FROM events WHERE run_id = ? ORDER BY id");
+  if (!st) return st.error();
+  st->bind(1, run_id);
+  std::vector<EventRecord> out;
+  int rc;
+  while ((rc = st->step()) == SQLITE_ROW) {
+    EventRecord e;
+    e.id = st->column_int64(0);
+    e.run_id = st->column_optional_int64(1);
+    e.t_s = st->column_double(2);
+    e.wall_utc = st->column_text(3);
+    e.kind = st->column_text(4);
+    e.from_state = st->column_text(5);
+    e.to_state = st->column_text(6);
+    e.message = st->column_text(7);
+    out.push_back(std::move(e));
+  }
+  if (rc != SQLITE_DONE) {
+    return sqlite_error(db_, path_, fmt::format("reading events of run {}", run_id));
+  }
+  return out;
+}
+
+Status Database::put_segment_stats(const SegmentStatsRecord& s) {
+  auto st = Stmt::prepare(db_, path_,
+                          fmt::format("INSERT OR REPLACE INTO segment_stats({}) "
+                                      "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                                      kStatsColumns));
+  if (!st) return st.error();
+  int i = 1;
+  st->bind(i++, s.segment_id);
+  st->bind(i++, s.run_id);
+  st->bind(i++, s.segment_index);
+  st->bind(i++, s.setpoint_c);
+  st->bind(i++, s.n);
+  st->bind(i++, s.duration_s);
+  st->bind(i++, s.temp_mean_c);
+  st->bind(i++, s.bias_mean_dph);
+  st->bind(i++, s.bias_std_dph);
+  st->bind(i++, s.bias_std_ma_dph);
+  st->bind(i++, s.bias_mean_earth_removed_dph);
+  st->bind(i++, s.bin_s);
+  st->bind(i++, s.ma_window);
+  st->bind(i++, s.earth_rate_dph);
+  st->bind(i++, s.t_from_s);
+  st->bind(i++, s.t_to_s);
+  st->bind(i++, std::string_view(now_if_empty(s.computed_utc)));
+  return expect_done(*st, db_, path_,
+                     fmt::format("storing statistics of segment {}", s.segment_id));
+}
+
+Result<std::vector<SegmentStatsRecord>> Database::segment_stats(std::optional<int64_t> run_id) {
+  auto st = Stmt::prepare(db_, path_,
+                          fmt::format("SELECT {} FROM segment_stats WHERE ?1 IS NULL OR "
+                                      "run_id = ?1 ORDER BY run_id, segment_index, segment_id",
+                                      kStatsColumns));
+  if (!st) return st.error();
+  st->bind(1, run_id);
+  std::vector<SegmentStatsRecord> out;
+  int rc;
+  while ((rc = st->step()) == SQLITE_ROW) {
+    SegmentStatsRecord r;
+    int c = 0;
+    r.segment_id = st->column_int64(c++);
+    r.run_id = st->column_int64(c++);
+    r.segment_index = static_cast<int>(st->column_int64(c++));
+    r.setpoint_c = st->column_double(c++);
+    r.n = st->column_int64(c++);
+    r.duration_s = st->column_double(c++);
+    r.temp_mean_c = st->column_double(c++);
+    r.bias_mean_dph = st->column_double(c++);
+    r.bias_std_dph = st->column_double(c++);
+    r.bias_std_ma_dph = st->column_double(c++);
+    r.bias_mean_earth_removed_dph = st->column_double(c++);
+    r.bin_s = st->column_double(c++);
+    r.ma_window = static_cast<int>(st->column_int64(c++));
+    r.earth_rate_dph = st->column_double(c++);
+    r.t_from_s = st->column_double(c++);
+    r.t_to_s = st->column_double(c++);
+    r.computed_utc = st->column_text(c++);
+    out.push_back(std::move(r));
+  }
+  if (rc != SQLITE_DONE) return sqlite_error(db_, path_, "reading segment statistics");
+  return out;
+}
+
+Result<std::vector<GyroSample>> Database::gyro_samples(int64_t run_id, double t_from_s,
+                                                       double t_to_s) {
+  auto st = Stmt::prepare(db_, path_,
+                          "SELECT t_s, rate_dph, seq, status, temp_c FROM gyro_samples "
+                          "WHERE run_id = ? AND t_s >= ? AND t_s < ? ORDER BY t_s");
+  if (!st) return st.error();
+  st->bind(1, run_id);
+  st->bind(2, t_from_s);
+  st->bind(3, t_to_s);
+  std::vector<GyroSample> out;
+  int rc;
+  while ((rc = st->step()) == SQLITE_ROW) {
+    GyroSample g;
+    g.t_s = st->column_double(0);
+    g.rate_dph = st->column_double(1);
+    g.seq = static_cast<uint8_t>(st->column_int64(2));
+    g.status = static_cast<uint8_t>(st->column_int64(3));
+    g.temp_c = static_cast<int16_t>(st->column_int64(4));
+    out.push_back(g);
+  }
+  if (rc != SQLITE_DONE) {
+    return sqlite_error(db_, path_, fmt::format("reading gyro samples of run {}", run_id));
+  }
+  return out;
+}
+
+Result<std::vector<TemperatureSample>> Database::temperature_samples(int64_t run_id,
+                                                                     double t_from_s,
+                                                                     double t_to_s) {
+  auto st = Stmt::prepare(db_, path_,
+                          "SELECT t_s, setpoint_c, chamber_c, top_c, side_c FROM "
+                          "temperature_samples WHERE run_id = ? AND t_s >= ? AND t_s < ? "
+                          "ORDER BY t_s");
+  if (!st) return st.error();
+  st->bind(1, run_id);
+  st->bind(2, t_from_s);
+  st->bind(3, t_to_s);
+  std::vector<TemperatureSample> out;
+  int rc;
+  while ((rc = st->step()) == SQLITE_ROW) {
+    TemperatureSample t;
+    t.t_s = st->column_double(0);
+    t.setpoint_c = st->column_double(1);
+    t.chamber_c = st->column_double(2);
+    t.top_c = st->column_double(3);
+    t.side_c = st->column_double(4);
+    out.push_back(t);
+  }
+  if (rc != SQLITE_DONE) {
+    return sqlite_error(db_, path_, fmt::format("reading temperature samples of run {}", run_id));
+  }
+  return out;
+}
+
+Result<int64_t> Database::count_gyro_samples(int64_t run_id) {
+  auto st = Stmt::prepare(db_, path_, "SELECT count(*) FROM gyro_samples WHERE run_id = ?");
+  if (!st) return st.error();
+  st->bind(1, run_id);
+  if (st->step() != SQLITE_ROW) {
+    return sqlite_error(db_, path_, fmt::format("counting gyro samples of run {}", run_id));
+  }
+  return st->column_int64(0);
+}
+
+Status Database::exec(std::string_view sql) { return internal::exec(db_, path_, sql); }
+
+}  // namespace gyrotherm::storage

@@ -1,0 +1,128 @@
+#include "migrations.h"
+
+#include "gyrotherm/storage/database.h"
+
+namespace gyrotherm::storage::internal {
+namespace {
+
+// The comments inside CREATE TABLE are kept by SQLite and shown by the
+// sqlite3 shell's `.schema`, so units are visible where people query.
+// docs/storage.md documents every column.
+constexpr const char* kSchemaV1 = R"sql(
+CREATE TABLE runs(
+  id INTEGER PRIMARY KEY,
+  schedule_name TEXT NOT NULL,
+  state TEXT NOT NULL,          -- run state machine: queued, ramping, settling, acquiring, paused, suspended, aborting, completed, failed, interrupted
+  started_utc TEXT NOT NULL,    -- ISO-8601 UTC wall time
+  ended_utc TEXT,               -- ISO-8601 UTC wall time; NULL while running
+  time_scale REAL,              -- station seconds per wall second (1 on a real station)
+  latitude_deg REAL,            -- station latitude, degrees north
+  orientation TEXT,             -- sensitive axis: up, down, horizontal
+  config_json TEXT              -- the station configuration the run used, JSON
+);
+
+CREATE TABLE schedules(
+  id INTEGER PRIMARY KEY,
+  name TEXT NOT NULL,
+  source_path TEXT,             -- file the schedule was read from
+  toml_text TEXT NOT NULL,      -- the schedule file's full text as queued
+  created_utc TEXT NOT NULL     -- ISO-8601 UTC wall time
+);
+
+CREATE TABLE queue(
+  id INTEGER PRIMARY KEY,
+  schedule_id INTEGER NOT NULL REFERENCES schedules(id),
+  position INTEGER NOT NULL,    -- 0 = next to run
+  state TEXT NOT NULL,
+  added_utc TEXT NOT NULL,      -- ISO-8601 UTC wall time
+  ignore_failures INTEGER NOT NULL DEFAULT 0  -- 1: a failed run does not stop the queue
+);
+CREATE INDEX queue_by_position ON queue(position);
+
+CREATE TABLE segments(
+  id INTEGER PRIMARY KEY,
+  run_id INTEGER NOT NULL REFERENCES runs(id),
+  idx INTEGER NOT NULL,         -- step position in the expanded schedule, from 0
+  kind TEXT NOT NULL,           -- soak, ramp, hold
+  label TEXT,
+  setpoint_c REAL,              -- soak/hold set point or ramp target, degC
+  ramp_rate_c_per_min REAL,     -- ramps only, degC/min
+  t_start_s REAL,               -- station s since run start
+  t_settled_s REAL,             -- station s; NULL until the stability gate held
+  t_acquire_start_s REAL,       -- station s; NULL until acquisition started
+  t_acquire_end_s REAL,         -- station s; NULL until acquisition ended
+  t_end_s REAL,                 -- station s; NULL while the step runs
+  paused_s REAL,                -- station s excluded from acquisition (pauses, suspensions)
+  state TEXT NOT NULL           -- running, completed, failed, aborted
+);
+CREATE INDEX segments_by_run ON segments(run_id, idx);
+
+-- (run_id, t_s) is unique and is the table's key: WITHOUT ROWID stores rows
+-- in key order, which inserts faster and reads time windows faster than a
+-- rowid table plus an index, in a smaller file.
+CREATE TABLE gyro_samples(
+  run_id INTEGER NOT NULL,      -- runs.id (not enforced, for insert speed)
+  t_s REAL NOT NULL,            -- station s since run start
+  seq INTEGER NOT NULL,         -- frame sequence counter (0..127 for KVH 1750)
+  rate_dph REAL,                -- rate about the configured axis, deg/h
+  status INTEGER NOT NULL,      -- frame status byte as sent
+  temp_c INTEGER,               -- gyro internal temperature as sent, degC
+  PRIMARY KEY(run_id, t_s)
+) WITHOUT ROWID;
+
+CREATE TABLE temperature_samples(
+  run_id INTEGER NOT NULL,      -- runs.id (not enforced, for insert speed)
+  t_s REAL NOT NULL,            -- station s since run start
+  setpoint_c REAL,              -- chamber set point in force, degC
+  chamber_c REAL,               -- chamber air (controller process value), degC
+  top_c REAL,                   -- gyro shell probe "top", degC
+  side_c REAL,                  -- gyro shell probe "side", degC
+  PRIMARY KEY(run_id, t_s)
+) WITHOUT ROWID;
+
+CREATE TABLE events(
+  id INTEGER PRIMARY KEY,
+  run_id INTEGER REFERENCES runs(id),  -- NULL for station events outside a run
+  t_s REAL,                     -- station s since run start (0 without a run)
+  wall_utc TEXT NOT NULL,       -- ISO-8601 UTC wall time
+  kind TEXT NOT NULL,           -- state, interlock, device, info, error
+  from_state TEXT,              -- state transitions only
+  to_state TEXT,                -- state transitions only
+  message TEXT                  -- what a technician reads
+);
+CREATE INDEX events_by_run ON events(run_id, id);
+
+CREATE TABLE segment_stats(
+  segment_id INTEGER PRIMARY KEY REFERENCES segments(id),
+  run_id INTEGER NOT NULL REFERENCES runs(id),
+  segment_index INTEGER NOT NULL,   -- segments.idx
+  setpoint_c REAL,                  -- degC
+  n INTEGER NOT NULL,               -- points of the analysis series
+  duration_s REAL,                  -- station s
+  temp_mean_c REAL,                 -- mean of (top + side)/2, degC
+  bias_mean_dph REAL,               -- zero-bias mean, deg/h
+  bias_std_dph REAL,                -- zero-bias sample std (ddof 1), deg/h
+  bias_std_ma_dph REAL,             -- std after the ma_window-point moving average, deg/h
+  bias_mean_earth_removed_dph REAL, -- bias_mean_dph - earth_rate_dph, deg/h
+  bin_s REAL,                       -- analysis bin, s
+  ma_window INTEGER,                -- moving-average window, points
+  earth_rate_dph REAL,              -- Earth-rate component removed, deg/h
+  t_from_s REAL,                    -- window start, station s since run start
+  t_to_s REAL,                      -- window end, station s since run start
+  computed_utc TEXT NOT NULL        -- ISO-8601 UTC wall time
+);
+CREATE INDEX segment_stats_by_run ON segment_stats(run_id, segment_index);
+)sql";
+
+constexpr Migration kMigrations[] = {
+    {1, "initial schema", kSchemaV1},
+};
+
+static_assert(sizeof(kMigrations) / sizeof(kMigrations[0]) == kSchemaVersion,
+              "one migration per schema version");
+
+}  // namespace
+
+std::span<const Migration> migrations() { return kMigrations; }
+
+}  // namespace gyrotherm::storage::internal

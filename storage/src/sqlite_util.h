@@ -1,0 +1,66 @@
+// Internal helpers over the SQLite C API: an owning statement handle with
+// typed binds/columns (NaN <-> NULL), and error values that name the file.
+#pragma once
+
+#include <sqlite3.h>
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <string_view>
+
+#include "gyrotherm/core/result.h"
+
+namespace gyrotherm::storage::internal {
+
+// "storage: <path>: <what>: <sqlite3_errmsg>". Busy/locked/full/I/O errors are
+// transient (another writer, a full or stalled disk); everything else permanent.
+Error sqlite_error(sqlite3* db, const std::string& path, std::string_view what);
+Error sqlite_error(int rc, const std::string& path, std::string_view what);
+
+// An owning prepared statement. Bind indexes are 1-based, column indexes
+// 0-based (as in the C API).
+class Stmt {
+ public:
+  Stmt() = default;
+  Stmt(Stmt&& other) noexcept : stmt_(other.stmt_) { other.stmt_ = nullptr; }
+  Stmt& operator=(Stmt&& other) noexcept;
+  Stmt(const Stmt&) = delete;
+  Stmt& operator=(const Stmt&) = delete;
+  ~Stmt() { sqlite3_finalize(stmt_); }
+
+  // `persistent` hints SQLite that the statement is reused many times.
+  static Result<Stmt> prepare(sqlite3* db, const std::string& path, std::string_view sql,
+                              bool persistent = false);
+
+  void bind(int i, double v);  // NaN binds NULL
+  void bind(int i, int64_t v) { sqlite3_bind_int64(stmt_, i, v); }
+  void bind(int i, int v) { sqlite3_bind_int(stmt_, i, v); }
+  void bind(int i, std::string_view v);
+  void bind_null(int i) { sqlite3_bind_null(stmt_, i); }
+  void bind(int i, const std::optional<double>& v);
+  void bind(int i, const std::optional<int64_t>& v);
+  // Empty text binds NULL (for columns where "not set" reads better as NULL).
+  void bind_text_or_null(int i, std::string_view v);
+
+  // sqlite3_step; SQLITE_ROW / SQLITE_DONE / error code.
+  int step() { return sqlite3_step(stmt_); }
+  void reset() { sqlite3_reset(stmt_); }
+
+  double column_double(int c) const;  // NULL reads NaN
+  std::optional<double> column_optional_double(int c) const;
+  int64_t column_int64(int c) const { return sqlite3_column_int64(stmt_, c); }
+  std::optional<int64_t> column_optional_int64(int c) const;
+  std::string column_text(int c) const;  // NULL reads ""
+
+  sqlite3_stmt* get() { return stmt_; }
+
+ private:
+  explicit Stmt(sqlite3_stmt* s) : stmt_(s) {}
+  sqlite3_stmt* stmt_ = nullptr;
+};
+
+// Runs one or more statements without results.
+Status exec(sqlite3* db, const std::string& path, std::string_view sql);
+
+}  // namespace gyrotherm::storage::internal

@@ -1,0 +1,456 @@
+#include "gyrotherm/storage/database.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <regex>
+#include <set>
+#include <thread>
+
+#include "test_util.h"
+
+namespace gyrotherm::storage {
+namespace {
+
+using testing::query_int;
+using testing::query_text;
+using testing::TempDir;
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+Database open_ok(const std::string& path) {
+  auto db = Database::open(path);
+  if (!db) {
+    ADD_FAILURE() << db.error().message;
+    std::abort();
+  }
+  return std::move(*db);
+}
+
+RunRecord sample_run() {
+  RunRecord r;
+  r.schedule_name = "paper-table1";
+  r.state = "ramping";
+  r.started_utc = "2026-11-21T05:38:43.120Z";
+  r.time_scale = 1000.0;
+  r.latitude_deg = 31.9;
+  r.orientation = "up";
+  r.config_json = R"({"station":{"name":"lab-2"}})";
+  return r;
+}
+
+TEST(Database, OpenCreatesSchemaVersion1InWalMode) {
+  TempDir dir;
+  Database db = open_ok(dir.file("station.db"));
+  auto version = db.schema_version();
+  ASSERT_TRUE(version.ok()) << version.error().message;
+  EXPECT_EQ(*version, 1);
+  EXPECT_EQ(kSchemaVersion, 1);
+  EXPECT_EQ(query_text(db.handle(), "PRAGMA journal_mode"), "wal");
+  EXPECT_EQ(query_int(db.handle(), "PRAGMA synchronous"), 1);  // NORMAL
+  EXPECT_EQ(query_int(db.handle(), "PRAGMA foreign_keys"), 1);
+  EXPECT_EQ(query_int(db.handle(), "PRAGMA busy_timeout"), 5000);
+  EXPECT_TRUE(
+      std::regex_match(query_text(db.handle(), "SELECT value FROM meta WHERE key='created_utc'"),
+                       std::regex(R"(\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z)")));
+
+  std::set<std::string> tables;
+  sqlite3_stmt* st = nullptr;
+  ASSERT_EQ(sqlite3_prepare_v2(db.handle(), "SELECT name FROM sqlite_master WHERE type='table'", -1,
+                               &st, nullptr),
+            SQLITE_OK);
+  while (sqlite3_step(st) == SQLITE_ROW) {
+    tables.insert(reinterpret_cast<const char*>(sqlite3_column_text(st, 0)));
+  }
+  sqlite3_finalize(st);
+  const std::set<std::string> expected = {
+      "meta",         "runs",         "schedules",           "queue",
+      "segments",     "gyro_samples", "temperature_samples", "events",
+      "segment_stats"};
+  EXPECT_EQ(tables, expected);
+}
+
+TEST(Database, ReopenIsIdempotent) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  std::string created;
+  int64_t run_id = 0;
+  {
+    Database db = open_ok(path);
+    created = query_text(db.handle(), "SELECT value FROM meta WHERE key='created_utc'");
+    auto id = db.create_run(sample_run());
+    ASSERT_TRUE(id.ok()) << id.error().message;
+    run_id = *id;
+  }
+  for (int i = 0; i < 2; ++i) {
+    Database db = open_ok(path);
+    EXPECT_EQ(*db.schema_version(), 1);
+    EXPECT_EQ(query_int(db.handle(), "SELECT count(*) FROM meta"), 2);
+    EXPECT_EQ(query_text(db.handle(), "SELECT value FROM meta WHERE key='created_utc'"), created);
+    auto run = db.run(run_id);
+    ASSERT_TRUE(run.ok()) << run.error().message;
+    EXPECT_EQ(run->schedule_name, "paper-table1");
+  }
+}
+
+TEST(Database, ConcurrentFirstOpensMigrateOnce) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  std::vector<std::string> errors(4);
+  std::vector<std::thread> threads;
+  for (std::size_t i = 0; i < errors.size(); ++i) {
+    threads.emplace_back([&, i] {
+      auto db = Database::open(path);
+      if (!db) errors[i] = db.error().message;
+    });
+  }
+  for (auto& t : threads) t.join();
+  for (const auto& e : errors) EXPECT_EQ(e, "");
+  Database db = open_ok(path);
+  EXPECT_EQ(*db.schema_version(), 1);
+}
+
+TEST(Database, NewerSchemaIsRefusedWithAClearMessage) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  {
+    Database db = open_ok(path);
+    ASSERT_TRUE(db.exec("UPDATE meta SET value='2' WHERE key='schema_version'").ok());
+  }
+  auto db = Database::open(path);
+  ASSERT_FALSE(db.ok());
+  EXPECT_FALSE(db.error().transient);
+  EXPECT_NE(db.error().message.find(path), std::string::npos) << db.error().message;
+  EXPECT_NE(db.error().message.find("schema version 2, newer than this build's 1"),
+            std::string::npos)
+      << db.error().message;
+
+  auto ro = Database::open_read_only(path);
+  ASSERT_FALSE(ro.ok());
+  EXPECT_NE(ro.error().message.find("schema version 2"), std::string::npos) << ro.error().message;
+}
+
+TEST(Database, RefusesAnotherApplicationsDatabase) {
+  TempDir dir;
+  const std::string path = dir.file("other.db");
+  sqlite3* raw = nullptr;
+  ASSERT_EQ(sqlite3_open(path.c_str(), &raw), SQLITE_OK);
+  ASSERT_EQ(sqlite3_exec(raw, "CREATE TABLE customers(id INTEGER)", nullptr, nullptr, nullptr),
+            SQLITE_OK);
+  sqlite3_close(raw);
+  auto db = Database::open(path);
+  ASSERT_FALSE(db.ok());
+  EXPECT_NE(db.error().message.find("not a gyrotherm database"), std::string::npos)
+      << db.error().message;
+}
+
+TEST(Database, OpenErrorsNameTheFile) {
+  TempDir dir;
+  const std::string missing = dir.file("no-such-dir/station.db");
+  auto db = Database::open(missing);
+  ASSERT_FALSE(db.ok());
+  EXPECT_NE(db.error().message.find(missing), std::string::npos) << db.error().message;
+
+  auto ro = Database::open_read_only(dir.file("absent.db"));
+  ASSERT_FALSE(ro.ok());
+  EXPECT_NE(ro.error().message.find("absent.db"), std::string::npos) << ro.error().message;
+}
+
+TEST(Database, ReadOnlyConnectionReadsButDoesNotWrite) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  Database rw = open_ok(path);
+  const int64_t run_id = *rw.create_run(sample_run());
+
+  auto ro = Database::open_read_only(path);
+  ASSERT_TRUE(ro.ok()) << ro.error().message;
+  EXPECT_EQ(*ro->schema_version(), 1);
+  auto run = ro->run(run_id);
+  ASSERT_TRUE(run.ok()) << run.error().message;
+  EXPECT_EQ(run->state, "ramping");
+  Status s = ro->set_run_state(run_id, "failed", true);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find(path), std::string::npos) << s.error().message;
+  EXPECT_NE(s.error().message.find("readonly"), std::string::npos) << s.error().message;
+}
+
+TEST(Database, RunRoundTrip) {
+  TempDir dir;
+  Database db = open_ok(dir.file("station.db"));
+  RunRecord in = sample_run();
+  in.latitude_deg = kNaN;  // unknown latitude is stored as NULL
+  auto id = db.create_run(in);
+  ASSERT_TRUE(id.ok()) << id.error().message;
+
+  auto out = db.run(*id);
+  ASSERT_TRUE(out.ok()) << out.error().message;
+  EXPECT_EQ(out->id, *id);
+  EXPECT_EQ(out->schedule_name, in.schedule_name);
+  EXPECT_EQ(out->state, in.state);
+  EXPECT_EQ(out->started_utc, in.started_utc);
+  EXPECT_EQ(out->ended_utc, "");
+  EXPECT_EQ(out->time_scale, 1000.0);
+  EXPECT_TRUE(std::isnan(out->latitude_deg));
+  EXPECT_EQ(out->orientation, "up");
+  EXPECT_EQ(out->config_json, in.config_json);
+  EXPECT_EQ(query_int(db.handle(), "SELECT count(*) FROM runs WHERE latitude_deg IS NULL"), 1);
+
+  ASSERT_TRUE(db.set_run_state(*id, "completed", true).ok());
+  out = db.run(*id);
+  EXPECT_EQ(out->state, "completed");
+  EXPECT_TRUE(std::regex_match(out->ended_utc, std::regex(R"(\d{4}-.*Z)"))) << out->ended_utc;
+  ASSERT_TRUE(db.set_run_state(*id, "settling", false).ok());
+  EXPECT_EQ(db.run(*id)->ended_utc, "");
+
+  RunRecord second = sample_run();
+  second.started_utc = "";  // filled with the current wall time
+  const int64_t id2 = *db.create_run(second);
+  auto all = db.runs();
+  ASSERT_TRUE(all.ok());
+  ASSERT_EQ(all->size(), 2u);
+  EXPECT_EQ((*all)[0].id, *id);
+  EXPECT_EQ((*all)[1].id, id2);
+  EXPECT_FALSE((*all)[1].started_utc.empty());
+
+  auto missing = db.run(999);
+  ASSERT_FALSE(missing.ok());
+  EXPECT_NE(missing.error().message.find("no run with id 999"), std::string::npos);
+  Status s = db.set_run_state(999, "failed", true);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find("no such run"), std::string::npos) << s.error().message;
+}
+
+TEST(Database, SegmentRoundTripWithUnsetTimes) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  Database db = open_ok(path);
+  const int64_t run_id = *db.create_run(sample_run());
+
+  SegmentRecord soak;
+  soak.run_id = run_id;
+  soak.index = 1;
+  soak.kind = "soak";
+  soak.label = "soak 20 °C (step 1)";
+  soak.setpoint_c = 20.0;
+  soak.ramp_rate_c_per_min = kNaN;
+  soak.t_start_s = 3600.5;
+  soak.state = "running";
+  SegmentRecord ramp = soak;
+  ramp.index = 0;
+  ramp.kind = "ramp";
+  ramp.label = "ramp to -14.6 °C";
+  ramp.setpoint_c = -14.6;
+  ramp.ramp_rate_c_per_min = 1.5;
+  ramp.t_start_s = 0;
+
+  auto soak_id = db.create_segment(soak);
+  ASSERT_TRUE(soak_id.ok()) << soak_id.error().message;
+  auto ramp_id = db.create_segment(ramp);
+  ASSERT_TRUE(ramp_id.ok()) << ramp_id.error().message;
+
+  auto segs = db.segments(run_id);
+  ASSERT_TRUE(segs.ok()) << segs.error().message;
+  ASSERT_EQ(segs->size(), 2u);
+  EXPECT_EQ((*segs)[0].id, *ramp_id);  // ordered by index
+  EXPECT_EQ((*segs)[0].ramp_rate_c_per_min, 1.5);
+  const SegmentRecord& s = (*segs)[1];
+  EXPECT_EQ(s.id, *soak_id);
+  EXPECT_EQ(s.run_id, run_id);
+  EXPECT_EQ(s.index, 1);
+  EXPECT_EQ(s.kind, "soak");
+  EXPECT_EQ(s.label, soak.label);
+  EXPECT_EQ(s.setpoint_c, 20.0);
+  EXPECT_TRUE(std::isnan(s.ramp_rate_c_per_min));
+  EXPECT_EQ(s.t_start_s, 3600.5);
+  EXPECT_EQ(s.t_settled_s, std::nullopt);
+  EXPECT_EQ(s.t_acquire_start_s, std::nullopt);
+  EXPECT_EQ(s.t_acquire_end_s, std::nullopt);
+  EXPECT_EQ(s.t_end_s, std::nullopt);
+  EXPECT_EQ(s.paused_s, 0.0);
+  EXPECT_EQ(s.state, "running");
+
+  SegmentRecord done = s;
+  done.t_settled_s = 5000.25;
+  done.t_acquire_start_s = 5000.25;
+  done.t_acquire_end_s = 12200.25;
+  done.t_end_s = 12200.5;
+  done.paused_s = 30.0;
+  done.state = "completed";
+  ASSERT_TRUE(db.update_segment(done).ok());
+  const SegmentRecord back = (*db.segments(run_id))[1];
+  EXPECT_EQ(back.t_settled_s, 5000.25);
+  EXPECT_EQ(back.t_acquire_start_s, 5000.25);
+  EXPECT_EQ(back.t_acquire_end_s, 12200.25);
+  EXPECT_EQ(back.t_end_s, 12200.5);
+  EXPECT_EQ(back.paused_s, 30.0);
+  EXPECT_EQ(back.state, "completed");
+
+  done.id = 12345;
+  Status missing = db.update_segment(done);
+  ASSERT_FALSE(missing.ok());
+  EXPECT_NE(missing.error().message.find("no such segment"), std::string::npos);
+
+  SegmentRecord orphan = soak;
+  orphan.run_id = 777;  // foreign key: no such run
+  auto bad = db.create_segment(orphan);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.error().message.find(path), std::string::npos) << bad.error().message;
+  EXPECT_NE(bad.error().message.find("FOREIGN KEY constraint failed"), std::string::npos)
+      << bad.error().message;
+}
+
+TEST(Database, EventRoundTrip) {
+  TempDir dir;
+  Database db = open_ok(dir.file("station.db"));
+  const int64_t run_id = *db.create_run(sample_run());
+
+  EventRecord station;
+  station.kind = "info";
+  station.message = "daemon started";
+  ASSERT_TRUE(db.add_event(station).ok());
+
+  EventRecord transition;
+  transition.run_id = run_id;
+  transition.t_s = 5000.25;
+  transition.wall_utc = "2026-11-21T07:02:03.004Z";
+  transition.kind = "state";
+  transition.from_state = "settling";
+  transition.to_state = "acquiring";
+  transition.message = "stability gate held for 10 min";
+  auto id1 = db.add_event(transition);
+  ASSERT_TRUE(id1.ok()) << id1.error().message;
+  EventRecord interlock;
+  interlock.run_id = run_id;
+  interlock.t_s = kNaN;
+  interlock.kind = "interlock";
+  interlock.message = "probes disagree by 3.1 °C";
+  auto id2 = db.add_event(interlock);
+  ASSERT_TRUE(id2.ok());
+
+  auto events = db.events(run_id);
+  ASSERT_TRUE(events.ok()) << events.error().message;
+  ASSERT_EQ(events->size(), 2u);
+  const EventRecord& a = (*events)[0];
+  EXPECT_EQ(a.id, *id1);
+  EXPECT_EQ(a.run_id, run_id);
+  EXPECT_EQ(a.t_s, 5000.25);
+  EXPECT_EQ(a.wall_utc, transition.wall_utc);
+  EXPECT_EQ(a.kind, "state");
+  EXPECT_EQ(a.from_state, "settling");
+  EXPECT_EQ(a.to_state, "acquiring");
+  EXPECT_EQ(a.message, transition.message);
+  const EventRecord& b = (*events)[1];
+  EXPECT_EQ(b.id, *id2);
+  EXPECT_TRUE(std::isnan(b.t_s));
+  EXPECT_FALSE(b.wall_utc.empty());
+  EXPECT_EQ(b.from_state, "");
+  EXPECT_EQ(b.to_state, "");
+
+  EXPECT_EQ(query_int(db.handle(), "SELECT count(*) FROM events WHERE run_id IS NULL"), 1);
+  EXPECT_EQ(query_int(db.handle(),
+                      "SELECT count(*) FROM events WHERE from_state IS NULL AND run_id IS NULL"),
+            1);
+}
+
+TEST(Database, SegmentStatsRoundTripAndReplace) {
+  TempDir dir;
+  Database db = open_ok(dir.file("station.db"));
+  const int64_t run1 = *db.create_run(sample_run());
+  const int64_t run2 = *db.create_run(sample_run());
+  SegmentRecord seg;
+  seg.kind = "soak";
+  seg.state = "completed";
+  seg.run_id = run2;
+  seg.index = 0;
+  const int64_t seg_run2 = *db.create_segment(seg);
+  seg.run_id = run1;
+  seg.index = 3;
+  const int64_t seg3 = *db.create_segment(seg);
+  seg.index = 1;
+  const int64_t seg1 = *db.create_segment(seg);
+
+  SegmentStatsRecord row;
+  row.segment_id = seg3;
+  row.run_id = run1;
+  row.segment_index = 3;
+  row.setpoint_c = 20.0;
+  row.n = 7200;
+  row.duration_s = 7200.0;
+  row.temp_mean_c = 19.87;
+  row.bias_mean_dph = 8.1234;
+  row.bias_std_dph = 1.01;
+  row.bias_std_ma_dph = 0.105;
+  row.bias_mean_earth_removed_dph = 0.1734;
+  row.bin_s = 1.0;
+  row.ma_window = 101;
+  row.earth_rate_dph = 7.95;
+  row.t_from_s = 5000.0;
+  row.t_to_s = 12200.0;
+  row.computed_utc = "2026-11-21T09:00:00.000Z";
+  ASSERT_TRUE(db.put_segment_stats(row).ok());
+
+  SegmentStatsRecord short_window = row;  // fewer points than the MA window
+  short_window.segment_id = seg1;
+  short_window.segment_index = 1;
+  short_window.n = 50;
+  short_window.bias_std_ma_dph = kNaN;
+  ASSERT_TRUE(db.put_segment_stats(short_window).ok());
+
+  SegmentStatsRecord other_run = row;
+  other_run.segment_id = seg_run2;
+  other_run.run_id = run2;
+  other_run.segment_index = 0;
+  ASSERT_TRUE(db.put_segment_stats(other_run).ok());
+
+  auto rows = db.segment_stats(run1);
+  ASSERT_TRUE(rows.ok()) << rows.error().message;
+  ASSERT_EQ(rows->size(), 2u);
+  EXPECT_EQ((*rows)[0].segment_id, seg1);  // ordered by segment index
+  EXPECT_EQ((*rows)[0].n, 50);
+  EXPECT_TRUE(std::isnan((*rows)[0].bias_std_ma_dph));
+  const SegmentStatsRecord& r = (*rows)[1];
+  EXPECT_EQ(r.segment_id, seg3);
+  EXPECT_EQ(r.run_id, run1);
+  EXPECT_EQ(r.segment_index, 3);
+  EXPECT_EQ(r.setpoint_c, 20.0);
+  EXPECT_EQ(r.n, 7200);
+  EXPECT_EQ(r.duration_s, 7200.0);
+  EXPECT_EQ(r.temp_mean_c, 19.87);
+  EXPECT_EQ(r.bias_mean_dph, 8.1234);
+  EXPECT_EQ(r.bias_std_dph, 1.01);
+  EXPECT_EQ(r.bias_std_ma_dph, 0.105);
+  EXPECT_EQ(r.bias_mean_earth_removed_dph, 0.1734);
+  EXPECT_EQ(r.bin_s, 1.0);
+  EXPECT_EQ(r.ma_window, 101);
+  EXPECT_EQ(r.earth_rate_dph, 7.95);
+  EXPECT_EQ(r.t_from_s, 5000.0);
+  EXPECT_EQ(r.t_to_s, 12200.0);
+  EXPECT_EQ(r.computed_utc, row.computed_utc);
+
+  row.bias_mean_dph = 9.5;  // recomputed: replaces, does not add
+  ASSERT_TRUE(db.put_segment_stats(row).ok());
+  rows = db.segment_stats(run1);
+  ASSERT_EQ(rows->size(), 2u);
+  EXPECT_EQ((*rows)[1].bias_mean_dph, 9.5);
+
+  auto all = db.segment_stats(std::nullopt);
+  ASSERT_TRUE(all.ok());
+  ASSERT_EQ(all->size(), 3u);
+  EXPECT_EQ((*all)[0].run_id, run1);
+  EXPECT_EQ((*all)[2].run_id, run2);
+}
+
+TEST(Database, ExecReportsTheStatement) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  Database db = open_ok(path);
+  Status s = db.exec("SELECT * FROM no_such_table");
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find(path), std::string::npos);
+  EXPECT_NE(s.error().message.find("no such table: no_such_table"), std::string::npos)
+      << s.error().message;
+}
+
+}  // namespace
+}  // namespace gyrotherm::storage

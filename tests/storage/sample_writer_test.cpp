@@ -1,0 +1,357 @@
+#include "gyrotherm/storage/sample_writer.h"
+
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <thread>
+#include <vector>
+
+#include "gyrotherm/storage/database.h"
+#include "test_util.h"
+
+namespace gyrotherm::storage {
+namespace {
+
+using namespace std::chrono_literals;
+using testing::query_int;
+using testing::query_text;
+using testing::TempDir;
+
+constexpr int64_t kRun = 1;
+
+// Deterministic sample i: t = i ms, a rate that uses the full double.
+GyroSample gyro_sample(int i) {
+  GyroSample g;
+  g.t_s = i * 0.001;
+  g.rate_dph = 7.95 + std::sin(i * 0.37) / 3.0;
+  g.seq = static_cast<uint8_t>(i % 128);
+  g.status = 0x77;
+  g.temp_c = static_cast<int16_t>(20 + i % 7 - 3);
+  return g;
+}
+
+TemperatureSample temperature_sample(int j) {
+  return {.t_s = j * 1.0,
+          .setpoint_c = 20.0,
+          .chamber_c = 19.5 + j * 0.01,
+          .top_c = 19.25 + j / 3.0,
+          .side_c = 19.125 - j / 7.0};
+}
+
+std::unique_ptr<SampleWriter> start_ok(const std::string& path, SampleWriterOptions options) {
+  auto w = SampleWriter::start(path, options);
+  if (!w) {
+    ADD_FAILURE() << w.error().message;
+    std::abort();
+  }
+  return std::move(*w);
+}
+
+// Polls `pred` until it holds or `timeout` passes; true if it held.
+template <class Pred>
+bool wait_for(Pred pred, std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (!pred()) {
+    if (std::chrono::steady_clock::now() > deadline) return false;
+    std::this_thread::sleep_for(2ms);
+  }
+  return true;
+}
+
+TEST(SampleWriter, TwoThreadsPushFlushAndReadBackExactly) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  auto writer = start_ok(path, {.commit_interval = 50ms});
+  constexpr int kGyro = 100'000;
+  constexpr int kTemps = 100;
+
+  auto producer = [&](int parity) {
+    std::vector<GyroSample> chunk;
+    for (int i = parity; i < kGyro; i += 2) {
+      chunk.push_back(gyro_sample(i));
+      if (chunk.size() == 250) {
+        writer->push_gyro(kRun, chunk);
+        chunk.clear();
+      }
+    }
+    writer->push_gyro(kRun, chunk);
+    for (int j = parity; j < kTemps; j += 2) writer->push_temperature(kRun, temperature_sample(j));
+  };
+  std::thread a(producer, 0), b(producer, 1);
+  a.join();
+  b.join();
+  Status s = writer->flush();
+  ASSERT_TRUE(s.ok()) << s.error().message;
+
+  auto db = Database::open_read_only(path);
+  ASSERT_TRUE(db.ok()) << db.error().message;
+  EXPECT_EQ(*db->count_gyro_samples(kRun), kGyro);
+  auto gyro = db->gyro_samples(kRun, 0.0, 1e9);
+  ASSERT_TRUE(gyro.ok()) << gyro.error().message;
+  ASSERT_EQ(gyro->size(), static_cast<std::size_t>(kGyro));
+  for (int i = 0; i < kGyro; ++i) {
+    const GyroSample want = gyro_sample(i);
+    const GyroSample& got = (*gyro)[i];
+    ASSERT_EQ(got.t_s, want.t_s) << i;
+    ASSERT_EQ(got.rate_dph, want.rate_dph) << i;
+    ASSERT_EQ(got.seq, want.seq) << i;
+    ASSERT_EQ(got.status, want.status) << i;
+    ASSERT_EQ(got.temp_c, want.temp_c) << i;
+  }
+  // A window is half-open [from, to).
+  auto window = db->gyro_samples(kRun, 10.0, 20.0);
+  ASSERT_TRUE(window.ok());
+  ASSERT_EQ(window->size(), 10'000u);
+  EXPECT_EQ(window->front().t_s, gyro_sample(10'000).t_s);
+  EXPECT_EQ(window->back().t_s, gyro_sample(19'999).t_s);
+
+  auto temps = db->temperature_samples(kRun, 0.0, 1e9);
+  ASSERT_TRUE(temps.ok()) << temps.error().message;
+  ASSERT_EQ(temps->size(), static_cast<std::size_t>(kTemps));
+  for (int j = 0; j < kTemps; ++j) {
+    const TemperatureSample want = temperature_sample(j);
+    const TemperatureSample& got = (*temps)[j];
+    ASSERT_EQ(got.t_s, want.t_s);
+    ASSERT_EQ(got.setpoint_c, want.setpoint_c);
+    ASSERT_EQ(got.chamber_c, want.chamber_c);
+    ASSERT_EQ(got.top_c, want.top_c);
+    ASSERT_EQ(got.side_c, want.side_c);
+  }
+
+  const SampleWriterStats stats = writer->stats();
+  EXPECT_EQ(stats.gyro_rows, static_cast<uint64_t>(kGyro));
+  EXPECT_EQ(stats.temperature_rows, static_cast<uint64_t>(kTemps));
+  EXPECT_EQ(stats.dropped, 0u);
+  EXPECT_EQ(stats.pending, 0u);
+  EXPECT_GE(stats.commits, 1u);
+  EXPECT_EQ(stats.commit_failures, 0u);
+}
+
+TEST(SampleWriter, NanValuesRoundTripAsNull) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  auto writer = start_ok(path, {});
+  constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+  GyroSample g = gyro_sample(5);
+  g.rate_dph = kNaN;
+  writer->push_gyro(kRun, std::span(&g, 1));
+  TemperatureSample t = temperature_sample(1);
+  t.side_c = kNaN;  // a stalled probe
+  writer->push_temperature(kRun, t);
+  GyroSample no_time = gyro_sample(6);
+  no_time.t_s = kNaN;  // not storable: refused
+  writer->push_gyro(kRun, std::span(&no_time, 1));
+  ASSERT_TRUE(writer->flush().ok());
+  EXPECT_EQ(writer->stats().rejected, 1u);
+
+  auto db = Database::open_read_only(path);
+  ASSERT_TRUE(db.ok());
+  auto gyro = db->gyro_samples(kRun, 0, 1);
+  ASSERT_EQ(gyro->size(), 1u);
+  EXPECT_TRUE(std::isnan((*gyro)[0].rate_dph));
+  auto temps = db->temperature_samples(kRun, 0, 10);
+  ASSERT_EQ(temps->size(), 1u);
+  EXPECT_TRUE(std::isnan((*temps)[0].side_c));
+  EXPECT_EQ((*temps)[0].top_c, t.top_c);
+  EXPECT_EQ(query_int(db->handle(), "SELECT count(*) FROM gyro_samples WHERE rate_dph IS NULL"), 1);
+}
+
+TEST(SampleWriter, ReaderSeesCommittedRowsWhileWriterRuns) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  auto writer = start_ok(path, {.commit_interval = 1h});
+  auto reader = Database::open_read_only(path);
+  ASSERT_TRUE(reader.ok()) << reader.error().message;
+
+  std::vector<GyroSample> batch;
+  for (int i = 0; i < 5000; ++i) batch.push_back(gyro_sample(i));
+  writer->push_gyro(kRun, batch);
+  EXPECT_EQ(*reader->count_gyro_samples(kRun), 0);  // not committed yet
+  ASSERT_TRUE(writer->flush().ok());
+  EXPECT_EQ(*reader->count_gyro_samples(kRun), 5000);
+
+  batch.clear();
+  for (int i = 5000; i < 8000; ++i) batch.push_back(gyro_sample(i));
+  writer->push_gyro(kRun, batch);
+  ASSERT_TRUE(writer->flush().ok());
+  EXPECT_EQ(*reader->count_gyro_samples(kRun), 8000);
+  auto tail = reader->gyro_samples(kRun, gyro_sample(7990).t_s, 1e9);
+  ASSERT_TRUE(tail.ok());
+  EXPECT_EQ(tail->size(), 10u);
+}
+
+TEST(SampleWriter, CommitsWithinTheIntervalWithoutFlush) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  auto writer = start_ok(path, {.commit_interval = 100ms});
+  auto reader = Database::open_read_only(path);
+  ASSERT_TRUE(reader.ok());
+
+  std::vector<GyroSample> batch;
+  for (int i = 0; i < 1000; ++i) batch.push_back(gyro_sample(i));
+  const auto pushed = std::chrono::steady_clock::now();
+  writer->push_gyro(kRun, batch);
+  ASSERT_TRUE(wait_for([&] { return *reader->count_gyro_samples(kRun) == 1000; }, 5s))
+      << "rows not committed within 5 s";
+  const auto elapsed = std::chrono::steady_clock::now() - pushed;
+  // Interval plus a generous margin for a loaded CI machine.
+  EXPECT_LT(elapsed, 100ms + 2s);
+  EXPECT_GE(writer->stats().commits, 1u);
+}
+
+TEST(SampleWriter, DropsOldestBeyondMaxPendingAndCounts) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  // No timed commit during the test: only flush() commits.
+  auto writer = start_ok(path, {.commit_interval = 1h, .max_pending = 1000});
+  std::vector<GyroSample> batch;
+  for (int i = 0; i < 1500; ++i) batch.push_back(gyro_sample(i));
+  writer->push_gyro(kRun, std::span(batch).first(700));
+  writer->push_gyro(kRun, std::span(batch).subspan(700));
+  writer->push_temperature(kRun, temperature_sample(0));
+
+  SampleWriterStats stats = writer->stats();
+  EXPECT_EQ(stats.dropped, 501u);  // 500 gyro for the overflow, 1 more for the temperature
+  EXPECT_EQ(stats.pending, 1000u);
+
+  ASSERT_TRUE(writer->flush().ok());
+  auto db = Database::open_read_only(path);
+  ASSERT_TRUE(db.ok());
+  auto gyro = db->gyro_samples(kRun, 0, 1e9);
+  ASSERT_TRUE(gyro.ok());
+  ASSERT_EQ(gyro->size(), 999u);
+  EXPECT_EQ(gyro->front().t_s, gyro_sample(501).t_s);  // the oldest went first
+  EXPECT_EQ(gyro->back().t_s, gyro_sample(1499).t_s);
+  EXPECT_EQ(db->temperature_samples(kRun, 0, 1e9)->size(), 1u);
+  stats = writer->stats();
+  EXPECT_EQ(stats.gyro_rows, 999u);
+  EXPECT_EQ(stats.pending, 0u);
+}
+
+TEST(SampleWriter, FailedCommitKeepsRowsForRetry) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  auto writer = start_ok(path, {.commit_interval = 1h});
+  auto admin = Database::open(path);
+  ASSERT_TRUE(admin.ok());
+  ASSERT_TRUE(admin
+                  ->exec("CREATE TRIGGER fail_inserts BEFORE INSERT ON gyro_samples "
+                         "BEGIN SELECT RAISE(ABORT, 'injected failure'); END")
+                  .ok());
+
+  std::vector<GyroSample> batch;
+  for (int i = 0; i < 10; ++i) batch.push_back(gyro_sample(i));
+  writer->push_gyro(kRun, batch);
+  writer->push_temperature(kRun, temperature_sample(0));
+  Status s = writer->flush();
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find(path), std::string::npos) << s.error().message;
+  EXPECT_NE(s.error().message.find("injected failure"), std::string::npos) << s.error().message;
+  SampleWriterStats stats = writer->stats();
+  EXPECT_EQ(stats.commit_failures, 1u);
+  EXPECT_EQ(stats.pending, 11u);
+  EXPECT_EQ(stats.gyro_rows, 0u);
+  EXPECT_NE(stats.last_error.find("injected failure"), std::string::npos);
+  EXPECT_EQ(*admin->count_gyro_samples(kRun), 0);
+  // The transaction was rolled back: the temperature row is not there either.
+  EXPECT_EQ(query_int(admin->handle(), "SELECT count(*) FROM temperature_samples"), 0);
+
+  ASSERT_TRUE(admin->exec("DROP TRIGGER fail_inserts").ok());
+  s = writer->flush();
+  ASSERT_TRUE(s.ok()) << s.error().message;
+  EXPECT_EQ(*admin->count_gyro_samples(kRun), 10);
+  EXPECT_EQ(query_int(admin->handle(), "SELECT count(*) FROM temperature_samples"), 1);
+  stats = writer->stats();
+  EXPECT_EQ(stats.pending, 0u);
+  EXPECT_EQ(stats.gyro_rows, 10u);
+  EXPECT_EQ(stats.dropped, 0u);
+}
+
+TEST(SampleWriter, DuplicateTimesAreIgnoredAndCounted) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  auto writer = start_ok(path, {.commit_interval = 1h});
+  GyroSample g = gyro_sample(42);
+  writer->push_gyro(kRun, std::span(&g, 1));
+  ASSERT_TRUE(writer->flush().ok());
+  GyroSample again = g;
+  again.rate_dph = -1.0;
+  writer->push_gyro(kRun, std::span(&again, 1));
+  writer->push_gyro(2, std::span(&again, 1));  // same time, another run: kept
+  ASSERT_TRUE(writer->flush().ok());
+  EXPECT_EQ(writer->stats().duplicates, 1u);
+  auto db = Database::open_read_only(path);
+  EXPECT_EQ(*db->count_gyro_samples(kRun), 1);
+  EXPECT_EQ((*db->gyro_samples(kRun, 0, 1))[0].rate_dph, g.rate_dph);  // the first one stays
+  EXPECT_EQ(*db->count_gyro_samples(2), 1);
+}
+
+TEST(SampleWriter, StopCommitsPendingIsIdempotentAndRejectsLaterPushes) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  auto writer = start_ok(path, {.commit_interval = 1h});
+  std::vector<GyroSample> batch;
+  for (int i = 0; i < 100; ++i) batch.push_back(gyro_sample(i));
+  writer->push_gyro(kRun, batch);
+  writer->stop();
+  writer->stop();
+  auto db = Database::open_read_only(path);
+  EXPECT_EQ(*db->count_gyro_samples(kRun), 100);
+
+  writer->push_gyro(kRun, batch);
+  EXPECT_EQ(writer->stats().rejected, 100u);
+  EXPECT_TRUE(writer->flush().ok());  // nothing pending
+}
+
+TEST(SampleWriter, RejectsBadOptions) {
+  TempDir dir;
+  auto w = SampleWriter::start(dir.file("station.db"), {.commit_interval = 0ms});
+  ASSERT_FALSE(w.ok());
+  EXPECT_NE(w.error().message.find("commit_interval"), std::string::npos);
+}
+
+// A writer process that dies without stop(): committed rows survive and the
+// file is consistent.
+TEST(SampleWriter, DatabaseLeftByAKilledWriterIsConsistent) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  constexpr int kFlushed = 20'000;
+  const pid_t pid = fork();
+  ASSERT_NE(pid, -1);
+  if (pid == 0) {
+    auto w = SampleWriter::start(path, {.commit_interval = 20ms});
+    if (!w) _exit(2);
+    std::vector<GyroSample> batch;
+    for (int i = 0; i < kFlushed; ++i) batch.push_back(gyro_sample(i));
+    (*w)->push_gyro(kRun, batch);
+    if (!(*w)->flush().ok()) _exit(3);
+    for (int round = 0; round < 20; ++round) {
+      batch.clear();
+      for (int i = 0; i < 5000; ++i) batch.push_back(gyro_sample(kFlushed + round * 5000 + i));
+      (*w)->push_gyro(kRun, batch);
+    }
+    _exit(0);  // no stop(), no destructors: the writer thread dies mid-flight
+  }
+  int status = 0;
+  ASSERT_EQ(waitpid(pid, &status, 0), pid);
+  ASSERT_TRUE(WIFEXITED(status));
+  ASSERT_EQ(WEXITSTATUS(status), 0);
+
+  auto db = Database::open(path);
+  ASSERT_TRUE(db.ok()) << db.error().message;
+  EXPECT_EQ(query_text(db->handle(), "PRAGMA integrity_check"), "ok");
+  const int64_t n = *db->count_gyro_samples(kRun);
+  EXPECT_GE(n, kFlushed);
+  EXPECT_LE(n, kFlushed + 100'000);
+  auto rows = db->gyro_samples(kRun, 0, gyro_sample(kFlushed).t_s);
+  ASSERT_TRUE(rows.ok());
+  ASSERT_EQ(rows->size(), static_cast<std::size_t>(kFlushed));
+  EXPECT_EQ(rows->back().rate_dph, gyro_sample(kFlushed - 1).rate_dph);
+}
+
+}  // namespace
+}  // namespace gyrotherm::storage
