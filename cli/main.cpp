@@ -1,0 +1,338 @@
+// gyrotherm: the command-line tool. Daemon control over REST, offline tools
+// on a database or capture file, and commissioning on a station config.
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <iostream>
+#include <thread>
+
+#include <CLI/CLI.hpp>
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include "gyrotherm/daemon/config.h"
+#include "gyrotherm/daemon/http_client.h"
+#include "gyrotherm/drivers/frame_parser.h"
+#include "gyrotherm/drivers/gyro_reader.h"
+#include "gyrotherm/drivers/modbus_device.h"
+#include "gyrotherm/drivers/serial_port.h"
+#include "gyrotherm/schedules/schedule.h"
+#include "gyrotherm/storage/database.h"
+
+namespace {
+
+using namespace gyrotherm;
+
+int fail(const std::string& message, int code = 1) {
+  std::cerr << "gyrotherm: " << message;
+  if (message.empty() || message.back() != '\n') std::cerr << '\n';
+  return code;
+}
+
+nlohmann::json num(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
+
+// ---------------------------------------------------------------- decode
+int cmd_decode(const std::string& protocol, const std::string& path) {
+  auto parser = drivers::make_frame_parser(protocol);
+  if (!parser) return fail(parser.error().message, 2);
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return fail(fmt::format("{}: cannot open", path), 2);
+  std::printf("seq,status,gyro_x,gyro_y,gyro_z,accel_x,accel_y,accel_z,temp_c\n");
+  std::vector<uint8_t> buf(1 << 16);
+  std::vector<drivers::GyroFrame> frames;
+  while (in) {
+    in.read(reinterpret_cast<char*>(buf.data()), static_cast<std::streamsize>(buf.size()));
+    const auto n = static_cast<std::size_t>(in.gcount());
+    if (n == 0) break;
+    frames.clear();
+    (*parser)->feed(std::span<const uint8_t>(buf.data(), n), frames);
+    for (const auto& f : frames) {
+      std::printf("%u,%u,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%d\n", f.seq, f.status, f.gyro[0],
+                  f.gyro[1], f.gyro[2], f.accel[0], f.accel[1], f.accel[2], f.temp_c);
+    }
+  }
+  const auto& c = (*parser)->counters();
+  std::fprintf(stderr,
+               "%s: %llu valid frames, %llu CRC failures, %llu bytes skipped, %llu sequence gaps "
+               "(%llu frames missed)\n",
+               path.c_str(), static_cast<unsigned long long>(c.frames_ok),
+               static_cast<unsigned long long>(c.crc_failures),
+               static_cast<unsigned long long>(c.bytes_skipped),
+               static_cast<unsigned long long>(c.sequence_gaps),
+               static_cast<unsigned long long>(c.frames_missed));
+  return 0;
+}
+
+// ---------------------------------------------------------------- stats
+int cmd_stats(const std::string& db_path, std::optional<int64_t> run_id, bool json) {
+  auto db = storage::Database::open_read_only(db_path);
+  if (!db) return fail(db.error().message, 2);
+  auto rows = db->segment_stats(run_id);
+  if (!rows) return fail(rows.error().message);
+  if (json) {
+    nlohmann::json out = nlohmann::json::array();
+    for (const auto& r : *rows) {
+      out.push_back({{"run_id", r.run_id},
+                     {"segment", r.segment_index + 1},
+                     {"setpoint_c", r.setpoint_c},
+                     {"n", r.n},
+                     {"duration_s", num(r.duration_s)},
+                     {"temp_mean_c", num(r.temp_mean_c)},
+                     {"bias_mean_dph", num(r.bias_mean_dph)},
+                     {"bias_std_dph", num(r.bias_std_dph)},
+                     {"bias_std_ma101_dph", num(r.bias_std_ma_dph)},
+                     {"bias_mean_earth_removed_dph", num(r.bias_mean_earth_removed_dph)},
+                     {"earth_rate_dph", num(r.earth_rate_dph)},
+                     {"ma_window", r.ma_window},
+                     {"bin_s", r.bin_s},
+                     {"t_from_s", r.t_from_s},
+                     {"t_to_s", r.t_to_s}});
+    }
+    std::cout << out.dump(2) << "\n";
+    return 0;
+  }
+  if (rows->empty()) {
+    std::cout << "no Table I rows" << (run_id ? fmt::format(" for run {}", *run_id) : "") << "\n";
+    return 0;
+  }
+  std::cout << fmt::format("{:>4} {:>4} {:>9} {:>8} {:>9} {:>10} {:>10} {:>11} {:>11} {:>11}\n",
+                           "run", "seg", "setpt °C", "n", "length s", "temp °C", "bias °/h",
+                           "std °/h", "std MA °/h", "bias−Ω °/h");
+  for (const auto& r : *rows) {
+    std::cout << fmt::format(
+        "{:>4} {:>4} {:>9.2f} {:>8} {:>9.0f} {:>10.2f} {:>10.4f} {:>11.4f} {:>11.4f} {:>11.4f}\n",
+        r.run_id, r.segment_index + 1, r.setpoint_c, r.n, r.duration_s, r.temp_mean_c,
+        r.bias_mean_dph, r.bias_std_dph, r.bias_std_ma_dph, r.bias_mean_earth_removed_dph);
+  }
+  std::cout << fmt::format("(std MA: after a {}-point moving average; bias−Ω: Earth rate {:.4f} °/h "
+                           "removed)\n",
+                           rows->front().ma_window, rows->front().earth_rate_dph);
+  return 0;
+}
+
+// ---------------------------------------------------------------- station config helpers
+Result<daemon::StationConfig> load_config_for_tools(const std::string& path) {
+  auto cfg = daemon::load_station_config(path);
+  if (!cfg) return cfg;
+  if (!cfg->simulator.endpoints_file.empty()) {
+    auto ep = daemon::read_sim_endpoints(cfg->simulator.endpoints_file);
+    if (!ep) {
+      return Error::Transient(fmt::format("{}: simulator endpoints not readable (is gyrotherm-sim "
+                                          "running?): {}",
+                                          cfg->simulator.endpoints_file, ep.error().message));
+    }
+    daemon::apply_sim_endpoints(*cfg, *ep);
+  }
+  return cfg;
+}
+
+std::string reading(const Result<double>& r, const char* unit) {
+  return r ? fmt::format("{:.3f} {}", *r, unit) : fmt::format("ERROR: {}", r.error().message);
+}
+
+int cmd_devices(const std::string& config_path, bool json) {
+  auto cfg = load_config_for_tools(config_path);
+  if (!cfg) return fail(cfg.error().message, 2);
+  drivers::ModbusDevice chamber("chamber", cfg->chamber.endpoint);
+  drivers::ModbusDevice probes("probes", cfg->probes.endpoint);
+  const auto pv = chamber.read(cfg->chamber.map.process_value);
+  const auto sp = chamber.read(cfg->chamber.map.setpoint);
+  const auto top = probes.read(cfg->probes.top);
+  const auto side = probes.read(cfg->probes.side);
+
+  // Gyro: listen for up to two seconds (wall).
+  std::string gyro_text;
+  nlohmann::json gyro_json;
+  auto port = drivers::SerialPort::open(cfg->gyro.serial);
+  if (!port) {
+    gyro_text = "ERROR: " + port.error().message;
+    gyro_json = {{"error", port.error().message}};
+  } else {
+    auto parser = drivers::make_frame_parser(cfg->gyro.protocol);
+    std::vector<uint8_t> buf(4096);
+    std::vector<drivers::GyroFrame> frames;
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(2);
+    while (std::chrono::steady_clock::now() < deadline && frames.size() < 20) {
+      auto n = port->read(buf, std::chrono::milliseconds(100));
+      if (!n) break;
+      (*parser)->feed(std::span<const uint8_t>(buf.data(), *n), frames);
+    }
+    const auto& c = (*parser)->counters();
+    if (frames.empty()) {
+      gyro_text = fmt::format("no valid frame in 2 s ({} CRC failures, {} bytes skipped)",
+                              c.crc_failures, c.bytes_skipped);
+      gyro_json = {{"error", gyro_text}};
+    } else {
+      const auto& f = frames.back();
+      const double rate = drivers::to_rate_dph(f.gyro[static_cast<std::size_t>(cfg->gyro.format.axis)],
+                                               cfg->gyro.format);
+      gyro_text = fmt::format("{:.3f} °/h (axis {}), seq {}, status 0x{:02x}, {} °C; {} frames, {} "
+                              "CRC failures",
+                              rate, static_cast<char>('x' + cfg->gyro.format.axis), f.seq, f.status,
+                              f.temp_c, c.frames_ok, c.crc_failures);
+      gyro_json = {{"rate_dph", rate}, {"seq", f.seq}, {"status", f.status},
+                   {"temp_c", f.temp_c}, {"frames_ok", c.frames_ok},
+                   {"crc_failures", c.crc_failures}};
+    }
+  }
+  if (json) {
+    auto v = [](const Result<double>& r) {
+      return r ? nlohmann::json(*r) : nlohmann::json({{"error", r.error().message}});
+    };
+    nlohmann::json out = {{"chamber", {{"endpoint", cfg->chamber.endpoint.describe()},
+                                       {"process_value_c", v(pv)}, {"setpoint_c", v(sp)}}},
+                          {"probes", {{"endpoint", cfg->probes.endpoint.describe()},
+                                      {"top_c", v(top)}, {"side_c", v(side)}}},
+                          {"gyro", gyro_json}};
+    out["gyro"]["device"] = cfg->gyro.serial.device;
+    std::cout << out.dump(2) << "\n";
+  } else {
+    std::cout << fmt::format("chamber  {}\n  air temperature  {}\n  set point        {}\n",
+                             cfg->chamber.endpoint.describe(), reading(pv, "°C"), reading(sp, "°C"));
+    std::cout << fmt::format("probes   {}\n  top              {}\n  side             {}\n",
+                             cfg->probes.endpoint.describe(), reading(top, "°C"),
+                             reading(side, "°C"));
+    std::cout << fmt::format("gyro     {}\n  {}\n", cfg->gyro.serial.device, gyro_text);
+  }
+  return (pv && sp && top && side && port) ? 0 : 1;
+}
+
+int cmd_chamber_setpoint(const std::string& config_path, double setpoint_c) {
+  auto cfg = load_config_for_tools(config_path);
+  if (!cfg) return fail(cfg.error().message, 2);
+  if (setpoint_c < cfg->station.min_temp_c || setpoint_c > cfg->station.max_temp_c) {
+    return fail(fmt::format("{:g} °C is outside the station's limits [{:g}, {:g}] °C", setpoint_c,
+                            cfg->station.min_temp_c, cfg->station.max_temp_c),
+                2);
+  }
+  drivers::ModbusDevice chamber("chamber", cfg->chamber.endpoint);
+  if (auto st = chamber.write(cfg->chamber.map.setpoint, setpoint_c); !st) {
+    return fail(st.error().message);
+  }
+  auto back = chamber.read(cfg->chamber.map.setpoint);
+  if (!back) return fail(back.error().message);
+  std::cout << fmt::format("chamber set point {:.2f} °C\n", *back);
+  return 0;
+}
+
+int cmd_schedule_check(const std::string& config_path, const std::string& schedule_path, bool json) {
+  auto cfg = daemon::load_station_config(config_path);
+  if (!cfg) return fail("bad station config:\n" + cfg.error().message, 2);
+  const schedules::StationLimits limits{cfg->station.min_temp_c, cfg->station.max_temp_c,
+                                        cfg->station.max_ramp_c_per_min};
+  auto plan = schedules::load_schedule(schedule_path, limits);
+  if (!plan) {
+    if (json) {
+      nlohmann::json errors = nlohmann::json::array();
+      std::istringstream ss(plan.error().message);
+      for (std::string line; std::getline(ss, line);) errors.push_back(line);
+      std::cout << nlohmann::json({{"ok", false}, {"errors", errors}}).dump(2) << "\n";
+      return 1;
+    }
+    return fail("schedule refused:\n" + plan.error().message, 1);
+  }
+  if (json) {
+    nlohmann::json steps = nlohmann::json::array();
+    for (const auto& s : plan->steps) steps.push_back(s.label);
+    std::cout << nlohmann::json({{"ok", true}, {"name", plan->name}, {"steps", steps}}).dump(2)
+              << "\n";
+    return 0;
+  }
+  std::cout << fmt::format("{}: ok, {} steps\n", plan->name, plan->steps.size());
+  for (const auto& s : plan->steps) std::cout << "  " << s.label << "\n";
+  return 0;
+}
+
+// ---------------------------------------------------------------- REST
+int cmd_status(const std::string& url, bool json) {
+  auto r = daemon::http_request("GET", url + "/api/v1/status");
+  if (!r) return fail(r.error().message);
+  if (r->status != 200) return fail(fmt::format("HTTP {}: {}", r->status, r->body));
+  if (json) {
+    std::cout << r->body << "\n";
+    return 0;
+  }
+  const auto j = nlohmann::json::parse(r->body, nullptr, false);
+  if (j.is_discarded()) return fail("daemon sent invalid JSON");
+  auto f = [&](const char* key, const char* unit) {
+    return j[key].is_null() ? std::string("—") : fmt::format("{:.3f} {}", j[key].get<double>(), unit);
+  };
+  std::cout << fmt::format("station   {}\nstate     {}\n", j["station"].get<std::string>(),
+                           j["state"].get<std::string>());
+  if (!j["run_id"].is_null()) {
+    std::cout << fmt::format("run       {} ({})\nstep      {}\n", j["run_id"].get<int64_t>(),
+                             j["schedule"].get<std::string>(),
+                             j["step"]["label"].get<std::string>());
+  }
+  std::cout << fmt::format("set point {}\nchamber   {}\ntop       {}\nside      {}\ngyro      {}\n",
+                           f("setpoint_c", "°C"), f("chamber_c", "°C"), f("top_c", "°C"),
+                           f("side_c", "°C"), f("gyro_rate_dph", "°/h"));
+  const auto& g = j["devices"]["gyro"];
+  std::cout << fmt::format("frames    {} ok, {} CRC failures, {} sequence gaps\n",
+                           g["frames_ok"].get<uint64_t>(), g["crc_failures"].get<uint64_t>(),
+                           g["sequence_gaps"].get<uint64_t>());
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"gyrotherm: FOG thermal test station tool"};
+  app.require_subcommand(1);
+  bool json = false;
+  app.add_flag("--json", json, "machine-readable output");
+  std::string url = std::getenv("GYROTHERM_URL") ? std::getenv("GYROTHERM_URL") : "http://127.0.0.1:8750";
+  std::string token = std::getenv("GYROTHERM_TOKEN") ? std::getenv("GYROTHERM_TOKEN") : "";
+
+  auto* decode = app.add_subcommand("decode", "decode a raw serial capture to CSV");
+  std::string protocol = "kvh1750", capture;
+  decode->add_option("--protocol", protocol, "frame protocol")->check(CLI::IsMember({"kvh1750"}));
+  decode->add_option("file", capture, "capture file")->required();
+  decode->add_flag("--json", json);
+
+  auto* stats = app.add_subcommand("stats", "Table I rows of a database");
+  std::string db_path;
+  std::optional<int64_t> run_id;
+  stats->add_option("--db", db_path, "database file")->required();
+  stats->add_option("--run", run_id, "only this run");
+  stats->add_flag("--json", json);
+
+  auto* devices = app.add_subcommand("devices", "one live reading of every device");
+  std::string config_path;
+  devices->add_option("--config", config_path, "station config")->required();
+  devices->add_flag("--json", json);
+
+  auto* chamber = app.add_subcommand("chamber", "chamber commissioning");
+  chamber->require_subcommand(1);
+  auto* set_point = chamber->add_subcommand("set-point", "write the chamber set point (°C)");
+  double setpoint_c = 0;
+  set_point->add_option("celsius", setpoint_c, "set point, °C")->required();
+  set_point->add_option("--config", config_path, "station config")->required();
+
+  auto* schedule = app.add_subcommand("schedule", "schedule files");
+  schedule->require_subcommand(1);
+  auto* check = schedule->add_subcommand("check", "validate a schedule against a station");
+  std::string schedule_path;
+  check->add_option("file", schedule_path, "schedule file")->required();
+  check->add_option("--config", config_path, "station config")->required();
+  check->add_flag("--json", json);
+
+  auto* status = app.add_subcommand("status", "the daemon's status");
+  status->add_option("--url", url, "daemon URL (env GYROTHERM_URL)");
+  status->add_option("--token", token, "API token (env GYROTHERM_TOKEN)");
+  status->add_flag("--json", json);
+
+  CLI11_PARSE(app, argc, argv);
+  try {
+    if (*decode) return cmd_decode(protocol, capture);
+    if (*stats) return cmd_stats(db_path, run_id, json);
+    if (*devices) return cmd_devices(config_path, json);
+    if (*set_point) return cmd_chamber_setpoint(config_path, setpoint_c);
+    if (*check) return cmd_schedule_check(config_path, schedule_path, json);
+    if (*status) return cmd_status(url, json);
+  } catch (const std::exception& e) {
+    return fail(e.what());
+  }
+  return 0;
+}

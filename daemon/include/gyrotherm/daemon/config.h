@@ -1,0 +1,132 @@
+// Station configuration (DESIGN.md §3), loaded from TOML.
+//
+// Every section and key is checked: unknown keys and bad values are errors
+// naming file, line and key, all reported at once. Relative paths in the file
+// are taken relative to the current working directory. Defaults are the
+// values documented in config/station.toml.
+#pragma once
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <toml++/toml.h>
+
+#include "gyrotherm/analysis/table1.h"
+#include "gyrotherm/core/result.h"
+#include "gyrotherm/drivers/gyro_reader.h"
+#include "gyrotherm/drivers/modbus_device.h"
+#include "gyrotherm/drivers/registers.h"
+#include "gyrotherm/drivers/serial_port.h"
+
+namespace gyrotherm::daemon {
+
+struct StationSection {
+  std::string name = "station";
+  double latitude_deg = 0.0;
+  analysis::AxisOrientation orientation = analysis::AxisOrientation::kUp;
+  double min_temp_c = -20.0;
+  double max_temp_c = 60.0;
+  double max_ramp_c_per_min = 2.0;
+  double safe_setpoint_c = 23.0;  // where abort and shutdown leave the chamber
+};
+
+struct ChamberSection {
+  drivers::ModbusEndpoint endpoint;
+  std::string profile = "watlow-f4t";  // or "custom" when [chamber.registers] is given
+  drivers::ChamberMap map;
+  double silent_timeout_s = 10.0;      // station s without a good reading = device silent
+};
+
+struct ProbesSection {
+  drivers::ModbusEndpoint endpoint;
+  std::string profile = "generic";
+  drivers::RegisterSpec top;
+  drivers::RegisterSpec side;
+  int top_channel = 0;
+  int side_channel = 1;
+  double silent_timeout_s = 10.0;
+};
+
+struct GyroSection {
+  drivers::SerialOptions serial;
+  std::string protocol = "kvh1750";
+  drivers::GyroFormat format;
+  double silent_timeout_s = 5.0;  // station s without a sample = stream lost
+};
+
+struct StorageSection {
+  std::string db_path = "gyrotherm.db";
+  double commit_interval_s = 0.5;  // wall seconds
+};
+
+struct ApiSection {
+  std::string bind = "127.0.0.1";
+  int port = 8750;  // 0 = pick a free port (it is logged and written to status_file)
+  std::vector<std::string> tokens;
+};
+
+struct ExportSection {
+  std::string directory = "reports";
+  std::string local_time = "02:00";
+};
+
+struct AnalysisSection {
+  double bin_s = 1.0;
+  int ma_window = 101;
+  double l0_window_s = 120.0;
+  std::string model = "T4+R1+G1";
+  double derivative_window_s = 60.0;
+};
+
+struct ControlSection {
+  double tick_s = 1.0;        // station seconds between control-loop ticks
+  double min_tick_wall_s = 0.005;  // never tick faster than this in wall time
+};
+
+// Simulation hook: where gyrotherm-sim writes the endpoints it opened. When
+// set, the daemon waits for this file at start-up and takes the chamber and
+// probe host/port and the gyro device from it. The rest of [simulator] is
+// read by gyrotherm-sim only.
+struct SimulatorSection {
+  std::string endpoints_file;
+};
+
+struct StationConfig {
+  std::string source_path;
+  StationSection station;
+  ChamberSection chamber;
+  ProbesSection probes;
+  GyroSection gyro;
+  StorageSection storage;
+  ApiSection api;
+  ExportSection export_;
+  AnalysisSection analysis;
+  ControlSection control;
+  SimulatorSection simulator;
+  std::optional<toml::table> simulator_table;  // raw [simulator], for gyrotherm-sim
+};
+
+// Loads and validates. The error's message lists every problem, one per line.
+Result<StationConfig> load_station_config(const std::string& path);
+Result<StationConfig> parse_station_config(std::string_view toml_text,
+                                           const std::string& source_name);
+
+// What gyrotherm-sim writes for the daemon (TOML):
+//   modbus_host = "127.0.0.1"; modbus_port = N; gyro_device = "/dev/pts/N"; pid = N
+struct SimEndpoints {
+  std::string modbus_host = "127.0.0.1";
+  int modbus_port = 0;
+  std::string gyro_device;
+  long pid = 0;
+};
+Result<SimEndpoints> read_sim_endpoints(const std::string& path);
+Status write_sim_endpoints(const std::string& path, const SimEndpoints& endpoints);
+// Applies endpoints to the chamber, probes and gyro sections.
+void apply_sim_endpoints(StationConfig& config, const SimEndpoints& endpoints);
+
+// Writes `content` to `path` atomically (temporary file in the same folder,
+// fsync, rename).
+Status write_file_atomically(const std::string& path, std::string_view content);
+
+}  // namespace gyrotherm::daemon

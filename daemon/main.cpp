@@ -1,0 +1,136 @@
+// gyrothermd: the station daemon. Thin: parse arguments, load the config,
+// wire Station + HTTP server, wait for a signal.
+#include <signal.h>
+
+#include <chrono>
+#include <cstdlib>
+#include <filesystem>
+#include <iostream>
+#include <thread>
+
+#include <CLI/CLI.hpp>
+#include <spdlog/spdlog.h>
+
+#include "gyrotherm/core/clock.h"
+#include "gyrotherm/daemon/api.h"
+#include "gyrotherm/daemon/config.h"
+#include "gyrotherm/daemon/http_server.h"
+#include "gyrotherm/daemon/station.h"
+#include "gyrotherm/schedules/schedule.h"
+
+namespace gd = gyrotherm::daemon;
+
+int main(int argc, char** argv) {
+  CLI::App app{"gyrothermd: FOG thermal test station daemon"};
+  std::string config_path, db_path, schedule_path, log_level = "info";
+  double time_scale = 1.0;
+  double endpoints_wait_s = 30.0;
+  bool exit_when_done = false;
+  app.add_option("--config", config_path, "station config (TOML)")->required();
+  app.add_option("--db", db_path, "database file (overrides [storage] db)");
+  app.add_option("--schedule", schedule_path, "queue this schedule file at start-up");
+  app.add_option("--time-scale", time_scale, "station seconds per wall second (simulation)")
+      ->check(CLI::Range(1e-3, 1e5));
+  app.add_flag("--exit-when-done", exit_when_done,
+               "exit 0 once the queue is empty and no run is active (scripts, tests)");
+  app.add_option("--endpoints-wait", endpoints_wait_s,
+                 "seconds to wait for the simulator's endpoints file");
+  app.add_option("--log-level", log_level, "trace, debug, info, warn, error");
+  CLI11_PARSE(app, argc, argv);
+  spdlog::set_level(spdlog::level::from_str(log_level));
+  spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %^%l%$ %v");
+
+  auto config = gd::load_station_config(config_path);
+  if (!config) {
+    std::cerr << "gyrothermd: bad config:\n" << config.error().message;
+    return 2;
+  }
+  if (!db_path.empty()) config->storage.db_path = db_path;
+
+  if (!config->simulator.endpoints_file.empty()) {
+    const std::string& file = config->simulator.endpoints_file;
+    const auto deadline = std::chrono::steady_clock::now() +
+                          std::chrono::milliseconds(static_cast<int64_t>(endpoints_wait_s * 1000));
+    gyrotherm::Result<gd::SimEndpoints> ep = gyrotherm::Error::Transient("not read");
+    while (!(ep = gd::read_sim_endpoints(file)) && std::chrono::steady_clock::now() < deadline) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+    if (!ep) {
+      std::cerr << "gyrothermd: no simulator endpoints in " << file << " after " << endpoints_wait_s
+                << " s (is gyrotherm-sim running with the same config?):\n"
+                << ep.error().message << "\n";
+      return 1;
+    }
+    gd::apply_sim_endpoints(*config, *ep);
+    spdlog::info("simulated station: modbus {}:{}, gyro {}", ep->modbus_host, ep->modbus_port,
+                 ep->gyro_device);
+  }
+
+  std::optional<gyrotherm::schedules::Plan> plan;
+  if (!schedule_path.empty()) {
+    const gyrotherm::schedules::StationLimits limits{config->station.min_temp_c,
+                                                      config->station.max_temp_c,
+                                                      config->station.max_ramp_c_per_min};
+    auto p = gyrotherm::schedules::load_schedule(schedule_path, limits);
+    if (!p) {
+      std::cerr << "gyrothermd: schedule refused, nothing queued:\n" << p.error().message;
+      return 2;
+    }
+    plan = std::move(*p);
+  }
+
+  // Signals are taken by sigwait() below, never by the worker threads.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+
+  gyrotherm::ScaledClock clock(time_scale);
+  auto station = gd::Station::create(*config, clock);
+  if (!station) {
+    std::cerr << "gyrothermd: " << station.error().message << "\n";
+    return 1;
+  }
+  gd::ApiContext api{[s = station->get()] { return s->status(); }};
+  gd::HttpServerOptions http_options;
+  http_options.bind = config->api.bind;
+  http_options.port = config->api.port;
+  auto http = gd::HttpServer::create(http_options,
+                                     [&api](const gd::HttpRequest& r) {
+                                       return gd::handle_api_request(r, api);
+                                     });
+  if (!http) {
+    std::cerr << "gyrothermd: " << http.error().message << "\n";
+    return 1;
+  }
+  (*station)->start();
+  (*http)->start();
+  spdlog::info("gyrothermd: station \"{}\", database {}, API http://{}:{}/api/v1/status, time "
+               "scale {:g}",
+               config->station.name, config->storage.db_path, config->api.bind, (*http)->port(),
+               time_scale);
+  if (plan) {
+    spdlog::info("queued {} ({} steps)", plan->name, plan->steps.size());
+    (*station)->enqueue(std::move(*plan));
+  }
+
+  int exit_code = 0;
+  std::string reason;
+  for (;;) {
+    timespec wait{0, 100'000'000};
+    const int sig = sigtimedwait(&signals, nullptr, &wait);
+    if (sig == SIGINT || sig == SIGTERM) {
+      reason = sig == SIGINT ? "SIGINT" : "SIGTERM";
+      break;
+    }
+    if (exit_when_done && (*station)->idle()) {
+      reason = "queue done";
+      break;
+    }
+  }
+  spdlog::info("gyrothermd: stopping ({})", reason);
+  (*http)->stop();
+  (*station)->stop("daemon stopped: " + reason);
+  return exit_code;
+}

@@ -1,0 +1,348 @@
+#include "gyrotherm/daemon/config.h"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include <fmt/format.h>
+
+#include "gyrotherm/core/toml_reader.h"
+
+namespace gyrotherm::daemon {
+namespace {
+
+// Reads "{ address = N, function = "holding", type = "float32", word_order = "low-first",
+// scale = 1.0 }" into a RegisterSpec.
+std::optional<drivers::RegisterSpec> read_register(TableReader t) {
+  drivers::RegisterSpec spec;
+  bool ok = true;
+  if (auto a = t.integer("address")) {
+    if (*a < 0 || *a > 65535) {
+      t.error("address", fmt::format("{} is not a register address (0..65535)", *a));
+      ok = false;
+    }
+    spec.address = static_cast<int>(*a);
+  } else {
+    if (!t.raw().contains("address")) t.error("address", "missing (required integer)");
+    ok = false;
+  }
+  if (auto f = t.string("function")) {
+    auto r = drivers::parse_register_function(*f);
+    if (r) spec.function = *r; else { t.error("function", r.error().message); ok = false; }
+  }
+  if (auto ty = t.string("type")) {
+    auto r = drivers::parse_register_type(*ty);
+    if (r) spec.type = *r; else { t.error("type", r.error().message); ok = false; }
+  }
+  if (auto w = t.string("word_order")) {
+    auto r = drivers::parse_word_order(*w);
+    if (r) spec.word_order = *r; else { t.error("word_order", r.error().message); ok = false; }
+  }
+  if (auto s = t.number("scale")) {
+    if (*s == 0.0) { t.error("scale", "must not be 0"); ok = false; }
+    spec.scale = *s;
+  }
+  t.finish();
+  if (!ok) return std::nullopt;
+  return spec;
+}
+
+void read_endpoint(TableReader& t, drivers::ModbusEndpoint& ep, int default_unit) {
+  ep.transport = t.choice("transport", {"tcp", "rtu"}, "tcp").value_or("tcp");
+  if (auto h = t.string("host")) ep.host = *h;
+  if (auto p = t.integer("port")) {
+    if (*p < 0 || *p > 65535) t.error("port", fmt::format("{} is not a TCP port", *p));
+    else ep.port = static_cast<int>(*p);
+  }
+  if (auto d = t.string("device")) ep.device = *d;
+  if (auto b = t.integer("baud")) {
+    if (*b <= 0) t.error("baud", "must be positive"); else ep.baud = static_cast<int>(*b);
+  }
+  if (auto p = t.choice("parity", {"none", "even", "odd"}, std::nullopt)) {
+    ep.parity = *p == "none" ? 'N' : (*p == "even" ? 'E' : 'O');
+  }
+  ep.unit_id = default_unit;
+  if (auto u = t.integer("unit_id")) {
+    if (*u < 0 || *u > 247) t.error("unit_id", fmt::format("{} is not a Modbus unit id (0..247)", *u));
+    else ep.unit_id = static_cast<int>(*u);
+  }
+  ep.response_timeout_s = t.number_in("response_timeout_s", ep.response_timeout_s, 0.01, 60.0);
+  if (ep.transport == "rtu" && ep.device.empty()) t.error("device", "missing (required for rtu)");
+}
+
+void read_station(TableReader t, StationSection& s) {
+  if (auto n = t.string("name")) s.name = *n;
+  s.latitude_deg = t.number_in("latitude_deg", s.latitude_deg, -90.0, 90.0);
+  if (auto o = t.choice("orientation", {"up", "down", "horizontal"}, std::nullopt)) {
+    s.orientation = *analysis::parse_orientation(*o);
+  }
+  s.min_temp_c = t.number_in("min_temp_c", s.min_temp_c, -100.0, 200.0);
+  s.max_temp_c = t.number_in("max_temp_c", s.max_temp_c, -100.0, 200.0);
+  if (s.min_temp_c >= s.max_temp_c) t.error("max_temp_c", "must be above min_temp_c");
+  s.max_ramp_c_per_min = t.number_in("max_ramp_c_per_min", s.max_ramp_c_per_min, 0.001, 100.0);
+  s.safe_setpoint_c = t.number_in("safe_setpoint_c", s.safe_setpoint_c, -100.0, 200.0);
+  if (s.safe_setpoint_c < s.min_temp_c || s.safe_setpoint_c > s.max_temp_c) {
+    t.error("safe_setpoint_c", "must lie within [min_temp_c, max_temp_c]");
+  }
+  t.finish();
+}
+
+void read_chamber(TableReader t, ChamberSection& c) {
+  read_endpoint(t, c.endpoint, 1);
+  c.silent_timeout_s = t.number_in("silent_timeout_s", c.silent_timeout_s, 0.1, 86400.0);
+  auto profile = t.string("profile");
+  auto regs = t.table("registers");
+  if (profile && regs) t.error("registers", "give either profile or registers, not both");
+  if (regs) {
+    c.profile = "custom";
+    auto sp = regs->table("setpoint");
+    auto pv = regs->table("process_value");
+    if (!sp) regs->error("setpoint", "missing (required register)");
+    if (!pv) regs->error("process_value", "missing (required register)");
+    if (sp) if (auto r = read_register(*sp)) c.map.setpoint = *r;
+    if (pv) if (auto r = read_register(*pv)) c.map.process_value = *r;
+    regs->finish();
+  } else {
+    if (profile) c.profile = *profile;
+    auto map = drivers::chamber_profile(c.profile);
+    if (map) c.map = *map; else t.error("profile", map.error().message);
+  }
+  t.finish();
+}
+
+void read_probes(TableReader t, ProbesSection& p) {
+  read_endpoint(t, p.endpoint, 2);
+  p.silent_timeout_s = t.number_in("silent_timeout_s", p.silent_timeout_s, 0.1, 86400.0);
+  auto profile = t.string("profile");
+  auto regs = t.table("registers");
+  if (profile && regs) t.error("registers", "give either profile or registers, not both");
+  if (regs) {
+    p.profile = "custom";
+    auto top = regs->table("top");
+    auto side = regs->table("side");
+    if (!top) regs->error("top", "missing (required register)");
+    if (!side) regs->error("side", "missing (required register)");
+    if (top) if (auto r = read_register(*top)) p.top = *r;
+    if (side) if (auto r = read_register(*side)) p.side = *r;
+    regs->finish();
+  } else {
+    if (profile) p.profile = *profile;
+    if (auto ch = t.table("channels")) {
+      for (auto [role, field] : {std::pair{"top", &p.top_channel}, std::pair{"side", &p.side_channel}}) {
+        if (auto v = ch->integer(role)) {
+          if (*v < 0 || *v > 255) ch->error(role, "channel must be in 0..255");
+          else *field = static_cast<int>(*v);
+        }
+      }
+      ch->finish();
+    }
+    if (p.top_channel == p.side_channel) t.error("channels", "top and side use the same channel");
+    auto top = drivers::probe_channel_spec(p.profile, p.top_channel);
+    auto side = drivers::probe_channel_spec(p.profile, p.side_channel);
+    if (!top) t.error("profile", top.error().message);
+    else p.top = *top;
+    if (side) p.side = *side;
+  }
+  t.finish();
+}
+
+void read_gyro(TableReader t, GyroSection& g) {
+  if (auto d = t.string("device")) g.serial.device = *d;
+  if (auto b = t.integer("baud")) {
+    if (*b <= 0) t.error("baud", "must be positive"); else g.serial.baud = static_cast<int>(*b);
+  }
+  if (auto p = t.choice("parity", {"none", "even", "odd"}, std::nullopt)) {
+    g.serial.parity = *drivers::parse_parity(*p);
+  }
+  if (auto p = t.choice("protocol", {"kvh1750"}, std::nullopt)) g.protocol = *p;
+  if (auto u = t.choice("unit", {"rad", "deg"}, std::nullopt)) {
+    g.format.unit = *u == "rad" ? drivers::AngleUnit::kRad : drivers::AngleUnit::kDeg;
+  }
+  if (auto o = t.choice("output", {"rate", "delta"}, std::nullopt)) {
+    g.format.kind = *o == "rate" ? drivers::OutputKind::kRate : drivers::OutputKind::kDeltaAngle;
+  }
+  if (auto a = t.choice("axis", {"x", "y", "z"}, std::nullopt)) g.format.axis = (*a)[0] - 'x';
+  g.format.rate_hz = t.number_in("rate_hz", g.format.rate_hz, 0.1, 10000.0);
+  g.silent_timeout_s = t.number_in("silent_timeout_s", g.silent_timeout_s, 0.1, 86400.0);
+  t.finish();
+}
+
+void read_storage(TableReader t, StorageSection& s) {
+  if (auto d = t.string("db")) s.db_path = *d;
+  s.commit_interval_s = t.number_in("commit_interval_s", s.commit_interval_s, 0.01, 1.0);
+  t.finish();
+}
+
+void read_api(TableReader t, ApiSection& a) {
+  if (auto b = t.string("bind")) a.bind = *b;
+  if (auto p = t.integer("port")) {
+    if (*p < 0 || *p > 65535) t.error("port", fmt::format("{} is not a TCP port", *p));
+    else a.port = static_cast<int>(*p);
+  }
+  if (const toml::array* tokens = t.array("tokens")) {
+    for (const auto& node : *tokens) {
+      auto s = node.value_exact<std::string>();
+      if (!s || s->size() < 16) {
+        t.error("tokens", "each token must be a string of at least 16 characters");
+        break;
+      }
+      a.tokens.push_back(*s);
+    }
+  }
+  t.finish();
+}
+
+void read_export(TableReader t, ExportSection& e) {
+  if (auto d = t.string("directory")) e.directory = *d;
+  if (auto lt = t.string("local_time")) {
+    int hh = -1, mm = -1;
+    char extra = 0;
+    if (std::sscanf(lt->c_str(), "%2d:%2d%c", &hh, &mm, &extra) != 2 || hh < 0 || hh > 23 ||
+        mm < 0 || mm > 59) {
+      t.error("local_time", fmt::format("\"{}\" is not a local time HH:MM", *lt));
+    } else {
+      e.local_time = *lt;
+    }
+  }
+  t.finish();
+}
+
+void read_analysis(TableReader t, AnalysisSection& a) {
+  a.bin_s = t.number_in("bin_s", a.bin_s, 1e-3, 3600.0);
+  if (auto w = t.integer("ma_window")) {
+    if (*w < 2 || *w > 100000) t.error("ma_window", "must be in [2, 100000]");
+    else a.ma_window = static_cast<int>(*w);
+  }
+  a.l0_window_s = t.number_in("l0_window_s", a.l0_window_s, 1.0, 86400.0);
+  if (auto m = t.string("model")) a.model = *m;
+  a.derivative_window_s = t.number_in("derivative_window_s", a.derivative_window_s, 1.0, 86400.0);
+  t.finish();
+}
+
+void read_control(TableReader t, ControlSection& c) {
+  c.tick_s = t.number_in("tick_s", c.tick_s, 0.01, 60.0);
+  c.min_tick_wall_s = t.number_in("min_tick_wall_s", c.min_tick_wall_s, 0.0005, 10.0);
+  t.finish();
+}
+
+Result<StationConfig> build_config(std::optional<toml::table> root, TomlErrors& errors,
+                                   const std::string& source) {
+  if (!root) return Error::Permanent(errors.joined());
+  StationConfig cfg;
+  cfg.source_path = source;
+  TableReader top(*root, "", errors);
+  auto section = [&](std::string_view name, bool required, auto&& fn) {
+    if (auto t = top.table(name)) {
+      fn(*t);
+    } else if (required && !root->contains(name)) {
+      errors.add(0, name, "missing section");
+    }
+  };
+  section("station", true, [&](TableReader t) { read_station(t, cfg.station); });
+  section("chamber", true, [&](TableReader t) { read_chamber(t, cfg.chamber); });
+  section("probes", true, [&](TableReader t) { read_probes(t, cfg.probes); });
+  section("gyro", true, [&](TableReader t) { read_gyro(t, cfg.gyro); });
+  section("storage", false, [&](TableReader t) { read_storage(t, cfg.storage); });
+  section("api", false, [&](TableReader t) { read_api(t, cfg.api); });
+  section("export", false, [&](TableReader t) { read_export(t, cfg.export_); });
+  section("analysis", false, [&](TableReader t) { read_analysis(t, cfg.analysis); });
+  section("control", false, [&](TableReader t) { read_control(t, cfg.control); });
+  section("simulator", false, [&](TableReader t) {
+    if (auto f = t.string("endpoints_file")) cfg.simulator.endpoints_file = *f;
+    cfg.simulator_table = t.raw();  // the rest belongs to gyrotherm-sim
+  });
+  top.finish();
+  if (cfg.gyro.serial.device.empty() && cfg.simulator.endpoints_file.empty()) {
+    errors.add(0, "gyro.device", "missing (required unless [simulator] endpoints_file is set)");
+  }
+  if (!errors.empty()) return Error::Permanent(errors.joined());
+  return cfg;
+}
+
+}  // namespace
+
+Result<StationConfig> load_station_config(const std::string& path) {
+  TomlErrors errors(path);
+  return build_config(parse_toml_file(path, errors), errors, path);
+}
+
+Result<StationConfig> parse_station_config(std::string_view toml_text,
+                                           const std::string& source_name) {
+  TomlErrors errors(source_name);
+  return build_config(parse_toml_string(toml_text, errors), errors, source_name);
+}
+
+Result<SimEndpoints> read_sim_endpoints(const std::string& path) {
+  TomlErrors errors(path);
+  auto root = parse_toml_file(path, errors);
+  if (!root) return Error::Transient(errors.joined());
+  SimEndpoints ep;
+  TableReader t(*root, "", errors);
+  if (auto h = t.required_string("modbus_host")) ep.modbus_host = *h;
+  if (auto p = t.integer("modbus_port")) ep.modbus_port = static_cast<int>(*p);
+  else t.error("modbus_port", "missing");
+  if (auto d = t.required_string("gyro_device")) ep.gyro_device = *d;
+  if (auto p = t.integer("pid")) ep.pid = static_cast<long>(*p);
+  t.finish();
+  if (!errors.empty()) return Error::Permanent(errors.joined());
+  return ep;
+}
+
+Status write_sim_endpoints(const std::string& path, const SimEndpoints& ep) {
+  toml::table t{{"modbus_host", ep.modbus_host},
+                {"modbus_port", ep.modbus_port},
+                {"gyro_device", ep.gyro_device},
+                {"pid", static_cast<int64_t>(ep.pid)}};
+  std::ostringstream ss;
+  ss << "# written by gyrotherm-sim; read by gyrothermd ([simulator] endpoints_file)\n" << t << "\n";
+  return write_file_atomically(path, ss.str());
+}
+
+void apply_sim_endpoints(StationConfig& config, const SimEndpoints& ep) {
+  for (auto* endpoint : {&config.chamber.endpoint, &config.probes.endpoint}) {
+    endpoint->transport = "tcp";
+    endpoint->host = ep.modbus_host;
+    endpoint->port = ep.modbus_port;
+  }
+  config.gyro.serial.device = ep.gyro_device;
+}
+
+Status write_file_atomically(const std::string& path, std::string_view content) {
+  namespace fs = std::filesystem;
+  const fs::path target(path);
+  std::error_code ec;
+  if (target.has_parent_path()) fs::create_directories(target.parent_path(), ec);
+  const std::string tmp = path + ".tmp." + std::to_string(::getpid());
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) {
+    return Error::Permanent(fmt::format("{}: cannot create: {}", tmp, std::strerror(errno)));
+  }
+  std::size_t done = 0;
+  while (done < content.size()) {
+    const ssize_t n = ::write(fd, content.data() + done, content.size() - done);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      const int err = errno;
+      ::close(fd);
+      ::unlink(tmp.c_str());
+      return Error::Transient(fmt::format("{}: write failed: {}", tmp, std::strerror(err)));
+    }
+    done += static_cast<std::size_t>(n);
+  }
+  ::fsync(fd);
+  ::close(fd);
+  if (::rename(tmp.c_str(), path.c_str()) != 0) {
+    const int err = errno;
+    ::unlink(tmp.c_str());
+    return Error::Permanent(fmt::format("{}: rename failed: {}", path, std::strerror(err)));
+  }
+  return Status::Ok();
+}
+
+}  // namespace gyrotherm::daemon

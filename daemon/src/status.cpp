@@ -1,0 +1,69 @@
+#include "gyrotherm/daemon/status.h"
+
+namespace gyrotherm::daemon {
+namespace {
+
+template <class T>
+nlohmann::json opt(const std::optional<T>& v) {
+  return v ? nlohmann::json(*v) : nlohmann::json(nullptr);
+}
+
+nlohmann::json to_json(const drivers::DeviceHealth& h) {
+  return {{"connected", h.connected},     {"last_success_utc", h.last_success_utc},
+          {"requests", h.requests},       {"errors", h.errors},
+          {"reconnects", h.reconnects},   {"last_error", h.last_error},
+          {"last_latency_ms", h.last_latency_ms}};
+}
+
+}  // namespace
+
+nlohmann::json to_json(const StatusSnapshot& s) {
+  const auto& g = s.gyro;
+  return {
+      {"station", s.station_name},
+      {"state", s.state},
+      {"run_id", opt(s.run_id)},
+      {"schedule", s.schedule_name},
+      {"step", {{"index", opt(s.step_index)}, {"count", s.step_count}, {"label", s.step_label}}},
+      {"setpoint_c", opt(s.setpoint_c)},
+      {"chamber_c", opt(s.chamber_c)},
+      {"top_c", opt(s.top_c)},
+      {"side_c", opt(s.side_c)},
+      {"gradient_c", opt(s.gradient_c)},
+      {"temp_rate_c_per_min", opt(s.temp_rate_c_per_min)},
+      {"gyro_rate_dph", opt(s.gyro_rate_dph)},
+      {"gyro_samples_per_s", s.gyro_samples_per_s},
+      {"t_station_s", s.t_station_s},
+      {"t_run_s", s.t_run_s},
+      {"uptime_s", s.uptime_s},
+      {"time_scale", s.time_scale},
+      {"last_event", s.last_event},
+      {"devices",
+       {{"chamber", to_json(s.chamber)},
+        {"probes", to_json(s.probes)},
+        {"gyro",
+         {{"connected", g.connected},
+          {"samples", g.samples},
+          {"frames_ok", g.parser.frames_ok},
+          {"crc_failures", g.parser.crc_failures},
+          {"bytes_skipped", g.parser.bytes_skipped},
+          {"sequence_gaps", g.parser.sequence_gaps},
+          {"frames_missed", g.parser.frames_missed},
+          {"invalid_samples", g.invalid_samples},
+          {"reopens", g.reopens},
+          {"read_errors", g.read_errors},
+          {"last_error", g.last_error}}}}},
+      {"storage",
+       {{"gyro_rows", s.storage.gyro_rows},
+        {"temperature_rows", s.storage.temperature_rows},
+        {"commits", s.storage.commits},
+        {"commit_failures", s.storage.commit_failures},
+        {"dropped", s.storage.dropped},
+        {"pending", s.storage.pending},
+        {"last_commit_ms", s.storage.last_commit_ms},
+        {"max_commit_ms", s.storage.max_commit_ms},
+        {"last_error", s.storage.last_error}}},
+  };
+}
+
+}  // namespace gyrotherm::daemon

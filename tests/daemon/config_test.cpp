@@ -1,0 +1,146 @@
+#include "gyrotherm/daemon/config.h"
+
+#include <unistd.h>
+
+#include <filesystem>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+namespace gyrotherm::daemon {
+namespace {
+
+using ::testing::HasSubstr;
+using ::testing::Not;
+
+constexpr const char* kMinimal = R"(
+[station]
+latitude_deg = 31.9
+[chamber]
+port = 1502
+[probes]
+port = 1502
+[gyro]
+device = "/dev/ttyUSB0"
+)";
+
+TEST(Config, ShippedConfigsLoad) {
+  for (const char* name : {"demo.toml", "station.toml"}) {
+    auto cfg = load_station_config(std::string(GYROTHERM_SOURCE_DIR) + "/config/" + name);
+    ASSERT_TRUE(cfg.ok()) << name << ":\n" << cfg.error().message;
+  }
+}
+
+TEST(Config, DemoConfigValues) {
+  auto cfg = load_station_config(std::string(GYROTHERM_SOURCE_DIR) + "/config/demo.toml");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  EXPECT_DOUBLE_EQ(cfg->station.latitude_deg, 31.9);
+  EXPECT_EQ(cfg->chamber.map.setpoint.address, 2782);
+  EXPECT_EQ(cfg->chamber.map.process_value.address, 2820);
+  EXPECT_EQ(cfg->probes.endpoint.unit_id, 2);
+  EXPECT_EQ(cfg->simulator.endpoints_file, "demo/sim-endpoints.toml");
+  ASSERT_TRUE(cfg->simulator_table.has_value());
+  EXPECT_TRUE(cfg->simulator_table->contains("thermal"));
+}
+
+TEST(Config, DefaultsFromTheBrief) {
+  auto cfg = parse_station_config(kMinimal, "min.toml");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  EXPECT_DOUBLE_EQ(cfg->station.min_temp_c, -20.0);
+  EXPECT_DOUBLE_EQ(cfg->station.max_temp_c, 60.0);
+  EXPECT_DOUBLE_EQ(cfg->station.safe_setpoint_c, 23.0);
+  EXPECT_EQ(cfg->chamber.profile, "watlow-f4t");
+  EXPECT_EQ(cfg->api.bind, "127.0.0.1");
+  EXPECT_EQ(cfg->analysis.ma_window, 101);
+  EXPECT_DOUBLE_EQ(cfg->analysis.l0_window_s, 120.0);
+  EXPECT_EQ(cfg->gyro.protocol, "kvh1750");
+}
+
+TEST(Config, ExplicitRegisterMap) {
+  auto cfg = parse_station_config(R"(
+[station]
+[chamber]
+registers.setpoint = { address = 10, type = "int16", scale = 0.1 }
+registers.process_value = { address = 11, function = "input", type = "float32", word_order = "high-first" }
+[probes]
+[gyro]
+device = "/dev/ttyS0"
+)",
+                                  "custom.toml");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  EXPECT_EQ(cfg->chamber.profile, "custom");
+  EXPECT_EQ(cfg->chamber.map.setpoint.address, 10);
+  EXPECT_EQ(cfg->chamber.map.setpoint.type, drivers::RegisterType::kInt16);
+  EXPECT_DOUBLE_EQ(cfg->chamber.map.setpoint.scale, 0.1);
+  EXPECT_EQ(cfg->chamber.map.process_value.function, drivers::RegisterFunction::kInput);
+  EXPECT_EQ(cfg->chamber.map.process_value.word_order, drivers::WordOrder::kHighFirst);
+}
+
+TEST(Config, EveryErrorNamesFileLineAndKey) {
+  auto cfg = parse_station_config(R"([station]
+latitude_deg = 120
+orientaton = "up"
+[chamber]
+port = "five"
+profile = "watlow-f9"
+[probes]
+[gyro]
+device = "/dev/ttyUSB0"
+unit = "grad"
+[storage]
+commit_interval_s = 5
+)",
+                                  "bad.toml");
+  ASSERT_FALSE(cfg.ok());
+  const std::string& m = cfg.error().message;
+  EXPECT_THAT(m, HasSubstr("bad.toml:2: station.latitude_deg: 120 is out of range"));
+  EXPECT_THAT(m, HasSubstr("bad.toml:3: station.orientaton: unknown key"));
+  EXPECT_THAT(m, HasSubstr("bad.toml:5: chamber.port: expected an integer, got string"));
+  EXPECT_THAT(m, HasSubstr("bad.toml:6: chamber.profile:"));
+  EXPECT_THAT(m, HasSubstr("watlow-f9"));
+  EXPECT_THAT(m, HasSubstr("bad.toml:10: gyro.unit: \"grad\" is not one of: rad, deg"));
+  EXPECT_THAT(m, HasSubstr("bad.toml:12: storage.commit_interval_s: 5 is out of range"));
+}
+
+TEST(Config, MissingSectionsAndSyntaxErrors) {
+  auto cfg = parse_station_config("[station]\n", "a.toml");
+  ASSERT_FALSE(cfg.ok());
+  EXPECT_THAT(cfg.error().message, HasSubstr("chamber: missing section"));
+  EXPECT_THAT(cfg.error().message, HasSubstr("gyro.device: missing"));
+  auto syntax = parse_station_config("[station\nname = 1\n", "b.toml");
+  ASSERT_FALSE(syntax.ok());
+  EXPECT_THAT(syntax.error().message, HasSubstr("b.toml:1: TOML syntax error"));
+  auto nofile = load_station_config("/nonexistent/station.toml");
+  ASSERT_FALSE(nofile.ok());
+  EXPECT_THAT(nofile.error().message, HasSubstr("/nonexistent/station.toml: cannot open file"));
+}
+
+TEST(Config, ShortTokensAreRefused) {
+  auto cfg = parse_station_config(std::string(kMinimal) + "[api]\ntokens = [\"abc\"]\n", "t.toml");
+  ASSERT_FALSE(cfg.ok());
+  EXPECT_THAT(cfg.error().message, HasSubstr("api.tokens: each token must be a string of at least 16"));
+  EXPECT_THAT(cfg.error().message, Not(HasSubstr("abc"))) << "tokens never appear in messages";
+}
+
+TEST(SimEndpoints, RoundTripThroughAFile) {
+  const auto dir = std::filesystem::temp_directory_path() /
+                   ("gyrotherm-ep-" + std::to_string(::getpid()));
+  const std::string path = (dir / "ep.toml").string();
+  SimEndpoints ep{"127.0.0.1", 40123, "/dev/pts/7", 4242};
+  ASSERT_TRUE(write_sim_endpoints(path, ep).ok());
+  auto back = read_sim_endpoints(path);
+  ASSERT_TRUE(back.ok()) << back.error().message;
+  EXPECT_EQ(back->modbus_port, 40123);
+  EXPECT_EQ(back->gyro_device, "/dev/pts/7");
+  EXPECT_EQ(back->pid, 4242);
+  auto cfg = parse_station_config(kMinimal, "min.toml");
+  ASSERT_TRUE(cfg.ok());
+  apply_sim_endpoints(*cfg, *back);
+  EXPECT_EQ(cfg->chamber.endpoint.port, 40123);
+  EXPECT_EQ(cfg->probes.endpoint.port, 40123);
+  EXPECT_EQ(cfg->gyro.serial.device, "/dev/pts/7");
+  std::filesystem::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace gyrotherm::daemon
