@@ -1,0 +1,43 @@
+// Child processes for integration tests: spawn with output to files, wait
+// with a deadline, signal, and always reap in the destructor.
+#pragma once
+
+#include <sys/types.h>
+
+#include <chrono>
+#include <functional>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace gyrotherm::testing {
+
+class ChildProcess {
+ public:
+  // Starts `argv[0]` with stdout and stderr appended to `log_path`.
+  ChildProcess(std::vector<std::string> argv, const std::string& log_path);
+  ~ChildProcess();  // SIGKILL + reap if still running
+  ChildProcess(const ChildProcess&) = delete;
+  ChildProcess& operator=(const ChildProcess&) = delete;
+
+  pid_t pid() const { return pid_; }
+  bool running();
+  void signal(int sig);
+  // Waits for exit up to `timeout`; returns the exit status (or 128 + signal),
+  // nullopt on timeout.
+  std::optional<int> wait(std::chrono::milliseconds timeout);
+  std::string log() const;
+
+ private:
+  pid_t pid_ = -1;
+  std::optional<int> status_;
+  std::string log_path_;
+};
+
+// Polls `pred` every 20 ms until it holds or `timeout` passes.
+bool wait_until(const std::function<bool()>& pred, std::chrono::milliseconds timeout);
+
+// A TCP port that was free a moment ago (bind port 0, read it, close).
+int free_tcp_port();
+
+}  // namespace gyrotherm::testing

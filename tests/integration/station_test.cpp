@@ -1,0 +1,305 @@
+// End-to-end: gyrotherm-sim + gyrothermd as real processes on loopback run a
+// short accelerated schedule; the database must tell the truth of it.
+#include <signal.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+
+#include <fmt/format.h>
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "gyrotherm/daemon/config.h"
+#include "gyrotherm/daemon/http_client.h"
+#include "gyrotherm/drivers/modbus_device.h"
+#include "gyrotherm/storage/database.h"
+#include "process.h"
+
+namespace gyrotherm {
+namespace {
+
+namespace fs = std::filesystem;
+using testing::ChildProcess;
+using testing::wait_until;
+using ::testing::HasSubstr;
+
+constexpr double kTimeScale = 200.0;
+constexpr double kRateHz = 10.0;
+constexpr double kWhiteNoiseDph = 1.0;
+constexpr double kLatitudeDeg = 31.9;
+
+// The station: fast thermal lags so a short schedule settles quickly.
+std::string station_config(const fs::path& dir, int api_port) {
+  return fmt::format(R"(
+[station]
+name = "integration"
+latitude_deg = {lat}
+orientation = "up"
+max_ramp_c_per_min = 3.0
+[chamber]
+unit_id = 1
+profile = "watlow-f4t"
+[probes]
+unit_id = 2
+profile = "generic"
+channels = {{ top = 0, side = 1 }}
+[gyro]
+unit = "rad"
+output = "rate"
+axis = "z"
+rate_hz = {rate}
+[storage]
+db = "{dir}/station.db"
+commit_interval_s = 0.2
+[api]
+port = {port}
+tokens = ["integration-token-0123456789"]
+[simulator]
+endpoints_file = "{dir}/endpoints.toml"
+truth_file = "{dir}/truth.json"
+seed = 7
+initial_temp_c = 23.0
+[simulator.thermal]
+air_tau_s = 20.0
+case_tau_s = 60.0
+max_ramp_c_per_min = 5.0
+control_noise_c = 0.1
+[simulator.gyro]
+bias_dph = 0.05
+temp_coeffs = [0.004]
+rate_coeffs = [12.0]
+gradient_coeffs = [0.5]
+white_noise_dph = {noise}
+bias_instability_dph = 0.0
+)",
+                     fmt::arg("lat", kLatitudeDeg), fmt::arg("rate", kRateHz),
+                     fmt::arg("dir", dir.string()), fmt::arg("port", api_port),
+                     fmt::arg("noise", kWhiteNoiseDph));
+}
+
+constexpr const char* kSchedule = R"(
+name = "integration"
+[[step]]
+type = "soak"
+setpoint_c = 23.0
+stability_window_min = 2
+acquire_min = 6
+[[step]]
+type = "ramp"
+target_c = 26.0
+rate_c_per_min = 2.0
+[[step]]
+type = "soak"
+setpoint_c = 26.0
+stability_window_min = 2
+acquire_min = 6
+)";
+
+class StationTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           fmt::format("gyrotherm-it-{}-{}", ::getpid(),
+                       ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+    api_port_ = testing::free_tcp_port();
+    write(dir_ / "station.toml", station_config(dir_, api_port_));
+    write(dir_ / "schedule.toml", kSchedule);
+  }
+  void TearDown() override {
+    daemon_.reset();
+    sim_.reset();
+    if (!HasFailure()) fs::remove_all(dir_);
+  }
+
+  static void write(const fs::path& p, const std::string& text) { std::ofstream(p) << text; }
+  std::string bin(const char* name) const { return std::string(GYROTHERM_BIN_DIR) + "/" + name; }
+  std::string url(const std::string& path) const {
+    return fmt::format("http://127.0.0.1:{}{}", api_port_, path);
+  }
+
+  void start_sim() {
+    sim_ = std::make_unique<ChildProcess>(
+        std::vector<std::string>{bin("gyrotherm-sim"), "--config", (dir_ / "station.toml").string(),
+                                 "--time-scale", fmt::format("{}", kTimeScale)},
+        (dir_ / "sim.log").string());
+    ASSERT_TRUE(wait_until([&] { return fs::exists(dir_ / "endpoints.toml"); },
+                           std::chrono::seconds(20)))
+        << sim_->log();
+  }
+  void start_daemon(std::vector<std::string> extra = {}) {
+    std::vector<std::string> argv{bin("gyrothermd"), "--config", (dir_ / "station.toml").string(),
+                                  "--schedule", (dir_ / "schedule.toml").string(), "--time-scale",
+                                  fmt::format("{}", kTimeScale)};
+    argv.insert(argv.end(), extra.begin(), extra.end());
+    daemon_ = std::make_unique<ChildProcess>(argv, (dir_ / "daemon.log").string());
+  }
+  std::optional<nlohmann::json> status() {
+    auto r = daemon::http_request("GET", url("/api/v1/status"), "", "",
+                                  std::chrono::milliseconds(500));
+    if (!r || r->status != 200) return std::nullopt;
+    return nlohmann::json::parse(r->body, nullptr, false);
+  }
+
+  fs::path dir_;
+  int api_port_ = 0;
+  std::unique_ptr<ChildProcess> sim_;
+  std::unique_ptr<ChildProcess> daemon_;
+};
+
+TEST_F(StationTest, ShortScheduleEndToEnd) {
+  start_sim();
+  start_daemon({"--exit-when-done"});
+
+  // Live status over HTTP while the run goes.
+  std::optional<nlohmann::json> live;
+  ASSERT_TRUE(wait_until(
+      [&] {
+        live = status();
+        return live && live->value("state", "") == "acquiring" && !(*live)["top_c"].is_null() &&
+               !(*live)["gyro_rate_dph"].is_null();
+      },
+      std::chrono::seconds(60)))
+      << daemon_->log();
+  EXPECT_EQ((*live)["run_id"], 1);
+  EXPECT_TRUE((*live)["devices"]["chamber"]["connected"].get<bool>());
+  EXPECT_TRUE((*live)["devices"]["gyro"]["connected"].get<bool>());
+  EXPECT_NEAR((*live)["top_c"].get<double>(), 23.0, 1.0);
+
+  const auto code = daemon_->wait(std::chrono::seconds(120));
+  ASSERT_TRUE(code.has_value()) << "daemon did not finish the schedule\n" << daemon_->log();
+  EXPECT_EQ(*code, 0) << daemon_->log();
+
+  auto db = storage::Database::open_read_only((dir_ / "station.db").string());
+  ASSERT_TRUE(db.ok()) << db.error().message;
+  auto run = db->run(1);
+  ASSERT_TRUE(run.ok()) << run.error().message;
+  EXPECT_EQ(run->state, "completed");
+  EXPECT_FALSE(run->ended_utc.empty());
+
+  auto segments = db->segments(1);
+  ASSERT_TRUE(segments.ok());
+  ASSERT_EQ(segments->size(), 3u);
+  for (const auto& s : *segments) EXPECT_EQ(s.state, "completed") << s.label;
+  EXPECT_EQ((*segments)[1].kind, "ramp");
+  EXPECT_NEAR(*(*segments)[1].t_acquire_end_s - *(*segments)[1].t_acquire_start_s, 90.0, 2.0)
+      << "3 °C at 2 °C/min";
+
+  // Full-rate gyro samples over the whole run, stream without gaps.
+  auto count = db->count_gyro_samples(1);
+  ASSERT_TRUE(count.ok());
+  const double run_s = *segments->back().t_end_s;
+  EXPECT_GT(static_cast<double>(*count), 0.97 * run_s * kRateHz);
+  EXPECT_LT(static_cast<double>(*count), 1.01 * run_s * kRateHz + 10);
+
+  // Table I rows: one per soak, on 1 s bins of a 6 min window.
+  auto stats = db->segment_stats(1);
+  ASSERT_TRUE(stats.ok());
+  ASSERT_EQ(stats->size(), 2u);
+  const double earth_dph = 15.041067 * std::sin(kLatitudeDeg * M_PI / 180.0);
+  for (const auto& r : *stats) {
+    SCOPED_TRACE(fmt::format("segment {}", r.segment_index + 1));
+    EXPECT_EQ(r.n, 360);
+    EXPECT_DOUBLE_EQ(r.duration_s, 360.0);
+    EXPECT_NEAR(r.temp_mean_c, r.setpoint_c, 0.5);
+    // Truth: Earth + 0.05 + 0.004 T (+ small gradient terms when settled).
+    const double truth_dph = earth_dph + 0.05 + 0.004 * r.temp_mean_c;
+    // The mean of 360 one-second points with 1 °/h noise: σ ≈ 0.053 °/h.
+    EXPECT_NEAR(r.bias_mean_dph, truth_dph, 0.25);
+    EXPECT_NEAR(r.bias_std_dph, kWhiteNoiseDph, 0.15 * kWhiteNoiseDph);
+    EXPECT_LT(r.bias_std_ma_dph, r.bias_std_dph / 4.0) << "101-point average shrinks white noise";
+    EXPECT_NEAR(r.bias_mean_earth_removed_dph, r.bias_mean_dph - earth_dph, 1e-9);
+    EXPECT_NEAR(r.earth_rate_dph, earth_dph, 1e-9);
+  }
+
+  // Every state change is an event row with a reason.
+  auto events = db->events(1);
+  ASSERT_TRUE(events.ok());
+  std::vector<std::string> to_states;
+  for (const auto& e : *events) {
+    if (e.kind == "state") to_states.push_back(e.to_state);
+    EXPECT_FALSE(e.message.empty());
+  }
+  EXPECT_THAT(to_states, ::testing::ElementsAre("settling", "acquiring", "ramping", "settling",
+                                                "acquiring", "completed"));
+}
+
+TEST_F(StationTest, SigtermInterruptsTheRunAndLeavesTheChamberSafe) {
+  start_sim();
+  start_daemon();
+  ASSERT_TRUE(wait_until(
+      [&] {
+        auto s = status();
+        return s && s->value("state", "") == "acquiring";
+      },
+      std::chrono::seconds(60)))
+      << daemon_->log();
+  daemon_->signal(SIGTERM);
+  const auto code = daemon_->wait(std::chrono::seconds(20));
+  ASSERT_TRUE(code.has_value()) << daemon_->log();
+  EXPECT_EQ(*code, 0) << daemon_->log();
+
+  auto db = storage::Database::open_read_only((dir_ / "station.db").string());
+  ASSERT_TRUE(db.ok()) << db.error().message;
+  auto run = db->run(1);
+  ASSERT_TRUE(run.ok());
+  EXPECT_EQ(run->state, "interrupted");
+  auto events = db->events(1);
+  ASSERT_TRUE(events.ok());
+  ASSERT_FALSE(events->empty());
+  EXPECT_THAT(events->back().message, HasSubstr("SIGTERM"));
+  auto integrity = db->exec("PRAGMA integrity_check");
+  EXPECT_TRUE(integrity.ok());
+
+  // The chamber was left at the safe set point (23 °C).
+  auto cfg = daemon::load_station_config((dir_ / "station.toml").string());
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  auto ep = daemon::read_sim_endpoints(cfg->simulator.endpoints_file);
+  ASSERT_TRUE(ep.ok());
+  daemon::apply_sim_endpoints(*cfg, *ep);
+  drivers::ModbusDevice chamber("chamber", cfg->chamber.endpoint);
+  auto sp = chamber.read(cfg->chamber.map.setpoint);
+  ASSERT_TRUE(sp.ok()) << sp.error().message;
+  EXPECT_DOUBLE_EQ(*sp, 23.0);
+}
+
+TEST_F(StationTest, BadConfigFailsFastWithFileLineKey) {
+  write(dir_ / "bad.toml", "[station]\nlatitude_deg = 95\n[chamber]\n[probes]\n[gyro]\n");
+  ChildProcess d({bin("gyrothermd"), "--config", (dir_ / "bad.toml").string()},
+                 (dir_ / "bad.log").string());
+  const auto code = d.wait(std::chrono::seconds(10));
+  ASSERT_TRUE(code.has_value());
+  EXPECT_EQ(*code, 2);
+  EXPECT_THAT(d.log(), HasSubstr("bad.toml:2: station.latitude_deg: 95 is out of range"));
+}
+
+TEST_F(StationTest, UnreachableDevicesDoNotKillTheDaemon) {
+  // No simulator: endpoints point at a closed port and a missing pty.
+  daemon::SimEndpoints ep{"127.0.0.1", testing::free_tcp_port(), (dir_ / "no-such-pty").string(), 0};
+  ASSERT_TRUE(daemon::write_sim_endpoints((dir_ / "endpoints.toml").string(), ep).ok());
+  start_daemon();
+  std::optional<nlohmann::json> s;
+  ASSERT_TRUE(wait_until(
+      [&] {
+        s = status();
+        return s && (*s)["devices"]["chamber"]["errors"].get<uint64_t>() > 3 &&
+               (*s)["devices"]["gyro"]["read_errors"].get<uint64_t>() +
+                       !(*s)["devices"]["gyro"]["last_error"].get<std::string>().empty() >
+                   0;
+      },
+      std::chrono::seconds(30)))
+      << daemon_->log();
+  EXPECT_FALSE((*s)["devices"]["chamber"]["connected"].get<bool>());
+  EXPECT_THAT((*s)["devices"]["chamber"]["last_error"].get<std::string>(), HasSubstr("chamber"));
+  EXPECT_EQ((*s)["state"], "settling") << "the run waits; it does not acquire without readings";
+  EXPECT_TRUE(daemon_->running());
+  daemon_->signal(SIGTERM);
+  EXPECT_EQ(daemon_->wait(std::chrono::seconds(20)), std::optional<int>(0)) << daemon_->log();
+}
+
+}  // namespace
+}  // namespace gyrotherm
