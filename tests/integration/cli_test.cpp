@@ -1,0 +1,225 @@
+// The gyrotherm CLI as a user runs it: a real binary, files and a simulator.
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include <fmt/format.h>
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "gyrotherm/drivers/kvh1750.h"
+#include "gyrotherm/storage/database.h"
+#include "process.h"
+
+namespace gyrotherm {
+namespace {
+
+namespace fs = std::filesystem;
+using ::testing::HasSubstr;
+using testing::ChildProcess;
+
+class CliTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           fmt::format("gyrotherm-cli-{}-{}", ::getpid(),
+                       ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override {
+    if (!HasFailure()) fs::remove_all(dir_);
+  }
+  // Runs the CLI to completion; returns {exit code, stdout, stderr}.
+  struct Run {
+    int code;
+    std::string out, err;
+  };
+  Run cli(std::vector<std::string> args) {
+    const std::string out = (dir_ / "out.txt").string(), err = (dir_ / "err.txt").string();
+    std::string cmd = std::string(GYROTHERM_BIN_DIR) + "/gyrotherm";
+    for (const auto& a : args) cmd += " '" + a + "'";
+    cmd += " >" + out + " 2>" + err;
+    const int st = std::system(cmd.c_str());
+    auto slurp = [](const std::string& p) {
+      std::ifstream in(p);
+      std::ostringstream ss;
+      ss << in.rdbuf();
+      return ss.str();
+    };
+    return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, slurp(out), slurp(err)};
+  }
+  fs::path dir_;
+};
+
+drivers::GyroFrame frame(uint8_t seq) {
+  drivers::GyroFrame f;
+  f.gyro = {1.5e-5f * seq, -2.25e-6f, 3.9e-5f + 1e-7f * seq};
+  f.accel = {0.001f, -0.002f, 1.0f};
+  f.status = 0x77;
+  f.seq = seq;
+  f.temp_c = static_cast<int16_t>(20 + seq % 3);
+  return f;
+}
+
+TEST_F(CliTest, DecodeWritesValidFramesAndSummarisesTheRest) {
+  // 10 frames: garbage in front, frame 3 corrupted, frame 6 missing.
+  std::vector<uint8_t> bytes = {0x00, 0xFE, 0x81, 0x12};
+  for (uint8_t seq = 0; seq < 10; ++seq) {
+    if (seq == 6) continue;
+    auto b = drivers::encode_kvh1750(frame(seq));
+    if (seq == 3) b[10] ^= 0x40;
+    bytes.insert(bytes.end(), b.begin(), b.end());
+  }
+  const std::string path = (dir_ / "capture.bin").string();
+  std::ofstream(path, std::ios::binary).write(reinterpret_cast<const char*>(bytes.data()),
+                                              static_cast<std::streamsize>(bytes.size()));
+  const Run r = cli({"decode", "--protocol", "kvh1750", path});
+  ASSERT_EQ(r.code, 0) << r.err;
+  std::istringstream lines(r.out);
+  std::string line;
+  std::getline(lines, line);
+  EXPECT_EQ(line, "seq,status,gyro_x,gyro_y,gyro_z,accel_x,accel_y,accel_z,temp_c");
+  std::vector<int> seqs;
+  while (std::getline(lines, line)) {
+    int seq = 0, status = 0;
+    float gx = 0, gy = 0, gz = 0;
+    ASSERT_EQ(std::sscanf(line.c_str(), "%d,%d,%g,%g,%g", &seq, &status, &gx, &gy, &gz), 5) << line;
+    const auto want = frame(static_cast<uint8_t>(seq));
+    EXPECT_EQ(status, 0x77);
+    // %.9g round-trips a float exactly.
+    EXPECT_EQ(gx, want.gyro[0]) << line;
+    EXPECT_EQ(gz, want.gyro[2]) << line;
+    seqs.push_back(seq);
+  }
+  EXPECT_THAT(seqs, ::testing::ElementsAre(0, 1, 2, 4, 5, 7, 8, 9));
+  EXPECT_THAT(r.err, HasSubstr("8 valid frames"));
+  EXPECT_THAT(r.err, HasSubstr("1 CRC failures"));
+  EXPECT_THAT(r.err, HasSubstr("40 bytes skipped"));  // 4 garbage + the corrupted frame's 36
+  EXPECT_THAT(r.err, HasSubstr("2 sequence gaps"));
+}
+
+TEST_F(CliTest, DecodeMissingFileAndUnknownProtocol) {
+  const Run missing = cli({"decode", "--protocol", "kvh1750", (dir_ / "nope.bin").string()});
+  EXPECT_NE(missing.code, 0);
+  EXPECT_THAT(missing.err, HasSubstr("nope.bin: cannot open"));
+  const Run proto = cli({"decode", "--protocol", "nmea", (dir_ / "nope.bin").string()});
+  EXPECT_NE(proto.code, 0);
+  EXPECT_THAT(proto.err, HasSubstr("nmea"));
+}
+
+TEST_F(CliTest, StatsPrintsTableOneRowsAsTextAndJson) {
+  const std::string db_path = (dir_ / "s.db").string();
+  {
+    auto db = storage::Database::open(db_path);
+    ASSERT_TRUE(db.ok()) << db.error().message;
+    storage::RunRecord run;
+    run.schedule_name = "demo";
+    run.state = "completed";
+    auto run_id = db->create_run(run);
+    ASSERT_TRUE(run_id.ok());
+    storage::SegmentRecord seg;
+    seg.run_id = *run_id;
+    seg.index = 0;
+    seg.kind = "soak";
+    seg.setpoint_c = 20;
+    auto seg_id = db->create_segment(seg);
+    ASSERT_TRUE(seg_id.ok());
+    storage::SegmentStatsRecord st;
+    st.segment_id = *seg_id;
+    st.run_id = *run_id;
+    st.segment_index = 0;
+    st.setpoint_c = 20;
+    st.n = 1200;
+    st.duration_s = 1200;
+    st.temp_mean_c = 20.01;
+    st.bias_mean_dph = 8.0771;
+    st.bias_std_dph = 1.0352;
+    st.bias_std_ma_dph = 0.0479;
+    st.bias_mean_earth_removed_dph = 0.1291;
+    st.earth_rate_dph = 7.948;
+    ASSERT_TRUE(db->put_segment_stats(st).ok());
+  }
+  const Run text = cli({"stats", "--db", db_path});
+  ASSERT_EQ(text.code, 0) << text.err;
+  EXPECT_THAT(text.out, HasSubstr("8.0771"));
+  EXPECT_THAT(text.out, HasSubstr("0.0479"));
+  const Run json = cli({"stats", "--db", db_path, "--json"});
+  ASSERT_EQ(json.code, 0) << json.err;
+  const auto j = nlohmann::json::parse(json.out);
+  ASSERT_EQ(j.size(), 1u);
+  for (const char* key : {"run_id", "segment", "setpoint_c", "n", "duration_s", "temp_mean_c",
+                          "bias_mean_dph", "bias_std_dph", "bias_std_ma101_dph",
+                          "bias_mean_earth_removed_dph"}) {
+    EXPECT_TRUE(j[0].contains(key)) << key;
+  }
+  EXPECT_EQ(j[0]["n"], 1200);
+  EXPECT_DOUBLE_EQ(j[0]["bias_std_ma101_dph"].get<double>(), 0.0479);
+
+  const Run none = cli({"stats", "--db", (dir_ / "missing.db").string()});
+  EXPECT_NE(none.code, 0);
+  EXPECT_THAT(none.err, HasSubstr("missing.db"));
+}
+
+TEST_F(CliTest, DevicesAndChamberSetpointAgainstTheSimulator) {
+  std::ifstream demo(std::string(GYROTHERM_SOURCE_DIR) + "/config/demo.toml");
+  std::ostringstream ss;
+  ss << demo.rdbuf();
+  std::string cfg = ss.str();
+  auto replace = [&](const std::string& from, const std::string& to) {
+    const auto pos = cfg.find(from);
+    ASSERT_NE(pos, std::string::npos) << from;
+    cfg.replace(pos, from.size(), to);
+  };
+  replace("\"demo/sim-endpoints.toml\"", "\"" + (dir_ / "ep.toml").string() + "\"");
+  replace("\"demo/sim-truth.json\"", "\"" + (dir_ / "truth.json").string() + "\"");
+  const std::string cfg_path = (dir_ / "station.toml").string();
+  std::ofstream(cfg_path) << cfg;
+
+  ChildProcess sim({std::string(GYROTHERM_BIN_DIR) + "/gyrotherm-sim", "--config", cfg_path,
+                    "--time-scale", "10"},
+                   (dir_ / "sim.log").string());
+  ASSERT_TRUE(testing::wait_until([&] { return fs::exists(dir_ / "ep.toml"); },
+                                  std::chrono::seconds(20)))
+      << sim.log();
+
+  const Run set = cli({"chamber", "set-point", "31.5", "--config", cfg_path});
+  ASSERT_EQ(set.code, 0) << set.err;
+  EXPECT_THAT(set.out, HasSubstr("31.50"));
+  const Run refused = cli({"chamber", "set-point", "95", "--config", cfg_path});
+  EXPECT_EQ(refused.code, 2);
+  EXPECT_THAT(refused.err, HasSubstr("outside the station's limits"));
+
+  const Run dev = cli({"--json", "devices", "--config", cfg_path});
+  ASSERT_EQ(dev.code, 0) << dev.out << dev.err;
+  const auto j = nlohmann::json::parse(dev.out);
+  EXPECT_DOUBLE_EQ(j["chamber"]["setpoint_c"].get<double>(), 31.5);
+  EXPECT_NEAR(j["chamber"]["process_value_c"].get<double>(), 23.0, 3.0);
+  EXPECT_NEAR(j["probes"]["top_c"].get<double>(), 23.0, 3.0);
+  EXPECT_NEAR(j["probes"]["side_c"].get<double>(), 23.0, 3.0);
+  // Earth rate plus the truth's bias, within a sample's noise (≈ 3 °/h at 10 Hz).
+  EXPECT_NEAR(j["gyro"]["rate_dph"].get<double>(), 8.0, 20.0);
+  EXPECT_EQ(j["gyro"]["crc_failures"], 0);
+}
+
+TEST_F(CliTest, ScheduleCheckListsEveryError) {
+  const std::string bad = (dir_ / "bad.toml").string();
+  std::ofstream(bad) << "[[step]]\ntype = \"soak\"\nsetpoint_c = 75\nacquire_min = 10\n"
+                        "[[step]]\ntype = \"ramp\"\ntarget_c = 0\nrate_c_per_min = 9\n";
+  const std::string station = std::string(GYROTHERM_SOURCE_DIR) + "/config/station.toml";
+  const Run r = cli({"schedule", "check", bad, "--config", station});
+  EXPECT_EQ(r.code, 1);
+  EXPECT_THAT(r.err, HasSubstr("bad.toml:3: step[0].setpoint_c: 75 °C is outside"));
+  EXPECT_THAT(r.err, HasSubstr("bad.toml:8: step[1].rate_c_per_min: 9 °C/min exceeds"));
+  const Run ok = cli({"schedule", "check",
+                      std::string(GYROTHERM_SOURCE_DIR) + "/config/schedules/paper-table1.toml",
+                      "--config", station});
+  EXPECT_EQ(ok.code, 0) << ok.err;
+  EXPECT_THAT(ok.out, HasSubstr("32 steps"));
+}
+
+}  // namespace
+}  // namespace gyrotherm
