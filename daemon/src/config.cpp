@@ -255,9 +255,11 @@ Result<StationConfig> build_config(std::optional<toml::table> root, TomlErrors& 
   section("control", false, [&](TableReader t) { read_control(t, cfg.control); });
   section("simulator", false, [&](TableReader t) {
     if (auto f = t.string("endpoints_file")) cfg.simulator.endpoints_file = *f;
-    cfg.simulator_table = t.raw();  // the rest belongs to gyrotherm-sim
   });
   top.finish();
+  // The rest of [simulator] belongs to gyrotherm-sim. Moved, not copied:
+  // toml++ keeps source positions (for error lines) only through a move.
+  if (auto* sim = root->get_as<toml::table>("simulator")) cfg.simulator_table = std::move(*sim);
   if (cfg.gyro.serial.device.empty() && cfg.simulator.endpoints_file.empty()) {
     errors.add(0, "gyro.device", "missing (required unless [simulator] endpoints_file is set)");
   }

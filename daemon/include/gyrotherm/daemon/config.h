@@ -104,7 +104,9 @@ struct StationConfig {
   AnalysisSection analysis;
   ControlSection control;
   SimulatorSection simulator;
-  std::optional<toml::table> simulator_table;  // raw [simulator], for gyrotherm-sim
+  // Raw [simulator], for gyrotherm-sim. Keeps source lines only in the
+  // StationConfig that load_station_config() returned (toml++ copies drop them).
+  std::optional<toml::table> simulator_table;
 };
 
 // Loads and validates. The error's message lists every problem, one per line.

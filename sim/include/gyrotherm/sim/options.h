@@ -1,0 +1,64 @@
+// Options of gyrotherm-sim: the [simulator] section of the station config
+// (with [simulator.thermal] and [simulator.gyro]) plus command-line
+// overrides.
+//
+//   [simulator]
+//   endpoints_file = "demo/sim-endpoints.toml"  # where the opened endpoints go ("" = none)
+//   truth_file = "demo/sim-truth.json"          # the gyro model's truth ("" = none)
+//   modbus_port = 0                             # 0: any free port
+//   seed = 1
+//   initial_temp_c = 23.0
+//   pending_frames_limit = 0                    # see SimulatorOptions
+//   [simulator.thermal]  -> ThermalParams (thermal_plant.h), same key names
+//   [simulator.gyro]     -> GyroParams (gyro_model.h), same key names
+//
+// The gyro output format (unit, rate/delta, axis, rate_hz) comes from [gyro].
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+
+#include "gyrotherm/core/result.h"
+#include "gyrotherm/daemon/config.h"
+#include "gyrotherm/drivers/gyro_reader.h"
+#include "gyrotherm/sim/gyro_model.h"
+#include "gyrotherm/sim/thermal_plant.h"
+
+namespace gyrotherm::sim {
+
+struct SimulatorOptions {
+  std::string endpoints_file;  // "" = do not write one
+  std::string truth_file;      // "" = do not write one
+  std::string modbus_host = "127.0.0.1";
+  int modbus_port = 0;  // 0 = any free port
+  uint64_t seed = 1;
+  double time_scale = 1.0;  // station seconds per wall second
+  ThermalParams thermal;
+  GyroParams gyro;
+  drivers::GyroFormat gyro_format;  // from [gyro]
+  // Frames kept while the pty's reader is slow ([simulator]
+  // pending_frames_limit); beyond that new frames are dropped (and counted).
+  // 0 = half a wall second of frames, at least 256.
+  std::size_t pending_frames_limit = 0;
+
+  bool IsValid(std::string* error) const;
+};
+
+// Command-line overrides (`gyrotherm-sim --time-scale ... --seed ...`).
+struct SimulatorOverrides {
+  std::optional<double> time_scale;
+  std::optional<std::string> endpoints_file;
+  std::optional<std::string> truth_file;
+  std::optional<uint64_t> seed;
+  std::optional<double> rate_hz;
+};
+
+// Reads config.simulator_table strictly (unknown keys and out-of-range values
+// are errors "file:line: simulator.key: ..."), takes the gyro format from
+// config.gyro, then applies the overrides and validates. The error message
+// lists every problem, one per line. No [simulator] section: all defaults.
+Result<SimulatorOptions> read_simulator_options(const daemon::StationConfig& config,
+                                                const SimulatorOverrides& overrides = {});
+
+}  // namespace gyrotherm::sim

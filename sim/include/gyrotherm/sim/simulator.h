@@ -1,0 +1,158 @@
+// The simulated station (gyrotherm-sim, DESIGN.md §8), as a library so tests
+// run it in-process.
+//
+// Wiring: a ThermalPlant and a GyroModel advanced in station time (the
+// Clock) on one thread in fixed steps of min(0.1 s, 1 / rate_hz), emitting
+// every gyro frame that falls due to a pty (GyroStream); a Modbus TCP server
+// on loopback (ModbusServer) with the chamber controller (unit
+// config.chamber.endpoint.unit_id, register map config.chamber.map; writing
+// the set point register moves the plant's set point) and the probe module
+// (unit config.probes.endpoint.unit_id, registers config.probes.top/side).
+// The register image is refreshed from the plant every wall tick (~2 ms).
+// A request for any other unit id is answered with exception 0x0B (gateway
+// target device failed to respond).
+//
+// Set point writes outside [-100, 200] °C or not finite are not taken: the
+// register is put back to the current set point. With the watlow-f4t ramp
+// registers, a ramp action other than 0 makes the ramp rate register
+// (°C/min when ramp scale is 57, else °C/h) limit the chamber's ramp, never
+// beyond [simulator.thermal] max_ramp_c_per_min.
+//
+// Fault hooks are plain methods, safe to call from any thread while running.
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <random>
+#include <string>
+#include <thread>
+
+#include "gyrotherm/core/clock.h"
+#include "gyrotherm/core/result.h"
+#include "gyrotherm/daemon/config.h"
+#include "gyrotherm/sim/gyro_model.h"
+#include "gyrotherm/sim/gyro_stream.h"
+#include "gyrotherm/sim/modbus_server.h"
+#include "gyrotherm/sim/options.h"
+#include "gyrotherm/sim/thermal_plant.h"
+
+namespace gyrotherm::sim {
+
+enum class ProbeRole { kTop, kSide };
+
+struct SimulatorStatus {
+  bool running = false;
+  double t_s = 0;            // station seconds simulated since start()
+  double lag_s = 0;          // how far the simulation trails the clock (0 when keeping up)
+  double setpoint_c = 0;     // requested set point (Modbus or set_setpoint_c)
+  ThermalTruth truth;        // the plant's state at t_s
+  ProbeReadings readings;    // what the probe registers hold (unless stalled)
+  double last_rate_dph = 0;  // the last gyro sample of the sensitive axis, noise included
+  uint64_t frames_generated = 0;
+  uint64_t frames_fault_dropped = 0;    // set_frame_drop_rate
+  uint64_t frames_fault_corrupted = 0;  // set_frame_corruption_rate
+  GyroStreamStats stream;
+  ModbusServerStats modbus;
+  uint64_t setpoint_writes = 0;
+  uint64_t setpoint_writes_rejected = 0;
+};
+
+class Simulator {
+ public:
+  // Builds the plant, gyro model and device maps. `clock` (station time;
+  // must outlive the simulator) defaults to an own ScaledClock with
+  // options.time_scale. Permanent error on an inconsistent config (e.g.
+  // chamber and probes with the same unit id).
+  static Result<std::unique_ptr<Simulator>> create(const daemon::StationConfig& config,
+                                                   const SimulatorOptions& options,
+                                                   const Clock* clock = nullptr);
+  ~Simulator();  // stop()
+  Simulator(const Simulator&) = delete;
+  Simulator& operator=(const Simulator&) = delete;
+
+  // Listens, opens the pty, writes the truth file, starts the simulation
+  // and, once all of that is up, writes the endpoints file (with this
+  // process's pid). On error everything started is stopped again.
+  Status start();
+  // Stops the threads, closes the server and the pty, removes the endpoints
+  // file it wrote. Idempotent. The truth file stays.
+  void stop();
+
+  // What a client connects to (valid after start()).
+  daemon::SimEndpoints endpoints() const;
+  const std::string& truth_file() const { return options_.truth_file; }
+  const std::string& endpoints_file() const { return options_.endpoints_file; }
+  std::string truth_json() const { return truth_json_; }
+  SimulatorStatus status() const;
+  const SimulatorOptions& options() const { return options_; }
+
+  // --- Fault injection and test hooks ---
+  // Moves the requested set point as a Modbus write would (register too).
+  void set_setpoint_c(double setpoint_c);
+  // Probability (0..1) that a frame gets one byte altered after its CRC.
+  void set_frame_corruption_rate(double p);
+  // Probability (0..1) that a frame is not sent (its sequence number is used,
+  // so the reader sees a gap).
+  void set_frame_drop_rate(double p);
+  // Modbus link down: connections closed and refused until set false.
+  void set_modbus_down(bool down);
+  // Every Modbus answer comes `wall_s` wall seconds late (0 = none).
+  void set_modbus_reply_delay_s(double wall_s);
+  // Hang-up of the gyro line; frames due while closed are dropped.
+  void close_pty();
+  // Opens a new pty (a new path: endpoints() and the endpoints file follow).
+  Status reopen_pty();
+  // A stalled probe's register keeps its last value.
+  void stall_probe(ProbeRole role, bool stalled);
+
+ private:
+  Simulator(daemon::StationConfig config, SimulatorOptions options, const Clock* clock);
+  void run();
+  void advance_to(double target_s, std::vector<uint8_t>& batch);
+  void publish_registers();
+  void on_modbus_write(int unit_id);
+  Status write_endpoints_file();
+
+  daemon::StationConfig config_;
+  SimulatorOptions options_;
+  std::unique_ptr<Clock> own_clock_;
+  const Clock* clock_;
+  std::string truth_json_;
+  int chamber_unit_;
+  int probes_unit_;
+
+  // Simulation state, guarded by sim_mu_ (the simulation thread holds it
+  // while it advances one tick).
+  mutable std::mutex sim_mu_;
+  ThermalPlant plant_;
+  GyroModel gyro_;
+  std::mt19937_64 fault_rng_;
+  double t0_s_ = 0;
+  int64_t steps_ = 0;
+  uint64_t next_frame_ = 1;
+  SimulatorStatus status_;
+
+  std::atomic<double> setpoint_c_;
+  std::atomic<double> ramp_limit_c_per_min_{0.0};  // <= 0: the plant's own limit
+  std::atomic<double> corruption_rate_{0.0};
+  std::atomic<double> drop_rate_{0.0};
+  std::atomic<bool> stalled_[2] = {false, false};
+
+  mutable std::mutex stream_mu_;
+  GyroStream stream_;
+
+  mutable std::mutex life_mu_;  // start/stop against the hooks that reach server_
+  std::unique_ptr<ModbusServer> server_;
+  std::atomic<int> modbus_port_{0};
+  std::thread thread_;
+  std::mutex wake_mu_;
+  std::condition_variable wake_cv_;
+  bool stopping_ = false;  // guarded by wake_mu_
+  bool running_ = false;
+  bool wrote_endpoints_ = false;
+};
+
+}  // namespace gyrotherm::sim

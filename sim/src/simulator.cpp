@@ -1,0 +1,357 @@
+#include "gyrotherm/sim/simulator.h"
+
+#include <fmt/format.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+
+#include "gyrotherm/analysis/table1.h"
+#include "gyrotherm/drivers/kvh1750.h"
+
+namespace gyrotherm::sim {
+namespace {
+
+constexpr double kMaxStepS = 0.1;
+constexpr double kMinSetpointC = -100.0;
+constexpr double kMaxSetpointC = 200.0;
+constexpr uint16_t kRampScaleMinutes = 57;  // Watlow F4T ramp scale: °/min
+constexpr auto kTick = std::chrono::milliseconds(2);
+// Work done per tick before the loop yields to publish registers and write
+// frames, when the simulation cannot keep up with the clock.
+constexpr auto kTickBudget = std::chrono::milliseconds(50);
+
+// SplitMix64: independent seeds for the plant, the gyro and the faults.
+std::size_t pending_frames_limit(const SimulatorOptions& o) {
+  if (o.pending_frames_limit > 0) return o.pending_frames_limit;
+  const double half_wall_second = 0.5 * o.time_scale * o.gyro_format.rate_hz;
+  return static_cast<std::size_t>(std::clamp(half_wall_second, 256.0, 1e7));
+}
+
+uint64_t derive_seed(uint64_t seed, uint64_t stream) {
+  uint64_t z = seed + 0x9E3779B97F4A7C15ULL * (stream + 1);
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
+  return z ^ (z >> 31);
+}
+
+}  // namespace
+
+Result<std::unique_ptr<Simulator>> Simulator::create(const daemon::StationConfig& config,
+                                                     const SimulatorOptions& options,
+                                                     const Clock* clock) {
+  if (std::string why; !options.IsValid(&why)) return Error::Permanent(why);
+  if (config.chamber.endpoint.unit_id == config.probes.endpoint.unit_id) {
+    return Error::Permanent(fmt::format(
+        "{}: chamber and probes share Modbus unit id {}; the simulator serves both on one "
+        "port and needs distinct unit_id values",
+        config.source_path, config.chamber.endpoint.unit_id));
+  }
+  if (config.chamber.map.setpoint.function != drivers::RegisterFunction::kHolding) {
+    return Error::Permanent(fmt::format(
+        "{}: the chamber set point register must be a holding register", config.source_path));
+  }
+  return std::unique_ptr<Simulator>(new Simulator(config, options, clock));
+}
+
+Simulator::Simulator(daemon::StationConfig config, SimulatorOptions options, const Clock* clock)
+    : config_(std::move(config)),
+      options_(std::move(options)),
+      own_clock_(clock ? nullptr : std::make_unique<ScaledClock>(options_.time_scale)),
+      clock_(clock ? clock : own_clock_.get()),
+      chamber_unit_(config_.chamber.endpoint.unit_id),
+      probes_unit_(config_.probes.endpoint.unit_id),
+      plant_(options_.thermal, derive_seed(options_.seed, 1)),
+      gyro_(options_.gyro, options_.gyro_format,
+            analysis::earth_rate_component_dph(config_.station.latitude_deg,
+                                               config_.station.orientation),
+            derive_seed(options_.seed, 2)),
+      fault_rng_(derive_seed(options_.seed, 3)),
+      setpoint_c_(options_.thermal.initial_temp_c),
+      stream_(drivers::kKvh1750FrameSize, pending_frames_limit(options_)) {
+  truth_json_ = gyro_.truth_json(options_.seed);
+  status_.setpoint_c = options_.thermal.initial_temp_c;
+  status_.truth = plant_.truth();
+  status_.readings = plant_.readings();
+}
+
+Simulator::~Simulator() { stop(); }
+
+Status Simulator::start() {
+  std::lock_guard life(life_mu_);
+  if (thread_.joinable()) return Status::Ok();
+
+  const auto& map = config_.chamber.map;
+  ModbusServer::Options server_options;
+  server_options.host = options_.modbus_host;
+  server_options.port = options_.modbus_port;
+  ModbusServer::Device chamber{chamber_unit_, {map.setpoint, map.process_value}};
+  for (const auto* extra : {&map.ramp_rate, &map.ramp_action, &map.ramp_scale}) {
+    if (*extra) chamber.registers.push_back(**extra);
+  }
+  server_options.devices = {
+      chamber, ModbusServer::Device{probes_unit_, {config_.probes.top, config_.probes.side}}};
+  server_options.on_write = [this](int unit_id) { on_modbus_write(unit_id); };
+  auto server = ModbusServer::start(std::move(server_options));
+  if (!server.ok()) return server.error();
+  server_ = std::move(server).value();
+  modbus_port_.store(server_->port());
+
+  // Initial image: the controller's set point and ramp settings, then the plant.
+  (void)server_->set(chamber_unit_, map.setpoint, setpoint_c_.load());
+  if (map.ramp_rate)
+    (void)server_->set(chamber_unit_, *map.ramp_rate, plant_.params().max_ramp_c_per_min);
+  if (map.ramp_action) (void)server_->set(chamber_unit_, *map.ramp_action, 0);
+  if (map.ramp_scale) (void)server_->set(chamber_unit_, *map.ramp_scale, kRampScaleMinutes);
+  publish_registers();
+
+  auto fail = [&](Error e) -> Status {
+    server_.reset();
+    std::lock_guard lock(stream_mu_);
+    stream_.close();
+    return e;
+  };
+  {
+    std::lock_guard lock(stream_mu_);
+    if (Status s = stream_.open(); !s.ok()) return fail(s.error());
+  }
+  if (!options_.truth_file.empty()) {
+    if (Status s = daemon::write_file_atomically(options_.truth_file, truth_json_); !s.ok()) {
+      return fail(Error::Permanent("cannot write the truth file: " + s.error().message));
+    }
+  }
+  {
+    std::lock_guard lock(sim_mu_);
+    t0_s_ = clock_->now_s();
+    status_.running = true;
+  }
+  {
+    std::lock_guard lock(wake_mu_);
+    stopping_ = false;
+  }
+  thread_ = std::thread([this] { run(); });
+  if (!options_.endpoints_file.empty()) {
+    if (Status s = write_endpoints_file(); !s.ok()) {
+      {
+        std::lock_guard lock(wake_mu_);
+        stopping_ = true;
+      }
+      wake_cv_.notify_all();
+      thread_.join();
+      std::lock_guard lock(sim_mu_);
+      status_.running = false;
+      return fail(Error::Permanent("cannot write the endpoints file: " + s.error().message));
+    }
+    wrote_endpoints_ = true;
+  }
+  return Status::Ok();
+}
+
+void Simulator::stop() {
+  std::lock_guard life(life_mu_);
+  if (!thread_.joinable()) return;
+  {
+    std::lock_guard lock(wake_mu_);
+    stopping_ = true;
+  }
+  wake_cv_.notify_all();
+  thread_.join();
+  server_.reset();
+  {
+    std::lock_guard lock(stream_mu_);
+    stream_.close();
+  }
+  if (wrote_endpoints_) {
+    std::error_code ec;
+    std::filesystem::remove(options_.endpoints_file, ec);
+    wrote_endpoints_ = false;
+  }
+  std::lock_guard lock(sim_mu_);
+  status_.running = false;
+}
+
+Status Simulator::write_endpoints_file() {
+  return daemon::write_sim_endpoints(options_.endpoints_file, endpoints());
+}
+
+daemon::SimEndpoints Simulator::endpoints() const {
+  daemon::SimEndpoints ep;
+  ep.modbus_host = options_.modbus_host;
+  ep.modbus_port = modbus_port_.load();
+  {
+    std::lock_guard lock(stream_mu_);
+    ep.gyro_device = stream_.slave_path();
+  }
+  ep.pid = static_cast<long>(::getpid());
+  return ep;
+}
+
+SimulatorStatus Simulator::status() const {
+  std::lock_guard life(life_mu_);
+  SimulatorStatus s;
+  {
+    std::lock_guard lock(sim_mu_);
+    s = status_;
+  }
+  {
+    std::lock_guard lock(stream_mu_);
+    s.stream = stream_.stats();
+  }
+  s.setpoint_c = setpoint_c_.load();
+  if (server_) s.modbus = server_->stats();
+  return s;
+}
+
+void Simulator::run() {
+  std::vector<uint8_t> batch;
+  std::unique_lock lock(wake_mu_);
+  while (!stopping_) {
+    lock.unlock();
+    advance_to(clock_->now_s() - t0_s_, batch);
+    publish_registers();
+    {
+      std::lock_guard stream_lock(stream_mu_);
+      stream_.write_frames(batch);
+    }
+    batch.clear();
+    lock.lock();
+    wake_cv_.wait_for(lock, kTick, [this] { return stopping_; });
+  }
+}
+
+void Simulator::advance_to(double target_s, std::vector<uint8_t>& batch) {
+  std::lock_guard lock(sim_mu_);
+  const double period_s = gyro_.sample_period_s();
+  const double step_s = std::min(kMaxStepS, period_s);
+  const double setpoint_c = setpoint_c_.load();
+  const double corruption = corruption_rate_.load();
+  const double drop = drop_rate_.load();
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  plant_.set_ramp_limit_c_per_min(ramp_limit_c_per_min_.load());
+
+  const auto budget_end = std::chrono::steady_clock::now() + kTickBudget;
+  int64_t done = 0;
+  while (static_cast<double>(steps_ + 1) * step_s <= target_s) {
+    plant_.step(step_s, setpoint_c);
+    ++steps_;
+    const double t_s = static_cast<double>(steps_) * step_s;
+    while (static_cast<double>(next_frame_) * period_s <= t_s + 1e-9) {
+      ++next_frame_;
+      ++status_.frames_generated;
+      const drivers::GyroFrame frame = gyro_.next_frame(plant_.truth());
+      if (drop > 0 && uniform(fault_rng_) < drop) {
+        ++status_.frames_fault_dropped;
+        continue;
+      }
+      auto bytes = drivers::encode_kvh1750(frame);
+      if (corruption > 0 && uniform(fault_rng_) < corruption) {
+        // One byte after the header changes; CRC-32 catches every such error.
+        const std::size_t index = 4 + fault_rng_() % (bytes.size() - 4);
+        bytes[index] ^= static_cast<uint8_t>(1 + fault_rng_() % 255);
+        ++status_.frames_fault_corrupted;
+      }
+      batch.insert(batch.end(), bytes.begin(), bytes.end());
+    }
+    if ((++done & 255) == 0 && std::chrono::steady_clock::now() > budget_end) break;
+  }
+  status_.t_s = static_cast<double>(steps_) * step_s;
+  status_.lag_s = std::max(0.0, target_s - status_.t_s - step_s);
+  status_.truth = plant_.truth();
+  if (!stalled_[0].load()) status_.readings.top_c = plant_.readings().top_c;
+  if (!stalled_[1].load()) status_.readings.side_c = plant_.readings().side_c;
+  status_.last_rate_dph = gyro_.last_rate_dph();
+}
+
+void Simulator::publish_registers() {
+  double air_c, top_c, side_c;
+  {
+    std::lock_guard lock(sim_mu_);
+    air_c = status_.truth.air_c;
+    top_c = status_.readings.top_c;
+    side_c = status_.readings.side_c;
+  }
+  // A value that does not fit its register (e.g. int16 x 0.1 beyond 3276.7)
+  // leaves the register as it was.
+  (void)server_->set(chamber_unit_, config_.chamber.map.process_value, air_c);
+  (void)server_->set(probes_unit_, config_.probes.top, top_c);
+  (void)server_->set(probes_unit_, config_.probes.side, side_c);
+}
+
+void Simulator::on_modbus_write(int unit_id) {
+  if (unit_id != chamber_unit_) return;
+  const auto& map = config_.chamber.map;
+  const auto requested = server_->get(chamber_unit_, map.setpoint);
+  const double current = setpoint_c_.load();
+  if (requested.ok() && std::isfinite(*requested) && *requested >= kMinSetpointC &&
+      *requested <= kMaxSetpointC) {
+    if (*requested != current) {
+      setpoint_c_.store(*requested);
+      std::lock_guard lock(sim_mu_);
+      ++status_.setpoint_writes;
+    }
+  } else {
+    (void)server_->set(chamber_unit_, map.setpoint, current);
+    std::lock_guard lock(sim_mu_);
+    ++status_.setpoint_writes_rejected;
+  }
+  if (map.ramp_action && map.ramp_rate) {
+    const auto action = server_->get(chamber_unit_, *map.ramp_action);
+    const auto rate = server_->get(chamber_unit_, *map.ramp_rate);
+    double scale = kRampScaleMinutes;
+    if (map.ramp_scale) {
+      if (auto s = server_->get(chamber_unit_, *map.ramp_scale); s.ok()) scale = *s;
+    }
+    double limit_c_per_min = 0;  // the plant's own limit
+    if (action.ok() && rate.ok() && *action != 0 && std::isfinite(*rate) && *rate > 0) {
+      limit_c_per_min = scale == kRampScaleMinutes ? *rate : *rate / 60.0;
+    }
+    ramp_limit_c_per_min_.store(limit_c_per_min);
+  }
+}
+
+void Simulator::set_setpoint_c(double setpoint_c) {
+  std::lock_guard life(life_mu_);
+  setpoint_c_.store(setpoint_c);
+  if (server_) (void)server_->set(chamber_unit_, config_.chamber.map.setpoint, setpoint_c);
+}
+
+void Simulator::set_frame_corruption_rate(double p) {
+  corruption_rate_.store(std::clamp(std::isfinite(p) ? p : 0.0, 0.0, 1.0));
+}
+
+void Simulator::set_frame_drop_rate(double p) {
+  drop_rate_.store(std::clamp(std::isfinite(p) ? p : 0.0, 0.0, 1.0));
+}
+
+void Simulator::set_modbus_down(bool down) {
+  std::lock_guard life(life_mu_);
+  if (server_) server_->set_down(down);
+}
+
+void Simulator::set_modbus_reply_delay_s(double wall_s) {
+  std::lock_guard life(life_mu_);
+  if (server_) server_->set_reply_delay_s(wall_s);
+}
+
+void Simulator::close_pty() {
+  std::lock_guard lock(stream_mu_);
+  stream_.close();
+}
+
+Status Simulator::reopen_pty() {
+  std::lock_guard life(life_mu_);
+  {
+    std::lock_guard lock(stream_mu_);
+    if (Status s = stream_.open(); !s.ok()) return s;
+  }
+  if (wrote_endpoints_) return write_endpoints_file();
+  return Status::Ok();
+}
+
+void Simulator::stall_probe(ProbeRole role, bool stalled) {
+  stalled_[role == ProbeRole::kTop ? 0 : 1].store(stalled);
+}
+
+}  // namespace gyrotherm::sim
