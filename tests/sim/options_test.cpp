@@ -32,6 +32,22 @@ Result<SimulatorOptions> options_from(const std::string& text,
   return read_simulator_options(*config, overrides);
 }
 
+TEST(SimulatorOptions, ErrorsNameTheLineOfTheSimulatorKey) {
+  const std::string text =
+      "[station]\n[chamber]\n[probes]\n[gyro]\ndevice = \"x\"\n[simulator]\nseed = 1\n"
+      "bogus = 2\n[simulator.thermal]\ncase_tau_s = \"slow\"\n";
+  auto o = options_from(text);
+  ASSERT_FALSE(o.ok());
+  EXPECT_NE(o.error().message.find("/nonexistent/demo.toml:8: simulator.bogus: unknown key"),
+            std::string::npos)
+      << o.error().message;
+  EXPECT_NE(o.error().message.find(
+                "/nonexistent/demo.toml:10: simulator.thermal.case_tau_s: expected a number"),
+            std::string::npos)
+      << o.error().message;
+}
+
+
 TEST(SimulatorOptions, ReadsEveryDemoKey) {
   auto o = options_from(demo_text());
   ASSERT_TRUE(o.ok()) << o.error().message;
