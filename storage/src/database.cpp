@@ -1,10 +1,12 @@
 #include "gyrotherm/storage/database.h"
 
+#include <charconv>
+#include <chrono>
+#include <thread>
+#include <utility>
+
 #include <fmt/format.h>
 #include <sqlite3.h>
-
-#include <charconv>
-#include <utility>
 
 #include "gyrotherm/core/clock.h"
 #include "migrations.h"
@@ -223,10 +225,25 @@ Result<Database> Database::open(const std::string& path) {
   sqlite3_busy_timeout(raw, kBusyTimeoutMs);
 
   {
-    auto st = Stmt::prepare(raw, path, "PRAGMA journal_mode=WAL");
-    if (!st) return st.error();
-    if (st->step() != SQLITE_ROW) return sqlite_error(raw, path, "enabling WAL");
-    const std::string mode = st->column_text(0);
+    // Switching a new file to WAL takes an exclusive lock and may answer
+    // SQLITE_BUSY without consulting the busy handler when another
+    // connection opens the same new file at that moment: retry, bounded.
+    std::string mode;
+    const auto deadline =
+        std::chrono::steady_clock::now() + std::chrono::milliseconds(kBusyTimeoutMs);
+    for (;;) {
+      auto st = Stmt::prepare(raw, path, "PRAGMA journal_mode=WAL");
+      if (!st) return st.error();
+      const int step_rc = st->step();
+      if (step_rc == SQLITE_ROW) {
+        mode = st->column_text(0);
+        break;
+      }
+      if ((step_rc & 0xff) != SQLITE_BUSY || std::chrono::steady_clock::now() >= deadline) {
+        return sqlite_error(raw, path, "enabling WAL");
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
     if (mode != "wal" && mode != "memory") {
       return Error::Permanent(fmt::format(
           "storage: {}: cannot enable WAL journal mode (got '{}'); is the file on a network "
