@@ -19,6 +19,36 @@ constexpr std::chrono::milliseconds kReadTimeout{50};
 
 }  // namespace
 
+SampleClock::SampleClock(double rate_hz, double tolerance_s)
+    : period_s_(1.0 / rate_hz), tolerance_s_(tolerance_s) {}
+
+double SampleClock::stamp(int seq, double now_s, bool after_silence) {
+  seq %= kKvh1750SeqModulo;
+  if (anchored_) {
+    // Counter steps (1 + frames missed); the KVH 1750 counter wraps at 128.
+    const int step = (seq - last_seq_ + kKvh1750SeqModulo) % kKvh1750SeqModulo;
+    n_ += static_cast<uint64_t>(step == 0 ? kKvh1750SeqModulo : step);
+  }
+  last_seq_ = seq;
+  double t_s = anchor_s_ + static_cast<double>(n_) * period_s_;
+  // Only the first frame after a silence can reveal a stall: frames read
+  // back to back are a backlog, late by design.
+  const bool stalled = after_silence && now_s - t_s > tolerance_s_;
+  const bool ahead = t_s - now_s > tolerance_s_;
+  if (!anchored_ || stalled || ahead) {
+    // Ahead: frames come faster than rate_hz says (misconfigured); back to
+    // the clock, but strictly after the previous sample.
+    t_s = anchored_ && ahead ? std::max(now_s, last_t_s_ + 1e-6) : now_s;
+    anchored_ = true;
+    anchor_s_ = t_s;
+    n_ = 0;
+  }
+  last_t_s_ = t_s;
+  return t_s;
+}
+
+void SampleClock::reset() { anchored_ = false; }
+
 double to_rate_dph(float value, const GyroFormat& format) {
   double v = value;
   if (format.unit == AngleUnit::kRad) v = units::rad_to_deg(v);
@@ -75,8 +105,10 @@ void GyroReader::run() {
                           format_.axis, format_.rate_hz);
     return;
   }
-  const double tolerance_s = std::max(2.0, 0.05 * clock_.time_scale());
-  const double period_s = 1.0 / format_.rate_hz;
+  // How far the sample clock may drift from the station clock before it is
+  // re-anchored: 2 s, or one wall second at high time scales (where a
+  // descheduled reader or simulator is late by many station seconds).
+  const double tolerance_s = std::max(2.0, 1.0 * clock_.time_scale());
   const auto valid_bit = static_cast<uint8_t>(1u << format_.axis);
 
   std::array<uint8_t, 4096> buf{};
@@ -106,11 +138,8 @@ void GyroReader::run() {
     }
     opened_before = true;
 
-    // Sample clock: t = anchor + n * period.
-    bool anchored = false;
-    double anchor_s = 0;
-    uint64_t n = 0;
-    int last_seq = -1;
+    SampleClock sample_clock(format_.rate_hz, tolerance_s);
+    auto last_data_wall = std::chrono::steady_clock::now() - kReadTimeout;
 
     while (!stop_) {
       auto got = port->read(buf, kReadTimeout);
@@ -122,6 +151,11 @@ void GyroReader::run() {
         break;
       }
       if (*got == 0) continue;
+      // Silent line: no data for at least a read timeout (wall), measured
+      // between data so that a descheduled reader still sees it.
+      const auto wall_now = std::chrono::steady_clock::now();
+      const bool idle = wall_now - last_data_wall >= kReadTimeout;
+      last_data_wall = wall_now;
       backoff = kMinBackoff;  // the port delivers data: a later hang-up starts afresh
 
       frames.clear();
@@ -129,21 +163,9 @@ void GyroReader::run() {
       parser_->feed(std::span<const uint8_t>(buf.data(), *got), frames);
       uint64_t invalid = 0;
       const double now_s = clock_.now_s();
-      for (const GyroFrame& f : frames) {
-        // Counter steps (1 + frames missed); the KVH 1750 counter wraps at 128.
-        const int seq = f.seq % kKvh1750SeqModulo;
-        if (anchored) {
-          const int step = (seq - last_seq + kKvh1750SeqModulo) % kKvh1750SeqModulo;
-          n += static_cast<uint64_t>(step == 0 ? kKvh1750SeqModulo : step);
-        }
-        last_seq = seq;
-        double t_s = anchor_s + static_cast<double>(n) * period_s;
-        if (!anchored || std::abs(t_s - now_s) > tolerance_s) {
-          anchored = true;
-          anchor_s = now_s;
-          n = 0;
-          t_s = now_s;
-        }
+      for (std::size_t i = 0; i < frames.size(); ++i) {
+        const GyroFrame& f = frames[i];
+        const double t_s = sample_clock.stamp(f.seq, now_s, idle && i == 0);
         if (!(f.status & valid_bit)) {
           ++invalid;
           continue;

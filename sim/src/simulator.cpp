@@ -26,8 +26,10 @@ constexpr auto kTickBudget = std::chrono::milliseconds(50);
 // SplitMix64: independent seeds for the plant, the gyro and the faults.
 std::size_t pending_frames_limit(const SimulatorOptions& o) {
   if (o.pending_frames_limit > 0) return o.pending_frames_limit;
-  const double half_wall_second = 0.5 * o.time_scale * o.gyro_format.rate_hz;
-  return static_cast<std::size_t>(std::clamp(half_wall_second, 256.0, 1e7));
+  // Five wall seconds of frames: a reader descheduled on a busy machine
+  // catches up instead of losing samples (a real UART loses them sooner).
+  const double five_wall_seconds = 5.0 * o.time_scale * o.gyro_format.rate_hz;
+  return static_cast<std::size_t>(std::clamp(five_wall_seconds, 256.0, 1e7));
 }
 
 uint64_t derive_seed(uint64_t seed, uint64_t stream) {

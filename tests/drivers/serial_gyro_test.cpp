@@ -223,8 +223,11 @@ TEST(GyroReader, TimestampsFromTheSampleCounter) {
   EXPECT_NEAR(s[11].rate_dph, 144.0, 1e-3);
   EXPECT_EQ(s[11].status, 0x04);
 
-  // Stream stalled for a long time: the next frame re-anchors on the clock.
+  // Stream stalled for a long time: the next frame, after a silence on the
+  // line (the stimulus: 200 ms of wall time without data), re-anchors on the
+  // clock.
   clock.set(500.0);
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
   send(pty, frame(14, 0.01f));
   ASSERT_TRUE(wait_for([&] { return got.size() >= 13; }));
   EXPECT_NEAR(got.samples()[12].t_s, 500.0, 1e-9);
@@ -301,6 +304,61 @@ TEST(GyroReader, MissingDeviceKeepsRetryingAndStopsPromptly) {
   const auto t0 = std::chrono::steady_clock::now();
   reader.stop();
   EXPECT_LT(std::chrono::steady_clock::now() - t0, 1s);
+}
+
+}  // namespace
+}  // namespace gyrotherm::drivers
+
+namespace gyrotherm::drivers {
+namespace {
+
+// 10 Hz, tolerance 2 s.
+TEST(SampleClock, BacklogReadBackToBackKeepsTheSampleClock) {
+  SampleClock c(10.0, 2.0);
+  EXPECT_DOUBLE_EQ(c.stamp(0, 100.0, true), 100.0);
+  // 300 frames generated over 30 s arrive late, back to back, while the
+  // station clock already reads 130 s: no re-anchoring inside the backlog.
+  double prev = 100.0;
+  for (int i = 1; i <= 300; ++i) {
+    const double t = c.stamp(i % 128, 130.0, false);
+    EXPECT_NEAR(t, 100.0 + 0.1 * i, 1e-9) << i;
+    EXPECT_GT(t, prev);
+    prev = t;
+  }
+}
+
+TEST(SampleClock, SilenceThenLagReanchorsForward) {
+  SampleClock c(10.0, 2.0);
+  c.stamp(0, 100.0, true);
+  c.stamp(1, 100.1, false);
+  // The line went silent; the next frame comes 60 s later.
+  EXPECT_DOUBLE_EQ(c.stamp(2, 160.0, true), 160.0);
+  EXPECT_DOUBLE_EQ(c.stamp(3, 160.1, false), 160.1);
+  // A short silence within tolerance keeps the sample clock.
+  EXPECT_NEAR(c.stamp(4, 161.5, true), 160.2, 1e-9);
+}
+
+TEST(SampleClock, AheadOfTheClockComesBackButNeverGoesBackwards) {
+  SampleClock c(10.0, 2.0);
+  c.stamp(0, 100.0, true);
+  // Frames come twice as fast as configured: the estimate runs ahead.
+  double prev = 100.0;
+  for (int i = 1; i < 200; ++i) {
+    const double t = c.stamp(i % 128, 100.0 + 0.05 * i, false);
+    EXPECT_GT(t, prev) << i;
+    EXPECT_LE(t, 100.0 + 0.05 * i + 2.0 + 1e-9) << i;
+    prev = t;
+  }
+}
+
+TEST(SampleClock, CounterGapsKeepTheirSlotsAndWrapCounts) {
+  SampleClock c(10.0, 2.0);
+  c.stamp(126, 50.0, true);
+  EXPECT_NEAR(c.stamp(127, 50.1, false), 50.1, 1e-9);
+  EXPECT_NEAR(c.stamp(0, 50.2, false), 50.2, 1e-9);   // wrap
+  EXPECT_NEAR(c.stamp(3, 50.5, false), 50.5, 1e-9);   // two frames missed
+  c.reset();
+  EXPECT_DOUBLE_EQ(c.stamp(9, 80.0, false), 80.0);
 }
 
 }  // namespace

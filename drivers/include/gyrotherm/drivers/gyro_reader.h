@@ -3,9 +3,13 @@
 //
 // Timestamps come from the gyro's own sample clock: t = anchor + n / rate_hz,
 // where n counts frames since the anchor including frames missed according to
-// the sequence counter. The anchor is the station clock at the first frame
-// and is re-taken whenever the estimate drifts from the station clock by more
-// than max(2 s, 0.05 wall s x time_scale) (stream stalled, port reopened).
+// the sequence counter. The anchor is the station clock at the first frame.
+// It is re-taken, with tolerance max(2 s, 1 wall s x time_scale): forward to
+// the clock when the first frame after a silent read (the stream stalled, the
+// port was reopened) lags the clock by more than that — frames read back to
+// back are a backlog, late by design, and never re-anchor forward; and back
+// to the clock when the estimate runs ahead of it, never earlier than the
+// previous sample. Timestamps therefore always increase.
 // Frames whose configured axis is flagged invalid in the status byte are
 // counted and not emitted. The port is reopened with backoff (100 ms doubling
 // to 5 s wall) after a hang-up or when it cannot be opened; nothing of this
@@ -40,6 +44,27 @@ struct GyroFormat {
 
 // Converts one axis value as sent into °/h.
 double to_rate_dph(float value, const GyroFormat& format);
+
+// The timestamping rule above, on its own (the reader uses one per opening
+// of the port). Pure: tests feed it counters and clock readings.
+class SampleClock {
+ public:
+  SampleClock(double rate_hz, double tolerance_s);
+  // `seq`: the frame's counter; `now_s`: the station clock when the frame was
+  // read; `after_silence`: the first frame after a read that timed out.
+  // Returns the frame's station time.
+  double stamp(int seq, double now_s, bool after_silence);
+  void reset();  // the next frame anchors on the clock
+
+ private:
+  double period_s_;
+  double tolerance_s_;
+  bool anchored_ = false;
+  double anchor_s_ = 0;
+  uint64_t n_ = 0;
+  int last_seq_ = 0;
+  double last_t_s_ = 0;
+};
 
 struct GyroReaderHealth {
   bool connected = false;

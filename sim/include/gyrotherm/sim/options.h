@@ -39,7 +39,7 @@ struct SimulatorOptions {
   drivers::GyroFormat gyro_format;  // from [gyro]
   // Frames kept while the pty's reader is slow ([simulator]
   // pending_frames_limit); beyond that new frames are dropped (and counted).
-  // 0 = half a wall second of frames, at least 256.
+  // 0 = five wall seconds of frames, at least 256.
   std::size_t pending_frames_limit = 0;
 
   bool IsValid(std::string* error) const;
