@@ -152,20 +152,22 @@ Result<double> ModbusDevice::read(const RegisterSpec& spec) {
                      : modbus_read_input_registers(ctx_, spec.address, count, words.data());
   const int err = errno;
   health_.last_latency_ms = std::chrono::duration<double, std::milli>(Steady::now() - t0).count();
-  if (rc != count) {
-    const std::string msg =
-        fmt::format("{} ({}): {} ({} word{}) failed: {}", name_, endpoint_.describe(), op, count,
-                    count == 1 ? "" : "s",
-                    rc < 0 ? std::string(modbus_strerror(err)) : fmt::format("got {} words", rc));
-    record_error_locked(msg);
-    if (rc >= 0 || is_exception_reply(err)) {
-      return Error{msg, rc >= 0 || is_transient_exception(err)};
-    }
-    disconnect_locked();  // the next call reconnects
-    return Error::Transient(msg);
-  }
+  if (rc != count) return request_failed_locked(op, count, rc, err, "got");
   health_.last_success_utc = wall_time_utc_iso();
   return decode_register(spec, std::span<const uint16_t>(words.data(), count));
+}
+
+Error ModbusDevice::request_failed_locked(const std::string& op, int count, int rc, int err,
+                                          std::string_view verb) {
+  const std::string msg =
+      fmt::format("{} ({}): {} ({} word{}) failed: {}", name_, endpoint_.describe(), op, count,
+                  count == 1 ? "" : "s",
+                  rc < 0 ? std::string(modbus_strerror(err)) : fmt::format("{} {} words", verb, rc));
+  record_error_locked(msg);
+  // A short reply or a Modbus exception: the link is fine, the request not.
+  if (rc >= 0 || is_exception_reply(err)) return Error{msg, rc >= 0 || is_transient_exception(err)};
+  disconnect_locked();  // the next call reconnects
+  return Error::Transient(msg);
 }
 
 Status ModbusDevice::write(const RegisterSpec& spec, double value) {
@@ -194,18 +196,7 @@ Status ModbusDevice::write(const RegisterSpec& spec, double value) {
                             : modbus_write_registers(ctx_, spec.address, count, words->data());
   const int err = errno;
   health_.last_latency_ms = std::chrono::duration<double, std::milli>(Steady::now() - t0).count();
-  if (rc != count) {
-    const std::string msg =
-        fmt::format("{} ({}): {} ({} word{}) failed: {}", name_, endpoint_.describe(), op, count,
-                    count == 1 ? "" : "s",
-                    rc < 0 ? std::string(modbus_strerror(err)) : fmt::format("wrote {} words", rc));
-    record_error_locked(msg);
-    if (rc >= 0 || is_exception_reply(err)) {
-      return Error{msg, rc >= 0 || is_transient_exception(err)};
-    }
-    disconnect_locked();
-    return Error::Transient(msg);
-  }
+  if (rc != count) return request_failed_locked(op, count, rc, err, "wrote");
   health_.last_success_utc = wall_time_utc_iso();
   return Status::Ok();
 }

@@ -12,6 +12,7 @@
 #include <memory>
 #include <mutex>
 #include <string>
+#include <string_view>
 
 #include "gyrotherm/core/result.h"
 #include "gyrotherm/drivers/registers.h"
@@ -71,6 +72,10 @@ class ModbusDevice {
   Status ensure_connected_locked(const std::string& op);
   void disconnect_locked();
   void record_error_locked(const std::string& what);
+  // Records a failed request (rc from libmodbus, err its errno) and returns
+  // the error: permanent for most exception replies, transient otherwise.
+  Error request_failed_locked(const std::string& op, int count, int rc, int err,
+                              std::string_view verb);
 
   std::string name_;
   ModbusEndpoint endpoint_;
