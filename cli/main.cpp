@@ -1,15 +1,15 @@
 // gyrotherm: the command-line tool. Daemon control over REST, offline tools
 // on a database or capture file, and commissioning on a station config.
+#include <fmt/format.h>
+
+#include <CLI/CLI.hpp>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
 #include <iostream>
-#include <thread>
-
-#include <CLI/CLI.hpp>
-#include <fmt/format.h>
 #include <nlohmann/json.hpp>
+#include <thread>
 
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/daemon/http_client.h"
@@ -30,7 +30,9 @@ int fail(const std::string& message, int code = 1) {
   return code;
 }
 
-nlohmann::json num(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
+nlohmann::json num(double v) {
+  return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr);
+}
 
 // ---------------------------------------------------------------- decode
 int cmd_decode(const std::string& protocol, const std::string& path) {
@@ -48,8 +50,8 @@ int cmd_decode(const std::string& protocol, const std::string& path) {
     frames.clear();
     (*parser)->feed(std::span<const uint8_t>(buf.data(), n), frames);
     for (const auto& f : frames) {
-      std::printf("%u,%u,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%d\n", f.seq, f.status, f.gyro[0],
-                  f.gyro[1], f.gyro[2], f.accel[0], f.accel[1], f.accel[2], f.temp_c);
+      std::printf("%u,%u,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%d\n", f.seq, f.status, f.gyro[0], f.gyro[1],
+                  f.gyro[2], f.accel[0], f.accel[1], f.accel[2], f.temp_c);
     }
   }
   const auto& c = (*parser)->counters();
@@ -105,9 +107,10 @@ int cmd_stats(const std::string& db_path, std::optional<int64_t> run_id, bool js
         r.run_id, r.segment_index + 1, r.setpoint_c, r.n, r.duration_s, r.temp_mean_c,
         r.bias_mean_dph, r.bias_std_dph, r.bias_std_ma_dph, r.bias_mean_earth_removed_dph);
   }
-  std::cout << fmt::format("(std MA: after a {}-point moving average; bias−Ω: Earth rate {:.4f} °/h "
-                           "removed)\n",
-                           rows->front().ma_window, rows->front().earth_rate_dph);
+  std::cout << fmt::format(
+      "(std MA: after a {}-point moving average; bias−Ω: Earth rate {:.4f} °/h "
+      "removed)\n",
+      rows->front().ma_window, rows->front().earth_rate_dph);
   return 0;
 }
 
@@ -118,9 +121,10 @@ Result<daemon::StationConfig> load_config_for_tools(const std::string& path) {
   if (!cfg->simulator.endpoints_file.empty()) {
     auto ep = daemon::read_sim_endpoints(cfg->simulator.endpoints_file);
     if (!ep) {
-      return Error::Transient(fmt::format("{}: simulator endpoints not readable (is gyrotherm-sim "
-                                          "running?): {}",
-                                          cfg->simulator.endpoints_file, ep.error().message));
+      return Error::Transient(
+          fmt::format("{}: simulator endpoints not readable (is gyrotherm-sim "
+                      "running?): {}",
+                      cfg->simulator.endpoints_file, ep.error().message));
     }
     daemon::apply_sim_endpoints(*cfg, *ep);
   }
@@ -165,31 +169,36 @@ int cmd_devices(const std::string& config_path, bool json) {
       gyro_json = {{"error", gyro_text}};
     } else {
       const auto& f = frames.back();
-      const double rate = drivers::to_rate_dph(f.gyro[static_cast<std::size_t>(cfg->gyro.format.axis)],
-                                               cfg->gyro.format);
-      gyro_text = fmt::format("{:.3f} °/h (axis {}), seq {}, status 0x{:02x}, {} °C; {} frames, {} "
-                              "CRC failures",
-                              rate, static_cast<char>('x' + cfg->gyro.format.axis), f.seq, f.status,
-                              f.temp_c, c.frames_ok, c.crc_failures);
-      gyro_json = {{"rate_dph", rate}, {"seq", f.seq}, {"status", f.status},
-                   {"temp_c", f.temp_c}, {"frames_ok", c.frames_ok},
-                   {"crc_failures", c.crc_failures}};
+      const double rate = drivers::to_rate_dph(
+          f.gyro[static_cast<std::size_t>(cfg->gyro.format.axis)], cfg->gyro.format);
+      gyro_text = fmt::format(
+          "{:.3f} °/h (axis {}), seq {}, status 0x{:02x}, {} °C; {} frames, {} "
+          "CRC failures",
+          rate, static_cast<char>('x' + cfg->gyro.format.axis), f.seq, f.status, f.temp_c,
+          c.frames_ok, c.crc_failures);
+      gyro_json = {{"rate_dph", rate},         {"seq", f.seq},
+                   {"status", f.status},       {"temp_c", f.temp_c},
+                   {"frames_ok", c.frames_ok}, {"crc_failures", c.crc_failures}};
     }
   }
   if (json) {
     auto v = [](const Result<double>& r) {
       return r ? nlohmann::json(*r) : nlohmann::json({{"error", r.error().message}});
     };
-    nlohmann::json out = {{"chamber", {{"endpoint", cfg->chamber.endpoint.describe()},
-                                       {"process_value_c", v(pv)}, {"setpoint_c", v(sp)}}},
-                          {"probes", {{"endpoint", cfg->probes.endpoint.describe()},
-                                      {"top_c", v(top)}, {"side_c", v(side)}}},
-                          {"gyro", gyro_json}};
+    nlohmann::json out = {
+        {"chamber",
+         {{"endpoint", cfg->chamber.endpoint.describe()},
+          {"process_value_c", v(pv)},
+          {"setpoint_c", v(sp)}}},
+        {"probes",
+         {{"endpoint", cfg->probes.endpoint.describe()}, {"top_c", v(top)}, {"side_c", v(side)}}},
+        {"gyro", gyro_json}};
     out["gyro"]["device"] = cfg->gyro.serial.device;
     std::cout << out.dump(2) << "\n";
   } else {
     std::cout << fmt::format("chamber  {}\n  air temperature  {}\n  set point        {}\n",
-                             cfg->chamber.endpoint.describe(), reading(pv, "°C"), reading(sp, "°C"));
+                             cfg->chamber.endpoint.describe(), reading(pv, "°C"),
+                             reading(sp, "°C"));
     std::cout << fmt::format("probes   {}\n  top              {}\n  side             {}\n",
                              cfg->probes.endpoint.describe(), reading(top, "°C"),
                              reading(side, "°C"));
@@ -216,7 +225,8 @@ int cmd_chamber_setpoint(const std::string& config_path, double setpoint_c) {
   return 0;
 }
 
-int cmd_schedule_check(const std::string& config_path, const std::string& schedule_path, bool json) {
+int cmd_schedule_check(const std::string& config_path, const std::string& schedule_path,
+                       bool json) {
   auto cfg = daemon::load_station_config(config_path);
   if (!cfg) return fail("bad station config:\n" + cfg.error().message, 2);
   const schedules::StationLimits limits{cfg->station.min_temp_c, cfg->station.max_temp_c,
@@ -256,7 +266,8 @@ int cmd_status(const std::string& url, bool json) {
   const auto j = nlohmann::json::parse(r->body, nullptr, false);
   if (j.is_discarded()) return fail("daemon sent invalid JSON");
   auto f = [&](const char* key, const char* unit) {
-    return j[key].is_null() ? std::string("—") : fmt::format("{:.3f} {}", j[key].get<double>(), unit);
+    return j[key].is_null() ? std::string("—")
+                            : fmt::format("{:.3f} {}", j[key].get<double>(), unit);
   };
   std::cout << fmt::format("station   {}\nstate     {}\n", j["station"].get<std::string>(),
                            j["state"].get<std::string>());
@@ -282,7 +293,8 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   bool json = false;
   app.add_flag("--json", json, "machine-readable output");
-  std::string url = std::getenv("GYROTHERM_URL") ? std::getenv("GYROTHERM_URL") : "http://127.0.0.1:8750";
+  std::string url =
+      std::getenv("GYROTHERM_URL") ? std::getenv("GYROTHERM_URL") : "http://127.0.0.1:8750";
   std::string token = std::getenv("GYROTHERM_TOKEN") ? std::getenv("GYROTHERM_TOKEN") : "";
 
   auto* decode = app.add_subcommand("decode", "decode a raw serial capture to CSV");

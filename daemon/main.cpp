@@ -1,15 +1,14 @@
 // gyrothermd: the station daemon. Thin: parse arguments, load the config,
 // wire Station + HTTP server, wait for a signal.
 #include <signal.h>
+#include <spdlog/spdlog.h>
 
+#include <CLI/CLI.hpp>
 #include <chrono>
 #include <cstdlib>
 #include <filesystem>
 #include <iostream>
 #include <thread>
-
-#include <CLI/CLI.hpp>
-#include <spdlog/spdlog.h>
 
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/daemon/api.h"
@@ -68,9 +67,8 @@ int main(int argc, char** argv) {
 
   std::optional<gyrotherm::schedules::Plan> plan;
   if (!schedule_path.empty()) {
-    const gyrotherm::schedules::StationLimits limits{config->station.min_temp_c,
-                                                      config->station.max_temp_c,
-                                                      config->station.max_ramp_c_per_min};
+    const gyrotherm::schedules::StationLimits limits{
+        config->station.min_temp_c, config->station.max_temp_c, config->station.max_ramp_c_per_min};
     auto p = gyrotherm::schedules::load_schedule(schedule_path, limits);
     if (!p) {
       std::cerr << "gyrothermd: schedule refused, nothing queued:\n" << p.error().message;
@@ -96,20 +94,18 @@ int main(int argc, char** argv) {
   gd::HttpServerOptions http_options;
   http_options.bind = config->api.bind;
   http_options.port = config->api.port;
-  auto http = gd::HttpServer::create(http_options,
-                                     [&api](const gd::HttpRequest& r) {
-                                       return gd::handle_api_request(r, api);
-                                     });
+  auto http = gd::HttpServer::create(
+      http_options, [&api](const gd::HttpRequest& r) { return gd::handle_api_request(r, api); });
   if (!http) {
     std::cerr << "gyrothermd: " << http.error().message << "\n";
     return 1;
   }
   (*station)->start();
   (*http)->start();
-  spdlog::info("gyrothermd: station \"{}\", database {}, API http://{}:{}/api/v1/status, time "
-               "scale {:g}",
-               config->station.name, config->storage.db_path, config->api.bind, (*http)->port(),
-               time_scale);
+  spdlog::info(
+      "gyrothermd: station \"{}\", database {}, API http://{}:{}/api/v1/status, time "
+      "scale {:g}",
+      config->station.name, config->storage.db_path, config->api.bind, (*http)->port(), time_scale);
   if (plan) {
     spdlog::info("queued {} ({} steps)", plan->name, plan->steps.size());
     (*station)->enqueue(std::move(*plan));

@@ -70,8 +70,6 @@ double StabilityWindow::max_abs_dev(double ref) const {
   return worst;
 }
 
-
-
 double StabilityWindow::mean() const {
   if (samples_.empty()) return kNaN;
   long double sum = 0;

@@ -44,8 +44,11 @@ Result<storage::SegmentStatsRecord> compute_table1(storage::Database& db, const 
 
 AnalysisWorker::AnalysisWorker(std::string db_path, storage::SampleWriter& writer,
                                analysis::Table1Options options, Done on_done)
-    : db_path_(std::move(db_path)), writer_(writer), options_(options),
-      on_done_(std::move(on_done)), thread_([this] { run(); }) {}
+    : db_path_(std::move(db_path)),
+      writer_(writer),
+      options_(options),
+      on_done_(std::move(on_done)),
+      thread_([this] { run(); }) {}
 
 AnalysisWorker::~AnalysisWorker() { stop(); }
 
@@ -89,8 +92,10 @@ void AnalysisWorker::run() {
       (void)writer_.flush();  // the window's samples must be committed first
       if (!db) {
         auto opened = storage::Database::open(db_path_);
-        if (opened) db.emplace(std::move(*opened));
-        else result = opened.error();
+        if (opened)
+          db.emplace(std::move(*opened));
+        else
+          result = opened.error();
       }
       if (db) result = compute_table1(*db, job, options_);
     } catch (const std::exception& e) {

@@ -17,8 +17,7 @@ HttpResponse handle_api_request(const HttpRequest& req, const ApiContext& ctx) {
     if (!get) return error_response(req, http::status::method_not_allowed, "use GET");
     return json_response(req, http::status::ok, R"({"ok":true})");
   }
-  return error_response(req, http::status::not_found,
-                        "no such resource: " + std::string(target));
+  return error_response(req, http::status::not_found, "no such resource: " + std::string(target));
 }
 
 }  // namespace gyrotherm::daemon

@@ -1,6 +1,7 @@
 #include "gyrotherm/daemon/config.h"
 
 #include <fcntl.h>
+#include <fmt/format.h>
 #include <unistd.h>
 
 #include <cerrno>
@@ -9,8 +10,6 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
-
-#include <fmt/format.h>
 
 #include "gyrotherm/core/toml_reader.h"
 
@@ -34,18 +33,36 @@ std::optional<drivers::RegisterSpec> read_register(TableReader t) {
   }
   if (auto f = t.string("function")) {
     auto r = drivers::parse_register_function(*f);
-    if (r) spec.function = *r; else { t.error("function", r.error().message); ok = false; }
+    if (r)
+      spec.function = *r;
+    else {
+      t.error("function", r.error().message);
+      ok = false;
+    }
   }
   if (auto ty = t.string("type")) {
     auto r = drivers::parse_register_type(*ty);
-    if (r) spec.type = *r; else { t.error("type", r.error().message); ok = false; }
+    if (r)
+      spec.type = *r;
+    else {
+      t.error("type", r.error().message);
+      ok = false;
+    }
   }
   if (auto w = t.string("word_order")) {
     auto r = drivers::parse_word_order(*w);
-    if (r) spec.word_order = *r; else { t.error("word_order", r.error().message); ok = false; }
+    if (r)
+      spec.word_order = *r;
+    else {
+      t.error("word_order", r.error().message);
+      ok = false;
+    }
   }
   if (auto s = t.number("scale")) {
-    if (*s == 0.0) { t.error("scale", "must not be 0"); ok = false; }
+    if (*s == 0.0) {
+      t.error("scale", "must not be 0");
+      ok = false;
+    }
     spec.scale = *s;
   }
   t.finish();
@@ -57,20 +74,27 @@ void read_endpoint(TableReader& t, drivers::ModbusEndpoint& ep, int default_unit
   ep.transport = t.choice("transport", {"tcp", "rtu"}, "tcp").value_or("tcp");
   if (auto h = t.string("host")) ep.host = *h;
   if (auto p = t.integer("port")) {
-    if (*p < 0 || *p > 65535) t.error("port", fmt::format("{} is not a TCP port", *p));
-    else ep.port = static_cast<int>(*p);
+    if (*p < 0 || *p > 65535)
+      t.error("port", fmt::format("{} is not a TCP port", *p));
+    else
+      ep.port = static_cast<int>(*p);
   }
   if (auto d = t.string("device")) ep.device = *d;
   if (auto b = t.integer("baud")) {
-    if (*b <= 0) t.error("baud", "must be positive"); else ep.baud = static_cast<int>(*b);
+    if (*b <= 0)
+      t.error("baud", "must be positive");
+    else
+      ep.baud = static_cast<int>(*b);
   }
   if (auto p = t.choice("parity", {"none", "even", "odd"}, std::nullopt)) {
     ep.parity = *p == "none" ? 'N' : (*p == "even" ? 'E' : 'O');
   }
   ep.unit_id = default_unit;
   if (auto u = t.integer("unit_id")) {
-    if (*u < 0 || *u > 247) t.error("unit_id", fmt::format("{} is not a Modbus unit id (0..247)", *u));
-    else ep.unit_id = static_cast<int>(*u);
+    if (*u < 0 || *u > 247)
+      t.error("unit_id", fmt::format("{} is not a Modbus unit id (0..247)", *u));
+    else
+      ep.unit_id = static_cast<int>(*u);
   }
   ep.response_timeout_s = t.number_in("response_timeout_s", ep.response_timeout_s, 0.01, 60.0);
   if (ep.transport == "rtu" && ep.device.empty()) t.error("device", "missing (required for rtu)");
@@ -105,13 +129,18 @@ void read_chamber(TableReader t, ChamberSection& c) {
     auto pv = regs->table("process_value");
     if (!sp) regs->error("setpoint", "missing (required register)");
     if (!pv) regs->error("process_value", "missing (required register)");
-    if (sp) if (auto r = read_register(*sp)) c.map.setpoint = *r;
-    if (pv) if (auto r = read_register(*pv)) c.map.process_value = *r;
+    if (sp)
+      if (auto r = read_register(*sp)) c.map.setpoint = *r;
+    if (pv)
+      if (auto r = read_register(*pv)) c.map.process_value = *r;
     regs->finish();
   } else {
     if (profile) c.profile = *profile;
     auto map = drivers::chamber_profile(c.profile);
-    if (map) c.map = *map; else t.error("profile", map.error().message);
+    if (map)
+      c.map = *map;
+    else
+      t.error("profile", map.error().message);
   }
   t.finish();
 }
@@ -128,16 +157,21 @@ void read_probes(TableReader t, ProbesSection& p) {
     auto side = regs->table("side");
     if (!top) regs->error("top", "missing (required register)");
     if (!side) regs->error("side", "missing (required register)");
-    if (top) if (auto r = read_register(*top)) p.top = *r;
-    if (side) if (auto r = read_register(*side)) p.side = *r;
+    if (top)
+      if (auto r = read_register(*top)) p.top = *r;
+    if (side)
+      if (auto r = read_register(*side)) p.side = *r;
     regs->finish();
   } else {
     if (profile) p.profile = *profile;
     if (auto ch = t.table("channels")) {
-      for (auto [role, field] : {std::pair{"top", &p.top_channel}, std::pair{"side", &p.side_channel}}) {
+      for (auto [role, field] :
+           {std::pair{"top", &p.top_channel}, std::pair{"side", &p.side_channel}}) {
         if (auto v = ch->integer(role)) {
-          if (*v < 0 || *v > 255) ch->error(role, "channel must be in 0..255");
-          else *field = static_cast<int>(*v);
+          if (*v < 0 || *v > 255)
+            ch->error(role, "channel must be in 0..255");
+          else
+            *field = static_cast<int>(*v);
         }
       }
       ch->finish();
@@ -145,8 +179,10 @@ void read_probes(TableReader t, ProbesSection& p) {
     if (p.top_channel == p.side_channel) t.error("channels", "top and side use the same channel");
     auto top = drivers::probe_channel_spec(p.profile, p.top_channel);
     auto side = drivers::probe_channel_spec(p.profile, p.side_channel);
-    if (!top) t.error("profile", top.error().message);
-    else p.top = *top;
+    if (!top)
+      t.error("profile", top.error().message);
+    else
+      p.top = *top;
     if (side) p.side = *side;
   }
   t.finish();
@@ -155,7 +191,10 @@ void read_probes(TableReader t, ProbesSection& p) {
 void read_gyro(TableReader t, GyroSection& g) {
   if (auto d = t.string("device")) g.serial.device = *d;
   if (auto b = t.integer("baud")) {
-    if (*b <= 0) t.error("baud", "must be positive"); else g.serial.baud = static_cast<int>(*b);
+    if (*b <= 0)
+      t.error("baud", "must be positive");
+    else
+      g.serial.baud = static_cast<int>(*b);
   }
   if (auto p = t.choice("parity", {"none", "even", "odd"}, std::nullopt)) {
     g.serial.parity = *drivers::parse_parity(*p);
@@ -182,8 +221,10 @@ void read_storage(TableReader t, StorageSection& s) {
 void read_api(TableReader t, ApiSection& a) {
   if (auto b = t.string("bind")) a.bind = *b;
   if (auto p = t.integer("port")) {
-    if (*p < 0 || *p > 65535) t.error("port", fmt::format("{} is not a TCP port", *p));
-    else a.port = static_cast<int>(*p);
+    if (*p < 0 || *p > 65535)
+      t.error("port", fmt::format("{} is not a TCP port", *p));
+    else
+      a.port = static_cast<int>(*p);
   }
   if (const toml::array* tokens = t.array("tokens")) {
     for (const auto& node : *tokens) {
@@ -216,8 +257,10 @@ void read_export(TableReader t, ExportSection& e) {
 void read_analysis(TableReader t, AnalysisSection& a) {
   a.bin_s = t.number_in("bin_s", a.bin_s, 1e-3, 3600.0);
   if (auto w = t.integer("ma_window")) {
-    if (*w < 2 || *w > 100000) t.error("ma_window", "must be in [2, 100000]");
-    else a.ma_window = static_cast<int>(*w);
+    if (*w < 2 || *w > 100000)
+      t.error("ma_window", "must be in [2, 100000]");
+    else
+      a.ma_window = static_cast<int>(*w);
   }
   a.l0_window_s = t.number_in("l0_window_s", a.l0_window_s, 1.0, 86400.0);
   if (auto m = t.string("model")) a.model = *m;
@@ -287,8 +330,10 @@ Result<SimEndpoints> read_sim_endpoints(const std::string& path) {
   SimEndpoints ep;
   TableReader t(*root, "", errors);
   if (auto h = t.required_string("modbus_host")) ep.modbus_host = *h;
-  if (auto p = t.integer("modbus_port")) ep.modbus_port = static_cast<int>(*p);
-  else t.error("modbus_port", "missing");
+  if (auto p = t.integer("modbus_port"))
+    ep.modbus_port = static_cast<int>(*p);
+  else
+    t.error("modbus_port", "missing");
   if (auto d = t.required_string("gyro_device")) ep.gyro_device = *d;
   if (auto p = t.integer("pid")) ep.pid = static_cast<long>(*p);
   t.finish();
@@ -302,7 +347,8 @@ Status write_sim_endpoints(const std::string& path, const SimEndpoints& ep) {
                 {"gyro_device", ep.gyro_device},
                 {"pid", static_cast<int64_t>(ep.pid)}};
   std::ostringstream ss;
-  ss << "# written by gyrotherm-sim; read by gyrothermd ([simulator] endpoints_file)\n" << t << "\n";
+  ss << "# written by gyrotherm-sim; read by gyrothermd ([simulator] endpoints_file)\n"
+     << t << "\n";
   return write_file_atomically(path, ss.str());
 }
 

@@ -1,13 +1,13 @@
 #include "gyrotherm/daemon/http_client.h"
 
-#include <regex>
+#include <fmt/format.h>
 
 #include <boost/asio/connect.hpp>
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/ip/tcp.hpp>
 #include <boost/beast/core.hpp>
 #include <boost/beast/http.hpp>
-#include <fmt/format.h>
+#include <regex>
 
 namespace gyrotherm::daemon {
 
@@ -47,11 +47,20 @@ Result<HttpResult> http_request(const std::string& method, const std::string& ur
 
   stream.expires_after(timeout);
   resolver.async_resolve(host, port, [&](beast::error_code ec, tcp::resolver::results_type r) {
-    if (ec) { result_ec = ec; return; }
+    if (ec) {
+      result_ec = ec;
+      return;
+    }
     stream.async_connect(r, [&](beast::error_code ec, const tcp::endpoint&) {
-      if (ec) { result_ec = ec; return; }
+      if (ec) {
+        result_ec = ec;
+        return;
+      }
       http::async_write(stream, req, [&](beast::error_code ec, std::size_t) {
-        if (ec) { result_ec = ec; return; }
+        if (ec) {
+          result_ec = ec;
+          return;
+        }
         http::async_read(stream, buffer, res, [&](beast::error_code ec, std::size_t) {
           result_ec = ec;
           done = !ec;
@@ -61,8 +70,8 @@ Result<HttpResult> http_request(const std::string& method, const std::string& ur
   });
   ioc.run();
   if (!done) {
-    return Error::Transient(fmt::format("{} {}: {}", method, url,
-                                        result_ec ? result_ec.message() : "no response"));
+    return Error::Transient(
+        fmt::format("{} {}: {}", method, url, result_ec ? result_ec.message() : "no response"));
   }
   beast::error_code ignored;
   stream.socket().shutdown(tcp::socket::shutdown_both, ignored);

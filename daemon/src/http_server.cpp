@@ -1,12 +1,13 @@
 #include "gyrotherm/daemon/http_server.h"
 
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
 #include <boost/asio/ip/tcp.hpp>
 #include <boost/asio/strand.hpp>
 #include <boost/beast/core.hpp>
 #include <boost/beast/version.hpp>
 #include <nlohmann/json.hpp>
-#include <fmt/format.h>
-#include <spdlog/spdlog.h>
 
 namespace gyrotherm::daemon {
 
@@ -37,7 +38,9 @@ class Session : public std::enable_shared_from_this<Session> {
  public:
   Session(tcp::socket&& socket, const HttpServerOptions& options, const HttpHandler& handler,
           std::atomic<int>& connections)
-      : stream_(std::move(socket)), options_(options), handler_(handler),
+      : stream_(std::move(socket)),
+        options_(options),
+        handler_(handler),
         connections_(connections) {}
   ~Session() { --connections_; }
 

@@ -1,12 +1,12 @@
 #include "gyrotherm/daemon/station.h"
 
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
 #include <cmath>
 #include <fstream>
 #include <limits>
 #include <sstream>
-
-#include <fmt/format.h>
-#include <spdlog/spdlog.h>
 
 namespace gyrotherm::daemon {
 namespace {
@@ -42,21 +42,25 @@ Result<std::unique_ptr<Station>> Station::create(StationConfig config, const Clo
 
 Station::Station(StationConfig config, const Clock& clock, storage::Database db,
                  std::unique_ptr<storage::SampleWriter> writer)
-    : config_(std::move(config)), clock_(clock), db_(std::move(db)), writer_(std::move(writer)),
+    : config_(std::move(config)),
+      clock_(clock),
+      db_(std::move(db)),
+      writer_(std::move(writer)),
       started_wall_s_(steady_now_s()) {
   analysis::Table1Options topt;
   topt.bin_s = config_.analysis.bin_s;
   topt.ma_window = static_cast<std::size_t>(config_.analysis.ma_window);
-  topt.earth_rate_dph = analysis::earth_rate_component_dph(config_.station.latitude_deg,
-                                                           config_.station.orientation);
+  topt.earth_rate_dph =
+      analysis::earth_rate_component_dph(config_.station.latitude_deg, config_.station.orientation);
   analysis_ = std::make_unique<AnalysisWorker>(
       config_.storage.db_path, *writer_, topt,
       [](const Table1Job& job, const Result<storage::SegmentStatsRecord>& r) {
         if (r) {
-          spdlog::info("run {} segment {}: Table I row stored: n={} T={:.2f} °C bias={:.4f} °/h "
-                       "std={:.4f} std(MA{})={:.4f}",
-                       job.run_id, job.segment_index + 1, r->n, r->temp_mean_c, r->bias_mean_dph,
-                       r->bias_std_dph, r->ma_window, r->bias_std_ma_dph);
+          spdlog::info(
+              "run {} segment {}: Table I row stored: n={} T={:.2f} °C bias={:.4f} °/h "
+              "std={:.4f} std(MA{})={:.4f}",
+              job.run_id, job.segment_index + 1, r->n, r->temp_mean_c, r->bias_mean_dph,
+              r->bias_std_dph, r->ma_window, r->bias_std_ma_dph);
         } else {
           spdlog::error("Table I row not computed: {}", r.error().message);
         }
@@ -134,7 +138,8 @@ void Station::control_loop() {
     const auto period = std::max<std::chrono::duration<double>>(
         min_wall, std::chrono::duration<double>(tick_s / clock_.time_scale()));
     std::unique_lock lock(mu_);
-    if (wake_.wait_until(lock, wall_start + std::chrono::duration_cast<std::chrono::nanoseconds>(period),
+    if (wake_.wait_until(lock,
+                         wall_start + std::chrono::duration_cast<std::chrono::nanoseconds>(period),
                          [this] { return stopping_; })) {
       return;
     }
@@ -222,8 +227,8 @@ void Station::tick() {
 
 void Station::write_setpoint(double setpoint_c, bool force) {
   ++ticks_since_setpoint_write_;
-  const bool changed = !last_written_setpoint_c_ ||
-                       std::abs(*last_written_setpoint_c_ - setpoint_c) > 1e-4;
+  const bool changed =
+      !last_written_setpoint_c_ || std::abs(*last_written_setpoint_c_ - setpoint_c) > 1e-4;
   // Re-assert the set point now and then: a controller that was power-cycled
   // or changed by hand comes back to the schedule.
   if (!force && !changed && ticks_since_setpoint_write_ < 30) return;
@@ -392,8 +397,8 @@ storage::SegmentRecord segment_record(int64_t id, int64_t run_id, std::size_t in
 
 void Station::on_acquisition_started(std::size_t index, const schedules::StepTimes& times) {
   const auto& step = sequencer_->plan().steps[index];
-  if (auto st = db_.update_segment(segment_record(segment_ids_[index], run_id_.load(), index, step,
-                                                  times, "running"));
+  if (auto st = db_.update_segment(
+          segment_record(segment_ids_[index], run_id_.load(), index, step, times, "running"));
       !st) {
     spdlog::error("{}", st.error().message);
   }

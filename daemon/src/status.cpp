@@ -9,9 +9,12 @@ nlohmann::json opt(const std::optional<T>& v) {
 }
 
 nlohmann::json to_json(const drivers::DeviceHealth& h) {
-  return {{"connected", h.connected},     {"last_success_utc", h.last_success_utc},
-          {"requests", h.requests},       {"errors", h.errors},
-          {"reconnects", h.reconnects},   {"last_error", h.last_error},
+  return {{"connected", h.connected},
+          {"last_success_utc", h.last_success_utc},
+          {"requests", h.requests},
+          {"errors", h.errors},
+          {"reconnects", h.reconnects},
+          {"last_error", h.last_error},
           {"last_latency_ms", h.last_latency_ms}};
 }
 

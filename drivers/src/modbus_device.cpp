@@ -159,10 +159,10 @@ Result<double> ModbusDevice::read(const RegisterSpec& spec) {
 
 Error ModbusDevice::request_failed_locked(const std::string& op, int count, int rc, int err,
                                           std::string_view verb) {
-  const std::string msg =
-      fmt::format("{} ({}): {} ({} word{}) failed: {}", name_, endpoint_.describe(), op, count,
-                  count == 1 ? "" : "s",
-                  rc < 0 ? std::string(modbus_strerror(err)) : fmt::format("{} {} words", verb, rc));
+  const std::string msg = fmt::format(
+      "{} ({}): {} ({} word{}) failed: {}", name_, endpoint_.describe(), op, count,
+      count == 1 ? "" : "s",
+      rc < 0 ? std::string(modbus_strerror(err)) : fmt::format("{} {} words", verb, rc));
   record_error_locked(msg);
   // A short reply or a Modbus exception: the link is fine, the request not.
   if (rc >= 0 || is_exception_reply(err)) return Error{msg, rc >= 0 || is_transient_exception(err)};

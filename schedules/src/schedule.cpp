@@ -17,10 +17,12 @@ class ScheduleReader {
   ScheduleReader(TomlErrors& errors, const StationLimits& limits)
       : errors_(errors), limits_(limits) {}
 
-  void read_steps(TableReader& parent, std::string_view key, int depth, std::vector<PlanStep>& out) {
+  void read_steps(TableReader& parent, std::string_view key, int depth,
+                  std::vector<PlanStep>& out) {
     const toml::array* steps = parent.array(key);
     if (!steps) {
-      if (!parent.raw().contains(key)) parent.error(key, "missing: a schedule needs at least one [[step]]");
+      if (!parent.raw().contains(key))
+        parent.error(key, "missing: a schedule needs at least one [[step]]");
       return;
     }
     if (steps->empty()) parent.error(key, "is empty: a schedule needs at least one step");
@@ -101,8 +103,10 @@ class ScheduleReader {
       return;
     }
     if (auto r = t.number("table_rate_dps")) {
-      if (std::abs(*r) > 1000.0) t.error("table_rate_dps", "must be within ±1000 °/s");
-      else s.table_rate_dps = *r;
+      if (std::abs(*r) > 1000.0)
+        t.error("table_rate_dps", "must be within ±1000 °/s");
+      else
+        s.table_rate_dps = *r;
     }
     if (*type == "soak") {
       s.kind = StepKind::kSoak;
@@ -113,7 +117,8 @@ class ScheduleReader {
       s.settle_timeout_s = minutes(t, "settle_timeout_min", 180.0, 7 * 24 * 60);
       s.acquire_s = minutes(t, "acquire_min", std::nullopt, 7 * 24 * 60);
       if (s.stability_window_s > s.settle_timeout_s) {
-        t.error("stability_window_min", "is longer than settle_timeout_min: the gate could never hold");
+        t.error("stability_window_min",
+                "is longer than settle_timeout_min: the gate could never hold");
       }
       s.label = fmt::format("soak {}", format_c(s.setpoint_c));
     } else if (*type == "ramp") {
@@ -124,8 +129,9 @@ class ScheduleReader {
         if (!(*rate > 0)) {
           t.error("rate_c_per_min", fmt::format("{} °C/min: must be > 0", *rate));
         } else if (*rate > limits_.max_ramp_c_per_min) {
-          t.error("rate_c_per_min", fmt::format("{} °C/min exceeds the station's max ramp rate {} °C/min",
-                                                *rate, limits_.max_ramp_c_per_min));
+          t.error("rate_c_per_min",
+                  fmt::format("{} °C/min exceeds the station's max ramp rate {} °C/min", *rate,
+                              limits_.max_ramp_c_per_min));
         } else {
           s.rate_c_per_min = *rate;
         }
@@ -171,9 +177,12 @@ Result<Plan> build_plan(std::optional<toml::table> root, TomlErrors& errors,
 
 std::string_view to_string(StepKind kind) {
   switch (kind) {
-    case StepKind::kSoak: return "soak";
-    case StepKind::kRamp: return "ramp";
-    case StepKind::kHold: return "hold";
+    case StepKind::kSoak:
+      return "soak";
+    case StepKind::kRamp:
+      return "ramp";
+    case StepKind::kHold:
+      return "hold";
   }
   return "?";
 }

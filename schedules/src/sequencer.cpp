@@ -1,24 +1,34 @@
 #include "gyrotherm/schedules/sequencer.h"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <cmath>
-
-#include <fmt/format.h>
 
 namespace gyrotherm::schedules {
 
 std::string_view to_string(RunState state) {
   switch (state) {
-    case RunState::kQueued: return "queued";
-    case RunState::kRamping: return "ramping";
-    case RunState::kSettling: return "settling";
-    case RunState::kAcquiring: return "acquiring";
-    case RunState::kPaused: return "paused";
-    case RunState::kSuspended: return "suspended";
-    case RunState::kAborting: return "aborting";
-    case RunState::kCompleted: return "completed";
-    case RunState::kFailed: return "failed";
-    case RunState::kInterrupted: return "interrupted";
+    case RunState::kQueued:
+      return "queued";
+    case RunState::kRamping:
+      return "ramping";
+    case RunState::kSettling:
+      return "settling";
+    case RunState::kAcquiring:
+      return "acquiring";
+    case RunState::kPaused:
+      return "paused";
+    case RunState::kSuspended:
+      return "suspended";
+    case RunState::kAborting:
+      return "aborting";
+    case RunState::kCompleted:
+      return "completed";
+    case RunState::kFailed:
+      return "failed";
+    case RunState::kInterrupted:
+      return "interrupted";
   }
   return "?";
 }
@@ -29,7 +39,9 @@ bool is_terminal(RunState state) {
 }
 
 Sequencer::Sequencer(Plan plan, SequencerOptions options, SequencerObserver& observer)
-    : plan_(std::move(plan)), options_(options), observer_(observer),
+    : plan_(std::move(plan)),
+      options_(options),
+      observer_(observer),
       setpoint_c_(options.safe_setpoint_c) {}
 
 void Sequencer::set_state(RunState to, double t_s, const std::string& reason) {
@@ -68,7 +80,8 @@ void Sequencer::begin_step(std::size_t index, double t_s) {
     case StepKind::kRamp:
       times_.acquire_start_s = t_s;
       observer_.on_acquisition_started(index, times_);
-      set_state(RunState::kRamping, t_s, fmt::format("{} from {:.2f} °C", step.label, ramp_from_c_));
+      set_state(RunState::kRamping, t_s,
+                fmt::format("{} from {:.2f} °C", step.label, ramp_from_c_));
       break;
     case StepKind::kHold:
       setpoint_c_ = step.setpoint_c;
@@ -150,11 +163,11 @@ void Sequencer::tick_soak(double t_s, const Readings& readings) {
       const std::string shell =
           last_shell_c_ ? fmt::format("{:.2f} °C", *last_shell_c_) : std::string("unknown");
       finish_step(t_s, false);
-      finish_run(RunState::kFailed, t_s,
-                 fmt::format("{}: not stable within {:g} min (shell at {}); chamber to the safe "
-                             "set point {:g} °C",
-                             step.label, step.settle_timeout_s / 60.0, shell,
-                             options_.safe_setpoint_c));
+      finish_run(
+          RunState::kFailed, t_s,
+          fmt::format("{}: not stable within {:g} min (shell at {}); chamber to the safe "
+                      "set point {:g} °C",
+                      step.label, step.settle_timeout_s / 60.0, shell, options_.safe_setpoint_c));
     }
     return;
   }
@@ -168,8 +181,9 @@ void Sequencer::abort(double t_s, const std::string& reason) {
   if (finished()) return;
   if (state_ != RunState::kQueued) finish_step(t_s, false);
   set_state(RunState::kAborting, t_s, reason);
-  finish_run(RunState::kFailed, t_s,
-             fmt::format("aborted; chamber to the safe set point {:g} °C", options_.safe_setpoint_c));
+  finish_run(
+      RunState::kFailed, t_s,
+      fmt::format("aborted; chamber to the safe set point {:g} °C", options_.safe_setpoint_c));
 }
 
 void Sequencer::interrupt(double t_s, const std::string& reason) {

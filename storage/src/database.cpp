@@ -1,12 +1,12 @@
 #include "gyrotherm/storage/database.h"
 
+#include <fmt/format.h>
+#include <sqlite3.h>
+
 #include <charconv>
 #include <chrono>
 #include <thread>
 #include <utility>
-
-#include <fmt/format.h>
-#include <sqlite3.h>
 
 #include "gyrotherm/core/clock.h"
 #include "migrations.h"

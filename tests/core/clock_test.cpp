@@ -1,8 +1,8 @@
 #include "gyrotherm/core/clock.h"
 
-#include <regex>
-
 #include <gtest/gtest.h>
+
+#include <regex>
 
 namespace gyrotherm {
 namespace {

@@ -1,6 +1,7 @@
 #include "gyrotherm/daemon/api.h"
 
 #include <gtest/gtest.h>
+
 #include <nlohmann/json.hpp>
 
 #include "gyrotherm/daemon/http_client.h"
@@ -58,9 +59,8 @@ TEST(HttpServer, ServesOverLoopbackAndSurvivesGarbage) {
   HttpServerOptions options;
   options.bind = "127.0.0.1";
   options.port = 0;
-  auto server = HttpServer::create(options, [&ctx](const HttpRequest& r) {
-    return handle_api_request(r, ctx);
-  });
+  auto server = HttpServer::create(
+      options, [&ctx](const HttpRequest& r) { return handle_api_request(r, ctx); });
   ASSERT_TRUE(server.ok()) << server.error().message;
   (*server)->start();
   const std::string base = "http://127.0.0.1:" + std::to_string((*server)->port());

@@ -1,11 +1,10 @@
 #include "gyrotherm/daemon/config.h"
 
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
 #include <unistd.h>
 
 #include <filesystem>
-
-#include <gmock/gmock.h>
-#include <gtest/gtest.h>
 
 namespace gyrotherm::daemon {
 namespace {
@@ -118,13 +117,14 @@ TEST(Config, MissingSectionsAndSyntaxErrors) {
 TEST(Config, ShortTokensAreRefused) {
   auto cfg = parse_station_config(std::string(kMinimal) + "[api]\ntokens = [\"abc\"]\n", "t.toml");
   ASSERT_FALSE(cfg.ok());
-  EXPECT_THAT(cfg.error().message, HasSubstr("api.tokens: each token must be a string of at least 16"));
+  EXPECT_THAT(cfg.error().message,
+              HasSubstr("api.tokens: each token must be a string of at least 16"));
   EXPECT_THAT(cfg.error().message, Not(HasSubstr("abc"))) << "tokens never appear in messages";
 }
 
 TEST(SimEndpoints, RoundTripThroughAFile) {
-  const auto dir = std::filesystem::temp_directory_path() /
-                   ("gyrotherm-ep-" + std::to_string(::getpid()));
+  const auto dir =
+      std::filesystem::temp_directory_path() / ("gyrotherm-ep-" + std::to_string(::getpid()));
   const std::string path = (dir / "ep.toml").string();
   SimEndpoints ep{"127.0.0.1", 40123, "/dev/pts/7", 4242};
   ASSERT_TRUE(write_sim_endpoints(path, ep).ok());

@@ -355,8 +355,8 @@ TEST(SampleClock, CounterGapsKeepTheirSlotsAndWrapCounts) {
   SampleClock c(10.0, 2.0);
   c.stamp(126, 50.0, true);
   EXPECT_NEAR(c.stamp(127, 50.1, false), 50.1, 1e-9);
-  EXPECT_NEAR(c.stamp(0, 50.2, false), 50.2, 1e-9);   // wrap
-  EXPECT_NEAR(c.stamp(3, 50.5, false), 50.5, 1e-9);   // two frames missed
+  EXPECT_NEAR(c.stamp(0, 50.2, false), 50.2, 1e-9);  // wrap
+  EXPECT_NEAR(c.stamp(3, 50.5, false), 50.5, 1e-9);  // two frames missed
   c.reset();
   EXPECT_DOUBLE_EQ(c.stamp(9, 80.0, false), 80.0);
 }

@@ -1,14 +1,13 @@
 // The gyrotherm CLI as a user runs it: a real binary, files and a simulator.
+#include <fmt/format.h>
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
 #include <unistd.h>
 
 #include <filesystem>
 #include <fstream>
-#include <sstream>
-
-#include <fmt/format.h>
-#include <gmock/gmock.h>
-#include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
+#include <sstream>
 
 #include "gyrotherm/drivers/kvh1750.h"
 #include "gyrotherm/storage/database.h"
@@ -18,8 +17,8 @@ namespace gyrotherm {
 namespace {
 
 namespace fs = std::filesystem;
-using ::testing::HasSubstr;
 using testing::ChildProcess;
+using ::testing::HasSubstr;
 
 class CliTest : public ::testing::Test {
  protected:
@@ -75,8 +74,9 @@ TEST_F(CliTest, DecodeWritesValidFramesAndSummarisesTheRest) {
     bytes.insert(bytes.end(), b.begin(), b.end());
   }
   const std::string path = (dir_ / "capture.bin").string();
-  std::ofstream(path, std::ios::binary).write(reinterpret_cast<const char*>(bytes.data()),
-                                              static_cast<std::streamsize>(bytes.size()));
+  std::ofstream(path, std::ios::binary)
+      .write(reinterpret_cast<const char*>(bytes.data()),
+             static_cast<std::streamsize>(bytes.size()));
   const Run r = cli({"decode", "--protocol", "kvh1750", path});
   ASSERT_EQ(r.code, 0) << r.err;
   std::istringstream lines(r.out);
@@ -151,9 +151,9 @@ TEST_F(CliTest, StatsPrintsTableOneRowsAsTextAndJson) {
   ASSERT_EQ(json.code, 0) << json.err;
   const auto j = nlohmann::json::parse(json.out);
   ASSERT_EQ(j.size(), 1u);
-  for (const char* key : {"run_id", "segment", "setpoint_c", "n", "duration_s", "temp_mean_c",
-                          "bias_mean_dph", "bias_std_dph", "bias_std_ma101_dph",
-                          "bias_mean_earth_removed_dph"}) {
+  for (const char* key :
+       {"run_id", "segment", "setpoint_c", "n", "duration_s", "temp_mean_c", "bias_mean_dph",
+        "bias_std_dph", "bias_std_ma101_dph", "bias_mean_earth_removed_dph"}) {
     EXPECT_TRUE(j[0].contains(key)) << key;
   }
   EXPECT_EQ(j[0]["n"], 1200);
@@ -182,8 +182,8 @@ TEST_F(CliTest, DevicesAndChamberSetpointAgainstTheSimulator) {
   ChildProcess sim({std::string(GYROTHERM_BIN_DIR) + "/gyrotherm-sim", "--config", cfg_path,
                     "--time-scale", "10"},
                    (dir_ / "sim.log").string());
-  ASSERT_TRUE(testing::wait_until([&] { return fs::exists(dir_ / "ep.toml"); },
-                                  std::chrono::seconds(20)))
+  ASSERT_TRUE(
+      testing::wait_until([&] { return fs::exists(dir_ / "ep.toml"); }, std::chrono::seconds(20)))
       << sim.log();
 
   const Run set = cli({"chamber", "set-point", "31.5", "--config", cfg_path});

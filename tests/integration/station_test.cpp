@@ -1,15 +1,14 @@
 // End-to-end: gyrotherm-sim + gyrothermd as real processes on loopback run a
 // short accelerated schedule; the database must tell the truth of it.
+#include <fmt/format.h>
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
 #include <signal.h>
 #include <unistd.h>
 
 #include <cmath>
 #include <filesystem>
 #include <fstream>
-
-#include <fmt/format.h>
-#include <gmock/gmock.h>
-#include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
 #include "gyrotherm/daemon/config.h"
@@ -23,8 +22,8 @@ namespace {
 
 namespace fs = std::filesystem;
 using testing::ChildProcess;
-using testing::wait_until;
 using ::testing::HasSubstr;
+using testing::wait_until;
 
 constexpr double kTimeScale = 200.0;
 constexpr double kRateHz = 10.0;
@@ -127,20 +126,24 @@ class StationTest : public ::testing::Test {
         std::vector<std::string>{bin("gyrotherm-sim"), "--config", (dir_ / "station.toml").string(),
                                  "--time-scale", fmt::format("{}", kTimeScale)},
         (dir_ / "sim.log").string());
-    ASSERT_TRUE(wait_until([&] { return fs::exists(dir_ / "endpoints.toml"); },
-                           std::chrono::seconds(20)))
+    ASSERT_TRUE(
+        wait_until([&] { return fs::exists(dir_ / "endpoints.toml"); }, std::chrono::seconds(20)))
         << sim_->log();
   }
   void start_daemon(std::vector<std::string> extra = {}) {
-    std::vector<std::string> argv{bin("gyrothermd"), "--config", (dir_ / "station.toml").string(),
-                                  "--schedule", (dir_ / "schedule.toml").string(), "--time-scale",
+    std::vector<std::string> argv{bin("gyrothermd"),
+                                  "--config",
+                                  (dir_ / "station.toml").string(),
+                                  "--schedule",
+                                  (dir_ / "schedule.toml").string(),
+                                  "--time-scale",
                                   fmt::format("{}", kTimeScale)};
     argv.insert(argv.end(), extra.begin(), extra.end());
     daemon_ = std::make_unique<ChildProcess>(argv, (dir_ / "daemon.log").string());
   }
   std::optional<nlohmann::json> status() {
-    auto r = daemon::http_request("GET", url("/api/v1/status"), "", "",
-                                  std::chrono::milliseconds(500));
+    auto r =
+        daemon::http_request("GET", url("/api/v1/status"), "", "", std::chrono::milliseconds(500));
     if (!r || r->status != 200) return std::nullopt;
     return nlohmann::json::parse(r->body, nullptr, false);
   }
@@ -279,7 +282,8 @@ TEST_F(StationTest, BadConfigFailsFastWithFileLineKey) {
 
 TEST_F(StationTest, UnreachableDevicesDoNotKillTheDaemon) {
   // No simulator: endpoints point at a closed port and a missing pty.
-  daemon::SimEndpoints ep{"127.0.0.1", testing::free_tcp_port(), (dir_ / "no-such-pty").string(), 0};
+  daemon::SimEndpoints ep{"127.0.0.1", testing::free_tcp_port(), (dir_ / "no-such-pty").string(),
+                          0};
   ASSERT_TRUE(daemon::write_sim_endpoints((dir_ / "endpoints.toml").string(), ep).ok());
   start_daemon();
   std::optional<nlohmann::json> s;

@@ -12,16 +12,16 @@ const StationLimits kLimits{-20.0, 60.0, 2.0};
 
 TEST(Schedule, ShippedSchedulesAreValid) {
   for (const char* name : {"demo.toml", "paper-table1.toml", "paper-ramp.toml"}) {
-    auto plan = load_schedule(std::string(GYROTHERM_SOURCE_DIR) + "/config/schedules/" + name,
-                              kLimits);
+    auto plan =
+        load_schedule(std::string(GYROTHERM_SOURCE_DIR) + "/config/schedules/" + name, kLimits);
     ASSERT_TRUE(plan.ok()) << name << ":\n" << plan.error().message;
     EXPECT_FALSE(plan->steps.empty()) << name;
   }
 }
 
 TEST(Schedule, PaperTable1HasEightTemperaturesFourTimes) {
-  auto plan = load_schedule(std::string(GYROTHERM_SOURCE_DIR) + "/config/schedules/paper-table1.toml",
-                            kLimits);
+  auto plan = load_schedule(
+      std::string(GYROTHERM_SOURCE_DIR) + "/config/schedules/paper-table1.toml", kLimits);
   ASSERT_TRUE(plan.ok()) << plan.error().message;
   ASSERT_EQ(plan->steps.size(), 32u);
   EXPECT_DOUBLE_EQ(plan->steps[0].setpoint_c, -14.6);

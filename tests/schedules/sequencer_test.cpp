@@ -1,12 +1,12 @@
 #include "gyrotherm/schedules/sequencer.h"
 
-#include <chrono>
-#include <cmath>
-#include <vector>
-
 #include <fmt/format.h>
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+
+#include <chrono>
+#include <cmath>
+#include <vector>
 
 namespace gyrotherm::schedules {
 namespace {
@@ -109,9 +109,9 @@ TEST(Sequencer, DemoScheduleRunsThroughItsStates) {
   seq.start(0.0, 23.0);
   run(seq, plant, 12 * 3600.0);
   ASSERT_TRUE(seq.finished());
-  EXPECT_THAT(obs.states(), ElementsAre(RunState::kSettling, RunState::kAcquiring,
-                                        RunState::kRamping, RunState::kSettling,
-                                        RunState::kAcquiring, RunState::kCompleted));
+  EXPECT_THAT(obs.states(),
+              ElementsAre(RunState::kSettling, RunState::kAcquiring, RunState::kRamping,
+                          RunState::kSettling, RunState::kAcquiring, RunState::kCompleted));
   EXPECT_EQ(seq.state(), RunState::kCompleted);
   EXPECT_DOUBLE_EQ(seq.setpoint_c(), 23.0) << "completed runs leave the chamber at the safe point";
   ASSERT_EQ(obs.finished.size(), 3u);
@@ -217,8 +217,9 @@ TEST(Sequencer, MissingProbeReadingsNeverOpenTheGate) {
 // The paper's whole Table I campaign (32 soaks, ~80 h of station time) in
 // virtual time, well under a second of wall time.
 TEST(Sequencer, PaperTable1CampaignInVirtualTime) {
-  auto plan = load_schedule(std::string(GYROTHERM_SOURCE_DIR) + "/config/schedules/paper-table1.toml",
-                            {-20.0, 60.0, 2.0});
+  auto plan =
+      load_schedule(std::string(GYROTHERM_SOURCE_DIR) + "/config/schedules/paper-table1.toml",
+                    {-20.0, 60.0, 2.0});
   ASSERT_TRUE(plan.ok()) << plan.error().message;
   RecordingObserver obs;
   Sequencer seq(std::move(*plan), {23.0}, obs);

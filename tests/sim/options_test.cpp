@@ -47,7 +47,6 @@ TEST(SimulatorOptions, ErrorsNameTheLineOfTheSimulatorKey) {
       << o.error().message;
 }
 
-
 TEST(SimulatorOptions, ReadsEveryDemoKey) {
   auto o = options_from(demo_text());
   ASSERT_TRUE(o.ok()) << o.error().message;

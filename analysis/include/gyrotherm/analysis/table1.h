@@ -50,8 +50,8 @@ struct AnalysisSeries {
   std::vector<double> rate_dph;  // bin means
   std::vector<double> top_c;     // temperatures over the same bins
   std::vector<double> side_c;
-  double bin_s = 1.0;            // effective spacing
-  bool binned = true;            // false when the data was used as is
+  double bin_s = 1.0;  // effective spacing
+  bool binned = true;  // false when the data was used as is
 };
 
 struct Table1Options {
@@ -91,12 +91,11 @@ struct Table1Options {
 // a non-finite time, rate, top_c or side_c; bin_s not positive and finite.
 // Allocates O(gyro.size() + temps.size()).
 Result<AnalysisSeries> make_analysis_series(std::span<const GyroSample> gyro,
-                                            std::span<const TemperatureSample> temps,
-                                            double bin_s);
+                                            std::span<const TemperatureSample> temps, double bin_s);
 
 struct Table1Row {
   std::size_t n = 0;
-  double duration_s = 0;   // n x bin spacing
+  double duration_s = 0;  // n x bin spacing
   double temp_mean_c = 0;
   double bias_mean_dph = 0;
   double bias_std_dph = 0;

@@ -6,6 +6,8 @@
 // at once, each as "file:line: key.path: what is wrong".
 #pragma once
 
+#include <toml++/toml.h>
+
 #include <cstdint>
 #include <functional>
 #include <optional>
@@ -13,8 +15,6 @@
 #include <string>
 #include <string_view>
 #include <vector>
-
-#include <toml++/toml.h>
 
 #include "gyrotherm/core/result.h"
 

@@ -6,11 +6,11 @@
 // values documented in config/station.toml.
 #pragma once
 
+#include <toml++/toml.h>
+
 #include <optional>
 #include <string>
 #include <vector>
-
-#include <toml++/toml.h>
 
 #include "gyrotherm/analysis/table1.h"
 #include "gyrotherm/core/result.h"
@@ -35,7 +35,7 @@ struct ChamberSection {
   drivers::ModbusEndpoint endpoint;
   std::string profile = "watlow-f4t";  // or "custom" when [chamber.registers] is given
   drivers::ChamberMap map;
-  double silent_timeout_s = 10.0;      // station s without a good reading = device silent
+  double silent_timeout_s = 10.0;  // station s without a good reading = device silent
 };
 
 struct ProbesSection {
@@ -80,7 +80,7 @@ struct AnalysisSection {
 };
 
 struct ControlSection {
-  double tick_s = 1.0;        // station seconds between control-loop ticks
+  double tick_s = 1.0;             // station seconds between control-loop ticks
   double min_tick_wall_s = 0.005;  // never tick faster than this in wall time
 };
 

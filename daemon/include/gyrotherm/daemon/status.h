@@ -2,10 +2,9 @@
 #pragma once
 
 #include <cstdint>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
-
-#include <nlohmann/json.hpp>
 
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/drivers/modbus_device.h"
@@ -25,13 +24,13 @@ struct StatusSnapshot {
   std::optional<double> chamber_c;
   std::optional<double> top_c;
   std::optional<double> side_c;
-  std::optional<double> gradient_c;         // top − side
+  std::optional<double> gradient_c;           // top − side
   std::optional<double> temp_rate_c_per_min;  // shell, over the last minute
-  std::optional<double> gyro_rate_dph;      // mean of the last full second (station)
-  double gyro_samples_per_s = 0;            // station time
+  std::optional<double> gyro_rate_dph;        // mean of the last full second (station)
+  double gyro_samples_per_s = 0;              // station time
   double t_station_s = 0;
   double t_run_s = 0;
-  double uptime_s = 0;                      // wall
+  double uptime_s = 0;  // wall
   double time_scale = 1;
   drivers::DeviceHealth chamber;
   drivers::DeviceHealth probes;

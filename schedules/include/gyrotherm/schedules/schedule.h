@@ -23,11 +23,11 @@ std::string_view to_string(StepKind kind);
 // One executable step of the expanded plan (repeats unrolled).
 struct PlanStep {
   StepKind kind = StepKind::kSoak;
-  std::string label;          // "soak 20 °C", shown to technicians
-  int source_line = 0;        // line of the [[step]] in the schedule file
-  double setpoint_c = 0;      // soak/hold set point; ramp target
+  std::string label;      // "soak 20 °C", shown to technicians
+  int source_line = 0;    // line of the [[step]] in the schedule file
+  double setpoint_c = 0;  // soak/hold set point; ramp target
   // soak
-  double tolerance_c = 0.5;             // chamber and shell within ± of the set point
+  double tolerance_c = 0.5;            // chamber and shell within ± of the set point
   double stability_c_per_min = 0.02;   // shell |dT/dt| limit for the gate
   double stability_window_s = 600;     // gate evaluated over this window
   double settle_timeout_s = 3 * 3600;  // gate must hold within this time
