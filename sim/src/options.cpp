@@ -90,6 +90,7 @@ Result<SimulatorOptions> read_simulator_options(const daemon::StationConfig& con
     TableReader t(*simulator, "simulator", errors);
     if (auto f = t.string("endpoints_file")) o.endpoints_file = *f;
     if (auto f = t.string("truth_file")) o.truth_file = *f;
+    if (auto f = t.string("gyro_link")) o.gyro_link = *f;
     if (auto p = t.integer("modbus_port")) {
       if (*p < 0 || *p > 65535)
         t.error("modbus_port", fmt::format("{} is not a TCP port", *p));

@@ -118,6 +118,7 @@ Status Simulator::start() {
   {
     std::lock_guard lock(stream_mu_);
     if (Status s = stream_.open(); !s.ok()) return fail(s.error());
+    if (Status s = point_gyro_link_locked(); !s.ok()) return fail(s.error());
   }
   if (!options_.truth_file.empty()) {
     if (Status s = daemon::write_file_atomically(options_.truth_file, truth_json_); !s.ok()) {
@@ -165,13 +166,31 @@ void Simulator::stop() {
     std::lock_guard lock(stream_mu_);
     stream_.close();
   }
+  std::error_code ec;
   if (wrote_endpoints_) {
-    std::error_code ec;
     std::filesystem::remove(options_.endpoints_file, ec);
     wrote_endpoints_ = false;
   }
+  if (!options_.gyro_link.empty()) std::filesystem::remove(options_.gyro_link, ec);
   std::lock_guard lock(sim_mu_);
   status_.running = false;
+}
+
+Status Simulator::point_gyro_link_locked() {
+  if (options_.gyro_link.empty()) return Status::Ok();
+  namespace fs = std::filesystem;
+  const fs::path link(options_.gyro_link);
+  const fs::path tmp = link.string() + ".tmp";
+  std::error_code ec;
+  if (link.has_parent_path()) fs::create_directories(link.parent_path(), ec);
+  fs::remove(tmp, ec);
+  fs::create_symlink(stream_.slave_path(), tmp, ec);
+  if (!ec) fs::rename(tmp, link, ec);  // atomic: readers never see no link
+  if (ec) {
+    return Error::Permanent(fmt::format("cannot point {} at {}: {}", link.string(),
+                                        stream_.slave_path(), ec.message()));
+  }
+  return Status::Ok();
 }
 
 Status Simulator::write_endpoints_file() {
@@ -184,7 +203,7 @@ daemon::SimEndpoints Simulator::endpoints() const {
   ep.modbus_port = modbus_port_.load();
   {
     std::lock_guard lock(stream_mu_);
-    ep.gyro_device = stream_.slave_path();
+    ep.gyro_device = options_.gyro_link.empty() ? stream_.slave_path() : options_.gyro_link;
   }
   ep.pid = static_cast<long>(::getpid());
   return ep;
@@ -347,6 +366,7 @@ Status Simulator::reopen_pty() {
   {
     std::lock_guard lock(stream_mu_);
     if (Status s = stream_.open(); !s.ok()) return s;
+    if (Status s = point_gyro_link_locked(); !s.ok()) return s;
   }
   if (wrote_endpoints_) return write_endpoints_file();
   return Status::Ok();

@@ -14,6 +14,7 @@
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/daemon/http_client.h"
 #include "gyrotherm/drivers/modbus_device.h"
+#include "gyrotherm/sim/simulator.h"
 #include "gyrotherm/storage/database.h"
 #include "process.h"
 
@@ -59,6 +60,7 @@ tokens = ["integration-token-0123456789"]
 [simulator]
 endpoints_file = "{dir}/endpoints.toml"
 truth_file = "{dir}/truth.json"
+gyro_link = "{dir}/gyro-pty"
 seed = 7
 initial_temp_c = 23.0
 [simulator.thermal]
@@ -268,6 +270,60 @@ TEST_F(StationTest, SigtermInterruptsTheRunAndLeavesTheChamberSafe) {
   auto sp = chamber.read(cfg->chamber.map.setpoint);
   ASSERT_TRUE(sp.ok()) << sp.error().message;
   EXPECT_DOUBLE_EQ(*sp, 23.0);
+}
+
+// The gyro line goes away (USB adapter unplugged, pty closed) and comes back
+// at the same path: the daemon keeps running, reports it, and resumes.
+TEST_F(StationTest, GyroLineClosedAndReopenedStreamResumes) {
+  auto cfg = daemon::load_station_config((dir_ / "station.toml").string());
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  sim::SimulatorOverrides overrides;
+  overrides.time_scale = kTimeScale;
+  auto options = sim::read_simulator_options(*cfg, overrides);
+  ASSERT_TRUE(options.ok()) << options.error().message;
+  auto simulator = sim::Simulator::create(*cfg, *options);
+  ASSERT_TRUE(simulator.ok()) << simulator.error().message;
+  ASSERT_TRUE((*simulator)->start().ok());
+  start_daemon();
+
+  auto gyro = [&](const char* key) -> uint64_t {
+    auto s = status();
+    return s ? (*s)["devices"]["gyro"][key].get<uint64_t>() : 0;
+  };
+  auto connected = [&] {
+    auto s = status();
+    return s && (*s)["devices"]["gyro"]["connected"].get<bool>();
+  };
+  ASSERT_TRUE(wait_until([&] { return gyro("samples") > 500; }, std::chrono::seconds(30)))
+      << daemon_->log();
+
+  (*simulator)->close_pty();
+  ASSERT_TRUE(wait_until([&] { return !connected(); }, std::chrono::seconds(20))) << daemon_->log();
+  auto s = status();
+  ASSERT_TRUE(s.has_value());
+  EXPECT_FALSE((*s)["devices"]["gyro"]["last_error"].get<std::string>().empty());
+  const uint64_t before = gyro("samples");
+
+  ASSERT_TRUE((*simulator)->reopen_pty().ok());
+  ASSERT_TRUE(wait_until([&] { return connected() && gyro("samples") > before + 500; },
+                         std::chrono::seconds(30)))
+      << daemon_->log();
+  EXPECT_GE(gyro("reopens"), 1u);
+  EXPECT_EQ(gyro("crc_failures"), 0u);
+  EXPECT_TRUE(daemon_->running());
+  daemon_->signal(SIGTERM);
+  EXPECT_EQ(daemon_->wait(std::chrono::seconds(20)), std::optional<int>(0)) << daemon_->log();
+  (*simulator)->stop();
+
+  // Timestamps stay strictly increasing across the outage.
+  auto db = storage::Database::open_read_only((dir_ / "station.db").string());
+  ASSERT_TRUE(db.ok()) << db.error().message;
+  auto samples = db->gyro_samples(1, 0.0, 1e9);
+  ASSERT_TRUE(samples.ok());
+  ASSERT_GT(samples->size(), 1000u);
+  for (std::size_t i = 1; i < samples->size(); ++i) {
+    ASSERT_GT((*samples)[i].t_s, (*samples)[i - 1].t_s) << i;
+  }
 }
 
 TEST_F(StationTest, BadConfigFailsFastWithFileLineKey) {

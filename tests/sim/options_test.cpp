@@ -52,6 +52,7 @@ TEST(SimulatorOptions, ReadsEveryDemoKey) {
   ASSERT_TRUE(o.ok()) << o.error().message;
   EXPECT_EQ(o->endpoints_file, "demo/sim-endpoints.toml");
   EXPECT_EQ(o->truth_file, "demo/sim-truth.json");
+  EXPECT_EQ(o->gyro_link, "demo/gyro-pty");
   EXPECT_EQ(o->modbus_port, 0);
   EXPECT_EQ(o->seed, 1u);
   EXPECT_DOUBLE_EQ(o->thermal.initial_temp_c, 23.0);

@@ -138,6 +138,7 @@ class SimulatorTest : public ::testing::Test {
     auto options = read_simulator_options(config_, overrides);
     ASSERT_TRUE(options.ok()) << options.error().message;
     options_ = *options;
+    options_.gyro_link = dir_ + "/gyro-pty";  // per test: tests may run in parallel
   }
   void TearDown() override {
     sim_.reset();
@@ -322,8 +323,12 @@ TEST_F(SimulatorTest, ClosedPtyHangsUpAndReopenedPtyStreamsOnItsNewPath) {
   EXPECT_TRUE(old_reader.read_until([&] { return old_reader.hung_up(); }));
   EXPECT_TRUE(wait_for([&] { return sim_->status().stream.frames_dropped_closed > 0; }));
 
+  const std::string old_target = std::filesystem::read_symlink(options_.gyro_link).string();
   ASSERT_TRUE(sim_->reopen_pty().ok());
   const std::string path = sim_->endpoints().gyro_device;
+  // The stable link follows the new pty, as /dev/serial/by-id/... would.
+  EXPECT_EQ(path, options_.gyro_link);
+  EXPECT_NE(std::filesystem::read_symlink(options_.gyro_link).string(), old_target);
   auto ep = daemon::read_sim_endpoints(options_.endpoints_file);
   ASSERT_TRUE(ep.ok());
   EXPECT_EQ(ep->gyro_device, path);

@@ -5,6 +5,7 @@
 //   [simulator]
 //   endpoints_file = "demo/sim-endpoints.toml"  # where the opened endpoints go ("" = none)
 //   truth_file = "demo/sim-truth.json"          # the gyro model's truth ("" = none)
+//   gyro_link = "demo/gyro-pty"                 # a stable symlink to the current pty ("" = none)
 //   modbus_port = 0                             # 0: any free port
 //   seed = 1
 //   initial_temp_c = 23.0
@@ -30,6 +31,10 @@ namespace gyrotherm::sim {
 struct SimulatorOptions {
   std::string endpoints_file;  // "" = do not write one
   std::string truth_file;      // "" = do not write one
+  // A symlink kept pointing at the current pty, like /dev/serial/by-id/...:
+  // after reopen_pty() the daemon finds the new pty through it. When set,
+  // it is the gyro device the endpoints name. "" = none.
+  std::string gyro_link;
   std::string modbus_host = "127.0.0.1";
   int modbus_port = 0;  // 0 = any free port
   uint64_t seed = 1;

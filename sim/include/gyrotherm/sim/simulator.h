@@ -115,6 +115,8 @@ class Simulator {
   void publish_registers();
   void on_modbus_write(int unit_id);
   Status write_endpoints_file();
+  // Points options_.gyro_link (if set) at the current pty. Needs stream_mu_.
+  Status point_gyro_link_locked();
 
   daemon::StationConfig config_;
   SimulatorOptions options_;
