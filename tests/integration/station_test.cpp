@@ -114,6 +114,7 @@ class StationTest : public ::testing::Test {
   void TearDown() override {
     daemon_.reset();
     sim_.reset();
+    in_process_sim_.reset();
     if (!HasFailure()) fs::remove_all(dir_);
   }
 
@@ -131,6 +132,19 @@ class StationTest : public ::testing::Test {
     ASSERT_TRUE(
         wait_until([&] { return fs::exists(dir_ / "endpoints.toml"); }, std::chrono::seconds(20)))
         << sim_->log();
+  }
+  // The simulator in this process, for its fault hooks.
+  void start_sim_in_process() {
+    auto cfg = daemon::load_station_config((dir_ / "station.toml").string());
+    ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+    sim::SimulatorOverrides overrides;
+    overrides.time_scale = kTimeScale;
+    auto options = sim::read_simulator_options(*cfg, overrides);
+    ASSERT_TRUE(options.ok()) << options.error().message;
+    auto simulator = sim::Simulator::create(*cfg, *options);
+    ASSERT_TRUE(simulator.ok()) << simulator.error().message;
+    in_process_sim_ = std::move(*simulator);
+    ASSERT_TRUE(in_process_sim_->start().ok());
   }
   void start_daemon(std::vector<std::string> extra = {}) {
     std::vector<std::string> argv{bin("gyrothermd"),
@@ -153,6 +167,7 @@ class StationTest : public ::testing::Test {
   fs::path dir_;
   int api_port_ = 0;
   std::unique_ptr<ChildProcess> sim_;
+  std::unique_ptr<sim::Simulator> in_process_sim_;
   std::unique_ptr<ChildProcess> daemon_;
 };
 
@@ -275,15 +290,7 @@ TEST_F(StationTest, SigtermInterruptsTheRunAndLeavesTheChamberSafe) {
 // The gyro line goes away (USB adapter unplugged, pty closed) and comes back
 // at the same path: the daemon keeps running, reports it, and resumes.
 TEST_F(StationTest, GyroLineClosedAndReopenedStreamResumes) {
-  auto cfg = daemon::load_station_config((dir_ / "station.toml").string());
-  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
-  sim::SimulatorOverrides overrides;
-  overrides.time_scale = kTimeScale;
-  auto options = sim::read_simulator_options(*cfg, overrides);
-  ASSERT_TRUE(options.ok()) << options.error().message;
-  auto simulator = sim::Simulator::create(*cfg, *options);
-  ASSERT_TRUE(simulator.ok()) << simulator.error().message;
-  ASSERT_TRUE((*simulator)->start().ok());
+  ASSERT_NO_FATAL_FAILURE(start_sim_in_process());
   start_daemon();
 
   auto gyro = [&](const char* key) -> uint64_t {
@@ -297,14 +304,14 @@ TEST_F(StationTest, GyroLineClosedAndReopenedStreamResumes) {
   ASSERT_TRUE(wait_until([&] { return gyro("samples") > 500; }, std::chrono::seconds(30)))
       << daemon_->log();
 
-  (*simulator)->close_pty();
+  in_process_sim_->close_pty();
   ASSERT_TRUE(wait_until([&] { return !connected(); }, std::chrono::seconds(20))) << daemon_->log();
   auto s = status();
   ASSERT_TRUE(s.has_value());
   EXPECT_FALSE((*s)["devices"]["gyro"]["last_error"].get<std::string>().empty());
   const uint64_t before = gyro("samples");
 
-  ASSERT_TRUE((*simulator)->reopen_pty().ok());
+  ASSERT_TRUE(in_process_sim_->reopen_pty().ok());
   ASSERT_TRUE(wait_until([&] { return connected() && gyro("samples") > before + 500; },
                          std::chrono::seconds(30)))
       << daemon_->log();
@@ -313,7 +320,7 @@ TEST_F(StationTest, GyroLineClosedAndReopenedStreamResumes) {
   EXPECT_TRUE(daemon_->running());
   daemon_->signal(SIGTERM);
   EXPECT_EQ(daemon_->wait(std::chrono::seconds(20)), std::optional<int>(0)) << daemon_->log();
-  (*simulator)->stop();
+  in_process_sim_->stop();
 
   // Timestamps stay strictly increasing across the outage.
   auto db = storage::Database::open_read_only((dir_ / "station.db").string());
@@ -324,6 +331,30 @@ TEST_F(StationTest, GyroLineClosedAndReopenedStreamResumes) {
   for (std::size_t i = 1; i < samples->size(); ++i) {
     ASSERT_GT((*samples)[i].t_s, (*samples)[i - 1].t_s) << i;
   }
+}
+
+// Garbage on the serial line: every corrupted frame is rejected and counted,
+// and no sample comes from one (each shows as a missing frame).
+TEST_F(StationTest, CorruptedFramesAreRejectedAndCounted) {
+  ASSERT_NO_FATAL_FAILURE(start_sim_in_process());
+  start_daemon();
+  auto gyro = [&](const char* key) -> uint64_t {
+    auto s = status();
+    return s ? (*s)["devices"]["gyro"][key].get<uint64_t>() : 0;
+  };
+  ASSERT_TRUE(wait_until([&] { return gyro("samples") > 200; }, std::chrono::seconds(30)))
+      << daemon_->log();
+  in_process_sim_->set_frame_corruption_rate(0.02);
+  ASSERT_TRUE(wait_until([&] { return in_process_sim_->status().frames_fault_corrupted >= 50; },
+                         std::chrono::seconds(30)));
+  in_process_sim_->set_frame_corruption_rate(0.0);
+  const uint64_t corrupted = in_process_sim_->status().frames_fault_corrupted;
+  ASSERT_TRUE(
+      wait_until([&] { return gyro("crc_failures") >= corrupted; }, std::chrono::seconds(20)))
+      << "daemon saw " << gyro("crc_failures") << " of " << corrupted;
+  EXPECT_EQ(gyro("crc_failures"), corrupted);
+  EXPECT_EQ(gyro("frames_missed"), corrupted) << "each corrupted frame is a missing sample";
+  EXPECT_TRUE(daemon_->running());
 }
 
 TEST_F(StationTest, BadConfigFailsFastWithFileLineKey) {
