@@ -162,10 +162,8 @@ void Station::tick() {
     }
   };
   read(*chamber_, config_.chamber.map.process_value, chamber_ok_, r.chamber_c);
-  bool probes_ok = probes_ok_;
-  read(*probes_, config_.probes.top, probes_ok, r.top_c);
-  if (r.top_c) read(*probes_, config_.probes.side, probes_ok, r.side_c);
-  probes_ok_ = probes_ok;
+  read(*probes_, config_.probes.top, probes_ok_, r.top_c);
+  if (r.top_c) read(*probes_, config_.probes.side, probes_ok_, r.side_c);
 
   std::optional<double> shell_c;
   if (r.top_c && r.side_c) {
