@@ -7,19 +7,10 @@
 #include <numeric>
 #include <vector>
 
+#include "gyrotherm/analysis/table1.h"
+
 namespace gyrotherm::sim {
 namespace {
-
-double mean_of(const std::vector<double>& x) {
-  return std::accumulate(x.begin(), x.end(), 0.0) / static_cast<double>(x.size());
-}
-
-double std_of(const std::vector<double>& x) {
-  const double m = mean_of(x);
-  double s = 0;
-  for (double v : x) s += (v - m) * (v - m);
-  return std::sqrt(s / static_cast<double>(x.size() - 1));
-}
 
 // The demo truth ([simulator.gyro] in config/demo.toml).
 GyroParams demo_params() {
@@ -70,9 +61,9 @@ TEST(GyroModel, OneSecondMeansHaveWhiteNoiseStdAndTheModelMean) {
   }
   // std of 2000 means: relative standard error 1/sqrt(2 x 2000) = 1.6 %;
   // ±6 % is ~4 sigma.
-  EXPECT_NEAR(std_of(means), 1.0, 0.06);
+  EXPECT_NEAR(analysis::std_ddof1(means), 1.0, 0.06);
   // Mean: standard error 1 / sqrt(2000) = 0.022 °/h; ±0.1 is ~4.5 sigma.
-  EXPECT_NEAR(mean_of(means), model.model_rate_dph(40.0, 0.01, 0.3), 0.1);
+  EXPECT_NEAR(analysis::mean(means), model.model_rate_dph(40.0, 0.01, 0.3), 0.1);
 }
 
 TEST(GyroModel, BiasInstabilityIsGaussMarkovWithStatedStd) {
@@ -84,8 +75,8 @@ TEST(GyroModel, BiasInstabilityIsGaussMarkovWithStatedStd) {
   std::vector<double> x;
   for (int i = 0; i < 100000; ++i) x.push_back(model.next_rate_dph(truth_at(0, 0, 0)));
   // 10 000 s = 1000 correlation times: the std is good to ~3 %; ±10 % allowed.
-  EXPECT_NEAR(std_of(x), 0.5, 0.05);
-  const double m = mean_of(x);
+  EXPECT_NEAR(analysis::std_ddof1(x), 0.5, 0.05);
+  const double m = analysis::mean(x);
   double num = 0, den = 0;
   for (std::size_t i = 0; i + 1 < x.size(); ++i) num += (x[i] - m) * (x[i + 1] - m);
   for (double v : x) den += (v - m) * (v - m);
@@ -104,7 +95,7 @@ TEST(GyroModel, RateRandomWalkGrowsWithSquareRootOfTime) {
     after_one_hour.push_back(last);
   }
   // 300 walks: the std across them is good to ~4 %; ±15 % allowed.
-  EXPECT_NEAR(std_of(after_one_hour), 6.0, 0.9);
+  EXPECT_NEAR(analysis::std_ddof1(after_one_hour), 6.0, 0.9);
 }
 
 TEST(GyroModel, ConvertsToConfiguredOutput) {

@@ -6,6 +6,8 @@
 #include <numeric>
 #include <vector>
 
+#include "gyrotherm/analysis/table1.h"
+
 namespace gyrotherm::sim {
 namespace {
 
@@ -16,17 +18,6 @@ ThermalParams quiet_params() {
   p.probe_noise_c = 0;
   p.probe_quantum_c = 0;
   return p;
-}
-
-double mean_of(const std::vector<double>& x) {
-  return std::accumulate(x.begin(), x.end(), 0.0) / static_cast<double>(x.size());
-}
-
-double std_of(const std::vector<double>& x) {
-  const double m = mean_of(x);
-  double s = 0;
-  for (double v : x) s += (v - m) * (v - m);
-  return std::sqrt(s / static_cast<double>(x.size() - 1));
 }
 
 TEST(ThermalParams, RejectsOutOfRange) {
@@ -130,8 +121,8 @@ TEST(ThermalPlant, ReadingsAreNoisyAndQuantised) {
   // White noise 0.02 plus quantisation (0.01 / sqrt(12)); 20000 samples give
   // the std to ~0.5 %, so ±5 % is far outside chance.
   const double expected_std = std::sqrt(0.02 * 0.02 + 0.01 * 0.01 / 12);
-  EXPECT_NEAR(std_of(errors), expected_std, 0.05 * expected_std);
-  EXPECT_NEAR(mean_of(errors), 0.0, 0.001);  // SE 0.00015
+  EXPECT_NEAR(analysis::std_ddof1(errors), expected_std, 0.05 * expected_std);
+  EXPECT_NEAR(analysis::mean(errors), 0.0, 0.001);  // SE 0.00015
 }
 
 TEST(ThermalPlant, ControlNoiseWandersSlowly) {
@@ -146,10 +137,10 @@ TEST(ThermalPlant, ControlNoiseWandersSlowly) {
   }
   // Stationary std = amplitude / 2 = 0.25 °C; with ~170 independent stretches
   // the estimate is good to ~6 % (1 sigma); ±20 % allowed.
-  EXPECT_NEAR(std_of(noise), 0.25, 0.05);
+  EXPECT_NEAR(analysis::std_ddof1(noise), 0.25, 0.05);
   // Band-limited, not white: one second apart the noise is still almost the
   // same (AR(1) coefficient e^(-1/60) = 0.983).
-  const double m = mean_of(noise);
+  const double m = analysis::mean(noise);
   double num = 0, den = 0;
   for (std::size_t i = 0; i + 1 < noise.size(); ++i) num += (noise[i] - m) * (noise[i + 1] - m);
   for (double v : noise) den += (v - m) * (v - m);
