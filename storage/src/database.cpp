@@ -45,26 +45,23 @@ class Transaction {
   bool open_ = false;
 };
 
-Result<bool> table_exists(sqlite3* db, const std::string& path, const char* name) {
-  auto st = Stmt::prepare(db, path, "SELECT 1 FROM sqlite_master WHERE type='table' AND name=?");
-  if (!st) return st.error();
-  st->bind(1, std::string_view(name));
-  const int rc = st->step();
-  if (rc == SQLITE_ROW) return true;
-  if (rc == SQLITE_DONE) return false;
-  return sqlite_error(db, path, "reading the schema");
-}
-
 // 0 for an empty file (no tables at all). Refuses an SQLite file that has
 // tables but no meta table: it belongs to something else.
 Result<int> read_schema_version(sqlite3* db, const std::string& path) {
-  auto has_meta = table_exists(db, path, "meta");
-  if (!has_meta) return has_meta.error();
-  if (!*has_meta) {
-    auto st = Stmt::prepare(db, path, "SELECT count(*) FROM sqlite_master");
-    if (!st) return st.error();
-    if (st->step() != SQLITE_ROW) return sqlite_error(db, path, "reading the schema");
-    if (st->column_int64(0) != 0) {
+  // One statement, so one snapshot: another connection may create the
+  // schema between two separate reads.
+  bool has_meta = false, empty = false;
+  {
+    auto probe = Stmt::prepare(db, path,
+                               "SELECT (SELECT count(*) FROM sqlite_master WHERE type='table' AND "
+                               "name='meta'), (SELECT count(*) FROM sqlite_master)");
+    if (!probe) return probe.error();
+    if (probe->step() != SQLITE_ROW) return sqlite_error(db, path, "reading the schema");
+    has_meta = probe->column_int64(0) != 0;
+    empty = probe->column_int64(1) == 0;
+  }
+  if (!has_meta) {
+    if (!empty) {
       return Error::Permanent(fmt::format(
           "storage: {}: not a gyrotherm database (it has tables but no meta table)", path));
     }
