@@ -35,7 +35,7 @@ nlohmann::json num(double v) {
 }
 
 // ---------------------------------------------------------------- decode
-int cmd_decode(const std::string& protocol, const std::string& path) {
+int cmd_decode(const std::string& protocol, const std::string& path, bool json) {
   auto parser = drivers::make_frame_parser(protocol);
   if (!parser) return fail(parser.error().message, 2);
   std::ifstream in(path, std::ios::binary);
@@ -55,6 +55,18 @@ int cmd_decode(const std::string& protocol, const std::string& path) {
     }
   }
   const auto& c = (*parser)->counters();
+  if (json) {
+    // The summary as one JSON object on stderr; the frames stay CSV on stdout.
+    std::cerr << nlohmann::json({{"file", path},
+                                 {"frames_ok", c.frames_ok},
+                                 {"crc_failures", c.crc_failures},
+                                 {"bytes_skipped", c.bytes_skipped},
+                                 {"sequence_gaps", c.sequence_gaps},
+                                 {"frames_missed", c.frames_missed}})
+                     .dump()
+              << "\n";
+    return 0;
+  }
   std::fprintf(stderr,
                "%s: %llu valid frames, %llu CRC failures, %llu bytes skipped, %llu sequence gaps "
                "(%llu frames missed)\n",
@@ -337,7 +349,7 @@ int main(int argc, char** argv) {
 
   CLI11_PARSE(app, argc, argv);
   try {
-    if (*decode) return cmd_decode(protocol, capture);
+    if (*decode) return cmd_decode(protocol, capture, json);
     if (*stats) return cmd_stats(db_path, run_id, json);
     if (*devices) return cmd_devices(config_path, json);
     if (*set_point) return cmd_chamber_setpoint(config_path, setpoint_c);

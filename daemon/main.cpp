@@ -111,7 +111,6 @@ int main(int argc, char** argv) {
     (*station)->enqueue(std::move(*plan));
   }
 
-  int exit_code = 0;
   std::string reason;
   for (;;) {
     timespec wait{0, 100'000'000};
@@ -128,5 +127,5 @@ int main(int argc, char** argv) {
   spdlog::info("gyrothermd: stopping ({})", reason);
   (*http)->stop();
   (*station)->stop("daemon stopped: " + reason);
-  return exit_code;
+  return 0;
 }

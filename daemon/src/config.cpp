@@ -31,33 +31,20 @@ std::optional<drivers::RegisterSpec> read_register(TableReader t) {
     if (!t.raw().contains("address")) t.error("address", "missing (required integer)");
     ok = false;
   }
-  if (auto f = t.string("function")) {
-    auto r = drivers::parse_register_function(*f);
-    if (r)
-      spec.function = *r;
-    else {
-      t.error("function", r.error().message);
-      ok = false;
+  // An enumerated field: parsed by `parse`, stored in `field`.
+  auto enumerated = [&](std::string_view key, auto parse, auto& field) {
+    if (auto text = t.string(key)) {
+      if (auto r = parse(*text)) {
+        field = *r;
+      } else {
+        t.error(key, r.error().message);
+        ok = false;
+      }
     }
-  }
-  if (auto ty = t.string("type")) {
-    auto r = drivers::parse_register_type(*ty);
-    if (r)
-      spec.type = *r;
-    else {
-      t.error("type", r.error().message);
-      ok = false;
-    }
-  }
-  if (auto w = t.string("word_order")) {
-    auto r = drivers::parse_word_order(*w);
-    if (r)
-      spec.word_order = *r;
-    else {
-      t.error("word_order", r.error().message);
-      ok = false;
-    }
-  }
+  };
+  enumerated("function", drivers::parse_register_function, spec.function);
+  enumerated("type", drivers::parse_register_type, spec.type);
+  enumerated("word_order", drivers::parse_word_order, spec.word_order);
   if (auto s = t.number("scale")) {
     if (*s == 0.0) {
       t.error("scale", "must not be 0");

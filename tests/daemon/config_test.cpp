@@ -75,6 +75,26 @@ device = "/dev/ttyS0"
   EXPECT_EQ(cfg->chamber.map.process_value.word_order, drivers::WordOrder::kHighFirst);
 }
 
+TEST(Config, BadRegisterMapNamesEveryField) {
+  auto cfg = parse_station_config(R"([station]
+[chamber]
+registers.setpoint = { address = 70000, type = "int8", word_order = "middle", scale = 0 }
+[probes]
+[gyro]
+device = "/dev/ttyS0"
+)",
+                                  "regs.toml");
+  ASSERT_FALSE(cfg.ok());
+  const std::string& m = cfg.error().message;
+  EXPECT_THAT(m, HasSubstr("regs.toml:3: chamber.registers.setpoint.address: 70000 is not a "
+                           "register address"));
+  EXPECT_THAT(m, HasSubstr("chamber.registers.setpoint.type:"));
+  EXPECT_THAT(m, HasSubstr("int8"));
+  EXPECT_THAT(m, HasSubstr("chamber.registers.setpoint.word_order:"));
+  EXPECT_THAT(m, HasSubstr("chamber.registers.setpoint.scale: must not be 0"));
+  EXPECT_THAT(m, HasSubstr("chamber.registers.process_value: missing"));
+}
+
 TEST(Config, EveryErrorNamesFileLineAndKey) {
   auto cfg = parse_station_config(R"([station]
 latitude_deg = 120

@@ -100,6 +100,15 @@ TEST_F(CliTest, DecodeWritesValidFramesAndSummarisesTheRest) {
   EXPECT_THAT(r.err, HasSubstr("1 CRC failures"));
   EXPECT_THAT(r.err, HasSubstr("40 bytes skipped"));  // 4 garbage + the corrupted frame's 36
   EXPECT_THAT(r.err, HasSubstr("2 sequence gaps"));
+
+  const Run j = cli({"decode", "--protocol", "kvh1750", "--json", path});
+  ASSERT_EQ(j.code, 0) << j.err;
+  EXPECT_EQ(j.out, r.out) << "frames stay CSV";
+  const auto summary = nlohmann::json::parse(j.err);
+  EXPECT_EQ(summary["frames_ok"], 8);
+  EXPECT_EQ(summary["crc_failures"], 1);
+  EXPECT_EQ(summary["bytes_skipped"], 40);
+  EXPECT_EQ(summary["sequence_gaps"], 2);
 }
 
 TEST_F(CliTest, DecodeMissingFileAndUnknownProtocol) {
