@@ -7,7 +7,9 @@
 #include <chrono>
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
 #include <iostream>
+#include <sstream>
 #include <thread>
 
 #include "gyrotherm/core/clock.h"
@@ -65,7 +67,9 @@ int main(int argc, char** argv) {
                  ep->gyro_device);
   }
 
-  std::optional<gyrotherm::schedules::Plan> plan;
+  // --schedule is checked here too, so a bad file stops the daemon before it
+  // starts anything; the queue checks it again when it is added.
+  std::string schedule_text;
   if (!schedule_path.empty()) {
     const gyrotherm::schedules::StationLimits limits{
         config->station.min_temp_c, config->station.max_temp_c, config->station.max_ramp_c_per_min};
@@ -74,7 +78,10 @@ int main(int argc, char** argv) {
       std::cerr << "gyrothermd: schedule refused, nothing queued:\n" << p.error().message;
       return 2;
     }
-    plan = std::move(*p);
+    std::ifstream in(schedule_path, std::ios::binary);
+    std::ostringstream ss;
+    ss << in.rdbuf();
+    schedule_text = ss.str();
   }
 
   // Signals are taken by sigwait() below, never by the worker threads.
@@ -90,7 +97,8 @@ int main(int argc, char** argv) {
     std::cerr << "gyrothermd: " << station.error().message << "\n";
     return 1;
   }
-  gd::ApiContext api{[s = station->get()] { return s->status(); }};
+  gd::ApiContext api{[s = station->get()] { return s->status(); }, station->get(),
+                     config->api.tokens};
   gd::HttpServerOptions http_options;
   http_options.bind = config->api.bind;
   http_options.port = config->api.port;
@@ -106,9 +114,12 @@ int main(int argc, char** argv) {
       "gyrothermd: station \"{}\", database {}, API http://{}:{}/api/v1/status, time "
       "scale {:g}",
       config->station.name, config->storage.db_path, config->api.bind, (*http)->port(), time_scale);
-  if (plan) {
-    spdlog::info("queued {} ({} steps)", plan->name, plan->steps.size());
-    (*station)->enqueue(std::move(*plan));
+  if (!schedule_path.empty()) {
+    const auto added = (*station)->queue_add(schedule_text, schedule_path, false);
+    if (added.refusal) {
+      spdlog::error("--schedule {}: {}", schedule_path, added.refusal->message);
+      for (const auto& line : added.refusal->details) spdlog::error("  {}", line);
+    }
   }
 
   std::string reason;

@@ -9,12 +9,29 @@ namespace gyrotherm::daemon {
 Result<storage::SegmentStatsRecord> compute_table1(storage::Database& db, const Table1Job& job,
                                                    const analysis::Table1Options& options) {
   const std::string where = fmt::format("run {} segment {}", job.run_id, job.segment_index + 1);
-  auto gyro = db.gyro_samples(job.run_id, job.t_from_s, job.t_to_s);
-  if (!gyro) return Error::Transient(fmt::format("{}: {}", where, gyro.error().message));
-  auto temps = db.temperature_samples(job.run_id, job.t_from_s, job.t_to_s);
-  if (!temps) return Error::Transient(fmt::format("{}: {}", where, temps.error().message));
-  auto series = analysis::make_analysis_series(*gyro, *temps, options.bin_s);
-  if (!series) return Error::Permanent(fmt::format("{}: {}", where, series.error().message));
+  std::vector<std::pair<double, double>> windows = job.windows;
+  if (windows.empty()) windows.emplace_back(job.t_from_s, job.t_to_s);
+  analysis::AnalysisSeries joined;
+  for (const auto& [from_s, to_s] : windows) {
+    auto gyro = db.gyro_samples(job.run_id, from_s, to_s);
+    if (!gyro) return Error::Transient(fmt::format("{}: {}", where, gyro.error().message));
+    if (gyro->empty() && windows.size() > 1) continue;  // a window shorter than a sample
+    auto temps = db.temperature_samples(job.run_id, from_s, to_s);
+    if (!temps) return Error::Transient(fmt::format("{}: {}", where, temps.error().message));
+    auto part = analysis::make_analysis_series(*gyro, *temps, options.bin_s);
+    if (!part) {
+      return Error::Permanent(fmt::format("{} window [{:.1f}, {:.1f}) s: {}", where, from_s, to_s,
+                                          part.error().message));
+    }
+    joined.bin_s = part->bin_s;
+    joined.binned = part->binned;
+    for (auto [dst, src] :
+         {std::pair{&joined.t_s, &part->t_s}, std::pair{&joined.rate_dph, &part->rate_dph},
+          std::pair{&joined.top_c, &part->top_c}, std::pair{&joined.side_c, &part->side_c}}) {
+      dst->insert(dst->end(), src->begin(), src->end());
+    }
+  }
+  auto* series = &joined;
   auto row = analysis::table1_row(*series, options);
   if (!row) return Error::Permanent(fmt::format("{}: {}", where, row.error().message));
 

@@ -129,6 +129,9 @@ void read_chamber(TableReader t, ChamberSection& c) {
     else
       t.error("profile", map.error().message);
   }
+  if (auto alarm = t.table("alarm")) {
+    if (auto r = read_register(*alarm)) c.map.alarm = *r;
+  }
   t.finish();
 }
 
@@ -261,6 +264,18 @@ void read_control(TableReader t, ControlSection& c) {
   t.finish();
 }
 
+void read_interlocks(TableReader t, schedules::InterlockOptions& o) {
+  o.limit_margin_c = t.number_in("limit_margin_c", o.limit_margin_c, 0.0, 50.0);
+  o.probe_disagreement_c = t.number_in("probe_disagreement_c", o.probe_disagreement_c, 0.01, 50.0);
+  o.hysteresis_c = t.number_in("hysteresis_c", o.hysteresis_c, 0.0, 10.0);
+  for (int k = 0; k < schedules::kInterlockKindCount; ++k) {
+    const std::string key =
+        fmt::format("{}_grace_min", schedules::to_string(static_cast<schedules::InterlockKind>(k)));
+    o.grace_s[k] = 60.0 * t.number_in(key, o.grace_s[k] / 60.0, 0.0, 7 * 24 * 60.0);
+  }
+  t.finish();
+}
+
 Result<StationConfig> build_config(std::optional<toml::table> root, TomlErrors& errors,
                                    const std::string& source) {
   if (!root) return Error::Permanent(errors.joined());
@@ -283,6 +298,7 @@ Result<StationConfig> build_config(std::optional<toml::table> root, TomlErrors& 
   section("export", false, [&](TableReader t) { read_export(t, cfg.export_); });
   section("analysis", false, [&](TableReader t) { read_analysis(t, cfg.analysis); });
   section("control", false, [&](TableReader t) { read_control(t, cfg.control); });
+  section("interlocks", false, [&](TableReader t) { read_interlocks(t, cfg.interlocks); });
   section("simulator", false, [&](TableReader t) {
     if (auto f = t.string("endpoints_file")) cfg.simulator.endpoints_file = *f;
   });
@@ -294,6 +310,11 @@ Result<StationConfig> build_config(std::optional<toml::table> root, TomlErrors& 
     errors.add(0, "gyro.device", "missing (required unless [simulator] endpoints_file is set)");
   }
   if (!errors.empty()) return Error::Permanent(errors.joined());
+  cfg.interlocks.min_temp_c = cfg.station.min_temp_c;
+  cfg.interlocks.max_temp_c = cfg.station.max_temp_c;
+  cfg.interlocks.chamber_timeout_s = cfg.chamber.silent_timeout_s;
+  cfg.interlocks.probes_timeout_s = cfg.probes.silent_timeout_s;
+  cfg.interlocks.gyro_timeout_s = cfg.gyro.silent_timeout_s;
   return cfg;
 }
 
@@ -323,6 +344,7 @@ Result<SimEndpoints> read_sim_endpoints(const std::string& path) {
     t.error("modbus_port", "missing");
   if (auto d = t.required_string("gyro_device")) ep.gyro_device = *d;
   if (auto p = t.integer("pid")) ep.pid = static_cast<long>(*p);
+  if (auto c = t.string("control_socket")) ep.control_socket = *c;
   t.finish();
   if (!errors.empty()) return Error::Permanent(errors.joined());
   return ep;
@@ -333,6 +355,7 @@ Status write_sim_endpoints(const std::string& path, const SimEndpoints& ep) {
                 {"modbus_port", ep.modbus_port},
                 {"gyro_device", ep.gyro_device},
                 {"pid", static_cast<int64_t>(ep.pid)}};
+  if (!ep.control_socket.empty()) t.insert("control_socket", ep.control_socket);
   std::ostringstream ss;
   ss << "# written by gyrotherm-sim; read by gyrothermd ([simulator] endpoints_file)\n"
      << t << "\n";

@@ -3,9 +3,11 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <limits>
+#include <nlohmann/json.hpp>
 #include <sstream>
 
 namespace gyrotherm::daemon {
@@ -13,8 +15,14 @@ namespace {
 
 using schedules::RunState;
 
+constexpr const char* kHoldKey = "queue_hold";
+
 double steady_now_s() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+double unix_now_s() {
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
 
 std::string read_text(const std::string& path) {
@@ -26,25 +34,42 @@ std::string read_text(const std::string& path) {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
+std::vector<std::string> split_lines(const std::string& text) {
+  std::vector<std::string> out;
+  std::istringstream in(text);
+  for (std::string line; std::getline(in, line);) {
+    if (!line.empty()) out.push_back(line);
+  }
+  return out;
+}
+
+Reply db_failure(const Error& e) {
+  spdlog::error("{}", e.message);
+  return Reply::refused(Refusal::Kind::kUnavailable, e.message);
+}
+
 }  // namespace
 
 Result<std::unique_ptr<Station>> Station::create(StationConfig config, const Clock& clock) {
   auto db = storage::Database::open(config.storage.db_path);
   if (!db) return db.error();
+  auto api_db = storage::Database::open(config.storage.db_path);
+  if (!api_db) return api_db.error();
   storage::SampleWriterOptions wopt;
   wopt.commit_interval =
       std::chrono::milliseconds(static_cast<int64_t>(config.storage.commit_interval_s * 1000));
   auto writer = storage::SampleWriter::start(config.storage.db_path, wopt);
   if (!writer) return writer.error();
-  return std::unique_ptr<Station>(
-      new Station(std::move(config), clock, std::move(*db), std::move(*writer)));
+  return std::unique_ptr<Station>(new Station(std::move(config), clock, std::move(*db),
+                                              std::move(*api_db), std::move(*writer)));
 }
 
 Station::Station(StationConfig config, const Clock& clock, storage::Database db,
-                 std::unique_ptr<storage::SampleWriter> writer)
+                 storage::Database api_db, std::unique_ptr<storage::SampleWriter> writer)
     : config_(std::move(config)),
       clock_(clock),
       db_(std::move(db)),
+      api_db_(std::move(api_db)),
       writer_(std::move(writer)),
       started_wall_s_(steady_now_s()) {
   analysis::Table1Options topt;
@@ -88,21 +113,21 @@ void Station::start() {
       spdlog::warn("{}: {} (will keep retrying)", dev->name(), st.error().message);
     }
   }
+  const double now_s = clock_.now_s();
+  chamber_ok_s_ = probes_ok_s_ = now_s;
+  gyro_last_s_.store(now_s);
+  {
+    std::lock_guard lock(run_mu_);
+    if (auto hold = db_.meta(kHoldKey); hold && *hold) {
+      hold_reason_ = **hold;
+      queue_held_.store(true);
+      spdlog::info("queue held: {}", *hold_reason_);
+    }
+    refresh_queue_length();
+    resume_interrupted_run();
+  }
   gyro_->start();
   control_thread_ = std::thread([this] { control_loop(); });
-}
-
-void Station::enqueue(schedules::Plan plan) {
-  {
-    std::lock_guard lock(mu_);
-    pending_.push_back(std::move(plan));
-  }
-  wake_.notify_all();
-}
-
-bool Station::idle() const {
-  std::lock_guard lock(mu_);
-  return pending_.empty() && !busy_.load();
 }
 
 void Station::stop(const std::string& reason) {
@@ -113,10 +138,14 @@ void Station::stop(const std::string& reason) {
   }
   wake_.notify_all();
   if (control_thread_.joinable()) control_thread_.join();
-  // The control thread is gone: finish the run and the chamber from here.
-  if (sequencer_ && !sequencer_->finished()) {
-    sequencer_->interrupt(clock_.now_s() - run_t0_s_.load(), reason);
-    end_run();
+  {
+    // The control thread is gone: finish the run and the chamber from here.
+    std::lock_guard lock(run_mu_);
+    if (sequencer_ && !sequencer_->finished()) {
+      sequencer_->interrupt(run_time_s(), reason);
+      checkpoint(true);
+      end_run();
+    }
   }
   write_setpoint(config_.station.safe_setpoint_c, true);
   gyro_->stop();
@@ -124,6 +153,12 @@ void Station::stop(const std::string& reason) {
   writer_->stop();
   spdlog::info("stopped ({}); chamber set point {:g} °C", reason, config_.station.safe_setpoint_c);
 }
+
+bool Station::idle() const {
+  return !busy_.load() && (queue_length_.load() == 0 || queue_held_.load());
+}
+
+double Station::run_time_s() const { return clock_.now_s() - run_t0_s_.load(); }
 
 void Station::control_loop() {
   const double tick_s = config_.control.tick_s;
@@ -146,8 +181,7 @@ void Station::control_loop() {
   }
 }
 
-void Station::tick() {
-  const double now_s = clock_.now_s();
+schedules::Readings Station::read_devices(double now_s) {
   schedules::Readings r;
   auto read = [](drivers::ModbusDevice& dev, const drivers::RegisterSpec& spec, bool& ok,
                  std::optional<double>& out) {
@@ -162,33 +196,47 @@ void Station::tick() {
     }
   };
   read(*chamber_, config_.chamber.map.process_value, chamber_ok_, r.chamber_c);
+  if (r.chamber_c && config_.chamber.map.alarm) {
+    std::optional<double> alarm;
+    read(*chamber_, *config_.chamber.map.alarm, chamber_ok_, alarm);
+    r.chamber_alarm = alarm && *alarm != 0.0;
+  }
   read(*probes_, config_.probes.top, probes_ok_, r.top_c);
   if (r.top_c) read(*probes_, config_.probes.side, probes_ok_, r.side_c);
+  if (r.chamber_c) chamber_ok_s_ = now_s;
+  if (r.top_c && r.side_c) probes_ok_s_ = now_s;
+  r.chamber_silent_s = now_s - chamber_ok_s_;
+  r.probes_silent_s = now_s - probes_ok_s_;
+  r.gyro_silent_s = std::max(0.0, now_s - gyro_last_s_.load());
+  return r;
+}
 
+void Station::tick() {
+  const double now_s = clock_.now_s();
+  const schedules::Readings r = read_devices(now_s);
   std::optional<double> shell_c;
   if (r.top_c && r.side_c) {
     shell_c = (*r.top_c + *r.side_c) / 2.0;
     shell_rate_window_.push(now_s, *shell_c);
   }
 
-  if (!sequencer_) {
-    std::optional<schedules::Plan> next;
-    {
-      std::lock_guard lock(mu_);
-      if (!pending_.empty() && !stopping_) {
-        next = std::move(pending_.front());
-        pending_.pop_front();
-        busy_.store(true);
-      }
-    }
-    if (next) start_run(std::move(*next), now_s);
+  std::lock_guard run_lock(run_mu_);
+  {
+    std::lock_guard lock(mu_);
+    if (stopping_) return;
   }
+  if (!sequencer_) start_next_run(now_s);
 
   double t_run_s = 0;
   if (sequencer_) {
     t_run_s = now_s - run_t0_s_.load();
-    sequencer_->tick(t_run_s, r);
-    write_setpoint(sequencer_->setpoint_c(), false);
+    if (sequencer_->state() == RunState::kAborting) {
+      write_setpoint(sequencer_->setpoint_c(), true);
+      if (last_written_setpoint_c_) sequencer_->safe_state_reached(t_run_s);
+    } else {
+      sequencer_->tick(t_run_s, r);
+      write_setpoint(sequencer_->setpoint_c(), false);
+    }
     TemperatureSample ts;
     ts.t_s = t_run_s;
     ts.setpoint_c = sequencer_->setpoint_c();
@@ -196,6 +244,7 @@ void Station::tick() {
     ts.top_c = r.top_c.value_or(kNaN);
     ts.side_c = r.side_c.value_or(kNaN);
     writer_->push_temperature(run_id_.load(), ts);
+    checkpoint(false);
   }
 
   {
@@ -210,8 +259,16 @@ void Station::tick() {
         (r.top_c && r.side_c) ? std::optional<double>(*r.top_c - *r.side_c) : std::nullopt;
     const double rate = shell_rate_window_.slope_per_s();
     s.temp_rate_c_per_min = std::isfinite(rate) ? std::optional<double>(rate * 60.0) : std::nullopt;
+    s.queue_length = queue_length_.load();
+    s.queue_held = hold_reason_.has_value();
+    s.queue_hold_reason = hold_reason_.value_or("");
+    s.interlocks.clear();
     if (sequencer_) {
       s.state = std::string(to_string(sequencer_->state()));
+      s.paused = sequencer_->paused();
+      for (const auto& c : sequencer_->tripped()) {
+        s.interlocks.push_back({std::string(to_string(c.kind)), c.message});
+      }
       const auto idx = sequencer_->step_index();
       const auto& steps = sequencer_->plan().steps;
       s.step_index = static_cast<int>(idx);
@@ -239,52 +296,238 @@ void Station::write_setpoint(double setpoint_c, bool force) {
   }
 }
 
-void Station::start_run(schedules::Plan plan, double now_s) {
+// ---------------------------------------------------------------- queue and runs
+
+void Station::refresh_queue_length() {
+  auto entries = db_.queue_entries();
+  if (!entries) return;
+  queue_length_.store(static_cast<int>(std::count_if(
+      entries->begin(), entries->end(), [](const auto& e) { return e.state == "queued"; })));
+}
+
+void Station::hold_queue(const std::string& reason) {
+  hold_reason_ = reason;
+  queue_held_.store(true);
+  if (auto st = db_.set_meta(kHoldKey, reason); !st) spdlog::error("{}", st.error().message);
+  add_event("queue", "", "", "queue held: " + reason);
+  spdlog::info("queue held: {}", reason);
+}
+
+void Station::release_queue() {
+  hold_reason_.reset();
+  queue_held_.store(false);
+  if (auto st = db_.delete_meta(kHoldKey); !st) spdlog::error("{}", st.error().message);
+  add_event("queue", "", "", "queue released");
+}
+
+void Station::start_next_run(double now_s) {
+  if (hold_reason_ || queue_length_.load() == 0) return;
+  auto entries = db_.queue_entries();
+  if (!entries) {
+    spdlog::error("{}", entries.error().message);
+    return;
+  }
+  auto it = std::find_if(entries->begin(), entries->end(),
+                         [](const auto& e) { return e.state == "queued"; });
+  if (it == entries->end()) {
+    queue_length_.store(0);
+    return;
+  }
+  storage::QueueEntry entry = *it;
+  const std::string source = entry.source_path.empty() ? entry.schedule_name : entry.source_path;
+
   storage::RunRecord rec;
-  rec.schedule_name = plan.name;
+  rec.schedule_name = entry.schedule_name;
   rec.state = "queued";
   rec.started_utc = wall_time_utc_iso();
   rec.time_scale = clock_.time_scale();
   rec.latitude_deg = config_.station.latitude_deg;
   rec.orientation = std::string(analysis::to_string(config_.station.orientation));
   rec.config_json = read_text(config_.source_path);
+  rec.queue_id = entry.id;
+  rec.schedule_id = entry.schedule_id;
   auto id = db_.create_run(rec);
   if (!id) {
-    spdlog::error("cannot start run of {}: {}", plan.name, id.error().message);
-    busy_.store(false);
+    spdlog::error("cannot start run of {}: {}", entry.schedule_name, id.error().message);
     return;
   }
-  spdlog::info("run {}: {} ({} steps)", *id, plan.name, plan.steps.size());
-  segment_ids_.assign(plan.steps.size(), 0);
-  const double start_sp = last_written_setpoint_c_.value_or(
-      snapshot_.chamber_c.value_or(config_.station.safe_setpoint_c));
+  if (auto claimed = db_.queue_claim(entry.id, *id); !claimed || !*claimed) {
+    (void)db_.set_run_state(*id, "failed", true);
+    return;
+  }
+  refresh_queue_length();
+  busy_.store(true);
+  run_id_.store(*id);
+  run_t0_s_.store(now_s);
+  entry_ = entry;
   {
     std::lock_guard lock(mu_);
     snapshot_.run_id = *id;
-    snapshot_.schedule_name = plan.name;
+    snapshot_.schedule_name = entry.schedule_name;
   }
-  run_t0_s_.store(now_s);
-  run_id_.store(*id);
+
+  // Checked again: the station config may have changed since it was queued.
+  auto plan = schedules::parse_schedule(entry.toml_text, source, limits());
+  if (!plan) {
+    add_event("error", "queued", "failed",
+              "schedule refused at start (station limits changed?):\n" + plan.error().message);
+    (void)db_.set_run_state(*id, "failed", true);
+    last_reason_ = "schedule refused at start";
+    end_run();
+    return;
+  }
+  spdlog::info("run {}: {} ({} steps)", *id, plan->name, plan->steps.size());
+  segment_ids_.assign(plan->steps.size(), 0);
+  const double start_sp = last_written_setpoint_c_.value_or(
+      snapshot_.chamber_c.value_or(config_.station.safe_setpoint_c));
+  schedules::SequencerOptions opt;
+  opt.safe_setpoint_c = config_.station.safe_setpoint_c;
+  opt.interlocks = config_.interlocks;
   sequencer_ = std::make_unique<schedules::Sequencer>(
-      std::move(plan), schedules::SequencerOptions{config_.station.safe_setpoint_c},
-      static_cast<schedules::SequencerObserver&>(*this));
+      std::move(*plan), opt, static_cast<schedules::SequencerObserver&>(*this));
   sequencer_->start(0.0, start_sp);
+  checkpoint(true);
+}
+
+void Station::resume_interrupted_run() {
+  auto runs = db_.runs();
+  if (!runs) {
+    spdlog::error("{}", runs.error().message);
+    return;
+  }
+  // Runs that never reached an end: the newest resumes, older ones (there
+  // should be none) are closed.
+  std::vector<storage::RunRecord> open;
+  for (const auto& r : *runs) {
+    if (r.state != "completed" && r.state != "failed") open.push_back(r);
+  }
+  if (open.empty()) return;
+  for (std::size_t i = 0; i + 1 < open.size(); ++i) {
+    run_id_.store(open[i].id);
+    add_event("state", open[i].state, "interrupted", "closed at start-up: a newer run exists");
+    (void)db_.set_run_state(open[i].id, "interrupted", true);
+  }
+  const storage::RunRecord& run = open.back();
+  run_id_.store(run.id);
+  auto give_up = [&](const std::string& why) {
+    add_event("state", run.state, "interrupted", "not resumed: " + why);
+    (void)db_.set_run_state(run.id, "interrupted", true);
+    if (run.queue_id) (void)db_.queue_finish(*run.queue_id, "interrupted");
+    spdlog::warn("run {} not resumed: {}", run.id, why);
+    run_id_.store(0);
+  };
+  if (!run.queue_id) return give_up("it did not come from the queue");
+  auto entry = db_.queue_entry(*run.queue_id);
+  if (!entry || !*entry) return give_up("its queue entry is gone");
+  if (run.resume_json.empty() || !run.checkpoint_wall_unix_s) {
+    return give_up("the daemon stopped before the run's first checkpoint");
+  }
+  auto plan = schedules::parse_schedule((*entry)->toml_text, (*entry)->source_path, limits());
+  if (!plan) return give_up("its schedule is refused now:\n" + plan.error().message);
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(run.resume_json);
+  } catch (const nlohmann::json::exception& e) {
+    return give_up(fmt::format("its checkpoint is unreadable: {}", e.what()));
+  }
+  auto snap = schedules::snapshot_from_json(j);
+  if (!snap) return give_up(snap.error().message);
+
+  // The downtime in station time; never before a committed sample.
+  const double down_wall_s = std::max(0.0, unix_now_s() - *run.checkpoint_wall_unix_s);
+  double t_resume_s = snap->t_s + down_wall_s * clock_.time_scale();
+  if (auto last = db_.last_sample_t_s(run.id); last && *last) {
+    t_resume_s = std::max(t_resume_s, **last + 1e-3);
+  }
+  segment_ids_.assign(plan->steps.size(), 0);
+  if (auto segs = db_.segments(run.id)) {
+    for (const auto& seg : *segs) {
+      if (seg.index >= 0 && static_cast<std::size_t>(seg.index) < segment_ids_.size()) {
+        segment_ids_[static_cast<std::size_t>(seg.index)] = seg.id;
+      }
+    }
+  }
+  entry_ = **entry;
+  busy_.store(true);
+  run_t0_s_.store(clock_.now_s() - t_resume_s);
+  {
+    std::lock_guard lock(mu_);
+    snapshot_.run_id = run.id;
+    snapshot_.schedule_name = run.schedule_name;
+  }
+  const std::string reason = fmt::format(
+      "daemon restarted: run resumes at step {} of {} after {:.1f} min of station time down "
+      "(was {})",
+      std::min(snap->step_index + 1, plan->steps.size()), plan->steps.size(),
+      (t_resume_s - snap->t_s) / 60.0, run.state);
+  spdlog::info("run {}: {}", run.id, reason);
+  schedules::SequencerOptions opt;
+  opt.safe_setpoint_c = config_.station.safe_setpoint_c;
+  opt.interlocks = config_.interlocks;
+  sequencer_ = std::make_unique<schedules::Sequencer>(
+      std::move(*plan), opt, static_cast<schedules::SequencerObserver&>(*this));
+  add_event("resume", run.state, "", reason);
+  last_written_setpoint_c_.reset();
+  sequencer_->restore(*snap, t_resume_s, reason);
+  (void)db_.set_run_state(run.id, to_string(sequencer_->state()), false);
+  checkpoint(true);
+}
+
+void Station::checkpoint(bool force) {
+  if (!sequencer_) return;
+  const double wall_s = steady_now_s();
+  const std::string state(to_string(sequencer_->state()));
+  if (!force && state == checkpoint_state_ && wall_s - last_checkpoint_wall_s_ < 1.0) return;
+  const double t_run_s = run_time_s();
+  const std::string json = to_json(sequencer_->snapshot(t_run_s)).dump();
+  if (auto st = db_.set_run_checkpoint(run_id_.load(), json, unix_now_s()); !st) {
+    spdlog::error("{}", st.error().message);
+    return;
+  }
+  checkpoint_state_ = state;
+  last_checkpoint_wall_s_ = wall_s;
 }
 
 void Station::end_run() {
-  write_setpoint(sequencer_->setpoint_c(), true);
-  run_id_.store(0);
+  const RunState final_state = sequencer_ ? sequencer_->state() : RunState::kFailed;
+  const int64_t run_id = run_id_.load();
+  write_setpoint(config_.station.safe_setpoint_c, true);
   (void)writer_->flush();
+  if (entry_ && final_state != RunState::kInterrupted) {
+    if (auto st = db_.queue_finish(entry_->id, to_string(final_state)); !st) {
+      spdlog::error("{}", st.error().message);
+    }
+    if (final_state == RunState::kFailed && !entry_->ignore_failures && !hold_reason_) {
+      hold_queue(
+          fmt::format("run {} failed ({}); resume releases the queue", run_id, last_reason_));
+    } else if (final_state == RunState::kFailed) {
+      add_event("queue", "", "", "run failed; the queue goes on (ignore_failures)");
+    }
+  }
+  if (stop_after_current_ && final_state != RunState::kInterrupted) {
+    stop_after_current_ = false;
+    if (!hold_reason_) hold_queue(fmt::format("stopped after run {} by the operator", run_id));
+  }
+  run_id_.store(0);
   sequencer_.reset();
-  std::lock_guard lock(mu_);
-  snapshot_.run_id.reset();
-  snapshot_.step_index.reset();
-  snapshot_.step_label.clear();
-  snapshot_.state = "idle";
+  entry_.reset();
+  checkpoint_state_.clear();
+  {
+    std::lock_guard lock(mu_);
+    snapshot_.run_id.reset();
+    snapshot_.step_index.reset();
+    snapshot_.step_label.clear();
+    snapshot_.state = "idle";
+    snapshot_.paused = false;
+    snapshot_.interlocks.clear();
+  }
   busy_.store(false);
 }
 
+// ---------------------------------------------------------------- gyro, status, events
+
 void Station::on_gyro_samples(std::span<const GyroSample> samples) {
+  gyro_last_s_.store(clock_.now_s());
   const int64_t run_id = run_id_.load();
   if (run_id != 0) {
     thread_local std::vector<GyroSample> rel;
@@ -333,7 +576,7 @@ void Station::add_event(const std::string& kind, const std::string& from, const 
   storage::EventRecord ev;
   const int64_t run_id = run_id_.load();
   if (run_id != 0) ev.run_id = run_id;
-  ev.t_s = run_id != 0 ? clock_.now_s() - run_t0_s_.load() : 0.0;
+  ev.t_s = run_id != 0 ? run_time_s() : 0.0;
   ev.wall_utc = wall_time_utc_iso();
   ev.kind = kind;
   ev.from_state = from;
@@ -347,28 +590,23 @@ void Station::add_event(const std::string& kind, const std::string& from, const 
 void Station::on_state(RunState from, RunState to, double t_s, const std::string& reason) {
   spdlog::info("run {} t={:.0f} s: {} -> {}: {}", run_id_.load(), t_s, to_string(from),
                to_string(to), reason);
+  last_reason_ = reason;
   add_event("state", std::string(to_string(from)), std::string(to_string(to)), reason);
   if (auto st = db_.set_run_state(run_id_.load(), to_string(to), schedules::is_terminal(to)); !st) {
     spdlog::error("{}", st.error().message);
   }
 }
 
-void Station::on_step_started(std::size_t index, const schedules::PlanStep& step, double t_s) {
-  storage::SegmentRecord seg;
-  seg.run_id = run_id_.load();
-  seg.index = static_cast<int>(index);
-  seg.kind = std::string(schedules::to_string(step.kind));
-  seg.label = step.label;
-  seg.setpoint_c = step.setpoint_c;
-  seg.ramp_rate_c_per_min = step.rate_c_per_min;
-  seg.t_start_s = t_s;
-  seg.state = "running";
-  auto id = db_.create_segment(seg);
-  if (!id) {
-    spdlog::error("{}", id.error().message);
-    return;
+void Station::on_interlock(schedules::InterlockKind kind, bool tripped, double t_s,
+                           const std::string& message) {
+  (void)kind;
+  (void)t_s;
+  if (tripped) {
+    spdlog::warn("run {}: {}", run_id_.load(), message);
+  } else {
+    spdlog::info("run {}: {}", run_id_.load(), message);
   }
-  segment_ids_[index] = *id;
+  add_event("interlock", "", "", message);
 }
 
 namespace {
@@ -388,15 +626,39 @@ storage::SegmentRecord segment_record(int64_t id, int64_t run_id, std::size_t in
   seg.t_acquire_start_s = times.acquire_start_s;
   seg.t_acquire_end_s = times.acquire_end_s;
   seg.t_end_s = times.end_s;
+  seg.paused_s = times.held_s;
   seg.state = std::move(state);
+  for (const auto& w : times.windows) seg.windows.emplace_back(w.from_s, w.to_s);
   return seg;
 }
 }  // namespace
 
-void Station::on_acquisition_started(std::size_t index, const schedules::StepTimes& times) {
-  const auto& step = sequencer_->plan().steps[index];
-  if (auto st = db_.update_segment(
-          segment_record(segment_ids_[index], run_id_.load(), index, step, times, "running"));
+int64_t Station::segment_id(std::size_t index, const schedules::PlanStep& step, double t_s) {
+  if (index >= segment_ids_.size()) return 0;
+  if (segment_ids_[index] != 0) return segment_ids_[index];
+  schedules::StepTimes times;
+  times.start_s = t_s;
+  storage::SegmentRecord seg = segment_record(0, run_id_.load(), index, step, times, "running");
+  auto id = db_.create_segment(seg);
+  if (!id) {
+    spdlog::error("{}", id.error().message);
+    return 0;
+  }
+  segment_ids_[index] = *id;
+  return *id;
+}
+
+void Station::on_step_started(std::size_t index, const schedules::PlanStep& step, double t_s) {
+  if (index < segment_ids_.size()) segment_ids_[index] = 0;  // a new execution of the step
+  (void)segment_id(index, step, t_s);
+}
+
+void Station::on_step_changed(std::size_t index, const schedules::PlanStep& step,
+                              const schedules::StepTimes& times) {
+  const int64_t id = segment_id(index, step, times.start_s);
+  if (id == 0) return;
+  if (auto st =
+          db_.update_segment(segment_record(id, run_id_.load(), index, step, times, "running"));
       !st) {
     spdlog::error("{}", st.error().message);
   }
@@ -405,16 +667,228 @@ void Station::on_acquisition_started(std::size_t index, const schedules::StepTim
 void Station::on_step_finished(std::size_t index, const schedules::PlanStep& step,
                                const schedules::StepTimes& times, bool completed) {
   const int64_t run_id = run_id_.load();
-  if (auto st = db_.update_segment(segment_record(segment_ids_[index], run_id, index, step, times,
-                                                  completed ? "completed" : "aborted"));
+  const int64_t id = segment_id(index, step, times.start_s);
+  if (id == 0) return;
+  if (auto st = db_.update_segment(
+          segment_record(id, run_id, index, step, times, completed ? "completed" : "aborted"));
       !st) {
     spdlog::error("{}", st.error().message);
   }
-  if (completed && step.kind == schedules::StepKind::kSoak && times.acquire_start_s &&
-      times.acquire_end_s) {
-    analysis_->submit(Table1Job{run_id, segment_ids_[index], static_cast<int>(index),
-                                step.setpoint_c, *times.acquire_start_s, *times.acquire_end_s});
+  if (completed && step.kind == schedules::StepKind::kSoak && !times.windows.empty()) {
+    Table1Job job{run_id,
+                  id,
+                  static_cast<int>(index),
+                  step.setpoint_c,
+                  times.windows.front().from_s,
+                  times.windows.back().to_s,
+                  {}};
+    for (const auto& w : times.windows) job.windows.emplace_back(w.from_s, w.to_s);
+    analysis_->submit(std::move(job));
   }
+}
+
+// ---------------------------------------------------------------- StationControl
+
+Reply Station::queue_list() {
+  std::lock_guard lock(api_mu_);
+  auto entries = api_db_.queue_entries();
+  if (!entries) return db_failure(entries.error());
+  nlohmann::json current = nullptr;
+  nlohmann::json list = nlohmann::json::array();
+  for (const auto& e : *entries) {
+    auto plan = schedules::parse_schedule(e.toml_text, e.source_path, limits());
+    const int steps = plan ? static_cast<int>(plan->steps.size()) : 0;
+    if (e.state == "running") {
+      current = to_json(e, steps);
+    } else {
+      list.push_back(to_json(e, steps));
+    }
+  }
+  const bool held = queue_held_.load();
+  std::string reason;
+  if (held) {
+    if (auto m = api_db_.meta(kHoldKey); m && *m) reason = **m;
+  }
+  return Reply::ok(
+      {{"held", held}, {"hold_reason", reason}, {"current", current}, {"entries", list}});
+}
+
+Reply Station::queue_add(const std::string& toml_text, const std::string& source,
+                         bool ignore_failures) {
+  const std::string name = source.empty() ? std::string("schedule") : source;
+  auto plan = schedules::parse_schedule(toml_text, name, limits());
+  if (!plan) {
+    return Reply::refused(Refusal::Kind::kInvalid, "schedule refused, nothing queued",
+                          split_lines(plan.error().message));
+  }
+  Result<storage::QueueEntry> entry = Error::Permanent("not added");
+  {
+    std::lock_guard lock(api_mu_);
+    entry = api_db_.queue_add(plan->name, source, toml_text, ignore_failures);
+    if (!entry) return db_failure(entry.error());
+    queue_length_.fetch_add(1);
+  }
+  spdlog::info("queued {} ({} steps) as entry {}", plan->name, plan->steps.size(), entry->id);
+  wake_.notify_all();
+  return Reply::ok(to_json(*entry, static_cast<int>(plan->steps.size())));
+}
+
+Reply Station::queue_remove(int64_t id) {
+  std::lock_guard lock(api_mu_);
+  auto entry = api_db_.queue_entry(id);
+  if (!entry) return db_failure(entry.error());
+  if (!*entry || (*entry)->state != "queued") {
+    if (*entry && (*entry)->state == "running") {
+      return Reply::refused(Refusal::Kind::kConflict,
+                            fmt::format("queue entry {} is running; abort the run instead", id));
+    }
+    return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no queued entry {}", id));
+  }
+  auto removed = api_db_.queue_remove(id);
+  if (!removed) return db_failure(removed.error());
+  if (!*removed) {
+    return Reply::refused(
+        Refusal::Kind::kConflict,
+        fmt::format("queue entry {} has just started; abort the run instead", id));
+  }
+  queue_length_.fetch_sub(1);
+  spdlog::info("queue entry {} removed", id);
+  return Reply::ok({{"removed", id}});
+}
+
+Reply Station::queue_move(int64_t id, int position) {
+  {
+    std::lock_guard lock(api_mu_);
+    auto entry = api_db_.queue_entry(id);
+    if (!entry) return db_failure(entry.error());
+    if (!*entry || (*entry)->state != "queued") {
+      if (*entry && (*entry)->state == "running") {
+        return Reply::refused(Refusal::Kind::kConflict,
+                              fmt::format("queue entry {} is running; it cannot move", id));
+      }
+      return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no queued entry {}", id));
+    }
+    auto moved = api_db_.queue_move(id, position);
+    if (!moved) return db_failure(moved.error());
+    if (!*moved) {
+      return Reply::refused(Refusal::Kind::kConflict,
+                            fmt::format("queue entry {} has just started", id));
+    }
+  }
+  return queue_list();
+}
+
+Reply Station::control(std::string_view action, const std::string& reason_in) {
+  const std::string reason = reason_in.empty() ? "operator" : reason_in;
+  std::lock_guard lock(run_mu_);
+  const bool running = sequencer_ && !sequencer_->finished();
+  auto log_command = [&](const std::string& message) {
+    add_event("operator", "", "", message);
+    spdlog::info("{}", message);
+  };
+  if (action == "pause") {
+    if (!running) return Reply::refused(Refusal::Kind::kConflict, "no run in progress to pause");
+    if (auto st = sequencer_->pause(run_time_s(), reason); !st) {
+      return Reply::refused(Refusal::Kind::kConflict, st.error().message);
+    }
+    checkpoint(true);
+    return Reply::ok({{"ok", true},
+                      {"message", fmt::format("run {} paused; set point held at {:.2f} °C",
+                                              run_id_.load(), sequencer_->setpoint_c())}});
+  }
+  if (action == "resume") {
+    std::vector<std::string> done;
+    if (running && sequencer_->paused()) {
+      if (auto st = sequencer_->resume(run_time_s(), reason); !st) {
+        return Reply::refused(Refusal::Kind::kConflict, st.error().message);
+      }
+      checkpoint(true);
+      done.push_back(fmt::format("run {} resumed", run_id_.load()));
+    }
+    if (hold_reason_) {
+      release_queue();
+      done.push_back("queue released");
+    }
+    if (done.empty()) {
+      return Reply::refused(Refusal::Kind::kConflict,
+                            "nothing is paused and the queue is not held");
+    }
+    std::string message = done[0];
+    if (done.size() > 1) message += "; " + done[1];
+    wake_.notify_all();
+    return Reply::ok({{"ok", true}, {"message", message}});
+  }
+  if (action == "abort") {
+    if (!running) return Reply::refused(Refusal::Kind::kConflict, "no run in progress to abort");
+    if (sequencer_->state() == RunState::kAborting) {
+      return Reply::refused(Refusal::Kind::kConflict, "the run is already aborting");
+    }
+    sequencer_->abort(run_time_s(), "aborted by the operator (" + reason + ")");
+    hold_queue(
+        fmt::format("run {} aborted by the operator; resume releases the queue", run_id_.load()));
+    checkpoint(true);
+    return Reply::ok(
+        {{"ok", true},
+         {"message", fmt::format("run {} aborting; chamber to the safe set point {:g} °C",
+                                 run_id_.load(), config_.station.safe_setpoint_c)}});
+  }
+  if (action == "stop") {
+    if (running) {
+      stop_after_current_ = true;
+      const std::string message =
+          fmt::format("the queue holds after run {} completes ({})", run_id_.load(), reason);
+      log_command(message);
+      return Reply::ok({{"ok", true}, {"message", message}});
+    }
+    if (hold_reason_) return Reply::refused(Refusal::Kind::kConflict, "the queue is already held");
+    hold_queue("stopped by the operator (" + reason + ")");
+    return Reply::ok({{"ok", true}, {"message", "queue held"}});
+  }
+  return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no control action '{}'", action));
+}
+
+Reply Station::runs() {
+  std::lock_guard lock(api_mu_);
+  auto runs = api_db_.runs();
+  if (!runs) return db_failure(runs.error());
+  nlohmann::json out = nlohmann::json::array();
+  for (auto it = runs->rbegin(); it != runs->rend(); ++it) out.push_back(to_json(*it));
+  return Reply::ok(std::move(out));
+}
+
+Reply Station::run(int64_t id) {
+  std::lock_guard lock(api_mu_);
+  auto run = api_db_.run(id);
+  if (!run) return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no run {}", id));
+  auto segs = api_db_.segments(id);
+  if (!segs) return db_failure(segs.error());
+  nlohmann::json j = to_json(*run);
+  nlohmann::json list = nlohmann::json::array();
+  for (const auto& s : *segs) list.push_back(to_json(s));
+  j["segments"] = std::move(list);
+  return Reply::ok(std::move(j));
+}
+
+Reply Station::run_events(int64_t id) {
+  std::lock_guard lock(api_mu_);
+  if (!api_db_.run(id))
+    return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no run {}", id));
+  auto events = api_db_.events(id);
+  if (!events) return db_failure(events.error());
+  nlohmann::json out = nlohmann::json::array();
+  for (const auto& e : *events) out.push_back(to_json(e));
+  return Reply::ok(std::move(out));
+}
+
+Reply Station::run_stats(int64_t id) {
+  std::lock_guard lock(api_mu_);
+  if (!api_db_.run(id))
+    return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no run {}", id));
+  auto stats = api_db_.segment_stats(id);
+  if (!stats) return db_failure(stats.error());
+  nlohmann::json out = nlohmann::json::array();
+  for (const auto& s : *stats) out.push_back(to_json(s));
+  return Reply::ok(std::move(out));
 }
 
 }  // namespace gyrotherm::daemon

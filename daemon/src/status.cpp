@@ -22,6 +22,9 @@ nlohmann::json to_json(const drivers::DeviceHealth& h) {
 
 nlohmann::json to_json(const StatusSnapshot& s) {
   const auto& g = s.gyro;
+  nlohmann::json interlocks = nlohmann::json::array();
+  for (const auto& i : s.interlocks)
+    interlocks.push_back({{"kind", i.kind}, {"message", i.message}});
   return {
       {"station", s.station_name},
       {"state", s.state},
@@ -41,6 +44,11 @@ nlohmann::json to_json(const StatusSnapshot& s) {
       {"uptime_s", s.uptime_s},
       {"time_scale", s.time_scale},
       {"last_event", s.last_event},
+      {"paused", s.paused},
+      {"interlocks", interlocks},
+      {"queue_length", s.queue_length},
+      {"queue_held", s.queue_held},
+      {"queue_hold_reason", s.queue_hold_reason},
       {"devices",
        {{"chamber", to_json(s.chamber)},
         {"probes", to_json(s.probes)},

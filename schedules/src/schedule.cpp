@@ -2,37 +2,166 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
+#include <charconv>
+#include <cmath>
+#include <set>
+
 #include "gyrotherm/core/toml_reader.h"
 
 namespace gyrotherm::schedules {
 namespace {
 
-constexpr int kMaxRepeatDepth = 4;
-constexpr std::size_t kMaxSteps = 100000;
+using Keys = std::vector<std::string_view>;
+
+const Keys kTopKeys{"name", "description", "step"};
+const Keys kSoakKeys{"type",
+                     "setpoint_c",
+                     "acquire_min",
+                     "tolerance_c",
+                     "stability_c_per_min",
+                     "stability_window_min",
+                     "settle_timeout_min",
+                     "table_rate_dps"};
+const Keys kRampKeys{"type", "target_c", "rate_c_per_min", "table_rate_dps"};
+const Keys kHoldKeys{"type", "setpoint_c", "duration_min", "table_rate_dps"};
+const Keys kRepeatKeys{"type", "count", "steps"};
+
+struct KindKeys {
+  std::string_view kind;
+  const Keys* keys;
+};
+const KindKeys kKinds[] = {
+    {"soak", &kSoakKeys}, {"ramp", &kRampKeys}, {"hold", &kHoldKeys}, {"repeat", &kRepeatKeys}};
+
+bool contains(const Keys& keys, std::string_view key) {
+  return std::find(keys.begin(), keys.end(), key) != keys.end();
+}
+
+Keys all_step_keys() {
+  Keys all;
+  for (const auto& k : kKinds) {
+    for (std::string_view key : *k.keys) {
+      if (!contains(all, key)) all.push_back(key);
+    }
+  }
+  return all;
+}
+
+std::size_t edit_distance(std::string_view a, std::string_view b) {
+  std::vector<std::size_t> row(b.size() + 1);
+  for (std::size_t j = 0; j <= b.size(); ++j) row[j] = j;
+  for (std::size_t i = 1; i <= a.size(); ++i) {
+    std::size_t diag = row[0];
+    row[0] = i;
+    for (std::size_t j = 1; j <= b.size(); ++j) {
+      const std::size_t up = row[j];
+      row[j] = std::min({row[j] + 1, row[j - 1] + 1, diag + (a[i - 1] == b[j - 1] ? 0 : 1)});
+      diag = up;
+    }
+  }
+  return row[b.size()];
+}
 
 std::string format_c(double c) { return fmt::format("{:g} °C", c); }
+
+// "43200 min (30 days)", "1440 min (24 h)", "5 min".
+std::string format_min(double min) {
+  if (min >= 2 * 24 * 60 && std::fmod(min, 24 * 60) == 0) {
+    return fmt::format("{:g} min ({:g} days)", min, min / (24 * 60));
+  }
+  if (min >= 60 && std::fmod(min, 60) == 0) return fmt::format("{:g} min ({:g} h)", min, min / 60);
+  return fmt::format("{:g} min", min);
+}
+
+// "step[0].steps[2]" -> "step.steps": the [[...]] header of an array of tables.
+std::string header_of(std::string_view path) {
+  std::string out;
+  bool in_index = false;
+  for (char c : path) {
+    if (c == '[') in_index = true;
+    if (!in_index) out += c;
+    if (c == ']') in_index = false;
+  }
+  return out;
+}
+
+// A step of the expanded plan and where it came from, for the checks that
+// need its neighbours.
+struct Expanded {
+  PlanStep step;
+  std::string path;  // "step[1].steps[0]"
+  int target_line = 0;
+  int rate_line = 0;
+  bool valid = true;  // no error was reported in its table
+  // A placeholder for what could not be read or expanded (a bad step, a
+  // repeat of bad steps), standing for `weight` plan steps, so that no check
+  // takes the steps around it for neighbours.
+  bool placeholder = false;
+  std::size_t weight = 1;
+};
+
+Expanded placeholder(std::size_t weight) {
+  Expanded e;
+  e.valid = false;
+  e.placeholder = true;
+  e.weight = weight;
+  return e;
+}
+
+// Steps of the plan `steps` will expand to.
+std::size_t plan_size(const std::vector<Expanded>& steps) {
+  std::size_t n = 0;
+  for (const Expanded& e : steps) n += e.weight;
+  return n;
+}
+
+// A number read from a table: absent, reported as bad, or a value.
+struct Number {
+  bool present = false;
+  std::optional<double> value;
+  bool bad() const { return present && !value; }
+};
 
 class ScheduleReader {
  public:
   ScheduleReader(TomlErrors& errors, const StationLimits& limits)
       : errors_(errors), limits_(limits) {}
 
-  void read_steps(TableReader& parent, std::string_view key, int depth,
-                  std::vector<PlanStep>& out) {
-    const toml::array* steps = parent.array(key);
-    if (!steps) {
-      if (!parent.raw().contains(key))
-        parent.error(key, "missing: a schedule needs at least one [[step]]");
+  // Reads the array of step tables under `key` of `parent`, expanding
+  // repeats into `out`. `owner` names what needs the steps, for messages.
+  void read_steps(TableReader& parent, std::string_view key, std::string_view owner, int depth,
+                  std::vector<Expanded>& out) {
+    parent.skip(key);
+    const std::string header = header_of(parent.key_path(key));
+    const toml::node* node = parent.raw().get(key);
+    if (!node) {
+      parent.error(key, fmt::format("missing: {} needs at least one [[{}]]", owner, header));
       return;
     }
-    if (steps->empty()) parent.error(key, "is empty: a schedule needs at least one step");
+    const toml::array* steps = node->as_array();
+    if (!steps) {
+      if (node->is_table()) {
+        parent.error(
+            key, fmt::format("must be an array of tables: write [[{}]], not [{}]", header, header));
+      } else {
+        parent.error(key, fmt::format("expected an array of [[{}]] tables, got {}", header,
+                                      toml_type_name(*node)));
+      }
+      return;
+    }
+    if (steps->empty()) {
+      parent.error(key, fmt::format("is empty: {} needs at least one step", owner));
+      return;
+    }
     int i = 0;
-    for (const toml::node& node : *steps) {
+    for (const toml::node& n : *steps) {
       const std::string path = fmt::format("{}[{}]", parent.key_path(key), i++);
-      const toml::table* t = node.as_table();
+      const toml::table* t = n.as_table();
       if (!t) {
-        errors_.add(static_cast<int>(node.source().begin.line), path,
-                    fmt::format("expected a table, got {}", toml_type_name(node)));
+        errors_.add(static_cast<int>(n.source().begin.line), path,
+                    fmt::format("expected a step table, got {}", toml_type_name(n)));
+        out.push_back(placeholder(0));
         continue;
       }
       TableReader step(*t, path, errors_);
@@ -40,116 +169,298 @@ class ScheduleReader {
     }
   }
 
- private:
-  // A positive duration in minutes, converted to station seconds.
-  double minutes(TableReader& t, std::string_view key, std::optional<double> default_min,
-                 double max_min) {
-    auto v = t.number(key);
-    if (!v) {
-      if (!default_min) {
-        if (!t.raw().contains(key)) t.error(key, "missing (required, minutes)");
-        return 0;
-      }
-      return *default_min * 60.0;
-    }
-    if (!(*v > 0) || *v > max_min) {
-      t.error(key, fmt::format("{} min is out of range: must be > 0 and <= {} min", *v, max_min));
-      return 0;
-    }
-    return *v * 60.0;
-  }
-
-  double temperature(TableReader& t, std::string_view key) {
-    auto v = t.required_number(key);
-    if (!v) return 0;
-    if (*v < limits_.min_temp_c || *v > limits_.max_temp_c) {
-      t.error(key, fmt::format("{} is outside the station's limits [{}, {}]", format_c(*v),
-                               format_c(limits_.min_temp_c), format_c(limits_.max_temp_c)));
-    }
-    return *v;
-  }
-
-  void read_step(TableReader& t, int depth, std::vector<PlanStep>& out) {
-    auto type = t.choice("type", {"soak", "ramp", "hold", "repeat"}, std::nullopt);
-    if (!type) {
-      if (!t.raw().contains("type")) t.error("type", "missing: one of soak, ramp, hold, repeat");
-      return;
-    }
-    PlanStep s;
-    s.source_line = static_cast<int>(t.raw().source().begin.line);
-    if (*type == "repeat") {
-      auto count = t.integer("count");
-      if (!count) {
-        if (!t.raw().contains("count")) t.error("count", "missing (required integer)");
-      } else if (*count < 1 || *count > 1000) {
-        t.error("count", fmt::format("{} is out of range: must be in [1, 1000]", *count));
-      }
-      if (depth >= kMaxRepeatDepth) {
-        t.error("steps", fmt::format("repeats nested deeper than {}", kMaxRepeatDepth));
-        t.skip("steps");
-      } else {
-        std::vector<PlanStep> body;
-        read_steps(t, "steps", depth + 1, body);
-        for (int64_t k = 0; count && k < *count && out.size() < kMaxSteps; ++k) {
-          for (const PlanStep& b : body) {
-            PlanStep copy = b;
-            copy.label = fmt::format("{} (repeat {}/{})", b.label, k + 1, *count);
-            out.push_back(std::move(copy));
-          }
+  // Reports the keys of `t` that are not in `keys`, with a hint where one
+  // is likely: a key of another step type, a misspelling, or the keys that
+  // belong here.
+  void unknown_keys(const TableReader& t, const Keys& keys, std::string_view what, bool is_step) {
+    static const Keys step_keys = all_step_keys();
+    for (const auto& [k, node] : t.raw()) {
+      const std::string_view key = k.str();
+      if (contains(keys, key)) continue;
+      std::string message;
+      std::vector<std::string_view> owners;
+      if (is_step) {
+        for (const auto& kind : kKinds) {
+          if (contains(*kind.keys, key)) owners.push_back(kind.kind);
         }
-        if (out.size() >= kMaxSteps) t.error("count", "expands to too many steps");
       }
-      t.finish();
+      // A misspelling (edit distance <= 2) or the key without its unit.
+      std::string_view nearest;
+      std::size_t best = 3;
+      for (std::string_view candidate : keys) {
+        const std::size_t d = edit_distance(key, candidate);
+        if (d < best) {
+          best = d;
+          nearest = candidate;
+        }
+        if (nearest.empty() && candidate.size() > key.size() + 1 &&
+            candidate.substr(0, key.size()) == key && candidate[key.size()] == '_') {
+          nearest = candidate;
+        }
+      }
+      if (!owners.empty()) {
+        const std::string_view last = owners.back();
+        owners.pop_back();
+        message = fmt::format("unknown key for {} (only {}{}{} steps take it)", what,
+                              fmt::join(owners, ", "), owners.empty() ? "" : " and ", last);
+      } else if (!nearest.empty()) {
+        message = fmt::format("unknown key: did you mean {}?", nearest);
+      } else if (!is_step && contains(step_keys, key)) {
+        message = "unknown key at the top level: is a [[step]] header missing above it?";
+      } else if (what == "a step") {
+        message = "unknown key: no step type takes it";
+      } else {
+        message = fmt::format("unknown key; {} takes: {}", what, fmt::join(keys, ", "));
+      }
+      errors_.add(static_cast<int>(node.source().begin.line), t.key_path(key), message);
+    }
+  }
+
+ private:
+  Number number(TableReader& t, std::string_view key) {
+    Number n;
+    n.present = t.raw().contains(key);
+    n.value = t.number(key);
+    return n;
+  }
+
+  // A required value: reports "missing" with its unit when absent.
+  Number required(TableReader& t, std::string_view key, std::string_view unit) {
+    Number n = number(t, key);
+    if (!n.present) t.error(key, fmt::format("missing (required, {})", unit));
+    return n;
+  }
+
+  // Checks lo < v (lo_open) or lo <= v, and v <= hi; reports and clears the
+  // value otherwise.
+  void check_range(TableReader& t, std::string_view key, Number& n, std::string_view unit,
+                   double lo, bool lo_open, std::string_view hi_text, double hi) {
+    if (!n.value) return;
+    const double v = *n.value;
+    if ((lo_open ? v > lo : v >= lo) && v <= hi) return;
+    t.error(key, fmt::format("{:g} {} is out of range: must be {} {:g} and <= {}", v, unit,
+                             lo_open ? ">" : ">=", lo, hi_text));
+    n.value.reset();
+  }
+
+  // A duration key in minutes, (0, max_min].
+  Number minutes(TableReader& t, std::string_view key, bool is_required, double max_min) {
+    Number n = is_required ? required(t, key, "minutes") : number(t, key);
+    check_range(t, key, n, "min", 0, true, format_min(max_min), max_min);
+    return n;
+  }
+
+  Number temperature(TableReader& t, std::string_view key) {
+    Number n = required(t, key, "°C");
+    if (n.value && (*n.value < limits_.min_temp_c || *n.value > limits_.max_temp_c)) {
+      t.error(key, fmt::format("{} is outside the station's limits [{}, {}]", format_c(*n.value),
+                               format_c(limits_.min_temp_c), format_c(limits_.max_temp_c)));
+      n.value.reset();
+    }
+    return n;
+  }
+
+  void read_step(TableReader& t, int depth, std::vector<Expanded>& out) {
+    const std::size_t errors_before = errors_.messages().size();
+    std::optional<std::string> type;
+    if (!t.raw().contains("type")) {
+      t.error("type", "missing: one of soak, ramp, hold, repeat");
+    } else {
+      type = t.choice("type", {"soak", "ramp", "hold", "repeat"}, std::nullopt);
+    }
+    if (!type) {
+      static const Keys any_step = all_step_keys();
+      unknown_keys(t, any_step, "a step", true);
+      out.push_back(placeholder(0));
       return;
     }
-    if (auto r = t.number("table_rate_dps")) {
-      if (std::abs(*r) > 1000.0)
-        t.error("table_rate_dps", "must be within ±1000 °/s");
-      else
-        s.table_rate_dps = *r;
+    if (*type == "repeat") {
+      read_repeat(t, depth, out);
+      return;
     }
+
+    Expanded e;
+    e.path = t.key_path("");
+    PlanStep& s = e.step;
+    s.source_line = static_cast<int>(t.raw().source().begin.line);
     if (*type == "soak") {
       s.kind = StepKind::kSoak;
-      s.setpoint_c = temperature(t, "setpoint_c");
-      s.tolerance_c = t.number_in("tolerance_c", s.tolerance_c, 0.01, 10.0);
-      s.stability_c_per_min = t.number_in("stability_c_per_min", s.stability_c_per_min, 1e-4, 10.0);
-      s.stability_window_s = minutes(t, "stability_window_min", 10.0, 24 * 60);
-      s.settle_timeout_s = minutes(t, "settle_timeout_min", 180.0, 7 * 24 * 60);
-      s.acquire_s = minutes(t, "acquire_min", std::nullopt, 7 * 24 * 60);
-      if (s.stability_window_s > s.settle_timeout_s) {
-        t.error("stability_window_min",
-                "is longer than settle_timeout_min: the gate could never hold");
+      s.setpoint_c = temperature(t, "setpoint_c").value.value_or(0);
+      Number acquire = minutes(t, "acquire_min", true, kMaxAcquireMin);
+      s.acquire_s = acquire.value.value_or(0) * 60.0;
+      Number tolerance = number(t, "tolerance_c");
+      check_range(t, "tolerance_c", tolerance, "°C", kMinToleranceC, false,
+                  fmt::format("{:g} °C", kMaxToleranceC), kMaxToleranceC);
+      s.tolerance_c = tolerance.value.value_or(s.tolerance_c);
+      Number stability = number(t, "stability_c_per_min");
+      check_range(t, "stability_c_per_min", stability, "°C/min", 0, true,
+                  fmt::format("{:g} °C/min", kMaxStabilityCPerMin), kMaxStabilityCPerMin);
+      s.stability_c_per_min = stability.value.value_or(s.stability_c_per_min);
+      Number window = number(t, "stability_window_min");
+      check_range(t, "stability_window_min", window, "min", kMinStabilityWindowMin, false,
+                  format_min(kMaxStabilityWindowMin), kMaxStabilityWindowMin);
+      Number timeout = minutes(t, "settle_timeout_min", false, kMaxSettleTimeoutMin);
+      if (!window.bad() && !timeout.bad()) {
+        const double window_min = window.value.value_or(s.stability_window_s / 60.0);
+        const double timeout_min = timeout.value.value_or(s.settle_timeout_s / 60.0);
+        if (window_min > timeout_min) {
+          if (window.present) {
+            t.error("stability_window_min",
+                    fmt::format("{:g} min is longer than settle_timeout_min ({:g} min{}): the "
+                                "gate could never hold",
+                                window_min, timeout_min, timeout.present ? "" : ", the default"));
+          } else {
+            t.error("settle_timeout_min",
+                    fmt::format("{:g} min is shorter than the stability window ({:g} min, the "
+                                "default): the gate could never hold",
+                                timeout_min, window_min));
+          }
+        }
       }
+      s.stability_window_s = window.value.value_or(s.stability_window_s / 60.0) * 60.0;
+      s.settle_timeout_s = timeout.value.value_or(s.settle_timeout_s / 60.0) * 60.0;
       s.label = fmt::format("soak {}", format_c(s.setpoint_c));
     } else if (*type == "ramp") {
       s.kind = StepKind::kRamp;
-      s.setpoint_c = temperature(t, "target_c");
-      auto rate = t.required_number("rate_c_per_min");
-      if (rate) {
-        if (!(*rate > 0)) {
-          t.error("rate_c_per_min", fmt::format("{} °C/min: must be > 0", *rate));
-        } else if (*rate > limits_.max_ramp_c_per_min) {
+      s.setpoint_c = temperature(t, "target_c").value.value_or(0);
+      e.target_line = t.line_of("target_c");
+      Number rate = required(t, "rate_c_per_min", "°C/min");
+      e.rate_line = t.line_of("rate_c_per_min");
+      if (rate.value) {
+        if (!(*rate.value > 0)) {
+          t.error("rate_c_per_min", fmt::format("{:g} °C/min: must be > 0", *rate.value));
+        } else if (*rate.value > limits_.max_ramp_c_per_min) {
           t.error("rate_c_per_min",
-                  fmt::format("{} °C/min exceeds the station's max ramp rate {} °C/min", *rate,
-                              limits_.max_ramp_c_per_min));
+                  fmt::format("{:g} °C/min exceeds the station's max ramp rate {:g} °C/min",
+                              *rate.value, limits_.max_ramp_c_per_min));
         } else {
-          s.rate_c_per_min = *rate;
+          s.rate_c_per_min = *rate.value;
         }
       }
       s.label = fmt::format("ramp to {} at {:g} °C/min", format_c(s.setpoint_c), s.rate_c_per_min);
     } else {
       s.kind = StepKind::kHold;
-      s.setpoint_c = temperature(t, "setpoint_c");
-      s.hold_s = minutes(t, "duration_min", std::nullopt, 7 * 24 * 60);
+      s.setpoint_c = temperature(t, "setpoint_c").value.value_or(0);
+      s.hold_s = minutes(t, "duration_min", true, kMaxHoldMin).value.value_or(0) * 60.0;
       s.label = fmt::format("hold {}", format_c(s.setpoint_c));
     }
-    t.finish();
-    out.push_back(std::move(s));
+    Number table_rate = number(t, "table_rate_dps");
+    check_range(t, "table_rate_dps", table_rate, "°/s", -kMaxTableRateDps, false,
+                fmt::format("{:g} °/s", kMaxTableRateDps), kMaxTableRateDps);
+    s.table_rate_dps = table_rate.value.value_or(0);
+
+    const Keys& keys = s.kind == StepKind::kSoak   ? kSoakKeys
+                       : s.kind == StepKind::kRamp ? kRampKeys
+                                                   : kHoldKeys;
+    unknown_keys(t, keys, fmt::format("a {} step", *type), true);
+    e.valid = errors_.messages().size() == errors_before;
+    out.push_back(std::move(e));
+  }
+
+  void read_repeat(TableReader& t, int depth, std::vector<Expanded>& out) {
+    std::optional<int64_t> count;
+    if (!t.raw().contains("count")) {
+      t.error("count", fmt::format("missing (required, integer in [1, {}])", kMaxRepeatCount));
+    } else if (auto c = t.integer("count")) {
+      if (*c < 1 || *c > kMaxRepeatCount) {
+        t.error("count",
+                fmt::format("{} is out of range: must be in [1, {}]", *c, kMaxRepeatCount));
+      } else {
+        count = c;
+      }
+    }
+    std::vector<Expanded> body;
+    if (depth >= kMaxRepeatDepth) {
+      t.error("steps",
+              fmt::format("too deeply nested: repeats nest at most {} deep", kMaxRepeatDepth));
+      t.skip("steps");
+    } else {
+      read_steps(t, "steps", "a repeat", depth + 1, body);
+    }
+    unknown_keys(t, kRepeatKeys, "a repeat step", true);
+    if (!count || body.empty()) {
+      out.push_back(placeholder(0));
+      return;
+    }
+    const std::size_t body_size = plan_size(body);
+    const std::size_t repeated = body_size * static_cast<std::size_t>(*count);
+    const std::size_t total = plan_size(out) + repeated;
+    if (total > kMaxPlanSteps) {
+      t.error("count",
+              fmt::format("{} x {} steps would make the plan {} steps long; the limit is {}",
+                          *count, body_size, total, kMaxPlanSteps));
+      out.push_back(placeholder(0));
+      return;
+    }
+    // A body with errors is not unrolled (the schedule is refused anyway).
+    if (std::any_of(body.begin(), body.end(), [](const Expanded& e) { return e.placeholder; })) {
+      out.push_back(placeholder(repeated));
+      return;
+    }
+    for (int64_t k = 0; k < *count; ++k) {
+      for (const Expanded& b : body) {
+        Expanded copy = b;
+        copy.step.label = fmt::format("{} (repeat {}/{})", b.step.label, k + 1, *count);
+        out.push_back(std::move(copy));
+      }
+    }
   }
 
   TomlErrors& errors_;
   const StationLimits& limits_;
 };
+
+// Checks that need a step's predecessor: a ramp starts where the previous
+// step left the set point (the first step's start is only known at run time).
+void check_ramps(const std::vector<Expanded>& steps, TomlErrors& errors) {
+  std::set<std::string> reported;
+  for (std::size_t i = 1; i < steps.size(); ++i) {
+    const Expanded& e = steps[i];
+    const Expanded& prev = steps[i - 1];
+    if (e.step.kind != StepKind::kRamp || !e.valid || !prev.valid) continue;
+    const double span_c = std::abs(e.step.setpoint_c - prev.step.setpoint_c);
+    if (span_c < 1e-9) {
+      if (reported.insert(e.path + ".target_c").second) {
+        errors.add(e.target_line, e.path + ".target_c",
+                   fmt::format("{} is where the previous step leaves the set point: the ramp "
+                               "would be empty",
+                               format_c(e.step.setpoint_c)));
+      }
+    } else if (span_c / e.step.rate_c_per_min > kMaxRampMin) {
+      if (reported.insert(e.path + ".rate_c_per_min").second) {
+        errors.add(
+            e.rate_line, e.path + ".rate_c_per_min",
+            fmt::format("at {:g} °C/min the ramp from {} to {} takes {:.1f} days; a ramp may "
+                        "take at most {:g} days",
+                        e.step.rate_c_per_min, format_c(prev.step.setpoint_c),
+                        format_c(e.step.setpoint_c), span_c / e.step.rate_c_per_min / (24 * 60),
+                        kMaxRampMin / (24 * 60)));
+      }
+    }
+  }
+}
+
+// The messages in file order (stable within a line), without repeats.
+std::string sorted_errors(const TomlErrors& errors) {
+  const std::string prefix = errors.file() + ":";
+  auto line_of = [&](const std::string& m) {
+    int line = 0;
+    if (m.compare(0, prefix.size(), prefix) == 0) {
+      std::from_chars(m.data() + prefix.size(), m.data() + m.size(), line);
+    }
+    return line;
+  };
+  std::vector<std::string> messages;
+  for (const auto& m : errors.messages()) {
+    if (std::find(messages.begin(), messages.end(), m) == messages.end()) messages.push_back(m);
+  }
+  std::stable_sort(
+      messages.begin(), messages.end(),
+      [&](const std::string& a, const std::string& b) { return line_of(a) < line_of(b); });
+  std::string out;
+  for (const auto& m : messages) out += m + "\n";
+  return out;
+}
 
 Result<Plan> build_plan(std::optional<toml::table> root, TomlErrors& errors,
                         const std::string& source, const StationLimits& limits) {
@@ -157,18 +468,31 @@ Result<Plan> build_plan(std::optional<toml::table> root, TomlErrors& errors,
   Plan plan;
   plan.source_path = source;
   TableReader top(*root, "", errors);
-  if (auto n = top.string("name")) plan.name = *n;
+  if (auto n = top.string("name")) {
+    if (n->find_first_not_of(" \t") == std::string::npos) {
+      top.error("name", "must not be empty (leave it out to name the schedule after its file)");
+    }
+    plan.name = *n;
+  }
   if (auto d = top.string("description")) plan.description = *d;
   ScheduleReader reader(errors, limits);
-  reader.read_steps(top, "step", 0, plan.steps);
-  top.finish();
+  std::vector<Expanded> steps;
+  reader.read_steps(top, "step", "a schedule", 0, steps);
+  reader.unknown_keys(top, kTopKeys, "a schedule", false);
+  if (const std::size_t n = plan_size(steps); n > kMaxPlanSteps) {
+    top.error("step", fmt::format("the plan has {} steps; the limit is {}", n, kMaxPlanSteps));
+  }
+  check_ramps(steps, errors);
+  if (!errors.empty()) return Error::Permanent(sorted_errors(errors));
+
   if (plan.name.empty()) {
     const auto slash = source.find_last_of('/');
     plan.name = source.substr(slash == std::string::npos ? 0 : slash + 1);
   }
-  if (!errors.empty()) return Error::Permanent(errors.joined());
-  for (std::size_t i = 0; i < plan.steps.size(); ++i) {
-    plan.steps[i].label = fmt::format("step {}: {}", i + 1, plan.steps[i].label);
+  plan.steps.reserve(steps.size());
+  for (std::size_t i = 0; i < steps.size(); ++i) {
+    PlanStep& s = plan.steps.emplace_back(std::move(steps[i].step));
+    s.label = fmt::format("step {}: {}", i + 1, s.label);
   }
   return plan;
 }

@@ -4,8 +4,17 @@
 
 #include <algorithm>
 #include <cmath>
+#include <nlohmann/json.hpp>
 
 namespace gyrotherm::schedules {
+
+namespace {
+constexpr RunState kAllStates[] = {
+    RunState::kQueued, RunState::kRamping,     RunState::kSettling, RunState::kAcquiring,
+    RunState::kPaused, RunState::kSuspended,   RunState::kAborting, RunState::kCompleted,
+    RunState::kFailed, RunState::kInterrupted,
+};
+}  // namespace
 
 std::string_view to_string(RunState state) {
   switch (state) {
@@ -33,9 +42,22 @@ std::string_view to_string(RunState state) {
   return "?";
 }
 
+std::optional<RunState> parse_run_state(std::string_view name) {
+  for (RunState s : kAllStates) {
+    if (to_string(s) == name) return s;
+  }
+  return std::nullopt;
+}
+
 bool is_terminal(RunState state) {
   return state == RunState::kCompleted || state == RunState::kFailed ||
          state == RunState::kInterrupted;
+}
+
+double StepTimes::acquired_s() const {
+  double sum = 0;
+  for (const auto& w : windows) sum += w.to_s - w.from_s;
+  return sum;
 }
 
 Sequencer::Sequencer(Plan plan, SequencerOptions options, SequencerObserver& observer)
@@ -44,16 +66,41 @@ Sequencer::Sequencer(Plan plan, SequencerOptions options, SequencerObserver& obs
       observer_(observer),
       setpoint_c_(options.safe_setpoint_c) {}
 
-void Sequencer::set_state(RunState to, double t_s, const std::string& reason) {
+bool Sequencer::held() const {
+  if (paused_ || restore_pending_) return true;
+  return std::any_of(std::begin(tripped_), std::end(tripped_), [](bool t) { return t; });
+}
+
+RunState Sequencer::derived_state() const {
+  if (end_) return *end_;
+  if (restore_pending_ ||
+      std::any_of(std::begin(tripped_), std::end(tripped_), [](bool t) { return t; })) {
+    return RunState::kSuspended;
+  }
+  if (paused_) return RunState::kPaused;
+  return activity_;
+}
+
+void Sequencer::update_state(double t_s, const std::string& reason) {
+  const RunState to = derived_state();
   if (to == state_) return;
   const RunState from = state_;
   state_ = to;
   observer_.on_state(from, to, t_s, reason);
 }
 
+std::vector<InterlockCondition> Sequencer::tripped() const {
+  std::vector<InterlockCondition> out;
+  for (int k = 0; k < kInterlockKindCount; ++k) {
+    if (tripped_[k]) out.push_back({static_cast<InterlockKind>(k), trip_message_[k]});
+  }
+  return out;
+}
+
 void Sequencer::start(double t_s, double start_setpoint_c) {
-  if (state_ != RunState::kQueued) return;
+  if (state_ != RunState::kQueued || end_) return;
   setpoint_c_ = start_setpoint_c;
+  last_tick_s_ = t_s;
   if (plan_.steps.empty()) {
     finish_run(RunState::kCompleted, t_s, "schedule has no steps");
     return;
@@ -65,6 +112,8 @@ void Sequencer::begin_step(std::size_t index, double t_s) {
   index_ = index;
   times_ = StepTimes{};
   times_.start_s = t_s;
+  window_open_s_.reset();
+  step_active_s_ = 0;
   const PlanStep& step = plan_.steps[index];
   ramp_from_c_ = setpoint_c_;
   observer_.on_step_started(index, step, t_s);
@@ -73,25 +122,40 @@ void Sequencer::begin_step(std::size_t index, double t_s) {
       setpoint_c_ = step.setpoint_c;
       shell_window_ = analysis::StabilityWindow(step.stability_window_s);
       chamber_window_ = analysis::StabilityWindow(step.stability_window_s);
-      set_state(RunState::kSettling, t_s,
-                fmt::format("{}: waiting for the shell to settle at {:g} ± {:g} °C", step.label,
-                            step.setpoint_c, step.tolerance_c));
+      activity_ = RunState::kSettling;
+      update_state(t_s, fmt::format("{}: waiting for the shell to settle at {:g} ± {:g} °C",
+                                    step.label, step.setpoint_c, step.tolerance_c));
       break;
     case StepKind::kRamp:
-      times_.acquire_start_s = t_s;
-      observer_.on_acquisition_started(index, times_);
-      set_state(RunState::kRamping, t_s,
-                fmt::format("{} from {:.2f} °C", step.label, ramp_from_c_));
+      activity_ = RunState::kRamping;
+      if (!held()) open_window(t_s);
+      update_state(t_s, fmt::format("{} from {:.2f} °C", step.label, ramp_from_c_));
       break;
     case StepKind::kHold:
       setpoint_c_ = step.setpoint_c;
-      set_state(RunState::kSettling, t_s,
-                fmt::format("{} for {:g} min", step.label, step.hold_s / 60.0));
+      activity_ = RunState::kSettling;
+      update_state(t_s, fmt::format("{} for {:g} min", step.label, step.hold_s / 60.0));
       break;
   }
 }
 
+void Sequencer::open_window(double t_s) {
+  if (window_open_s_) return;
+  window_open_s_ = t_s;
+  if (!times_.acquire_start_s) times_.acquire_start_s = t_s;
+  observer_.on_step_changed(index_, plan_.steps[index_], times_);
+}
+
+void Sequencer::close_window(double t_s) {
+  if (!window_open_s_) return;
+  times_.windows.push_back({*window_open_s_, std::max(t_s, *window_open_s_)});
+  window_open_s_.reset();
+  observer_.on_step_changed(index_, plan_.steps[index_], times_);
+}
+
 void Sequencer::finish_step(double t_s, bool completed) {
+  close_window(t_s);
+  if (!times_.windows.empty()) times_.acquire_end_s = times_.windows.back().to_s;
   times_.end_s = t_s;
   observer_.on_step_finished(index_, plan_.steps[index_], times_, completed);
 }
@@ -99,34 +163,9 @@ void Sequencer::finish_step(double t_s, bool completed) {
 void Sequencer::finish_run(RunState final_state, double t_s, const std::string& reason) {
   setpoint_c_ = options_.safe_setpoint_c;
   index_ = plan_.steps.size();
-  set_state(final_state, t_s, reason);
-}
-
-void Sequencer::tick(double t_s, const Readings& readings) {
-  if (finished() || state_ == RunState::kQueued) return;
-  const PlanStep& step = plan_.steps[index_];
-  bool step_done = false;
-  switch (step.kind) {
-    case StepKind::kSoak:
-      tick_soak(t_s, readings);
-      return;  // tick_soak advances by itself
-    case StepKind::kRamp: {
-      const double elapsed_min = (t_s - times_.start_s) / 60.0;
-      const double span = step.setpoint_c - ramp_from_c_;
-      const double moved = std::min(std::abs(span), step.rate_c_per_min * elapsed_min);
-      setpoint_c_ = ramp_from_c_ + std::copysign(moved, span);
-      if (moved >= std::abs(span)) {
-        setpoint_c_ = step.setpoint_c;
-        times_.acquire_end_s = t_s;
-        step_done = true;
-      }
-      break;
-    }
-    case StepKind::kHold:
-      step_done = t_s - times_.start_s >= step.hold_s;
-      break;
-  }
-  if (step_done) advance(t_s);
+  window_open_s_.reset();
+  end_ = final_state;
+  update_state(t_s, reason);
 }
 
 void Sequencer::advance(double t_s) {
@@ -138,58 +177,355 @@ void Sequencer::advance(double t_s) {
   }
 }
 
+void Sequencer::trip(InterlockKind kind, double t_s, const std::string& message) {
+  const int k = static_cast<int>(kind);
+  trip_message_[k] = message;
+  if (tripped_[k]) return;
+  tripped_[k] = true;
+  trip_since_s_[k] = t_s;
+  const double grace_s = options_.interlocks.grace_for(kind);
+  const std::string text =
+      fmt::format("interlock {}: {}; holding {:.2f} °C, aborting after {:g} min", to_string(kind),
+                  message, setpoint_c_, grace_s / 60.0);
+  observer_.on_interlock(kind, true, t_s, text);
+  close_window(t_s);
+  update_state(t_s, text);
+}
+
+void Sequencer::clear(InterlockKind kind, double t_s) {
+  const int k = static_cast<int>(kind);
+  if (!tripped_[k]) return;
+  tripped_[k] = false;
+  observer_.on_interlock(
+      kind, false, t_s,
+      fmt::format("interlock {} cleared after {:.0f} s", to_string(kind), t_s - trip_since_s_[k]));
+}
+
+void Sequencer::evaluate(double t_s, const Readings& readings) {
+  const auto conditions = evaluate_interlocks(readings, options_.interlocks, tripped_);
+  bool present[kInterlockKindCount] = {};
+  for (const auto& c : conditions) {
+    present[static_cast<int>(c.kind)] = true;
+    trip(c.kind, t_s, c.message);
+  }
+  for (int k = 0; k < kInterlockKindCount; ++k) {
+    const auto kind = static_cast<InterlockKind>(k);
+    if (kind != InterlockKind::kSettleTimeout && tripped_[k] && !present[k]) clear(kind, t_s);
+  }
+}
+
+void Sequencer::on_unheld(double t_s, const Readings& readings) {
+  const PlanStep& step = plan_.steps[index_];
+  if (step.kind == StepKind::kRamp) {
+    open_window(t_s);
+    return;
+  }
+  if (step.kind != StepKind::kSoak || activity_ != RunState::kAcquiring) return;
+  const bool have = readings.chamber_c && readings.top_c && readings.side_c;
+  const double shell_c = have ? (*readings.top_c + *readings.side_c) / 2.0 : 0.0;
+  const bool in_tolerance = have &&
+                            std::abs(*readings.chamber_c - step.setpoint_c) <= step.tolerance_c &&
+                            std::abs(shell_c - step.setpoint_c) <= step.tolerance_c;
+  if (in_tolerance) {
+    open_window(t_s);
+    update_state(t_s, fmt::format("{}: chamber {:.2f} °C and shell {:.2f} °C within ± {:g} °C; "
+                                  "acquisition goes on ({:.1f} of {:g} min done)",
+                                  step.label, *readings.chamber_c, shell_c, step.tolerance_c,
+                                  times_.acquired_s() / 60.0, step.acquire_s / 60.0));
+    return;
+  }
+  // The soak was disturbed: its acquisition starts over once stable again.
+  const std::string seen =
+      have ? fmt::format("chamber {:.2f} °C, shell {:.2f} °C", *readings.chamber_c, shell_c)
+           : std::string("no readings");
+  times_.windows.clear();
+  times_.settled_s.reset();
+  times_.acquire_start_s.reset();
+  step_active_s_ = 0;
+  shell_window_.clear();
+  chamber_window_.clear();
+  activity_ = RunState::kSettling;
+  observer_.on_step_changed(index_, step, times_);
+  update_state(t_s, fmt::format("{}: temperature out of ± {:g} °C ({}); the soak settles again and "
+                                "restarts its acquisition",
+                                step.label, step.tolerance_c, seen));
+}
+
+void Sequencer::tick(double t_s, const Readings& readings) {
+  if (end_ || state_ == RunState::kQueued) return;
+  const double dt_s = std::max(0.0, t_s - last_tick_s_);
+  last_tick_s_ = t_s;
+  // Time since the last tick counts for the step only if it was not held.
+  const double active_dt_s = was_held_ ? 0.0 : dt_s;
+  if (was_held_) {
+    times_.held_s += dt_s;
+  } else {
+    step_active_s_ += dt_s;
+  }
+  if (restore_pending_ && readings.chamber_c && readings.top_c && readings.side_c) {
+    restore_pending_ = false;
+  }
+  evaluate(t_s, readings);
+  for (int k = 0; k < kInterlockKindCount; ++k) {
+    if (tripped_[k] && t_s - trip_since_s_[k] >= options_.interlocks.grace_s[k]) {
+      abort(t_s, fmt::format("interlock {} still tripped after {:g} min: {}",
+                             to_string(static_cast<InterlockKind>(k)),
+                             options_.interlocks.grace_s[k] / 60.0, trip_message_[k]));
+      return;
+    }
+  }
+
+  const PlanStep& step = plan_.steps[index_];
+  if (step.kind == StepKind::kSoak) {
+    tick_soak(t_s, readings);
+    return;
+  }
+  if (held()) {
+    if (!was_held_) close_window(t_s);
+    was_held_ = true;
+    update_state(t_s, "held");
+    return;
+  }
+  if (was_held_) {
+    was_held_ = false;
+    on_unheld(t_s, readings);
+  }
+  bool done = false;
+  if (step.kind == StepKind::kRamp) {
+    const double span = step.setpoint_c - ramp_from_c_;
+    const double moved = std::min(std::abs(span), std::abs(setpoint_c_ - ramp_from_c_) +
+                                                      step.rate_c_per_min * active_dt_s / 60.0);
+    setpoint_c_ = ramp_from_c_ + std::copysign(moved, span);
+    if (moved >= std::abs(span)) {
+      setpoint_c_ = step.setpoint_c;
+      done = true;
+    }
+  } else {
+    done = step_active_s_ >= step.hold_s;
+  }
+  update_state(t_s, fmt::format("{}: holds released, the step goes on", step.label));
+  if (done) advance(t_s);
+}
+
 void Sequencer::tick_soak(double t_s, const Readings& readings) {
   const PlanStep& step = plan_.steps[index_];
-  if (state_ == RunState::kSettling) {
-    if (readings.top_c && readings.side_c) {
-      last_shell_c_ = (*readings.top_c + *readings.side_c) / 2.0;
-      shell_window_.push(t_s, *last_shell_c_);
-    }
-    if (readings.chamber_c) chamber_window_.push(t_s, *readings.chamber_c);
+  if (readings.top_c && readings.side_c) {
+    last_shell_c_ = (*readings.top_c + *readings.side_c) / 2.0;
+    shell_window_.push(t_s, *last_shell_c_);
+  }
+  if (readings.chamber_c) chamber_window_.push(t_s, *readings.chamber_c);
+
+  if (activity_ == RunState::kSettling) {
     const bool gate = shell_window_.full() && chamber_window_.full() &&
                       std::abs(shell_window_.slope_per_s() * 60.0) < step.stability_c_per_min &&
                       std::abs(shell_window_.mean() - step.setpoint_c) <= step.tolerance_c &&
                       std::abs(chamber_window_.mean() - step.setpoint_c) <= step.tolerance_c;
-    if (gate) {
-      times_.settled_s = t_s;
-      times_.acquire_start_s = t_s;
-      observer_.on_acquisition_started(index_, times_);
-      set_state(RunState::kAcquiring, t_s,
-                fmt::format("{}: stable (shell {:.3f} °C, {:+.4f} °C/min over {:g} min); acquiring "
-                            "for {:g} min",
-                            step.label, shell_window_.mean(), shell_window_.slope_per_s() * 60.0,
-                            step.stability_window_s / 60.0, step.acquire_s / 60.0));
-    } else if (t_s - times_.start_s > step.settle_timeout_s) {
+    if (gate) clear(InterlockKind::kSettleTimeout, t_s);
+    if (gate && !held()) {
+      was_held_ = false;
+      if (!times_.settled_s) times_.settled_s = t_s;
+      activity_ = RunState::kAcquiring;
+      open_window(t_s);
+      update_state(t_s,
+                   fmt::format("{}: stable (shell {:.3f} °C, {:+.4f} °C/min over {:g} min); "
+                               "acquiring for {:g} min",
+                               step.label, shell_window_.mean(), shell_window_.slope_per_s() * 60.0,
+                               step.stability_window_s / 60.0, step.acquire_s / 60.0));
+      return;
+    }
+    if (!gate && step_active_s_ > step.settle_timeout_s &&
+        !tripped_[static_cast<int>(InterlockKind::kSettleTimeout)]) {
       const std::string shell =
           last_shell_c_ ? fmt::format("{:.2f} °C", *last_shell_c_) : std::string("unknown");
-      finish_step(t_s, false);
-      finish_run(
-          RunState::kFailed, t_s,
-          fmt::format("{}: not stable within {:g} min (shell at {}); chamber to the safe "
-                      "set point {:g} °C",
-                      step.label, step.settle_timeout_s / 60.0, shell, options_.safe_setpoint_c));
+      trip(InterlockKind::kSettleTimeout, t_s,
+           fmt::format("{}: not stable at {:g} ± {:g} °C within {:g} min (shell at {})", step.label,
+                       step.setpoint_c, step.tolerance_c, step.settle_timeout_s / 60.0, shell));
     }
+    was_held_ = held();
+    update_state(t_s, fmt::format("{}: holds released; settling goes on", step.label));
     return;
   }
-  if (state_ == RunState::kAcquiring && t_s - *times_.acquire_start_s >= step.acquire_s) {
-    times_.acquire_end_s = *times_.acquire_start_s + step.acquire_s;
+
+  // Acquiring.
+  if (held()) {
+    if (!was_held_) close_window(t_s);
+    was_held_ = true;
+    update_state(t_s, "held");
+    return;
+  }
+  if (was_held_) {
+    was_held_ = false;
+    on_unheld(t_s, readings);
+    if (activity_ != RunState::kAcquiring) return;
+  }
+  const double acquired_s = times_.acquired_s() + (window_open_s_ ? t_s - *window_open_s_ : 0.0);
+  if (acquired_s >= step.acquire_s) {
+    // The window ends when the acquisition time is complete (ticks are coarse).
+    const double end_s = *window_open_s_ + (step.acquire_s - times_.acquired_s());
+    close_window(end_s);
     advance(t_s);
   }
 }
 
+Status Sequencer::pause(double t_s, const std::string& reason) {
+  if (end_ || state_ == RunState::kQueued) return Error::Permanent("no run in progress to pause");
+  if (paused_) return Error::Permanent("the run is already paused");
+  paused_ = true;
+  close_window(t_s);
+  was_held_ = true;
+  update_state(t_s, fmt::format("paused ({}); holding {:.2f} °C, acquisition clock stopped", reason,
+                                setpoint_c_));
+  return Status::Ok();
+}
+
+Status Sequencer::resume(double t_s, const std::string& reason) {
+  if (end_ || state_ == RunState::kQueued) return Error::Permanent("no run in progress to resume");
+  if (!paused_) return Error::Permanent("the run is not paused");
+  paused_ = false;
+  // The window reopens (or the soak restarts) at the next tick, with readings.
+  update_state(t_s, fmt::format("resumed ({})", reason));
+  return Status::Ok();
+}
+
 void Sequencer::abort(double t_s, const std::string& reason) {
-  if (finished()) return;
+  if (end_) return;
   if (state_ != RunState::kQueued) finish_step(t_s, false);
-  set_state(RunState::kAborting, t_s, reason);
-  finish_run(
-      RunState::kFailed, t_s,
-      fmt::format("aborted; chamber to the safe set point {:g} °C", options_.safe_setpoint_c));
+  setpoint_c_ = options_.safe_setpoint_c;
+  index_ = plan_.steps.size();
+  end_ = RunState::kAborting;
+  update_state(t_s, fmt::format("{}; chamber to the safe set point {:g} °C", reason,
+                                options_.safe_setpoint_c));
+}
+
+void Sequencer::safe_state_reached(double t_s) {
+  if (end_ != RunState::kAborting) return;
+  finish_run(RunState::kFailed, t_s,
+             fmt::format("aborted; safe set point {:g} °C commanded", options_.safe_setpoint_c));
 }
 
 void Sequencer::interrupt(double t_s, const std::string& reason) {
-  if (finished()) return;
-  if (state_ != RunState::kQueued) finish_step(t_s, false);
-  finish_run(RunState::kInterrupted, t_s, reason);
+  if (end_ && *end_ != RunState::kAborting) return;
+  if (end_ == RunState::kAborting) {
+    finish_run(RunState::kFailed, t_s, "aborted; " + reason);
+    return;
+  }
+  if (state_ != RunState::kQueued && index_ < plan_.steps.size()) close_window(t_s);
+  end_ = RunState::kInterrupted;
+  update_state(t_s, reason);
+}
+
+SequencerSnapshot Sequencer::snapshot(double t_s) const {
+  SequencerSnapshot s;
+  s.t_s = t_s;
+  s.state = state_;
+  s.activity = activity_;
+  s.step_index = index_;
+  s.times = times_;
+  s.window_open_s = window_open_s_;
+  s.step_active_s = step_active_s_;
+  s.setpoint_c = setpoint_c_;
+  s.ramp_from_c = ramp_from_c_;
+  s.paused = paused_;
+  return s;
+}
+
+void Sequencer::restore(const SequencerSnapshot& s, double t_s, const std::string& reason) {
+  state_ = s.state;
+  last_tick_s_ = t_s;
+  if (s.state == RunState::kAborting) {
+    // Died while going safe: finish going safe.
+    setpoint_c_ = options_.safe_setpoint_c;
+    index_ = plan_.steps.size();
+    end_ = RunState::kAborting;
+    return;
+  }
+  if (s.step_index >= plan_.steps.size()) {
+    finish_run(RunState::kFailed, t_s,
+               fmt::format("cannot resume: step {} is not in the schedule", s.step_index + 1));
+    return;
+  }
+  index_ = s.step_index;
+  times_ = s.times;
+  activity_ = s.activity;
+  setpoint_c_ = s.setpoint_c;
+  ramp_from_c_ = s.ramp_from_c;
+  paused_ = s.paused;
+  step_active_s_ = s.step_active_s;
+  end_.reset();
+  const PlanStep& step = plan_.steps[index_];
+  shell_window_ = analysis::StabilityWindow(step.stability_window_s);
+  chamber_window_ = analysis::StabilityWindow(step.stability_window_s);
+  // The window that was open when the snapshot was taken ends there.
+  if (s.window_open_s) {
+    times_.windows.push_back({*s.window_open_s, std::max(s.t_s, *s.window_open_s)});
+  }
+  const double down_s = std::max(0.0, t_s - s.t_s);
+  if (step.kind == StepKind::kRamp || paused_) {
+    times_.held_s += down_s;
+  } else {
+    step_active_s_ += down_s;
+  }
+  restore_pending_ = true;
+  was_held_ = true;
+  observer_.on_step_changed(index_, step, times_);
+  update_state(t_s, reason);
+}
+
+// ---------------------------------------------------------------- snapshot JSON
+
+nlohmann::json to_json(const SequencerSnapshot& s) {
+  nlohmann::json windows = nlohmann::json::array();
+  for (const auto& w : s.times.windows) windows.push_back({w.from_s, w.to_s});
+  auto opt = [](const std::optional<double>& v) {
+    return v ? nlohmann::json(*v) : nlohmann::json(nullptr);
+  };
+  return {{"t_s", s.t_s},
+          {"state", to_string(s.state)},
+          {"activity", to_string(s.activity)},
+          {"step_index", s.step_index},
+          {"start_s", s.times.start_s},
+          {"settled_s", opt(s.times.settled_s)},
+          {"acquire_start_s", opt(s.times.acquire_start_s)},
+          {"held_s", s.times.held_s},
+          {"windows", windows},
+          {"window_open_s", opt(s.window_open_s)},
+          {"step_active_s", s.step_active_s},
+          {"setpoint_c", s.setpoint_c},
+          {"ramp_from_c", s.ramp_from_c},
+          {"paused", s.paused}};
+}
+
+Result<SequencerSnapshot> snapshot_from_json(const nlohmann::json& j) {
+  try {
+    SequencerSnapshot s;
+    auto opt = [&](const char* key) -> std::optional<double> {
+      const auto& v = j.at(key);
+      if (v.is_null()) return std::nullopt;
+      return v.get<double>();
+    };
+    s.t_s = j.at("t_s").get<double>();
+    auto state = parse_run_state(j.at("state").get<std::string>());
+    auto activity = parse_run_state(j.at("activity").get<std::string>());
+    if (!state || !activity) return Error::Permanent("run snapshot: unknown state");
+    s.state = *state;
+    s.activity = *activity;
+    s.step_index = j.at("step_index").get<std::size_t>();
+    s.times.start_s = j.at("start_s").get<double>();
+    s.times.settled_s = opt("settled_s");
+    s.times.acquire_start_s = opt("acquire_start_s");
+    s.times.held_s = j.at("held_s").get<double>();
+    for (const auto& w : j.at("windows")) {
+      s.times.windows.push_back({w.at(0).get<double>(), w.at(1).get<double>()});
+    }
+    s.window_open_s = opt("window_open_s");
+    s.step_active_s = j.at("step_active_s").get<double>();
+    s.setpoint_c = j.at("setpoint_c").get<double>();
+    s.ramp_from_c = j.at("ramp_from_c").get<double>();
+    s.paused = j.at("paused").get<bool>();
+    return s;
+  } catch (const nlohmann::json::exception& e) {
+    return Error::Permanent(fmt::format("run snapshot: {}", e.what()));
+  }
 }
 
 }  // namespace gyrotherm::schedules

@@ -14,36 +14,14 @@
 
 namespace gyrotherm::storage {
 
+using internal::expect_done;
 using internal::sqlite_error;
 using internal::Stmt;
+using internal::Transaction;
 
 namespace {
 
 constexpr int kBusyTimeoutMs = 5000;
-
-// Rolls back unless commit() succeeded.
-class Transaction {
- public:
-  Transaction(sqlite3* db, const std::string& path) : db_(db), path_(path) {}
-  ~Transaction() {
-    if (open_) (void)internal::exec(db_, path_, "ROLLBACK");
-  }
-  Status begin_immediate() {
-    Status s = internal::exec(db_, path_, "BEGIN IMMEDIATE");
-    open_ = s.ok();
-    return s;
-  }
-  Status commit() {
-    Status s = internal::exec(db_, path_, "COMMIT");
-    if (s.ok()) open_ = false;
-    return s;
-  }
-
- private:
-  sqlite3* db_;
-  const std::string& path_;
-  bool open_ = false;
-};
 
 // 0 for an empty file (no tables at all). Refuses an SQLite file that has
 // tables but no meta table: it belongs to something else.
@@ -138,16 +116,11 @@ Status migrate(sqlite3* db, const std::string& path) {
   return Status::Ok();
 }
 
-Status expect_done(Stmt& st, sqlite3* db, const std::string& path, std::string_view what) {
-  if (st.step() != SQLITE_DONE) return sqlite_error(db, path, what);
-  return Status::Ok();
-}
-
 std::string now_if_empty(const std::string& utc) { return utc.empty() ? wall_time_utc_iso() : utc; }
 
 constexpr const char* kRunColumns =
     "id, schedule_name, state, started_utc, ended_utc, time_scale, latitude_deg, orientation, "
-    "config_json";
+    "config_json, queue_id, schedule_id, resume_json, checkpoint_wall_unix_s";
 
 RunRecord read_run(const Stmt& st) {
   RunRecord r;
@@ -160,6 +133,10 @@ RunRecord read_run(const Stmt& st) {
   r.latitude_deg = st.column_double(6);
   r.orientation = st.column_text(7);
   r.config_json = st.column_text(8);
+  r.queue_id = st.column_optional_int64(9);
+  r.schedule_id = st.column_optional_int64(10);
+  r.resume_json = st.column_text(11);
+  r.checkpoint_wall_unix_s = st.column_optional_double(12);
   return r;
 }
 
@@ -297,8 +274,8 @@ Result<int> Database::schema_version() { return read_schema_version(db_, path_);
 Result<int64_t> Database::create_run(const RunRecord& run) {
   auto st = Stmt::prepare(db_, path_,
                           "INSERT INTO runs(schedule_name, state, started_utc, ended_utc, "
-                          "time_scale, latitude_deg, orientation, config_json) "
-                          "VALUES(?, ?, ?, NULL, ?, ?, ?, ?)");
+                          "time_scale, latitude_deg, orientation, config_json, queue_id, "
+                          "schedule_id) VALUES(?, ?, ?, NULL, ?, ?, ?, ?, ?, ?)");
   if (!st) return st.error();
   st->bind(1, std::string_view(run.schedule_name));
   st->bind(2, std::string_view(run.state));
@@ -307,6 +284,8 @@ Result<int64_t> Database::create_run(const RunRecord& run) {
   st->bind(5, run.latitude_deg);
   st->bind(6, std::string_view(run.orientation));
   st->bind(7, std::string_view(run.config_json));
+  st->bind(8, run.queue_id);
+  st->bind(9, run.schedule_id);
   if (Status s = expect_done(*st, db_, path_, "creating a run"); !s) return s.error();
   return static_cast<int64_t>(sqlite3_last_insert_rowid(db_));
 }
@@ -369,6 +348,8 @@ Result<int64_t> Database::create_segment(const SegmentRecord& segment) {
 }
 
 Status Database::update_segment(const SegmentRecord& segment) {
+  Transaction tx(db_, path_);
+  if (Status s = tx.begin_immediate(); !s) return s;
   auto st = Stmt::prepare(db_, path_,
                           "UPDATE segments SET run_id = ?, idx = ?, kind = ?, label = ?, "
                           "setpoint_c = ?, ramp_rate_c_per_min = ?, t_start_s = ?, "
@@ -382,7 +363,23 @@ Status Database::update_segment(const SegmentRecord& segment) {
   if (sqlite3_changes(db_) == 0) {
     return Error::Permanent(fmt::format("storage: {}: {}: no such segment", path_, what));
   }
-  return Status::Ok();
+  auto del = Stmt::prepare(db_, path_, "DELETE FROM acquisition_windows WHERE segment_id = ?");
+  if (!del) return del.error();
+  del->bind(1, segment.id);
+  if (Status s = expect_done(*del, db_, path_, what); !s) return s;
+  auto ins = Stmt::prepare(db_, path_,
+                           "INSERT OR REPLACE INTO acquisition_windows(segment_id, run_id, "
+                           "t_from_s, t_to_s) VALUES(?, ?, ?, ?)");
+  if (!ins) return ins.error();
+  for (const auto& [from_s, to_s] : segment.windows) {
+    ins->reset();
+    ins->bind(1, segment.id);
+    ins->bind(2, segment.run_id);
+    ins->bind(3, from_s);
+    ins->bind(4, to_s);
+    if (Status s = expect_done(*ins, db_, path_, what); !s) return s;
+  }
+  return tx.commit();
 }
 
 Result<std::vector<SegmentRecord>> Database::segments(int64_t run_id) {
@@ -396,6 +393,20 @@ Result<std::vector<SegmentRecord>> Database::segments(int64_t run_id) {
   while ((rc = st->step()) == SQLITE_ROW) out.push_back(read_segment(*st));
   if (rc != SQLITE_DONE) {
     return sqlite_error(db_, path_, fmt::format("reading segments of run {}", run_id));
+  }
+  auto win = Stmt::prepare(db_, path_,
+                           "SELECT t_from_s, t_to_s FROM acquisition_windows WHERE segment_id = ? "
+                           "ORDER BY t_from_s");
+  if (!win) return win.error();
+  for (auto& seg : out) {
+    win->reset();
+    win->bind(1, seg.id);
+    while ((rc = win->step()) == SQLITE_ROW) {
+      seg.windows.emplace_back(win->column_double(0), win->column_double(1));
+    }
+    if (rc != SQLITE_DONE) {
+      return sqlite_error(db_, path_, fmt::format("reading windows of segment {}", seg.id));
+    }
   }
   return out;
 }

@@ -114,8 +114,28 @@ CREATE TABLE segment_stats(
 CREATE INDEX segment_stats_by_run ON segment_stats(run_id, segment_index);
 )sql";
 
+// v2: the persistent queue, crash resume and acquisition windows.
+constexpr const char* kSchemaV2 = R"sql(
+ALTER TABLE runs ADD COLUMN queue_id INTEGER;
+ALTER TABLE runs ADD COLUMN schedule_id INTEGER;
+ALTER TABLE runs ADD COLUMN resume_json TEXT;
+ALTER TABLE runs ADD COLUMN checkpoint_wall_unix_s REAL;
+ALTER TABLE queue ADD COLUMN run_id INTEGER;
+
+-- The stretches of a step that count as acquisition: pauses and
+-- suspensions are cut out, so a soak's statistics use these windows only.
+CREATE TABLE acquisition_windows(
+  segment_id INTEGER NOT NULL REFERENCES segments(id),
+  run_id INTEGER NOT NULL,      -- runs.id
+  t_from_s REAL NOT NULL,       -- station s since run start
+  t_to_s REAL NOT NULL,         -- station s since run start
+  PRIMARY KEY(segment_id, t_from_s)
+) WITHOUT ROWID;
+)sql";
+
 constexpr Migration kMigrations[] = {
     {1, "initial schema", kSchemaV1},
+    {2, "queue, crash resume, acquisition windows", kSchemaV2},
 };
 
 static_assert(sizeof(kMigrations) / sizeof(kMigrations[0]) == kSchemaVersion,

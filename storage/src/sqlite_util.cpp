@@ -129,4 +129,9 @@ Status exec(sqlite3* db, const std::string& path, std::string_view sql) {
   return Status::Ok();
 }
 
+Status expect_done(Stmt& st, sqlite3* db, const std::string& path, std::string_view what) {
+  if (st.step() != SQLITE_DONE) return sqlite_error(db, path, what);
+  return Status::Ok();
+}
+
 }  // namespace gyrotherm::storage::internal

@@ -63,4 +63,30 @@ class Stmt {
 // Runs one or more statements without results.
 Status exec(sqlite3* db, const std::string& path, std::string_view sql);
 
+// Rolls back unless commit() succeeded.
+class Transaction {
+ public:
+  Transaction(sqlite3* db, const std::string& path) : db_(db), path_(path) {}
+  ~Transaction() {
+    if (open_) (void)internal::exec(db_, path_, "ROLLBACK");
+  }
+  Status begin_immediate() {
+    Status s = internal::exec(db_, path_, "BEGIN IMMEDIATE");
+    open_ = s.ok();
+    return s;
+  }
+  Status commit() {
+    Status s = internal::exec(db_, path_, "COMMIT");
+    if (s.ok()) open_ = false;
+    return s;
+  }
+
+ private:
+  sqlite3* db_;
+  const std::string& path_;
+  bool open_ = false;
+};
+
+Status expect_done(Stmt& st, sqlite3* db, const std::string& path, std::string_view what);
+
 }  // namespace gyrotherm::storage::internal

@@ -1,5 +1,6 @@
 #include "gyrotherm/daemon/api.h"
 
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include <nlohmann/json.hpp>
@@ -17,17 +18,79 @@ HttpRequest get(std::string target, http::verb verb = http::verb::get) {
   return req;
 }
 
-ApiContext fake_context() {
+constexpr const char* kToken = "test-token-0123456789abcdef";
+
+// Records what the API asked for and answers per the contract.
+class FakeControl : public StationControl {
+ public:
+  std::vector<std::string> calls;
+  Reply queue_list() override {
+    calls.push_back("queue_list");
+    return Reply::ok({{"held", false}, {"entries", nlohmann::json::array()}});
+  }
+  Reply queue_add(const std::string& toml, const std::string& source, bool ignore) override {
+    calls.push_back(fmt::format("queue_add {} {} {}", toml, source, ignore));
+    if (toml == "bad") {
+      return Reply::refused(Refusal::Kind::kInvalid, "schedule refused, nothing queued",
+                            {"s.toml:3: step.setpoint_c: 70 °C is above 60 °C"});
+    }
+    return Reply::ok({{"id", 1}});
+  }
+  Reply queue_remove(int64_t id) override {
+    calls.push_back(fmt::format("queue_remove {}", id));
+    if (id == 9) return Reply::refused(Refusal::Kind::kConflict, "entry 9 is running");
+    if (id == 8) return Reply::refused(Refusal::Kind::kNotFound, "no queued entry 8");
+    return Reply::ok({{"removed", id}});
+  }
+  Reply queue_move(int64_t id, int position) override {
+    calls.push_back(fmt::format("queue_move {} {}", id, position));
+    return Reply::ok({{"held", false}});
+  }
+  Reply control(std::string_view action, const std::string& reason) override {
+    calls.push_back(fmt::format("control {} {}", action, reason));
+    if (action == "pause") return Reply::refused(Refusal::Kind::kConflict, "no run to pause");
+    return Reply::ok({{"ok", true}});
+  }
+  Reply runs() override {
+    calls.push_back("runs");
+    return Reply::ok(nlohmann::json::array());
+  }
+  Reply run(int64_t id) override {
+    calls.push_back(fmt::format("run {}", id));
+    return Reply::ok({{"id", id}});
+  }
+  Reply run_events(int64_t id) override {
+    calls.push_back(fmt::format("events {}", id));
+    return Reply::ok(nlohmann::json::array());
+  }
+  Reply run_stats(int64_t id) override {
+    calls.push_back(fmt::format("stats {}", id));
+    return Reply::ok(nlohmann::json::array());
+  }
+};
+
+ApiContext fake_context(StationControl* control = nullptr) {
   return ApiContext{[] {
-    StatusSnapshot s;
-    s.station_name = "test";
-    s.state = "acquiring";
-    s.run_id = 7;
-    s.chamber_c = 20.25;
-    s.gyro_rate_dph = 7.95;
-    s.gyro.parser.crc_failures = 3;
-    return s;
-  }};
+                      StatusSnapshot s;
+                      s.station_name = "test";
+                      s.state = "acquiring";
+                      s.run_id = 7;
+                      s.chamber_c = 20.25;
+                      s.gyro_rate_dph = 7.95;
+                      s.gyro.parser.crc_failures = 3;
+                      return s;
+                    },
+                    control,
+                    {kToken}};
+}
+
+HttpRequest request(http::verb verb, std::string target, std::string body = "",
+                    std::string authorization = std::string("Bearer ") + kToken) {
+  HttpRequest req{verb, target, 11};
+  if (!authorization.empty()) req.set(http::field::authorization, authorization);
+  req.body() = std::move(body);
+  req.prepare_payload();
+  return req;
 }
 
 TEST(Api, StatusIsJsonWithStateTemperaturesAndHealth) {
@@ -95,6 +158,127 @@ TEST(HttpServer, RefusesAnAddressInUse) {
   });
   ASSERT_FALSE(second.ok());
   EXPECT_NE(second.error().message.find("cannot listen on 127.0.0.1:"), std::string::npos);
+}
+
+TEST(Api, MutationsNeedAValidBearerToken) {
+  FakeControl control;
+  const ApiContext ctx = fake_context(&control);
+  const std::vector<std::pair<http::verb, std::string>> mutations = {
+      {http::verb::post, "/api/v1/queue"},          {http::verb::delete_, "/api/v1/queue/3"},
+      {http::verb::post, "/api/v1/queue/3/move"},   {http::verb::post, "/api/v1/control/pause"},
+      {http::verb::post, "/api/v1/control/resume"}, {http::verb::post, "/api/v1/control/abort"},
+      {http::verb::post, "/api/v1/control/stop"}};
+  for (const auto& [verb, target] : mutations) {
+    for (const std::string& auth : {std::string(""), std::string("Bearer wrong-token-0123456789ab"),
+                                    std::string("Basic ") + kToken, std::string("Bearer ")}) {
+      const auto res = handle_api_request(request(verb, target, "{}", auth), ctx);
+      EXPECT_EQ(res.result(), http::status::unauthorized) << target << " with '" << auth << "'";
+      EXPECT_EQ(res[http::field::www_authenticate], "Bearer");
+      EXPECT_EQ(res.body().find(kToken), std::string::npos) << "tokens are never echoed";
+    }
+  }
+  EXPECT_TRUE(control.calls.empty()) << "nothing reached the station without a token";
+  // Reads are open.
+  EXPECT_EQ(handle_api_request(request(http::verb::get, "/api/v1/queue", "", ""), ctx).result(),
+            http::status::ok);
+  // No token configured: every mutation is refused.
+  ApiContext no_tokens = ctx;
+  no_tokens.tokens.clear();
+  EXPECT_EQ(
+      handle_api_request(request(http::verb::post, "/api/v1/control/stop"), no_tokens).result(),
+      http::status::forbidden);
+}
+
+TEST(Api, TokenComparison) {
+  const std::vector<std::string> tokens = {"first-token-0123456789", "second-token-abcdefghij"};
+  EXPECT_TRUE(token_matches("first-token-0123456789", tokens));
+  EXPECT_TRUE(token_matches("second-token-abcdefghij", tokens));
+  EXPECT_FALSE(token_matches("first-token-012345678", tokens)) << "a prefix";
+  EXPECT_FALSE(token_matches("first-token-01234567890", tokens)) << "longer";
+  EXPECT_FALSE(token_matches("First-token-0123456789", tokens));
+  EXPECT_FALSE(token_matches("", tokens));
+  EXPECT_FALSE(token_matches("x", {}));
+}
+
+TEST(Api, RoutesReachTheStationWithTheirArguments) {
+  FakeControl control;
+  const ApiContext ctx = fake_context(&control);
+  auto call = [&](http::verb v, const char* target, const char* body = "") {
+    return handle_api_request(request(v, target, body), ctx);
+  };
+  EXPECT_EQ(call(http::verb::post, "/api/v1/queue",
+                 R"({"schedule_toml":"x","source":"a.toml","ignore_failures":true})")
+                .result(),
+            http::status::created);
+  EXPECT_EQ(call(http::verb::delete_, "/api/v1/queue/3").result(), http::status::ok);
+  EXPECT_EQ(call(http::verb::post, "/api/v1/queue/3/move", R"({"position":0})").result(),
+            http::status::ok);
+  EXPECT_EQ(call(http::verb::post, "/api/v1/control/abort", R"({"reason":"leak"})").result(),
+            http::status::ok);
+  EXPECT_EQ(call(http::verb::post, "/api/v1/control/stop").result(), http::status::ok);
+  EXPECT_EQ(call(http::verb::get, "/api/v1/runs").result(), http::status::ok);
+  EXPECT_EQ(call(http::verb::get, "/api/v1/runs/12").result(), http::status::ok);
+  EXPECT_EQ(call(http::verb::get, "/api/v1/runs/12/events").result(), http::status::ok);
+  EXPECT_EQ(call(http::verb::get, "/api/v1/runs/12/stats").result(), http::status::ok);
+  EXPECT_EQ(control.calls,
+            (std::vector<std::string>{"queue_add x a.toml true", "queue_remove 3", "queue_move 3 0",
+                                      "control abort leak", "control stop ", "runs", "run 12",
+                                      "events 12", "stats 12"}));
+}
+
+TEST(Api, RefusalsMapToStatusesWithTheirMessages) {
+  FakeControl control;
+  const ApiContext ctx = fake_context(&control);
+  auto res = handle_api_request(
+      request(http::verb::post, "/api/v1/queue", R"({"schedule_toml":"bad"})"), ctx);
+  EXPECT_EQ(res.result(), http::status::unprocessable_entity);
+  auto j = nlohmann::json::parse(res.body());
+  EXPECT_EQ(j["error"], "schedule refused, nothing queued");
+  ASSERT_EQ(j["errors"].size(), 1u);
+  EXPECT_EQ(j["errors"][0], "s.toml:3: step.setpoint_c: 70 °C is above 60 °C");
+  EXPECT_EQ(handle_api_request(request(http::verb::delete_, "/api/v1/queue/9"), ctx).result(),
+            http::status::conflict);
+  EXPECT_EQ(handle_api_request(request(http::verb::delete_, "/api/v1/queue/8"), ctx).result(),
+            http::status::not_found);
+  EXPECT_EQ(handle_api_request(request(http::verb::post, "/api/v1/control/pause"), ctx).result(),
+            http::status::conflict);
+}
+
+TEST(Api, BadBodiesAre400NamingTheProblem) {
+  FakeControl control;
+  const ApiContext ctx = fake_context(&control);
+  struct Case {
+    const char* target;
+    const char* body;
+    const char* message;
+  };
+  for (const Case& c : {
+           Case{"/api/v1/queue", "{not json", "body is not JSON"},
+           Case{"/api/v1/queue", "[1,2]", "body must be a JSON object"},
+           Case{"/api/v1/queue", R"({"schedule":"x"})", "unknown field 'schedule'"},
+           Case{"/api/v1/queue", R"({"schedule_toml":5})",
+                "field 'schedule_toml' must be a string"},
+           Case{"/api/v1/queue", R"({"source":"a"})", "field 'schedule_toml' is required"},
+           Case{"/api/v1/queue", R"({"schedule_toml":"x","ignore_failures":"yes"})",
+                "field 'ignore_failures' must be true or false"},
+           Case{"/api/v1/queue/3/move", R"({"position":"first"})",
+                "field 'position' must be an integer"},
+           Case{"/api/v1/queue/3/move", R"({"position":-1})", "must be >= 0"},
+           Case{"/api/v1/queue/3/move", "{}", "field 'position' is required"},
+           Case{"/api/v1/control/pause", R"({"why":"x"})",
+                "unknown field 'why' (expected: reason)"},
+       }) {
+    const auto res = handle_api_request(request(http::verb::post, c.target, c.body), ctx);
+    EXPECT_EQ(res.result(), http::status::bad_request) << c.target << " " << c.body;
+    EXPECT_NE(res.body().find(c.message), std::string::npos) << res.body();
+  }
+  EXPECT_TRUE(control.calls.empty());
+  EXPECT_EQ(handle_api_request(request(http::verb::delete_, "/api/v1/queue/abc"), ctx).result(),
+            http::status::not_found);
+  EXPECT_EQ(handle_api_request(request(http::verb::get, "/api/v1/control/pause"), ctx).result(),
+            http::status::method_not_allowed);
+  EXPECT_EQ(handle_api_request(request(http::verb::post, "/api/v1/control/explode"), ctx).result(),
+            http::status::not_found);
 }
 
 }  // namespace

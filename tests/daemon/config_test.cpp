@@ -146,13 +146,14 @@ TEST(SimEndpoints, RoundTripThroughAFile) {
   const auto dir =
       std::filesystem::temp_directory_path() / ("gyrotherm-ep-" + std::to_string(::getpid()));
   const std::string path = (dir / "ep.toml").string();
-  SimEndpoints ep{"127.0.0.1", 40123, "/dev/pts/7", 4242};
+  SimEndpoints ep{"127.0.0.1", 40123, "/dev/pts/7", 4242, "/tmp/sim.sock"};
   ASSERT_TRUE(write_sim_endpoints(path, ep).ok());
   auto back = read_sim_endpoints(path);
   ASSERT_TRUE(back.ok()) << back.error().message;
   EXPECT_EQ(back->modbus_port, 40123);
   EXPECT_EQ(back->gyro_device, "/dev/pts/7");
   EXPECT_EQ(back->pid, 4242);
+  EXPECT_EQ(back->control_socket, "/tmp/sim.sock");
   auto cfg = parse_station_config(kMinimal, "min.toml");
   ASSERT_TRUE(cfg.ok());
   apply_sim_endpoints(*cfg, *back);

@@ -369,8 +369,8 @@ TEST_F(StationTest, BadConfigFailsFastWithFileLineKey) {
 
 TEST_F(StationTest, UnreachableDevicesDoNotKillTheDaemon) {
   // No simulator: endpoints point at a closed port and a missing pty.
-  daemon::SimEndpoints ep{"127.0.0.1", testing::free_tcp_port(), (dir_ / "no-such-pty").string(),
-                          0};
+  daemon::SimEndpoints ep{"127.0.0.1", testing::free_tcp_port(), (dir_ / "no-such-pty").string(), 0,
+                          ""};
   ASSERT_TRUE(daemon::write_sim_endpoints((dir_ / "endpoints.toml").string(), ep).ok());
   start_daemon();
   std::optional<nlohmann::json> s;
@@ -386,7 +386,16 @@ TEST_F(StationTest, UnreachableDevicesDoNotKillTheDaemon) {
       << daemon_->log();
   EXPECT_FALSE((*s)["devices"]["chamber"]["connected"].get<bool>());
   EXPECT_THAT((*s)["devices"]["chamber"]["last_error"].get<std::string>(), HasSubstr("chamber"));
-  EXPECT_EQ((*s)["state"], "settling") << "the run waits; it does not acquire without readings";
+  ASSERT_TRUE(wait_until(
+      [&] {
+        s = status();
+        return s && (*s)["state"] == "suspended" && (*s)["interlocks"].size() >= 2;
+      },
+      std::chrono::seconds(30)))
+      << "the run is held by the silent-device interlocks: " << (s ? s->dump() : "")
+      << daemon_->log();
+  EXPECT_THAT((*s)["interlocks"].dump(), HasSubstr("chamber_silent"));
+  EXPECT_THAT((*s)["interlocks"].dump(), HasSubstr("probes_silent"));
   EXPECT_TRUE(daemon_->running());
   daemon_->signal(SIGTERM);
   EXPECT_EQ(daemon_->wait(std::chrono::seconds(20)), std::optional<int>(0)) << daemon_->log();

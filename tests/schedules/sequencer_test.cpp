@@ -6,6 +6,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <nlohmann/json.hpp>
 #include <vector>
 
 namespace gyrotherm::schedules {
@@ -34,8 +35,12 @@ class RecordingObserver : public SequencerObserver {
   void on_step_started(std::size_t index, const PlanStep&, double) override {
     started.push_back(index);
   }
-  void on_acquisition_started(std::size_t index, const StepTimes& times) override {
-    acquisitions.push_back({index, times, true});
+  void on_step_changed(std::size_t index, const PlanStep&, const StepTimes& times) override {
+    changes.push_back({index, times, true});
+  }
+  void on_interlock(InterlockKind kind, bool tripped, double t_s,
+                    const std::string& message) override {
+    interlocks.push_back({kind, tripped, t_s, message});
   }
   void on_step_finished(std::size_t index, const PlanStep&, const StepTimes& times,
                         bool completed) override {
@@ -49,7 +54,14 @@ class RecordingObserver : public SequencerObserver {
 
   std::vector<Transition> transitions;
   std::vector<std::size_t> started;
-  std::vector<FinishedStep> acquisitions;
+  struct Interlock {
+    InterlockKind kind;
+    bool tripped;
+    double t_s;
+    std::string message;
+  };
+  std::vector<FinishedStep> changes;
+  std::vector<Interlock> interlocks;
   std::vector<FinishedStep> finished;
 };
 
@@ -104,7 +116,7 @@ PlanStep ramp(double target, double rate) {
 
 TEST(Sequencer, DemoScheduleRunsThroughItsStates) {
   RecordingObserver obs;
-  Sequencer seq(make_plan({soak(20, 20), ramp(40, 1.0), soak(40, 20)}), {23.0}, obs);
+  Sequencer seq(make_plan({soak(20, 20), ramp(40, 1.0), soak(40, 20)}), {}, obs);
   FakePlant plant;
   seq.start(0.0, 23.0);
   run(seq, plant, 12 * 3600.0);
@@ -129,7 +141,7 @@ TEST(Sequencer, DemoScheduleRunsThroughItsStates) {
 
 TEST(Sequencer, AcquisitionStartsOnlyWhenShellIsStable) {
   RecordingObserver obs;
-  Sequencer seq(make_plan({soak(40, 10)}), {23.0}, obs);
+  Sequencer seq(make_plan({soak(40, 10)}), {}, obs);
   FakePlant plant;
   seq.start(0.0, 23.0);
   double t = 0;
@@ -145,26 +157,51 @@ TEST(Sequencer, AcquisitionStartsOnlyWhenShellIsStable) {
   EXPECT_NEAR(plant.shell_c, 40.0, 0.5);
 }
 
-TEST(Sequencer, SettleTimeoutFailsToSafeSetpoint) {
+TEST(Sequencer, SettleTimeoutSuspendsThenAbortsAfterItsGrace) {
   RecordingObserver obs;
   PlanStep s = soak(40, 10);
   s.settle_timeout_s = 1800;  // far too short for a 900 s case lag
-  Sequencer seq(make_plan({s, soak(20, 10)}), {23.0}, obs);
+  SequencerOptions opt;
+  opt.interlocks.grace_s[static_cast<int>(InterlockKind::kSettleTimeout)] = 600;
+  Sequencer seq(make_plan({s, soak(20, 10)}), opt, obs);
   FakePlant plant;
   seq.start(0.0, 23.0);
   run(seq, plant, 4 * 3600.0);
-  EXPECT_EQ(seq.state(), RunState::kFailed);
+  EXPECT_EQ(seq.state(), RunState::kAborting) << "aborting until the safe set point is written";
   EXPECT_DOUBLE_EQ(seq.setpoint_c(), 23.0);
-  ASSERT_FALSE(obs.transitions.empty());
-  EXPECT_THAT(obs.transitions.back().reason, HasSubstr("not stable within 30 min"));
+  seq.safe_state_reached(2500.0);
+  EXPECT_EQ(seq.state(), RunState::kFailed);
+  EXPECT_THAT(obs.states(), ElementsAre(RunState::kSettling, RunState::kSuspended,
+                                        RunState::kAborting, RunState::kFailed));
+  // Suspended when the settle timeout passed, aborted 10 min later.
+  EXPECT_NEAR(obs.transitions[1].t_s, 1801.0, 1.0);
+  EXPECT_THAT(obs.transitions[1].reason, HasSubstr("not stable at 40 ± 0.5 °C within 30 min"));
+  EXPECT_NEAR(obs.transitions[2].t_s, 2401.0, 1.0);
+  EXPECT_THAT(obs.transitions[2].reason, HasSubstr("settle_timeout still tripped after 10 min"));
   ASSERT_EQ(obs.finished.size(), 1u);
   EXPECT_FALSE(obs.finished[0].completed);
   EXPECT_THAT(obs.started, ElementsAre(0u)) << "the second step never starts";
 }
 
+TEST(Sequencer, SettleTimeoutClearsWhenTheGateHoldsWithinTheGrace) {
+  RecordingObserver obs;
+  PlanStep s = soak(40, 10);
+  s.settle_timeout_s = 1800;
+  Sequencer seq(make_plan({s}), {}, obs);  // default grace 60 min
+  FakePlant plant;
+  seq.start(0.0, 23.0);
+  run(seq, plant, 12 * 3600.0);
+  EXPECT_EQ(seq.state(), RunState::kCompleted);
+  EXPECT_THAT(obs.states(), ElementsAre(RunState::kSettling, RunState::kSuspended,
+                                        RunState::kAcquiring, RunState::kCompleted));
+  ASSERT_EQ(obs.interlocks.size(), 2u);
+  EXPECT_TRUE(obs.interlocks[0].tripped);
+  EXPECT_FALSE(obs.interlocks[1].tripped);
+}
+
 TEST(Sequencer, RampMovesTheSetpointLinearlyFromWhereItWas) {
   RecordingObserver obs;
-  Sequencer seq(make_plan({ramp(30, 0.5)}), {23.0}, obs);
+  Sequencer seq(make_plan({ramp(30, 0.5)}), {}, obs);
   seq.start(0.0, 20.0);
   seq.tick(600.0, {});
   EXPECT_DOUBLE_EQ(seq.setpoint_c(), 25.0);  // 20 + 0.5 °C/min x 10 min
@@ -176,7 +213,7 @@ TEST(Sequencer, RampMovesTheSetpointLinearlyFromWhereItWas) {
 
 TEST(Sequencer, DownwardRamp) {
   RecordingObserver obs;
-  Sequencer seq(make_plan({ramp(-20, 2.0)}), {23.0}, obs);
+  Sequencer seq(make_plan({ramp(-20, 2.0)}), {}, obs);
   seq.start(0.0, 20.0);
   seq.tick(300.0, {});
   EXPECT_DOUBLE_EQ(seq.setpoint_c(), 10.0);
@@ -184,10 +221,14 @@ TEST(Sequencer, DownwardRamp) {
 
 TEST(Sequencer, AbortClosesTheStepAndGoesSafe) {
   RecordingObserver obs;
-  Sequencer seq(make_plan({soak(50, 60)}), {23.0}, obs);
+  Sequencer seq(make_plan({soak(50, 60)}), {}, obs);
   seq.start(0.0, 23.0);
   seq.tick(10.0, {});
   seq.abort(11.0, "operator abort");
+  EXPECT_EQ(seq.state(), RunState::kAborting);
+  seq.tick(12.0, {});
+  EXPECT_EQ(seq.state(), RunState::kAborting) << "ticks do not end an abort";
+  seq.safe_state_reached(13.0);
   EXPECT_EQ(seq.state(), RunState::kFailed);
   EXPECT_DOUBLE_EQ(seq.setpoint_c(), 23.0);
   EXPECT_THAT(obs.states(),
@@ -198,17 +239,18 @@ TEST(Sequencer, AbortClosesTheStepAndGoesSafe) {
 
 TEST(Sequencer, InterruptMarksTheRun) {
   RecordingObserver obs;
-  Sequencer seq(make_plan({soak(50, 60)}), {23.0}, obs);
+  Sequencer seq(make_plan({soak(50, 60)}), {}, obs);
   seq.start(0.0, 23.0);
   seq.interrupt(5.0, "daemon stopped: SIGTERM");
   EXPECT_EQ(seq.state(), RunState::kInterrupted);
   EXPECT_TRUE(seq.finished());
   EXPECT_EQ(obs.transitions.back().reason, "daemon stopped: SIGTERM");
+  EXPECT_TRUE(obs.finished.empty()) << "the step stays open for a resume";
 }
 
 TEST(Sequencer, MissingProbeReadingsNeverOpenTheGate) {
   RecordingObserver obs;
-  Sequencer seq(make_plan({soak(23, 10)}), {23.0}, obs);
+  Sequencer seq(make_plan({soak(23, 10)}), {}, obs);
   seq.start(0.0, 23.0);
   for (int t = 1; t < 3600; ++t) seq.tick(t, Readings{23.0, std::nullopt, std::nullopt});
   EXPECT_EQ(seq.state(), RunState::kSettling);
@@ -222,7 +264,7 @@ TEST(Sequencer, PaperTable1CampaignInVirtualTime) {
                     {-20.0, 60.0, 2.0});
   ASSERT_TRUE(plan.ok()) << plan.error().message;
   RecordingObserver obs;
-  Sequencer seq(std::move(*plan), {23.0}, obs);
+  Sequencer seq(std::move(*plan), {}, obs);
   FakePlant plant;
   const auto wall0 = std::chrono::steady_clock::now();
   seq.start(0.0, 23.0);
@@ -239,6 +281,295 @@ TEST(Sequencer, PaperTable1CampaignInVirtualTime) {
   EXPECT_DOUBLE_EQ(acquired_s, 4 * 60.0 * (103 + 143 + 136 + 68 + 141 + 153 + 135 + 133));
   EXPECT_GT(t_end, acquired_s);
   EXPECT_LT(wall_s, 1.0) << "station time " << t_end << " s";
+}
+
+// ------------------------------------------------------------- holds and interlocks
+
+// Readings of a chamber sitting exactly at `c`.
+Readings at(double c) { return Readings{c, c + 0.05, c - 0.05}; }
+
+PlanStep quick_soak(double sp, double acquire_s) {
+  PlanStep s = soak(sp, 0);
+  s.acquire_s = acquire_s;
+  s.stability_window_s = 60;
+  return s;
+}
+
+// Ticks once a second from t0 to t1 (inclusive) with constant readings.
+void tick_range(Sequencer& seq, double t0, double t1, const Readings& r) {
+  for (double t = t0; t <= t1 && !seq.finished(); t += 1.0) seq.tick(t, r);
+}
+
+// A sequencer whose soak at 30 °C is acquiring from t = 60 s.
+struct AcquiringSoak {
+  RecordingObserver obs;
+  Sequencer seq;
+  explicit AcquiringSoak(SequencerOptions opt = {}, double acquire_s = 600)
+      : seq(make_plan({quick_soak(30, acquire_s)}), opt, obs) {
+    seq.start(0.0, 30.0);
+    tick_range(seq, 1, 60, at(30));
+  }
+};
+
+TEST(Sequencer, PauseStopsTheAcquisitionClockAndExcludesPausedTime) {
+  AcquiringSoak f;
+  ASSERT_EQ(f.seq.state(), RunState::kAcquiring);
+  const double start = *f.seq.step_times().acquire_start_s;
+  tick_range(f.seq, 61, 200, at(30));
+  ASSERT_TRUE(f.seq.pause(200.5, "operator").ok());
+  EXPECT_EQ(f.seq.state(), RunState::kPaused);
+  EXPECT_FALSE(f.seq.pause(201, "again").ok()) << "already paused";
+  tick_range(f.seq, 201, 500, at(30));
+  EXPECT_EQ(f.seq.state(), RunState::kPaused) << "a pause never ends by itself";
+  EXPECT_DOUBLE_EQ(f.seq.setpoint_c(), 30.0);
+  ASSERT_TRUE(f.seq.resume(500.5, "operator").ok());
+  EXPECT_FALSE(f.seq.resume(500.6, "again").ok());
+  tick_range(f.seq, 501, 2000, at(30));
+  ASSERT_EQ(f.seq.state(), RunState::kCompleted);
+  ASSERT_EQ(f.obs.finished.size(), 1u);
+  const StepTimes& t = f.obs.finished[0].times;
+  ASSERT_EQ(t.windows.size(), 2u);
+  EXPECT_DOUBLE_EQ(t.windows[0].from_s, start);
+  EXPECT_DOUBLE_EQ(t.windows[0].to_s, 200.5);
+  EXPECT_DOUBLE_EQ(t.windows[1].from_s, 501.0);
+  EXPECT_DOUBLE_EQ(t.acquired_s(), 600.0)
+      << "the acquisition time is the schedule's, pause excluded";
+  EXPECT_DOUBLE_EQ(t.windows[1].to_s, 501.0 + 600.0 - (200.5 - start));
+  EXPECT_NEAR(t.held_s, 300.0, 1.0);
+  EXPECT_THAT(f.obs.states(),
+              ElementsAre(RunState::kSettling, RunState::kAcquiring, RunState::kPaused,
+                          RunState::kAcquiring, RunState::kCompleted));
+}
+
+TEST(Sequencer, PauseDuringSettlingStopsTheSettleTimeout) {
+  RecordingObserver obs;
+  PlanStep s = quick_soak(30, 60);
+  s.settle_timeout_s = 100;
+  Sequencer seq(make_plan({s}), {}, obs);
+  seq.start(0, 23);
+  tick_range(seq, 1, 50, at(23));  // far from 30 °C: never stable
+  ASSERT_TRUE(seq.pause(50.5, "lunch").ok());
+  tick_range(seq, 51, 1000, at(23));
+  EXPECT_EQ(seq.state(), RunState::kPaused) << "paused time does not count toward the timeout";
+  ASSERT_TRUE(seq.resume(1000.5, "back").ok());
+  tick_range(seq, 1001, 1040, at(23));
+  EXPECT_EQ(seq.state(), RunState::kSettling);
+  tick_range(seq, 1041, 1060, at(23));
+  EXPECT_EQ(seq.state(), RunState::kSuspended) << "100 s of unpaused settling passed";
+}
+
+TEST(Sequencer, PausedRampHoldsItsSetPoint) {
+  RecordingObserver obs;
+  Sequencer seq(make_plan({ramp(30, 1.0)}), {}, obs);
+  seq.start(0, 20);
+  tick_range(seq, 1, 60, {});
+  EXPECT_NEAR(seq.setpoint_c(), 21.0, 1e-9);
+  ASSERT_TRUE(seq.pause(60, "x").ok());
+  tick_range(seq, 61, 600, {});
+  EXPECT_NEAR(seq.setpoint_c(), 21.0, 1e-9);
+  ASSERT_TRUE(seq.resume(600, "x").ok());
+  tick_range(seq, 601, 660, {});
+  // Holds are accounted per tick: the first tick after the resume ends the hold.
+  EXPECT_NEAR(seq.setpoint_c(), 21.0 + 59.0 / 60.0, 1e-9);
+  tick_range(seq, 661, 2000, {});
+  ASSERT_EQ(obs.finished.size(), 1u);
+  EXPECT_NEAR(obs.finished[0].times.acquired_s(), 600.0, 1.0) << "10 °C at 1 °C/min";
+  EXPECT_EQ(obs.finished[0].times.windows.size(), 2u);
+}
+
+// One row per interlock: the readings that trip it during an acquiring soak
+// at 30 °C, and what the technician reads.
+struct InterlockCase {
+  InterlockKind kind;
+  Readings bad;
+  const char* message;
+};
+
+class InterlockTrips : public ::testing::TestWithParam<InterlockCase> {};
+
+TEST_P(InterlockTrips, SuspendsThenResumesWhenCleared) {
+  const InterlockCase& c = GetParam();
+  AcquiringSoak f;
+  ASSERT_EQ(f.seq.state(), RunState::kAcquiring);
+  tick_range(f.seq, 61, 100, at(30));
+  f.seq.tick(101, c.bad);
+  EXPECT_EQ(f.seq.state(), RunState::kSuspended);
+  ASSERT_EQ(f.seq.tripped().size(), 1u);
+  EXPECT_EQ(f.seq.tripped()[0].kind, c.kind);
+  ASSERT_FALSE(f.obs.interlocks.empty());
+  EXPECT_TRUE(f.obs.interlocks.back().tripped);
+  EXPECT_THAT(f.obs.interlocks.back().message, HasSubstr(c.message));
+  EXPECT_THAT(f.obs.transitions.back().reason, HasSubstr(std::string(to_string(c.kind))));
+  for (double t = 102; t <= 200; ++t) f.seq.tick(t, c.bad);
+  EXPECT_EQ(f.seq.state(), RunState::kSuspended);
+  EXPECT_DOUBLE_EQ(f.seq.setpoint_c(), 30.0) << "suspended holds the set point";
+  tick_range(f.seq, 201, 2000, at(30));
+  EXPECT_EQ(f.seq.state(), RunState::kCompleted);
+  EXPECT_FALSE(f.obs.interlocks.back().tripped);
+  const StepTimes& t = f.obs.finished.at(0).times;
+  ASSERT_EQ(t.windows.size(), 2u) << "the suspension is cut out of the window";
+  EXPECT_DOUBLE_EQ(t.windows[0].to_s, 101);
+  EXPECT_DOUBLE_EQ(t.windows[1].from_s, 201);
+  EXPECT_DOUBLE_EQ(t.acquired_s(), 600);
+}
+
+Readings with(Readings r, void (*edit)(Readings&)) {
+  edit(r);
+  return r;
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    EachKind, InterlockTrips,
+    ::testing::Values(InterlockCase{InterlockKind::kProbeDisagreement, Readings{30.0, 31.5, 28.5},
+                                    "probes disagree by 3.00 °C (limit 2 °C)"},
+                      InterlockCase{InterlockKind::kChamberSilent,
+                                    with(at(30), [](Readings& r) { r.chamber_silent_s = 11; }),
+                                    "chamber controller silent for 11 s (timeout 10 s)"},
+                      InterlockCase{InterlockKind::kProbesSilent,
+                                    with(at(30), [](Readings& r) { r.probes_silent_s = 12; }),
+                                    "probe module silent for 12 s"},
+                      InterlockCase{InterlockKind::kGyroLost,
+                                    with(at(30), [](Readings& r) { r.gyro_silent_s = 6; }),
+                                    "gyro stream silent for 6 s (timeout 5 s)"},
+                      InterlockCase{InterlockKind::kChamberAlarm,
+                                    with(at(30), [](Readings& r) { r.chamber_alarm = true; }),
+                                    "reports an alarm"}),
+    [](const auto& info) { return std::string(to_string(info.param.kind)); });
+
+TEST(Sequencer, OutOfLimitsAbortsAfterItsGraceAndASoakDisturbedStartsOver) {
+  // Cleared in time: the air went out of tolerance, so the soak settles again.
+  {
+    AcquiringSoak f;
+    tick_range(f.seq, 61, 100, at(30));
+    tick_range(f.seq, 101, 120, Readings{63.0, 30.0, 30.0});
+    EXPECT_EQ(f.seq.state(), RunState::kSuspended);
+    EXPECT_THAT(f.obs.interlocks.at(0).message,
+                HasSubstr("chamber air 63.00 °C outside the station limits -20 … 60 °C"));
+    f.seq.tick(121, Readings{35.0, 30.5, 30.4});
+    EXPECT_EQ(f.seq.state(), RunState::kSettling);
+    EXPECT_THAT(f.obs.transitions.back().reason, HasSubstr("restarts its acquisition"));
+    EXPECT_TRUE(f.seq.step_times().windows.empty());
+    tick_range(f.seq, 122, 2000, at(30));
+    ASSERT_EQ(f.seq.state(), RunState::kCompleted);
+    EXPECT_GE(f.obs.finished.at(0).times.windows.at(0).from_s, 180.0);
+  }
+  // Not cleared: abort after the grace (300 s by default).
+  {
+    AcquiringSoak f;
+    tick_range(f.seq, 61, 700, Readings{63.0, 30.0, 30.0});
+    EXPECT_EQ(f.seq.state(), RunState::kAborting);
+    EXPECT_NEAR(f.obs.transitions.back().t_s, 361, 1e-9);
+    EXPECT_THAT(f.obs.transitions.back().reason,
+                HasSubstr("out_of_limits still tripped after 5 min"));
+    EXPECT_DOUBLE_EQ(f.seq.setpoint_c(), 23.0);
+  }
+}
+
+TEST(Interlocks, ConditionsAndHysteresis) {
+  InterlockOptions o;
+  bool none[kInterlockKindCount] = {};
+  bool all[kInterlockKindCount];
+  std::fill(std::begin(all), std::end(all), true);
+  EXPECT_TRUE(evaluate_interlocks(at(30), o, none).empty());
+  EXPECT_TRUE(evaluate_interlocks(Readings{}, o, none).empty()) << "no reading, no verdict";
+  // Limits: -20 … 60 °C with a 2 °C margin.
+  EXPECT_TRUE(evaluate_interlocks(Readings{61.9, 30.0, 30.0}, o, none).empty());
+  EXPECT_EQ(evaluate_interlocks(Readings{62.1, 30.0, 30.0}, o, none).size(), 1u);
+  EXPECT_EQ(evaluate_interlocks(Readings{30.0, -22.5, -22.0}, o, none).size(), 1u);
+  // Once tripped, 61.9 °C is not yet clear (0.2 °C hysteresis); 61.7 is.
+  EXPECT_EQ(evaluate_interlocks(Readings{61.9, 30.0, 30.0}, o, all).size(), 1u);
+  EXPECT_TRUE(evaluate_interlocks(Readings{61.7, 30.0, 30.0}, o, all).empty());
+  // Probes: 2 °C limit.
+  EXPECT_TRUE(evaluate_interlocks(Readings{30.0, 31.0, 29.1}, o, none).empty());
+  EXPECT_EQ(evaluate_interlocks(Readings{30.0, 31.0, 28.9}, o, none).at(0).kind,
+            InterlockKind::kProbeDisagreement);
+  EXPECT_EQ(evaluate_interlocks(Readings{30.0, 31.0, 29.1}, o, all).size(), 1u);
+  // NaN from a device is out of limits, never silently fine.
+  EXPECT_EQ(evaluate_interlocks(Readings{std::nan(""), 30.0, 30.0}, o, none).size(), 1u);
+}
+
+// ------------------------------------------------------------- restore (crash resume)
+
+TEST(Sequencer, SnapshotSurvivesJson) {
+  AcquiringSoak f;
+  tick_range(f.seq, 61, 120, at(30));
+  ASSERT_TRUE(f.seq.pause(120.5, "x").ok());
+  const SequencerSnapshot s = f.seq.snapshot(130);
+  auto back = snapshot_from_json(nlohmann::json::parse(to_json(s).dump()));
+  ASSERT_TRUE(back.ok()) << back.error().message;
+  EXPECT_EQ(to_json(*back), to_json(s));
+  EXPECT_TRUE(back->paused);
+  EXPECT_EQ(back->times.windows.size(), 1u);
+  EXPECT_FALSE(snapshot_from_json(nlohmann::json{{"t_s", 1}}).ok());
+}
+
+TEST(Sequencer, RestoredSoakKeepsItsAcquisitionWhenStillInTolerance) {
+  AcquiringSoak f;
+  tick_range(f.seq, 61, 300, at(30));  // 240 s acquired
+  const SequencerSnapshot s = f.seq.snapshot(300);
+  RecordingObserver obs;
+  Sequencer seq(make_plan({quick_soak(30, 600)}), {}, obs);
+  seq.restore(s, 400, "daemon restarted");
+  EXPECT_EQ(seq.state(), RunState::kSuspended) << "held until the first readings";
+  seq.tick(401, Readings{});
+  EXPECT_EQ(seq.state(), RunState::kSuspended);
+  tick_range(seq, 402, 2000, at(30));
+  ASSERT_EQ(seq.state(), RunState::kCompleted);
+  const StepTimes& t = obs.finished.at(0).times;
+  ASSERT_EQ(t.windows.size(), 2u);
+  EXPECT_DOUBLE_EQ(t.windows[0].to_s, 300) << "the window before the crash ends at the snapshot";
+  EXPECT_DOUBLE_EQ(t.windows[1].from_s, 402);
+  EXPECT_DOUBLE_EQ(t.acquired_s(), 600);
+  EXPECT_THAT(obs.transitions.at(1).reason, HasSubstr("acquisition goes on (4.0 of 10 min done)"));
+}
+
+TEST(Sequencer, RestoredSoakStartsOverWhenTemperatureLeftTolerance) {
+  AcquiringSoak f;
+  tick_range(f.seq, 61, 300, at(30));
+  RecordingObserver obs;
+  Sequencer seq(make_plan({quick_soak(30, 600)}), {}, obs);
+  seq.restore(f.seq.snapshot(300), 400, "daemon restarted");
+  seq.tick(401, at(31));
+  EXPECT_EQ(seq.state(), RunState::kSettling);
+  EXPECT_TRUE(seq.step_times().windows.empty());
+  tick_range(seq, 402, 3000, at(30));
+  ASSERT_EQ(seq.state(), RunState::kCompleted);
+  const StepTimes& t = obs.finished.at(0).times;
+  ASSERT_EQ(t.windows.size(), 1u);
+  EXPECT_GE(t.windows[0].from_s, 460);
+}
+
+TEST(Sequencer, RestoredRampGoesOnFromItsSetPoint) {
+  RecordingObserver obs0;
+  Sequencer first(make_plan({ramp(30, 1.0)}), {}, obs0);
+  first.start(0, 20);
+  tick_range(first, 1, 120, at(21));
+  first.interrupt(120.5, "SIGTERM");
+  EXPECT_EQ(first.state(), RunState::kInterrupted);
+  RecordingObserver obs;
+  Sequencer seq(make_plan({ramp(30, 1.0)}), {}, obs);
+  seq.restore(first.snapshot(120.5), 1000, "restart");
+  EXPECT_NEAR(seq.setpoint_c(), 22.0, 1e-9);
+  seq.tick(1001, at(22));
+  tick_range(seq, 1002, 1060, at(22));
+  EXPECT_NEAR(seq.setpoint_c(), 22.0 + 59.0 / 60.0, 1e-9);
+  tick_range(seq, 1061, 2000, at(22));
+  ASSERT_EQ(seq.state(), RunState::kCompleted);
+  EXPECT_EQ(obs.finished.at(0).times.windows.size(), 2u);
+  EXPECT_NEAR(obs.finished.at(0).times.acquired_s(), 600, 1.5);
+}
+
+TEST(Sequencer, RestoredPausedRunStaysPaused) {
+  AcquiringSoak f;
+  ASSERT_TRUE(f.seq.pause(100, "x").ok());
+  RecordingObserver obs;
+  Sequencer seq(make_plan({quick_soak(30, 600)}), {}, obs);
+  seq.restore(f.seq.snapshot(100), 200, "restart");
+  tick_range(seq, 201, 300, at(30));
+  EXPECT_EQ(seq.state(), RunState::kPaused);
+  ASSERT_TRUE(seq.resume(300.5, "x").ok());
+  tick_range(seq, 301, 2000, at(30));
+  EXPECT_EQ(seq.state(), RunState::kCompleted);
 }
 
 }  // namespace

@@ -1,5 +1,6 @@
 #include "gyrotherm/storage/database.h"
 
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -8,6 +9,7 @@
 #include <set>
 #include <thread>
 
+#include "migrations.h"
 #include "test_util.h"
 
 namespace gyrotherm::storage {
@@ -40,13 +42,13 @@ RunRecord sample_run() {
   return r;
 }
 
-TEST(Database, OpenCreatesSchemaVersion1InWalMode) {
+TEST(Database, OpenCreatesTheCurrentSchemaInWalMode) {
   TempDir dir;
   Database db = open_ok(dir.file("station.db"));
   auto version = db.schema_version();
   ASSERT_TRUE(version.ok()) << version.error().message;
-  EXPECT_EQ(*version, 1);
-  EXPECT_EQ(kSchemaVersion, 1);
+  EXPECT_EQ(*version, kSchemaVersion);
+  EXPECT_EQ(kSchemaVersion, 2);
   EXPECT_EQ(query_text(db.handle(), "PRAGMA journal_mode"), "wal");
   EXPECT_EQ(query_int(db.handle(), "PRAGMA synchronous"), 1);  // NORMAL
   EXPECT_EQ(query_int(db.handle(), "PRAGMA foreign_keys"), 1);
@@ -64,10 +66,16 @@ TEST(Database, OpenCreatesSchemaVersion1InWalMode) {
     tables.insert(reinterpret_cast<const char*>(sqlite3_column_text(st, 0)));
   }
   sqlite3_finalize(st);
-  const std::set<std::string> expected = {
-      "meta",         "runs",         "schedules",           "queue",
-      "segments",     "gyro_samples", "temperature_samples", "events",
-      "segment_stats"};
+  const std::set<std::string> expected = {"meta",
+                                          "runs",
+                                          "schedules",
+                                          "queue",
+                                          "segments",
+                                          "gyro_samples",
+                                          "temperature_samples",
+                                          "events",
+                                          "segment_stats",
+                                          "acquisition_windows"};
   EXPECT_EQ(tables, expected);
 }
 
@@ -85,7 +93,7 @@ TEST(Database, ReopenIsIdempotent) {
   }
   for (int i = 0; i < 2; ++i) {
     Database db = open_ok(path);
-    EXPECT_EQ(*db.schema_version(), 1);
+    EXPECT_EQ(*db.schema_version(), kSchemaVersion);
     EXPECT_EQ(query_int(db.handle(), "SELECT count(*) FROM meta"), 2);
     EXPECT_EQ(query_text(db.handle(), "SELECT value FROM meta WHERE key='created_utc'"), created);
     auto run = db.run(run_id);
@@ -108,7 +116,7 @@ TEST(Database, ConcurrentFirstOpensMigrateOnce) {
   for (auto& t : threads) t.join();
   for (const auto& e : errors) EXPECT_EQ(e, "");
   Database db = open_ok(path);
-  EXPECT_EQ(*db.schema_version(), 1);
+  EXPECT_EQ(*db.schema_version(), kSchemaVersion);
 }
 
 TEST(Database, NewerSchemaIsRefusedWithAClearMessage) {
@@ -116,19 +124,19 @@ TEST(Database, NewerSchemaIsRefusedWithAClearMessage) {
   const std::string path = dir.file("station.db");
   {
     Database db = open_ok(path);
-    ASSERT_TRUE(db.exec("UPDATE meta SET value='2' WHERE key='schema_version'").ok());
+    ASSERT_TRUE(db.exec("UPDATE meta SET value='3' WHERE key='schema_version'").ok());
   }
   auto db = Database::open(path);
   ASSERT_FALSE(db.ok());
   EXPECT_FALSE(db.error().transient);
   EXPECT_NE(db.error().message.find(path), std::string::npos) << db.error().message;
-  EXPECT_NE(db.error().message.find("schema version 2, newer than this build's 1"),
+  EXPECT_NE(db.error().message.find("schema version 3, newer than this build's 2"),
             std::string::npos)
       << db.error().message;
 
   auto ro = Database::open_read_only(path);
   ASSERT_FALSE(ro.ok());
-  EXPECT_NE(ro.error().message.find("schema version 2"), std::string::npos) << ro.error().message;
+  EXPECT_NE(ro.error().message.find("schema version 3"), std::string::npos) << ro.error().message;
 }
 
 TEST(Database, RefusesAnotherApplicationsDatabase) {
@@ -165,7 +173,7 @@ TEST(Database, ReadOnlyConnectionReadsButDoesNotWrite) {
 
   auto ro = Database::open_read_only(path);
   ASSERT_TRUE(ro.ok()) << ro.error().message;
-  EXPECT_EQ(*ro->schema_version(), 1);
+  EXPECT_EQ(*ro->schema_version(), kSchemaVersion);
   auto run = ro->run(run_id);
   ASSERT_TRUE(run.ok()) << run.error().message;
   EXPECT_EQ(run->state, "ramping");
@@ -277,8 +285,11 @@ TEST(Database, SegmentRoundTripWithUnsetTimes) {
   done.t_end_s = 12200.5;
   done.paused_s = 30.0;
   done.state = "completed";
+  done.windows = {{5000.25, 6000.0}, {6030.0, 12200.25}};
   ASSERT_TRUE(db.update_segment(done).ok());
   const SegmentRecord back = (*db.segments(run_id))[1];
+  EXPECT_EQ(back.windows, done.windows);
+  EXPECT_TRUE((*db.segments(run_id))[0].windows.empty());
   EXPECT_EQ(back.t_settled_s, 5000.25);
   EXPECT_EQ(back.t_acquire_start_s, 5000.25);
   EXPECT_EQ(back.t_acquire_end_s, 12200.25);
@@ -450,6 +461,144 @@ TEST(Database, ExecReportsTheStatement) {
   EXPECT_NE(s.error().message.find(path), std::string::npos);
   EXPECT_NE(s.error().message.find("no such table: no_such_table"), std::string::npos)
       << s.error().message;
+}
+
+}  // namespace
+}  // namespace gyrotherm::storage
+
+namespace gyrotherm::storage {
+namespace {
+
+std::vector<int64_t> queued_ids(Database& db) {
+  std::vector<int64_t> ids;
+  const auto entries = db.queue_entries();
+  for (const auto& e : *entries) {
+    if (e.state == "queued") ids.push_back(e.id);
+  }
+  return ids;
+}
+
+TEST(Queue, AddListMoveRemoveClaimFinish) {
+  TempDir dir;
+  Database db = open_ok(dir.file("station.db"));
+  std::vector<int64_t> ids;
+  for (const char* name : {"a", "b", "c", "d"}) {
+    auto e = db.queue_add(name, std::string("config/schedules/") + name + ".toml",
+                          std::string("name = \"") + name + "\"", name[0] == 'b');
+    ASSERT_TRUE(e.ok()) << e.error().message;
+    EXPECT_EQ(e->state, "queued");
+    EXPECT_EQ(e->schedule_name, name);
+    EXPECT_EQ(e->position, static_cast<int>(ids.size()));
+    ids.push_back(e->id);
+  }
+  EXPECT_TRUE(db.queue_entry(ids[1])->value().ignore_failures);
+  EXPECT_FALSE(db.queue_entry(ids[0])->value().ignore_failures);
+  EXPECT_EQ(queued_ids(db), ids);
+
+  ASSERT_TRUE(*db.queue_move(ids[3], 0));
+  EXPECT_EQ(queued_ids(db), (std::vector<int64_t>{ids[3], ids[0], ids[1], ids[2]}));
+  ASSERT_TRUE(*db.queue_move(ids[3], 99));  // past the end: last
+  EXPECT_EQ(queued_ids(db), ids);
+  ASSERT_TRUE(*db.queue_move(ids[0], 2));
+  EXPECT_EQ(queued_ids(db), (std::vector<int64_t>{ids[1], ids[2], ids[0], ids[3]}));
+  int pos = 0;
+  const auto entries = db.queue_entries();
+  for (const auto& e : *entries) EXPECT_EQ(e.position, pos++);
+
+  ASSERT_TRUE(*db.queue_remove(ids[2]));
+  EXPECT_FALSE(*db.queue_remove(ids[2])) << "already removed";
+  EXPECT_FALSE(*db.queue_move(ids[2], 0));
+  EXPECT_EQ(db.queue_entry(ids[2])->value().state, "removed");
+  EXPECT_EQ(queued_ids(db), (std::vector<int64_t>{ids[1], ids[0], ids[3]}));
+
+  const int64_t run_id = *db.create_run(RunRecord{});
+  ASSERT_TRUE(*db.queue_claim(ids[1], run_id));
+  EXPECT_FALSE(*db.queue_claim(ids[1], run_id)) << "claimed once";
+  EXPECT_FALSE(*db.queue_remove(ids[1])) << "a running entry is not removed";
+  auto all = *db.queue_entries();
+  ASSERT_EQ(all.size(), 3u);
+  EXPECT_EQ(all[0].id, ids[1]) << "the running entry comes first";
+  EXPECT_EQ(all[0].state, "running");
+  EXPECT_EQ(all[0].run_id, run_id);
+  EXPECT_EQ(all[1].position, 0);
+  ASSERT_TRUE(db.queue_finish(ids[1], "completed").ok());
+  EXPECT_EQ(db.queue_entries()->size(), 2u);
+  EXPECT_FALSE(db.queue_entry(999)->has_value());
+
+  ASSERT_TRUE(*db.queue_claim(ids[0], run_id));
+  ASSERT_TRUE(db.queue_requeue(ids[0]).ok());
+  EXPECT_EQ(queued_ids(db), (std::vector<int64_t>{ids[0], ids[3]}));
+}
+
+TEST(Queue, SurvivesReopen) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  int64_t id = 0;
+  {
+    Database db = open_ok(path);
+    id = db.queue_add("paper-table1", "p.toml", "[[step]]\ntype = \"soak\"\n", true)->id;
+    ASSERT_TRUE(db.set_meta("queue_hold", "stopped by operator").ok());
+  }
+  Database db = open_ok(path);
+  auto entries = *db.queue_entries();
+  ASSERT_EQ(entries.size(), 1u);
+  EXPECT_EQ(entries[0].id, id);
+  EXPECT_EQ(entries[0].toml_text, "[[step]]\ntype = \"soak\"\n");
+  EXPECT_EQ(entries[0].source_path, "p.toml");
+  EXPECT_EQ(db.meta("queue_hold")->value_or(""), "stopped by operator");
+  ASSERT_TRUE(db.delete_meta("queue_hold").ok());
+  EXPECT_FALSE(db.meta("queue_hold")->has_value());
+}
+
+TEST(Database, CheckpointAndLastSample) {
+  TempDir dir;
+  Database db = open_ok(dir.file("station.db"));
+  RunRecord rec;
+  rec.schedule_name = "x";
+  rec.state = "queued";
+  rec.queue_id = 5;
+  const int64_t run_id = *db.create_run(rec);
+  EXPECT_EQ(db.run(run_id)->queue_id, 5);
+  EXPECT_FALSE(db.run(run_id)->checkpoint_wall_unix_s.has_value());
+  ASSERT_TRUE(db.set_run_checkpoint(run_id, R"({"t_s":1})", 1.7e9).ok());
+  EXPECT_EQ(db.run(run_id)->resume_json, R"({"t_s":1})");
+  EXPECT_EQ(db.run(run_id)->checkpoint_wall_unix_s, 1.7e9);
+
+  EXPECT_FALSE(db.last_sample_t_s(run_id)->has_value());
+  ASSERT_TRUE(db.exec(fmt::format("INSERT INTO temperature_samples(run_id, t_s) VALUES({0}, 12.5);",
+                                  run_id))
+                  .ok());
+  EXPECT_EQ(*db.last_sample_t_s(run_id), 12.5);
+  ASSERT_TRUE(db.exec(fmt::format("INSERT INTO gyro_samples(run_id, t_s, seq, status) "
+                                  "VALUES({0}, 13.25, 1, 119);",
+                                  run_id))
+                  .ok());
+  EXPECT_EQ(*db.last_sample_t_s(run_id), 13.25);
+}
+
+// A database written by schema 1 opens with its data and gains schema 2.
+TEST(Database, MigratesASchema1Database) {
+  TempDir dir;
+  const std::string path = dir.file("v1.db");
+  {
+    sqlite3* raw = nullptr;
+    ASSERT_EQ(sqlite3_open(path.c_str(), &raw), SQLITE_OK);
+    const std::string sql =
+        std::string("CREATE TABLE meta(key TEXT PRIMARY KEY, value TEXT NOT NULL);") +
+        internal::migrations()[0].sql +
+        "INSERT INTO meta VALUES('schema_version', '1');"
+        "INSERT INTO runs(schedule_name, state, started_utc) VALUES('old', 'completed', 'x');";
+    ASSERT_EQ(sqlite3_exec(raw, sql.c_str(), nullptr, nullptr, nullptr), SQLITE_OK);
+    sqlite3_close(raw);
+  }
+  Database db = open_ok(path);
+  EXPECT_EQ(*db.schema_version(), kSchemaVersion);
+  auto runs = db.runs();
+  ASSERT_TRUE(runs.ok()) << runs.error().message;
+  ASSERT_EQ(runs->size(), 1u);
+  EXPECT_EQ((*runs)[0].schedule_name, "old");
+  EXPECT_FALSE((*runs)[0].queue_id.has_value());
+  EXPECT_TRUE(db.queue_add("n", "", "", false).ok());
 }
 
 }  // namespace

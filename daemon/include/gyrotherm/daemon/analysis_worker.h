@@ -13,6 +13,8 @@
 #include <mutex>
 #include <string>
 #include <thread>
+#include <utility>
+#include <vector>
 
 #include "gyrotherm/analysis/table1.h"
 #include "gyrotherm/core/result.h"
@@ -26,8 +28,12 @@ struct Table1Job {
   int64_t segment_id = 0;
   int segment_index = 0;
   double setpoint_c = 0;
-  double t_from_s = 0;  // acquisition window, station s since run start
+  double t_from_s = 0;  // acquisition span, station s since run start
   double t_to_s = 0;
+  // The acquisition windows inside the span (pauses and suspensions cut
+  // out); empty = the whole span. Each window is binned on its own and the
+  // series are joined.
+  std::vector<std::pair<double, double>> windows;
 };
 
 // Reads the window from `db`, computes the Table I row, stores it and

@@ -18,6 +18,7 @@
 #include "gyrotherm/drivers/modbus_device.h"
 #include "gyrotherm/drivers/registers.h"
 #include "gyrotherm/drivers/serial_port.h"
+#include "gyrotherm/schedules/interlocks.h"
 
 namespace gyrotherm::daemon {
 
@@ -94,6 +95,10 @@ struct SimulatorSection {
 
 struct StationConfig {
   std::string source_path;
+  // [interlocks]: limit_margin_c, probe_disagreement_c, hysteresis_c and
+  // <kind>_grace_min per interlock kind. The limits and device timeouts are
+  // filled in from [station] and the devices' silent_timeout_s.
+  schedules::InterlockOptions interlocks;
   StationSection station;
   ChamberSection chamber;
   ProbesSection probes;
@@ -115,12 +120,14 @@ Result<StationConfig> parse_station_config(std::string_view toml_text,
                                            const std::string& source_name);
 
 // What gyrotherm-sim writes for the daemon (TOML):
-//   modbus_host = "127.0.0.1"; modbus_port = N; gyro_device = "/dev/pts/N"; pid = N
+//   modbus_host = "127.0.0.1"; modbus_port = N; gyro_device = "/dev/pts/N"; pid = N;
+//   control_socket = "PATH" (optional)
 struct SimEndpoints {
   std::string modbus_host = "127.0.0.1";
   int modbus_port = 0;
   std::string gyro_device;
   long pid = 0;
+  std::string control_socket;  // fault-injection command socket ("" = none)
 };
 Result<SimEndpoints> read_sim_endpoints(const std::string& path);
 Status write_sim_endpoints(const std::string& path, const SimEndpoints& endpoints);

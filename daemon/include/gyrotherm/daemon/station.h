@@ -1,11 +1,23 @@
-// Station: the daemon's wiring of devices, sequencer, storage and analysis.
+// Station: the daemon's wiring of devices, queue, sequencer, storage and
+// analysis.
 //
-// Threads: the control loop (Modbus polling, sequencer ticks, set point
-// writes, temperature samples) runs on its own thread at one tick per
-// [control] tick_s of station time; the GyroReader thread timestamps and
-// hands samples to the SampleWriter; the writer commits on its thread; the
-// AnalysisWorker computes Table I rows when soaks end. status() is
-// thread-safe and cheap (the HTTP thread calls it).
+// Threads: the control loop (Modbus polling, queue, sequencer ticks, set
+// point writes, temperature samples, checkpoints) runs on its own thread at
+// one tick per [control] tick_s of station time; the GyroReader thread
+// timestamps and hands samples to the SampleWriter; the writer commits on
+// its thread; the AnalysisWorker computes Table I rows when soaks end. The
+// HTTP thread calls status() (cheap) and the StationControl methods.
+//
+// The queue lives in the database (storage::Database queue_*), so it
+// survives restarts; whether it is held (after `stop`, an abort or a failed
+// run) is the meta key 'queue_hold'. A run's sequencer snapshot is written
+// with the run about once a wall second; start() resumes the run a crash or
+// a stop interrupted (Sequencer::restore), with the downtime converted to
+// station time by the time scale.
+//
+// Locking: run_mu_ guards the sequencer, the control-thread database
+// connection and the queue hold; api_mu_ guards the HTTP thread's own
+// connection; mu_ guards the status snapshot. Order: run_mu_, api_mu_, mu_.
 //
 // Device errors after start-up are counted, logged on change and reported
 // in status(); they never stop the daemon.
@@ -26,6 +38,7 @@
 #include "gyrotherm/core/result.h"
 #include "gyrotherm/daemon/analysis_worker.h"
 #include "gyrotherm/daemon/config.h"
+#include "gyrotherm/daemon/control.h"
 #include "gyrotherm/daemon/status.h"
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/drivers/modbus_device.h"
@@ -35,7 +48,7 @@
 
 namespace gyrotherm::daemon {
 
-class Station final : private schedules::SequencerObserver {
+class Station final : public StationControl, private schedules::SequencerObserver {
  public:
   // Opens the database (creating/migrating it), the sample writer and the
   // devices' clients. Fails (permanent) when the database cannot be opened;
@@ -50,39 +63,65 @@ class Station final : private schedules::SequencerObserver {
   // threads. Idempotent.
   void stop(const std::string& reason);
 
-  // Queues a validated plan; runs start in order when the station is idle.
-  void enqueue(schedules::Plan plan);
   schedules::StationLimits limits() const;
 
   StatusSnapshot status() const;
-  // True when no run is active and nothing is queued.
+  // True when no run is active and nothing will start by itself (the queue
+  // is empty or held).
   bool idle() const;
   const StationConfig& config() const { return config_; }
 
+  // StationControl (thread-safe).
+  Reply queue_list() override;
+  Reply queue_add(const std::string& toml_text, const std::string& source,
+                  bool ignore_failures) override;
+  Reply queue_remove(int64_t id) override;
+  Reply queue_move(int64_t id, int position) override;
+  Reply control(std::string_view action, const std::string& reason) override;
+  Reply runs() override;
+  Reply run(int64_t id) override;
+  Reply run_events(int64_t id) override;
+  Reply run_stats(int64_t id) override;
+
  private:
-  Station(StationConfig config, const Clock& clock, storage::Database db,
+  Station(StationConfig config, const Clock& clock, storage::Database db, storage::Database api_db,
           std::unique_ptr<storage::SampleWriter> writer);
 
   void control_loop();
   void tick();
-  void start_run(schedules::Plan plan, double now_s);
+  schedules::Readings read_devices(double now_s);
+  // Needs run_mu_.
+  void resume_interrupted_run();
+  void start_next_run(double now_s);
   void end_run();
+  void checkpoint(bool force);
+  void hold_queue(const std::string& reason);
+  void release_queue();
+  void refresh_queue_length();
+  double run_time_s() const;
   void write_setpoint(double setpoint_c, bool force);
   void on_gyro_samples(std::span<const GyroSample> samples);
   void add_event(const std::string& kind, const std::string& from, const std::string& to,
                  const std::string& message);
+  int64_t segment_id(std::size_t index, const schedules::PlanStep& step, double t_s);
 
   // SequencerObserver
   void on_state(schedules::RunState from, schedules::RunState to, double t_s,
                 const std::string& reason) override;
   void on_step_started(std::size_t index, const schedules::PlanStep& step, double t_s) override;
-  void on_acquisition_started(std::size_t index, const schedules::StepTimes& times) override;
+  void on_step_changed(std::size_t index, const schedules::PlanStep& step,
+                       const schedules::StepTimes& times) override;
+  void on_interlock(schedules::InterlockKind kind, bool tripped, double t_s,
+                    const std::string& message) override;
   void on_step_finished(std::size_t index, const schedules::PlanStep& step,
                         const schedules::StepTimes& times, bool completed) override;
 
   StationConfig config_;
   const Clock& clock_;
-  storage::Database db_;  // control-thread connection
+  std::mutex run_mu_;
+  storage::Database db_;  // control-thread connection (run_mu_)
+  std::mutex api_mu_;
+  storage::Database api_db_;  // HTTP-thread connection (api_mu_)
   std::unique_ptr<storage::SampleWriter> writer_;
   std::unique_ptr<AnalysisWorker> analysis_;
   std::unique_ptr<drivers::ModbusDevice> chamber_;
@@ -90,13 +129,25 @@ class Station final : private schedules::SequencerObserver {
   std::unique_ptr<drivers::GyroReader> gyro_;
   const double started_wall_s_;
 
-  // Control-thread state.
+  // Run state (run_mu_).
   std::unique_ptr<schedules::Sequencer> sequencer_;
+  std::optional<storage::QueueEntry> entry_;  // the queue entry being run
   std::vector<int64_t> segment_ids_;
+  std::string last_reason_;  // of the last state change
+  bool stop_after_current_ = false;
+  std::optional<std::string> hold_reason_;  // queue held
+  std::string checkpoint_state_;
+  double last_checkpoint_wall_s_ = -1e9;
   std::optional<double> last_written_setpoint_c_;
   int ticks_since_setpoint_write_ = 0;
+
+  // Control-thread only.
   bool chamber_ok_ = true, probes_ok_ = true;
+  double chamber_ok_s_ = 0, probes_ok_s_ = 0;  // station time of the last good reading
   analysis::StabilityWindow shell_rate_window_{60.0};
+  std::atomic<double> gyro_last_s_{0};  // station time of the last gyro sample
+  std::atomic<int> queue_length_{0};
+  std::atomic<bool> queue_held_{false};
 
   // Shared with the gyro reader thread.
   std::atomic<int64_t> run_id_{0};  // 0: no run
@@ -105,7 +156,6 @@ class Station final : private schedules::SequencerObserver {
   std::atomic<bool> busy_{false};
 
   mutable std::mutex mu_;  // guards the fields below
-  std::deque<schedules::Plan> pending_;
   StatusSnapshot snapshot_;
   double gyro_window_start_s_ = -1;
   double gyro_window_sum_ = 0;

@@ -5,6 +5,7 @@
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/drivers/modbus_device.h"
@@ -37,6 +38,15 @@ struct StatusSnapshot {
   drivers::GyroReaderHealth gyro;
   storage::SampleWriterStats storage;
   std::string last_event;
+  bool paused = false;
+  struct Interlock {
+    std::string kind;
+    std::string message;
+  };
+  std::vector<Interlock> interlocks;  // tripped now
+  int queue_length = 0;               // entries waiting
+  bool queue_held = false;
+  std::string queue_hold_reason;
 };
 
 nlohmann::json to_json(const StatusSnapshot& s);

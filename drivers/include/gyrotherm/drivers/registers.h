@@ -54,6 +54,10 @@ struct ChamberMap {
   std::optional<RegisterSpec> ramp_rate;
   std::optional<RegisterSpec> ramp_action;
   std::optional<RegisterSpec> ramp_scale;
+  // Optional alarm flag (nonzero = the controller reports an alarm). No
+  // profile has one: alarm registers depend on how the controller's alarm
+  // instances are set up, so the config names it ([chamber.alarm]).
+  std::optional<RegisterSpec> alarm;
 };
 
 // "watlow-f4t" (Data Map 1: set point 2782, process value 2820, float32 low

@@ -8,6 +8,8 @@
 // line and key, and nothing runs.
 #pragma once
 
+#include <cstddef>
+#include <cstdint>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -57,8 +59,24 @@ struct StationLimits {
   double max_ramp_c_per_min = 2.0;
 };
 
+// Sanity bounds every schedule is held to besides the station's limits
+// (docs/schedules.md, "Validation"). Durations in minutes of station time.
+inline constexpr std::size_t kMaxPlanSteps = 10000;  // after repeats are expanded
+inline constexpr int kMaxRepeatDepth = 4;            // repeats inside repeats
+inline constexpr int64_t kMaxRepeatCount = 1000;
+inline constexpr double kMaxAcquireMin = 30 * 24 * 60;       // soak acquisition: 30 days
+inline constexpr double kMaxHoldMin = 30 * 24 * 60;          // hold: 30 days
+inline constexpr double kMaxRampMin = 30 * 24 * 60;          // a ramp, where its start is known
+inline constexpr double kMaxSettleTimeoutMin = 7 * 24 * 60;  // 7 days
+inline constexpr double kMinStabilityWindowMin = 1;          // the gate fits a slope over it
+inline constexpr double kMaxStabilityWindowMin = 24 * 60;    // and never above the timeout
+inline constexpr double kMinToleranceC = 0.01;               // below probe resolution
+inline constexpr double kMaxToleranceC = 10;
+inline constexpr double kMaxStabilityCPerMin = 10;  // and > 0
+inline constexpr double kMaxTableRateDps = 1000;    // |table_rate_dps|
+
 // Parses and validates. On failure the error lists every problem, one per
-// line, as "file:line: key: message".
+// line in file order, as "file:line: key: message".
 Result<Plan> load_schedule(const std::string& path, const StationLimits& limits);
 Result<Plan> parse_schedule(std::string_view toml_text, const std::string& source_name,
                             const StationLimits& limits);

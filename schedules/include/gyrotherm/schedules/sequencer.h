@@ -1,4 +1,4 @@
-// The run state machine.
+// The run state machine (DESIGN.md §5).
 //
 // A Sequencer executes one Plan. It owns no I/O and no clock: the daemon
 // calls tick() with the station time (seconds since run start) and the
@@ -7,25 +7,45 @@
 // observer (which writes event rows). Tests drive it with synthetic readings
 // and run whole campaigns in virtual time without sleeping.
 //
-// Soak: the set point is commanded; the stability gate holds when, over the
-// step's stability window, the shell temperature ((top + side) / 2) changes
-// slower than stability_c_per_min (least-squares slope) and the window means
-// of both the shell and the chamber air are within tolerance of the set
-// point. Only then does the acquisition clock start. If the gate has not
-// held within settle_timeout the run fails (to the safe state).
-// Ramp: the set point moves linearly from where the previous step left it to
-// the target at the step's rate; the whole ramp is the acquisition window.
+// The state a run shows is derived from three things kept apart:
+//   - the step's activity: settling or acquiring (soak), ramping (ramp),
+//     settling (hold);
+//   - holds: an operator pause, tripped interlocks (interlocks.h), or a
+//     restart that waits for its first readings. While held the set point
+//     stays where it is and no step clock runs: a soak's acquisition clock
+//     and settle timeout, a ramp's set point, a hold's duration all stop;
+//   - the end: aborting (until the daemon has commanded the safe set point),
+//     completed, failed, interrupted.
+// State = end if any, else suspended if an interlock is tripped or a restart
+// is pending, else paused if paused, else the activity.
+//
+// Soak: the stability gate holds when, over the step's stability window, the
+// shell temperature ((top + side) / 2) changes slower than
+// stability_c_per_min (least-squares slope) and the window means of both
+// shell and chamber air are within tolerance of the set point. Only then
+// does acquisition start. When the gate has not held within settle_timeout
+// (not counting held time) the settle-timeout interlock trips; it clears
+// when the gate holds. Acquisition is a list of windows: a hold closes the
+// current one; when the hold ends with chamber and shell still within
+// tolerance a new window opens and the soak keeps the time it had,
+// otherwise the soak goes back to settling and its acquisition starts over.
+// Ramp: the set point moves from where the previous step left it to the
+// target at the step's rate; the whole ramp (minus holds) is acquisition.
 // Hold: the set point is held for the step's duration, no acquisition.
-// After the last step, or on failure or abort, the safe set point is
+// After the last step, and on failure or abort, the safe set point is
 // commanded.
 #pragma once
 
 #include <cstddef>
+#include <nlohmann/json_fwd.hpp>
 #include <optional>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include "gyrotherm/analysis/stability.h"
+#include "gyrotherm/core/result.h"
+#include "gyrotherm/schedules/interlocks.h"
 #include "gyrotherm/schedules/schedule.h"
 
 namespace gyrotherm::schedules {
@@ -43,22 +63,25 @@ enum class RunState {
   kInterrupted,
 };
 std::string_view to_string(RunState state);
+std::optional<RunState> parse_run_state(std::string_view name);
 bool is_terminal(RunState state);  // completed, failed, interrupted
 
-// One control-loop reading; nullopt where the device gave no value this tick.
-struct Readings {
-  std::optional<double> chamber_c;
-  std::optional<double> top_c;
-  std::optional<double> side_c;
+struct AcquisitionWindow {
+  double from_s = 0;  // station s since run start
+  double to_s = 0;
 };
 
 // Times of one step execution, station seconds since run start.
 struct StepTimes {
   double start_s = 0;
-  std::optional<double> settled_s;
-  std::optional<double> acquire_start_s;
-  std::optional<double> acquire_end_s;
+  std::optional<double> settled_s;        // the gate held (first time this step)
+  std::optional<double> acquire_start_s;  // first window's start
+  std::optional<double> acquire_end_s;    // last window's end, once acquisition is over
   std::optional<double> end_s;
+  std::vector<AcquisitionWindow> windows;  // closed acquisition windows
+  double held_s = 0;                       // station s paused or suspended in this step
+
+  double acquired_s() const;  // sum of the closed windows
 };
 
 class SequencerObserver {
@@ -66,15 +89,35 @@ class SequencerObserver {
   virtual ~SequencerObserver() = default;
   virtual void on_state(RunState from, RunState to, double t_s, const std::string& reason) = 0;
   virtual void on_step_started(std::size_t index, const PlanStep& step, double t_s) = 0;
-  virtual void on_acquisition_started(std::size_t index, const StepTimes& times) = 0;
+  // The step's times changed (settled, a window opened or closed, held time).
+  virtual void on_step_changed(std::size_t index, const PlanStep& step, const StepTimes& times) = 0;
   // `completed` is false when the step ended by failure or abort.
   virtual void on_step_finished(std::size_t index, const PlanStep& step, const StepTimes& times,
                                 bool completed) = 0;
+  virtual void on_interlock(InterlockKind kind, bool tripped, double t_s,
+                            const std::string& message) = 0;
 };
 
 struct SequencerOptions {
   double safe_setpoint_c = 23.0;
+  InterlockOptions interlocks;
 };
+
+// What a restart needs to continue a run (stored as JSON with the run).
+struct SequencerSnapshot {
+  double t_s = 0;  // when taken
+  RunState state = RunState::kQueued;
+  RunState activity = RunState::kSettling;
+  std::size_t step_index = 0;
+  StepTimes times;
+  std::optional<double> window_open_s;
+  double step_active_s = 0;  // unheld station s in the step
+  double setpoint_c = 0;
+  double ramp_from_c = 0;
+  bool paused = false;
+};
+nlohmann::json to_json(const SequencerSnapshot& snapshot);
+Result<SequencerSnapshot> snapshot_from_json(const nlohmann::json& j);
 
 class Sequencer {
  public:
@@ -83,38 +126,76 @@ class Sequencer {
   // Starts the first step at t_s. `start_setpoint_c` is where a first ramp
   // starts from (the chamber's current set point or air temperature).
   void start(double t_s, double start_setpoint_c);
+  // Continues a run from a snapshot at t_s (>= snapshot.t_s; the time
+  // between counts as held for ramps and as elapsed for soaks and holds,
+  // whose set point the controller kept). The run is held until the first
+  // tick with chamber and shell readings, then goes on by the same rule as
+  // after any hold. `reason` goes into the state change event.
+  void restore(const SequencerSnapshot& snapshot, double t_s, const std::string& reason);
   void tick(double t_s, const Readings& readings);
-  // Ends the run: the current step is closed, the safe set point commanded.
+
+  // Operator commands. Permanent error, nothing changed, when they do not
+  // apply (not running, already paused, ...).
+  Status pause(double t_s, const std::string& reason);
+  Status resume(double t_s, const std::string& reason);
+  // Ends the run: the current step is closed, the safe set point commanded,
+  // state aborting until safe_state_reached().
   void abort(double t_s, const std::string& reason);
-  // Marks the run interrupted (daemon shutting down mid-run).
+  // The daemon has commanded the safe set point: aborting -> failed.
+  void safe_state_reached(double t_s);
+  // Marks the run interrupted (daemon shutting down mid-run); the open
+  // window is closed, the step stays open for restore().
   void interrupt(double t_s, const std::string& reason);
+
+  SequencerSnapshot snapshot(double t_s) const;
 
   RunState state() const { return state_; }
   bool finished() const { return is_terminal(state_); }
+  bool paused() const { return paused_; }
   double setpoint_c() const { return setpoint_c_; }
-  bool acquiring() const { return state_ == RunState::kAcquiring || state_ == RunState::kRamping; }
   // Index of the current step (== steps().size() once finished).
   std::size_t step_index() const { return index_; }
   const Plan& plan() const { return plan_; }
   const StepTimes& step_times() const { return times_; }
+  // Tripped interlocks with their messages.
+  std::vector<InterlockCondition> tripped() const;
 
  private:
-  void set_state(RunState to, double t_s, const std::string& reason);
+  bool held() const;
+  RunState derived_state() const;
+  // Emits on_state when the derived state differs from state_.
+  void update_state(double t_s, const std::string& reason);
   void begin_step(std::size_t index, double t_s);
   void finish_step(double t_s, bool completed);
-  // Closes the current step as completed and starts the next (or completes the run).
   void advance(double t_s);
   void finish_run(RunState final_state, double t_s, const std::string& reason);
+  void evaluate(double t_s, const Readings& readings);
+  void trip(InterlockKind kind, double t_s, const std::string& message);
+  void clear(InterlockKind kind, double t_s);
+  void open_window(double t_s);
+  void close_window(double t_s);
+  void on_unheld(double t_s, const Readings& readings);
   void tick_soak(double t_s, const Readings& readings);
 
   Plan plan_;
   SequencerOptions options_;
   SequencerObserver& observer_;
   RunState state_ = RunState::kQueued;
+  RunState activity_ = RunState::kSettling;
+  std::optional<RunState> end_;  // aborting or terminal
   std::size_t index_ = 0;
   StepTimes times_;
+  std::optional<double> window_open_s_;
+  double step_active_s_ = 0;
+  double last_tick_s_ = 0;
   double setpoint_c_ = 0;
   double ramp_from_c_ = 0;
+  bool paused_ = false;
+  bool restore_pending_ = false;
+  bool was_held_ = false;
+  bool tripped_[kInterlockKindCount] = {};
+  double trip_since_s_[kInterlockKindCount] = {};
+  std::string trip_message_[kInterlockKindCount];
   analysis::StabilityWindow shell_window_{600.0};
   analysis::StabilityWindow chamber_window_{600.0};
   std::optional<double> last_shell_c_;

@@ -24,7 +24,7 @@ struct sqlite3;
 
 namespace gyrotherm::storage {
 
-inline constexpr int kSchemaVersion = 1;
+inline constexpr int kSchemaVersion = 2;
 
 struct RunRecord {
   int64_t id = 0;
@@ -36,6 +36,12 @@ struct RunRecord {
   double latitude_deg = 0;
   std::string orientation;  // up, down, horizontal
   std::string config_json;  // the station config the run used
+  std::optional<int64_t> queue_id;
+  std::optional<int64_t> schedule_id;
+  // Crash resume: the sequencer's last snapshot (JSON) and the wall time it
+  // was taken (Unix seconds); empty / nullopt until the first checkpoint.
+  std::string resume_json;
+  std::optional<double> checkpoint_wall_unix_s;
 };
 
 struct SegmentRecord {
@@ -54,6 +60,23 @@ struct SegmentRecord {
   std::optional<double> t_end_s;
   double paused_s = 0;  // station seconds excluded from acquisition
   std::string state;    // running, completed, failed, aborted
+  // Acquisition windows (from_s, to_s), station s; pauses and suspensions
+  // cut out. update_segment() replaces the stored list.
+  std::vector<std::pair<double, double>> windows;
+};
+
+// One entry of the persistent run queue, with its schedule.
+struct QueueEntry {
+  int64_t id = 0;
+  int64_t schedule_id = 0;
+  int position = 0;   // among queued entries, 0 = next; -1 once taken
+  std::string state;  // queued, running, completed, failed, interrupted, removed
+  std::string added_utc;
+  bool ignore_failures = false;
+  std::optional<int64_t> run_id;
+  std::string schedule_name;
+  std::string source_path;
+  std::string toml_text;
 };
 
 struct EventRecord {
@@ -112,6 +135,35 @@ class Database {
   Status set_run_state(int64_t run_id, std::string_view state, bool ended);
   Result<std::vector<RunRecord>> runs();
   Result<RunRecord> run(int64_t run_id);
+
+  // Stores the sequencer snapshot for crash resume.
+  Status set_run_checkpoint(int64_t run_id, std::string_view resume_json, double wall_unix_s);
+  // Latest station time with a committed sample of the run (gyro or
+  // temperature); nullopt when it has none.
+  Result<std::optional<double>> last_sample_t_s(int64_t run_id);
+
+  // The queue. Positions of queued entries are kept 0..n-1 in run order.
+  // add: stores the schedule text and appends the entry.
+  Result<QueueEntry> queue_add(const std::string& schedule_name, const std::string& source_path,
+                               const std::string& toml_text, bool ignore_failures);
+  // The running entry (if any) first, then queued entries by position.
+  Result<std::vector<QueueEntry>> queue_entries();
+  Result<std::optional<QueueEntry>> queue_entry(int64_t id);
+  // Queued -> removed. False (nothing changed) when the entry is not queued.
+  Result<bool> queue_remove(int64_t id);
+  // Moves a queued entry to `position` (clamped). False when not queued.
+  Result<bool> queue_move(int64_t id, int position);
+  // Queued -> running with its run. False when the entry is no longer queued.
+  Result<bool> queue_claim(int64_t id, int64_t run_id);
+  // running -> a final state (completed, failed, interrupted).
+  Status queue_finish(int64_t id, std::string_view state);
+  // Running -> queued again at the head (a run that could not start).
+  Status queue_requeue(int64_t id);
+
+  // Station-wide settings (the meta table): queue hold, etc.
+  Result<std::optional<std::string>> meta(std::string_view key);
+  Status set_meta(std::string_view key, std::string_view value);
+  Status delete_meta(std::string_view key);
 
   // Segments: one per step execution.
   Result<int64_t> create_segment(const SegmentRecord& segment);  // id ignored

@@ -1,0 +1,94 @@
+// JSON forms of the stored records, as docs/api.md describes them.
+#include <cmath>
+
+#include "gyrotherm/daemon/control.h"
+
+namespace gyrotherm::daemon {
+namespace {
+
+nlohmann::json opt(const std::optional<double>& v) {
+  return v && std::isfinite(*v) ? nlohmann::json(*v) : nlohmann::json(nullptr);
+}
+nlohmann::json opt(const std::optional<int64_t>& v) {
+  return v ? nlohmann::json(*v) : nlohmann::json(nullptr);
+}
+nlohmann::json num(double v) {
+  return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr);
+}
+nlohmann::json text_or_null(const std::string& s) {
+  return s.empty() ? nlohmann::json(nullptr) : nlohmann::json(s);
+}
+
+}  // namespace
+
+nlohmann::json to_json(const storage::QueueEntry& e, int step_count) {
+  return {{"id", e.id},
+          {"position", e.position},
+          {"schedule_name", e.schedule_name},
+          {"source", e.source_path},
+          {"steps", step_count},
+          {"ignore_failures", e.ignore_failures},
+          {"added_utc", e.added_utc},
+          {"state", e.state},
+          {"run_id", opt(e.run_id)}};
+}
+
+nlohmann::json to_json(const storage::RunRecord& r) {
+  return {{"id", r.id},
+          {"schedule_name", r.schedule_name},
+          {"state", r.state},
+          {"started_utc", r.started_utc},
+          {"ended_utc", text_or_null(r.ended_utc)},
+          {"queue_id", opt(r.queue_id)},
+          {"time_scale", num(r.time_scale)}};
+}
+
+nlohmann::json to_json(const storage::SegmentRecord& s) {
+  nlohmann::json windows = nlohmann::json::array();
+  for (const auto& [from_s, to_s] : s.windows) windows.push_back({from_s, to_s});
+  return {{"index", s.index},
+          {"kind", s.kind},
+          {"label", s.label},
+          {"setpoint_c", num(s.setpoint_c)},
+          {"ramp_rate_c_per_min", num(s.ramp_rate_c_per_min)},
+          {"t_start_s", num(s.t_start_s)},
+          {"t_settled_s", opt(s.t_settled_s)},
+          {"t_acquire_start_s", opt(s.t_acquire_start_s)},
+          {"t_acquire_end_s", opt(s.t_acquire_end_s)},
+          {"t_end_s", opt(s.t_end_s)},
+          {"paused_s", num(s.paused_s)},
+          {"state", s.state},
+          {"windows", windows}};
+}
+
+nlohmann::json to_json(const storage::EventRecord& e) {
+  return {{"id", e.id},
+          {"t_s", num(e.t_s)},
+          {"wall_utc", e.wall_utc},
+          {"kind", e.kind},
+          {"from_state", text_or_null(e.from_state)},
+          {"to_state", text_or_null(e.to_state)},
+          {"message", e.message}};
+}
+
+nlohmann::json to_json(const storage::SegmentStatsRecord& s) {
+  return {{"segment_id", s.segment_id},
+          {"run_id", s.run_id},
+          {"segment_index", s.segment_index},
+          {"setpoint_c", num(s.setpoint_c)},
+          {"n", s.n},
+          {"duration_s", num(s.duration_s)},
+          {"temp_mean_c", num(s.temp_mean_c)},
+          {"bias_mean_dph", num(s.bias_mean_dph)},
+          {"bias_std_dph", num(s.bias_std_dph)},
+          {"bias_std_ma_dph", num(s.bias_std_ma_dph)},
+          {"bias_mean_earth_removed_dph", num(s.bias_mean_earth_removed_dph)},
+          {"bin_s", num(s.bin_s)},
+          {"ma_window", s.ma_window},
+          {"earth_rate_dph", num(s.earth_rate_dph)},
+          {"t_from_s", num(s.t_from_s)},
+          {"t_to_s", num(s.t_to_s)},
+          {"computed_utc", s.computed_utc}};
+}
+
+}  // namespace gyrotherm::daemon

@@ -1,0 +1,254 @@
+// Database: the run queue, station settings (meta) and crash-resume
+// checkpoints. Queue changes run in one IMMEDIATE transaction each, so the
+// HTTP thread and the control thread (each with its own connection) never
+// see a half-renumbered queue, and a claimed entry cannot be removed.
+#include <fmt/format.h>
+#include <sqlite3.h>
+
+#include <algorithm>
+
+#include "gyrotherm/core/clock.h"
+#include "gyrotherm/storage/database.h"
+#include "sqlite_util.h"
+
+namespace gyrotherm::storage {
+
+using internal::expect_done;
+using internal::sqlite_error;
+using internal::Stmt;
+using internal::Transaction;
+
+namespace {
+
+constexpr const char* kQueueSelect =
+    "SELECT q.id, q.schedule_id, q.position, q.state, q.added_utc, q.ignore_failures, q.run_id, "
+    "s.name, s.source_path, s.toml_text FROM queue q JOIN schedules s ON s.id = q.schedule_id ";
+
+QueueEntry read_entry(const Stmt& st) {
+  QueueEntry e;
+  e.id = st.column_int64(0);
+  e.schedule_id = st.column_int64(1);
+  e.position = static_cast<int>(st.column_int64(2));
+  e.state = st.column_text(3);
+  e.added_utc = st.column_text(4);
+  e.ignore_failures = st.column_int64(5) != 0;
+  e.run_id = st.column_optional_int64(6);
+  e.schedule_name = st.column_text(7);
+  e.source_path = st.column_text(8);
+  e.toml_text = st.column_text(9);
+  return e;
+}
+
+// Queued entry ids in position order.
+Result<std::vector<int64_t>> queued_ids(sqlite3* db, const std::string& path) {
+  auto st =
+      Stmt::prepare(db, path, "SELECT id FROM queue WHERE state = 'queued' ORDER BY position, id");
+  if (!st) return st.error();
+  std::vector<int64_t> ids;
+  int rc;
+  while ((rc = st->step()) == SQLITE_ROW) ids.push_back(st->column_int64(0));
+  if (rc != SQLITE_DONE) return sqlite_error(db, path, "reading the queue");
+  return ids;
+}
+
+// Writes positions 0..n-1 in the given order.
+Status renumber(sqlite3* db, const std::string& path, const std::vector<int64_t>& ids) {
+  auto st = Stmt::prepare(db, path, "UPDATE queue SET position = ? WHERE id = ?");
+  if (!st) return st.error();
+  for (std::size_t i = 0; i < ids.size(); ++i) {
+    st->reset();
+    st->bind(1, static_cast<int64_t>(i));
+    st->bind(2, ids[i]);
+    if (Status s = expect_done(*st, db, path, "renumbering the queue"); !s) return s;
+  }
+  return Status::Ok();
+}
+
+}  // namespace
+
+Status Database::set_run_checkpoint(int64_t run_id, std::string_view resume_json,
+                                    double wall_unix_s) {
+  auto st = Stmt::prepare(
+      db_, path_, "UPDATE runs SET resume_json = ?, checkpoint_wall_unix_s = ? WHERE id = ?");
+  if (!st) return st.error();
+  st->bind(1, resume_json);
+  st->bind(2, wall_unix_s);
+  st->bind(3, run_id);
+  return expect_done(*st, db_, path_, fmt::format("checkpointing run {}", run_id));
+}
+
+Result<std::optional<double>> Database::last_sample_t_s(int64_t run_id) {
+  auto st = Stmt::prepare(db_, path_,
+                          "SELECT max((SELECT max(t_s) FROM gyro_samples WHERE run_id = ?1), "
+                          "(SELECT max(t_s) FROM temperature_samples WHERE run_id = ?1)), "
+                          "(SELECT max(t_s) FROM gyro_samples WHERE run_id = ?1), "
+                          "(SELECT max(t_s) FROM temperature_samples WHERE run_id = ?1)");
+  if (!st) return st.error();
+  st->bind(1, run_id);
+  if (st->step() != SQLITE_ROW) {
+    return sqlite_error(db_, path_, fmt::format("reading the last sample of run {}", run_id));
+  }
+  // SQLite's scalar max() is NULL when any argument is NULL: take the larger
+  // of whichever exist.
+  std::optional<double> last = st->column_optional_double(0);
+  for (int c : {1, 2}) {
+    if (auto v = st->column_optional_double(c)) last = std::max(last.value_or(*v), *v);
+  }
+  return last;
+}
+
+Result<QueueEntry> Database::queue_add(const std::string& schedule_name,
+                                       const std::string& source_path, const std::string& toml_text,
+                                       bool ignore_failures) {
+  Transaction tx(db_, path_);
+  if (Status s = tx.begin_immediate(); !s) return s.error();
+  const std::string now = wall_time_utc_iso();
+  auto sched = Stmt::prepare(
+      db_, path_,
+      "INSERT INTO schedules(name, source_path, toml_text, created_utc) VALUES(?, ?, ?, ?)");
+  if (!sched) return sched.error();
+  sched->bind(1, std::string_view(schedule_name));
+  sched->bind_text_or_null(2, source_path);
+  sched->bind(3, std::string_view(toml_text));
+  sched->bind(4, std::string_view(now));
+  if (Status s = expect_done(*sched, db_, path_, "storing a schedule"); !s) return s.error();
+  const int64_t schedule_id = sqlite3_last_insert_rowid(db_);
+  auto ins = Stmt::prepare(
+      db_, path_,
+      "INSERT INTO queue(schedule_id, position, state, added_utc, ignore_failures) "
+      "VALUES(?, (SELECT coalesce(max(position) + 1, 0) FROM queue WHERE state = 'queued'), "
+      "'queued', ?, ?)");
+  if (!ins) return ins.error();
+  ins->bind(1, schedule_id);
+  ins->bind(2, std::string_view(now));
+  ins->bind(3, ignore_failures ? 1 : 0);
+  if (Status s = expect_done(*ins, db_, path_, "adding to the queue"); !s) return s.error();
+  const int64_t id = sqlite3_last_insert_rowid(db_);
+  if (Status s = tx.commit(); !s) return s.error();
+  auto entry = queue_entry(id);
+  if (!entry) return entry.error();
+  return **entry;
+}
+
+Result<std::vector<QueueEntry>> Database::queue_entries() {
+  auto st = Stmt::prepare(db_, path_,
+                          std::string(kQueueSelect) +
+                              "WHERE q.state IN ('running', 'queued') "
+                              "ORDER BY q.state = 'queued', q.position, q.id");
+  if (!st) return st.error();
+  std::vector<QueueEntry> out;
+  int rc;
+  while ((rc = st->step()) == SQLITE_ROW) out.push_back(read_entry(*st));
+  if (rc != SQLITE_DONE) return sqlite_error(db_, path_, "reading the queue");
+  return out;
+}
+
+Result<std::optional<QueueEntry>> Database::queue_entry(int64_t id) {
+  auto st = Stmt::prepare(db_, path_, std::string(kQueueSelect) + "WHERE q.id = ?");
+  if (!st) return st.error();
+  st->bind(1, id);
+  const int rc = st->step();
+  if (rc == SQLITE_ROW) return std::optional<QueueEntry>(read_entry(*st));
+  if (rc == SQLITE_DONE) return std::optional<QueueEntry>();
+  return sqlite_error(db_, path_, fmt::format("reading queue entry {}", id));
+}
+
+Result<bool> Database::queue_remove(int64_t id) {
+  Transaction tx(db_, path_);
+  if (Status s = tx.begin_immediate(); !s) return s.error();
+  auto st = Stmt::prepare(
+      db_, path_,
+      "UPDATE queue SET state = 'removed', position = -1 WHERE id = ? AND state = 'queued'");
+  if (!st) return st.error();
+  st->bind(1, id);
+  if (Status s = expect_done(*st, db_, path_, "removing a queue entry"); !s) return s.error();
+  if (sqlite3_changes(db_) == 0) return false;
+  auto ids = queued_ids(db_, path_);
+  if (!ids) return ids.error();
+  if (Status s = renumber(db_, path_, *ids); !s) return s.error();
+  if (Status s = tx.commit(); !s) return s.error();
+  return true;
+}
+
+Result<bool> Database::queue_move(int64_t id, int position) {
+  Transaction tx(db_, path_);
+  if (Status s = tx.begin_immediate(); !s) return s.error();
+  auto ids = queued_ids(db_, path_);
+  if (!ids) return ids.error();
+  auto it = std::find(ids->begin(), ids->end(), id);
+  if (it == ids->end()) return false;
+  ids->erase(it);
+  const auto at = static_cast<std::size_t>(std::clamp(position, 0, static_cast<int>(ids->size())));
+  ids->insert(ids->begin() + static_cast<std::ptrdiff_t>(at), id);
+  if (Status s = renumber(db_, path_, *ids); !s) return s.error();
+  if (Status s = tx.commit(); !s) return s.error();
+  return true;
+}
+
+Result<bool> Database::queue_claim(int64_t id, int64_t run_id) {
+  Transaction tx(db_, path_);
+  if (Status s = tx.begin_immediate(); !s) return s.error();
+  auto st = Stmt::prepare(db_, path_,
+                          "UPDATE queue SET state = 'running', position = -1, run_id = ? "
+                          "WHERE id = ? AND state = 'queued'");
+  if (!st) return st.error();
+  st->bind(1, run_id);
+  st->bind(2, id);
+  if (Status s = expect_done(*st, db_, path_, "taking a queue entry"); !s) return s.error();
+  if (sqlite3_changes(db_) == 0) return false;
+  auto ids = queued_ids(db_, path_);
+  if (!ids) return ids.error();
+  if (Status s = renumber(db_, path_, *ids); !s) return s.error();
+  if (Status s = tx.commit(); !s) return s.error();
+  return true;
+}
+
+Status Database::queue_finish(int64_t id, std::string_view state) {
+  auto st = Stmt::prepare(db_, path_, "UPDATE queue SET state = ?, position = -1 WHERE id = ?");
+  if (!st) return st.error();
+  st->bind(1, state);
+  st->bind(2, id);
+  return expect_done(*st, db_, path_, fmt::format("closing queue entry {}", id));
+}
+
+Status Database::queue_requeue(int64_t id) {
+  Transaction tx(db_, path_);
+  if (Status s = tx.begin_immediate(); !s) return s;
+  auto ids = queued_ids(db_, path_);
+  if (!ids) return ids.error();
+  ids->insert(ids->begin(), id);
+  auto st =
+      Stmt::prepare(db_, path_, "UPDATE queue SET state = 'queued', run_id = NULL WHERE id = ?");
+  if (!st) return st.error();
+  st->bind(1, id);
+  if (Status s = expect_done(*st, db_, path_, "requeueing"); !s) return s;
+  if (Status s = renumber(db_, path_, *ids); !s) return s;
+  return tx.commit();
+}
+
+Result<std::optional<std::string>> Database::meta(std::string_view key) {
+  auto st = Stmt::prepare(db_, path_, "SELECT value FROM meta WHERE key = ?");
+  if (!st) return st.error();
+  st->bind(1, key);
+  const int rc = st->step();
+  if (rc == SQLITE_ROW) return std::optional<std::string>(st->column_text(0));
+  if (rc == SQLITE_DONE) return std::optional<std::string>();
+  return sqlite_error(db_, path_, fmt::format("reading meta '{}'", key));
+}
+
+Status Database::set_meta(std::string_view key, std::string_view value) {
+  auto st = Stmt::prepare(db_, path_, "INSERT OR REPLACE INTO meta(key, value) VALUES(?, ?)");
+  if (!st) return st.error();
+  st->bind(1, key);
+  st->bind(2, value);
+  return expect_done(*st, db_, path_, fmt::format("writing meta '{}'", key));
+}
+
+Status Database::delete_meta(std::string_view key) {
+  auto st = Stmt::prepare(db_, path_, "DELETE FROM meta WHERE key = ?");
+  if (!st) return st.error();
+  st->bind(1, key);
+  return expect_done(*st, db_, path_, fmt::format("deleting meta '{}'", key));
+}
+
+}  // namespace gyrotherm::storage
