@@ -1,14 +1,22 @@
 // gyrotherm-sim: the simulated station (DESIGN.md §8). Thin main: options,
 // signals, printing; the Simulator class does the work.
+//
+//   gyrotherm-sim --config FILE [...]                    run the station
+//   gyrotherm-sim ctl (--socket PATH | --endpoints FILE) COMMAND...
+//                                                        one fault-injection command
 #include <fmt/format.h>
 #include <signal.h>
 
 #include <CLI/CLI.hpp>
+#include <chrono>
 #include <cstdio>
+#include <cstring>
 #include <string>
+#include <vector>
 
 #include "gyrotherm/core/toml_reader.h"
 #include "gyrotherm/daemon/config.h"
+#include "gyrotherm/sim/control_server.h"
 #include "gyrotherm/sim/options.h"
 #include "gyrotherm/sim/simulator.h"
 
@@ -17,17 +25,97 @@ namespace {
 constexpr int kExitRuntime = 1;
 constexpr int kExitUsage = 2;  // bad command line or configuration
 
+// `gyrotherm-sim ctl ...`: exit 0 on "ok", 1 on "error", 2 on a usage or
+// connection problem.
+int run_ctl(int argc, char** argv) {
+  using namespace gyrotherm;
+  CLI::App app{
+      "gyrotherm-sim ctl: send one fault-injection command to a running gyrotherm-sim "
+      "and print its reply (docs/simulator.md). Exit status: 0 ok, 1 error reply, 2 "
+      "usage or connection failure.",
+      "gyrotherm-sim ctl"};
+  std::string socket_path;
+  std::string endpoints_path;
+  double timeout_s = 5.0;
+  auto* socket_opt = app.add_option("--socket", socket_path,
+                                    "the simulator's control socket ([simulator] "
+                                    "control_socket)");
+  auto* endpoints_opt = app.add_option("--endpoints", endpoints_path,
+                                       "take the socket path from this endpoints file");
+  socket_opt->excludes(endpoints_opt);
+  app.add_option("--timeout", timeout_s, "seconds to wait for the reply")
+      ->check(CLI::Range(0.1, 3600.0));
+  app.footer("COMMAND is one of (send 'help' for the list as JSON):\n" + [] {
+    std::string list;
+    for (const auto& h : sim::control_commands()) {
+      list += fmt::format("  {:<24} {}\n", h.usage, h.description);
+    }
+    return list;
+  }());
+  app.prefix_command();  // everything from COMMAND on is the command, "-5" included
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    const int rc = app.exit(e);
+    return rc == 0 ? 0 : kExitUsage;
+  }
+  std::vector<std::string> words = app.remaining();
+  if (!words.empty() && words.front() == "--") words.erase(words.begin());
+  if (words.empty()) {
+    std::fprintf(stderr, "gyrotherm-sim ctl: no command (try 'help')\n%s", app.help().c_str());
+    return kExitUsage;
+  }
+  if (!*socket_opt && !*endpoints_opt) {
+    std::fprintf(stderr, "gyrotherm-sim ctl: give --socket PATH or --endpoints FILE\n");
+    return kExitUsage;
+  }
+  if (*endpoints_opt) {
+    auto ep = daemon::read_sim_endpoints(endpoints_path);
+    if (!ep.ok()) {
+      std::fprintf(stderr, "gyrotherm-sim ctl: %s\n", ep.error().message.c_str());
+      return kExitUsage;
+    }
+    if (ep->control_socket.empty()) {
+      std::fprintf(stderr,
+                   "gyrotherm-sim ctl: %s names no control_socket (set [simulator] "
+                   "control_socket in the station config)\n",
+                   endpoints_path.c_str());
+      return kExitUsage;
+    }
+    socket_path = ep->control_socket;
+  }
+  std::string command;
+  for (const auto& w : words) command += (command.empty() ? "" : " ") + w;
+  const auto timeout = std::chrono::milliseconds(static_cast<int64_t>(timeout_s * 1000));
+  auto reply = sim::send_control_command(socket_path, command, timeout);
+  if (!reply.ok()) {
+    std::fprintf(stderr, "gyrotherm-sim ctl: %s\n", reply.error().message.c_str());
+    return kExitUsage;
+  }
+  std::printf("%s\n", reply->c_str());
+  if (*reply == "ok" || reply->rfind("ok ", 0) == 0) return 0;
+  if (reply->rfind("error", 0) == 0) return kExitRuntime;
+  std::fprintf(stderr, "gyrotherm-sim ctl: unexpected reply\n");
+  return kExitUsage;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   using namespace gyrotherm;
+  if (argc >= 2 && std::strcmp(argv[1], "ctl") == 0) return run_ctl(argc - 1, argv + 1);
+
   CLI::App app{
       "gyrotherm-sim: simulated thermal test station. Serves the chamber controller and the "
       "probe module over Modbus TCP on 127.0.0.1 and streams KVH 1750 gyro frames on a pty."};
+  app.footer(
+      "Fault injection while it runs: gyrotherm-sim ctl --socket PATH COMMAND... "
+      "(gyrotherm-sim ctl --help).");
   std::string config_path;
   double time_scale = 1.0;
   std::string endpoints_file;
   std::string truth_file;
+  std::string control_socket;
   uint64_t seed = 0;
   double rate_hz = 0;
   app.add_option("--config", config_path, "station config (TOML) with a [simulator] section")
@@ -39,6 +127,9 @@ int main(int argc, char** argv) {
                      "where to write the opened endpoints ([simulator] endpoints_file)");
   auto* truth_opt = app.add_option("--truth", truth_file,
                                    "where to write the model truth ([simulator] truth_file)");
+  auto* control_opt =
+      app.add_option("--control-socket", control_socket,
+                     "Unix socket for fault-injection commands ([simulator] control_socket)");
   auto* seed_opt = app.add_option("--seed", seed, "random seed ([simulator] seed)");
   auto* rate_opt = app.add_option("--rate-hz", rate_hz, "gyro output rate, Hz ([gyro] rate_hz)");
   try {
@@ -52,6 +143,7 @@ int main(int argc, char** argv) {
   if (*time_scale_opt) overrides.time_scale = time_scale;
   if (*endpoints_opt) overrides.endpoints_file = endpoints_file;
   if (*truth_opt) overrides.truth_file = truth_file;
+  if (*control_opt) overrides.control_socket = control_socket;
   if (*seed_opt) overrides.seed = seed;
   if (*rate_opt) overrides.rate_hz = rate_hz;
 
@@ -103,6 +195,7 @@ int main(int argc, char** argv) {
   fmt::print("modbus {}:{}\n", ep.modbus_host, ep.modbus_port);
   fmt::print("gyro {}\n", ep.gyro_device);
   if (!s.truth_file().empty()) fmt::print("truth {}\n", s.truth_file());
+  if (!ep.control_socket.empty()) fmt::print("control {}\n", ep.control_socket);
   if (!s.endpoints_file().empty()) fmt::print("endpoints {}\n", s.endpoints_file());
   std::fflush(stdout);
 

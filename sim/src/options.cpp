@@ -76,6 +76,11 @@ bool SimulatorOptions::IsValid(std::string* error) const {
   if (!(gyro_format.rate_hz >= 0.1 && gyro_format.rate_hz <= 10000)) {
     return fail(fmt::format("gyro rate_hz = {} must be in [0.1, 10000]", gyro_format.rate_hz));
   }
+  if (control_socket.size() > kMaxControlSocketPath) {
+    return fail(
+        fmt::format("control_socket '{}' is {} bytes long; a Unix socket path holds at most {}",
+                    control_socket, control_socket.size(), kMaxControlSocketPath));
+  }
   if (gyro_format.axis < 0 || gyro_format.axis > 2) return fail("gyro axis must be x, y or z");
   return true;
 }
@@ -91,6 +96,7 @@ Result<SimulatorOptions> read_simulator_options(const daemon::StationConfig& con
     if (auto f = t.string("endpoints_file")) o.endpoints_file = *f;
     if (auto f = t.string("truth_file")) o.truth_file = *f;
     if (auto f = t.string("gyro_link")) o.gyro_link = *f;
+    if (auto f = t.string("control_socket")) o.control_socket = *f;
     if (auto p = t.integer("modbus_port")) {
       if (*p < 0 || *p > 65535)
         t.error("modbus_port", fmt::format("{} is not a TCP port", *p));
@@ -117,6 +123,7 @@ Result<SimulatorOptions> read_simulator_options(const daemon::StationConfig& con
   if (overrides.time_scale) o.time_scale = *overrides.time_scale;
   if (overrides.endpoints_file) o.endpoints_file = *overrides.endpoints_file;
   if (overrides.truth_file) o.truth_file = *overrides.truth_file;
+  if (overrides.control_socket) o.control_socket = *overrides.control_socket;
   if (overrides.seed) o.seed = *overrides.seed;
   if (overrides.rate_hz) o.gyro_format.rate_hz = *overrides.rate_hz;
   // Keys already reported above kept their defaults, so what IsValid() finds

@@ -7,9 +7,11 @@
 #include <chrono>
 #include <cmath>
 #include <filesystem>
+#include <limits>
 
 #include "gyrotherm/analysis/table1.h"
 #include "gyrotherm/drivers/kvh1750.h"
+#include "gyrotherm/sim/control_server.h"
 
 namespace gyrotherm::sim {
 namespace {
@@ -72,6 +74,7 @@ Simulator::Simulator(daemon::StationConfig config, SimulatorOptions options, con
             derive_seed(options_.seed, 2)),
       fault_rng_(derive_seed(options_.seed, 3)),
       setpoint_c_(options_.thermal.initial_temp_c),
+      forced_chamber_c_(std::numeric_limits<double>::quiet_NaN()),
       stream_(drivers::kKvh1750FrameSize, pending_frames_limit(options_)) {
   truth_json_ = gyro_.truth_json(options_.seed);
   status_.setpoint_c = options_.thermal.initial_temp_c;
@@ -90,7 +93,7 @@ Status Simulator::start() {
   server_options.host = options_.modbus_host;
   server_options.port = options_.modbus_port;
   ModbusServer::Device chamber{chamber_unit_, {map.setpoint, map.process_value}};
-  for (const auto* extra : {&map.ramp_rate, &map.ramp_action, &map.ramp_scale}) {
+  for (const auto* extra : {&map.ramp_rate, &map.ramp_action, &map.ramp_scale, &map.alarm}) {
     if (*extra) chamber.registers.push_back(**extra);
   }
   server_options.devices = {
@@ -110,6 +113,7 @@ Status Simulator::start() {
   publish_registers();
 
   auto fail = [&](Error e) -> Status {
+    control_.reset();  // never served: no command can be waiting for life_mu_
     server_.reset();
     std::lock_guard lock(stream_mu_);
     stream_.close();
@@ -119,6 +123,13 @@ Status Simulator::start() {
     std::lock_guard lock(stream_mu_);
     if (Status s = stream_.open(); !s.ok()) return fail(s.error());
     if (Status s = point_gyro_link_locked(); !s.ok()) return fail(s.error());
+  }
+  if (!options_.control_socket.empty()) {
+    ControlServer::Options control_options;
+    control_options.path = options_.control_socket;
+    auto control = ControlServer::open(std::move(control_options));
+    if (!control.ok()) return fail(control.error());
+    control_ = std::move(control).value();
   }
   if (!options_.truth_file.empty()) {
     if (Status s = daemon::write_file_atomically(options_.truth_file, truth_json_); !s.ok()) {
@@ -149,10 +160,22 @@ Status Simulator::start() {
     }
     wrote_endpoints_ = true;
   }
+  // Last: a command may need life_mu_, which start() holds.
+  if (control_)
+    control_->serve([this](std::string_view line) { return handle_control_line(*this, line); });
   return Status::Ok();
 }
 
 void Simulator::stop() {
+  // The control server first, without life_mu_: a command it is running may
+  // be waiting for it.
+  std::unique_ptr<ControlServer> control;
+  {
+    std::lock_guard life(life_mu_);
+    control = std::move(control_);
+  }
+  control.reset();
+
   std::lock_guard life(life_mu_);
   if (!thread_.joinable()) return;
   {
@@ -206,6 +229,7 @@ daemon::SimEndpoints Simulator::endpoints() const {
     ep.gyro_device = options_.gyro_link.empty() ? stream_.slave_path() : options_.gyro_link;
   }
   ep.pid = static_cast<long>(::getpid());
+  ep.control_socket = options_.control_socket;
   return ep;
 }
 
@@ -221,7 +245,24 @@ SimulatorStatus Simulator::status() const {
     s.stream = stream_.stats();
   }
   s.setpoint_c = setpoint_c_.load();
-  if (server_) s.modbus = server_->stats();
+  SimulatorFaults& f = s.faults;
+  if (server_) {
+    s.modbus = server_->stats();
+    f.modbus_down = server_->down();
+    f.modbus_reply_delay_s = server_->reply_delay_s();
+  }
+  {
+    std::lock_guard lock(stream_mu_);
+    f.pty_open = stream_.is_open();
+  }
+  f.frame_corruption_rate = corruption_rate_.load();
+  f.frame_drop_rate = drop_rate_.load();
+  f.top_stalled = stalled_[0].load();
+  f.side_stalled = stalled_[1].load();
+  f.chamber_alarm = chamber_alarm_.load();
+  if (const double forced = forced_chamber_c_.load(); !std::isnan(forced)) {
+    f.chamber_forced_c = forced;
+  }
   return s;
 }
 
@@ -251,6 +292,11 @@ void Simulator::advance_to(double target_s, std::vector<uint8_t>& batch) {
   const double drop = drop_rate_.load();
   std::uniform_real_distribution<double> uniform(0.0, 1.0);
   plant_.set_ramp_limit_c_per_min(ramp_limit_c_per_min_.load());
+  if (const double forced = forced_chamber_c_.load(); std::isnan(forced)) {
+    plant_.force_air_c(std::nullopt);
+  } else {
+    plant_.force_air_c(forced);
+  }
 
   const auto budget_end = std::chrono::steady_clock::now() + kTickBudget;
   int64_t done = 0;
@@ -298,6 +344,10 @@ void Simulator::publish_registers() {
   (void)server_->set(chamber_unit_, config_.chamber.map.process_value, air_c);
   (void)server_->set(probes_unit_, config_.probes.top, top_c);
   (void)server_->set(probes_unit_, config_.probes.side, side_c);
+  if (config_.chamber.map.alarm) {
+    std::lock_guard lock(alarm_mu_);
+    (void)server_->set(chamber_unit_, *config_.chamber.map.alarm, chamber_alarm_.load() ? 1 : 0);
+  }
 }
 
 void Simulator::on_modbus_write(int unit_id) {
@@ -374,6 +424,24 @@ Status Simulator::reopen_pty() {
 
 void Simulator::stall_probe(ProbeRole role, bool stalled) {
   stalled_[role == ProbeRole::kTop ? 0 : 1].store(stalled);
+}
+
+void Simulator::set_chamber_alarm(bool raised) {
+  std::lock_guard life(life_mu_);
+  std::lock_guard lock(alarm_mu_);
+  chamber_alarm_.store(raised);
+  // At once, not at the next tick: a read right after the command sees it.
+  if (server_ && config_.chamber.map.alarm) {
+    (void)server_->set(chamber_unit_, *config_.chamber.map.alarm, raised ? 1 : 0);
+  }
+}
+
+void Simulator::force_chamber_c(std::optional<double> target_c) {
+  double forced = std::numeric_limits<double>::quiet_NaN();
+  if (target_c && std::isfinite(*target_c)) {
+    forced = std::clamp(*target_c, kMinSetpointC, kMaxSetpointC);
+  }
+  forced_chamber_c_.store(forced);
 }
 
 }  // namespace gyrotherm::sim

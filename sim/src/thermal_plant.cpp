@@ -54,14 +54,21 @@ void ThermalPlant::set_ramp_limit_c_per_min(double rate_c_per_min) {
                                              : params_.max_ramp_c_per_min;
 }
 
+void ThermalPlant::force_air_c(std::optional<double> target_c) {
+  if (target_c && !std::isfinite(*target_c)) target_c.reset();
+  forced_air_c_ = target_c;
+}
+
 void ThermalPlant::step(double dt_s, double setpoint_c) {
   if (!(dt_s > 0)) return;
   t_s_ += dt_s;
 
-  // Controller ramp.
-  const double max_step_c = ramp_limit_c_per_min_ / 60.0 * dt_s;
+  // Controller ramp (a runaway one ramps to its own target as fast as it can).
+  const double target_c = forced_air_c_ ? *forced_air_c_ : setpoint_c;
+  const double rate_c_per_min = forced_air_c_ ? params_.max_ramp_c_per_min : ramp_limit_c_per_min_;
+  const double max_step_c = rate_c_per_min / 60.0 * dt_s;
   double& ramped = truth_.ramped_setpoint_c;
-  ramped += std::clamp(setpoint_c - ramped, -max_step_c, max_step_c);
+  ramped += std::clamp(target_c - ramped, -max_step_c, max_step_c);
 
   // Air: lag behind the ramped set point, plus OU control noise with
   // stationary std control_noise_c / 2 (exact AR(1) discretisation).

@@ -53,6 +53,7 @@ TEST(SimulatorOptions, ReadsEveryDemoKey) {
   EXPECT_EQ(o->endpoints_file, "demo/sim-endpoints.toml");
   EXPECT_EQ(o->truth_file, "demo/sim-truth.json");
   EXPECT_EQ(o->gyro_link, "demo/gyro-pty");
+  EXPECT_EQ(o->control_socket, "demo/sim.sock");
   EXPECT_EQ(o->modbus_port, 0);
   EXPECT_EQ(o->seed, 1u);
   EXPECT_DOUBLE_EQ(o->thermal.initial_temp_c, 23.0);
@@ -84,6 +85,7 @@ TEST(SimulatorOptions, OverridesWin) {
   ov.rate_hz = 200;
   ov.truth_file = "t.json";
   ov.endpoints_file = "e.toml";
+  ov.control_socket = "c.sock";
   auto o = options_from(demo_text(), ov);
   ASSERT_TRUE(o.ok()) << o.error().message;
   EXPECT_DOUBLE_EQ(o->time_scale, 1000);
@@ -91,6 +93,7 @@ TEST(SimulatorOptions, OverridesWin) {
   EXPECT_DOUBLE_EQ(o->gyro_format.rate_hz, 200);
   EXPECT_EQ(o->truth_file, "t.json");
   EXPECT_EQ(o->endpoints_file, "e.toml");
+  EXPECT_EQ(o->control_socket, "c.sock");
 }
 
 TEST(SimulatorOptions, EveryProblemIsReportedWithFileLineAndKey) {
@@ -132,6 +135,17 @@ TEST(SimulatorOptions, BadOverrideIsAnError) {
   auto o = options_from(demo_text(), ov);
   ASSERT_FALSE(o.ok());
   EXPECT_NE(o.error().message.find("time scale"), std::string::npos) << o.error().message;
+}
+
+TEST(SimulatorOptions, ControlSocketPathMustFitASocketAddress) {
+  SimulatorOverrides ov;
+  ov.control_socket = std::string(kMaxControlSocketPath, 'x');
+  EXPECT_TRUE(options_from(demo_text(), ov).ok());
+  ov.control_socket = std::string(kMaxControlSocketPath + 1, 'x');
+  auto o = options_from(demo_text(), ov);
+  ASSERT_FALSE(o.ok());
+  EXPECT_NE(o.error().message.find("control_socket"), std::string::npos) << o.error().message;
+  EXPECT_NE(o.error().message.find("at most 107"), std::string::npos) << o.error().message;
 }
 
 }  // namespace

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <numeric>
 #include <vector>
 
@@ -172,6 +173,39 @@ TEST(ThermalPlant, ControllerRampLimitNeverExceedsPlantLimit) {
   plant.set_ramp_limit_c_per_min(10.0);  // capped at 2 °C/min
   for (int i = 0; i < 600; ++i) plant.step(0.1, 60.0);
   EXPECT_NEAR(plant.truth().ramped_setpoint_c, 26.0, 1e-9);
+}
+
+TEST(ThermalPlant, ForcedAirRunsAwayAtTheMaxRampAndComesBackWhenReleased) {
+  ThermalParams p = quiet_params();
+  p.air_tau_s = 120;
+  p.max_ramp_c_per_min = 5;
+  ThermalPlant plant(p, 1);
+  plant.set_ramp_limit_c_per_min(1.0);  // the controller's ramp setting does not hold it back
+  plant.force_air_c(80.0);
+  ASSERT_EQ(plant.forced_air_c(), 80.0);
+  const double runaway_c_per_s = 5.0 / 60.0;
+  for (int i = 0; i < 1200; ++i) plant.step(0.1, 23.0);  // 120 s, set point held at 23
+  EXPECT_NEAR(plant.truth().ramped_setpoint_c, 23.0 + 120 * runaway_c_per_s, 1e-9);
+  // The usual lag: 23 + a (t - tau (1 - e^(-t/tau))), as for a set point step.
+  EXPECT_NEAR(plant.truth().air_c, 23.0 + runaway_c_per_s * 120 * std::exp(-1.0), 0.02);
+  for (int i = 0; i < 12000; ++i) plant.step(0.1, 23.0);  // to 1320 s: at 80 since 684 s
+  EXPECT_DOUBLE_EQ(plant.truth().ramped_setpoint_c, 80.0);
+  // 10 °C behind when the ramp ended; 5.3 tau later 0.05 °C is left.
+  EXPECT_NEAR(plant.truth().air_c, 80.0, 0.1);
+
+  // Released: back towards the requested set point at the controller's own
+  // ramp limit (1 °C/min).
+  plant.force_air_c(std::nullopt);
+  EXPECT_FALSE(plant.forced_air_c());
+  for (int i = 0; i < 600; ++i) plant.step(0.1, 23.0);
+  EXPECT_NEAR(plant.truth().ramped_setpoint_c, 79.0, 1e-9);
+
+  // Forced below the set point too; a non-finite target is a release.
+  plant.force_air_c(-10.0);
+  plant.step(60.0, 23.0);
+  EXPECT_NEAR(plant.truth().ramped_setpoint_c, 74.0, 1e-9);
+  plant.force_air_c(std::numeric_limits<double>::quiet_NaN());
+  EXPECT_FALSE(plant.forced_air_c());
 }
 
 }  // namespace

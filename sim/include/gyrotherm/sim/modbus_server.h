@@ -76,6 +76,8 @@ class ModbusServer {
   // wall seconds after it arrived (other connections are still served).
   void set_down(bool down);
   void set_reply_delay_s(double wall_s);
+  bool down() const { return down_.load(); }
+  double reply_delay_s() const { return reply_delay_s_.load(); }
 
   ModbusServerStats stats() const;
 

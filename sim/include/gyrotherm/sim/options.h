@@ -6,6 +6,7 @@
 //   endpoints_file = "demo/sim-endpoints.toml"  # where the opened endpoints go ("" = none)
 //   truth_file = "demo/sim-truth.json"          # the gyro model's truth ("" = none)
 //   gyro_link = "demo/gyro-pty"                 # a stable symlink to the current pty ("" = none)
+//   control_socket = "demo/sim.sock"            # fault-injection commands ("" = none)
 //   modbus_port = 0                             # 0: any free port
 //   seed = 1
 //   initial_temp_c = 23.0
@@ -16,6 +17,7 @@
 // The gyro output format (unit, rate/delta, axis, rate_hz) comes from [gyro].
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -28,6 +30,9 @@
 
 namespace gyrotherm::sim {
 
+// sizeof(sockaddr_un::sun_path) - 1 on Linux.
+inline constexpr std::size_t kMaxControlSocketPath = 107;
+
 struct SimulatorOptions {
   std::string endpoints_file;  // "" = do not write one
   std::string truth_file;      // "" = do not write one
@@ -35,6 +40,9 @@ struct SimulatorOptions {
   // after reopen_pty() the daemon finds the new pty through it. When set,
   // it is the gyro device the endpoints name. "" = none.
   std::string gyro_link;
+  // Unix-domain socket for fault-injection commands (control_server.h); at
+  // most 107 bytes. "" = none.
+  std::string control_socket;
   std::string modbus_host = "127.0.0.1";
   int modbus_port = 0;  // 0 = any free port
   uint64_t seed = 1;
@@ -55,6 +63,7 @@ struct SimulatorOverrides {
   std::optional<double> time_scale;
   std::optional<std::string> endpoints_file;
   std::optional<std::string> truth_file;
+  std::optional<std::string> control_socket;
   std::optional<uint64_t> seed;
   std::optional<double> rate_hz;
 };

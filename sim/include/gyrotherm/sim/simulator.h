@@ -18,7 +18,13 @@
 // (°C/min when ramp scale is 57, else °C/h) limit the chamber's ramp, never
 // beyond [simulator.thermal] max_ramp_c_per_min.
 //
+// With config.chamber.map.alarm set, the chamber also serves that register:
+// 0, or 1 while set_chamber_alarm(true) (refreshed every tick, so a client's
+// write to it does not stick).
+//
 // Fault hooks are plain methods, safe to call from any thread while running.
+// With options.control_socket set, start() also opens a ControlServer
+// (control_server.h) that calls them on command.
 #pragma once
 
 #include <atomic>
@@ -26,6 +32,7 @@
 #include <cstdint>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <random>
 #include <string>
 #include <thread>
@@ -43,6 +50,21 @@ namespace gyrotherm::sim {
 
 enum class ProbeRole { kTop, kSide };
 
+class ControlServer;
+
+// The faults in force.
+struct SimulatorFaults {
+  bool modbus_down = false;
+  double modbus_reply_delay_s = 0;  // wall seconds
+  bool pty_open = false;            // false while closed by close_pty() (or not running)
+  double frame_corruption_rate = 0;
+  double frame_drop_rate = 0;
+  bool top_stalled = false;
+  bool side_stalled = false;
+  bool chamber_alarm = false;
+  std::optional<double> chamber_forced_c;  // force_chamber_c() target, °C
+};
+
 struct SimulatorStatus {
   bool running = false;
   double t_s = 0;            // station seconds simulated since start()
@@ -58,6 +80,7 @@ struct SimulatorStatus {
   ModbusServerStats modbus;
   uint64_t setpoint_writes = 0;
   uint64_t setpoint_writes_rejected = 0;
+  SimulatorFaults faults;
 };
 
 class Simulator {
@@ -73,12 +96,13 @@ class Simulator {
   Simulator(const Simulator&) = delete;
   Simulator& operator=(const Simulator&) = delete;
 
-  // Listens, opens the pty, writes the truth file, starts the simulation
-  // and, once all of that is up, writes the endpoints file (with this
-  // process's pid). On error everything started is stopped again.
+  // Listens (Modbus and, if set, the control socket), opens the pty, writes
+  // the truth file, starts the simulation and, once all of that is up,
+  // writes the endpoints file (with this process's pid). On error
+  // everything started is stopped again.
   Status start();
-  // Stops the threads, closes the server and the pty, removes the endpoints
-  // file it wrote. Idempotent. The truth file stays.
+  // Stops the threads, closes the servers and the pty, removes the endpoints
+  // file it wrote and the control socket. Idempotent. The truth file stays.
   void stop();
 
   // What a client connects to (valid after start()).
@@ -107,6 +131,15 @@ class Simulator {
   Status reopen_pty();
   // A stalled probe's register keeps its last value.
   void stall_probe(ProbeRole role, bool stalled);
+  // Raises (true) or clears the chamber alarm. Without an alarm register in
+  // the config (has_chamber_alarm() false) only the status shows it.
+  void set_chamber_alarm(bool raised);
+  bool has_chamber_alarm() const { return config_.chamber.map.alarm.has_value(); }
+  // Runaway controller (ThermalPlant::force_air_c): while set, the chamber
+  // air heads to target_c (clamped to [-100, 200] °C) at the plant's max ramp
+  // rate whatever the requested set point; the set point register keeps what
+  // the client wrote. nullopt (or a non-finite target) releases it.
+  void force_chamber_c(std::optional<double> target_c);
 
  private:
   Simulator(daemon::StationConfig config, SimulatorOptions options, const Clock* clock);
@@ -142,12 +175,16 @@ class Simulator {
   std::atomic<double> corruption_rate_{0.0};
   std::atomic<double> drop_rate_{0.0};
   std::atomic<bool> stalled_[2] = {false, false};
+  std::atomic<bool> chamber_alarm_{false};
+  std::mutex alarm_mu_;                   // orders the alarm register's writes with its changes
+  std::atomic<double> forced_chamber_c_;  // NaN = not forced
 
   mutable std::mutex stream_mu_;
   GyroStream stream_;
 
   mutable std::mutex life_mu_;  // start/stop against the hooks that reach server_
   std::unique_ptr<ModbusServer> server_;
+  std::unique_ptr<ControlServer> control_;
   std::atomic<int> modbus_port_{0};
   std::thread thread_;
   std::mutex wake_mu_;

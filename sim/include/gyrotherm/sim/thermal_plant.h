@@ -10,11 +10,17 @@
 // and top/side = case ± gradient/2. Probe readings add white noise and are
 // quantised. Everything is in °C and seconds of station time.
 //
+// Fault: force_air_c() makes the controller run away: its internal set point
+// heads for the forced target at max_ramp_c_per_min (whatever the requested
+// set point and the ramp limit), and the air follows it with the usual lag
+// and noise. Released, the internal set point ramps back to the requested one.
+//
 // Pure and deterministic: the same parameters, seed and step sequence give
 // the same trajectory. Not thread-safe.
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <random>
 #include <string>
 
@@ -72,6 +78,12 @@ class ThermalPlant {
   void set_ramp_limit_c_per_min(double rate_c_per_min);
   double ramp_limit_c_per_min() const { return ramp_limit_c_per_min_; }
 
+  // Runaway controller: while set, the air is driven to target_c (°C) and the
+  // requested set point is ignored; nullopt releases it. A non-finite target
+  // releases too.
+  void force_air_c(std::optional<double> target_c);
+  std::optional<double> forced_air_c() const { return forced_air_c_; }
+
   double t_s() const { return t_s_; }  // station seconds stepped so far
   const ThermalTruth& truth() const { return truth_; }
   // Readings drawn at the end of the last step.
@@ -85,6 +97,7 @@ class ThermalPlant {
   std::mt19937_64 rng_;
   std::normal_distribution<double> normal_{0.0, 1.0};
   double ramp_limit_c_per_min_;
+  std::optional<double> forced_air_c_;
   double t_s_ = 0;
   double clean_air_c_;
   double noise_c_ = 0;
