@@ -5,14 +5,13 @@
 #include <CLI/CLI.hpp>
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
 #include <fstream>
 #include <iostream>
 #include <nlohmann/json.hpp>
-#include <thread>
+#include <sstream>
 
+#include "control.h"
 #include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/http_client.h"
 #include "gyrotherm/drivers/frame_parser.h"
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/drivers/modbus_device.h"
@@ -266,38 +265,6 @@ int cmd_schedule_check(const std::string& config_path, const std::string& schedu
   return 0;
 }
 
-// ---------------------------------------------------------------- REST
-int cmd_status(const std::string& url, bool json) {
-  auto r = daemon::http_request("GET", url + "/api/v1/status");
-  if (!r) return fail(r.error().message);
-  if (r->status != 200) return fail(fmt::format("HTTP {}: {}", r->status, r->body));
-  if (json) {
-    std::cout << r->body << "\n";
-    return 0;
-  }
-  const auto j = nlohmann::json::parse(r->body, nullptr, false);
-  if (j.is_discarded()) return fail("daemon sent invalid JSON");
-  auto f = [&](const char* key, const char* unit) {
-    return j[key].is_null() ? std::string("—")
-                            : fmt::format("{:.3f} {}", j[key].get<double>(), unit);
-  };
-  std::cout << fmt::format("station   {}\nstate     {}\n", j["station"].get<std::string>(),
-                           j["state"].get<std::string>());
-  if (!j["run_id"].is_null()) {
-    std::cout << fmt::format("run       {} ({})\nstep      {}\n", j["run_id"].get<int64_t>(),
-                             j["schedule"].get<std::string>(),
-                             j["step"]["label"].get<std::string>());
-  }
-  std::cout << fmt::format("set point {}\nchamber   {}\ntop       {}\nside      {}\ngyro      {}\n",
-                           f("setpoint_c", "°C"), f("chamber_c", "°C"), f("top_c", "°C"),
-                           f("side_c", "°C"), f("gyro_rate_dph", "°/h"));
-  const auto& g = j["devices"]["gyro"];
-  std::cout << fmt::format("frames    {} ok, {} CRC failures, {} sequence gaps\n",
-                           g["frames_ok"].get<uint64_t>(), g["crc_failures"].get<uint64_t>(),
-                           g["sequence_gaps"].get<uint64_t>());
-  return 0;
-}
-
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -305,9 +272,6 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   bool json = false;
   app.add_flag("--json", json, "machine-readable output");
-  std::string url =
-      std::getenv("GYROTHERM_URL") ? std::getenv("GYROTHERM_URL") : "http://127.0.0.1:8750";
-  std::string token = std::getenv("GYROTHERM_TOKEN") ? std::getenv("GYROTHERM_TOKEN") : "";
 
   auto* decode = app.add_subcommand("decode", "decode a raw serial capture to CSV");
   std::string protocol = "kvh1750", capture;
@@ -342,19 +306,27 @@ int main(int argc, char** argv) {
   check->add_option("--config", config_path, "station config")->required();
   check->add_flag("--json", json);
 
-  auto* status = app.add_subcommand("status", "the daemon's status");
-  status->add_option("--url", url, "daemon URL (env GYROTHERM_URL)");
-  status->add_option("--token", token, "API token (env GYROTHERM_TOKEN)");
-  status->add_flag("--json", json);
+  // status, queue add|list|remove|move, pause, resume, abort, stop, runs, run
+  gyrotherm::cli::ControlCommands control(app);
 
-  CLI11_PARSE(app, argc, argv);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    // CLI11 echoes unexpected arguments, which may hold a token.
+    std::ostringstream out, err;
+    const int code = app.exit(e, out, err);
+    const std::vector<std::string> args(argv + 1, argv + argc);
+    std::cout << out.str();
+    std::cerr << gyrotherm::cli::redact_tokens(err.str(), args);
+    return code == 0 ? 0 : 2;  // --help is not an error; usage errors exit 2
+  }
   try {
     if (*decode) return cmd_decode(protocol, capture, json);
     if (*stats) return cmd_stats(db_path, run_id, json);
     if (*devices) return cmd_devices(config_path, json);
     if (*set_point) return cmd_chamber_setpoint(config_path, setpoint_c);
     if (*check) return cmd_schedule_check(config_path, schedule_path, json);
-    if (*status) return cmd_status(url, json);
+    if (auto code = control.run(json)) return *code;
   } catch (const std::exception& e) {
     return fail(e.what());
   }

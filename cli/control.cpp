@@ -1,0 +1,624 @@
+#include "control.h"
+
+#include <fmt/format.h>
+
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <functional>
+#include <iostream>
+#include <sstream>
+#include <variant>
+#include <vector>
+
+#include "gyrotherm/daemon/http_client.h"
+
+namespace gyrotherm::cli {
+
+using nlohmann::json;
+
+namespace {
+
+constexpr const char* kDash = "—";
+
+// ---------------------------------------------------------------- JSON access
+
+const json& field(const json& j, const char* key) {
+  static const json kNull;
+  if (!j.is_object()) return kNull;
+  const auto it = j.find(key);
+  return it == j.end() ? kNull : *it;
+}
+
+// The first of `keys` present and not null (the status snapshot has had two
+// spellings: `schedule_name` / `schedule`, `step_index` / `step.index`).
+const json& first_of(const json& j, std::initializer_list<const char*> keys) {
+  for (const char* k : keys) {
+    if (!field(j, k).is_null()) return field(j, k);
+  }
+  return field(j, "");
+}
+
+std::optional<double> number(const json& v) {
+  if (!v.is_number()) return std::nullopt;
+  const double d = v.get<double>();
+  return std::isfinite(d) ? std::optional<double>(d) : std::nullopt;
+}
+
+std::string text(const json& v) {
+  if (v.is_string()) return v.get<std::string>().empty() ? kDash : v.get<std::string>();
+  if (v.is_number_integer()) return v.dump();
+  if (v.is_number()) return fmt::format("{:g}", v.get<double>());
+  if (v.is_boolean()) return v.get<bool>() ? "yes" : "no";
+  if (v.is_null()) return kDash;
+  return v.dump();
+}
+
+std::string fixed(const json& v, int decimals, std::string_view unit = "") {
+  const auto d = number(v);
+  if (!d) return kDash;
+  return unit.empty() ? fmt::format("{:.{}f}", *d, decimals)
+                      : fmt::format("{:.{}f} {}", *d, decimals, unit);
+}
+
+bool truthy(const json& v) { return v.is_boolean() && v.get<bool>(); }
+
+// ---------------------------------------------------------------- tables
+
+// Columns in terminal cells: UTF-8 continuation bytes take none.
+std::size_t cells(std::string_view s) {
+  std::size_t n = 0;
+  for (const char c : s) n += (static_cast<unsigned char>(c) & 0xC0) != 0x80;
+  return n;
+}
+
+enum class Align { kLeft, kRight };
+
+// A header row and data rows, columns two spaces apart, no trailing blanks.
+std::string table(const std::vector<std::string>& header, const std::vector<Align>& align,
+                  const std::vector<std::vector<std::string>>& rows) {
+  std::vector<std::size_t> width(header.size());
+  auto measure = [&](const std::vector<std::string>& row) {
+    for (std::size_t c = 0; c < row.size() && c < width.size(); ++c) {
+      width[c] = std::max(width[c], cells(row[c]));
+    }
+  };
+  measure(header);
+  for (const auto& r : rows) measure(r);
+  std::string out;
+  auto emit = [&](const std::vector<std::string>& row) {
+    std::string line;
+    for (std::size_t c = 0; c < row.size() && c < width.size(); ++c) {
+      if (c > 0) line += "  ";
+      const std::string pad(width[c] - cells(row[c]), ' ');
+      line += align[c] == Align::kRight ? pad + row[c] : row[c] + pad;
+    }
+    while (!line.empty() && line.back() == ' ') line.pop_back();
+    out += line + "\n";
+  };
+  emit(header);
+  for (const auto& r : rows) emit(r);
+  return out;
+}
+
+// "label       value" lines of a summary.
+std::string labelled(std::string_view label, std::string_view value) {
+  return fmt::format("{:<12}{}\n", label, value);
+}
+
+// ---------------------------------------------------------------- talking to the daemon
+
+int fail(const std::string& message, int code = 1) {
+  std::cerr << "gyrotherm: " << message;
+  if (message.empty() || message.back() != '\n') std::cerr << '\n';
+  return code;
+}
+
+// Checks and tidies --url; nullopt (after saying why) when it is unusable.
+std::optional<std::string> base_url(const std::string& url) {
+  std::string u = url;
+  while (!u.empty() && u.back() == '/') u.pop_back();
+  if (u.rfind("http://", 0) != 0 || u.size() <= 7) {
+    fail(fmt::format("--url \"{}\" is not an http:// URL (e.g. {})", url, kDefaultDaemonUrl), 2);
+    return std::nullopt;
+  }
+  return u;
+}
+
+struct Answer {
+  int status = 0;
+  std::string body;
+};
+
+struct Request {
+  std::string method;
+  std::string path;  // under the base URL, e.g. "/api/v1/queue"
+  std::string body;  // empty: none
+  bool mutation = false;
+};
+
+// Sends one request; the token goes only with mutations (reads are open).
+// When the URL is unusable or the daemon cannot be reached, says so and
+// gives the exit code instead of an answer.
+
+std::variant<Answer, int> send(const DaemonOptions& o, const Request& r) {
+  const auto base = base_url(o.url);
+  if (!base) return 2;
+  const std::string url = *base + r.path;
+  auto res = daemon::http_request(r.method, url, r.body, r.mutation ? o.token : "");
+  if (!res) {
+    // The client's message is "METHOD URL: reason"; keep the reason.
+    std::string reason = res.error().message;
+    const std::string prefix = r.method + " " + url + ": ";
+    if (reason.rfind(prefix, 0) == 0) reason = reason.substr(prefix.size());
+    return fail(
+        fmt::format("cannot reach the daemon at {} ({}); is gyrothermd running? "
+                    "(set --url or GYROTHERM_URL)",
+                    *base, reason));
+  }
+  return Answer{res->status, std::move(res->body)};
+}
+
+// Prints an answer: the body as is with --json (whatever the status, so a
+// script sees `errors` too), else `format` of it; a non-2xx answer also gets
+// its error on stderr and exit code 1.
+int finish(const DaemonOptions& o, const Request& r, const Answer& a,
+           const std::function<std::string(const json&)>& format) {
+  if (o.json && !a.body.empty()) {
+    std::cout << a.body;
+    if (a.body.back() != '\n') std::cout << '\n';
+  }
+  if (a.status < 200 || a.status > 299) {
+    return fail(format_http_error(a.status, a.body, r.mutation && !o.token.empty(), o.token));
+  }
+  if (o.json) return 0;
+  const json j = json::parse(a.body, nullptr, false);
+  if (j.is_discarded()) return fail("the daemon's answer is not valid JSON");
+  std::cout << format(j);
+  return 0;
+}
+
+int exchange(const DaemonOptions& o, const Request& r,
+             const std::function<std::string(const json&)>& format) {
+  auto a = send(o, r);
+  if (const int* code = std::get_if<int>(&a)) return *code;
+  return finish(o, r, std::get<Answer>(a), format);
+}
+
+int cmd_queue_add(const DaemonOptions& o, const std::string& path, bool ignore_failures) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return fail(fmt::format("{}: cannot open", path), 2);
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  const json body = {
+      {"schedule_toml", ss.str()}, {"source", path}, {"ignore_failures", ignore_failures}};
+  return exchange(o, {"POST", "/api/v1/queue", body.dump(), true}, format_queued);
+}
+
+int cmd_control(const DaemonOptions& o, const std::string& action, const std::string& reason) {
+  const std::string body = reason.empty() ? "" : json({{"reason", reason}}).dump();
+  return exchange(o, {"POST", "/api/v1/control/" + action, body, true}, [](const json& j) {
+    const auto& m = field(j, "message");
+    return (m.is_string() ? m.get<std::string>() : std::string("done")) + "\n";
+  });
+}
+
+// The run and then its events; --json prints the run object with an added
+// "events" array.
+int cmd_run(const DaemonOptions& o, int64_t id) {
+  const std::string path = fmt::format("/api/v1/runs/{}", id);
+  const Request run_req{"GET", path, "", false};
+  const Request events_req{"GET", path + "/events", "", false};
+  auto run = send(o, run_req);
+  if (const int* code = std::get_if<int>(&run)) return *code;
+  const Answer& run_answer = std::get<Answer>(run);
+  if (run_answer.status < 200 || run_answer.status > 299) {
+    return finish(o, run_req, run_answer, nullptr);
+  }
+  auto events = send(o, events_req);
+  if (const int* code = std::get_if<int>(&events)) return *code;
+  const Answer& events_answer = std::get<Answer>(events);
+  if (events_answer.status < 200 || events_answer.status > 299) {
+    return finish(o, events_req, events_answer, nullptr);
+  }
+  json run_json = json::parse(run_answer.body, nullptr, false);
+  const json events_json = json::parse(events_answer.body, nullptr, false);
+  if (run_json.is_discarded() || events_json.is_discarded()) {
+    return fail("the daemon's answer is not valid JSON");
+  }
+  if (o.json) {
+    if (run_json.is_object()) run_json["events"] = events_json;
+    std::cout << run_json.dump(2) << "\n";
+    return 0;
+  }
+  std::cout << format_run(run_json, events_json);
+  return 0;
+}
+
+std::string env_or(const char* name, const std::string& fallback) {
+  const char* v = std::getenv(name);
+  return v && *v ? std::string(v) : fallback;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------- command line
+
+struct ControlCommands::Parsed {
+  DaemonOptions options;
+  CLI::App* status = nullptr;
+  CLI::App* queue_add = nullptr;
+  CLI::App* queue_list = nullptr;
+  CLI::App* queue_remove = nullptr;
+  CLI::App* queue_move = nullptr;
+  std::vector<std::pair<std::string, CLI::App*>> actions;
+  CLI::App* runs = nullptr;
+  CLI::App* run = nullptr;
+  std::string schedule_path;
+  bool ignore_failures = false;
+  int64_t id = 0;
+  int64_t position = 0;
+  std::string reason;
+};
+
+ControlCommands::ControlCommands(CLI::App& app) : parsed_(std::make_unique<Parsed>()) {
+  Parsed& p = *parsed_;
+  p.options.url = env_or("GYROTHERM_URL", kDefaultDaemonUrl);
+  p.options.token = env_or("GYROTHERM_TOKEN", "");
+  auto common = [&p](CLI::App* cmd) {
+    cmd->add_option("--url", p.options.url,
+                    fmt::format("daemon URL (env GYROTHERM_URL, default {})", kDefaultDaemonUrl));
+    cmd->add_option("--token", p.options.token, "API token for changes (env GYROTHERM_TOKEN)");
+    cmd->add_flag("--json", p.options.json, "print the daemon's JSON answer as is");
+    return cmd;
+  };
+
+  p.status = common(app.add_subcommand("status", "the daemon's status"));
+
+  auto* queue = app.add_subcommand("queue", "the daemon's schedule queue");
+  queue->require_subcommand(1);
+  p.queue_add = common(queue->add_subcommand("add", "validate and queue a schedule file"));
+  p.queue_add->add_option("file", p.schedule_path, "schedule file (TOML)")->required();
+  p.queue_add->add_flag("--ignore-failures", p.ignore_failures,
+                        "keep the queue going when this run fails");
+  p.queue_list = common(queue->add_subcommand("list", "the running and waiting entries"));
+  p.queue_remove = common(queue->add_subcommand("remove", "remove a waiting entry"));
+  p.queue_remove->add_option("id", p.id, "queue entry id")->required()->check(CLI::PositiveNumber);
+  p.queue_move = common(queue->add_subcommand("move", "move a waiting entry"));
+  p.queue_move->add_option("id", p.id, "queue entry id")->required()->check(CLI::PositiveNumber);
+  p.queue_move->add_option("position", p.position, "new position (0 = next)")
+      ->required()
+      ->check(CLI::NonNegativeNumber);
+
+  const std::pair<const char*, const char*> actions[] = {
+      {"pause", "hold the set point and stop the acquisition clock"},
+      {"resume", "end a pause, or release a held queue"},
+      {"abort", "end the current run: chamber to the safe set point, queue held"},
+      {"stop", "let the current run complete, then hold the queue"},
+  };
+  for (const auto& [name, help] : actions) {
+    auto* cmd = common(app.add_subcommand(name, help));
+    cmd->add_option("--reason", p.reason, "text for the event log");
+    p.actions.emplace_back(name, cmd);
+  }
+
+  p.runs = common(app.add_subcommand("runs", "runs recorded by the daemon, newest first"));
+  p.run = common(app.add_subcommand("run", "one run: its segments and events"));
+  p.run->add_option("id", p.id, "run id")->required()->check(CLI::PositiveNumber);
+}
+
+ControlCommands::~ControlCommands() = default;
+
+std::optional<int> ControlCommands::run(bool json_flag) {
+  Parsed& p = *parsed_;
+  DaemonOptions o = p.options;
+  o.json = o.json || json_flag;
+  if (*p.status) return exchange(o, {"GET", "/api/v1/status", "", false}, format_status);
+  if (*p.queue_add) return cmd_queue_add(o, p.schedule_path, p.ignore_failures);
+  if (*p.queue_list) return exchange(o, {"GET", "/api/v1/queue", "", false}, format_queue);
+  if (*p.queue_remove) {
+    return exchange(o, {"DELETE", fmt::format("/api/v1/queue/{}", p.id), "", true},
+                    [](const json& j) {
+                      return fmt::format("removed queue entry {}\n", text(field(j, "removed")));
+                    });
+  }
+  if (*p.queue_move) {
+    const std::string body = nlohmann::json({{"position", p.position}}).dump();
+    return exchange(o, {"POST", fmt::format("/api/v1/queue/{}/move", p.id), body, true},
+                    format_queue);
+  }
+  for (const auto& [name, cmd] : p.actions) {
+    if (*cmd) return cmd_control(o, name, p.reason);
+  }
+  if (*p.runs) return exchange(o, {"GET", "/api/v1/runs", "", false}, format_runs);
+  if (*p.run) return cmd_run(o, p.id);
+  return std::nullopt;
+}
+
+// ---------------------------------------------------------------- formatters
+
+std::string format_station_time(const json& t_s) {
+  const auto t = number(t_s);
+  if (!t) return kDash;
+  const auto s = static_cast<int64_t>(std::floor(std::fabs(*t)));
+  return fmt::format("{}{}:{:02}:{:02}", *t < 0 ? "-" : "", s / 3600, s / 60 % 60, s % 60);
+}
+
+std::string format_utc(const json& utc) {
+  if (!utc.is_string()) return kDash;
+  const auto s = utc.get<std::string>();
+  if (s.size() >= 19 && s[10] == 'T') return s.substr(0, 10) + " " + s.substr(11, 8);
+  return s.empty() ? kDash : s;
+}
+
+std::string format_status(const json& j) {
+  std::string out;
+  const auto& station = first_of(j, {"station", "station_name"});
+  if (!station.is_null()) out += labelled("station", text(station));
+
+  std::string state = text(field(j, "state"));
+  if (truthy(field(j, "paused")) && state != "paused") state += " (paused)";
+  out += labelled("state", state);
+
+  if (!field(j, "run_id").is_null()) {
+    out += labelled("run", fmt::format("{}  {}", text(field(j, "run_id")),
+                                       text(first_of(j, {"schedule_name", "schedule"}))));
+    // Flat per docs/api.md, or nested as {"step": {"index", "count", "label"}}.
+    const json& step = field(j, "step");
+    auto pick = [&](const char* flat, const char* nested) -> const json& {
+      return field(j, flat).is_null() ? field(step, nested) : field(j, flat);
+    };
+    const auto index = number(pick("step_index", "index"));
+    out += labelled(
+        "step",
+        fmt::format("{}/{}  {}",
+                    index ? std::to_string(static_cast<int64_t>(*index) + 1) : std::string(kDash),
+                    text(pick("step_count", "count")), text(pick("step_label", "label"))));
+  }
+  out += labelled("set point", fixed(field(j, "setpoint_c"), 2, "°C"));
+  out += labelled("chamber", fixed(field(j, "chamber_c"), 2, "°C"));
+  out += labelled("top / side", fmt::format("{} / {}  (gradient {})", fixed(field(j, "top_c"), 2),
+                                            fixed(field(j, "side_c"), 2, "°C"),
+                                            fixed(field(j, "gradient_c"), 2, "°C")));
+  out += labelled("temp rate", fixed(field(j, "temp_rate_c_per_min"), 3, "°C/min"));
+  out +=
+      labelled("gyro", fmt::format("{}  ({} samples/s)", fixed(field(j, "gyro_rate_dph"), 3, "°/h"),
+                                   fixed(field(j, "gyro_samples_per_s"), 0)));
+
+  const json& interlocks = field(j, "interlocks");
+  if (!interlocks.is_array() || interlocks.empty()) {
+    out += labelled("interlocks", "none");
+  } else {
+    bool first = true;
+    for (const auto& i : interlocks) {
+      std::string line = fmt::format("{}: {}", text(field(i, "kind")), text(field(i, "message")));
+      if (number(field(i, "since_s"))) {
+        line += fmt::format(" (since {})", format_station_time(field(i, "since_s")));
+      }
+      out += labelled(first ? "interlocks" : "", line);
+      first = false;
+    }
+  }
+
+  std::string queue = fmt::format("{} waiting", text(field(j, "queue_length")));
+  if (truthy(field(j, "queue_held"))) {
+    const json& reason = field(j, "queue_hold_reason");
+    queue += reason.is_string() && !reason.get<std::string>().empty()
+                 ? fmt::format(", held: {}", reason.get<std::string>())
+                 : std::string(", held");
+  }
+  out += labelled("queue", queue);
+
+  out += labelled(
+      "time", fmt::format("station {}, run {}, time scale {}×",
+                          format_station_time(field(j, "t_station_s")),
+                          format_station_time(field(j, "t_run_s")), text(field(j, "time_scale"))));
+  out += labelled("uptime", format_station_time(field(j, "uptime_s")) + " (wall)");
+  const json& last = field(j, "last_event");
+  if (!last.is_null() && !(last.is_string() && last.get<std::string>().empty())) {
+    out += labelled("last event", last.is_object() ? fmt::format("{} {}", text(field(last, "kind")),
+                                                                 text(field(last, "message")))
+                                                   : text(last));
+  }
+
+  const json& devices = field(j, "devices");
+  if (devices.is_object()) {
+    // Chamber, probes, gyro first, in the station's order; anything else after.
+    std::vector<std::string> names;
+    for (const char* known : {"chamber", "probes", "gyro"}) {
+      if (devices.contains(known)) names.emplace_back(known);
+    }
+    for (const auto& [name, d] : devices.items()) {
+      if (std::find(names.begin(), names.end(), name) == names.end()) names.push_back(name);
+    }
+    bool first = true;
+    for (const auto& name : names) {
+      const json& d = devices[name];
+      std::string health = truthy(field(d, "connected")) ? "connected" : "DISCONNECTED";
+      const json& err = field(d, "last_error");
+      if (!truthy(field(d, "connected")) && err.is_string() && !err.get<std::string>().empty()) {
+        health += " (" + err.get<std::string>() + ")";
+      }
+      if (!field(d, "frames_ok").is_null()) {
+        health += fmt::format("; {} frames, {} CRC failures, {} sequence gaps",
+                              text(field(d, "frames_ok")), text(field(d, "crc_failures")),
+                              text(field(d, "sequence_gaps")));
+      } else if (!field(d, "errors").is_null()) {
+        health += fmt::format("; {} errors", text(field(d, "errors")));
+      }
+      out += labelled(first ? "devices" : "", fmt::format("{:<8} {}", name, health));
+      first = false;
+    }
+  }
+  return out;
+}
+
+std::string format_queue(const json& q) {
+  std::string out;
+  if (truthy(field(q, "held"))) {
+    const json& reason = field(q, "hold_reason");
+    out += reason.is_string() && !reason.get<std::string>().empty()
+               ? fmt::format("queue held: {} (gyrotherm resume releases it)\n",
+                             reason.get<std::string>())
+               : "queue held (gyrotherm resume releases it)\n";
+  }
+  std::vector<std::vector<std::string>> rows;
+  auto row = [&](const std::string& position, const json& e) {
+    rows.push_back({position, text(field(e, "id")), text(field(e, "schedule_name")),
+                    text(field(e, "steps")), text(field(e, "ignore_failures")),
+                    format_utc(field(e, "added_utc"))});
+  };
+  const json& current = field(q, "current");
+  if (current.is_object()) row(fmt::format("run {}", text(field(current, "run_id"))), current);
+  const json& entries = field(q, "entries");
+  if (entries.is_array()) {
+    for (const auto& e : entries) {
+      if (current.is_object() && field(e, "id") == field(current, "id")) continue;
+      row(text(field(e, "position")), e);
+    }
+  }
+  if (rows.empty()) return out + "queue empty\n";
+  return out + table({"pos", "id", "schedule", "steps", "ignore failures", "added (UTC)"},
+                     {Align::kRight, Align::kRight, Align::kLeft, Align::kRight, Align::kLeft,
+                      Align::kLeft},
+                     rows);
+}
+
+std::string format_queued(const json& e) {
+  return fmt::format("queued entry {}: {} ({} steps) at position {}{}\n", text(field(e, "id")),
+                     text(field(e, "schedule_name")), text(field(e, "steps")),
+                     text(field(e, "position")),
+                     truthy(field(e, "ignore_failures")) ? ", failures ignored" : "");
+}
+
+std::string format_runs(const json& runs) {
+  if (!runs.is_array() || runs.empty()) return "no runs\n";
+  std::vector<std::vector<std::string>> rows;
+  for (const auto& r : runs) {
+    rows.push_back({text(field(r, "id")), text(field(r, "schedule_name")), text(field(r, "state")),
+                    format_utc(field(r, "started_utc")), format_utc(field(r, "ended_utc"))});
+  }
+  return table({"id", "schedule", "state", "started (UTC)", "ended (UTC)"},
+               {Align::kRight, Align::kLeft, Align::kLeft, Align::kLeft, Align::kLeft}, rows);
+}
+
+std::string format_run(const json& run, const json& events) {
+  std::string out = fmt::format("run {}  {}  {}\n", text(field(run, "id")),
+                                text(field(run, "schedule_name")), text(field(run, "state")));
+  out += labelled("started", format_utc(field(run, "started_utc")) + " UTC");
+  out += labelled("ended", field(run, "ended_utc").is_null()
+                               ? std::string(kDash)
+                               : format_utc(field(run, "ended_utc")) + " UTC");
+  out += labelled("queue entry", text(field(run, "queue_id")));
+  out += labelled("time scale", text(field(run, "time_scale")) + "×");
+
+  out += "\nsegments (times: station h:mm:ss since the run started)\n";
+  const json& segments = field(run, "segments");
+  if (!segments.is_array() || segments.empty()) {
+    out += "  none\n";
+  } else {
+    std::vector<std::vector<std::string>> rows;
+    for (const auto& s : segments) {
+      const auto index = number(field(s, "index"));
+      const json& from = field(s, "t_acquire_start_s");
+      std::string acquire = kDash;
+      if (!from.is_null()) {
+        acquire = format_station_time(from) + "–" +
+                  (field(s, "t_acquire_end_s").is_null()
+                       ? std::string("")
+                       : format_station_time(field(s, "t_acquire_end_s")));
+      }
+      rows.push_back({index ? std::to_string(static_cast<int64_t>(*index) + 1) : kDash,
+                      text(field(s, "kind")), text(field(s, "label")),
+                      fixed(field(s, "setpoint_c"), 2), fixed(field(s, "ramp_rate_c_per_min"), 2),
+                      format_station_time(field(s, "t_start_s")),
+                      format_station_time(field(s, "t_settled_s")), acquire,
+                      format_station_time(field(s, "t_end_s")),
+                      format_station_time(field(s, "paused_s")), text(field(s, "state"))});
+    }
+    out += table(
+        {"#", "kind", "label", "set °C", "°C/min", "start", "settled", "acquire", "end", "paused",
+         "state"},
+        {Align::kRight, Align::kLeft, Align::kLeft, Align::kRight, Align::kRight, Align::kRight,
+         Align::kRight, Align::kLeft, Align::kRight, Align::kRight, Align::kLeft},
+        rows);
+  }
+
+  out += "\nevents\n";
+  if (!events.is_array() || events.empty()) {
+    out += "  none\n";
+    return out;
+  }
+  std::vector<std::vector<std::string>> rows;
+  for (const auto& e : events) {
+    const json& from = field(e, "from_state");
+    const json& to = field(e, "to_state");
+    const bool has_from = from.is_string() && !from.get<std::string>().empty();
+    const bool has_to = to.is_string() && !to.get<std::string>().empty();
+    std::string transition;
+    if (has_from || has_to) {
+      transition = fmt::format("{} → {}", has_from ? from.get<std::string>() : "",
+                               has_to ? to.get<std::string>() : "");
+    }
+    const json& message = field(e, "message");
+    rows.push_back({format_station_time(field(e, "t_s")), text(field(e, "kind")), transition,
+                    message.is_string() ? message.get<std::string>() : std::string()});
+  }
+  out += table({"time", "kind", "from → to", "message"},
+               {Align::kRight, Align::kLeft, Align::kLeft, Align::kLeft}, rows);
+  return out;
+}
+
+std::string redact_tokens(std::string text, const std::vector<std::string>& args) {
+  std::vector<std::string> secrets;
+  if (const char* env = std::getenv("GYROTHERM_TOKEN"); env && *env) secrets.emplace_back(env);
+  for (std::size_t i = 0; i < args.size(); ++i) {
+    if (args[i].rfind("--tok", 0) != 0) continue;
+    if (const auto eq = args[i].find('='); eq != std::string::npos) {
+      secrets.push_back(args[i].substr(eq + 1));
+    } else if (i + 1 < args.size()) {
+      secrets.push_back(args[i + 1]);
+    }
+  }
+  for (const auto& secret : secrets) {
+    if (secret.empty()) continue;
+    for (auto pos = text.find(secret); pos != std::string::npos; pos = text.find(secret, pos)) {
+      text.replace(pos, secret.size(), "***");
+    }
+  }
+  return text;
+}
+
+std::string format_http_error(int status, const std::string& body, bool token_sent,
+                              const std::string& token) {
+  std::string msg;
+  if (status == 401) {
+    msg = token_sent ? "the daemon refused the token (set --token or GYROTHERM_TOKEN)"
+                     : "the daemon needs a token for this (set --token or GYROTHERM_TOKEN)";
+  } else {
+    const json j = json::parse(body, nullptr, false);
+    const json& error = field(j, "error");
+    if (error.is_string()) {
+      msg = error.get<std::string>();
+      const json& errors = field(j, "errors");
+      if (errors.is_array()) {
+        for (const auto& e : errors)
+          msg += "\n" + (e.is_string() ? e.get<std::string>() : e.dump());
+      }
+    } else {
+      std::string first_line = body.substr(0, body.find('\n'));
+      if (first_line.size() > 200) first_line = first_line.substr(0, 200) + "…";
+      msg = first_line.empty() ? fmt::format("the daemon answered HTTP {}", status)
+                               : fmt::format("the daemon answered HTTP {}: {}", status, first_line);
+    }
+  }
+  if (!token.empty()) {
+    for (auto pos = msg.find(token); pos != std::string::npos; pos = msg.find(token, pos)) {
+      msg.replace(pos, token.size(), "***");
+    }
+  }
+  return msg;
+}
+
+}  // namespace gyrotherm::cli

@@ -1,0 +1,622 @@
+// The gyrotherm CLI's daemon-control commands: the real binary against an
+// in-process HTTP server on loopback that records each request and answers
+// canned JSON per docs/api.md; and the pure formatters behind their output.
+#include <fcntl.h>
+#include <fmt/format.h>
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <mutex>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "control.h"
+#include "gyrotherm/daemon/http_server.h"
+#include "process.h"
+
+extern char** environ;
+
+namespace gyrotherm {
+namespace {
+
+namespace fs = std::filesystem;
+namespace http = boost::beast::http;
+using nlohmann::json;
+using ::testing::HasSubstr;
+using ::testing::Not;
+
+constexpr const char* kToken = "s3cret-T0ken-4a7f";
+
+// ---------------------------------------------------------------- a fake daemon
+
+class FakeDaemon {
+ public:
+  struct Seen {
+    std::string method, target, body, authorization;
+  };
+
+  FakeDaemon() {
+    daemon::HttpServerOptions options;
+    options.port = 0;
+    auto server = daemon::HttpServer::create(
+        options, [this](const daemon::HttpRequest& req) { return handle(req); });
+    if (!server) throw std::runtime_error(server.error().message);
+    server_ = std::move(*server);
+    server_->start();
+  }
+
+  void answer(const std::string& method, const std::string& target, int status, json body) {
+    std::lock_guard lock(mu_);
+    canned_[{method, target}] = {status, body.dump()};
+  }
+  std::vector<Seen> seen() {
+    std::lock_guard lock(mu_);
+    return seen_;
+  }
+  void forget() {
+    std::lock_guard lock(mu_);
+    seen_.clear();
+  }
+  std::string url() const { return fmt::format("http://127.0.0.1:{}", server_->port()); }
+
+ private:
+  daemon::HttpResponse handle(const daemon::HttpRequest& req) {
+    std::lock_guard lock(mu_);
+    Seen s{std::string(req.method_string()), std::string(req.target()), req.body(),
+           std::string(req[http::field::authorization])};
+    seen_.push_back(s);
+    const auto it = canned_.find({s.method, s.target});
+    if (it == canned_.end()) {
+      return daemon::error_response(req, http::status::not_found, "no such resource: " + s.target);
+    }
+    auto res =
+        daemon::json_response(req, static_cast<http::status>(it->second.first), it->second.second);
+    if (it->second.first == 401) res.set(http::field::www_authenticate, "Bearer");
+    return res;
+  }
+
+  std::mutex mu_;
+  std::map<std::pair<std::string, std::string>, std::pair<int, std::string>> canned_;
+  std::vector<Seen> seen_;
+  std::unique_ptr<daemon::HttpServer> server_;
+};
+
+// Canned answers, shaped as docs/api.md says.
+json entry(int64_t id, int position, const std::string& name, int steps, bool ignore_failures) {
+  return {{"id", id},
+          {"position", position},
+          {"schedule_name", name},
+          {"source", "config/schedules/" + name + ".toml"},
+          {"steps", steps},
+          {"ignore_failures", ignore_failures},
+          {"added_utc", "2026-11-21T05:38:43.120Z"},
+          {"state", "queued"}};
+}
+
+json queue_answer() {
+  json current = entry(7, 0, "paper-table1", 32, false);
+  current["state"] = "running";
+  current["run_id"] = 12;
+  return {{"held", false},
+          {"hold_reason", ""},
+          {"current", current},
+          {"entries", {entry(8, 0, "demo", 3, true), entry(9, 1, "paper-ramp", 1, false)}}};
+}
+
+json status_answer() {
+  return {{"state", "acquiring"},
+          {"run_id", 12},
+          {"schedule_name", "paper-table1"},
+          {"step_index", 2},
+          {"step_count", 32},
+          {"step_label", "soak 20 °C"},
+          {"setpoint_c", 20.0},
+          {"chamber_c", 20.04},
+          {"top_c", 20.01},
+          {"side_c", 19.98},
+          {"gradient_c", 0.03},
+          {"temp_rate_c_per_min", 0.004},
+          {"gyro_rate_dph", 8.0771},
+          {"gyro_samples_per_s", 100.0},
+          {"paused", true},
+          {"interlocks",
+           {{{"kind", "probe_disagreement"},
+             {"message", "top and side differ by 2.4 °C"},
+             {"since_s", 3725.0}}}},
+          {"queue_length", 2},
+          {"queue_held", true},
+          {"queue_hold_reason", "stop requested"},
+          {"uptime_s", 600.0},
+          {"time_scale", 1000.0},
+          {"t_station_s", 3800.5},
+          {"t_run_s", 3700.0},
+          {"last_event", "paused: operator"}};
+}
+
+json run_answer() {
+  return {{"id", 12},
+          {"schedule_name", "demo"},
+          {"state", "completed"},
+          {"started_utc", "2026-11-21T05:38:43.120Z"},
+          {"ended_utc", "2026-11-21T07:01:02.000Z"},
+          {"queue_id", 7},
+          {"time_scale", 1000},
+          {"segments",
+           {{{"index", 0},
+             {"kind", "soak"},
+             {"label", "soak 20 °C"},
+             {"setpoint_c", 20.0},
+             {"ramp_rate_c_per_min", nullptr},
+             {"t_start_s", 0.0},
+             {"t_settled_s", 1800.0},
+             {"t_acquire_start_s", 1800.0},
+             {"t_acquire_end_s", 3000.0},
+             {"t_end_s", 3000.0},
+             {"paused_s", 0.0},
+             {"state", "completed"},
+             {"windows", {{1800.0, 3000.0}}}}}}};
+}
+
+json events_answer() {
+  return {{{"id", 1},
+           {"t_s", 0.0},
+           {"wall_utc", "2026-11-21T05:38:43.120Z"},
+           {"kind", "state"},
+           {"from_state", "queued"},
+           {"to_state", "settling"},
+           {"message", "soak 20 °C"}},
+          {{"id", 2},
+           {"t_s", 1800.4},
+           {"wall_utc", "2026-11-21T05:38:45.000Z"},
+           {"kind", "state"},
+           {"from_state", "settling"},
+           {"to_state", "acquiring"},
+           {"message", "stability gate held"}},
+          {{"id", 3},
+           {"t_s", 3000.0},
+           {"wall_utc", "2026-11-21T05:38:46.000Z"},
+           {"kind", "state"},
+           {"from_state", "acquiring"},
+           {"to_state", "completed"},
+           {"message", "all steps done"}}};
+}
+
+// ---------------------------------------------------------------- the binary
+
+class CliControlTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           fmt::format("gyrotherm-cli-control-{}-{}", ::getpid(),
+                       ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override {
+    if (!HasFailure()) fs::remove_all(dir_);
+  }
+
+  struct Run {
+    int code = -1;
+    std::string out, err;
+  };
+
+  // Runs gyrotherm with `args` in an environment without GYROTHERM_* except
+  // `env`; waits up to 20 s. Every run is checked for the token leaking.
+  Run cli(std::vector<std::string> args, std::vector<std::string> env = {}) {
+    const std::string out_path = (dir_ / "out.txt").string();
+    const std::string err_path = (dir_ / "err.txt").string();
+    posix_spawn_file_actions_t actions;
+    posix_spawn_file_actions_init(&actions);
+    posix_spawn_file_actions_addopen(&actions, 0, "/dev/null", O_RDONLY, 0);
+    posix_spawn_file_actions_addopen(&actions, 1, out_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC,
+                                     0644);
+    posix_spawn_file_actions_addopen(&actions, 2, err_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC,
+                                     0644);
+    args.insert(args.begin(), std::string(GYROTHERM_BIN_DIR) + "/gyrotherm");
+    std::vector<char*> argv;
+    for (auto& a : args) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    for (char** e = environ; *e; ++e) {
+      if (std::string_view(*e).rfind("GYROTHERM_", 0) != 0) env.emplace_back(*e);
+    }
+    std::vector<char*> envp;
+    for (auto& e : env) envp.push_back(e.data());
+    envp.push_back(nullptr);
+    pid_t pid = -1;
+    const int rc = posix_spawn(&pid, argv[0], &actions, nullptr, argv.data(), envp.data());
+    posix_spawn_file_actions_destroy(&actions);
+    Run r;
+    if (rc != 0) {
+      ADD_FAILURE() << "posix_spawn " << argv[0] << ": " << rc;
+      return r;
+    }
+    int status = 0;
+    const bool exited = testing::wait_until([&] { return ::waitpid(pid, &status, WNOHANG) == pid; },
+                                            std::chrono::seconds(20));
+    if (!exited) {
+      ::kill(pid, SIGKILL);
+      ::waitpid(pid, &status, 0);
+      ADD_FAILURE() << "gyrotherm did not finish within 20 s";
+    }
+    r.code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+    r.out = slurp(out_path);
+    r.err = slurp(err_path);
+    EXPECT_THAT(r.out, Not(HasSubstr(kToken)));
+    EXPECT_THAT(r.err, Not(HasSubstr(kToken)));
+    return r;
+  }
+
+  static std::string slurp(const std::string& path) {
+    std::ifstream in(path);
+    std::ostringstream ss;
+    ss << in.rdbuf();
+    return ss.str();
+  }
+
+  // --url and --token of the fake daemon, after `args`.
+  std::vector<std::string> to(const FakeDaemon& d, std::vector<std::string> args) {
+    args.insert(args.end(), {"--url", d.url(), "--token", kToken});
+    return args;
+  }
+
+  fs::path dir_;
+};
+
+// A URL nothing listens on.
+std::string dead_url() { return fmt::format("http://127.0.0.1:{}", testing::free_tcp_port()); }
+
+TEST_F(CliControlTest, EachCommandSendsItsRequest) {
+  FakeDaemon d;
+  d.answer("POST", "/api/v1/queue", 201, entry(8, 1, "demo", 3, true));
+  d.answer("GET", "/api/v1/queue", 200, queue_answer());
+  d.answer("DELETE", "/api/v1/queue/9", 200, {{"removed", 9}});
+  d.answer("POST", "/api/v1/queue/9/move", 200, queue_answer());
+  for (const char* action : {"pause", "resume", "abort", "stop"}) {
+    d.answer("POST", fmt::format("/api/v1/control/{}", action), 200,
+             {{"ok", true}, {"message", fmt::format("{} done", action)}});
+  }
+  d.answer("GET", "/api/v1/status", 200, status_answer());
+  d.answer("GET", "/api/v1/runs", 200, json::array({run_answer()}));
+  d.answer("GET", "/api/v1/runs/12", 200, run_answer());
+  d.answer("GET", "/api/v1/runs/12/events", 200, events_answer());
+
+  const std::string schedule_text = "name = \"demo\"\n[[step]]\ntype = \"hold\"\n";
+  const std::string schedule = (dir_ / "demo.toml").string();
+  std::ofstream(schedule) << schedule_text;
+
+  struct Case {
+    std::vector<std::string> args;
+    std::string method, target;
+    json body;  // null: no body
+    bool authorized;
+    std::string says;  // in the human output
+  };
+  const std::vector<Case> cases = {
+      {{"queue", "add", schedule, "--ignore-failures"},
+       "POST",
+       "/api/v1/queue",
+       {{"schedule_toml", schedule_text}, {"source", schedule}, {"ignore_failures", true}},
+       true,
+       "queued entry 8: demo (3 steps) at position 1, failures ignored"},
+      {{"queue", "add", schedule},
+       "POST",
+       "/api/v1/queue",
+       {{"schedule_toml", schedule_text}, {"source", schedule}, {"ignore_failures", false}},
+       true,
+       "queued entry 8"},
+      {{"queue", "list"}, "GET", "/api/v1/queue", nullptr, false, "paper-ramp"},
+      {{"queue", "remove", "9"},
+       "DELETE",
+       "/api/v1/queue/9",
+       nullptr,
+       true,
+       "removed queue entry 9"},
+      {{"queue", "move", "9", "0"},
+       "POST",
+       "/api/v1/queue/9/move",
+       {{"position", 0}},
+       true,
+       "paper-ramp"},
+      {{"pause", "--reason", "door opened"},
+       "POST",
+       "/api/v1/control/pause",
+       {{"reason", "door opened"}},
+       true,
+       "pause done"},
+      {{"resume"}, "POST", "/api/v1/control/resume", nullptr, true, "resume done"},
+      {{"abort", "--reason", "gyro cable"},
+       "POST",
+       "/api/v1/control/abort",
+       {{"reason", "gyro cable"}},
+       true,
+       "abort done"},
+      {{"stop"}, "POST", "/api/v1/control/stop", nullptr, true, "stop done"},
+      {{"status"}, "GET", "/api/v1/status", nullptr, false, "acquiring (paused)"},
+      {{"runs"}, "GET", "/api/v1/runs", nullptr, false, "completed"},
+  };
+  for (const auto& c : cases) {
+    SCOPED_TRACE(fmt::format("{}", fmt::join(c.args, " ")));
+    d.forget();
+    const Run r = cli(to(d, c.args));
+    EXPECT_EQ(r.code, 0) << r.err;
+    EXPECT_THAT(r.out, HasSubstr(c.says));
+    const auto seen = d.seen();
+    ASSERT_EQ(seen.size(), 1u);
+    EXPECT_EQ(seen[0].method, c.method);
+    EXPECT_EQ(seen[0].target, c.target);
+    if (c.body.is_null()) {
+      EXPECT_EQ(seen[0].body, "");
+    } else {
+      EXPECT_EQ(json::parse(seen[0].body), c.body);
+    }
+    // The token goes with changes only; reads are open.
+    EXPECT_EQ(seen[0].authorization, c.authorized ? fmt::format("Bearer {}", kToken) : "");
+  }
+
+  d.forget();
+  const Run run = cli(to(d, {"run", "12"}));
+  EXPECT_EQ(run.code, 0) << run.err;
+  const auto seen = d.seen();
+  ASSERT_EQ(seen.size(), 2u);
+  EXPECT_EQ(seen[0].target, "/api/v1/runs/12");
+  EXPECT_EQ(seen[1].target, "/api/v1/runs/12/events");
+  EXPECT_EQ(seen[0].authorization, "");
+  EXPECT_THAT(run.out, HasSubstr("0:30:00  state  settling → acquiring   stability gate held"));
+}
+
+TEST_F(CliControlTest, JsonPrintsTheDaemonsAnswerAsIs) {
+  FakeDaemon d;
+  d.answer("GET", "/api/v1/queue", 200, queue_answer());
+  d.answer("GET", "/api/v1/runs/12", 200, run_answer());
+  d.answer("GET", "/api/v1/runs/12/events", 200, events_answer());
+  const Run list = cli(to(d, {"queue", "list", "--json"}));
+  ASSERT_EQ(list.code, 0) << list.err;
+  EXPECT_EQ(list.out, queue_answer().dump() + "\n");
+  auto top_level = to(d, {"queue", "list"});
+  top_level.insert(top_level.begin(), "--json");
+  EXPECT_EQ(cli(top_level).out, list.out) << "the top-level --json too";
+  EXPECT_THAT(cli(to(d, {"queue", "list"})).out, HasSubstr("paper-ramp")) << "without: a table";
+
+  // `run ID`: the run with its events added.
+  const Run run = cli(to(d, {"run", "12", "--json"}));
+  ASSERT_EQ(run.code, 0) << run.err;
+  json want = run_answer();
+  want["events"] = events_answer();
+  EXPECT_EQ(json::parse(run.out), want);
+}
+
+TEST_F(CliControlTest, EnvironmentGivesUrlAndTokenAndFlagsOverrideIt) {
+  FakeDaemon d;
+  d.answer("POST", "/api/v1/control/pause", 200, {{"ok", true}, {"message", "paused"}});
+  const std::string env_url = "GYROTHERM_URL=" + d.url();
+  const std::string env_token = std::string("GYROTHERM_TOKEN=") + kToken;
+
+  const Run from_env = cli({"pause"}, {env_url, env_token});
+  EXPECT_EQ(from_env.code, 0) << from_env.err;
+  ASSERT_EQ(d.seen().size(), 1u);
+  EXPECT_EQ(d.seen()[0].authorization, fmt::format("Bearer {}", kToken));
+
+  d.forget();
+  const Run token_flag = cli({"pause", "--token", "other-token"}, {env_url, env_token});
+  EXPECT_EQ(token_flag.code, 0) << token_flag.err;
+  ASSERT_EQ(d.seen().size(), 1u);
+  EXPECT_EQ(d.seen()[0].authorization, "Bearer other-token");
+
+  d.forget();
+  const Run url_flag = cli({"pause", "--url", d.url()}, {"GYROTHERM_URL=" + dead_url(), env_token});
+  EXPECT_EQ(url_flag.code, 0) << url_flag.err;
+  EXPECT_EQ(d.seen().size(), 1u);
+
+  d.forget();
+  const std::string dead = dead_url();
+  const Run url_flag_dead = cli({"pause", "--url", dead}, {env_url, env_token});
+  EXPECT_EQ(url_flag_dead.code, 1);
+  EXPECT_THAT(url_flag_dead.err, HasSubstr(dead));
+  EXPECT_TRUE(d.seen().empty());
+}
+
+TEST_F(CliControlTest, DaemonErrorsAreReportedWithExitCodeOne) {
+  FakeDaemon d;
+  d.answer("POST", "/api/v1/control/resume", 401, {{"error", "missing or wrong token"}});
+  d.answer("DELETE", "/api/v1/queue/99", 404, {{"error", "no queue entry 99"}});
+  d.answer("POST", "/api/v1/queue/7/move", 409, {{"error", "queue entry 7 is running; use abort"}});
+  d.answer("POST", "/api/v1/control/pause", 409, {{"error", "nothing to pause: no run"}});
+  d.answer("GET", "/api/v1/runs/5", 404, {{"error", "no run 5"}});
+  const json refused = {{"error", "schedule refused, nothing queued"},
+                        {"errors",
+                         {"bad.toml:3: step[0].setpoint_c: 75 °C is outside [-20, 60] °C",
+                          "bad.toml:8: step[1].rate_c_per_min: 9 °C/min exceeds 5 °C/min"}}};
+  d.answer("POST", "/api/v1/queue", 422, refused);
+
+  const Run unauthorized = cli(to(d, {"resume"}));
+  EXPECT_EQ(unauthorized.code, 1);
+  EXPECT_THAT(unauthorized.err,
+              HasSubstr("the daemon refused the token (set --token or GYROTHERM_TOKEN)"));
+  const Run no_token = cli({"resume", "--url", d.url()});
+  EXPECT_EQ(no_token.code, 1);
+  EXPECT_THAT(no_token.err, HasSubstr("(set --token or GYROTHERM_TOKEN)"));
+
+  const Run unknown = cli(to(d, {"queue", "remove", "99"}));
+  EXPECT_EQ(unknown.code, 1);
+  EXPECT_THAT(unknown.err, HasSubstr("no queue entry 99"));
+  const Run no_run = cli(to(d, {"run", "5"}));
+  EXPECT_EQ(no_run.code, 1);
+  EXPECT_THAT(no_run.err, HasSubstr("no run 5"));
+  EXPECT_EQ(d.seen().back().target, "/api/v1/runs/5") << "no events asked for a missing run";
+
+  const Run running = cli(to(d, {"queue", "move", "7", "2"}));
+  EXPECT_EQ(running.code, 1);
+  EXPECT_THAT(running.err, HasSubstr("queue entry 7 is running; use abort"));
+  const Run nothing = cli(to(d, {"pause"}));
+  EXPECT_EQ(nothing.code, 1);
+  EXPECT_THAT(nothing.err, HasSubstr("nothing to pause: no run"));
+
+  const std::string bad = (dir_ / "bad.toml").string();
+  std::ofstream(bad) << "[[step]]\ntype = \"soak\"\nsetpoint_c = 75\n";
+  const Run rejected = cli(to(d, {"queue", "add", bad}));
+  EXPECT_EQ(rejected.code, 1);
+  EXPECT_THAT(rejected.err, HasSubstr("schedule refused, nothing queued\n"));
+  EXPECT_THAT(rejected.err,
+              HasSubstr("\nbad.toml:3: step[0].setpoint_c: 75 °C is outside [-20, 60] °C\n"));
+  EXPECT_THAT(rejected.err,
+              HasSubstr("\nbad.toml:8: step[1].rate_c_per_min: 9 °C/min exceeds 5 °C/min\n"));
+  EXPECT_EQ(rejected.out, "");
+  const Run rejected_json = cli(to(d, {"queue", "add", bad, "--json"}));
+  EXPECT_EQ(rejected_json.code, 1);
+  EXPECT_EQ(json::parse(rejected_json.out), refused) << "scripts get the errors too";
+}
+
+TEST_F(CliControlTest, UnreachableDaemonNamesTheUrl) {
+  const std::string url = dead_url();
+  for (const auto& args : std::vector<std::vector<std::string>>{
+           {"status"}, {"queue", "list"}, {"stop", "--token", kToken}, {"run", "3"}}) {
+    auto with_url = args;
+    with_url.insert(with_url.end(), {"--url", url});
+    const Run r = cli(with_url);
+    EXPECT_EQ(r.code, 1) << args[0];
+    EXPECT_THAT(r.err, HasSubstr("cannot reach the daemon at " + url));
+    EXPECT_THAT(r.err, HasSubstr("is gyrothermd running?"));
+  }
+}
+
+TEST_F(CliControlTest, UsageErrorsExitTwo) {
+  FakeDaemon d;
+  EXPECT_EQ(cli(to(d, {"queue", "move", "7"})).code, 2);
+  EXPECT_EQ(cli(to(d, {"queue", "remove", "seven"})).code, 2);
+  EXPECT_EQ(cli(to(d, {"queue", "move", "7", "-1"})).code, 2);
+  EXPECT_EQ(cli(to(d, {"queue"})).code, 2);
+  EXPECT_EQ(cli(to(d, {"run"})).code, 2);
+  const Run missing = cli(to(d, {"queue", "add", (dir_ / "nope.toml").string()}));
+  EXPECT_EQ(missing.code, 2);
+  EXPECT_THAT(missing.err, HasSubstr("nope.toml: cannot open"));
+  const Run bad_url = cli({"status", "--url", "ftp://127.0.0.1:8750"});
+  EXPECT_EQ(bad_url.code, 2);
+  EXPECT_THAT(bad_url.err, HasSubstr("not an http:// URL"));
+  // CLI11 echoes stray arguments; a token among them is blanked (cli() checks).
+  const Run typo = cli({"pause", "--tokn", kToken, "--url", d.url()});
+  EXPECT_EQ(typo.code, 2);
+  EXPECT_THAT(typo.err, HasSubstr("***"));
+  EXPECT_EQ(cli({"pause", "--token", kToken, "--token", kToken}).code, 2);
+  EXPECT_EQ(cli({"pause", kToken}, {std::string("GYROTHERM_TOKEN=") + kToken}).code, 2);
+  EXPECT_TRUE(d.seen().empty()) << "nothing sent on a usage error";
+  EXPECT_EQ(cli({"queue", "add", "--help"}).code, 0);
+}
+
+// ---------------------------------------------------------------- formatters
+
+TEST(CliFormat, StationTimeAsHoursMinutesSeconds) {
+  EXPECT_EQ(cli::format_station_time(0.0), "0:00:00");
+  EXPECT_EQ(cli::format_station_time(59.99), "0:00:59");
+  EXPECT_EQ(cli::format_station_time(3725.9), "1:02:05");
+  EXPECT_EQ(cli::format_station_time(360000), "100:00:00");
+  EXPECT_EQ(cli::format_station_time(-5.0), "-0:00:05");
+  EXPECT_EQ(cli::format_station_time(nullptr), "—");
+  EXPECT_EQ(cli::format_station_time("12"), "—");
+  EXPECT_EQ(cli::format_utc("2026-11-21T05:38:43.120Z"), "2026-11-21 05:38:43");
+  EXPECT_EQ(cli::format_utc(nullptr), "—");
+}
+
+TEST(CliFormat, QueueTable) {
+  json q = queue_answer();
+  EXPECT_EQ(cli::format_queue(q),
+            "   pos  id  schedule      steps  ignore failures  added (UTC)\n"
+            "run 12   7  paper-table1     32  no               2026-11-21 05:38:43\n"
+            "     0   8  demo              3  yes              2026-11-21 05:38:43\n"
+            "     1   9  paper-ramp        1  no               2026-11-21 05:38:43\n");
+  q["held"] = true;
+  q["hold_reason"] = "run 11 failed";
+  q["current"] = nullptr;
+  q["entries"] = json::array();
+  EXPECT_EQ(cli::format_queue(q),
+            "queue held: run 11 failed (gyrotherm resume releases it)\nqueue empty\n");
+}
+
+TEST(CliFormat, RunsTable) {
+  json running = run_answer();
+  running["id"] = 13;
+  running["state"] = "acquiring";
+  running["ended_utc"] = nullptr;
+  EXPECT_EQ(cli::format_runs(json::array({running, run_answer()})),
+            "id  schedule  state      started (UTC)        ended (UTC)\n"
+            "13  demo      acquiring  2026-11-21 05:38:43  —\n"
+            "12  demo      completed  2026-11-21 05:38:43  2026-11-21 07:01:02\n");
+  EXPECT_EQ(cli::format_runs(json::array()), "no runs\n");
+}
+
+TEST(CliFormat, RunShowsSegmentsAndEventsInOrder) {
+  const std::string text = cli::format_run(run_answer(), events_answer());
+  EXPECT_THAT(text, HasSubstr("run 12  demo  completed\n"));
+  EXPECT_THAT(text, HasSubstr("ended       2026-11-21 07:01:02 UTC\n"));
+  EXPECT_THAT(text, HasSubstr("1  soak  soak 20 °C   20.00       —  0:00:00  0:30:00  "
+                              "0:30:00–0:50:00  0:50:00  0:00:00  completed\n"));
+  const auto first = text.find("0:00:00  state  queued → settling      soak 20 °C\n");
+  const auto second = text.find("0:30:00  state  settling → acquiring   stability gate held\n");
+  const auto third = text.find("0:50:00  state  acquiring → completed  all steps done\n");
+  ASSERT_NE(first, std::string::npos) << text;
+  ASSERT_NE(second, std::string::npos) << text;
+  ASSERT_NE(third, std::string::npos) << text;
+  EXPECT_LT(first, second);
+  EXPECT_LT(second, third);
+  EXPECT_THAT(cli::format_run({{"id", 1}}, json::array()), HasSubstr("events\n  none\n"));
+}
+
+TEST(CliFormat, StatusSummary) {
+  const std::string text = cli::format_status(status_answer());
+  EXPECT_THAT(text, HasSubstr("state       acquiring (paused)\n"));
+  EXPECT_THAT(text, HasSubstr("run         12  paper-table1\n"));
+  EXPECT_THAT(text, HasSubstr("step        3/32  soak 20 °C\n"));
+  EXPECT_THAT(text, HasSubstr("gyro        8.077 °/h  (100 samples/s)\n"));
+  EXPECT_THAT(text,
+              HasSubstr("interlocks  probe_disagreement: top and side differ by 2.4 °C (since "
+                        "1:02:05)\n"));
+  EXPECT_THAT(text, HasSubstr("queue       2 waiting, held: stop requested\n"));
+  EXPECT_THAT(text, HasSubstr("time        station 1:03:20, run 1:01:40, time scale 1000×\n"));
+
+  json without_since = status_answer();
+  without_since["interlocks"][0].erase("since_s");
+  EXPECT_THAT(cli::format_status(without_since),
+              HasSubstr("interlocks  probe_disagreement: top and side differ by 2.4 °C\n"));
+
+  // Idle, nothing known yet: no run lines, dashes, no exception.
+  const std::string idle = cli::format_status({{"state", "idle"}, {"run_id", nullptr}});
+  EXPECT_THAT(idle, HasSubstr("state       idle\n"));
+  EXPECT_THAT(idle, Not(HasSubstr("\nrun ")));
+  EXPECT_THAT(idle, HasSubstr("chamber     —\n"));
+  EXPECT_THAT(idle, HasSubstr("interlocks  none\n"));
+  EXPECT_NO_THROW(cli::format_status(json::array()));
+}
+
+TEST(CliFormat, RedactTokens) {
+  EXPECT_EQ(cli::redact_tokens("not expected: abc123 x", {"pause", "--token", "abc123", "x"}),
+            "not expected: *** x");
+  EXPECT_EQ(cli::redact_tokens("not expected: --tokn abc123", {"--tokn", "abc123"}),
+            "not expected: --tokn ***");
+  EXPECT_EQ(cli::redact_tokens("not expected: abc123", {"--token=abc123"}), "not expected: ***");
+  EXPECT_EQ(cli::redact_tokens("nothing secret", {"--token"}), "nothing secret");
+}
+
+TEST(CliFormat, HttpErrors) {
+  EXPECT_EQ(cli::format_http_error(422,
+                                   R"({"error": "schedule refused, nothing queued",
+                                       "errors": ["a.toml:3: x: bad", "a.toml:9: y: worse"]})",
+                                   true),
+            "schedule refused, nothing queued\na.toml:3: x: bad\na.toml:9: y: worse");
+  EXPECT_EQ(cli::format_http_error(401, R"({"error": "wrong token"})", true),
+            "the daemon refused the token (set --token or GYROTHERM_TOKEN)");
+  EXPECT_EQ(cli::format_http_error(502, "<html>Bad Gateway</html>", false),
+            "the daemon answered HTTP 502: <html>Bad Gateway</html>");
+  EXPECT_EQ(cli::format_http_error(500, "", false), "the daemon answered HTTP 500");
+  EXPECT_EQ(cli::format_http_error(400, R"({"error": "token abc123 is odd"})", true, "abc123"),
+            "token *** is odd");
+}
+
+}  // namespace
+}  // namespace gyrotherm
