@@ -186,6 +186,7 @@ TEST_F(CliTest, DevicesAndChamberSetpointAgainstTheSimulator) {
   replace("\"demo/sim-endpoints.toml\"", "\"" + (dir_ / "ep.toml").string() + "\"");
   replace("\"demo/sim-truth.json\"", "\"" + (dir_ / "truth.json").string() + "\"");
   replace("\"demo/gyro-pty\"", "\"" + (dir_ / "gyro-pty").string() + "\"");
+  replace("\"demo/sim.sock\"", "\"" + (dir_ / "sim.sock").string() + "\"");
   const std::string cfg_path = (dir_ / "station.toml").string();
   std::ofstream(cfg_path) << cfg;
 

@@ -17,6 +17,7 @@
 #include "gyrotherm/sim/simulator.h"
 #include "gyrotherm/storage/database.h"
 #include "process.h"
+#include "station_fixture.h"
 
 namespace gyrotherm {
 namespace {
@@ -24,152 +25,12 @@ namespace {
 namespace fs = std::filesystem;
 using testing::ChildProcess;
 using ::testing::HasSubstr;
+using testing::kLatitudeDeg;
+using testing::kRateHz;
+using testing::kTimeScale;
+using testing::kWhiteNoiseDph;
+using testing::StationTest;
 using testing::wait_until;
-
-constexpr double kTimeScale = 200.0;
-constexpr double kRateHz = 10.0;
-constexpr double kWhiteNoiseDph = 1.0;
-constexpr double kLatitudeDeg = 31.9;
-
-// The station: fast thermal lags so a short schedule settles quickly.
-std::string station_config(const fs::path& dir, int api_port) {
-  return fmt::format(R"(
-[station]
-name = "integration"
-latitude_deg = {lat}
-orientation = "up"
-max_ramp_c_per_min = 3.0
-[chamber]
-unit_id = 1
-profile = "watlow-f4t"
-[probes]
-unit_id = 2
-profile = "generic"
-channels = {{ top = 0, side = 1 }}
-[gyro]
-unit = "rad"
-output = "rate"
-axis = "z"
-rate_hz = {rate}
-[storage]
-db = "{dir}/station.db"
-commit_interval_s = 0.2
-[api]
-port = {port}
-tokens = ["integration-token-0123456789"]
-[simulator]
-endpoints_file = "{dir}/endpoints.toml"
-truth_file = "{dir}/truth.json"
-gyro_link = "{dir}/gyro-pty"
-seed = 7
-initial_temp_c = 23.0
-[simulator.thermal]
-air_tau_s = 20.0
-case_tau_s = 60.0
-max_ramp_c_per_min = 5.0
-control_noise_c = 0.1
-[simulator.gyro]
-bias_dph = 0.05
-temp_coeffs = [0.004]
-rate_coeffs = [12.0]
-gradient_coeffs = [0.5]
-white_noise_dph = {noise}
-bias_instability_dph = 0.0
-)",
-                     fmt::arg("lat", kLatitudeDeg), fmt::arg("rate", kRateHz),
-                     fmt::arg("dir", dir.string()), fmt::arg("port", api_port),
-                     fmt::arg("noise", kWhiteNoiseDph));
-}
-
-constexpr const char* kSchedule = R"(
-name = "integration"
-[[step]]
-type = "soak"
-setpoint_c = 23.0
-stability_window_min = 2
-acquire_min = 6
-[[step]]
-type = "ramp"
-target_c = 26.0
-rate_c_per_min = 2.0
-[[step]]
-type = "soak"
-setpoint_c = 26.0
-stability_window_min = 2
-acquire_min = 6
-)";
-
-class StationTest : public ::testing::Test {
- protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() /
-           fmt::format("gyrotherm-it-{}-{}", ::getpid(),
-                       ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-    api_port_ = testing::free_tcp_port();
-    write(dir_ / "station.toml", station_config(dir_, api_port_));
-    write(dir_ / "schedule.toml", kSchedule);
-  }
-  void TearDown() override {
-    daemon_.reset();
-    sim_.reset();
-    in_process_sim_.reset();
-    if (!HasFailure()) fs::remove_all(dir_);
-  }
-
-  static void write(const fs::path& p, const std::string& text) { std::ofstream(p) << text; }
-  std::string bin(const char* name) const { return std::string(GYROTHERM_BIN_DIR) + "/" + name; }
-  std::string url(const std::string& path) const {
-    return fmt::format("http://127.0.0.1:{}{}", api_port_, path);
-  }
-
-  void start_sim() {
-    sim_ = std::make_unique<ChildProcess>(
-        std::vector<std::string>{bin("gyrotherm-sim"), "--config", (dir_ / "station.toml").string(),
-                                 "--time-scale", fmt::format("{}", kTimeScale)},
-        (dir_ / "sim.log").string());
-    ASSERT_TRUE(
-        wait_until([&] { return fs::exists(dir_ / "endpoints.toml"); }, std::chrono::seconds(20)))
-        << sim_->log();
-  }
-  // The simulator in this process, for its fault hooks.
-  void start_sim_in_process() {
-    auto cfg = daemon::load_station_config((dir_ / "station.toml").string());
-    ASSERT_TRUE(cfg.ok()) << cfg.error().message;
-    sim::SimulatorOverrides overrides;
-    overrides.time_scale = kTimeScale;
-    auto options = sim::read_simulator_options(*cfg, overrides);
-    ASSERT_TRUE(options.ok()) << options.error().message;
-    auto simulator = sim::Simulator::create(*cfg, *options);
-    ASSERT_TRUE(simulator.ok()) << simulator.error().message;
-    in_process_sim_ = std::move(*simulator);
-    ASSERT_TRUE(in_process_sim_->start().ok());
-  }
-  void start_daemon(std::vector<std::string> extra = {}) {
-    std::vector<std::string> argv{bin("gyrothermd"),
-                                  "--config",
-                                  (dir_ / "station.toml").string(),
-                                  "--schedule",
-                                  (dir_ / "schedule.toml").string(),
-                                  "--time-scale",
-                                  fmt::format("{}", kTimeScale)};
-    argv.insert(argv.end(), extra.begin(), extra.end());
-    daemon_ = std::make_unique<ChildProcess>(argv, (dir_ / "daemon.log").string());
-  }
-  std::optional<nlohmann::json> status() {
-    auto r =
-        daemon::http_request("GET", url("/api/v1/status"), "", "", std::chrono::milliseconds(500));
-    if (!r || r->status != 200) return std::nullopt;
-    return nlohmann::json::parse(r->body, nullptr, false);
-  }
-
-  fs::path dir_;
-  int api_port_ = 0;
-  std::unique_ptr<ChildProcess> sim_;
-  std::unique_ptr<sim::Simulator> in_process_sim_;
-  std::unique_ptr<ChildProcess> daemon_;
-};
 
 TEST_F(StationTest, ShortScheduleEndToEnd) {
   start_sim();

@@ -1,0 +1,352 @@
+// End-to-end: the queue, operator commands, interlocks and crash resume on
+// the simulated station (real gyrotherm-sim and gyrothermd processes, REST,
+// the simulator's fault-injection socket, the SQLite file).
+#include <fmt/format.h>
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <signal.h>
+
+#include <nlohmann/json.hpp>
+
+#include "gyrotherm/storage/database.h"
+#include "station_fixture.h"
+
+namespace gyrotherm {
+namespace {
+
+using ::testing::HasSubstr;
+using testing::StationTest;
+using testing::wait_until;
+using json = nlohmann::json;
+
+std::string soak_schedule(const std::string& name, double setpoint_c, double acquire_min) {
+  return fmt::format(R"(name = "{}"
+[[step]]
+type = "soak"
+setpoint_c = {}
+stability_window_min = 2
+acquire_min = {}
+)",
+                     name, setpoint_c, acquire_min);
+}
+
+json queue_body(const std::string& toml, const std::string& source) {
+  return {{"schedule_toml", toml}, {"source", source}};
+}
+
+class QueueTest : public StationTest {
+ protected:
+  // Waits until GET `path` satisfies `pred`; the last answer stays in last_.
+  bool wait_json(const std::string& path, const std::function<bool(const json&)>& pred,
+                 std::chrono::seconds timeout = std::chrono::seconds(60)) {
+    return wait_until(
+        [&] {
+          last_ = get_json(path);
+          return !last_.is_null() && pred(last_);
+        },
+        timeout);
+  }
+  bool wait_state(const std::string& state,
+                  std::chrono::seconds timeout = std::chrono::seconds(60)) {
+    return wait_json(
+        "/api/v1/status", [&](const json& s) { return s["state"] == state; }, timeout);
+  }
+  std::string events_text(int64_t run_id) {
+    std::string all;
+    for (const auto& e : get_json(fmt::format("/api/v1/runs/{}/events", run_id))) {
+      all += e["message"].get<std::string>() + "\n";
+    }
+    return all;
+  }
+  // Appends a section to the station config (before the processes start).
+  void append_config(const std::string& text) {
+    std::ofstream(dir_ / "station.toml", std::ios::app) << text;
+  }
+  std::string diag() {
+    return "\nlast answer: " + last_.dump() + "\ndaemon log:\n" + daemon_->log();
+  }
+
+  json last_;
+};
+
+// The technician's story over REST: a refused schedule, a queue reordered and
+// trimmed, a pause cut out of the statistics window, an abort that holds the
+// queue, and resume releasing it.
+TEST_F(QueueTest, QueuePauseResumeReorderAbortOverRest) {
+  start_sim();
+  start_daemon({}, false);
+  ASSERT_TRUE(wait_state("idle")) << diag();
+
+  // No token: 401 and nothing queued. A bad schedule: 422 listing the error.
+  auto r =
+      call("POST", "/api/v1/queue", queue_body(soak_schedule("a", 23, 6), "a.toml").dump(), "");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 401);
+  r = call("POST", "/api/v1/queue", queue_body(soak_schedule("hot", 80, 6), "hot.toml").dump());
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 422);
+  EXPECT_THAT(r->body, HasSubstr("hot.toml:4: step[0].setpoint_c: 80 °C is outside"));
+  EXPECT_TRUE(get_json("/api/v1/queue")["entries"].empty());
+  EXPECT_TRUE(get_json("/api/v1/queue")["current"].is_null());
+
+  std::vector<int64_t> ids;
+  for (const auto& [name, minutes] :
+       {std::pair{"first", 6.0}, std::pair{"second", 2.0}, std::pair{"third", 2.0}}) {
+    r = call("POST", "/api/v1/queue",
+             queue_body(soak_schedule(name, 23, minutes), std::string(name) + ".toml").dump());
+    ASSERT_TRUE(r && r->status == 201) << (r ? r->body : "no answer");
+    ids.push_back(json::parse(r->body)["id"].get<int64_t>());
+  }
+  ASSERT_TRUE(wait_json("/api/v1/queue", [&](const json& q) {
+    return !q["current"].is_null() && q["current"]["id"] == ids[0] && q["entries"].size() == 2;
+  })) << diag();
+  // Reorder: third before second; then drop second.
+  r = call("POST", fmt::format("/api/v1/queue/{}/move", ids[2]), R"({"position":0})");
+  ASSERT_TRUE(r && r->status == 200) << (r ? r->body : "");
+  auto q = json::parse(r->body);
+  ASSERT_EQ(q["entries"].size(), 2u);
+  EXPECT_EQ(q["entries"][0]["id"], ids[2]);
+  EXPECT_EQ(q["entries"][1]["id"], ids[1]);
+  r = call("DELETE", fmt::format("/api/v1/queue/{}", ids[1]));
+  ASSERT_TRUE(r && r->status == 200);
+  r = call("DELETE", fmt::format("/api/v1/queue/{}", ids[0]));
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 409) << "the running entry is aborted, not removed";
+
+  // Pause in the middle of the first soak's acquisition, then resume.
+  ASSERT_TRUE(wait_json("/api/v1/runs/1", [](const json& run) {
+    return !run["segments"].empty() && !run["segments"][0]["t_acquire_start_s"].is_null();
+  })) << diag();
+  const double acquire_start_s = last_["segments"][0]["t_acquire_start_s"].get<double>();
+  ASSERT_TRUE(wait_json("/api/v1/status", [&](const json& s) {
+    return s["t_run_s"].get<double>() > acquire_start_s + 60;
+  })) << diag();
+  r = call("POST", "/api/v1/control/pause", R"({"reason":"door opened"})");
+  ASSERT_TRUE(r && r->status == 200) << (r ? r->body : "");
+  ASSERT_TRUE(wait_state("paused")) << diag();
+  const double paused_at_s = last_["t_run_s"].get<double>();
+  ASSERT_TRUE(wait_json("/api/v1/status", [&](const json& s) {
+    return s["t_run_s"].get<double>() > paused_at_s + 120;
+  })) << diag();
+  EXPECT_EQ(last_["state"], "paused") << "a pause lasts until resumed";
+  r = call("POST", "/api/v1/control/resume");
+  ASSERT_TRUE(r && r->status == 200) << (r ? r->body : "");
+  ASSERT_TRUE(wait_json(
+      "/api/v1/runs/1", [](const json& run) { return run["state"] == "completed"; },
+      std::chrono::seconds(90)))
+      << diag();
+  const json& seg = last_["segments"][0];
+  ASSERT_EQ(seg["windows"].size(), 2u) << seg.dump();
+  const double w0 = seg["windows"][0][1].get<double>() - seg["windows"][0][0].get<double>();
+  const double w1 = seg["windows"][1][1].get<double>() - seg["windows"][1][0].get<double>();
+  EXPECT_NEAR(w0 + w1, 360.0, 1e-6) << "the acquisition time excludes the pause";
+  EXPECT_GT(seg["windows"][1][0].get<double>() - seg["windows"][0][1].get<double>(), 119.0);
+  ASSERT_TRUE(wait_json("/api/v1/runs/1/stats", [](const json& s) { return s.size() == 1; }))
+      << diag();
+  EXPECT_GE(last_[0]["n"].get<int>(), 358) << "1 s bins of both windows, paused time left out";
+  EXPECT_LE(last_[0]["n"].get<int>(), 360);
+  EXPECT_THAT(events_text(1), HasSubstr("paused (door opened)"));
+
+  // The third schedule runs next (it was moved ahead); abort it.
+  ASSERT_TRUE(wait_json("/api/v1/status", [](const json& s) { return s["run_id"] == 2; }))
+      << diag();
+  EXPECT_EQ(last_["schedule"], "third");
+  r = call("POST", "/api/v1/control/abort", R"({"reason":"wrong gyro mounted"})");
+  ASSERT_TRUE(r && r->status == 200) << (r ? r->body : "");
+  ASSERT_TRUE(wait_json("/api/v1/runs/2", [](const json& run) { return run["state"] == "failed"; }))
+      << diag();
+  EXPECT_THAT(events_text(2), HasSubstr("aborted by the operator (wrong gyro mounted)"));
+  q = get_json("/api/v1/queue");
+  EXPECT_TRUE(q["held"].get<bool>());
+  EXPECT_THAT(q["hold_reason"].get<std::string>(), HasSubstr("aborted by the operator"));
+  EXPECT_EQ(get_json("/api/v1/runs").size(), 2u) << "the removed entry never ran";
+
+  // The CLI shows the run's story.
+  testing::ChildProcess cli({bin("gyrotherm"), "run", "2", "--url", url("")},
+                            (dir_ / "cli.log").string());
+  ASSERT_EQ(cli.wait(std::chrono::seconds(10)), std::optional<int>(0)) << cli.log();
+  EXPECT_THAT(cli.log(), HasSubstr("aborted by the operator"));
+
+  r = call("POST", "/api/v1/control/resume");
+  ASSERT_TRUE(r && r->status == 200) << (r ? r->body : "");
+  EXPECT_FALSE(get_json("/api/v1/queue")["held"].get<bool>());
+  r = call("POST", "/api/v1/control/pause");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 409) << "nothing to pause";
+}
+
+TEST_F(QueueTest, QueueSurvivesARestart) {
+  // No simulator needed: the queue is held, so nothing starts.
+  daemon::SimEndpoints ep{"127.0.0.1", testing::free_tcp_port(), (dir_ / "no-pty").string(), 0, ""};
+  ASSERT_TRUE(daemon::write_sim_endpoints((dir_ / "endpoints.toml").string(), ep).ok());
+  start_daemon({}, false);
+  ASSERT_TRUE(wait_state("idle")) << diag();
+  auto r = call("POST", "/api/v1/control/stop", R"({"reason":"weekend"})");
+  ASSERT_TRUE(r && r->status == 200) << (r ? r->body : "");
+  std::vector<int64_t> ids;
+  for (const char* name : {"monday", "tuesday"}) {
+    r = call("POST", "/api/v1/queue",
+             json{{"schedule_toml", soak_schedule(name, 30, 10)},
+                  {"source", name},
+                  {"ignore_failures", true}}
+                 .dump());
+    ASSERT_TRUE(r && r->status == 201) << (r ? r->body : "");
+    ids.push_back(json::parse(r->body)["id"].get<int64_t>());
+  }
+  daemon_->signal(SIGTERM);
+  ASSERT_EQ(daemon_->wait(std::chrono::seconds(20)), std::optional<int>(0)) << daemon_->log();
+
+  start_daemon({}, false);
+  ASSERT_TRUE(wait_json("/api/v1/queue", [](const json& q) { return q["entries"].size() == 2; }))
+      << diag();
+  EXPECT_TRUE(last_["held"].get<bool>());
+  EXPECT_THAT(last_["hold_reason"].get<std::string>(), HasSubstr("weekend"));
+  EXPECT_EQ(last_["entries"][0]["id"], ids[0]);
+  EXPECT_EQ(last_["entries"][1]["id"], ids[1]);
+  EXPECT_EQ(last_["entries"][1]["schedule_name"], "tuesday");
+  EXPECT_TRUE(last_["entries"][1]["ignore_failures"].get<bool>());
+  EXPECT_EQ(last_["entries"][0]["steps"], 1);
+  EXPECT_EQ(get_json("/api/v1/status")["state"], "idle");
+}
+
+// kill -9 in the middle of a soak's acquisition: the restarted daemon resumes
+// the run, keeps the acquisition time and every committed sample.
+TEST_F(QueueTest, CrashResumeAfterKill9) {
+  write(dir_ / "schedule.toml", soak_schedule("crash", 23, 10));
+  start_sim();
+  start_daemon();
+  ASSERT_TRUE(wait_json("/api/v1/runs/1", [](const json& run) {
+    return !run["segments"].empty() && !run["segments"][0]["t_acquire_start_s"].is_null();
+  })) << diag();
+  const double acquire_start_s = last_["segments"][0]["t_acquire_start_s"].get<double>();
+  ASSERT_TRUE(wait_json("/api/v1/status", [&](const json& s) {
+    return s["t_run_s"].get<double>() > acquire_start_s + 150;
+  })) << diag();
+  daemon_->signal(SIGKILL);
+  ASSERT_TRUE(daemon_->wait(std::chrono::seconds(10)).has_value());
+
+  int64_t samples_before = 0;
+  double last_t_before_s = 0;
+  {
+    auto db = storage::Database::open_read_only((dir_ / "station.db").string());
+    ASSERT_TRUE(db.ok()) << db.error().message;
+    auto check = db->exec("PRAGMA integrity_check");
+    EXPECT_TRUE(check.ok());
+    auto run = db->run(1);
+    ASSERT_TRUE(run.ok());
+    EXPECT_EQ(run->state, "acquiring") << "killed, so nothing marked the run";
+    samples_before = *db->count_gyro_samples(1);
+    last_t_before_s = **db->last_sample_t_s(1);
+  }
+  ASSERT_GT(samples_before, 1500);
+
+  start_daemon({"--exit-when-done"}, false);
+  const auto code = daemon_->wait(std::chrono::seconds(120));
+  ASSERT_EQ(code, std::optional<int>(0)) << daemon_->log();
+
+  auto db = storage::Database::open_read_only((dir_ / "station.db").string());
+  ASSERT_TRUE(db.ok());
+  EXPECT_EQ(db->run(1)->state, "completed");
+  auto kept = db->gyro_samples(1, 0.0, last_t_before_s + 1e-9);
+  ASSERT_TRUE(kept.ok());
+  EXPECT_EQ(static_cast<int64_t>(kept->size()), samples_before) << "no committed sample is lost";
+  auto segs = db->segments(1);
+  ASSERT_TRUE(segs.ok());
+  ASSERT_EQ(segs->size(), 1u);
+  const auto& w = (*segs)[0].windows;
+  ASSERT_EQ(w.size(), 2u);
+  EXPECT_NEAR((w[0].second - w[0].first) + (w[1].second - w[1].first), 600.0, 1e-6)
+      << "the soak kept the acquisition time it had";
+  EXPECT_GT(w[1].first, last_t_before_s);
+  std::string events;
+  const auto event_rows = db->events(1);
+  ASSERT_TRUE(event_rows.ok());
+  for (const auto& e : *event_rows) events += e.message + "\n";
+  EXPECT_THAT(events, HasSubstr("daemon restarted: run resumes at step 1 of 1"));
+  EXPECT_THAT(events, HasSubstr("acquisition goes on"));
+  auto stats = db->segment_stats(1);
+  ASSERT_TRUE(stats.ok());
+  ASSERT_EQ(stats->size(), 1u);
+  EXPECT_GE((*stats)[0].n, 597);
+  EXPECT_LE((*stats)[0].n, 600);
+  auto entry = db->queue_entry(*db->run(1)->queue_id);
+  ASSERT_TRUE(entry.ok() && entry->has_value());
+  EXPECT_EQ((*entry)->state, "completed");
+}
+
+// Each interlock through the simulator's fault socket: the run suspends with
+// the interlock named, and goes on by itself once the fault is gone.
+TEST_F(QueueTest, EachInterlockSuspendsAndClearsThroughTheSimulator) {
+  write(dir_ / "schedule.toml", soak_schedule("interlocks", 23, 600));
+  start_sim();
+  start_daemon();
+  ASSERT_TRUE(wait_state("acquiring", std::chrono::seconds(90))) << diag();
+
+  struct Fault {
+    std::vector<std::string> on, off;
+    std::string kind;
+  };
+  const std::vector<Fault> faults = {
+      {{"chamber alarm on"}, {"chamber alarm off"}, "chamber_alarm"},
+      {{"modbus down"}, {"modbus up"}, "chamber_silent"},
+      {{"pty close"}, {"pty reopen"}, "gyro_lost"},
+      // A probe stuck while the shell warms: top and side disagree.
+      {{"probe stall top", "chamber force 40"},
+       {"chamber release", "probe release top"},
+       "probe_disagreement"},
+      {{"chamber force 75"}, {"chamber release"}, "out_of_limits"},
+  };
+  for (const auto& f : faults) {
+    SCOPED_TRACE(f.kind);
+    for (const auto& cmd : f.on) ASSERT_TRUE(sim_ctl(cmd)) << cmd << "\n" << sim_->log();
+    ASSERT_TRUE(wait_json("/api/v1/status", [&](const json& s) {
+      return s["state"] == "suspended" && s["interlocks"].dump().find(f.kind) != std::string::npos;
+    })) << diag();
+    for (const auto& cmd : f.off) ASSERT_TRUE(sim_ctl(cmd)) << cmd;
+    ASSERT_TRUE(wait_json(
+        "/api/v1/status",
+        [](const json& s) {
+          return s["interlocks"].empty() && (s["state"] == "acquiring" || s["state"] == "settling");
+        },
+        std::chrono::seconds(90)))
+        << diag();
+    // Back to a stable soak before the next fault.
+    ASSERT_TRUE(wait_state("acquiring", std::chrono::seconds(120))) << diag();
+  }
+  const std::string events = events_text(1);
+  for (const auto& f : faults) {
+    EXPECT_THAT(events, HasSubstr("interlock " + f.kind + ":"));
+    EXPECT_THAT(events, HasSubstr("interlock " + f.kind + " cleared"));
+  }
+  EXPECT_THAT(events, HasSubstr("the soak settles again"))
+      << "forced temperatures restart the soak";
+}
+
+TEST_F(QueueTest, InterlockBeyondItsGraceAbortsToTheSafeState) {
+  append_config("[interlocks]\nout_of_limits_grace_min = 1.0\n");
+  write(dir_ / "schedule.toml", soak_schedule("runaway", 30, 600));
+  start_sim();
+  start_daemon();
+  ASSERT_TRUE(wait_state("acquiring", std::chrono::seconds(90))) << diag();
+  ASSERT_TRUE(sim_ctl("chamber force 80"));
+  ASSERT_TRUE(wait_json(
+      "/api/v1/runs/1", [](const json& run) { return run["state"] == "failed"; },
+      std::chrono::seconds(90)))
+      << diag();
+  const std::string events = events_text(1);
+  EXPECT_THAT(events, HasSubstr("out_of_limits still tripped after 1 min"));
+  EXPECT_THAT(events, HasSubstr("chamber to the safe set point 23 °C"));
+  EXPECT_TRUE(get_json("/api/v1/queue")["held"].get<bool>()) << "a failed run holds the queue";
+  ASSERT_TRUE(wait_json("/api/v1/status", [](const json& s) { return s["state"] == "idle"; }))
+      << diag();
+  // The chamber's set point register holds the safe set point.
+  ASSERT_TRUE(sim_ctl("status"));
+  std::ifstream ctl(dir_ / "ctl.log");
+  std::string text((std::istreambuf_iterator<char>(ctl)), std::istreambuf_iterator<char>());
+  const auto brace = text.find('{');
+  ASSERT_NE(brace, std::string::npos) << text;
+  EXPECT_DOUBLE_EQ(json::parse(text.substr(brace))["setpoint_c"].get<double>(), 23.0) << text;
+}
+
+}  // namespace
+}  // namespace gyrotherm
