@@ -466,7 +466,7 @@ void Station::resume_interrupted_run() {
   opt.interlocks = config_.interlocks;
   sequencer_ = std::make_unique<schedules::Sequencer>(
       std::move(*plan), opt, static_cast<schedules::SequencerObserver&>(*this));
-  add_event("resume", run.state, "", reason);
+  add_event("resume", "", "", reason);
   last_written_setpoint_c_.reset();
   sequencer_->restore(*snap, t_resume_s, reason);
   (void)db_.set_run_state(run.id, to_string(sequencer_->state()), false);
