@@ -261,6 +261,7 @@ void read_analysis(TableReader t, AnalysisSection& a) {
 void read_control(TableReader t, ControlSection& c) {
   c.tick_s = t.number_in("tick_s", c.tick_s, 0.01, 60.0);
   c.min_tick_wall_s = t.number_in("min_tick_wall_s", c.min_tick_wall_s, 0.0005, 10.0);
+  c.min_silent_wall_s = t.number_in("min_silent_wall_s", c.min_silent_wall_s, 0.0, 3600.0);
   t.finish();
 }
 

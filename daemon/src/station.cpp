@@ -116,6 +116,8 @@ void Station::start() {
   const double now_s = clock_.now_s();
   chamber_ok_s_ = probes_ok_s_ = now_s;
   gyro_last_s_.store(now_s);
+  chamber_ok_wall_s_ = probes_ok_wall_s_ = steady_now_s();
+  gyro_last_wall_s_.store(chamber_ok_wall_s_);
   {
     std::lock_guard lock(run_mu_);
     if (auto hold = db_.meta(kHoldKey); hold && *hold) {
@@ -203,11 +205,23 @@ schedules::Readings Station::read_devices(double now_s) {
   }
   read(*probes_, config_.probes.top, probes_ok_, r.top_c);
   if (r.top_c) read(*probes_, config_.probes.side, probes_ok_, r.side_c);
-  if (r.chamber_c) chamber_ok_s_ = now_s;
-  if (r.top_c && r.side_c) probes_ok_s_ = now_s;
-  r.chamber_silent_s = now_s - chamber_ok_s_;
-  r.probes_silent_s = now_s - probes_ok_s_;
-  r.gyro_silent_s = std::max(0.0, now_s - gyro_last_s_.load());
+  const double wall_s = steady_now_s();
+  if (r.chamber_c) {
+    chamber_ok_s_ = now_s;
+    chamber_ok_wall_s_ = wall_s;
+  }
+  if (r.top_c && r.side_c) {
+    probes_ok_s_ = now_s;
+    probes_ok_wall_s_ = wall_s;
+  }
+  // Silence in station time, once it is also min_silent_wall_s of wall time.
+  const double min_wall_s = config_.control.min_silent_wall_s;
+  auto silent = [&](double since_s, double since_wall_s) {
+    return wall_s - since_wall_s >= min_wall_s ? std::max(0.0, now_s - since_s) : 0.0;
+  };
+  r.chamber_silent_s = silent(chamber_ok_s_, chamber_ok_wall_s_);
+  r.probes_silent_s = silent(probes_ok_s_, probes_ok_wall_s_);
+  r.gyro_silent_s = silent(gyro_last_s_.load(), gyro_last_wall_s_.load());
   return r;
 }
 
@@ -528,6 +542,7 @@ void Station::end_run() {
 
 void Station::on_gyro_samples(std::span<const GyroSample> samples) {
   gyro_last_s_.store(clock_.now_s());
+  gyro_last_wall_s_.store(steady_now_s());
   const int64_t run_id = run_id_.load();
   if (run_id != 0) {
     thread_local std::vector<GyroSample> rel;

@@ -83,6 +83,10 @@ struct AnalysisSection {
 struct ControlSection {
   double tick_s = 1.0;             // station seconds between control-loop ticks
   double min_tick_wall_s = 0.005;  // never tick faster than this in wall time
+  // A device counts as silent (interlocks) only once it has also been silent
+  // this long in wall time: at high time scales a busy machine can stall a
+  // thread for more than a device timeout's worth of station time.
+  double min_silent_wall_s = 1.0;
 };
 
 // Simulation hook: where gyrotherm-sim writes the endpoints it opened. When

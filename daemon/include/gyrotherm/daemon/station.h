@@ -143,9 +143,12 @@ class Station final : public StationControl, private schedules::SequencerObserve
 
   // Control-thread only.
   bool chamber_ok_ = true, probes_ok_ = true;
-  double chamber_ok_s_ = 0, probes_ok_s_ = 0;  // station time of the last good reading
+  // Station and wall (steady) time of the last good reading.
+  double chamber_ok_s_ = 0, probes_ok_s_ = 0;
+  double chamber_ok_wall_s_ = 0, probes_ok_wall_s_ = 0;
   analysis::StabilityWindow shell_rate_window_{60.0};
   std::atomic<double> gyro_last_s_{0};  // station time of the last gyro sample
+  std::atomic<double> gyro_last_wall_s_{0};
   std::atomic<int> queue_length_{0};
   std::atomic<bool> queue_held_{false};
 
