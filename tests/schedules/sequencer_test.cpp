@@ -572,5 +572,138 @@ TEST(Sequencer, RestoredPausedRunStaysPaused) {
   EXPECT_EQ(seq.state(), RunState::kCompleted);
 }
 
+
+// ------------------------------------------------------------- transition table
+
+// Every operator command and event from every live state: the state after it,
+// and whether a command was refused. One row per (state, input).
+enum class Input { kPause, kResume, kAbort, kSafe, kInterrupt, kTrip, kClear };
+
+struct TransitionRow {
+  RunState from;
+  Input input;
+  RunState to;
+  bool refused;  // commands only (pause, resume)
+};
+
+// A sequencer brought into `state` with a single soak at 30 °C (or a ramp for
+// kRamping), ticked once a second from t = 0.
+struct InState {
+  RecordingObserver obs;
+  Sequencer seq;
+  double t = 0;
+  explicit InState(RunState state)
+      : seq(make_plan({state == RunState::kRamping ? ramp(40, 0.1) : quick_soak(30, 6000)}), {},
+            obs) {
+    seq.start(0, 30);
+    if (state == RunState::kRamping || state == RunState::kSettling) {
+      tick(1, at(30));
+    } else {
+      tick(60, at(30));  // acquiring
+    }
+    if (state == RunState::kPaused) {
+      EXPECT_TRUE(seq.pause(t, "x").ok());
+    }
+    if (state == RunState::kSuspended) tick(1, Readings{30.0, 32.0, 29.0});  // probes disagree
+    if (state == RunState::kAborting) seq.abort(t, "x");
+    if (state == RunState::kFailed) {
+      seq.abort(t, "x");
+      seq.safe_state_reached(t);
+    }
+    if (state == RunState::kInterrupted) seq.interrupt(t, "x");
+    EXPECT_EQ(seq.state(), state);
+  }
+  void tick(int n, const Readings& r) {
+    for (int i = 0; i < n; ++i) seq.tick(t += 1.0, r);
+  }
+  bool apply(Input input) {
+    switch (input) {
+      case Input::kPause:
+        return seq.pause(t, "x").ok();
+      case Input::kResume:
+        return seq.resume(t, "x").ok();
+      case Input::kAbort:
+        seq.abort(t, "x");
+        return true;
+      case Input::kSafe:
+        seq.safe_state_reached(t);
+        return true;
+      case Input::kInterrupt:
+        seq.interrupt(t, "x");
+        return true;
+      case Input::kTrip:
+        tick(1, Readings{30.0, 32.0, 29.0});
+        return true;
+      case Input::kClear:
+        tick(1, at(30));
+        return true;
+    }
+    return false;
+  }
+};
+
+TEST(SequencerTransitions, Table) {
+  using S = RunState;
+  using I = Input;
+  const TransitionRow rows[] = {
+      {S::kSettling, I::kPause, S::kPaused, false},
+      {S::kSettling, I::kResume, S::kSettling, true},
+      {S::kSettling, I::kAbort, S::kAborting, false},
+      {S::kSettling, I::kInterrupt, S::kInterrupted, false},
+      {S::kSettling, I::kTrip, S::kSuspended, false},
+      {S::kSettling, I::kSafe, S::kSettling, false},
+      {S::kAcquiring, I::kPause, S::kPaused, false},
+      {S::kAcquiring, I::kResume, S::kAcquiring, true},
+      {S::kAcquiring, I::kAbort, S::kAborting, false},
+      {S::kAcquiring, I::kInterrupt, S::kInterrupted, false},
+      {S::kAcquiring, I::kTrip, S::kSuspended, false},
+      {S::kAcquiring, I::kClear, S::kAcquiring, false},
+      {S::kRamping, I::kPause, S::kPaused, false},
+      {S::kRamping, I::kAbort, S::kAborting, false},
+      {S::kRamping, I::kTrip, S::kSuspended, false},
+      {S::kRamping, I::kInterrupt, S::kInterrupted, false},
+      {S::kPaused, I::kPause, S::kPaused, true},
+      {S::kPaused, I::kResume, S::kAcquiring, false},
+      {S::kPaused, I::kClear, S::kPaused, false},
+      {S::kPaused, I::kTrip, S::kSuspended, false},
+      {S::kPaused, I::kAbort, S::kAborting, false},
+      {S::kPaused, I::kInterrupt, S::kInterrupted, false},
+      {S::kSuspended, I::kClear, S::kAcquiring, false},
+      {S::kSuspended, I::kTrip, S::kSuspended, false},
+      {S::kSuspended, I::kPause, S::kSuspended, false},
+      {S::kSuspended, I::kResume, S::kSuspended, true},
+      {S::kSuspended, I::kAbort, S::kAborting, false},
+      {S::kSuspended, I::kInterrupt, S::kInterrupted, false},
+      {S::kAborting, I::kSafe, S::kFailed, false},
+      {S::kAborting, I::kPause, S::kAborting, true},
+      {S::kAborting, I::kResume, S::kAborting, true},
+      {S::kAborting, I::kTrip, S::kAborting, false},
+      {S::kAborting, I::kInterrupt, S::kFailed, false},
+      {S::kFailed, I::kPause, S::kFailed, true},
+      {S::kFailed, I::kResume, S::kFailed, true},
+      {S::kFailed, I::kAbort, S::kFailed, false},
+      {S::kFailed, I::kTrip, S::kFailed, false},
+      {S::kInterrupted, I::kPause, S::kInterrupted, true},
+      {S::kInterrupted, I::kAbort, S::kInterrupted, false},
+      {S::kInterrupted, I::kClear, S::kInterrupted, false},
+  };
+  for (const auto& row : rows) {
+    SCOPED_TRACE(fmt::format("{} + input {}", to_string(row.from), static_cast<int>(row.input)));
+    InState s(row.from);
+    const bool accepted = s.apply(row.input);
+    EXPECT_EQ(s.seq.state(), row.to);
+    if (row.input == Input::kPause || row.input == Input::kResume) {
+      EXPECT_EQ(!accepted, row.refused);
+    }
+    // Every transition was reported, in order, ending in the state shown.
+    if (!s.obs.transitions.empty()) {
+      EXPECT_EQ(s.obs.transitions.back().to, s.seq.state());
+    }
+    for (std::size_t i = 1; i < s.obs.transitions.size(); ++i) {
+      EXPECT_EQ(s.obs.transitions[i].from, s.obs.transitions[i - 1].to);
+    }
+  }
+}
+
 }  // namespace
 }  // namespace gyrotherm::schedules
