@@ -167,9 +167,52 @@ TEST_F(QueueTest, QueuePauseResumeReorderAbortOverRest) {
   ASSERT_EQ(cli.wait(std::chrono::seconds(10)), std::optional<int>(0)) << cli.log();
   EXPECT_THAT(cli.log(), HasSubstr("aborted by the operator"));
 
+  // The paper's campaign, queued while the queue is held: the shipped files,
+  // checked against this station, then reordered.
+  std::vector<int64_t> paper;
+  for (const char* file : {"paper-table1.toml", "paper-ramp.toml"}) {
+    std::ifstream in(std::string(GYROTHERM_SOURCE_DIR) + "/config/schedules/" + file);
+    const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    r = call("POST", "/api/v1/queue",
+             json{{"schedule_toml", text}, {"source", file}, {"ignore_failures", true}}.dump());
+    ASSERT_TRUE(r && r->status == 201) << (r ? r->body : "");
+    paper.push_back(json::parse(r->body)["id"].get<int64_t>());
+  }
+  q = get_json("/api/v1/queue");
+  ASSERT_EQ(q["entries"].size(), 2u);
+  EXPECT_EQ(q["entries"][0]["steps"], 32) << "eight temperatures, four times";
+  EXPECT_EQ(q["entries"][1]["steps"], 2);
+  r = call("POST", fmt::format("/api/v1/queue/{}/move", paper[1]), R"({"position":0})");
+  ASSERT_TRUE(r && r->status == 200);
+  EXPECT_EQ(get_json("/api/v1/status")["state"], "idle") << "a held queue starts nothing";
+
+  // Release the queue: the ramp campaign starts; kill -9 the daemon in it.
   r = call("POST", "/api/v1/control/resume");
   ASSERT_TRUE(r && r->status == 200) << (r ? r->body : "");
-  EXPECT_FALSE(get_json("/api/v1/queue")["held"].get<bool>());
+  ASSERT_TRUE(wait_json("/api/v1/status", [](const json& s) {
+    return s["run_id"] == 3 && s["state"] == "settling" && s["t_run_s"].get<double>() > 120;
+  })) << diag();
+  EXPECT_EQ(last_["schedule"], "paper-ramp");
+  daemon_->signal(SIGKILL);
+  ASSERT_TRUE(daemon_->wait(std::chrono::seconds(10)).has_value());
+  start_daemon({}, false);
+  ASSERT_TRUE(wait_json("/api/v1/status", [](const json& s) {
+    return s["run_id"] == 3 && s["state"] == "settling";
+  })) << diag();
+  EXPECT_THAT(events_text(3), HasSubstr("daemon restarted: run resumes at step 1 of 2"));
+  q = get_json("/api/v1/queue");
+  EXPECT_EQ(q["current"]["id"], paper[1]);
+  ASSERT_EQ(q["entries"].size(), 1u);
+  EXPECT_EQ(q["entries"][0]["id"], paper[0]) << "the queue survived the crash";
+
+  // Stop after the current run, then end it.
+  r = call("POST", "/api/v1/control/stop");
+  ASSERT_TRUE(r && r->status == 200) << (r ? r->body : "");
+  r = call("POST", "/api/v1/control/abort", R"({"reason":"end of the test"})");
+  ASSERT_TRUE(r && r->status == 200) << (r ? r->body : "");
+  ASSERT_TRUE(wait_state("idle")) << diag();
+  EXPECT_EQ(get_json("/api/v1/runs/3")["state"], "failed");
+  EXPECT_TRUE(get_json("/api/v1/queue")["held"].get<bool>());
   r = call("POST", "/api/v1/control/pause");
   ASSERT_TRUE(r);
   EXPECT_EQ(r->status, 409) << "nothing to pause";
@@ -321,6 +364,36 @@ TEST_F(QueueTest, EachInterlockSuspendsAndClearsThroughTheSimulator) {
   }
   EXPECT_THAT(events, HasSubstr("the soak settles again"))
       << "forced temperatures restart the soak";
+}
+
+// A soak that cannot settle in time is suspended, and goes on once it does.
+TEST_F(QueueTest, SettleTimeoutSuspendsUntilTheSoakSettles) {
+  write(dir_ / "schedule.toml", R"(name = "slow"
+[[step]]
+type = "soak"
+setpoint_c = 23.0
+stability_window_min = 2
+settle_timeout_min = 3
+acquire_min = 3
+)");
+  start_sim();
+  ASSERT_TRUE(sim_ctl("chamber force 30"));  // the controller ignores the set point
+  start_daemon({"--exit-when-done"});
+  ASSERT_TRUE(wait_json("/api/v1/status", [](const json& s) {
+    return s["state"] == "suspended" &&
+           s["interlocks"].dump().find("settle_timeout") != std::string::npos;
+  })) << diag();
+  ASSERT_TRUE(sim_ctl("chamber release"));
+  ASSERT_EQ(daemon_->wait(std::chrono::seconds(90)), std::optional<int>(0)) << daemon_->log();
+  auto db = storage::Database::open_read_only((dir_ / "station.db").string());
+  ASSERT_TRUE(db.ok());
+  EXPECT_EQ(db->run(1)->state, "completed");
+  std::string events;
+  const auto rows = db->events(1);
+  ASSERT_TRUE(rows.ok());
+  for (const auto& e : *rows) events += e.message + "\n";
+  EXPECT_THAT(events, HasSubstr("not stable at 23 ± 0.5 °C within 3 min"));
+  EXPECT_THAT(events, HasSubstr("interlock settle_timeout cleared"));
 }
 
 TEST_F(QueueTest, InterlockBeyondItsGraceAbortsToTheSafeState) {
