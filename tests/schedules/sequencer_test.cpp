@@ -572,7 +572,6 @@ TEST(Sequencer, RestoredPausedRunStaysPaused) {
   EXPECT_EQ(seq.state(), RunState::kCompleted);
 }
 
-
 // ------------------------------------------------------------- transition table
 
 // Every operator command and event from every live state: the state after it,
