@@ -210,9 +210,12 @@ TEST_F(StationTest, CorruptedFramesAreRejectedAndCounted) {
                          std::chrono::seconds(30)));
   in_process_sim_->set_frame_corruption_rate(0.0);
   const uint64_t corrupted = in_process_sim_->status().frames_fault_corrupted;
-  ASSERT_TRUE(
-      wait_until([&] { return gyro("crc_failures") >= corrupted; }, std::chrono::seconds(20)))
-      << "daemon saw " << gyro("crc_failures") << " of " << corrupted;
+  // A corrupted frame counts as missed once the next good frame shows the gap.
+  ASSERT_TRUE(wait_until(
+      [&] { return gyro("crc_failures") >= corrupted && gyro("frames_missed") >= corrupted; },
+      std::chrono::seconds(20)))
+      << "daemon saw " << gyro("crc_failures") << " CRC failures, " << gyro("frames_missed")
+      << " missed of " << corrupted;
   EXPECT_EQ(gyro("crc_failures"), corrupted);
   EXPECT_EQ(gyro("frames_missed"), corrupted) << "each corrupted frame is a missing sample";
   EXPECT_TRUE(daemon_->running());
