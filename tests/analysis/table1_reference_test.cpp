@@ -12,11 +12,13 @@
 #include <vector>
 
 #include "gyrotherm/analysis/table1.h"
+#include "reference_data.h"
 
 namespace gyrotherm::analysis {
 namespace {
 
-using Tokens = std::vector<std::string>;
+using testing::noise;
+using testing::Tokens;
 
 struct ReferenceCase {
   std::map<std::string, std::string> scalars;  // "key value" lines
@@ -30,18 +32,9 @@ struct ReferenceCase {
 };
 
 ReferenceCase load(const std::string& name) {
-  const std::string path =
-      std::string(GYROTHERM_TEST_DATA_DIR) + "/analysis/data/table1_" + name + ".txt";
-  std::ifstream in(path);
-  EXPECT_TRUE(in) << "cannot open " << path
-                  << " (regenerate with /usr/bin/python3 tools/reference/table1_reference.py)";
   ReferenceCase c;
-  std::string line;
-  while (std::getline(in, line)) {
-    if (line.empty() || line[0] == '#') continue;
-    std::istringstream ls(line);
-    Tokens t;
-    for (std::string w; ls >> w;) t.push_back(w);
+  for (const Tokens& t : testing::read_reference_lines("table1_" + name + ".txt",
+                                                       "tools/reference/table1_reference.py")) {
     if (t[0] == "gen") {
       c.gen[t[1]] = t[2];
     } else if (t[0] == "check_gyro") {
@@ -60,23 +53,6 @@ ReferenceCase load(const std::string& name) {
     }
   }
   return c;
-}
-
-// The generator of table1_reference.py, operation for operation.
-uint64_t splitmix64(uint64_t seed, uint64_t draw) {  // draw = 1, 2, ...
-  uint64_t z = seed + draw * 0x9E3779B97F4A7C15ULL;
-  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
-  z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
-  return z ^ (z >> 31);
-}
-
-double noise(uint64_t seed, std::size_t i, double sigma) {
-  double u[4];
-  for (int j = 0; j < 4; ++j) {
-    u[j] = static_cast<double>(splitmix64(seed, 4 * i + j + 1) >> 11) * 0x1p-53;
-  }
-  const double s = ((u[0] + u[1]) + u[2]) + u[3];
-  return sigma * std::sqrt(3.0) * (s - 2.0);
 }
 
 void generate(ReferenceCase& c) {

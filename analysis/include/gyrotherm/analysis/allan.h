@@ -1,0 +1,95 @@
+// Overlapping Allan deviation of the gyro rate (DESIGN.md §7).
+//
+// On the samples as recorded (not the analysis bins): rates y_i in °/h at
+// times t_i, taken as evenly spaced at tau0 = the median of the time
+// differences. For a cluster size m (tau = m * tau0), with ybar_k the mean of
+// y_k ... y_{k+m-1}:
+//   sigma^2(tau) = 1 / (2 (N - 2m + 1)) * sum_{k=0}^{N-2m} (ybar_{k+m} - ybar_k)^2
+// over every overlapping k. Computed from a long-double running sum of the
+// mean-subtracted rates: O(N) per tau, and a large common offset (1e4 °/h)
+// costs no digits.
+//
+// Confidence bounds: 1 sigma (68.3 %), chi-squared with the equivalent degrees
+// of freedom for white FM noise, overlapping estimator (see allan_edf_white_fm).
+//
+// Noise terms read off the curve (IEEE Std 952 conventions):
+// - A line of fixed log-log slope s is fitted as log sigma = log C + s log tau,
+//   C = the weighted mean of (log sigma_i - s log tau_i), weights edf_i (the
+//   inverse variance of log sigma_i is ~2 edf_i), over the taus whose local
+//   slope is within ±0.25 of s. The local slope of point i is the log-log
+//   slope between its neighbours i-1 and i+1 (one-sided at the two ends).
+//   No such tau (or fewer than 3 taus on the curve): nullopt.
+// - Angle random walk: the slope -½ line at tau = 1 s, sigma(1 s) in °/h,
+//   divided by 60 -> °/√h.
+// - Rate random walk: sigma(tau) = K sqrt(tau / 3) (tau in h, K in °/h/√h);
+//   the slope +½ line read at tau = 3 s gives sigma(3 s) = K / 60, so
+//   K = 60 * sigma_line(3 s).
+// - Bias instability: the minimum of the curve divided by 0.664 (reported
+//   with the tau of the minimum and the label "minimum / 0.664"). nullopt when
+//   the minimum is at the first or last tau (no floor reached yet).
+#pragma once
+
+#include <cstddef>
+#include <optional>
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "gyrotherm/core/result.h"
+
+namespace gyrotherm::analysis {
+
+// Which cluster sizes m are evaluated. All sets keep exactly the m >= 1 with
+// 2m < N + 1 (at least one difference of two clusters).
+//   kOctave: m = 1, 2, 4, 8, ...
+//   kDecade: m = 1, 2, 5, 10, 20, 50, 100, ... (1, 2, 5 times powers of ten)
+//   kAll:    every m = 1 ... N/2 — O(N^2) in total; for short records only.
+enum class TauSet { kOctave, kDecade, kAll };
+Result<TauSet> parse_tau_set(std::string_view s);  // "octave", "decade", "all"
+std::string_view to_string(TauSet set);
+
+// The cluster sizes of `set` for n samples, ascending (empty for n < 2).
+std::vector<std::size_t> allan_cluster_sizes(std::size_t n, TauSet set);
+
+// Equivalent degrees of freedom of the overlapping Allan variance for white
+// FM noise (white rate noise for a gyro), from Howe, Allan & Barnes,
+// "Properties of signal sources and measurement methods" (1981), as given in
+// the simple edf formulas of NIST SP 1065 (Riley, 2008):
+//   edf = (3(N-1)/(2m) - 2(N-2)/N) * 4m^2 / (4m^2 + 5)
+// where N is the number of *phase* points; n rate samples integrate to
+// N = n + 1 phase (angle) points. Positive for every m with 2m <= n.
+double allan_edf_white_fm(std::size_t n_rate_samples, std::size_t m);
+
+struct AllanOptions {
+  TauSet taus = TauSet::kOctave;
+};
+
+struct AllanResult {
+  double tau0_s = 0;  // median sample spacing
+  std::size_t n_samples = 0;
+
+  // Per tau, ascending; all the same length.
+  std::vector<double> tau_s;         // m * tau0_s
+  std::vector<std::size_t> m;        // cluster size, samples
+  std::vector<double> adev_dph;      // overlapping Allan deviation
+  std::vector<double> adev_lo_dph;   // adev * sqrt(edf / chi2_{0.8415}(edf))
+  std::vector<double> adev_hi_dph;   // adev * sqrt(edf / chi2_{0.1585}(edf))
+  std::vector<std::size_t> n_terms;  // N - 2m + 1 overlapping differences
+  std::vector<double> edf;           // allan_edf_white_fm(N, m)
+
+  // Noise terms (see the top of this file); nullopt when not readable.
+  std::optional<double> angle_random_walk_dprh;   // °/√h
+  std::optional<double> rate_random_walk_dphprh;  // °/h/√h
+  std::optional<double> bias_instability_dph;     // minimum adev / 0.664
+  std::optional<double> bias_instability_tau_s;   // tau of that minimum
+  std::string bias_instability_method = "minimum / 0.664";
+};
+
+// Errors (permanent): sizes differ; fewer than 2 samples; a non-finite time
+// or rate (the message names the index); times not strictly increasing (names
+// the index and both times).
+Result<AllanResult> allan_deviation(std::span<const double> t_s, std::span<const double> rate_dph,
+                                    const AllanOptions& options = {});
+
+}  // namespace gyrotherm::analysis

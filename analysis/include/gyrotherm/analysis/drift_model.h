@@ -1,0 +1,125 @@
+// Temperature drift model of the reference paper, eq. 1 (DESIGN.md §7):
+//
+//   L - L0 = sum_i=1..m A_i T^i + sum_j=1..n B_j (dT/dt)^j + sum_k=1..q C_k dT^k
+//
+// on an analysis series: L the rate (°/h), T the mean shell temperature
+// (top + side) / 2 (°C), dT/dt its smoothing derivative (°C/s), dT = top - side
+// (°C). Two forms: the paper's (L0 = mean rate over the first l0_window_s, no
+// intercept) and a centred one (intercept, each variable centred and scaled
+// before its powers are taken). Both are solved by a block-sequential
+// Householder QR: the extra memory is O(block_rows x p), independent of the
+// number of points. Pure functions of their arguments; safe to call from
+// several threads.
+#pragma once
+
+#include <cstddef>
+#include <map>
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "gyrotherm/analysis/table1.h"
+#include "gyrotherm/core/result.h"
+
+namespace gyrotherm::analysis {
+
+// Orders 0..4 of each term family; 0 = absent.
+struct DriftModelSpec {
+  int t_order = 0;  // powers of T, mean shell temperature
+  int r_order = 0;  // powers of dT/dt
+  int g_order = 0;  // powers of dT = top - side
+  int parameters() const { return t_order + r_order + g_order; }
+  bool operator==(const DriftModelSpec&) const = default;
+};
+
+// "T4+R1+G1": terms joined by '+', each a letter (T, R, G; case-sensitive)
+// and one digit 0..4, any order, each letter at most once; "T0" or a missing
+// letter = absent. Spaces around terms are ignored. Errors name the bad part:
+// empty spec or term, unknown letter, order out of range, a repeated letter,
+// or a spec whose terms are all of order 0.
+Result<DriftModelSpec> parse_model_spec(std::string_view s);
+// Canonical "T4+R1+G1": T, R, G order, order-0 terms left out; "" when empty.
+std::string to_string(const DriftModelSpec& spec);
+
+enum class DriftModelForm {
+  kPaper,     // y = L - L0, no intercept, powers of x / max|x| (coefficients reported raw)
+  kCentered,  // y = L, intercept, powers of (x - mean(x)) / std(x)
+};
+std::string_view to_string(DriftModelForm form);
+Result<DriftModelForm> parse_drift_model_form(std::string_view s);  // "paper", "centered"
+
+struct DriftFitOptions {
+  double derivative_window_s = 60.0;  // width of the smoothing-derivative window
+  double l0_window_s = 120.0;         // L0 = mean rate over t_s - t_s[0] < l0_window_s
+  std::size_t block_rows = 256;       // rows per QR update; the result does not depend on it
+  // A design column whose R diagonal is below rank_tolerance x the largest
+  // (after the columns are scaled to unit size) makes the fit fail.
+  double rank_tolerance = 1e-10;
+
+  // False with a message when a value is out of range (window <= 0 or not
+  // finite, block_rows == 0, rank_tolerance not in [0, 1)).
+  bool IsValid(std::string* error) const;
+};
+
+// Smoothing derivative dy/dt: at point i, the least-squares slope of a straight
+// line through the points j with |t_j - t_i| <= window_s / 2 (1e-9 relative
+// tolerance on the half width), the window extended where needed to hold at
+// least the immediate neighbours i - 1 and i + 1 (so at least 2 points). Near the
+// ends the window is simply cut off (shrunk, not shifted). t must be strictly
+// increasing and finite, y finite, both of the same size >= 2 (checked by
+// fit_drift_model; here violations give NaN). O(n) time: sliding sums,
+// re-anchored every window length so no cancellation builds up.
+std::vector<double> smoothing_derivative(std::span<const double> t_s, std::span<const double> y,
+                                         double window_s);
+
+struct DriftFit {
+  DriftModelSpec spec;
+  DriftModelForm form = DriftModelForm::kPaper;
+  // Physical units: "T1".."T4" in °/h per °C^i, "R1".."R4" in °/h per
+  // (°C/s)^j, "G1".."G4" in °/h per °C^k, "intercept" (centred form) in °/h.
+  std::map<std::string, double> coefficients;
+  std::map<std::string, double> std_errors;  // same keys; sigma^2 (X'X)^-1, dof = n - p
+  std::size_t n = 0;
+  std::size_t parameters = 0;  // p, including the intercept
+  // RSS is the last diagonal element (squared) of the QR factor of [X | y],
+  // not ||y||^2 - ||Q'y||^2, so a close fit loses no digits.
+  double residual_std_dph = 0;  // sqrt(RSS / (n - p))
+  // 1 - RSS / TSS, TSS about the mean of y (Welford, one pass); 1 when TSS = 0.
+  // Can be negative in the paper form, which has no intercept.
+  double r_squared = 0;
+  double l0_dph = 0;  // paper form; 0 in the centred form
+  // 2-norm condition number of the design with its columns scaled to unit
+  // norm (from the SVD of the p x p factor R).
+  double condition_estimate = 0;
+
+  // How the fit was obtained (predict_drift uses these, not the physical
+  // coefficients, to avoid cancellation in the expanded polynomials).
+  double derivative_window_s = 0;
+  std::vector<std::string> column_names;  // in design order
+  std::vector<double> scaled_coefficients;
+  double t_center = 0, t_scale = 1, r_center = 0, r_scale = 1, g_center = 0, g_scale = 1;
+};
+
+// Least-squares fit of the model to the series (its t_s, rate_dph, top_c,
+// side_c). Errors (permanent): invalid options; vectors of different lengths;
+// a non-finite value (names the vector and index); t_s not strictly
+// increasing; n <= p (standard errors need n - p > 0); a variable of the spec
+// that is constant over the series (names it: T, R or G); a rank-deficient
+// design (names the first column that is a combination of the earlier ones:
+// |R_jj| / |column j| <= rank_tolerance).
+// Method: two passes over the series. Pass 1: L0, and the mean / population
+// std / max |x| of T, dT/dt and dT. Pass 2: rows of [X | y] built block_rows at
+// a time (X in scaled variables: centred form z = (x - mean) / std, paper form
+// z = x / max|x|), each block stacked under the current (p + 1) x (p + 1)
+// triangular factor and re-factored by Householder QR (Eigen). Then
+// beta = R^-1 Q'y, Cov = sigma^2 R^-1 R^-T, and both are mapped linearly to
+// the physical coefficients (binomial expansion of the powers of z).
+Result<DriftFit> fit_drift_model(const AnalysisSeries& series, const DriftModelSpec& spec,
+                                 DriftModelForm form, const DriftFitOptions& options = {});
+
+// The fitted rate L (°/h) at every point of `series` (the paper form adds L0).
+// Errors as for fit_drift_model's input checks.
+Result<std::vector<double>> predict_drift(const DriftFit& fit, const AnalysisSeries& series);
+
+}  // namespace gyrotherm::analysis

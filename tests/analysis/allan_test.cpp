@@ -1,0 +1,334 @@
+// Overlapping Allan deviation: numpy reference values
+// (tools/reference/allan_reference.py, tests/analysis/data/allan_*.txt), the
+// tau rules, the chi-squared bounds by property, noise terms recovered from
+// synthetic white noise and random walk, and input errors.
+#include "gyrotherm/analysis/allan.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdint>
+#include <fstream>
+#include <limits>
+#include <map>
+#include <random>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "reference_data.h"
+
+namespace gyrotherm::analysis {
+namespace {
+
+using testing::noise;
+using testing::Tokens;
+
+struct ReferenceCase {
+  std::map<std::string, std::string> scalars;
+  std::map<std::string, std::string> gen;
+  std::vector<Tokens> checks, points;
+  std::vector<double> t_s, rate_dph;
+  double gnum(const std::string& key) const { return std::stod(gen.at(key)); }
+};
+
+ReferenceCase load(const std::string& name) {
+  ReferenceCase c;
+  for (const Tokens& t : testing::read_reference_lines("allan_" + name + ".txt",
+                                                       "tools/reference/allan_reference.py")) {
+    if (t[0] == "gen") {
+      c.gen[t[1]] = t[2];
+    } else if (t[0] == "check") {
+      c.checks.push_back(t);
+    } else if (t[0] == "expect_point") {
+      c.points.push_back(t);
+    } else if (t[0] == "sample") {
+      c.t_s.push_back(std::stod(t[1]));
+      c.rate_dph.push_back(std::stod(t[2]));
+    } else {
+      c.scalars[t[0]] = t.size() > 1 ? t[1] : "";
+    }
+  }
+  return c;
+}
+
+// The generator of allan_reference.py (same as table1_reference.py), operation
+
+void generate(ReferenceCase& c) {
+  const auto seed = static_cast<uint64_t>(std::stoull(c.gen.at("seed")));
+  const auto n = static_cast<std::size_t>(std::stoull(c.gen.at("n")));
+  const double t0 = c.gnum("t0"), dt = c.gnum("dt"), offset = c.gnum("offset_dph");
+  const double white = c.gnum("white_sigma_dph"), step = c.gnum("walk_step_dph");
+  c.t_s.resize(n);
+  c.rate_dph.resize(n);
+  double walk = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    walk += noise(seed + 1, i, step);  // np.cumsum: sequential
+    c.t_s[i] = t0 + dt * static_cast<double>(i);
+    c.rate_dph[i] = offset + noise(seed, i, white) + walk;
+  }
+}
+
+void expect_optional(const std::optional<double>& actual, const std::string& expected, double rel,
+                     const char* what) {
+  if (expected == "none") {
+    EXPECT_FALSE(actual.has_value()) << what << " = " << actual.value_or(0);
+    return;
+  }
+  ASSERT_TRUE(actual.has_value()) << what;
+  const double e = std::stod(expected);
+  EXPECT_NEAR(*actual, e, rel * std::abs(e)) << what;
+}
+
+// Wilson-Hilferty approximation of the chi-squared quantile at z standard
+// normal deviations; relative error well below 1e-3 for dof >= 50.
+double chi2_wilson_hilferty(double dof, double z) {
+  const double a = 2.0 / (9.0 * dof);
+  return dof * std::pow(1.0 - a + z * std::sqrt(a), 3);
+}
+
+class AllanReference : public ::testing::TestWithParam<const char*> {};
+
+TEST_P(AllanReference, MatchesNumpy) {
+  ReferenceCase c = load(GetParam());
+  ASSERT_FALSE(c.scalars.empty());
+  if (c.scalars.at("input") == "generated") {
+    generate(c);
+    for (const Tokens& t : c.checks) {
+      const std::size_t i = std::stoul(t[1]);
+      ASSERT_EQ(c.t_s.at(i), std::stod(t[2])) << "sample " << i;
+      ASSERT_EQ(c.rate_dph.at(i), std::stod(t[3])) << "sample " << i;
+    }
+  }
+  ASSERT_EQ(c.t_s.size(), std::stoul(c.scalars.at("expect_n")));
+
+  auto taus = parse_tau_set(c.scalars.at("taus"));
+  ASSERT_TRUE(taus.ok());
+  auto r = allan_deviation(c.t_s, c.rate_dph, {.taus = *taus});
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_EQ(r->n_samples, c.t_s.size());
+  const double tau0 = std::stod(c.scalars.at("expect_tau0_s"));
+  EXPECT_NEAR(r->tau0_s, tau0, 1e-12 * tau0);
+
+  ASSERT_EQ(r->tau_s.size(), c.points.size());
+  ASSERT_EQ(r->m.size(), c.points.size());
+  ASSERT_EQ(r->adev_lo_dph.size(), c.points.size());
+  ASSERT_EQ(r->adev_hi_dph.size(), c.points.size());
+  for (std::size_t k = 0; k < c.points.size(); ++k) {
+    const Tokens& p = c.points[k];
+    SCOPED_TRACE("m = " + p[1]);
+    EXPECT_EQ(r->m[k], std::stoul(p[1]));
+    EXPECT_NEAR(r->tau_s[k], std::stod(p[2]), 1e-12 * std::stod(p[2]));
+    const double adev = std::stod(p[3]);
+    EXPECT_NEAR(r->adev_dph[k], adev, 1e-10 * adev);
+    EXPECT_EQ(r->n_terms[k], std::stoul(p[4]));
+    const double edf = std::stod(p[5]);
+    EXPECT_NEAR(r->edf[k], edf, 1e-12 * edf);
+    EXPECT_NEAR(allan_edf_white_fm(r->n_samples, r->m[k]), edf, 1e-12 * edf);
+
+    // Bounds: lo < adev < hi, and each is adev * sqrt(edf / chi2_p(edf)) with
+    // the right p (0.8415 for lo, 0.1585 for hi).
+    EXPECT_LT(r->adev_lo_dph[k], r->adev_dph[k]);
+    EXPECT_GT(r->adev_hi_dph[k], r->adev_dph[k]);
+    if (r->edf[k] >= 50) {
+      const double lo_ratio = std::pow(r->adev_dph[k] / r->adev_lo_dph[k], 2) * r->edf[k];
+      const double hi_ratio = std::pow(r->adev_dph[k] / r->adev_hi_dph[k], 2) * r->edf[k];
+      EXPECT_NEAR(lo_ratio, chi2_wilson_hilferty(r->edf[k], 1.0), 1e-3 * lo_ratio);
+      EXPECT_NEAR(hi_ratio, chi2_wilson_hilferty(r->edf[k], -1.0), 1e-3 * hi_ratio);
+    }
+  }
+  expect_optional(r->angle_random_walk_dprh, c.scalars.at("expect_arw_dprh"), 1e-9, "ARW");
+  expect_optional(r->rate_random_walk_dphprh, c.scalars.at("expect_rrw_dphprh"), 1e-9, "RRW");
+  expect_optional(r->bias_instability_dph, c.scalars.at("expect_bias_instability_dph"), 1e-9,
+                  "bias instability");
+  expect_optional(r->bias_instability_tau_s, c.scalars.at("expect_bias_instability_tau_s"), 1e-12,
+                  "bias instability tau");
+  EXPECT_EQ(r->bias_instability_method, "minimum / 0.664");
+}
+
+INSTANTIATE_TEST_SUITE_P(Cases, AllanReference,
+                         ::testing::Values("white_walk", "offset_1e4", "jittered_all"),
+                         [](const auto& info) { return std::string("case_") + info.param; });
+
+TEST(AllanTaus, OctaveRuleIsTwoMLessThanNPlusOne) {
+  using V = std::vector<std::size_t>;
+  EXPECT_EQ(allan_cluster_sizes(9, TauSet::kOctave), (V{1, 2, 4}));
+  EXPECT_EQ(allan_cluster_sizes(8, TauSet::kOctave), (V{1, 2, 4}));
+  EXPECT_EQ(allan_cluster_sizes(7, TauSet::kOctave), (V{1, 2}));
+  EXPECT_EQ(allan_cluster_sizes(2, TauSet::kOctave), (V{1}));
+  EXPECT_EQ(allan_cluster_sizes(1, TauSet::kOctave), V{});
+  EXPECT_EQ(allan_cluster_sizes(0, TauSet::kOctave), V{});
+}
+
+TEST(AllanTaus, DecadeAndAll) {
+  using V = std::vector<std::size_t>;
+  EXPECT_EQ(allan_cluster_sizes(2000, TauSet::kDecade),
+            (V{1, 2, 5, 10, 20, 50, 100, 200, 500, 1000}));
+  EXPECT_EQ(allan_cluster_sizes(1999, TauSet::kDecade), (V{1, 2, 5, 10, 20, 50, 100, 200, 500}));
+  EXPECT_EQ(allan_cluster_sizes(3, TauSet::kDecade), (V{1}));
+  EXPECT_EQ(allan_cluster_sizes(9, TauSet::kAll), (V{1, 2, 3, 4}));
+  EXPECT_EQ(allan_cluster_sizes(10, TauSet::kAll), (V{1, 2, 3, 4, 5}));
+}
+
+TEST(AllanTaus, ParseAndPrint) {
+  for (TauSet s : {TauSet::kOctave, TauSet::kDecade, TauSet::kAll}) {
+    auto p = parse_tau_set(to_string(s));
+    ASSERT_TRUE(p.ok());
+    EXPECT_EQ(*p, s);
+  }
+  auto bad = parse_tau_set("octaves");
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.error().message.find("octaves"), std::string::npos);
+}
+
+TEST(AllanTaus, NineSamplesGiveMOneTwoFour) {
+  const std::vector<double> t{0, 1, 2, 3, 4, 5, 6, 7, 8};
+  const std::vector<double> y{1, 3, 2, 5, 4, 4, 6, 5, 7};
+  auto r = allan_deviation(t, y);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_EQ(r->m, (std::vector<std::size_t>{1, 2, 4}));
+  EXPECT_EQ(r->n_terms, (std::vector<std::size_t>{8, 6, 2}));
+  // m = 4 by hand: clusters (1+3+2+5)/4 = 2.75, (3+2+5+4)/4 = 3.5,
+  // (4+4+6+5)/4 = 4.75, (4+6+5+7)/4 = 5.5; differences 2, 2.
+  EXPECT_NEAR(r->adev_dph[2], std::sqrt((4.0 + 4.0) / (2.0 * 2.0)), 1e-15);
+  EXPECT_EQ(r->tau0_s, 1.0);
+}
+
+std::vector<double> times(std::size_t n, double t0, double dt) {
+  std::vector<double> t(n);
+  for (std::size_t i = 0; i < n; ++i) t[i] = t0 + dt * static_cast<double>(i);
+  return t;
+}
+
+TEST(AllanNoise, WhiteNoiseFollowsMinusHalfSlopeAndGivesArw) {
+  const double sigma = 3.0, tau0 = 0.1;
+  const std::size_t n = 200000;
+  std::mt19937_64 rng(42);
+  std::normal_distribution<double> normal(0.0, sigma);
+  std::vector<double> y(n);
+  for (double& v : y) v = 8.0 + normal(rng);
+  auto r = allan_deviation(times(n, 0.0, tau0), y);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_NEAR(r->tau0_s, tau0, 1e-12);
+  // Distance of the true value from the estimate in units of the 1-sigma
+  // bound on its side. Neighbouring octaves are correlated, so the count inside
+  // 1 sigma swings (7 to 13 of 17 over a few seeds): loose counts, no outliers.
+  std::size_t within1 = 0, within2 = 0;
+  for (std::size_t k = 0; k < r->tau_s.size(); ++k) {
+    const double expected = sigma / std::sqrt(r->tau_s[k] / tau0);
+    const double adev = r->adev_dph[k];
+    const double z = adev > expected ? (adev - expected) / (adev - r->adev_lo_dph[k])
+                                     : (expected - adev) / (r->adev_hi_dph[k] - adev);
+    SCOPED_TRACE("tau = " + std::to_string(r->tau_s[k]));
+    EXPECT_LT(z, 3.0);
+    within1 += z <= 1.0;
+    within2 += z <= 2.0;
+  }
+  const std::size_t n_tau = r->tau_s.size();
+  EXPECT_EQ(n_tau, 17u);
+  EXPECT_GE(3 * within1, n_tau) << within1 << " of " << n_tau << " within 1 sigma";
+  EXPECT_GE(within2 + 1, n_tau) << within2 << " of " << n_tau << " within 2 sigma";
+  ASSERT_TRUE(r->angle_random_walk_dprh.has_value());
+  const double arw = sigma * std::sqrt(tau0) / 60.0;  // sigma(1 s) / 60
+  EXPECT_NEAR(*r->angle_random_walk_dprh, arw, 0.05 * arw);
+}
+
+TEST(AllanNoise, RandomWalkFollowsPlusHalfSlopeAndGivesRrw) {
+  const double step = 0.02, tau0 = 1.0;  // rate steps of 0.02 °/h per second
+  const std::size_t n = 200000;
+  std::mt19937_64 rng(7);
+  std::normal_distribution<double> normal(0.0, step);
+  std::vector<double> y(n);
+  double walk = 100.0;
+  for (double& v : y) v = (walk += normal(rng));
+  auto r = allan_deviation(times(n, 0.0, tau0), y);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  // The rate variance grows by step^2 / tau0 per second: K = 60 step / sqrt(tau0) °/h/√h.
+  const double k = 60.0 * step / std::sqrt(tau0);
+  ASSERT_TRUE(r->rate_random_walk_dphprh.has_value());
+  EXPECT_NEAR(*r->rate_random_walk_dphprh, k, 0.2 * k);
+  EXPECT_FALSE(r->angle_random_walk_dprh.has_value());
+  // The curve rises from the first tau: no floor, no bias instability.
+  EXPECT_FALSE(r->bias_instability_dph.has_value());
+}
+
+TEST(AllanNoise, WhitePlusWalkHasAFloorReadAsBiasInstability) {
+  const std::size_t n = 100000;
+  std::mt19937_64 rng(11);
+  std::normal_distribution<double> white(0.0, 1.0), steps(0.0, 0.002);
+  std::vector<double> y(n);
+  double walk = 0;
+  for (double& v : y) v = white(rng) + (walk += steps(rng));
+  auto r = allan_deviation(times(n, 0.0, 1.0), y);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  ASSERT_TRUE(r->bias_instability_dph.has_value());
+  ASSERT_TRUE(r->bias_instability_tau_s.has_value());
+  double min_adev = r->adev_dph[0];
+  double min_tau = r->tau_s[0];
+  for (std::size_t k = 0; k < r->adev_dph.size(); ++k) {
+    if (r->adev_dph[k] < min_adev) {
+      min_adev = r->adev_dph[k];
+      min_tau = r->tau_s[k];
+    }
+  }
+  EXPECT_DOUBLE_EQ(*r->bias_instability_dph, min_adev / 0.664);
+  EXPECT_EQ(*r->bias_instability_tau_s, min_tau);
+  EXPECT_GT(min_tau, r->tau_s.front());
+  EXPECT_LT(min_tau, r->tau_s.back());
+  EXPECT_EQ(r->bias_instability_method, "minimum / 0.664");
+}
+
+TEST(AllanNumerics, LargeOffsetCostsNoDigits) {
+  const std::size_t n = 1000000;
+  std::mt19937_64 rng(3);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  std::vector<double> small(n), large(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    small[i] = std::ldexp(std::round(std::ldexp(normal(rng), 30)), -30);  // exact after + 1e5
+    large[i] = small[i] + 1e5;
+  }
+  const auto t = times(n, 0.0, 1.0);
+  auto a = allan_deviation(t, small);
+  auto b = allan_deviation(t, large);
+  ASSERT_TRUE(a.ok() && b.ok());
+  ASSERT_EQ(a->adev_dph.size(), b->adev_dph.size());
+  for (std::size_t k = 0; k < a->adev_dph.size(); ++k) {
+    EXPECT_NEAR(b->adev_dph[k], a->adev_dph[k], 1e-10 * a->adev_dph[k]) << "m = " << a->m[k];
+  }
+}
+
+TEST(AllanNumerics, ConstantRateIsZeroWithoutNoiseTerms) {
+  const std::vector<double> y(100, 1234.5);
+  auto r = allan_deviation(times(100, 0.0, 0.5), y);
+  ASSERT_TRUE(r.ok());
+  for (double v : r->adev_dph) EXPECT_EQ(v, 0.0);
+  EXPECT_FALSE(r->angle_random_walk_dprh.has_value());
+  EXPECT_FALSE(r->rate_random_walk_dphprh.has_value());
+  EXPECT_FALSE(r->bias_instability_dph.has_value());
+}
+
+void expect_error(const std::vector<double>& t, const std::vector<double>& y,
+                  const std::vector<std::string>& words) {
+  auto r = allan_deviation(t, y);
+  ASSERT_FALSE(r.ok());
+  EXPECT_FALSE(r.error().transient);
+  for (const std::string& w : words) {
+    EXPECT_NE(r.error().message.find(w), std::string::npos)
+        << "'" << w << "' not in: " << r.error().message;
+  }
+}
+
+TEST(AllanErrors, BadInputIsNamed) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const double inf = std::numeric_limits<double>::infinity();
+  expect_error({}, {}, {"0 sample", "at least 2"});
+  expect_error({1.0}, {5.0}, {"1 sample", "at least 2"});
+  expect_error({0, 1, 2}, {1, 2}, {"3 times", "2 rates"});
+  expect_error({0, 1, 2, 3}, {1, 2, nan, 4}, {"rate_dph[2]", "not finite"});
+  expect_error({0, 1, inf, 3}, {1, 2, 3, 4}, {"t_s[2]", "not finite"});
+  expect_error({0, 1, 1, 3}, {1, 2, 3, 4}, {"strictly increasing", "t_s[2]", "t_s[1]"});
+  expect_error({0, 2, 1, 3}, {1, 2, 3, 4}, {"strictly increasing", "t_s[2] = 1"});
+}
+
+}  // namespace
+}  // namespace gyrotherm::analysis
