@@ -1,0 +1,311 @@
+#include "gyrotherm/analysis/csv_window.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <array>
+#include <cerrno>
+#include <charconv>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <limits>
+#include <memory>
+#include <system_error>
+
+namespace gyrotherm::analysis {
+namespace {
+
+constexpr std::array<std::string_view, 4> kRequired = {"t_s", "rate_dph", "top_c", "side_c"};
+constexpr int kIgnored = -1;
+constexpr std::size_t kMaxShownField = 40;
+
+std::string_view trim(std::string_view s) {
+  while (!s.empty() && (s.front() == ' ' || s.front() == '\t')) s.remove_prefix(1);
+  while (!s.empty() && (s.back() == ' ' || s.back() == '\t')) s.remove_suffix(1);
+  return s;
+}
+
+bool is_blank(std::string_view line) { return trim(line).empty(); }
+
+// A field as shown in a message: long ones cut short.
+std::string shown(std::string_view field) {
+  if (field.size() <= kMaxShownField) return std::string(field);
+  return std::string(field.substr(0, kMaxShownField)) + "...";
+}
+
+// Splits `text` into lines without their LF / CRLF ending, with 1-based numbers.
+class LineReader {
+ public:
+  explicit LineReader(std::string_view text) : rest_(text) {}
+
+  bool next(std::string_view* line) {
+    if (done_) return false;
+    const std::size_t nl = rest_.find('\n');
+    if (nl == std::string_view::npos) {
+      *line = rest_;
+      done_ = true;
+      if (line->empty()) return false;  // no final partial line
+    } else {
+      *line = rest_.substr(0, nl);
+      rest_.remove_prefix(nl + 1);
+    }
+    if (!line->empty() && line->back() == '\r') line->remove_suffix(1);
+    ++number_;
+    return true;
+  }
+  std::size_t number() const { return number_; }
+
+ private:
+  std::string_view rest_;
+  std::size_t number_ = 0;
+  bool done_ = false;
+};
+
+// Collects errors, keeping the first kMaxCsvErrors messages and counting the rest.
+class ErrorList {
+ public:
+  explicit ErrorList(const std::string& source) : source_(source) {}
+
+  template <class... Args>
+  void add(std::size_t line, fmt::format_string<Args...> f, Args&&... args) {
+    ++count_;
+    if (count_ > kMaxCsvErrors) return;
+    if (!text_.empty()) text_ += '\n';
+    text_ += fmt::format("{}:{}: ", source_, line);
+    text_ += fmt::format(f, std::forward<Args>(args)...);
+  }
+  bool empty() const { return count_ == 0; }
+  Error error() const {
+    std::string msg = text_;
+    if (count_ > kMaxCsvErrors)
+      msg += fmt::format("\n... and {} more errors", count_ - kMaxCsvErrors);
+    return Error::Permanent(std::move(msg));
+  }
+
+ private:
+  const std::string& source_;
+  std::string text_;
+  std::size_t count_ = 0;
+};
+
+// Role (index into kRequired, or kIgnored) of each header column.
+Result<std::vector<int>> parse_header(std::string_view line, std::size_t line_no,
+                                      const std::string& source) {
+  if (line.find('"') != std::string_view::npos) {
+    return Error::Permanent(fmt::format(
+        "{}:{}: quoted fields are not supported (found '\"' in the header)", source, line_no));
+  }
+  std::vector<int> roles;
+  std::vector<std::string_view> names;
+  std::array<std::size_t, kRequired.size()> column_of{};  // 1-based, 0 = absent
+  for (std::size_t start = 0;;) {
+    const std::size_t comma = line.find(',', start);
+    const std::string_view name =
+        trim(line.substr(start, comma == std::string_view::npos ? line.npos : comma - start));
+    int role = kIgnored;
+    for (std::size_t r = 0; r < kRequired.size(); ++r) {
+      if (name != kRequired[r]) continue;
+      if (column_of[r] != 0) {
+        return Error::Permanent(
+            fmt::format("{}:{}: column {} appears twice in the header "
+                        "(columns {} and {})",
+                        source, line_no, name, column_of[r], names.size() + 1));
+      }
+      column_of[r] = names.size() + 1;
+      role = static_cast<int>(r);
+    }
+    roles.push_back(role);
+    names.push_back(name);
+    if (comma == std::string_view::npos) break;
+    start = comma + 1;
+  }
+  std::string missing;
+  for (std::size_t r = 0; r < kRequired.size(); ++r) {
+    if (column_of[r] != 0) continue;
+    if (!missing.empty()) missing += ", ";
+    missing += kRequired[r];
+  }
+  if (!missing.empty()) {
+    std::string found;
+    for (std::string_view n : names) {
+      if (!found.empty()) found += ", ";
+      found += fmt::format("'{}'", shown(n));
+    }
+    return Error::Permanent(fmt::format(
+        "{}:{}: header lacks column(s) {} (found {}; required t_s, rate_dph, top_c, side_c)",
+        source, line_no, missing, found));
+  }
+  return roles;
+}
+
+// Parses one required field into *out; on failure adds the error and returns false.
+bool parse_value(std::string_view raw, std::size_t line_no, std::string_view column,
+                 ErrorList* errors, double* out) {
+  std::string_view field = trim(raw);
+  if (field.empty()) {
+    errors->add(line_no, "column {}: empty value", column);
+    return false;
+  }
+  std::string_view digits = field;
+  if (digits.size() > 1 && digits[0] == '+' && digits[1] != '-' && digits[1] != '+') {
+    digits.remove_prefix(1);
+  }
+  double v = 0;
+  const auto [ptr, ec] = std::from_chars(digits.data(), digits.data() + digits.size(), v);
+  if (ec == std::errc::result_out_of_range) {
+    errors->add(line_no, "column {}: '{}' is out of range for a double", column, shown(field));
+    return false;
+  }
+  if (ec != std::errc() || ptr != digits.data() + digits.size()) {
+    errors->add(line_no, "column {}: '{}' is not a number", column, shown(field));
+    return false;
+  }
+  if (!std::isfinite(v)) {
+    errors->add(line_no, "column {}: {} is not finite", column, shown(field));
+    return false;
+  }
+  *out = v;
+  return true;
+}
+
+}  // namespace
+
+Result<CsvWindow> parse_csv_window(std::string_view text, const std::string& source_name) {
+  static constexpr std::string_view kBom = "\xEF\xBB\xBF";
+  if (text.substr(0, kBom.size()) == kBom) text.remove_prefix(kBom.size());
+
+  LineReader lines(text);
+  std::string_view line;
+  bool have_header = false;
+  while (lines.next(&line)) {
+    if (!is_blank(line)) {
+      have_header = true;
+      break;
+    }
+  }
+  if (!have_header) {
+    return Error::Permanent(fmt::format(
+        "{}: no header row (expected a header naming t_s, rate_dph, top_c, side_c)", source_name));
+  }
+  const std::size_t header_line = lines.number();
+  Result<std::vector<int>> roles = parse_header(line, header_line, source_name);
+  if (!roles.ok()) return roles.error();
+  const std::size_t n_columns = roles->size();
+
+  CsvWindow w;
+  w.source = source_name;
+  const std::size_t rows_hint = static_cast<std::size_t>(
+      std::count(text.begin(), text.end(), '\n'));  // an upper bound, give or take one
+  for (auto* v : {&w.t_s, &w.rate_dph, &w.top_c, &w.side_c}) v->reserve(rows_hint + 1);
+  std::array<std::vector<double>*, kRequired.size()> column = {&w.t_s, &w.rate_dph, &w.top_c,
+                                                               &w.side_c};
+
+  ErrorList errors(source_name);
+  double last_t_s = std::numeric_limits<double>::quiet_NaN();
+  std::size_t last_t_line = 0;
+  while (lines.next(&line)) {
+    if (is_blank(line)) continue;
+    const std::size_t line_no = lines.number();
+    if (std::memchr(line.data(), '"', line.size()) != nullptr) {
+      errors.add(line_no, "quoted fields are not supported (found '\"')");
+      continue;
+    }
+    std::size_t n_fields = 1;
+    for (char c : line) n_fields += c == ',';
+    if (n_fields != n_columns) {
+      errors.add(line_no, "{} value (row has {} fields, header has {})",
+                 n_fields < n_columns ? "missing" : "extra", n_fields, n_columns);
+      continue;
+    }
+    std::array<double, kRequired.size()> values{};
+    bool row_ok = true;
+    std::size_t start = 0;
+    for (std::size_t c = 0; c < n_columns; ++c) {
+      const std::size_t comma = c + 1 < n_columns ? line.find(',', start) : line.size();
+      const int role = (*roles)[c];
+      if (role != kIgnored) {
+        const std::string_view raw = line.substr(start, comma - start);
+        row_ok &= parse_value(raw, line_no, kRequired[role], &errors, &values[role]);
+      }
+      start = comma + 1;
+    }
+    if (!row_ok) continue;
+    const double t = values[0];
+    if (last_t_line != 0 && !(t > last_t_s)) {
+      errors.add(line_no,
+                 "column t_s: {} does not increase (line {} has {}; t_s must be strictly "
+                 "increasing)",
+                 t, last_t_line, last_t_s);
+    }
+    last_t_s = t;
+    last_t_line = line_no;
+    if (!errors.empty()) continue;  // no data will be returned; stop growing it
+    for (std::size_t r = 0; r < kRequired.size(); ++r) column[r]->push_back(values[r]);
+  }
+  if (!errors.empty()) return errors.error();
+  if (w.t_s.empty()) {
+    return Error::Permanent(
+        fmt::format("{}: no data rows (only the header, line {})", source_name, header_line));
+  }
+  w.row_count = w.t_s.size();
+  return w;
+}
+
+Result<CsvWindow> read_csv_window(const std::string& path) {
+  struct Closer {
+    void operator()(std::FILE* f) const { std::fclose(f); }
+  };
+  std::unique_ptr<std::FILE, Closer> f(std::fopen(path.c_str(), "rb"));
+  if (!f) {
+    return Error::Permanent(
+        fmt::format("cannot open CSV file '{}': {}", path, std::strerror(errno)));
+  }
+  std::string text;
+  std::error_code ec;
+  const auto size = std::filesystem::file_size(path, ec);
+  std::size_t capacity = ec ? std::size_t{1} << 20 : static_cast<std::size_t>(size) + 1;
+  std::size_t used = 0;
+  for (;;) {
+    text.resize(capacity);
+    const std::size_t got = std::fread(text.data() + used, 1, capacity - used, f.get());
+    used += got;
+    if (used < capacity) {
+      if (std::ferror(f.get())) {
+        return Error::Permanent(
+            fmt::format("cannot read CSV file '{}': {}", path, std::strerror(errno)));
+      }
+      break;  // end of file
+    }
+    capacity *= 2;
+  }
+  text.resize(used);
+  return parse_csv_window(text, path);
+}
+
+CsvSamples csv_window_samples(const CsvWindow& window) {
+  constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+  const std::size_t n = window.t_s.size();
+  CsvSamples out;
+  out.gyro.resize(n);
+  out.temps.resize(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    out.gyro[i].t_s = window.t_s[i];
+    out.gyro[i].rate_dph = window.rate_dph[i];
+    TemperatureSample& t = out.temps[i];
+    t.t_s = window.t_s[i];
+    t.setpoint_c = kNaN;
+    t.chamber_c = kNaN;
+    t.top_c = window.top_c[i];
+    t.side_c = window.side_c[i];
+  }
+  return out;
+}
+
+Result<AnalysisSeries> csv_analysis_series(const CsvWindow& window, double bin_s) {
+  const CsvSamples samples = csv_window_samples(window);
+  return make_analysis_series(samples.gyro, samples.temps, bin_s);
+}
+
+}  // namespace gyrotherm::analysis
