@@ -884,26 +884,25 @@ Reply Station::run(int64_t id) {
   return Reply::ok(std::move(j));
 }
 
-Reply Station::run_events(int64_t id) {
+// A run's records as a JSON array; 404 for an unknown run.
+template <class Fetch>
+Reply Station::run_records(int64_t id, Fetch fetch) {
   std::lock_guard lock(api_mu_);
   if (!api_db_.run(id))
     return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no run {}", id));
-  auto events = api_db_.events(id);
-  if (!events) return db_failure(events.error());
+  auto records = fetch(api_db_);
+  if (!records) return db_failure(records.error());
   nlohmann::json out = nlohmann::json::array();
-  for (const auto& e : *events) out.push_back(to_json(e));
+  for (const auto& r : *records) out.push_back(to_json(r));
   return Reply::ok(std::move(out));
 }
 
+Reply Station::run_events(int64_t id) {
+  return run_records(id, [id](storage::Database& db) { return db.events(id); });
+}
+
 Reply Station::run_stats(int64_t id) {
-  std::lock_guard lock(api_mu_);
-  if (!api_db_.run(id))
-    return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no run {}", id));
-  auto stats = api_db_.segment_stats(id);
-  if (!stats) return db_failure(stats.error());
-  nlohmann::json out = nlohmann::json::array();
-  for (const auto& s : *stats) out.push_back(to_json(s));
-  return Reply::ok(std::move(out));
+  return run_records(id, [id](storage::Database& db) { return db.segment_stats(id); });
 }
 
 }  // namespace gyrotherm::daemon

@@ -20,6 +20,7 @@
 #include "control.h"
 #include "gyrotherm/daemon/http_server.h"
 #include "process.h"
+#include "temp_dir_test.h"
 
 extern char** environ;
 
@@ -190,18 +191,9 @@ json events_answer() {
 
 // ---------------------------------------------------------------- the binary
 
-class CliControlTest : public ::testing::Test {
+class CliControlTest : public testing::TempDirTest {
  protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() /
-           fmt::format("gyrotherm-cli-control-{}-{}", ::getpid(),
-                       ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override {
-    if (!HasFailure()) fs::remove_all(dir_);
-  }
+  CliControlTest() : TempDirTest("gyrotherm-cli-control") {}
 
   struct Run {
     int code = -1;
@@ -266,8 +258,6 @@ class CliControlTest : public ::testing::Test {
     args.insert(args.end(), {"--url", d.url(), "--token", kToken});
     return args;
   }
-
-  fs::path dir_;
 };
 
 // A URL nothing listens on.

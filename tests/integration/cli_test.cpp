@@ -12,6 +12,7 @@
 #include "gyrotherm/drivers/kvh1750.h"
 #include "gyrotherm/storage/database.h"
 #include "process.h"
+#include "temp_dir_test.h"
 
 namespace gyrotherm {
 namespace {
@@ -20,18 +21,9 @@ namespace fs = std::filesystem;
 using testing::ChildProcess;
 using ::testing::HasSubstr;
 
-class CliTest : public ::testing::Test {
+class CliTest : public testing::TempDirTest {
  protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() /
-           fmt::format("gyrotherm-cli-{}-{}", ::getpid(),
-                       ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override {
-    if (!HasFailure()) fs::remove_all(dir_);
-  }
+  CliTest() : TempDirTest("gyrotherm-cli") {}
   // Runs the CLI to completion; returns {exit code, stdout, stderr}.
   struct Run {
     int code;
@@ -51,7 +43,6 @@ class CliTest : public ::testing::Test {
     };
     return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, slurp(out), slurp(err)};
   }
-  fs::path dir_;
 };
 
 drivers::GyroFrame frame(uint8_t seq) {

@@ -20,6 +20,7 @@
 #include "gyrotherm/daemon/http_client.h"
 #include "gyrotherm/sim/simulator.h"
 #include "process.h"
+#include "temp_dir_test.h"
 
 namespace gyrotherm::testing {
 
@@ -106,14 +107,11 @@ stability_window_min = 2
 acquire_min = 6
 )";
 
-class StationTest : public ::testing::Test {
+class StationTest : public testing::TempDirTest {
  protected:
+  StationTest() : TempDirTest("gyrotherm-it") {}
   void SetUp() override {
-    dir_ = fs::temp_directory_path() /
-           fmt::format("gyrotherm-it-{}-{}", ::getpid(),
-                       ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
+    TempDirTest::SetUp();
     api_port_ = testing::free_tcp_port();
     write(dir_ / "station.toml", station_config(dir_, api_port_));
     write(dir_ / "schedule.toml", kSchedule);
@@ -122,7 +120,7 @@ class StationTest : public ::testing::Test {
     daemon_.reset();
     sim_.reset();
     in_process_sim_.reset();
-    if (!HasFailure()) fs::remove_all(dir_);
+    TempDirTest::TearDown();
   }
 
   static void write(const fs::path& p, const std::string& text) { std::ofstream(p) << text; }
@@ -197,7 +195,6 @@ class StationTest : public ::testing::Test {
 
   static constexpr const char* kToken = "integration-token-0123456789";
 
-  fs::path dir_;
   int api_port_ = 0;
   std::unique_ptr<ChildProcess> sim_;
   std::unique_ptr<sim::Simulator> in_process_sim_;

@@ -104,6 +104,8 @@ class Station final : public StationControl, private schedules::SequencerObserve
   void add_event(const std::string& kind, const std::string& from, const std::string& to,
                  const std::string& message);
   int64_t segment_id(std::size_t index, const schedules::PlanStep& step, double t_s);
+  template <class Fetch>
+  Reply run_records(int64_t id, Fetch fetch);
 
   // SequencerObserver
   void on_state(schedules::RunState from, schedules::RunState to, double t_s,
