@@ -133,9 +133,59 @@ CREATE TABLE acquisition_windows(
 ) WITHOUT ROWID;
 )sql";
 
+// v3: rollups of the gyro rate for decimated reads (the REST samples route
+// reads these instead of millions of rows), and stored drift-model fits.
+// The rollup is filled from the samples already stored; from then on the
+// sample writer keeps it in the same transaction as the samples.
+constexpr const char* kSchemaV3 = R"sql(
+CREATE TABLE gyro_rollup(
+  run_id INTEGER NOT NULL,      -- runs.id
+  level INTEGER NOT NULL,       -- block length 0.1 * 10^level s (0.1, 1, 10, 100, 1000)
+  block INTEGER NOT NULL,       -- floor(t_s / block length)
+  n INTEGER NOT NULL,           -- samples in the block
+  t_sum_s REAL NOT NULL,        -- sum of their t_s (mean time = t_sum_s / n)
+  rate_n INTEGER NOT NULL,      -- samples with a rate (rate_dph not NULL)
+  rate_sum_dph REAL,            -- sum of rate_dph
+  rate_min_dph REAL,
+  rate_max_dph REAL,
+  PRIMARY KEY(run_id, level, block)
+) WITHOUT ROWID;
+
+WITH levels(level, block_s) AS (VALUES (0, 0.1), (1, 1.0), (2, 10.0), (3, 100.0), (4, 1000.0)),
+     blocks AS (
+       SELECT g.run_id, l.level, g.t_s, g.rate_dph,
+              CAST(g.t_s / l.block_s AS INTEGER)
+                - (g.t_s < 0 AND CAST(g.t_s / l.block_s AS INTEGER) != g.t_s / l.block_s) AS block
+       FROM gyro_samples g, levels l)
+INSERT INTO gyro_rollup(run_id, level, block, n, t_sum_s, rate_n, rate_sum_dph, rate_min_dph,
+                        rate_max_dph)
+SELECT run_id, level, block, count(*), sum(t_s), count(rate_dph), sum(rate_dph), min(rate_dph),
+       max(rate_dph)
+FROM blocks GROUP BY run_id, level, block;
+
+CREATE TABLE fits(
+  id INTEGER PRIMARY KEY,
+  model TEXT NOT NULL,              -- model spec, e.g. 'T4+R1+G1'
+  form TEXT NOT NULL,               -- 'paper' (L - L0, no intercept) or 'centered'
+  n INTEGER NOT NULL,               -- points fitted (analysis series)
+  coefficients_json TEXT NOT NULL,  -- {"T1": ..., "G1": ...} in physical units
+  standard_errors_json TEXT NOT NULL,
+  residual_std_dph REAL,
+  r_squared REAL,
+  inputs_json TEXT NOT NULL,        -- what reproduces it: windows, bin_s, derivative window...
+  computed_utc TEXT NOT NULL        -- ISO-8601 UTC wall time
+);
+CREATE TABLE fit_runs(
+  run_id INTEGER NOT NULL,          -- runs.id
+  fit_id INTEGER NOT NULL REFERENCES fits(id),
+  PRIMARY KEY(run_id, fit_id)
+) WITHOUT ROWID;
+)sql";
+
 constexpr Migration kMigrations[] = {
     {1, "initial schema", kSchemaV1},
     {2, "queue, crash resume, acquisition windows", kSchemaV2},
+    {3, "gyro rate rollups, drift-model fits", kSchemaV3},
 };
 
 static_assert(sizeof(kMigrations) / sizeof(kMigrations[0]) == kSchemaVersion,

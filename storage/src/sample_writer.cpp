@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <cmath>
 #include <exception>
+#include <limits>
+#include <map>
 #include <optional>
 #include <system_error>
 
@@ -82,7 +84,8 @@ struct SampleWriter::Impl {
   Database db;
   std::string path;
   SampleWriterOptions options;
-  Stmt begin, commit, rollback, insert_gyro, insert_temp;
+  std::function<void(double)> on_commit;
+  Stmt begin, commit, rollback, insert_gyro, insert_temp, upsert_rollup;
   Pending<GyroRow> batch_gyro;
   Pending<TempRow> batch_temps;
 
@@ -115,6 +118,22 @@ struct SampleWriter::Impl {
     uint64_t duplicates = 0;
   };
   Outcome commit_batch();
+
+  // The batch's contribution to gyro_rollup, per (run, level, block).
+  struct RollupKey {
+    int64_t run_id;
+    int level;
+    int64_t block;
+    auto operator<=>(const RollupKey&) const = default;
+  };
+  struct RollupBlock {
+    int64_t n = 0, rate_n = 0;
+    double t_sum_s = 0, rate_sum_dph = 0;
+    double rate_min_dph = std::numeric_limits<double>::infinity();
+    double rate_max_dph = -std::numeric_limits<double>::infinity();
+  };
+  std::map<RollupKey, RollupBlock> rollups;
+  void add_to_rollups(const GyroRow& r);
   Outcome fail_batch(std::string_view what);
 };
 
@@ -133,6 +152,13 @@ Status SampleWriter::Impl::prepare() {
       {&insert_temp,
        "INSERT OR IGNORE INTO temperature_samples(run_id, t_s, setpoint_c, chamber_c, top_c, "
        "side_c) VALUES(?, ?, ?, ?, ?, ?)"},
+      {&upsert_rollup,
+       "INSERT INTO gyro_rollup(run_id, level, block, n, t_sum_s, rate_n, rate_sum_dph, "
+       "rate_min_dph, rate_max_dph) VALUES(?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9) "
+       "ON CONFLICT(run_id, level, block) DO UPDATE SET n = n + ?4, t_sum_s = t_sum_s + ?5, "
+       "rate_n = rate_n + ?6, rate_sum_dph = coalesce(rate_sum_dph + ?7, rate_sum_dph, ?7), "
+       "rate_min_dph = coalesce(min(rate_min_dph, ?8), rate_min_dph, ?8), "
+       "rate_max_dph = coalesce(max(rate_max_dph, ?9), rate_max_dph, ?9)"},
   };
   for (const auto& s : statements) {
     auto st = Stmt::prepare(h, path, s.sql, /*persistent=*/true);
@@ -147,12 +173,28 @@ SampleWriter::Impl::Outcome SampleWriter::Impl::fail_batch(std::string_view what
   begin.reset();
   insert_gyro.reset();
   insert_temp.reset();
+  upsert_rollup.reset();
   commit.reset();
   if (!sqlite3_get_autocommit(db.handle())) {
     rollback.step();
     rollback.reset();
   }
   return {Status(std::move(e)), 0};
+}
+
+void SampleWriter::Impl::add_to_rollups(const GyroRow& r) {
+  for (int level = 0; level < kRollupLevels; ++level) {
+    const auto block = static_cast<int64_t>(std::floor(r.s.t_s / kRollupBlockS[level]));
+    RollupBlock& b = rollups[RollupKey{r.run_id, level, block}];
+    ++b.n;
+    b.t_sum_s += r.s.t_s;
+    if (std::isfinite(r.s.rate_dph)) {
+      ++b.rate_n;
+      b.rate_sum_dph += r.s.rate_dph;
+      b.rate_min_dph = std::min(b.rate_min_dph, r.s.rate_dph);
+      b.rate_max_dph = std::max(b.rate_max_dph, r.s.rate_dph);
+    }
+  }
 }
 
 SampleWriter::Impl::Outcome SampleWriter::Impl::commit_batch() {
@@ -165,6 +207,7 @@ SampleWriter::Impl::Outcome SampleWriter::Impl::commit_batch() {
   if (begin.step() != SQLITE_DONE) return fail_batch(what);
   begin.reset();
   uint64_t duplicates = 0;
+  rollups.clear();
   for (std::size_t i = batch_gyro.head; i < batch_gyro.rows.size(); ++i) {
     const GyroRow& r = batch_gyro.rows[i];
     insert_gyro.bind(1, r.run_id);
@@ -175,7 +218,28 @@ SampleWriter::Impl::Outcome SampleWriter::Impl::commit_batch() {
     insert_gyro.bind(6, static_cast<int>(r.s.temp_c));
     if (insert_gyro.step() != SQLITE_DONE) return fail_batch(what);
     insert_gyro.reset();
-    if (sqlite3_changes(h) == 0) ++duplicates;
+    if (sqlite3_changes(h) == 0) {
+      ++duplicates;
+    } else {
+      add_to_rollups(r);
+    }
+  }
+  for (const auto& [key, b] : rollups) {
+    upsert_rollup.bind(1, key.run_id);
+    upsert_rollup.bind(2, key.level);
+    upsert_rollup.bind(3, key.block);
+    upsert_rollup.bind(4, b.n);
+    upsert_rollup.bind(5, b.t_sum_s);
+    upsert_rollup.bind(6, b.rate_n);
+    if (b.rate_n > 0) {
+      upsert_rollup.bind(7, b.rate_sum_dph);
+      upsert_rollup.bind(8, b.rate_min_dph);
+      upsert_rollup.bind(9, b.rate_max_dph);
+    } else {
+      for (int c : {7, 8, 9}) upsert_rollup.bind_null(c);
+    }
+    if (upsert_rollup.step() != SQLITE_DONE) return fail_batch(what);
+    upsert_rollup.reset();
   }
   for (std::size_t i = batch_temps.head; i < batch_temps.rows.size(); ++i) {
     const TempRow& r = batch_temps.rows[i];
@@ -226,6 +290,9 @@ void SampleWriter::Impl::loop() {
 
     Outcome out = commit_batch();
     const double elapsed_ms = ms_since(t0);
+    if (out.status.ok() && n_gyro + n_temps > 0 && on_commit) {
+      on_commit(elapsed_ms / 1000.0);
+    }
 
     lk.lock();
     inflight = 0;
@@ -290,8 +357,9 @@ void SampleWriter::Impl::run() noexcept {
   }
 }
 
-Result<std::unique_ptr<SampleWriter>> SampleWriter::start(const std::string& db_path,
-                                                          SampleWriterOptions options) {
+Result<std::unique_ptr<SampleWriter>> SampleWriter::start(
+    const std::string& db_path, SampleWriterOptions options,
+    std::function<void(double seconds)> on_commit) {
   if (options.commit_interval <= std::chrono::milliseconds::zero() || options.max_pending == 0) {
     return Error::Permanent(fmt::format(
         "storage: {}: sample writer options: commit_interval and max_pending must be > 0",
@@ -300,6 +368,7 @@ Result<std::unique_ptr<SampleWriter>> SampleWriter::start(const std::string& db_
   auto db = Database::open(db_path);
   if (!db) return db.error();
   auto impl = std::make_unique<Impl>(std::move(*db), options);
+  impl->on_commit = std::move(on_commit);
   if (Status s = impl->prepare(); !s) return s.error();
   std::unique_ptr<SampleWriter> writer(new SampleWriter());
   writer->impl_ = std::move(impl);

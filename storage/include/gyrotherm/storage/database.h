@@ -24,7 +24,12 @@ struct sqlite3;
 
 namespace gyrotherm::storage {
 
-inline constexpr int kSchemaVersion = 2;
+inline constexpr int kSchemaVersion = 3;
+
+// Rollup blocks of the gyro rate (table gyro_rollup): block length of each
+// level, station seconds. A sample at t_s is in block floor(t_s / length).
+inline constexpr double kRollupBlockS[] = {0.1, 1.0, 10.0, 100.0, 1000.0};
+inline constexpr int kRollupLevels = 5;
 
 struct RunRecord {
   int64_t id = 0;
@@ -110,6 +115,40 @@ struct SegmentStatsRecord {
   std::string computed_utc;         // ISO-8601 UTC; "" = now
 };
 
+// A stored drift-model fit (paper eq. 1) with what it was computed from.
+struct FitRecord {
+  int64_t id = 0;
+  std::vector<int64_t> run_ids;  // the runs whose data were fitted
+  std::string model;             // e.g. "T4+R1+G1"
+  std::string form;              // paper, centered
+  int64_t n = 0;
+  std::string coefficients_json;     // JSON object, physical units
+  std::string standard_errors_json;  // JSON object, same keys
+  double residual_std_dph = 0;
+  double r_squared = 0;
+  std::string inputs_json;   // JSON object
+  std::string computed_utc;  // "" = now (add_fit)
+};
+
+// A run's samples in [from_s, to_s] reduced to at most max_points points
+// each: the gyro rate as mean with a min/max envelope, the temperatures as
+// means. Points are buckets of bucket_s station seconds; bucket_s == 0 when
+// the samples are returned as recorded (no more than max_points of them).
+struct DecimatedSamples {
+  double from_s = 0, to_s = 0;
+  double bucket_s = 0;
+  bool from_rollup = false;  // gyro points come from gyro_rollup blocks
+  struct Gyro {
+    std::vector<double> t_s;  // mean time of the bucket's samples
+    std::vector<int64_t> n;
+    std::vector<double> mean_dph, min_dph, max_dph;  // NaN: no rate in the bucket
+  } gyro;
+  struct Temperatures {
+    std::vector<double> t_s;
+    std::vector<double> setpoint_c, chamber_c, top_c, side_c;  // NaN: none
+  } temperature;
+};
+
 class Database {
  public:
   // Opens or creates `path`, sets WAL and busy_timeout, migrates to
@@ -185,6 +224,18 @@ class Database {
   Result<std::vector<TemperatureSample>> temperature_samples(int64_t run_id, double t_from_s,
                                                              double t_to_s);
   Result<int64_t> count_gyro_samples(int64_t run_id);
+  // Decimated samples for plots (docs/storage.md "Rollups"). Reads at most
+  // about 10 * max_points rows whatever the run's length: gyro buckets are
+  // made of whole rollup blocks (so [from_s, to_s] widens to block edges)
+  // unless the raw rows in range are few. to_s nullopt: the last sample.
+  Result<DecimatedSamples> decimated_samples(int64_t run_id, double from_s,
+                                             std::optional<double> to_s, int max_points);
+
+  // Fits.
+  Result<int64_t> add_fit(const FitRecord& fit);
+  // A run's fits (every fit that used it), newest first.
+  Result<std::vector<FitRecord>> fits(int64_t run_id);
+  Result<std::optional<FitRecord>> fit(int64_t fit_id);
 
   // Direct SQL for statements the API above does not cover (tests, tools).
   Status exec(std::string_view sql);

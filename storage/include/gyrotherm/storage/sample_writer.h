@@ -16,6 +16,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <span>
@@ -52,8 +53,11 @@ class SampleWriter {
  public:
   // Opens its own connection to `db_path` (created/migrated as by
   // Database::open) and starts the writer thread.
-  static Result<std::unique_ptr<SampleWriter>> start(const std::string& db_path,
-                                                     SampleWriterOptions options = {});
+  // `on_commit`, if set, is called on the writer thread after each
+  // successful commit of rows with its wall duration (a latency histogram).
+  static Result<std::unique_ptr<SampleWriter>> start(
+      const std::string& db_path, SampleWriterOptions options = {},
+      std::function<void(double seconds)> on_commit = {});
   ~SampleWriter();  // stop()
 
   // Thread-safe; t_s must already be relative to the run's start. A sample

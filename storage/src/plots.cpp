@@ -1,0 +1,283 @@
+// Database: decimated reads of a run's samples (for plots and the REST
+// samples route) and stored drift-model fits.
+//
+// Decimation reads the gyro_rollup blocks written with the samples, so the
+// cost depends on max_points, not on the run's length: with w the bucket
+// width asked for, the coarsest level whose block fits in w is read (at most
+// 10 blocks per bucket, since levels are a decade apart) and buckets are made
+// of whole blocks, which keeps min, max and mean exact. Only a range with few
+// raw rows is bucketed from the samples themselves.
+#include <fmt/format.h>
+#include <sqlite3.h>
+
+#include <cmath>
+#include <limits>
+
+#include "gyrotherm/core/clock.h"
+#include "gyrotherm/storage/database.h"
+#include "sqlite_util.h"
+
+namespace gyrotherm::storage {
+
+using internal::sqlite_error;
+using internal::Stmt;
+using internal::Transaction;
+
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+// Raw rows a decimated read may scan before it turns to the rollup.
+constexpr int64_t kRawRowBudget = 100'000;
+
+double mean_or_nan(double sum, int64_t n) { return n > 0 ? sum / static_cast<double>(n) : kNaN; }
+
+}  // namespace
+
+Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, double from_s,
+                                                     std::optional<double> to_s, int max_points) {
+  DecimatedSamples out;
+  if (max_points < 1) {
+    return Error::Permanent(fmt::format("decimated samples: max_points {} < 1", max_points));
+  }
+  if (!to_s) {
+    auto last = last_sample_t_s(run_id);
+    if (!last) return last.error();
+    to_s = last->value_or(from_s);
+  }
+  if (!(std::isfinite(from_s) && std::isfinite(*to_s)) || *to_s < from_s) {
+    return Error::Permanent(
+        fmt::format("decimated samples: bad range [{}, {}] s", from_s, *to_s));
+  }
+  out.from_s = from_s;
+  out.to_s = *to_s;
+  const double range_s = *to_s - from_s;
+  const double want_s = range_s / max_points;
+  const std::string what = fmt::format("reading samples of run {}", run_id);
+
+  // Upper bound of the raw rows in range, from the coarsest rollup blocks.
+  constexpr int kTop = kRollupLevels - 1;
+  auto count = Stmt::prepare(db_, path_,
+                             "SELECT coalesce(sum(n), 0) FROM gyro_rollup WHERE run_id = ? AND "
+                             "level = ? AND block BETWEEN ? AND ?");
+  if (!count) return count.error();
+  count->bind(1, run_id);
+  count->bind(2, kTop);
+  count->bind(3, static_cast<int64_t>(std::floor(from_s / kRollupBlockS[kTop])));
+  count->bind(4, static_cast<int64_t>(std::floor(*to_s / kRollupBlockS[kTop])));
+  if (count->step() != SQLITE_ROW) return sqlite_error(db_, path_, what);
+  const int64_t raw_rows = count->column_int64(0);
+
+  int level = -1;  // -1: raw samples
+  if (raw_rows > max_points) {
+    for (int l = kTop; l >= 0; --l) {
+      if (kRollupBlockS[l] <= want_s) {
+        level = l;
+        break;
+      }
+    }
+    // Buckets narrower than the finest block: raw rows if few enough, else
+    // the finest blocks (fewer points than asked for).
+    if (level < 0 && raw_rows > kRawRowBudget) level = 0;
+  }
+
+  auto& g = out.gyro;
+  if (level >= 0) {
+    const double block_s = kRollupBlockS[level];
+    const int64_t first = static_cast<int64_t>(std::floor(from_s / block_s));
+    const int64_t last = static_cast<int64_t>(std::floor(*to_s / block_s));
+    const int64_t per_bucket =
+        std::max<int64_t>(1, static_cast<int64_t>(std::ceil(want_s / block_s - 1e-9)));
+    out.bucket_s = static_cast<double>(per_bucket) * block_s;
+    out.from_rollup = true;
+    out.from_s = static_cast<double>(first) * block_s;
+    out.to_s = static_cast<double>(last + 1) * block_s;
+    auto st = Stmt::prepare(
+        db_, path_,
+        "SELECT (block - ?3) / ?5 AS b, sum(n), sum(t_sum_s), sum(rate_n), sum(rate_sum_dph), "
+        "min(rate_min_dph), max(rate_max_dph) FROM gyro_rollup "
+        "WHERE run_id = ?1 AND level = ?2 AND block BETWEEN ?3 AND ?4 GROUP BY b ORDER BY b");
+    if (!st) return st.error();
+    st->bind(1, run_id);
+    st->bind(2, level);
+    st->bind(3, first);
+    st->bind(4, last);
+    st->bind(5, per_bucket);
+    int rc;
+    while ((rc = st->step()) == SQLITE_ROW) {
+      const int64_t n = st->column_int64(1);
+      const int64_t rate_n = st->column_int64(3);
+      g.t_s.push_back(st->column_double(2) / static_cast<double>(n));
+      g.n.push_back(n);
+      g.mean_dph.push_back(mean_or_nan(st->column_double(4), rate_n));
+      g.min_dph.push_back(rate_n > 0 ? st->column_double(5) : kNaN);
+      g.max_dph.push_back(rate_n > 0 ? st->column_double(6) : kNaN);
+    }
+    if (rc != SQLITE_DONE) return sqlite_error(db_, path_, what);
+  } else if (raw_rows <= max_points) {
+    // Few enough: the samples as recorded.
+    auto st = Stmt::prepare(db_, path_,
+                            "SELECT t_s, rate_dph FROM gyro_samples WHERE run_id = ? AND t_s >= ? "
+                            "AND t_s <= ? ORDER BY t_s LIMIT ?");
+    if (!st) return st.error();
+    st->bind(1, run_id);
+    st->bind(2, from_s);
+    st->bind(3, *to_s);
+    st->bind(4, static_cast<int64_t>(max_points));
+    int rc;
+    while ((rc = st->step()) == SQLITE_ROW) {
+      const double rate = st->column_double(1);
+      g.t_s.push_back(st->column_double(0));
+      g.n.push_back(1);
+      g.mean_dph.push_back(rate);
+      g.min_dph.push_back(rate);
+      g.max_dph.push_back(rate);
+    }
+    if (rc != SQLITE_DONE) return sqlite_error(db_, path_, what);
+  } else {
+    out.bucket_s = want_s;
+    auto st = Stmt::prepare(
+        db_, path_,
+        "SELECT min(CAST((t_s - ?2) / ?4 AS INTEGER), ?5) AS b, count(*), sum(t_s), "
+        "count(rate_dph), sum(rate_dph), min(rate_dph), max(rate_dph) FROM gyro_samples "
+        "WHERE run_id = ?1 AND t_s >= ?2 AND t_s <= ?3 GROUP BY b ORDER BY b");
+    if (!st) return st.error();
+    st->bind(1, run_id);
+    st->bind(2, from_s);
+    st->bind(3, *to_s);
+    st->bind(4, want_s);
+    st->bind(5, static_cast<int64_t>(max_points - 1));
+    int rc;
+    while ((rc = st->step()) == SQLITE_ROW) {
+      const int64_t n = st->column_int64(1);
+      const int64_t rate_n = st->column_int64(3);
+      g.t_s.push_back(st->column_double(2) / static_cast<double>(n));
+      g.n.push_back(n);
+      g.mean_dph.push_back(mean_or_nan(st->column_double(4), rate_n));
+      g.min_dph.push_back(rate_n > 0 ? st->column_double(5) : kNaN);
+      g.max_dph.push_back(rate_n > 0 ? st->column_double(6) : kNaN);
+    }
+    if (rc != SQLITE_DONE) return sqlite_error(db_, path_, what);
+  }
+
+  // Temperatures (about one a second): bucketed from the rows, on the same
+  // bucket width when the gyro is decimated.
+  const double temp_bucket_s = out.bucket_s > 0 ? out.bucket_s : want_s;
+  auto st = Stmt::prepare(
+      db_, path_,
+      "SELECT min(CAST((t_s - ?2) / ?4 AS INTEGER), ?5) AS b, avg(t_s), avg(setpoint_c), "
+      "avg(chamber_c), avg(top_c), avg(side_c) FROM temperature_samples "
+      "WHERE run_id = ?1 AND t_s >= ?2 AND t_s <= ?3 GROUP BY b ORDER BY b");
+  if (!st) return st.error();
+  st->bind(1, run_id);
+  st->bind(2, out.from_s);
+  st->bind(3, out.to_s);
+  st->bind(4, temp_bucket_s > 0 ? temp_bucket_s : 1.0);
+  st->bind(5, static_cast<int64_t>(max_points - 1));
+  auto& tp = out.temperature;
+  int rc;
+  while ((rc = st->step()) == SQLITE_ROW) {
+    tp.t_s.push_back(st->column_double(1));
+    tp.setpoint_c.push_back(st->column_double(2));
+    tp.chamber_c.push_back(st->column_double(3));
+    tp.top_c.push_back(st->column_double(4));
+    tp.side_c.push_back(st->column_double(5));
+  }
+  if (rc != SQLITE_DONE) return sqlite_error(db_, path_, what);
+  return out;
+}
+
+namespace {
+
+constexpr const char* kFitColumns =
+    "id, model, form, n, coefficients_json, standard_errors_json, residual_std_dph, r_squared, "
+    "inputs_json, computed_utc";
+
+}  // namespace
+
+Result<int64_t> Database::add_fit(const FitRecord& fit) {
+  Transaction tx(db_, path_);
+  if (Status s = tx.begin_immediate(); !s) return s.error();
+  auto st = Stmt::prepare(db_, path_,
+                          "INSERT INTO fits(model, form, n, coefficients_json, "
+                          "standard_errors_json, residual_std_dph, r_squared, inputs_json, "
+                          "computed_utc) VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  if (!st) return st.error();
+  st->bind(1, fit.model);
+  st->bind(2, fit.form);
+  st->bind(3, fit.n);
+  st->bind(4, fit.coefficients_json);
+  st->bind(5, fit.standard_errors_json);
+  st->bind(6, fit.residual_std_dph);
+  st->bind(7, fit.r_squared);
+  st->bind(8, fit.inputs_json.empty() ? std::string_view("{}") : fit.inputs_json);
+  st->bind(9, fit.computed_utc.empty() ? wall_time_utc_iso() : fit.computed_utc);
+  if (st->step() != SQLITE_DONE) return sqlite_error(db_, path_, "storing a fit");
+  const int64_t id = sqlite3_last_insert_rowid(db_);
+  auto link = Stmt::prepare(db_, path_, "INSERT OR IGNORE INTO fit_runs(run_id, fit_id) VALUES(?, ?)");
+  if (!link) return link.error();
+  for (int64_t run_id : fit.run_ids) {
+    link->bind(1, run_id);
+    link->bind(2, id);
+    if (link->step() != SQLITE_DONE) return sqlite_error(db_, path_, "storing a fit's runs");
+    link->reset();
+  }
+  if (Status s = tx.commit(); !s) return s.error();
+  return id;
+}
+
+namespace {
+
+Result<std::vector<FitRecord>> read_fits(sqlite3* db, const std::string& path, Stmt& st) {
+  std::vector<FitRecord> out;
+  int rc;
+  while ((rc = st.step()) == SQLITE_ROW) {
+    FitRecord f;
+    int c = 0;
+    f.id = st.column_int64(c++);
+    f.model = st.column_text(c++);
+    f.form = st.column_text(c++);
+    f.n = st.column_int64(c++);
+    f.coefficients_json = st.column_text(c++);
+    f.standard_errors_json = st.column_text(c++);
+    f.residual_std_dph = st.column_double(c++);
+    f.r_squared = st.column_double(c++);
+    f.inputs_json = st.column_text(c++);
+    f.computed_utc = st.column_text(c++);
+    out.push_back(std::move(f));
+  }
+  if (rc != SQLITE_DONE) return sqlite_error(db, path, "reading fits");
+  auto runs = Stmt::prepare(db, path, "SELECT run_id FROM fit_runs WHERE fit_id = ? ORDER BY run_id");
+  if (!runs) return runs.error();
+  for (FitRecord& f : out) {
+    runs->bind(1, f.id);
+    while ((rc = runs->step()) == SQLITE_ROW) f.run_ids.push_back(runs->column_int64(0));
+    if (rc != SQLITE_DONE) return sqlite_error(db, path, "reading a fit's runs");
+    runs->reset();
+  }
+  return out;
+}
+
+}  // namespace
+
+Result<std::vector<FitRecord>> Database::fits(int64_t run_id) {
+  auto st = Stmt::prepare(db_, path_,
+                          fmt::format("SELECT {} FROM fits WHERE id IN (SELECT fit_id FROM "
+                                      "fit_runs WHERE run_id = ?) ORDER BY id DESC",
+                                      kFitColumns));
+  if (!st) return st.error();
+  st->bind(1, run_id);
+  return read_fits(db_, path_, *st);
+}
+
+Result<std::optional<FitRecord>> Database::fit(int64_t fit_id) {
+  auto st =
+      Stmt::prepare(db_, path_, fmt::format("SELECT {} FROM fits WHERE id = ?", kFitColumns));
+  if (!st) return st.error();
+  st->bind(1, fit_id);
+  auto fits = read_fits(db_, path_, *st);
+  if (!fits) return fits.error();
+  if (fits->empty()) return std::optional<FitRecord>();
+  return std::optional<FitRecord>(std::move(fits->front()));
+}
+
+}  // namespace gyrotherm::storage
