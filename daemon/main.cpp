@@ -16,7 +16,9 @@
 #include "gyrotherm/daemon/api.h"
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/daemon/http_server.h"
+#include "gyrotherm/daemon/metrics.h"
 #include "gyrotherm/daemon/station.h"
+#include "gyrotherm/daemon/web_assets.h"
 #include "gyrotherm/schedules/schedule.h"
 
 namespace gd = gyrotherm::daemon;
@@ -92,22 +94,69 @@ int main(int argc, char** argv) {
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
 
   gyrotherm::ScaledClock clock(time_scale);
-  auto station = gd::Station::create(*config, clock);
+  // Declared in the order they may be torn down in reverse: the station
+  // publishes into the stream and observes into the metrics; the server
+  // serves all three.
+  gd::Metrics metrics;
+  gd::Station* station_ptr = nullptr;
+  gd::EventStreamOptions stream_options;
+  stream_options.queue_bytes = static_cast<std::size_t>(config->api.stream_queue_bytes);
+  stream_options.max_clients = config->api.max_stream_clients;
+  stream_options.status_json = [&station_ptr] { return gd::to_json(station_ptr->status()).dump(); };
+  gd::EventStream stream(stream_options);
+  gd::StationHooks hooks;
+  hooks.metrics = &metrics;
+  hooks.publish = [&stream](std::string_view event, const nlohmann::json& data) {
+    stream.publish(event, data.dump());
+  };
+  auto station = gd::Station::create(*config, clock, hooks);
   if (!station) {
     std::cerr << "gyrothermd: " << station.error().message << "\n";
     return 1;
   }
-  gd::ApiContext api{[s = station->get()] { return s->status(); }, station->get(),
-                     config->api.tokens};
+  station_ptr = station->get();
+
+  const std::string web_root =
+      config->api.web_root.empty() ? gd::default_web_root() : config->api.web_root;
+  auto web = gd::WebAssets::load(web_root);
+  if (!web) {
+    spdlog::warn("dashboard not served: {}", web.error().message);
+  }
+  gd::HttpServer* server_ptr = nullptr;
+  gd::ApiContext api;
+  api.status = [s = station_ptr] { return s->status(); };
+  api.control = station_ptr;
+  api.tokens = config->api.tokens;
+  api.web = web ? &*web : nullptr;
+  api.metrics = [&] {
+    gd::ServerFigures f;
+    if (server_ptr) {
+      const auto h = server_ptr->stats();
+      f.http_requests = h.requests;
+      f.http_refused_connections = h.refused_connections;
+      f.http_bad_requests = h.bad_requests;
+      f.http_connections = h.connections;
+    }
+    f.stream_clients = stream.clients();
+    f.stream_clients_dropped = stream.dropped();
+    return metrics.scrape(station_ptr->status(), f);
+  };
   gd::HttpServerOptions http_options;
   http_options.bind = config->api.bind;
   http_options.port = config->api.port;
+  http_options.read_timeout =
+      std::chrono::milliseconds(static_cast<int64_t>(config->api.read_timeout_s * 1000));
+  http_options.max_connections = config->api.max_connections;
+  http_options.header_limit = static_cast<std::size_t>(config->api.max_header_bytes);
+  http_options.body_limit = static_cast<std::size_t>(config->api.max_body_bytes);
+  http_options.stream = &stream;
   auto http = gd::HttpServer::create(
       http_options, [&api](const gd::HttpRequest& r) { return gd::handle_api_request(r, api); });
   if (!http) {
     std::cerr << "gyrothermd: " << http.error().message << "\n";
     return 1;
   }
+  server_ptr = http->get();
   (*station)->start();
   (*http)->start();
   spdlog::info(

@@ -2,7 +2,9 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <charconv>
+#include <cmath>
 #include <optional>
 
 namespace gyrotherm::daemon {
@@ -12,19 +14,7 @@ namespace http = boost::beast::http;
 namespace {
 
 constexpr std::string_view kPrefix = "/api/v1/";
-
-// Splits "/api/v1/a/b/c" into {"a", "b", "c"}.
-std::vector<std::string_view> path_parts(std::string_view path) {
-  std::vector<std::string_view> parts;
-  path.remove_prefix(kPrefix.size());
-  while (!path.empty()) {
-    const auto slash = path.find('/');
-    parts.push_back(path.substr(0, slash));
-    if (slash == std::string_view::npos) break;
-    path.remove_prefix(slash + 1);
-  }
-  return parts;
-}
+constexpr double kMaxPoints = 20000;  // samples route: points per request
 
 std::optional<int64_t> parse_id(std::string_view s) {
   int64_t v = 0;
@@ -158,115 +148,351 @@ bool token_matches(std::string_view presented, const std::vector<std::string>& t
   return any;
 }
 
+namespace {
+
+using Params = std::vector<std::string_view>;  // the {…} segments of the path, in order
+using Handler = HttpResponse (*)(const HttpRequest&, const ApiContext&, const Params&);
+
+struct Route {
+  http::verb method;
+  std::string_view path;  // template: "{name}" matches one segment
+  bool mutation;          // needs a token
+  Handler handle;
+};
+
+HttpResponse no_station(const HttpRequest& req) {
+  return error_response(req, http::status::service_unavailable, "no station attached");
+}
+
+// Percent-decodes a query component; nullopt when malformed.
+std::optional<std::string> url_decode(std::string_view s) {
+  std::string out;
+  for (std::size_t i = 0; i < s.size(); ++i) {
+    if (s[i] == '+') {
+      out += ' ';
+    } else if (s[i] == '%') {
+      if (i + 2 >= s.size()) return std::nullopt;
+      int v = 0;
+      const auto [p, ec] = std::from_chars(s.data() + i + 1, s.data() + i + 3, v, 16);
+      if (ec != std::errc() || p != s.data() + i + 3) return std::nullopt;
+      out += static_cast<char>(v);
+      i += 2;
+    } else {
+      out += s[i];
+    }
+  }
+  return out;
+}
+
+// The query parameters, or a 400 naming the first unknown or malformed one.
+struct Query {
+  std::vector<std::pair<std::string, std::string>> params;
+  std::optional<HttpResponse> error;
+  const std::string* find(std::string_view key) const {
+    for (const auto& [k, v] : params) {
+      if (k == key) return &v;
+    }
+    return nullptr;
+  }
+};
+
+Query parse_query(const HttpRequest& req, std::initializer_list<std::string_view> allowed) {
+  Query q;
+  std::string_view target(req.target().data(), req.target().size());
+  const auto mark = target.find('?');
+  if (mark == std::string_view::npos) return q;
+  std::string_view rest = target.substr(mark + 1);
+  while (!rest.empty()) {
+    const auto amp = rest.find('&');
+    const std::string_view item = rest.substr(0, amp);
+    rest = amp == std::string_view::npos ? std::string_view() : rest.substr(amp + 1);
+    if (item.empty()) continue;
+    const auto eq = item.find('=');
+    auto key = url_decode(item.substr(0, eq));
+    auto value =
+        url_decode(eq == std::string_view::npos ? std::string_view() : item.substr(eq + 1));
+    if (!key || !value) {
+      q.error = error_response(req, http::status::bad_request,
+                               fmt::format("malformed query parameter '{}'", item));
+      return q;
+    }
+    if (std::find(allowed.begin(), allowed.end(), *key) == allowed.end()) {
+      std::string known;
+      for (auto a : allowed) known += fmt::format("{}{}", known.empty() ? "" : ", ", a);
+      q.error = error_response(req, http::status::bad_request,
+                               fmt::format("unknown query parameter '{}' (expected: {})", *key,
+                                           known.empty() ? "none" : known));
+      return q;
+    }
+    q.params.emplace_back(std::move(*key), std::move(*value));
+  }
+  return q;
+}
+
+// A finite number in [lo, hi], or a 400 naming the parameter.
+std::optional<double> number_param(const Query& q, std::optional<HttpResponse>& error,
+                                   const HttpRequest& req, std::string_view key, double lo,
+                                   double hi) {
+  const std::string* v = q.find(key);
+  if (!v || error) return std::nullopt;
+  double x = 0;
+  const auto [p, ec] = std::from_chars(v->data(), v->data() + v->size(), x);
+  if (ec != std::errc() || p != v->data() + v->size() || !std::isfinite(x) || x < lo || x > hi) {
+    error = error_response(
+        req, http::status::bad_request,
+        fmt::format("query parameter '{}': \"{}\" is not a number in [{}, {}]", key, *v, lo, hi));
+    return std::nullopt;
+  }
+  return x;
+}
+
+HttpResponse text_response(const HttpRequest& req, std::string content_type, std::string body,
+                           std::string_view cache = "no-store") {
+  HttpResponse res{http::status::ok, req.version()};
+  res.set(http::field::server, "gyrothermd");
+  res.set(http::field::content_type, content_type);
+  res.set(http::field::cache_control, boost::beast::string_view(cache.data(), cache.size()));
+  res.keep_alive(req.keep_alive());
+  res.body() = std::move(body);
+  res.prepare_payload();
+  return res;
+}
+
+HttpResponse serve_web_file(const HttpRequest& req, const ApiContext& ctx, std::string_view name) {
+  const WebAssets::File* f = ctx.web ? ctx.web->find(name) : nullptr;
+  if (!f) {
+    if (!ctx.web) {
+      return error_response(req, http::status::not_found,
+                            "the dashboard's files were not found at start-up (see the daemon's "
+                            "log; build the gyrotherm_web target or set [api] web_root)");
+    }
+    return error_response(req, http::status::not_found, fmt::format("no web file '{}'", name));
+  }
+  HttpResponse res = text_response(req, f->content_type, f->body, "no-cache");
+  res.set("X-Content-Type-Options", "nosniff");
+  return res;
+}
+
+constexpr Route kRoutes[] = {
+    {http::verb::get, "/", false,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
+       return serve_web_file(req, ctx, "index.html");
+     }},
+    {http::verb::get, "/web/{file}", false,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
+       return serve_web_file(req, ctx, p[0]);
+     }},
+    {http::verb::get, "/healthz", false,
+     [](const HttpRequest& req, const ApiContext&, const Params&) {
+       return json_response(req, http::status::ok, R"({"ok":true})");
+     }},
+    {http::verb::get, "/metrics", false,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
+       if (!ctx.metrics) {
+         return error_response(req, http::status::service_unavailable, "no metrics attached");
+       }
+       return text_response(req, "text/plain; version=0.0.4; charset=utf-8", ctx.metrics());
+     }},
+    {http::verb::get, "/api/v1/openapi.json", false,
+     [](const HttpRequest& req, const ApiContext&, const Params&) {
+       return json_response(req, http::status::ok, std::string(openapi_document()));
+     }},
+    {http::verb::get, "/api/v1/status", false,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
+       return json_response(req, http::status::ok, to_json(ctx.status()).dump());
+     }},
+    // Served by the HTTP server's event stream; reached here only when none
+    // is attached.
+    {http::verb::get, "/api/v1/stream", false,
+     [](const HttpRequest& req, const ApiContext&, const Params&) {
+       return error_response(req, http::status::service_unavailable, "no event stream attached");
+     }},
+    {http::verb::get, "/api/v1/queue", false,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
+       return reply_response(req, ctx.control->queue_list());
+     }},
+    {http::verb::post, "/api/v1/queue", true,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
+       Body body = parse_body(req, {"schedule_toml", "source", "ignore_failures"});
+       auto toml = field<std::string>(body, req, "schedule_toml", "a string (the schedule file)");
+       auto source = field<std::string>(body, req, "source", "a string");
+       auto ignore = field<bool>(body, req, "ignore_failures", "true or false");
+       if (body.error) return *body.error;
+       if (!toml) {
+         return error_response(req, http::status::bad_request,
+                               "field 'schedule_toml' is required (the schedule file's text)");
+       }
+       return reply_response(
+           req, ctx.control->queue_add(*toml, source.value_or(""), ignore.value_or(false)),
+           http::status::created);
+     }},
+    {http::verb::delete_, "/api/v1/queue/{id}", true,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
+       return reply_response(req, ctx.control->queue_remove(*parse_id(p[0])));
+     }},
+    {http::verb::post, "/api/v1/queue/{id}/move", true,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
+       Body body = parse_body(req, {"position"});
+       auto pos = field<int64_t>(body, req, "position", "an integer (0 = next)");
+       if (body.error) return *body.error;
+       if (!pos)
+         return error_response(req, http::status::bad_request, "field 'position' is required");
+       if (*pos < 0) {
+         return error_response(req, http::status::bad_request, "field 'position' must be >= 0");
+       }
+       return reply_response(
+           req, ctx.control->queue_move(*parse_id(p[0]),
+                                        static_cast<int>(std::min<int64_t>(*pos, 1 << 20))));
+     }},
+    {http::verb::post, "/api/v1/control/{action}", true,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
+       Body body = parse_body(req, {"reason"});
+       auto reason = field<std::string>(body, req, "reason", "a string");
+       if (body.error) return *body.error;
+       return reply_response(req, ctx.control->control(p[0], reason.value_or("")));
+     }},
+    {http::verb::get, "/api/v1/runs", false,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
+       return reply_response(req, ctx.control->runs());
+     }},
+    {http::verb::get, "/api/v1/runs/{id}", false,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
+       return reply_response(req, ctx.control->run(*parse_id(p[0])));
+     }},
+    {http::verb::get, "/api/v1/runs/{id}/events", false,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
+       return reply_response(req, ctx.control->run_events(*parse_id(p[0])));
+     }},
+    {http::verb::get, "/api/v1/runs/{id}/stats", false,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
+       return reply_response(req, ctx.control->run_stats(*parse_id(p[0])));
+     }},
+    {http::verb::get, "/api/v1/runs/{id}/fits", false,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
+       return reply_response(req, ctx.control->run_fits(*parse_id(p[0])));
+     }},
+    {http::verb::get, "/api/v1/runs/{id}/samples", false,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
+       const Query q = parse_query(req, {"from", "to", "max_points"});
+       if (q.error) return *q.error;
+       std::optional<HttpResponse> error;
+       constexpr double kMaxS = 1e9;
+       SamplesQuery sq;
+       sq.from_s = number_param(q, error, req, "from", -kMaxS, kMaxS).value_or(0.0);
+       sq.to_s = number_param(q, error, req, "to", -kMaxS, kMaxS);
+       if (auto m = number_param(q, error, req, "max_points", 1, kMaxPoints)) {
+         if (*m != std::floor(*m)) {
+           error = error_response(req, http::status::bad_request,
+                                  "query parameter 'max_points' must be an integer");
+         }
+         sq.max_points = static_cast<int>(*m);
+       }
+       if (error) return *error;
+       if (sq.to_s && *sq.to_s < sq.from_s) {
+         return error_response(
+             req, http::status::bad_request,
+             fmt::format("query parameters: from ({}) is after to ({})", sq.from_s, *sq.to_s));
+       }
+       return reply_response(req, ctx.control->run_samples(*parse_id(p[0]), sq));
+     }},
+    {http::verb::get, "/api/v1/fits/{id}", false,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
+       return reply_response(req, ctx.control->fit(*parse_id(p[0])));
+     }},
+};
+
+// Matches `path` against a route template, collecting the {…} segments.
+bool match(std::string_view pattern, std::string_view path, Params& params) {
+  params.clear();
+  while (!pattern.empty() || !path.empty()) {
+    if (pattern.empty() || path.empty() || pattern[0] != '/' || path[0] != '/') return false;
+    pattern.remove_prefix(1);
+    path.remove_prefix(1);
+    const auto pe = pattern.find('/');
+    const auto se = path.find('/');
+    const std::string_view pseg = pattern.substr(0, pe);
+    const std::string_view seg = path.substr(0, se);
+    if (!pseg.empty() && pseg.front() == '{') {
+      if (seg.empty()) return false;
+      params.push_back(seg);
+    } else if (pseg != seg) {
+      return false;
+    }
+    pattern = pe == std::string_view::npos ? std::string_view() : pattern.substr(pe);
+    path = se == std::string_view::npos ? std::string_view() : path.substr(se);
+  }
+  return true;
+}
+
+// Path parameters every route checks the same way: ids are positive
+// integers, control actions are known.
+std::optional<HttpResponse> check_params(const HttpRequest& req, std::string_view pattern,
+                                         const Params& params) {
+  std::size_t i = 0;
+  for (std::string_view rest = pattern; !rest.empty();) {
+    const auto open = rest.find('{');
+    if (open == std::string_view::npos) break;
+    const auto close = rest.find('}', open);
+    const std::string_view name = rest.substr(open + 1, close - open - 1);
+    rest = rest.substr(close + 1);
+    const std::string_view value = params[i++];
+    if (name == "id" && !parse_id(value)) {
+      return error_response(req, http::status::not_found,
+                            fmt::format("ids are positive integers, not '{}'", value));
+    }
+    if (name == "action" && value != "pause" && value != "resume" && value != "abort" &&
+        value != "stop") {
+      return error_response(
+          req, http::status::not_found,
+          fmt::format("no control action '{}' (pause, resume, abort, stop)", value));
+    }
+  }
+  return std::nullopt;
+}
+
+std::string_view method_name(http::verb v) {
+  const auto s = http::to_string(v);
+  return {s.data(), s.size()};
+}
+
+}  // namespace
+
+std::vector<RouteInfo> api_routes() {
+  std::vector<RouteInfo> out;
+  for (const Route& r : kRoutes)
+    out.push_back({std::string(method_name(r.method)), std::string(r.path)});
+  return out;
+}
+
 HttpResponse handle_api_request(const HttpRequest& req, const ApiContext& ctx) {
   std::string_view target(req.target().data(), req.target().size());
   if (const auto q = target.find('?'); q != std::string_view::npos) target = target.substr(0, q);
-  const auto method = req.method();
-  const bool get = method == http::verb::get || method == http::verb::head;
-  const bool post = method == http::verb::post;
-  const bool del = method == http::verb::delete_;
+  const http::verb method = req.method() == http::verb::head ? http::verb::get : req.method();
 
-  if (target == "/healthz") {
-    if (!get) return method_not_allowed(req, "GET");
-    return json_response(req, http::status::ok, R"({"ok":true})");
+  Params params;
+  std::string allowed;
+  const Route* route = nullptr;
+  for (const Route& r : kRoutes) {
+    if (!match(r.path, target, params)) continue;
+    if (r.method == method) {
+      route = &r;
+      break;
+    }
+    allowed += fmt::format("{}{}", allowed.empty() ? "" : ", ", method_name(r.method));
   }
-  if (target == "/api/v1/status") {
-    if (!get) return method_not_allowed(req, "GET");
-    return json_response(req, http::status::ok, to_json(ctx.status()).dump());
-  }
-  if (target.substr(0, kPrefix.size()) != kPrefix) {
+  if (!route) {
+    if (!allowed.empty()) return method_not_allowed(req, allowed);
     return error_response(req, http::status::not_found, "no such resource: " + std::string(target));
   }
-  const auto parts = path_parts(target);
-  auto not_found = [&] {
-    return error_response(req, http::status::not_found, "no such resource: " + std::string(target));
-  };
-  if (parts.empty()) return not_found();
-  auto need_control = [&]() -> std::optional<HttpResponse> {
-    if (ctx.control) return std::nullopt;
-    return error_response(req, http::status::service_unavailable, "no station attached");
-  };
-
-  // /queue, /queue/{id}, /queue/{id}/move
-  if (parts[0] == "queue") {
-    if (parts.size() == 1) {
-      if (get) {
-        if (auto e = need_control()) return *e;
-        return reply_response(req, ctx.control->queue_list());
-      }
-      if (!post) return method_not_allowed(req, "GET, POST");
-      if (auto denied = check_token(req, ctx)) return *denied;
-      if (auto e = need_control()) return *e;
-      Body body = parse_body(req, {"schedule_toml", "source", "ignore_failures"});
-      auto toml = field<std::string>(body, req, "schedule_toml", "a string (the schedule file)");
-      auto source = field<std::string>(body, req, "source", "a string");
-      auto ignore = field<bool>(body, req, "ignore_failures", "true or false");
-      if (body.error) return *body.error;
-      if (!toml) {
-        return error_response(req, http::status::bad_request,
-                              "field 'schedule_toml' is required (the schedule file's text)");
-      }
-      return reply_response(
-          req, ctx.control->queue_add(*toml, source.value_or(""), ignore.value_or(false)),
-          http::status::created);
-    }
-    const auto id = parse_id(parts[1]);
-    if (!id) return error_response(req, http::status::not_found, "queue ids are positive integers");
-    if (parts.size() == 2) {
-      if (!del) return method_not_allowed(req, "DELETE");
-      if (auto denied = check_token(req, ctx)) return *denied;
-      if (auto e = need_control()) return *e;
-      return reply_response(req, ctx.control->queue_remove(*id));
-    }
-    if (parts.size() == 3 && parts[2] == "move") {
-      if (!post) return method_not_allowed(req, "POST");
-      if (auto denied = check_token(req, ctx)) return *denied;
-      if (auto e = need_control()) return *e;
-      Body body = parse_body(req, {"position"});
-      auto pos = field<int64_t>(body, req, "position", "an integer (0 = next)");
-      if (body.error) return *body.error;
-      if (!pos)
-        return error_response(req, http::status::bad_request, "field 'position' is required");
-      if (*pos < 0) {
-        return error_response(req, http::status::bad_request, "field 'position' must be >= 0");
-      }
-      return reply_response(
-          req, ctx.control->queue_move(*id, static_cast<int>(std::min<int64_t>(*pos, 1 << 20))));
-    }
-    return not_found();
-  }
-
-  // /control/{action}
-  if (parts[0] == "control" && parts.size() == 2) {
-    const std::string_view action = parts[1];
-    if (action != "pause" && action != "resume" && action != "abort" && action != "stop") {
-      return not_found();
-    }
-    if (!post) return method_not_allowed(req, "POST");
+  if (auto bad = check_params(req, route->path, params)) return *bad;
+  if (route->mutation) {
     if (auto denied = check_token(req, ctx)) return *denied;
-    if (auto e = need_control()) return *e;
-    Body body = parse_body(req, {"reason"});
-    auto reason = field<std::string>(body, req, "reason", "a string");
-    if (body.error) return *body.error;
-    return reply_response(req, ctx.control->control(action, reason.value_or("")));
   }
-
-  // /runs, /runs/{id}, /runs/{id}/events, /runs/{id}/stats
-  if (parts[0] == "runs") {
-    if (!get) return method_not_allowed(req, "GET");
-    if (auto e = need_control()) return *e;
-    if (parts.size() == 1) return reply_response(req, ctx.control->runs());
-    const auto id = parse_id(parts[1]);
-    if (!id) return error_response(req, http::status::not_found, "run ids are positive integers");
-    if (parts.size() == 2) return reply_response(req, ctx.control->run(*id));
-    if (parts.size() == 3 && parts[2] == "events") {
-      return reply_response(req, ctx.control->run_events(*id));
-    }
-    if (parts.size() == 3 && parts[2] == "stats") {
-      return reply_response(req, ctx.control->run_stats(*id));
-    }
-  }
-  return not_found();
+  const bool needs_station = route->path.starts_with(kPrefix) && route->path != "/api/v1/status" &&
+                             route->path != "/api/v1/openapi.json" &&
+                             route->path != "/api/v1/stream";
+  if (needs_station && !ctx.control) return no_station(req);
+  return route->handle(req, ctx, params);
 }
 
 }  // namespace gyrotherm::daemon

@@ -226,6 +226,20 @@ void read_api(TableReader t, ApiSection& a) {
       a.tokens.push_back(*s);
     }
   }
+  a.read_timeout_s = t.number_in("read_timeout_s", a.read_timeout_s, 0.1, 3600.0);
+  const auto count_in = [&](std::string_view key, auto value, int64_t lo, int64_t hi) {
+    if (auto v = t.integer(key)) {
+      if (*v >= lo && *v <= hi) return static_cast<decltype(value)>(*v);
+      t.error(key, fmt::format("{} is out of range: must be an integer in [{}, {}]", *v, lo, hi));
+    }
+    return value;
+  };
+  a.max_connections = count_in("max_connections", a.max_connections, 2, 10000);
+  a.max_header_bytes = count_in("max_header_bytes", a.max_header_bytes, 1024, 1 << 20);
+  a.max_body_bytes = count_in("max_body_bytes", a.max_body_bytes, 1024, 64 << 20);
+  a.max_stream_clients = count_in("max_stream_clients", a.max_stream_clients, 0, 1000);
+  a.stream_queue_bytes = count_in("stream_queue_bytes", a.stream_queue_bytes, 4096, 64 << 20);
+  if (auto w = t.string("web_root")) a.web_root = *w;
   t.finish();
 }
 

@@ -3,7 +3,9 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
+#include <array>
 #include <boost/asio/ip/tcp.hpp>
+#include <boost/asio/steady_timer.hpp>
 #include <boost/asio/strand.hpp>
 #include <boost/beast/core.hpp>
 #include <boost/beast/version.hpp>
@@ -32,17 +34,132 @@ HttpResponse error_response(const HttpRequest& req, http::status status, std::st
   return json_response(req, status, j.dump());
 }
 
+// --- EventStream ---------------------------------------------------------
+
+std::string EventStream::format(std::string_view event, std::string_view data) {
+  return fmt::format("id: {}\nevent: {}\ndata: {}\n\n", next_id_.fetch_add(1), event, data);
+}
+
+void EventStream::push(StreamClient& client, const std::shared_ptr<const std::string>& message) {
+  bool wake = false;
+  {
+    std::lock_guard lock(client.mu);
+    if (client.closed) return;
+    if (client.queued_bytes + message->size() > options_.queue_bytes) {
+      // Too far behind: drop the client rather than hold anything up.
+      client.closed = true;
+      client.queue.clear();
+      client.queued_bytes = 0;
+      ++dropped_;
+      wake = true;
+    } else {
+      client.queue.push_back(message);
+      client.queued_bytes += message->size();
+      wake = !client.writing;
+      client.writing = true;
+    }
+  }
+  if (wake && client.wake) client.wake();
+}
+
+void EventStream::publish(std::string_view event, std::string_view data) {
+  std::vector<std::shared_ptr<StreamClient>> targets;
+  {
+    std::lock_guard lock(mu_);
+    std::erase_if(clients_, [&](const std::weak_ptr<StreamClient>& w) {
+      auto c = w.lock();
+      if (!c) return true;
+      targets.push_back(std::move(c));
+      return false;
+    });
+  }
+  if (targets.empty()) return;
+  const auto message = std::make_shared<const std::string>(format(event, data));
+  for (const auto& c : targets) push(*c, message);
+}
+
+void EventStream::tick() {
+  if (clients() == 0 || !options_.status_json) return;
+  publish("status", options_.status_json());
+}
+
+int EventStream::clients() const {
+  std::lock_guard lock(mu_);
+  int n = 0;
+  for (const auto& w : clients_) {
+    if (auto c = w.lock()) {
+      std::lock_guard client_lock(c->mu);
+      n += c->closed ? 0 : 1;
+    }
+  }
+  return n;
+}
+
+std::shared_ptr<StreamClient> EventStream::subscribe(std::function<void()> wake) {
+  auto client = std::make_shared<StreamClient>();
+  client->wake = std::move(wake);
+  {
+    std::lock_guard lock(mu_);
+    std::erase_if(clients_, [](const std::weak_ptr<StreamClient>& w) { return w.expired(); });
+    if (static_cast<int>(clients_.size()) >= options_.max_clients) return nullptr;
+    clients_.push_back(client);
+  }
+  // The first messages wait for the response header: `writing` stays set
+  // until the session's first pump.
+  std::lock_guard lock(client->mu);
+  client->writing = true;
+  auto first = std::make_shared<const std::string>("retry: 3000\n\n");
+  client->queue.push_back(first);
+  client->queued_bytes += first->size();
+  if (options_.status_json) {
+    auto status = std::make_shared<const std::string>(format("status", options_.status_json()));
+    client->queue.push_back(status);
+    client->queued_bytes += status->size();
+  }
+  return client;
+}
+
+// --- Server ----------------------------------------------------------------
+
+struct HttpServer::Impl {
+  Impl(HttpServerOptions o, HttpHandler h)
+      : options(std::move(o)), handler(std::move(h)), acceptor(ioc), tick_timer(ioc) {}
+
+  void do_accept();
+  void schedule_tick();
+
+  // Declared before the io_context: sessions still queued in it refer to
+  // these when the io_context is destroyed.
+  HttpServerOptions options;
+  HttpHandler handler;
+  std::atomic<int> connections{0};
+  std::atomic<uint64_t> requests{0};
+  std::atomic<uint64_t> refused{0};
+  std::atomic<uint64_t> bad_requests{0};
+  asio::io_context ioc;
+  tcp::acceptor acceptor;
+  asio::steady_timer tick_timer;
+};
+
 namespace {
+
+bool is_stream_request(const HttpRequest& req, const std::string& stream_path) {
+  std::string_view target(req.target().data(), req.target().size());
+  if (const auto q = target.find('?'); q != std::string_view::npos) target = target.substr(0, q);
+  return req.method() == http::verb::get && target == stream_path;
+}
 
 class Session : public std::enable_shared_from_this<Session> {
  public:
-  Session(tcp::socket&& socket, const HttpServerOptions& options, const HttpHandler& handler,
-          std::atomic<int>& connections)
-      : stream_(std::move(socket)),
-        options_(options),
-        handler_(handler),
-        connections_(connections) {}
-  ~Session() { --connections_; }
+  Session(tcp::socket&& socket, HttpServer::Impl& server)
+      : stream_(std::move(socket)), server_(server) {}
+  ~Session() {
+    if (client_) {
+      std::lock_guard lock(client_->mu);
+      client_->closed = true;
+    }
+    --server_.connections;
+  }
 
   void run() {
     asio::dispatch(stream_.get_executor(),
@@ -50,11 +167,13 @@ class Session : public std::enable_shared_from_this<Session> {
   }
 
  private:
+  const HttpServerOptions& options() const { return server_.options; }
+
   void do_read() {
     parser_.emplace();
-    parser_->header_limit(static_cast<std::uint32_t>(options_.header_limit));
-    parser_->body_limit(options_.body_limit);
-    stream_.expires_after(options_.read_timeout);
+    parser_->header_limit(static_cast<std::uint32_t>(options().header_limit));
+    parser_->body_limit(options().body_limit);
+    stream_.expires_after(options().read_timeout);
     http::async_read(stream_, buffer_, *parser_,
                      beast::bind_front_handler(&Session::on_read, shared_from_this()));
   }
@@ -66,6 +185,7 @@ class Session : public std::enable_shared_from_this<Session> {
     }
     if (ec) {
       // Malformed or oversized request: answer 4xx, then close.
+      ++server_.bad_requests;
       HttpRequest dummy;
       dummy.version(11);
       http::status status = http::status::bad_request;
@@ -75,10 +195,14 @@ class Session : public std::enable_shared_from_this<Session> {
       res.keep_alive(false);
       return send(std::move(res));
     }
-    HttpResponse res;
+    ++server_.requests;
     const HttpRequest& req = parser_->get();
+    if (options().stream && is_stream_request(req, options().stream_path)) {
+      return start_stream(req);
+    }
+    HttpResponse res;
     try {
-      res = handler_(req);
+      res = server_.handler(req);
     } catch (const std::exception& e) {
       spdlog::error("HTTP handler for {}: {}", std::string(req.target()), e.what());
       res = error_response(req, http::status::internal_server_error, "internal error");
@@ -88,7 +212,7 @@ class Session : public std::enable_shared_from_this<Session> {
 
   void send(HttpResponse&& res) {
     auto sp = std::make_shared<HttpResponse>(std::move(res));
-    stream_.expires_after(options_.read_timeout);
+    stream_.expires_after(options().write_timeout);
     http::async_write(stream_, *sp,
                       [self = shared_from_this(), sp](beast::error_code ec, std::size_t) {
                         self->on_write(sp->need_eof(), ec);
@@ -105,44 +229,130 @@ class Session : public std::enable_shared_from_this<Session> {
     stream_.socket().shutdown(tcp::socket::shutdown_send, ec);
   }
 
+  // --- event stream ---
+
+  void start_stream(const HttpRequest& req) {
+    std::weak_ptr<Session> weak = shared_from_this();
+    auto executor = stream_.get_executor();
+    client_ = options().stream->subscribe([weak, executor] {
+      asio::post(executor, [weak] {
+        if (auto self = weak.lock()) self->pump();
+      });
+    });
+    if (!client_) {
+      auto res = error_response(req, http::status::service_unavailable,
+                                fmt::format("too many stream clients (max_stream_clients = {})",
+                                            options().stream->options().max_clients));
+      res.keep_alive(false);
+      return send(std::move(res));
+    }
+    header_ = std::make_unique<http::response<http::empty_body>>(http::status::ok, req.version());
+    header_->set(http::field::server, "gyrothermd");
+    header_->set(http::field::content_type, "text/event-stream");
+    header_->set(http::field::cache_control, "no-store");
+    header_->chunked(true);
+    serializer_ = std::make_unique<http::response_serializer<http::empty_body>>(*header_);
+    stream_.expires_after(options().write_timeout);
+    http::async_write_header(stream_, *serializer_,
+                             [self = shared_from_this()](beast::error_code ec, std::size_t) {
+                               if (ec) return self->close_stream();
+                               self->stream_.expires_never();
+                               self->watch_client();
+                               self->pump();
+                             });
+  }
+
+  // A read kept pending for the stream's life: it holds the session while
+  // no write is in flight and sees the client hang up at once. Anything the
+  // client sends is ignored.
+  void watch_client() {
+    stream_.socket().async_read_some(
+        asio::buffer(drain_), [self = shared_from_this()](beast::error_code ec, std::size_t) {
+          if (ec) return self->close_stream();
+          self->watch_client();
+        });
+  }
+
+  // Writes the client's queue one message at a time; runs on the strand.
+  void pump() {
+    std::shared_ptr<const std::string> message;
+    {
+      std::lock_guard lock(client_->mu);
+      if (!client_->closed) {
+        if (client_->queue.empty()) {
+          client_->writing = false;
+          return;
+        }
+        message = client_->queue.front();
+      }
+    }
+    if (!message) return close_stream();
+    stream_.expires_after(options().write_timeout);
+    asio::async_write(
+        stream_, http::make_chunk(asio::buffer(*message)),
+        [self = shared_from_this(), message](beast::error_code ec, std::size_t) {
+          if (ec) return self->close_stream();
+          self->stream_.expires_never();
+          {
+            std::lock_guard lock(self->client_->mu);
+            if (!self->client_->queue.empty() && self->client_->queue.front() == message) {
+              self->client_->queue.pop_front();
+              self->client_->queued_bytes -= message->size();
+            }
+          }
+          self->pump();
+        });
+  }
+
+  void close_stream() {
+    {
+      std::lock_guard lock(client_->mu);
+      client_->closed = true;
+      client_->queue.clear();
+      client_->queued_bytes = 0;
+    }
+    beast::error_code ec;
+    stream_.socket().shutdown(tcp::socket::shutdown_both, ec);
+    stream_.socket().close(ec);
+  }
+
   beast::tcp_stream stream_;
   beast::flat_buffer buffer_;
   std::optional<http::request_parser<http::string_body>> parser_;
-  const HttpServerOptions& options_;
-  const HttpHandler& handler_;
-  std::atomic<int>& connections_;
+  HttpServer::Impl& server_;
+  std::shared_ptr<StreamClient> client_;
+  std::array<char, 256> drain_{};
+  std::unique_ptr<http::response<http::empty_body>> header_;
+  std::unique_ptr<http::response_serializer<http::empty_body>> serializer_;
 };
 
 }  // namespace
 
-struct HttpServer::Impl {
-  Impl(HttpServerOptions o, HttpHandler h)
-      : options(std::move(o)), handler(std::move(h)), acceptor(ioc) {}
-
-  void do_accept() {
-    acceptor.async_accept(asio::make_strand(ioc), [this](beast::error_code ec, tcp::socket socket) {
-      if (ec == asio::error::operation_aborted) return;
-      if (!ec) {
-        if (connections.load() >= options.max_connections) {
-          beast::error_code ignored;
-          socket.close(ignored);  // over the bound: refuse by closing
-        } else {
-          ++connections;
-          std::make_shared<Session>(std::move(socket), options, handler, connections)->run();
-        }
+void HttpServer::Impl::do_accept() {
+  acceptor.async_accept(asio::make_strand(ioc), [this](beast::error_code ec, tcp::socket socket) {
+    if (ec == asio::error::operation_aborted) return;
+    if (!ec) {
+      if (connections.load() >= options.max_connections) {
+        ++refused;
+        beast::error_code ignored;
+        socket.close(ignored);  // over the bound: refuse by closing
+      } else {
+        ++connections;
+        std::make_shared<Session>(std::move(socket), *this)->run();
       }
-      do_accept();
-    });
-  }
+    }
+    do_accept();
+  });
+}
 
-  // Declared before the io_context: sessions still queued in it refer to
-  // these when the io_context is destroyed.
-  HttpServerOptions options;
-  HttpHandler handler;
-  std::atomic<int> connections{0};
-  asio::io_context ioc{1};
-  tcp::acceptor acceptor;
-};
+void HttpServer::Impl::schedule_tick() {
+  tick_timer.expires_after(options.stream->options().tick);
+  tick_timer.async_wait([this](beast::error_code ec) {
+    if (ec) return;
+    options.stream->tick();
+    schedule_tick();
+  });
+}
 
 Result<std::unique_ptr<HttpServer>> HttpServer::create(HttpServerOptions options,
                                                        HttpHandler handler) {
@@ -172,16 +382,20 @@ HttpServer::~HttpServer() { stop(); }
 
 void HttpServer::start() {
   impl_->do_accept();
-  thread_ = std::thread([this] {
-    for (;;) {
-      try {
-        impl_->ioc.run();
-        return;
-      } catch (const std::exception& e) {
-        spdlog::error("HTTP server: {}", e.what());
+  if (impl_->options.stream) impl_->schedule_tick();
+  const int n = std::max(1, impl_->options.threads);
+  for (int i = 0; i < n; ++i) {
+    threads_.emplace_back([this] {
+      for (;;) {
+        try {
+          impl_->ioc.run();
+          return;
+        } catch (const std::exception& e) {
+          spdlog::error("HTTP server: {}", e.what());
+        }
       }
-    }
-  });
+    });
+  }
 }
 
 void HttpServer::stop() {
@@ -189,9 +403,18 @@ void HttpServer::stop() {
   asio::post(impl_->ioc, [this] {
     beast::error_code ec;
     impl_->acceptor.close(ec);
+    impl_->tick_timer.cancel();
   });
   impl_->ioc.stop();
-  if (thread_.joinable()) thread_.join();
+  for (auto& t : threads_) {
+    if (t.joinable()) t.join();
+  }
+  threads_.clear();
+}
+
+HttpServerStats HttpServer::stats() const {
+  return {impl_->requests.load(), impl_->refused.load(), impl_->bad_requests.load(),
+          impl_->connections.load()};
 }
 
 }  // namespace gyrotherm::daemon

@@ -18,6 +18,17 @@ nlohmann::json num(double v) {
 nlohmann::json text_or_null(const std::string& s) {
   return s.empty() ? nlohmann::json(nullptr) : nlohmann::json(s);
 }
+nlohmann::json numbers(const std::vector<double>& v) {
+  nlohmann::json a = nlohmann::json::array();
+  for (double x : v) a.push_back(num(x));
+  return a;
+}
+// A stored JSON text as JSON; an object when it does not parse (an old or
+// hand-edited row must not break the route).
+nlohmann::json stored_json(const std::string& text) {
+  auto j = nlohmann::json::parse(text, nullptr, /*allow_exceptions=*/false);
+  return j.is_discarded() ? nlohmann::json::object() : j;
+}
 
 }  // namespace
 
@@ -89,6 +100,41 @@ nlohmann::json to_json(const storage::SegmentStatsRecord& s) {
           {"t_from_s", num(s.t_from_s)},
           {"t_to_s", num(s.t_to_s)},
           {"computed_utc", s.computed_utc}};
+}
+
+nlohmann::json to_json(const storage::FitRecord& f) {
+  return {{"id", f.id},
+          {"run_ids", f.run_ids},
+          {"model", f.model},
+          {"form", f.form},
+          {"n", f.n},
+          {"coefficients", stored_json(f.coefficients_json)},
+          {"standard_errors", stored_json(f.standard_errors_json)},
+          {"residual_std_dph", num(f.residual_std_dph)},
+          {"r_squared", num(f.r_squared)},
+          {"inputs", stored_json(f.inputs_json)},
+          {"computed_utc", f.computed_utc}};
+}
+
+nlohmann::json to_json(const storage::DecimatedSamples& d) {
+  const auto& g = d.gyro;
+  const auto& t = d.temperature;
+  return {{"from_s", num(d.from_s)},
+          {"to_s", num(d.to_s)},
+          {"bucket_s", num(d.bucket_s)},
+          {"source", d.from_rollup ? "rollup" : "raw"},
+          {"gyro",
+           {{"t_s", numbers(g.t_s)},
+            {"n", g.n},
+            {"mean_dph", numbers(g.mean_dph)},
+            {"min_dph", numbers(g.min_dph)},
+            {"max_dph", numbers(g.max_dph)}}},
+          {"temperature",
+           {{"t_s", numbers(t.t_s)},
+            {"setpoint_c", numbers(t.setpoint_c)},
+            {"chamber_c", numbers(t.chamber_c)},
+            {"top_c", numbers(t.top_c)},
+            {"side_c", numbers(t.side_c)}}}};
 }
 
 }  // namespace gyrotherm::daemon

@@ -50,7 +50,8 @@ Reply db_failure(const Error& e) {
 
 }  // namespace
 
-Result<std::unique_ptr<Station>> Station::create(StationConfig config, const Clock& clock) {
+Result<std::unique_ptr<Station>> Station::create(StationConfig config, const Clock& clock,
+                                                 StationHooks hooks) {
   auto db = storage::Database::open(config.storage.db_path);
   if (!db) return db.error();
   auto api_db = storage::Database::open(config.storage.db_path);
@@ -58,16 +59,22 @@ Result<std::unique_ptr<Station>> Station::create(StationConfig config, const Clo
   storage::SampleWriterOptions wopt;
   wopt.commit_interval =
       std::chrono::milliseconds(static_cast<int64_t>(config.storage.commit_interval_s * 1000));
-  auto writer = storage::SampleWriter::start(config.storage.db_path, wopt);
+  std::function<void(double)> on_commit;
+  if (hooks.metrics) {
+    on_commit = [m = hooks.metrics](double seconds) { m->observe_commit(seconds); };
+  }
+  auto writer = storage::SampleWriter::start(config.storage.db_path, wopt, std::move(on_commit));
   if (!writer) return writer.error();
-  return std::unique_ptr<Station>(new Station(std::move(config), clock, std::move(*db),
-                                              std::move(*api_db), std::move(*writer)));
+  return std::unique_ptr<Station>(new Station(std::move(config), clock, std::move(hooks),
+                                              std::move(*db), std::move(*api_db),
+                                              std::move(*writer)));
 }
 
-Station::Station(StationConfig config, const Clock& clock, storage::Database db,
+Station::Station(StationConfig config, const Clock& clock, StationHooks hooks, storage::Database db,
                  storage::Database api_db, std::unique_ptr<storage::SampleWriter> writer)
     : config_(std::move(config)),
       clock_(clock),
+      hooks_(std::move(hooks)),
       db_(std::move(db)),
       api_db_(std::move(api_db)),
       writer_(std::move(writer)),
@@ -79,7 +86,9 @@ Station::Station(StationConfig config, const Clock& clock, storage::Database db,
       analysis::earth_rate_component_dph(config_.station.latitude_deg, config_.station.orientation);
   analysis_ = std::make_unique<AnalysisWorker>(
       config_.storage.db_path, *writer_, topt,
-      [](const Table1Job& job, const Result<storage::SegmentStatsRecord>& r) {
+      [publish = hooks_.publish](const Table1Job& job,
+                                 const Result<storage::SegmentStatsRecord>& r) {
+        if (r && publish) publish("stats", to_json(*r));
         if (r) {
           spdlog::info(
               "run {} segment {}: Table I row stored: n={} T={:.2f} °C bias={:.4f} °/h "
@@ -92,6 +101,10 @@ Station::Station(StationConfig config, const Clock& clock, storage::Database db,
       });
   chamber_ = std::make_unique<drivers::ModbusDevice>("chamber", config_.chamber.endpoint);
   probes_ = std::make_unique<drivers::ModbusDevice>("probes", config_.probes.endpoint);
+  if (Metrics* m = hooks_.metrics) {
+    chamber_->set_latency_observer([m](double s) { m->observe_modbus("chamber", s); });
+    probes_->set_latency_observer([m](double s) { m->observe_modbus("probes", s); });
+  }
   auto parser = drivers::make_frame_parser(config_.gyro.protocol);
   gyro_ = std::make_unique<drivers::GyroReader>(
       config_.gyro.serial, config_.gyro.format, std::move(*parser), clock_,
@@ -597,7 +610,16 @@ void Station::add_event(const std::string& kind, const std::string& from, const 
   ev.from_state = from;
   ev.to_state = to;
   ev.message = message;
-  if (auto r = db_.add_event(ev); !r) spdlog::error("event not recorded: {}", r.error().message);
+  if (auto r = db_.add_event(ev); !r) {
+    spdlog::error("event not recorded: {}", r.error().message);
+  } else {
+    ev.id = *r;
+  }
+  if (hooks_.publish) {
+    nlohmann::json j = to_json(ev);
+    j["run_id"] = ev.run_id ? nlohmann::json(*ev.run_id) : nlohmann::json(nullptr);
+    hooks_.publish("event", j);
+  }
   std::lock_guard lock(mu_);
   snapshot_.last_event = message;
 }
@@ -606,6 +628,13 @@ void Station::on_state(RunState from, RunState to, double t_s, const std::string
   spdlog::info("run {} t={:.0f} s: {} -> {}: {}", run_id_.load(), t_s, to_string(from),
                to_string(to), reason);
   last_reason_ = reason;
+  if (hooks_.publish) {
+    hooks_.publish("state", {{"run_id", run_id_.load()},
+                             {"from", to_string(from)},
+                             {"to", to_string(to)},
+                             {"t_s", t_s},
+                             {"reason", reason}});
+  }
   add_event("state", std::string(to_string(from)), std::string(to_string(to)), reason);
   if (auto st = db_.set_run_state(run_id_.load(), to_string(to), schedules::is_terminal(to)); !st) {
     spdlog::error("{}", st.error().message);
@@ -903,6 +932,33 @@ Reply Station::run_events(int64_t id) {
 
 Reply Station::run_stats(int64_t id) {
   return run_records(id, [id](storage::Database& db) { return db.segment_stats(id); });
+}
+
+Reply Station::run_fits(int64_t id) {
+  return run_records(id, [id](storage::Database& db) { return db.fits(id); });
+}
+
+Reply Station::fit(int64_t id) {
+  std::lock_guard lock(api_mu_);
+  auto fit = api_db_.fit(id);
+  if (!fit) return db_failure(fit.error());
+  if (!*fit) return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no fit {}", id));
+  return Reply::ok(to_json(**fit));
+}
+
+Reply Station::run_samples(int64_t id, const SamplesQuery& query) {
+  std::lock_guard lock(api_mu_);
+  if (!api_db_.run(id))
+    return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no run {}", id));
+  auto samples = api_db_.decimated_samples(id, query.from_s, query.to_s, query.max_points);
+  if (!samples) {
+    if (samples.error().transient) return db_failure(samples.error());
+    return Reply::refused(Refusal::Kind::kInvalid, samples.error().message);
+  }
+  nlohmann::json j = to_json(*samples);
+  j["run_id"] = id;
+  j["max_points"] = query.max_points;
+  return Reply::ok(std::move(j));
 }
 
 }  // namespace gyrotherm::daemon

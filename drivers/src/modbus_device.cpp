@@ -152,6 +152,7 @@ Result<double> ModbusDevice::read(const RegisterSpec& spec) {
                      : modbus_read_input_registers(ctx_, spec.address, count, words.data());
   const int err = errno;
   health_.last_latency_ms = std::chrono::duration<double, std::milli>(Steady::now() - t0).count();
+  if (latency_observer_) latency_observer_(health_.last_latency_ms / 1000.0);
   if (rc != count) return request_failed_locked(op, count, rc, err, "got");
   health_.last_success_utc = wall_time_utc_iso();
   return decode_register(spec, std::span<const uint16_t>(words.data(), count));
@@ -196,6 +197,7 @@ Status ModbusDevice::write(const RegisterSpec& spec, double value) {
                             : modbus_write_registers(ctx_, spec.address, count, words->data());
   const int err = errno;
   health_.last_latency_ms = std::chrono::duration<double, std::milli>(Steady::now() - t0).count();
+  if (latency_observer_) latency_observer_(health_.last_latency_ms / 1000.0);
   if (rc != count) return request_failed_locked(op, count, rc, err, "wrote");
   health_.last_success_utc = wall_time_utc_iso();
   return Status::Ok();

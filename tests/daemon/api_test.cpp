@@ -67,21 +67,37 @@ class FakeControl : public StationControl {
     calls.push_back(fmt::format("stats {}", id));
     return Reply::ok(nlohmann::json::array());
   }
+  Reply run_samples(int64_t id, const SamplesQuery& q) override {
+    calls.push_back(fmt::format("samples {} {} {} {}", id, q.from_s,
+                                q.to_s ? fmt::format("{}", *q.to_s) : "last", q.max_points));
+    return Reply::ok({{"run_id", id}});
+  }
+  Reply run_fits(int64_t id) override {
+    calls.push_back(fmt::format("fits {}", id));
+    return Reply::ok(nlohmann::json::array());
+  }
+  Reply fit(int64_t id) override {
+    calls.push_back(fmt::format("fit {}", id));
+    if (id == 5) return Reply::refused(Refusal::Kind::kNotFound, "no fit 5");
+    return Reply::ok({{"id", id}});
+  }
 };
 
 ApiContext fake_context(StationControl* control = nullptr) {
-  return ApiContext{[] {
-                      StatusSnapshot s;
-                      s.station_name = "test";
-                      s.state = "acquiring";
-                      s.run_id = 7;
-                      s.chamber_c = 20.25;
-                      s.gyro_rate_dph = 7.95;
-                      s.gyro.parser.crc_failures = 3;
-                      return s;
-                    },
-                    control,
-                    {kToken}};
+  ApiContext ctx;
+  ctx.status = [] {
+    StatusSnapshot s;
+    s.station_name = "test";
+    s.state = "acquiring";
+    s.run_id = 7;
+    s.chamber_c = 20.25;
+    s.gyro_rate_dph = 7.95;
+    s.gyro.parser.crc_failures = 3;
+    return s;
+  };
+  ctx.control = control;
+  ctx.tokens = {kToken};
+  return ctx;
 }
 
 HttpRequest request(http::verb verb, std::string target, std::string body = "",

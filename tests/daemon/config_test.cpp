@@ -142,6 +142,42 @@ TEST(Config, ShortTokensAreRefused) {
   EXPECT_THAT(cfg.error().message, Not(HasSubstr("abc"))) << "tokens never appear in messages";
 }
 
+TEST(Config, ApiLimitsAreReadWithDefaultsAndRangeChecked) {
+  auto defaults = parse_station_config(std::string(kMinimal), "t.toml");
+  ASSERT_TRUE(defaults.ok()) << defaults.error().message;
+  EXPECT_EQ(defaults->api.read_timeout_s, 10.0);
+  EXPECT_EQ(defaults->api.max_connections, 64);
+  EXPECT_EQ(defaults->api.max_header_bytes, 8192);
+  EXPECT_EQ(defaults->api.max_body_bytes, 65536);
+  EXPECT_EQ(defaults->api.max_stream_clients, 32);
+  EXPECT_EQ(defaults->api.stream_queue_bytes, 262144);
+  EXPECT_EQ(defaults->api.web_root, "");
+
+  auto set = parse_station_config(std::string(kMinimal) +
+                                      "[api]\nread_timeout_s = 2.5\nmax_connections = 8\n"
+                                      "max_header_bytes = 4096\nmax_body_bytes = 2048\n"
+                                      "max_stream_clients = 3\nstream_queue_bytes = 65536\n"
+                                      "web_root = \"/srv/web\"\n",
+                                  "t.toml");
+  ASSERT_TRUE(set.ok()) << set.error().message;
+  EXPECT_EQ(set->api.read_timeout_s, 2.5);
+  EXPECT_EQ(set->api.max_connections, 8);
+  EXPECT_EQ(set->api.max_header_bytes, 4096);
+  EXPECT_EQ(set->api.max_body_bytes, 2048);
+  EXPECT_EQ(set->api.max_stream_clients, 3);
+  EXPECT_EQ(set->api.stream_queue_bytes, 65536);
+  EXPECT_EQ(set->api.web_root, "/srv/web");
+
+  auto bad = parse_station_config(std::string(kMinimal) +
+                                      "[api]\nmax_connections = 1\nmax_body_bytes = 1.5\n"
+                                      "read_timeout_s = 0\n",
+                                  "t.toml");
+  ASSERT_FALSE(bad.ok());
+  EXPECT_THAT(bad.error().message, HasSubstr("api.max_connections: 1 is out of range"));
+  EXPECT_THAT(bad.error().message, HasSubstr("api.max_body_bytes"));
+  EXPECT_THAT(bad.error().message, HasSubstr("api.read_timeout_s: 0 is out of range"));
+}
+
 TEST(SimEndpoints, RoundTripThroughAFile) {
   const auto dir =
       std::filesystem::temp_directory_path() / ("gyrotherm-ep-" + std::to_string(::getpid()));

@@ -65,6 +65,15 @@ struct ApiSection {
   std::string bind = "127.0.0.1";
   int port = 8750;  // 0 = pick a free port (it is logged and written to status_file)
   std::vector<std::string> tokens;
+  // HTTP limits (wall time): a request must arrive within read_timeout_s; a
+  // stream client further behind than stream_queue_bytes is dropped.
+  double read_timeout_s = 10;
+  int max_connections = 64;
+  int64_t max_header_bytes = 8 * 1024;
+  int64_t max_body_bytes = 64 * 1024;
+  int max_stream_clients = 32;
+  int64_t stream_queue_bytes = 256 * 1024;
+  std::string web_root;  // dashboard files; "" = <gyrothermd dir>/../share/gyrotherm/web
 };
 
 struct ExportSection {

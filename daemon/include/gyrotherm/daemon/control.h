@@ -39,6 +39,13 @@ struct Reply {
   }
 };
 
+// GET /runs/{id}/samples parameters (station seconds since run start).
+struct SamplesQuery {
+  double from_s = 0;
+  std::optional<double> to_s;  // nullopt: the last sample
+  int max_points = 2000;
+};
+
 class StationControl {
  public:
   virtual ~StationControl() = default;
@@ -53,6 +60,10 @@ class StationControl {
   virtual Reply run(int64_t id) = 0;
   virtual Reply run_events(int64_t id) = 0;
   virtual Reply run_stats(int64_t id) = 0;
+  // Decimated samples (storage::Database::decimated_samples).
+  virtual Reply run_samples(int64_t id, const SamplesQuery& query) = 0;
+  virtual Reply run_fits(int64_t id) = 0;
+  virtual Reply fit(int64_t id) = 0;
 };
 
 // JSON forms of the stored records (docs/api.md).
@@ -61,5 +72,7 @@ nlohmann::json to_json(const storage::RunRecord& r);
 nlohmann::json to_json(const storage::SegmentRecord& s);
 nlohmann::json to_json(const storage::EventRecord& e);
 nlohmann::json to_json(const storage::SegmentStatsRecord& s);
+nlohmann::json to_json(const storage::FitRecord& f);
+nlohmann::json to_json(const storage::DecimatedSamples& d);
 
 }  // namespace gyrotherm::daemon

@@ -1,20 +1,32 @@
-// A small HTTP/1.1 server on Boost.Beast (async, one io_context thread).
+// A small HTTP/1.1 server on Boost.Beast (async, a few io_context threads)
+// with a Server-Sent Events fan-out.
 //
 // Request handling is a pure function from request to response (see api.h),
 // kept apart from sessions and the listener, as in Beast's async example
 // server. Every read has a timeout, headers and bodies are size-limited and
 // the number of connections is bounded; a bad request gets a 4xx and the
 // server keeps serving. Exceptions thrown by the handler become 500s.
+//
+// A GET of options.stream_path turns the connection into an event stream
+// (text/event-stream, chunked) fed by an EventStream: publish() formats a
+// message once and queues it for every client without touching a socket,
+// so no publisher (the acquisition side) ever waits on a client; a client
+// further behind than queue_bytes, or whose write stalls past write_timeout,
+// is disconnected, and the others go on.
 #pragma once
 
 #include <atomic>
 #include <boost/asio/io_context.hpp>
 #include <boost/beast/http.hpp>
+#include <chrono>
 #include <cstdint>
+#include <deque>
 #include <functional>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "gyrotherm/core/result.h"
 
@@ -24,13 +36,70 @@ using HttpRequest = boost::beast::http::request<boost::beast::http::string_body>
 using HttpResponse = boost::beast::http::response<boost::beast::http::string_body>;
 using HttpHandler = std::function<HttpResponse(const HttpRequest&)>;
 
+// One stream client's queue (shared by the EventStream and the session).
+struct StreamClient {
+  std::mutex mu;
+  std::deque<std::shared_ptr<const std::string>> queue;
+  std::size_t queued_bytes = 0;
+  bool writing = false;  // a pump is scheduled or a write is in flight
+  bool closed = false;
+  std::function<void()> wake;  // schedules a pump on the session's strand
+};
+
+struct EventStreamOptions {
+  std::size_t queue_bytes = 256 * 1024;  // per client, before it is dropped
+  int max_clients = 32;
+  std::chrono::milliseconds tick{1000};  // wall time between status ticks
+  // The `status` event's data (JSON), sent on connect and at every tick.
+  std::function<std::string()> status_json;
+};
+
+class EventStream {
+ public:
+  explicit EventStream(EventStreamOptions options) : options_(std::move(options)) {}
+
+  // Thread-safe, never blocks on a client. `data` must be one line (JSON).
+  void publish(std::string_view event, std::string_view data);
+  // Publishes a status event when anyone listens (the server's tick).
+  void tick();
+
+  int clients() const;
+  uint64_t dropped() const { return dropped_.load(); }
+  const EventStreamOptions& options() const { return options_; }
+
+  // For the server: registers a client with its first messages (retry and
+  // a status); nullptr when max_clients are connected.
+  std::shared_ptr<StreamClient> subscribe(std::function<void()> wake);
+
+ private:
+  std::string format(std::string_view event, std::string_view data);
+  void push(StreamClient& client, const std::shared_ptr<const std::string>& message);
+
+  EventStreamOptions options_;
+  mutable std::mutex mu_;
+  std::vector<std::weak_ptr<StreamClient>> clients_;
+  std::atomic<uint64_t> next_id_{1};
+  std::atomic<uint64_t> dropped_{0};
+};
+
 struct HttpServerOptions {
   std::string bind = "127.0.0.1";
-  int port = 8750;  // 0: any free port; see HttpServer::port()
-  std::chrono::seconds read_timeout{10};
+  int port = 8750;                                 // 0: any free port; see HttpServer::port()
+  std::chrono::milliseconds read_timeout{10'000};  // a whole request; idle keep-alive
+  std::chrono::milliseconds write_timeout{10'000};
   std::size_t header_limit = 8 * 1024;
   std::size_t body_limit = 64 * 1024;
   int max_connections = 64;
+  int threads = 2;  // io_context threads: a slow database read does not stall the rest
+  EventStream* stream = nullptr;  // not owned; outlives the server
+  std::string stream_path = "/api/v1/stream";
+};
+
+struct HttpServerStats {
+  uint64_t requests = 0;
+  uint64_t refused_connections = 0;  // over max_connections
+  uint64_t bad_requests = 0;         // malformed, oversized
+  int connections = 0;
 };
 
 class HttpServer {
@@ -40,9 +109,10 @@ class HttpServer {
   static Result<std::unique_ptr<HttpServer>> create(HttpServerOptions options, HttpHandler handler);
   ~HttpServer();  // stop()
 
-  void start();  // runs the io_context on its own thread
+  void start();  // runs the io_context on its own threads
   void stop();   // idempotent
   int port() const { return port_; }
+  HttpServerStats stats() const;
 
   struct Impl;
 
@@ -50,7 +120,7 @@ class HttpServer {
   HttpServer() = default;
   std::unique_ptr<Impl> impl_;
   int port_ = 0;
-  std::thread thread_;
+  std::vector<std::thread> threads_;
 };
 
 // Helpers for handlers.

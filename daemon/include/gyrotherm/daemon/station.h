@@ -26,6 +26,7 @@
 #include <atomic>
 #include <condition_variable>
 #include <deque>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -39,6 +40,7 @@
 #include "gyrotherm/daemon/analysis_worker.h"
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/daemon/control.h"
+#include "gyrotherm/daemon/metrics.h"
 #include "gyrotherm/daemon/status.h"
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/drivers/modbus_device.h"
@@ -48,12 +50,21 @@
 
 namespace gyrotherm::daemon {
 
+// What the station tells the rest of the daemon; both optional.
+struct StationHooks {
+  Metrics* metrics = nullptr;  // latency histograms (not owned; outlives the station)
+  // Live events for /api/v1/stream: "state", "event", "stats" with their
+  // JSON. Called from the control and analysis threads; must not block.
+  std::function<void(std::string_view event, const nlohmann::json& data)> publish;
+};
+
 class Station final : public StationControl, private schedules::SequencerObserver {
  public:
   // Opens the database (creating/migrating it), the sample writer and the
   // devices' clients. Fails (permanent) when the database cannot be opened;
   // unreachable devices are not an error here (they are retried).
-  static Result<std::unique_ptr<Station>> create(StationConfig config, const Clock& clock);
+  static Result<std::unique_ptr<Station>> create(StationConfig config, const Clock& clock,
+                                                 StationHooks hooks = {});
   ~Station() override;
 
   // Starts the gyro reader and the control loop.
@@ -82,10 +93,13 @@ class Station final : public StationControl, private schedules::SequencerObserve
   Reply run(int64_t id) override;
   Reply run_events(int64_t id) override;
   Reply run_stats(int64_t id) override;
+  Reply run_samples(int64_t id, const SamplesQuery& query) override;
+  Reply run_fits(int64_t id) override;
+  Reply fit(int64_t id) override;
 
  private:
-  Station(StationConfig config, const Clock& clock, storage::Database db, storage::Database api_db,
-          std::unique_ptr<storage::SampleWriter> writer);
+  Station(StationConfig config, const Clock& clock, StationHooks hooks, storage::Database db,
+          storage::Database api_db, std::unique_ptr<storage::SampleWriter> writer);
 
   void control_loop();
   void tick();
@@ -120,6 +134,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
 
   StationConfig config_;
   const Clock& clock_;
+  StationHooks hooks_;
   std::mutex run_mu_;
   storage::Database db_;  // control-thread connection (run_mu_)
   std::mutex api_mu_;

@@ -9,6 +9,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -64,6 +65,12 @@ class ModbusDevice {
 
   DeviceHealth health() const;
   const std::string& name() const { return name_; }
+
+  // Called with the wall duration of every request that reached the device
+  // (for the latency histogram); set before use from other threads.
+  void set_latency_observer(std::function<void(double seconds)> observer) {
+    latency_observer_ = std::move(observer);
+  }
   const ModbusEndpoint& endpoint() const { return endpoint_; }
 
  private:
@@ -78,6 +85,7 @@ class ModbusDevice {
                               std::string_view verb);
 
   std::string name_;
+  std::function<void(double)> latency_observer_;
   ModbusEndpoint endpoint_;
   mutable std::mutex mu_;
   modbus_t* ctx_ = nullptr;  // owned; freed in disconnect_locked()

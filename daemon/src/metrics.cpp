@@ -1,0 +1,173 @@
+#include "gyrotherm/daemon/metrics.h"
+
+#include <prometheus/histogram.h>
+#include <prometheus/metric_family.h>
+#include <prometheus/registry.h>
+#include <prometheus/text_serializer.h>
+
+#include <cmath>
+#include <vector>
+
+namespace gyrotherm::daemon {
+
+namespace {
+
+using prometheus::ClientMetric;
+using prometheus::MetricFamily;
+using prometheus::MetricType;
+
+// Builds the families read from the status at scrape time.
+class Families {
+ public:
+  std::vector<MetricFamily>& all() { return families_; }
+
+  void counter(std::string name, std::string help, double value,
+               std::vector<ClientMetric::Label> labels = {}) {
+    ClientMetric m;
+    m.label = std::move(labels);
+    m.counter.value = value;
+    add(std::move(name), std::move(help), MetricType::Counter, std::move(m));
+  }
+  void gauge(std::string name, std::string help, double value,
+             std::vector<ClientMetric::Label> labels = {}) {
+    ClientMetric m;
+    m.label = std::move(labels);
+    m.gauge.value = value;
+    add(std::move(name), std::move(help), MetricType::Gauge, std::move(m));
+  }
+  // A gauge that is absent (no sample) while the value is unknown.
+  void gauge(std::string name, std::string help, const std::optional<double>& value,
+             std::vector<ClientMetric::Label> labels = {}) {
+    if (value && std::isfinite(*value)) {
+      gauge(std::move(name), std::move(help), *value, std::move(labels));
+    } else {
+      family(std::move(name), std::move(help), MetricType::Gauge);
+    }
+  }
+
+ private:
+  MetricFamily& family(std::string name, std::string help, MetricType type) {
+    for (auto& f : families_) {
+      if (f.name == name) return f;
+    }
+    families_.push_back(MetricFamily{std::move(name), std::move(help), type, {}});
+    return families_.back();
+  }
+  void add(std::string name, std::string help, MetricType type, ClientMetric m) {
+    family(std::move(name), std::move(help), type).metric.push_back(std::move(m));
+  }
+  std::vector<MetricFamily> families_;
+};
+
+const prometheus::Histogram::BucketBoundaries kModbusBuckets = {
+    0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5};
+const prometheus::Histogram::BucketBoundaries kCommitBuckets = {
+    0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0};
+
+}  // namespace
+
+Metrics::Metrics() : registry_(std::make_shared<prometheus::Registry>()) {
+  auto& modbus = prometheus::BuildHistogram()
+                     .Name("gyrotherm_modbus_request_seconds")
+                     .Help("Wall time of each Modbus request that reached a device")
+                     .Register(*registry_);
+  modbus_chamber_s_ = &modbus.Add({{"device", "chamber"}}, kModbusBuckets);
+  modbus_probes_s_ = &modbus.Add({{"device", "probes"}}, kModbusBuckets);
+  commit_s_ = &prometheus::BuildHistogram()
+                   .Name("gyrotherm_db_commit_seconds")
+                   .Help("Wall time of each sample-writer commit (one transaction)")
+                   .Register(*registry_)
+                   .Add({}, kCommitBuckets);
+}
+
+Metrics::~Metrics() = default;
+
+void Metrics::observe_modbus(std::string_view device, double seconds) {
+  (device == "chamber" ? modbus_chamber_s_ : modbus_probes_s_)->Observe(seconds);
+}
+
+void Metrics::observe_commit(double seconds) { commit_s_->Observe(seconds); }
+
+std::string Metrics::scrape(const StatusSnapshot& s, const ServerFigures& server) const {
+  Families f;
+  f.gauge("gyrotherm_up", "1 while the daemon serves", 1.0);
+  f.gauge("gyrotherm_uptime_seconds", "Wall seconds since the daemon started", s.uptime_s);
+  f.gauge("gyrotherm_time_scale", "Station seconds per wall second (1 on a real station)",
+          s.time_scale);
+  for (std::string_view state : kStatesForMetrics) {
+    f.gauge("gyrotherm_state", "1 for the station's current state, 0 for the others",
+            state == s.state ? 1.0 : 0.0, {{"state", std::string(state)}});
+  }
+  f.gauge("gyrotherm_queue_length", "Queue entries waiting", s.queue_length);
+  f.gauge("gyrotherm_queue_held", "1 while the queue is held (stop, abort, failed run)",
+          s.queue_held ? 1.0 : 0.0);
+  const auto temp = [&](const char* sensor, const std::optional<double>& v) {
+    f.gauge("gyrotherm_temperature_celsius", "Latest temperature, degC", v,
+            {{"sensor", sensor}});
+  };
+  temp("setpoint", s.setpoint_c);
+  temp("chamber", s.chamber_c);
+  temp("top", s.top_c);
+  temp("side", s.side_c);
+  f.gauge("gyrotherm_gradient_celsius", "Shell gradient top - side, degC", s.gradient_c);
+  f.gauge("gyrotherm_gyro_rate_dph", "Gyro rate, mean of the last full station second, deg/h",
+          s.gyro_rate_dph);
+  f.gauge("gyrotherm_gyro_samples_per_second", "Gyro samples per station second",
+          s.gyro_samples_per_s);
+
+  const auto& g = s.gyro;
+  f.gauge("gyrotherm_gyro_connected", "1 while the gyro's serial port is open",
+          g.connected ? 1.0 : 0.0);
+  f.counter("gyrotherm_gyro_samples_total", "Gyro samples ingested",
+            static_cast<double>(g.samples));
+  f.counter("gyrotherm_gyro_crc_failures_total", "Gyro frames rejected by their CRC",
+            static_cast<double>(g.parser.crc_failures));
+  f.counter("gyrotherm_gyro_sequence_gaps_total", "Breaks in the gyro frames' sequence counter",
+            static_cast<double>(g.parser.sequence_gaps));
+  f.counter("gyrotherm_gyro_frames_missed_total", "Gyro frames missing from the sequence",
+            static_cast<double>(g.parser.frames_missed));
+  f.counter("gyrotherm_gyro_bytes_skipped_total", "Serial bytes skipped while resynchronising",
+            static_cast<double>(g.parser.bytes_skipped));
+
+  for (const auto& [name, h] : {std::pair{"chamber", &s.chamber}, std::pair{"probes", &s.probes}}) {
+    f.gauge("gyrotherm_modbus_connected", "1 while the Modbus device is connected",
+            h->connected ? 1.0 : 0.0, {{"device", name}});
+    f.counter("gyrotherm_modbus_requests_total", "Modbus requests attempted",
+              static_cast<double>(h->requests), {{"device", name}});
+    f.counter("gyrotherm_modbus_errors_total", "Modbus requests that failed",
+              static_cast<double>(h->errors), {{"device", name}});
+  }
+
+  const auto& st = s.storage;
+  f.counter("gyrotherm_db_rows_committed_total", "Sample rows committed to the database",
+            static_cast<double>(st.gyro_rows), {{"table", "gyro_samples"}});
+  f.counter("gyrotherm_db_rows_committed_total", "Sample rows committed to the database",
+            static_cast<double>(st.temperature_rows), {{"table", "temperature_samples"}});
+  f.counter("gyrotherm_db_commits_total", "Sample-writer commits", static_cast<double>(st.commits));
+  f.counter("gyrotherm_db_commit_failures_total", "Sample-writer commits that failed (retried)",
+            static_cast<double>(st.commit_failures));
+  f.counter("gyrotherm_db_samples_dropped_total",
+            "Samples dropped because the writer fell too far behind",
+            static_cast<double>(st.dropped));
+  f.gauge("gyrotherm_db_pending_samples", "Samples waiting for the next commit",
+          static_cast<double>(st.pending));
+
+  f.counter("gyrotherm_http_requests_total", "HTTP requests read",
+            static_cast<double>(server.http_requests));
+  f.counter("gyrotherm_http_refused_connections_total",
+            "Connections closed at accept (over [api] max_connections)",
+            static_cast<double>(server.http_refused_connections));
+  f.counter("gyrotherm_http_bad_requests_total", "Malformed or oversized HTTP requests",
+            static_cast<double>(server.http_bad_requests));
+  f.gauge("gyrotherm_http_connections", "Open HTTP connections", server.http_connections);
+  f.gauge("gyrotherm_stream_clients", "Clients of /api/v1/stream", server.stream_clients);
+  f.counter("gyrotherm_stream_clients_dropped_total",
+            "Stream clients disconnected for falling too far behind",
+            static_cast<double>(server.stream_clients_dropped));
+
+  auto families = registry_->Collect();
+  for (auto& family : f.all()) families.push_back(std::move(family));
+  return prometheus::TextSerializer().Serialize(families);
+}
+
+}  // namespace gyrotherm::daemon

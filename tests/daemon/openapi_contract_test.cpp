@@ -1,0 +1,617 @@
+// The OpenAPI document (daemon/openapi.json) against the daemon: the same
+// routes, every documented operation answered with a documented status, and
+// the bodies of those answers shaped as the document's schemas say.
+#include <fmt/format.h>
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <set>
+#include <unistd.h>
+
+#include "gyrotherm/daemon/api.h"
+#include "gyrotherm/daemon/metrics.h"
+#include "gyrotherm/daemon/web_assets.h"
+
+#ifndef GYROTHERM_OPENAPI_PATH
+#define GYROTHERM_OPENAPI_PATH GYROTHERM_SOURCE_DIR "/daemon/openapi.json"
+#endif
+
+namespace gyrotherm::daemon {
+namespace {
+
+namespace http = boost::beast::http;
+using nlohmann::json;
+
+constexpr const char* kToken = "contract-token-0123456789abcdef";
+constexpr const char* kMethods[] = {"get", "put", "post", "delete", "patch", "head", "options"};
+
+const json& document() {
+  static const json doc = [] {
+    std::ifstream in(GYROTHERM_OPENAPI_PATH);
+    if (!in) throw std::runtime_error("cannot open " GYROTHERM_OPENAPI_PATH);
+    return json::parse(in);
+  }();
+  return doc;
+}
+
+std::string upper(std::string s) {
+  for (char& c : s) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+  return s;
+}
+
+// "METHOD path" of every documented operation.
+std::set<std::string> documented_operations() {
+  std::set<std::string> out;
+  for (const auto& [path, item] : document().at("paths").items()) {
+    for (const char* m : kMethods) {
+      if (item.contains(m)) out.insert(upper(m) + " " + path);
+    }
+  }
+  return out;
+}
+
+// Resolves a local "$ref" ("#/components/schemas/X").
+const json& resolve(const json& node) {
+  const json* n = &node;
+  for (int depth = 0; n->is_object() && n->contains("$ref"); ++depth) {
+    if (depth > 16) throw std::runtime_error("$ref loop");
+    const std::string ref = n->at("$ref").get<std::string>();
+    if (ref.rfind("#/", 0) != 0) throw std::runtime_error("non-local $ref " + ref);
+    n = &document().at(json::json_pointer(ref.substr(1)));
+  }
+  return *n;
+}
+
+// Checks `value` against the subset of OpenAPI 3.0 schema keywords the
+// document uses; appends "where: what" for each mismatch.
+// `strict`: fields the schema does not declare are errors (off for the parts
+// of an allOf, whose fields together are checked by check_all_of_fields).
+void check_schema(const json& value, const json& schema_in, const std::string& where,
+                  std::vector<std::string>& errors, bool strict = true) {
+  const json& schema = resolve(schema_in);
+  if (value.is_null()) {
+    if (!schema.value("nullable", false) && !schema.empty()) {
+      errors.push_back(where + ": null but not nullable");
+    }
+    return;
+  }
+  if (schema.contains("allOf")) {
+    for (const auto& part : schema.at("allOf")) check_schema(value, part, where, errors, false);
+  }
+  if (schema.contains("enum")) {
+    bool found = false;
+    for (const auto& e : schema.at("enum")) found |= e == value;
+    if (!found) errors.push_back(fmt::format("{}: {} is not in {}", where, value.dump(),
+                                             schema.at("enum").dump()));
+  }
+  if (!schema.contains("type")) return;
+  const std::string type = schema.at("type");
+  const bool type_ok = (type == "object" && value.is_object()) ||
+                       (type == "array" && value.is_array()) ||
+                       (type == "string" && value.is_string()) ||
+                       (type == "boolean" && value.is_boolean()) ||
+                       (type == "integer" && value.is_number_integer()) ||
+                       (type == "number" && value.is_number());
+  if (!type_ok) {
+    errors.push_back(fmt::format("{}: {} is not of type {}", where, value.dump(), type));
+    return;
+  }
+  if (type == "object") {
+    const json props = schema.value("properties", json::object());
+    for (const auto& r : schema.value("required", json::array())) {
+      if (!value.contains(r.get<std::string>())) {
+        errors.push_back(fmt::format("{}: required field '{}' missing", where, r.get<std::string>()));
+      }
+    }
+    for (const auto& [key, v] : value.items()) {
+      if (props.contains(key)) {
+        check_schema(v, props.at(key), where + "." + key, errors);
+      } else if (schema.contains("additionalProperties")) {
+        const json& extra = schema.at("additionalProperties");
+        if (extra.is_boolean()) {
+          if (!extra.get<bool>()) errors.push_back(where + ": undocumented field '" + key + "'");
+        } else {
+          check_schema(v, extra, where + "." + key, errors);
+        }
+      } else if (strict && !schema.contains("allOf") && !props.empty()) {
+        // Undocumented fields in a response: the document is incomplete.
+        errors.push_back(where + ": undocumented field '" + key + "'");
+      }
+    }
+  }
+  if (type == "array" && schema.contains("items")) {
+    for (std::size_t i = 0; i < value.size(); ++i) {
+      check_schema(value[i], schema.at("items"), fmt::format("{}[{}]", where, i), errors);
+    }
+  }
+}
+
+// Field names an object schema declares, through allOf parts.
+void declared_fields(const json& schema_in, std::set<std::string>& out) {
+  const json& schema = resolve(schema_in);
+  const json props = schema.value("properties", json::object());
+  for (const auto& [key, v] : props.items()) out.insert(key);
+  for (const auto& part : schema.value("allOf", json::array())) declared_fields(part, out);
+}
+
+// Undocumented fields of objects described with allOf (which check_schema
+// cannot see part by part).
+void check_all_of_fields(const json& value, const json& schema_in, const std::string& where,
+                         std::vector<std::string>& errors) {
+  const json& schema = resolve(schema_in);
+  if (schema.contains("allOf") && value.is_object()) {
+    std::set<std::string> fields;
+    declared_fields(schema, fields);
+    for (const auto& [key, v] : value.items()) {
+      if (!fields.count(key)) errors.push_back(where + ": undocumented field '" + key + "'");
+    }
+  }
+  if (value.is_object()) {
+    std::set<std::string> fields;
+    declared_fields(schema, fields);
+    json props = json::object();
+    for (const auto& part : schema.value("allOf", json::array())) {
+      props.update(resolve(part).value("properties", json::object()));
+    }
+    props.update(schema.value("properties", json::object()));
+    for (const auto& [key, v] : value.items()) {
+      if (props.contains(key)) check_all_of_fields(v, props.at(key), where + "." + key, errors);
+    }
+  } else if (value.is_array() && schema.contains("items")) {
+    for (std::size_t i = 0; i < value.size(); ++i) {
+      check_all_of_fields(value[i], schema.at("items"), fmt::format("{}[{}]", where, i), errors);
+    }
+  }
+}
+
+// ------------------------------------------------------------ the daemon side
+
+StatusSnapshot busy_station() {
+  StatusSnapshot s;
+  s.station_name = "contract";
+  s.state = "acquiring";
+  s.run_id = 1;
+  s.schedule_name = "paper-table1";
+  s.step_index = 3;
+  s.step_count = 32;
+  s.step_label = "step 4: soak 20 °C";
+  s.setpoint_c = 20;
+  s.chamber_c = 20.1;
+  s.top_c = 20.02;
+  s.side_c = 19.98;
+  s.gradient_c = 0.04;
+  s.temp_rate_c_per_min = 0.01;
+  s.gyro_rate_dph = 7.95;
+  s.gyro_samples_per_s = 1000;
+  s.interlocks.push_back({"probe_disagreement", "top and side differ by 2.1 °C"});
+  s.queue_length = 2;
+  s.queue_held = true;
+  s.queue_hold_reason = "stopped by the operator";
+  return s;
+}
+
+storage::QueueEntry queue_entry(int64_t id, std::string state) {
+  storage::QueueEntry e;
+  e.id = id;
+  e.position = state == "queued" ? 0 : -1;
+  e.state = std::move(state);
+  e.added_utc = "2026-11-21T05:38:43.120Z";
+  e.schedule_name = "paper-table1";
+  e.source_path = "paper-table1.toml";
+  if (e.state == "running") e.run_id = 1;
+  return e;
+}
+
+// Answers every call with a body built by the daemon's own record
+// serializers, so the schemas are checked against what the daemon sends.
+class ContractControl : public StationControl {
+ public:
+  json queue_json() {
+    return {{"held", false},
+            {"hold_reason", ""},
+            {"current", to_json(queue_entry(1, "running"), 32)},
+            {"entries", json::array({to_json(queue_entry(2, "queued"), 4)})}};
+  }
+  Reply queue_list() override { return Reply::ok(queue_json()); }
+  Reply queue_add(const std::string&, const std::string&, bool) override {
+    return Reply::ok(to_json(queue_entry(3, "queued"), 4));
+  }
+  Reply queue_remove(int64_t id) override { return Reply::ok({{"removed", id}}); }
+  Reply queue_move(int64_t, int) override { return Reply::ok(queue_json()); }
+  Reply control(std::string_view action, const std::string&) override {
+    return Reply::ok({{"ok", true}, {"message", fmt::format("{} done", action)}});
+  }
+  static storage::RunRecord run_record(int64_t id) {
+    storage::RunRecord r;
+    r.id = id;
+    r.schedule_name = "paper-table1";
+    r.state = "acquiring";
+    r.started_utc = "2026-11-21T05:38:43.120Z";
+    r.queue_id = 1;
+    return r;
+  }
+  Reply runs() override {
+    auto done = run_record(2);
+    done.state = "completed";
+    done.ended_utc = "2026-11-21T07:38:43.120Z";
+    done.queue_id.reset();
+    return Reply::ok(json::array({to_json(done), to_json(run_record(1))}));
+  }
+  Reply run(int64_t id) override {
+    storage::SegmentRecord s;
+    s.index = 0;
+    s.kind = "soak";
+    s.label = "step 1: soak 20 °C";
+    s.setpoint_c = 20;
+    s.t_settled_s = 600;
+    s.t_acquire_start_s = 600;
+    s.state = "running";
+    s.windows = {{600, 900}, {960, 1200}};
+    json j = to_json(run_record(id));
+    j["segments"] = json::array({to_json(s)});
+    return Reply::ok(j);
+  }
+  Reply run_events(int64_t) override {
+    storage::EventRecord state;
+    state.id = 1;
+    state.t_s = 600;
+    state.wall_utc = "2026-11-21T05:48:43.120Z";
+    state.kind = "state";
+    state.from_state = "settling";
+    state.to_state = "acquiring";
+    state.message = "stable";
+    storage::EventRecord info = state;
+    info.id = 2;
+    info.kind = "operator";
+    info.from_state.clear();
+    info.to_state.clear();
+    return Reply::ok(json::array({to_json(state), to_json(info)}));
+  }
+  Reply run_stats(int64_t id) override {
+    storage::SegmentStatsRecord s;
+    s.segment_id = 1;
+    s.run_id = id;
+    s.n = 7200;
+    s.bias_std_ma_dph = std::numeric_limits<double>::quiet_NaN();
+    s.computed_utc = "2026-11-21T07:38:43.120Z";
+    return Reply::ok(json::array({to_json(s)}));
+  }
+  Reply run_samples(int64_t id, const SamplesQuery& query) override {
+    storage::DecimatedSamples d;
+    d.from_s = query.from_s;
+    d.to_s = query.to_s.value_or(7200);
+    d.bucket_s = 3.6;
+    d.from_rollup = true;
+    d.gyro.t_s = {1.8, 5.4};
+    d.gyro.n = {3600, 3600};
+    d.gyro.mean_dph = {7.9, std::numeric_limits<double>::quiet_NaN()};
+    d.gyro.min_dph = {7.1, 7.2};
+    d.gyro.max_dph = {8.7, 8.8};
+    d.temperature.t_s = {1.8};
+    d.temperature.setpoint_c = {20};
+    d.temperature.chamber_c = {20.1};
+    d.temperature.top_c = {20.02};
+    d.temperature.side_c = {std::numeric_limits<double>::quiet_NaN()};
+    json j = to_json(d);  // what Station::run_samples adds:
+    j["run_id"] = id;
+    j["max_points"] = query.max_points;
+    return Reply::ok(j);
+  }
+  static storage::FitRecord fit_record(int64_t id) {
+    storage::FitRecord f;
+    f.id = id;
+    f.run_ids = {1, 2};
+    f.model = "T4+R1+G1";
+    f.form = "paper";
+    f.n = 14400;
+    f.coefficients_json = R"({"T0": 7.9, "T1": 0.012, "R1": -0.4, "G1": 0.8})";
+    f.standard_errors_json = R"({"T0": 0.01, "T1": 0.001, "R1": 0.02, "G1": 0.05})";
+    f.residual_std_dph = 0.03;
+    f.r_squared = 0.98;
+    f.inputs_json = R"({"bin_s": 1, "windows": [[600, 7800]]})";
+    f.computed_utc = "2026-11-21T07:38:43.120Z";
+    return f;
+  }
+  Reply run_fits(int64_t) override { return Reply::ok(json::array({to_json(fit_record(1))})); }
+  Reply fit(int64_t id) override { return Reply::ok(to_json(fit_record(id))); }
+};
+
+// A web root with the files the document's examples name.
+class WebRoot {
+ public:
+  WebRoot() {
+    dir_ = std::filesystem::temp_directory_path() /
+           fmt::format("gyrotherm-openapi-{}", ::getpid());
+    std::filesystem::create_directories(dir_);
+    std::ofstream(dir_ / "index.html") << "<!doctype html><title>gyrotherm</title>";
+    std::ofstream(dir_ / "app.js") << "console.log('gyrotherm');";
+    auto loaded = WebAssets::load(dir_.string());
+    if (!loaded) throw std::runtime_error(loaded.error().message);
+    assets_ = std::move(*loaded);
+  }
+  ~WebRoot() { std::filesystem::remove_all(dir_); }
+  const WebAssets* assets() const { return &*assets_; }
+
+ private:
+  std::filesystem::path dir_;
+  std::optional<WebAssets> assets_;
+};
+
+ApiContext contract_context(StationControl* control, const WebAssets* web = nullptr,
+                            const Metrics* metrics = nullptr) {
+  ApiContext ctx;
+  ctx.status = busy_station;
+  ctx.control = control;
+  ctx.tokens = {kToken};
+  ctx.web = web;
+  if (metrics) ctx.metrics = [metrics] { return metrics->scrape(busy_station(), {}); };
+  return ctx;
+}
+
+// Path template with its parameters filled: {id} -> 1, an enum parameter
+// -> each of its values.
+std::vector<std::string> fill_path(const std::string& path, const json& params) {
+  std::vector<std::string> targets = {path};
+  for (const auto& p_in : params) {
+    const json& p = resolve(p_in);
+    if (p.at("in") != "path") continue;
+    const std::string placeholder = "{" + p.at("name").get<std::string>() + "}";
+    const json& schema = resolve(p.at("schema"));
+    std::vector<std::string> values;
+    if (schema.contains("enum")) {
+      for (const auto& v : schema.at("enum")) values.push_back(v.get<std::string>());
+    } else if (schema.contains("example")) {
+      values.push_back(schema.at("example").is_string() ? schema.at("example").get<std::string>()
+                                                        : schema.at("example").dump());
+    } else {
+      values.push_back("1");
+    }
+    std::vector<std::string> next;
+    for (const auto& t : targets) {
+      for (const auto& v : values) {
+        std::string filled = t;
+        filled.replace(filled.find(placeholder), placeholder.size(), v);
+        next.push_back(filled);
+      }
+    }
+    targets = std::move(next);
+  }
+  return targets;
+}
+
+json operation_parameters(const json& item, const json& operation) {
+  json params = item.value("parameters", json::array());
+  for (const auto& p : operation.value("parameters", json::array())) params.push_back(p);
+  return params;
+}
+
+// ------------------------------------------------------------------- tests
+
+TEST(OpenApi, DocumentsExactlyTheServedRoutes) {
+  std::set<std::string> served;
+  for (const RouteInfo& r : api_routes()) served.insert(r.method + " " + r.path);
+  const std::set<std::string> documented = documented_operations();
+  std::vector<std::string> undocumented, not_served;
+  std::set_difference(served.begin(), served.end(), documented.begin(), documented.end(),
+                      std::back_inserter(undocumented));
+  std::set_difference(documented.begin(), documented.end(), served.begin(), served.end(),
+                      std::back_inserter(not_served));
+  EXPECT_TRUE(undocumented.empty()) << "served but not in daemon/openapi.json:\n  "
+                                    << fmt::format("{}", fmt::join(undocumented, "\n  "));
+  EXPECT_TRUE(not_served.empty()) << "in daemon/openapi.json but not served (api_routes()):\n  "
+                                  << fmt::format("{}", fmt::join(not_served, "\n  "));
+}
+
+TEST(OpenApi, EveryRefResolves) {
+  std::vector<std::string> broken;
+  std::function<void(const json&, const std::string&)> walk = [&](const json& node,
+                                                                   const std::string& where) {
+    if (node.is_object()) {
+      if (node.contains("$ref")) {
+        const std::string ref = node.at("$ref").get<std::string>();
+        if (ref.rfind("#/", 0) != 0 || !document().contains(json::json_pointer(ref.substr(1)))) {
+          broken.push_back(where + ": " + ref);
+        }
+      }
+      for (const auto& [k, v] : node.items()) walk(v, where + "/" + k);
+    } else if (node.is_array()) {
+      for (std::size_t i = 0; i < node.size(); ++i) walk(node[i], where + "/" + std::to_string(i));
+    }
+  };
+  walk(document(), "");
+  EXPECT_TRUE(broken.empty()) << fmt::format("{}", fmt::join(broken, "\n"));
+}
+
+TEST(OpenApi, OperationsAreCompleteAndMutationsNeedTheToken) {
+  const json& doc = document();
+  EXPECT_EQ(doc.at("openapi"), "3.0.3");
+  EXPECT_EQ(doc.at("info").at("version"), "0.1.0");
+  ASSERT_TRUE(doc.at("components").at("securitySchemes").contains("bearerAuth"));
+  for (const auto& [path, item] : doc.at("paths").items()) {
+    for (const char* m : kMethods) {
+      if (!item.contains(m)) continue;
+      const json& op = item.at(m);
+      const std::string name = upper(m) + " " + path;
+      EXPECT_TRUE(op.contains("summary") && op.contains("description")) << name;
+      EXPECT_TRUE(op.contains("operationId")) << name;
+
+      bool has_2xx = false;
+      for (const auto& [code, res] : op.at("responses").items()) {
+        has_2xx |= code.size() == 3 && code[0] == '2';
+        EXPECT_TRUE(resolve(res).contains("description")) << name << " " << code;
+      }
+      EXPECT_TRUE(has_2xx) << name << " documents no 2xx answer";
+
+      // Every {param} of the template is a required path parameter, and no
+      // path parameter is missing from the template.
+      std::set<std::string> in_template;
+      for (std::size_t open = path.find('{'); open != std::string::npos;
+           open = path.find('{', open + 1)) {
+        in_template.insert(path.substr(open + 1, path.find('}', open) - open - 1));
+      }
+      std::set<std::string> declared;
+      for (const auto& p_in : operation_parameters(item, op)) {
+        const json& p = resolve(p_in);
+        EXPECT_TRUE(p.contains("schema")) << name << " parameter " << p.value("name", "?");
+        if (p.at("in") != "path") continue;
+        declared.insert(p.at("name").get<std::string>());
+        EXPECT_TRUE(p.value("required", false)) << name << ": path parameter must be required";
+      }
+      EXPECT_EQ(in_template, declared) << name << ": template parameters vs declared ones";
+
+      const bool mutation = std::string(m) == "post" || std::string(m) == "delete";
+      const json security = op.value("security", doc.value("security", json::array()));
+      const bool bearer = !security.empty() && security[0].contains("bearerAuth");
+      EXPECT_EQ(bearer, mutation) << name << ": bearerAuth on exactly the POSTs and DELETEs";
+      if (mutation) {
+        EXPECT_TRUE(op.at("responses").contains("401")) << name;
+        EXPECT_TRUE(op.at("responses").contains("403")) << name;
+      }
+      if (op.contains("requestBody")) {
+        const json& schema =
+            resolve(op.at("requestBody").at("content").at("application/json").at("schema"));
+        EXPECT_EQ(schema.value("additionalProperties", true), false)
+            << name << ": request bodies refuse unknown fields";
+      }
+    }
+  }
+}
+
+// Every documented operation, sent with its path parameters filled, a valid
+// token and the documented example body (itself valid for the documented
+// schema) to a station that agrees to everything: a documented 2xx status,
+// a documented content type, and a body shaped as the documented schema.
+TEST(OpenApi, EveryOperationAnswersAsDocumented) {
+  ContractControl control;
+  const WebRoot web;
+  const Metrics metrics;
+  const ApiContext ctx = contract_context(&control, web.assets(), &metrics);
+  int checked = 0;
+  for (const auto& [path, item] : document().at("paths").items()) {
+    for (const char* m : kMethods) {
+      if (!item.contains(m)) continue;
+      const json& op = item.at(m);
+      std::string body;
+      if (op.contains("requestBody")) {
+        const json& media = op.at("requestBody").at("content").at("application/json");
+        ASSERT_TRUE(media.contains("example"))
+            << upper(m) << " " << path << ": document an example body (the test sends it)";
+        body = media.at("example").dump();
+        std::vector<std::string> errors;
+        check_schema(media.at("example"), media.at("schema"), "example", errors);
+        EXPECT_TRUE(errors.empty()) << upper(m) << " " << path << ": "
+                                    << fmt::format("{}", fmt::join(errors, "\n"));
+      }
+      for (const std::string& target : fill_path(path, operation_parameters(item, op))) {
+        const std::string name = upper(m) + " " + target;
+        SCOPED_TRACE(name);
+        HttpRequest req{http::string_to_verb(upper(m)), target, 11};
+        req.set(http::field::authorization, std::string("Bearer ") + kToken);
+        if (!body.empty()) req.set(http::field::content_type, "application/json");
+        req.body() = body;
+        req.prepare_payload();
+        const HttpResponse res = handle_api_request(req, ctx);
+        const int status = static_cast<int>(res.result());
+        EXPECT_NE(status, 404) << res.body();
+        EXPECT_NE(status, 405) << res.body();
+        // The station agrees to everything here, so only success is right;
+        // the stream is served by the HTTP server, not by this function.
+        if (target != "/api/v1/stream") {
+          EXPECT_EQ(status / 100, 2) << res.body();
+        }
+        const json& responses = op.at("responses");
+        const std::string code = std::to_string(status);
+        if (!responses.contains(code)) {
+          ADD_FAILURE() << name << " answered " << status << ", not documented: " << res.body();
+          continue;
+        }
+        ++checked;
+        const json& documented = resolve(responses.at(code));
+        if (!documented.contains("content")) continue;
+        std::string type(res[http::field::content_type]);
+        type = type.substr(0, type.find(';'));
+        if (!documented.at("content").contains(type)) {
+          ADD_FAILURE() << name << ": content type '" << type << "' is not documented for "
+                        << code;
+          continue;
+        }
+        if (type != "application/json") continue;
+        const json& schema = documented.at("content").at(type).value("schema", json::object());
+        json value;
+        try {
+          value = json::parse(res.body());
+        } catch (const json::parse_error& e) {
+          ADD_FAILURE() << name << ": body is not JSON: " << e.what();
+          continue;
+        }
+        std::vector<std::string> errors;
+        check_schema(value, schema, "body", errors);
+        check_all_of_fields(value, schema, "body", errors);
+        EXPECT_TRUE(errors.empty()) << fmt::format("{}", fmt::join(errors, "\n"));
+      }
+    }
+  }
+  EXPECT_GE(checked, static_cast<int>(documented_operations().size()));
+}
+
+// The mutations without a token, and with no token configured, answer the
+// documented 401 and 403 with an Error body.
+TEST(OpenApi, RefusedMutationsAnswerTheDocumentedErrors) {
+  ContractControl control;
+  ApiContext ctx = contract_context(&control);
+  ApiContext no_tokens = ctx;
+  no_tokens.tokens.clear();
+  for (const auto& [path, item] : document().at("paths").items()) {
+    for (const char* m : {"post", "delete"}) {
+      if (!item.contains(m)) continue;
+      const json& op = item.at(m);
+      for (const std::string& target : fill_path(path, operation_parameters(item, op))) {
+        HttpRequest req{http::string_to_verb(upper(m)), target, 11};
+        for (const auto& [context, expected] :
+             {std::pair<const ApiContext*, int>{&ctx, 401}, {&no_tokens, 403}}) {
+          const HttpResponse res = handle_api_request(req, *context);
+          EXPECT_EQ(static_cast<int>(res.result()), expected) << upper(m) << " " << target;
+          std::vector<std::string> errors;
+          check_schema(json::parse(res.body()),
+                       resolve(op.at("responses").at(std::to_string(expected)))
+                           .at("content")
+                           .at("application/json")
+                           .at("schema"),
+                       "body", errors);
+          EXPECT_TRUE(errors.empty()) << fmt::format("{}", fmt::join(errors, "\n"));
+        }
+      }
+    }
+  }
+}
+
+// GET /api/v1/openapi.json serves this very document (embedded at build
+// time: a stale build fails here).
+TEST(OpenApi, ServedDocumentIsTheSourceFile) {
+  ContractControl control;
+  const HttpRequest req{http::verb::get, "/api/v1/openapi.json", 11};
+  const HttpResponse res = handle_api_request(req, contract_context(&control));
+  ASSERT_EQ(res.result(), http::status::ok);
+  EXPECT_EQ(json::parse(res.body()), document());
+}
+
+// The checker itself finds what it is meant to find.
+TEST(OpenApi, SchemaCheckerCatchesMismatches) {
+  const json& run = document().at("components").at("schemas").at("Run");
+  json good = to_json(ContractControl::run_record(4));
+  std::vector<std::string> errors;
+  check_schema(good, run, "run", errors);
+  EXPECT_TRUE(errors.empty()) << fmt::format("{}", fmt::join(errors, "\n"));
+  json bad = good;
+  bad["state"] = "melting";
+  bad.erase("started_utc");
+  bad["id"] = "four";
+  bad["colour"] = "red";
+  check_schema(bad, run, "run", errors);
+  EXPECT_EQ(errors.size(), 4u) << fmt::format("{}", fmt::join(errors, "\n"));
+}
+
+}  // namespace
+}  // namespace gyrotherm::daemon
