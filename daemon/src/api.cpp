@@ -42,7 +42,7 @@ HttpResponse reply_response(const HttpRequest& req, const Reply& reply,
       status = http::status::service_unavailable;
       break;
   }
-  nlohmann::json body = {{"error", r.message}};
+  nlohmann::json body = {{"error", r.message}, {"status", static_cast<int>(status)}};
   if (!r.details.empty()) body["errors"] = r.details;
   return json_response(req, status, body.dump());
 }

@@ -48,6 +48,12 @@ Reply db_failure(const Error& e) {
   return Reply::refused(Refusal::Kind::kUnavailable, e.message);
 }
 
+// A failed run lookup: "no such run" (permanent) or the database failing.
+Reply run_lookup_failure(const Error& e, int64_t id) {
+  if (e.transient) return db_failure(e);
+  return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no run {}", id));
+}
+
 }  // namespace
 
 Result<std::unique_ptr<Station>> Station::create(StationConfig config, const Clock& clock,
@@ -629,7 +635,8 @@ void Station::on_state(RunState from, RunState to, double t_s, const std::string
                to_string(to), reason);
   last_reason_ = reason;
   if (hooks_.publish) {
-    hooks_.publish("state", {{"run_id", run_id_.load()},
+    const int64_t run_id = run_id_.load();
+    hooks_.publish("state", {{"run_id", run_id != 0 ? nlohmann::json(run_id) : nlohmann::json()},
                              {"from", to_string(from)},
                              {"to", to_string(to)},
                              {"t_s", t_s},
@@ -903,7 +910,7 @@ Reply Station::runs() {
 Reply Station::run(int64_t id) {
   std::lock_guard lock(api_mu_);
   auto run = api_db_.run(id);
-  if (!run) return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no run {}", id));
+  if (!run) return run_lookup_failure(run.error(), id);
   auto segs = api_db_.segments(id);
   if (!segs) return db_failure(segs.error());
   nlohmann::json j = to_json(*run);
@@ -917,8 +924,7 @@ Reply Station::run(int64_t id) {
 template <class Fetch>
 Reply Station::run_records(int64_t id, Fetch fetch) {
   std::lock_guard lock(api_mu_);
-  if (!api_db_.run(id))
-    return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no run {}", id));
+  if (auto run = api_db_.run(id); !run) return run_lookup_failure(run.error(), id);
   auto records = fetch(api_db_);
   if (!records) return db_failure(records.error());
   nlohmann::json out = nlohmann::json::array();
@@ -948,8 +954,7 @@ Reply Station::fit(int64_t id) {
 
 Reply Station::run_samples(int64_t id, const SamplesQuery& query) {
   std::lock_guard lock(api_mu_);
-  if (!api_db_.run(id))
-    return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no run {}", id));
+  if (auto run = api_db_.run(id); !run) return run_lookup_failure(run.error(), id);
   auto samples = api_db_.decimated_samples(id, query.from_s, query.to_s, query.max_points);
   if (!samples) {
     if (samples.error().transient) return db_failure(samples.error());
