@@ -1,0 +1,110 @@
+// End-to-end: the dashboard in a real browser. The simulated station runs a
+// schedule; headless Chromium (tests/browser/dashboard.mjs, playwright-core)
+// loads http://127.0.0.1:PORT/ from gyrothermd, waits for the live values to
+// move, and leaves a screenshot in the build folder for a human to look at.
+#include <fmt/format.h>
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "station_fixture.h"
+
+#ifndef GYROTHERM_DASHBOARD_PNG
+#define GYROTHERM_DASHBOARD_PNG GYROTHERM_BIN_DIR "/../dashboard.png"
+#endif
+
+namespace gyrotherm {
+namespace {
+
+namespace fs = std::filesystem;
+using testing::StationTest;
+using testing::wait_until;
+using json = nlohmann::json;
+
+constexpr const char* kChromium = "/usr/bin/chromium";
+constexpr const char* kInstallHint = "; run scripts/install-deps";
+
+// A ramp to look at, then a long acquisition so the run is still going when
+// the browser looks (600 station min = 3 wall min at the fixture's scale).
+constexpr const char* kDashboardSchedule = R"(
+name = "dashboard"
+[[step]]
+type = "soak"
+setpoint_c = 23.0
+stability_window_min = 1
+acquire_min = 2
+[[step]]
+type = "ramp"
+target_c = 30.0
+rate_c_per_min = 2.0
+[[step]]
+type = "soak"
+setpoint_c = 30.0
+stability_window_min = 2
+acquire_min = 600
+)";
+
+// The absolute path of `program` on PATH, "" when there is none.
+std::string find_program(const std::string& program) {
+  FILE* p = ::popen(fmt::format("command -v {} 2>/dev/null", program).c_str(), "r");
+  if (!p) return "";
+  char buf[4096];
+  std::string out;
+  while (const size_t n = std::fread(buf, 1, sizeof buf, p)) out.append(buf, n);
+  ::pclose(p);
+  while (!out.empty() && (out.back() == '\n' || out.back() == '\r')) out.pop_back();
+  return out;
+}
+
+class DashboardTest : public StationTest {};
+
+TEST_F(DashboardTest, LiveInHeadlessChromium) {
+  const std::string node = find_program("node");
+  const fs::path source_dir = GYROTHERM_SOURCE_DIR;
+  const fs::path script = source_dir / "tests/browser/dashboard.mjs";
+  if (node.empty()) GTEST_FAIL() << "node is not on PATH" << kInstallHint;
+  if (!fs::exists(kChromium)) GTEST_FAIL() << kChromium << " is missing" << kInstallHint;
+  if (!fs::exists(source_dir / "node_modules/playwright-core/package.json")) {
+    GTEST_FAIL() << "node_modules/playwright-core is missing in " << source_dir << kInstallHint;
+  }
+
+  write(dir_ / "schedule.toml", kDashboardSchedule);
+  start_sim();
+  start_daemon();
+  // Past the ramp, acquiring at 30 °C: both plots have a story to show.
+  json last;
+  ASSERT_TRUE(wait_until(
+      [&] {
+        auto s = status();
+        if (!s) return false;
+        last = *s;
+        return last["state"] == "acquiring" && last["step"]["index"] == 2;
+      },
+      std::chrono::seconds(60)))
+      << "last status: " << last.dump() << "\ndaemon log:\n"
+      << daemon_->log();
+
+  const auto page = call("GET", "/");
+  ASSERT_TRUE(page && page->status == 200)
+      << "gyrothermd does not serve the dashboard at / (is the gyrotherm_web target built?)\n"
+      << daemon_->log();
+
+  const fs::path png = fs::weakly_canonical(fs::path(GYROTHERM_DASHBOARD_PNG));
+  fs::remove(png);
+  testing::ChildProcess browser(
+      {node, script.string(), "--url", url("/"), "--screenshot", png.string(), "--timeout-s", "60"},
+      (dir_ / "browser.log").string());
+  const auto code = browser.wait(std::chrono::seconds(120));
+  ASSERT_TRUE(code.has_value()) << "the browser test did not finish in 120 s\n" << browser.log();
+  EXPECT_EQ(*code, 0) << browser.log() << "\ndaemon log:\n" << daemon_->log();
+
+  ASSERT_TRUE(fs::exists(png)) << "no screenshot at " << png << "\n" << browser.log();
+  EXPECT_GT(fs::file_size(png), 10u * 1024) << png << " is too small to be the dashboard";
+  std::printf("dashboard screenshot: %s\n", png.c_str());
+}
+
+}  // namespace
+}  // namespace gyrotherm

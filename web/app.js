@@ -1,0 +1,461 @@
+// gyrotherm station dashboard. On load: GET /api/v1/status, and for an active
+// run the last hour of samples (GET /api/v1/runs/{id}/samples, decimated);
+// then live from the SSE stream GET /api/v1/stream (a `status` message each
+// wall second, `state` and `event` messages as they happen). Plots keep only
+// the last hour of station time, so memory stays bounded however long the
+// page stays open. Plain JS, no build step; uPlot is the global `uPlot`.
+'use strict';
+
+(() => {
+  const WINDOW_S = 3600;          // plotted span, station seconds
+  const HISTORY_POINTS = 1200;    // max_points asked of the samples route
+  const MAX_LIVE_POINTS = 7200;   // cap besides the time window (1 status / s)
+  const MAX_EVENTS = 40;
+  const STALE_MS = 5000;          // no status for this long: the stream is stale
+  const RECONNECT_MS = 3000;      // when the browser gave up on the stream
+
+  const $ = (id) => document.getElementById(id);
+
+  // ---------------------------------------------------------------- format
+  const pad2 = (n) => String(n).padStart(2, '0');
+
+  // Seconds as [-][d ]h:mm:ss.
+  function fmtClock(s) {
+    if (s == null || !Number.isFinite(s)) return '—';
+    const sign = s < 0 ? '−' : '';
+    let t = Math.floor(Math.abs(s));
+    const d = Math.floor(t / 86400);
+    t -= d * 86400;
+    const h = Math.floor(t / 3600);
+    const m = Math.floor((t % 3600) / 60);
+    const sec = t % 60;
+    return `${sign}${d ? d + ' d ' : ''}${h}:${pad2(m)}:${pad2(sec)}`;
+  }
+
+  function fmtNum(v, digits) {
+    if (v == null || !Number.isFinite(v)) return '—';
+    const s = v.toFixed(digits);
+    return s.startsWith('-') ? '−' + s.slice(1) : s;
+  }
+
+  function fmtCount(v) {
+    return v == null || !Number.isFinite(v) ? '—' : Math.round(v).toLocaleString('en-US');
+  }
+
+  function setText(id, text) {
+    const el = $(id);
+    if (el.textContent !== text) el.textContent = text;
+  }
+
+  // Marks a figure as worth a look (nonzero error counters, lost links).
+  function setLevel(id, level) {
+    const el = $(id);
+    el.classList.toggle('warn', level === 'warn');
+    el.classList.toggle('bad', level === 'bad');
+  }
+
+  // ----------------------------------------------------------------- traces
+  // One plot's columns: t (station s) then one column per series. History
+  // (decimated, from the samples route) and live points (from the stream)
+  // are kept apart and merged for drawing; both are trimmed to the window.
+  class Trace {
+    constructor(columns) {
+      this.columns = columns;
+      this.reset();
+    }
+    reset() {
+      this.hist = this.empty();
+      this.live = this.empty();
+    }
+    empty() {
+      return Array.from({ length: this.columns }, () => []);
+    }
+    setHistory(cols) {
+      this.hist = cols;
+    }
+    push(row) {
+      const t = this.live[0];
+      if (t.length && row[0] <= t[t.length - 1]) return;  // repeated snapshot
+      row.forEach((v, i) => this.live[i].push(v));
+      const cutoff = row[0] - WINDOW_S;
+      let drop = 0;
+      while (drop < t.length && t[drop] < cutoff) drop++;
+      drop = Math.max(drop, t.length - MAX_LIVE_POINTS);
+      if (drop > 0) this.live.forEach((c) => c.splice(0, drop));
+    }
+    livePoints() {
+      return this.live[0].length;
+    }
+    data() {
+      const lt = this.live[0];
+      const ht = this.hist[0];
+      const latest = lt.length ? lt[lt.length - 1] : ht.length ? ht[ht.length - 1] : 0;
+      const cutoff = latest - WINDOW_S;
+      const liveStart = lt.length ? lt[0] : Infinity;
+      let a = 0;
+      while (a < ht.length && ht[a] < cutoff) a++;
+      let b = a;
+      while (b < ht.length && ht[b] < liveStart) b++;
+      let c = 0;
+      while (c < lt.length && lt[c] < cutoff) c++;
+      return this.hist.map((col, i) => col.slice(a, b).concat(this.live[i].slice(c)));
+    }
+  }
+
+  const temperature = new Trace(5);  // t, setpoint, chamber, top, side
+  const gyro = new Trace(4);         // t, mean, min, max
+
+  // ------------------------------------------------------------------ plots
+  const FONT = '13px "DejaVu Sans", "Segoe UI", system-ui, sans-serif';
+  const AXIS = {
+    stroke: '#9aa7b8',
+    font: FONT,
+    grid: { stroke: 'rgba(148, 163, 184, 0.13)', width: 1 },
+    ticks: { stroke: 'rgba(148, 163, 184, 0.3)', width: 1, size: 5 },
+  };
+  const X_INCRS = [1, 2, 5, 10, 15, 30, 60, 120, 300, 600, 900, 1200, 1800, 3600,
+    7200, 10800, 21600, 43200, 86400];
+
+  function valueFmt(digits) {
+    return (u, v) => fmtNum(v, digits);
+  }
+
+  // Away from the cursor the legend shows the newest values, not dashes.
+  function showLatestInLegend(u) {
+    const n = u.data[0].length;
+    if (n && u.cursor.idx == null) u.setLegend({ idx: n - 1 }, false);
+  }
+
+  function makePlot(el, series, extra) {
+    const opts = Object.assign({
+      width: Math.max(300, el.clientWidth),
+      height: 280,
+      pxAlign: 0,
+      cursor: { drag: { x: false, y: false } },
+      legend: { live: true },
+      scales: { x: { time: false } },
+      axes: [
+        Object.assign({}, AXIS, {
+          incrs: X_INCRS,
+          values: (u, splits) => splits.map(fmtClock),
+          size: 40,
+        }),
+        Object.assign({}, AXIS, { size: 64 }),
+      ],
+      series: [{ label: 'time', value: (u, v) => fmtClock(v) }].concat(series),
+      hooks: { setCursor: [showLatestInLegend] },
+    }, extra);
+    const plot = new uPlot(opts, series.length ? [[]].concat(series.map(() => [])) : [[]], el);
+    new ResizeObserver(() => {
+      const w = Math.max(300, el.clientWidth);
+      if (w !== plot.width) plot.setSize({ width: w, height: plot.height });
+    }).observe(el);
+    return plot;
+  }
+
+  const temperaturePlot = makePlot($('plot-temperature'), [
+    { label: 'set point', stroke: '#e2e8f0', width: 1.5, dash: [8, 5], value: valueFmt(2) },
+    { label: 'chamber', stroke: '#f59e0b', width: 2, value: valueFmt(2) },
+    { label: 'top', stroke: '#f43f5e', width: 2, value: valueFmt(2) },
+    { label: 'side', stroke: '#38bdf8', width: 2, value: valueFmt(2) },
+  ]);
+
+  const gyroPlot = makePlot($('plot-gyro'), [
+    { label: 'mean', stroke: '#34d399', width: 2, value: valueFmt(3) },
+    { label: 'bucket min', stroke: 'rgba(52, 211, 153, 0.35)', width: 1, value: valueFmt(3) },
+    { label: 'bucket max', stroke: 'rgba(52, 211, 153, 0.35)', width: 1, value: valueFmt(3) },
+  ], { bands: [{ series: [3, 2], fill: 'rgba(52, 211, 153, 0.14)' }] });
+
+  function redraw() {
+    for (const [plot, trace] of [[temperaturePlot, temperature], [gyroPlot, gyro]]) {
+      plot.setData(trace.data());
+      showLatestInLegend(plot);
+    }
+  }
+
+  // ---------------------------------------------------------------- history
+  // The plots follow one run (or the station clock when idle); key says which.
+  let plotKey = undefined;
+  let historyRequest = 0;
+
+  async function getJson(path) {
+    const r = await fetch(path, { cache: 'no-store' });
+    if (!r.ok) throw new Error(`${path}: HTTP ${r.status}`);
+    return r.json();
+  }
+
+  async function loadHistory(runId, tRunS) {
+    const request = ++historyRequest;
+    const from = Math.max(0, tRunS - WINDOW_S);
+    const to = Math.max(from, tRunS);
+    try {
+      const s = await getJson(`/api/v1/runs/${runId}/samples?from=${from.toFixed(3)}` +
+        `&to=${to.toFixed(3)}&max_points=${HISTORY_POINTS}`);
+      if (request !== historyRequest || plotKey !== runId) return;  // superseded
+      const tp = s.temperature || {};
+      temperature.setHistory([tp.t_s || [], tp.setpoint_c || [], tp.chamber_c || [],
+        tp.top_c || [], tp.side_c || []]);
+      const g = s.gyro || {};
+      gyro.setHistory([g.t_s || [], g.mean_dph || [], g.min_dph || [], g.max_dph || []]);
+      redraw();
+    } catch (err) {
+      console.error('history of run', runId, 'not loaded:', err.message);
+    }
+  }
+
+  // ----------------------------------------------------------------- events
+  const events = new Map();  // "run:id" -> record
+
+  function addEvents(records) {
+    for (const e of records) {
+      if (e && e.id != null) events.set(`${e.run_id}:${e.id}`, e);
+    }
+    const newest = [...events.values()].sort((a, b) =>
+      (b.run_id - a.run_id) || (b.id - a.id)).slice(0, MAX_EVENTS);
+    events.clear();
+    newest.forEach((e) => events.set(`${e.run_id}:${e.id}`, e));
+    renderEvents(newest);
+  }
+
+  function renderEvents(list) {
+    const ol = $('events');
+    const items = list.map((e) => {
+      const li = document.createElement('li');
+      li.dataset.kind = e.kind || '';
+      const t = document.createElement('span');
+      t.className = 'when mono';
+      t.textContent = `#${e.run_id} ${fmtClock(e.t_s)}`;
+      const kind = document.createElement('span');
+      kind.className = 'kind';
+      kind.textContent = e.kind || '';
+      const msg = document.createElement('span');
+      msg.className = 'msg';
+      msg.textContent = e.message || '';
+      li.append(t, kind, msg);
+      return li;
+    });
+    if (!items.length) {
+      const li = document.createElement('li');
+      li.className = 'muted empty';
+      li.textContent = 'No events yet.';
+      items.push(li);
+    }
+    ol.replaceChildren(...items);
+  }
+
+  async function loadEvents(runId) {
+    try {
+      const list = await getJson(`/api/v1/runs/${runId}/events`);
+      addEvents(list.slice(-MAX_EVENTS).map((e) => Object.assign({ run_id: runId }, e)));
+    } catch (err) {
+      console.error('events of run', runId, 'not loaded:', err.message);
+    }
+  }
+
+  // ----------------------------------------------------------------- status
+  function renderDevice(prefix, d) {
+    d = d || {};
+    const up = !!d.connected;
+    $(`${prefix}-conn`).dataset.ok = up ? 'ok' : 'bad';
+    setText(`${prefix}-link`, up ? 'connected' : 'DISCONNECTED');
+    setLevel(`${prefix}-link`, up ? '' : 'bad');
+    setText(`${prefix}-requests`, fmtCount(d.requests));
+    setText(`${prefix}-errors`, fmtCount(d.errors));
+    setLevel(`${prefix}-errors`, d.errors > 0 ? 'warn' : '');
+    setText(`${prefix}-reconnects`, fmtCount(d.reconnects));
+    setLevel(`${prefix}-reconnects`, d.reconnects > 0 ? 'warn' : '');
+    setText(`${prefix}-latency`, d.last_latency_ms == null ? '—' : `${fmtNum(d.last_latency_ms, 2)} ms`);
+    setText(`${prefix}-error`, d.last_error || '');
+  }
+
+  function renderStatus(s) {
+    const dev = s.devices || {};
+    const running = s.run_id != null;
+
+    setText('station', s.station || '—');
+    document.title = `${s.state || '—'} · ${s.station || 'station'} · gyrotherm`;
+    setText('t-station', fmtClock(s.t_station_s));
+    setText('t-run', running ? fmtClock(s.t_run_s) : '—');
+    setText('time-scale', s.time_scale == null ? '—'
+      : s.time_scale === 1 ? 'real time' : `×${fmtNum(s.time_scale, s.time_scale % 1 ? 1 : 0)}`);
+    setText('uptime', fmtClock(s.uptime_s));
+
+    const state = $('state');
+    setText('state', (s.state || '—').toUpperCase());
+    state.dataset.state = s.state || '';
+    $('flag-paused').hidden = !s.paused;
+    setText('paused', s.paused ? 'YES' : 'no');
+    setLevel('paused', s.paused ? 'warn' : '');
+
+    setText('run', running ? `#${s.run_id}` : '—');
+    setText('schedule', s.schedule || '—');
+    const step = s.step || {};
+    setText('step-label', step.label || '—');
+    setText('step-index', step.index != null && step.count ? `(${step.index + 1} of ${step.count})` : '');
+    setText('queue', `${fmtCount(s.queue_length)} waiting`);
+    $('queue-held').hidden = !s.queue_held;
+    setText('hold-reason', s.queue_held ? (s.queue_hold_reason || 'held') : '—');
+    setText('last-event', s.last_event || '—');
+
+    const interlocks = s.interlocks || [];
+    setText('interlocks', interlocks.length
+      ? interlocks.map((i) => i.kind).join(', ') : 'none tripped');
+    setLevel('interlocks', interlocks.length ? 'bad' : '');
+    const banner = $('banner-interlocks');
+    banner.hidden = interlocks.length === 0;
+    setText('banner-interlocks', interlocks.length
+      ? 'INTERLOCK TRIPPED — ' + interlocks.map((i) => `${i.kind}: ${i.message}`).join(' · ') : '');
+
+    setText('setpoint', fmtNum(s.setpoint_c, 2));
+    setText('chamber', fmtNum(s.chamber_c, 2));
+    setText('top', fmtNum(s.top_c, 2));
+    setText('side', fmtNum(s.side_c, 2));
+    setText('gradient', fmtNum(s.gradient_c, 3));
+    setText('temp-rate', fmtNum(s.temp_rate_c_per_min, 2));
+    setText('gyro-rate', fmtNum(s.gyro_rate_dph, 3));
+
+    renderDevice('chamber', dev.chamber);
+    renderDevice('probes', dev.probes);
+
+    const g = dev.gyro || {};
+    $('gyro-conn').dataset.ok = g.connected ? 'ok' : 'bad';
+    setText('gyro-link', g.connected ? 'connected' : 'DISCONNECTED');
+    setLevel('gyro-link', g.connected ? '' : 'bad');
+    setText('gyro-sps', fmtNum(s.gyro_samples_per_s, 1));
+    for (const [id, v] of [['gyro-crc', g.crc_failures], ['gyro-gaps', g.sequence_gaps],
+      ['gyro-missed', g.frames_missed], ['gyro-reopens', g.reopens]]) {
+      setText(id, fmtCount(v));
+      setLevel(id, v > 0 ? 'warn' : '');
+    }
+    setText('gyro-error', g.last_error || '');
+
+    const st = s.storage || {};
+    const storageOk = !st.commit_failures && !st.dropped && !st.last_error;
+    $('storage-conn').dataset.ok = storageOk ? 'ok' : 'warn';
+    setText('storage-pending', fmtCount(st.pending));
+    setText('storage-dropped', fmtCount(st.dropped));
+    setLevel('storage-dropped', st.dropped > 0 ? 'bad' : '');
+    setText('storage-commits', fmtCount(st.commits));
+    setText('storage-failures', fmtCount(st.commit_failures));
+    setLevel('storage-failures', st.commit_failures > 0 ? 'bad' : '');
+    setText('storage-last', st.last_commit_ms == null ? '—' : `${fmtNum(st.last_commit_ms, 2)} ms`);
+    setText('storage-max', st.max_commit_ms == null ? '—' : `${fmtNum(st.max_commit_ms, 2)} ms`);
+    setText('storage-error', st.last_error || '');
+
+    const note = running ? 'x: run time (station), h:mm:ss · last hour'
+      : 'x: station time since daemon start, h:mm:ss · last hour';
+    setText('axis-note-t', note);
+    setText('axis-note-g', note);
+  }
+
+  // Appends the snapshot to the plots; switches the plots when the run changed.
+  function plotStatus(s) {
+    const running = s.run_id != null;
+    const key = running ? s.run_id : null;
+    if (key !== plotKey) {
+      plotKey = key;
+      temperature.reset();
+      gyro.reset();
+      if (running) {
+        loadHistory(s.run_id, s.t_run_s);
+        loadEvents(s.run_id);
+      }
+    }
+    const t = running ? s.t_run_s : s.t_station_s;
+    if (t == null || !Number.isFinite(t)) return;
+    temperature.push([t, s.setpoint_c, s.chamber_c, s.top_c, s.side_c]);
+    gyro.push([t, s.gyro_rate_dph, null, null]);
+    redraw();
+  }
+
+  function applyStatus(s) {
+    lastStatusAt = Date.now();
+    renderStatus(s);
+    plotStatus(s);
+  }
+
+  // ----------------------------------------------------------------- stream
+  let source = null;
+  let lastStatusAt = 0;
+  let linkUp = false;
+  let streamLost = false;
+
+  function setLink(state, text) {
+    const link = $('link');
+    link.dataset.state = state;
+    setText('link-text', text);
+    const down = state !== 'live';
+    $('banner-disconnected').hidden = !down || state === 'connecting';
+    document.body.classList.toggle('stale', down);
+  }
+
+  function parse(e) {
+    try {
+      return JSON.parse(e.data);
+    } catch (err) {
+      console.error(`stream: bad ${e.type} message:`, err.message);
+      return null;
+    }
+  }
+
+  function openStream() {
+    source = new EventSource('/api/v1/stream');
+    source.addEventListener('open', () => {
+      // After a gap the plots are refilled from the samples route.
+      if (streamLost) plotKey = undefined;
+      streamLost = false;
+    });
+    source.addEventListener('status', (e) => {
+      const s = parse(e);
+      if (!s) return;
+      linkUp = true;
+      setLink('live', 'Live');
+      applyStatus(s);
+    });
+    source.addEventListener('state', (e) => {
+      const st = parse(e);
+      if (!st || !st.to) return;
+      setText('state', st.to.toUpperCase());
+      $('state').dataset.state = st.to;
+    });
+    source.addEventListener('event', (e) => {
+      const ev = parse(e);
+      if (ev) addEvents([ev]);
+    });
+    source.addEventListener('error', () => {
+      linkUp = false;
+      streamLost = true;
+      setLink('down', 'Disconnected — reconnecting');
+      if (source.readyState === EventSource.CLOSED) {
+        // The browser retries by itself unless the answer was not a stream
+        // (e.g. 503: too many clients); then retry here.
+        source.close();
+        setTimeout(openStream, RECONNECT_MS);
+      }
+    });
+  }
+
+  setInterval(() => {
+    if (linkUp && Date.now() - lastStatusAt > STALE_MS) {
+      setLink('down', 'No data — stream stalled');
+    }
+  }, 1000);
+
+  async function start() {
+    try {
+      applyStatus(await getJson('/api/v1/status'));
+    } catch (err) {
+      setLink('down', 'Daemon not answering');
+    }
+    openStream();
+  }
+
+  // For the browser test and for a look from the developer console.
+  window.dashboard = {
+    temperaturePlot,
+    gyroPlot,
+    livePoints: () => Math.min(temperature.livePoints(), gyro.livePoints()),
+  };
+
+  start();
+})();
