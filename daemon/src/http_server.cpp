@@ -197,6 +197,19 @@ class Session : public std::enable_shared_from_this<Session> {
     }
     ++server_.requests;
     const HttpRequest& req = parser_->get();
+    // Beast applies header_limit per read, not to the whole header: check
+    // the total here so "larger than max_header_bytes" is always a 431.
+    std::size_t header_bytes = req.method_string().size() + req.target().size() + 12;
+    for (const auto& f : req) header_bytes += f.name_string().size() + f.value().size() + 4;
+    if (header_bytes > options().header_limit) {
+      ++server_.bad_requests;
+      auto res = error_response(req, http::status::request_header_fields_too_large,
+                                fmt::format("bad request: the header is {} bytes, over the limit "
+                                            "of {} ([api] max_header_bytes)",
+                                            header_bytes, options().header_limit));
+      res.keep_alive(false);
+      return send(std::move(res));
+    }
     if (options().stream && is_stream_request(req, options().stream_path)) {
       return start_stream(req);
     }
