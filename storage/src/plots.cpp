@@ -28,6 +28,8 @@ namespace {
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 // Raw rows a decimated read may scan before it turns to the rollup.
 constexpr int64_t kRawRowBudget = 100'000;
+// Most rollup rows summed to bound the raw rows in range.
+constexpr int64_t kCountBlocks = 1000;
 
 double mean_or_nan(double sum, int64_t n) { return n > 0 ? sum / static_cast<double>(n) : kNaN; }
 
@@ -45,8 +47,7 @@ Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, double from
     to_s = last->value_or(from_s);
   }
   if (!(std::isfinite(from_s) && std::isfinite(*to_s)) || *to_s < from_s) {
-    return Error::Permanent(
-        fmt::format("decimated samples: bad range [{}, {}] s", from_s, *to_s));
+    return Error::Permanent(fmt::format("decimated samples: bad range [{}, {}] s", from_s, *to_s));
   }
   out.from_s = from_s;
   out.to_s = *to_s;
@@ -54,16 +55,26 @@ Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, double from
   const double want_s = range_s / max_points;
   const std::string what = fmt::format("reading samples of run {}", run_id);
 
-  // Upper bound of the raw rows in range, from the coarsest rollup blocks.
+  // Upper bound of the raw rows in range, from the finest rollup level that
+  // spans it in at most kCountBlocks blocks: a short zoom into a long run is
+  // counted in 0.1 s blocks, not 1000 s ones, so it can still be read raw.
   constexpr int kTop = kRollupLevels - 1;
+  int count_level = kTop;
+  for (int l = 0; l < kTop; ++l) {
+    if (std::floor(*to_s / kRollupBlockS[l]) - std::floor(from_s / kRollupBlockS[l]) <
+        kCountBlocks) {
+      count_level = l;
+      break;
+    }
+  }
   auto count = Stmt::prepare(db_, path_,
                              "SELECT coalesce(sum(n), 0) FROM gyro_rollup WHERE run_id = ? AND "
                              "level = ? AND block BETWEEN ? AND ?");
   if (!count) return count.error();
   count->bind(1, run_id);
-  count->bind(2, kTop);
-  count->bind(3, static_cast<int64_t>(std::floor(from_s / kRollupBlockS[kTop])));
-  count->bind(4, static_cast<int64_t>(std::floor(*to_s / kRollupBlockS[kTop])));
+  count->bind(2, count_level);
+  count->bind(3, static_cast<int64_t>(std::floor(from_s / kRollupBlockS[count_level])));
+  count->bind(4, static_cast<int64_t>(std::floor(*to_s / kRollupBlockS[count_level])));
   if (count->step() != SQLITE_ROW) return sqlite_error(db_, path_, what);
   const int64_t raw_rows = count->column_int64(0);
 
@@ -93,8 +104,8 @@ Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, double from
     out.to_s = static_cast<double>(last + 1) * block_s;
     auto st = Stmt::prepare(
         db_, path_,
-        "SELECT (block - ?3) / ?5 AS b, sum(n), sum(t_sum_s), sum(rate_n), sum(rate_sum_dph), "
-        "min(rate_min_dph), max(rate_max_dph) FROM gyro_rollup "
+        "SELECT min((block - ?3) / ?5, ?6) AS b, sum(n), sum(t_sum_s), sum(rate_n), "
+        "sum(rate_sum_dph), min(rate_min_dph), max(rate_max_dph) FROM gyro_rollup "
         "WHERE run_id = ?1 AND level = ?2 AND block BETWEEN ?3 AND ?4 GROUP BY b ORDER BY b");
     if (!st) return st.error();
     st->bind(1, run_id);
@@ -102,6 +113,9 @@ Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, double from
     st->bind(3, first);
     st->bind(4, last);
     st->bind(5, per_bucket);
+    // Widened to block edges, the range can span a block or two more than
+    // max_points buckets: those go into the last bucket, as in the raw case.
+    st->bind(6, static_cast<int64_t>(max_points - 1));
     int rc;
     while ((rc = st->step()) == SQLITE_ROW) {
       const int64_t n = st->column_int64(1);
@@ -213,7 +227,8 @@ Result<int64_t> Database::add_fit(const FitRecord& fit) {
   st->bind(9, fit.computed_utc.empty() ? wall_time_utc_iso() : fit.computed_utc);
   if (st->step() != SQLITE_DONE) return sqlite_error(db_, path_, "storing a fit");
   const int64_t id = sqlite3_last_insert_rowid(db_);
-  auto link = Stmt::prepare(db_, path_, "INSERT OR IGNORE INTO fit_runs(run_id, fit_id) VALUES(?, ?)");
+  auto link =
+      Stmt::prepare(db_, path_, "INSERT OR IGNORE INTO fit_runs(run_id, fit_id) VALUES(?, ?)");
   if (!link) return link.error();
   for (int64_t run_id : fit.run_ids) {
     link->bind(1, run_id);
@@ -246,7 +261,8 @@ Result<std::vector<FitRecord>> read_fits(sqlite3* db, const std::string& path, S
     out.push_back(std::move(f));
   }
   if (rc != SQLITE_DONE) return sqlite_error(db, path, "reading fits");
-  auto runs = Stmt::prepare(db, path, "SELECT run_id FROM fit_runs WHERE fit_id = ? ORDER BY run_id");
+  auto runs =
+      Stmt::prepare(db, path, "SELECT run_id FROM fit_runs WHERE fit_id = ? ORDER BY run_id");
   if (!runs) return runs.error();
   for (FitRecord& f : out) {
     runs->bind(1, f.id);
@@ -270,8 +286,7 @@ Result<std::vector<FitRecord>> Database::fits(int64_t run_id) {
 }
 
 Result<std::optional<FitRecord>> Database::fit(int64_t fit_id) {
-  auto st =
-      Stmt::prepare(db_, path_, fmt::format("SELECT {} FROM fits WHERE id = ?", kFitColumns));
+  auto st = Stmt::prepare(db_, path_, fmt::format("SELECT {} FROM fits WHERE id = ?", kFitColumns));
   if (!st) return st.error();
   st->bind(1, fit_id);
   auto fits = read_fits(db_, path_, *st);
