@@ -102,8 +102,7 @@ std::string Metrics::scrape(const StatusSnapshot& s, const ServerFigures& server
   f.gauge("gyrotherm_queue_held", "1 while the queue is held (stop, abort, failed run)",
           s.queue_held ? 1.0 : 0.0);
   const auto temp = [&](const char* sensor, const std::optional<double>& v) {
-    f.gauge("gyrotherm_temperature_celsius", "Latest temperature, degC", v,
-            {{"sensor", sensor}});
+    f.gauge("gyrotherm_temperature_celsius", "Latest temperature, degC", v, {{"sensor", sensor}});
   };
   temp("setpoint", s.setpoint_c);
   temp("chamber", s.chamber_c);

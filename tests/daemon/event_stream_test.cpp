@@ -34,8 +34,9 @@ std::string drain(StreamClient& c) {
 }
 
 TEST(EventStream, SubscriberGetsRetryStatusThenPublishedMessagesInOrder) {
-  EventStream stream({.queue_bytes = 1 << 20, .max_clients = 4, .tick = 1000ms,
-                      .status_json = [] { return std::string(R"({"state":"idle"})"); }});
+  EventStream stream({.queue_bytes = 1 << 20, .max_clients = 4, .tick = 1000ms, .status_json = [] {
+                        return std::string(R"({"state":"idle"})");
+                      }});
   int wakes = 0;
   auto client = stream.subscribe([&] { ++wakes; });
   ASSERT_TRUE(client);
@@ -85,7 +86,8 @@ TEST(EventStream, MaxClientsIsEnforcedAndFreedSlotsAreReused) {
 }
 
 TEST(EventStream, PublishFromManyThreadsDeliversEveryMessageOnce) {
-  EventStream stream({.queue_bytes = 64 << 20, .max_clients = 4, .tick = 1000ms, .status_json = {}});
+  EventStream stream(
+      {.queue_bytes = 64 << 20, .max_clients = 4, .tick = 1000ms, .status_json = {}});
   auto client = stream.subscribe([] {});
   drain(*client);
   std::vector<std::thread> threads;
@@ -125,7 +127,8 @@ int connect_to(int port, int rcvbuf_bytes = 0) {
 // Reads until `done(text)` or the deadline; returns what was read. Sets
 // `closed` when the server closed the connection.
 template <class Done>
-std::string read_until(int fd, Done done, std::chrono::milliseconds timeout, bool* closed = nullptr) {
+std::string read_until(int fd, Done done, std::chrono::milliseconds timeout,
+                       bool* closed = nullptr) {
   std::string text;
   const auto deadline = Steady::now() + timeout;
   char buf[65536];
@@ -149,8 +152,9 @@ std::size_t count_of(const std::string& text, const std::string& what) {
 }
 
 TEST(EventStreamHttp, ClientsReceiveTicksAndEventsAStalledClientIsDropped) {
-  EventStream stream({.queue_bytes = 4 << 20, .max_clients = 8, .tick = 100ms,
-                      .status_json = [] { return std::string(R"({"state":"acquiring"})"); }});
+  EventStream stream({.queue_bytes = 4 << 20, .max_clients = 8, .tick = 100ms, .status_json = [] {
+                        return std::string(R"({"state":"acquiring"})");
+                      }});
   HttpServerOptions options;
   options.port = 0;
   options.stream = &stream;
@@ -218,7 +222,8 @@ TEST(EventStreamHttp, ClientsReceiveTicksAndEventsAStalledClientIsDropped) {
   }
   // The stalled client finds its connection closed once it reads again.
   bool closed = false;
-  read_until(stalled, [](const std::string&) { return false; }, 10s, &closed);
+  read_until(
+      stalled, [](const std::string&) { return false; }, 10s, &closed);
   EXPECT_TRUE(closed);
 
   for (int fd : readers) ::close(fd);

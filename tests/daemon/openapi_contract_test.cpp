@@ -3,12 +3,12 @@
 // the bodies of those answers shaped as the document's schemas say.
 #include <fmt/format.h>
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <set>
-#include <unistd.h>
 
 #include "gyrotherm/daemon/api.h"
 #include "gyrotherm/daemon/metrics.h"
@@ -83,17 +83,16 @@ void check_schema(const json& value, const json& schema_in, const std::string& w
   if (schema.contains("enum")) {
     bool found = false;
     for (const auto& e : schema.at("enum")) found |= e == value;
-    if (!found) errors.push_back(fmt::format("{}: {} is not in {}", where, value.dump(),
-                                             schema.at("enum").dump()));
+    if (!found)
+      errors.push_back(
+          fmt::format("{}: {} is not in {}", where, value.dump(), schema.at("enum").dump()));
   }
   if (!schema.contains("type")) return;
   const std::string type = schema.at("type");
-  const bool type_ok = (type == "object" && value.is_object()) ||
-                       (type == "array" && value.is_array()) ||
-                       (type == "string" && value.is_string()) ||
-                       (type == "boolean" && value.is_boolean()) ||
-                       (type == "integer" && value.is_number_integer()) ||
-                       (type == "number" && value.is_number());
+  const bool type_ok =
+      (type == "object" && value.is_object()) || (type == "array" && value.is_array()) ||
+      (type == "string" && value.is_string()) || (type == "boolean" && value.is_boolean()) ||
+      (type == "integer" && value.is_number_integer()) || (type == "number" && value.is_number());
   if (!type_ok) {
     errors.push_back(fmt::format("{}: {} is not of type {}", where, value.dump(), type));
     return;
@@ -102,7 +101,8 @@ void check_schema(const json& value, const json& schema_in, const std::string& w
     const json props = schema.value("properties", json::object());
     for (const auto& r : schema.value("required", json::array())) {
       if (!value.contains(r.get<std::string>())) {
-        errors.push_back(fmt::format("{}: required field '{}' missing", where, r.get<std::string>()));
+        errors.push_back(
+            fmt::format("{}: required field '{}' missing", where, r.get<std::string>()));
       }
     }
     for (const auto& [key, v] : value.items()) {
@@ -322,8 +322,7 @@ class ContractControl : public StationControl {
 class WebRoot {
  public:
   WebRoot() {
-    dir_ = std::filesystem::temp_directory_path() /
-           fmt::format("gyrotherm-openapi-{}", ::getpid());
+    dir_ = std::filesystem::temp_directory_path() / fmt::format("gyrotherm-openapi-{}", ::getpid());
     std::filesystem::create_directories(dir_);
     std::ofstream(dir_ / "index.html") << "<!doctype html><title>gyrotherm</title>";
     std::ofstream(dir_ / "app.js") << "console.log('gyrotherm');";
@@ -407,7 +406,7 @@ TEST(OpenApi, DocumentsExactlyTheServedRoutes) {
 TEST(OpenApi, EveryRefResolves) {
   std::vector<std::string> broken;
   std::function<void(const json&, const std::string&)> walk = [&](const json& node,
-                                                                   const std::string& where) {
+                                                                  const std::string& where) {
     if (node.is_object()) {
       if (node.contains("$ref")) {
         const std::string ref = node.at("$ref").get<std::string>();
@@ -501,8 +500,8 @@ TEST(OpenApi, EveryOperationAnswersAsDocumented) {
         body = media.at("example").dump();
         std::vector<std::string> errors;
         check_schema(media.at("example"), media.at("schema"), "example", errors);
-        EXPECT_TRUE(errors.empty()) << upper(m) << " " << path << ": "
-                                    << fmt::format("{}", fmt::join(errors, "\n"));
+        EXPECT_TRUE(errors.empty())
+            << upper(m) << " " << path << ": " << fmt::format("{}", fmt::join(errors, "\n"));
       }
       for (const std::string& target : fill_path(path, operation_parameters(item, op))) {
         const std::string name = upper(m) + " " + target;
@@ -533,8 +532,7 @@ TEST(OpenApi, EveryOperationAnswersAsDocumented) {
         std::string type(res[http::field::content_type]);
         type = type.substr(0, type.find(';'));
         if (!documented.at("content").contains(type)) {
-          ADD_FAILURE() << name << ": content type '" << type << "' is not documented for "
-                        << code;
+          ADD_FAILURE() << name << ": content type '" << type << "' is not documented for " << code;
           continue;
         }
         if (type != "application/json") continue;

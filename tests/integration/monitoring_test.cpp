@@ -49,7 +49,8 @@ class MonitoringTest : public StationTest {
     addr.sin_port = htons(static_cast<uint16_t>(api_port_));
     addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
     if (::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0) return -1;
-    const std::string req = "GET /api/v1/stream HTTP/1.1\r\nHost: t\r\nAccept: text/event-stream\r\n\r\n";
+    const std::string req =
+        "GET /api/v1/stream HTTP/1.1\r\nHost: t\r\nAccept: text/event-stream\r\n\r\n";
     ::send(fd, req.data(), req.size(), MSG_NOSIGNAL);
     return fd;
   }
@@ -79,7 +80,8 @@ TEST_F(MonitoringTest, StreamCarriesStatusTicksStateChangesAndEvents) {
   const bool got = read_stream(
       fd, text,
       [](const std::string& t) {
-        return std::regex_search(t, std::regex(R"(event: state\ndata: \{[^\n]*"to":"acquiring")")) &&
+        return std::regex_search(t,
+                                 std::regex(R"(event: state\ndata: \{[^\n]*"to":"acquiring")")) &&
                t.find("event: event\n") != std::string::npos;
       },
       60s);

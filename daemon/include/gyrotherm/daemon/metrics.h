@@ -50,7 +50,7 @@ class Metrics {
 
 // Every state a gyrotherm_state gauge is reported for.
 inline constexpr std::string_view kStatesForMetrics[] = {
-    "idle",   "queued",   "ramping",  "settling", "acquiring",  "paused",
-    "suspended", "aborting", "completed", "failed", "interrupted"};
+    "idle",      "queued",   "ramping",   "settling", "acquiring",  "paused",
+    "suspended", "aborting", "completed", "failed",   "interrupted"};
 
 }  // namespace gyrotherm::daemon
