@@ -13,7 +13,6 @@ namespace http = boost::beast::http;
 
 namespace {
 
-constexpr std::string_view kPrefix = "/api/v1/";
 constexpr double kMaxPoints = 20000;  // samples route: points per request
 
 std::optional<int64_t> parse_id(std::string_view s) {
@@ -157,6 +156,7 @@ struct Route {
   http::verb method;
   std::string_view path;  // template: "{name}" matches one segment
   bool mutation;          // needs a token
+  bool station;           // needs ctx.control (503 without)
   Handler handle;
 };
 
@@ -274,44 +274,44 @@ HttpResponse serve_web_file(const HttpRequest& req, const ApiContext& ctx, std::
 }
 
 constexpr Route kRoutes[] = {
-    {http::verb::get, "/", false,
+    {http::verb::get, "/", false, false,
      [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
        return serve_web_file(req, ctx, "index.html");
      }},
-    {http::verb::get, "/web/{file}", false,
+    {http::verb::get, "/web/{file}", false, false,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        return serve_web_file(req, ctx, p[0]);
      }},
-    {http::verb::get, "/healthz", false,
+    {http::verb::get, "/healthz", false, false,
      [](const HttpRequest& req, const ApiContext&, const Params&) {
        return json_response(req, http::status::ok, R"({"ok":true})");
      }},
-    {http::verb::get, "/metrics", false,
+    {http::verb::get, "/metrics", false, false,
      [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
        if (!ctx.metrics) {
          return error_response(req, http::status::service_unavailable, "no metrics attached");
        }
        return text_response(req, "text/plain; version=0.0.4; charset=utf-8", ctx.metrics());
      }},
-    {http::verb::get, "/api/v1/openapi.json", false,
+    {http::verb::get, "/api/v1/openapi.json", false, false,
      [](const HttpRequest& req, const ApiContext&, const Params&) {
        return json_response(req, http::status::ok, std::string(openapi_document()));
      }},
-    {http::verb::get, "/api/v1/status", false,
+    {http::verb::get, "/api/v1/status", false, false,
      [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
        return json_response(req, http::status::ok, to_json(ctx.status()).dump());
      }},
     // Served by the HTTP server's event stream; reached here only when none
     // is attached.
-    {http::verb::get, "/api/v1/stream", false,
+    {http::verb::get, "/api/v1/stream", false, false,
      [](const HttpRequest& req, const ApiContext&, const Params&) {
        return error_response(req, http::status::service_unavailable, "no event stream attached");
      }},
-    {http::verb::get, "/api/v1/queue", false,
+    {http::verb::get, "/api/v1/queue", false, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
        return reply_response(req, ctx.control->queue_list());
      }},
-    {http::verb::post, "/api/v1/queue", true,
+    {http::verb::post, "/api/v1/queue", true, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
        Body body = parse_body(req, {"schedule_toml", "source", "ignore_failures"});
        auto toml = field<std::string>(body, req, "schedule_toml", "a string (the schedule file)");
@@ -326,11 +326,11 @@ constexpr Route kRoutes[] = {
            req, ctx.control->queue_add(*toml, source.value_or(""), ignore.value_or(false)),
            http::status::created);
      }},
-    {http::verb::delete_, "/api/v1/queue/{id}", true,
+    {http::verb::delete_, "/api/v1/queue/{id}", true, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        return reply_response(req, ctx.control->queue_remove(*parse_id(p[0])));
      }},
-    {http::verb::post, "/api/v1/queue/{id}/move", true,
+    {http::verb::post, "/api/v1/queue/{id}/move", true, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        Body body = parse_body(req, {"position"});
        auto pos = field<int64_t>(body, req, "position", "an integer (0 = next)");
@@ -344,34 +344,34 @@ constexpr Route kRoutes[] = {
            req, ctx.control->queue_move(*parse_id(p[0]),
                                         static_cast<int>(std::min<int64_t>(*pos, 1 << 20))));
      }},
-    {http::verb::post, "/api/v1/control/{action}", true,
+    {http::verb::post, "/api/v1/control/{action}", true, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        Body body = parse_body(req, {"reason"});
        auto reason = field<std::string>(body, req, "reason", "a string");
        if (body.error) return *body.error;
        return reply_response(req, ctx.control->control(p[0], reason.value_or("")));
      }},
-    {http::verb::get, "/api/v1/runs", false,
+    {http::verb::get, "/api/v1/runs", false, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
        return reply_response(req, ctx.control->runs());
      }},
-    {http::verb::get, "/api/v1/runs/{id}", false,
+    {http::verb::get, "/api/v1/runs/{id}", false, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        return reply_response(req, ctx.control->run(*parse_id(p[0])));
      }},
-    {http::verb::get, "/api/v1/runs/{id}/events", false,
+    {http::verb::get, "/api/v1/runs/{id}/events", false, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        return reply_response(req, ctx.control->run_events(*parse_id(p[0])));
      }},
-    {http::verb::get, "/api/v1/runs/{id}/stats", false,
+    {http::verb::get, "/api/v1/runs/{id}/stats", false, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        return reply_response(req, ctx.control->run_stats(*parse_id(p[0])));
      }},
-    {http::verb::get, "/api/v1/runs/{id}/fits", false,
+    {http::verb::get, "/api/v1/runs/{id}/fits", false, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        return reply_response(req, ctx.control->run_fits(*parse_id(p[0])));
      }},
-    {http::verb::get, "/api/v1/runs/{id}/samples", false,
+    {http::verb::get, "/api/v1/runs/{id}/samples", false, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        const Query q = parse_query(req, {"from", "to", "max_points"});
        if (q.error) return *q.error;
@@ -395,7 +395,7 @@ constexpr Route kRoutes[] = {
        }
        return reply_response(req, ctx.control->run_samples(*parse_id(p[0]), sq));
      }},
-    {http::verb::get, "/api/v1/fits/{id}", false,
+    {http::verb::get, "/api/v1/fits/{id}", false, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        return reply_response(req, ctx.control->fit(*parse_id(p[0])));
      }},
@@ -488,10 +488,7 @@ HttpResponse handle_api_request(const HttpRequest& req, const ApiContext& ctx) {
   if (route->mutation) {
     if (auto denied = check_token(req, ctx)) return *denied;
   }
-  const bool needs_station = route->path.starts_with(kPrefix) && route->path != "/api/v1/status" &&
-                             route->path != "/api/v1/openapi.json" &&
-                             route->path != "/api/v1/stream";
-  if (needs_station && !ctx.control) return no_station(req);
+  if (route->station && !ctx.control) return no_station(req);
   return route->handle(req, ctx, params);
 }
 

@@ -33,6 +33,23 @@ constexpr int64_t kCountBlocks = 1000;
 
 double mean_or_nan(double sum, int64_t n) { return n > 0 ? sum / static_cast<double>(n) : kNaN; }
 
+// Appends the rows of a bucket query (columns: bucket, n, sum of t_s, rate
+// count, rate sum, rate min, rate max) — from the rollup or from the raw
+// rows alike. Returns the last sqlite3_step code.
+int read_gyro_buckets(Stmt& st, DecimatedSamples::Gyro& g) {
+  int rc;
+  while ((rc = st.step()) == SQLITE_ROW) {
+    const int64_t n = st.column_int64(1);
+    const int64_t rate_n = st.column_int64(3);
+    g.t_s.push_back(st.column_double(2) / static_cast<double>(n));
+    g.n.push_back(n);
+    g.mean_dph.push_back(mean_or_nan(st.column_double(4), rate_n));
+    g.min_dph.push_back(rate_n > 0 ? st.column_double(5) : kNaN);
+    g.max_dph.push_back(rate_n > 0 ? st.column_double(6) : kNaN);
+  }
+  return rc;
+}
+
 }  // namespace
 
 Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, double from_s,
@@ -116,17 +133,7 @@ Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, double from
     // Widened to block edges, the range can span a block or two more than
     // max_points buckets: those go into the last bucket, as in the raw case.
     st->bind(6, static_cast<int64_t>(max_points - 1));
-    int rc;
-    while ((rc = st->step()) == SQLITE_ROW) {
-      const int64_t n = st->column_int64(1);
-      const int64_t rate_n = st->column_int64(3);
-      g.t_s.push_back(st->column_double(2) / static_cast<double>(n));
-      g.n.push_back(n);
-      g.mean_dph.push_back(mean_or_nan(st->column_double(4), rate_n));
-      g.min_dph.push_back(rate_n > 0 ? st->column_double(5) : kNaN);
-      g.max_dph.push_back(rate_n > 0 ? st->column_double(6) : kNaN);
-    }
-    if (rc != SQLITE_DONE) return sqlite_error(db_, path_, what);
+    if (read_gyro_buckets(*st, g) != SQLITE_DONE) return sqlite_error(db_, path_, what);
   } else if (raw_rows <= max_points) {
     // Few enough: the samples as recorded.
     auto st = Stmt::prepare(db_, path_,
@@ -160,17 +167,7 @@ Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, double from
     st->bind(3, *to_s);
     st->bind(4, want_s);
     st->bind(5, static_cast<int64_t>(max_points - 1));
-    int rc;
-    while ((rc = st->step()) == SQLITE_ROW) {
-      const int64_t n = st->column_int64(1);
-      const int64_t rate_n = st->column_int64(3);
-      g.t_s.push_back(st->column_double(2) / static_cast<double>(n));
-      g.n.push_back(n);
-      g.mean_dph.push_back(mean_or_nan(st->column_double(4), rate_n));
-      g.min_dph.push_back(rate_n > 0 ? st->column_double(5) : kNaN);
-      g.max_dph.push_back(rate_n > 0 ? st->column_double(6) : kNaN);
-    }
-    if (rc != SQLITE_DONE) return sqlite_error(db_, path_, what);
+    if (read_gyro_buckets(*st, g) != SQLITE_DONE) return sqlite_error(db_, path_, what);
   }
 
   // Temperatures (about one a second): bucketed from the rows, on the same

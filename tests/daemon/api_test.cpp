@@ -2,7 +2,10 @@
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
+#include <unistd.h>
 
+#include <filesystem>
+#include <fstream>
 #include <nlohmann/json.hpp>
 
 #include "gyrotherm/daemon/http_client.h"
@@ -240,6 +243,53 @@ TEST(Api, RoutesReachTheStationWithTheirArguments) {
             (std::vector<std::string>{"queue_add x a.toml true", "queue_remove 3", "queue_move 3 0",
                                       "control abort leak", "control stop ", "runs", "run 12",
                                       "events 12", "stats 12"}));
+}
+
+TEST(Api, SamplesQueryReachesTheStationDecodedWithDefaults) {
+  FakeControl control;
+  const ApiContext ctx = fake_context(&control);
+  for (const char* target :
+       {"/api/v1/runs/4/samples", "/api/v1/runs/4/samples?from=10&to=20.5&max_points=300",
+        "/api/v1/runs/4/samples?from=%2D5&max_points=20000"}) {
+    EXPECT_EQ(handle_api_request(get(target), ctx).result(), http::status::ok) << target;
+  }
+  EXPECT_EQ(control.calls,
+            (std::vector<std::string>{"samples 4 0 last 2000", "samples 4 10 20.5 300",
+                                      "samples 4 -5 last 20000"}));
+  // Garbage never reaches the station.
+  control.calls.clear();
+  for (const char* target :
+       {"/api/v1/runs/4/samples?from=1e999", "/api/v1/runs/4/samples?to=nan",
+        "/api/v1/runs/4/samples?max_points=20001", "/api/v1/runs/4/samples?max_points=2.5",
+        "/api/v1/runs/4/samples?from=%zz", "/api/v1/runs/4/samples?from=1&from_s=2"}) {
+    EXPECT_EQ(handle_api_request(get(target), ctx).result(), http::status::bad_request) << target;
+  }
+  EXPECT_TRUE(control.calls.empty());
+}
+
+TEST(Api, WebFilesAreOnlyThoseReadAtStartUp) {
+  const auto dir =
+      std::filesystem::temp_directory_path() / ("gyrotherm-web-" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir / "sub");
+  std::ofstream(dir / "index.html") << "<html>dashboard</html>";
+  std::ofstream(dir / "app.js") << "let x = 1;";
+  std::ofstream(dir / "notes.txt") << "not a web file type";
+  std::ofstream(dir / "sub" / "deep.js") << "nested";
+  auto web = WebAssets::load(dir.string());
+  ASSERT_TRUE(web.ok()) << web.error().message;
+  ApiContext ctx = fake_context();
+  ctx.web = &*web;
+  const auto index = handle_api_request(get("/"), ctx);
+  EXPECT_EQ(index.result(), http::status::ok);
+  EXPECT_EQ(index.body(), "<html>dashboard</html>");
+  EXPECT_EQ(index[http::field::content_type], "text/html; charset=utf-8");
+  EXPECT_EQ(handle_api_request(get("/web/app.js"), ctx).result(), http::status::ok);
+  for (const char* target : {"/web/notes.txt", "/web/sub/deep.js", "/web/../index.html",
+                             "/web/..%2Fetc%2Fpasswd", "/web/%2e%2e", "/web/", "/web/nope.js"}) {
+    EXPECT_EQ(handle_api_request(get(target), ctx).result(), http::status::not_found) << target;
+  }
+  std::filesystem::remove_all(dir);
+  EXPECT_FALSE(WebAssets::load(dir.string()).ok()) << "a missing web root is an error";
 }
 
 TEST(Api, RefusalsMapToStatusesWithTheirMessages) {

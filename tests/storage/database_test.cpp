@@ -15,20 +15,12 @@
 namespace gyrotherm::storage {
 namespace {
 
+using testing::open_ok;
 using testing::query_int;
 using testing::query_text;
 using testing::TempDir;
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-
-Database open_ok(const std::string& path) {
-  auto db = Database::open(path);
-  if (!db) {
-    ADD_FAILURE() << db.error().message;
-    std::abort();
-  }
-  return std::move(*db);
-}
 
 RunRecord sample_run() {
   RunRecord r;

@@ -30,6 +30,7 @@ namespace gyrotherm::storage {
 namespace {
 
 using namespace std::chrono_literals;
+using testing::open_ok;
 using testing::query_int;
 using testing::TempDir;
 
@@ -38,23 +39,9 @@ constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 // (rates straddle zero, so relative to the mean itself would be meaningless).
 constexpr double kRelTol = 1e-12;
 
-Database open_ok(const std::string& path) {
-  auto db = Database::open(path);
-  if (!db) {
-    ADD_FAILURE() << db.error().message;
-    std::abort();
-  }
-  return std::move(*db);
-}
-
-std::unique_ptr<SampleWriter> start_ok(const std::string& path) {
-  // Commits only when flushed: each flush() below is one transaction.
-  auto w = SampleWriter::start(path, {.commit_interval = 600s});
-  if (!w) {
-    ADD_FAILURE() << w.error().message;
-    std::abort();
-  }
-  return std::move(*w);
+// Commits only when flushed: each flush() below is one transaction.
+std::unique_ptr<SampleWriter> start_flushing(const std::string& path) {
+  return testing::start_ok(path, {.commit_interval = 600s});
 }
 
 GyroSample gyro(double t_s, double rate_dph) {
@@ -255,7 +242,7 @@ double t_at(double t0_s, int i, double step_s = 0.001) { return t0_s + i * step_
 TEST(Rollup, WriterKeepsItEqualToTheSamples) {
   TempDir dir;
   const std::string path = dir.file("station.db");
-  auto writer = start_ok(path);
+  auto writer = start_flushing(path);
   std::mt19937_64 rng(7);
   std::normal_distribution<double> noise(0.0, 2.0);
 
@@ -374,7 +361,7 @@ TEST(Rollup, MigrationBackfillsASchema2Database) {
               1);
   }
   // The writer then adds to the migrated blocks (and ignores duplicates).
-  auto writer = start_ok(path);
+  auto writer = start_flushing(path);
   std::vector<GyroSample> more;
   for (int i = 5000; i < 6000; ++i) more.push_back(gyro(t_at(20.0, i), 1.5));
   more.push_back(gyro(-0.3, 99.0));     // duplicate of a migrated row
@@ -618,7 +605,7 @@ class Decimate : public ::testing::Test {
   static void SetUpTestSuite() {
     dir_ = new TempDir;
     path_ = new std::string(dir_->file("station.db"));
-    auto writer = start_ok(*path_);
+    auto writer = start_flushing(*path_);
     std::mt19937_64 rng(11);
     std::normal_distribution<double> noise(0.0, 1.0);
     std::vector<GyroSample> run1;

@@ -19,6 +19,7 @@ namespace {
 using namespace std::chrono_literals;
 using testing::query_int;
 using testing::query_text;
+using testing::start_ok;
 using testing::TempDir;
 
 constexpr int64_t kRun = 1;
@@ -40,15 +41,6 @@ TemperatureSample temperature_sample(int j) {
           .chamber_c = 19.5 + j * 0.01,
           .top_c = 19.25 + j / 3.0,
           .side_c = 19.125 - j / 7.0};
-}
-
-std::unique_ptr<SampleWriter> start_ok(const std::string& path, SampleWriterOptions options) {
-  auto w = SampleWriter::start(path, options);
-  if (!w) {
-    ADD_FAILURE() << w.error().message;
-    std::abort();
-  }
-  return std::move(*w);
 }
 
 // Polls `pred` until it holds or `timeout` passes; true if it held.

@@ -1,13 +1,19 @@
-// Helpers for the storage tests: a fresh temporary directory per test, and
-// one-value SQL queries on a raw connection.
+// Helpers for the storage tests: a fresh temporary directory per test,
+// opening a database or a sample writer that must succeed, and one-value SQL
+// queries on a raw connection.
 #pragma once
 
 #include <gtest/gtest.h>
 #include <sqlite3.h>
 #include <stdlib.h>
 
+#include <cstdlib>
 #include <filesystem>
+#include <memory>
 #include <string>
+
+#include "gyrotherm/storage/database.h"
+#include "gyrotherm/storage/sample_writer.h"
 
 namespace gyrotherm::storage::testing {
 
@@ -31,6 +37,26 @@ class TempDir {
  private:
   std::filesystem::path path_;
 };
+
+// The test cannot go on without these: a failure is reported and aborts.
+inline Database open_ok(const std::string& path) {
+  auto db = Database::open(path);
+  if (!db) {
+    ADD_FAILURE() << db.error().message;
+    std::abort();
+  }
+  return std::move(*db);
+}
+
+inline std::unique_ptr<SampleWriter> start_ok(const std::string& path,
+                                              SampleWriterOptions options) {
+  auto w = SampleWriter::start(path, options);
+  if (!w) {
+    ADD_FAILURE() << w.error().message;
+    std::abort();
+  }
+  return std::move(*w);
+}
 
 // First column of the first row as text ("" for no row or NULL).
 inline std::string query_text(sqlite3* db, const std::string& sql) {
