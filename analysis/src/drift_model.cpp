@@ -261,6 +261,11 @@ std::vector<double> smoothing_derivative(std::span<const double> t_s, std::span<
 
 Result<DriftFit> fit_drift_model(const AnalysisSeries& series, const DriftModelSpec& spec,
                                  DriftModelForm form, const DriftFitOptions& options) {
+  return fit_drift_model(std::span<const AnalysisSeries>(&series, 1), spec, form, options);
+}
+
+Result<DriftFit> fit_drift_model(std::span<const AnalysisSeries> runs, const DriftModelSpec& spec,
+                                 DriftModelForm form, const DriftFitOptions& options) {
   std::string why;
   if (!options.IsValid(&why)) return Error::Permanent("drift model options: " + why);
   if (spec.t_order < 0 || spec.t_order > kMaxOrder || spec.r_order < 0 ||
@@ -270,34 +275,47 @@ Result<DriftFit> fit_drift_model(const AnalysisSeries& series, const DriftModelS
         fmt::format("drift model spec T{} R{} G{}: orders must be 0..{}, not all 0", spec.t_order,
                     spec.r_order, spec.g_order, kMaxOrder));
   }
-  if (Status st = check_series(series); !st.ok()) return st.error();
+  if (runs.empty()) return Error::Permanent("drift model: no series to fit");
+  std::size_t n = 0;
+  for (std::size_t r = 0; r < runs.size(); ++r) {
+    if (Status st = check_series(runs[r]); !st.ok()) {
+      if (runs.size() == 1) return st.error();
+      return Error::Permanent(fmt::format("series {}: {}", r + 1, st.error().message));
+    }
+    if (runs[r].t_s.size() < 2) {
+      return Error::Permanent(fmt::format("drift model: series {} has {} point(s) (need 2)", r + 1,
+                                          runs[r].t_s.size()));
+    }
+    n += runs[r].t_s.size();
+  }
 
   const std::vector<Column> cols = design_columns(spec, form);
   const std::size_t p = cols.size();
-  const std::size_t n = series.t_s.size();
   if (n <= p) {
     return Error::Permanent(fmt::format(
         "drift model {}: {} points for {} parameters (need more points than parameters)",
         to_string(spec), n, p));
   }
-  const ShellTemp temp_at{&series};
 
-  // Pass 1: L0 and the statistics of T, dT/dt and top - side.
-  double l0 = 0;
-  if (form == DriftModelForm::kPaper) {
-    long double sum = 0;
-    std::size_t count = 0;
-    for (std::size_t i = 0; i < n && series.t_s[i] - series.t_s[0] < options.l0_window_s; ++i) {
-      sum += series.rate_dph[i];
-      ++count;
-    }
-    l0 = static_cast<double>(sum / static_cast<long double>(count));
-  }
+  // Pass 1: L0 of each series and the statistics of T, dT/dt and top - side.
+  std::vector<double> l0(runs.size(), 0.0);
   RunningStats ts, rs, gs;
   double max_side_top = 0;
-  {
+  for (std::size_t r = 0; r < runs.size(); ++r) {
+    const AnalysisSeries& series = runs[r];
+    if (form == DriftModelForm::kPaper) {
+      long double sum = 0;
+      std::size_t count = 0;
+      for (std::size_t i = 0;
+           i < series.t_s.size() && series.t_s[i] - series.t_s[0] < options.l0_window_s; ++i) {
+        sum += series.rate_dph[i];
+        ++count;
+      }
+      l0[r] = static_cast<double>(sum / static_cast<long double>(count));
+    }
+    const ShellTemp temp_at{&series};
     SlidingSlope<ShellTemp> slope(series.t_s, temp_at, options.derivative_window_s);
-    for (std::size_t i = 0; i < n; ++i) {
+    for (std::size_t i = 0; i < series.t_s.size(); ++i) {
       ts.add(temp_at(i));
       rs.add(slope.next(i));
       gs.add(series.top_c[i] - series.side_c[i]);
@@ -349,25 +367,28 @@ Result<DriftFit> fit_drift_model(const AnalysisSeries& series, const DriftModelS
       Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(q), static_cast<Eigen::Index>(q));
   RunningStats ys;
   std::vector<double> row(p);
-  {
+  std::size_t filled = 0;  // rows of the current block
+  const auto flush_block = [&] {
+    qr.compute(stack.topRows(static_cast<Eigen::Index>(q + filled)));
+    r_aug = qr.matrixQR().topRows(static_cast<Eigen::Index>(q)).triangularView<Eigen::Upper>();
+    stack.topRows(static_cast<Eigen::Index>(q)) = r_aug;
+    filled = 0;
+  };
+  for (std::size_t r = 0; r < runs.size(); ++r) {
+    const AnalysisSeries& series = runs[r];
+    const ShellTemp temp_at{&series};
     SlidingSlope<ShellTemp> slope(series.t_s, temp_at, options.derivative_window_s);
-    for (std::size_t start = 0; start < n; start += block) {
-      const std::size_t end = std::min(n, start + block);
-      stack.setZero();
-      stack.topRows(static_cast<Eigen::Index>(q)) = r_aug;
-      for (std::size_t i = start; i < end; ++i) {
-        const double y = series.rate_dph[i] - l0;
-        ys.add(y);
-        fill_row(cols, sc, temp_at(i), slope.next(i), series.top_c[i] - series.side_c[i],
-                 row.data());
-        const auto k = static_cast<Eigen::Index>(q + i - start);
-        for (std::size_t c = 0; c < p; ++c) stack(k, static_cast<Eigen::Index>(c)) = row[c];
-        stack(k, static_cast<Eigen::Index>(p)) = y;
-      }
-      qr.compute(stack);
-      r_aug = qr.matrixQR().topRows(static_cast<Eigen::Index>(q)).triangularView<Eigen::Upper>();
+    for (std::size_t i = 0; i < series.t_s.size(); ++i) {
+      const double y = series.rate_dph[i] - l0[r];
+      ys.add(y);
+      fill_row(cols, sc, temp_at(i), slope.next(i), series.top_c[i] - series.side_c[i], row.data());
+      const auto k = static_cast<Eigen::Index>(q + filled);
+      for (std::size_t c = 0; c < p; ++c) stack(k, static_cast<Eigen::Index>(c)) = row[c];
+      stack(k, static_cast<Eigen::Index>(p)) = y;
+      if (++filled == block) flush_block();
     }
   }
+  if (filled > 0) flush_block();
 
   const auto ip = static_cast<Eigen::Index>(p);
   const Eigen::MatrixXd rx = r_aug.topLeftCorner(ip, ip);
@@ -427,7 +448,8 @@ Result<DriftFit> fit_drift_model(const AnalysisSeries& series, const DriftModelS
   fit.residual_std_dph = std::sqrt(sigma2);
   const double tss = ys.m2;
   fit.r_squared = tss > 0 ? 1 - rss / tss : 1.0;
-  fit.l0_dph = l0;
+  fit.l0_dph = l0.front();
+  fit.l0_per_series_dph = l0;
   fit.condition_estimate = sv(0) / sv(ip - 1);
   fit.derivative_window_s = options.derivative_window_s;
   fit.t_center = sc.t_center;
@@ -465,6 +487,20 @@ Result<std::vector<double>> predict_drift(const DriftFit& fit, const AnalysisSer
     out[i] = v;
   }
   return out;
+}
+
+Result<std::vector<double>> drift_terms(const DriftFit& fit, const AnalysisSeries& series) {
+  auto predicted = predict_drift(fit, series);
+  if (!predicted) return predicted;
+  // The model at T = 0, dT/dt = 0, dT = 0 in the fit's scaled variables.
+  const std::vector<Column> cols = design_columns(fit.spec, fit.form);
+  const Scaling sc{fit.t_center, fit.t_scale, fit.r_center, fit.r_scale, fit.g_center, fit.g_scale};
+  std::vector<double> row(cols.size());
+  fill_row(cols, sc, 0.0, 0.0, 0.0, row.data());
+  double at_zero = fit.l0_dph;
+  for (std::size_t c = 0; c < cols.size(); ++c) at_zero += fit.scaled_coefficients[c] * row[c];
+  for (double& v : *predicted) v -= at_zero;
+  return predicted;
 }
 
 }  // namespace gyrotherm::analysis

@@ -88,7 +88,8 @@ struct DriftFit {
   // 1 - RSS / TSS, TSS about the mean of y (Welford, one pass); 1 when TSS = 0.
   // Can be negative in the paper form, which has no intercept.
   double r_squared = 0;
-  double l0_dph = 0;  // paper form; 0 in the centred form
+  double l0_dph = 0;  // paper form: L0 of the (first) series; 0 in the centred form
+  std::vector<double> l0_per_series_dph;  // paper form: L0 of each fitted series, in order
   // 2-norm condition number of the design with its columns scaled to unit
   // norm (from the SVD of the p x p factor R).
   double condition_estimate = 0;
@@ -118,8 +119,24 @@ struct DriftFit {
 Result<DriftFit> fit_drift_model(const AnalysisSeries& series, const DriftModelSpec& spec,
                                  DriftModelForm form, const DriftFitOptions& options = {});
 
+// Several series (runs) fitted together: the rows of all of them in one
+// least-squares problem. Each series keeps its own L0 (paper form: y = L - L0
+// of that series) and its own smoothing derivative (never across two series).
+// Used by the leave-one-run-out comparison and the start-temperature model.
+// Errors as above; a bad series is named by its 1-based position.
+Result<DriftFit> fit_drift_model(std::span<const AnalysisSeries> runs, const DriftModelSpec& spec,
+                                 DriftModelForm form, const DriftFitOptions& options = {});
+
 // The fitted rate L (°/h) at every point of `series` (the paper form adds L0).
 // Errors as for fit_drift_model's input checks.
 Result<std::vector<double>> predict_drift(const DriftFit& fit, const AnalysisSeries& series);
+
+// The temperature-induced part of the fitted rate at every point: the sum of
+// the fit's T, R and G terms in physical units, i.e. the model minus its value
+// at T = 0 °C, dT/dt = 0, dT = 0 (L0 and the intercept left out). The
+// compensated output of the paper's Tables II-IV is rate_dph - drift_terms:
+// L0 + residual in the paper form. Works on any series (a run not fitted:
+// leave-one-run-out). Errors as for fit_drift_model's input checks.
+Result<std::vector<double>> drift_terms(const DriftFit& fit, const AnalysisSeries& series);
 
 }  // namespace gyrotherm::analysis
