@@ -5,6 +5,8 @@
 
 #include <charconv>
 #include <chrono>
+#include <cmath>
+#include <nlohmann/json.hpp>
 #include <thread>
 #include <utility>
 
@@ -580,6 +582,206 @@ Result<int64_t> Database::count_gyro_samples(int64_t run_id) {
     return sqlite_error(db_, path_, fmt::format("counting gyro samples of run {}", run_id));
   }
   return st->column_int64(0);
+}
+
+namespace {
+
+constexpr const char* kAllanColumns =
+    "id, run_id, segment_id, segment_index, t_from_s, t_to_s, taus, tau0_s, n_samples, "
+    "curve_json, angle_random_walk_dprh, bias_instability_dph, bias_instability_tau_s, "
+    "rate_random_walk_dphprh, bias_instability_method, inputs_json, computed_utc";
+
+// The curve's arrays, in the order of curve_json.
+struct AllanCurveField {
+  const char* name;
+  std::vector<double> AllanRecord::*values;
+};
+constexpr AllanCurveField kAllanCurve[] = {{"tau_s", &AllanRecord::tau_s},
+                                           {"adev_dph", &AllanRecord::adev_dph},
+                                           {"adev_lo_dph", &AllanRecord::adev_lo_dph},
+                                           {"adev_hi_dph", &AllanRecord::adev_hi_dph}};
+
+std::string allan_label(const AllanRecord& a) {
+  return fmt::format("Allan deviation of run {} step {} (taus '{}')", a.run_id, a.segment_index,
+                     a.taus);
+}
+
+// The curve as JSON, or an error naming the field (and index) that cannot be
+// stored: JSON has no NaN or infinity, and the arrays must line up.
+Result<std::string> allan_curve_json(const AllanRecord& a, const std::string& path) {
+  const auto bad = [&](const std::string& why) {
+    return Error::Permanent(fmt::format("storage: {}: storing {}: {}", path, allan_label(a), why));
+  };
+  const std::size_t n = a.tau_s.size();
+  nlohmann::ordered_json curve = nlohmann::ordered_json::object();  // keys in documented order
+  for (const AllanCurveField& f : kAllanCurve) {
+    const std::vector<double>& values = a.*f.values;
+    if (values.size() != n) {
+      return bad(
+          fmt::format("{} has {} values but tau_s has {} (the arrays must have the same "
+                      "length)",
+                      f.name, values.size(), n));
+    }
+    for (std::size_t i = 0; i < values.size(); ++i) {
+      if (!std::isfinite(values[i])) {
+        return bad(
+            fmt::format("{}[{}] is {} (only finite numbers can be stored)", f.name, i, values[i]));
+      }
+    }
+    curve[f.name] = values;
+  }
+  return curve.dump();
+}
+
+Status check_allan_scalars(const AllanRecord& a, const std::string& path) {
+  const auto bad = [&](const char* field, double v) {
+    return Error::Permanent(
+        fmt::format("storage: {}: storing {}: {} is {} (only finite numbers "
+                    "can be stored; leave a noise term unset instead)",
+                    path, allan_label(a), field, v));
+  };
+  const std::pair<const char*, double> required[] = {
+      {"t_from_s", a.t_from_s}, {"t_to_s", a.t_to_s}, {"tau0_s", a.tau0_s}};
+  for (const auto& [field, v] : required) {
+    if (!std::isfinite(v)) return bad(field, v);
+  }
+  const std::pair<const char*, const std::optional<double>*> optional[] = {
+      {"angle_random_walk_dprh", &a.angle_random_walk_dprh},
+      {"bias_instability_dph", &a.bias_instability_dph},
+      {"bias_instability_tau_s", &a.bias_instability_tau_s},
+      {"rate_random_walk_dphprh", &a.rate_random_walk_dphprh}};
+  for (const auto& [field, v] : optional) {
+    if (v->has_value() && !std::isfinite(**v)) return bad(field, **v);
+  }
+  if (a.taus.empty()) {
+    return Error::Permanent(
+        fmt::format("storage: {}: storing {}: taus is empty", path, allan_label(a)));
+  }
+  return Status::Ok();
+}
+
+Status read_allan_curve(AllanRecord& r, const std::string& text, const std::string& path) {
+  const auto bad = [&](const std::string& why) {
+    return Error::Permanent(fmt::format("storage: {}: allan row {} (run {} step {}): curve_json {}",
+                                        path, r.id, r.run_id, r.segment_index, why));
+  };
+  const nlohmann::json curve = nlohmann::json::parse(text, nullptr, /*allow_exceptions=*/false);
+  if (curve.is_discarded()) return bad("is not valid JSON");
+  if (!curve.is_object()) return bad("is not a JSON object");
+  for (const AllanCurveField& f : kAllanCurve) {
+    const auto it = curve.find(f.name);
+    if (it == curve.end() || !it->is_array()) {
+      return bad(fmt::format("has no array '{}'", f.name));
+    }
+    std::vector<double>& values = r.*f.values;
+    values.reserve(it->size());
+    for (const nlohmann::json& v : *it) {
+      if (!v.is_number()) {
+        return bad(fmt::format("'{}'[{}] is not a number", f.name, values.size()));
+      }
+      values.push_back(v.get<double>());
+    }
+    if (values.size() != r.tau_s.size()) {
+      return bad(fmt::format("'{}' has {} values but 'tau_s' has {}", f.name, values.size(),
+                             r.tau_s.size()));
+    }
+  }
+  return Status::Ok();
+}
+
+}  // namespace
+
+Result<int64_t> Database::put_allan(const AllanRecord& a) {
+  if (Status s = check_allan_scalars(a, path_); !s) return s.error();
+  auto curve = allan_curve_json(a, path_);
+  if (!curve) return curve.error();
+  const std::string inputs = a.inputs_json.empty() ? "{}" : a.inputs_json;
+  if (!nlohmann::json::accept(inputs)) {
+    return Error::Permanent(fmt::format("storage: {}: storing {}: inputs_json is not valid JSON",
+                                        path_, allan_label(a)));
+  }
+  // An upsert keeps the row's id when a recomputation replaces it.
+  auto st = Stmt::prepare(
+      db_, path_,
+      "INSERT INTO allan(run_id, segment_id, segment_index, t_from_s, t_to_s, taus, tau0_s, "
+      "n_samples, curve_json, angle_random_walk_dprh, bias_instability_dph, "
+      "bias_instability_tau_s, rate_random_walk_dphprh, bias_instability_method, inputs_json, "
+      "computed_utc) VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) "
+      "ON CONFLICT(run_id, segment_index, taus) DO UPDATE SET segment_id = excluded.segment_id, "
+      "t_from_s = excluded.t_from_s, t_to_s = excluded.t_to_s, tau0_s = excluded.tau0_s, "
+      "n_samples = excluded.n_samples, curve_json = excluded.curve_json, "
+      "angle_random_walk_dprh = excluded.angle_random_walk_dprh, "
+      "bias_instability_dph = excluded.bias_instability_dph, "
+      "bias_instability_tau_s = excluded.bias_instability_tau_s, "
+      "rate_random_walk_dphprh = excluded.rate_random_walk_dphprh, "
+      "bias_instability_method = excluded.bias_instability_method, "
+      "inputs_json = excluded.inputs_json, computed_utc = excluded.computed_utc "
+      "RETURNING id");
+  if (!st) return st.error();
+  int i = 1;
+  st->bind(i++, a.run_id);
+  if (a.segment_id == 0) {
+    st->bind_null(i++);
+  } else {
+    st->bind(i++, a.segment_id);
+  }
+  st->bind(i++, a.segment_index);
+  st->bind(i++, a.t_from_s);
+  st->bind(i++, a.t_to_s);
+  st->bind(i++, std::string_view(a.taus));
+  st->bind(i++, a.tau0_s);
+  st->bind(i++, a.n_samples);
+  st->bind(i++, std::string_view(*curve));
+  st->bind(i++, a.angle_random_walk_dprh);
+  st->bind(i++, a.bias_instability_dph);
+  st->bind(i++, a.bias_instability_tau_s);
+  st->bind(i++, a.rate_random_walk_dphprh);
+  st->bind(i++, std::string_view(a.bias_instability_method));
+  st->bind(i++, std::string_view(inputs));
+  st->bind(i++, std::string_view(now_if_empty(a.computed_utc)));
+  const std::string what = fmt::format("storing {}", allan_label(a));
+  if (st->step() != SQLITE_ROW) return sqlite_error(db_, path_, what);
+  const int64_t id = st->column_int64(0);
+  if (Status s = expect_done(*st, db_, path_, what); !s) return s.error();
+  return id;
+}
+
+Result<std::vector<AllanRecord>> Database::allan(int64_t run_id) {
+  auto st = Stmt::prepare(db_, path_,
+                          fmt::format("SELECT {} FROM allan WHERE run_id = ? "
+                                      "ORDER BY segment_index, taus",
+                                      kAllanColumns));
+  if (!st) return st.error();
+  st->bind(1, run_id);
+  std::vector<AllanRecord> out;
+  int rc;
+  while ((rc = st->step()) == SQLITE_ROW) {
+    AllanRecord r;
+    int c = 0;
+    r.id = st->column_int64(c++);
+    r.run_id = st->column_int64(c++);
+    r.segment_id = st->column_optional_int64(c++).value_or(0);
+    r.segment_index = static_cast<int>(st->column_int64(c++));
+    r.t_from_s = st->column_double(c++);
+    r.t_to_s = st->column_double(c++);
+    r.taus = st->column_text(c++);
+    r.tau0_s = st->column_double(c++);
+    r.n_samples = st->column_int64(c++);
+    const std::string curve = st->column_text(c++);
+    r.angle_random_walk_dprh = st->column_optional_double(c++);
+    r.bias_instability_dph = st->column_optional_double(c++);
+    r.bias_instability_tau_s = st->column_optional_double(c++);
+    r.rate_random_walk_dphprh = st->column_optional_double(c++);
+    r.bias_instability_method = st->column_text(c++);
+    r.inputs_json = st->column_text(c++);
+    r.computed_utc = st->column_text(c++);
+    if (Status s = read_allan_curve(r, curve, path_); !s) return s.error();
+    out.push_back(std::move(r));
+  }
+  if (rc != SQLITE_DONE) {
+    return sqlite_error(db_, path_, fmt::format("reading Allan deviations of run {}", run_id));
+  }
+  return out;
 }
 
 Status Database::exec(std::string_view sql) { return internal::exec(db_, path_, sql); }

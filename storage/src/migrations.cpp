@@ -182,10 +182,38 @@ CREATE TABLE fit_runs(
 ) WITHOUT ROWID;
 )sql";
 
+// v4: the Allan deviation of each soak, one row per (run, step, tau set).
+// The curve is one JSON object of equal-length arrays, readable with
+// sqlite3's json_each; the noise terms are NULL when they could not be read
+// off the curve.
+constexpr const char* kSchemaV4 = R"sql(
+CREATE TABLE allan(
+  id INTEGER PRIMARY KEY,
+  run_id INTEGER NOT NULL REFERENCES runs(id),
+  segment_id INTEGER REFERENCES segments(id),  -- the soak's segment; NULL: not tied to one
+  segment_index INTEGER NOT NULL,   -- segments.idx
+  t_from_s REAL,                    -- first sample used, station s since run start
+  t_to_s REAL,                      -- last sample used, station s since run start
+  taus TEXT NOT NULL,               -- tau set: octave, decade, all
+  tau0_s REAL,                      -- sample spacing (median of the t_s steps), s
+  n_samples INTEGER NOT NULL,       -- samples the deviation was computed from
+  curve_json TEXT NOT NULL,         -- {"tau_s":[...],"adev_dph":[...],"adev_lo_dph":[...],"adev_hi_dph":[...]}, equal lengths; s and deg/h
+  angle_random_walk_dprh REAL,      -- angle random walk, deg/sqrt(h); NULL: not determined
+  bias_instability_dph REAL,        -- bias instability, deg/h; NULL: not determined
+  bias_instability_tau_s REAL,      -- tau of the curve's minimum it was read at, s
+  rate_random_walk_dphprh REAL,     -- rate random walk, deg/h/sqrt(h); NULL: not determined
+  bias_instability_method TEXT,     -- e.g. 'minimum / 0.664'
+  inputs_json TEXT NOT NULL,        -- what reproduces it: windows, taus, bin...
+  computed_utc TEXT NOT NULL        -- ISO-8601 UTC wall time
+);
+CREATE UNIQUE INDEX allan_by_run ON allan(run_id, segment_index, taus);
+)sql";
+
 constexpr Migration kMigrations[] = {
     {1, "initial schema", kSchemaV1},
     {2, "queue, crash resume, acquisition windows", kSchemaV2},
     {3, "gyro rate rollups, drift-model fits", kSchemaV3},
+    {4, "Allan deviation per soak", kSchemaV4},
 };
 
 static_assert(sizeof(kMigrations) / sizeof(kMigrations[0]) == kSchemaVersion,

@@ -40,7 +40,7 @@ TEST(Database, OpenCreatesTheCurrentSchemaInWalMode) {
   auto version = db.schema_version();
   ASSERT_TRUE(version.ok()) << version.error().message;
   EXPECT_EQ(*version, kSchemaVersion);
-  EXPECT_EQ(kSchemaVersion, 3);
+  EXPECT_EQ(kSchemaVersion, 4);
   EXPECT_EQ(query_text(db.handle(), "PRAGMA journal_mode"), "wal");
   EXPECT_EQ(query_int(db.handle(), "PRAGMA synchronous"), 1);  // NORMAL
   EXPECT_EQ(query_int(db.handle(), "PRAGMA foreign_keys"), 1);
@@ -70,7 +70,8 @@ TEST(Database, OpenCreatesTheCurrentSchemaInWalMode) {
                                           "acquisition_windows",
                                           "gyro_rollup",
                                           "fits",
-                                          "fit_runs"};
+                                          "fit_runs",
+                                          "allan"};
   EXPECT_EQ(tables, expected);
 }
 
@@ -119,19 +120,19 @@ TEST(Database, NewerSchemaIsRefusedWithAClearMessage) {
   const std::string path = dir.file("station.db");
   {
     Database db = open_ok(path);
-    ASSERT_TRUE(db.exec("UPDATE meta SET value='4' WHERE key='schema_version'").ok());
+    ASSERT_TRUE(db.exec("UPDATE meta SET value='5' WHERE key='schema_version'").ok());
   }
   auto db = Database::open(path);
   ASSERT_FALSE(db.ok());
   EXPECT_FALSE(db.error().transient);
   EXPECT_NE(db.error().message.find(path), std::string::npos) << db.error().message;
-  EXPECT_NE(db.error().message.find("schema version 4, newer than this build's 3"),
+  EXPECT_NE(db.error().message.find("schema version 5, newer than this build's 4"),
             std::string::npos)
       << db.error().message;
 
   auto ro = Database::open_read_only(path);
   ASSERT_FALSE(ro.ok());
-  EXPECT_NE(ro.error().message.find("schema version 4"), std::string::npos) << ro.error().message;
+  EXPECT_NE(ro.error().message.find("schema version 5"), std::string::npos) << ro.error().message;
 }
 
 TEST(Database, RefusesAnotherApplicationsDatabase) {

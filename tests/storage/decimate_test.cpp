@@ -351,7 +351,7 @@ TEST(Rollup, MigrationBackfillsASchema2Database) {
   }
   {
     Database db = open_ok(path);
-    EXPECT_EQ(*db.schema_version(), 3);
+    EXPECT_EQ(*db.schema_version(), kSchemaVersion);
     EXPECT_EQ(query_int(db.handle(), "SELECT count(*) FROM gyro_samples"),
               static_cast<long long>(rows.size()));
     expect_rollup_matches_samples(db.handle());

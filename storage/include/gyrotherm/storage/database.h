@@ -24,7 +24,7 @@ struct sqlite3;
 
 namespace gyrotherm::storage {
 
-inline constexpr int kSchemaVersion = 3;
+inline constexpr int kSchemaVersion = 4;
 
 // Rollup blocks of the gyro rate (table gyro_rollup): block length of each
 // level, station seconds. A sample at t_s is in block floor(t_s / length).
@@ -128,6 +128,28 @@ struct FitRecord {
   double r_squared = 0;
   std::string inputs_json;   // JSON object
   std::string computed_utc;  // "" = now (add_fit)
+};
+
+// The Allan deviation of one soak's acquisition (DESIGN.md §7) with what it
+// was computed from (schema v4, table `allan`). The curve is stored as JSON
+// arrays of the same length so sqlite3's json functions can read it.
+struct AllanRecord {
+  int64_t id = 0;
+  int64_t run_id = 0;
+  int64_t segment_id = 0;           // the soak's segment (0: not tied to a segment)
+  int segment_index = 0;            // 0-based step index
+  double t_from_s = 0, t_to_s = 0;  // samples used, station s since run start
+  std::string taus;                 // octave, decade, all
+  double tau0_s = 0;
+  int64_t n_samples = 0;
+  std::vector<double> tau_s, adev_dph, adev_lo_dph, adev_hi_dph;  // same length
+  std::optional<double> angle_random_walk_dprh;                   // °/√h
+  std::optional<double> bias_instability_dph;                     // minimum / 0.664
+  std::optional<double> bias_instability_tau_s;
+  std::optional<double> rate_random_walk_dphprh;  // °/h/√h
+  std::string bias_instability_method = "minimum / 0.664";
+  std::string inputs_json;   // JSON object: windows, taus, ...
+  std::string computed_utc;  // "" = now (put_allan)
 };
 
 // A run's samples in [from_s, to_s] reduced to at most max_points points
@@ -236,6 +258,12 @@ class Database {
   // A run's fits (every fit that used it), newest first.
   Result<std::vector<FitRecord>> fits(int64_t run_id);
   Result<std::optional<FitRecord>> fit(int64_t fit_id);
+
+  // Allan deviation. put_allan inserts, or replaces the row of the same
+  // (run_id, segment_index, taus); returns the row id.
+  Result<int64_t> put_allan(const AllanRecord& allan);
+  // A run's Allan records, by segment_index then taus.
+  Result<std::vector<AllanRecord>> allan(int64_t run_id);
 
   // Direct SQL for statements the API above does not cover (tests, tools).
   Status exec(std::string_view sql);
