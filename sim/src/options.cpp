@@ -39,6 +39,7 @@ void read_thermal(TableReader t, ThermalParams& p) {
   p.gradient_c_per_c_per_min =
       t.number_in("gradient_c_per_c_per_min", p.gradient_c_per_c_per_min, -100, 100);
   p.gradient_offset_c = t.number_in("gradient_offset_c", p.gradient_offset_c, -50, 50);
+  p.gradient_tau_s = t.number_in("gradient_tau_s", p.gradient_tau_s, 0, 1e6);
   p.probe_noise_c = t.number_in("probe_noise_c", p.probe_noise_c, 0, 10);
   p.probe_quantum_c = t.number_in("probe_quantum_c", p.probe_quantum_c, 0, 10);
   t.finish();

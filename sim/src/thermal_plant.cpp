@@ -30,6 +30,7 @@ bool ThermalParams::IsValid(std::string* error) const {
            bad("control_noise_tau_s", control_noise_tau_s, 0.1, 1e6) ||
            bad("gradient_c_per_c_per_min", gradient_c_per_c_per_min, -100, 100) ||
            bad("gradient_offset_c", gradient_offset_c, -50, 50) ||
+           bad("gradient_tau_s", gradient_tau_s, 0, 1e6) ||
            bad("probe_noise_c", probe_noise_c, 0, 10) ||
            bad("probe_quantum_c", probe_quantum_c, 0, 10));
 }
@@ -88,8 +89,10 @@ void ThermalPlant::step(double dt_s, double setpoint_c) {
                                  ? (truth_.air_c - truth_.case_c) / params_.case_tau_s
                                  : (truth_.case_c - previous_case_c) / dt_s;
 
-  truth_.gradient_c = params_.gradient_offset_c +
-                      params_.gradient_c_per_c_per_min * truth_.case_rate_c_per_s * 60.0;
+  const double gradient_target_c = params_.gradient_offset_c + params_.gradient_c_per_c_per_min *
+                                                                   truth_.case_rate_c_per_s * 60.0;
+  truth_.gradient_c +=
+      (gradient_target_c - truth_.gradient_c) * lag_fraction(dt_s, params_.gradient_tau_s);
   truth_.top_c = truth_.case_c + truth_.gradient_c / 2;
   truth_.side_c = truth_.case_c - truth_.gradient_c / 2;
   readings_.top_c = read_probe(truth_.top_c);

@@ -6,8 +6,11 @@
 // (an Ornstein-Uhlenbeck process, correlation time control_noise_tau_s); the
 // gyro case follows the air with its own first-order lag (case_tau_s). The
 // true probe gradient top - side grows with the case heating rate:
-//   gradient_c = gradient_offset_c + gradient_c_per_c_per_min x (case dT/dt in °C/min)
-// and top/side = case ± gradient/2. Probe readings add white noise and are
+//   target = gradient_offset_c + gradient_c_per_c_per_min x (case dT/dt in °C/min)
+// followed through a first-order lag of gradient_tau_s (heat takes time to
+// cross the gyro; 0 = the gradient is the target at once, an exact function
+// of the heating rate, so a fit could not tell the two terms apart in one
+// run), and top/side = case ± gradient/2. Probe readings add white noise and are
 // quantised. Everything is in °C and seconds of station time.
 //
 // Fault: force_air_c() makes the controller run away: its internal set point
@@ -38,6 +41,7 @@ struct ThermalParams {
   double control_noise_tau_s = 60.0;  // correlation time of the control noise
   double gradient_c_per_c_per_min = 0.3;
   double gradient_offset_c = 0.05;
+  double gradient_tau_s = 0.0;    // lag of the gradient behind its target (0 = none)
   double probe_noise_c = 0.02;    // white noise std of each probe reading
   double probe_quantum_c = 0.01;  // reading resolution (0 = none)
 
