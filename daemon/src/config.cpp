@@ -11,6 +11,8 @@
 #include <fstream>
 #include <sstream>
 
+#include "gyrotherm/analysis/allan.h"
+#include "gyrotherm/analysis/drift_model.h"
 #include "gyrotherm/core/toml_reader.h"
 
 namespace gyrotherm::daemon {
@@ -267,8 +269,21 @@ void read_analysis(TableReader t, AnalysisSection& a) {
       a.ma_window = static_cast<int>(*w);
   }
   a.l0_window_s = t.number_in("l0_window_s", a.l0_window_s, 1.0, 86400.0);
-  if (auto m = t.string("model")) a.model = *m;
+  if (auto m = t.string("model")) {
+    if (auto spec = analysis::parse_model_spec(*m); !spec) {
+      t.error("model", spec.error().message);
+    } else {
+      a.model = analysis::to_string(*spec);
+    }
+  }
   a.derivative_window_s = t.number_in("derivative_window_s", a.derivative_window_s, 1.0, 86400.0);
+  if (auto taus = t.string("allan_taus")) {
+    if (auto set = analysis::parse_tau_set(*taus); !set) {
+      t.error("allan_taus", set.error().message);
+    } else {
+      a.allan_taus = *taus;
+    }
+  }
   t.finish();
 }
 

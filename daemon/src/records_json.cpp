@@ -116,6 +116,36 @@ nlohmann::json to_json(const storage::FitRecord& f) {
           {"computed_utc", f.computed_utc}};
 }
 
+nlohmann::json to_json(const storage::AllanRecord& a) {
+  const auto numbers = [](const std::vector<double>& v) {
+    nlohmann::json out = nlohmann::json::array();
+    for (double x : v) out.push_back(num(x));
+    return out;
+  };
+  const auto optional = [](const std::optional<double>& v) {
+    return v ? num(*v) : nlohmann::json(nullptr);
+  };
+  return {{"id", a.id},
+          {"run_id", a.run_id},
+          {"segment", a.segment_index + 1},
+          {"t_from_s", num(a.t_from_s)},
+          {"t_to_s", num(a.t_to_s)},
+          {"taus", a.taus},
+          {"tau0_s", num(a.tau0_s)},
+          {"n_samples", a.n_samples},
+          {"tau_s", numbers(a.tau_s)},
+          {"adev_dph", numbers(a.adev_dph)},
+          {"adev_lo_dph", numbers(a.adev_lo_dph)},
+          {"adev_hi_dph", numbers(a.adev_hi_dph)},
+          {"angle_random_walk_dprh", optional(a.angle_random_walk_dprh)},
+          {"bias_instability_dph", optional(a.bias_instability_dph)},
+          {"bias_instability_tau_s", optional(a.bias_instability_tau_s)},
+          {"bias_instability_method", a.bias_instability_method},
+          {"rate_random_walk_dphprh", optional(a.rate_random_walk_dphprh)},
+          {"inputs", stored_json(a.inputs_json)},
+          {"computed_utc", a.computed_utc}};
+}
+
 nlohmann::json to_json(const storage::DecimatedSamples& d) {
   const auto& g = d.gyro;
   const auto& t = d.temperature;

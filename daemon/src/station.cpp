@@ -85,26 +85,61 @@ Station::Station(StationConfig config, const Clock& clock, StationHooks hooks, s
       api_db_(std::move(api_db)),
       writer_(std::move(writer)),
       started_wall_s_(steady_now_s()) {
-  analysis::Table1Options topt;
-  topt.bin_s = config_.analysis.bin_s;
-  topt.ma_window = static_cast<std::size_t>(config_.analysis.ma_window);
-  topt.earth_rate_dph =
-      analysis::earth_rate_component_dph(config_.station.latitude_deg, config_.station.orientation);
-  analysis_ = std::make_unique<AnalysisWorker>(
-      config_.storage.db_path, *writer_, topt,
-      [publish = hooks_.publish](const Table1Job& job,
-                                 const Result<storage::SegmentStatsRecord>& r) {
-        if (r && publish) publish("stats", to_json(*r));
-        if (r) {
-          spdlog::info(
-              "run {} segment {}: Table I row stored: n={} T={:.2f} °C bias={:.4f} °/h "
-              "std={:.4f} std(MA{})={:.4f}",
-              job.run_id, job.segment_index + 1, r->n, r->temp_mean_c, r->bias_mean_dph,
-              r->bias_std_dph, r->ma_window, r->bias_std_ma_dph);
-        } else {
-          spdlog::error("Table I row not computed: {}", r.error().message);
-        }
-      });
+  AnalysisWorker::Callbacks callbacks;
+  callbacks.table1_done = [publish = hooks_.publish](const Table1Job& job,
+                                                     const Result<storage::SegmentStatsRecord>& r) {
+    if (r && publish) publish("stats", to_json(*r));
+    if (r) {
+      spdlog::info(
+          "run {} segment {}: Table I row stored: n={} T={:.2f} °C bias={:.4f} °/h "
+          "std={:.4f} std(MA{})={:.4f}",
+          job.run_id, job.segment_index + 1, r->n, r->temp_mean_c, r->bias_mean_dph,
+          r->bias_std_dph, r->ma_window, r->bias_std_ma_dph);
+    } else {
+      spdlog::error("Table I row not computed: {}", r.error().message);
+    }
+  };
+  callbacks.run_done = [publish = hooks_.publish](storage::Database& db, const RunJob& job,
+                                                  const Result<RunAnalysisSummary>& r) {
+    storage::EventRecord ev;
+    ev.run_id = job.run_id;
+    if (auto last = db.last_sample_t_s(job.run_id); last && *last) ev.t_s = **last;
+    ev.wall_utc = wall_time_utc_iso();
+    ev.kind = "analysis";
+    if (r) {
+      std::string fits;
+      for (int64_t id : r->fit_ids) fits += fmt::format("{}#{}", fits.empty() ? "" : ", ", id);
+      ev.message = fmt::format(
+          "analysis stored: {} Table I row(s), {} Allan deviation(s), {} fit(s){}{}",
+          r->table1_rows, r->allan_records, r->fit_ids.size(),
+          fits.empty() ? "" : " (" + fits + ")", r->problems.empty() ? "" : "; not computed: ");
+      for (std::size_t i = 0; i < r->problems.size(); ++i) {
+        ev.message += (i ? "; " : "") + r->problems[i];
+      }
+    } else {
+      ev.message = "analysis failed: " + r.error().message;
+    }
+    spdlog::info("run {}: {}", job.run_id, ev.message);
+    if (auto id = db.add_event(ev); !id) {
+      spdlog::error("event not recorded: {}", id.error().message);
+    } else {
+      ev.id = *id;
+    }
+    if (publish) {
+      nlohmann::json j = to_json(ev);
+      j["run_id"] = job.run_id;
+      publish("event", j);
+      if (r) {
+        publish("analysis", {{"run_id", job.run_id},
+                             {"table1_rows", r->table1_rows},
+                             {"allan_records", r->allan_records},
+                             {"fit_ids", r->fit_ids},
+                             {"problems", r->problems}});
+      }
+    }
+  };
+  analysis_ = std::make_unique<AnalysisWorker>(config_.storage.db_path, *writer_,
+                                               analysis_settings(config_), std::move(callbacks));
   chamber_ = std::make_unique<drivers::ModbusDevice>("chamber", config_.chamber.endpoint);
   probes_ = std::make_unique<drivers::ModbusDevice>("probes", config_.probes.endpoint);
   if (Metrics* m = hooks_.metrics) {
@@ -146,6 +181,7 @@ void Station::start() {
     }
     refresh_queue_length();
     resume_interrupted_run();
+    submit_missing_analyses();
   }
   gyro_->start();
   control_thread_ = std::thread([this] { control_loop(); });
@@ -422,6 +458,25 @@ void Station::start_next_run(double now_s) {
   checkpoint(true);
 }
 
+// Completed runs whose analysis never ran (the daemon stopped between the end
+// of the run and its analysis) get it now.
+void Station::submit_missing_analyses() {
+  auto runs = db_.runs();
+  if (!runs) return;
+  for (const auto& r : *runs) {
+    if (r.state != "completed") continue;
+    auto events = db_.events(r.id);
+    if (!events) continue;
+    const bool done =
+        std::any_of(events->begin(), events->end(),
+                    [](const storage::EventRecord& e) { return e.kind == "analysis"; });
+    if (!done) {
+      spdlog::info("run {}: completed without its analysis; computing it now", r.id);
+      analysis_->submit(RunJob{r.id});
+    }
+  }
+}
+
 void Station::resume_interrupted_run() {
   auto runs = db_.runs();
   if (!runs) {
@@ -537,6 +592,7 @@ void Station::end_run() {
       add_event("queue", "", "", "run failed; the queue goes on (ignore_failures)");
     }
   }
+  if (final_state == RunState::kCompleted && run_id != 0) analysis_->submit(RunJob{run_id});
   if (stop_after_current_ && final_state != RunState::kInterrupted) {
     stop_after_current_ = false;
     if (!hold_reason_) hold_queue(fmt::format("stopped after run {} by the operator", run_id));
@@ -942,6 +998,10 @@ Reply Station::run_stats(int64_t id) {
 
 Reply Station::run_fits(int64_t id) {
   return run_records(id, [id](storage::Database& db) { return db.fits(id); });
+}
+
+Reply Station::run_allan(int64_t id) {
+  return run_records(id, [id](storage::Database& db) { return db.allan(id); });
 }
 
 Reply Station::fit(int64_t id) {

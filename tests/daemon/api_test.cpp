@@ -79,6 +79,10 @@ class FakeControl : public StationControl {
     calls.push_back(fmt::format("fits {}", id));
     return Reply::ok(nlohmann::json::array());
   }
+  Reply run_allan(int64_t id) override {
+    calls.push_back(fmt::format("allan {}", id));
+    return Reply::ok(nlohmann::json::array());
+  }
   Reply fit(int64_t id) override {
     calls.push_back(fmt::format("fit {}", id));
     if (id == 5) return Reply::refused(Refusal::Kind::kNotFound, "no fit 5");
@@ -264,6 +268,19 @@ TEST(Api, SamplesQueryReachesTheStationDecodedWithDefaults) {
         "/api/v1/runs/4/samples?from=%zz", "/api/v1/runs/4/samples?from=1&from_s=2"}) {
     EXPECT_EQ(handle_api_request(get(target), ctx).result(), http::status::bad_request) << target;
   }
+  EXPECT_TRUE(control.calls.empty());
+}
+
+TEST(Api, AnalysisRoutesReachTheStationWithTheRunId) {
+  FakeControl control;
+  const ApiContext ctx = fake_context(&control);
+  for (const char* target : {"/api/v1/runs/7/allan", "/api/v1/runs/7/fits", "/api/v1/fits/9"}) {
+    EXPECT_EQ(handle_api_request(get(target), ctx).result(), http::status::ok) << target;
+  }
+  EXPECT_EQ(control.calls, (std::vector<std::string>{"allan 7", "fits 7", "fit 9"}));
+  control.calls.clear();
+  EXPECT_EQ(handle_api_request(get("/api/v1/runs/x/allan"), ctx).result(), http::status::not_found)
+      << "no route takes a non-numeric run id";
   EXPECT_TRUE(control.calls.empty());
 }
 

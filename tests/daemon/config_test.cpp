@@ -200,4 +200,26 @@ TEST(SimEndpoints, RoundTripThroughAFile) {
 }
 
 }  // namespace
+TEST(Config, AnalysisModelAndTausAreCheckedNamingTheKey) {
+  auto defaults = parse_station_config(std::string(kMinimal), "t.toml");
+  ASSERT_TRUE(defaults.ok()) << defaults.error().message;
+  EXPECT_EQ(defaults->analysis.model, "T4+R1+G1");
+  EXPECT_EQ(defaults->analysis.allan_taus, "octave");
+
+  auto set = parse_station_config(
+      std::string(kMinimal) + "[analysis]\nmodel = \"G1 + T2\"\nallan_taus = \"decade\"\n",
+      "t.toml");
+  ASSERT_TRUE(set.ok()) << set.error().message;
+  EXPECT_EQ(set->analysis.model, "T2+G1") << "stored in canonical form";
+  EXPECT_EQ(set->analysis.allan_taus, "decade");
+
+  auto bad = parse_station_config(
+      std::string(kMinimal) + "[analysis]\nmodel = \"T5+X1\"\nallan_taus = \"weekly\"\n", "t.toml");
+  ASSERT_FALSE(bad.ok());
+  EXPECT_THAT(bad.error().message, HasSubstr("analysis.model:"));
+  EXPECT_THAT(bad.error().message, HasSubstr("T5"));
+  EXPECT_THAT(bad.error().message, HasSubstr("analysis.allan_taus:"));
+  EXPECT_THAT(bad.error().message, HasSubstr("weekly"));
+}
+
 }  // namespace gyrotherm::daemon

@@ -316,6 +316,27 @@ class ContractControl : public StationControl {
   }
   Reply run_fits(int64_t) override { return Reply::ok(json::array({to_json(fit_record(1))})); }
   Reply fit(int64_t id) override { return Reply::ok(to_json(fit_record(id))); }
+  Reply run_allan(int64_t) override {
+    storage::AllanRecord a;
+    a.id = 4;
+    a.run_id = 1;
+    a.segment_id = 2;
+    a.segment_index = 0;
+    a.t_from_s = 600;
+    a.t_to_s = 7800;
+    a.taus = "octave";
+    a.tau0_s = 0.01;
+    a.n_samples = 720000;
+    a.tau_s = {0.01, 0.02, 0.04};
+    a.adev_dph = {10.0, 7.07, 5.0};
+    a.adev_lo_dph = {9.99, 7.06, 4.99};
+    a.adev_hi_dph = {10.01, 7.08, 5.01};
+    a.angle_random_walk_dprh = 0.0167;
+    a.rate_random_walk_dphprh = std::nullopt;  // a null noise term must match the schema too
+    a.inputs_json = R"({"run_id": 1, "segment": 1, "taus": "octave", "window": [600, 7800]})";
+    a.computed_utc = "2026-11-21T07:38:43.120Z";
+    return Reply::ok(json::array({to_json(a)}));
+  }
 };
 
 // A web root with the files the document's examples name.

@@ -61,6 +61,8 @@ rate_hz = {rate}
 [storage]
 db = "{dir}/station.db"
 commit_interval_s = 0.2
+[analysis]
+model = "T1+R1+G1"
 [api]
 port = {port}
 tokens = ["integration-token-0123456789"]

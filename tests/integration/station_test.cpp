@@ -6,6 +6,7 @@
 #include <signal.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -107,6 +108,51 @@ TEST_F(StationTest, ShortScheduleEndToEnd) {
   }
   EXPECT_THAT(to_states, ::testing::ElementsAre("settling", "acquiring", "ramping", "settling",
                                                 "acquiring", "completed"));
+
+  // The run's analysis ran on the worker before the daemon exited: an
+  // "analysis" event, the Allan deviation of each soak, and the configured
+  // model fitted in both forms, each with its inputs.
+  const auto analysis_event =
+      std::find_if(events->begin(), events->end(),
+                   [](const storage::EventRecord& e) { return e.kind == "analysis"; });
+  ASSERT_NE(analysis_event, events->end()) << daemon_->log();
+  EXPECT_NE(analysis_event->message.find("2 Allan deviation(s), 2 fit(s)"), std::string::npos)
+      << analysis_event->message;
+  auto allan = db->allan(1);
+  ASSERT_TRUE(allan.ok()) << allan.error().message;
+  ASSERT_EQ(allan->size(), 2u);
+  for (const auto& a : *allan) {
+    SCOPED_TRACE(fmt::format("segment {}", a.segment_index + 1));
+    EXPECT_EQ(a.taus, "octave");
+    EXPECT_NEAR(a.tau0_s, 1.0 / kRateHz, 1e-3);
+    EXPECT_NEAR(a.t_to_s - a.t_from_s, 360.0, 1.0);
+    ASSERT_FALSE(a.tau_s.empty());
+    EXPECT_EQ(a.adev_dph.size(), a.tau_s.size());
+    // White noise of 1 °/h per 1 s mean: sigma(1 s) = 1 °/h, ARW = 1/60 °/√h.
+    ASSERT_TRUE(a.angle_random_walk_dprh.has_value());
+    EXPECT_NEAR(*a.angle_random_walk_dprh, kWhiteNoiseDph / 60.0, 0.2 * kWhiteNoiseDph / 60.0);
+    const auto inputs = nlohmann::json::parse(a.inputs_json);
+    EXPECT_EQ(inputs["segment"], a.segment_index + 1);
+  }
+  auto fits = db->fits(1);
+  ASSERT_TRUE(fits.ok()) << fits.error().message;
+  ASSERT_EQ(fits->size(), 2u);
+  std::vector<std::string> forms;
+  for (const auto& f : *fits) {
+    forms.push_back(f.form);
+    EXPECT_EQ(f.model, "T1+R1+G1");
+    EXPECT_EQ(f.run_ids, std::vector<int64_t>{1});
+    EXPECT_GT(static_cast<double>(f.n), 0.95 * run_s);  // every second of the run, binned
+    // Residual std ~ the white noise of 1 s means.
+    EXPECT_NEAR(f.residual_std_dph, kWhiteNoiseDph, 0.15 * kWhiteNoiseDph);
+    const auto c = nlohmann::json::parse(f.coefficients_json);
+    for (const char* key : {"T1", "R1", "G1"}) EXPECT_TRUE(c.contains(key)) << key;
+    const auto inputs = nlohmann::json::parse(f.inputs_json);
+    EXPECT_EQ(inputs["model"], "T1+R1+G1");
+    EXPECT_EQ(inputs["derivative_window_s"], 60.0);
+  }
+  std::sort(forms.begin(), forms.end());
+  EXPECT_EQ(forms, (std::vector<std::string>{"centered", "paper"}));
 }
 
 TEST_F(StationTest, SigtermInterruptsTheRunAndLeavesTheChamberSafe) {

@@ -1,9 +1,11 @@
-// Post-step analysis off the control thread.
+// Post-step and post-run analysis off the control thread.
 //
-// When a soak's acquisition window closes the daemon submits a job; the
-// worker waits until the window's samples are committed (SampleWriter::flush
-// on its own thread), reads them through its own connection, computes the
-// Table I row and stores it. Acquisition never waits for it.
+// When a soak's acquisition window closes the daemon submits a Table I job;
+// when a run completes, a run job (Allan deviation per soak, drift-model fits
+// of the run; run_analysis.h). The worker waits until the samples are
+// committed (SampleWriter::flush on its own thread), reads them through its
+// own connection, computes and stores. Acquisition never waits for it: jobs
+// queue, one runs at a time.
 #pragma once
 
 #include <condition_variable>
@@ -14,10 +16,11 @@
 #include <string>
 #include <thread>
 #include <utility>
+#include <variant>
 #include <vector>
 
-#include "gyrotherm/analysis/table1.h"
 #include "gyrotherm/core/result.h"
+#include "gyrotherm/daemon/run_analysis.h"
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
 
@@ -36,6 +39,11 @@ struct Table1Job {
   std::vector<std::pair<double, double>> windows;
 };
 
+// Everything analyse_run() computes for a completed run.
+struct RunJob {
+  int64_t run_id = 0;
+};
+
 // Reads the window from `db`, computes the Table I row, stores it and
 // returns it. Errors name the run and segment.
 Result<storage::SegmentStatsRecord> compute_table1(storage::Database& db, const Table1Job& job,
@@ -43,27 +51,36 @@ Result<storage::SegmentStatsRecord> compute_table1(storage::Database& db, const 
 
 class AnalysisWorker {
  public:
-  using Done = std::function<void(const Table1Job&, const Result<storage::SegmentStatsRecord>&)>;
+  struct Callbacks {
+    std::function<void(const Table1Job&, const Result<storage::SegmentStatsRecord>&)> table1_done;
+    // Called on the worker thread with the worker's own connection (to record
+    // an event about the run).
+    std::function<void(storage::Database&, const RunJob&, const Result<RunAnalysisSummary>&)>
+        run_done;
+  };
 
-  AnalysisWorker(std::string db_path, storage::SampleWriter& writer,
-                 analysis::Table1Options options, Done on_done);
+  AnalysisWorker(std::string db_path, storage::SampleWriter& writer, AnalysisSettings settings,
+                 Callbacks callbacks);
   ~AnalysisWorker();  // finishes queued jobs, then stops
 
   void submit(Table1Job job);
+  void submit(RunJob job);
   // Blocks until every job submitted so far is done.
   void drain();
   void stop();
 
  private:
+  using Job = std::variant<Table1Job, RunJob>;
+  void push(Job job);
   void run();
 
   std::string db_path_;
   storage::SampleWriter& writer_;
-  analysis::Table1Options options_;
-  Done on_done_;
+  AnalysisSettings settings_;
+  Callbacks callbacks_;
   std::mutex mu_;
   std::condition_variable cv_;
-  std::deque<Table1Job> jobs_;
+  std::deque<Job> jobs_;
   int busy_ = 0;
   bool stop_ = false;
   std::thread thread_;

@@ -85,8 +85,9 @@ struct AnalysisSection {
   double bin_s = 1.0;
   int ma_window = 101;
   double l0_window_s = 120.0;
-  std::string model = "T4+R1+G1";
+  std::string model = "T4+R1+G1";  // fitted after each run, paper and centred forms
   double derivative_window_s = 60.0;
+  std::string allan_taus = "octave";  // octave, decade, all
 };
 
 struct ControlSection {

@@ -63,6 +63,7 @@ class StationControl {
   // Decimated samples (storage::Database::decimated_samples).
   virtual Reply run_samples(int64_t id, const SamplesQuery& query) = 0;
   virtual Reply run_fits(int64_t id) = 0;
+  virtual Reply run_allan(int64_t id) = 0;  // Allan deviation per soak
   virtual Reply fit(int64_t id) = 0;
 };
 
@@ -73,6 +74,7 @@ nlohmann::json to_json(const storage::SegmentRecord& s);
 nlohmann::json to_json(const storage::EventRecord& e);
 nlohmann::json to_json(const storage::SegmentStatsRecord& s);
 nlohmann::json to_json(const storage::FitRecord& f);
+nlohmann::json to_json(const storage::AllanRecord& a);
 nlohmann::json to_json(const storage::DecimatedSamples& d);
 
 }  // namespace gyrotherm::daemon

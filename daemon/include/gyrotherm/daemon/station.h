@@ -95,6 +95,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
   Reply run_stats(int64_t id) override;
   Reply run_samples(int64_t id, const SamplesQuery& query) override;
   Reply run_fits(int64_t id) override;
+  Reply run_allan(int64_t id) override;
   Reply fit(int64_t id) override;
 
  private:
@@ -106,6 +107,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
   schedules::Readings read_devices(double now_s);
   // Needs run_mu_.
   void resume_interrupted_run();
+  void submit_missing_analyses();
   void start_next_run(double now_s);
   void end_run();
   void checkpoint(bool force);

@@ -1,0 +1,103 @@
+// Analysis of stored runs (DESIGN.md §7): what the daemon computes and
+// stores after each run, and what `gyrotherm stats|allan|fit|compare` compute
+// offline from a database. One code path, so the CLI reproduces the stored
+// numbers exactly.
+//
+// - Table I: per completed soak, on its acquisition windows (pauses cut out),
+//   each window binned on its own and the series joined.
+// - Allan deviation: per completed soak, on the samples as recorded of its
+//   longest acquisition window (the overlapping estimator needs evenly spaced
+//   samples; the window used is stored in the record's inputs).
+// - Drift model: on the whole run's analysis series (every recorded sample,
+//   soaks and ramps, binned; gaps are not filled), in the paper and the
+//   centred forms.
+// Every stored result carries its inputs (runs, windows, model, options) as
+// JSON so it can be reproduced.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "gyrotherm/analysis/allan.h"
+#include "gyrotherm/analysis/drift_model.h"
+#include "gyrotherm/analysis/table1.h"
+#include "gyrotherm/core/result.h"
+#include "gyrotherm/storage/database.h"
+
+namespace gyrotherm::daemon {
+
+struct StationConfig;
+
+// The [analysis] settings of a station (or the CLI's options).
+struct AnalysisSettings {
+  analysis::Table1Options table1;  // bin_s, ma_window, earth_rate_dph
+  analysis::TauSet allan_taus = analysis::TauSet::kOctave;
+  analysis::DriftModelSpec model{.t_order = 4, .r_order = 1, .g_order = 1};
+  std::vector<analysis::DriftModelForm> forms = {analysis::DriftModelForm::kPaper,
+                                                 analysis::DriftModelForm::kCentered};
+  analysis::DriftFitOptions fit;  // derivative_window_s, l0_window_s
+};
+// From the config: [analysis] and the Earth rate of [station] latitude and
+// orientation. The model spec was checked when the config was loaded.
+AnalysisSettings analysis_settings(const StationConfig& config);
+
+// A completed soak of a run and its acquisition windows.
+struct SoakWindow {
+  int64_t run_id = 0;
+  int64_t segment_id = 0;
+  int segment_index = 0;  // 0-based step index
+  double setpoint_c = 0;
+  double t_from_s = 0, t_to_s = 0;                 // first window start, last window end
+  std::vector<std::pair<double, double>> windows;  // station s since run start
+};
+// The completed soaks of a run that have at least one acquisition window, in
+// step order. Errors: unknown run (names it), database errors.
+Result<std::vector<SoakWindow>> soak_windows(storage::Database& db, int64_t run_id);
+
+// The soak's analysis series: each window binned on its own (bin_s), joined.
+Result<analysis::AnalysisSeries> soak_series(storage::Database& db, const SoakWindow& soak,
+                                             double bin_s);
+
+// The gyro samples as recorded of the soak's longest window (for Allan).
+struct RecordedSamples {
+  double t_from_s = 0, t_to_s = 0;  // the window used
+  std::vector<double> t_s, rate_dph;
+};
+Result<RecordedSamples> soak_recorded_samples(storage::Database& db, const SoakWindow& soak);
+
+// The whole run's analysis series, read in chunks of station time so memory
+// stays bounded by the chunk, not the run. Errors: a run without samples
+// (names it), database errors, those of make_analysis_series.
+Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_id, double bin_s);
+
+// Compute and return (not stored).
+Result<storage::SegmentStatsRecord> soak_table1(storage::Database& db, const SoakWindow& soak,
+                                                const analysis::Table1Options& options);
+Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow& soak,
+                                        analysis::TauSet taus);
+// One fit on the runs' series together (each run its own L0), as a record
+// ready for Database::add_fit (inputs_json filled in).
+Result<storage::FitRecord> runs_fit(storage::Database& db, const std::vector<int64_t>& run_ids,
+                                    const analysis::DriftModelSpec& spec,
+                                    analysis::DriftModelForm form,
+                                    const analysis::DriftFitOptions& options, double bin_s);
+storage::FitRecord fit_record(const analysis::DriftFit& fit, const std::vector<int64_t>& run_ids,
+                              const analysis::DriftFitOptions& options, double bin_s);
+
+// Everything above for one completed run, stored: Table I rows, Allan records
+// and fits. A part that cannot be computed (a soak too short for the moving
+// average, a fit of a run at one constant temperature) is not an error of
+// the whole: it is listed in `problems` (one line each, naming the part) and
+// the rest is still stored. Errors: database failures only.
+struct RunAnalysisSummary {
+  int table1_rows = 0;
+  int allan_records = 0;
+  std::vector<int64_t> fit_ids;
+  std::vector<std::string> problems;
+};
+Result<RunAnalysisSummary> analyse_run(storage::Database& db, int64_t run_id,
+                                       const AnalysisSettings& settings);
+
+}  // namespace gyrotherm::daemon

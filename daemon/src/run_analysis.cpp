@@ -1,0 +1,345 @@
+#include "gyrotherm/daemon/run_analysis.h"
+
+#include <fmt/format.h>
+#include <fmt/ranges.h>
+#include <sqlite3.h>
+
+#include <algorithm>
+#include <cmath>
+#include <nlohmann/json.hpp>
+
+#include "gyrotherm/core/clock.h"
+#include "gyrotherm/daemon/config.h"
+
+namespace gyrotherm::daemon {
+namespace {
+
+// Station seconds of samples read at a time for a whole-run series: 600 s
+// of a 1 kHz gyro is 6e5 samples, ~25 MB.
+constexpr double kRunChunkS = 600.0;
+
+nlohmann::json num(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(); }
+
+nlohmann::json windows_json(const std::vector<std::pair<double, double>>& windows) {
+  nlohmann::json out = nlohmann::json::array();
+  for (const auto& [from_s, to_s] : windows) out.push_back({from_s, to_s});
+  return out;
+}
+
+void append(analysis::AnalysisSeries& dst, const analysis::AnalysisSeries& src) {
+  dst.bin_s = src.bin_s;
+  dst.binned = src.binned;
+  for (auto [d, s] : {std::pair{&dst.t_s, &src.t_s}, std::pair{&dst.rate_dph, &src.rate_dph},
+                      std::pair{&dst.top_c, &src.top_c}, std::pair{&dst.side_c, &src.side_c}}) {
+    d->insert(d->end(), s->begin(), s->end());
+  }
+}
+
+// First and last gyro sample time of a run; nullopt when it has none.
+Result<std::optional<std::pair<double, double>>> gyro_span(storage::Database& db, int64_t run_id) {
+  sqlite3_stmt* stmt = nullptr;
+  const char* sql = "SELECT min(t_s), max(t_s) FROM gyro_samples WHERE run_id = ?";
+  if (sqlite3_prepare_v2(db.handle(), sql, -1, &stmt, nullptr) != SQLITE_OK) {
+    return Error::Transient(fmt::format("{}: reading the sample span of run {}: {}", db.path(),
+                                        run_id, sqlite3_errmsg(db.handle())));
+  }
+  sqlite3_bind_int64(stmt, 1, run_id);
+  std::optional<std::pair<double, double>> span;
+  const int rc = sqlite3_step(stmt);
+  if (rc == SQLITE_ROW && sqlite3_column_type(stmt, 0) != SQLITE_NULL) {
+    span.emplace(sqlite3_column_double(stmt, 0), sqlite3_column_double(stmt, 1));
+  }
+  const std::string message = sqlite3_errmsg(db.handle());
+  sqlite3_finalize(stmt);
+  if (rc != SQLITE_ROW && rc != SQLITE_DONE) {
+    return Error::Transient(
+        fmt::format("{}: reading the sample span of run {}: {}", db.path(), run_id, message));
+  }
+  return span;
+}
+
+std::string soak_name(const SoakWindow& soak) {
+  return fmt::format("run {} segment {}", soak.run_id, soak.segment_index + 1);
+}
+
+}  // namespace
+
+AnalysisSettings analysis_settings(const StationConfig& config) {
+  AnalysisSettings s;
+  s.table1.bin_s = config.analysis.bin_s;
+  s.table1.ma_window = static_cast<std::size_t>(config.analysis.ma_window);
+  s.table1.earth_rate_dph =
+      analysis::earth_rate_component_dph(config.station.latitude_deg, config.station.orientation);
+  if (auto taus = analysis::parse_tau_set(config.analysis.allan_taus)) s.allan_taus = *taus;
+  if (auto spec = analysis::parse_model_spec(config.analysis.model)) s.model = *spec;
+  s.fit.derivative_window_s = config.analysis.derivative_window_s;
+  s.fit.l0_window_s = config.analysis.l0_window_s;
+  return s;
+}
+
+Result<std::vector<SoakWindow>> soak_windows(storage::Database& db, int64_t run_id) {
+  auto run = db.run(run_id);
+  if (!run) return run.error();
+  auto segments = db.segments(run_id);
+  if (!segments) return segments.error();
+  std::vector<SoakWindow> out;
+  for (const auto& seg : *segments) {
+    if (seg.kind != "soak" || seg.state != "completed") continue;
+    SoakWindow soak;
+    soak.run_id = run_id;
+    soak.segment_id = seg.id;
+    soak.segment_index = seg.index;
+    soak.setpoint_c = seg.setpoint_c;
+    soak.windows = seg.windows;
+    if (soak.windows.empty() && seg.t_acquire_start_s && seg.t_acquire_end_s) {
+      soak.windows.emplace_back(*seg.t_acquire_start_s, *seg.t_acquire_end_s);
+    }
+    if (soak.windows.empty()) continue;
+    soak.t_from_s = soak.windows.front().first;
+    soak.t_to_s = soak.windows.back().second;
+    out.push_back(std::move(soak));
+  }
+  return out;
+}
+
+Result<analysis::AnalysisSeries> soak_series(storage::Database& db, const SoakWindow& soak,
+                                             double bin_s) {
+  const std::string where = soak_name(soak);
+  analysis::AnalysisSeries joined;
+  joined.bin_s = bin_s;
+  for (const auto& [from_s, to_s] : soak.windows) {
+    auto gyro = db.gyro_samples(soak.run_id, from_s, to_s);
+    if (!gyro) return Error::Transient(fmt::format("{}: {}", where, gyro.error().message));
+    if (gyro->empty() && soak.windows.size() > 1) continue;  // a window shorter than a sample
+    auto temps = db.temperature_samples(soak.run_id, from_s, to_s);
+    if (!temps) return Error::Transient(fmt::format("{}: {}", where, temps.error().message));
+    auto part = analysis::make_analysis_series(*gyro, *temps, bin_s);
+    if (!part) {
+      return Error::Permanent(fmt::format("{} window [{:.1f}, {:.1f}) s: {}", where, from_s, to_s,
+                                          part.error().message));
+    }
+    append(joined, *part);
+  }
+  return joined;
+}
+
+Result<RecordedSamples> soak_recorded_samples(storage::Database& db, const SoakWindow& soak) {
+  if (soak.windows.empty()) {
+    return Error::Permanent(fmt::format("{}: no acquisition window", soak_name(soak)));
+  }
+  const auto longest = std::max_element(
+      soak.windows.begin(), soak.windows.end(),
+      [](const auto& a, const auto& b) { return a.second - a.first < b.second - b.first; });
+  auto gyro = db.gyro_samples(soak.run_id, longest->first, longest->second);
+  if (!gyro) return Error::Transient(fmt::format("{}: {}", soak_name(soak), gyro.error().message));
+  RecordedSamples out;
+  out.t_from_s = longest->first;
+  out.t_to_s = longest->second;
+  out.t_s.reserve(gyro->size());
+  out.rate_dph.reserve(gyro->size());
+  for (const auto& s : *gyro) {
+    out.t_s.push_back(s.t_s);
+    out.rate_dph.push_back(s.rate_dph);
+  }
+  return out;
+}
+
+Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_id, double bin_s) {
+  auto span = gyro_span(db, run_id);
+  if (!span) return span.error();
+  if (!*span) return Error::Permanent(fmt::format("run {}: no gyro samples recorded", run_id));
+  const auto [first_s, last_s] = **span;
+  analysis::AnalysisSeries joined;
+  joined.bin_s = bin_s;
+  // Chunks start on the run's first sample so the bins of consecutive chunks
+  // line up with the bins of one pass over the whole run.
+  const double chunk_s = std::max(kRunChunkS, std::ceil(kRunChunkS / bin_s) * bin_s);
+  for (double from_s = first_s; from_s <= last_s; from_s += chunk_s) {
+    const double to_s =
+        from_s + chunk_s > last_s ? std::nextafter(last_s, INFINITY) : from_s + chunk_s;
+    auto gyro = db.gyro_samples(run_id, from_s, to_s);
+    if (!gyro) return gyro.error();
+    if (gyro->empty()) continue;
+    auto temps = db.temperature_samples(run_id, from_s, to_s);
+    if (!temps) return temps.error();
+    if (temps->empty()) continue;  // no temperature in this stretch: nothing to fit it with
+    auto part = analysis::make_analysis_series(*gyro, *temps, bin_s);
+    if (!part) {
+      return Error::Permanent(
+          fmt::format("run {} [{:.1f}, {:.1f}) s: {}", run_id, from_s, to_s, part.error().message));
+    }
+    append(joined, *part);
+  }
+  if (joined.t_s.empty()) {
+    return Error::Permanent(
+        fmt::format("run {}: no stretch of gyro samples with temperatures recorded", run_id));
+  }
+  return joined;
+}
+
+Result<storage::SegmentStatsRecord> soak_table1(storage::Database& db, const SoakWindow& soak,
+                                                const analysis::Table1Options& options) {
+  auto series = soak_series(db, soak, options.bin_s);
+  if (!series) return series.error();
+  auto row = analysis::table1_row(*series, options);
+  if (!row) return Error::Permanent(fmt::format("{}: {}", soak_name(soak), row.error().message));
+  storage::SegmentStatsRecord rec;
+  rec.segment_id = soak.segment_id;
+  rec.run_id = soak.run_id;
+  rec.segment_index = soak.segment_index;
+  rec.setpoint_c = soak.setpoint_c;
+  rec.n = static_cast<int64_t>(row->n);
+  rec.duration_s = row->duration_s;
+  rec.temp_mean_c = row->temp_mean_c;
+  rec.bias_mean_dph = row->bias_mean_dph;
+  rec.bias_std_dph = row->bias_std_dph;
+  rec.bias_std_ma_dph = row->bias_std_ma_dph;
+  rec.bias_mean_earth_removed_dph = row->bias_mean_earth_removed_dph;
+  rec.bin_s = options.bin_s;
+  rec.ma_window = static_cast<int>(options.ma_window);
+  rec.earth_rate_dph = options.earth_rate_dph;
+  rec.t_from_s = soak.t_from_s;
+  rec.t_to_s = soak.t_to_s;
+  rec.computed_utc = wall_time_utc_iso();
+  return rec;
+}
+
+Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow& soak,
+                                        analysis::TauSet taus) {
+  auto samples = soak_recorded_samples(db, soak);
+  if (!samples) return samples.error();
+  auto adev = analysis::allan_deviation(samples->t_s, samples->rate_dph, {.taus = taus});
+  if (!adev) {
+    return Error::Permanent(fmt::format("{} window [{:.1f}, {:.1f}) s: Allan deviation: {}",
+                                        soak_name(soak), samples->t_from_s, samples->t_to_s,
+                                        adev.error().message));
+  }
+  storage::AllanRecord rec;
+  rec.run_id = soak.run_id;
+  rec.segment_id = soak.segment_id;
+  rec.segment_index = soak.segment_index;
+  rec.t_from_s = samples->t_from_s;
+  rec.t_to_s = samples->t_to_s;
+  rec.taus = std::string(analysis::to_string(taus));
+  rec.tau0_s = adev->tau0_s;
+  rec.n_samples = static_cast<int64_t>(adev->n_samples);
+  rec.tau_s = adev->tau_s;
+  rec.adev_dph = adev->adev_dph;
+  rec.adev_lo_dph = adev->adev_lo_dph;
+  rec.adev_hi_dph = adev->adev_hi_dph;
+  rec.angle_random_walk_dprh = adev->angle_random_walk_dprh;
+  rec.bias_instability_dph = adev->bias_instability_dph;
+  rec.bias_instability_tau_s = adev->bias_instability_tau_s;
+  rec.rate_random_walk_dphprh = adev->rate_random_walk_dphprh;
+  rec.bias_instability_method = adev->bias_instability_method;
+  rec.inputs_json = nlohmann::json{{"run_id", soak.run_id},
+                                   {"segment", soak.segment_index + 1},
+                                   {"taus", rec.taus},
+                                   {"samples", "as recorded"},
+                                   {"window", {samples->t_from_s, samples->t_to_s}},
+                                   {"windows", windows_json(soak.windows)},
+                                   {"window_rule", "the longest acquisition window"}}
+                        .dump();
+  rec.computed_utc = wall_time_utc_iso();
+  return rec;
+}
+
+storage::FitRecord fit_record(const analysis::DriftFit& fit, const std::vector<int64_t>& run_ids,
+                              const analysis::DriftFitOptions& options, double bin_s) {
+  storage::FitRecord rec;
+  rec.run_ids = run_ids;
+  rec.model = analysis::to_string(fit.spec);
+  rec.form = std::string(analysis::to_string(fit.form));
+  rec.n = static_cast<int64_t>(fit.n);
+  nlohmann::json coefficients = nlohmann::json::object();
+  nlohmann::json errors = nlohmann::json::object();
+  for (const auto& [name, value] : fit.coefficients) coefficients[name] = num(value);
+  for (const auto& [name, value] : fit.std_errors) errors[name] = num(value);
+  rec.coefficients_json = coefficients.dump();
+  rec.standard_errors_json = errors.dump();
+  rec.residual_std_dph = fit.residual_std_dph;
+  rec.r_squared = fit.r_squared;
+  nlohmann::json l0 = nlohmann::json::array();
+  for (double v : fit.l0_per_series_dph) l0.push_back(num(v));
+  rec.inputs_json = nlohmann::json{{"runs", run_ids},
+                                   {"model", rec.model},
+                                   {"form", rec.form},
+                                   {"series", "whole run, every recorded sample"},
+                                   {"bin_s", bin_s},
+                                   {"derivative_window_s", options.derivative_window_s},
+                                   {"l0_window_s", options.l0_window_s},
+                                   {"l0_dph", l0},
+                                   {"condition_estimate", num(fit.condition_estimate)}}
+                        .dump();
+  rec.computed_utc = wall_time_utc_iso();
+  return rec;
+}
+
+Result<storage::FitRecord> runs_fit(storage::Database& db, const std::vector<int64_t>& run_ids,
+                                    const analysis::DriftModelSpec& spec,
+                                    analysis::DriftModelForm form,
+                                    const analysis::DriftFitOptions& options, double bin_s) {
+  if (run_ids.empty()) return Error::Permanent("fit: no runs given");
+  std::vector<analysis::AnalysisSeries> series;
+  for (int64_t id : run_ids) {
+    auto s = run_series(db, id, bin_s);
+    if (!s) return s.error();
+    series.push_back(std::move(*s));
+  }
+  auto fit = analysis::fit_drift_model(series, spec, form, options);
+  if (!fit) {
+    return Error::Permanent(fmt::format(
+        "run{} {}: fit {} ({} form): {}", run_ids.size() > 1 ? "s" : "", fmt::join(run_ids, ","),
+        analysis::to_string(spec), analysis::to_string(form), fit.error().message));
+  }
+  return fit_record(*fit, run_ids, options, bin_s);
+}
+
+Result<RunAnalysisSummary> analyse_run(storage::Database& db, int64_t run_id,
+                                       const AnalysisSettings& settings) {
+  auto soaks = soak_windows(db, run_id);
+  if (!soaks) return soaks.error();
+  RunAnalysisSummary summary;
+  const auto problem = [&summary](const Error& e) -> Status {
+    if (e.transient) return e;  // a database failure: the caller retries or reports
+    summary.problems.push_back(e.message);
+    return Status::Ok();
+  };
+  for (const SoakWindow& soak : *soaks) {
+    if (auto row = soak_table1(db, soak, settings.table1)) {
+      if (auto st = db.put_segment_stats(*row); !st) return st.error();
+      ++summary.table1_rows;
+    } else if (Status st = problem(row.error()); !st.ok()) {
+      return st.error();
+    }
+    if (auto adev = soak_allan(db, soak, settings.allan_taus)) {
+      if (auto id = db.put_allan(*adev); id) {
+        ++summary.allan_records;
+      } else if (Status st = problem(id.error()); !st.ok()) {
+        return st.error();
+      }
+    } else if (Status st = problem(adev.error()); !st.ok()) {
+      return st.error();
+    }
+  }
+  auto series = run_series(db, run_id, settings.table1.bin_s);
+  if (!series) {
+    if (Status st = problem(series.error()); !st.ok()) return st.error();
+    return summary;
+  }
+  for (analysis::DriftModelForm form : settings.forms) {
+    auto fit = analysis::fit_drift_model(*series, settings.model, form, settings.fit);
+    if (!fit) {
+      summary.problems.push_back(fmt::format("run {}: fit {} ({} form): {}", run_id,
+                                             analysis::to_string(settings.model),
+                                             analysis::to_string(form), fit.error().message));
+      continue;
+    }
+    auto id = db.add_fit(fit_record(*fit, {run_id}, settings.fit, settings.table1.bin_s));
+    if (!id) return id.error();
+    summary.fit_ids.push_back(*id);
+  }
+  return summary;
+}
+
+}  // namespace gyrotherm::daemon
