@@ -153,6 +153,33 @@ TEST_F(StationTest, ShortScheduleEndToEnd) {
   }
   std::sort(forms.begin(), forms.end());
   EXPECT_EQ(forms, (std::vector<std::string>{"centered", "paper"}));
+
+  // A run that completed while its analysis never ran (the daemon stopped in
+  // between) is analysed at the next start.
+  {
+    auto rw = storage::Database::open((dir_ / "station.db").string());
+    ASSERT_TRUE(rw.ok()) << rw.error().message;
+    ASSERT_TRUE(rw->exec("DELETE FROM allan; DELETE FROM fit_runs; DELETE FROM fits; "
+                         "DELETE FROM events WHERE kind = 'analysis'")
+                    .ok());
+  }
+  start_daemon({"--exit-when-done"}, /*with_schedule=*/false);
+  const auto again = daemon_->wait(std::chrono::seconds(60));
+  ASSERT_TRUE(again.has_value()) << daemon_->log();
+  EXPECT_EQ(*again, 0) << daemon_->log();
+  auto redone_allan = db->allan(1);
+  ASSERT_TRUE(redone_allan.ok());
+  EXPECT_EQ(redone_allan->size(), 2u) << daemon_->log();
+  auto redone_fits = db->fits(1);
+  ASSERT_TRUE(redone_fits.ok());
+  ASSERT_EQ(redone_fits->size(), 2u) << daemon_->log();
+  // The same data and settings give the same numbers.
+  for (const auto& f : *redone_fits) {
+    const auto before = std::find_if(fits->begin(), fits->end(),
+                                     [&](const storage::FitRecord& b) { return b.form == f.form; });
+    ASSERT_NE(before, fits->end());
+    EXPECT_EQ(f.coefficients_json, before->coefficients_json) << f.form;
+  }
 }
 
 TEST_F(StationTest, SigtermInterruptsTheRunAndLeavesTheChamberSafe) {
