@@ -1,5 +1,6 @@
-// gyrotherm: the command-line tool. Daemon control over REST, offline tools
-// on a database or capture file, and commissioning on a station config.
+// gyrotherm: the command-line tool. Daemon control over REST, offline
+// analysis on a database or CSV files (analysis.h), a capture-file decoder,
+// and commissioning on a station config.
 #include <fmt/format.h>
 
 #include <CLI/CLI.hpp>
@@ -10,6 +11,7 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
+#include "analysis.h"
 #include "control.h"
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/drivers/frame_parser.h"
@@ -17,7 +19,6 @@
 #include "gyrotherm/drivers/modbus_device.h"
 #include "gyrotherm/drivers/serial_port.h"
 #include "gyrotherm/schedules/schedule.h"
-#include "gyrotherm/storage/database.h"
 
 namespace {
 
@@ -27,10 +28,6 @@ int fail(const std::string& message, int code = 1) {
   std::cerr << "gyrotherm: " << message;
   if (message.empty() || message.back() != '\n') std::cerr << '\n';
   return code;
-}
-
-nlohmann::json num(double v) {
-  return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr);
 }
 
 // ---------------------------------------------------------------- decode
@@ -74,54 +71,6 @@ int cmd_decode(const std::string& protocol, const std::string& path, bool json) 
                static_cast<unsigned long long>(c.bytes_skipped),
                static_cast<unsigned long long>(c.sequence_gaps),
                static_cast<unsigned long long>(c.frames_missed));
-  return 0;
-}
-
-// ---------------------------------------------------------------- stats
-int cmd_stats(const std::string& db_path, std::optional<int64_t> run_id, bool json) {
-  auto db = storage::Database::open_read_only(db_path);
-  if (!db) return fail(db.error().message, 2);
-  auto rows = db->segment_stats(run_id);
-  if (!rows) return fail(rows.error().message);
-  if (json) {
-    nlohmann::json out = nlohmann::json::array();
-    for (const auto& r : *rows) {
-      out.push_back({{"run_id", r.run_id},
-                     {"segment", r.segment_index + 1},
-                     {"setpoint_c", r.setpoint_c},
-                     {"n", r.n},
-                     {"duration_s", num(r.duration_s)},
-                     {"temp_mean_c", num(r.temp_mean_c)},
-                     {"bias_mean_dph", num(r.bias_mean_dph)},
-                     {"bias_std_dph", num(r.bias_std_dph)},
-                     {"bias_std_ma101_dph", num(r.bias_std_ma_dph)},
-                     {"bias_mean_earth_removed_dph", num(r.bias_mean_earth_removed_dph)},
-                     {"earth_rate_dph", num(r.earth_rate_dph)},
-                     {"ma_window", r.ma_window},
-                     {"bin_s", r.bin_s},
-                     {"t_from_s", r.t_from_s},
-                     {"t_to_s", r.t_to_s}});
-    }
-    std::cout << out.dump(2) << "\n";
-    return 0;
-  }
-  if (rows->empty()) {
-    std::cout << "no Table I rows" << (run_id ? fmt::format(" for run {}", *run_id) : "") << "\n";
-    return 0;
-  }
-  std::cout << fmt::format("{:>4} {:>4} {:>9} {:>8} {:>9} {:>10} {:>10} {:>11} {:>11} {:>11}\n",
-                           "run", "seg", "setpt °C", "n", "length s", "temp °C", "bias °/h",
-                           "std °/h", "std MA °/h", "bias−Ω °/h");
-  for (const auto& r : *rows) {
-    std::cout << fmt::format(
-        "{:>4} {:>4} {:>9.2f} {:>8} {:>9.0f} {:>10.2f} {:>10.4f} {:>11.4f} {:>11.4f} {:>11.4f}\n",
-        r.run_id, r.segment_index + 1, r.setpoint_c, r.n, r.duration_s, r.temp_mean_c,
-        r.bias_mean_dph, r.bias_std_dph, r.bias_std_ma_dph, r.bias_mean_earth_removed_dph);
-  }
-  std::cout << fmt::format(
-      "(std MA: after a {}-point moving average; bias−Ω: Earth rate {:.4f} °/h "
-      "removed)\n",
-      rows->front().ma_window, rows->front().earth_rate_dph);
   return 0;
 }
 
@@ -279,13 +228,6 @@ int main(int argc, char** argv) {
   decode->add_option("file", capture, "capture file")->required();
   decode->add_flag("--json", json);
 
-  auto* stats = app.add_subcommand("stats", "Table I rows of a database");
-  std::string db_path;
-  std::optional<int64_t> run_id;
-  stats->add_option("--db", db_path, "database file")->required();
-  stats->add_option("--run", run_id, "only this run");
-  stats->add_flag("--json", json);
-
   auto* devices = app.add_subcommand("devices", "one live reading of every device");
   std::string config_path;
   devices->add_option("--config", config_path, "station config")->required();
@@ -308,6 +250,8 @@ int main(int argc, char** argv) {
 
   // status, queue add|list|remove|move, pause, resume, abort, stop, runs, run
   gyrotherm::cli::ControlCommands control(app);
+  // stats, allan, fit, compare, start-model
+  gyrotherm::cli::AnalysisCommands analysis(app);
 
   try {
     app.parse(argc, argv);
@@ -322,11 +266,11 @@ int main(int argc, char** argv) {
   }
   try {
     if (*decode) return cmd_decode(protocol, capture, json);
-    if (*stats) return cmd_stats(db_path, run_id, json);
     if (*devices) return cmd_devices(config_path, json);
     if (*set_point) return cmd_chamber_setpoint(config_path, setpoint_c);
     if (*check) return cmd_schedule_check(config_path, schedule_path, json);
     if (auto code = control.run(json)) return *code;
+    if (auto code = analysis.run(json)) return *code;
   } catch (const std::exception& e) {
     return fail(e.what());
   }

@@ -143,11 +143,11 @@ TEST_F(CliTest, StatsPrintsTableOneRowsAsTextAndJson) {
     st.earth_rate_dph = 7.948;
     ASSERT_TRUE(db->put_segment_stats(st).ok());
   }
-  const Run text = cli({"stats", "--db", db_path});
+  const Run text = cli({"stats", "--db", db_path, "--stored"});
   ASSERT_EQ(text.code, 0) << text.err;
   EXPECT_THAT(text.out, HasSubstr("8.0771"));
   EXPECT_THAT(text.out, HasSubstr("0.0479"));
-  const Run json = cli({"stats", "--db", db_path, "--json"});
+  const Run json = cli({"stats", "--db", db_path, "--stored", "--json"});
   ASSERT_EQ(json.code, 0) << json.err;
   const auto j = nlohmann::json::parse(json.out);
   ASSERT_EQ(j.size(), 1u);

@@ -1,0 +1,1268 @@
+#include "analysis.h"
+
+#include <fcntl.h>
+#include <fmt/format.h>
+#include <sys/stat.h>
+#include <toml++/toml.h>
+#include <unistd.h>
+
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <cerrno>
+#include <charconv>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <ctime>
+#include <filesystem>
+#include <iostream>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <set>
+
+#include "gyrotherm/analysis/allan.h"
+#include "gyrotherm/analysis/comparison.h"
+#include "gyrotherm/analysis/csv_window.h"
+#include "gyrotherm/analysis/drift_model.h"
+#include "gyrotherm/analysis/start_temperature.h"
+#include "gyrotherm/analysis/table1.h"
+#include "gyrotherm/daemon/run_analysis.h"
+#include "gyrotherm/storage/database.h"
+
+namespace gyrotherm::cli {
+
+using nlohmann::json;
+
+namespace {
+
+constexpr const char* kDash = "—";
+constexpr int kExitAnalysis = 1;
+constexpr int kExitInput = 2;
+
+int fail(const std::string& message, int code) {
+  std::cerr << "gyrotherm: " << message;
+  if (message.empty() || message.back() != '\n') std::cerr << '\n';
+  return code;
+}
+
+json num(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
+json num(const std::optional<double>& v) { return v ? num(*v) : json(nullptr); }
+
+std::string fixed(double v, int decimals) {
+  return std::isfinite(v) ? fmt::format("{:.{}f}", v, decimals) : kDash;
+}
+std::string sci(double v) { return std::isfinite(v) ? fmt::format("{:.6e}", v) : kDash; }
+std::string general(double v) { return std::isfinite(v) ? fmt::format("{:.6g}", v) : kDash; }
+
+std::string join_ids(const std::vector<int64_t>& ids) {
+  std::string s;
+  for (auto id : ids) s += (s.empty() ? "" : ",") + std::to_string(id);
+  return s;
+}
+
+std::string now_utc_iso() {
+  const auto now = std::chrono::system_clock::now();
+  const std::time_t t = std::chrono::system_clock::to_time_t(now);
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[32];
+  std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", &tm);
+  return buf;
+}
+
+// ---------------------------------------------------------------- tables
+
+std::size_t cells(std::string_view s) {
+  std::size_t n = 0;
+  for (const char c : s) n += (static_cast<unsigned char>(c) & 0xC0) != 0x80;
+  return n;
+}
+
+// A header row and data rows, columns two spaces apart; the first `left`
+// columns left-aligned, the others right-aligned; no trailing blanks.
+std::string table(const std::vector<std::string>& header,
+                  const std::vector<std::vector<std::string>>& rows, std::size_t left = 0,
+                  std::string_view indent = "") {
+  std::vector<std::size_t> width(header.size());
+  auto measure = [&](const std::vector<std::string>& row) {
+    for (std::size_t c = 0; c < row.size() && c < width.size(); ++c) {
+      width[c] = std::max(width[c], cells(row[c]));
+    }
+  };
+  measure(header);
+  for (const auto& r : rows) measure(r);
+  std::string out;
+  auto emit = [&](const std::vector<std::string>& row) {
+    std::string line(indent);
+    for (std::size_t c = 0; c < row.size() && c < width.size(); ++c) {
+      if (c > 0) line += "  ";
+      const std::string pad(width[c] - cells(row[c]), ' ');
+      line += c < left ? row[c] + pad : pad + row[c];
+    }
+    while (!line.empty() && line.back() == ' ') line.pop_back();
+    out += line + "\n";
+  };
+  emit(header);
+  for (const auto& r : rows) emit(r);
+  return out;
+}
+
+// ---------------------------------------------------------------- settings of a stored run
+
+// What a run's stored station config says under [analysis] (and [station]
+// name). Read leniently: a config that is missing or does not parse, or a key
+// of the wrong type, leaves the default.
+struct RunConfig {
+  std::optional<double> bin_s, l0_window_s, derivative_window_s;
+  std::optional<int> ma_window;
+  std::optional<std::string> model;
+  std::optional<std::string> allan_taus;
+  std::string station_name;
+};
+
+RunConfig read_run_config(const std::string& text) {
+  RunConfig c;
+  if (text.empty()) return c;
+  auto number = [](auto node) -> std::optional<double> {
+    if (auto v = node.template value<double>()) return *v;
+    return std::nullopt;
+  };
+  if (text.find_first_not_of(" \t\r\n") != std::string::npos &&
+      text[text.find_first_not_of(" \t\r\n")] == '{') {
+    const json j = json::parse(text, nullptr, false);
+    if (j.is_discarded() || !j.is_object()) return c;
+    auto get_num = [](const json& o, const char* k) -> std::optional<double> {
+      if (o.is_object() && o.contains(k) && o[k].is_number()) return o[k].get<double>();
+      return std::nullopt;
+    };
+    if (j.contains("analysis")) {
+      const json& a = j["analysis"];
+      c.bin_s = get_num(a, "bin_s");
+      c.l0_window_s = get_num(a, "l0_window_s");
+      c.derivative_window_s = get_num(a, "derivative_window_s");
+      if (auto w = get_num(a, "ma_window")) c.ma_window = static_cast<int>(*w);
+      if (a.is_object() && a.contains("model") && a["model"].is_string()) {
+        c.model = a["model"].get<std::string>();
+      }
+      if (a.is_object() && a.contains("allan_taus") && a["allan_taus"].is_string()) {
+        c.allan_taus = a["allan_taus"].get<std::string>();
+      }
+    }
+    if (j.contains("station") && j["station"].is_object() && j["station"].contains("name") &&
+        j["station"]["name"].is_string()) {
+      c.station_name = j["station"]["name"].get<std::string>();
+    }
+    return c;
+  }
+  try {
+    const toml::table t = toml::parse(text);
+    c.bin_s = number(t["analysis"]["bin_s"]);
+    c.l0_window_s = number(t["analysis"]["l0_window_s"]);
+    c.derivative_window_s = number(t["analysis"]["derivative_window_s"]);
+    if (auto w = t["analysis"]["ma_window"].value<int64_t>()) c.ma_window = static_cast<int>(*w);
+    if (auto m = t["analysis"]["model"].value<std::string>()) c.model = *m;
+    if (auto m = t["analysis"]["allan_taus"].value<std::string>()) c.allan_taus = *m;
+    if (auto n = t["station"]["name"].value<std::string>()) c.station_name = *n;
+  } catch (const toml::parse_error&) {
+  }
+  return c;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------- public helpers
+
+Result<std::vector<int64_t>> parse_run_list(std::string_view list) {
+  auto trim = [](std::string_view s) {
+    while (!s.empty() && (s.front() == ' ' || s.front() == '\t')) s.remove_prefix(1);
+    while (!s.empty() && (s.back() == ' ' || s.back() == '\t')) s.remove_suffix(1);
+    return s;
+  };
+  auto id = [](std::string_view s) -> std::optional<int64_t> {
+    int64_t v = 0;
+    const auto [p, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
+    if (s.empty() || ec != std::errc() || p != s.data() + s.size() || v <= 0) return std::nullopt;
+    return v;
+  };
+  if (trim(list).empty()) return Error::Permanent("run list is empty (e.g. \"1,2,5\" or \"3-7\")");
+  std::vector<int64_t> out;
+  std::set<int64_t> seen;
+  auto add = [&](int64_t v, std::string_view item) -> Status {
+    if (!seen.insert(v).second) {
+      return Error::Permanent(
+          fmt::format("run list \"{}\": run {} is listed twice (in \"{}\")", list, v, item));
+    }
+    out.push_back(v);
+    return Status::Ok();
+  };
+  std::size_t pos = 0;
+  while (pos <= list.size()) {
+    const std::size_t comma = std::min(list.find(',', pos), list.size());
+    const std::string_view item = trim(list.substr(pos, comma - pos));
+    pos = comma + 1;
+    if (item.empty()) {
+      return Error::Permanent(fmt::format("run list \"{}\": empty item", list));
+    }
+    const std::size_t dash = item.find('-', 1);
+    if (dash == std::string_view::npos) {
+      const auto v = id(item);
+      if (!v) {
+        return Error::Permanent(fmt::format(
+            "run list \"{}\": \"{}\" is not a run id (a positive integer)", list, item));
+      }
+      if (auto st = add(*v, item); !st) return st.error();
+      continue;
+    }
+    const auto from = id(trim(item.substr(0, dash)));
+    const auto to = id(trim(item.substr(dash + 1)));
+    if (!from || !to) {
+      return Error::Permanent(fmt::format(
+          "run list \"{}\": \"{}\" is not a range of run ids (e.g. \"3-7\")", list, item));
+    }
+    if (*to < *from) {
+      return Error::Permanent(
+          fmt::format("run list \"{}\": range \"{}\" ends before it starts", list, item));
+    }
+    if (*to - *from >= 100000) {
+      return Error::Permanent(fmt::format("run list \"{}\": range \"{}\" is too long", list, item));
+    }
+    for (int64_t v = *from; v <= *to; ++v) {
+      if (auto st = add(v, item); !st) return st.error();
+    }
+  }
+  return out;
+}
+
+Status write_file_atomically(const std::string& path, std::string_view content) {
+  namespace fs = std::filesystem;
+  const fs::path target(path);
+  const fs::path dir = target.has_parent_path() ? target.parent_path() : fs::path(".");
+  std::string tmpl = (dir / ("." + target.filename().string() + ".tmp-XXXXXX")).string();
+  const int fd = ::mkstemp(tmpl.data());
+  if (fd < 0) {
+    return Error::Permanent(fmt::format("{}: cannot create a temporary file in {}: {}", path,
+                                        dir.string(), std::strerror(errno)));
+  }
+  auto give_up = [&](const char* what) {
+    const std::string reason = std::strerror(errno);
+    ::close(fd);
+    ::unlink(tmpl.c_str());
+    return Error::Permanent(fmt::format("{}: cannot {}: {}", path, what, reason));
+  };
+  std::size_t done = 0;
+  while (done < content.size()) {
+    const ssize_t n = ::write(fd, content.data() + done, content.size() - done);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      return give_up("write");
+    }
+    done += static_cast<std::size_t>(n);
+  }
+  ::fchmod(fd, 0644);
+  if (::fsync(fd) != 0) return give_up("sync");
+  if (::close(fd) != 0) {
+    const std::string reason = std::strerror(errno);
+    ::unlink(tmpl.c_str());
+    return Error::Permanent(fmt::format("{}: cannot write: {}", path, reason));
+  }
+  if (::rename(tmpl.c_str(), path.c_str()) != 0) {
+    const std::string reason = std::strerror(errno);
+    ::unlink(tmpl.c_str());
+    return Error::Permanent(fmt::format("{}: cannot rename the temporary file: {}", path, reason));
+  }
+  return Status::Ok();
+}
+
+// ---------------------------------------------------------------- parsed options
+
+namespace {
+
+struct Args {
+  CLI::App* stats = nullptr;
+  CLI::App* allan = nullptr;
+  CLI::App* fit = nullptr;
+  CLI::App* compare = nullptr;
+  CLI::App* start_model = nullptr;
+
+  // Input.
+  std::string db_path;
+  std::optional<int64_t> run;
+  std::optional<std::string> runs;
+  std::vector<std::string> csv;
+  bool json = false;
+  bool stored = false;  // stats: the rows the daemon stored, not recomputed
+
+  // Table I.
+  std::optional<double> bin_s;
+  std::optional<int> ma_window;
+  std::optional<double> earth_rate_dph;
+  std::optional<double> latitude_deg;
+  std::optional<std::string> orientation;
+  // Allan.
+  std::optional<std::string> taus;
+  // Fits.
+  std::optional<std::string> model;
+  std::string form = "paper";
+  std::optional<double> derivative_window_s;
+  std::optional<double> l0_window_s;
+  int max_order = 4, g_order = 1, r_order = 1;
+  std::optional<double> t0_c;
+  std::optional<double> t0_window_s;
+  std::string coefficients_json;
+  std::string c_header;
+};
+
+using Parsed = Args;
+
+// ---------------------------------------------------------------- input
+
+// An open database and the runs chosen from it.
+struct DbInput {
+  storage::Database db;
+  std::vector<storage::RunRecord> runs;  // in the order asked for
+  std::vector<int64_t> ids() const {
+    std::vector<int64_t> v;
+    for (const auto& r : runs) v.push_back(r.id);
+    return v;
+  }
+};
+
+// The input of one command: a database with runs, or CSV files.
+struct Input {
+  std::optional<DbInput> db;
+  std::vector<analysis::CsvWindow> csv;
+};
+
+enum class RunsNeeded { kOptional, kRequired };
+
+// Opens what the options name. Errors are usage or input errors (exit 2).
+Result<Input> open_input(const Parsed& p, RunsNeeded needed) {
+  const bool has_db = !p.db_path.empty();
+  if (has_db == !p.csv.empty()) {
+    return Error::Permanent("give either --db FILE or --csv FILE (not both)");
+  }
+  Input in;
+  if (!has_db) {
+    if (p.run || p.runs) return Error::Permanent("--run and --runs go with --db, not --csv");
+    for (const auto& path : p.csv) {
+      auto w = analysis::read_csv_window(path);
+      if (!w) return w.error();
+      in.csv.push_back(std::move(*w));
+    }
+    return in;
+  }
+  if (p.run && p.runs) return Error::Permanent("give --run ID or --runs LIST, not both");
+  if (needed == RunsNeeded::kRequired && !p.run && !p.runs) {
+    return Error::Permanent("--db needs --run ID or --runs LIST (e.g. --runs 1,2,5 or 3-7)");
+  }
+  std::vector<int64_t> ids;
+  if (p.run) {
+    ids.push_back(*p.run);
+  } else if (p.runs) {
+    auto list = parse_run_list(*p.runs);
+    if (!list) return Error::Permanent("--runs: " + list.error().message);
+    ids = std::move(*list);
+  }
+  auto db = storage::Database::open_read_only(p.db_path);
+  if (!db) return db.error();
+  auto all = db->runs();
+  if (!all) return all.error();
+  DbInput d{std::move(*db), {}};
+  if (ids.empty()) {
+    d.runs = std::move(*all);
+    std::sort(d.runs.begin(), d.runs.end(),
+              [](const auto& a, const auto& b) { return a.id < b.id; });
+  } else {
+    for (const int64_t id : ids) {
+      const auto it =
+          std::find_if(all->begin(), all->end(), [id](const auto& r) { return r.id == id; });
+      if (it == all->end()) {
+        return Error::Permanent(fmt::format("{}: unknown run {} (the database has {} run{})",
+                                            p.db_path, id, all->size(),
+                                            all->size() == 1 ? "" : "s"));
+      }
+      d.runs.push_back(*it);
+    }
+  }
+  in.db = std::move(d);
+  return in;
+}
+
+// Earth rate removed from a window's mean: --earth-rate-dph, else from
+// --latitude/--orientation, else (database) the run's own.
+Result<double> earth_rate_dph(const Parsed& p, const storage::RunRecord* run) {
+  if (p.earth_rate_dph) return *p.earth_rate_dph;
+  std::optional<double> lat = p.latitude_deg;
+  std::string orient = p.orientation.value_or("");
+  if (run != nullptr) {
+    if (!lat) lat = run->latitude_deg;
+    if (orient.empty()) orient = run->orientation;
+  }
+  if (!lat) {
+    if (p.orientation) return Error::Permanent("--orientation needs --latitude DEG");
+    return 0.0;
+  }
+  if (orient.empty()) orient = "up";
+  auto o = analysis::parse_orientation(orient);
+  if (!o) {
+    return Error::Permanent(
+        run != nullptr && !p.orientation
+            ? fmt::format("run {}: stored orientation \"{}\": {} (give --earth-rate-dph)", run->id,
+                          orient, o.error().message)
+            : fmt::format("--orientation: {}", o.error().message));
+  }
+  return analysis::earth_rate_component_dph(*lat, *o);
+}
+
+// An options struct's IsValid message names its field ("l0_window_s must be
+// positive"); the user typed the option (--l0-window-s).
+std::string as_option(std::string message) {
+  for (const char* field : {"max_order", "g_order", "r_order", "l0_window_s", "derivative_window_s",
+                            "t0_window_s", "bin_s", "ma_window"}) {
+    const std::string f = field;
+    if (message.rfind(f, 0) == 0) {
+      std::string option = "--" + f;
+      std::replace(option.begin(), option.end(), '_', '-');
+      return option + message.substr(f.size());
+    }
+  }
+  return message;
+}
+
+Result<analysis::Table1Options> table1_options(const Parsed& p, const RunConfig& cfg,
+                                               const storage::RunRecord* run) {
+  analysis::Table1Options o;
+  o.bin_s = p.bin_s.value_or(cfg.bin_s.value_or(o.bin_s));
+  const int window = p.ma_window.value_or(cfg.ma_window.value_or(static_cast<int>(o.ma_window)));
+  if (window < 2) return Error::Permanent(fmt::format("--ma-window {}: must be >= 2", window));
+  o.ma_window = static_cast<std::size_t>(window);
+  auto e = earth_rate_dph(p, run);
+  if (!e) return e.error();
+  o.earth_rate_dph = *e;
+  std::string why;
+  if (!o.IsValid(&why)) return Error::Permanent(as_option(why));
+  return o;
+}
+
+// The first run's stored config for multi-run commands ({} for CSV).
+RunConfig first_run_config(const Input& in) {
+  return in.db && !in.db->runs.empty() ? read_run_config(in.db->runs.front().config_json)
+                                       : RunConfig{};
+}
+
+Result<analysis::DriftFitOptions> fit_options(const Parsed& p, const RunConfig& cfg) {
+  analysis::DriftFitOptions o;
+  o.derivative_window_s =
+      p.derivative_window_s.value_or(cfg.derivative_window_s.value_or(o.derivative_window_s));
+  o.l0_window_s = p.l0_window_s.value_or(cfg.l0_window_s.value_or(o.l0_window_s));
+  std::string why;
+  if (!o.IsValid(&why)) return Error::Permanent(as_option(why));
+  return o;
+}
+
+Result<analysis::DriftModelSpec> model_spec(const Parsed& p, const RunConfig& cfg) {
+  const std::string text = p.model.value_or(cfg.model.value_or("T4+R1+G1"));
+  auto spec = analysis::parse_model_spec(text);
+  if (!spec) {
+    return Error::Permanent(fmt::format("{} \"{}\": {}", p.model ? "--model" : "stored model", text,
+                                        spec.error().message));
+  }
+  return spec;
+}
+
+// Every run's (or file's) analysis series, in order; `names` says which is
+// which in messages. Errors are analysis errors (exit 1).
+struct SeriesSet {
+  std::vector<analysis::AnalysisSeries> series;
+  std::vector<std::string> names;
+  json inputs;  // {"runs": [..]} or {"csv": [..]}
+};
+
+Result<SeriesSet> load_series(Input& in, double bin_s) {
+  SeriesSet s;
+  if (in.db) {
+    for (const auto& r : in.db->runs) {
+      auto series = daemon::run_series(in.db->db, r.id, bin_s);
+      if (!series) return Error::Permanent(fmt::format("run {}: {}", r.id, series.error().message));
+      s.series.push_back(std::move(*series));
+      s.names.push_back(fmt::format("run {}", r.id));
+    }
+    s.inputs = {{"database", in.db->db.path()}, {"runs", in.db->ids()}};
+  } else {
+    json files = json::array();
+    for (const auto& w : in.csv) {
+      auto series = analysis::csv_analysis_series(w, bin_s);
+      if (!series) return Error::Permanent(fmt::format("{}: {}", w.source, series.error().message));
+      s.series.push_back(std::move(*series));
+      s.names.push_back(w.source);
+      files.push_back(w.source);
+    }
+    s.inputs = {{"csv", files}};
+  }
+  s.inputs["bin_s"] = bin_s;
+  return s;
+}
+
+double bin_s_of(const Parsed& p, const RunConfig& cfg) {
+  return p.bin_s.value_or(cfg.bin_s.value_or(1.0));
+}
+
+analysis::ExportInfo export_info(const Input& in, const RunConfig& cfg) {
+  analysis::ExportInfo info;
+  info.station = cfg.station_name;
+  if (in.db) info.run_ids = in.db->ids();
+  info.computed_utc = now_utc_iso();
+  return info;
+}
+
+// Writes the export files that were asked for. Errors exit 1 (the analysis
+// is done; the output could not be written).
+int write_exports(const Parsed& p, const std::function<std::string()>& json_text,
+                  const std::function<std::string()>& header_text) {
+  if (!p.coefficients_json.empty()) {
+    if (auto st = write_file_atomically(p.coefficients_json, json_text()); !st) {
+      return fail(st.error().message, kExitAnalysis);
+    }
+  }
+  if (!p.c_header.empty()) {
+    if (auto st = write_file_atomically(p.c_header, header_text()); !st) {
+      return fail(st.error().message, kExitAnalysis);
+    }
+  }
+  return 0;
+}
+
+// ---------------------------------------------------------------- stats
+
+json stats_json(const analysis::Table1Row& row, const analysis::Table1Options& o) {
+  json j = {{"n", row.n},
+            {"duration_s", num(row.duration_s)},
+            {"temp_mean_c", num(row.temp_mean_c)},
+            {"bias_mean_dph", num(row.bias_mean_dph)},
+            {"bias_std_dph", num(row.bias_std_dph)},
+            {"bias_std_ma101_dph", num(row.bias_std_ma_dph)},
+            {"bias_mean_earth_removed_dph", num(row.bias_mean_earth_removed_dph)},
+            {"earth_rate_dph", num(o.earth_rate_dph)},
+            {"bin_s", o.bin_s},
+            {"ma_window", o.ma_window}};
+  json warnings = json::array();
+  if (row.n <= o.ma_window) {
+    warnings.push_back(
+        fmt::format("{} points, not more than the {}-point moving average: no moving-average std",
+                    row.n, o.ma_window));
+  }
+  j["warnings"] = warnings;
+  return j;
+}
+
+analysis::Table1Row row_of(const storage::SegmentStatsRecord& r) {
+  analysis::Table1Row row;
+  row.n = static_cast<std::size_t>(std::max<int64_t>(r.n, 0));
+  row.duration_s = r.duration_s;
+  row.temp_mean_c = r.temp_mean_c;
+  row.bias_mean_dph = r.bias_mean_dph;
+  row.bias_std_dph = r.bias_std_dph;
+  row.bias_std_ma_dph = r.bias_std_ma_dph;
+  row.bias_mean_earth_removed_dph = r.bias_mean_earth_removed_dph;
+  return row;
+}
+
+int cmd_stats(const Parsed& p) {
+  auto in = open_input(p, RunsNeeded::kOptional);
+  if (!in) return fail(in.error().message, kExitInput);
+  json out = json::array();
+  std::vector<std::vector<std::string>> rows;
+  std::vector<std::string> notes;
+  std::set<std::string> footer;
+  auto add_row = [&](std::vector<std::string> lead, const analysis::Table1Row& r,
+                     const analysis::Table1Options& o) {
+    for (std::string v : {std::to_string(r.n), fixed(r.duration_s, 0), fixed(r.temp_mean_c, 2),
+                          fixed(r.bias_mean_dph, 4), fixed(r.bias_std_dph, 4),
+                          fixed(r.bias_std_ma_dph, 4), fixed(r.bias_mean_earth_removed_dph, 4)}) {
+      lead.push_back(std::move(v));
+    }
+    rows.push_back(std::move(lead));
+    footer.insert(
+        fmt::format("std MA: after a {}-point moving average ({:g} s bins); bias−Ω: "
+                    "Earth rate {:.4f} °/h removed",
+                    o.ma_window, o.bin_s, o.earth_rate_dph));
+  };
+  if (in->db && p.stored) {
+    if (p.bin_s || p.ma_window || p.earth_rate_dph || p.latitude_deg || p.orientation) {
+      return fail(
+          "--stored prints the rows as the daemon stored them: --bin-s, --ma-window and the "
+          "Earth-rate options do not apply",
+          kExitInput);
+    }
+    for (const auto& run : in->db->runs) {
+      auto stored = in->db->db.segment_stats(run.id);
+      if (!stored) return fail(stored.error().message, kExitAnalysis);
+      for (const auto& rec : *stored) {
+        analysis::Table1Options o;
+        o.bin_s = rec.bin_s;
+        o.ma_window = static_cast<std::size_t>(std::max(rec.ma_window, 0));
+        o.earth_rate_dph = rec.earth_rate_dph;
+        const auto row = row_of(rec);
+        json j = {{"run_id", rec.run_id},
+                  {"segment", rec.segment_index + 1},
+                  {"setpoint_c", num(rec.setpoint_c)},
+                  {"t_from_s", num(rec.t_from_s)},
+                  {"t_to_s", num(rec.t_to_s)},
+                  {"computed_utc", rec.computed_utc}};
+        j.update(stats_json(row, o));
+        out.push_back(std::move(j));
+        add_row({std::to_string(rec.run_id), std::to_string(rec.segment_index + 1),
+                 fixed(rec.setpoint_c, 2)},
+                row, o);
+      }
+    }
+  } else if (in->db) {
+    auto& db = in->db->db;
+    for (const auto& run : in->db->runs) {
+      const RunConfig cfg = read_run_config(run.config_json);
+      auto opts = table1_options(p, cfg, &run);
+      if (!opts) return fail(opts.error().message, kExitInput);
+      auto soaks = daemon::soak_windows(db, run.id);
+      if (!soaks)
+        return fail(fmt::format("run {}: {}", run.id, soaks.error().message), kExitAnalysis);
+      if (soaks->empty()) {
+        notes.push_back(
+            fmt::format("run {}: no completed soak with an acquisition window", run.id));
+      }
+      for (const auto& soak : *soaks) {
+        auto rec = daemon::soak_table1(db, soak, *opts);
+        if (!rec) return fail(rec.error().message, kExitAnalysis);
+        const auto row = row_of(*rec);
+        json j = {{"run_id", run.id},
+                  {"segment", soak.segment_index + 1},
+                  {"setpoint_c", num(soak.setpoint_c)},
+                  {"t_from_s", num(rec->t_from_s)},
+                  {"t_to_s", num(rec->t_to_s)}};
+        j.update(stats_json(row, *opts));
+        out.push_back(std::move(j));
+        add_row({std::to_string(run.id), std::to_string(soak.segment_index + 1),
+                 fixed(soak.setpoint_c, 2)},
+                row, *opts);
+      }
+    }
+  } else {
+    auto opts = table1_options(p, RunConfig{}, nullptr);
+    if (!opts) return fail(opts.error().message, kExitInput);
+    for (const auto& w : in->csv) {
+      auto series = analysis::csv_analysis_series(w, opts->bin_s);
+      if (!series)
+        return fail(fmt::format("{}: {}", w.source, series.error().message), kExitAnalysis);
+      auto row = analysis::table1_row(*series, *opts);
+      if (!row) return fail(fmt::format("{}: {}", w.source, row.error().message), kExitAnalysis);
+      json j = {{"source", w.source}};
+      j.update(stats_json(*row, *opts));
+      out.push_back(std::move(j));
+      add_row({w.source}, *row, *opts);
+    }
+  }
+  if (p.json) {
+    std::cout << out.dump(2) << "\n";
+    return 0;
+  }
+  for (const auto& n : notes) std::cout << n << "\n";
+  if (rows.empty()) {
+    std::cout << "no Table I rows\n";
+    return 0;
+  }
+  std::vector<std::string> header = {"n",       "length s",   "temp °C",   "bias °/h",
+                                     "std °/h", "std MA °/h", "bias−Ω °/h"};
+  const std::vector<std::string> lead = in->db ? std::vector<std::string>{"run", "seg", "setpt °C"}
+                                               : std::vector<std::string>{"file"};
+  header.insert(header.begin(), lead.begin(), lead.end());
+  std::cout << table(header, rows, in->db ? 0 : 1);
+  for (const auto& f : footer) std::cout << "(" << f << ")\n";
+  for (const auto& j : out) {
+    for (const auto& w : j["warnings"]) {
+      const std::string who = j.contains("source")
+                                  ? j["source"].get<std::string>()
+                                  : fmt::format("run {} segment {}", j["run_id"].get<int64_t>(),
+                                                j["segment"].get<int>());
+      std::cout << who << ": " << w.get<std::string>() << "\n";
+    }
+  }
+  return 0;
+}
+
+// ---------------------------------------------------------------- allan
+
+// The curve and noise terms in the command's JSON and text forms.
+struct AllanView {
+  double tau0_s = 0;
+  int64_t n_samples = 0;
+  std::vector<double> tau_s, adev, lo, hi, edf;
+  std::vector<int64_t> n_terms;
+  std::optional<double> arw, bi, bi_tau, rrw;
+  std::string bi_method;
+};
+
+AllanView view_of(const analysis::AllanResult& a) {
+  AllanView v{a.tau0_s,
+              static_cast<int64_t>(a.n_samples),
+              a.tau_s,
+              a.adev_dph,
+              a.adev_lo_dph,
+              a.adev_hi_dph,
+              a.edf,
+              {},
+              a.angle_random_walk_dprh,
+              a.bias_instability_dph,
+              a.bias_instability_tau_s,
+              a.rate_random_walk_dphprh,
+              a.bias_instability_method};
+  for (auto t : a.n_terms) v.n_terms.push_back(static_cast<int64_t>(t));
+  return v;
+}
+
+// The stored record lacks the number of terms and the edf; both follow from
+// n and the cluster size m = tau / tau0.
+AllanView view_of(const storage::AllanRecord& a) {
+  AllanView v{a.tau0_s,
+              a.n_samples,
+              a.tau_s,
+              a.adev_dph,
+              a.adev_lo_dph,
+              a.adev_hi_dph,
+              {},
+              {},
+              a.angle_random_walk_dprh,
+              a.bias_instability_dph,
+              a.bias_instability_tau_s,
+              a.rate_random_walk_dphprh,
+              a.bias_instability_method};
+  const auto n = static_cast<std::size_t>(std::max<int64_t>(a.n_samples, 0));
+  for (const double tau : a.tau_s) {
+    const auto m = static_cast<std::size_t>(std::llround(a.tau0_s > 0 ? tau / a.tau0_s : 0));
+    v.n_terms.push_back(2 * m <= n + 1 ? static_cast<int64_t>(n - 2 * m + 1) : 0);
+    v.edf.push_back(analysis::allan_edf_white_fm(n, m));
+  }
+  return v;
+}
+
+json allan_json(const AllanView& v, std::string_view taus) {
+  auto arr = [](const std::vector<double>& x) {
+    json a = json::array();
+    for (double d : x) a.push_back(num(d));
+    return a;
+  };
+  return {{"taus", taus},
+          {"tau0_s", num(v.tau0_s)},
+          {"n_samples", v.n_samples},
+          {"tau_s", arr(v.tau_s)},
+          {"adev_dph", arr(v.adev)},
+          {"adev_lo_dph", arr(v.lo)},
+          {"adev_hi_dph", arr(v.hi)},
+          {"n_terms", v.n_terms},
+          {"edf", arr(v.edf)},
+          {"angle_random_walk_dprh", num(v.arw)},
+          {"bias_instability_dph", num(v.bi)},
+          {"bias_instability_tau_s", num(v.bi_tau)},
+          {"bias_instability_method", v.bi_method},
+          {"rate_random_walk_dphprh", num(v.rrw)}};
+}
+
+std::string allan_text(const std::string& title, const AllanView& v, std::string_view taus) {
+  std::string out = fmt::format("{}: {} samples, τ0 {} s, {} taus\n", title, v.n_samples,
+                                general(v.tau0_s), taus);
+  std::vector<std::vector<std::string>> rows;
+  for (std::size_t i = 0; i < v.tau_s.size(); ++i) {
+    rows.push_back({general(v.tau_s[i]), sci(v.adev[i]), i < v.lo.size() ? sci(v.lo[i]) : kDash,
+                    i < v.hi.size() ? sci(v.hi[i]) : kDash,
+                    i < v.n_terms.size() ? std::to_string(v.n_terms[i]) : kDash,
+                    i < v.edf.size() ? general(v.edf[i]) : kDash});
+  }
+  out += table({"τ s", "σ °/h", "σ lo °/h", "σ hi °/h", "terms", "edf"}, rows, 0, "  ");
+  // "—" alone (no unit) when the term cannot be read off the curve.
+  auto g = [](const std::optional<double>& x, std::string_view unit) {
+    return x && std::isfinite(*x) ? fmt::format("{} {}", general(*x), unit) : std::string(kDash);
+  };
+  out += fmt::format("  angle random walk  {}\n", g(v.arw, "°/√h"));
+  out += fmt::format("  bias instability   {}{} ({}{})\n", g(v.bi, "°/h"),
+                     v.bi_tau ? fmt::format(" at τ = {} s", general(*v.bi_tau)) : "",
+                     v.bi_method.empty() ? "minimum / 0.664" : v.bi_method,
+                     v.bi ? "" : "; no minimum inside the curve yet");
+  out += fmt::format("  rate random walk   {}\n", g(v.rrw, "°/h/√h"));
+  out += "  (bounds: 68.3 % chi-squared, white rate noise edf)\n";
+  return out;
+}
+
+int cmd_allan(const Parsed& p) {
+  auto in = open_input(p, RunsNeeded::kOptional);
+  if (!in) return fail(in.error().message, kExitInput);
+  // --taus, else the run's stored [analysis] allan_taus, else octave.
+  auto tau_set = [&p](const RunConfig& cfg) -> Result<analysis::TauSet> {
+    const std::string text = p.taus.value_or(cfg.allan_taus.value_or("octave"));
+    auto taus = analysis::parse_tau_set(text);
+    if (!taus) {
+      return Error::Permanent(fmt::format("{} \"{}\": {}", p.taus ? "--taus" : "stored allan_taus",
+                                          text, taus.error().message));
+    }
+    return taus;
+  };
+  if (auto check = tau_set({}); !check) return fail(check.error().message, kExitInput);
+  json out = json::array();
+  std::string text;
+  if (in->db) {
+    auto& db = in->db->db;
+    for (const auto& run : in->db->runs) {
+      auto taus = tau_set(read_run_config(run.config_json));
+      if (!taus) return fail(taus.error().message, kExitInput);
+      const std::string taus_name(analysis::to_string(*taus));
+      auto soaks = daemon::soak_windows(db, run.id);
+      if (!soaks)
+        return fail(fmt::format("run {}: {}", run.id, soaks.error().message), kExitAnalysis);
+      if (soaks->empty()) {
+        text += fmt::format("run {}: no completed soak with an acquisition window\n", run.id);
+      }
+      for (const auto& soak : *soaks) {
+        auto rec = daemon::soak_allan(db, soak, *taus);
+        if (!rec) return fail(rec.error().message, kExitAnalysis);
+        const AllanView v = view_of(*rec);
+        json j = {{"run_id", run.id},
+                  {"segment", soak.segment_index + 1},
+                  {"setpoint_c", num(soak.setpoint_c)},
+                  {"t_from_s", num(rec->t_from_s)},
+                  {"t_to_s", num(rec->t_to_s)}};
+        j.update(allan_json(v, taus_name));
+        out.push_back(std::move(j));
+        text += allan_text(fmt::format("run {} segment {} (soak {:g} °C), samples {}–{} s", run.id,
+                                       soak.segment_index + 1, soak.setpoint_c,
+                                       general(rec->t_from_s), general(rec->t_to_s)),
+                           v, taus_name);
+      }
+    }
+  } else {
+    const analysis::TauSet taus = *tau_set({});
+    const std::string taus_name(analysis::to_string(taus));
+    for (const auto& w : in->csv) {
+      auto a = analysis::allan_deviation(w.t_s, w.rate_dph, {.taus = taus});
+      if (!a) return fail(fmt::format("{}: {}", w.source, a.error().message), kExitAnalysis);
+      const AllanView v = view_of(*a);
+      json j = {{"source", w.source}};
+      j.update(allan_json(v, taus_name));
+      out.push_back(std::move(j));
+      text += allan_text(w.source, v, taus_name);
+    }
+  }
+  if (p.json) {
+    std::cout << out.dump(2) << "\n";
+  } else {
+    std::cout << (text.empty() ? "no Allan deviation\n" : text);
+  }
+  return 0;
+}
+
+// ---------------------------------------------------------------- fit
+
+json coefficient_map(const std::map<std::string, double>& m) {
+  json j = json::object();
+  for (const auto& [k, v] : m) j[k] = num(v);
+  return j;
+}
+
+// Unit of a coefficient in the physical form.
+std::string coefficient_unit(const std::string& name) {
+  if (name == "intercept") return "°/h";
+  if (name.size() != 2) return "";
+  const char power = name[1];
+  const std::string sup = power == '1' ? "" : power == '2' ? "²" : power == '3' ? "³" : "⁴";
+  if (name[0] == 'R') return power == '1' ? "°/h per °C/s" : "°/h per (°C/s)" + sup;
+  return "°/h per °C" + sup;
+}
+
+// Coefficients in a fixed order: intercept, T1.., R1.., G1...
+template <class V>
+std::vector<std::string> ordered_keys(const std::map<std::string, V>& m) {
+  std::vector<std::string> keys;
+  if (m.count("intercept")) keys.push_back("intercept");
+  for (const char* family : {"T", "R", "G"}) {
+    for (int i = 1; i <= 4; ++i) {
+      const std::string k = family + std::to_string(i);
+      if (m.count(k)) keys.push_back(k);
+    }
+  }
+  for (const auto& kv : m) {
+    if (std::find(keys.begin(), keys.end(), kv.first) == keys.end()) keys.push_back(kv.first);
+  }
+  return keys;
+}
+
+int cmd_fit(const Parsed& p) {
+  auto in = open_input(p, RunsNeeded::kRequired);
+  if (!in) return fail(in.error().message, kExitInput);
+  const RunConfig cfg = first_run_config(*in);
+  auto spec = model_spec(p, cfg);
+  if (!spec) return fail(spec.error().message, kExitInput);
+  auto form = analysis::parse_drift_model_form(p.form);
+  if (!form) return fail("--form: " + form.error().message, kExitInput);
+  auto options = fit_options(p, cfg);
+  if (!options) return fail(options.error().message, kExitInput);
+  const double bin_s = bin_s_of(p, cfg);
+  if (!(bin_s > 0) || !std::isfinite(bin_s)) {
+    return fail(fmt::format("--bin-s {:g}: must be positive", bin_s), kExitInput);
+  }
+
+  auto set = load_series(*in, bin_s);
+  if (!set) return fail(set.error().message, kExitAnalysis);
+  const std::string what =
+      in->db ? fmt::format("run{} {}", in->db->runs.size() == 1 ? "" : "s", join_ids(in->db->ids()))
+             : fmt::format("{}", fmt::join(set->names, ", "));
+  auto fit = analysis::fit_drift_model(set->series, *spec, *form, *options);
+  if (!fit) {
+    return fail(fmt::format("fit of {} to {} ({} form): {}", what, analysis::to_string(*spec),
+                            analysis::to_string(*form), fit.error().message),
+                kExitAnalysis);
+  }
+  json inputs = set->inputs;
+  inputs["derivative_window_s"] = options->derivative_window_s;
+  inputs["l0_window_s"] = options->l0_window_s;
+  json l0s = json::array();
+  for (double l : fit->l0_per_series_dph) l0s.push_back(num(l));
+  const json out = {{"model", analysis::to_string(fit->spec)},
+                    {"form", analysis::to_string(fit->form)},
+                    {"coefficients", coefficient_map(fit->coefficients)},
+                    {"standard_errors", coefficient_map(fit->std_errors)},
+                    {"residual_std_dph", num(fit->residual_std_dph)},
+                    {"r_squared", num(fit->r_squared)},
+                    {"n", fit->n},
+                    {"parameters", fit->parameters},
+                    {"l0_dph", num(fit->l0_dph)},
+                    {"l0_per_run_dph", l0s},
+                    {"condition_estimate", num(fit->condition_estimate)},
+                    {"inputs", inputs}};
+
+  auto info = export_info(*in, cfg);
+  info.l0_window_s = options->l0_window_s;
+  if (int code = write_exports(
+          p, [&] { return analysis::drift_fit_json(*fit, info); },
+          [&] { return analysis::drift_fit_c_header(*fit, info); });
+      code != 0) {
+    return code;
+  }
+  if (p.json) {
+    std::cout << out.dump(2) << "\n";
+    return 0;
+  }
+  std::cout << fmt::format("model {}, {} form, {}: {} points ({:g} s bins)\n",
+                           analysis::to_string(fit->spec), analysis::to_string(fit->form), what,
+                           fit->n, bin_s);
+  if (fit->form == analysis::DriftModelForm::kPaper) {
+    std::cout << fmt::format("L0 {} °/h (mean rate over the first {:g} s", fixed(fit->l0_dph, 4),
+                             options->l0_window_s);
+    if (fit->l0_per_series_dph.size() > 1) {
+      std::vector<std::string> each;
+      for (double l : fit->l0_per_series_dph) each.push_back(fixed(l, 4));
+      std::cout << fmt::format("; per run {}", fmt::join(each, ", "));
+    }
+    std::cout << ")\n";
+  }
+  std::vector<std::vector<std::string>> rows;
+  for (const auto& k : ordered_keys(fit->coefficients)) {
+    const auto se = fit->std_errors.find(k);
+    rows.push_back({k, coefficient_unit(k), sci(fit->coefficients.at(k)),
+                    se == fit->std_errors.end() ? kDash : sci(se->second)});
+  }
+  std::cout << table({"term", "unit", "coefficient", "std error"}, rows, 2);
+  std::cout << fmt::format("residual std {} °/h, R² {}, condition {}\n",
+                           fixed(fit->residual_std_dph, 4), fixed(fit->r_squared, 6),
+                           general(fit->condition_estimate));
+  if (!p.coefficients_json.empty()) std::cout << "wrote " << p.coefficients_json << "\n";
+  if (!p.c_header.empty()) std::cout << "wrote " << p.c_header << "\n";
+  return 0;
+}
+
+// ---------------------------------------------------------------- compare
+
+json compensated_json(const std::optional<analysis::CompensatedStats>& s) {
+  if (!s) return nullptr;
+  return {{"n", s->n}, {"mean_dph", num(s->mean_dph)}, {"std_dph", num(s->std_dph)}};
+}
+
+int cmd_compare(const Parsed& p) {
+  auto in = open_input(p, RunsNeeded::kRequired);
+  if (!in) return fail(in.error().message, kExitInput);
+  const RunConfig cfg = first_run_config(*in);
+  analysis::ComparisonOptions options;
+  options.max_order = p.max_order;
+  options.g_order = p.g_order;
+  options.r_order = p.r_order;
+  auto form = analysis::parse_drift_model_form(p.form);
+  if (!form) return fail("--form: " + form.error().message, kExitInput);
+  options.form = *form;
+  auto fo = fit_options(p, cfg);
+  if (!fo) return fail(fo.error().message, kExitInput);
+  options.fit = *fo;
+  std::string why;
+  if (!options.IsValid(&why)) return fail(as_option(why), kExitInput);
+  const double bin_s = bin_s_of(p, cfg);
+  if (!(bin_s > 0) || !std::isfinite(bin_s)) {
+    return fail(fmt::format("--bin-s {:g}: must be positive", bin_s), kExitInput);
+  }
+  auto set = load_series(*in, bin_s);
+  if (!set) return fail(set.error().message, kExitAnalysis);
+  auto cmp = analysis::compare_models(set->series, options);
+  if (!cmp) return fail("comparison: " + cmp.error().message, kExitAnalysis);
+
+  json inputs = set->inputs;
+  inputs["derivative_window_s"] = options.fit.derivative_window_s;
+  inputs["l0_window_s"] = options.fit.l0_window_s;
+  json cells = json::array();
+  for (const auto& c : cmp->cells) {
+    cells.push_back({{"terms", analysis::to_string(c.terms)},
+                     {"order", c.order},
+                     {"model", analysis::to_string(c.spec)},
+                     {"in_sample", compensated_json(c.in_sample)},
+                     {"in_sample_error", c.in_sample ? json(nullptr) : json(c.in_sample_error)},
+                     {"cross_validated", compensated_json(c.cross_validated)},
+                     {"cross_validated_error",
+                      c.cross_validated ? json(nullptr) : json(c.cross_validated_error)}});
+  }
+  const json out = {{"runs", cmp->runs},
+                    {"form", analysis::to_string(options.form)},
+                    {"max_order", options.max_order},
+                    {"g_order", options.g_order},
+                    {"r_order", options.r_order},
+                    {"none", compensated_json(cmp->none)},
+                    {"cells", cells},
+                    {"inputs", inputs}};
+  if (p.json) {
+    std::cout << out.dump(2) << "\n";
+    return 0;
+  }
+  std::cout << fmt::format(
+      "Compensated gyro output, {} form, {} {} ({:g} s bins). in-sample: one fit on all, "
+      "applied to all (the paper); LORO: each run compensated by a fit on the others.\n",
+      analysis::to_string(options.form), cmp->runs,
+      in->db ? (cmp->runs == 1 ? "run" : "runs") : (cmp->runs == 1 ? "file" : "files"), bin_s);
+  const std::pair<analysis::TermSet, const char*> sets[] = {
+      {analysis::TermSet::kT, "Table II — temperature T"},
+      {analysis::TermSet::kTG, "Table III — T + gradient ΔT"},
+      {analysis::TermSet::kTGR, "Table IV — T + ΔT + rate dT/dt"}};
+  const std::string none_mean = fixed(cmp->none.mean_dph, 4),
+                    none_std = fixed(cmp->none.std_dph, 4);
+  for (const auto& [terms, title] : sets) {
+    std::vector<std::vector<std::string>> rows;
+    rows.push_back({"none", "", none_mean, none_std, none_mean, none_std});
+    std::vector<std::string> notes;
+    for (const auto& c : cmp->cells) {
+      if (c.terms != terms) continue;
+      const std::string label = c.order == 1 ? "linear" : fmt::format("{} order", c.order);
+      auto cell = [&](const std::optional<analysis::CompensatedStats>& s, const std::string& err,
+                      const char* kind) -> std::pair<std::string, std::string> {
+        if (s) return {fixed(s->mean_dph, 4), fixed(s->std_dph, 4)};
+        notes.push_back(fmt::format("  {} {}: {}", analysis::to_string(c.spec), kind, err));
+        return {kDash, kDash};
+      };
+      const auto [im, is] = cell(c.in_sample, c.in_sample_error, "in-sample");
+      const auto [cm, cs] = cell(c.cross_validated, c.cross_validated_error, "LORO");
+      rows.push_back({label, analysis::to_string(c.spec), im, is, cm, cs});
+    }
+    std::cout << "\n" << title << "\n";
+    std::cout << table({"method", "model", "mean °/h", "std °/h", "LORO mean °/h", "LORO std °/h"},
+                       rows, 2);
+    for (const auto& n : notes) std::cout << n << "\n";
+  }
+  return 0;
+}
+
+// ---------------------------------------------------------------- start-model
+
+int cmd_start_model(const Parsed& p) {
+  auto in = open_input(p, RunsNeeded::kRequired);
+  if (!in) return fail(in.error().message, kExitInput);
+  const RunConfig cfg = first_run_config(*in);
+  analysis::StartTemperatureOptions options;
+  if (p.model || cfg.model) {
+    auto spec = model_spec(p, cfg);
+    if (!spec) return fail(spec.error().message, kExitInput);
+    options.spec = *spec;
+  }
+  auto form = analysis::parse_drift_model_form(p.form);
+  if (!form) return fail("--form: " + form.error().message, kExitInput);
+  options.form = *form;
+  auto fo = fit_options(p, cfg);
+  if (!fo) return fail(fo.error().message, kExitInput);
+  options.fit = *fo;
+  if (p.t0_window_s) options.t0_window_s = *p.t0_window_s;
+  std::string why;
+  if (!options.IsValid(&why)) return fail(as_option(why), kExitInput);
+  if (p.t0_c && !std::isfinite(*p.t0_c)) return fail("--t0: must be a finite °C", kExitInput);
+  const double bin_s = bin_s_of(p, cfg);
+  if (!(bin_s > 0) || !std::isfinite(bin_s)) {
+    return fail(fmt::format("--bin-s {:g}: must be positive", bin_s), kExitInput);
+  }
+  auto set = load_series(*in, bin_s);
+  if (!set) return fail(set.error().message, kExitAnalysis);
+  auto model = analysis::fit_start_temperature_model(set->series, options);
+  if (!model) return fail(model.error().message, kExitAnalysis);
+  std::optional<analysis::StartTemperatureCoefficients> at;
+  if (p.t0_c) {
+    auto c = analysis::coefficients_at(*model, *p.t0_c);
+    if (!c)
+      return fail(fmt::format("at T0 = {:g} °C: {}", *p.t0_c, c.error().message), kExitAnalysis);
+    at = std::move(*c);
+  }
+
+  json inputs = set->inputs;
+  inputs["derivative_window_s"] = model->derivative_window_s;
+  inputs["l0_window_s"] = model->l0_window_s;
+  inputs["t0_window_s"] = model->t0_window_s;
+  json runs = json::array();
+  for (std::size_t i = 0; i < model->t0_c.size(); ++i) {
+    json r = in->db ? json{{"run_id", in->db->runs.at(i).id}} : json{{"source", set->names.at(i)}};
+    r["t0_c"] = num(model->t0_c[i]);
+    r["coefficients"] =
+        i < model->run_coefficients.size() ? coefficient_map(model->run_coefficients[i]) : json();
+    runs.push_back(std::move(r));
+  }
+  json cubic = json::object(), resid = json::object();
+  for (const auto& [k, a] : model->cubic) {
+    cubic[k] = {num(a[0]), num(a[1]), num(a[2]), num(a[3])};
+  }
+  for (const auto& [k, s] : model->cubic_residual_std) resid[k] = num(s);
+  json out = {{"model", analysis::to_string(model->spec)},
+              {"form", analysis::to_string(model->form)},
+              {"runs", runs},
+              {"cubic", cubic},
+              {"cubic_residual_std", resid},
+              {"inputs", inputs}};
+  if (at) {
+    out["at_t0"] = {{"t0_c", num(at->t0_c)},
+                    {"extrapolated", at->extrapolated},
+                    {"coefficients", coefficient_map(at->fit.coefficients)}};
+  }
+
+  auto info = export_info(*in, cfg);
+  info.l0_window_s = model->l0_window_s;
+  if (int code = write_exports(
+          p, [&] { return analysis::start_model_json(*model, info); },
+          [&] { return analysis::start_model_c_header(*model, info); });
+      code != 0) {
+    return code;
+  }
+  if (p.json) {
+    std::cout << out.dump(2) << "\n";
+    return 0;
+  }
+  std::cout << fmt::format(
+      "start-temperature model (paper eq. 3), {} {} form, from {} {}: each coefficient "
+      "a(T0) = A0 + A1·T0 + A2·T0² + A3·T0³\n",
+      analysis::to_string(model->spec), analysis::to_string(model->form), model->t0_c.size(),
+      in->db ? "runs" : "files");
+  std::vector<std::vector<std::string>> rows;
+  for (std::size_t i = 0; i < model->t0_c.size(); ++i) {
+    rows.push_back({set->names.at(i), fixed(model->t0_c[i], 2)});
+  }
+  std::cout << table({"input", "T0 °C"}, rows, 1);
+  rows.clear();
+  for (const auto& k : ordered_keys(model->cubic)) {
+    const auto& a = model->cubic.at(k);
+    const auto r = model->cubic_residual_std.find(k);
+    rows.push_back({k, sci(a[0]), sci(a[1]), sci(a[2]), sci(a[3]),
+                    r == model->cubic_residual_std.end() ? kDash : sci(r->second)});
+  }
+  std::cout << table({"term", "A0", "A1 /°C", "A2 /°C²", "A3 /°C³", "resid std"}, rows, 1);
+  if (at) {
+    std::cout << fmt::format(
+        "coefficients at T0 = {:g} °C{}:\n", at->t0_c,
+        at->extrapolated ? " (extrapolated: outside the fitted T0 range)" : "");
+    rows.clear();
+    for (const auto& k : ordered_keys(at->fit.coefficients)) {
+      rows.push_back({k, coefficient_unit(k), sci(at->fit.coefficients.at(k))});
+    }
+    std::cout << table({"term", "unit", "coefficient"}, rows, 2, "  ");
+  }
+  if (!p.coefficients_json.empty()) std::cout << "wrote " << p.coefficients_json << "\n";
+  if (!p.c_header.empty()) std::cout << "wrote " << p.c_header << "\n";
+  return 0;
+}
+
+}  // namespace
+
+struct AnalysisCommands::Parsed : Args {};
+
+// ---------------------------------------------------------------- registration
+
+AnalysisCommands::AnalysisCommands(CLI::App& app) : parsed_(std::make_unique<Parsed>()) {
+  Parsed& p = *parsed_;
+  auto input = [&p](CLI::App* cmd, bool several_csv) {
+    cmd->add_option("--db", p.db_path, "station database file");
+    cmd->add_option("--run", p.run, "one run id");
+    cmd->add_option("--runs", p.runs, "run ids: \"1,2,5\", ranges \"3-7\"");
+    cmd->add_option("--csv", p.csv,
+                    several_csv ? "CSV file(s), one run each" : "CSV file(s), one window each");
+    cmd->add_flag("--json", p.json, "JSON output");
+    return cmd;
+  };
+  auto fit_opts = [&p](CLI::App* cmd) {
+    cmd->add_option("--form", p.form, "paper (y = L - L0, no intercept) or centered")
+        ->capture_default_str();
+    cmd->add_option("--derivative-window-s", p.derivative_window_s,
+                    "smoothing-derivative window, s (default: the run's config, else 60)");
+    cmd->add_option("--l0-window-s", p.l0_window_s,
+                    "L0 = mean rate over the first this many s (default: config, else 120)");
+    cmd->add_option("--bin-s", p.bin_s, "analysis bin, s (default: config, else 1)");
+  };
+  auto exports = [&p](CLI::App* cmd) {
+    cmd->add_option("--coefficients-json", p.coefficients_json, "write the coefficients as JSON");
+    cmd->add_option("--c-header", p.c_header, "write the coefficients as a C header");
+  };
+
+  p.stats = input(app.add_subcommand("stats", "Table I rows per soak window (or CSV file)"), false);
+  p.stats->add_option("--bin-s", p.bin_s, "analysis bin, s (default: the run's config, else 1)");
+  p.stats->add_option("--ma-window", p.ma_window,
+                      "moving-average points (default: config, else 101)");
+  p.stats->add_option("--earth-rate-dph", p.earth_rate_dph, "Earth rate to remove, °/h");
+  p.stats->add_option("--latitude", p.latitude_deg, "latitude, degrees (default: the run's)");
+  p.stats->add_option("--orientation", p.orientation, "axis: up, down or horizontal");
+  p.stats->add_flag("--stored", p.stored, "print the rows the daemon stored (no recomputation)");
+
+  p.allan = input(app.add_subcommand("allan", "Allan deviation and noise terms per soak"), false);
+  p.allan->add_option("--taus", p.taus, "octave, decade or all (default: config, else octave)");
+
+  p.fit = input(app.add_subcommand("fit", "drift-model fit (paper eq. 1)"), true);
+  p.fit->add_option("--model", p.model, "e.g. T4+R1+G1 (default: the run's config, else that)");
+  fit_opts(p.fit);
+  exports(p.fit);
+
+  p.compare =
+      input(app.add_subcommand("compare", "the paper's Tables II-IV, in-sample and LORO"), true);
+  p.compare->add_option("--max-order", p.max_order, "T orders 1..N")->capture_default_str();
+  p.compare->add_option("--g-order", p.g_order, "order of the gradient ΔT")->capture_default_str();
+  p.compare->add_option("--r-order", p.r_order, "order of dT/dt")->capture_default_str();
+  fit_opts(p.compare);
+
+  p.start_model =
+      input(app.add_subcommand("start-model",
+                               "start-temperature model (paper eq. 3), coefficient export"),
+            true);
+  p.start_model->add_option("--model", p.model, "e.g. T4+R1+G1 (default: config, else that)");
+  p.start_model->add_option("--t0", p.t0_c,
+                            "print the coefficients for this start temperature, °C");
+  p.start_model->add_option("--t0-window-s", p.t0_window_s, "T0 = mean over the first s (120)");
+  fit_opts(p.start_model);
+  exports(p.start_model);
+}
+
+AnalysisCommands::~AnalysisCommands() = default;
+
+std::optional<int> AnalysisCommands::run(bool json) {
+  Parsed& p = *parsed_;
+  p.json = p.json || json;
+  try {
+    if (*p.stats) return cmd_stats(p);
+    if (*p.allan) return cmd_allan(p);
+    if (*p.fit) return cmd_fit(p);
+    if (*p.compare) return cmd_compare(p);
+    if (*p.start_model) return cmd_start_model(p);
+  } catch (const std::exception& e) {
+    return fail(e.what(), kExitAnalysis);
+  }
+  return std::nullopt;
+}
+
+}  // namespace gyrotherm::cli

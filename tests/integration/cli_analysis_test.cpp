@@ -1,0 +1,744 @@
+// The offline analysis commands as a user runs them: the real gyrotherm
+// binary on a SQLite database written through storage::Database and
+// SampleWriter, and on CSV files. Its numbers must be exactly those of the
+// analysis library (and of the daemon's run_analysis path) on the same data:
+// JSON carries 17 significant digits, so doubles compare with ==.
+#include <fmt/format.h>
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <random>
+#include <sstream>
+
+#include "analysis.h"
+#include "gyrotherm/analysis/allan.h"
+#include "gyrotherm/analysis/comparison.h"
+#include "gyrotherm/analysis/csv_window.h"
+#include "gyrotherm/analysis/drift_model.h"
+#include "gyrotherm/analysis/start_temperature.h"
+#include "gyrotherm/analysis/table1.h"
+#include "gyrotherm/daemon/run_analysis.h"
+#include "gyrotherm/storage/database.h"
+#include "gyrotherm/storage/sample_writer.h"
+
+namespace gyrotherm {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+using ::testing::HasSubstr;
+
+constexpr double kLatitudeDeg = 31.9;
+constexpr int kStoredMaWindow = 51;  // the runs' [analysis] ma_window
+constexpr int kRuns = 4;
+constexpr double kStartC[kRuns] = {-10.0, 5.0, 20.0, 35.0};
+constexpr int kGyroPerRun = 15000;  // 10 Hz over 1500 s
+constexpr int kTempsPerRun = 1500;  // 1 Hz
+
+// A run: soak at T0 for 400 s, a 600 s ramp of +20 °C, a soak for 500 s.
+// The second soak's acquisition is cut in two by a pause.
+const std::vector<std::pair<double, double>> kSoak1Windows = {{50.05, 380.05}};
+const std::vector<std::pair<double, double>> kSoak2Windows = {{1050.05, 1200.05},
+                                                              {1230.05, 1450.05}};
+
+double shell_c(double t0_c, double t_s) {
+  if (t_s < 400) return t0_c;
+  if (t_s < 1000) return t0_c + 20.0 * (t_s - 400) / 600;
+  return t0_c + 20.0;
+}
+double rate_c_per_s(double t_s) { return t_s >= 400 && t_s < 1000 ? 20.0 / 600 : 0.0; }
+double gradient_c(double t_s) { return 0.3 + 6.0 * rate_c_per_s(t_s) + 0.05 * std::sin(t_s / 37); }
+
+struct RunData {
+  std::vector<GyroSample> gyro;
+  std::vector<TemperatureSample> temps;
+};
+
+// Known drift: 8 °/h + a quadratic in T, 30 °/h per °C/s, 0.4 °/h per °C of
+// gradient, and white noise of 0.5 °/h.
+RunData make_run(int k) {
+  std::mt19937_64 rng(1234 + k);
+  std::normal_distribution<double> noise(0.0, 0.5);
+  RunData d;
+  for (int i = 0; i < kTempsPerRun; ++i) {
+    const double t = i;
+    const double T = shell_c(kStartC[k], t), g = gradient_c(t);
+    d.temps.push_back({t, T, T, T + g / 2, T - g / 2});
+  }
+  for (int i = 0; i < kGyroPerRun; ++i) {
+    const double t = i / 10.0;
+    const double T = shell_c(kStartC[k], t);
+    const double rate = 8.0 + 0.02 * (T - 20) + 0.001 * (T - 20) * (T - 20) +
+                        30.0 * rate_c_per_s(t) + 0.4 * gradient_c(t) + noise(rng);
+    d.gyro.push_back({t, rate, static_cast<uint8_t>(i % 128), 0x77, 20});
+  }
+  return d;
+}
+
+template <class S>
+std::vector<S> in_window(const std::vector<S>& v, double from_s, double to_s) {
+  std::vector<S> out;
+  for (const auto& s : v) {
+    if (s.t_s >= from_s && s.t_s < to_s) out.push_back(s);
+  }
+  return out;
+}
+
+// The analysis series of a soak computed here: each window binned on its own,
+// joined (DESIGN §7; run_analysis.h).
+analysis::AnalysisSeries soak_series(const RunData& d,
+                                     const std::vector<std::pair<double, double>>& windows) {
+  analysis::AnalysisSeries joined;
+  for (const auto& [from_s, to_s] : windows) {
+    auto part = analysis::make_analysis_series(in_window(d.gyro, from_s, to_s),
+                                               in_window(d.temps, from_s, to_s), 1.0);
+    EXPECT_TRUE(part) << part.error().message;
+    joined.bin_s = part->bin_s;
+    for (auto [dst, src] :
+         {std::pair{&joined.t_s, &part->t_s}, std::pair{&joined.rate_dph, &part->rate_dph},
+          std::pair{&joined.top_c, &part->top_c}, std::pair{&joined.side_c, &part->side_c}}) {
+      dst->insert(dst->end(), src->begin(), src->end());
+    }
+  }
+  return joined;
+}
+
+analysis::AnalysisSeries run_series(const RunData& d) {
+  auto s = analysis::make_analysis_series(d.gyro, d.temps, 1.0);
+  EXPECT_TRUE(s) << s.error().message;
+  return *s;
+}
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+void write_text(const fs::path& p, const std::string& text) {
+  std::ofstream(p, std::ios::binary) << text;
+}
+
+// A run as a CSV at the gyro's 10 Hz; each row takes the temperatures of the
+// last 1 Hz reading. Numbers with 17 digits so they read back exactly.
+std::string run_csv(const RunData& d, double from_s = -1, double to_s = 1e9) {
+  std::string out = "t_s,rate_dph,top_c,side_c,comment\n";
+  std::size_t ti = 0;
+  for (const auto& g : d.gyro) {
+    while (ti + 1 < d.temps.size() && d.temps[ti + 1].t_s <= g.t_s) ++ti;
+    if (g.t_s < from_s || g.t_s >= to_s) continue;
+    out += fmt::format("{:.17g},{:.17g},{:.17g},{:.17g},x\n", g.t_s, g.rate_dph, d.temps[ti].top_c,
+                       d.temps[ti].side_c);
+  }
+  return out;
+}
+
+class CliAnalysisTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = fs::temp_directory_path() / fmt::format("gyrotherm-cli-analysis-{}", ::getpid());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+    db_path_ = (dir_ / "station.db").string();
+    auto db = storage::Database::open(db_path_);
+    ASSERT_TRUE(db) << db.error().message;
+    auto writer = storage::SampleWriter::start(db_path_);
+    ASSERT_TRUE(writer) << writer.error().message;
+    for (int k = 0; k < kRuns; ++k) {
+      data_.push_back(make_run(k));
+      storage::RunRecord run;
+      run.schedule_name = fmt::format("run {}", k);
+      run.state = "acquiring";
+      run.latitude_deg = kLatitudeDeg;
+      run.orientation = "up";
+      run.config_json = fmt::format(
+          "[station]\nname = \"test station\"\n[analysis]\nma_window = {}\n", kStoredMaWindow);
+      auto id = db->create_run(run);
+      ASSERT_TRUE(id) << id.error().message;
+      run_ids_.push_back(*id);
+      auto segment = [&](int index, const char* kind, double setpoint_c, double from_s, double to_s,
+                         const std::vector<std::pair<double, double>>& windows) {
+        storage::SegmentRecord s;
+        s.run_id = *id;
+        s.index = index;
+        s.kind = kind;
+        s.label = fmt::format("{} {:g} °C (step {})", kind, setpoint_c, index + 1);
+        s.setpoint_c = setpoint_c;
+        s.t_start_s = from_s;
+        s.t_end_s = to_s;
+        if (!windows.empty()) {
+          s.t_acquire_start_s = windows.front().first;
+          s.t_acquire_end_s = windows.back().second;
+        }
+        s.state = "completed";
+        auto sid = db->create_segment(s);
+        ASSERT_TRUE(sid) << sid.error().message;
+        s.id = *sid;
+        s.windows = windows;
+        ASSERT_TRUE(db->update_segment(s).ok());
+      };
+      segment(0, "soak", kStartC[k], 0, 400, kSoak1Windows);
+      segment(1, "ramp", kStartC[k] + 20, 400, 1000, {});
+      segment(2, "soak", kStartC[k] + 20, 1000, 1500, kSoak2Windows);
+      (*writer)->push_gyro(*id, data_.back().gyro);
+      for (const auto& t : data_.back().temps) (*writer)->push_temperature(*id, t);
+      ASSERT_TRUE(db->set_run_state(*id, "completed", true).ok());
+    }
+    ASSERT_TRUE((*writer)->flush().ok());
+    (*writer)->stop();
+    ASSERT_EQ((*writer)->stats().gyro_rows, static_cast<uint64_t>(kRuns * kGyroPerRun));
+  }
+  // GYROTHERM_KEEP_TEST_DIR=1 keeps the database and files for a look by hand.
+  static void TearDownTestSuite() {
+    if (!::testing::UnitTest::GetInstance()->Failed() && !std::getenv("GYROTHERM_KEEP_TEST_DIR")) {
+      fs::remove_all(dir_);
+    }
+  }
+
+  struct Run {
+    int code;
+    std::string out, err;
+    json parsed() const {
+      json j = json::parse(out, nullptr, false);
+      EXPECT_FALSE(j.is_discarded()) << "not JSON:\n" << out;
+      return j;
+    }
+  };
+  static Run cli(const std::vector<std::string>& args) {
+    const std::string out = (dir_ / "out.txt").string(), err = (dir_ / "err.txt").string();
+    std::string cmd = std::string(GYROTHERM_BIN_DIR) + "/gyrotherm";
+    for (const auto& a : args) cmd += " '" + a + "'";
+    cmd += " >" + out + " 2>" + err;
+    const int st = std::system(cmd.c_str());
+    return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, slurp(out), slurp(err)};
+  }
+  static std::string file(const std::string& name) { return (dir_ / name).string(); }
+  static std::string run_csv_file(int k) {
+    const std::string path = file(fmt::format("run{}.csv", k));
+    if (!fs::exists(path)) write_text(path, run_csv(data_[k]));
+    return path;
+  }
+
+  static inline fs::path dir_;
+  static inline std::string db_path_;
+  static inline std::vector<RunData> data_;
+  static inline std::vector<int64_t> run_ids_;
+};
+
+double earth_rate() {
+  return analysis::earth_rate_component_dph(kLatitudeDeg, analysis::AxisOrientation::kUp);
+}
+
+void expect_number(const json& j, const char* key, double expected) {
+  ASSERT_TRUE(j.contains(key)) << key << " missing in " << j.dump();
+  if (!std::isfinite(expected)) {
+    EXPECT_TRUE(j[key].is_null()) << key;
+    return;
+  }
+  ASSERT_TRUE(j[key].is_number()) << key << " = " << j[key].dump();
+  EXPECT_EQ(j[key].get<double>(), expected) << key;
+}
+
+void expect_row(const json& j, const analysis::Table1Row& r) {
+  EXPECT_EQ(j.at("n").get<std::size_t>(), r.n);
+  expect_number(j, "duration_s", r.duration_s);
+  expect_number(j, "temp_mean_c", r.temp_mean_c);
+  expect_number(j, "bias_mean_dph", r.bias_mean_dph);
+  expect_number(j, "bias_std_dph", r.bias_std_dph);
+  expect_number(j, "bias_std_ma101_dph", r.bias_std_ma_dph);
+  expect_number(j, "bias_mean_earth_removed_dph", r.bias_mean_earth_removed_dph);
+}
+
+// ---------------------------------------------------------------- stats
+
+TEST_F(CliAnalysisTest, StatsOnADatabaseMatchesTheLibraryAndUsesTheRunsSettings) {
+  const Run r = cli({"stats", "--db", db_path_, "--runs", "1-2", "--json"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  const json j = r.parsed();
+  ASSERT_TRUE(j.is_array());
+  ASSERT_EQ(j.size(), 4u);  // two runs x two soaks
+  analysis::Table1Options o;
+  o.ma_window = kStoredMaWindow;    // from the run's stored [analysis]
+  o.earth_rate_dph = earth_rate();  // from the run's latitude and orientation
+  for (int k = 0; k < 2; ++k) {
+    for (int s = 0; s < 2; ++s) {
+      const json& w = j[2 * k + s];
+      const auto& windows = s == 0 ? kSoak1Windows : kSoak2Windows;
+      auto row = analysis::table1_row(soak_series(data_[k], windows), o);
+      ASSERT_TRUE(row) << row.error().message;
+      SCOPED_TRACE(w.dump());
+      EXPECT_EQ(w.at("run_id").get<int64_t>(), run_ids_[k]);
+      EXPECT_EQ(w.at("segment").get<int>(), s == 0 ? 1 : 3);
+      EXPECT_EQ(w.at("setpoint_c").get<double>(), kStartC[k] + (s == 0 ? 0 : 20));
+      EXPECT_EQ(w.at("t_from_s").get<double>(), windows.front().first);
+      EXPECT_EQ(w.at("t_to_s").get<double>(), windows.back().second);
+      expect_row(w, *row);
+      EXPECT_EQ(w.at("ma_window").get<int>(), kStoredMaWindow);
+      EXPECT_EQ(w.at("bin_s").get<double>(), 1.0);
+      EXPECT_EQ(w.at("earth_rate_dph").get<double>(), earth_rate());
+      EXPECT_TRUE(w.at("warnings").empty());
+    }
+  }
+  // The daemon's own path gives the same numbers.
+  auto db = storage::Database::open_read_only(db_path_);
+  ASSERT_TRUE(db);
+  auto soaks = daemon::soak_windows(*db, run_ids_[0]);
+  ASSERT_TRUE(soaks && soaks->size() == 2u);
+  auto rec = daemon::soak_table1(*db, (*soaks)[1], o);
+  ASSERT_TRUE(rec) << rec.error().message;
+  EXPECT_EQ(j[1].at("bias_std_ma101_dph").get<double>(), rec->bias_std_ma_dph);
+  EXPECT_EQ(j[1].at("bias_mean_dph").get<double>(), rec->bias_mean_dph);
+}
+
+TEST_F(CliAnalysisTest, StatsOptionsOverrideTheStoredSettings) {
+  const Run r = cli({"stats", "--db", db_path_, "--run", std::to_string(run_ids_[2]), "--ma-window",
+                     "101", "--earth-rate-dph", "7.5", "--json"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  const json j = r.parsed();
+  ASSERT_EQ(j.size(), 2u);
+  const analysis::Table1Options o{.bin_s = 1.0, .ma_window = 101, .earth_rate_dph = 7.5};
+  auto row = analysis::table1_row(soak_series(data_[2], kSoak1Windows), o);
+  ASSERT_TRUE(row);
+  expect_row(j[0], *row);
+  EXPECT_EQ(j[0].at("ma_window").get<int>(), 101);
+  EXPECT_EQ(j[0].at("earth_rate_dph").get<double>(), 7.5);
+}
+
+TEST_F(CliAnalysisTest, StatsWithoutARunCoversEveryRunAndPrintsATable) {
+  const Run r = cli({"stats", "--db", db_path_});
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("bias °/h"));
+  EXPECT_THAT(r.out, HasSubstr("std MA °/h"));
+  EXPECT_THAT(r.out, HasSubstr(fmt::format("{}-point moving average", kStoredMaWindow)));
+  // Header, 8 rows, footnote.
+  EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1 + 2 * kRuns + 1) << r.out;
+  EXPECT_EQ(r.out.find("nan"), std::string::npos);
+}
+
+TEST_F(CliAnalysisTest, StatsOnACsvMatchesTheLibrary) {
+  const std::string path = file("soak1.csv");
+  write_text(path, run_csv(data_[0], 50.05, 380.05));
+  const Run r =
+      cli({"stats", "--csv", path, "--latitude", "31.9", "--orientation", "down", "--json"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  const json j = r.parsed();
+  ASSERT_EQ(j.size(), 1u);
+  auto w = analysis::read_csv_window(path);
+  ASSERT_TRUE(w);
+  auto series = analysis::csv_analysis_series(*w, 1.0);
+  ASSERT_TRUE(series);
+  analysis::Table1Options o;
+  o.earth_rate_dph = analysis::earth_rate_component_dph(31.9, analysis::AxisOrientation::kDown);
+  auto row = analysis::table1_row(*series, o);
+  ASSERT_TRUE(row);
+  EXPECT_EQ(j[0].at("source").get<std::string>(), path);
+  EXPECT_EQ(j[0].at("n").get<std::size_t>(), 330u);
+  expect_row(j[0], *row);
+  EXPECT_EQ(j[0].at("earth_rate_dph").get<double>(), o.earth_rate_dph);
+  EXPECT_EQ(j[0].at("ma_window").get<int>(), 101);
+}
+
+TEST_F(CliAnalysisTest, AWindowShorterThanTheMovingAverageIsFlaggedNotFatal) {
+  std::string text = "t_s,rate_dph,top_c,side_c\n";
+  for (int i = 0; i < 50; ++i) text += fmt::format("{},{},20.5,19.5\n", i, 8 + 0.01 * (i % 7));
+  const std::string path = file("short.csv");
+  write_text(path, text);
+  Run r = cli({"stats", "--csv", path, "--json"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  const json j = r.parsed();
+  ASSERT_EQ(j.size(), 1u);
+  EXPECT_EQ(j[0].at("n").get<int>(), 50);
+  EXPECT_TRUE(j[0].at("bias_std_ma101_dph").is_null());
+  EXPECT_TRUE(j[0].at("bias_std_dph").is_number());
+  ASSERT_EQ(j[0].at("warnings").size(), 1u);
+  EXPECT_THAT(j[0]["warnings"][0].get<std::string>(), HasSubstr("moving average"));
+  r = cli({"stats", "--csv", path});
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("—"));
+  EXPECT_THAT(r.out, HasSubstr("no moving-average std"));
+  EXPECT_EQ(r.out.find("nan"), std::string::npos) << r.out;
+}
+
+// ---------------------------------------------------------------- allan
+
+void expect_allan(const json& w, const analysis::AllanResult& a) {
+  const std::size_t n = a.tau_s.size();
+  ASSERT_GT(n, 5u);
+  for (const char* key : {"tau_s", "adev_dph", "adev_lo_dph", "adev_hi_dph", "n_terms", "edf"}) {
+    ASSERT_TRUE(w.at(key).is_array()) << key;
+    EXPECT_EQ(w.at(key).size(), n) << key;
+  }
+  for (std::size_t i = 0; i < n; ++i) {
+    EXPECT_EQ(w["tau_s"][i].get<double>(), a.tau_s[i]);
+    EXPECT_EQ(w["adev_dph"][i].get<double>(), a.adev_dph[i]);
+    EXPECT_EQ(w["adev_lo_dph"][i].get<double>(), a.adev_lo_dph[i]);
+    EXPECT_EQ(w["adev_hi_dph"][i].get<double>(), a.adev_hi_dph[i]);
+    EXPECT_EQ(w["n_terms"][i].get<std::size_t>(), a.n_terms[i]);
+    EXPECT_EQ(w["edf"][i].get<double>(), a.edf[i]);
+  }
+  expect_number(w, "tau0_s", a.tau0_s);
+  EXPECT_EQ(w.at("n_samples").get<std::size_t>(), a.n_samples);
+  for (auto [key, v] : {std::pair{"angle_random_walk_dprh", a.angle_random_walk_dprh},
+                        std::pair{"bias_instability_dph", a.bias_instability_dph},
+                        std::pair{"bias_instability_tau_s", a.bias_instability_tau_s},
+                        std::pair{"rate_random_walk_dphprh", a.rate_random_walk_dphprh}}) {
+    ASSERT_TRUE(w.contains(key)) << key;
+    if (v) {
+      EXPECT_EQ(w[key].get<double>(), *v) << key;
+    } else {
+      EXPECT_TRUE(w[key].is_null()) << key;
+    }
+  }
+  EXPECT_EQ(w.at("bias_instability_method").get<std::string>(), "minimum / 0.664");
+}
+
+TEST_F(CliAnalysisTest, AllanOnADatabaseUsesTheLongestWindowAsRecorded) {
+  const Run r = cli({"allan", "--db", db_path_, "--run", std::to_string(run_ids_[1]), "--json"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  const json j = r.parsed();
+  ASSERT_EQ(j.size(), 2u);
+  // Soak 2: the longer of its two windows.
+  const auto [from_s, to_s] = kSoak2Windows[1];
+  std::vector<double> t, y;
+  for (const auto& g : in_window(data_[1].gyro, from_s, to_s)) {
+    t.push_back(g.t_s);
+    y.push_back(g.rate_dph);
+  }
+  auto a = analysis::allan_deviation(t, y);
+  ASSERT_TRUE(a) << a.error().message;
+  EXPECT_EQ(j[1].at("segment").get<int>(), 3);
+  EXPECT_EQ(j[1].at("t_from_s").get<double>(), from_s);
+  EXPECT_EQ(j[1].at("taus").get<std::string>(), "octave");
+  expect_allan(j[1], *a);
+}
+
+TEST_F(CliAnalysisTest, AllanOnACsvWithDecadeTausAndTheTextSaysHowBiasInstabilityIsRead) {
+  const std::string path = file("soak2.csv");
+  write_text(path, run_csv(data_[3], 1230.05, 1450.05));
+  Run r = cli({"allan", "--csv", path, "--taus", "decade", "--json"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  const json j = r.parsed();
+  ASSERT_EQ(j.size(), 1u);
+  auto w = analysis::read_csv_window(path);
+  ASSERT_TRUE(w);
+  auto a = analysis::allan_deviation(w->t_s, w->rate_dph, {.taus = analysis::TauSet::kDecade});
+  ASSERT_TRUE(a);
+  EXPECT_EQ(j[0].at("taus").get<std::string>(), "decade");
+  expect_allan(j[0], *a);
+  r = cli({"allan", "--csv", path});
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("minimum / 0.664"));
+  EXPECT_THAT(r.out, HasSubstr("angle random walk"));
+  r = cli({"allan", "--csv", path, "--taus", "weekly"});
+  EXPECT_EQ(r.code, 2);
+  EXPECT_THAT(r.err, HasSubstr("weekly"));
+}
+
+// ---------------------------------------------------------------- fit
+
+void expect_fit(const json& j, const analysis::DriftFit& fit) {
+  ASSERT_EQ(j.at("coefficients").size(), fit.coefficients.size()) << j.dump(2);
+  for (const auto& [k, v] : fit.coefficients) {
+    ASSERT_TRUE(j["coefficients"].contains(k)) << k;
+    EXPECT_EQ(j["coefficients"][k].get<double>(), v) << k;
+    EXPECT_EQ(j["standard_errors"][k].get<double>(), fit.std_errors.at(k)) << k;
+  }
+  EXPECT_EQ(j.at("n").get<std::size_t>(), fit.n);
+  expect_number(j, "residual_std_dph", fit.residual_std_dph);
+  expect_number(j, "r_squared", fit.r_squared);
+  expect_number(j, "l0_dph", fit.l0_dph);
+  expect_number(j, "condition_estimate", fit.condition_estimate);
+  EXPECT_EQ(j.at("model").get<std::string>(), analysis::to_string(fit.spec));
+  EXPECT_EQ(j.at("form").get<std::string>(), analysis::to_string(fit.form));
+}
+
+TEST_F(CliAnalysisTest, FitOnDatabaseRunsMatchesTheLibraryAndTheDaemonAndExports) {
+  const std::string runs = fmt::format("{},{}", run_ids_[0], run_ids_[2]);
+  const std::string json_path = file("fit.json"), header_path = file("fit.h");
+  const Run r =
+      cli({"fit", "--db", db_path_, "--runs", runs, "--model", "T2+R1+G1", "--form", "paper",
+           "--json", "--coefficients-json", json_path, "--c-header", header_path});
+  ASSERT_EQ(r.code, 0) << r.err;
+  const json j = r.parsed();
+  const std::vector<analysis::AnalysisSeries> series = {run_series(data_[0]), run_series(data_[2])};
+  const analysis::DriftModelSpec spec{.t_order = 2, .r_order = 1, .g_order = 1};
+  auto fit = analysis::fit_drift_model(series, spec, analysis::DriftModelForm::kPaper);
+  ASSERT_TRUE(fit) << fit.error().message;
+  expect_fit(j, *fit);
+  EXPECT_EQ(j.at("l0_per_run_dph").size(), 2u);
+  EXPECT_EQ(j.at("inputs").at("runs"), json({run_ids_[0], run_ids_[2]}));
+  // The fit's own consistency: the residual is at least the binned noise
+  // (0.5 °/h white at 10 Hz -> ~0.16 °/h in 1 s bins).
+  EXPECT_GT(j["residual_std_dph"].get<double>(), 0.1);
+  EXPECT_EQ(j.at("parameters").get<int>(), 4);
+
+  auto db = storage::Database::open_read_only(db_path_);
+  ASSERT_TRUE(db);
+  auto rec = daemon::runs_fit(*db, {run_ids_[0], run_ids_[2]}, spec,
+                              analysis::DriftModelForm::kPaper, {}, 1.0);
+  ASSERT_TRUE(rec) << rec.error().message;
+  EXPECT_EQ(j["coefficients"], json::parse(rec->coefficients_json));
+  EXPECT_EQ(j["standard_errors"], json::parse(rec->standard_errors_json));
+
+  const json exported = json::parse(slurp(json_path), nullptr, false);
+  ASSERT_FALSE(exported.is_discarded()) << slurp(json_path);
+  EXPECT_EQ(exported.at("coefficients"), j["coefficients"]);
+  const std::string header = slurp(header_path);
+  EXPECT_THAT(header, HasSubstr("static const double"));
+  EXPECT_THAT(header, HasSubstr("test station"));
+  for (const auto& e : fs::directory_iterator(dir_)) {
+    EXPECT_EQ(e.path().filename().string().find(".tmp-"), std::string::npos)
+        << "temporary file left: " << e.path();
+  }
+}
+
+TEST_F(CliAnalysisTest, FitOnCsvFilesCenteredFormHasAnIntercept) {
+  const std::string a = run_csv_file(1), b = run_csv_file(3);
+  const Run r = cli({"fit", "--csv", a, "--csv", b, "--model", "T3+G1", "--form", "centered",
+                     "--derivative-window-s", "90", "--json"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  const json j = r.parsed();
+  std::vector<analysis::AnalysisSeries> series;
+  for (const auto& p : {a, b}) {
+    auto w = analysis::read_csv_window(p);
+    ASSERT_TRUE(w);
+    auto s = analysis::csv_analysis_series(*w, 1.0);
+    ASSERT_TRUE(s);
+    series.push_back(std::move(*s));
+  }
+  analysis::DriftFitOptions o;
+  o.derivative_window_s = 90;
+  auto fit = analysis::fit_drift_model(series, {.t_order = 3, .g_order = 1},
+                                       analysis::DriftModelForm::kCentered, o);
+  ASSERT_TRUE(fit) << fit.error().message;
+  expect_fit(j, *fit);
+  EXPECT_TRUE(j["coefficients"].contains("intercept"));
+  for (const char* k : {"T1", "T2", "T3", "G1"}) EXPECT_TRUE(j["coefficients"].contains(k)) << k;
+  EXPECT_EQ(j.at("inputs").at("csv"), json({a, b}));
+  EXPECT_EQ(j.at("inputs").at("derivative_window_s").get<double>(), 90.0);
+}
+
+TEST_F(CliAnalysisTest, FitTextOutputListsEveryTerm) {
+  const Run r =
+      cli({"fit", "--db", db_path_, "--run", std::to_string(run_ids_[0]), "--model", "T1+R1+G1"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  for (const char* s : {"T1", "R1", "G1", "L0", "residual std", "R²"}) {
+    EXPECT_THAT(r.out, HasSubstr(s));
+  }
+}
+
+// ---------------------------------------------------------------- compare
+
+TEST_F(CliAnalysisTest, CompareGridMatchesTheLibraryInSampleAndLeaveOneRunOut) {
+  const Run r = cli({"compare", "--db", db_path_, "--runs",
+                     fmt::format("{}-{}", run_ids_.front(), run_ids_.back()), "--json"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  const json j = r.parsed();
+  std::vector<analysis::AnalysisSeries> series;
+  for (const auto& d : data_) series.push_back(run_series(d));
+  auto cmp = analysis::compare_models(series);
+  ASSERT_TRUE(cmp) << cmp.error().message;
+  EXPECT_EQ(j.at("runs").get<std::size_t>(), static_cast<std::size_t>(kRuns));
+  EXPECT_EQ(j.at("none").at("mean_dph").get<double>(), cmp->none.mean_dph);
+  EXPECT_EQ(j.at("none").at("std_dph").get<double>(), cmp->none.std_dph);
+  ASSERT_EQ(j.at("cells").size(), 12u);
+  ASSERT_EQ(cmp->cells.size(), 12u);
+  for (std::size_t i = 0; i < 12; ++i) {
+    const json& c = j["cells"][i];
+    const auto& e = cmp->cells[i];
+    SCOPED_TRACE(c.dump());
+    EXPECT_EQ(c.at("terms").get<std::string>(), analysis::to_string(e.terms));
+    EXPECT_EQ(c.at("order").get<int>(), e.order);
+    ASSERT_EQ(c.at("in_sample").is_null(), !e.in_sample);
+    ASSERT_EQ(c.at("cross_validated").is_null(), !e.cross_validated);
+    if (e.in_sample) {
+      EXPECT_EQ(c["in_sample"]["mean_dph"].get<double>(), e.in_sample->mean_dph);
+      EXPECT_EQ(c["in_sample"]["std_dph"].get<double>(), e.in_sample->std_dph);
+    } else {
+      EXPECT_FALSE(c.at("in_sample_error").get<std::string>().empty());
+    }
+    if (e.cross_validated) {
+      EXPECT_EQ(c["cross_validated"]["std_dph"].get<double>(), e.cross_validated->std_dph);
+    }
+  }
+  // The known drift has T, G and R parts: each term set does better.
+  auto std_of = [&](int cell) { return j["cells"][cell]["in_sample"]["std_dph"].get<double>(); };
+  EXPECT_GT(std_of(1), std_of(5));
+  EXPECT_GT(std_of(5), std_of(9));
+}
+
+TEST_F(CliAnalysisTest, CompareTextIsLaidOutLikeThePapersTables) {
+  const Run r = cli({"compare", "--csv", run_csv_file(0), run_csv_file(1), "--max-order", "2"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  for (const char* s :
+       {"Table II", "Table III", "Table IV", "none", "linear", "2 order", "LORO std °/h"}) {
+    EXPECT_THAT(r.out, HasSubstr(s));
+  }
+  EXPECT_EQ(r.out.find("3 order"), std::string::npos);
+}
+
+// ---------------------------------------------------------------- start-model
+
+TEST_F(CliAnalysisTest, StartModelMatchesTheLibraryAndExports) {
+  const std::string json_path = file("start.json"), header_path = file("start.h");
+  const Run r =
+      cli({"start-model", "--db", db_path_, "--runs",
+           fmt::format("{}-{}", run_ids_.front(), run_ids_.back()), "--model", "T2+R1+G1", "--t0",
+           "12.5", "--json", "--coefficients-json", json_path, "--c-header", header_path});
+  ASSERT_EQ(r.code, 0) << r.err;
+  const json j = r.parsed();
+  std::vector<analysis::AnalysisSeries> series;
+  for (const auto& d : data_) series.push_back(run_series(d));
+  analysis::StartTemperatureOptions o;
+  o.spec = {.t_order = 2, .r_order = 1, .g_order = 1};
+  auto model = analysis::fit_start_temperature_model(series, o);
+  ASSERT_TRUE(model) << model.error().message;
+  ASSERT_EQ(j.at("runs").size(), static_cast<std::size_t>(kRuns));
+  for (int k = 0; k < kRuns; ++k) {
+    EXPECT_EQ(j["runs"][k].at("t0_c").get<double>(), model->t0_c[k]);
+    EXPECT_EQ(j["runs"][k].at("run_id").get<int64_t>(), run_ids_[k]);
+  }
+  ASSERT_EQ(j.at("cubic").size(), model->cubic.size());
+  for (const auto& [k, a] : model->cubic) {
+    ASSERT_EQ(j["cubic"].at(k).size(), 4u);
+    for (int i = 0; i < 4; ++i) EXPECT_EQ(j["cubic"][k][i].get<double>(), a[i]) << k << i;
+  }
+  auto at = analysis::coefficients_at(*model, 12.5);
+  ASSERT_TRUE(at);
+  EXPECT_EQ(j.at("at_t0").at("extrapolated").get<bool>(), at->extrapolated);
+  for (const auto& [k, v] : at->fit.coefficients) {
+    EXPECT_EQ(j["at_t0"]["coefficients"].at(k).get<double>(), v) << k;
+  }
+  const json exported = json::parse(slurp(json_path), nullptr, false);
+  EXPECT_FALSE(exported.is_discarded()) << slurp(json_path);
+  const std::string header = slurp(header_path);
+  EXPECT_FALSE(header.empty());
+  EXPECT_THAT(header, HasSubstr("gyrotherm_start"));
+}
+
+TEST_F(CliAnalysisTest, StartModelNeedsFourStartTemperatures) {
+  const Run r = cli(
+      {"start-model", "--csv", run_csv_file(0), run_csv_file(1), run_csv_file(2), "--model", "T1"});
+  EXPECT_EQ(r.code, 1) << r.out;
+  EXPECT_THAT(r.err, HasSubstr("distinct"));
+}
+
+// ---------------------------------------------------------------- bad input
+
+TEST_F(CliAnalysisTest, ACsvWithABadRowIsRefusedNamingLineAndColumn) {
+  const std::string path = file("bad.csv");
+  write_text(path, "t_s,rate_dph,top_c,side_c\n0,8,20,19\n1,8,20,19\n2,abc,20,19\n3,8,20,19\n");
+  const Run r = cli({"stats", "--csv", path, "--json"});
+  EXPECT_EQ(r.code, 2);
+  EXPECT_THAT(r.err, HasSubstr(path + ":4"));
+  EXPECT_THAT(r.err, HasSubstr("rate_dph"));
+  EXPECT_TRUE(r.out.empty()) << r.out;
+}
+
+TEST_F(CliAnalysisTest, ACsvWithNaNIsRefused) {
+  const std::string path = file("nan.csv");
+  write_text(path, "t_s,rate_dph,top_c,side_c\n0,8,20,19\n1,8,nan,19\n2,8,20,19\n");
+  const Run r = cli({"allan", "--csv", path});
+  EXPECT_EQ(r.code, 2);
+  EXPECT_THAT(r.err, HasSubstr(path + ":3"));
+  EXPECT_THAT(r.err, HasSubstr("top_c"));
+  EXPECT_THAT(r.err, HasSubstr("not finite"));
+}
+
+TEST_F(CliAnalysisTest, UnknownRunsAndBadRunListsAreUsageErrors) {
+  Run r = cli({"stats", "--db", db_path_, "--run", "99", "--json"});
+  EXPECT_EQ(r.code, 2);
+  EXPECT_THAT(r.err, HasSubstr("unknown run 99"));
+  r = cli({"fit", "--db", db_path_, "--runs", fmt::format("{},99", run_ids_[0]), "--model", "T1"});
+  EXPECT_EQ(r.code, 2);
+  EXPECT_THAT(r.err, HasSubstr("unknown run 99"));
+  for (const auto& [list, named] : std::vector<std::pair<std::string, std::string>>{
+           {"1,x", "\"x\""}, {"5-3", "5-3"}, {"1,,2", "empty"}, {"1,1", "twice"}}) {
+    r = cli({"compare", "--db", db_path_, "--runs", list});
+    EXPECT_EQ(r.code, 2) << list;
+    EXPECT_THAT(r.err, HasSubstr(named)) << list;
+  }
+  r = cli({"fit", "--db", db_path_, "--model", "T1"});
+  EXPECT_EQ(r.code, 2);
+  EXPECT_THAT(r.err, HasSubstr("--runs"));
+  r = cli({"stats", "--db", file("missing.db")});
+  EXPECT_EQ(r.code, 2);
+  EXPECT_THAT(r.err, HasSubstr("missing.db"));
+  r = cli({"stats"});
+  EXPECT_EQ(r.code, 2);
+  EXPECT_THAT(r.err, HasSubstr("--db"));
+}
+
+TEST_F(CliAnalysisTest, ABadModelSpecIsAUsageError) {
+  for (const std::string spec : {"T5", "T1+X2", "T1+T2", ""}) {
+    const Run r =
+        cli({"fit", "--db", db_path_, "--run", std::to_string(run_ids_[0]), "--model", spec});
+    EXPECT_EQ(r.code, 2) << spec;
+    EXPECT_THAT(r.err, HasSubstr("--model")) << spec;
+    EXPECT_THAT(r.err, HasSubstr(spec)) << spec;
+  }
+  Run r = cli({"fit", "--csv", run_csv_file(0), "--model", "T1", "--form", "sideways"});
+  EXPECT_EQ(r.code, 2);
+  EXPECT_THAT(r.err, HasSubstr("sideways"));
+  r = cli({"compare", "--csv", run_csv_file(0), "--max-order", "7"});
+  EXPECT_EQ(r.code, 2);
+  EXPECT_THAT(r.err, HasSubstr("--max-order"));
+  r = cli({"stats", "--csv", run_csv_file(0), "--orientation", "up"});
+  EXPECT_EQ(r.code, 2);
+  EXPECT_THAT(r.err, HasSubstr("--latitude"));
+}
+
+TEST_F(CliAnalysisTest, AFitOnConstantTemperatureIsAnAnalysisErrorNamingT) {
+  std::string text = "t_s,rate_dph,top_c,side_c\n";
+  for (int i = 0; i < 600; ++i) {
+    text += fmt::format("{},{},20.5,19.5\n", i, 8 + 0.01 * (i % 7));
+  }
+  const std::string path = file("constant.csv");
+  write_text(path, text);
+  const Run r = cli({"fit", "--csv", path, "--model", "T2", "--json"});
+  EXPECT_EQ(r.code, 1);
+  EXPECT_THAT(r.err, HasSubstr(path));
+  EXPECT_THAT(r.err, HasSubstr("term T cannot be fitted"));
+  EXPECT_THAT(r.err, HasSubstr("constant"));
+  EXPECT_TRUE(r.out.empty()) << r.out;
+}
+
+TEST_F(CliAnalysisTest, AnExportFileThatCannotBeWrittenIsAnError) {
+  const Run r = cli({"fit", "--csv", run_csv_file(0), "--model", "T1", "--coefficients-json",
+                     file("no/such/dir/fit.json")});
+  EXPECT_EQ(r.code, 1);
+  EXPECT_THAT(r.err, HasSubstr("no/such/dir/fit.json"));
+}
+
+// ---------------------------------------------------------------- helpers
+
+TEST(CliAnalysisHelpers, RunListsAcceptIdsAndRanges) {
+  auto ids = cli::parse_run_list(" 3-5, 1 ,9");
+  ASSERT_TRUE(ids) << ids.error().message;
+  EXPECT_EQ(*ids, (std::vector<int64_t>{3, 4, 5, 1, 9}));
+  for (const char* bad : {"", "0", "-1", "1-", "a-3", "2-1", "1,2,2-3", "1.5", "1;2"}) {
+    EXPECT_FALSE(cli::parse_run_list(bad)) << bad;
+  }
+}
+
+TEST(CliAnalysisHelpers, AtomicWriteReplacesTheFile) {
+  const fs::path dir = fs::temp_directory_path() / fmt::format("gyrotherm-atomic-{}", ::getpid());
+  fs::create_directories(dir);
+  const std::string path = (dir / "out.h").string();
+  ASSERT_TRUE(cli::write_file_atomically(path, "first").ok());
+  ASSERT_TRUE(cli::write_file_atomically(path, "second").ok());
+  EXPECT_EQ(slurp(path), "second");
+  EXPECT_EQ(std::distance(fs::directory_iterator(dir), fs::directory_iterator()), 1);
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace gyrotherm
