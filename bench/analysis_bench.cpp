@@ -120,6 +120,8 @@ void BM_DriftFit_10Mx9(benchmark::State& state) {
       return;
     }
     state.counters["params"] = static_cast<double>(fit->parameters);
+    state.counters["condition"] = fit->condition_estimate;
+    state.SetLabel(fit->solver);
     results()["drift_fit residual_std_dph"] = fit->residual_std_dph;
     results()["drift_fit r_squared"] = fit->r_squared;
   }

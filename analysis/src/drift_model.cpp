@@ -1,5 +1,6 @@
 // Drift model (paper eq. 1): spec parsing, smoothing derivative, and the
-// block-sequential QR least-squares fit; see drift_model.h.
+// least-squares fit (Gram path or block-sequential Householder QR); see
+// drift_model.h.
 #include "gyrotherm/analysis/drift_model.h"
 
 #include <fmt/format.h>
@@ -8,7 +9,11 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <limits>
+#include <optional>
+#include <thread>
 
 namespace gyrotherm::analysis {
 namespace {
@@ -18,6 +23,13 @@ constexpr int kMaxOrder = 4;
 constexpr double kWindowTol = 1e-9;  // relative to the derivative half width
 // A variable is "constant" when its std is below this times its size.
 constexpr double kConstantTol = 1e-10;
+// Rows per block of the streamed passes (derivative, design rows, Gram).
+constexpr std::size_t kRowBlock = 256;
+// The Gram (normal-equations) path is used only when the column-scaled
+// design's condition number is at most this; see drift_model.h.
+constexpr double kGramMaxCondition = 100.0;
+// ... and RSS is recomputed from the residuals when RSS < this x y'y.
+constexpr double kGramMinRssFraction = 1e-4;
 
 std::string_view trim(std::string_view s) {
   while (!s.empty() && s.front() == ' ') s.remove_prefix(1);
@@ -26,61 +38,178 @@ std::string_view trim(std::string_view s) {
 }
 
 // Least-squares slope at each point over a window of points around it, in
-// O(1) amortised per point. Sums are kept relative to an anchor point near the
-// window; the anchor moves (and the sums are recomputed) once the window has
-// advanced by its own length, so the sums never hold large offsets.
+// O(1) amortised per point, computed block by block (blocks must follow each
+// other: i0 = 0, then the end of the previous block, ...). Sums of
+// t - t_ref, y - y_ref and their products are kept relative to an anchor
+// point; the anchor moves (and the sums are recomputed from scratch) once the
+// point has moved max(16, 2 x window points) past it, so the sums never hold
+// large offsets and the double rounding stays ~1e-13 relative. A block is
+// cut into kLanes stretches whose add chains run interleaved.
 template <class YAt>
-class SlidingSlope {
+class DerivativeStream {
  public:
-  SlidingSlope(std::span<const double> t_s, YAt y_at, double window_s)
+  static constexpr std::size_t kLanes = 4;
+
+  DerivativeStream(std::span<const double> t_s, YAt y_at, double window_s)
       : t_(t_s), y_at_(y_at), half_(window_s / 2), tol_(kWindowTol * window_s / 2) {}
 
-  // Slope at point i; i must go 0, 1, 2, ... in order.
-  double next(std::size_t i) {
+  // Start the stream at point i instead of 0 (before the first next_block).
+  void start_at(std::size_t i) {
+    if (i == 0 || t_.empty()) return;
+    const double bound = t_[i] - half_ - tol_;
+    lo_ptr_ = static_cast<std::size_t>(std::lower_bound(t_.begin(), t_.end(), bound) - t_.begin());
+    lo_ptr_ = std::min(lo_ptr_, i);
+    hi_ptr_ = i;
+  }
+
+  // Derivative at points i0 .. i0 + count - 1 into out[0 .. count).
+  void next_block(std::size_t i0, std::size_t count, double* out) {
     const std::size_t n = t_.size();
-    if (n < 2) return kNaN;
-    std::size_t lo = lo_, hi = hi_;
-    while (t_[lo] < t_[i] - half_ - tol_) ++lo;
-    if (hi < i) hi = i;
-    while (hi + 1 < n && t_[hi + 1] <= t_[i] + half_ + tol_) ++hi;
-    if (i > 0) lo = std::min(lo, i - 1);
-    if (i + 1 < n) hi = std::max(hi, i + 1);
-    if (!started_ || i - anchor_ > hi_ - lo_ + 1) {
-      anchor_ = i;
-      t_ref_ = t_[i];
-      y_ref_ = y_at_(i);
-      s_t_ = s_y_ = s_tt_ = s_ty_ = 0;
-      for (std::size_t j = lo; j <= hi; ++j) add(j, +1);
-      started_ = true;
-    } else {
-      for (std::size_t j = hi_ + 1; j <= hi; ++j) add(j, +1);
-      for (std::size_t j = lo_; j < lo; ++j) add(j, -1);
+    if (n < 2) {
+      std::fill(out, out + count, kNaN);
+      return;
     }
-    lo_ = lo;
-    hi_ = hi;
-    const long double m = static_cast<long double>(hi - lo + 1);
-    const long double sxx = s_tt_ - s_t_ * s_t_ / m;
-    const long double sxy = s_ty_ - s_t_ * s_y_ / m;
-    return static_cast<double>(sxy / sxx);
+    if (uniform_block(i0, count, out)) return;
+    lo_.resize(count);
+    hi_.resize(count);
+    for (std::size_t k = 0; k < count; ++k) {
+      const std::size_t i = i0 + k;
+      while (t_[lo_ptr_] < t_[i] - half_ - tol_) ++lo_ptr_;
+      if (hi_ptr_ < i) hi_ptr_ = i;
+      while (hi_ptr_ + 1 < n && t_[hi_ptr_ + 1] <= t_[i] + half_ + tol_) ++hi_ptr_;
+      lo_[k] = i > 0 ? std::min(lo_ptr_, i - 1) : lo_ptr_;
+      hi_[k] = i + 1 < n ? std::max(hi_ptr_, i + 1) : hi_ptr_;
+    }
+    const std::size_t len = (count + kLanes - 1) / kLanes;
+    Lane lanes[kLanes];
+    for (std::size_t step = 0; step < len; ++step) {
+      for (std::size_t l = 0; l < kLanes; ++l) {
+        const std::size_t k = l * len + step;
+        if (k >= count) continue;
+        Lane& ln = lanes[l];
+        const std::size_t i = i0 + k;
+        if (step == 0 || i - ln.anchor >= ln.reanchor) {
+          fresh(ln, i, lo_[k], hi_[k]);
+        } else {
+          for (std::size_t j = ln.hi + 1; j <= hi_[k]; ++j) add(ln, j, +1.0);
+          for (std::size_t j = ln.lo; j < lo_[k]; ++j) add(ln, j, -1.0);
+          ln.lo = lo_[k];
+          ln.hi = hi_[k];
+        }
+        const double m = static_cast<double>(ln.hi - ln.lo + 1);
+        const double sxx = ln.s_tt - ln.s_t * ln.s_t / m;
+        const double sxy = ln.s_ty - ln.s_t * ln.s_y / m;
+        out[k] = sxy / sxx;
+      }
+    }
   }
 
  private:
-  void add(std::size_t j, int sign) {
-    const long double dt = static_cast<long double>(t_[j]) - t_ref_;
-    const long double dy = static_cast<long double>(y_at_(j)) - y_ref_;
-    s_t_ += sign * dt;
-    s_y_ += sign * dy;
-    s_tt_ += sign * dt * dt;
-    s_ty_ += sign * dt * dy;
+  // Evenly spaced stretch (every t_{j+1} - t_j over the block's windows equal
+  // to the same dt, so t_{i+k} - t_i = k dt exactly) and every point with the
+  // same symmetric window i - h .. i + h: the slope is then the fixed kernel
+  //   sum_{k=1..h} k (y_{i+k} - y_{i-k}) / (dt sum_{k=-h..h} k^2),
+  // the same least-squares slope without the sliding sums. False (nothing
+  // written) when the block does not qualify.
+  bool uniform_block(std::size_t i0, std::size_t count, double* out) {
+    const std::size_t n = t_.size();
+    // The window of the first point by the general rule gives h.
+    while (t_[lo_ptr_] < t_[i0] - half_ - tol_) ++lo_ptr_;
+    if (hi_ptr_ < i0) hi_ptr_ = i0;
+    while (hi_ptr_ + 1 < n && t_[hi_ptr_ + 1] <= t_[i0] + half_ + tol_) ++hi_ptr_;
+    const std::size_t h = hi_ptr_ - i0;
+    const std::size_t last = i0 + count - 1;
+    if (h == 0 || i0 - lo_ptr_ != h || i0 < h + 1 || last + h + 1 >= n) return false;
+    // Every point's window is i - h .. i + h by the same rule (checked for all
+    // points at once, without branches), and the spacing is exactly uniform.
+    const std::size_t j0 = i0 - h, j1 = last + h;
+    const double dt = t_[j0 + 1] - t_[j0];
+    double mismatch = 0;
+    for (std::size_t i = i0; i <= last; ++i) {
+      const double up = t_[i] + half_ + tol_;
+      const double dn = t_[i] - half_ - tol_;
+      mismatch += (t_[i + h] <= up && t_[i + h + 1] > up && t_[i - h] >= dn && t_[i - h - 1] < dn)
+                      ? 0.0
+                      : 1.0;
+    }
+    for (std::size_t j = j0; j < j1; ++j) mismatch += (t_[j + 1] - t_[j]) == dt ? 0.0 : 1.0;
+    if (mismatch != 0 || !(dt > 0)) return false;
+    lo_ptr_ = last - h;
+    hi_ptr_ = last + h;
+    ybuf_.resize(j1 - j0 + 1);
+    const double y_ref = y_at_(i0);
+    for (std::size_t j = j0; j <= j1; ++j) ybuf_[j - j0] = y_at_(j) - y_ref;
+    const double* y = ybuf_.data() + h;  // y[k] is point i0 + k (k from -h)
+    // Window sum W_i and moment N_i = sum_k k y_{i+k} slide together:
+    //   W_{i+1} = W_i + y_{i+h+1} - y_{i-h},
+    //   N_{i+1} = N_i + h y_{i-h} + (h + 1) y_{i+h+1} - W_{i+1};
+    // kLanes stretches run interleaved, each from fresh sums.
+    const auto hs = static_cast<std::ptrdiff_t>(h);
+    const double hd = static_cast<double>(h);
+    const double inv = 1.0 / (dt * (hd * (hd + 1) * (2 * hd + 1) / 3));
+    const std::size_t len = (count + kLanes - 1) / kLanes;
+    double w[kLanes], m[kLanes];
+    std::size_t end[kLanes];
+    for (std::size_t l = 0; l < kLanes; ++l) {
+      const std::size_t start = std::min(l * len, count);
+      end[l] = std::min(start + len, count);
+      double sw = 0, sm = 0;
+      if (start < end[l]) {
+        for (std::ptrdiff_t k = -hs; k <= hs; ++k) {
+          const double v = y[static_cast<std::ptrdiff_t>(start) + k];
+          sw += v;
+          sm += static_cast<double>(k) * v;
+        }
+      }
+      w[l] = sw;
+      m[l] = sm;
+    }
+    for (std::size_t step = 0; step < len; ++step) {
+      for (std::size_t l = 0; l < kLanes; ++l) {
+        const std::size_t i = l * len + step;
+        if (i >= end[l]) continue;
+        out[i] = m[l] * inv;
+        if (i + 1 == end[l]) continue;
+        const auto ii = static_cast<std::ptrdiff_t>(i);
+        const double y_old = y[ii - hs];
+        const double y_new = y[ii + hs + 1];
+        w[l] += y_new - y_old;
+        m[l] += (hd * y_old + (hd + 1) * y_new) - w[l];
+      }
+    }
+    return true;
+  }
+
+  struct Lane {
+    std::size_t lo = 0, hi = 0, anchor = 0, reanchor = 16;
+    double t_ref = 0, y_ref = 0;
+    double s_t = 0, s_y = 0, s_tt = 0, s_ty = 0;
+  };
+  void fresh(Lane& ln, std::size_t i, std::size_t lo, std::size_t hi) {
+    ln.anchor = i;
+    ln.reanchor = std::max<std::size_t>(16, 2 * (hi - lo + 1));
+    ln.t_ref = t_[i];
+    ln.y_ref = y_at_(i);
+    ln.s_t = ln.s_y = ln.s_tt = ln.s_ty = 0;
+    ln.lo = lo;
+    ln.hi = hi;
+    for (std::size_t j = lo; j <= hi; ++j) add(ln, j, +1.0);
+  }
+  void add(Lane& ln, std::size_t j, double sign) {
+    const double dt = t_[j] - ln.t_ref;
+    const double dy = y_at_(j) - ln.y_ref;
+    ln.s_t += sign * dt;
+    ln.s_y += sign * dy;
+    ln.s_tt += sign * (dt * dt);
+    ln.s_ty += sign * (dt * dy);
   }
 
   std::span<const double> t_;
   YAt y_at_;
   double half_, tol_;
-  bool started_ = false;
-  std::size_t lo_ = 0, hi_ = 0, anchor_ = 0;
-  long double t_ref_ = 0, y_ref_ = 0;
-  long double s_t_ = 0, s_y_ = 0, s_tt_ = 0, s_ty_ = 0;
+  std::size_t lo_ptr_ = 0, hi_ptr_ = 0;
+  std::vector<std::size_t> lo_, hi_;
+  std::vector<double> ybuf_;
 };
 
 struct ShellTemp {
@@ -88,18 +217,50 @@ struct ShellTemp {
   double operator()(std::size_t i) const { return (s->top_c[i] + s->side_c[i]) / 2; }
 };
 
-// Welford running mean / sum of squared deviations, plus the largest |x|.
-struct RunningStats {
+// Mean, population std and largest |x| of a variable, from sums of x - shift
+// (shift: the first value seen, so a constant variable gives exactly 0). Used
+// only to centre and scale the design and to detect a constant variable.
+struct ShiftedStats {
+  bool started = false;
+  double shift = 0, sum = 0, sum2 = 0, max_abs = 0;
   std::size_t n = 0;
-  double mean = 0, m2 = 0, max_abs = 0;
-  void add(double x) {
-    ++n;
-    const double d = x - mean;
-    mean += d / static_cast<double>(n);
-    m2 += d * (x - mean);
-    max_abs = std::max(max_abs, std::abs(x));
+  void add_block(const double* x, std::size_t count) {
+    if (count == 0) return;
+    if (!started) {
+      shift = x[0];
+      started = true;
+    }
+    double a = 0, q = 0, mx = max_abs;
+    for (std::size_t i = 0; i < count; ++i) {
+      const double d = x[i] - shift;
+      a += d;
+      q += d * d;
+      mx = std::max(mx, std::abs(x[i]));
+    }
+    sum += a;
+    sum2 += q;
+    max_abs = mx;
+    n += count;
   }
-  double std_ddof0() const { return n > 0 ? std::sqrt(m2 / static_cast<double>(n)) : 0; }
+  void merge(const ShiftedStats& o) {
+    if (!o.started) return;
+    if (!started) {
+      *this = o;
+      return;
+    }
+    const double d = o.shift - shift;
+    const double no = static_cast<double>(o.n);
+    sum2 += o.sum2 + 2 * d * o.sum + no * d * d;
+    sum += o.sum + no * d;
+    max_abs = std::max(max_abs, o.max_abs);
+    n += o.n;
+  }
+  double mean() const { return n > 0 ? shift + sum / static_cast<double>(n) : 0; }
+  double std_ddof0() const {
+    if (n == 0) return 0;
+    const double nd = static_cast<double>(n);
+    return std::sqrt(std::max(0.0, sum2 / nd - (sum / nd) * (sum / nd)));
+  }
 };
 
 Status check_series(const AnalysisSeries& s) {
@@ -109,6 +270,14 @@ Status check_series(const AnalysisSeries& s) {
         "drift model: series vectors differ in length (t_s {}, rate_dph {}, top_c {}, side_c {})",
         n, s.rate_dph.size(), s.top_c.size(), s.side_c.size()));
   }
+  // Fast screen: x * 0 is NaN exactly for a NaN or infinite x; the exact
+  // search below runs only when the screen finds something.
+  double zero = 0, bad = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    zero += s.t_s[i] * 0.0 + s.rate_dph[i] * 0.0 + s.top_c[i] * 0.0 + s.side_c[i] * 0.0;
+    if (i > 0) bad += s.t_s[i] > s.t_s[i - 1] ? 0.0 : 1.0;
+  }
+  if (zero == 0 && bad == 0) return Status::Ok();
   const std::array<std::pair<const char*, const std::vector<double>*>, 4> vecs = {
       {{"t_s", &s.t_s}, {"rate_dph", &s.rate_dph}, {"top_c", &s.top_c}, {"side_c", &s.side_c}}};
   for (std::size_t i = 0; i < n; ++i) {
@@ -254,8 +423,10 @@ std::vector<double> smoothing_derivative(std::span<const double> t_s, std::span<
   std::vector<double> out(t_s.size(), kNaN);
   if (t_s.size() != y.size() || t_s.size() < 2 || !(window_s > 0)) return out;
   const auto y_at = [y](std::size_t j) { return y[j]; };
-  SlidingSlope<decltype(y_at)> slope(t_s, y_at, window_s);
-  for (std::size_t i = 0; i < t_s.size(); ++i) out[i] = slope.next(i);
+  DerivativeStream<decltype(y_at)> slope(t_s, y_at, window_s);
+  for (std::size_t i = 0; i < t_s.size(); i += kRowBlock) {
+    slope.next_block(i, std::min(kRowBlock, t_s.size() - i), out.data() + i);
+  }
   return out;
 }
 
@@ -263,6 +434,315 @@ Result<DriftFit> fit_drift_model(const AnalysisSeries& series, const DriftModelS
                                  DriftModelForm form, const DriftFitOptions& options) {
   return fit_drift_model(std::span<const AnalysisSeries>(&series, 1), spec, form, options);
 }
+
+namespace {
+
+// Streams one series in blocks of kRowBlock points: the mean shell
+// temperature, its smoothing derivative and the gradient top - side of each
+// point, handed to fn(i0, count, temp, deriv, grad).
+template <class Fn>
+void for_each_block(const AnalysisSeries& series, double window_s, Fn&& fn, std::size_t begin = 0,
+                    std::size_t end = SIZE_MAX) {
+  const ShellTemp temp_at{&series};
+  DerivativeStream<ShellTemp> slope(series.t_s, temp_at, window_s);
+  slope.start_at(begin);
+  double temp[kRowBlock], deriv[kRowBlock], grad[kRowBlock];
+  const std::size_t n = std::min(end, series.t_s.size());
+  for (std::size_t i0 = begin; i0 < n; i0 += kRowBlock) {
+    const std::size_t count = std::min(kRowBlock, n - i0);
+    slope.next_block(i0, count, deriv);
+    for (std::size_t k = 0; k < count; ++k) {
+      temp[k] = (series.top_c[i0 + k] + series.side_c[i0 + k]) / 2;
+      grad[k] = series.top_c[i0 + k] - series.side_c[i0 + k];
+    }
+    fn(i0, count, temp, deriv, grad);
+  }
+}
+
+// body(states[0], 0, n), or for a long series body(states[0], 0, mid) and
+// body(states[1], mid, n) on two threads (mid on a block boundary). Every sum
+// is compensated, so the result depends on the split only by rounding.
+constexpr std::size_t kParallelRows = std::size_t{1} << 18;
+template <class State, class Body>
+void over_halves(std::size_t n, State* states, Body&& body) {
+  if (n < kParallelRows) {
+    body(states[0], std::size_t{0}, n);
+    return;
+  }
+  const std::size_t mid = n / 2 / kRowBlock * kRowBlock;
+  std::thread other([&] { body(states[1], mid, n); });
+  body(states[0], std::size_t{0}, mid);
+  other.join();
+}
+
+// The design columns of a block, column-major with stride kRowBlock: column c
+// of row k at cols[c * kRowBlock + k]. Rows past count are left as they are.
+void fill_columns(const std::vector<Column>& cols, const Scaling& sc, std::size_t count,
+                  const double* temp, const double* deriv, const double* grad, double* out) {
+  for (std::size_t c = 0; c < cols.size(); ++c) {
+    double* col = out + c * kRowBlock;
+    const Column& cd = cols[c];
+    if (cd.var == 'C') {
+      std::fill(col, col + count, 1.0);
+    } else if (cd.power > 1) {
+      const double* prev = col - kRowBlock;  // the same variable, one power lower
+      const double* z = out + (c - static_cast<std::size_t>(cd.power - 1)) * kRowBlock;
+      for (std::size_t k = 0; k < count; ++k) col[k] = prev[k] * z[k];
+    } else {
+      const double* x = cd.var == 'T' ? temp : cd.var == 'R' ? deriv : grad;
+      const double center = cd.var == 'T' ? sc.t_center : cd.var == 'R' ? sc.r_center : sc.g_center;
+      const double scale = cd.var == 'T' ? sc.t_scale : cd.var == 'R' ? sc.r_scale : sc.g_scale;
+      for (std::size_t k = 0; k < count; ++k) col[k] = (x[k] - center) / scale;
+    }
+  }
+}
+
+using Vec4 = double __attribute__((vector_size(32)));
+
+[[gnu::target_clones("arch=x86-64-v3", "default")]] void gram_accumulate(const double* x,
+                                                                         std::size_t q4,
+                                                                         std::size_t rows4,
+                                                                         double* g) {
+  for (std::size_t a0 = 0; a0 < q4; a0 += 4) {
+    const double* xa = x + a0 * kRowBlock;
+    for (std::size_t b = a0; b < q4; ++b) {
+      const double* xb = x + b * kRowBlock;
+      Vec4 acc0 = {0, 0, 0, 0}, acc1 = acc0, acc2 = acc0, acc3 = acc0;
+      Vec4 vb, v0, v1, v2, v3;
+      for (std::size_t i = 0; i < rows4; i += 4) {
+        std::memcpy(&vb, xb + i, sizeof vb);
+        std::memcpy(&v0, xa + i, sizeof vb);
+        std::memcpy(&v1, xa + kRowBlock + i, sizeof vb);
+        std::memcpy(&v2, xa + 2 * kRowBlock + i, sizeof vb);
+        std::memcpy(&v3, xa + 3 * kRowBlock + i, sizeof vb);
+        acc0 += v0 * vb;
+        acc1 += v1 * vb;
+        acc2 += v2 * vb;
+        acc3 += v3 * vb;
+      }
+      const Vec4* accs[4] = {&acc0, &acc1, &acc2, &acc3};
+      for (std::size_t k = 0; k < 4; ++k) {
+        const Vec4& v = *accs[k];
+        g[(a0 + k) * q4 + b] += (v[0] + v[1]) + (v[2] + v[3]);
+      }
+    }
+  }
+}
+
+struct Neumaier {
+  double sum = 0, comp = 0;
+  void add(double v) {
+    const double t = sum + v;
+    comp += std::abs(sum) >= std::abs(v) ? (sum - t) + v : (v - t) + sum;
+    sum = t;
+  }
+  double value() const { return sum + comp; }
+};
+
+// What a solver hands to the common tail: the p x p triangular factor R of
+// the scaled design, Q'y and the residual sum of squares.
+struct Factor {
+  Eigen::MatrixXd rx;
+  Eigen::VectorXd qty;
+  double rss = 0;
+  std::string solver;
+};
+
+// Householder path: R of [X | y] by QR of [R; next block], block by block.
+Factor householder_factor(std::span<const AnalysisSeries> runs, const std::vector<Column>& cols,
+                          const Scaling& sc, const std::vector<double>& l0,
+                          const DriftFitOptions& options) {
+  const std::size_t p = cols.size();
+  const std::size_t q = p + 1;
+  const std::size_t block = options.block_rows;
+  Eigen::MatrixXd stack =
+      Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(q + block), static_cast<Eigen::Index>(q));
+  Eigen::HouseholderQR<Eigen::MatrixXd> qr(stack.rows(), stack.cols());
+  Eigen::MatrixXd r_aug =
+      Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(q), static_cast<Eigen::Index>(q));
+  std::vector<double> row(p);
+  std::size_t filled = 0;  // rows of the current block
+  const auto flush_block = [&] {
+    qr.compute(stack.topRows(static_cast<Eigen::Index>(q + filled)));
+    r_aug = qr.matrixQR().topRows(static_cast<Eigen::Index>(q)).triangularView<Eigen::Upper>();
+    stack.topRows(static_cast<Eigen::Index>(q)) = r_aug;
+    filled = 0;
+  };
+  for (std::size_t r = 0; r < runs.size(); ++r) {
+    const AnalysisSeries& series = runs[r];
+    for_each_block(series, options.derivative_window_s,
+                   [&](std::size_t i0, std::size_t count, const double* temp, const double* deriv,
+                       const double* grad) {
+                     for (std::size_t k = 0; k < count; ++k) {
+                       fill_row(cols, sc, temp[k], deriv[k], grad[k], row.data());
+                       const auto at = static_cast<Eigen::Index>(q + filled);
+                       for (std::size_t c = 0; c < p; ++c) {
+                         stack(at, static_cast<Eigen::Index>(c)) = row[c];
+                       }
+                       stack(at, static_cast<Eigen::Index>(p)) = series.rate_dph[i0 + k] - l0[r];
+                       if (++filled == block) flush_block();
+                     }
+                   });
+  }
+  if (filled > 0) flush_block();
+  const auto ip = static_cast<Eigen::Index>(p);
+  Factor f;
+  f.rx = r_aug.topLeftCorner(ip, ip);
+  f.qty = r_aug.topRightCorner(ip, 1);
+  f.rss = r_aug(ip, ip) * r_aug(ip, ip);
+  f.solver = "householder";
+  return f;
+}
+
+// Gram path (see drift_model.h): nullopt when the scaled design is too
+// ill-conditioned for it (or its Gram matrix is not positive definite).
+std::optional<Factor> gram_factor(std::span<const AnalysisSeries> runs,
+                                  const std::vector<Column>& cols, const Scaling& sc,
+                                  const std::vector<double>& l0, double y_shift,
+                                  const DriftFitOptions& options) {
+  const std::size_t p = cols.size();
+  const std::size_t q = p + 1;
+  const std::size_t q4 = (q + 3) / 4 * 4;
+  struct GramState {
+    std::vector<double> x, g_block;
+    std::vector<Neumaier> g_total;
+  };
+  GramState states[2];
+  for (GramState& st : states) {
+    st.x.assign(q4 * kRowBlock, 0.0);
+    st.g_block.resize(q4 * q4);
+    st.g_total.resize(q4 * q4);
+  }
+  for (std::size_t r = 0; r < runs.size(); ++r) {
+    const AnalysisSeries& series = runs[r];
+    over_halves(series.t_s.size(), states, [&](GramState& st, std::size_t begin, std::size_t end) {
+      for_each_block(
+          series, options.derivative_window_s,
+          [&](std::size_t i0, std::size_t count, const double* temp, const double* deriv,
+              const double* grad) {
+            fill_columns(cols, sc, count, temp, deriv, grad, st.x.data());
+            double* y = st.x.data() + p * kRowBlock;
+            for (std::size_t k = 0; k < count; ++k) {
+              y[k] = series.rate_dph[i0 + k] - l0[r] - y_shift;
+            }
+            const std::size_t rows4 = (count + 3) / 4 * 4;
+            if (rows4 != count) {
+              for (std::size_t c = 0; c < q; ++c) {
+                std::fill(st.x.data() + c * kRowBlock + count, st.x.data() + c * kRowBlock + rows4,
+                          0.0);
+              }
+            }
+            std::fill(st.g_block.begin(), st.g_block.end(), 0.0);
+            gram_accumulate(st.x.data(), q4, rows4, st.g_block.data());
+            for (std::size_t i = 0; i < q; ++i) {
+              for (std::size_t j = i; j < q; ++j)
+                st.g_total[i * q4 + j].add(st.g_block[i * q4 + j]);
+            }
+          },
+          begin, end);
+    });
+  }
+  std::vector<Neumaier>& g_total = states[0].g_total;
+  for (std::size_t i = 0; i < q4 * q4; ++i) {
+    g_total[i].add(states[1].g_total[i].sum);
+    g_total[i].add(states[1].g_total[i].comp);
+  }
+  const auto ip = static_cast<Eigen::Index>(p);
+  Eigen::MatrixXd gxx(ip, ip);
+  Eigen::VectorXd gxy(ip);
+  for (std::size_t a = 0; a < p; ++a) {
+    for (std::size_t b = a; b < p; ++b) {
+      gxx(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(b)) = gxx(
+          static_cast<Eigen::Index>(b), static_cast<Eigen::Index>(a)) = g_total[a * q4 + b].value();
+    }
+    gxy(static_cast<Eigen::Index>(a)) = g_total[a * q4 + p].value();
+  }
+  const double gyy = g_total[p * q4 + p].value();
+  // Equilibrate (columns of unit norm), Cholesky, condition number.
+  Eigen::VectorXd norm(ip);
+  for (Eigen::Index j = 0; j < ip; ++j) {
+    if (!(gxx(j, j) > 0) || !std::isfinite(gxx(j, j))) return std::nullopt;
+    norm(j) = std::sqrt(gxx(j, j));
+  }
+  const Eigen::MatrixXd ge =
+      norm.cwiseInverse().asDiagonal() * gxx * norm.cwiseInverse().asDiagonal();
+  const Eigen::LLT<Eigen::MatrixXd> llt(ge);
+  if (llt.info() != Eigen::Success) return std::nullopt;
+  const Eigen::MatrixXd re = llt.matrixU();
+  const Eigen::VectorXd sv = Eigen::JacobiSVD<Eigen::MatrixXd>(re).singularValues();
+  if (!(sv(ip - 1) > 0) || sv(0) / sv(ip - 1) > kGramMaxCondition) return std::nullopt;
+
+  Factor f;
+  f.rx = re * norm.asDiagonal();  // R of X: R_e D^-1 with D = diag(1 / norm)
+  f.qty = f.rx.transpose().triangularView<Eigen::Lower>().solve(gxy);
+  f.rss = gyy - f.qty.squaredNorm();
+  // Q'y of the unshifted y: the shift is y_shift times the intercept column
+  // (column 0), and Q' column 0 = R e_0.
+  if (y_shift != 0) f.qty += y_shift * f.rx.col(0);
+  f.solver = "gram";
+  if (f.rss >= kGramMinRssFraction * gyy) return f;
+
+  // A close fit: y'y - |Q'y|^2 has lost its digits. One pass over the
+  // residuals r = y - X beta gives RSS directly and corrects beta (one step
+  // of iterative refinement): Q'y += R^-T X'r, RSS = r'r - |R^-T X'r|^2.
+  const auto upper = f.rx.triangularView<Eigen::Upper>();
+  const Eigen::VectorXd beta = upper.solve(f.qty);
+  struct ResidualState {
+    std::vector<double> x, res;
+    std::vector<Neumaier> xr;
+    Neumaier rr;
+  };
+  ResidualState rstates[2];
+  for (ResidualState& st : rstates) {
+    st.x.assign(q4 * kRowBlock, 0.0);
+    st.res.resize(kRowBlock);
+    st.xr.resize(p);
+  }
+  for (std::size_t r = 0; r < runs.size(); ++r) {
+    const AnalysisSeries& series = runs[r];
+    over_halves(series.t_s.size(), rstates,
+                [&](ResidualState& st, std::size_t begin, std::size_t end) {
+                  for_each_block(
+                      series, options.derivative_window_s,
+                      [&](std::size_t i0, std::size_t count, const double* temp,
+                          const double* deriv, const double* grad) {
+                        fill_columns(cols, sc, count, temp, deriv, grad, st.x.data());
+                        double* res = st.res.data();
+                        for (std::size_t k = 0; k < count; ++k) {
+                          res[k] = series.rate_dph[i0 + k] - l0[r];
+                        }
+                        for (std::size_t c = 0; c < p; ++c) {
+                          const double b = beta(static_cast<Eigen::Index>(c));
+                          const double* col = st.x.data() + c * kRowBlock;
+                          for (std::size_t k = 0; k < count; ++k) res[k] -= b * col[k];
+                        }
+                        double s2 = 0;
+                        for (std::size_t k = 0; k < count; ++k) s2 += res[k] * res[k];
+                        st.rr.add(s2);
+                        for (std::size_t c = 0; c < p; ++c) {
+                          const double* col = st.x.data() + c * kRowBlock;
+                          double sum = 0;
+                          for (std::size_t k = 0; k < count; ++k) sum += col[k] * res[k];
+                          st.xr[c].add(sum);
+                        }
+                      },
+                      begin, end);
+                });
+  }
+  std::vector<Neumaier>& xr = rstates[0].xr;
+  Neumaier& rr = rstates[0].rr;
+  for (std::size_t c = 0; c < p; ++c) xr[c].add(rstates[1].xr[c].value());
+  rr.add(rstates[1].rr.value());
+  Eigen::VectorXd xtr(ip);
+  for (std::size_t c = 0; c < p; ++c) xtr(static_cast<Eigen::Index>(c)) = xr[c].value();
+  const Eigen::VectorXd w = f.rx.transpose().triangularView<Eigen::Lower>().solve(xtr);
+  f.qty += w;
+  f.rss = std::max(0.0, rr.value() - w.squaredNorm());
+  f.solver = "gram+refined";
+  return f;
+}
+
+}  // namespace
 
 Result<DriftFit> fit_drift_model(std::span<const AnalysisSeries> runs, const DriftModelSpec& spec,
                                  DriftModelForm form, const DriftFitOptions& options) {
@@ -297,33 +777,55 @@ Result<DriftFit> fit_drift_model(std::span<const AnalysisSeries> runs, const Dri
         to_string(spec), n, p));
   }
 
-  // Pass 1: L0 of each series and the statistics of T, dT/dt and top - side.
+  // Pass 1: L0 of each series and the statistics of T, dT/dt, top - side and y.
   std::vector<double> l0(runs.size(), 0.0);
-  RunningStats ts, rs, gs;
-  double max_side_top = 0;
+  struct Pass1 {
+    ShiftedStats ts, rs, gs, ys;
+    double max_side_top = 0;
+  };
+  Pass1 part[2];
   for (std::size_t r = 0; r < runs.size(); ++r) {
     const AnalysisSeries& series = runs[r];
     if (form == DriftModelForm::kPaper) {
-      long double sum = 0;
+      Neumaier sum;
       std::size_t count = 0;
       for (std::size_t i = 0;
            i < series.t_s.size() && series.t_s[i] - series.t_s[0] < options.l0_window_s; ++i) {
-        sum += series.rate_dph[i];
+        sum.add(series.rate_dph[i]);
         ++count;
       }
-      l0[r] = static_cast<double>(sum / static_cast<long double>(count));
+      l0[r] = sum.value() / static_cast<double>(count);
     }
-    const ShellTemp temp_at{&series};
-    SlidingSlope<ShellTemp> slope(series.t_s, temp_at, options.derivative_window_s);
-    for (std::size_t i = 0; i < series.t_s.size(); ++i) {
-      ts.add(temp_at(i));
-      rs.add(slope.next(i));
-      gs.add(series.top_c[i] - series.side_c[i]);
-      max_side_top =
-          std::max({max_side_top, std::abs(series.top_c[i]), std::abs(series.side_c[i])});
-    }
+    over_halves(series.t_s.size(), part, [&](Pass1& st, std::size_t begin, std::size_t end) {
+      double y[kRowBlock];
+      for_each_block(
+          series, options.derivative_window_s,
+          [&](std::size_t i0, std::size_t count, const double* temp, const double* deriv,
+              const double* grad) {
+            st.ts.add_block(temp, count);
+            st.rs.add_block(deriv, count);
+            st.gs.add_block(grad, count);
+            double mx = st.max_side_top;
+            for (std::size_t k = 0; k < count; ++k) {
+              y[k] = series.rate_dph[i0 + k] - l0[r];
+              mx = std::max({mx, std::abs(series.top_c[i0 + k]), std::abs(series.side_c[i0 + k])});
+            }
+            st.max_side_top = mx;
+            st.ys.add_block(y, count);
+          },
+          begin, end);
+    });
   }
-  const auto constant = [&](char var, const RunningStats& st, double size) -> Status {
+  ShiftedStats& ts = part[0].ts;
+  ShiftedStats& rs = part[0].rs;
+  ShiftedStats& gs = part[0].gs;
+  ShiftedStats& ys = part[0].ys;
+  ts.merge(part[1].ts);
+  rs.merge(part[1].rs);
+  gs.merge(part[1].gs);
+  ys.merge(part[1].ys);
+  const double max_side_top = std::max(part[0].max_side_top, part[1].max_side_top);
+  const auto constant = [&](char var, const ShiftedStats& st, double size) -> Status {
     if (st.std_ddof0() <= kConstantTol * size) {
       const char* what = var == 'T'   ? "the mean shell temperature"
                          : var == 'R' ? "dT/dt"
@@ -331,7 +833,7 @@ Result<DriftFit> fit_drift_model(std::span<const AnalysisSeries> runs, const Dri
       return Error::Permanent(
           fmt::format("drift model {}: term {} cannot be fitted: {} is constant over the series "
                       "(mean {}, std {})",
-                      to_string(spec), var, what, st.mean, st.std_ddof0()));
+                      to_string(spec), var, what, st.mean(), st.std_ddof0()));
     }
     return Status::Ok();
   };
@@ -350,51 +852,26 @@ Result<DriftFit> fit_drift_model(std::span<const AnalysisSeries> runs, const Dri
   if (form == DriftModelForm::kPaper) {
     sc = {0, ts.max_abs, 0, rs.max_abs, 0, gs.max_abs};
   } else {
-    sc = {ts.mean, ts.std_ddof0(), rs.mean, rs.std_ddof0(), gs.mean, gs.std_ddof0()};
+    sc = {ts.mean(), ts.std_ddof0(), rs.mean(), rs.std_ddof0(), gs.mean(), gs.std_ddof0()};
   }
   // Unused variables keep a harmless scale.
   if (!(sc.t_scale > 0)) sc.t_scale = 1;
   if (!(sc.r_scale > 0)) sc.r_scale = 1;
   if (!(sc.g_scale > 0)) sc.g_scale = 1;
 
-  // Pass 2: R of [X | y] by Householder QR of [R; next block], block by block.
-  const std::size_t q = p + 1;
-  const std::size_t block = options.block_rows;
-  Eigen::MatrixXd stack =
-      Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(q + block), static_cast<Eigen::Index>(q));
-  Eigen::HouseholderQR<Eigen::MatrixXd> qr(stack.rows(), stack.cols());
-  Eigen::MatrixXd r_aug =
-      Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(q), static_cast<Eigen::Index>(q));
-  RunningStats ys;
-  std::vector<double> row(p);
-  std::size_t filled = 0;  // rows of the current block
-  const auto flush_block = [&] {
-    qr.compute(stack.topRows(static_cast<Eigen::Index>(q + filled)));
-    r_aug = qr.matrixQR().topRows(static_cast<Eigen::Index>(q)).triangularView<Eigen::Upper>();
-    stack.topRows(static_cast<Eigen::Index>(q)) = r_aug;
-    filled = 0;
-  };
-  for (std::size_t r = 0; r < runs.size(); ++r) {
-    const AnalysisSeries& series = runs[r];
-    const ShellTemp temp_at{&series};
-    SlidingSlope<ShellTemp> slope(series.t_s, temp_at, options.derivative_window_s);
-    for (std::size_t i = 0; i < series.t_s.size(); ++i) {
-      const double y = series.rate_dph[i] - l0[r];
-      ys.add(y);
-      fill_row(cols, sc, temp_at(i), slope.next(i), series.top_c[i] - series.side_c[i], row.data());
-      const auto k = static_cast<Eigen::Index>(q + filled);
-      for (std::size_t c = 0; c < p; ++c) stack(k, static_cast<Eigen::Index>(c)) = row[c];
-      stack(k, static_cast<Eigen::Index>(p)) = y;
-      if (++filled == block) flush_block();
-    }
+  // Pass 2 (and 3): the triangular factor, by the Gram path when the scaled
+  // design is well conditioned, else by Householder QR.
+  std::optional<Factor> factor;
+  if (!options.force_householder) {
+    // The centred form has an intercept: y is centred for the Gram matrix too.
+    const double y_shift = form == DriftModelForm::kCentered ? ys.mean() : 0.0;
+    factor = gram_factor(runs, cols, sc, l0, y_shift, options);
   }
-  if (filled > 0) flush_block();
-
+  if (!factor) factor = householder_factor(runs, cols, sc, l0, options);
   const auto ip = static_cast<Eigen::Index>(p);
-  const Eigen::MatrixXd rx = r_aug.topLeftCorner(ip, ip);
-  const Eigen::VectorXd qty = r_aug.topRightCorner(ip, 1);
-  const double rss = r_aug(ip, ip) * r_aug(ip, ip);
-
+  const Eigen::MatrixXd& rx = factor->rx;
+  const Eigen::VectorXd& qty = factor->qty;
+  const double rss = factor->rss;
   // Rank: |R_jj| / |column j| is the sine of the angle between column j and the
   // span of the columns before it.
   Eigen::VectorXd col_norm(ip);
@@ -446,11 +923,12 @@ Result<DriftFit> fit_drift_model(std::span<const AnalysisSeries> runs, const Dri
   fit.n = n;
   fit.parameters = p;
   fit.residual_std_dph = std::sqrt(sigma2);
-  const double tss = ys.m2;
+  const double tss = static_cast<double>(ys.n) * ys.std_ddof0() * ys.std_ddof0();
   fit.r_squared = tss > 0 ? 1 - rss / tss : 1.0;
   fit.l0_dph = l0.front();
   fit.l0_per_series_dph = l0;
   fit.condition_estimate = sv(0) / sv(ip - 1);
+  fit.solver = factor->solver;
   fit.derivative_window_s = options.derivative_window_s;
   fit.t_center = sc.t_center;
   fit.t_scale = sc.t_scale;
@@ -476,16 +954,20 @@ Result<std::vector<double>> predict_drift(const DriftFit& fit, const AnalysisSer
     return Error::Permanent("predict_drift: the fit's coefficients do not match its spec");
   }
   const Scaling sc{fit.t_center, fit.t_scale, fit.r_center, fit.r_scale, fit.g_center, fit.g_scale};
-  const ShellTemp temp_at{&series};
-  SlidingSlope<ShellTemp> slope(series.t_s, temp_at, fit.derivative_window_s);
   std::vector<double> out(series.t_s.size());
   std::vector<double> row(cols.size());
-  for (std::size_t i = 0; i < out.size(); ++i) {
-    fill_row(cols, sc, temp_at(i), slope.next(i), series.top_c[i] - series.side_c[i], row.data());
-    double v = fit.l0_dph;
-    for (std::size_t c = 0; c < cols.size(); ++c) v += fit.scaled_coefficients[c] * row[c];
-    out[i] = v;
-  }
+  for_each_block(series, fit.derivative_window_s,
+                 [&](std::size_t i0, std::size_t count, const double* temp, const double* deriv,
+                     const double* grad) {
+                   for (std::size_t k = 0; k < count; ++k) {
+                     fill_row(cols, sc, temp[k], deriv[k], grad[k], row.data());
+                     double v = fit.l0_dph;
+                     for (std::size_t c = 0; c < cols.size(); ++c) {
+                       v += fit.scaled_coefficients[c] * row[c];
+                     }
+                     out[i0 + k] = v;
+                   }
+                 });
   return out;
 }
 

@@ -265,25 +265,29 @@ Result<Table1Row> table1_row(const AnalysisSeries& series, const Table1Options& 
     return Error::Permanent(
         fmt::format("a Table I row needs at least 2 points in the analysis series, got {}", n));
   }
-  std::vector<double> shell_c(n);
-  for (std::size_t i = 0; i < n; ++i) {
-    if (!std::isfinite(series.rate_dph[i]) || !std::isfinite(series.top_c[i]) ||
-        !std::isfinite(series.side_c[i])) {
-      const double t = i < series.t_s.size() ? series.t_s[i] : kNaN;
-      return Error::Permanent(fmt::format(
-          "analysis series point {} at t_s={}: rate_dph={} top_c={} side_c={} is not finite", i, t,
-          series.rate_dph[i], series.top_c[i], series.side_c[i]));
+  const Table1Statistics st =
+      table1_statistics(series.rate_dph, series.top_c, series.side_c, options.ma_window);
+  if (!st.finite) {
+    for (std::size_t i = 0; i < n; ++i) {
+      if (!std::isfinite(series.rate_dph[i]) || !std::isfinite(series.top_c[i]) ||
+          !std::isfinite(series.side_c[i])) {
+        const double t = i < series.t_s.size() ? series.t_s[i] : kNaN;
+        return Error::Permanent(fmt::format(
+            "analysis series point {} at t_s={}: rate_dph={} top_c={} side_c={} is not finite", i,
+            t, series.rate_dph[i], series.top_c[i], series.side_c[i]));
+      }
     }
-    shell_c[i] = (series.top_c[i] + series.side_c[i]) / 2;
+    return Error::Permanent(
+        "analysis series: the values are too large for Table I statistics (a sum overflows)");
   }
 
   Table1Row row;
   row.n = n;
   row.duration_s = static_cast<double>(n) * series.bin_s;
-  row.temp_mean_c = mean(shell_c);
-  row.bias_mean_dph = mean(series.rate_dph);
-  row.bias_std_dph = std_ddof1(series.rate_dph);
-  row.bias_std_ma_dph = moving_average_std(series.rate_dph, options.ma_window);
+  row.temp_mean_c = st.temp_mean_c;
+  row.bias_mean_dph = st.bias_mean_dph;
+  row.bias_std_dph = st.bias_std_dph;
+  row.bias_std_ma_dph = st.bias_std_ma_dph;
   row.bias_mean_earth_removed_dph = row.bias_mean_dph - options.earth_rate_dph;
   return row;
 }

@@ -432,6 +432,114 @@ TEST(DriftModel, BlockSizeDoesNotChangeTheAnswer) {
   }
 }
 
+// ---- solver paths ----------------------------------------------------------
+
+// The Gram path (well-conditioned scaled design) and the Householder path
+// agree: fitted values and R^2 to 1e-12, residual std (y'y - |Q'y|^2 in the
+// Gram path) to 1e-10 relative, standard
+// errors to 1e-10, coefficients to 1e-10 of the largest.
+TEST(DriftModel, GramPathAgreesWithHouseholder) {
+  static const ReferenceSeries r = load_series();
+  const double y_scale = max_abs(r.series.rate_dph);
+  for (const char* spec_text : {"T2+G1", "T4+R1+G1", "T2+R2+G2"}) {
+    for (DriftModelForm form : {DriftModelForm::kPaper, DriftModelForm::kCentered}) {
+      SCOPED_TRACE(std::string(spec_text) + " " + std::string(to_string(form)));
+      DriftFitOptions fast;
+      fast.derivative_window_s = r.derivative_window_s;
+      DriftFitOptions slow = fast;
+      slow.force_householder = true;
+      auto a = fit_drift_model(r.series, *parse_model_spec(spec_text), form, fast);
+      auto b = fit_drift_model(r.series, *parse_model_spec(spec_text), form, slow);
+      ASSERT_TRUE(a.ok() && b.ok());
+      EXPECT_EQ(b->solver, "householder");
+      if (form == DriftModelForm::kCentered) {
+        EXPECT_EQ(a->solver, "gram");
+      }
+      EXPECT_NEAR(a->residual_std_dph, b->residual_std_dph, 1e-10 * b->residual_std_dph);
+      EXPECT_NEAR(a->r_squared, b->r_squared, 1e-12);
+      EXPECT_NEAR(a->condition_estimate, b->condition_estimate, 1e-8 * b->condition_estimate);
+      const double beta_scale = max_abs(b->scaled_coefficients);
+      for (std::size_t c = 0; c < b->scaled_coefficients.size(); ++c) {
+        EXPECT_NEAR(a->scaled_coefficients[c], b->scaled_coefficients[c], 1e-10 * beta_scale) << c;
+      }
+      for (const auto& [name, se] : b->std_errors) {
+        EXPECT_NEAR(a->std_errors.at(name), se, 1e-10 * se) << name;
+      }
+      auto pa = predict_drift(*a, r.series);
+      auto pb = predict_drift(*b, r.series);
+      ASSERT_TRUE(pa.ok() && pb.ok());
+      for (std::size_t i = 0; i < pa->size(); ++i) {
+        ASSERT_NEAR((*pa)[i], (*pb)[i], 1e-12 * y_scale) << i;
+      }
+    }
+  }
+}
+
+// A series long enough to be split over two threads (the halves meet in the
+// middle of a derivative window): the Gram path still agrees with the
+// single-threaded Householder path.
+TEST(DriftModel, LongSeriesSplitOverThreadsAgrees) {
+  AnalysisSeries s = sweep(300000);
+  const std::vector<double> temp = shell_temperature(s);
+  for (std::size_t i = 0; i < s.t_s.size(); ++i) {
+    s.rate_dph[i] = 7.9 + 0.02 * temp[i] + 0.2 * (s.top_c[i] - s.side_c[i]) +
+                    0.05 * std::sin(1.3 * static_cast<double>(i) * static_cast<double>(i % 17));
+  }
+  DriftFitOptions slow;
+  slow.force_householder = true;
+  const DriftModelSpec spec = *parse_model_spec("T2+R1+G1");
+  auto a = fit_drift_model(s, spec, DriftModelForm::kCentered);
+  auto b = fit_drift_model(s, spec, DriftModelForm::kCentered, slow);
+  ASSERT_TRUE(a.ok() && b.ok());
+  EXPECT_EQ(a->solver, "gram");
+  EXPECT_NEAR(a->residual_std_dph, b->residual_std_dph, 1e-10 * b->residual_std_dph);
+  // T2 and R1 are ~0 in truth: coefficients normwise, standard errors each.
+  const double beta_scale = max_abs(b->scaled_coefficients);
+  for (std::size_t c = 0; c < b->scaled_coefficients.size(); ++c) {
+    EXPECT_NEAR(a->scaled_coefficients[c], b->scaled_coefficients[c], 1e-10 * beta_scale) << c;
+  }
+  for (const auto& [name, se] : b->std_errors) {
+    EXPECT_NEAR(a->std_errors.at(name), se, 1e-9 * se) << name;
+  }
+}
+
+// An ill-conditioned scaled design (paper form, raw powers of T / max|T| with
+// T far from 0) is solved by Householder, not by the Gram matrix.
+TEST(DriftModel, IllConditionedDesignFallsBackToHouseholder) {
+  AnalysisSeries s = sweep(3000);
+  for (std::size_t i = 0; i < s.t_s.size(); ++i) {
+    s.top_c[i] += 60.0;  // T in 40 .. 120 degC: z = T / max in 0.3 .. 1
+    s.side_c[i] += 60.0;
+    s.rate_dph[i] = 1.0 + 0.001 * s.top_c[i] + 0.01 * std::sin(0.1 * static_cast<double>(i));
+  }
+  auto fit = fit_drift_model(s, *parse_model_spec("T4"), DriftModelForm::kPaper);
+  ASSERT_TRUE(fit.ok()) << fit.error().message;
+  EXPECT_GT(fit->condition_estimate, 100.0);
+  EXPECT_EQ(fit->solver, "householder");
+}
+
+// A near-exact fit makes y'y - |Q'y|^2 meaningless; the Gram path then takes
+// RSS from the residuals (one refinement pass) and agrees with Householder.
+TEST(DriftModel, CloseFitRefinesTheGramResidual) {
+  AnalysisSeries s = sweep(3000);
+  const std::vector<double> temp = shell_temperature(s);
+  for (std::size_t i = 0; i < s.t_s.size(); ++i) {
+    s.rate_dph[i] = 7.9 + 0.02 * temp[i] - 4e-4 * temp[i] * temp[i] +
+                    1e-9 * std::sin(0.37 * static_cast<double>(i));
+  }
+  DriftFitOptions slow;
+  slow.force_householder = true;
+  auto a = fit_drift_model(s, *parse_model_spec("T2"), DriftModelForm::kCentered);
+  auto b = fit_drift_model(s, *parse_model_spec("T2"), DriftModelForm::kCentered, slow);
+  ASSERT_TRUE(a.ok() && b.ok());
+  EXPECT_EQ(a->solver, "gram+refined");
+  EXPECT_NEAR(a->residual_std_dph, b->residual_std_dph, 1e-6 * b->residual_std_dph);
+  EXPECT_GT(a->residual_std_dph, 1e-10);  // the 1e-9 wiggle, not rounding noise
+  for (const auto& [name, value] : b->coefficients) {
+    EXPECT_NEAR(a->coefficients.at(name), value, 1e-10 * std::abs(value)) << name;
+  }
+}
+
 // ---- errors ----------------------------------------------------------------
 
 TEST(DriftModel, ConstantTemperatureIsAnErrorNamingT) {

@@ -5,9 +5,16 @@
 // differences. For a cluster size m (tau = m * tau0), with ybar_k the mean of
 // y_k ... y_{k+m-1}:
 //   sigma^2(tau) = 1 / (2 (N - 2m + 1)) * sum_{k=0}^{N-2m} (ybar_{k+m} - ybar_k)^2
-// over every overlapping k. Computed from a long-double running sum of the
-// mean-subtracted rates: O(N) per tau, and a large common offset (1e4 °/h)
-// costs no digits.
+// over every overlapping k. Computed from the prefix sums C of the rates minus
+// a sample mean, in double, each C[k] rounded about once (blocked, with a
+// compensated running offset): m ybar differences are C[k+2m] - 2C[k+m] + C[k]
+// taken as (C[k+2m] - C[k+m]) - (C[k+m] - C[k]), so a large common offset
+// (1e4 °/h) costs no digits and a slow drift only ~eps |C| / (m sigma(m)) per
+// term. One pass builds C (with the input checks and the median spacing);
+// the taus then sweep C in cache-sized chunks (the large octave m in an order
+// that reuses each chunk for every m), per-tau sums compensated. O(N) memory
+// (C, N + 1 doubles), O(N) per tau; series of >= 2^18 samples sweep on two
+// threads (the result changes only by rounding).
 //
 // Confidence bounds: 1 sigma (68.3 %), chi-squared with the equivalent degrees
 // of freedom for white FM noise, overlapping estimator (see allan_edf_white_fm).

@@ -29,16 +29,16 @@
 
 namespace gyrotherm::analysis {
 
-enum class TermSet { kT, kTG, kTGR };  // {T}, {T, dT}, {T, dT, dT/dt}
+enum class TermSet { kT, kTG, kTGR };     // {T}, {T, dT}, {T, dT, dT/dt}
 std::string_view to_string(TermSet set);  // "T", "T+G", "T+G+R"
 
 struct ComparisonOptions {
-  int max_order = 4;                         // T orders 1 ... max_order (1..4)
-  int g_order = 1;                           // order of dT in {T, dT} and {T, dT, dT/dt}
-  int r_order = 1;                           // order of dT/dt in {T, dT, dT/dt}
+  int max_order = 4;  // T orders 1 ... max_order (1..4)
+  int g_order = 1;    // order of dT in {T, dT} and {T, dT, dT/dt}
+  int r_order = 1;    // order of dT/dt in {T, dT, dT/dt}
   DriftModelForm form = DriftModelForm::kPaper;
-  DriftFitOptions fit;                       // derivative and L0 windows, tolerances
-  bool cross_validate = true;                // leave-one-run-out when >= 2 runs
+  DriftFitOptions fit;         // derivative and L0 windows, tolerances
+  bool cross_validate = true;  // leave-one-run-out when >= 2 runs
 
   // False with a message naming the bad field.
   bool IsValid(std::string* error) const;
@@ -52,13 +52,13 @@ struct CompensatedStats {
 
 struct ComparisonCell {
   TermSet terms = TermSet::kT;
-  int order = 1;                  // of T
-  DriftModelSpec spec;            // e.g. T2+G1
+  int order = 1;        // of T
+  DriftModelSpec spec;  // e.g. T2+G1
   std::optional<CompensatedStats> in_sample;
-  std::string in_sample_error;    // why in_sample is empty
+  std::string in_sample_error;  // why in_sample is empty
   std::optional<CompensatedStats> cross_validated;
   std::string cross_validated_error;  // why cross_validated is empty (e.g. "needs >= 2 runs")
-  std::optional<DriftFit> fit;    // the in-sample fit
+  std::optional<DriftFit> fit;        // the in-sample fit
 };
 
 struct Comparison {

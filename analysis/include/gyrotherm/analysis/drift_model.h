@@ -6,10 +6,12 @@
 // (top + side) / 2 (°C), dT/dt its smoothing derivative (°C/s), dT = top - side
 // (°C). Two forms: the paper's (L0 = mean rate over the first l0_window_s, no
 // intercept) and a centred one (intercept, each variable centred and scaled
-// before its powers are taken). Both are solved by a block-sequential
-// Householder QR: the extra memory is O(block_rows x p), independent of the
-// number of points. Pure functions of their arguments; safe to call from
-// several threads.
+// before its powers are taken). Both are solved in the scaled variables,
+// from the Gram matrix when the scaled design is well conditioned and by a
+// block-sequential Householder QR otherwise (see fit_drift_model): the extra
+// memory is O(block x p), independent of the number of points. Pure functions
+// of their arguments; safe to call from several threads (long series use two
+// threads internally).
 #pragma once
 
 #include <cstddef>
@@ -52,10 +54,12 @@ Result<DriftModelForm> parse_drift_model_form(std::string_view s);  // "paper", 
 struct DriftFitOptions {
   double derivative_window_s = 60.0;  // width of the smoothing-derivative window
   double l0_window_s = 120.0;         // L0 = mean rate over t_s - t_s[0] < l0_window_s
-  std::size_t block_rows = 256;       // rows per QR update; the result does not depend on it
+  std::size_t block_rows = 256;  // rows per Householder QR update; the result does not depend on it
   // A design column whose R diagonal is below rank_tolerance x the largest
   // (after the columns are scaled to unit size) makes the fit fail.
   double rank_tolerance = 1e-10;
+  // Always use the Householder path (tests; see fit_drift_model).
+  bool force_householder = false;
 
   // False with a message when a value is out of range (window <= 0 or not
   // finite, block_rows == 0, rank_tolerance not in [0, 1)).
@@ -68,8 +72,11 @@ struct DriftFitOptions {
 // least the immediate neighbours i - 1 and i + 1 (so at least 2 points). Near the
 // ends the window is simply cut off (shrunk, not shifted). t must be strictly
 // increasing and finite, y finite, both of the same size >= 2 (checked by
-// fit_drift_model; here violations give NaN). O(n) time: sliding sums,
-// re-anchored every window length so no cancellation builds up.
+// fit_drift_model; here violations give NaN). O(n) time, in double: where the
+// spacing is exactly uniform and every window is the same i - h .. i + h, a
+// sliding window sum and first moment (sum_k k y_{i+k}) restarted every 64
+// points; elsewhere sliding sums of t and y relative to an anchor point,
+// re-anchored every max(16, 2 x window) points, so no cancellation builds up.
 std::vector<double> smoothing_derivative(std::span<const double> t_s, std::span<const double> y,
                                          double window_s);
 
@@ -93,6 +100,8 @@ struct DriftFit {
   // 2-norm condition number of the design with its columns scaled to unit
   // norm (from the SVD of the p x p factor R).
   double condition_estimate = 0;
+  // "gram", "gram+refined" or "householder" (see fit_drift_model).
+  std::string solver;
 
   // How the fit was obtained (predict_drift uses these, not the physical
   // coefficients, to avoid cancellation in the expanded polynomials).
@@ -109,13 +118,29 @@ struct DriftFit {
 // that is constant over the series (names it: T, R or G); a rank-deficient
 // design (names the first column that is a combination of the earlier ones:
 // |R_jj| / |column j| <= rank_tolerance).
-// Method: two passes over the series. Pass 1: L0, and the mean / population
-// std / max |x| of T, dT/dt and dT. Pass 2: rows of [X | y] built block_rows at
-// a time (X in scaled variables: centred form z = (x - mean) / std, paper form
-// z = x / max|x|), each block stacked under the current (p + 1) x (p + 1)
-// triangular factor and re-factored by Householder QR (Eigen). Then
-// beta = R^-1 Q'y, Cov = sigma^2 R^-1 R^-T, and both are mapped linearly to
-// the physical coefficients (binomial expansion of the powers of z).
+// Method: pass 1: L0, and the mean / population std / max |x| of T, dT/dt,
+// dT and y (sums shifted by the first value). Pass 2: rows of [X | y] in
+// scaled variables (centred form z = (x - mean) / std, paper form
+// z = x / max|x|), 256 at a time, never the whole design:
+// - Gram path (unless options.force_householder): G = [X | y]'[X | y] summed
+//   per block and compensated across blocks (y centred in the centred form),
+//   so G has a relative error u ~ 1e-14 of |X|'|X|. Its columns are scaled to
+//   unit norm and Cholesky-factored, R = chol(X'X), Q'y = R^-T X'y,
+//   RSS = y'y - |Q'y|^2. The errors of beta, the standard errors and the
+//   fitted values are then ~ kappa^2 u relative, kappa the 2-norm condition
+//   number of the column-scaled design (condition_estimate): the path is
+//   taken only when kappa <= 100 (errors <= ~1e-10), and falls back to
+//   Householder otherwise (or when G is not positive definite). When RSS <
+//   1e-4 y'y its digits are gone: one more pass over r = y - X beta gives
+//   RSS = r'r - |R^-T X'r|^2 and Q'y += R^-T X'r (one step of iterative
+//   refinement; solver "gram+refined").
+// - Householder path: each block of options.block_rows rows stacked under the
+//   current (p + 1) x (p + 1) triangular factor and re-factored by Householder
+//   QR (Eigen); RSS is the last diagonal element squared.
+// Then beta = R^-1 Q'y, Cov = sigma^2 R^-1 R^-T, and both are mapped linearly
+// to the physical coefficients (binomial expansion of the powers of z). Series
+// of >= 2^18 points run passes 1 and 2 on two threads (halves; every sum is
+// compensated, so the split changes the result only by rounding).
 Result<DriftFit> fit_drift_model(const AnalysisSeries& series, const DriftModelSpec& spec,
                                  DriftModelForm form, const DriftFitOptions& options = {});
 

@@ -31,15 +31,38 @@ std::string_view to_string(AxisOrientation o);
 // east-west; a north-pointing axis would see 15.041067 x cos(lat)).
 double earth_rate_component_dph(double latitude_deg, AxisOrientation orientation);
 
-// Plain statistics, accurate to ~1e-12 relative on well-scaled data
-// (two-pass sums in long double). Empty or too-short input gives NaN; a NaN
-// or infinite input gives NaN.
+// Plain statistics in double, accurate to ~1e-13 relative on well-scaled
+// data: blocks of 4096 points each get exact two-pass moments while in cache,
+// combined as M2 = sum M2_b + sum n_b (mean_b - mean)^2 with compensated block
+// sums, so a large common offset costs no digits. Empty or too-short input
+// gives NaN; a NaN or infinite input gives NaN.
 double mean(std::span<const double> x);
 double std_ddof1(std::span<const double> x);
 // Std (ddof = 1) of the means of every `window` consecutive points (the
 // n - window + 1 full windows). NaN when fewer than window + 1 points or
-// window == 0. O(n): a running sum of the mean-subtracted data in long double.
+// window == 0. O(n): running window sums of the data minus a per-block shift,
+// restarted from a fresh sum every 1024 windows so the rounding cannot build up.
 double moving_average_std(std::span<const double> x, std::size_t window);
+// Table I's statistics of one series in a single fused pass over the three
+// vectors (blocked as above): mean of (top + side) / 2, mean and std (ddof 1)
+// of the rate and the std (ddof 1) of its ma_window-point moving averages
+// (NaN when n <= ma_window). finite = false (other fields unset) when the
+// sizes differ, n < 2, ma_window == 0, or any value is NaN or infinite (or so
+// large that a block sum overflows); the caller then finds and names it.
+// Each block's moments come from one pass of sums shifted by the previous
+// block's mean (two passes when that shift would cancel a digit); series of
+// >= 2^18 points are summed on two threads (halves, combined exactly).
+struct Table1Statistics {
+  std::size_t n = 0;
+  bool finite = true;
+  double temp_mean_c = 0;
+  double bias_mean_dph = 0;
+  double bias_std_dph = 0;
+  double bias_std_ma_dph = 0;
+};
+Table1Statistics table1_statistics(std::span<const double> rate_dph, std::span<const double> top_c,
+                                   std::span<const double> side_c, std::size_t ma_window);
+
 // Least-squares slope of y on t (units of y per unit of t). NaN for < 2 points,
 // sizes that differ, or all t equal.
 double linear_slope(std::span<const double> t, std::span<const double> y);
