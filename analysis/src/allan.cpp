@@ -15,6 +15,8 @@
 #include <sys/mman.h>
 #endif
 
+#include "compensated_sum.h"
+
 namespace gyrotherm::analysis {
 namespace {
 
@@ -37,16 +39,6 @@ constexpr std::size_t kBlock = 4096;
 constexpr std::size_t kLanes = 4;
 // Series at least this long sweep the taus on two threads.
 constexpr std::size_t kParallelSamples = std::size_t{1} << 18;
-
-struct CompensatedSum {
-  double sum = 0, comp = 0;
-  void add(double v) {
-    const double t = sum + v;
-    comp += std::abs(sum) >= std::abs(v) ? (sum - t) + v : (v - t) + sum;
-    sum = t;
-  }
-  double value() const { return sum + comp; }
-};
 
 // A large scratch array of doubles. Fresh 4 KiB pages cost a page fault each
 // (80 MB: ~20k faults, tens of ms), so on Linux the buffer is 2 MiB aligned

@@ -16,6 +16,7 @@
 #include <thread>
 #include <vector>
 
+#include "compensated_sum.h"
 #include "gyrotherm/analysis/table1.h"
 
 namespace gyrotherm::analysis {
@@ -26,17 +27,6 @@ constexpr std::size_t kBlock = 4096;
 constexpr std::size_t kLanes = 4;  // independent running window sums per block
 // Series at least this long are summed on two threads (table1_statistics).
 constexpr std::size_t kParallelPoints = std::size_t{1} << 18;
-
-// Neumaier-compensated running sum.
-struct CompensatedSum {
-  double sum = 0, comp = 0;
-  void add(double v) {
-    const double t = sum + v;
-    comp += std::abs(sum) >= std::abs(v) ? (sum - t) + v : (v - t) + sum;
-    sum = t;
-  }
-  double value() const { return sum + comp; }
-};
 
 // Sums with 8 independent accumulators so that the compiler vectorises them.
 double block_sum(const double* x, std::size_t n) {
