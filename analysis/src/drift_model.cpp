@@ -15,6 +15,8 @@
 #include <optional>
 #include <thread>
 
+#include "compensated_sum.h"
+
 namespace gyrotherm::analysis {
 namespace {
 
@@ -124,16 +126,19 @@ class DerivativeStream {
     // points at once, without branches), and the spacing is exactly uniform.
     const std::size_t j0 = i0 - h, j1 = last + h;
     const double dt = t_[j0 + 1] - t_[j0];
-    double mismatch = 0;
+    const double* t = t_.data();
+    const double half = half_, tol = tol_;  // the same sums as the general rule
+    // Branch-free and bitwise, so the loops vectorise.
+    std::int64_t ok = 1;
     for (std::size_t i = i0; i <= last; ++i) {
-      const double up = t_[i] + half_ + tol_;
-      const double dn = t_[i] - half_ - tol_;
-      mismatch += (t_[i + h] <= up && t_[i + h + 1] > up && t_[i - h] >= dn && t_[i - h - 1] < dn)
-                      ? 0.0
-                      : 1.0;
+      const double up = t[i] + half + tol;
+      const double dn = t[i] - half - tol;
+      ok &=
+          static_cast<std::int64_t>(t[i + h] <= up) & static_cast<std::int64_t>(t[i + h + 1] > up) &
+          static_cast<std::int64_t>(t[i - h] >= dn) & static_cast<std::int64_t>(t[i - h - 1] < dn);
     }
-    for (std::size_t j = j0; j < j1; ++j) mismatch += (t_[j + 1] - t_[j]) == dt ? 0.0 : 1.0;
-    if (mismatch != 0 || !(dt > 0)) return false;
+    for (std::size_t j = j0; j < j1; ++j) ok &= static_cast<std::int64_t>((t[j + 1] - t[j]) == dt);
+    if (ok == 0 || !(dt > 0)) return false;
     lo_ptr_ = last - h;
     hi_ptr_ = last + h;
     ybuf_.resize(j1 - j0 + 1);
@@ -217,6 +222,8 @@ struct ShellTemp {
   double operator()(std::size_t i) const { return (s->top_c[i] + s->side_c[i]) / 2; }
 };
 
+using Lanes = double __attribute__((vector_size(16)));
+
 // Mean, population std and largest |x| of a variable, from sums of x - shift
 // (shift: the first value seen, so a constant variable gives exactly 0). Used
 // only to centre and scale the design and to detect a constant variable.
@@ -230,16 +237,33 @@ struct ShiftedStats {
       shift = x[0];
       started = true;
     }
-    double a = 0, q = 0, mx = max_abs;
-    for (std::size_t i = 0; i < count; ++i) {
-      const double d = x[i] - shift;
-      a += d;
-      q += d * d;
-      mx = std::max(mx, std::abs(x[i]));
+    // Four interleaved partial sums (two SSE2 pairs), so the add chains run
+    // in parallel.
+    Lanes a0{}, a1{}, q0{}, q1{}, m0{max_abs, max_abs}, m1 = m0;
+    const std::size_t count4 = count / 4 * 4;
+    for (std::size_t i = 0; i < count4; i += 4) {
+      Lanes v0, v1;
+      std::memcpy(&v0, x + i, sizeof v0);
+      std::memcpy(&v1, x + i + 2, sizeof v1);
+      const Lanes d0 = v0 - shift, d1 = v1 - shift;
+      a0 += d0;
+      a1 += d1;
+      q0 += d0 * d0;
+      q1 += d1 * d1;
+      const Lanes b0 = v0 < 0 ? -v0 : v0, b1 = v1 < 0 ? -v1 : v1;
+      m0 = m0 > b0 ? m0 : b0;
+      m1 = m1 > b1 ? m1 : b1;
     }
-    sum += a;
-    sum2 += q;
-    max_abs = mx;
+    for (std::size_t i = count4; i < count; ++i) {
+      const double d = x[i] - shift;
+      a0[0] += d;
+      q0[0] += d * d;
+      m0[0] = std::max(m0[0], std::abs(x[i]));
+    }
+    sum += (a0[0] + a0[1]) + (a1[0] + a1[1]);
+    sum2 += (q0[0] + q0[1]) + (q1[0] + q1[1]);
+    const Lanes mx = m0 > m1 ? m0 : m1;
+    max_abs = std::max(mx[0], mx[1]);
     n += count;
   }
   void merge(const ShiftedStats& o) {
@@ -263,6 +287,22 @@ struct ShiftedStats {
   }
 };
 
+// body(states[0], 0, n), or for a long series body(states[0], 0, mid) and
+// body(states[1], mid, n) on two threads (mid on a block boundary). Every sum
+// is compensated, so the result depends on the split only by rounding.
+constexpr std::size_t kParallelRows = std::size_t{1} << 18;
+template <class State, class Body>
+void over_halves(std::size_t n, State* states, Body&& body) {
+  if (n < kParallelRows) {
+    body(states[0], std::size_t{0}, n);
+    return;
+  }
+  const std::size_t mid = n / 2 / kRowBlock * kRowBlock;
+  std::thread other([&] { body(states[1], mid, n); });
+  body(states[0], std::size_t{0}, mid);
+  other.join();
+}
+
 Status check_series(const AnalysisSeries& s) {
   const std::size_t n = s.t_s.size();
   if (s.rate_dph.size() != n || s.top_c.size() != n || s.side_c.size() != n) {
@@ -270,14 +310,29 @@ Status check_series(const AnalysisSeries& s) {
         "drift model: series vectors differ in length (t_s {}, rate_dph {}, top_c {}, side_c {})",
         n, s.rate_dph.size(), s.top_c.size(), s.side_c.size()));
   }
-  // Fast screen: x * 0 is NaN exactly for a NaN or infinite x; the exact
-  // search below runs only when the screen finds something.
-  double zero = 0, bad = 0;
-  for (std::size_t i = 0; i < n; ++i) {
-    zero += s.t_s[i] * 0.0 + s.rate_dph[i] * 0.0 + s.top_c[i] * 0.0 + s.side_c[i] * 0.0;
-    if (i > 0) bad += s.t_s[i] > s.t_s[i - 1] ? 0.0 : 1.0;
+  // Fast screen (branch-free, vectorised): x * 0 is NaN exactly for a NaN or
+  // infinite x; the exact search below runs only when the screen finds
+  // something.
+  const double* t = s.t_s.data();
+  const double* rate = s.rate_dph.data();
+  const double* top = s.top_c.data();
+  const double* side = s.side_c.data();
+  std::uint64_t bad_part[2] = {0, 0};
+  over_halves(n, bad_part, [&](std::uint64_t& bad, std::size_t begin, std::size_t end) {
+    std::uint64_t b = 0;
+    for (std::size_t i = std::max<std::size_t>(begin, 1); i < end; ++i) {
+      const double zero = t[i] * 0.0 + rate[i] * 0.0 + top[i] * 0.0 + side[i] * 0.0;
+      b |=
+          static_cast<std::uint64_t>(!(zero == 0)) | static_cast<std::uint64_t>(!(t[i] > t[i - 1]));
+    }
+    bad = b;
+  });
+  std::uint64_t bad = bad_part[0] | bad_part[1];
+  if (n > 0) {
+    bad |= static_cast<std::uint64_t>(
+        !(t[0] * 0.0 + rate[0] * 0.0 + top[0] * 0.0 + side[0] * 0.0 == 0));
   }
-  if (zero == 0 && bad == 0) return Status::Ok();
+  if (bad == 0) return Status::Ok();
   const std::array<std::pair<const char*, const std::vector<double>*>, 4> vecs = {
       {{"t_s", &s.t_s}, {"rate_dph", &s.rate_dph}, {"top_c", &s.top_c}, {"side_c", &s.side_c}}};
   for (std::size_t i = 0; i < n; ++i) {
@@ -459,22 +514,6 @@ void for_each_block(const AnalysisSeries& series, double window_s, Fn&& fn, std:
   }
 }
 
-// body(states[0], 0, n), or for a long series body(states[0], 0, mid) and
-// body(states[1], mid, n) on two threads (mid on a block boundary). Every sum
-// is compensated, so the result depends on the split only by rounding.
-constexpr std::size_t kParallelRows = std::size_t{1} << 18;
-template <class State, class Body>
-void over_halves(std::size_t n, State* states, Body&& body) {
-  if (n < kParallelRows) {
-    body(states[0], std::size_t{0}, n);
-    return;
-  }
-  const std::size_t mid = n / 2 / kRowBlock * kRowBlock;
-  std::thread other([&] { body(states[1], mid, n); });
-  body(states[0], std::size_t{0}, mid);
-  other.join();
-}
-
 // The design columns of a block, column-major with stride kRowBlock: column c
 // of row k at cols[c * kRowBlock + k]. Rows past count are left as they are.
 void fill_columns(const std::vector<Column>& cols, const Scaling& sc, std::size_t count,
@@ -492,20 +531,30 @@ void fill_columns(const std::vector<Column>& cols, const Scaling& sc, std::size_
       const double* x = cd.var == 'T' ? temp : cd.var == 'R' ? deriv : grad;
       const double center = cd.var == 'T' ? sc.t_center : cd.var == 'R' ? sc.r_center : sc.g_center;
       const double scale = cd.var == 'T' ? sc.t_scale : cd.var == 'R' ? sc.r_scale : sc.g_scale;
-      for (std::size_t k = 0; k < count; ++k) col[k] = (x[k] - center) / scale;
+      // A power-of-two scale (the provisional ones) divides exactly by a product.
+      int exponent = 0;
+      if (const double inverse = 1 / scale;
+          std::frexp(scale, &exponent) == 0.5 && std::isfinite(inverse)) {
+        for (std::size_t k = 0; k < count; ++k) col[k] = (x[k] - center) * inverse;
+      } else {
+        for (std::size_t k = 0; k < count; ++k) col[k] = (x[k] - center) / scale;
+      }
     }
   }
 }
 
 using Vec4 = double __attribute__((vector_size(32)));
 
+// G[a][b] += column a . column b for a <= b < q (g with row stride q4, x
+// with q4 columns, those past q zero; entries with b >= q are not computed).
 [[gnu::target_clones("arch=x86-64-v3", "default")]] void gram_accumulate(const double* x,
-                                                                         std::size_t q4,
+                                                                         std::size_t q,
                                                                          std::size_t rows4,
                                                                          double* g) {
+  const std::size_t q4 = (q + 3) / 4 * 4;
   for (std::size_t a0 = 0; a0 < q4; a0 += 4) {
     const double* xa = x + a0 * kRowBlock;
-    for (std::size_t b = a0; b < q4; ++b) {
+    for (std::size_t b = a0; b < q; ++b) {
       const double* xb = x + b * kRowBlock;
       Vec4 acc0 = {0, 0, 0, 0}, acc1 = acc0, acc2 = acc0, acc3 = acc0;
       Vec4 vb, v0, v1, v2, v3;
@@ -528,16 +577,6 @@ using Vec4 = double __attribute__((vector_size(32)));
     }
   }
 }
-
-struct Neumaier {
-  double sum = 0, comp = 0;
-  void add(double v) {
-    const double t = sum + v;
-    comp += std::abs(sum) >= std::abs(v) ? (sum - t) + v : (v - t) + sum;
-    sum = t;
-  }
-  double value() const { return sum + comp; }
-};
 
 // What a solver hands to the common tail: the p x p triangular factor R of
 // the scaled design, Q'y and the residual sum of squares.
@@ -594,37 +633,140 @@ Factor householder_factor(std::span<const AnalysisSeries> runs, const std::vecto
   return f;
 }
 
-// Gram path (see drift_model.h): nullopt when the scaled design is too
-// ill-conditioned for it (or its Gram matrix is not positive definite).
-std::optional<Factor> gram_factor(std::span<const AnalysisSeries> runs,
-                                  const std::vector<Column>& cols, const Scaling& sc,
-                                  const std::vector<double>& l0, double y_shift,
-                                  const DriftFitOptions& options) {
+// The Gram matrix is accumulated in the same pass as the statistics that
+// centre and scale the variables, so in provisional variables: centres and
+// scales from a strided sample of about kSampleRows points (dT/dt there by a
+// difference over the derivative window). It is then mapped exactly to the
+// documented variables (basis_map), which is accurate only when the two are
+// close: every centre within kMaxCenterShift exact stds of the exact one
+// (y's too), every scale within a factor kMaxScaleRatio. Otherwise the Gram
+// matrix is accumulated again in the exact variables.
+constexpr std::size_t kSampleRows = 4096;
+constexpr double kMaxCenterShift = 0.25;
+constexpr double kMaxScaleRatio = 1e4;
+
+struct Provisional {
+  Scaling sc{0, 1, 0, 1, 0, 1};
+  double y_center = 0;
+};
+
+// Rough dT/dt at point i: the slope between the ends of its window (the
+// window found as in DerivativeStream, by galloping from i).
+double rough_derivative(const AnalysisSeries& s, std::size_t i, double half) {
+  const std::vector<double>& t = s.t_s;
+  const std::size_t n = t.size();
+  const auto at = [&t](std::size_t j) { return t.begin() + static_cast<std::ptrdiff_t>(j); };
+  std::size_t step = 1;
+  while (step <= i && t[i - step] >= t[i] - half) step *= 2;
+  std::size_t lo = static_cast<std::size_t>(
+      std::lower_bound(at(step <= i ? i - step : 0), at(i + 1), t[i] - half) - t.begin());
+  step = 1;
+  while (i + step < n && t[i + step] <= t[i] + half) step *= 2;
+  std::size_t hi = static_cast<std::size_t>(
+      std::upper_bound(at(i), at(std::min(n - 1, i + step) + 1), t[i] + half) - t.begin() - 1);
+  if (i > 0) lo = std::min(lo, i - 1);
+  if (i + 1 < n) hi = std::max(hi, i + 1);
+  const ShellTemp temp{&s};
+  return (temp(hi) - temp(lo)) / (t[hi] - t[lo]);
+}
+
+Provisional provisional_scaling(std::span<const AnalysisSeries> runs, const std::vector<double>& l0,
+                                DriftModelForm form, double window_s) {
+  std::size_t n = 0;
+  for (const AnalysisSeries& s : runs) n += s.t_s.size();
+  const std::size_t stride = std::max<std::size_t>(1, n / kSampleRows);
+  std::array<std::vector<double>, 4> v;  // T, dT/dt, dT, y
+  for (std::size_t r = 0; r < runs.size(); ++r) {
+    const AnalysisSeries& s = runs[r];
+    for (std::size_t i = 0; i < s.t_s.size(); i += stride) {
+      v[0].push_back((s.top_c[i] + s.side_c[i]) / 2);
+      v[1].push_back(rough_derivative(s, i, window_s / 2));
+      v[2].push_back(s.top_c[i] - s.side_c[i]);
+      v[3].push_back(s.rate_dph[i] - l0[r]);
+    }
+  }
+  std::array<double, 4> center{}, scale{};
+  for (std::size_t k = 0; k < 4; ++k) {
+    const double m = static_cast<double>(v[k].size());
+    double mean = 0, ss = 0, max_abs = 0;
+    for (double x : v[k]) mean += x;
+    mean /= m;
+    for (double x : v[k]) {
+      ss += (x - mean) * (x - mean);
+      max_abs = std::max(max_abs, std::abs(x));
+    }
+    center[k] = form == DriftModelForm::kPaper ? 0.0 : mean;
+    scale[k] = form == DriftModelForm::kPaper ? max_abs : std::sqrt(ss / m);
+    if (!(scale[k] > 0) || !std::isfinite(scale[k])) scale[k] = 1;
+    scale[k] = std::exp2(std::round(std::log2(scale[k])));  // exact to divide by
+    if (!(scale[k] > 0) || !std::isfinite(scale[k])) scale[k] = 1;
+    if (!std::isfinite(center[k])) center[k] = 0;
+  }
+  Provisional out;
+  out.sc = {center[0], scale[0], center[1], scale[1], center[2], scale[2]};
+  out.y_center = form == DriftModelForm::kCentered ? center[3] : 0.0;
+  return out;
+}
+
+// The single pass: L0-relative y, the statistics of T, dT/dt, dT and y (exact,
+// as documented) and, when `gram`, the Gram matrix of [X | y - y_center] with
+// X in the variables of sc (compensated across blocks; q x q, q = p + 1).
+struct PassResult {
+  ShiftedStats ts, rs, gs, ys;
+  double max_side_top = 0;
+  Eigen::MatrixXd gram;
+};
+
+PassResult stats_and_gram(std::span<const AnalysisSeries> runs, const std::vector<Column>& cols,
+                          const Scaling& sc, double y_center, const std::vector<double>& l0,
+                          double window_s, bool gram) {
   const std::size_t p = cols.size();
   const std::size_t q = p + 1;
   const std::size_t q4 = (q + 3) / 4 * 4;
-  struct GramState {
+  struct alignas(64) State {  // no false sharing between the two threads
+    ShiftedStats ts, rs, gs, ys;
+    double max_side_top = 0;
     std::vector<double> x, g_block;
-    std::vector<Neumaier> g_total;
+    std::vector<CompensatedSum> g_total;
   };
-  GramState states[2];
-  for (GramState& st : states) {
+  State states[2];
+  for (State& st : states) {
     st.x.assign(q4 * kRowBlock, 0.0);
     st.g_block.resize(q4 * q4);
     st.g_total.resize(q4 * q4);
   }
   for (std::size_t r = 0; r < runs.size(); ++r) {
     const AnalysisSeries& series = runs[r];
-    over_halves(series.t_s.size(), states, [&](GramState& st, std::size_t begin, std::size_t end) {
+    over_halves(series.t_s.size(), states, [&](State& st, std::size_t begin, std::size_t end) {
       for_each_block(
-          series, options.derivative_window_s,
+          series, window_s,
           [&](std::size_t i0, std::size_t count, const double* temp, const double* deriv,
               const double* grad) {
-            fill_columns(cols, sc, count, temp, deriv, grad, st.x.data());
+            st.ts.add_block(temp, count);
+            st.rs.add_block(deriv, count);
+            st.gs.add_block(grad, count);
             double* y = st.x.data() + p * kRowBlock;
-            for (std::size_t k = 0; k < count; ++k) {
-              y[k] = series.rate_dph[i0 + k] - l0[r] - y_shift;
+            const double* top = series.top_c.data() + i0;
+            const double* side = series.side_c.data() + i0;
+            const double* rate = series.rate_dph.data() + i0;
+            const double l0r = l0[r];
+            for (std::size_t k = 0; k < count; ++k) y[k] = rate[k] - l0r;
+            double mx0 = st.max_side_top, mx1 = mx0, mx2 = mx0, mx3 = mx0;
+            const std::size_t count4 = count / 4 * 4;
+            for (std::size_t k = 0; k < count4; k += 4) {
+              mx0 = std::max(mx0, std::max(std::abs(top[k]), std::abs(side[k])));
+              mx1 = std::max(mx1, std::max(std::abs(top[k + 1]), std::abs(side[k + 1])));
+              mx2 = std::max(mx2, std::max(std::abs(top[k + 2]), std::abs(side[k + 2])));
+              mx3 = std::max(mx3, std::max(std::abs(top[k + 3]), std::abs(side[k + 3])));
             }
+            for (std::size_t k = count4; k < count; ++k) {
+              mx0 = std::max(mx0, std::max(std::abs(top[k]), std::abs(side[k])));
+            }
+            st.max_side_top = std::max(std::max(mx0, mx1), std::max(mx2, mx3));
+            st.ys.add_block(y, count);
+            if (!gram) return;
+            for (std::size_t k = 0; k < count; ++k) y[k] -= y_center;
+            fill_columns(cols, sc, count, temp, deriv, grad, st.x.data());
             const std::size_t rows4 = (count + 3) / 4 * 4;
             if (rows4 != count) {
               for (std::size_t c = 0; c < q; ++c) {
@@ -633,7 +775,7 @@ std::optional<Factor> gram_factor(std::span<const AnalysisSeries> runs,
               }
             }
             std::fill(st.g_block.begin(), st.g_block.end(), 0.0);
-            gram_accumulate(st.x.data(), q4, rows4, st.g_block.data());
+            gram_accumulate(st.x.data(), q, rows4, st.g_block.data());
             for (std::size_t i = 0; i < q; ++i) {
               for (std::size_t j = i; j < q; ++j)
                 st.g_total[i * q4 + j].add(st.g_block[i * q4 + j]);
@@ -642,22 +784,101 @@ std::optional<Factor> gram_factor(std::span<const AnalysisSeries> runs,
           begin, end);
     });
   }
-  std::vector<Neumaier>& g_total = states[0].g_total;
-  for (std::size_t i = 0; i < q4 * q4; ++i) {
-    g_total[i].add(states[1].g_total[i].sum);
-    g_total[i].add(states[1].g_total[i].comp);
+  PassResult out;
+  State& a = states[0];
+  const State& b = states[1];
+  a.ts.merge(b.ts);
+  a.rs.merge(b.rs);
+  a.gs.merge(b.gs);
+  a.ys.merge(b.ys);
+  out.ts = a.ts;
+  out.rs = a.rs;
+  out.gs = a.gs;
+  out.ys = a.ys;
+  out.max_side_top = std::max(a.max_side_top, b.max_side_top);
+  if (gram) {
+    const auto iq = static_cast<Eigen::Index>(q);
+    out.gram.resize(iq, iq);
+    for (std::size_t i = 0; i < q; ++i) {
+      for (std::size_t j = i; j < q; ++j) {
+        CompensatedSum v = a.g_total[i * q4 + j];
+        v.add(b.g_total[i * q4 + j].sum);
+        v.add(b.g_total[i * q4 + j].comp);
+        out.gram(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j)) =
+            out.gram(static_cast<Eigen::Index>(j), static_cast<Eigen::Index>(i)) = v.value();
+      }
+    }
+  }
+  return out;
+}
+
+// The q x q map M taking each row of [X | y - from_y] (X in the variables of
+// `from`) to the same row of [X | y - to_y] (X in those of `to`), so that
+// G_to = M G_from M'. Per variable z_to = a z_from + b (a = s_from / s_to,
+// b = (c_from - c_to) / s_to) and z_to^k = sum_j C(k, j) a^j b^(k-j) z_from^j,
+// the j = 0 term and y's shift on the constant column, the intercept (in the
+// paper form, which has none, b = 0 and y is not shifted). False when `from`
+// is too far from `to` (see kMaxCenterShift); y_std is the std of y.
+bool basis_map(const std::vector<Column>& cols, const Scaling& from, double from_y,
+               const Scaling& to, double to_y, double y_std, Eigen::MatrixXd* m) {
+  const std::size_t p = cols.size();
+  const auto iq = static_cast<Eigen::Index>(p + 1);
+  *m = Eigen::MatrixXd::Zero(iq, iq);
+  const bool has_constant = !cols.empty() && cols[0].var == 'C';
+  const auto close = [](double shift, double scale) {
+    return shift == 0 || std::abs(shift) <= kMaxCenterShift * scale;
+  };
+  for (std::size_t c = 0; c < p; ++c) {
+    const Column& col = cols[c];
+    const auto ic = static_cast<Eigen::Index>(c);
+    if (col.var == 'C') {
+      (*m)(ic, ic) = 1;
+      continue;
+    }
+    const double c0 = col.var == 'T'   ? from.t_center
+                      : col.var == 'R' ? from.r_center
+                                       : from.g_center;
+    const double s0 = col.var == 'T' ? from.t_scale : col.var == 'R' ? from.r_scale : from.g_scale;
+    const double c1 = col.var == 'T' ? to.t_center : col.var == 'R' ? to.r_center : to.g_center;
+    const double s1 = col.var == 'T' ? to.t_scale : col.var == 'R' ? to.r_scale : to.g_scale;
+    const double a = s0 / s1;
+    const double b = (c0 - c1) / s1;
+    if (!(a >= 1 / kMaxScaleRatio && a <= kMaxScaleRatio) || !close(c0 - c1, s1)) return false;
+    if (b != 0 && !has_constant) return false;
+    const std::size_t first = c - static_cast<std::size_t>(col.power - 1);  // power 1's column
+    for (int j = 0; j <= col.power; ++j) {
+      const double coef = binomial(col.power, j) * ipow(a, j) * ipow(b, col.power - j);
+      if (j == 0) {
+        if (b != 0) (*m)(ic, 0) = coef;
+      } else {
+        (*m)(ic, static_cast<Eigen::Index>(first + static_cast<std::size_t>(j - 1))) = coef;
+      }
+    }
   }
   const auto ip = static_cast<Eigen::Index>(p);
-  Eigen::MatrixXd gxx(ip, ip);
-  Eigen::VectorXd gxy(ip);
-  for (std::size_t a = 0; a < p; ++a) {
-    for (std::size_t b = a; b < p; ++b) {
-      gxx(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(b)) = gxx(
-          static_cast<Eigen::Index>(b), static_cast<Eigen::Index>(a)) = g_total[a * q4 + b].value();
-    }
-    gxy(static_cast<Eigen::Index>(a)) = g_total[a * q4 + p].value();
+  (*m)(ip, ip) = 1;
+  const double by = from_y - to_y;
+  if (by != 0) {
+    if (!has_constant || !close(by, y_std)) return false;
+    (*m)(ip, 0) = by;
   }
-  const double gyy = g_total[p * q4 + p].value();
+  return true;
+}
+
+// Gram path (see drift_model.h) from G = [X | y - y_shift]'[X | y - y_shift]
+// in the documented variables: nullopt when the scaled design is too
+// ill-conditioned for it (or G is not positive definite).
+std::optional<Factor> gram_factor(const Eigen::MatrixXd& g, std::span<const AnalysisSeries> runs,
+                                  const std::vector<Column>& cols, const Scaling& sc,
+                                  const std::vector<double>& l0, double y_shift,
+                                  const DriftFitOptions& options) {
+  const std::size_t p = cols.size();
+  const std::size_t q4 = (p + 1 + 3) / 4 * 4;
+  const auto ip = static_cast<Eigen::Index>(p);
+  if (!g.allFinite()) return std::nullopt;
+  const Eigen::MatrixXd gxx = g.topLeftCorner(ip, ip);
+  const Eigen::VectorXd gxy = g.col(ip).head(ip);
+  const double gyy = g(ip, ip);
   // Equilibrate (columns of unit norm), Cholesky, condition number.
   Eigen::VectorXd norm(ip);
   for (Eigen::Index j = 0; j < ip; ++j) {
@@ -689,8 +910,8 @@ std::optional<Factor> gram_factor(std::span<const AnalysisSeries> runs,
   const Eigen::VectorXd beta = upper.solve(f.qty);
   struct ResidualState {
     std::vector<double> x, res;
-    std::vector<Neumaier> xr;
-    Neumaier rr;
+    std::vector<CompensatedSum> xr;
+    CompensatedSum rr;
   };
   ResidualState rstates[2];
   for (ResidualState& st : rstates) {
@@ -729,8 +950,8 @@ std::optional<Factor> gram_factor(std::span<const AnalysisSeries> runs,
                       begin, end);
                 });
   }
-  std::vector<Neumaier>& xr = rstates[0].xr;
-  Neumaier& rr = rstates[0].rr;
+  std::vector<CompensatedSum>& xr = rstates[0].xr;
+  CompensatedSum& rr = rstates[0].rr;
   for (std::size_t c = 0; c < p; ++c) xr[c].add(rstates[1].xr[c].value());
   rr.add(rstates[1].rr.value());
   Eigen::VectorXd xtr(ip);
@@ -777,17 +998,12 @@ Result<DriftFit> fit_drift_model(std::span<const AnalysisSeries> runs, const Dri
         to_string(spec), n, p));
   }
 
-  // Pass 1: L0 of each series and the statistics of T, dT/dt, top - side and y.
+  // L0 of each series (paper form): only the first l0_window_s of it is read.
   std::vector<double> l0(runs.size(), 0.0);
-  struct Pass1 {
-    ShiftedStats ts, rs, gs, ys;
-    double max_side_top = 0;
-  };
-  Pass1 part[2];
   for (std::size_t r = 0; r < runs.size(); ++r) {
     const AnalysisSeries& series = runs[r];
     if (form == DriftModelForm::kPaper) {
-      Neumaier sum;
+      CompensatedSum sum;
       std::size_t count = 0;
       for (std::size_t i = 0;
            i < series.t_s.size() && series.t_s[i] - series.t_s[0] < options.l0_window_s; ++i) {
@@ -796,35 +1012,19 @@ Result<DriftFit> fit_drift_model(std::span<const AnalysisSeries> runs, const Dri
       }
       l0[r] = sum.value() / static_cast<double>(count);
     }
-    over_halves(series.t_s.size(), part, [&](Pass1& st, std::size_t begin, std::size_t end) {
-      double y[kRowBlock];
-      for_each_block(
-          series, options.derivative_window_s,
-          [&](std::size_t i0, std::size_t count, const double* temp, const double* deriv,
-              const double* grad) {
-            st.ts.add_block(temp, count);
-            st.rs.add_block(deriv, count);
-            st.gs.add_block(grad, count);
-            double mx = st.max_side_top;
-            for (std::size_t k = 0; k < count; ++k) {
-              y[k] = series.rate_dph[i0 + k] - l0[r];
-              mx = std::max({mx, std::abs(series.top_c[i0 + k]), std::abs(series.side_c[i0 + k])});
-            }
-            st.max_side_top = mx;
-            st.ys.add_block(y, count);
-          },
-          begin, end);
-    });
   }
-  ShiftedStats& ts = part[0].ts;
-  ShiftedStats& rs = part[0].rs;
-  ShiftedStats& gs = part[0].gs;
-  ShiftedStats& ys = part[0].ys;
-  ts.merge(part[1].ts);
-  rs.merge(part[1].rs);
-  gs.merge(part[1].gs);
-  ys.merge(part[1].ys);
-  const double max_side_top = std::max(part[0].max_side_top, part[1].max_side_top);
+  // One pass: the statistics of T, dT/dt, top - side and y, and (Gram path)
+  // the Gram matrix in provisional variables from a sample.
+  const bool try_gram = !options.force_householder;
+  const Provisional prov =
+      try_gram ? provisional_scaling(runs, l0, form, options.derivative_window_s) : Provisional{};
+  PassResult pass =
+      stats_and_gram(runs, cols, prov.sc, prov.y_center, l0, options.derivative_window_s, try_gram);
+  const ShiftedStats& ts = pass.ts;
+  const ShiftedStats& rs = pass.rs;
+  const ShiftedStats& gs = pass.gs;
+  const ShiftedStats& ys = pass.ys;
+  const double max_side_top = pass.max_side_top;
   const auto constant = [&](char var, const ShiftedStats& st, double size) -> Status {
     if (st.std_ddof0() <= kConstantTol * size) {
       const char* what = var == 'T'   ? "the mean shell temperature"
@@ -859,13 +1059,20 @@ Result<DriftFit> fit_drift_model(std::span<const AnalysisSeries> runs, const Dri
   if (!(sc.r_scale > 0)) sc.r_scale = 1;
   if (!(sc.g_scale > 0)) sc.g_scale = 1;
 
-  // Pass 2 (and 3): the triangular factor, by the Gram path when the scaled
-  // design is well conditioned, else by Householder QR.
+  // The triangular factor, by the Gram path when the scaled design is well
+  // conditioned, else by Householder QR (another pass).
   std::optional<Factor> factor;
-  if (!options.force_householder) {
+  if (try_gram) {
     // The centred form has an intercept: y is centred for the Gram matrix too.
     const double y_shift = form == DriftModelForm::kCentered ? ys.mean() : 0.0;
-    factor = gram_factor(runs, cols, sc, l0, y_shift, options);
+    Eigen::MatrixXd m;
+    Eigen::MatrixXd g;
+    if (basis_map(cols, prov.sc, prov.y_center, sc, y_shift, ys.std_ddof0(), &m)) {
+      g = m * pass.gram * m.transpose();
+    } else {
+      g = stats_and_gram(runs, cols, sc, y_shift, l0, options.derivative_window_s, true).gram;
+    }
+    factor = gram_factor(g, runs, cols, sc, l0, y_shift, options);
   }
   if (!factor) factor = householder_factor(runs, cols, sc, l0, options);
   const auto ip = static_cast<Eigen::Index>(p);

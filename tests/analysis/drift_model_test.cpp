@@ -503,6 +503,53 @@ TEST(DriftModel, LongSeriesSplitOverThreadsAgrees) {
   }
 }
 
+// The Gram matrix is accumulated in provisional variables centred and scaled
+// from a strided sample, then mapped to the documented ones. Here every
+// sampled point (i % 10 == 0 at this length) carries an offset in T, so the
+// sample's centre of T is off: by ~0.2 std (mapped) and by ~3 std (the Gram
+// matrix is accumulated again). Both give the documented scaling (mean and
+// population std of T) and the Householder answer.
+TEST(DriftModel, GramFromAnOffSampleStillGivesTheDocumentedFit) {
+  for (double offset_c : {5.0, 300.0}) {
+    SCOPED_TRACE(offset_c);
+    AnalysisSeries s = sweep(40960);
+    for (std::size_t i = 0; i < s.t_s.size(); i += 10) {
+      s.top_c[i] += offset_c;
+      s.side_c[i] += offset_c;
+    }
+    const std::vector<double> temp = shell_temperature(s);
+    double mean = 0, var = 0;
+    for (double t : temp) mean += t;
+    mean /= static_cast<double>(temp.size());
+    for (double t : temp) var += (t - mean) * (t - mean);
+    const double std_c = std::sqrt(var / static_cast<double>(temp.size()));
+    for (std::size_t i = 0; i < s.t_s.size(); ++i) {
+      s.rate_dph[i] = 7.9 + 0.02 * temp[i] - 1e-4 * temp[i] * temp[i] +
+                      0.2 * (s.top_c[i] - s.side_c[i]) +
+                      0.05 * std::sin(1.3 * static_cast<double>(i) * static_cast<double>(i % 17));
+    }
+    DriftFitOptions slow;
+    slow.force_householder = true;
+    const DriftModelSpec spec = *parse_model_spec("T2+G1");
+    auto a = fit_drift_model(s, spec, DriftModelForm::kCentered);
+    auto b = fit_drift_model(s, spec, DriftModelForm::kCentered, slow);
+    ASSERT_TRUE(a.ok() && b.ok());
+    EXPECT_EQ(a->solver, "gram");
+    EXPECT_NEAR(a->t_center, mean, 1e-12 * std_c);
+    EXPECT_NEAR(a->t_scale, std_c, 1e-12 * std_c);
+    EXPECT_EQ(a->t_center, b->t_center);
+    EXPECT_EQ(a->t_scale, b->t_scale);
+    EXPECT_NEAR(a->residual_std_dph, b->residual_std_dph, 1e-10 * b->residual_std_dph);
+    const double beta_scale = max_abs(b->scaled_coefficients);
+    for (std::size_t c = 0; c < b->scaled_coefficients.size(); ++c) {
+      EXPECT_NEAR(a->scaled_coefficients[c], b->scaled_coefficients[c], 1e-10 * beta_scale) << c;
+    }
+    for (const auto& [name, se] : b->std_errors) {
+      EXPECT_NEAR(a->std_errors.at(name), se, 1e-10 * se) << name;
+    }
+  }
+}
+
 // An ill-conditioned scaled design (paper form, raw powers of T / max|T| with
 // T far from 0) is solved by Householder, not by the Gram matrix.
 TEST(DriftModel, IllConditionedDesignFallsBackToHouseholder) {

@@ -118,13 +118,19 @@ struct DriftFit {
 // that is constant over the series (names it: T, R or G); a rank-deficient
 // design (names the first column that is a combination of the earlier ones:
 // |R_jj| / |column j| <= rank_tolerance).
-// Method: pass 1: L0, and the mean / population std / max |x| of T, dT/dt,
-// dT and y (sums shifted by the first value). Pass 2: rows of [X | y] in
-// scaled variables (centred form z = (x - mean) / std, paper form
-// z = x / max|x|), 256 at a time, never the whole design:
+// Method: L0 from the first l0_window_s of each series. One pass computes the
+// mean / population std / max |x| of T, dT/dt, dT and y (sums shifted by the
+// first value) and, on the Gram path, G = [X | y]'[X | y] in provisional
+// variables: centres and scales from a strided sample of ~4096 points (dT/dt
+// there by a difference over the derivative window), 256 rows at a time,
+// never the whole design. G is then mapped exactly to the documented scaled
+// variables (centred form z = (x - mean) / std, paper form z = x / max|x|) by
+// the binomial expansion of the powers, G <- M G M'; when a sample centre is
+// more than 0.25 std from the exact one (or a scale is off by more than 1e4)
+// G is accumulated again in the documented variables instead.
 // - Gram path (unless options.force_householder): G = [X | y]'[X | y] summed
 //   per block and compensated across blocks (y centred in the centred form),
-//   so G has a relative error u ~ 1e-14 of |X|'|X|. Its columns are scaled to
+//   so G has a relative error of a few u ~ 1e-14 of |X|'|X|. Its columns are scaled to
 //   unit norm and Cholesky-factored, R = chol(X'X), Q'y = R^-T X'y,
 //   RSS = y'y - |Q'y|^2. The errors of beta, the standard errors and the
 //   fitted values are then ~ kappa^2 u relative, kappa the 2-norm condition
@@ -134,13 +140,14 @@ struct DriftFit {
 //   1e-4 y'y its digits are gone: one more pass over r = y - X beta gives
 //   RSS = r'r - |R^-T X'r|^2 and Q'y += R^-T X'r (one step of iterative
 //   refinement; solver "gram+refined").
-// - Householder path: each block of options.block_rows rows stacked under the
+// - Householder path (another pass): each block of options.block_rows rows stacked under the
 //   current (p + 1) x (p + 1) triangular factor and re-factored by Householder
 //   QR (Eigen); RSS is the last diagonal element squared.
 // Then beta = R^-1 Q'y, Cov = sigma^2 R^-1 R^-T, and both are mapped linearly
 // to the physical coefficients (binomial expansion of the powers of z). Series
-// of >= 2^18 points run passes 1 and 2 on two threads (halves; every sum is
-// compensated, so the split changes the result only by rounding).
+// of >= 2^18 points run the input checks and every pass on two threads
+// (halves; every sum is compensated, so the split changes the result only by
+// rounding).
 Result<DriftFit> fit_drift_model(const AnalysisSeries& series, const DriftModelSpec& spec,
                                  DriftModelForm form, const DriftFitOptions& options = {});
 
