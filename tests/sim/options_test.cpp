@@ -61,8 +61,9 @@ TEST(SimulatorOptions, ReadsEveryDemoKey) {
   EXPECT_DOUBLE_EQ(o->thermal.case_tau_s, 900.0);
   EXPECT_DOUBLE_EQ(o->thermal.max_ramp_c_per_min, 5.0);
   EXPECT_DOUBLE_EQ(o->thermal.control_noise_c, 0.5);
-  EXPECT_DOUBLE_EQ(o->thermal.gradient_c_per_c_per_min, 0.3);
+  EXPECT_DOUBLE_EQ(o->thermal.gradient_c_per_c_per_min, 1.0);
   EXPECT_DOUBLE_EQ(o->thermal.gradient_offset_c, 0.05);
+  EXPECT_DOUBLE_EQ(o->thermal.gradient_tau_s, 1800.0);
   EXPECT_DOUBLE_EQ(o->thermal.probe_noise_c, 0.02);
   EXPECT_DOUBLE_EQ(o->thermal.probe_quantum_c, 0.01);
   EXPECT_DOUBLE_EQ(o->gyro.bias_dph, 0.05);

@@ -72,6 +72,38 @@ TEST(ThermalPlant, CaseCoversSixtyThreePercentOfAStepAfterOneTau) {
   EXPECT_NEAR((plant.truth().case_c - 23.0) / 10.0, 1 - std::exp(-3.0), 0.01);
 }
 
+// With gradient_tau_s the gradient follows its target (offset + k x case
+// rate) through a first-order lag: run the same plant with and without the
+// lag and compare the lagged gradient with a first-order filter of the
+// unlagged one (the same step sequence gives the same case trajectory).
+TEST(ThermalPlant, GradientLagsItsTargetByGradientTau) {
+  ThermalParams p = quiet_params();
+  p.max_ramp_c_per_min = 1.0;
+  p.gradient_c_per_c_per_min = 1.0;
+  p.gradient_offset_c = 0.05;
+  ThermalPlant instant(p, 1);
+  p.gradient_tau_s = 600.0;
+  ThermalPlant lagged(p, 1);
+  const double dt_s = 0.1;
+  double filtered_c = 0.05;  // starts at the offset, as the plant does
+  double max_gap_c = 0;
+  for (int i = 0; i < 36000; ++i) {  // heat for an hour
+    instant.step(dt_s, 60.0);
+    lagged.step(dt_s, 60.0);
+    ASSERT_DOUBLE_EQ(lagged.truth().case_c, instant.truth().case_c);
+    filtered_c += (instant.truth().gradient_c - filtered_c) * -std::expm1(-dt_s / 600.0);
+    max_gap_c = std::max(max_gap_c, instant.truth().gradient_c - lagged.truth().gradient_c);
+    ASSERT_NEAR(lagged.truth().gradient_c, filtered_c, 1e-12) << "step " << i;
+  }
+  EXPECT_GT(max_gap_c, 0.1) << "the lag is visible while the heating rate grows";
+  EXPECT_NEAR(lagged.truth().top_c - lagged.truth().side_c, lagged.truth().gradient_c, 1e-9);
+  ThermalParams bad = p;
+  bad.gradient_tau_s = -1;
+  std::string why;
+  EXPECT_FALSE(bad.IsValid(&why));
+  EXPECT_NE(why.find("gradient_tau_s"), std::string::npos) << why;
+}
+
 TEST(ThermalPlant, GradientFollowsHeatingAndCoolingRate) {
   ThermalParams p = quiet_params();
   p.max_ramp_c_per_min = 1.0;
