@@ -14,6 +14,7 @@
 #include "gyrotherm/analysis/allan.h"
 #include "gyrotherm/analysis/drift_model.h"
 #include "gyrotherm/core/toml_reader.h"
+#include "gyrotherm/daemon/nightly.h"
 
 namespace gyrotherm::daemon {
 namespace {
@@ -248,11 +249,8 @@ void read_api(TableReader t, ApiSection& a) {
 void read_export(TableReader t, ExportSection& e) {
   if (auto d = t.string("directory")) e.directory = *d;
   if (auto lt = t.string("local_time")) {
-    int hh = -1, mm = -1;
-    char extra = 0;
-    if (std::sscanf(lt->c_str(), "%2d:%2d%c", &hh, &mm, &extra) != 2 || hh < 0 || hh > 23 ||
-        mm < 0 || mm > 59) {
-      t.error("local_time", fmt::format("\"{}\" is not a local time HH:MM", *lt));
+    if (auto parsed = parse_local_time_of_day(*lt); !parsed) {
+      t.error("local_time", parsed.error().message);
     } else {
       e.local_time = *lt;
     }

@@ -222,4 +222,18 @@ TEST(Config, AnalysisModelAndTausAreCheckedNamingTheKey) {
   EXPECT_THAT(bad.error().message, HasSubstr("weekly"));
 }
 
+TEST(Config, ExportLocalTimeIsHhMm) {
+  auto ok =
+      parse_station_config(std::string(kMinimal) + "[export]\nlocal_time = \"23:59\"\n", "t.toml");
+  ASSERT_TRUE(ok.ok()) << ok.error().message;
+  EXPECT_EQ(ok->export_.local_time, "23:59");
+  for (const char* bad : {"2:30", "24:00", "02:30:00"}) {
+    auto r = parse_station_config(
+        std::string(kMinimal) + "[export]\nlocal_time = \"" + bad + "\"\n", "t.toml");
+    ASSERT_FALSE(r.ok()) << bad;
+    EXPECT_THAT(r.error().message, HasSubstr("export.local_time:")) << bad;
+    EXPECT_THAT(r.error().message, HasSubstr(bad));
+  }
+}
+
 }  // namespace gyrotherm::daemon
