@@ -52,30 +52,12 @@ class Pool {
 };
 
 Status check_run(const AnalysisSeries& s, std::size_t index) {
-  const std::size_t n = s.t_s.size();
-  if (s.rate_dph.size() != n || s.top_c.size() != n || s.side_c.size() != n) {
-    return Error::Permanent(fmt::format(
-        "compare: run {}: series vectors differ in length (t_s {}, rate_dph {}, top_c {}, "
-        "side_c {})",
-        index + 1, n, s.rate_dph.size(), s.top_c.size(), s.side_c.size()));
+  if (Status st = check_analysis_series(s, fmt::format("compare: run {}", index + 1)); !st.ok()) {
+    return st;
   }
-  if (n < 2) {
-    return Error::Permanent(fmt::format("compare: run {} has {} point(s) (need 2)", index + 1, n));
-  }
-  const std::array<std::pair<const char*, const std::vector<double>*>, 4> vecs = {
-      {{"t_s", &s.t_s}, {"rate_dph", &s.rate_dph}, {"top_c", &s.top_c}, {"side_c", &s.side_c}}};
-  for (std::size_t i = 0; i < n; ++i) {
-    for (const auto& [name, v] : vecs) {
-      if (!std::isfinite((*v)[i])) {
-        return Error::Permanent(
-            fmt::format("compare: run {}: {}[{}] is not finite ({})", index + 1, name, i, (*v)[i]));
-      }
-    }
-    if (i > 0 && !(s.t_s[i] > s.t_s[i - 1])) {
-      return Error::Permanent(
-          fmt::format("compare: run {}: t_s[{}]={} does not increase (t_s[{}]={})", index + 1, i,
-                      s.t_s[i], i - 1, s.t_s[i - 1]));
-    }
+  if (s.t_s.size() < 2) {
+    return Error::Permanent(
+        fmt::format("compare: run {} has {} point(s) (need 2)", index + 1, s.t_s.size()));
   }
   return Status::Ok();
 }

@@ -303,12 +303,12 @@ void over_halves(std::size_t n, State* states, Body&& body) {
   other.join();
 }
 
-Status check_series(const AnalysisSeries& s) {
+Status check_series_named(const AnalysisSeries& s, std::string_view what) {
   const std::size_t n = s.t_s.size();
   if (s.rate_dph.size() != n || s.top_c.size() != n || s.side_c.size() != n) {
     return Error::Permanent(fmt::format(
-        "drift model: series vectors differ in length (t_s {}, rate_dph {}, top_c {}, side_c {})",
-        n, s.rate_dph.size(), s.top_c.size(), s.side_c.size()));
+        "{}: series vectors differ in length (t_s {}, rate_dph {}, top_c {}, side_c {})", what, n,
+        s.rate_dph.size(), s.top_c.size(), s.side_c.size()));
   }
   // Fast screen (branch-free, vectorised): x * 0 is NaN exactly for a NaN or
   // infinite x; the exact search below runs only when the screen finds
@@ -339,12 +339,12 @@ Status check_series(const AnalysisSeries& s) {
     for (const auto& [name, v] : vecs) {
       if (!std::isfinite((*v)[i])) {
         return Error::Permanent(
-            fmt::format("drift model: {}[{}] is not finite ({})", name, i, (*v)[i]));
+            fmt::format("{}: {}[{}] is not finite ({})", what, name, i, (*v)[i]));
       }
     }
     if (i > 0 && !(s.t_s[i] > s.t_s[i - 1])) {
-      return Error::Permanent(fmt::format("drift model: t_s[{}]={} does not increase (t_s[{}]={})",
-                                          i, s.t_s[i], i - 1, s.t_s[i - 1]));
+      return Error::Permanent(fmt::format("{}: t_s[{}]={} does not increase (t_s[{}]={})", what, i,
+                                          s.t_s[i], i - 1, s.t_s[i - 1]));
     }
   }
   return Status::Ok();
@@ -979,7 +979,7 @@ Result<DriftFit> fit_drift_model(std::span<const AnalysisSeries> runs, const Dri
   if (runs.empty()) return Error::Permanent("drift model: no series to fit");
   std::size_t n = 0;
   for (std::size_t r = 0; r < runs.size(); ++r) {
-    if (Status st = check_series(runs[r]); !st.ok()) {
+    if (Status st = check_series_named(runs[r], "drift model"); !st.ok()) {
       if (runs.size() == 1) return st.error();
       return Error::Permanent(fmt::format("series {}: {}", r + 1, st.error().message));
     }
@@ -1155,7 +1155,7 @@ Result<DriftFit> fit_drift_model(std::span<const AnalysisSeries> runs, const Dri
 }
 
 Result<std::vector<double>> predict_drift(const DriftFit& fit, const AnalysisSeries& series) {
-  if (Status st = check_series(series); !st.ok()) return st.error();
+  if (Status st = check_series_named(series, "drift model"); !st.ok()) return st.error();
   const std::vector<Column> cols = design_columns(fit.spec, fit.form);
   if (cols.size() != fit.scaled_coefficients.size()) {
     return Error::Permanent("predict_drift: the fit's coefficients do not match its spec");
@@ -1190,6 +1190,10 @@ Result<std::vector<double>> drift_terms(const DriftFit& fit, const AnalysisSerie
   for (std::size_t c = 0; c < cols.size(); ++c) at_zero += fit.scaled_coefficients[c] * row[c];
   for (double& v : *predicted) v -= at_zero;
   return predicted;
+}
+
+Status check_analysis_series(const AnalysisSeries& series, std::string_view what) {
+  return check_series_named(series, what);
 }
 
 }  // namespace gyrotherm::analysis

@@ -1,7 +1,6 @@
 #include "gyrotherm/daemon/run_analysis.h"
 
 #include <fmt/format.h>
-#include <fmt/ranges.h>
 #include <sqlite3.h>
 
 #include <algorithm>
@@ -273,26 +272,6 @@ storage::FitRecord fit_record(const analysis::DriftFit& fit, const std::vector<i
                         .dump();
   rec.computed_utc = wall_time_utc_iso();
   return rec;
-}
-
-Result<storage::FitRecord> runs_fit(storage::Database& db, const std::vector<int64_t>& run_ids,
-                                    const analysis::DriftModelSpec& spec,
-                                    analysis::DriftModelForm form,
-                                    const analysis::DriftFitOptions& options, double bin_s) {
-  if (run_ids.empty()) return Error::Permanent("fit: no runs given");
-  std::vector<analysis::AnalysisSeries> series;
-  for (int64_t id : run_ids) {
-    auto s = run_series(db, id, bin_s);
-    if (!s) return s.error();
-    series.push_back(std::move(*s));
-  }
-  auto fit = analysis::fit_drift_model(series, spec, form, options);
-  if (!fit) {
-    return Error::Permanent(fmt::format(
-        "run{} {}: fit {} ({} form): {}", run_ids.size() > 1 ? "s" : "", fmt::join(run_ids, ","),
-        analysis::to_string(spec), analysis::to_string(form), fit.error().message));
-  }
-  return fit_record(*fit, run_ids, options, bin_s);
 }
 
 Result<RunAnalysisSummary> analyse_run(storage::Database& db, int64_t run_id,

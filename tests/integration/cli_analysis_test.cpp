@@ -482,11 +482,18 @@ TEST_F(CliAnalysisTest, FitOnDatabaseRunsMatchesTheLibraryAndTheDaemonAndExports
 
   auto db = storage::Database::open_read_only(db_path_);
   ASSERT_TRUE(db);
-  auto rec = daemon::runs_fit(*db, {run_ids_[0], run_ids_[2]}, spec,
-                              analysis::DriftModelForm::kPaper, {}, 1.0);
-  ASSERT_TRUE(rec) << rec.error().message;
-  EXPECT_EQ(j["coefficients"], json::parse(rec->coefficients_json));
-  EXPECT_EQ(j["standard_errors"], json::parse(rec->standard_errors_json));
+  // The daemon's path: each run's whole series, fitted together, as a record.
+  std::vector<analysis::AnalysisSeries> stored;
+  for (int64_t id : {run_ids_[0], run_ids_[2]}) {
+    auto s = daemon::run_series(*db, id, 1.0);
+    ASSERT_TRUE(s) << s.error().message;
+    stored.push_back(std::move(*s));
+  }
+  auto daemon_fit = analysis::fit_drift_model(stored, spec, analysis::DriftModelForm::kPaper);
+  ASSERT_TRUE(daemon_fit) << daemon_fit.error().message;
+  const auto rec = daemon::fit_record(*daemon_fit, {run_ids_[0], run_ids_[2]}, {}, 1.0);
+  EXPECT_EQ(j["coefficients"], json::parse(rec.coefficients_json));
+  EXPECT_EQ(j["standard_errors"], json::parse(rec.standard_errors_json));
 
   const json exported = json::parse(slurp(json_path), nullptr, false);
   ASSERT_FALSE(exported.is_discarded()) << slurp(json_path);

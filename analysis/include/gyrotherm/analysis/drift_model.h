@@ -111,6 +111,11 @@ struct DriftFit {
   double t_center = 0, t_scale = 1, r_center = 0, r_scale = 1, g_center = 0, g_scale = 1;
 };
 
+// Checks a series as the fits need it: its four vectors of one length, every
+// value finite, t_s strictly increasing. Errors name `what`, the vector and
+// the index (e.g. "run 2: top_c[17] is not finite (nan)").
+Status check_analysis_series(const AnalysisSeries& series, std::string_view what);
+
 // Least-squares fit of the model to the series (its t_s, rate_dph, top_c,
 // side_c). Errors (permanent): invalid options; vectors of different lengths;
 // a non-finite value (names the vector and index); t_s not strictly

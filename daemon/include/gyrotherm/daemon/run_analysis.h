@@ -77,12 +77,7 @@ Result<storage::SegmentStatsRecord> soak_table1(storage::Database& db, const Soa
                                                 const analysis::Table1Options& options);
 Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow& soak,
                                         analysis::TauSet taus);
-// One fit on the runs' series together (each run its own L0), as a record
-// ready for Database::add_fit (inputs_json filled in).
-Result<storage::FitRecord> runs_fit(storage::Database& db, const std::vector<int64_t>& run_ids,
-                                    const analysis::DriftModelSpec& spec,
-                                    analysis::DriftModelForm form,
-                                    const analysis::DriftFitOptions& options, double bin_s);
+// A fit as a record ready for Database::add_fit (inputs_json filled in).
 storage::FitRecord fit_record(const analysis::DriftFit& fit, const std::vector<int64_t>& run_ids,
                               const analysis::DriftFitOptions& options, double bin_s);
 
