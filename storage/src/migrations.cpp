@@ -209,11 +209,40 @@ CREATE TABLE allan(
 CREATE UNIQUE INDEX allan_by_run ON allan(run_id, segment_index, taus);
 )sql";
 
+// v5: the record of calibration exports (DESIGN.md §10). A nightly export
+// is tied to its scheduled slot (one export per slot: a daemon that was down
+// catches up on the slots it missed, and never writes a slot twice);
+// export_runs lists the runs each export covered.
+constexpr const char* kSchemaV5 = R"sql(
+CREATE TABLE exports(
+  id INTEGER PRIMARY KEY,
+  kind TEXT NOT NULL CHECK(kind IN ('nightly', 'manual')),
+  slot_unix_s REAL,             -- nightly: the scheduled slot, Unix s (UTC); NULL for manual
+  slot_local TEXT NOT NULL DEFAULT '',  -- nightly: the slot as local time, e.g. '2026-03-29 02:00 CET'
+  state TEXT NOT NULL CHECK(state IN ('writing', 'done', 'failed')),
+  directory TEXT NOT NULL,      -- where the files were written
+  files_json TEXT NOT NULL DEFAULT '[]',  -- JSON array of file paths relative to directory
+  started_utc TEXT NOT NULL,    -- ISO-8601 UTC wall time
+  finished_utc TEXT,            -- ISO-8601 UTC wall time; NULL until finished
+  message TEXT NOT NULL DEFAULT '',  -- failed: why; done: a summary
+  CHECK(kind != 'nightly' OR slot_unix_s IS NOT NULL)
+);
+CREATE UNIQUE INDEX exports_nightly_slot ON exports(slot_unix_s) WHERE kind = 'nightly';
+
+CREATE TABLE export_runs(
+  export_id INTEGER NOT NULL REFERENCES exports(id),
+  run_id INTEGER NOT NULL REFERENCES runs(id),
+  PRIMARY KEY(export_id, run_id)
+) WITHOUT ROWID;
+CREATE INDEX export_runs_by_run ON export_runs(run_id);
+)sql";
+
 constexpr Migration kMigrations[] = {
     {1, "initial schema", kSchemaV1},
     {2, "queue, crash resume, acquisition windows", kSchemaV2},
     {3, "gyro rate rollups, drift-model fits", kSchemaV3},
     {4, "Allan deviation per soak", kSchemaV4},
+    {5, "calibration exports", kSchemaV5},
 };
 
 static_assert(sizeof(kMigrations) / sizeof(kMigrations[0]) == kSchemaVersion,

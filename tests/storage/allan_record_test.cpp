@@ -402,7 +402,7 @@ TEST(Allan, ReadersOnOtherConnectionsSeeTheRows) {
 }
 
 // A file written by schema 3 (created by the v1-v3 scripts, as an older build
-// left it) opens, gains the allan table and keeps every row.
+// left it) opens, gains the allan table (and v5's) and keeps every row.
 TEST(Allan, MigratesASchema3DatabaseKeepingItsRows) {
   TempDir dir;
   const std::string path = dir.file("v3.db");
@@ -440,12 +440,12 @@ TEST(Allan, MigratesASchema3DatabaseKeepingItsRows) {
   {
     auto ro = Database::open_read_only(path);
     ASSERT_FALSE(ro.ok());
-    EXPECT_NE(ro.error().message.find("schema version 3, older than this build's 4"),
+    EXPECT_NE(ro.error().message.find("schema version 3, older than this build's 5"),
               std::string::npos)
         << ro.error().message;
   }
   Database db = open_ok(path);
-  EXPECT_EQ(*db.schema_version(), 4);
+  EXPECT_EQ(*db.schema_version(), 5);
   const auto count = [&](const char* table) {
     return query_int(db.handle(), std::string("SELECT count(*) FROM ") + table);
   };
@@ -455,6 +455,8 @@ TEST(Allan, MigratesASchema3DatabaseKeepingItsRows) {
     EXPECT_EQ(count(table), 1) << table;
   }
   EXPECT_EQ(count("allan"), 0);
+  EXPECT_EQ(count("exports"), 0);
+  EXPECT_EQ(count("export_runs"), 0);
   EXPECT_EQ(query_text(db.handle(), "SELECT value FROM meta WHERE key = 'created_utc'"),
             "2026-01-01T00:00:00.000Z");
   EXPECT_EQ(query_text(db.handle(), "SELECT value FROM meta WHERE key = 'queue_hold'"), "stopped");

@@ -40,7 +40,7 @@ TEST(Database, OpenCreatesTheCurrentSchemaInWalMode) {
   auto version = db.schema_version();
   ASSERT_TRUE(version.ok()) << version.error().message;
   EXPECT_EQ(*version, kSchemaVersion);
-  EXPECT_EQ(kSchemaVersion, 4);
+  EXPECT_EQ(kSchemaVersion, 5);
   EXPECT_EQ(query_text(db.handle(), "PRAGMA journal_mode"), "wal");
   EXPECT_EQ(query_int(db.handle(), "PRAGMA synchronous"), 1);  // NORMAL
   EXPECT_EQ(query_int(db.handle(), "PRAGMA foreign_keys"), 1);
@@ -71,7 +71,9 @@ TEST(Database, OpenCreatesTheCurrentSchemaInWalMode) {
                                           "gyro_rollup",
                                           "fits",
                                           "fit_runs",
-                                          "allan"};
+                                          "allan",
+                                          "exports",
+                                          "export_runs"};
   EXPECT_EQ(tables, expected);
 }
 
@@ -120,19 +122,19 @@ TEST(Database, NewerSchemaIsRefusedWithAClearMessage) {
   const std::string path = dir.file("station.db");
   {
     Database db = open_ok(path);
-    ASSERT_TRUE(db.exec("UPDATE meta SET value='5' WHERE key='schema_version'").ok());
+    ASSERT_TRUE(db.exec("UPDATE meta SET value='6' WHERE key='schema_version'").ok());
   }
   auto db = Database::open(path);
   ASSERT_FALSE(db.ok());
   EXPECT_FALSE(db.error().transient);
   EXPECT_NE(db.error().message.find(path), std::string::npos) << db.error().message;
-  EXPECT_NE(db.error().message.find("schema version 5, newer than this build's 4"),
+  EXPECT_NE(db.error().message.find("schema version 6, newer than this build's 5"),
             std::string::npos)
       << db.error().message;
 
   auto ro = Database::open_read_only(path);
   ASSERT_FALSE(ro.ok());
-  EXPECT_NE(ro.error().message.find("schema version 5"), std::string::npos) << ro.error().message;
+  EXPECT_NE(ro.error().message.find("schema version 6"), std::string::npos) << ro.error().message;
 }
 
 TEST(Database, RefusesAnotherApplicationsDatabase) {
