@@ -26,6 +26,7 @@
 #include "gyrotherm/analysis/drift_model.h"
 #include "gyrotherm/analysis/start_temperature.h"
 #include "gyrotherm/analysis/table1.h"
+#include "gyrotherm/core/files.h"
 #include "gyrotherm/daemon/run_analysis.h"
 #include "gyrotherm/storage/database.h"
 
@@ -107,66 +108,8 @@ std::string table(const std::vector<std::string>& header,
   return out;
 }
 
-// ---------------------------------------------------------------- settings of a stored run
-
-// What a run's stored station config says under [analysis] (and [station]
-// name). Read leniently: a config that is missing or does not parse, or a key
-// of the wrong type, leaves the default.
-struct RunConfig {
-  std::optional<double> bin_s, l0_window_s, derivative_window_s;
-  std::optional<int> ma_window;
-  std::optional<std::string> model;
-  std::optional<std::string> allan_taus;
-  std::string station_name;
-};
-
-RunConfig read_run_config(const std::string& text) {
-  RunConfig c;
-  if (text.empty()) return c;
-  auto number = [](auto node) -> std::optional<double> {
-    if (auto v = node.template value<double>()) return *v;
-    return std::nullopt;
-  };
-  if (text.find_first_not_of(" \t\r\n") != std::string::npos &&
-      text[text.find_first_not_of(" \t\r\n")] == '{') {
-    const json j = json::parse(text, nullptr, false);
-    if (j.is_discarded() || !j.is_object()) return c;
-    auto get_num = [](const json& o, const char* k) -> std::optional<double> {
-      if (o.is_object() && o.contains(k) && o[k].is_number()) return o[k].get<double>();
-      return std::nullopt;
-    };
-    if (j.contains("analysis")) {
-      const json& a = j["analysis"];
-      c.bin_s = get_num(a, "bin_s");
-      c.l0_window_s = get_num(a, "l0_window_s");
-      c.derivative_window_s = get_num(a, "derivative_window_s");
-      if (auto w = get_num(a, "ma_window")) c.ma_window = static_cast<int>(*w);
-      if (a.is_object() && a.contains("model") && a["model"].is_string()) {
-        c.model = a["model"].get<std::string>();
-      }
-      if (a.is_object() && a.contains("allan_taus") && a["allan_taus"].is_string()) {
-        c.allan_taus = a["allan_taus"].get<std::string>();
-      }
-    }
-    if (j.contains("station") && j["station"].is_object() && j["station"].contains("name") &&
-        j["station"]["name"].is_string()) {
-      c.station_name = j["station"]["name"].get<std::string>();
-    }
-    return c;
-  }
-  try {
-    const toml::table t = toml::parse(text);
-    c.bin_s = number(t["analysis"]["bin_s"]);
-    c.l0_window_s = number(t["analysis"]["l0_window_s"]);
-    c.derivative_window_s = number(t["analysis"]["derivative_window_s"]);
-    if (auto w = t["analysis"]["ma_window"].value<int64_t>()) c.ma_window = static_cast<int>(*w);
-    if (auto m = t["analysis"]["model"].value<std::string>()) c.model = *m;
-    if (auto m = t["analysis"]["allan_taus"].value<std::string>()) c.allan_taus = *m;
-    if (auto n = t["station"]["name"].value<std::string>()) c.station_name = *n;
-  } catch (const toml::parse_error&) {
-  }
-  return c;
-}
+using daemon::read_run_config;
+using daemon::RunConfig;
 
 }  // namespace
 
@@ -231,46 +174,6 @@ Result<std::vector<int64_t>> parse_run_list(std::string_view list) {
     }
   }
   return out;
-}
-
-Status write_file_atomically(const std::string& path, std::string_view content) {
-  namespace fs = std::filesystem;
-  const fs::path target(path);
-  const fs::path dir = target.has_parent_path() ? target.parent_path() : fs::path(".");
-  std::string tmpl = (dir / ("." + target.filename().string() + ".tmp-XXXXXX")).string();
-  const int fd = ::mkstemp(tmpl.data());
-  if (fd < 0) {
-    return Error::Permanent(fmt::format("{}: cannot create a temporary file in {}: {}", path,
-                                        dir.string(), std::strerror(errno)));
-  }
-  auto give_up = [&](const char* what) {
-    const std::string reason = std::strerror(errno);
-    ::close(fd);
-    ::unlink(tmpl.c_str());
-    return Error::Permanent(fmt::format("{}: cannot {}: {}", path, what, reason));
-  };
-  std::size_t done = 0;
-  while (done < content.size()) {
-    const ssize_t n = ::write(fd, content.data() + done, content.size() - done);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      return give_up("write");
-    }
-    done += static_cast<std::size_t>(n);
-  }
-  ::fchmod(fd, 0644);
-  if (::fsync(fd) != 0) return give_up("sync");
-  if (::close(fd) != 0) {
-    const std::string reason = std::strerror(errno);
-    ::unlink(tmpl.c_str());
-    return Error::Permanent(fmt::format("{}: cannot write: {}", path, reason));
-  }
-  if (::rename(tmpl.c_str(), path.c_str()) != 0) {
-    const std::string reason = std::strerror(errno);
-    ::unlink(tmpl.c_str());
-    return Error::Permanent(fmt::format("{}: cannot rename the temporary file: {}", path, reason));
-  }
-  return Status::Ok();
 }
 
 // ---------------------------------------------------------------- parsed options
@@ -865,15 +768,6 @@ json coefficient_map(const std::map<std::string, double>& m) {
 }
 
 // Unit of a coefficient in the physical form.
-std::string coefficient_unit(const std::string& name) {
-  if (name == "intercept") return "°/h";
-  if (name.size() != 2) return "";
-  const char power = name[1];
-  const std::string sup = power == '1' ? "" : power == '2' ? "²" : power == '3' ? "³" : "⁴";
-  if (name[0] == 'R') return power == '1' ? "°/h per °C/s" : "°/h per (°C/s)" + sup;
-  return "°/h per °C" + sup;
-}
-
 // Coefficients in a fixed order: intercept, T1.., R1.., G1...
 template <class V>
 std::vector<std::string> ordered_keys(const std::map<std::string, V>& m) {
@@ -963,7 +857,7 @@ int cmd_fit(const Parsed& p) {
   std::vector<std::vector<std::string>> rows;
   for (const auto& k : ordered_keys(fit->coefficients)) {
     const auto se = fit->std_errors.find(k);
-    rows.push_back({k, coefficient_unit(k), sci(fit->coefficients.at(k)),
+    rows.push_back({k, analysis::coefficient_unit(k), sci(fit->coefficients.at(k)),
                     se == fit->std_errors.end() ? kDash : sci(se->second)});
   }
   std::cout << table({"term", "unit", "coefficient", "std error"}, rows, 2);
@@ -1178,7 +1072,7 @@ int cmd_start_model(const Parsed& p) {
         at->extrapolated ? " (extrapolated: outside the fitted T0 range)" : "");
     rows.clear();
     for (const auto& k : ordered_keys(at->fit.coefficients)) {
-      rows.push_back({k, coefficient_unit(k), sci(at->fit.coefficients.at(k))});
+      rows.push_back({k, analysis::coefficient_unit(k), sci(at->fit.coefficients.at(k))});
     }
     std::cout << table({"term", "unit", "coefficient"}, rows, 2, "  ");
   }

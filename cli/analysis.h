@@ -50,9 +50,4 @@ class AnalysisCommands {
 // range whose end is below its start or longer than 100000, an id repeated.
 Result<std::vector<int64_t>> parse_run_list(std::string_view list);
 
-// Writes `content` to a temporary file in the same directory, then renames it
-// over `path`, so a reader never sees a half-written file. Errors name the
-// path and the system's reason; the temporary file is removed on failure.
-Status write_file_atomically(const std::string& path, std::string_view content);
-
 }  // namespace gyrotherm::cli

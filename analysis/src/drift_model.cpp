@@ -1192,6 +1192,21 @@ Result<std::vector<double>> drift_terms(const DriftFit& fit, const AnalysisSerie
   return predicted;
 }
 
+std::vector<std::string> coefficient_names(const DriftModelSpec& spec, DriftModelForm form) {
+  std::vector<std::string> names;
+  for (const Column& c : design_columns(spec, form)) names.push_back(column_name(c));
+  return names;
+}
+
+std::string coefficient_unit(const std::string& name) {
+  if (name == "intercept") return "°/h";
+  if (name.size() != 2) return "";
+  const char power = name[1];
+  const std::string sup = power == '1' ? "" : power == '2' ? "²" : power == '3' ? "³" : "⁴";
+  if (name[0] == 'R') return power == '1' ? "°/h per °C/s" : "°/h per (°C/s)" + sup;
+  return "°/h per °C" + sup;
+}
+
 Status check_analysis_series(const AnalysisSeries& series, std::string_view what) {
   return check_series_named(series, what);
 }

@@ -19,16 +19,6 @@ constexpr int kCubic = 4;  // A_0 .. A_3
 // 17 significant digits: reads back as the same double.
 std::string num(double v) { return fmt::format("{:.17g}", v); }
 
-// Design-order names of the fit's coefficients (the intercept first).
-std::vector<std::string> coefficient_names(const DriftModelSpec& spec, DriftModelForm form) {
-  std::vector<std::string> names;
-  if (form == DriftModelForm::kCentered) names.emplace_back("intercept");
-  for (int i = 1; i <= spec.t_order; ++i) names.push_back(fmt::format("T{}", i));
-  for (int i = 1; i <= spec.r_order; ++i) names.push_back(fmt::format("R{}", i));
-  for (int i = 1; i <= spec.g_order; ++i) names.push_back(fmt::format("G{}", i));
-  return names;
-}
-
 double horner_cubic(const std::array<double, 4>& a, double x) {
   return a[0] + x * (a[1] + x * (a[2] + x * a[3]));
 }

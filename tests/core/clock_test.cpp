@@ -38,5 +38,56 @@ TEST(WallTime, IsIsoUtcWithMilliseconds) {
   EXPECT_TRUE(std::regex_match(s, std::regex(R"(\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z)"))) << s;
 }
 
+TEST(WallClock, StationWallClockFollowsTheStationClock) {
+  ManualClock station(500.0, 200.0);
+  StationWallClock wall(station, 1774745400.0);  // 2026-03-29T00:50:00Z
+  EXPECT_DOUBLE_EQ(wall.unix_now_s(), 1774745400.0);
+  station.advance(3600.0);  // one station hour: one wall hour of the simulated day
+  EXPECT_DOUBLE_EQ(wall.unix_now_s(), 1774749000.0);
+  ManualWallClock manual(10.0);
+  manual.advance(5.0);
+  EXPECT_DOUBLE_EQ(manual.unix_now_s(), 15.0);
+  const double real = SystemWallClock().unix_now_s();
+  EXPECT_GT(real, 1.7e9);  // after 2023
+}
+
+TEST(UtcIso, FormatsAndParsesBack) {
+  EXPECT_EQ(utc_iso(0.0), "1970-01-01T00:00:00.000Z");
+  EXPECT_EQ(utc_iso(1774745400.125), "2026-03-29T00:50:00.125Z");
+  EXPECT_EQ(utc_iso(-0.5), "1969-12-31T23:59:59.500Z");
+  // Rounding to the millisecond carries into the seconds.
+  EXPECT_EQ(utc_iso(1774745400.9996), "2026-03-29T00:50:01.000Z");
+  for (double t : {0.0, 1774745400.125, 1795316400.0, 951782400.0 /* 2000-02-29 */}) {
+    auto back = parse_utc_iso(utc_iso(t));
+    ASSERT_TRUE(back.ok()) << back.error().message;
+    EXPECT_DOUBLE_EQ(*back, t);
+  }
+}
+
+TEST(UtcIso, ParsesDatesOffsetsAndFractions) {
+  const auto at = [](const char* text) {
+    auto r = parse_utc_iso(text);
+    EXPECT_TRUE(r.ok()) << text << ": " << (r.ok() ? "" : r.error().message);
+    return r.ok() ? *r : -1.0;
+  };
+  EXPECT_DOUBLE_EQ(at("2026-03-29"), 1774742400.0);
+  EXPECT_DOUBLE_EQ(at("2026-03-29T00:50Z"), 1774745400.0);
+  EXPECT_DOUBLE_EQ(at("2026-03-29T00:50:00"), 1774745400.0);
+  EXPECT_DOUBLE_EQ(at("2026-03-29 02:50:00+02:00"), 1774745400.0);
+  EXPECT_DOUBLE_EQ(at("2026-03-28T19:50:00-0500"), 1774745400.0);
+  EXPECT_DOUBLE_EQ(at("2026-03-29T00:50:00.25Z"), 1774745400.25);
+}
+
+TEST(UtcIso, RefusesWhatIsNotADateNamingIt) {
+  for (const char* bad : {"", "yesterday", "2026-3-29", "2026-13-01", "2026-02-30",
+                          "2026-03-29T25:00Z", "2026-03-29T00:50:00Zjunk", "2026-03-29T00",
+                          "2026-03-29T00:50:00.Z", "2026-03-29T00:50+2"}) {
+    auto r = parse_utc_iso(bad);
+    ASSERT_FALSE(r.ok()) << bad;
+    EXPECT_NE(r.error().message.find(std::string("\"") + bad + "\""), std::string::npos)
+        << r.error().message;
+  }
+}
+
 }  // namespace
 }  // namespace gyrotherm

@@ -24,6 +24,7 @@
 #include "gyrotherm/analysis/drift_model.h"
 #include "gyrotherm/analysis/start_temperature.h"
 #include "gyrotherm/analysis/table1.h"
+#include "gyrotherm/core/files.h"
 #include "gyrotherm/daemon/run_analysis.h"
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
@@ -740,8 +741,8 @@ TEST(CliAnalysisHelpers, AtomicWriteReplacesTheFile) {
   const fs::path dir = fs::temp_directory_path() / fmt::format("gyrotherm-atomic-{}", ::getpid());
   fs::create_directories(dir);
   const std::string path = (dir / "out.h").string();
-  ASSERT_TRUE(cli::write_file_atomically(path, "first").ok());
-  ASSERT_TRUE(cli::write_file_atomically(path, "second").ok());
+  ASSERT_TRUE(write_file_atomically(path, "first").ok());
+  ASSERT_TRUE(write_file_atomically(path, "second").ok());
   EXPECT_EQ(slurp(path), "second");
   EXPECT_EQ(std::distance(fs::directory_iterator(dir), fs::directory_iterator()), 1);
   fs::remove_all(dir);

@@ -49,6 +49,11 @@ enum class DriftModelForm {
   kCentered,  // y = L, intercept, powers of (x - mean(x)) / std(x)
 };
 std::string_view to_string(DriftModelForm form);
+// The model's coefficient names in design order: "intercept" (centred form),
+// T1..Tm, R1..Rn, G1..Gq.
+std::vector<std::string> coefficient_names(const DriftModelSpec& spec, DriftModelForm form);
+// The unit of a coefficient, for people: "°/h per °C²", "°/h per °C/s", ...
+std::string coefficient_unit(const std::string& name);
 Result<DriftModelForm> parse_drift_model_form(std::string_view s);  // "paper", "centered"
 
 struct DriftFitOptions {

@@ -8,12 +8,15 @@
 // hours of schedule in microseconds without sleeping.
 //
 // Wall time (UTC, for humans and the nightly export) is a different thing and
-// never comes from these clocks; see wall_time_utc_iso().
+// never comes from these clocks; see WallClock and wall_time_utc_iso().
 #pragma once
 
 #include <atomic>
 #include <chrono>
 #include <string>
+#include <string_view>
+
+#include "gyrotherm/core/result.h"
 
 namespace gyrotherm {
 
@@ -57,8 +60,55 @@ class ManualClock final : public Clock {
   double scale_;
 };
 
+// Wall time (Unix seconds) for what happens at a local time of day: the
+// nightly export. Injected like the station clock, so tests walk across
+// days, daylight-saving changes and downtime without waiting.
+class WallClock {
+ public:
+  virtual ~WallClock() = default;
+  virtual double unix_now_s() const = 0;  // thread-safe
+};
+
+// The system's real-time clock.
+class SystemWallClock final : public WallClock {
+ public:
+  double unix_now_s() const override;
+};
+
+// Simulation: wall time that starts at `start_unix_s` when constructed and
+// advances with a station clock (so at its time scale).
+class StationWallClock final : public WallClock {
+ public:
+  StationWallClock(const Clock& station, double start_unix_s)
+      : station_(station), start_unix_s_(start_unix_s), station_t0_s_(station.now_s()) {}
+  double unix_now_s() const override { return start_unix_s_ + (station_.now_s() - station_t0_s_); }
+
+ private:
+  const Clock& station_;
+  double start_unix_s_;
+  double station_t0_s_;
+};
+
+// Moves only when told to. For tests. Thread-safe.
+class ManualWallClock final : public WallClock {
+ public:
+  explicit ManualWallClock(double unix_s) : unix_s_(unix_s) {}
+  double unix_now_s() const override { return unix_s_.load(); }
+  void set(double unix_s) { unix_s_.store(unix_s); }
+  void advance(double dt_s) { unix_s_.store(unix_s_.load() + dt_s); }
+
+ private:
+  std::atomic<double> unix_s_;
+};
+
 // Current wall time as ISO-8601 UTC with milliseconds, e.g.
 // "2026-11-21T05:38:43.120Z". For event rows and reports, never for control.
 std::string wall_time_utc_iso();
+// Unix seconds as ISO-8601 UTC with milliseconds.
+std::string utc_iso(double unix_s);
+// ISO-8601 to Unix seconds: "2026-11-21" (midnight UTC),
+// "2026-11-21T05:38" / "T05:38:43" / "T05:38:43.120" followed by "Z" or an
+// offset "+01:00" / "-0500" (no zone: UTC). Errors name the text.
+Result<double> parse_utc_iso(std::string_view text);
 
 }  // namespace gyrotherm
