@@ -13,6 +13,7 @@
 
 #include "analysis.h"
 #include "control.h"
+#include "export.h"
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/drivers/frame_parser.h"
 #include "gyrotherm/drivers/gyro_reader.h"
@@ -252,6 +253,8 @@ int main(int argc, char** argv) {
   gyrotherm::cli::ControlCommands control(app);
   // stats, allan, fit, compare, start-model
   gyrotherm::cli::AnalysisCommands analysis(app);
+  // export
+  gyrotherm::cli::ExportCommand export_command(app);
 
   try {
     app.parse(argc, argv);
@@ -271,6 +274,7 @@ int main(int argc, char** argv) {
     if (*check) return cmd_schedule_check(config_path, schedule_path, json);
     if (auto code = control.run(json)) return *code;
     if (auto code = analysis.run(json)) return *code;
+    if (auto code = export_command.run(json)) return *code;
   } catch (const std::exception& e) {
     return fail(e.what());
   }

@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <optional>
 #include <sstream>
 #include <thread>
 
@@ -25,7 +26,7 @@ namespace gd = gyrotherm::daemon;
 
 int main(int argc, char** argv) {
   CLI::App app{"gyrothermd: FOG thermal test station daemon"};
-  std::string config_path, db_path, schedule_path, log_level = "info";
+  std::string config_path, db_path, schedule_path, wall_start, log_level = "info";
   double time_scale = 1.0;
   double endpoints_wait_s = 30.0;
   bool exit_when_done = false;
@@ -34,6 +35,9 @@ int main(int argc, char** argv) {
   app.add_option("--schedule", schedule_path, "queue this schedule file at start-up");
   app.add_option("--time-scale", time_scale, "station seconds per wall second (simulation)")
       ->check(CLI::Range(1e-3, 1e5));
+  app.add_option("--wall-start", wall_start,
+                 "simulation: the nightly export's wall clock starts at this ISO-8601 instant "
+                 "(e.g. 2026-03-29T00:40:00Z) and runs at --time-scale");
   app.add_flag("--exit-when-done", exit_when_done,
                "exit 0 once the queue is empty and no run is active (scripts, tests)");
   app.add_option("--endpoints-wait", endpoints_wait_s,
@@ -94,6 +98,15 @@ int main(int argc, char** argv) {
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
 
   gyrotherm::ScaledClock clock(time_scale);
+  std::optional<gyrotherm::StationWallClock> wall_clock;
+  if (!wall_start.empty()) {
+    auto start = gyrotherm::parse_utc_iso(wall_start);
+    if (!start) {
+      std::cerr << "gyrothermd: --wall-start: " << start.error().message << "\n";
+      return 2;
+    }
+    wall_clock.emplace(clock, *start);
+  }
   // Declared in the order they may be torn down in reverse: the station
   // publishes into the stream and observes into the metrics; the server
   // serves all three.
@@ -106,6 +119,7 @@ int main(int argc, char** argv) {
   gd::EventStream stream(stream_options);
   gd::StationHooks hooks;
   hooks.metrics = &metrics;
+  hooks.wall_clock = wall_clock ? &*wall_clock : nullptr;
   hooks.publish = [&stream](std::string_view event, const nlohmann::json& data) {
     stream.publish(event, data.dump());
   };

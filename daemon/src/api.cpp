@@ -375,6 +375,10 @@ constexpr Route kRoutes[] = {
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        return reply_response(req, ctx.control->run_allan(*parse_id(p[0])));
      }},
+    {http::verb::get, "/api/v1/exports", false, true,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
+       return reply_response(req, ctx.control->exports());
+     }},
     {http::verb::get, "/api/v1/runs/{id}/samples", false, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        const Query q = parse_query(req, {"from", "to", "max_points"});

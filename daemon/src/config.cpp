@@ -247,7 +247,21 @@ void read_api(TableReader t, ApiSection& a) {
 }
 
 void read_export(TableReader t, ExportSection& e) {
-  if (auto d = t.string("directory")) e.directory = *d;
+  if (auto n = t.boolean("nightly")) e.nightly = *n;
+  if (auto d = t.string("directory")) {
+    if (d->empty()) {
+      t.error("directory", "must not be empty");
+    } else {
+      e.directory = *d;
+    }
+  }
+  if (auto z = t.string("time_zone")) {
+    if (auto zone = TimeZone::posix(*z); !z->empty() && !zone) {
+      t.error("time_zone", zone.error().message);
+    } else {
+      e.time_zone = *z;
+    }
+  }
   if (auto lt = t.string("local_time")) {
     if (auto parsed = parse_local_time_of_day(*lt); !parsed) {
       t.error("local_time", parsed.error().message);

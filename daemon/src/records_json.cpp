@@ -116,6 +116,21 @@ nlohmann::json to_json(const storage::FitRecord& f) {
           {"computed_utc", f.computed_utc}};
 }
 
+nlohmann::json to_json(const storage::ExportRecord& e) {
+  return {{"id", e.id},
+          {"kind", e.kind},
+          {"slot_unix_s", e.slot_unix_s ? num(*e.slot_unix_s) : nlohmann::json(nullptr)},
+          {"slot_local", e.slot_local},
+          {"state", e.state},
+          {"directory", e.directory},
+          {"run_ids", e.run_ids},
+          {"files", e.files},
+          {"started_utc", e.started_utc},
+          {"finished_utc",
+           e.finished_utc.empty() ? nlohmann::json(nullptr) : nlohmann::json(e.finished_utc)},
+          {"message", e.message}};
+}
+
 nlohmann::json to_json(const storage::AllanRecord& a) {
   const auto numbers = [](const std::vector<double>& v) {
     nlohmann::json out = nlohmann::json::array();

@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 #include <sqlite3.h>
+#include <toml++/toml.h>
 
 #include <algorithm>
 #include <cmath>
@@ -73,6 +74,87 @@ AnalysisSettings analysis_settings(const StationConfig& config) {
   if (auto spec = analysis::parse_model_spec(config.analysis.model)) s.model = *spec;
   s.fit.derivative_window_s = config.analysis.derivative_window_s;
   s.fit.l0_window_s = config.analysis.l0_window_s;
+  return s;
+}
+
+RunConfig read_run_config(const std::string& text) {
+  using json = nlohmann::json;
+  RunConfig c;
+  if (text.empty()) return c;
+  auto number = [](auto node) -> std::optional<double> {
+    if (auto v = node.template value<double>()) return *v;
+    return std::nullopt;
+  };
+  if (text.find_first_not_of(" \t\r\n") != std::string::npos &&
+      text[text.find_first_not_of(" \t\r\n")] == '{') {
+    const json j = json::parse(text, nullptr, false);
+    if (j.is_discarded() || !j.is_object()) return c;
+    auto get_num = [](const json& o, const char* k) -> std::optional<double> {
+      if (o.is_object() && o.contains(k) && o[k].is_number()) return o[k].get<double>();
+      return std::nullopt;
+    };
+    if (j.contains("analysis")) {
+      const json& a = j["analysis"];
+      c.bin_s = get_num(a, "bin_s");
+      c.l0_window_s = get_num(a, "l0_window_s");
+      c.derivative_window_s = get_num(a, "derivative_window_s");
+      if (auto w = get_num(a, "ma_window")) c.ma_window = static_cast<int>(*w);
+      if (a.is_object() && a.contains("model") && a["model"].is_string()) {
+        c.model = a["model"].get<std::string>();
+      }
+      if (a.is_object() && a.contains("allan_taus") && a["allan_taus"].is_string()) {
+        c.allan_taus = a["allan_taus"].get<std::string>();
+      }
+    }
+    if (j.contains("station") && j["station"].is_object() && j["station"].contains("name") &&
+        j["station"]["name"].is_string()) {
+      c.station_name = j["station"]["name"].get<std::string>();
+    }
+    return c;
+  }
+  try {
+    const toml::table t = toml::parse(text);
+    c.bin_s = number(t["analysis"]["bin_s"]);
+    c.l0_window_s = number(t["analysis"]["l0_window_s"]);
+    c.derivative_window_s = number(t["analysis"]["derivative_window_s"]);
+    if (auto w = t["analysis"]["ma_window"].value<int64_t>()) c.ma_window = static_cast<int>(*w);
+    if (auto m = t["analysis"]["model"].value<std::string>()) c.model = *m;
+    if (auto m = t["analysis"]["allan_taus"].value<std::string>()) c.allan_taus = *m;
+    if (auto n = t["station"]["name"].value<std::string>()) c.station_name = *n;
+  } catch (const toml::parse_error&) {
+  }
+  return c;
+}
+
+Result<AnalysisSettings> analysis_settings_of_run(const storage::RunRecord& run) {
+  const RunConfig cfg = read_run_config(run.config_json);
+  AnalysisSettings s;
+  if (cfg.bin_s) s.table1.bin_s = *cfg.bin_s;
+  if (cfg.ma_window) s.table1.ma_window = static_cast<std::size_t>(*cfg.ma_window);
+  if (cfg.l0_window_s) s.fit.l0_window_s = *cfg.l0_window_s;
+  if (cfg.derivative_window_s) s.fit.derivative_window_s = *cfg.derivative_window_s;
+  const auto bad = [&run](std::string_view what, const std::string& value, const Error& e) {
+    return Error::Permanent(
+        fmt::format("run {}: stored {} \"{}\": {}", run.id, what, value, e.message));
+  };
+  if (cfg.model) {
+    auto spec = analysis::parse_model_spec(*cfg.model);
+    if (!spec) return bad("[analysis] model", *cfg.model, spec.error());
+    s.model = *spec;
+  }
+  if (cfg.allan_taus) {
+    auto taus = analysis::parse_tau_set(*cfg.allan_taus);
+    if (!taus) return bad("[analysis] allan_taus", *cfg.allan_taus, taus.error());
+    s.allan_taus = *taus;
+  }
+  const std::string orientation = run.orientation.empty() ? "up" : run.orientation;
+  auto o = analysis::parse_orientation(orientation);
+  if (!o) return bad("orientation", orientation, o.error());
+  s.table1.earth_rate_dph = analysis::earth_rate_component_dph(run.latitude_deg, *o);
+  std::string why;
+  if (!s.table1.IsValid(&why) || !s.fit.IsValid(&why)) {
+    return Error::Permanent(fmt::format("run {}: stored [analysis]: {}", run.id, why));
+  }
   return s;
 }
 

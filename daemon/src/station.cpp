@@ -185,6 +185,54 @@ void Station::start() {
   }
   gyro_->start();
   control_thread_ = std::thread([this] { control_loop(); });
+  start_nightly_export();
+}
+
+void Station::start_nightly_export() {
+  const ExportSection& e = config_.export_;
+  if (!e.nightly) return;
+  NightlyOptions options;
+  if (auto at = parse_local_time_of_day(e.local_time)) options.at = *at;  // checked at load
+  if (!e.time_zone.empty()) {
+    if (auto zone = TimeZone::posix(e.time_zone)) options.zone = *zone;
+  }
+  options.directory = e.directory;
+  options.report.station_name = config_.station.name;
+  const TimeZone zone = options.zone;
+  const WallClock& wall = hooks_.wall_clock ? *hooks_.wall_clock : system_wall_clock_;
+  auto done = [publish = hooks_.publish](storage::Database& db, const Result<ExportOutcome>& r) {
+    storage::EventRecord ev;
+    ev.wall_utc = wall_time_utc_iso();
+    ev.kind = "export";
+    if (r) {
+      ev.message =
+          r->files.empty()
+              ? fmt::format("nightly export {}: no run completed since the last one", r->export_id)
+              : fmt::format("nightly export {}: {} files in {}{}", r->export_id, r->files.size(),
+                            r->directory,
+                            r->problems.empty() ? "" : " (with problems; see the report)");
+    } else {
+      ev.kind = "error";
+      ev.message = "nightly export failed: " + r.error().message;
+    }
+    if (auto id = db.add_event(ev); id) ev.id = *id;
+    if (publish) {
+      publish("event", to_json(ev));
+      if (r) {
+        publish("export", {{"export_id", r->export_id},
+                           {"directory", r->directory},
+                           {"files", r->files.size()},
+                           {"problems", r->problems}});
+      }
+    }
+  };
+  nightly_ = std::make_unique<NightlyExporter>(
+      config_.storage.db_path, wall, std::move(options), [this] { analysis_->drain(); },
+      std::move(done));
+  spdlog::info("nightly export at {} ({}) into {}; next {}", e.local_time,
+               e.time_zone.empty() ? "system time zone" : e.time_zone, e.directory,
+               local_time_label(nightly_->next_slot_unix_s(), zone));
+  nightly_->start();
 }
 
 void Station::stop(const std::string& reason) {
@@ -206,6 +254,7 @@ void Station::stop(const std::string& reason) {
   }
   write_setpoint(config_.station.safe_setpoint_c, true);
   gyro_->stop();
+  if (nightly_) nightly_->stop();
   analysis_->stop();
   writer_->stop();
   spdlog::info("stopped ({}); chamber set point {:g} °C", reason, config_.station.safe_setpoint_c);
@@ -1010,6 +1059,15 @@ Reply Station::fit(int64_t id) {
   if (!fit) return db_failure(fit.error());
   if (!*fit) return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no fit {}", id));
   return Reply::ok(to_json(**fit));
+}
+
+Reply Station::exports() {
+  std::lock_guard lock(api_mu_);
+  auto exports = api_db_.exports();
+  if (!exports) return db_failure(exports.error());
+  nlohmann::json out = nlohmann::json::array();
+  for (const auto& e : *exports) out.push_back(to_json(e));
+  return Reply::ok(std::move(out));
 }
 
 Reply Station::run_samples(int64_t id, const SamplesQuery& query) {

@@ -88,6 +88,10 @@ class FakeControl : public StationControl {
     if (id == 5) return Reply::refused(Refusal::Kind::kNotFound, "no fit 5");
     return Reply::ok({{"id", id}});
   }
+  Reply exports() override {
+    calls.push_back("exports");
+    return Reply::ok(nlohmann::json::array());
+  }
 };
 
 ApiContext fake_context(StationControl* control = nullptr) {

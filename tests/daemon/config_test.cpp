@@ -236,4 +236,29 @@ TEST(Config, ExportLocalTimeIsHhMm) {
   }
 }
 
+TEST(Config, ExportTimeZoneAndNightly) {
+  auto ok = parse_station_config(std::string(kMinimal) +
+                                     "[export]\nnightly = false\ndirectory = \"out\"\n"
+                                     "time_zone = \"CET-1CEST,M3.5.0,M10.5.0/3\"\n",
+                                 "t.toml");
+  ASSERT_TRUE(ok.ok()) << ok.error().message;
+  EXPECT_FALSE(ok->export_.nightly);
+  EXPECT_EQ(ok->export_.directory, "out");
+  EXPECT_EQ(ok->export_.time_zone, "CET-1CEST,M3.5.0,M10.5.0/3");
+  auto defaults = parse_station_config(std::string(kMinimal), "t.toml");
+  ASSERT_TRUE(defaults.ok()) << defaults.error().message;
+  EXPECT_TRUE(defaults->export_.nightly);
+  EXPECT_EQ(defaults->export_.time_zone, "");
+
+  auto bad_zone = parse_station_config(
+      std::string(kMinimal) + "[export]\ntime_zone = \"Mars/Olympus\"\n", "t.toml");
+  ASSERT_FALSE(bad_zone.ok());
+  EXPECT_THAT(bad_zone.error().message, HasSubstr("export.time_zone:"));
+  EXPECT_THAT(bad_zone.error().message, HasSubstr("Mars/Olympus"));
+  auto empty_dir =
+      parse_station_config(std::string(kMinimal) + "[export]\ndirectory = \"\"\n", "t.toml");
+  ASSERT_FALSE(empty_dir.ok());
+  EXPECT_THAT(empty_dir.error().message, HasSubstr("export.directory:"));
+}
+
 }  // namespace gyrotherm::daemon

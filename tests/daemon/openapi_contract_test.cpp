@@ -337,6 +337,28 @@ class ContractControl : public StationControl {
     a.computed_utc = "2026-11-21T07:38:43.120Z";
     return Reply::ok(json::array({to_json(a)}));
   }
+  Reply exports() override {
+    storage::ExportRecord done;
+    done.id = 2;
+    done.kind = "nightly";
+    done.slot_unix_s = 1795316400;
+    done.slot_local = "2026-11-21 02:00 UTC+01:00";
+    done.state = "done";
+    done.directory = "/var/lib/gyrotherm/reports/2026-11-21";
+    done.run_ids = {3, 4};
+    done.files = {"index.html", "run-0003/report.html", "table1.csv"};
+    done.started_utc = "2026-11-21T01:00:00.020Z";
+    done.finished_utc = "2026-11-21T01:00:02.410Z";
+    done.message = "2 runs, 3 files";
+    storage::ExportRecord writing;  // a manual export still being written
+    writing.id = 3;
+    writing.kind = "manual";
+    writing.state = "writing";
+    writing.directory = "/tmp/reports";
+    writing.run_ids = {4};
+    writing.started_utc = "2026-11-21T09:12:00.000Z";
+    return Reply::ok(json::array({to_json(writing), to_json(done)}));
+  }
 };
 
 // A web root with the files the document's examples name.

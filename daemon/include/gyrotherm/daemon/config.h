@@ -77,8 +77,10 @@ struct ApiSection {
 };
 
 struct ExportSection {
-  std::string directory = "reports";
-  std::string local_time = "02:00";
+  bool nightly = true;                // the nightly export (DESIGN.md §10)
+  std::string directory = "reports";  // one directory per export under it
+  std::string local_time = "02:00";   // "HH:MM" in time_zone
+  std::string time_zone;  // POSIX TZ rule, e.g. "CET-1CEST,M3.5.0,M10.5.0/3"; "" = system
 };
 
 struct AnalysisSection {

@@ -65,6 +65,8 @@ class StationControl {
   virtual Reply run_fits(int64_t id) = 0;
   virtual Reply run_allan(int64_t id) = 0;  // Allan deviation per soak
   virtual Reply fit(int64_t id) = 0;
+  // Calibration exports (nightly and manual), newest first.
+  virtual Reply exports() = 0;
 };
 
 // JSON forms of the stored records (docs/api.md).
@@ -76,5 +78,6 @@ nlohmann::json to_json(const storage::SegmentStatsRecord& s);
 nlohmann::json to_json(const storage::FitRecord& f);
 nlohmann::json to_json(const storage::AllanRecord& a);
 nlohmann::json to_json(const storage::DecimatedSamples& d);
+nlohmann::json to_json(const storage::ExportRecord& e);
 
 }  // namespace gyrotherm::daemon

@@ -16,6 +16,7 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -42,6 +43,25 @@ struct AnalysisSettings {
 // From the config: [analysis] and the Earth rate of [station] latitude and
 // orientation. The model spec was checked when the config was loaded.
 AnalysisSettings analysis_settings(const StationConfig& config);
+
+// What a run's stored station config (runs.config_json: TOML, or JSON from
+// older tools) says under [analysis] and [station] name. Read leniently: a
+// config that is missing or does not parse, or a key of the wrong type,
+// leaves the value unset.
+struct RunConfig {
+  std::optional<double> bin_s, l0_window_s, derivative_window_s;
+  std::optional<int> ma_window;
+  std::optional<std::string> model;
+  std::optional<std::string> allan_taus;
+  std::string station_name;
+};
+RunConfig read_run_config(const std::string& text);
+
+// The settings a stored run is analysed with offline (reports, the CLI's
+// defaults): its own config's [analysis] over the defaults, and the Earth
+// rate of the run's latitude and orientation. A stored value that does not
+// parse (model, taus, orientation) is an error naming the run and the value.
+Result<AnalysisSettings> analysis_settings_of_run(const storage::RunRecord& run);
 
 // A completed soak of a run and its acquisition windows.
 struct SoakWindow {

@@ -40,6 +40,7 @@
 #include "gyrotherm/daemon/analysis_worker.h"
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/daemon/control.h"
+#include "gyrotherm/daemon/exporter.h"
 #include "gyrotherm/daemon/metrics.h"
 #include "gyrotherm/daemon/status.h"
 #include "gyrotherm/drivers/gyro_reader.h"
@@ -56,6 +57,9 @@ struct StationHooks {
   // Live events for /api/v1/stream: "state", "event", "stats" with their
   // JSON. Called from the control and analysis threads; must not block.
   std::function<void(std::string_view event, const nlohmann::json& data)> publish;
+  // The nightly export's wall clock (not owned; outlives the station);
+  // nullptr: the system's.
+  const WallClock* wall_clock = nullptr;
 };
 
 class Station final : public StationControl, private schedules::SequencerObserver {
@@ -97,6 +101,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
   Reply run_fits(int64_t id) override;
   Reply run_allan(int64_t id) override;
   Reply fit(int64_t id) override;
+  Reply exports() override;
 
  private:
   Station(StationConfig config, const Clock& clock, StationHooks hooks, storage::Database db,
@@ -108,6 +113,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // Needs run_mu_.
   void resume_interrupted_run();
   void submit_missing_analyses();
+  void start_nightly_export();
   void start_next_run(double now_s);
   void end_run();
   void checkpoint(bool force);
@@ -143,6 +149,8 @@ class Station final : public StationControl, private schedules::SequencerObserve
   storage::Database api_db_;  // HTTP-thread connection (api_mu_)
   std::unique_ptr<storage::SampleWriter> writer_;
   std::unique_ptr<AnalysisWorker> analysis_;
+  SystemWallClock system_wall_clock_;
+  std::unique_ptr<NightlyExporter> nightly_;  // [export] nightly
   std::unique_ptr<drivers::ModbusDevice> chamber_;
   std::unique_ptr<drivers::ModbusDevice> probes_;
   std::unique_ptr<drivers::GyroReader> gyro_;

@@ -1,0 +1,682 @@
+// The files of a calibration report (report.h): the HTML page, CSV, JSON and
+// C headers.
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <set>
+
+#include "gyrotherm/analysis/start_temperature.h"
+#include "gyrotherm/core/clock.h"
+#include "gyrotherm/daemon/report.h"
+#include "report_assets.h"
+
+namespace gyrotherm::daemon {
+
+namespace {
+
+using json = nlohmann::json;
+constexpr const char* kDash = "—";
+
+// ------------------------------------------------------------ text helpers
+
+std::string escape(std::string_view s) {
+  std::string out;
+  out.reserve(s.size());
+  for (char c : s) {
+    switch (c) {
+      case '&': out += "&amp;"; break;
+      case '<': out += "&lt;"; break;
+      case '>': out += "&gt;"; break;
+      case '"': out += "&quot;"; break;
+      case '\'': out += "&#39;"; break;
+      default: out += c;
+    }
+  }
+  return out;
+}
+
+// 17 significant digits: reads back as the same double; "" for non-finite.
+std::string exact(double v) { return std::isfinite(v) ? fmt::format("{:.17g}", v) : ""; }
+std::string exact(const std::optional<double>& v) { return v ? exact(*v) : ""; }
+
+// A CSV field: quoted when it holds a comma, quote or newline.
+std::string csv_field(std::string_view s) {
+  if (s.find_first_of(",\"\n\r") == std::string_view::npos) return std::string(s);
+  std::string out = "\"";
+  for (char c : s) {
+    if (c == '"') out += '"';
+    out += c;
+  }
+  return out + "\"";
+}
+
+// A number cell: right-aligned, "—" (class missing) when not finite.
+std::string num_cell(double v, int decimals) {
+  if (!std::isfinite(v)) return fmt::format("<td class=\"num missing\">{}</td>", kDash);
+  return fmt::format("<td class=\"num\">{:.{}f}</td>", v, decimals);
+}
+std::string num_cell(const std::optional<double>& v, int decimals) {
+  return v ? num_cell(*v, decimals) : num_cell(std::nan(""), decimals);
+}
+std::string sci_cell(double v) {
+  if (!std::isfinite(v)) return fmt::format("<td class=\"num missing\">{}</td>", kDash);
+  return fmt::format("<td class=\"num\">{:.6g}</td>", v);
+}
+
+std::string step_name(int segment_index) { return fmt::format("{}", segment_index + 1); }
+
+// ------------------------------------------------------------ JSON of the plots
+
+// Plotted values to 7 significant digits (a screen shows fewer; the CSV
+// and JSON files carry the exact ones): the page stays small.
+double plot_value(double x) {
+  if (x == 0) return 0;
+  const double scale = std::pow(10.0, 6 - static_cast<int>(std::floor(std::log10(std::fabs(x)))));
+  return std::round(x * scale) / scale;
+}
+
+json number_array(const std::vector<double>& v) {
+  json a = json::array();
+  for (double x : v) a.push_back(std::isfinite(x) ? json(plot_value(x)) : json(nullptr));
+  return a;
+}
+
+// ------------------------------------------------------------ HTML sections
+
+struct Page {
+  std::string title;
+  std::vector<std::pair<std::string, std::string>> provenance;  // term, definition (HTML)
+  std::vector<std::pair<std::string, std::string>> sections;    // id, HTML
+  std::vector<std::string> section_titles;
+  std::vector<Plot> plots;
+};
+
+std::string section(const std::string& id, const std::string& title, const std::string& body) {
+  return fmt::format("<section id=\"{}\">\n<h2>{}</h2>\n{}</section>\n", id, escape(title), body);
+}
+
+void add_section(Page& page, const std::string& id, const std::string& title,
+                 const std::string& body) {
+  page.sections.emplace_back(id, section(id, title, body));
+  page.section_titles.push_back(title);
+}
+
+std::string chart(const Plot& p, const std::string& caption) {
+  return fmt::format(
+      "<figure><div class=\"chart\" id=\"{}\"></div><figcaption>{}</figcaption></figure>\n",
+      escape(p.id), caption);
+}
+
+const Plot* find_plot(const std::vector<Plot>& plots, std::string_view id) {
+  for (const auto& p : plots) {
+    if (p.id == id) return &p;
+  }
+  return nullptr;
+}
+
+std::string table1_html(const std::vector<const storage::SegmentStatsRecord*>& rows,
+                        bool with_run) {
+  if (rows.empty()) return "<p class=\"problem\">No completed soak: no Table I row.</p>\n";
+  std::string h = "<table class=\"numbers\">\n<thead><tr>";
+  if (with_run) h += "<th>run</th>";
+  h +=
+      "<th>step</th><th>set point (°C)</th><th>mean shell temperature (°C)</th><th>points "
+      "(bins)</th><th>duration (s)</th><th>mean zero bias (°/h)</th><th>mean, Earth rate "
+      "removed (°/h)</th><th>std (°/h)</th><th>std after the moving average (°/h)</th>"
+      "</tr></thead>\n<tbody>\n";
+  for (const auto* r : rows) {
+    h += std::isfinite(r->bias_std_ma_dph) ? "<tr>" : "<tr class=\"warn\">";
+    if (with_run) h += fmt::format("<td class=\"num\">{}</td>", r->run_id);
+    h += fmt::format("<td class=\"num\">{}</td>", step_name(r->segment_index));
+    h += num_cell(r->setpoint_c, 1) + num_cell(r->temp_mean_c, 3) +
+         fmt::format("<td class=\"num\">{}</td>", r->n) + num_cell(r->duration_s, 0) +
+         num_cell(r->bias_mean_dph, 4) + num_cell(r->bias_mean_earth_removed_dph, 4) +
+         num_cell(r->bias_std_dph, 4) + num_cell(r->bias_std_ma_dph, 4) + "</tr>\n";
+  }
+  h += "</tbody></table>\n";
+  const auto* first = rows.front();
+  h += fmt::format(
+      "<p class=\"note\">Each soak's acquisition is averaged into {:g} s bins (pauses cut out); "
+      "the std after the moving average uses a {}-point window. Earth rate removed: {:.4f} °/h. "
+      "The CSV files carry every value to 17 significant digits.</p>\n",
+      first->bin_s, first->ma_window, first->earth_rate_dph);
+  return h;
+}
+
+std::string fit_html(const ReportFit& rf, const std::string& file_stem) {
+  const auto& f = rf.fit;
+  std::string h = fmt::format(
+      "<h3>{} — {} form</h3>\n<table class=\"numbers\">\n<thead><tr><th>coefficient</th>"
+      "<th>value</th><th>standard error</th><th>unit</th></tr></thead>\n<tbody>\n",
+      escape(analysis::to_string(f.spec)), escape(analysis::to_string(f.form)));
+  for (const auto& name : analysis::coefficient_names(f.spec, f.form)) {
+    const auto c = f.coefficients.find(name);
+    const auto e = f.std_errors.find(name);
+    h += fmt::format("<tr><td>{}</td>{}{}<td>{}</td></tr>\n", escape(name),
+                     sci_cell(c == f.coefficients.end() ? std::nan("") : c->second),
+                     sci_cell(e == f.std_errors.end() ? std::nan("") : e->second),
+                     escape(analysis::coefficient_unit(name)));
+  }
+  h += "</tbody></table>\n";
+  std::string l0;
+  if (f.form == analysis::DriftModelForm::kPaper && !f.l0_per_series_dph.empty()) {
+    std::vector<std::string> parts;
+    for (double v : f.l0_per_series_dph) parts.push_back(fmt::format("{:.4f}", v));
+    l0 = fmt::format(" L0 (mean of the first {:g} s) = {} °/h.", rf.l0_window_s,
+                     fmt::join(parts, ", "));
+  }
+  h += fmt::format(
+      "<p class=\"note\">{} points; residual std {:.4f} °/h; R² {:.4f}; condition estimate "
+      "{:.3g}; derivative window {:g} s.{} {}. Coefficients for the gyro's computer: <a "
+      "href=\"{}.json\">{}.json</a>, <a href=\"{}.h\">{}.h</a> (C99).</p>\n",
+      f.n, f.residual_std_dph, f.r_squared, f.condition_estimate, f.derivative_window_s, l0,
+      rf.stored_id > 0 ? fmt::format("Stored by the daemon as fit {}", rf.stored_id)
+                       : std::string("Computed for this report"),
+      file_stem, file_stem, file_stem, file_stem);
+  return h;
+}
+
+std::string comparison_html(const analysis::Comparison& c) {
+  const bool loro = std::any_of(c.cells.begin(), c.cells.end(),
+                                [](const auto& cell) { return cell.cross_validated.has_value(); });
+  std::string h =
+      "<table class=\"numbers\">\n<thead><tr><th>order of T</th>"
+      "<th>{T} (Table II)</th><th>{T, dT} (Table III)</th><th>{T, dT, dT/dt} (Table IV)</th>"
+      "</tr></thead>\n<tbody>\n";
+  h += fmt::format("<tr><td>none</td><td class=\"num\" colspan=\"3\">{:.4f}</td></tr>\n",
+                   c.none.std_dph);
+  int max_order = 0;
+  for (const auto& cell : c.cells) max_order = std::max(max_order, cell.order);
+  for (int order = 1; order <= max_order; ++order) {
+    h += fmt::format("<tr><td class=\"num\">{}</td>", order);
+    for (auto terms : {analysis::TermSet::kT, analysis::TermSet::kTG, analysis::TermSet::kTGR}) {
+      const analysis::ComparisonCell* found = nullptr;
+      for (const auto& cell : c.cells) {
+        if (cell.order == order && cell.terms == terms) found = &cell;
+      }
+      if (found == nullptr || !found->in_sample) {
+        const std::string why = found == nullptr ? "not computed" : found->in_sample_error;
+        h += fmt::format("<td class=\"num missing\" title=\"{}\">{}</td>", escape(why), kDash);
+        continue;
+      }
+      std::string text = fmt::format("{:.4f}", found->in_sample->std_dph);
+      if (loro) {
+        text += found->cross_validated
+                    ? fmt::format(" / {:.4f}", found->cross_validated->std_dph)
+                    : fmt::format(" / {}", kDash);
+      }
+      h += fmt::format("<td class=\"num\">{}</td>", text);
+    }
+    h += "</tr>\n";
+  }
+  h += "</tbody></table>\n";
+  h += fmt::format(
+      "<p class=\"note\">Standard deviation (°/h) of the output after compensation with each "
+      "model ({} form, dT and dT/dt of order {} and {}), fitted on {} run{}{}. A dash: the fit "
+      "was not possible (hover for the reason).</p>\n",
+      analysis::to_string(c.options.form), c.options.g_order, c.options.r_order, c.runs,
+      c.runs == 1 ? "" : "s",
+      loro ? "; in-sample / leave-one-run-out (each run compensated by the fit of the others)"
+           : "");
+  return h;
+}
+
+std::string allan_html(const std::vector<const storage::AllanRecord*>& records, bool with_run) {
+  if (records.empty()) return "<p class=\"problem\">No Allan deviation.</p>\n";
+  std::string h = "<table class=\"numbers\">\n<thead><tr>";
+  if (with_run) h += "<th>run</th>";
+  h +=
+      "<th>step</th><th>samples</th><th>τ0 (s)</th><th>angle random walk (°/√h)</th>"
+      "<th>bias instability (°/h)</th><th>at τ (s)</th><th>rate random walk (°/h/√h)</th>"
+      "</tr></thead>\n<tbody>\n";
+  for (const auto* a : records) {
+    h += "<tr>";
+    if (with_run) h += fmt::format("<td class=\"num\">{}</td>", a->run_id);
+    h += fmt::format("<td class=\"num\">{}</td><td class=\"num\">{}</td>",
+                     step_name(a->segment_index), a->n_samples) +
+         num_cell(a->tau0_s, 4) + num_cell(a->angle_random_walk_dprh, 5) +
+         num_cell(a->bias_instability_dph, 5) + num_cell(a->bias_instability_tau_s, 0) +
+         num_cell(a->rate_random_walk_dphprh, 5) + "</tr>\n";
+  }
+  h += "</tbody></table>\n";
+  h += fmt::format(
+      "<p class=\"note\">Overlapping Allan deviation of each soak's longest acquisition window, "
+      "samples as recorded, {} τ; the band is the 1σ confidence interval (χ²). Bias "
+      "instability: {}.</p>\n",
+      records.front()->taus, records.front()->bias_instability_method);
+  return h;
+}
+
+std::string problems_html(const std::vector<std::string>& problems) {
+  std::string h;
+  for (const auto& p : problems) h += fmt::format("<p class=\"problem\">{}</p>\n", escape(p));
+  return h;
+}
+
+std::string files_html(const std::vector<std::pair<std::string, std::string>>& files) {
+  std::string h = "<ul class=\"files\">\n";
+  for (const auto& [path, what] : files) {
+    h += fmt::format("<li><a href=\"{}\">{}</a> — {}</li>\n", escape(path), escape(path),
+                     escape(what));
+  }
+  return h + "</ul>\n";
+}
+
+std::string render_page(const Page& page, const std::string& generated_utc) {
+  std::string h;
+  h.reserve(256 * 1024);
+  h +=
+      "<!doctype html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
+      "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
+      "<meta http-equiv=\"Content-Security-Policy\" content=\"default-src 'none'; script-src "
+      "'unsafe-inline'; style-src 'unsafe-inline'; img-src data:\">\n";
+  h += fmt::format("<title>{}</title>\n", escape(page.title));
+  h += "<style>\n";
+  h += report_assets::uplot_css();
+  h += "\n</style>\n<style>\n";
+  h += report_assets::report_css();
+  h += "\n</style>\n</head>\n<body>\n<header class=\"report-header\">\n";
+  h += fmt::format("<h1>{}</h1>\n<dl class=\"provenance\">\n", escape(page.title));
+  for (const auto& [term, definition] : page.provenance) {
+    h += fmt::format("<dt>{}</dt><dd>{}</dd>\n", escape(term), definition);
+  }
+  h += "</dl>\n</header>\n<nav class=\"toc\">";
+  for (std::size_t i = 0; i < page.sections.size(); ++i) {
+    h += fmt::format("<a href=\"#{}\">{}</a>", page.sections[i].first,
+                     escape(page.section_titles[i]));
+  }
+  h += "</nav>\n<main>\n";
+  for (const auto& [id, body] : page.sections) h += body;
+  h += fmt::format(
+      "</main>\n<footer>Generated by gyrotherm on {}. Plots drawn with uPlot; this file needs "
+      "no network.</footer>\n",
+      escape(generated_utc));
+  // "</" must not appear inside the script element.
+  std::string data = plots_json(page.plots);
+  for (std::size_t at = data.find("</"); at != std::string::npos; at = data.find("</", at + 3)) {
+    data.replace(at, 2, "<\\/");
+  }
+  h += "<script type=\"application/json\" id=\"report-data\">" + data + "</script>\n<script>\n";
+  h += report_assets::uplot_js();
+  h += "\n</script>\n<script>\n";
+  h += report_assets::report_js();
+  h += "\n</script>\n</body>\n</html>\n";
+  return h;
+}
+
+std::string generated(const ReportOptions& o) {
+  return o.generated_utc.empty() ? wall_time_utc_iso() : o.generated_utc;
+}
+
+analysis::ExportInfo export_info(const std::string& station, const ReportFit& f,
+                                 const std::string& computed_utc) {
+  analysis::ExportInfo info;
+  info.station = station;
+  info.run_ids = f.run_ids;
+  info.computed_utc = computed_utc;
+  info.l0_window_s = f.l0_window_s;
+  return info;
+}
+
+std::string figures_html(const std::vector<Plot>& plots, bool campaign) {
+  std::string h;
+  if (const auto* p = find_plot(plots, "chart-bias-temperature")) {
+    h += "<h3>Bias vs temperature (Fig. 2)</h3>\n" +
+         chart(*p, campaign ? "Bin means of every run, each run's Table I means, and the "
+                              "temperature-only polynomials of orders 1–4 fitted on all runs "
+                              "(paper form; curves drawn at the mean L0)."
+                            : "Bin means of the whole run (soaks and ramps), the Table I means, "
+                              "and the temperature-only polynomials of orders 1–4 fitted on the "
+                              "run (paper form: L0 + Σ Aᵢ Tⁱ).");
+  }
+  if (const auto* p = find_plot(plots, "chart-output-t")) {
+    h += "<h3>Output compensated with temperature terms (Fig. 4)</h3>\n" +
+         chart(*p,
+               "Raw output and the output compensated by the order-2 and order-4 polynomials in "
+               "T, with the mean shell temperature (right axis).");
+  }
+  if (const auto* p = find_plot(plots, "chart-bias-gradient")) {
+    h += "<h3>Bias vs temperature gradient (Fig. 5)</h3>\n" +
+         chart(*p,
+               "Output against the shell gradient (top − side), raw and after the temperature "
+               "compensation: what is left for the gradient term.");
+  }
+  if (const auto* p = find_plot(plots, "chart-output-tgr")) {
+    h += "<h3>Output compensated with temperature, gradient and rate terms (Fig. 6)</h3>\n" +
+         chart(*p, "Raw output and the output compensated by T² and T⁴ models with dT and dT/dt.");
+  }
+  return h;
+}
+
+}  // namespace
+
+// ------------------------------------------------------------ public pieces
+
+std::string table1_csv(const std::vector<storage::SegmentStatsRecord>& rows) {
+  std::string out =
+      "run_id,step,segment_index,setpoint_c,temp_mean_c,n,duration_s,bias_mean_dph,"
+      "bias_mean_earth_removed_dph,bias_std_dph,bias_std_ma_dph,earth_rate_dph,bin_s,ma_window,"
+      "t_from_s,t_to_s,computed_utc\n";
+  for (const auto& r : rows) {
+    out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", r.run_id,
+                       r.segment_index + 1, r.segment_index, exact(r.setpoint_c),
+                       exact(r.temp_mean_c), r.n, exact(r.duration_s), exact(r.bias_mean_dph),
+                       exact(r.bias_mean_earth_removed_dph), exact(r.bias_std_dph),
+                       exact(r.bias_std_ma_dph), exact(r.earth_rate_dph), exact(r.bin_s),
+                       r.ma_window, exact(r.t_from_s), exact(r.t_to_s),
+                       csv_field(r.computed_utc));
+  }
+  return out;
+}
+
+std::string allan_csv(const std::vector<storage::AllanRecord>& records) {
+  std::string out =
+      "run_id,step,segment_index,taus,tau0_s,n_samples,angle_random_walk_dprh,"
+      "bias_instability_dph,bias_instability_tau_s,rate_random_walk_dphprh,t_from_s,t_to_s\n";
+  for (const auto& a : records) {
+    out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{}\n", a.run_id, a.segment_index + 1,
+                       a.segment_index, csv_field(a.taus), exact(a.tau0_s), a.n_samples,
+                       exact(a.angle_random_walk_dprh), exact(a.bias_instability_dph),
+                       exact(a.bias_instability_tau_s), exact(a.rate_random_walk_dphprh),
+                       exact(a.t_from_s), exact(a.t_to_s));
+  }
+  return out;
+}
+
+namespace {
+
+std::string allan_curves_csv(const std::vector<const storage::AllanRecord*>& records) {
+  std::string out = "run_id,step,tau_s,adev_dph,adev_lo_dph,adev_hi_dph\n";
+  for (const auto* a : records) {
+    for (std::size_t i = 0; i < a->tau_s.size(); ++i) {
+      out += fmt::format("{},{},{},{},{},{}\n", a->run_id, a->segment_index + 1,
+                         exact(a->tau_s[i]), exact(a->adev_dph[i]), exact(a->adev_lo_dph[i]),
+                         exact(a->adev_hi_dph[i]));
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+std::string comparison_csv(const analysis::Comparison& c) {
+  std::string out =
+      "terms,order,model,in_sample_n,in_sample_mean_dph,in_sample_std_dph,"
+      "cross_validated_n,cross_validated_mean_dph,cross_validated_std_dph,problem\n";
+  out += fmt::format("none,0,,{},{},{},,,,\n", c.none.n, exact(c.none.mean_dph),
+                     exact(c.none.std_dph));
+  for (const auto& cell : c.cells) {
+    std::string problem = cell.in_sample_error;
+    if (!cell.cross_validated_error.empty()) {
+      problem += (problem.empty() ? "" : "; ") + cell.cross_validated_error;
+    }
+    const auto stats = [](const std::optional<analysis::CompensatedStats>& s) {
+      return s ? fmt::format("{},{},{}", s->n, exact(s->mean_dph), exact(s->std_dph))
+               : std::string(",,");
+    };
+    out += fmt::format("{},{},{},{},{},{}\n", csv_field(analysis::to_string(cell.terms)),
+                       cell.order, csv_field(analysis::to_string(cell.spec)),
+                       stats(cell.in_sample), stats(cell.cross_validated), csv_field(problem));
+  }
+  return out;
+}
+
+std::string plots_json(const std::vector<Plot>& plots) {
+  json charts = json::array();
+  for (const auto& p : plots) {
+    json c = {{"id", p.id},
+              {"title", p.title},
+              {"height_px", p.height_px},
+              {"x", {{"label", p.x.label}, {"log", p.x.log}}},
+              {"y", {{"label", p.y.label}, {"log", p.y.log}}}};
+    if (p.y2) c["y2"] = {{"label", p.y2->label}, {"log", p.y2->log}};
+    json series = json::array();
+    for (const auto& s : p.series) {
+      json j = {{"label", s.label},
+                {"x", number_array(s.x)},
+                {"y", number_array(s.y)},
+                {"style", s.style}};
+      if (s.axis != "y") j["axis"] = s.axis;
+      if (s.dash) j["dash"] = true;
+      if (!s.band_lo.empty()) {
+        j["band"] = {
+            {"lo", number_array(s.band_lo)}, {"hi", number_array(s.band_hi)}, {"label", s.band_label}};
+      }
+      series.push_back(std::move(j));
+    }
+    c["series"] = std::move(series);
+    charts.push_back(std::move(c));
+  }
+  return json{{"schema", 1}, {"charts", std::move(charts)}}.dump(-1, ' ', false,
+                                                                   json::error_handler_t::replace);
+}
+
+std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions& options) {
+  const std::string dir = fmt::format("run-{:04}/", r.run.id);
+  const std::string when = generated(options);
+  std::vector<ReportFile> files;
+  std::vector<std::pair<std::string, std::string>> listed;
+  Page page;
+  page.title = fmt::format("Calibration report — run {} ({})", r.run.id, r.run.schedule_name);
+  const AnalysisSettings& s = r.settings;
+  page.provenance = {
+      {"Station", escape(r.station_name.empty() ? kDash : r.station_name)},
+      {"Run", fmt::format("{} — schedule “{}”, {}", r.run.id, escape(r.run.schedule_name),
+                          escape(r.run.state))},
+      {"Started / ended (UTC)",
+       fmt::format("{} / {}", escape(r.run.started_utc),
+                   escape(r.run.ended_utc.empty() ? kDash : r.run.ended_utc))},
+      {"Mounting", fmt::format("latitude {:g}°, axis {}; Earth rate removed {:.4f} °/h",
+                               r.run.latitude_deg, escape(r.run.orientation),
+                               s.table1.earth_rate_dph)},
+      {"Analysis",
+       fmt::format("{:g} s bins, {}-point moving average, model {}, derivative window {:g} s, L0 "
+                   "window {:g} s, Allan τ {}",
+                   s.table1.bin_s, s.table1.ma_window, escape(analysis::to_string(s.model)),
+                   s.fit.derivative_window_s, s.fit.l0_window_s,
+                   analysis::to_string(s.allan_taus))},
+      {"Source",
+       fmt::format("Table I {}; Allan deviation {}",
+                   r.table1_stored ? "as stored by the daemon" : "computed for this report",
+                   r.allan_stored ? "as stored by the daemon" : "computed for this report")},
+      {"Generated", escape(when) + (options.export_label.empty()
+                                        ? std::string()
+                                        : " — " + escape(options.export_label))},
+  };
+  if (!options.database_path.empty()) {
+    page.provenance.emplace_back("Database", escape(options.database_path));
+  }
+
+  std::vector<const storage::SegmentStatsRecord*> rows;
+  for (const auto& row : r.table1) rows.push_back(&row);
+  add_section(page, "table1", "Table I — zero bias at each set point", table1_html(rows, false));
+  files.push_back({dir + "table1.csv", table1_csv(r.table1)});
+  listed.emplace_back("table1.csv", "Table I rows");
+
+  std::string fits;
+  for (const auto& rf : r.fits) {
+    const std::string stem = fmt::format("drift-fit-{}", analysis::to_string(rf.fit.form));
+    fits += fit_html(rf, stem);
+    const auto info = export_info(r.station_name, rf, when);
+    files.push_back({dir + stem + ".json", analysis::drift_fit_json(rf.fit, info)});
+    files.push_back({dir + stem + ".h", analysis::drift_fit_c_header(rf.fit, info)});
+    listed.emplace_back(stem + ".json", "coefficients (JSON)");
+    listed.emplace_back(stem + ".h", "coefficients (C99 header)");
+  }
+  if (fits.empty()) fits = "<p class=\"problem\">No fit of the drift model.</p>\n";
+  add_section(page, "fit", "Drift model (eq. 1)", fits);
+
+  if (r.comparison) {
+    add_section(page, "comparison", "Tables II–IV — compensation by model and order",
+                comparison_html(*r.comparison));
+    files.push_back({dir + "comparison.csv", comparison_csv(*r.comparison)});
+    listed.emplace_back("comparison.csv", "Tables II–IV grid");
+  } else {
+    add_section(page, "comparison", "Tables II–IV — compensation by model and order",
+                fmt::format("<p class=\"problem\">Not computed: {}</p>\n",
+                            escape(r.comparison_error)));
+  }
+
+  add_section(page, "figures", "Figures", figures_html(r.plots, false));
+
+  std::vector<const storage::AllanRecord*> allan;
+  for (const auto& a : r.allan) allan.push_back(&a);
+  std::string allan_body = allan_html(allan, false);
+  if (const auto* p = find_plot(r.plots, "chart-allan")) {
+    allan_body += chart(*p, "Allan deviation of each soak, log-log, with its 1σ bounds.");
+  }
+  add_section(page, "allan", "Allan deviation", allan_body);
+  files.push_back({dir + "allan.csv", allan_csv(r.allan)});
+  files.push_back({dir + "allan-curves.csv", allan_curves_csv(allan)});
+  listed.emplace_back("allan.csv", "Allan noise terms per soak");
+  listed.emplace_back("allan-curves.csv", "Allan deviation curves with bounds");
+
+  if (!r.problems.empty()) add_section(page, "problems", "Problems", problems_html(r.problems));
+  add_section(page, "files", "Files", files_html(listed));
+  page.plots = r.plots;
+  files.push_back({dir + "report.html", render_page(page, when)});
+  return files;
+}
+
+std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
+                                              const ReportOptions& options) {
+  const std::string when = generated(options);
+  std::vector<ReportFile> files;
+  std::vector<std::pair<std::string, std::string>> listed;
+  Page page;
+  page.title = fmt::format("Calibration summary — {} run{}", c.runs.size(),
+                           c.runs.size() == 1 ? "" : "s");
+  page.provenance = {
+      {"Station", escape(c.station_name.empty() ? kDash : c.station_name)},
+      {"Export", escape(options.export_label.empty() ? "on demand" : options.export_label)},
+      {"Generated", escape(when)},
+  };
+  if (!options.database_path.empty()) {
+    page.provenance.emplace_back("Database", escape(options.database_path));
+  }
+
+  std::string runs =
+      "<table class=\"numbers\">\n<thead><tr><th>run</th><th>schedule</th><th>started "
+      "(UTC)</th><th>ended (UTC)</th><th>start temperature (°C)</th><th>soaks</th>"
+      "<th>report</th></tr></thead>\n<tbody>\n";
+  for (std::size_t i = 0; i < c.runs.size(); ++i) {
+    const auto& r = c.runs[i];
+    std::optional<double> t0;
+    if (r.series) {
+      if (auto t = analysis::start_temperature_c(*r.series)) t0 = *t;
+    }
+    runs += fmt::format(
+        "<tr{}><td class=\"num\">{}</td><td>{}</td><td>{}</td><td>{}</td>{}<td "
+        "class=\"num\">{}</td><td><a href=\"run-{:04}/report.html\">run-{:04}/report.html</a>"
+        "</td></tr>\n",
+        r.problems.empty() ? "" : " class=\"warn\"", r.run.id, escape(r.run.schedule_name),
+        escape(r.run.started_utc), escape(r.run.ended_utc), num_cell(t0, 2), r.table1.size(),
+        r.run.id, r.run.id);
+  }
+  runs += "</tbody></table>\n";
+  add_section(page, "runs", "Runs", runs);
+
+  std::vector<const storage::SegmentStatsRecord*> rows;
+  std::vector<storage::SegmentStatsRecord> all_rows;
+  std::vector<const storage::AllanRecord*> allan;
+  std::vector<storage::AllanRecord> all_allan;
+  for (const auto& r : c.runs) {
+    for (const auto& row : r.table1) {
+      rows.push_back(&row);
+      all_rows.push_back(row);
+    }
+    for (const auto& a : r.allan) {
+      allan.push_back(&a);
+      all_allan.push_back(a);
+    }
+  }
+  add_section(page, "table1", "Table I — every run", table1_html(rows, true));
+  files.push_back({"table1.csv", table1_csv(all_rows)});
+  listed.emplace_back("table1.csv", "Table I rows of every run");
+
+  if (c.comparison) {
+    add_section(page, "comparison", "Tables II–IV — all runs", comparison_html(*c.comparison));
+    files.push_back({"comparison.csv", comparison_csv(*c.comparison)});
+    listed.emplace_back("comparison.csv", "Tables II–IV grid, in-sample and leave-one-run-out");
+  } else {
+    add_section(page, "comparison", "Tables II–IV — all runs",
+                fmt::format("<p class=\"problem\">Not computed: {}</p>\n",
+                            escape(c.comparison_error)));
+  }
+
+  if (c.joint_fit) {
+    const auto info = export_info(c.station_name, *c.joint_fit, when);
+    add_section(page, "fit", "Drift model fitted on all runs", fit_html(*c.joint_fit, "drift-fit"));
+    files.push_back({"drift-fit.json", analysis::drift_fit_json(c.joint_fit->fit, info)});
+    files.push_back({"drift-fit.h", analysis::drift_fit_c_header(c.joint_fit->fit, info)});
+    listed.emplace_back("drift-fit.json", "joint fit coefficients (JSON)");
+    listed.emplace_back("drift-fit.h", "joint fit coefficients (C99 header)");
+  } else {
+    add_section(page, "fit", "Drift model fitted on all runs",
+                fmt::format("<p class=\"note\">No joint fit: {}.</p>\n",
+                            escape(c.joint_fit_error)));
+  }
+
+  if (c.start_model) {
+    const auto& m = *c.start_model;
+    std::string h = fmt::format(
+        "<p class=\"note\">Each coefficient of {} ({} form) as a cubic in the start "
+        "temperature T0 (eq. 3), from {} runs with T0 = ",
+        escape(analysis::to_string(m.spec)), analysis::to_string(m.form), m.t0_c.size());
+    std::vector<std::string> t0s;
+    for (double t : m.t0_c) t0s.push_back(fmt::format("{:.2f}", t));
+    h += fmt::format("{} °C.</p>\n", fmt::join(t0s, ", "));
+    h +=
+        "<table class=\"numbers\">\n<thead><tr><th>coefficient</th><th>A0</th><th>A1 (per "
+        "°C)</th><th>A2 (per °C²)</th><th>A3 (per °C³)</th><th>residual std</th></tr></thead>\n"
+        "<tbody>\n";
+    for (const auto& name : analysis::coefficient_names(m.spec, m.form)) {
+      const auto it = m.cubic.find(name);
+      if (it == m.cubic.end()) continue;
+      h += fmt::format("<tr><td>{}</td>", escape(name));
+      for (double a : it->second) h += sci_cell(a);
+      const auto rs = m.cubic_residual_std.find(name);
+      h += sci_cell(rs == m.cubic_residual_std.end() ? std::nan("") : rs->second) + "</tr>\n";
+    }
+    h += "</tbody></table>\n<p class=\"note\"><a href=\"start-model.json\">start-model.json</a>, "
+         "<a href=\"start-model.h\">start-model.h</a> (C99).</p>\n";
+    add_section(page, "start-model", "Start-temperature model (eq. 3)", h);
+    analysis::ExportInfo info;
+    info.station = c.station_name;
+    for (const auto& r : c.runs) info.run_ids.push_back(r.run.id);
+    info.computed_utc = when;
+    info.l0_window_s = m.l0_window_s;
+    files.push_back({"start-model.json", analysis::start_model_json(m, info)});
+    files.push_back({"start-model.h", analysis::start_model_c_header(m, info)});
+    listed.emplace_back("start-model.json", "start-temperature model (JSON)");
+    listed.emplace_back("start-model.h", "start-temperature model (C99 header)");
+  } else {
+    add_section(page, "start-model", "Start-temperature model (eq. 3)",
+                fmt::format("<p class=\"note\">Not fitted: {}.</p>\n",
+                            escape(c.start_model_note)));
+  }
+
+  add_section(page, "figures", "Figures", figures_html(c.plots, true));
+  std::string allan_body = allan_html(allan, true);
+  if (const auto* p = find_plot(c.plots, "chart-allan")) {
+    allan_body += chart(*p, "Allan deviation of every soak, log-log, with 1σ bounds.");
+  }
+  add_section(page, "allan", "Allan deviation", allan_body);
+  files.push_back({"allan.csv", allan_csv(all_allan)});
+  listed.emplace_back("allan.csv", "Allan noise terms of every soak");
+
+  if (!c.problems.empty()) add_section(page, "problems", "Problems", problems_html(c.problems));
+  for (const auto& r : c.runs) {
+    listed.emplace_back(fmt::format("run-{:04}/report.html", r.run.id),
+                        fmt::format("report of run {}", r.run.id));
+  }
+  add_section(page, "files", "Files", files_html(listed));
+  page.plots = c.plots;
+  files.push_back({"index.html", render_page(page, when)});
+  return files;
+}
+
+}  // namespace gyrotherm::daemon
