@@ -54,12 +54,13 @@ Status write_files(const fs::path& target, const std::vector<ReportFile>& files)
   }
   if (fs::exists(target, ec)) {
     if (!fs::is_directory(target, ec) || !fs::is_empty(target, ec)) {
-      return Error::Permanent(fmt::format(
-          "{} exists and is not an empty directory; choose another output directory",
-          target.string()));
+      return Error::Permanent(
+          fmt::format("{} exists and is not an empty directory; choose another output directory",
+                      target.string()));
     }
   }
-  std::string tmpl = (parent / fmt::format(".{}.partial-XXXXXX", target.filename().string())).string();
+  std::string tmpl =
+      (parent / fmt::format(".{}.partial-XXXXXX", target.filename().string())).string();
   if (::mkdtemp(tmpl.data()) == nullptr) {
     return Error::Permanent(fmt::format("cannot create a temporary directory in {}: {}",
                                         parent.string(), std::strerror(errno)));
@@ -171,9 +172,9 @@ Result<ExportOutcome> complete_export(storage::Database& db, int64_t id,
       out.problems.empty()
           ? fmt::format("{} run{}, {} files", request.run_ids.size(),
                         request.run_ids.size() == 1 ? "" : "s", out.files.size())
-          : fmt::format("{} run{}, {} files; {} problem{} (see the report)",
-                        request.run_ids.size(), request.run_ids.size() == 1 ? "" : "s",
-                        out.files.size(), out.problems.size(), out.problems.size() == 1 ? "" : "s");
+          : fmt::format("{} run{}, {} files; {} problem{} (see the report)", request.run_ids.size(),
+                        request.run_ids.size() == 1 ? "" : "s", out.files.size(),
+                        out.problems.size(), out.problems.size() == 1 ? "" : "s");
   if (Status st = db.finish_export(id, "done", out.files, message); !st) return st.error();
   return out;
 }
@@ -181,6 +182,14 @@ Result<ExportOutcome> complete_export(storage::Database& db, int64_t id,
 }  // namespace
 
 Result<ExportOutcome> write_export(storage::Database& db, const ExportRequest& request) {
+  // A directory in the way is refused before anything is recorded.
+  std::error_code ec;
+  if (!request.run_ids.empty() && fs::exists(request.directory, ec) &&
+      (!fs::is_directory(request.directory, ec) || !fs::is_empty(request.directory, ec))) {
+    return Error::Permanent(
+        fmt::format("{} exists and is not an empty directory; choose another output directory",
+                    request.directory));
+  }
   storage::ExportRecord rec;
   rec.kind = request.kind;
   rec.slot_unix_s = request.slot_unix_s;
@@ -226,10 +235,15 @@ Status NightlyExporter::finish_interrupted(storage::Database& db) {
     std::error_code ec;
     if (fs::is_directory(e.directory, ec)) {
       // Renamed into place before the crash: only the record was missing.
-      const auto files = list_files(e.directory);
-      if (Status st = db.finish_export(e.id, "done", files, "finished after a restart"); !st) {
+      ExportOutcome outcome;
+      outcome.export_id = e.id;
+      outcome.directory = e.directory;
+      outcome.files = list_files(e.directory);
+      if (Status st = db.finish_export(e.id, "done", outcome.files, "finished after a restart");
+          !st) {
         return st;
       }
+      if (done_) done_(db, Result<ExportOutcome>(std::move(outcome)));
       continue;
     }
     // Not written: write it now, same record, same runs, same directory
