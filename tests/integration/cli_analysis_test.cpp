@@ -632,6 +632,124 @@ TEST_F(CliAnalysisTest, StartModelMatchesTheLibraryAndExports) {
   EXPECT_THAT(header, HasSubstr("gyrotherm_start"));
 }
 
+// A CSV of the export as rows of fields (no quoted fields in these files).
+std::vector<std::vector<std::string>> read_csv_rows(const fs::path& p) {
+  std::vector<std::vector<std::string>> rows;
+  std::istringstream in(slurp(p));
+  std::string line;
+  while (std::getline(in, line)) {
+    std::vector<std::string> fields;
+    std::string field;
+    std::istringstream ls(line);
+    while (std::getline(ls, field, ',')) fields.push_back(field);
+    if (!line.empty() && line.back() == ',') fields.emplace_back();
+    rows.push_back(std::move(fields));
+  }
+  return rows;
+}
+
+// The campaign export of four runs from four start temperatures: the
+// numbers in its files are the library's on the same data, exactly (17
+// significant digits read back), including the runs' Table I and fits that
+// nothing stored (the report computes them) and the eq. 3 model.
+TEST_F(CliAnalysisTest, ExportOfFourRunsCarriesTheLibrarysNumbers) {
+  const fs::path out = dir_ / "export-4";
+  const Run r = cli({"export", "--db", db_path_, "--out", out.string(), "--runs",
+                     fmt::format("{}-{}", run_ids_.front(), run_ids_.back()), "--json"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  const json j = r.parsed();
+  EXPECT_EQ(j.at("runs").size(), static_cast<std::size_t>(kRuns));
+  EXPECT_TRUE(fs::exists(out / "index.html"));
+
+  std::vector<analysis::AnalysisSeries> series;
+  for (const auto& d : data_) series.push_back(run_series(d));
+  const analysis::DriftModelSpec spec{.t_order = 4, .r_order = 1, .g_order = 1};  // the default
+
+  // Tables II-IV with leave-one-run-out.
+  auto cmp = analysis::compare_models(series);
+  ASSERT_TRUE(cmp) << cmp.error().message;
+  const auto grid = read_csv_rows(out / "comparison.csv");
+  ASSERT_EQ(grid.size(), 2 + cmp->cells.size());  // header, "none", the cells
+  EXPECT_EQ(std::stod(grid[1].at(5)), cmp->none.std_dph);
+  for (std::size_t i = 0; i < cmp->cells.size(); ++i) {
+    const auto& row = grid[2 + i];
+    const auto& cell = cmp->cells[i];
+    EXPECT_EQ(row.at(0), analysis::to_string(cell.terms));
+    EXPECT_EQ(std::stoi(row.at(1)), cell.order);
+    ASSERT_TRUE(cell.in_sample && cell.cross_validated);
+    EXPECT_EQ(std::stod(row.at(5)), cell.in_sample->std_dph) << i;
+    EXPECT_EQ(std::stod(row.at(8)), cell.cross_validated->std_dph) << i;
+  }
+
+  // The joint fit and the start-temperature model.
+  auto joint = analysis::fit_drift_model(series, spec, analysis::DriftModelForm::kPaper);
+  ASSERT_TRUE(joint) << joint.error().message;
+  const json drift = json::parse(slurp(out / "drift-fit.json"));
+  for (const auto& [name, v] : joint->coefficients) {
+    EXPECT_EQ(drift.at("coefficients").at(name).get<double>(), v) << name;
+  }
+  analysis::StartTemperatureOptions o;
+  o.spec = spec;
+  auto model = analysis::fit_start_temperature_model(series, o);
+  ASSERT_TRUE(model) << model.error().message;
+  const json start = json::parse(slurp(out / "start-model.json"));
+  for (const auto& [name, a] : model->cubic) {
+    for (int i = 0; i < 4; ++i) EXPECT_EQ(start.at("cubic").at(name)[i].get<double>(), a[i]);
+  }
+  EXPECT_THAT(slurp(out / "start-model.h"), HasSubstr("gyrotherm_start_coefficients"));
+
+  // Each run: Table I and the fit in both forms, computed for the report.
+  const auto all_rows = read_csv_rows(out / "table1.csv");
+  std::size_t campaign_row = 1;
+  for (int k = 0; k < kRuns; ++k) {
+    const fs::path run_dir = out / fmt::format("run-{:04}", run_ids_[k]);
+    const std::string html = slurp(run_dir / "report.html");
+    EXPECT_THAT(html, HasSubstr("computed for this report"));
+    const auto rows = read_csv_rows(run_dir / "table1.csv");
+    ASSERT_EQ(rows.size(), 3u) << "header and two soaks";
+    const std::vector<std::pair<double, double>>* windows[] = {&kSoak1Windows, &kSoak2Windows};
+    for (int soak = 0; soak < 2; ++soak) {
+      analysis::Table1Options t1;
+      t1.ma_window = kStoredMaWindow;
+      t1.earth_rate_dph = earth_rate();
+      auto expected = analysis::table1_row(soak_series(data_[k], *windows[soak]), t1);
+      ASSERT_TRUE(expected) << expected.error().message;
+      const auto& row = rows[1 + soak];
+      EXPECT_EQ(std::stoll(row.at(0)), run_ids_[k]);
+      EXPECT_EQ(std::stoll(row.at(5)), static_cast<long long>(expected->n));
+      EXPECT_EQ(std::stod(row.at(7)), expected->bias_mean_dph);
+      EXPECT_EQ(std::stod(row.at(8)), expected->bias_mean_earth_removed_dph);
+      EXPECT_EQ(std::stod(row.at(9)), expected->bias_std_dph);
+      EXPECT_EQ(std::stod(row.at(10)), expected->bias_std_ma_dph);
+      EXPECT_EQ(all_rows.at(campaign_row++), row) << "the summary repeats each run's rows";
+    }
+    for (auto form : {analysis::DriftModelForm::kPaper, analysis::DriftModelForm::kCentered}) {
+      auto fit = analysis::fit_drift_model(series[k], spec, form);
+      ASSERT_TRUE(fit) << fit.error().message;
+      const json exported =
+          json::parse(slurp(run_dir / fmt::format("drift-fit-{}.json", analysis::to_string(form))));
+      for (const auto& [name, v] : fit->coefficients) {
+        EXPECT_EQ(exported.at("coefficients").at(name).get<double>(), v) << name;
+        EXPECT_EQ(exported.at("std_errors").at(name).get<double>(), fit->std_errors.at(name));
+      }
+    }
+  }
+
+  // Recorded as a manual export, which leaves the runs to the nightly one.
+  auto db = storage::Database::open(db_path_);
+  ASSERT_TRUE(db) << db.error().message;
+  auto exports = db->exports();
+  ASSERT_TRUE(exports) << exports.error().message;
+  ASSERT_FALSE(exports->empty());
+  EXPECT_EQ(exports->front().kind, "manual");
+  EXPECT_EQ(exports->front().state, "done");
+  EXPECT_EQ(exports->front().run_ids, run_ids_);
+  EXPECT_EQ(exports->front().files.size(), j.at("files").size());
+  auto pending = db->runs_not_exported();
+  ASSERT_TRUE(pending);
+  EXPECT_EQ(*pending, run_ids_);
+}
+
 TEST_F(CliAnalysisTest, StartModelNeedsFourStartTemperatures) {
   const Run r = cli(
       {"start-model", "--csv", run_csv_file(0), run_csv_file(1), run_csv_file(2), "--model", "T1"});
