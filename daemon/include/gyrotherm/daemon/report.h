@@ -126,7 +126,8 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& report,
 std::string table1_csv(const std::vector<storage::SegmentStatsRecord>& rows);
 std::string allan_csv(const std::vector<storage::AllanRecord>& records);
 std::string comparison_csv(const analysis::Comparison& comparison);
-// The report-data JSON that report.js reads.
+// The report-data JSON that report.js reads; "</" is written "<\/" so the
+// text can sit inside a <script> element.
 std::string plots_json(const std::vector<Plot>& plots);
 // A fit as the export JSON / C header (analysis::drift_fit_json) from a
 // stored record.
