@@ -43,9 +43,10 @@ ExportCommand::ExportCommand(CLI::App& app) : parsed_(std::make_unique<Parsed>()
   p.command->add_option("--db", p.db_path, "station database")->required();
   p.command->add_option("--out", p.out_dir, "output directory (must not exist, or be empty)")
       ->required();
-  auto* since = p.command->add_option(
-      "--since", p.since, "completed runs that ended at or after DATE (ISO-8601; UTC unless an "
-                          "offset is given), e.g. 2026-11-20 or 2026-11-20T18:00+01:00");
+  auto* since =
+      p.command->add_option("--since", p.since,
+                            "completed runs that ended at or after DATE (ISO-8601; UTC unless an "
+                            "offset is given), e.g. 2026-11-20 or 2026-11-20T18:00+01:00");
   auto* runs = p.command->add_option("--runs", p.runs, "these runs, e.g. 3,5-7");
   since->excludes(runs);
   p.command->add_flag("--json", p.json, "machine-readable output");
@@ -109,10 +110,11 @@ std::optional<int> ExportCommand::run(bool json) {
     }
     return 0;
   }
-  if (fs::exists(p.out_dir, ec) && (!fs::is_directory(p.out_dir, ec) || !fs::is_empty(p.out_dir, ec))) {
-    return fail(fmt::format("--out {}: exists and is not an empty directory; give a new one",
-                            p.out_dir),
-                kExitInput);
+  if (fs::exists(p.out_dir, ec) &&
+      (!fs::is_directory(p.out_dir, ec) || !fs::is_empty(p.out_dir, ec))) {
+    return fail(
+        fmt::format("--out {}: exists and is not an empty directory; give a new one", p.out_dir),
+        kExitInput);
   }
 
   daemon::ExportRequest request;
@@ -133,15 +135,14 @@ std::optional<int> ExportCommand::run(bool json) {
               << "\n";
     return 0;
   }
-  std::cout << fmt::format("export {}: {} run{} ({}), {} files in {}\n", out->export_id,
-                           ids.size(), ids.size() == 1 ? "" : "s", fmt::join(ids, ", "),
-                           out->files.size(), out->directory);
+  std::cout << fmt::format("export {}: {} run{} ({}), {} files in {}\n", out->export_id, ids.size(),
+                           ids.size() == 1 ? "" : "s", fmt::join(ids, ", "), out->files.size(),
+                           out->directory);
   std::cout << fmt::format("summary: {}\n", (fs::path(out->directory) / "index.html").string());
   for (int64_t id : ids) {
-    std::cout << fmt::format("run {}:  {}\n", id,
-                             (fs::path(out->directory) / fmt::format("run-{:04}", id) /
-                              "report.html")
-                                 .string());
+    std::cout << fmt::format(
+        "run {}:  {}\n", id,
+        (fs::path(out->directory) / fmt::format("run-{:04}", id) / "report.html").string());
   }
   for (const auto& problem : out->problems) std::cout << "problem: " << problem << "\n";
   return 0;

@@ -161,8 +161,8 @@ Plot bias_temperature_plot(const std::vector<const analysis::AnalysisSeries*>& s
 
 // Fig. 4 / Fig. 6: raw and compensated output over the run, temperature on y2.
 Plot output_plot(const analysis::AnalysisSeries& s, const analysis::Comparison& comparison,
-                 analysis::TermSet terms, std::string id, std::string title,
-                 std::size_t max_points, std::vector<std::string>& problems) {
+                 analysis::TermSet terms, std::string id, std::string title, std::size_t max_points,
+                 std::vector<std::string>& problems) {
   Plot p;
   p.id = std::move(id);
   p.title = std::move(title);
@@ -186,7 +186,8 @@ Plot output_plot(const analysis::AnalysisSeries& s, const analysis::Comparison& 
     p.series.push_back(make_series(fmt::format("compensated, {}", analysis::to_string(cell->spec)),
                                    x, bucket_means(*comp, max_points)));
   }
-  PlotSeries temperature = make_series("temperature", x, bucket_means(mean_temperature_c(s), max_points));
+  PlotSeries temperature =
+      make_series("temperature", x, bucket_means(mean_temperature_c(s), max_points));
   temperature.axis = "y2";
   temperature.dash = true;
   p.series.push_back(std::move(temperature));
@@ -396,14 +397,14 @@ Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
   if (auto series = run_series(db, run_id, r.settings.table1.bin_s)) {
     r.series = std::move(*series);
   } else {
-    r.problems.push_back(fmt::format("run {}: no analysis series: {}", run_id,
-                                     series.error().message));
+    r.problems.push_back(
+        fmt::format("run {}: no analysis series: {}", run_id, series.error().message));
   }
   collect_fits(db, r);
 
   if (r.series) {
-    auto c = analysis::compare_models(std::span(&*r.series, 1),
-                                      comparison_options(r.settings, false));
+    auto c =
+        analysis::compare_models(std::span(&*r.series, 1), comparison_options(r.settings, false));
     if (c) {
       r.comparison = std::move(*c);
     } else {
@@ -420,15 +421,14 @@ Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
     r.plots.push_back(bias_temperature_plot(series, table1, comparison, max_points));
   }
   if (r.series && comparison != nullptr) {
-    r.plots.push_back(output_plot(*r.series, *comparison, analysis::TermSet::kT,
-                                  "chart-output-t",
+    r.plots.push_back(output_plot(*r.series, *comparison, analysis::TermSet::kT, "chart-output-t",
                                   "Raw and compensated output, temperature terms (Fig. 4)",
                                   max_points, r.problems));
     r.plots.push_back(bias_gradient_plot(*r.series, *comparison, max_points));
-    r.plots.push_back(output_plot(
-        *r.series, *comparison, analysis::TermSet::kTGR, "chart-output-tgr",
-        "Raw and compensated output, temperature, gradient and rate terms (Fig. 6)", max_points,
-        r.problems));
+    r.plots.push_back(
+        output_plot(*r.series, *comparison, analysis::TermSet::kTGR, "chart-output-tgr",
+                    "Raw and compensated output, temperature, gradient and rate terms (Fig. 6)",
+                    max_points, r.problems));
   }
   std::vector<std::pair<std::string, const storage::AllanRecord*>> allan_records;
   for (const auto& a : r.allan) {

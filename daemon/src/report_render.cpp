@@ -27,12 +27,23 @@ std::string escape(std::string_view s) {
   out.reserve(s.size());
   for (char c : s) {
     switch (c) {
-      case '&': out += "&amp;"; break;
-      case '<': out += "&lt;"; break;
-      case '>': out += "&gt;"; break;
-      case '"': out += "&quot;"; break;
-      case '\'': out += "&#39;"; break;
-      default: out += c;
+      case '&':
+        out += "&amp;";
+        break;
+      case '<':
+        out += "&lt;";
+        break;
+      case '>':
+        out += "&gt;";
+        break;
+      case '"':
+        out += "&quot;";
+        break;
+      case '\'':
+        out += "&#39;";
+        break;
+      default:
+        out += c;
     }
   }
   return out;
@@ -122,11 +133,10 @@ std::string table1_html(const std::vector<const storage::SegmentStatsRecord*>& r
   if (rows.empty()) return "<p class=\"problem\">No completed soak: no Table I row.</p>\n";
   std::string h = "<table class=\"numbers\">\n<thead><tr>";
   if (with_run) h += "<th>run</th>";
-  h +=
-      "<th>step</th><th>set point (°C)</th><th>mean shell temperature (°C)</th><th>points "
-      "(bins)</th><th>duration (s)</th><th>mean zero bias (°/h)</th><th>mean, Earth rate "
-      "removed (°/h)</th><th>std (°/h)</th><th>std after the moving average (°/h)</th>"
-      "</tr></thead>\n<tbody>\n";
+  h += "<th>step</th><th>set point (°C)</th><th>mean shell temperature (°C)</th><th>points "
+       "(bins)</th><th>duration (s)</th><th>mean zero bias (°/h)</th><th>mean, Earth rate "
+       "removed (°/h)</th><th>std (°/h)</th><th>std after the moving average (°/h)</th>"
+       "</tr></thead>\n<tbody>\n";
   for (const auto* r : rows) {
     h += std::isfinite(r->bias_std_ma_dph) ? "<tr>" : "<tr class=\"warn\">";
     if (with_run) h += fmt::format("<td class=\"num\">{}</td>", r->run_id);
@@ -204,9 +214,8 @@ std::string comparison_html(const analysis::Comparison& c) {
       }
       std::string text = fmt::format("{:.4f}", found->in_sample->std_dph);
       if (loro) {
-        text += found->cross_validated
-                    ? fmt::format(" / {:.4f}", found->cross_validated->std_dph)
-                    : fmt::format(" / {}", kDash);
+        text += found->cross_validated ? fmt::format(" / {:.4f}", found->cross_validated->std_dph)
+                                       : fmt::format(" / {}", kDash);
       }
       h += fmt::format("<td class=\"num\">{}</td>", text);
     }
@@ -228,10 +237,9 @@ std::string allan_html(const std::vector<const storage::AllanRecord*>& records, 
   if (records.empty()) return "<p class=\"problem\">No Allan deviation.</p>\n";
   std::string h = "<table class=\"numbers\">\n<thead><tr>";
   if (with_run) h += "<th>run</th>";
-  h +=
-      "<th>step</th><th>samples</th><th>τ0 (s)</th><th>angle random walk (°/√h)</th>"
-      "<th>bias instability (°/h)</th><th>at τ (s)</th><th>rate random walk (°/h/√h)</th>"
-      "</tr></thead>\n<tbody>\n";
+  h += "<th>step</th><th>samples</th><th>τ0 (s)</th><th>angle random walk (°/√h)</th>"
+       "<th>bias instability (°/h)</th><th>at τ (s)</th><th>rate random walk (°/h/√h)</th>"
+       "</tr></thead>\n<tbody>\n";
   for (const auto* a : records) {
     h += "<tr>";
     if (with_run) h += fmt::format("<td class=\"num\">{}</td>", a->run_id);
@@ -268,11 +276,10 @@ std::string files_html(const std::vector<std::pair<std::string, std::string>>& f
 std::string render_page(const Page& page, const std::string& generated_utc) {
   std::string h;
   h.reserve(256 * 1024);
-  h +=
-      "<!doctype html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
-      "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
-      "<meta http-equiv=\"Content-Security-Policy\" content=\"default-src 'none'; script-src "
-      "'unsafe-inline'; style-src 'unsafe-inline'; img-src data:\">\n";
+  h += "<!doctype html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
+       "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
+       "<meta http-equiv=\"Content-Security-Policy\" content=\"default-src 'none'; script-src "
+       "'unsafe-inline'; style-src 'unsafe-inline'; img-src data:\">\n";
   h += fmt::format("<title>{}</title>\n", escape(page.title));
   h += "<style>\n";
   h += report_assets::uplot_css();
@@ -362,8 +369,7 @@ std::string table1_csv(const std::vector<storage::SegmentStatsRecord>& rows) {
                        exact(r.temp_mean_c), r.n, exact(r.duration_s), exact(r.bias_mean_dph),
                        exact(r.bias_mean_earth_removed_dph), exact(r.bias_std_dph),
                        exact(r.bias_std_ma_dph), exact(r.earth_rate_dph), exact(r.bin_s),
-                       r.ma_window, exact(r.t_from_s), exact(r.t_to_s),
-                       csv_field(r.computed_utc));
+                       r.ma_window, exact(r.t_from_s), exact(r.t_to_s), csv_field(r.computed_utc));
   }
   return out;
 }
@@ -388,9 +394,8 @@ std::string allan_curves_csv(const std::vector<const storage::AllanRecord*>& rec
   std::string out = "run_id,step,tau_s,adev_dph,adev_lo_dph,adev_hi_dph\n";
   for (const auto* a : records) {
     for (std::size_t i = 0; i < a->tau_s.size(); ++i) {
-      out += fmt::format("{},{},{},{},{},{}\n", a->run_id, a->segment_index + 1,
-                         exact(a->tau_s[i]), exact(a->adev_dph[i]), exact(a->adev_lo_dph[i]),
-                         exact(a->adev_hi_dph[i]));
+      out += fmt::format("{},{},{},{},{},{}\n", a->run_id, a->segment_index + 1, exact(a->tau_s[i]),
+                         exact(a->adev_dph[i]), exact(a->adev_lo_dph[i]), exact(a->adev_hi_dph[i]));
     }
   }
   return out;
@@ -414,8 +419,8 @@ std::string comparison_csv(const analysis::Comparison& c) {
                : std::string(",,");
     };
     out += fmt::format("{},{},{},{},{},{}\n", csv_field(analysis::to_string(cell.terms)),
-                       cell.order, csv_field(analysis::to_string(cell.spec)),
-                       stats(cell.in_sample), stats(cell.cross_validated), csv_field(problem));
+                       cell.order, csv_field(analysis::to_string(cell.spec)), stats(cell.in_sample),
+                       stats(cell.cross_validated), csv_field(problem));
   }
   return out;
 }
@@ -438,8 +443,9 @@ std::string plots_json(const std::vector<Plot>& plots) {
       if (s.axis != "y") j["axis"] = s.axis;
       if (s.dash) j["dash"] = true;
       if (!s.band_lo.empty()) {
-        j["band"] = {
-            {"lo", number_array(s.band_lo)}, {"hi", number_array(s.band_hi)}, {"label", s.band_label}};
+        j["band"] = {{"lo", number_array(s.band_lo)},
+                     {"hi", number_array(s.band_hi)},
+                     {"label", s.band_label}};
       }
       series.push_back(std::move(j));
     }
@@ -471,9 +477,9 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
       {"Started / ended (UTC)",
        fmt::format("{} / {}", escape(r.run.started_utc),
                    escape(r.run.ended_utc.empty() ? kDash : r.run.ended_utc))},
-      {"Mounting", fmt::format("latitude {:g}°, axis {}; Earth rate removed {:.4f} °/h",
-                               r.run.latitude_deg, escape(r.run.orientation),
-                               s.table1.earth_rate_dph)},
+      {"Mounting",
+       fmt::format("latitude {:g}°, axis {}; Earth rate removed {:.4f} °/h", r.run.latitude_deg,
+                   escape(r.run.orientation), s.table1.earth_rate_dph)},
       {"Analysis",
        fmt::format("{:g} s bins, {}-point moving average, model {}, derivative window {:g} s, L0 "
                    "window {:g} s, Allan τ {}",
@@ -484,9 +490,9 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
        fmt::format("Table I {}; Allan deviation {}",
                    r.table1_stored ? "as stored by the daemon" : "computed for this report",
                    r.allan_stored ? "as stored by the daemon" : "computed for this report")},
-      {"Generated", escape(when) + (options.export_label.empty()
-                                        ? std::string()
-                                        : " — " + escape(options.export_label))},
+      {"Generated",
+       escape(when) +
+           (options.export_label.empty() ? std::string() : " — " + escape(options.export_label))},
   };
   if (!options.database_path.empty()) {
     page.provenance.emplace_back("Database", escape(options.database_path));
@@ -517,9 +523,9 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
     files.push_back({dir + "comparison.csv", comparison_csv(*r.comparison)});
     listed.emplace_back("comparison.csv", "Tables II–IV grid");
   } else {
-    add_section(page, "comparison", "Tables II–IV — compensation by model and order",
-                fmt::format("<p class=\"problem\">Not computed: {}</p>\n",
-                            escape(r.comparison_error)));
+    add_section(
+        page, "comparison", "Tables II–IV — compensation by model and order",
+        fmt::format("<p class=\"problem\">Not computed: {}</p>\n", escape(r.comparison_error)));
   }
 
   add_section(page, "figures", "Figures", figures_html(r.plots, false));
@@ -549,8 +555,8 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
   std::vector<ReportFile> files;
   std::vector<std::pair<std::string, std::string>> listed;
   Page page;
-  page.title = fmt::format("Calibration summary — {} run{}", c.runs.size(),
-                           c.runs.size() == 1 ? "" : "s");
+  page.title =
+      fmt::format("Calibration summary — {} run{}", c.runs.size(), c.runs.size() == 1 ? "" : "s");
   page.provenance = {
       {"Station", escape(c.station_name.empty() ? kDash : c.station_name)},
       {"Export", escape(options.export_label.empty() ? "on demand" : options.export_label)},
@@ -604,9 +610,9 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
     files.push_back({"comparison.csv", comparison_csv(*c.comparison)});
     listed.emplace_back("comparison.csv", "Tables II–IV grid, in-sample and leave-one-run-out");
   } else {
-    add_section(page, "comparison", "Tables II–IV — all runs",
-                fmt::format("<p class=\"problem\">Not computed: {}</p>\n",
-                            escape(c.comparison_error)));
+    add_section(
+        page, "comparison", "Tables II–IV — all runs",
+        fmt::format("<p class=\"problem\">Not computed: {}</p>\n", escape(c.comparison_error)));
   }
 
   if (c.joint_fit) {
@@ -617,9 +623,9 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
     listed.emplace_back("drift-fit.json", "joint fit coefficients (JSON)");
     listed.emplace_back("drift-fit.h", "joint fit coefficients (C99 header)");
   } else {
-    add_section(page, "fit", "Drift model fitted on all runs",
-                fmt::format("<p class=\"note\">No joint fit: {}.</p>\n",
-                            escape(c.joint_fit_error)));
+    add_section(
+        page, "fit", "Drift model fitted on all runs",
+        fmt::format("<p class=\"note\">No joint fit: {}.</p>\n", escape(c.joint_fit_error)));
   }
 
   if (c.start_model) {
@@ -631,10 +637,9 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
     std::vector<std::string> t0s;
     for (double t : m.t0_c) t0s.push_back(fmt::format("{:.2f}", t));
     h += fmt::format("{} °C.</p>\n", fmt::join(t0s, ", "));
-    h +=
-        "<table class=\"numbers\">\n<thead><tr><th>coefficient</th><th>A0</th><th>A1 (per "
-        "°C)</th><th>A2 (per °C²)</th><th>A3 (per °C³)</th><th>residual std</th></tr></thead>\n"
-        "<tbody>\n";
+    h += "<table class=\"numbers\">\n<thead><tr><th>coefficient</th><th>A0</th><th>A1 (per "
+         "°C)</th><th>A2 (per °C²)</th><th>A3 (per °C³)</th><th>residual std</th></tr></thead>\n"
+         "<tbody>\n";
     for (const auto& name : analysis::coefficient_names(m.spec, m.form)) {
       const auto it = m.cubic.find(name);
       if (it == m.cubic.end()) continue;
@@ -657,8 +662,7 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
     listed.emplace_back("start-model.h", "start-temperature model (C99 header)");
   } else {
     add_section(page, "start-model", "Start-temperature model (eq. 3)",
-                fmt::format("<p class=\"note\">Not fitted: {}.</p>\n",
-                            escape(c.start_model_note)));
+                fmt::format("<p class=\"note\">Not fitted: {}.</p>\n", escape(c.start_model_note)));
   }
 
   add_section(page, "figures", "Figures", figures_html(c.plots, true));

@@ -34,7 +34,7 @@ struct ExportRequest {
   std::optional<double> slot_unix_s;
   std::string slot_local;
   std::vector<int64_t> run_ids;  // ascending; may be empty (a nightly slot with no new run)
-  std::string directory;  // the export's directory: must not exist, or be empty
+  std::string directory;         // the export's directory: must not exist, or be empty
   ReportOptions report;
 };
 

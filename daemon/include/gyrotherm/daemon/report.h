@@ -39,7 +39,7 @@ struct ReportOptions {
 // One plotted series as report.js draws it (daemon/report/report.js).
 struct PlotSeries {
   std::string label;
-  std::vector<double> x, y;  // y NaN = gap
+  std::vector<double> x, y;    // y NaN = gap
   std::string style = "line";  // line, points, markers
   std::string axis = "y";      // y, y2
   bool dash = false;
@@ -79,7 +79,7 @@ struct RunReport {
   std::optional<analysis::Comparison> comparison;
   std::string comparison_error;
   std::vector<Plot> plots;
-  std::vector<std::string> problems;  // what could not be computed, one line each
+  std::vector<std::string> problems;               // what could not be computed, one line each
   std::optional<analysis::AnalysisSeries> series;  // the whole run, binned (campaign analyses)
 };
 
