@@ -181,7 +181,17 @@ Result<ExportOutcome> complete_export(storage::Database& db, int64_t id,
 
 }  // namespace
 
-Result<ExportOutcome> write_export(storage::Database& db, const ExportRequest& request) {
+Result<ExportOutcome> write_export(storage::Database& db, const ExportRequest& given) {
+  // "DIR/" and "DIR/." name DIR: the temporary directory goes beside it.
+  ExportRequest request = given;
+  fs::path target = fs::path(request.directory).lexically_normal();
+  while (!target.empty() && !target.has_filename() && target != target.root_path()) {
+    target = target.parent_path();
+  }
+  if (target.empty() || target == target.root_path()) {
+    return Error::Permanent(fmt::format("\"{}\" cannot be an export directory", given.directory));
+  }
+  request.directory = target.string();
   // A directory in the way is refused before anything is recorded.
   std::error_code ec;
   if (!request.run_ids.empty() && fs::exists(request.directory, ec) &&

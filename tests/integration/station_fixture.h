@@ -126,6 +126,10 @@ class StationTest : public testing::TempDirTest {
   }
 
   static void write(const fs::path& p, const std::string& text) { std::ofstream(p) << text; }
+  // Appends TOML (e.g. an [export] section) to the station config.
+  void append_config(const std::string& text) {
+    std::ofstream(dir_ / "station.toml", std::ios::app) << "\n" << text << "\n";
+  }
   std::string bin(const char* name) const { return std::string(GYROTHERM_BIN_DIR) + "/" + name; }
   std::string url(const std::string& path) const {
     return fmt::format("http://127.0.0.1:{}{}", api_port_, path);
