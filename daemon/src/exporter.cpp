@@ -323,15 +323,18 @@ void NightlyExporter::start() {
     std::unique_lock lock(mu_);
     while (!stop_) {
       lock.unlock();
+      // After a failure (say the database is locked), look again in a
+      // minute rather than logging the same error every poll.
+      double wait_s = options_.poll_wall_s;
       if (auto r = poll(); !r) {
-        spdlog::error("nightly export: {}", r.error().message);
+        spdlog::error("nightly export: {} (next attempt in a minute)", r.error().message);
+        wait_s = std::max(wait_s, 60.0);
       } else if (*r) {
         spdlog::info("nightly export {}: {} ({} files)", (*r)->export_id, (*r)->directory,
                      (*r)->files.size());
       }
       lock.lock();
-      cv_.wait_for(lock, std::chrono::duration<double>(options_.poll_wall_s),
-                   [this] { return stop_; });
+      cv_.wait_for(lock, std::chrono::duration<double>(wait_s), [this] { return stop_; });
     }
   });
 }

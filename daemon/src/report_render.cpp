@@ -196,7 +196,7 @@ std::string comparison_html(const analysis::Comparison& c) {
       "<table class=\"numbers\">\n<thead><tr><th>order of T</th>"
       "<th>{T} (Table II)</th><th>{T, dT} (Table III)</th><th>{T, dT, dT/dt} (Table IV)</th>"
       "</tr></thead>\n<tbody>\n";
-  h += fmt::format("<tr><td>none</td><td class=\"num\" colspan=\"3\">{:.4f}</td></tr>\n",
+  h += fmt::format("<tr><td>none</td><td colspan=\"3\">{:.4f} (uncompensated)</td></tr>\n",
                    c.none.std_dph);
   int max_order = 0;
   for (const auto& cell : c.cells) max_order = std::max(max_order, cell.order);

@@ -85,7 +85,7 @@ class NightlyExporter {
   // The next slot after the clock's now.
   double next_slot_unix_s() const;
 
-  void start();  // a thread that polls every poll_wall_s
+  void start();  // a thread that polls every poll_wall_s (a minute after a failure)
   void stop();
 
  private:
