@@ -10,6 +10,7 @@
 #include "analysis.h"
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/daemon/exporter.h"
+#include "gyrotherm/schedules/sequencer.h"
 #include "gyrotherm/storage/database.h"
 
 namespace gyrotherm::cli {
@@ -77,7 +78,8 @@ std::optional<int> ExportCommand::run(bool json) {
       if (it == all->end()) {
         return fail(fmt::format("--runs: run {} is not in {}", id, p.db_path), kExitInput);
       }
-      if (it->ended_utc.empty()) {
+      const auto state = schedules::parse_run_state(it->state);
+      if (!state || !schedules::is_terminal(*state)) {
         return fail(fmt::format("--runs: run {} has not ended (state {}); export it once it has",
                                 id, it->state),
                     kExitInput);
