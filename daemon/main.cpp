@@ -1,9 +1,13 @@
 // gyrothermd: the station daemon. Thin: parse arguments, load the config,
-// wire Station + HTTP server, wait for a signal.
+// wire Station + HTTP server, wait for a signal. Under systemd (Type=notify)
+// it reports READY, STOPPING and, while the control loop ticks, WATCHDOG;
+// without NOTIFY_SOCKET those calls do nothing.
 #include <signal.h>
 #include <spdlog/spdlog.h>
+#include <systemd/sd-daemon.h>
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <chrono>
 #include <cstdlib>
 #include <filesystem>
@@ -185,6 +189,25 @@ int main(int argc, char** argv) {
     }
   }
 
+  sd_notifyf(0, "READY=1\nSTATUS=station \"%s\", API http://%s:%d/", config->station.name.c_str(),
+             config->api.bind.c_str(), (*http)->port());
+
+  // The watchdog is fed at half its interval while the control loop ticks.
+  // A loop that has not ticked for the interval (or three tick periods, if
+  // longer) is stalled: the pings stop and systemd restarts the daemon.
+  using steady = std::chrono::steady_clock;
+  uint64_t watchdog_usec = 0;
+  const bool watchdog = sd_watchdog_enabled(0, &watchdog_usec) > 0;
+  const auto watchdog_every = std::chrono::microseconds(watchdog_usec / 2);
+  const auto tick_period = std::chrono::duration<double>(
+      std::max(config->control.min_tick_wall_s, config->control.tick_s / clock.time_scale()));
+  const auto stall_after = std::max<std::chrono::duration<double>>(
+      std::chrono::microseconds(watchdog_usec), 3 * tick_period);
+  uint64_t heartbeat = (*station)->heartbeat();
+  auto heartbeat_at = steady::now();
+  auto last_ping = steady::time_point{};
+  bool stalled = false;
+
   std::string reason;
   for (;;) {
     timespec wait{0, 100'000'000};
@@ -197,8 +220,27 @@ int main(int argc, char** argv) {
       reason = "queue done";
       break;
     }
+    if (!watchdog) continue;
+    const auto now = steady::now();
+    if (const uint64_t h = (*station)->heartbeat(); h != heartbeat) {
+      heartbeat = h;
+      heartbeat_at = now;
+      if (stalled) spdlog::warn("watchdog: the control loop ticks again; pings resumed");
+      stalled = false;
+    } else if (!stalled && now - heartbeat_at > stall_after) {
+      stalled = true;
+      spdlog::error(
+          "watchdog: the control loop has not ticked for {:.1f} s; no more watchdog pings, "
+          "systemd will restart the daemon",
+          std::chrono::duration<double>(now - heartbeat_at).count());
+    }
+    if (!stalled && now - last_ping >= watchdog_every) {
+      sd_notify(0, "WATCHDOG=1");
+      last_ping = now;
+    }
   }
   spdlog::info("gyrothermd: stopping ({})", reason);
+  sd_notifyf(0, "STOPPING=1\nSTATUS=stopping (%s)", reason.c_str());
   (*http)->stop();
   (*station)->stop("daemon stopped: " + reason);
   return 0;

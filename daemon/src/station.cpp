@@ -276,6 +276,7 @@ void Station::control_loop() {
     } catch (const std::exception& e) {
       spdlog::error("control loop: {}", e.what());
     }
+    heartbeat_.fetch_add(1, std::memory_order_relaxed);
     const auto period = std::max<std::chrono::duration<double>>(
         min_wall, std::chrono::duration<double>(tick_s / clock_.time_scale()));
     std::unique_lock lock(mu_);

@@ -85,6 +85,9 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // is empty or held).
   bool idle() const;
   const StationConfig& config() const { return config_; }
+  // Counts the control loop's ticks (one per [control] tick_s of station
+  // time): the service watchdog's liveness check.
+  uint64_t heartbeat() const { return heartbeat_.load(std::memory_order_relaxed); }
 
   // StationControl (thread-safe).
   Reply queue_list() override;
@@ -178,6 +181,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
   std::atomic<double> gyro_last_wall_s_{0};
   std::atomic<int> queue_length_{0};
   std::atomic<bool> queue_held_{false};
+  std::atomic<uint64_t> heartbeat_{0};
 
   // Shared with the gyro reader thread.
   std::atomic<int64_t> run_id_{0};  // 0: no run
