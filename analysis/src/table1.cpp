@@ -138,6 +138,9 @@ AnalysisSeries as_is(std::span<const GyroSample> gyro, std::span<const Temperatu
   return out;
 }
 
+// About 3 years of 1 s bins.
+constexpr double kMaxBins = 1e8;
+
 AnalysisSeries binned(std::span<const GyroSample> gyro, std::span<const TemperatureSample> temps,
                       double bin_s, double tau) {
   AnalysisSeries out;
@@ -249,6 +252,15 @@ Result<AnalysisSeries> make_analysis_series(std::span<const GyroSample> gyro,
 
   const double tau = gyro.size() > 1 ? median_spacing(gyro) : bin_s;
   if (tau >= bin_s * (1 - kBoundaryTol)) return as_is(gyro, temps, tau);
+  // Bins are indexed over the whole span: a time column with a far outlier
+  // would ask for more bins than memory holds.
+  const double span_s = gyro.back().t_s - gyro.front().t_s;
+  if (span_s / bin_s > kMaxBins) {
+    return Error::Permanent(fmt::format(
+        "the gyro samples span {:g} s (t_s {:g} to {:g}): more than {:g} bins of {:g} s; check the "
+        "time column",
+        span_s, gyro.front().t_s, gyro.back().t_s, kMaxBins, bin_s));
+  }
   return binned(gyro, temps, bin_s, tau);
 }
 

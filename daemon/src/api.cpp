@@ -57,7 +57,7 @@ Body parse_body(const HttpRequest& req, std::initializer_list<std::string_view> 
   if (req.body().empty()) return b;
   try {
     b.json = nlohmann::json::parse(req.body());
-  } catch (const nlohmann::json::parse_error& e) {
+  } catch (const nlohmann::json::exception& e) {  // parse_error; out_of_range for 1e999
     b.error = error_response(req, http::status::bad_request,
                              fmt::format("body is not JSON: {}", e.what()));
     return b;

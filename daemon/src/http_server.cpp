@@ -31,7 +31,10 @@ HttpResponse json_response(const HttpRequest& req, http::status status, std::str
 
 HttpResponse error_response(const HttpRequest& req, http::status status, std::string_view message) {
   nlohmann::json j = {{"error", message}, {"status", static_cast<int>(status)}};
-  return json_response(req, status, j.dump());
+  // Messages quote the request (its target, a query value): bytes that are
+  // not UTF-8 become U+FFFD instead of throwing.
+  return json_response(req, status,
+                       j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace));
 }
 
 // --- EventStream ---------------------------------------------------------

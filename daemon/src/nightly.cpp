@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <boost/date_time/local_time/local_time.hpp>
+#include <cctype>
 #include <cmath>
 #include <ctime>
 #include <exception>
@@ -77,7 +78,95 @@ TimeZone TimeZone::system_local() {
   });
 }
 
+namespace {
+
+// Checks a POSIX TZ rule before Boost reads it (Boost's parser trusts its
+// input and reads past the end of some malformed rules):
+//   std offset [dst [offset] ,start[/time],end[/time]]
+// names of >= 3 letters; offsets [+-]hh[:mm[:ss]], hh <= 24; start and end
+// Jn (1..365), n (0..365) or Mm.w.d (m 1..12, w 1..5, d 0..6); times
+// hh[:mm[:ss]], hh <= 24. A zone with DST must give its rule. Returns why
+// the rule is not one, or "" when it is.
+std::string posix_tz_problem(std::string_view r) {
+  std::size_t i = 0;
+  const auto number = [&](int max, int& out) {
+    const std::size_t from = i;
+    out = 0;
+    while (i < r.size() && i - from < 3 && std::isdigit(static_cast<unsigned char>(r[i]))) {
+      out = out * 10 + (r[i++] - '0');
+    }
+    return i > from && out <= max;
+  };
+  const auto name = [&] {
+    const std::size_t from = i;
+    while (i < r.size() && std::isalpha(static_cast<unsigned char>(r[i]))) ++i;
+    return i - from >= 3;
+  };
+  const auto clock = [&](bool signed_ok) {
+    if (signed_ok && i < r.size() && (r[i] == '+' || r[i] == '-')) ++i;
+    int v = 0;
+    if (!number(24, v)) return false;
+    for (int part = 0; part < 2 && i < r.size() && r[i] == ':'; ++part) {
+      ++i;
+      if (i + 2 > r.size() || !std::isdigit(static_cast<unsigned char>(r[i])) ||
+          !std::isdigit(static_cast<unsigned char>(r[i + 1]))) {
+        return false;
+      }
+      if ((r[i] - '0') * 10 + (r[i + 1] - '0') > 59) return false;
+      i += 2;
+    }
+    return true;
+  };
+  const auto date = [&] {
+    int a = 0, b = 0, c = 0;
+    if (i < r.size() && r[i] == 'J') {
+      ++i;
+      return number(365, a) && a >= 1;
+    }
+    if (i < r.size() && r[i] == 'M') {
+      ++i;
+      if (!number(12, a) || a < 1 || i >= r.size() || r[i++] != '.') return false;
+      if (!number(5, b) || b < 1 || i >= r.size() || r[i++] != '.') return false;
+      return number(6, c);
+    }
+    return number(365, a);
+  };
+  const auto transition = [&] {
+    if (!date()) return false;
+    if (i < r.size() && r[i] == '/') {
+      ++i;
+      return clock(false);
+    }
+    return true;
+  };
+  if (!name()) return "the standard zone name must be 3 or more letters";
+  if (!clock(true)) return "the UTC offset after the name must be [+-]hh[:mm[:ss]], hh <= 24";
+  if (i == r.size()) return "";
+  if (!name()) return "the daylight-saving zone name must be 3 or more letters";
+  if (i < r.size() && r[i] != ',' && !clock(true)) {
+    return "the daylight-saving offset must be [+-]hh[:mm[:ss]], hh <= 24";
+  }
+  if (i == r.size() || r[i] != ',') {
+    return "a zone with daylight saving needs its rule: ,start[/time],end[/time] (e.g. "
+           ",M3.5.0,M10.5.0/3)";
+  }
+  ++i;
+  if (!transition()) return "the start of daylight saving must be Jn, n or Mm.w.d[/hh[:mm]]";
+  if (i >= r.size() || r[i++] != ',') return "expected ',' before the end of daylight saving";
+  if (!transition()) return "the end of daylight saving must be Jn, n or Mm.w.d[/hh[:mm]]";
+  if (i != r.size()) return "unexpected text after the rule";
+  return "";
+}
+
+}  // namespace
+
 Result<TimeZone> TimeZone::posix(const std::string& rule) {
+  if (const std::string why = posix_tz_problem(rule); !why.empty()) {
+    return Error::Permanent(fmt::format(
+        "time zone \"{}\": not a POSIX TZ rule: {} (e.g. \"CET-1CEST,M3.5.0,M10.5.0/3\", "
+        "\"UTC0\")",
+        rule, why));
+  }
   std::shared_ptr<boost::local_time::posix_time_zone> tz;
   try {
     tz = std::make_shared<boost::local_time::posix_time_zone>(rule);

@@ -216,6 +216,19 @@ TEST(Api, MutationsNeedAValidBearerToken) {
       http::status::forbidden);
 }
 
+// Found by the HTTP fuzz target: both threw out of handle_api_request.
+TEST(Api, ANumberOutOfRangeAndANonUtf8TargetAreClientErrors) {
+  FakeControl control;
+  const ApiContext ctx = fake_context(&control);
+  const auto huge = handle_api_request(
+      request(http::verb::post, "/api/v1/control/pause", R"({"reason": 1e999})"), ctx);
+  EXPECT_EQ(huge.result(), http::status::bad_request);
+  EXPECT_NE(huge.body().find("body is not JSON"), std::string::npos) << huge.body();
+  const auto bytes = handle_api_request(get("/api/v1/\xce\xce"), ctx);
+  EXPECT_EQ(bytes.result(), http::status::not_found);
+  EXPECT_FALSE(nlohmann::json::parse(bytes.body(), nullptr, false).is_discarded()) << bytes.body();
+}
+
 TEST(Api, TokenComparison) {
   const std::vector<std::string> tokens = {"first-token-0123456789", "second-token-abcdefghij"};
   EXPECT_TRUE(token_matches("first-token-0123456789", tokens));

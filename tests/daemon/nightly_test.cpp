@@ -120,6 +120,29 @@ TEST(Nightly, PosixRuleMatchesTheSystemTzDatabase) {
   tzset();
 }
 
+// Boost's POSIX rule parser trusts its input ("A-1B,1,/" read past the end
+// of the string; found by the config fuzz target): rules are checked first.
+TEST(Nightly, PosixRulesAreCheckedBeforeBoostReadsThem) {
+  for (const char* good : {"UTC0", "CET-1CEST,M3.5.0,M10.5.0/3", "AEST-10AEDT,M10.1.0,M4.1.0/3",
+                           "EST5EDT,M3.2.0/2:00:00,M11.1.0/2:00:00", "IST-5:30",
+                           "NZST-12NZDT-13,M9.5.0,M4.1.0/3", "ABC+3DEF,J60/2,J300"}) {
+    auto zone = TimeZone::posix(good);
+    EXPECT_TRUE(zone.ok()) << good << ": " << (zone.ok() ? "" : zone.error().message);
+  }
+  auto ist = TimeZone::posix("IST-5:30");
+  ASSERT_TRUE(ist.ok());
+  EXPECT_EQ(ist->offset_s(0), 5 * 3600 + 30 * 60);
+  for (const char* bad :
+       {"", "A-1B,1,/", "Mars/Olympus", "CET", "CET-1CEST", "CET-25", "CET-1CEST,M13.5.0,M10.5.0",
+        "CET-1CEST,M3.6.0,M10.5.0", "CET-1CEST,J0,J365", "CET-1CEST,M3.5.0",
+        "CET-1CEST,M3.5.0,M10.5.0/x", "CET-1:60", "CET-1CEST,M3.5.0,M10.5.0 trailing", "C1"}) {
+    auto zone = TimeZone::posix(bad);
+    ASSERT_FALSE(zone.ok()) << bad;
+    EXPECT_NE(zone.error().message.find(std::string("\"") + bad + "\""), std::string::npos)
+        << zone.error().message;
+  }
+}
+
 TEST(Nightly, DowntimeOverSeveralSlotsGivesOneCatchUpExport) {
   const TimeZone zone = berlin();
   const LocalTimeOfDay at{2, 0};

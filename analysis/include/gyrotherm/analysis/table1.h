@@ -111,8 +111,9 @@ struct Table1Options {
 //   separately, clamped to the first/last sample outside their range.
 // Errors (permanent, the message names the index and t_s): no gyro samples,
 // no temperature samples, gyro or temperature times not strictly increasing,
-// a non-finite time, rate, top_c or side_c; bin_s not positive and finite.
-// Allocates O(gyro.size() + temps.size()).
+// a non-finite time, rate, top_c or side_c; bin_s not positive and finite;
+// samples that span more than 1e8 bins (a time column with an outlier).
+// Allocates O(gyro.size() + temps.size() + number of bins).
 Result<AnalysisSeries> make_analysis_series(std::span<const GyroSample> gyro,
                                             std::span<const TemperatureSample> temps, double bin_s);
 
