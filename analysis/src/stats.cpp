@@ -179,7 +179,11 @@ void moving_mean_moments(const double* x, std::size_t w, std::size_t k0, std::si
     a[l] = q[l] = 0;
   }
   // Lane l covers k0 + l * per_lane + i, i < per_lane; the last lane also the rest.
-  for (std::size_t i = 0; i < per_lane; ++i) {
+  // Each window sum advances after its mean is taken, except after a lane's
+  // last mean: that would read x[k0 + kLanes * per_lane - 1 + w], one past the
+  // data when the last lane has no rest (x holds k1 - 1 + w points).
+  constexpr std::size_t last = kLanes - 1;
+  for (std::size_t i = 0; i + 1 < per_lane; ++i) {
     for (std::size_t l = 0; l < kLanes; ++l) {
       const double* xs = x + k0 + l * per_lane + i;
       const double m = s[l] * inv_w;
@@ -188,7 +192,15 @@ void moving_mean_moments(const double* x, std::size_t w, std::size_t k0, std::si
       s[l] += xs[w] - xs[0];
     }
   }
-  constexpr std::size_t last = kLanes - 1;
+  if (per_lane > 0) {
+    for (std::size_t l = 0; l < kLanes; ++l) {
+      const double m = s[l] * inv_w;
+      a[l] += m;
+      q[l] += m * m;
+    }
+    const std::size_t k = k0 + kLanes * per_lane - 1;  // the last lane's last point
+    if (k + 1 < k1) s[last] += x[k + w] - x[k];
+  }
   for (std::size_t k = k0 + kLanes * per_lane; k < k1; ++k) {
     const double m = s[last] * inv_w;
     a[last] += m;

@@ -138,8 +138,8 @@ AnalysisSeries as_is(std::span<const GyroSample> gyro, std::span<const Temperatu
   return out;
 }
 
-// About 3 years of 1 s bins.
-constexpr double kMaxBins = 1e8;
+// 116 days of 1 s bins; the per-bin temperature sums then take ~400 MB.
+constexpr double kMaxBins = 1e7;
 
 AnalysisSeries binned(std::span<const GyroSample> gyro, std::span<const TemperatureSample> temps,
                       double bin_s, double tau) {

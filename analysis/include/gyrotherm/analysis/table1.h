@@ -112,7 +112,7 @@ struct Table1Options {
 // Errors (permanent, the message names the index and t_s): no gyro samples,
 // no temperature samples, gyro or temperature times not strictly increasing,
 // a non-finite time, rate, top_c or side_c; bin_s not positive and finite;
-// samples that span more than 1e8 bins (a time column with an outlier).
+// samples that span more than 1e7 bins (a time column with an outlier).
 // Allocates O(gyro.size() + temps.size() + number of bins).
 Result<AnalysisSeries> make_analysis_series(std::span<const GyroSample> gyro,
                                             std::span<const TemperatureSample> temps, double bin_s);
