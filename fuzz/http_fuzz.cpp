@@ -1,0 +1,189 @@
+// Fuzzes HTTP request handling: Beast's request parser with the daemon's
+// limits (as daemon/src/http_server.cpp reads a request), then the REST API
+// (daemon/api.h, handle_api_request) with a fake station, and the response
+// serialised as the server would send it.
+//
+// The input is an HTTP request as it comes off the wire. The same bytes are
+// also split by hand into method, target, header lines and body and handed
+// to the API without Beast's checks, so the API sees targets and header
+// values the parser would refuse (NUL, spaces, bare bytes >= 0x80).
+// Checked: no exception escapes the API (the server would answer 500), every
+// response has a 1xx-5xx status, a JSON body where the content type says so,
+// and never echoes the bearer token from the Authorization header.
+#include <boost/beast/core/buffers_to_string.hpp>
+#include <boost/beast/http.hpp>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <string>
+#include <string_view>
+
+#include "fuzz_check.h"
+#include "gyrotherm/daemon/api.h"
+
+using namespace gyrotherm::daemon;
+namespace http = boost::beast::http;
+
+namespace {
+
+constexpr std::string_view kToken = "fuzz-token-0123456789abcdef";
+constexpr std::size_t kHeaderLimit = 8 * 1024;  // [api] defaults (config.h)
+constexpr std::size_t kBodyLimit = 64 * 1024;
+
+// Small fixed replies; a few refusals so every status mapping is reached.
+class FakeControl : public StationControl {
+ public:
+  Reply queue_list() override { return Reply::ok({{"held", false}, {"entries", {}}}); }
+  Reply queue_add(const std::string& toml, const std::string&, bool) override {
+    if (toml.empty()) return Reply::refused(Refusal::Kind::kInvalid, "empty", {"fuzz.toml: x"});
+    return Reply::ok({{"id", 1}});
+  }
+  Reply queue_remove(int64_t id) override {
+    if (id == 9) return Reply::refused(Refusal::Kind::kConflict, "running");
+    return Reply::ok({{"removed", id}});
+  }
+  Reply queue_move(int64_t id, int position) override {
+    if (position > 100) return Reply::refused(Refusal::Kind::kInvalid, "bad position");
+    return Reply::ok({{"id", id}, {"position", position}});
+  }
+  Reply control(std::string_view action, const std::string&) override {
+    if (action == "pause") return Reply::refused(Refusal::Kind::kConflict, "no run to pause");
+    return Reply::ok({{"ok", true}});
+  }
+  Reply runs() override { return Reply::ok(nlohmann::json::array()); }
+  Reply run(int64_t id) override {
+    if (id == 8) return Reply::refused(Refusal::Kind::kNotFound, "no run 8");
+    return Reply::ok({{"id", id}});
+  }
+  Reply run_events(int64_t) override { return Reply::ok(nlohmann::json::array()); }
+  Reply run_stats(int64_t) override {
+    return Reply::refused(Refusal::Kind::kUnavailable, "database failed");
+  }
+  Reply run_samples(int64_t id, const SamplesQuery& q) override {
+    return Reply::ok({{"run_id", id}, {"from_s", q.from_s}, {"max_points", q.max_points}});
+  }
+  Reply run_fits(int64_t) override { return Reply::ok(nlohmann::json::array()); }
+  Reply run_allan(int64_t) override { return Reply::ok(nlohmann::json::array()); }
+  Reply fit(int64_t id) override { return Reply::ok({{"id", id}}); }
+  Reply exports() override { return Reply::ok(nlohmann::json::array()); }
+};
+
+const WebAssets* web_assets() {
+  static const auto loaded = WebAssets::load(GYROTHERM_FUZZ_WEB_DIR);
+  return loaded.ok() ? &*loaded : nullptr;
+}
+
+ApiContext& context() {
+  static FakeControl control;
+  static ApiContext ctx = [] {
+    ApiContext c;
+    c.status = [] {
+      StatusSnapshot s;
+      s.station_name = "fuzz";
+      s.run_id = 3;
+      s.chamber_c = 20.5;
+      return s;
+    };
+    c.control = &control;
+    c.tokens = {std::string(kToken), "second-token"};
+    c.metrics = [] { return std::string("gyrotherm_up 1\n"); };
+    c.web = web_assets();
+    return c;
+  }();
+  return ctx;
+}
+
+boost::beast::string_view bsv(std::string_view s) { return {s.data(), s.size()}; }
+
+void check_response(const HttpRequest& req, const HttpResponse& res) {
+  const int status = static_cast<int>(res.result_int());
+  FUZZ_CHECK(status >= 100 && status <= 599);
+  const auto type = res[http::field::content_type];
+  if (type == "application/json" && req.method() != http::verb::head) {
+    FUZZ_CHECK(nlohmann::json::accept(res.body()));
+  }
+  // The token is echoed only if the client put it where echoes come from.
+  const std::string_view target(req.target().data(), req.target().size());
+  if (target.find(kToken) == std::string_view::npos &&
+      req.body().find(kToken) == std::string::npos) {
+    FUZZ_CHECK(res.body().find(kToken) == std::string::npos);
+  }
+  std::ostringstream wire;
+  wire << res;  // what async_write sends
+  FUZZ_CHECK(!wire.str().empty());
+}
+
+void handle(const HttpRequest& req) {
+  const HttpResponse res = handle_api_request(req, context());
+  check_response(req, res);
+}
+
+// Beast's parser, fed the bytes as one buffer the way async_read would.
+void via_beast(std::string_view bytes) {
+  http::request_parser<http::string_body> parser;
+  parser.header_limit(static_cast<std::uint32_t>(kHeaderLimit));
+  parser.body_limit(kBodyLimit);
+  parser.eager(true);
+  boost::beast::error_code ec;
+  std::size_t used = 0;
+  while (!parser.is_done() && used < bytes.size()) {
+    const std::size_t n =
+        parser.put(boost::asio::buffer(bytes.data() + used, bytes.size() - used), ec);
+    if (ec == http::error::need_more && n == 0) break;
+    if (ec && ec != http::error::need_more) return;  // the server answers 4xx
+    used += n;
+    ec = {};
+  }
+  if (!parser.is_done()) {
+    if (!parser.got_some()) return;  // the server sees end_of_stream
+    parser.put_eof(ec);
+    if (ec || !parser.is_done()) return;
+  }
+  handle(parser.get());
+}
+
+// The same bytes as a request without Beast's validation.
+void by_hand(std::string_view bytes) {
+  auto line = [&bytes]() {
+    const auto nl = bytes.find('\n');
+    std::string_view l = bytes.substr(0, nl);
+    bytes = nl == std::string_view::npos ? std::string_view() : bytes.substr(nl + 1);
+    if (!l.empty() && l.back() == '\r') l.remove_suffix(1);
+    return l;
+  };
+  std::string_view first = line();
+  const auto sp = first.find(' ');
+  const std::string_view method = first.substr(0, sp);
+  std::string_view target = sp == std::string_view::npos ? "" : first.substr(sp + 1);
+  if (const auto v = target.rfind(" HTTP/"); v != std::string_view::npos)
+    target = target.substr(0, v);
+
+  HttpRequest req;
+  req.version(11);
+  const http::verb verb = http::string_to_verb(bsv(method));
+  if (verb != http::verb::unknown) {
+    req.method(verb);
+  } else {
+    req.method_string(bsv(method));
+  }
+  req.target(bsv(target));
+  while (!bytes.empty()) {
+    const std::string_view l = line();
+    if (l.empty()) break;
+    const auto colon = l.find(':');
+    if (colon == std::string_view::npos) continue;
+    std::string_view value = l.substr(colon + 1);
+    while (!value.empty() && value.front() == ' ') value.remove_prefix(1);
+    req.insert(bsv(l.substr(0, colon)), bsv(value));
+  }
+  req.body() = std::string(bytes);
+  handle(req);
+}
+
+}  // namespace
+
+extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
+  const std::string_view bytes(reinterpret_cast<const char*>(data), size);
+  via_beast(bytes);
+  by_hand(bytes);
+  return 0;
+}
