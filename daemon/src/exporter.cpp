@@ -279,7 +279,10 @@ Result<std::optional<ExportOutcome>> NightlyExporter::poll() {
   auto db = database();
   if (!db) return db.error();
   storage::Database& d = **db;
-  if (Status st = finish_interrupted(d); !st) return st.error();
+  if (!recovered_) {  // a "writing" record is a crash of an earlier process: once per start
+    if (Status st = finish_interrupted(d); !st) return st.error();
+    recovered_ = true;
+  }
 
   const double now = clock_.unix_now_s();
   auto last = d.last_nightly_slot_unix_s();

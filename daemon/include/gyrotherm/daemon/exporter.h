@@ -78,7 +78,7 @@ class NightlyExporter {
   ~NightlyExporter();  // stops the thread
 
   // One step, on the caller's thread: finishes nightly exports a crash left
-  // "writing", then makes the export due now, if any (one catch-up export
+  // "writing" (on the first poll), then makes the export due now, if any (one catch-up export
   // when slots were missed). Returns the outcome of the export made now, or
   // nullopt when none was due. Not concurrent with the thread.
   Result<std::optional<ExportOutcome>> poll();
@@ -98,6 +98,7 @@ class NightlyExporter {
   std::function<void()> before_export_;
   Done done_;
   std::optional<storage::Database> db_;
+  bool recovered_ = false;  // interrupted exports finished (first poll)
   std::mutex mu_;
   std::condition_variable cv_;
   bool stop_ = false;
