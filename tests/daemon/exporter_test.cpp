@@ -28,22 +28,14 @@
 #include <vector>
 
 #include "gyrotherm/storage/sample_writer.h"
+#include "utc_time.h"
 
 namespace gyrotherm::daemon {
 namespace {
 
 namespace fs = std::filesystem;
 
-// Unix seconds of a UTC calendar time.
-double utc(int y, int mo, int d, int h, int mi = 0) {
-  std::tm tm{};
-  tm.tm_year = y - 1900;
-  tm.tm_mon = mo - 1;
-  tm.tm_mday = d;
-  tm.tm_hour = h;
-  tm.tm_min = mi;
-  return static_cast<double>(timegm(&tm));
-}
+using test::utc;
 
 TimeZone berlin() {
   auto z = TimeZone::posix("CET-1CEST,M3.5.0,M10.5.0/3");

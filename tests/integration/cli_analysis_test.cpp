@@ -28,6 +28,7 @@
 #include "gyrotherm/daemon/run_analysis.h"
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
+#include "process.h"
 
 namespace gyrotherm {
 namespace {
@@ -35,6 +36,7 @@ namespace {
 namespace fs = std::filesystem;
 using nlohmann::json;
 using ::testing::HasSubstr;
+using testing::read_file;
 
 constexpr double kLatitudeDeg = 31.9;
 constexpr int kStoredMaWindow = 51;  // the runs' [analysis] ma_window
@@ -115,13 +117,6 @@ analysis::AnalysisSeries run_series(const RunData& d) {
   auto s = analysis::make_analysis_series(d.gyro, d.temps, 1.0);
   EXPECT_TRUE(s) << s.error().message;
   return *s;
-}
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
 }
 
 void write_text(const fs::path& p, const std::string& text) {
@@ -219,7 +214,7 @@ class CliAnalysisTest : public ::testing::Test {
     for (const auto& a : args) cmd += " '" + a + "'";
     cmd += " >" + out + " 2>" + err;
     const int st = std::system(cmd.c_str());
-    return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, slurp(out), slurp(err)};
+    return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, read_file(out), read_file(err)};
   }
   static std::string file(const std::string& name) { return (dir_ / name).string(); }
   static std::string run_csv_file(int k) {
@@ -496,10 +491,10 @@ TEST_F(CliAnalysisTest, FitOnDatabaseRunsMatchesTheLibraryAndTheDaemonAndExports
   EXPECT_EQ(j["coefficients"], json::parse(rec.coefficients_json));
   EXPECT_EQ(j["standard_errors"], json::parse(rec.standard_errors_json));
 
-  const json exported = json::parse(slurp(json_path), nullptr, false);
-  ASSERT_FALSE(exported.is_discarded()) << slurp(json_path);
+  const json exported = json::parse(read_file(json_path), nullptr, false);
+  ASSERT_FALSE(exported.is_discarded()) << read_file(json_path);
   EXPECT_EQ(exported.at("coefficients"), j["coefficients"]);
-  const std::string header = slurp(header_path);
+  const std::string header = read_file(header_path);
   EXPECT_THAT(header, HasSubstr("static const double"));
   EXPECT_THAT(header, HasSubstr("test station"));
   for (const auto& e : fs::directory_iterator(dir_)) {
@@ -625,9 +620,9 @@ TEST_F(CliAnalysisTest, StartModelMatchesTheLibraryAndExports) {
   for (const auto& [k, v] : at->fit.coefficients) {
     EXPECT_EQ(j["at_t0"]["coefficients"].at(k).get<double>(), v) << k;
   }
-  const json exported = json::parse(slurp(json_path), nullptr, false);
-  EXPECT_FALSE(exported.is_discarded()) << slurp(json_path);
-  const std::string header = slurp(header_path);
+  const json exported = json::parse(read_file(json_path), nullptr, false);
+  EXPECT_FALSE(exported.is_discarded()) << read_file(json_path);
+  const std::string header = read_file(header_path);
   EXPECT_FALSE(header.empty());
   EXPECT_THAT(header, HasSubstr("gyrotherm_start"));
 }
@@ -635,7 +630,7 @@ TEST_F(CliAnalysisTest, StartModelMatchesTheLibraryAndExports) {
 // A CSV of the export as rows of fields (no quoted fields in these files).
 std::vector<std::vector<std::string>> read_csv_rows(const fs::path& p) {
   std::vector<std::vector<std::string>> rows;
-  std::istringstream in(slurp(p));
+  std::istringstream in(read_file(p));
   std::string line;
   while (std::getline(in, line)) {
     std::vector<std::string> fields;
@@ -684,7 +679,7 @@ TEST_F(CliAnalysisTest, ExportOfFourRunsCarriesTheLibrarysNumbers) {
   // The joint fit and the start-temperature model.
   auto joint = analysis::fit_drift_model(series, spec, analysis::DriftModelForm::kPaper);
   ASSERT_TRUE(joint) << joint.error().message;
-  const json drift = json::parse(slurp(out / "drift-fit.json"));
+  const json drift = json::parse(read_file(out / "drift-fit.json"));
   for (const auto& [name, v] : joint->coefficients) {
     EXPECT_EQ(drift.at("coefficients").at(name).get<double>(), v) << name;
   }
@@ -692,18 +687,18 @@ TEST_F(CliAnalysisTest, ExportOfFourRunsCarriesTheLibrarysNumbers) {
   o.spec = spec;
   auto model = analysis::fit_start_temperature_model(series, o);
   ASSERT_TRUE(model) << model.error().message;
-  const json start = json::parse(slurp(out / "start-model.json"));
+  const json start = json::parse(read_file(out / "start-model.json"));
   for (const auto& [name, a] : model->cubic) {
     for (int i = 0; i < 4; ++i) EXPECT_EQ(start.at("cubic").at(name)[i].get<double>(), a[i]);
   }
-  EXPECT_THAT(slurp(out / "start-model.h"), HasSubstr("gyrotherm_start_coefficients"));
+  EXPECT_THAT(read_file(out / "start-model.h"), HasSubstr("gyrotherm_start_coefficients"));
 
   // Each run: Table I and the fit in both forms, computed for the report.
   const auto all_rows = read_csv_rows(out / "table1.csv");
   std::size_t campaign_row = 1;
   for (int k = 0; k < kRuns; ++k) {
     const fs::path run_dir = out / fmt::format("run-{:04}", run_ids_[k]);
-    const std::string html = slurp(run_dir / "report.html");
+    const std::string html = read_file(run_dir / "report.html");
     EXPECT_THAT(html, HasSubstr("computed for this report"));
     const auto rows = read_csv_rows(run_dir / "table1.csv");
     ASSERT_EQ(rows.size(), 3u) << "header and two soaks";
@@ -726,8 +721,8 @@ TEST_F(CliAnalysisTest, ExportOfFourRunsCarriesTheLibrarysNumbers) {
     for (auto form : {analysis::DriftModelForm::kPaper, analysis::DriftModelForm::kCentered}) {
       auto fit = analysis::fit_drift_model(series[k], spec, form);
       ASSERT_TRUE(fit) << fit.error().message;
-      const json exported =
-          json::parse(slurp(run_dir / fmt::format("drift-fit-{}.json", analysis::to_string(form))));
+      const json exported = json::parse(
+          read_file(run_dir / fmt::format("drift-fit-{}.json", analysis::to_string(form))));
       for (const auto& [name, v] : fit->coefficients) {
         EXPECT_EQ(exported.at("coefficients").at(name).get<double>(), v) << name;
         EXPECT_EQ(exported.at("std_errors").at(name).get<double>(), fit->std_errors.at(name));
@@ -861,7 +856,7 @@ TEST(CliAnalysisHelpers, AtomicWriteReplacesTheFile) {
   const std::string path = (dir / "out.h").string();
   ASSERT_TRUE(write_file_atomically(path, "first").ok());
   ASSERT_TRUE(write_file_atomically(path, "second").ok());
-  EXPECT_EQ(slurp(path), "second");
+  EXPECT_EQ(read_file(path), "second");
   EXPECT_EQ(std::distance(fs::directory_iterator(dir), fs::directory_iterator()), 1);
   fs::remove_all(dir);
 }

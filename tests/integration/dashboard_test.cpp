@@ -24,9 +24,6 @@ using testing::StationTest;
 using testing::wait_until;
 using json = nlohmann::json;
 
-constexpr const char* kChromium = "/usr/bin/chromium";
-constexpr const char* kInstallHint = "; run scripts/install-deps";
-
 // A ramp to look at, then a long acquisition so the run is still going when
 // the browser looks (600 station min = 3 wall min at the fixture's scale).
 constexpr const char* kDashboardSchedule = R"(
@@ -47,29 +44,14 @@ stability_window_min = 2
 acquire_min = 600
 )";
 
-// The absolute path of `program` on PATH, "" when there is none.
-std::string find_program(const std::string& program) {
-  FILE* p = ::popen(fmt::format("command -v {} 2>/dev/null", program).c_str(), "r");
-  if (!p) return "";
-  char buf[4096];
-  std::string out;
-  while (const size_t n = std::fread(buf, 1, sizeof buf, p)) out.append(buf, n);
-  ::pclose(p);
-  while (!out.empty() && (out.back() == '\n' || out.back() == '\r')) out.pop_back();
-  return out;
-}
-
 class DashboardTest : public StationTest {};
 
 TEST_F(DashboardTest, LiveInHeadlessChromium) {
-  const std::string node = find_program("node");
   const fs::path source_dir = GYROTHERM_SOURCE_DIR;
   const fs::path script = source_dir / "tests/browser/dashboard.mjs";
-  if (node.empty()) GTEST_FAIL() << "node is not on PATH" << kInstallHint;
-  if (!fs::exists(kChromium)) GTEST_FAIL() << kChromium << " is missing" << kInstallHint;
-  if (!fs::exists(source_dir / "node_modules/playwright-core/package.json")) {
-    GTEST_FAIL() << "node_modules/playwright-core is missing in " << source_dir << kInstallHint;
-  }
+  const testing::BrowserTools tools = testing::browser_tools(source_dir.string());
+  if (!tools.missing.empty()) GTEST_FAIL() << tools.missing;
+  const std::string& node = tools.node;
 
   write(dir_ / "schedule.toml", kDashboardSchedule);
   start_sim();

@@ -8,6 +8,8 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
@@ -95,6 +97,41 @@ int free_tcp_port() {
   ::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len);
   ::close(fd);
   return ntohs(addr.sin_port);
+}
+
+std::string find_program(const std::string& program) {
+  const std::string cmd = "command -v " + program + " 2>/dev/null";
+  FILE* p = ::popen(cmd.c_str(), "r");
+  if (!p) return "";
+  char buf[4096];
+  std::string out;
+  while (const size_t n = std::fread(buf, 1, sizeof buf, p)) out.append(buf, n);
+  ::pclose(p);
+  while (!out.empty() && (out.back() == '\n' || out.back() == '\r')) out.pop_back();
+  return out;
+}
+
+std::string read_file(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+BrowserTools browser_tools(const std::string& source_dir) {
+  namespace fs = std::filesystem;
+  constexpr const char* kChromium = "/usr/bin/chromium";
+  constexpr const char* kInstallHint = "; run scripts/install-deps";
+  BrowserTools t;
+  t.node = find_program("node");
+  if (t.node.empty()) {
+    t.missing = std::string("node is not on PATH") + kInstallHint;
+  } else if (!fs::exists(kChromium)) {
+    t.missing = std::string(kChromium) + " is missing" + kInstallHint;
+  } else if (!fs::exists(fs::path(source_dir) / "node_modules/playwright-core/package.json")) {
+    t.missing = "node_modules/playwright-core is missing in " + source_dir + kInstallHint;
+  }
+  return t;
 }
 
 }  // namespace gyrotherm::testing

@@ -40,4 +40,18 @@ bool wait_until(const std::function<bool()>& pred, std::chrono::milliseconds tim
 // A TCP port that was free a moment ago (bind port 0, read it, close).
 int free_tcp_port();
 
+// The absolute path of `program` on PATH, "" when there is none.
+std::string find_program(const std::string& program);
+
+// A file's whole contents ("" when it cannot be read).
+std::string read_file(const std::string& path);
+
+// What the browser tests (tests/browser/*.mjs) need: node on PATH, Debian's
+// /usr/bin/chromium and playwright-core in <source_dir>/node_modules.
+struct BrowserTools {
+  std::string node;     // node's path
+  std::string missing;  // "" when all is there, else what and how to get it
+};
+BrowserTools browser_tools(const std::string& source_dir);
+
 }  // namespace gyrotherm::testing

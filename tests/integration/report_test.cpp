@@ -42,33 +42,13 @@ using json = nlohmann::json;
 using testing::ChildProcess;
 using ::testing::HasSubstr;
 using testing::kTimeScale;
+using testing::read_file;
 using testing::StationTest;
 using testing::wait_until;
-
-constexpr const char* kChromium = "/usr/bin/chromium";
-constexpr const char* kInstallHint = "; run scripts/install-deps";
 
 // Tests that are not about the nightly job keep it off: its default slot on
 // the real wall clock would otherwise fire in a test that runs across 02:00.
 constexpr const char* kNoNightly = "[export]\nnightly = false\n";
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
-std::string find_program(const std::string& program) {
-  FILE* p = ::popen(fmt::format("command -v {} 2>/dev/null", program).c_str(), "r");
-  if (!p) return "";
-  char buf[4096];
-  std::string out;
-  while (const size_t n = std::fread(buf, 1, sizeof buf, p)) out.append(buf, n);
-  ::pclose(p);
-  while (!out.empty() && (out.back() == '\n' || out.back() == '\r')) out.pop_back();
-  return out;
-}
 
 std::string shell_quote(const std::string& s) {
   std::string out = "'";
@@ -312,7 +292,7 @@ class ReportTest : public StationTest {
     for (const auto& a : args) cmd += fmt::format(" {}", shell_quote(a));
     cmd += fmt::format(" >{} 2>{}", shell_quote(out.string()), shell_quote(err.string()));
     const int st = std::system(cmd.c_str());
-    CliRun r{WIFEXITED(st) ? WEXITSTATUS(st) : -1, slurp(out), slurp(err)};
+    CliRun r{WIFEXITED(st) ? WEXITSTATUS(st) : -1, read_file(out), read_file(err)};
     EXPECT_NE(r.code, 124) << "gyrotherm did not finish in 120 s: " << cmd;
     return r;
   }
@@ -445,16 +425,16 @@ TEST_F(ReportTest, ExportCarriesTheDatabaseNumbers) {
 
   {
     SCOPED_TRACE("run-0001/table1.csv");
-    expect_table1(parse_csv(slurp(out_dir / "run-0001/table1.csv")), *stats);
+    expect_table1(parse_csv(read_file(out_dir / "run-0001/table1.csv")), *stats);
   }
   {
     SCOPED_TRACE("table1.csv (every run)");
-    expect_table1(parse_csv(slurp(out_dir / "table1.csv")), *stats);
+    expect_table1(parse_csv(read_file(out_dir / "table1.csv")), *stats);
   }
 
   {
     SCOPED_TRACE("run-0001/allan.csv");
-    const Csv csv = parse_csv(slurp(out_dir / "run-0001/allan.csv"));
+    const Csv csv = parse_csv(read_file(out_dir / "run-0001/allan.csv"));
     ASSERT_EQ(csv.rows.size(), allan->size());
     for (std::size_t i = 0; i < allan->size(); ++i) {
       const auto& a = (*allan)[i];
@@ -481,7 +461,7 @@ TEST_F(ReportTest, ExportCarriesTheDatabaseNumbers) {
     const auto stored = std::find_if(fits->begin(), fits->end(),
                                      [&](const storage::FitRecord& f) { return f.form == form; });
     ASSERT_NE(stored, fits->end()) << "no stored " << form << " fit";
-    const json j = json::parse(slurp(out_dir / fmt::format("run-0001/drift-fit-{}.json", form)),
+    const json j = json::parse(read_file(out_dir / fmt::format("run-0001/drift-fit-{}.json", form)),
                                nullptr, false);
     ASSERT_FALSE(j.is_discarded());
     EXPECT_EQ(j.at("model"), stored->model);
@@ -528,12 +508,12 @@ TEST_F(ReportTest, ExportCarriesTheDatabaseNumbers) {
   EXPECT_EQ(listed[0].at("files").get<std::vector<std::string>>(), on_disk);
 
   // The C headers compile as C99 with every warning an error.
-  const std::string cc = find_program("cc");
+  const std::string cc = testing::find_program("cc");
   ASSERT_FALSE(cc.empty()) << "no C compiler (cc) on PATH";
   for (const char* form : {"paper", "centered"}) {
     SCOPED_TRACE(fmt::format("drift-fit-{}.h", form));
     const std::string header = fmt::format("drift-fit-{}.h", form);
-    const std::string text = slurp(out_dir / "run-0001" / header);
+    const std::string text = read_file(out_dir / "run-0001" / header);
     std::smatch m;
     ASSERT_TRUE(std::regex_search(text, m, std::regex(R"(static inline double (\w+)_terms\()")))
         << text;
@@ -548,7 +528,7 @@ TEST_F(ReportTest, ExportCarriesTheDatabaseNumbers) {
         "{} -std=c99 -Wall -Wextra -pedantic -Werror -I{} -c {} -o {} 2>{}", cc,
         shell_quote((out_dir / "run-0001").string()), shell_quote((c_dir / "main.c").string()),
         shell_quote((c_dir / "main.o").string()), shell_quote((c_dir / "cc.log").string()));
-    EXPECT_EQ(std::system(cmd.c_str()), 0) << cmd << "\n" << slurp(c_dir / "cc.log");
+    EXPECT_EQ(std::system(cmd.c_str()), 0) << cmd << "\n" << read_file(c_dir / "cc.log");
   }
 }
 
@@ -706,14 +686,11 @@ TEST_F(ReportTest, NightlyExportCatchesUpAfterDowntime) {
 // ---------------------------------------------------------------- browser
 
 TEST_F(ReportTest, ReportRendersInChromium) {
-  const std::string node = find_program("node");
   const fs::path source_dir = GYROTHERM_SOURCE_DIR;
   const fs::path script = source_dir / "tests/browser/report.mjs";
-  if (node.empty()) GTEST_FAIL() << "node is not on PATH" << kInstallHint;
-  if (!fs::exists(kChromium)) GTEST_FAIL() << kChromium << " is missing" << kInstallHint;
-  if (!fs::exists(source_dir / "node_modules/playwright-core/package.json")) {
-    GTEST_FAIL() << "node_modules/playwright-core is missing in " << source_dir << kInstallHint;
-  }
+  const testing::BrowserTools tools = testing::browser_tools(source_dir.string());
+  if (!tools.missing.empty()) GTEST_FAIL() << tools.missing;
+  const std::string& node = tools.node;
 
   use_completed_run_db();
   if (HasFatalFailure()) return;
@@ -728,7 +705,7 @@ TEST_F(ReportTest, ReportRendersInChromium) {
                                        std::pair{"index.html", "report-index.png"}}) {
     SCOPED_TRACE(page);
     const fs::path html = out_dir / page;
-    const std::string text = slurp(html);
+    const std::string text = read_file(html);
     const auto charts = static_cast<int>(std::distance(
         std::sregex_iterator(text.begin(), text.end(), chart_div), std::sregex_iterator()));
     EXPECT_GT(charts, 0) << "no <div class=\"chart\"> in " << html;
@@ -812,8 +789,8 @@ TEST_F(ReportTest, ExportRefusesANonEmptyOutputDirectory) {
   EXPECT_THAT(r.err, HasSubstr("not an empty directory"));
   // Left untouched, and nothing beside it.
   EXPECT_EQ(files_under(out_dir), (std::vector<std::string>{"notes.txt", "sub/data.csv"}));
-  EXPECT_EQ(slurp(out_dir / "notes.txt"), "keep me\n");
-  EXPECT_EQ(slurp(out_dir / "sub/data.csv"), "a,b\n1,2\n");
+  EXPECT_EQ(read_file(out_dir / "notes.txt"), "keep me\n");
+  EXPECT_EQ(read_file(out_dir / "sub/data.csv"), "a,b\n1,2\n");
   EXPECT_EQ(hidden_entries(dir_), std::vector<std::string>{});
   auto db = storage::Database::open_read_only(db_path().string());
   ASSERT_TRUE(db.ok());
@@ -827,7 +804,7 @@ TEST_F(ReportTest, ExportRefusesANonEmptyOutputDirectory) {
   const CliRun f =
       cli({"export", "--db", db_path().string(), "--out", file_out.string(), "--runs", "1"});
   EXPECT_EQ(f.code, 2) << f.out << f.err;
-  EXPECT_EQ(slurp(file_out), "x");
+  EXPECT_EQ(read_file(file_out), "x");
 }
 
 TEST_F(ReportTest, ExportRefusesAMissingDatabase) {
