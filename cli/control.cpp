@@ -135,18 +135,17 @@ struct Request {
   std::string method;
   std::string path;  // under the base URL, e.g. "/api/v1/queue"
   std::string body;  // empty: none
-  bool mutation = false;
 };
 
-// Sends one request; the token goes only with mutations (reads are open).
-// When the URL is unusable or the daemon cannot be reached, says so and
-// gives the exit code instead of an answer.
+// Sends one request, with the token when there is one (reads need it when
+// the daemon's [api] read_access is "token"). When the URL is unusable or the daemon cannot be
+// reached, says so and gives the exit code instead of an answer.
 
 std::variant<Answer, int> send(const DaemonOptions& o, const Request& r) {
   const auto base = base_url(o.url);
   if (!base) return 2;
   const std::string url = *base + r.path;
-  auto res = daemon::http_request(r.method, url, r.body, r.mutation ? o.token : "");
+  auto res = daemon::http_request(r.method, url, r.body, o.token);
   if (!res) {
     // The client's message is "METHOD URL: reason"; keep the reason.
     std::string reason = res.error().message;
@@ -163,14 +162,14 @@ std::variant<Answer, int> send(const DaemonOptions& o, const Request& r) {
 // Prints an answer: the body as is with --json (whatever the status, so a
 // script sees `errors` too), else `format` of it; a non-2xx answer also gets
 // its error on stderr and exit code 1.
-int finish(const DaemonOptions& o, const Request& r, const Answer& a,
+int finish(const DaemonOptions& o, const Answer& a,
            const std::function<std::string(const json&)>& format) {
   if (o.json && !a.body.empty()) {
     std::cout << a.body;
     if (a.body.back() != '\n') std::cout << '\n';
   }
   if (a.status < 200 || a.status > 299) {
-    return fail(format_http_error(a.status, a.body, r.mutation && !o.token.empty(), o.token));
+    return fail(format_http_error(a.status, a.body, !o.token.empty(), o.token));
   }
   if (o.json) return 0;
   const json j = json::parse(a.body, nullptr, false);
@@ -183,7 +182,7 @@ int exchange(const DaemonOptions& o, const Request& r,
              const std::function<std::string(const json&)>& format) {
   auto a = send(o, r);
   if (const int* code = std::get_if<int>(&a)) return *code;
-  return finish(o, r, std::get<Answer>(a), format);
+  return finish(o, std::get<Answer>(a), format);
 }
 
 int cmd_queue_add(const DaemonOptions& o, const std::string& path, bool ignore_failures) {
@@ -193,12 +192,12 @@ int cmd_queue_add(const DaemonOptions& o, const std::string& path, bool ignore_f
   ss << in.rdbuf();
   const json body = {
       {"schedule_toml", ss.str()}, {"source", path}, {"ignore_failures", ignore_failures}};
-  return exchange(o, {"POST", "/api/v1/queue", body.dump(), true}, format_queued);
+  return exchange(o, {"POST", "/api/v1/queue", body.dump()}, format_queued);
 }
 
 int cmd_control(const DaemonOptions& o, const std::string& action, const std::string& reason) {
   const std::string body = reason.empty() ? "" : json({{"reason", reason}}).dump();
-  return exchange(o, {"POST", "/api/v1/control/" + action, body, true}, [](const json& j) {
+  return exchange(o, {"POST", "/api/v1/control/" + action, body}, [](const json& j) {
     const auto& m = field(j, "message");
     return (m.is_string() ? m.get<std::string>() : std::string("done")) + "\n";
   });
@@ -208,19 +207,19 @@ int cmd_control(const DaemonOptions& o, const std::string& action, const std::st
 // "events" array.
 int cmd_run(const DaemonOptions& o, int64_t id) {
   const std::string path = fmt::format("/api/v1/runs/{}", id);
-  const Request run_req{"GET", path, "", false};
-  const Request events_req{"GET", path + "/events", "", false};
+  const Request run_req{"GET", path, ""};
+  const Request events_req{"GET", path + "/events", ""};
   auto run = send(o, run_req);
   if (const int* code = std::get_if<int>(&run)) return *code;
   const Answer& run_answer = std::get<Answer>(run);
   if (run_answer.status < 200 || run_answer.status > 299) {
-    return finish(o, run_req, run_answer, nullptr);
+    return finish(o, run_answer, nullptr);
   }
   auto events = send(o, events_req);
   if (const int* code = std::get_if<int>(&events)) return *code;
   const Answer& events_answer = std::get<Answer>(events);
   if (events_answer.status < 200 || events_answer.status > 299) {
-    return finish(o, events_req, events_answer, nullptr);
+    return finish(o, events_answer, nullptr);
   }
   json run_json = json::parse(run_answer.body, nullptr, false);
   const json events_json = json::parse(events_answer.body, nullptr, false);
@@ -314,24 +313,22 @@ std::optional<int> ControlCommands::run(bool json_flag) {
   Parsed& p = *parsed_;
   DaemonOptions o = p.options;
   o.json = o.json || json_flag;
-  if (*p.status) return exchange(o, {"GET", "/api/v1/status", "", false}, format_status);
+  if (*p.status) return exchange(o, {"GET", "/api/v1/status", ""}, format_status);
   if (*p.queue_add) return cmd_queue_add(o, p.schedule_path, p.ignore_failures);
-  if (*p.queue_list) return exchange(o, {"GET", "/api/v1/queue", "", false}, format_queue);
+  if (*p.queue_list) return exchange(o, {"GET", "/api/v1/queue", ""}, format_queue);
   if (*p.queue_remove) {
-    return exchange(o, {"DELETE", fmt::format("/api/v1/queue/{}", p.id), "", true},
-                    [](const json& j) {
-                      return fmt::format("removed queue entry {}\n", text(field(j, "removed")));
-                    });
+    return exchange(o, {"DELETE", fmt::format("/api/v1/queue/{}", p.id), ""}, [](const json& j) {
+      return fmt::format("removed queue entry {}\n", text(field(j, "removed")));
+    });
   }
   if (*p.queue_move) {
     const std::string body = nlohmann::json({{"position", p.position}}).dump();
-    return exchange(o, {"POST", fmt::format("/api/v1/queue/{}/move", p.id), body, true},
-                    format_queue);
+    return exchange(o, {"POST", fmt::format("/api/v1/queue/{}/move", p.id), body}, format_queue);
   }
   for (const auto& [name, cmd] : p.actions) {
     if (*cmd) return cmd_control(o, name, p.reason);
   }
-  if (*p.runs) return exchange(o, {"GET", "/api/v1/runs", "", false}, format_runs);
+  if (*p.runs) return exchange(o, {"GET", "/api/v1/runs", ""}, format_runs);
   if (*p.run) return cmd_run(o, p.id);
   return std::nullopt;
 }

@@ -141,10 +141,14 @@ int main(int argc, char** argv) {
     spdlog::warn("dashboard not served: {}", web.error().message);
   }
   gd::HttpServer* server_ptr = nullptr;
+  gd::AuthLimiter auth_limiter({.max_failures = config->api.max_auth_failures});
   gd::ApiContext api;
   api.status = [s = station_ptr] { return s->status(); };
   api.control = station_ptr;
   api.tokens = config->api.tokens;
+  api.read_tokens = config->api.read_tokens;
+  api.reads_need_token = config->api.read_access == "token";
+  api.auth_limiter = &auth_limiter;
   api.web = web ? &*web : nullptr;
   api.metrics = [&] {
     gd::ServerFigures f;
@@ -168,8 +172,14 @@ int main(int argc, char** argv) {
   http_options.header_limit = static_cast<std::size_t>(config->api.max_header_bytes);
   http_options.body_limit = static_cast<std::size_t>(config->api.max_body_bytes);
   http_options.stream = &stream;
-  auto http = gd::HttpServer::create(
-      http_options, [&api](const gd::HttpRequest& r) { return gd::handle_api_request(r, api); });
+  http_options.stream_gate = [&api](const gd::HttpRequest& r, std::string_view peer) {
+    return gd::check_access(r, api, peer);
+  };
+  if (auto warning = gd::api_exposure_warning(config->api)) spdlog::warn("{}", *warning);
+  auto http =
+      gd::HttpServer::create(http_options, [&api](const gd::HttpRequest& r, std::string_view peer) {
+        return gd::handle_api_request(r, api, peer);
+      });
   if (!http) {
     std::cerr << "gyrothermd: " << http.error().message << "\n";
     return 1;

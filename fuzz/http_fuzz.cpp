@@ -7,9 +7,11 @@
 // also split by hand into method, target, header lines and body and handed
 // to the API without Beast's checks, so the API sees targets and header
 // values the parser would refuse (NUL, spaces, bare bytes >= 0x80).
+// Each request goes to the API twice: reads open, and reads that need a token
+// ([api] read_access = "token"), with a control and a read token configured.
 // Checked: no exception escapes the API (the server would answer 500), every
 // response has a 1xx-5xx status, a JSON body where the content type says so,
-// and never echoes the bearer token from the Authorization header.
+// and never echoes a token, nor any answer carries one in a header.
 #include <boost/beast/core/buffers_to_string.hpp>
 #include <boost/beast/http.hpp>
 #include <nlohmann/json.hpp>
@@ -26,6 +28,7 @@ namespace http = boost::beast::http;
 namespace {
 
 constexpr std::string_view kToken = "fuzz-token-0123456789abcdef";
+constexpr std::string_view kReadToken = "fuzz-read-token-0123456789";
 constexpr std::size_t kHeaderLimit = 8 * 1024;  // [api] defaults (config.h)
 constexpr std::size_t kBodyLimit = 64 * 1024;
 
@@ -72,7 +75,7 @@ const WebAssets* web_assets() {
   return loaded.ok() ? &*loaded : nullptr;
 }
 
-ApiContext& context() {
+ApiContext& context(bool reads_need_token) {
   static FakeControl control;
   static ApiContext ctx = [] {
     ApiContext c;
@@ -85,11 +88,17 @@ ApiContext& context() {
     };
     c.control = &control;
     c.tokens = {std::string(kToken), "second-token"};
+    c.read_tokens = {std::string(kReadToken)};
     c.metrics = [] { return std::string("gyrotherm_up 1\n"); };
     c.web = web_assets();
     return c;
   }();
-  return ctx;
+  static ApiContext token_mode = [] {
+    ApiContext c = ctx;
+    c.reads_need_token = true;
+    return c;
+  }();
+  return reads_need_token ? token_mode : ctx;
 }
 
 boost::beast::string_view bsv(std::string_view s) { return {s.data(), s.size()}; }
@@ -101,11 +110,17 @@ void check_response(const HttpRequest& req, const HttpResponse& res) {
   if (type == "application/json" && req.method() != http::verb::head) {
     FUZZ_CHECK(nlohmann::json::accept(res.body()));
   }
-  // The token is echoed only if the client put it where echoes come from.
+  // A token is echoed only if the client put it where echoes come from.
   const std::string_view target(req.target().data(), req.target().size());
-  if (target.find(kToken) == std::string_view::npos &&
-      req.body().find(kToken) == std::string::npos) {
-    FUZZ_CHECK(res.body().find(kToken) == std::string::npos);
+  for (const std::string_view token : {kToken, kReadToken}) {
+    if (target.find(token) == std::string_view::npos &&
+        req.body().find(token) == std::string::npos) {
+      FUZZ_CHECK(res.body().find(token) == std::string::npos);
+      for (const auto& field : res) {
+        FUZZ_CHECK(std::string_view(field.value().data(), field.value().size()).find(token) ==
+                   std::string_view::npos);
+      }
+    }
   }
   std::ostringstream wire;
   wire << res;  // what async_write sends
@@ -113,8 +128,10 @@ void check_response(const HttpRequest& req, const HttpResponse& res) {
 }
 
 void handle(const HttpRequest& req) {
-  const HttpResponse res = handle_api_request(req, context());
-  check_response(req, res);
+  for (const bool reads_need_token : {false, true}) {
+    const HttpResponse res = handle_api_request(req, context(reads_need_token), "192.0.2.1");
+    check_response(req, res);
+  }
 }
 
 // Beast's parser, fed the bytes as one buffer the way async_read would.

@@ -4,6 +4,11 @@
 // wall second, `state` and `event` messages as they happen). Plots keep only
 // the last hour of station time, so memory stays bounded however long the
 // page stays open. Plain JS, no build step; uPlot is the global `uPlot`.
+//
+// A station with [api] read_access = "token" answers 401: the page then asks
+// for a token, keeps it in sessionStorage (this tab only), sends it as
+// "Authorization: Bearer" on every request, and reads the stream with
+// fetch() (EventSource cannot send headers). The token never goes in a URL.
 'use strict';
 
 (() => {
@@ -13,6 +18,7 @@
   const MAX_EVENTS = 40;
   const STALE_MS = 5000;          // no status for this long: the stream is stale
   const RECONNECT_MS = 3000;      // when the browser gave up on the stream
+  const TOKEN_KEY = 'gyrotherm.token';  // sessionStorage
 
   const $ = (id) => document.getElementById(id);
 
@@ -178,8 +184,49 @@
   let plotKey = undefined;
   let historyRequest = 0;
 
+  // ------------------------------------------------------------------ token
+  let token = sessionStorage.getItem(TOKEN_KEY) || '';
+
+  function authHeaders() {
+    return token ? { Authorization: `Bearer ${token}` } : {};
+  }
+
+  class Unauthorized extends Error {}
+
+  // The daemon wants a token (or refused ours): ask for one.
+  function askForToken(refused) {
+    if (refused) {
+      token = '';
+      sessionStorage.removeItem(TOKEN_KEY);
+    }
+    stopStream();
+    setText('token-note', refused ? 'The station refused that token.' : '');
+    const form = $('token-form');
+    if (form.hidden) {
+      form.hidden = false;
+      $('token-input').focus();
+    }
+    setLink('down', 'Token needed');
+  }
+
+  $('token-form').addEventListener('submit', (e) => {
+    e.preventDefault();
+    const input = $('token-input');
+    token = input.value.trim();
+    input.value = '';
+    if (!token) return;
+    sessionStorage.setItem(TOKEN_KEY, token);
+    $('token-form').hidden = true;
+    plotKey = undefined;
+    start();
+  });
+
   async function getJson(path) {
-    const r = await fetch(path, { cache: 'no-store' });
+    const r = await fetch(path, { cache: 'no-store', headers: authHeaders() });
+    if (r.status === 401) {
+      askForToken(!!token);
+      throw new Unauthorized(`${path}: HTTP 401`);
+    }
     if (!r.ok) throw new Error(`${path}: HTTP ${r.status}`);
     return r.json();
   }
@@ -199,7 +246,9 @@
       gyro.setHistory([g.t_s || [], g.mean_dph || [], g.min_dph || [], g.max_dph || []]);
       redraw();
     } catch (err) {
-      console.error('history of run', runId, 'not loaded:', err.message);
+      if (!(err instanceof Unauthorized)) {
+        console.error('history of run', runId, 'not loaded:', err.message);
+      }
     }
   }
 
@@ -248,7 +297,9 @@
       const list = await getJson(`/api/v1/runs/${runId}/events`);
       addEvents(list.slice(-MAX_EVENTS).map((e) => Object.assign({ run_id: runId }, e)));
     } catch (err) {
-      console.error('events of run', runId, 'not loaded:', err.message);
+      if (!(err instanceof Unauthorized)) {
+        console.error('events of run', runId, 'not loaded:', err.message);
+      }
     }
   }
 
@@ -375,7 +426,9 @@
   }
 
   // ----------------------------------------------------------------- stream
-  let source = null;
+  let source = null;       // EventSource (no token)
+  let reader = null;       // AbortController of the fetch() stream (token)
+  let reconnectTimer = 0;
   let lastStatusAt = 0;
   let linkUp = false;
   let streamLost = false;
@@ -385,54 +438,139 @@
     link.dataset.state = state;
     setText('link-text', text);
     const down = state !== 'live';
-    $('banner-disconnected').hidden = !down || state === 'connecting';
+    $('banner-disconnected').hidden = !down || state === 'connecting' ||
+      !$('token-form').hidden;
     document.body.classList.toggle('stale', down);
   }
 
-  function parse(e) {
+  function parse(type, data) {
     try {
-      return JSON.parse(e.data);
+      return JSON.parse(data);
     } catch (err) {
-      console.error(`stream: bad ${e.type} message:`, err.message);
+      console.error(`stream: bad ${type} message:`, err.message);
       return null;
     }
   }
 
-  function openStream() {
-    source = new EventSource('/api/v1/stream');
-    source.addEventListener('open', () => {
-      // After a gap the plots are refilled from the samples route.
-      if (streamLost) plotKey = undefined;
-      streamLost = false;
-    });
-    source.addEventListener('status', (e) => {
-      const s = parse(e);
+  // One stream message, from either reader.
+  function onMessage(type, data) {
+    if (type === 'status') {
+      const s = parse(type, data);
       if (!s) return;
       linkUp = true;
       setLink('live', 'Live');
       applyStatus(s);
-    });
-    source.addEventListener('state', (e) => {
-      const st = parse(e);
+    } else if (type === 'state') {
+      const st = parse(type, data);
       if (!st || !st.to) return;
       setText('state', st.to.toUpperCase());
       $('state').dataset.state = st.to;
-    });
-    source.addEventListener('event', (e) => {
-      const ev = parse(e);
+    } else if (type === 'event') {
+      const ev = parse(type, data);
       if (ev) addEvents([ev]);
-    });
+    }
+  }
+
+  function onOpen() {
+    // After a gap the plots are refilled from the samples route.
+    if (streamLost) plotKey = undefined;
+    streamLost = false;
+  }
+
+  function onLost() {
+    linkUp = false;
+    streamLost = true;
+    setLink('down', 'Disconnected — reconnecting');
+  }
+
+  function stopStream() {
+    clearTimeout(reconnectTimer);
+    if (source) source.close();
+    source = null;
+    if (reader) reader.abort();
+    reader = null;
+  }
+
+  function reconnectLater() {
+    clearTimeout(reconnectTimer);
+    reconnectTimer = setTimeout(openStream, RECONNECT_MS);
+  }
+
+  function openStream() {
+    stopStream();
+    if (token) {
+      readStream();
+      return;
+    }
+    source = new EventSource('/api/v1/stream');
+    source.addEventListener('open', onOpen);
+    for (const type of ['status', 'state', 'event']) {
+      source.addEventListener(type, (e) => onMessage(type, e.data));
+    }
     source.addEventListener('error', () => {
-      linkUp = false;
-      streamLost = true;
-      setLink('down', 'Disconnected — reconnecting');
-      if (source.readyState === EventSource.CLOSED) {
+      onLost();
+      if (source && source.readyState === EventSource.CLOSED) {
         // The browser retries by itself unless the answer was not a stream
-        // (e.g. 503: too many clients); then retry here.
+        // (e.g. 503: too many clients, 401: a token is needed); then retry
+        // here, or ask for the token.
         source.close();
-        setTimeout(openStream, RECONNECT_MS);
+        source = null;
+        fetch('/api/v1/status', { cache: 'no-store' }).then((r) => {
+          if (r.status === 401) askForToken(false);
+          else reconnectLater();
+        }, reconnectLater);
       }
     });
+  }
+
+  // The stream through fetch(), so the token goes in a header: splits the
+  // text/event-stream body into messages ("event:" and "data:" lines, a
+  // blank line ends one) as EventSource would.
+  async function readStream() {
+    const controller = new AbortController();
+    reader = controller;
+    try {
+      const r = await fetch('/api/v1/stream', {
+        cache: 'no-store', headers: authHeaders(), signal: controller.signal,
+      });
+      if (r.status === 401) {
+        askForToken(true);
+        return;
+      }
+      if (!r.ok || !r.body) throw new Error(`HTTP ${r.status}`);
+      onOpen();
+      const body = r.body.getReader();
+      const decoder = new TextDecoder();
+      let buffer = '';
+      for (;;) {
+        const { value, done } = await body.read();
+        if (done) break;
+        buffer += decoder.decode(value, { stream: true });  // the daemon ends lines with \n
+        let end;
+        while ((end = buffer.indexOf('\n\n')) >= 0) {
+          const block = buffer.slice(0, end);
+          buffer = buffer.slice(end + 2);
+          let type = 'message';
+          const data = [];
+          for (const line of block.split('\n')) {
+            const colon = line.indexOf(':');
+            const field = colon < 0 ? line : line.slice(0, colon);
+            let v = colon < 0 ? '' : line.slice(colon + 1);
+            if (v.startsWith(' ')) v = v.slice(1);
+            if (field === 'event') type = v;
+            else if (field === 'data') data.push(v);
+          }
+          if (data.length) onMessage(type, data.join('\n'));
+        }
+      }
+      throw new Error('the stream ended');
+    } catch (err) {
+      if (controller.signal.aborted) return;  // closed on purpose
+      onLost();
+      reconnectLater();
+    } finally {
+      if (reader === controller) reader = null;
+    }
   }
 
   setInterval(() => {
@@ -445,6 +583,7 @@
     try {
       applyStatus(await getJson('/api/v1/status'));
     } catch (err) {
+      if (err instanceof Unauthorized) return;  // the token form is up
       setLink('down', 'Daemon not answering');
     }
     openStream();

@@ -1,6 +1,7 @@
 #include "gyrotherm/daemon/api.h"
 
 #include <fmt/format.h>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <charconv>
@@ -97,32 +98,6 @@ std::optional<T> field(Body& b, const HttpRequest& req, const char* key, const c
   return v.get<T>();
 }
 
-// 401/403 unless the request carries a configured token.
-std::optional<HttpResponse> check_token(const HttpRequest& req, const ApiContext& ctx) {
-  if (ctx.tokens.empty()) {
-    return error_response(req, http::status::forbidden,
-                          "changes are disabled: no token in [api] tokens of the station config");
-  }
-  const auto it = req.find(http::field::authorization);
-  std::string_view presented;
-  if (it != req.end()) {
-    std::string_view value(it->value().data(), it->value().size());
-    constexpr std::string_view kBearer = "Bearer ";
-    if (value.size() > kBearer.size() && value.substr(0, kBearer.size()) == kBearer) {
-      presented = value.substr(kBearer.size());
-    }
-  }
-  if (presented.empty() || !token_matches(presented, ctx.tokens)) {
-    HttpResponse res =
-        error_response(req, http::status::unauthorized,
-                       presented.empty() ? "this request needs Authorization: Bearer TOKEN"
-                                         : "the token is not one of the station's tokens");
-    res.set(http::field::www_authenticate, "Bearer");
-    return res;
-  }
-  return std::nullopt;
-}
-
 HttpResponse method_not_allowed(const HttpRequest& req, std::string_view allowed) {
   HttpResponse res =
       error_response(req, http::status::method_not_allowed, fmt::format("use {}", allowed));
@@ -132,19 +107,32 @@ HttpResponse method_not_allowed(const HttpRequest& req, std::string_view allowed
 
 }  // namespace
 
-bool token_matches(std::string_view presented, const std::vector<std::string>& tokens) {
-  bool any = false;
-  for (const auto& token : tokens) {
-    // Every byte of the presented token is compared, whatever the outcome.
-    unsigned diff = presented.size() == token.size() ? 0u : 1u;
-    for (std::size_t i = 0; i < presented.size(); ++i) {
-      const unsigned char t =
-          token.empty() ? 0 : static_cast<unsigned char>(token[i % token.size()]);
-      diff |= static_cast<unsigned>(static_cast<unsigned char>(presented[i]) ^ t);
-    }
-    any |= diff == 0;
+namespace {
+
+// Every byte of `presented` is looked at, whatever the outcome.
+bool equal_in_constant_time(std::string_view presented, std::string_view token) {
+  unsigned diff = presented.size() == token.size() ? 0u : 1u;
+  for (std::size_t i = 0; i < presented.size(); ++i) {
+    const unsigned char t = token.empty() ? 0 : static_cast<unsigned char>(token[i % token.size()]);
+    diff |= static_cast<unsigned>(static_cast<unsigned char>(presented[i]) ^ t);
   }
-  return any;
+  return diff == 0;
+}
+
+}  // namespace
+
+TokenRole token_role(std::string_view presented, const std::vector<std::string>& control_tokens,
+                     const std::vector<std::string>& read_tokens) {
+  bool control = false;
+  bool read = false;
+  for (const auto& token : control_tokens) control |= equal_in_constant_time(presented, token);
+  for (const auto& token : read_tokens) read |= equal_in_constant_time(presented, token);
+  if (control) return TokenRole::kControl;
+  return read ? TokenRole::kRead : TokenRole::kNone;
+}
+
+bool token_matches(std::string_view presented, const std::vector<std::string>& tokens) {
+  return token_role(presented, tokens, {}) == TokenRole::kControl;
 }
 
 namespace {
@@ -152,11 +140,14 @@ namespace {
 using Params = std::vector<std::string_view>;  // the {…} segments of the path, in order
 using Handler = HttpResponse (*)(const HttpRequest&, const ApiContext&, const Params&);
 
+// Who may use a route. kRead routes are open unless ctx.reads_need_token.
+enum class Access { kOpen, kRead, kControl };
+
 struct Route {
   http::verb method;
   std::string_view path;  // template: "{name}" matches one segment
-  bool mutation;          // needs a token
-  bool station;           // needs ctx.control (503 without)
+  Access access;
+  bool station;  // needs ctx.control (503 without)
   Handler handle;
 };
 
@@ -274,44 +265,44 @@ HttpResponse serve_web_file(const HttpRequest& req, const ApiContext& ctx, std::
 }
 
 constexpr Route kRoutes[] = {
-    {http::verb::get, "/", false, false,
+    {http::verb::get, "/", Access::kOpen, false,
      [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
        return serve_web_file(req, ctx, "index.html");
      }},
-    {http::verb::get, "/web/{file}", false, false,
+    {http::verb::get, "/web/{file}", Access::kOpen, false,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        return serve_web_file(req, ctx, p[0]);
      }},
-    {http::verb::get, "/healthz", false, false,
+    {http::verb::get, "/healthz", Access::kOpen, false,
      [](const HttpRequest& req, const ApiContext&, const Params&) {
        return json_response(req, http::status::ok, R"({"ok":true})");
      }},
-    {http::verb::get, "/metrics", false, false,
+    {http::verb::get, "/metrics", Access::kRead, false,
      [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
        if (!ctx.metrics) {
          return error_response(req, http::status::service_unavailable, "no metrics attached");
        }
        return text_response(req, "text/plain; version=0.0.4; charset=utf-8", ctx.metrics());
      }},
-    {http::verb::get, "/api/v1/openapi.json", false, false,
+    {http::verb::get, "/api/v1/openapi.json", Access::kRead, false,
      [](const HttpRequest& req, const ApiContext&, const Params&) {
        return json_response(req, http::status::ok, std::string(openapi_document()));
      }},
-    {http::verb::get, "/api/v1/status", false, false,
+    {http::verb::get, "/api/v1/status", Access::kRead, false,
      [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
        return json_response(req, http::status::ok, to_json(ctx.status()).dump());
      }},
     // Served by the HTTP server's event stream; reached here only when none
     // is attached.
-    {http::verb::get, "/api/v1/stream", false, false,
+    {http::verb::get, "/api/v1/stream", Access::kRead, false,
      [](const HttpRequest& req, const ApiContext&, const Params&) {
        return error_response(req, http::status::service_unavailable, "no event stream attached");
      }},
-    {http::verb::get, "/api/v1/queue", false, true,
+    {http::verb::get, "/api/v1/queue", Access::kRead, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
        return reply_response(req, ctx.control->queue_list());
      }},
-    {http::verb::post, "/api/v1/queue", true, true,
+    {http::verb::post, "/api/v1/queue", Access::kControl, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
        Body body = parse_body(req, {"schedule_toml", "source", "ignore_failures"});
        auto toml = field<std::string>(body, req, "schedule_toml", "a string (the schedule file)");
@@ -326,11 +317,11 @@ constexpr Route kRoutes[] = {
            req, ctx.control->queue_add(*toml, source.value_or(""), ignore.value_or(false)),
            http::status::created);
      }},
-    {http::verb::delete_, "/api/v1/queue/{id}", true, true,
+    {http::verb::delete_, "/api/v1/queue/{id}", Access::kControl, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        return reply_response(req, ctx.control->queue_remove(*parse_id(p[0])));
      }},
-    {http::verb::post, "/api/v1/queue/{id}/move", true, true,
+    {http::verb::post, "/api/v1/queue/{id}/move", Access::kControl, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        Body body = parse_body(req, {"position"});
        auto pos = field<int64_t>(body, req, "position", "an integer (0 = next)");
@@ -344,42 +335,42 @@ constexpr Route kRoutes[] = {
            req, ctx.control->queue_move(*parse_id(p[0]),
                                         static_cast<int>(std::min<int64_t>(*pos, 1 << 20))));
      }},
-    {http::verb::post, "/api/v1/control/{action}", true, true,
+    {http::verb::post, "/api/v1/control/{action}", Access::kControl, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        Body body = parse_body(req, {"reason"});
        auto reason = field<std::string>(body, req, "reason", "a string");
        if (body.error) return *body.error;
        return reply_response(req, ctx.control->control(p[0], reason.value_or("")));
      }},
-    {http::verb::get, "/api/v1/runs", false, true,
+    {http::verb::get, "/api/v1/runs", Access::kRead, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
        return reply_response(req, ctx.control->runs());
      }},
-    {http::verb::get, "/api/v1/runs/{id}", false, true,
+    {http::verb::get, "/api/v1/runs/{id}", Access::kRead, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        return reply_response(req, ctx.control->run(*parse_id(p[0])));
      }},
-    {http::verb::get, "/api/v1/runs/{id}/events", false, true,
+    {http::verb::get, "/api/v1/runs/{id}/events", Access::kRead, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        return reply_response(req, ctx.control->run_events(*parse_id(p[0])));
      }},
-    {http::verb::get, "/api/v1/runs/{id}/stats", false, true,
+    {http::verb::get, "/api/v1/runs/{id}/stats", Access::kRead, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        return reply_response(req, ctx.control->run_stats(*parse_id(p[0])));
      }},
-    {http::verb::get, "/api/v1/runs/{id}/fits", false, true,
+    {http::verb::get, "/api/v1/runs/{id}/fits", Access::kRead, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        return reply_response(req, ctx.control->run_fits(*parse_id(p[0])));
      }},
-    {http::verb::get, "/api/v1/runs/{id}/allan", false, true,
+    {http::verb::get, "/api/v1/runs/{id}/allan", Access::kRead, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        return reply_response(req, ctx.control->run_allan(*parse_id(p[0])));
      }},
-    {http::verb::get, "/api/v1/exports", false, true,
+    {http::verb::get, "/api/v1/exports", Access::kRead, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
        return reply_response(req, ctx.control->exports());
      }},
-    {http::verb::get, "/api/v1/runs/{id}/samples", false, true,
+    {http::verb::get, "/api/v1/runs/{id}/samples", Access::kRead, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        const Query q = parse_query(req, {"from", "to", "max_points"});
        if (q.error) return *q.error;
@@ -403,7 +394,7 @@ constexpr Route kRoutes[] = {
        }
        return reply_response(req, ctx.control->run_samples(*parse_id(p[0]), sq));
      }},
-    {http::verb::get, "/api/v1/fits/{id}", false, true,
+    {http::verb::get, "/api/v1/fits/{id}", Access::kRead, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        return reply_response(req, ctx.control->fit(*parse_id(p[0])));
      }},
@@ -472,32 +463,109 @@ std::vector<RouteInfo> api_routes() {
   return out;
 }
 
-HttpResponse handle_api_request(const HttpRequest& req, const ApiContext& ctx) {
+namespace {
+
+struct Found {
+  const Route* route = nullptr;
+  Params params;
+  std::string allowed;  // the methods of the path, when none is req's
+};
+
+Found find_route(const HttpRequest& req) {
   std::string_view target(req.target().data(), req.target().size());
   if (const auto q = target.find('?'); q != std::string_view::npos) target = target.substr(0, q);
   const http::verb method = req.method() == http::verb::head ? http::verb::get : req.method();
-
-  Params params;
-  std::string allowed;
-  const Route* route = nullptr;
+  Found f;
   for (const Route& r : kRoutes) {
-    if (!match(r.path, target, params)) continue;
+    if (!match(r.path, target, f.params)) continue;
     if (r.method == method) {
-      route = &r;
-      break;
+      f.route = &r;
+      return f;
     }
-    allowed += fmt::format("{}{}", allowed.empty() ? "" : ", ", method_name(r.method));
+    f.allowed += fmt::format("{}{}", f.allowed.empty() ? "" : ", ", method_name(r.method));
   }
-  if (!route) {
-    if (!allowed.empty()) return method_not_allowed(req, allowed);
-    return error_response(req, http::status::not_found, "no such resource: " + std::string(target));
+  f.params.clear();
+  return f;
+}
+
+// The refusal of a request to a route with `access`, or nullopt.
+std::optional<HttpResponse> authorize(const HttpRequest& req, const ApiContext& ctx,
+                                      std::string_view peer, Access access) {
+  if (access == Access::kOpen || (access == Access::kRead && !ctx.reads_need_token)) {
+    return std::nullopt;
   }
-  if (auto bad = check_params(req, route->path, params)) return *bad;
-  if (route->mutation) {
-    if (auto denied = check_token(req, ctx)) return *denied;
+  if (access == Access::kControl && ctx.tokens.empty()) {
+    return error_response(req, http::status::forbidden,
+                          "changes are disabled: no token in [api] tokens of the station config");
   }
-  if (route->station && !ctx.control) return no_station(req);
-  return route->handle(req, ctx, params);
+  if (ctx.auth_limiter) {
+    if (const int wait_s = ctx.auth_limiter->retry_after_s(peer); wait_s > 0) {
+      HttpResponse res = error_response(
+          req, http::status::too_many_requests,
+          fmt::format("too many unknown tokens from this address: try again in {} s", wait_s));
+      res.set(http::field::retry_after, std::to_string(wait_s));
+      return res;
+    }
+  }
+  const auto it = req.find(http::field::authorization);
+  std::string_view presented;
+  if (it != req.end()) {
+    std::string_view value(it->value().data(), it->value().size());
+    constexpr std::string_view kBearer = "Bearer ";
+    if (value.size() > kBearer.size() && value.substr(0, kBearer.size()) == kBearer) {
+      presented = value.substr(kBearer.size());
+    }
+  }
+  const TokenRole role =
+      presented.empty() ? TokenRole::kNone : token_role(presented, ctx.tokens, ctx.read_tokens);
+  if (role == TokenRole::kNone) {
+    // Credentials that are not a token of the station count against the
+    // peer; a request without any does not.
+    if (it != req.end() && ctx.auth_limiter && ctx.auth_limiter->record_failure(peer)) {
+      const auto& o = ctx.auth_limiter->options();
+      spdlog::warn(
+          "API: {} unknown tokens from {} within {:g} s; its requests that need a token get "
+          "429 for {:g} s",
+          o.max_failures, peer.empty() ? "?" : peer, o.window_s, o.window_s);
+    }
+    HttpResponse res =
+        error_response(req, http::status::unauthorized,
+                       presented.empty() ? "this request needs Authorization: Bearer TOKEN"
+                                         : "the token is not one of the station's tokens");
+    res.set(http::field::www_authenticate, "Bearer");
+    return res;
+  }
+  if (access == Access::kControl && role == TokenRole::kRead) {
+    return error_response(req, http::status::forbidden,
+                          "the token is read-only ([api] read_tokens): it may read but not "
+                          "change anything; changes need one of [api] tokens");
+  }
+  return std::nullopt;
+}
+
+}  // namespace
+
+std::optional<HttpResponse> check_access(const HttpRequest& req, const ApiContext& ctx,
+                                         std::string_view peer) {
+  const Found f = find_route(req);
+  if (!f.route) return std::nullopt;
+  return authorize(req, ctx, peer, f.route->access);
+}
+
+HttpResponse handle_api_request(const HttpRequest& req, const ApiContext& ctx,
+                                std::string_view peer) {
+  const Found f = find_route(req);
+  if (!f.route) {
+    if (!f.allowed.empty()) return method_not_allowed(req, f.allowed);
+    std::string_view target(req.target().data(), req.target().size());
+    target = target.substr(0, target.find('?'));
+    return error_response(req, http::status::not_found,
+                          fmt::format("no such resource: {}", target));
+  }
+  if (auto bad = check_params(req, f.route->path, f.params)) return *bad;
+  if (auto denied = authorize(req, ctx, peer, f.route->access)) return *denied;
+  if (f.route->station && !ctx.control) return no_station(req);
+  return f.route->handle(req, ctx, f.params);
 }
 
 }  // namespace gyrotherm::daemon

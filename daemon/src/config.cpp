@@ -4,6 +4,8 @@
 #include <fmt/format.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <boost/asio/ip/address.hpp>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -219,14 +221,47 @@ void read_api(TableReader t, ApiSection& a) {
     else
       a.port = static_cast<int>(*p);
   }
-  if (const toml::array* tokens = t.array("tokens")) {
-    for (const auto& node : *tokens) {
+  // Tokens are never quoted in errors: the message names the key, line and
+  // entry instead.
+  const auto read_token_list = [&](std::string_view key, std::vector<std::string>& out) {
+    const toml::array* tokens = t.array(key);
+    if (!tokens) return;
+    const auto line = [&](const toml::node& node) {
+      const int l = static_cast<int>(node.source().begin.line);
+      return l > 0 ? l : t.line_of(key);
+    };
+    for (std::size_t i = 0; i < tokens->size(); ++i) {
+      const toml::node& node = *tokens->get(i);
       auto s = node.value_exact<std::string>();
       if (!s || s->size() < 16) {
-        t.error("tokens", "each token must be a string of at least 16 characters");
-        break;
+        t.errors().add(line(node), t.key_path(key),
+                       fmt::format("each token must be a string of at least 16 characters "
+                                   "(entry {})",
+                                   i + 1));
+        continue;
       }
-      a.tokens.push_back(*s);
+      const auto same = [&](const std::string& other) { return other == *s; };
+      if (std::find_if(out.begin(), out.end(), same) != out.end()) {
+        t.errors().add(line(node), t.key_path(key),
+                       fmt::format("entry {} repeats an earlier entry", i + 1));
+      } else if (&out == &a.read_tokens &&
+                 std::find_if(a.tokens.begin(), a.tokens.end(), same) != a.tokens.end()) {
+        t.errors().add(line(node), t.key_path(key),
+                       fmt::format("entry {} is also in [api] tokens: a token has one role "
+                                   "(tokens may read and change, read_tokens only read)",
+                                   i + 1));
+      }
+      out.push_back(*s);
+    }
+  };
+  read_token_list("tokens", a.tokens);
+  read_token_list("read_tokens", a.read_tokens);
+  if (auto r = t.choice("read_access", {"open", "token"}, std::nullopt)) {
+    a.read_access = *r;
+    if (*r == "token" && a.tokens.empty() && a.read_tokens.empty()) {
+      t.error("read_access",
+              "\"token\" needs at least one token in [api] tokens or read_tokens (else "
+              "nothing could read)");
     }
   }
   a.read_timeout_s = t.number_in("read_timeout_s", a.read_timeout_s, 0.1, 3600.0);
@@ -242,9 +277,73 @@ void read_api(TableReader t, ApiSection& a) {
   a.max_body_bytes = count_in("max_body_bytes", a.max_body_bytes, 1024, 64 << 20);
   a.max_stream_clients = count_in("max_stream_clients", a.max_stream_clients, 0, 1000);
   a.stream_queue_bytes = count_in("stream_queue_bytes", a.stream_queue_bytes, 4096, 64 << 20);
+  a.max_auth_failures = count_in("max_auth_failures", a.max_auth_failures, 1, 1000000);
   if (auto w = t.string("web_root")) a.web_root = *w;
   t.finish();
 }
+
+}  // namespace
+
+std::optional<std::string> api_exposure_warning(const ApiSection& api) {
+  boost::system::error_code ec;
+  const auto address = boost::asio::ip::make_address(api.bind, ec);
+  if (ec || address.is_loopback() || api.read_access != "open") return std::nullopt;
+  return fmt::format(
+      "[api] bind = \"{}\" is not a loopback address and read_access = \"open\": anyone who "
+      "can reach port {} reads the station's status, runs and data without a token (set "
+      "read_access = \"token\" with read_tokens, or bind 127.0.0.1 behind a proxy){}",
+      api.bind, api.port, api.tokens.empty() ? "; changes are disabled (no [api] tokens)" : "");
+}
+
+std::string redact_config_secrets(std::string_view toml_text, const ApiSection& api) {
+  constexpr std::string_view kRedacted = "<redacted>";
+  TomlErrors errors("config");
+  auto root = parse_toml_string(toml_text, errors);
+  if (!root) return "# station config not recorded: it no longer parses as TOML\n";
+  const auto secrets_in = [](const toml::table& table) {
+    std::vector<std::string> out;
+    for (const char* key : {"tokens", "read_tokens"}) {
+      if (const auto* list = table["api"][key].as_array()) {
+        for (const auto& node : *list) {
+          if (auto s = node.value_exact<std::string>(); s && *s != kRedacted) out.push_back(*s);
+        }
+      }
+    }
+    return out;
+  };
+  std::vector<std::string> secrets = secrets_in(*root);
+  secrets.insert(secrets.end(), api.tokens.begin(), api.tokens.end());
+  secrets.insert(secrets.end(), api.read_tokens.begin(), api.read_tokens.end());
+  // Longest first: a token inside another is not left half-replaced.
+  std::sort(secrets.begin(), secrets.end(),
+            [](const auto& a, const auto& b) { return a.size() > b.size(); });
+  std::string out(toml_text);
+  for (const auto& secret : secrets) {
+    if (secret.size() < 8) continue;  // too short to replace blindly; see below
+    for (auto pos = out.find(secret); pos != std::string::npos;
+         pos = out.find(secret, pos + kRedacted.size())) {
+      out.replace(pos, secret.size(), kRedacted);
+    }
+  }
+  TomlErrors again_errors("config");
+  auto again = parse_toml_string(out, again_errors);
+  if (again && secrets_in(*again).empty()) return out;
+  // Spelled with escapes (or very short): replace the values, lose comments.
+  if (auto* api_table = root->get_as<toml::table>("api")) {
+    for (const char* key : {"tokens", "read_tokens"}) {
+      if (auto* list = api_table->get_as<toml::array>(key)) {
+        const std::size_t n = list->size();
+        list->clear();
+        for (std::size_t i = 0; i < n; ++i) list->push_back(std::string(kRedacted));
+      }
+    }
+  }
+  std::ostringstream serialised;
+  serialised << toml::toml_formatter(*root);
+  return serialised.str();
+}
+
+namespace {
 
 void read_export(TableReader t, ExportSection& e) {
   if (auto n = t.boolean("nightly")) e.nightly = *n;

@@ -125,7 +125,7 @@ std::shared_ptr<StreamClient> EventStream::subscribe(std::function<void()> wake)
 // --- Server ----------------------------------------------------------------
 
 struct HttpServer::Impl {
-  Impl(HttpServerOptions o, HttpHandler h)
+  Impl(HttpServerOptions o, HttpPeerHandler h)
       : options(std::move(o)), handler(std::move(h)), acceptor(ioc), tick_timer(ioc) {}
 
   void do_accept();
@@ -134,7 +134,7 @@ struct HttpServer::Impl {
   // Declared before the io_context: sessions still queued in it refer to
   // these when the io_context is destroyed.
   HttpServerOptions options;
-  HttpHandler handler;
+  HttpPeerHandler handler;
   std::atomic<int> connections{0};
   std::atomic<uint64_t> requests{0};
   std::atomic<uint64_t> refused{0};
@@ -152,10 +152,27 @@ bool is_stream_request(const HttpRequest& req, const std::string& stream_path) {
   return req.method() == http::verb::get && target == stream_path;
 }
 
+// The target without its query, cut to 200 bytes: what a log line may show.
+std::string path_for_log(const HttpRequest& req) {
+  std::string_view target(req.target().data(), req.target().size());
+  target = target.substr(0, std::min(target.find('?'), std::size_t{200}));
+  return std::string(target);
+}
+
 class Session : public std::enable_shared_from_this<Session> {
  public:
   Session(tcp::socket&& socket, HttpServer::Impl& server)
-      : stream_(std::move(socket)), server_(server) {}
+      : stream_(std::move(socket)), server_(server) {
+    beast::error_code ec;
+    const tcp::endpoint remote = stream_.socket().remote_endpoint(ec);
+    if (!ec) {
+      const auto address = remote.address();
+      // An IPv4 client of a dual-stack socket is one peer, however it came.
+      peer_ = address.is_v6() && address.to_v6().is_v4_mapped()
+                  ? asio::ip::make_address_v4(asio::ip::v4_mapped, address.to_v6()).to_string()
+                  : address.to_string();
+    }
+  }
   ~Session() {
     if (client_) {
       std::lock_guard lock(client_->mu);
@@ -213,14 +230,19 @@ class Session : public std::enable_shared_from_this<Session> {
       res.keep_alive(false);
       return send(std::move(res));
     }
-    if (options().stream && is_stream_request(req, options().stream_path)) {
-      return start_stream(req);
-    }
     HttpResponse res;
     try {
-      res = server_.handler(req);
+      if (options().stream && is_stream_request(req, options().stream_path)) {
+        std::optional<HttpResponse> refused;
+        if (options().stream_gate) refused = options().stream_gate(req, peer_);
+        if (!refused) return start_stream(req);
+        res = std::move(*refused);
+      } else {
+        res = server_.handler(req, peer_);
+      }
     } catch (const std::exception& e) {
-      spdlog::error("HTTP handler for {}: {}", std::string(req.target()), e.what());
+      spdlog::error("HTTP handler for {} {}: {}", std::string(req.method_string()),
+                    path_for_log(req), e.what());
       res = error_response(req, http::status::internal_server_error, "internal error");
     }
     send(std::move(res));
@@ -336,6 +358,7 @@ class Session : public std::enable_shared_from_this<Session> {
   beast::flat_buffer buffer_;
   std::optional<http::request_parser<http::string_body>> parser_;
   HttpServer::Impl& server_;
+  std::string peer_;  // the client's address; "" when the socket could not say
   std::shared_ptr<StreamClient> client_;
   std::array<char, 256> drain_{};
   std::unique_ptr<http::response<http::empty_body>> header_;
@@ -372,6 +395,14 @@ void HttpServer::Impl::schedule_tick() {
 
 Result<std::unique_ptr<HttpServer>> HttpServer::create(HttpServerOptions options,
                                                        HttpHandler handler) {
+  return create(std::move(options),
+                [handler = std::move(handler)](const HttpRequest& req, std::string_view) {
+                  return handler(req);
+                });
+}
+
+Result<std::unique_ptr<HttpServer>> HttpServer::create(HttpServerOptions options,
+                                                       HttpPeerHandler handler) {
   std::unique_ptr<HttpServer> server(new HttpServer());
   server->impl_ = std::make_unique<Impl>(std::move(options), std::move(handler));
   Impl& impl = *server->impl_;

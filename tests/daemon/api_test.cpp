@@ -6,8 +6,11 @@
 
 #include <filesystem>
 #include <fstream>
+#include <mutex>
 #include <nlohmann/json.hpp>
 
+#include "gyrotherm/core/clock.h"
+#include "gyrotherm/daemon/auth_limiter.h"
 #include "gyrotherm/daemon/http_client.h"
 #include "gyrotherm/daemon/http_server.h"
 
@@ -379,6 +382,265 @@ TEST(Api, BadBodiesAre400NamingTheProblem) {
             http::status::method_not_allowed);
   EXPECT_EQ(handle_api_request(request(http::verb::post, "/api/v1/control/explode"), ctx).result(),
             http::status::not_found);
+}
+
+// ---------------------------------------------------------------- access
+
+constexpr const char* kReadToken = "read-token-0123456789abcdef";
+// Shares all but its last character with kToken.
+constexpr const char* kNearToken = "test-token-0123456789abcdeF";
+
+const std::vector<std::pair<http::verb, std::string>>& mutations() {
+  static const std::vector<std::pair<http::verb, std::string>> list = {
+      {http::verb::post, "/api/v1/queue"},          {http::verb::delete_, "/api/v1/queue/3"},
+      {http::verb::post, "/api/v1/queue/3/move"},   {http::verb::post, "/api/v1/control/pause"},
+      {http::verb::post, "/api/v1/control/resume"}, {http::verb::post, "/api/v1/control/abort"},
+      {http::verb::post, "/api/v1/control/stop"}};
+  return list;
+}
+
+// Every GET route that carries station data (all of /api/v1 and /metrics).
+const std::vector<std::string>& data_reads() {
+  static const std::vector<std::string> list = {"/api/v1/status",
+                                                "/api/v1/queue",
+                                                "/api/v1/runs",
+                                                "/api/v1/runs/4",
+                                                "/api/v1/runs/4/events",
+                                                "/api/v1/runs/4/stats",
+                                                "/api/v1/runs/4/fits",
+                                                "/api/v1/runs/4/allan",
+                                                "/api/v1/runs/4/samples?max_points=10",
+                                                "/api/v1/fits/4",
+                                                "/api/v1/exports",
+                                                "/api/v1/openapi.json",
+                                                "/metrics"};
+  return list;
+}
+
+std::string bearer(const char* token) { return fmt::format("Bearer {}", token); }
+
+ApiContext two_role_context(FakeControl* control) {
+  ApiContext ctx = fake_context(control);
+  ctx.read_tokens = {kReadToken};
+  ctx.metrics = [] { return std::string("gyrotherm_up 1\n"); };
+  return ctx;
+}
+
+TEST(Api, ReadTokensMayReadButNeverChange) {
+  FakeControl control;
+  const ApiContext ctx = two_role_context(&control);
+  for (const auto& [verb, target] : mutations()) {
+    const auto res = handle_api_request(request(verb, target, "{}", bearer(kReadToken)), ctx);
+    EXPECT_EQ(res.result(), http::status::forbidden) << target;
+    const auto body = nlohmann::json::parse(res.body());
+    EXPECT_NE(body["error"].get<std::string>().find("read-only"), std::string::npos) << res.body();
+    EXPECT_EQ(res.body().find(kReadToken), std::string::npos) << "tokens are never echoed";
+    EXPECT_EQ(res.body().find(kToken), std::string::npos);
+  }
+  EXPECT_TRUE(control.calls.empty()) << "nothing reached the station with a read token";
+  // Unknown and missing tokens stay 401, however much of a real one they share.
+  for (const std::string& auth : {std::string(""), bearer(kNearToken), bearer("read-token-0123")}) {
+    EXPECT_EQ(handle_api_request(request(http::verb::post, "/api/v1/control/stop", "", auth), ctx)
+                  .result(),
+              http::status::unauthorized)
+        << auth;
+  }
+  EXPECT_TRUE(control.calls.empty());
+  // The control token changes; the read token reads.
+  EXPECT_EQ(handle_api_request(request(http::verb::post, "/api/v1/control/stop"), ctx).result(),
+            http::status::ok);
+  EXPECT_EQ(
+      handle_api_request(request(http::verb::get, "/api/v1/runs", "", bearer(kReadToken)), ctx)
+          .result(),
+      http::status::ok);
+  // Read tokens only, no control token: changes are disabled (403), not a 401.
+  ApiContext read_only = ctx;
+  read_only.tokens.clear();
+  EXPECT_EQ(
+      handle_api_request(request(http::verb::post, "/api/v1/control/stop", "", bearer(kReadToken)),
+                         read_only)
+          .result(),
+      http::status::forbidden);
+}
+
+TEST(Api, InTokenModeReadsNeedAReadOrControlToken) {
+  FakeControl control;
+  ApiContext ctx = two_role_context(&control);
+  ctx.reads_need_token = true;
+  for (const std::string& target : data_reads()) {
+    for (const std::string& auth : {std::string(""), bearer(kNearToken), std::string("Basic x")}) {
+      const auto res = handle_api_request(request(http::verb::get, target, "", auth), ctx);
+      EXPECT_EQ(res.result(), http::status::unauthorized) << target << " with '" << auth << "'";
+      EXPECT_EQ(res[http::field::www_authenticate], "Bearer") << target;
+      EXPECT_EQ(res.body().find(kToken), std::string::npos);
+      EXPECT_EQ(handle_api_request(request(http::verb::head, target, "", auth), ctx).result(),
+                http::status::unauthorized)
+          << "HEAD " << target;
+    }
+    for (const char* token : {kReadToken, kToken}) {
+      EXPECT_EQ(
+          handle_api_request(request(http::verb::get, target, "", bearer(token)), ctx).result(),
+          http::status::ok)
+          << target;
+    }
+  }
+  // The event stream is answered by the server, which asks check_access.
+  const auto stream = check_access(request(http::verb::get, "/api/v1/stream", "", ""), ctx);
+  ASSERT_TRUE(stream.has_value());
+  EXPECT_EQ(stream->result(), http::status::unauthorized);
+  EXPECT_FALSE(
+      check_access(request(http::verb::get, "/api/v1/stream", "", bearer(kReadToken)), ctx));
+  // Liveness and the dashboard's files hold no station data: open.
+  EXPECT_EQ(handle_api_request(request(http::verb::get, "/healthz", "", ""), ctx).result(),
+            http::status::ok);
+  for (const char* target : {"/", "/web/app.js"}) {
+    EXPECT_NE(handle_api_request(request(http::verb::get, target, "", ""), ctx).result(),
+              http::status::unauthorized)
+        << target;
+    EXPECT_FALSE(check_access(request(http::verb::get, target, "", ""), ctx)) << target;
+  }
+  // Open mode (the default): no token needed to read, and a wrong one is ignored.
+  ctx.reads_need_token = false;
+  for (const std::string& target : data_reads()) {
+    for (const std::string& auth : {std::string(""), bearer(kNearToken)}) {
+      EXPECT_EQ(handle_api_request(request(http::verb::get, target, "", auth), ctx).result(),
+                http::status::ok)
+          << target;
+    }
+  }
+  EXPECT_FALSE(check_access(request(http::verb::get, "/api/v1/stream", "", ""), ctx));
+}
+
+TEST(Api, TokenRoles) {
+  const std::vector<std::string> control = {"control-token-0123456789", "control-token-abcdefghij"};
+  const std::vector<std::string> read = {"read-token-0123456789ab"};
+  EXPECT_EQ(token_role("control-token-0123456789", control, read), TokenRole::kControl);
+  EXPECT_EQ(token_role("control-token-abcdefghij", control, read), TokenRole::kControl);
+  EXPECT_EQ(token_role("read-token-0123456789ab", control, read), TokenRole::kRead);
+  EXPECT_EQ(token_role("read-token-0123456789aB", control, read), TokenRole::kNone);
+  EXPECT_EQ(token_role("read-token-0123456789a", control, read), TokenRole::kNone) << "a prefix";
+  EXPECT_EQ(token_role("control-token-0123456789x", control, read), TokenRole::kNone);
+  EXPECT_EQ(token_role("", control, read), TokenRole::kNone);
+  EXPECT_EQ(token_role("read-token-0123456789ab", {}, read), TokenRole::kRead);
+  EXPECT_EQ(token_role("read-token-0123456789ab", control, {}), TokenRole::kNone);
+  EXPECT_FALSE(token_matches("read-token-0123456789ab", control));
+}
+
+TEST(AuthLimiter, LocksAPeerOutAfterMaxFailuresWithinTheWindow) {
+  ManualClock wall(1000.0);
+  AuthLimiter limiter({.max_failures = 3, .window_s = 60.0}, &wall);
+  EXPECT_EQ(limiter.retry_after_s("10.0.0.1"), 0);
+  // Failures further apart than the window never add up.
+  for (int i = 0; i < 5; ++i) {
+    EXPECT_FALSE(limiter.record_failure("10.0.0.1"));
+    wall.advance(31.0);
+  }
+  EXPECT_EQ(limiter.retry_after_s("10.0.0.1"), 0);
+  // Three within 60 s lock the peer out for 60 s from the third.
+  EXPECT_FALSE(limiter.record_failure("10.0.0.1"));  // with the one 31 s ago: 2
+  wall.advance(20.0);
+  EXPECT_TRUE(limiter.record_failure("10.0.0.1"));
+  EXPECT_EQ(limiter.retry_after_s("10.0.0.1"), 60);
+  EXPECT_EQ(limiter.retry_after_s("10.0.0.2"), 0) << "other peers are not affected";
+  wall.advance(59.5);
+  EXPECT_EQ(limiter.retry_after_s("10.0.0.1"), 1) << "rounded up";
+  wall.advance(0.5);
+  EXPECT_EQ(limiter.retry_after_s("10.0.0.1"), 0);
+  // A clean count afterwards.
+  EXPECT_FALSE(limiter.record_failure("10.0.0.1"));
+  EXPECT_FALSE(limiter.record_failure("10.0.0.1"));
+  EXPECT_EQ(limiter.retry_after_s("10.0.0.1"), 0);
+}
+
+TEST(AuthLimiter, ThePeerTableIsBounded) {
+  ManualClock wall(0.0);
+  AuthLimiter limiter({.max_failures = 2, .window_s = 60.0, .max_peers = 8}, &wall);
+  limiter.record_failure("attacker");
+  EXPECT_TRUE(limiter.record_failure("attacker"));
+  for (int i = 0; i < 100; ++i) {
+    wall.advance(0.01);
+    limiter.record_failure(fmt::format("10.0.0.{}", i));
+  }
+  EXPECT_LE(limiter.peers(), 8u);
+}
+
+TEST(Api, UnknownTokensAreThrottledPerPeer) {
+  FakeControl control;
+  ManualClock wall(0.0);
+  AuthLimiter limiter({.max_failures = 3, .window_s = 60.0}, &wall);
+  ApiContext ctx = two_role_context(&control);
+  ctx.auth_limiter = &limiter;
+  const auto stop = [&](const std::string& auth, std::string_view peer) {
+    return handle_api_request(request(http::verb::post, "/api/v1/control/stop", "", auth), ctx,
+                              peer);
+  };
+  // No token at all and a read token on a mutation are not failures.
+  for (int i = 0; i < 10; ++i) {
+    EXPECT_EQ(stop("", "10.0.0.1").result(), http::status::unauthorized);
+    EXPECT_EQ(stop(bearer(kReadToken), "10.0.0.1").result(), http::status::forbidden);
+  }
+  EXPECT_EQ(stop(bearer(kToken), "10.0.0.1").result(), http::status::ok);
+  // Three unknown tokens lock 10.0.0.1 out; even the right token gets 429.
+  for (const char* bad : {kNearToken, "x", kNearToken}) {
+    EXPECT_EQ(stop(bearer(bad), "10.0.0.1").result(), http::status::unauthorized);
+  }
+  const auto locked = stop(bearer(kToken), "10.0.0.1");
+  EXPECT_EQ(locked.result(), http::status::too_many_requests);
+  EXPECT_EQ(locked[http::field::retry_after], "60");
+  EXPECT_EQ(locked.body().find(kToken), std::string::npos);
+  wall.advance(45.0);
+  EXPECT_EQ(stop(bearer(kToken), "10.0.0.1")[http::field::retry_after], "15");
+  EXPECT_EQ(control.calls.size(), 1u) << "only the one good request reached the station";
+  // Others are not affected, nor open reads of the locked-out peer.
+  EXPECT_EQ(stop(bearer(kToken), "10.0.0.2").result(), http::status::ok);
+  EXPECT_EQ(handle_api_request(request(http::verb::get, "/api/v1/status", "", ""), ctx, "10.0.0.1")
+                .result(),
+            http::status::ok);
+  // In token mode its reads need a token, so they are throttled too.
+  ctx.reads_need_token = true;
+  EXPECT_EQ(handle_api_request(request(http::verb::get, "/api/v1/status", "", bearer(kReadToken)),
+                               ctx, "10.0.0.1")
+                .result(),
+            http::status::too_many_requests);
+  EXPECT_EQ(
+      handle_api_request(request(http::verb::get, "/healthz", "", ""), ctx, "10.0.0.1").result(),
+      http::status::ok);
+  wall.advance(15.0);
+  EXPECT_EQ(stop(bearer(kToken), "10.0.0.1").result(), http::status::ok) << "the window passed";
+}
+
+// The server hands each handler the client's address, and asks the stream
+// gate before a stream starts.
+TEST(HttpServer, PassesThePeerAddressAndGatesTheStream) {
+  EventStream stream({});
+  std::mutex mu;
+  std::vector<std::string> peers;
+  HttpServerOptions options;
+  options.port = 0;
+  options.stream = &stream;
+  options.stream_gate = [&](const HttpRequest& req,
+                            std::string_view peer) -> std::optional<HttpResponse> {
+    std::lock_guard lock(mu);
+    peers.push_back(fmt::format("gate {}", peer));
+    return error_response(req, http::status::unauthorized, "no");
+  };
+  auto server = HttpServer::create(options, [&](const HttpRequest& req, std::string_view peer) {
+    std::lock_guard lock(mu);
+    peers.push_back(std::string(peer));
+    return json_response(req, http::status::ok, "{}");
+  });
+  ASSERT_TRUE(server.ok()) << server.error().message;
+  (*server)->start();
+  const std::string base = fmt::format("http://127.0.0.1:{}", (*server)->port());
+  auto ok = http_request("GET", base + "/api/v1/status");
+  ASSERT_TRUE(ok.ok()) << ok.error().message;
+  auto refused = http_request("GET", base + "/api/v1/stream");
+  ASSERT_TRUE(refused.ok()) << refused.error().message;
+  EXPECT_EQ(refused->status, 401);
+  (*server)->stop();
+  std::lock_guard lock(mu);
+  EXPECT_EQ(peers, (std::vector<std::string>{"127.0.0.1", "gate 127.0.0.1"}));
+  EXPECT_EQ(stream.clients(), 0);
 }
 
 }  // namespace

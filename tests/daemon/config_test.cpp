@@ -178,6 +178,127 @@ TEST(Config, ApiLimitsAreReadWithDefaultsAndRangeChecked) {
   EXPECT_THAT(bad.error().message, HasSubstr("api.read_timeout_s: 0 is out of range"));
 }
 
+TEST(Config, ApiAccessDefaults) {
+  // An [api] section without bind: loopback only, reads open, 10 failures.
+  auto cfg = parse_station_config(std::string(kMinimal) + "[api]\nport = 8751\n", "t.toml");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  EXPECT_EQ(cfg->api.bind, "127.0.0.1");
+  EXPECT_EQ(cfg->api.read_access, "open");
+  EXPECT_TRUE(cfg->api.tokens.empty());
+  EXPECT_TRUE(cfg->api.read_tokens.empty());
+  EXPECT_EQ(cfg->api.max_auth_failures, 10);
+}
+
+TEST(Config, ReadTokensReadAccessAndAuthFailures) {
+  auto cfg = parse_station_config(std::string(kMinimal) +
+                                      "[api]\ntokens = [\"control-token-0123456789\"]\n"
+                                      "read_tokens = [\"read-token-0123456789ab\", "
+                                      "\"read-token-abcdefghijkl\"]\n"
+                                      "read_access = \"token\"\nmax_auth_failures = 3\n",
+                                  "t.toml");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  EXPECT_EQ(cfg->api.tokens, std::vector<std::string>{"control-token-0123456789"});
+  EXPECT_EQ(cfg->api.read_tokens,
+            (std::vector<std::string>{"read-token-0123456789ab", "read-token-abcdefghijkl"}));
+  EXPECT_EQ(cfg->api.read_access, "token");
+  EXPECT_EQ(cfg->api.max_auth_failures, 3);
+
+  // Read tokens alone are enough for token mode (a read-only station).
+  auto read_only = parse_station_config(std::string(kMinimal) +
+                                            "[api]\nread_tokens = [\"read-token-0123456789ab\"]\n"
+                                            "read_access = \"token\"\n",
+                                        "t.toml");
+  ASSERT_TRUE(read_only.ok()) << read_only.error().message;
+
+  auto bad = parse_station_config(std::string(kMinimal) +
+                                      "[api]\nread_access = \"closed\"\nmax_auth_failures = 0\n"
+                                      "read_tokens = [\"short\"]\n",
+                                  "t.toml");
+  ASSERT_FALSE(bad.ok());
+  EXPECT_THAT(bad.error().message, HasSubstr("t.toml:11: api.read_access"));
+  EXPECT_THAT(bad.error().message, HasSubstr("api.max_auth_failures: 0 is out of range"));
+  EXPECT_THAT(bad.error().message,
+              HasSubstr("t.toml:13: api.read_tokens: each token must be a string of at least 16"));
+  EXPECT_THAT(bad.error().message, Not(HasSubstr("short")));
+
+  auto nobody =
+      parse_station_config(std::string(kMinimal) + "[api]\nread_access = \"token\"\n", "t.toml");
+  ASSERT_FALSE(nobody.ok());
+  EXPECT_THAT(nobody.error().message, HasSubstr("api.read_access: \"token\" needs at least one"));
+}
+
+// A token has one role: listed in both arrays, or twice, it is an error that
+// names the key and the line of the entry, and never quotes the token.
+TEST(Config, ATokenInBothListsOrTwiceIsRefusedWithoutQuotingIt) {
+  auto cfg = parse_station_config(std::string(kMinimal) + R"([api]
+tokens = [
+  "control-token-0123456789",
+  "second-token-abcdefghij",
+  "control-token-0123456789",
+]
+read_tokens = [
+  "read-token-0123456789ab",
+  "second-token-abcdefghij",
+]
+)",
+                                  "t.toml");
+  ASSERT_FALSE(cfg.ok());
+  const std::string& m = cfg.error().message;
+  EXPECT_THAT(m, HasSubstr("t.toml:14: api.tokens: entry 3 repeats an earlier entry")) << m;
+  EXPECT_THAT(m, HasSubstr("t.toml:18: api.read_tokens: entry 2 is also in [api] tokens")) << m;
+  for (const char* token :
+       {"control-token", "second-token", "read-token", "0123456789", "abcdefghij"}) {
+    EXPECT_THAT(m, Not(HasSubstr(token))) << "tokens never appear in messages";
+  }
+}
+
+TEST(Config, ExposureWarningForOpenReadsBeyondLoopback) {
+  ApiSection api;
+  EXPECT_FALSE(api_exposure_warning(api)) << "127.0.0.1 (the default)";
+  api.bind = "::1";
+  EXPECT_FALSE(api_exposure_warning(api));
+  api.bind = "0.0.0.0";
+  api.tokens = {"control-token-0123456789"};
+  const auto warning = api_exposure_warning(api);
+  ASSERT_TRUE(warning);
+  EXPECT_THAT(*warning, HasSubstr("[api] bind = \"0.0.0.0\" is not a loopback address"));
+  EXPECT_THAT(*warning, Not(HasSubstr("control-token")));
+  api.bind = "192.168.1.20";
+  api.read_access = "token";
+  EXPECT_FALSE(api_exposure_warning(api)) << "reads need a token";
+}
+
+// What a run stores of the station config (runs.config_json) holds no token.
+TEST(Config, RedactedConfigTextHoldsNoToken) {
+  const std::string text = std::string(kMinimal) + R"([api]
+# the old token was "control-token-0123456789"
+tokens = [
+  "control-token-0123456789",  # the lab PC
+]
+read_tokens = ["read-token-0123456789ab"]
+[analysis]
+model = "T2"
+)";
+  const std::string redacted = redact_config_secrets(text);
+  EXPECT_THAT(redacted, Not(HasSubstr("control-token")));
+  EXPECT_THAT(redacted, Not(HasSubstr("read-token")));
+  EXPECT_THAT(redacted, HasSubstr("# the lab PC")) << "comments and layout stay";
+  EXPECT_THAT(redacted, HasSubstr("model = \"T2\""));
+  // A token spelled with escapes, and one only the running config knows.
+  ApiSection running;
+  running.tokens = {"runtime-token-abcdefghij"};
+  const std::string escaped = redact_config_secrets(
+      std::string(kMinimal) +
+          "[api]\ntokens = [\"esc\\u0061ped-token-0123456789\"]\n# runtime-token-abcdefghij\n",
+      running);
+  EXPECT_THAT(escaped, Not(HasSubstr("ped-token-0123456789"))) << escaped;
+  EXPECT_THAT(escaped, Not(HasSubstr("runtime-token")));
+  EXPECT_THAT(escaped, HasSubstr("<redacted>"));
+  EXPECT_THAT(escaped, HasSubstr("latitude_deg = 31.")) << "the rest stays";
+  EXPECT_THAT(redact_config_secrets("tokens = [\"unterminated-token-0123"),
+              Not(HasSubstr("unterminated")));
+}
+
 TEST(SimEndpoints, RoundTripThroughAFile) {
   const auto dir =
       std::filesystem::temp_directory_path() / ("gyrotherm-ep-" + std::to_string(::getpid()));

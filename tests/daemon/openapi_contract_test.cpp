@@ -10,7 +10,9 @@
 #include <nlohmann/json.hpp>
 #include <set>
 
+#include "gyrotherm/core/clock.h"
 #include "gyrotherm/daemon/api.h"
+#include "gyrotherm/daemon/auth_limiter.h"
 #include "gyrotherm/daemon/metrics.h"
 #include "gyrotherm/daemon/web_assets.h"
 
@@ -503,13 +505,24 @@ TEST(OpenApi, OperationsAreCompleteAndMutationsNeedTheToken) {
       }
       EXPECT_EQ(in_template, declared) << name << ": template parameters vs declared ones";
 
+      // Mutations require the bearer token; reads of station data (all of
+      // /api/v1 and /metrics) take one optionally ({}: none, in open mode);
+      // liveness and the dashboard's files none.
       const bool mutation = std::string(m) == "post" || std::string(m) == "delete";
+      const bool data_read = !mutation && (path.rfind("/api/v1/", 0) == 0 || path == "/metrics");
       const json security = op.value("security", doc.value("security", json::array()));
-      const bool bearer = !security.empty() && security[0].contains("bearerAuth");
-      EXPECT_EQ(bearer, mutation) << name << ": bearerAuth on exactly the POSTs and DELETEs";
       if (mutation) {
-        EXPECT_TRUE(op.at("responses").contains("401")) << name;
-        EXPECT_TRUE(op.at("responses").contains("403")) << name;
+        EXPECT_EQ(security, json::parse(R"([{"bearerAuth": []}])")) << name;
+        for (const char* code : {"401", "403", "429"}) {
+          EXPECT_TRUE(op.at("responses").contains(code)) << name << " " << code;
+        }
+      } else if (data_read) {
+        EXPECT_EQ(security, json::parse(R"([{}, {"bearerAuth": []}])")) << name;
+        for (const char* code : {"401", "429"}) {
+          EXPECT_TRUE(op.at("responses").contains(code)) << name << " " << code;
+        }
+      } else {
+        EXPECT_TRUE(security.empty()) << name << ": open to all";
       }
       if (op.contains("requestBody")) {
         const json& schema =
@@ -529,72 +542,77 @@ TEST(OpenApi, EveryOperationAnswersAsDocumented) {
   ContractControl control;
   const WebRoot web;
   const Metrics metrics;
-  const ApiContext ctx = contract_context(&control, web.assets(), &metrics);
+  ApiContext ctx = contract_context(&control, web.assets(), &metrics);
   int checked = 0;
-  for (const auto& [path, item] : document().at("paths").items()) {
-    for (const char* m : kMethods) {
-      if (!item.contains(m)) continue;
-      const json& op = item.at(m);
-      std::string body;
-      if (op.contains("requestBody")) {
-        const json& media = op.at("requestBody").at("content").at("application/json");
-        ASSERT_TRUE(media.contains("example"))
-            << upper(m) << " " << path << ": document an example body (the test sends it)";
-        body = media.at("example").dump();
-        std::vector<std::string> errors;
-        check_schema(media.at("example"), media.at("schema"), "example", errors);
-        EXPECT_TRUE(errors.empty())
-            << upper(m) << " " << path << ": " << fmt::format("{}", fmt::join(errors, "\n"));
-      }
-      for (const std::string& target : fill_path(path, operation_parameters(item, op))) {
-        const std::string name = upper(m) + " " + target;
-        SCOPED_TRACE(name);
-        HttpRequest req{http::string_to_verb(upper(m)), target, 11};
-        req.set(http::field::authorization, std::string("Bearer ") + kToken);
-        if (!body.empty()) req.set(http::field::content_type, "application/json");
-        req.body() = body;
-        req.prepare_payload();
-        const HttpResponse res = handle_api_request(req, ctx);
-        const int status = static_cast<int>(res.result());
-        EXPECT_NE(status, 404) << res.body();
-        EXPECT_NE(status, 405) << res.body();
-        // The station agrees to everything here, so only success is right;
-        // the stream is served by the HTTP server, not by this function.
-        if (target != "/api/v1/stream") {
-          EXPECT_EQ(status / 100, 2) << res.body();
+  // Reads open, then reads that need a token: the control token serves both.
+  for (const bool token_mode : {false, true}) {
+    ctx.reads_need_token = token_mode;
+    for (const auto& [path, item] : document().at("paths").items()) {
+      for (const char* m : kMethods) {
+        if (!item.contains(m)) continue;
+        const json& op = item.at(m);
+        std::string body;
+        if (op.contains("requestBody")) {
+          const json& media = op.at("requestBody").at("content").at("application/json");
+          ASSERT_TRUE(media.contains("example"))
+              << upper(m) << " " << path << ": document an example body (the test sends it)";
+          body = media.at("example").dump();
+          std::vector<std::string> errors;
+          check_schema(media.at("example"), media.at("schema"), "example", errors);
+          EXPECT_TRUE(errors.empty())
+              << upper(m) << " " << path << ": " << fmt::format("{}", fmt::join(errors, "\n"));
         }
-        const json& responses = op.at("responses");
-        const std::string code = std::to_string(status);
-        if (!responses.contains(code)) {
-          ADD_FAILURE() << name << " answered " << status << ", not documented: " << res.body();
-          continue;
+        for (const std::string& target : fill_path(path, operation_parameters(item, op))) {
+          const std::string name = upper(m) + " " + target;
+          SCOPED_TRACE(name);
+          HttpRequest req{http::string_to_verb(upper(m)), target, 11};
+          req.set(http::field::authorization, std::string("Bearer ") + kToken);
+          if (!body.empty()) req.set(http::field::content_type, "application/json");
+          req.body() = body;
+          req.prepare_payload();
+          const HttpResponse res = handle_api_request(req, ctx);
+          const int status = static_cast<int>(res.result());
+          EXPECT_NE(status, 404) << res.body();
+          EXPECT_NE(status, 405) << res.body();
+          // The station agrees to everything here, so only success is right;
+          // the stream is served by the HTTP server, not by this function.
+          if (target != "/api/v1/stream") {
+            EXPECT_EQ(status / 100, 2) << res.body();
+          }
+          const json& responses = op.at("responses");
+          const std::string code = std::to_string(status);
+          if (!responses.contains(code)) {
+            ADD_FAILURE() << name << " answered " << status << ", not documented: " << res.body();
+            continue;
+          }
+          ++checked;
+          const json& documented = resolve(responses.at(code));
+          if (!documented.contains("content")) continue;
+          std::string type(res[http::field::content_type]);
+          type = type.substr(0, type.find(';'));
+          if (!documented.at("content").contains(type)) {
+            ADD_FAILURE() << name << ": content type '" << type << "' is not documented for "
+                          << code;
+            continue;
+          }
+          if (type != "application/json") continue;
+          const json& schema = documented.at("content").at(type).value("schema", json::object());
+          json value;
+          try {
+            value = json::parse(res.body());
+          } catch (const json::parse_error& e) {
+            ADD_FAILURE() << name << ": body is not JSON: " << e.what();
+            continue;
+          }
+          std::vector<std::string> errors;
+          check_schema(value, schema, "body", errors);
+          check_all_of_fields(value, schema, "body", errors);
+          EXPECT_TRUE(errors.empty()) << fmt::format("{}", fmt::join(errors, "\n"));
         }
-        ++checked;
-        const json& documented = resolve(responses.at(code));
-        if (!documented.contains("content")) continue;
-        std::string type(res[http::field::content_type]);
-        type = type.substr(0, type.find(';'));
-        if (!documented.at("content").contains(type)) {
-          ADD_FAILURE() << name << ": content type '" << type << "' is not documented for " << code;
-          continue;
-        }
-        if (type != "application/json") continue;
-        const json& schema = documented.at("content").at(type).value("schema", json::object());
-        json value;
-        try {
-          value = json::parse(res.body());
-        } catch (const json::parse_error& e) {
-          ADD_FAILURE() << name << ": body is not JSON: " << e.what();
-          continue;
-        }
-        std::vector<std::string> errors;
-        check_schema(value, schema, "body", errors);
-        check_all_of_fields(value, schema, "body", errors);
-        EXPECT_TRUE(errors.empty()) << fmt::format("{}", fmt::join(errors, "\n"));
       }
     }
   }
-  EXPECT_GE(checked, static_cast<int>(documented_operations().size()));
+  EXPECT_GE(checked, 2 * static_cast<int>(documented_operations().size()));
 }
 
 // The mutations without a token, and with no token configured, answer the
@@ -626,6 +644,63 @@ TEST(OpenApi, RefusedMutationsAnswerTheDocumentedErrors) {
       }
     }
   }
+}
+
+// A read token on every mutation: the documented 403. A peer locked out by
+// the failed-authentication throttle: the documented 429 with Retry-After,
+// on mutations and, in token mode, on reads of station data. Reads without
+// a token in token mode: the documented 401.
+TEST(OpenApi, ReadTokensTokenModeAndThrottlingAnswerTheDocumentedErrors) {
+  constexpr const char* kReadToken = "contract-read-token-0123456789";
+  ContractControl control;
+  const Metrics metrics;
+  ManualClock wall;
+  AuthLimiter limiter({.max_failures = 1, .window_s = 60.0}, &wall);
+  ApiContext ctx = contract_context(&control, nullptr, &metrics);
+  ctx.read_tokens = {kReadToken};
+  ctx.reads_need_token = true;
+  ctx.auth_limiter = &limiter;
+  HttpRequest wrong{http::verb::post, "/api/v1/control/stop", 11};
+  wrong.set(http::field::authorization, "Bearer not-a-token-of-this-station");
+  ASSERT_EQ(handle_api_request(wrong, ctx, "192.0.2.9").result(), http::status::unauthorized);
+
+  const auto check = [&](const json& op, const std::string& name, const HttpResponse& res,
+                         int expected) {
+    ASSERT_EQ(static_cast<int>(res.result()), expected) << name << ": " << res.body();
+    const std::string code = std::to_string(expected);
+    ASSERT_TRUE(op.at("responses").contains(code)) << name << " " << code;
+    const json& documented = resolve(op.at("responses").at(code));
+    const json headers = documented.value("headers", json::object());
+    for (const auto& [header, spec] : headers.items()) {
+      EXPECT_FALSE(res[header].empty()) << name << ": documented header " << header;
+    }
+    std::vector<std::string> errors;
+    check_schema(json::parse(res.body()),
+                 documented.at("content").at("application/json").at("schema"), "body", errors);
+    EXPECT_TRUE(errors.empty()) << name << fmt::format("{}", fmt::join(errors, "\n"));
+  };
+  int checked = 0;
+  for (const auto& [path, item] : document().at("paths").items()) {
+    for (const char* m : {"get", "post", "delete"}) {
+      if (!item.contains(m)) continue;
+      const json& op = item.at(m);
+      if (!op.contains("security")) continue;  // open to all
+      const bool mutation = std::string(m) != "get";
+      for (const std::string& target : fill_path(path, operation_parameters(item, op))) {
+        const std::string name = upper(m) + " " + target;
+        HttpRequest req{http::string_to_verb(upper(m)), target, 11};
+        req.set(http::field::authorization, std::string("Bearer ") + kReadToken);
+        if (mutation) check(op, name, handle_api_request(req, ctx, "192.0.2.1"), 403);
+        check(op, name, handle_api_request(req, ctx, "192.0.2.9"), 429);
+        if (!mutation) {
+          HttpRequest anonymous{http::verb::get, target, 11};
+          check(op, name, handle_api_request(anonymous, ctx, "192.0.2.1"), 401);
+        }
+        ++checked;
+      }
+    }
+  }
+  EXPECT_GE(checked, 15);
 }
 
 // GET /api/v1/openapi.json serves this very document (embedded at build

@@ -285,8 +285,7 @@ TEST_F(CliControlTest, EachCommandSendsItsRequest) {
   struct Case {
     std::vector<std::string> args;
     std::string method, target;
-    json body;  // null: no body
-    bool authorized;
+    json body;         // null: no body
     std::string says;  // in the human output
   };
   const std::vector<Case> cases = {
@@ -294,43 +293,33 @@ TEST_F(CliControlTest, EachCommandSendsItsRequest) {
        "POST",
        "/api/v1/queue",
        {{"schedule_toml", schedule_text}, {"source", schedule}, {"ignore_failures", true}},
-       true,
        "queued entry 8: demo (3 steps) at position 1, failures ignored"},
       {{"queue", "add", schedule},
        "POST",
        "/api/v1/queue",
        {{"schedule_toml", schedule_text}, {"source", schedule}, {"ignore_failures", false}},
-       true,
        "queued entry 8"},
-      {{"queue", "list"}, "GET", "/api/v1/queue", nullptr, false, "paper-ramp"},
-      {{"queue", "remove", "9"},
-       "DELETE",
-       "/api/v1/queue/9",
-       nullptr,
-       true,
-       "removed queue entry 9"},
+      {{"queue", "list"}, "GET", "/api/v1/queue", nullptr, "paper-ramp"},
+      {{"queue", "remove", "9"}, "DELETE", "/api/v1/queue/9", nullptr, "removed queue entry 9"},
       {{"queue", "move", "9", "0"},
        "POST",
        "/api/v1/queue/9/move",
        {{"position", 0}},
-       true,
        "paper-ramp"},
       {{"pause", "--reason", "door opened"},
        "POST",
        "/api/v1/control/pause",
        {{"reason", "door opened"}},
-       true,
        "pause done"},
-      {{"resume"}, "POST", "/api/v1/control/resume", nullptr, true, "resume done"},
+      {{"resume"}, "POST", "/api/v1/control/resume", nullptr, "resume done"},
       {{"abort", "--reason", "gyro cable"},
        "POST",
        "/api/v1/control/abort",
        {{"reason", "gyro cable"}},
-       true,
        "abort done"},
-      {{"stop"}, "POST", "/api/v1/control/stop", nullptr, true, "stop done"},
-      {{"status"}, "GET", "/api/v1/status", nullptr, false, "acquiring (paused)"},
-      {{"runs"}, "GET", "/api/v1/runs", nullptr, false, "completed"},
+      {{"stop"}, "POST", "/api/v1/control/stop", nullptr, "stop done"},
+      {{"status"}, "GET", "/api/v1/status", nullptr, "acquiring (paused)"},
+      {{"runs"}, "GET", "/api/v1/runs", nullptr, "completed"},
   };
   for (const auto& c : cases) {
     SCOPED_TRACE(fmt::format("{}", fmt::join(c.args, " ")));
@@ -347,8 +336,9 @@ TEST_F(CliControlTest, EachCommandSendsItsRequest) {
     } else {
       EXPECT_EQ(json::parse(seen[0].body), c.body);
     }
-    // The token goes with changes only; reads are open.
-    EXPECT_EQ(seen[0].authorization, c.authorized ? fmt::format("Bearer {}", kToken) : "");
+    // The token goes with every request: reads need it when the daemon's
+    // [api] read_access is "token".
+    EXPECT_EQ(seen[0].authorization, fmt::format("Bearer {}", kToken));
   }
 
   d.forget();
@@ -358,7 +348,7 @@ TEST_F(CliControlTest, EachCommandSendsItsRequest) {
   ASSERT_EQ(seen.size(), 2u);
   EXPECT_EQ(seen[0].target, "/api/v1/runs/12");
   EXPECT_EQ(seen[1].target, "/api/v1/runs/12/events");
-  EXPECT_EQ(seen[0].authorization, "");
+  EXPECT_EQ(seen[0].authorization, fmt::format("Bearer {}", kToken));
   EXPECT_THAT(run.out, HasSubstr("0:30:00  state  settling → acquiring   stability gate held"));
 }
 

@@ -2,13 +2,17 @@
 // schedule; headless Chromium (tests/browser/dashboard.mjs, playwright-core)
 // loads http://127.0.0.1:PORT/ from gyrothermd, waits for the live values to
 // move, and leaves a screenshot in the build folder for a human to look at.
+// A station whose reads need a token: the page asks for one, then goes live.
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <vector>
 
 #include "station_fixture.h"
 
@@ -44,15 +48,30 @@ stability_window_min = 2
 acquire_min = 600
 )";
 
-class DashboardTest : public StationTest {};
+class DashboardTest : public StationTest {
+ protected:
+  // Runs tests/browser/dashboard.mjs against the daemon's page (with
+  // `extra` arguments); the screenshot goes to `png`.
+  void run_browser(const fs::path& png, std::vector<std::string> extra = {}) {
+    const fs::path source_dir = GYROTHERM_SOURCE_DIR;
+    const fs::path script = source_dir / "tests/browser/dashboard.mjs";
+    const testing::BrowserTools tools = testing::browser_tools(source_dir.string());
+    if (!tools.missing.empty()) GTEST_FAIL() << tools.missing;
+    fs::remove(png);
+    std::vector<std::string> argv{tools.node,     script.string(), "--url",       url("/"),
+                                  "--screenshot", png.string(),    "--timeout-s", "60"};
+    argv.insert(argv.end(), extra.begin(), extra.end());
+    testing::ChildProcess browser(argv, (dir_ / "browser.log").string());
+    const auto code = browser.wait(std::chrono::seconds(120));
+    ASSERT_TRUE(code.has_value()) << "the browser test did not finish in 120 s\n" << browser.log();
+    EXPECT_EQ(*code, 0) << browser.log() << "\ndaemon log:\n" << daemon_->log();
+    ASSERT_TRUE(fs::exists(png)) << "no screenshot at " << png << "\n" << browser.log();
+    EXPECT_GT(fs::file_size(png), 10u * 1024) << png << " is too small to be the dashboard";
+    std::printf("dashboard screenshot: %s\n", png.c_str());
+  }
+};
 
 TEST_F(DashboardTest, LiveInHeadlessChromium) {
-  const fs::path source_dir = GYROTHERM_SOURCE_DIR;
-  const fs::path script = source_dir / "tests/browser/dashboard.mjs";
-  const testing::BrowserTools tools = testing::browser_tools(source_dir.string());
-  if (!tools.missing.empty()) GTEST_FAIL() << tools.missing;
-  const std::string& node = tools.node;
-
   write(dir_ / "schedule.toml", kDashboardSchedule);
   start_sim();
   start_daemon();
@@ -73,19 +92,35 @@ TEST_F(DashboardTest, LiveInHeadlessChromium) {
   ASSERT_TRUE(page && page->status == 200)
       << "gyrothermd does not serve the dashboard at / (is the gyrotherm_web target built?)\n"
       << daemon_->log();
+  run_browser(fs::weakly_canonical(fs::path(GYROTHERM_DASHBOARD_PNG)));
+}
 
-  const fs::path png = fs::weakly_canonical(fs::path(GYROTHERM_DASHBOARD_PNG));
-  fs::remove(png);
-  testing::ChildProcess browser(
-      {node, script.string(), "--url", url("/"), "--screenshot", png.string(), "--timeout-s", "60"},
-      (dir_ / "browser.log").string());
-  const auto code = browser.wait(std::chrono::seconds(120));
-  ASSERT_TRUE(code.has_value()) << "the browser test did not finish in 120 s\n" << browser.log();
-  EXPECT_EQ(*code, 0) << browser.log() << "\ndaemon log:\n" << daemon_->log();
-
-  ASSERT_TRUE(fs::exists(png)) << "no screenshot at " << png << "\n" << browser.log();
-  EXPECT_GT(fs::file_size(png), 10u * 1024) << png << " is too small to be the dashboard";
-  std::printf("dashboard screenshot: %s\n", png.c_str());
+// [api] read_access = "token": the page asks for a token, then goes live with
+// it in the Authorization header (the stream read through fetch()).
+TEST_F(DashboardTest, AsksForATokenWhenReadsNeedOne) {
+  constexpr const char* kReadToken = "dashboard-read-token-0123456789";
+  std::ifstream in(dir_ / "station.toml");
+  std::string config((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const auto api = config.find("[api]\n");
+  ASSERT_NE(api, std::string::npos);
+  config.insert(api + 6,
+                fmt::format("read_access = \"token\"\nread_tokens = [\"{}\"]\n", kReadToken));
+  write(dir_ / "station.toml", config);
+  write(dir_ / "schedule.toml", kDashboardSchedule);
+  start_sim();
+  start_daemon();
+  ASSERT_TRUE(wait_until(
+      [&] {
+        auto r = call("GET", "/api/v1/status", "", kReadToken);
+        return r && r->status == 200;
+      },
+      std::chrono::seconds(30)))
+      << daemon_->log();
+  const auto anonymous = call("GET", "/api/v1/status", "", "");
+  ASSERT_TRUE(anonymous && anonymous->status == 401) << "reads do not need a token";
+  run_browser(fs::weakly_canonical(fs::path(GYROTHERM_DASHBOARD_PNG))
+                  .replace_filename("dashboard-token.png"),
+              {"--token", kReadToken});
 }
 
 }  // namespace

@@ -7,18 +7,25 @@
 // document and the dashboard's files. GET /api/v1/stream is answered by the
 // HTTP server's EventStream (http_server.h).
 //
-// Every POST and DELETE needs "Authorization: Bearer TOKEN" with one of the
-// configured tokens (compared in constant time; never logged or echoed):
-// missing or wrong -> 401 and nothing changes; no token configured -> 403.
-// Bad JSON, unknown fields and wrong types -> 400 naming the field. Unknown
-// paths -> 404, known paths with another method -> 405.
+// Access (docs/api.md, "Access"): every POST and DELETE needs
+// "Authorization: Bearer TOKEN" with a control token ([api] tokens): missing
+// or unknown -> 401 with WWW-Authenticate, a read token ([api] read_tokens)
+// -> 403, no control token configured -> 403; nothing reaches the station.
+// With reads_need_token, every GET under /api/v1 and /metrics needs a read or
+// control token too (401 otherwise); /healthz and the dashboard's files stay
+// open. Tokens are compared in constant time and never logged or echoed. A
+// peer that presented too many unknown tokens gets 429 with Retry-After on
+// whatever needs a token (AuthLimiter). Bad JSON, unknown fields and wrong types -> 400 naming the
+// field. Unknown paths -> 404, known paths with another method -> 405.
 #pragma once
 
 #include <functional>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
 
+#include "gyrotherm/daemon/auth_limiter.h"
 #include "gyrotherm/daemon/control.h"
 #include "gyrotherm/daemon/http_server.h"
 #include "gyrotherm/daemon/status.h"
@@ -29,12 +36,24 @@ namespace gyrotherm::daemon {
 struct ApiContext {
   std::function<StatusSnapshot()> status;
   StationControl* control = nullptr;     // nullptr: control and record routes answer 503
-  std::vector<std::string> tokens;       // [api] tokens
+  std::vector<std::string> tokens;       // [api] tokens: may read and change
+  std::vector<std::string> read_tokens;  // [api] read_tokens: may read only
+  bool reads_need_token = false;         // [api] read_access = "token"
+  AuthLimiter* auth_limiter = nullptr;   // not owned; nullptr: no throttling
   std::function<std::string()> metrics;  // Prometheus text; nullptr: /metrics answers 503
   const WebAssets* web = nullptr;        // the dashboard; nullptr: / answers 404
 };
 
-HttpResponse handle_api_request(const HttpRequest& req, const ApiContext& ctx);
+// `peer` is the client's address (as HttpServer passes it): the key of the
+// failed-authentication throttling.
+HttpResponse handle_api_request(const HttpRequest& req, const ApiContext& ctx,
+                                std::string_view peer = {});
+
+// The access check alone, for routes answered outside handle_api_request
+// (the event stream): the refusal (401, 403, 429), or nullopt when `req` may
+// go on. Unknown paths pass (they get their 404 elsewhere).
+std::optional<HttpResponse> check_access(const HttpRequest& req, const ApiContext& ctx,
+                                         std::string_view peer = {});
 
 // Every (method, path template) served, e.g. {"GET", "/api/v1/runs/{id}"};
 // HEAD is served wherever GET is and not listed. docs: daemon/openapi.json.
@@ -47,8 +66,16 @@ std::vector<RouteInfo> api_routes();
 // The OpenAPI 3 document (daemon/openapi.json, embedded at build time).
 std::string_view openapi_document();
 
-// True when `presented` equals one of `tokens`. Takes the same time for any
-// presented token of a given length, whichever token (if any) matches.
+// What a presented token may do: kControl when it equals one of
+// `control_tokens`, kRead when one of `read_tokens`, else kNone. Compares it
+// with every token of both lists, every byte of it each time: the time taken
+// depends on the presented token's length and the lists, not on which token
+// (if any) matches or how much of one it shares.
+enum class TokenRole { kNone, kRead, kControl };
+TokenRole token_role(std::string_view presented, const std::vector<std::string>& control_tokens,
+                     const std::vector<std::string>& read_tokens);
+
+// True when `presented` equals one of `tokens` (token_role with no read tokens).
 bool token_matches(std::string_view presented, const std::vector<std::string>& tokens);
 
 }  // namespace gyrotherm::daemon

@@ -64,7 +64,16 @@ struct StorageSection {
 struct ApiSection {
   std::string bind = "127.0.0.1";
   int port = 8750;  // 0 = pick a free port (it is logged and written to status_file)
+  // Access (docs/api.md, "Access"): control tokens may read and change,
+  // read tokens only read; each at least 16 characters, none in both lists
+  // or twice. read_access "open": reads need no token; "token": every GET
+  // under /api/v1 and /metrics needs a read or control token.
   std::vector<std::string> tokens;
+  std::vector<std::string> read_tokens;
+  std::string read_access = "open";  // or "token"
+  // Unknown tokens from one address within 60 wall s before its requests
+  // that need a token get 429 (for 60 s).
+  int max_auth_failures = 10;
   // HTTP limits (wall time): a request must arrive within read_timeout_s; a
   // stream client further behind than stream_queue_bytes is dropped.
   double read_timeout_s = 10;
@@ -129,6 +138,18 @@ struct StationConfig {
   // StationConfig that load_station_config() returned (toml++ copies drop them).
   std::optional<toml::table> simulator_table;
 };
+
+// A warning for the log when the API is exposed beyond this machine with
+// open reads (bind not a loopback address, read_access "open"); nullopt
+// otherwise.
+std::optional<std::string> api_exposure_warning(const ApiSection& api);
+
+// `toml_text` (a station config file) with every token of its [api] tokens
+// and read_tokens, and of `api`, replaced by "<redacted>": what may be stored
+// or shown (runs.config_json). Comments and layout are kept; a token the text
+// spells with escapes makes it re-serialised without comments; text that no
+// longer parses is replaced by a one-line comment saying so.
+std::string redact_config_secrets(std::string_view toml_text, const ApiSection& api = {});
 
 // Loads and validates. The error's message lists every problem, one per line.
 Result<StationConfig> load_station_config(const std::string& path);

@@ -5,7 +5,8 @@
 // kept apart from sessions and the listener, as in Beast's async example
 // server. Every read has a timeout, headers and bodies are size-limited and
 // the number of connections is bounded; a bad request gets a 4xx and the
-// server keeps serving. Exceptions thrown by the handler become 500s.
+// server keeps serving. Exceptions thrown by the handler become 500s. Log
+// lines name the method and path, never a header or the query.
 //
 // A GET of options.stream_path turns the connection into an event stream
 // (text/event-stream, chunked) fed by an EventStream: publish() formats a
@@ -24,7 +25,9 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
+#include <string_view>
 #include <thread>
 #include <vector>
 
@@ -35,6 +38,8 @@ namespace gyrotherm::daemon {
 using HttpRequest = boost::beast::http::request<boost::beast::http::string_body>;
 using HttpResponse = boost::beast::http::response<boost::beast::http::string_body>;
 using HttpHandler = std::function<HttpResponse(const HttpRequest&)>;
+// A handler that is also told the client's address ("127.0.0.1", "::1").
+using HttpPeerHandler = std::function<HttpResponse(const HttpRequest&, std::string_view peer)>;
 
 // One stream client's queue (shared by the EventStream and the session).
 struct StreamClient {
@@ -93,6 +98,9 @@ struct HttpServerOptions {
   int threads = 2;  // io_context threads: a slow database read does not stall the rest
   EventStream* stream = nullptr;  // not owned; outlives the server
   std::string stream_path = "/api/v1/stream";
+  // Asked before a stream starts: a response refuses the stream (it is sent
+  // instead); nullopt or no gate lets it start.
+  std::function<std::optional<HttpResponse>(const HttpRequest&, std::string_view peer)> stream_gate;
 };
 
 struct HttpServerStats {
@@ -106,6 +114,8 @@ class HttpServer {
  public:
   // Binds and listens; error (permanent) when the address is unusable or the
   // port is taken. Serving starts with start().
+  static Result<std::unique_ptr<HttpServer>> create(HttpServerOptions options,
+                                                    HttpPeerHandler handler);
   static Result<std::unique_ptr<HttpServer>> create(HttpServerOptions options, HttpHandler handler);
   ~HttpServer();  // stop()
 
