@@ -183,6 +183,19 @@ Result<std::vector<SoakWindow>> soak_windows(storage::Database& db, int64_t run_
   return out;
 }
 
+// The temperature rows of [from_s, to_s) that carry both shell probes. A row
+// without them is a recorded gap (the probe module did not answer that tick),
+// not a reading: the analysis bins the gyro against the rows around it.
+Result<std::vector<TemperatureSample>> shell_readings(storage::Database& db, int64_t run_id,
+                                                      double from_s, double to_s) {
+  auto temps = db.temperature_samples(run_id, from_s, to_s);
+  if (!temps) return temps.error();
+  std::erase_if(*temps, [](const TemperatureSample& t) {
+    return std::isnan(t.top_c) || std::isnan(t.side_c);
+  });
+  return temps;
+}
+
 Result<analysis::AnalysisSeries> soak_series(storage::Database& db, const SoakWindow& soak,
                                              double bin_s) {
   const std::string where = soak_name(soak);
@@ -192,7 +205,7 @@ Result<analysis::AnalysisSeries> soak_series(storage::Database& db, const SoakWi
     auto gyro = db.gyro_samples(soak.run_id, from_s, to_s);
     if (!gyro) return Error::Transient(fmt::format("{}: {}", where, gyro.error().message));
     if (gyro->empty() && soak.windows.size() > 1) continue;  // a window shorter than a sample
-    auto temps = db.temperature_samples(soak.run_id, from_s, to_s);
+    auto temps = shell_readings(db, soak.run_id, from_s, to_s);
     if (!temps) return Error::Transient(fmt::format("{}: {}", where, temps.error().message));
     auto part = analysis::make_analysis_series(*gyro, *temps, bin_s);
     if (!part) {
@@ -241,7 +254,7 @@ Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_i
     auto gyro = db.gyro_samples(run_id, from_s, to_s);
     if (!gyro) return gyro.error();
     if (gyro->empty()) continue;
-    auto temps = db.temperature_samples(run_id, from_s, to_s);
+    auto temps = shell_readings(db, run_id, from_s, to_s);
     if (!temps) return temps.error();
     if (temps->empty()) continue;  // no temperature in this stretch: nothing to fit it with
     auto part = analysis::make_analysis_series(*gyro, *temps, bin_s);

@@ -168,9 +168,9 @@ void Station::start() {
     }
   }
   const double now_s = clock_.now_s();
-  chamber_ok_s_ = probes_ok_s_ = now_s;
+  chamber_ok_s_ = probes_ok_s_ = storage_ok_s_ = now_s;
   gyro_last_s_.store(now_s);
-  chamber_ok_wall_s_ = probes_ok_wall_s_ = steady_now_s();
+  chamber_ok_wall_s_ = probes_ok_wall_s_ = storage_ok_wall_s_ = steady_now_s();
   gyro_last_wall_s_.store(chamber_ok_wall_s_);
   {
     std::lock_guard lock(run_mu_);
@@ -327,6 +327,16 @@ schedules::Readings Station::read_devices(double now_s) {
   r.chamber_silent_s = silent(chamber_ok_s_, chamber_ok_wall_s_);
   r.probes_silent_s = silent(probes_ok_s_, probes_ok_wall_s_);
   r.gyro_silent_s = silent(gyro_last_s_.load(), gyro_last_wall_s_.load());
+  const storage::SampleWriterStats ws = writer_->stats();
+  if (ws.consecutive_failures == 0) {
+    storage_ok_s_ = now_s;
+    storage_ok_wall_s_ = wall_s;
+  }
+  r.storage_failing_s = silent(storage_ok_s_, storage_ok_wall_s_);
+  if (r.storage_failing_s > 0) {
+    r.storage_error = ws.last_error;
+    r.storage_pending = ws.pending;
+  }
   return r;
 }
 
@@ -344,6 +354,9 @@ void Station::tick() {
     std::lock_guard lock(mu_);
     if (stopping_) return;
   }
+  record_unrecorded();
+  note_link(*chamber_, chamber_ok_, chamber_lost_s_, now_s);
+  note_link(*probes_, probes_ok_, probes_lost_s_, now_s);
   if (!sequencer_) start_next_run(now_s);
 
   double t_run_s = 0;
@@ -462,7 +475,7 @@ void Station::start_next_run(double now_s) {
   rec.time_scale = clock_.time_scale();
   rec.latitude_deg = config_.station.latitude_deg;
   rec.orientation = std::string(analysis::to_string(config_.station.orientation));
-  rec.config_json = read_text(config_.source_path);
+  rec.config_json = redact_config_secrets(read_text(config_.source_path), config_.api);
   rec.queue_id = entry.id;
   rec.schedule_id = entry.schedule_id;
   auto id = db_.create_run(rec);
@@ -619,9 +632,13 @@ void Station::checkpoint(bool force) {
   const double t_run_s = run_time_s();
   const std::string json = to_json(sequencer_->snapshot(t_run_s)).dump();
   if (auto st = db_.set_run_checkpoint(run_id_.load(), json, unix_now_s()); !st) {
-    spdlog::error("{}", st.error().message);
+    // Tried again next tick; logged once per failing spell.
+    if (!checkpoint_failing_) spdlog::error("run checkpoint not written: {}", st.error().message);
+    checkpoint_failing_ = true;
     return;
   }
+  if (checkpoint_failing_) spdlog::info("run checkpoint written again");
+  checkpoint_failing_ = false;
   checkpoint_state_ = state;
   last_checkpoint_wall_s_ = wall_s;
 }
@@ -711,6 +728,62 @@ StatusSnapshot Station::status() const {
   return s;
 }
 
+// A device's gap in the event log: when it stopped answering and how long
+// the readings were missing once it answers again.
+void Station::note_link(const drivers::ModbusDevice& device, bool ok,
+                        std::optional<double>& lost_since_s, double now_s) {
+  if (!ok && !lost_since_s) {
+    lost_since_s = now_s;
+    add_event("device", "", "",
+              fmt::format("{}: no answer ({}); its readings are missing from now", device.name(),
+                          device.health().last_error));
+  } else if (ok && lost_since_s) {
+    add_event("device", "", "",
+              fmt::format("{}: answers again after {:.1f} s of station time without readings",
+                          device.name(), now_s - *lost_since_s));
+    lost_since_s.reset();
+  }
+}
+
+void Station::keep_unrecorded(const storage::EventRecord& ev) {
+  if (unrecorded_events_.size() >= kMaxUnrecordedEvents) {
+    ++unrecorded_events_dropped_;
+    spdlog::error("event dropped ({} so far): {} events already wait for the database",
+                  unrecorded_events_dropped_, unrecorded_events_.size());
+    return;
+  }
+  unrecorded_events_.push_back(ev);
+}
+
+// Writes, in order, what a failing database refused: events, the run's
+// state, segment updates. Stops at the first failure (tried again next tick).
+void Station::record_unrecorded() {
+  while (!unrecorded_events_.empty()) {
+    if (!db_.add_event(unrecorded_events_.front())) return;
+    unrecorded_events_.pop_front();
+    if (unrecorded_events_.empty()) spdlog::info("events kept while the database failed: written");
+  }
+  if (unrecorded_run_state_) {
+    const auto& u = *unrecorded_run_state_;
+    if (auto st = db_.set_run_state(u.run_id, u.state, u.terminal); !st) {
+      if (!run_state_failing_) spdlog::error("run state not written yet: {}", st.error().message);
+      run_state_failing_ = true;
+      return;
+    }
+    run_state_failing_ = false;
+    unrecorded_run_state_.reset();
+  }
+  for (auto it = unrecorded_segments_.begin(); it != unrecorded_segments_.end();) {
+    if (auto st = db_.update_segment(it->second); !st) {
+      if (!segment_failing_) spdlog::error("segment not written yet: {}", st.error().message);
+      segment_failing_ = true;
+      return;
+    }
+    segment_failing_ = false;
+    it = unrecorded_segments_.erase(it);
+  }
+}
+
 void Station::add_event(const std::string& kind, const std::string& from, const std::string& to,
                         const std::string& message) {
   storage::EventRecord ev;
@@ -722,8 +795,13 @@ void Station::add_event(const std::string& kind, const std::string& from, const 
   ev.from_state = from;
   ev.to_state = to;
   ev.message = message;
-  if (auto r = db_.add_event(ev); !r) {
-    spdlog::error("event not recorded: {}", r.error().message);
+  record_unrecorded();
+  if (!unrecorded_events_.empty()) {
+    keep_unrecorded(ev);
+  } else if (auto r = db_.add_event(ev); !r) {
+    spdlog::error("event not recorded yet (kept, written when the database takes writes): {}",
+                  r.error().message);
+    keep_unrecorded(ev);
   } else {
     ev.id = *r;
   }
@@ -749,9 +827,9 @@ void Station::on_state(RunState from, RunState to, double t_s, const std::string
                              {"reason", reason}});
   }
   add_event("state", std::string(to_string(from)), std::string(to_string(to)), reason);
-  if (auto st = db_.set_run_state(run_id_.load(), to_string(to), schedules::is_terminal(to)); !st) {
-    spdlog::error("{}", st.error().message);
-  }
+  unrecorded_run_state_ =
+      UnrecordedRunState{run_id_.load(), std::string(to_string(to)), schedules::is_terminal(to)};
+  record_unrecorded();
 }
 
 void Station::on_interlock(schedules::InterlockKind kind, bool tripped, double t_s,
@@ -814,11 +892,8 @@ void Station::on_step_changed(std::size_t index, const schedules::PlanStep& step
                               const schedules::StepTimes& times) {
   const int64_t id = segment_id(index, step, times.start_s);
   if (id == 0) return;
-  if (auto st =
-          db_.update_segment(segment_record(id, run_id_.load(), index, step, times, "running"));
-      !st) {
-    spdlog::error("{}", st.error().message);
-  }
+  unrecorded_segments_[id] = segment_record(id, run_id_.load(), index, step, times, "running");
+  record_unrecorded();
 }
 
 void Station::on_step_finished(std::size_t index, const schedules::PlanStep& step,
@@ -826,11 +901,9 @@ void Station::on_step_finished(std::size_t index, const schedules::PlanStep& ste
   const int64_t run_id = run_id_.load();
   const int64_t id = segment_id(index, step, times.start_s);
   if (id == 0) return;
-  if (auto st = db_.update_segment(
-          segment_record(id, run_id, index, step, times, completed ? "completed" : "aborted"));
-      !st) {
-    spdlog::error("{}", st.error().message);
-  }
+  unrecorded_segments_[id] =
+      segment_record(id, run_id, index, step, times, completed ? "completed" : "aborted");
+  record_unrecorded();
   if (completed && step.kind == schedules::StepKind::kSoak && !times.windows.empty()) {
     Table1Job job{run_id,
                   id,

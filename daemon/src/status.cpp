@@ -69,6 +69,7 @@ nlohmann::json to_json(const StatusSnapshot& s) {
         {"temperature_rows", s.storage.temperature_rows},
         {"commits", s.storage.commits},
         {"commit_failures", s.storage.commit_failures},
+        {"consecutive_failures", s.storage.consecutive_failures},
         {"dropped", s.storage.dropped},
         {"pending", s.storage.pending},
         {"last_commit_ms", s.storage.last_commit_ms},

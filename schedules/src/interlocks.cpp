@@ -22,6 +22,8 @@ std::string_view to_string(InterlockKind kind) {
       return "gyro_lost";
     case InterlockKind::kChamberAlarm:
       return "chamber_alarm";
+    case InterlockKind::kStorageFailing:
+      return "storage_failing";
   }
   return "?";
 }
@@ -74,6 +76,14 @@ std::vector<InterlockCondition> evaluate_interlocks(const Readings& r, const Int
   silent(InterlockKind::kGyroLost, r.gyro_silent_s, o.gyro_timeout_s, "gyro stream");
   if (r.chamber_alarm) {
     out.push_back({InterlockKind::kChamberAlarm, "the chamber controller reports an alarm"});
+  }
+  if (r.storage_failing_s > o.storage_timeout_s) {
+    out.push_back({InterlockKind::kStorageFailing,
+                   fmt::format("storage failing for {:.0f} s (timeout {:g} s): {}; acquisition "
+                               "suspended, {} samples held in memory until commits succeed",
+                               r.storage_failing_s, o.storage_timeout_s,
+                               r.storage_error.empty() ? "commits fail" : r.storage_error,
+                               r.storage_pending)});
   }
   return out;
 }

@@ -298,6 +298,7 @@ void SampleWriter::Impl::loop() {
     inflight = 0;
     if (out.status.ok()) {
       committed_through = batch;
+      stats.consecutive_failures = 0;
       if (n_gyro + n_temps > 0) {
         stats.gyro_rows += n_gyro;
         stats.temperature_rows += n_temps;
@@ -312,6 +313,7 @@ void SampleWriter::Impl::loop() {
       failed_through = batch;
       last_failure = out.status.error();
       ++stats.commit_failures;
+      ++stats.consecutive_failures;
       stats.last_error = out.status.error().message;
       gyro.requeue_front(batch_gyro);
       temps.requeue_front(batch_temps);

@@ -138,7 +138,7 @@ class StationTest : public testing::TempDirTest {
   void start_sim() {
     sim_ = std::make_unique<ChildProcess>(
         std::vector<std::string>{bin("gyrotherm-sim"), "--config", (dir_ / "station.toml").string(),
-                                 "--time-scale", fmt::format("{}", kTimeScale)},
+                                 "--time-scale", fmt::format("{}", time_scale_)},
         (dir_ / "sim.log").string());
     ASSERT_TRUE(
         wait_until([&] { return fs::exists(dir_ / "endpoints.toml"); }, std::chrono::seconds(20)))
@@ -149,7 +149,7 @@ class StationTest : public testing::TempDirTest {
     auto cfg = daemon::load_station_config((dir_ / "station.toml").string());
     ASSERT_TRUE(cfg.ok()) << cfg.error().message;
     sim::SimulatorOverrides overrides;
-    overrides.time_scale = kTimeScale;
+    overrides.time_scale = time_scale_;
     auto options = sim::read_simulator_options(*cfg, overrides);
     ASSERT_TRUE(options.ok()) << options.error().message;
     auto simulator = sim::Simulator::create(*cfg, *options);
@@ -160,7 +160,7 @@ class StationTest : public testing::TempDirTest {
   // Starts gyrothermd; with_schedule queues schedule.toml at start-up.
   void start_daemon(std::vector<std::string> extra = {}, bool with_schedule = true) {
     std::vector<std::string> argv{bin("gyrothermd"), "--config", (dir_ / "station.toml").string(),
-                                  "--time-scale", fmt::format("{}", kTimeScale)};
+                                  "--time-scale", fmt::format("{}", time_scale_)};
     if (with_schedule) {
       argv.push_back("--schedule");
       argv.push_back((dir_ / "schedule.toml").string());
@@ -202,6 +202,7 @@ class StationTest : public testing::TempDirTest {
   static constexpr const char* kToken = "integration-token-0123456789";
 
   int api_port_ = 0;
+  double time_scale_ = kTimeScale;  // of the simulator and daemon started next
   std::unique_ptr<ChildProcess> sim_;
   std::unique_ptr<sim::Simulator> in_process_sim_;
   std::unique_ptr<ChildProcess> daemon_;

@@ -433,7 +433,18 @@ INSTANTIATE_TEST_SUITE_P(
                                     "gyro stream silent for 6 s (timeout 5 s)"},
                       InterlockCase{InterlockKind::kChamberAlarm,
                                     with(at(30), [](Readings& r) { r.chamber_alarm = true; }),
-                                    "reports an alarm"}),
+                                    "reports an alarm"},
+                      InterlockCase{InterlockKind::kStorageFailing,
+                                    with(at(30),
+                                         [](Readings& r) {
+                                           r.storage_failing_s = 12;
+                                           r.storage_error =
+                                               "database or disk "
+                                               "is full";
+                                           r.storage_pending = 240;
+                                         }),
+                                    "storage failing for 12 s (timeout 10 s): database or disk is "
+                                    "full; acquisition suspended, 240 samples held in memory"}),
     [](const auto& info) { return std::string(to_string(info.param.kind)); });
 
 TEST(Sequencer, OutOfLimitsAbortsAfterItsGraceAndASoakDisturbedStartsOver) {

@@ -245,6 +245,7 @@ TEST(SampleWriter, FailedCommitKeepsRowsForRetry) {
   EXPECT_NE(s.error().message.find("injected failure"), std::string::npos) << s.error().message;
   SampleWriterStats stats = writer->stats();
   EXPECT_EQ(stats.commit_failures, 1u);
+  EXPECT_EQ(stats.consecutive_failures, 1u);
   EXPECT_EQ(stats.pending, 11u);
   EXPECT_EQ(stats.gyro_rows, 0u);
   EXPECT_NE(stats.last_error.find("injected failure"), std::string::npos);
@@ -252,9 +253,13 @@ TEST(SampleWriter, FailedCommitKeepsRowsForRetry) {
   // The transaction was rolled back: the temperature row is not there either.
   EXPECT_EQ(query_int(admin->handle(), "SELECT count(*) FROM temperature_samples"), 0);
 
+  ASSERT_FALSE(writer->flush().ok());
+  EXPECT_EQ(writer->stats().consecutive_failures, 2u);
+
   ASSERT_TRUE(admin->exec("DROP TRIGGER fail_inserts").ok());
   s = writer->flush();
   ASSERT_TRUE(s.ok()) << s.error().message;
+  EXPECT_EQ(writer->stats().consecutive_failures, 0u) << "a success ends the failing spell";
   EXPECT_EQ(*admin->count_gyro_samples(kRun), 10);
   EXPECT_EQ(query_int(admin->handle(), "SELECT count(*) FROM temperature_samples"), 1);
   stats = writer->stats();

@@ -27,6 +27,7 @@
 #include <condition_variable>
 #include <deque>
 #include <functional>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -115,6 +116,10 @@ class Station final : public StationControl, private schedules::SequencerObserve
   schedules::Readings read_devices(double now_s);
   // Needs run_mu_.
   void resume_interrupted_run();
+  void note_link(const drivers::ModbusDevice& device, bool ok, std::optional<double>& lost_since_s,
+                 double now_s);
+  void keep_unrecorded(const storage::EventRecord& ev);
+  void record_unrecorded();
   void submit_missing_analyses();
   void start_nightly_export();
   void start_next_run(double now_s);
@@ -170,12 +175,30 @@ class Station final : public StationControl, private schedules::SequencerObserve
   double last_checkpoint_wall_s_ = -1e9;
   std::optional<double> last_written_setpoint_c_;
   int ticks_since_setpoint_write_ = 0;
+  // What the database refused (disk full): kept and written in order by
+  // record_unrecorded() once it takes writes again.
+  static constexpr std::size_t kMaxUnrecordedEvents = 10000;
+  std::deque<storage::EventRecord> unrecorded_events_;
+  uint64_t unrecorded_events_dropped_ = 0;
+  struct UnrecordedRunState {
+    int64_t run_id;
+    std::string state;
+    bool terminal;
+  };
+  std::optional<UnrecordedRunState> unrecorded_run_state_;
+  std::map<int64_t, storage::SegmentRecord> unrecorded_segments_;  // by segment id
+  bool checkpoint_failing_ = false, run_state_failing_ = false, segment_failing_ = false;
 
   // Control-thread only.
   bool chamber_ok_ = true, probes_ok_ = true;
   // Station and wall (steady) time of the last good reading.
   double chamber_ok_s_ = 0, probes_ok_s_ = 0;
   double chamber_ok_wall_s_ = 0, probes_ok_wall_s_ = 0;
+  // Station and wall time of the last moment the sample writer's commits
+  // were not failing.
+  double storage_ok_s_ = 0, storage_ok_wall_s_ = 0;
+  // Station time a device stopped answering (its gap, in the event log).
+  std::optional<double> chamber_lost_s_, probes_lost_s_;
   analysis::StabilityWindow shell_rate_window_{60.0};
   std::atomic<double> gyro_last_s_{0};  // station time of the last gyro sample
   std::atomic<double> gyro_last_wall_s_{0};

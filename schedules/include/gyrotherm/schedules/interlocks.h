@@ -27,8 +27,9 @@ enum class InterlockKind {
   kProbesSilent,       // no good probe reading for longer than its timeout
   kGyroLost,           // no gyro sample for longer than its timeout
   kChamberAlarm,       // the controller reports an alarm
+  kStorageFailing,     // samples cannot be committed (disk full, I/O error) for too long
 };
-inline constexpr int kInterlockKindCount = 7;
+inline constexpr int kInterlockKindCount = 8;
 std::string_view to_string(InterlockKind kind);
 
 // One control-loop reading; nullopt where the device gave no value this tick.
@@ -42,6 +43,11 @@ struct Readings {
   double probes_silent_s = 0;
   double gyro_silent_s = 0;
   bool chamber_alarm = false;
+  // Station seconds the sample writer's commits have been failing (0 while
+  // they succeed), with the last error and the samples held in memory.
+  double storage_failing_s = 0;
+  std::string storage_error{};
+  std::size_t storage_pending = 0;
 };
 
 struct InterlockOptions {
@@ -53,9 +59,10 @@ struct InterlockOptions {
   double chamber_timeout_s = 10.0;
   double probes_timeout_s = 10.0;
   double gyro_timeout_s = 5.0;
+  double storage_timeout_s = 10.0;
   // Station seconds an interlock may stay tripped before the run is aborted
   // to the safe state; indexed by InterlockKind. 0 aborts at once.
-  double grace_s[kInterlockKindCount] = {300, 1800, 3600, 1800, 1800, 1800, 600};
+  double grace_s[kInterlockKindCount] = {300, 1800, 3600, 1800, 1800, 1800, 600, 3600};
 
   double grace_for(InterlockKind kind) const { return grace_s[static_cast<int>(kind)]; }
 };

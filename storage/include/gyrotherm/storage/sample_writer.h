@@ -39,6 +39,7 @@ struct SampleWriterStats {
   uint64_t temperature_rows = 0;  // committed
   uint64_t commits = 0;
   uint64_t commit_failures = 0;
+  uint64_t consecutive_failures = 0;  // failed commits since the last successful one
   uint64_t dropped = 0;       // samples dropped because the queue was full
                               // (or still uncommitted when stop() failed)
   uint64_t rejected = 0;      // refused at push: t_s not finite, or pushed after stop()

@@ -1,0 +1,567 @@
+// The fault campaign (issue 7): the simulated station (real gyrotherm-sim
+// and gyrothermd, Modbus TCP, a pty, a SQLite file, HTTP) under kill -9 at
+// random moments, a dropped Modbus link, a hung-up gyro line, corrupted
+// frames and a full disk. Each test checks the database file afterwards —
+// integrity, committed samples kept, every run ended or resumed — and prints
+// one "fault-campaign:" line per fault with its figures. scripts/fault-campaign
+// runs the same tests at a larger scale (GYROTHERM_FAULT_KILLS).
+#include <fmt/format.h>
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <sqlite3.h>
+#include <sys/mount.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <nlohmann/json.hpp>
+#include <random>
+
+#include "gyrotherm/storage/database.h"
+#include "station_fixture.h"
+
+namespace gyrotherm {
+namespace {
+
+using ::testing::HasSubstr;
+using testing::StationTest;
+using testing::wait_until;
+using json = nlohmann::json;
+using Clock = std::chrono::steady_clock;
+
+constexpr double kCommitIntervalS = 0.2;  // [storage] commit_interval_s of the fixture
+
+int env_int(const char* name, int fallback) {
+  const char* v = std::getenv(name);
+  return v && *v ? std::atoi(v) : fallback;
+}
+
+// GYROTHERM_TEST_TIME_FACTOR (set by the sanitizer runs): slower processes.
+double time_factor() {
+  const char* v = std::getenv("GYROTHERM_TEST_TIME_FACTOR");
+  const double f = v && *v ? std::atof(v) : 1.0;
+  return f >= 1.0 ? f : 1.0;
+}
+
+double seconds_since(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
+
+std::string replace_once(std::string text, const std::string& from, const std::string& to) {
+  const auto at = text.find(from);
+  EXPECT_NE(at, std::string::npos) << from;
+  if (at != std::string::npos) text.replace(at, from.size(), to);
+  return text;
+}
+
+// PRAGMA integrity_check's answer ("ok" when the file is sound).
+std::string integrity_check(const std::filesystem::path& db_path) {
+  auto db = storage::Database::open_read_only(db_path.string());
+  if (!db) return "cannot open: " + db.error().message;
+  sqlite3_stmt* st = nullptr;
+  if (sqlite3_prepare_v2(db->handle(), "PRAGMA integrity_check", -1, &st, nullptr) != SQLITE_OK) {
+    return std::string("cannot prepare: ") + sqlite3_errmsg(db->handle());
+  }
+  std::string out;
+  while (sqlite3_step(st) == SQLITE_ROW) {
+    if (!out.empty()) out += "; ";
+    out += reinterpret_cast<const char*>(sqlite3_column_text(st, 0));
+  }
+  sqlite3_finalize(st);
+  return out;
+}
+
+int64_t count_between(storage::Database& db, int64_t run_id, double from_s, double to_s) {
+  auto rows = db.gyro_samples(run_id, from_s, to_s);
+  return rows ? static_cast<int64_t>(rows->size()) : -1;
+}
+
+std::string events_text(storage::Database& db, int64_t run_id) {
+  std::string all;
+  auto rows = db.events(run_id);
+  if (!rows) return "events: " + rows.error().message;
+  for (const auto& e : *rows) all += fmt::format("[{}] {}\n", e.kind, e.message);
+  return all;
+}
+
+// The run's "resume" events: one per start-up that resumed it.
+int resumes_of(storage::Database& db, int64_t run_id) {
+  auto rows = db.events(run_id);
+  if (!rows) return -1;
+  return static_cast<int>(
+      std::count_if(rows->begin(), rows->end(), [](const auto& e) { return e.kind == "resume"; }));
+}
+
+class FaultCampaignTest : public StationTest {
+ protected:
+  void TearDown() override {
+    daemon_.reset();
+    sim_.reset();
+    in_process_sim_.reset();
+    if (!tmpfs_.empty()) ::umount2(tmpfs_.c_str(), MNT_DETACH);
+    StationTest::TearDown();
+  }
+
+  std::filesystem::path db_path() const {
+    return db_path_.empty() ? dir_ / "station.db" : db_path_;
+  }
+  json daemon_status() {
+    auto s = status();
+    return s ? *s : json();
+  }
+  bool wait_status(const std::function<bool(const json&)>& pred, std::chrono::seconds timeout) {
+    return wait_until(
+        [&] {
+          last_ = daemon_status();
+          return !last_.is_null() && pred(last_);
+        },
+        timeout);
+  }
+  std::string diag() {
+    return "\nlast status: " + last_.dump() + "\ndaemon log:\n" + daemon_->log();
+  }
+  // Waits until the in-process simulator's station clock reaches t_s.
+  bool wait_sim_time(double t_s) {
+    return wait_until([&] { return in_process_sim_->status().t_s >= t_s; },
+                      std::chrono::seconds(60));
+  }
+  // The fixture's config with edits for this test.
+  void write_config(const std::vector<std::pair<std::string, std::string>>& edits,
+                    const std::string& extra = "") {
+    std::string text = testing::station_config(dir_, api_port_);
+    for (const auto& [from, to] : edits) text = replace_once(text, from, to);
+    write(dir_ / "station.toml", text + extra);
+  }
+
+  json last_;
+  std::filesystem::path db_path_;  // "": the fixture's <dir>/station.db
+  std::string tmpfs_;              // mounted by the disk-full test
+};
+
+std::string soak_ramp_soak(double acquire_min) {
+  return fmt::format(R"(name = "fault campaign"
+[[step]]
+type = "soak"
+setpoint_c = 23.0
+stability_window_min = 2
+acquire_min = {0}
+[[step]]
+type = "ramp"
+target_c = 26.0
+rate_c_per_min = 2.0
+[[step]]
+type = "soak"
+setpoint_c = 26.0
+stability_window_min = 2
+acquire_min = {0}
+)",
+                     acquire_min);
+}
+
+// kill -9 at random moments (start-up, ramp, settling, acquisition, a commit
+// in flight): after every kill the file passes integrity_check and holds
+// every sample the daemon had before the last commit interval; each restart
+// resumes the run (or marks it); the campaign completes with its analysis.
+TEST_F(FaultCampaignTest, KillNineAtRandomMoments) {
+  const int kills = std::max(1, env_int("GYROTHERM_FAULT_KILLS", 5));
+  const unsigned seed = static_cast<unsigned>(
+      env_int("GYROTHERM_FAULT_SEED", static_cast<int>(std::random_device{}() & 0x7fffffff)));
+  std::printf("fault-campaign: kill -9 x%d, seed %u (GYROTHERM_FAULT_SEED to repeat)\n", kills,
+              seed);
+  std::mt19937 rng(seed);
+  // A quarter of the moments fall in the start-up (database opening, run
+  // resume), the rest anywhere in the campaign.
+  std::bernoulli_distribution in_start_up(0.25);
+  std::uniform_real_distribution<double> start_up_s(0.02, 0.4), running_s(0.4, 2.5);
+  // About 300 station seconds go by per kill (time scale 200): the kills
+  // spread over settling, acquisition, the ramp and the end of the campaign.
+  write(dir_ / "schedule.toml", soak_ramp_soak(std::max(6.0, 2.5 * kills)));
+  start_sim();
+  start_daemon();
+
+  // Per kill: the run and what the file held right after it.
+  struct Committed {
+    int64_t run_id;
+    double last_t_s;
+    int64_t count;
+  };
+  std::vector<Committed> committed;
+  std::vector<double> lost_wall_s;
+  std::map<std::string, int> states_at_kill;
+  int resumes_checked = 0;
+  int64_t open_run = 0;  // a run the previous kill left open (0: none)
+  int resumes_before = 0;
+  const double allowance_s = 0.25 * time_factor();
+
+  for (int k = 0; k < kills; ++k) {
+    // Poll the status until the random moment; the last answer tells what
+    // the daemon had acquired just before the kill.
+    const auto started = Clock::now();
+    const double moment_s = in_start_up(rng) ? start_up_s(rng) : running_s(rng);
+    json before;
+    Clock::time_point before_at{};
+    while (seconds_since(started) < moment_s) {
+      if (json s = daemon_status(); !s.is_null()) {
+        before = s;
+        before_at = Clock::now();
+      }
+    }
+    daemon_->signal(SIGKILL);
+    const double since_status_s = before.is_null() ? 0.0 : seconds_since(before_at);
+    ASSERT_TRUE(daemon_->wait(std::chrono::seconds(10)).has_value());
+    const std::string state = before.is_null() ? "starting" : before["state"].get<std::string>();
+    ++states_at_kill[state];
+
+    ASSERT_EQ(integrity_check(db_path()), "ok") << "after kill " << k + 1;
+    auto db = storage::Database::open_read_only(db_path().string());
+    ASSERT_TRUE(db.ok()) << db.error().message;
+    auto runs = db->runs();
+    ASSERT_TRUE(runs.ok());
+
+    // The previous kill left a run open: this start (it answered, so its
+    // start-up was done) resumed it or marked it.
+    if (open_run != 0 && !before.is_null()) {
+      auto run = db->run(open_run);
+      ASSERT_TRUE(run.ok());
+      const int resumes = resumes_of(*db, open_run);
+      EXPECT_TRUE(resumes == resumes_before + 1 || run->state == "interrupted")
+          << "kill " << k + 1 << ": run " << open_run << " is " << run->state << " after "
+          << resumes << " resumes (" << resumes_before << " before)";
+      ++resumes_checked;
+    }
+    open_run = 0;
+    for (const auto& r : *runs) {
+      if (r.state != "completed" && r.state != "failed" && r.state != "interrupted") {
+        open_run = r.id;
+        resumes_before = resumes_of(*db, r.id);
+      }
+    }
+
+    if (!before.is_null() && !before["run_id"].is_null() && before["state"] != "queued") {
+      const int64_t run_id = before["run_id"].get<int64_t>();
+      const double t_run_at_kill_s =
+          before["t_run_s"].get<double>() + since_status_s * testing::kTimeScale;
+      auto last = db->last_sample_t_s(run_id);
+      ASSERT_TRUE(last.ok());
+      if (*last) {
+        const double lost_s = std::max(0.0, t_run_at_kill_s - **last);
+        lost_wall_s.push_back(lost_s / testing::kTimeScale);
+        EXPECT_LE(lost_s / testing::kTimeScale, kCommitIntervalS + allowance_s)
+            << "kill " << k + 1 << " in state " << state
+            << ": the run was at t = " << t_run_at_kill_s << " s, the file ends at " << **last
+            << " s";
+        committed.push_back({run_id, **last, count_between(*db, run_id, -1e12, **last + 1e-9)});
+      }
+    }
+    start_daemon({}, false);
+  }
+
+  // The rest of the campaign, undisturbed.
+  daemon_->signal(SIGKILL);
+  ASSERT_TRUE(daemon_->wait(std::chrono::seconds(10)).has_value());
+  start_daemon({"--exit-when-done"}, false);
+  const auto code = daemon_->wait(std::chrono::seconds(static_cast<int>(240 * time_factor())));
+  ASSERT_EQ(code, std::optional<int>(0)) << daemon_->log();
+
+  ASSERT_EQ(integrity_check(db_path()), "ok");
+  auto db = storage::Database::open_read_only(db_path().string());
+  ASSERT_TRUE(db.ok());
+  auto runs = db->runs();
+  ASSERT_TRUE(runs.ok());
+  ASSERT_FALSE(runs->empty());
+  int completed_runs = 0;
+  for (const auto& r : *runs) {
+    EXPECT_TRUE(r.state == "completed" || r.state == "interrupted")
+        << "run " << r.id << " left " << r.state;
+    completed_runs += r.state == "completed";
+  }
+  EXPECT_EQ(completed_runs, 1) << "the campaign completed once";
+  for (const auto& c : committed) {
+    EXPECT_EQ(count_between(*db, c.run_id, -1e12, c.last_t_s + 1e-9), c.count)
+        << "samples committed before a kill are all still there (run " << c.run_id
+        << ", up to t = " << c.last_t_s << " s)";
+  }
+  const auto& run = runs->back();
+  auto stats = db->segment_stats(run.id);
+  ASSERT_TRUE(stats.ok());
+  EXPECT_EQ(stats->size(), 2u) << "Table I rows of both soaks\n" << events_text(*db, run.id);
+  // Timestamps stay strictly increasing across every restart.
+  auto samples = db->gyro_samples(run.id, -1e12, 1e12);
+  ASSERT_TRUE(samples.ok());
+  for (std::size_t i = 1; i < samples->size(); ++i) {
+    ASSERT_GT((*samples)[i].t_s, (*samples)[i - 1].t_s) << i;
+  }
+
+  const double max_lost =
+      lost_wall_s.empty() ? 0.0 : *std::max_element(lost_wall_s.begin(), lost_wall_s.end());
+  std::string where;
+  for (const auto& [s, n] : states_at_kill) where += fmt::format(" {} {}", s, n);
+  std::printf(
+      "fault-campaign: kill -9: %d kills (at:%s), integrity_check ok after each, %zu during "
+      "acquisition measured: samples lost at most %.3f s wall (commit interval %.1f s), committed "
+      "samples lost 0, %d restarts checked resumed or marked, runs %zu, completed %d\n",
+      kills, where.c_str(), lost_wall_s.size(), max_lost, kCommitIntervalS, resumes_checked,
+      runs->size(), completed_runs);
+}
+
+// The chamber's Modbus link down for 30 s of station time, the gyro line hung
+// up and reopened, 1 % of the frames corrupted — all during one run, which
+// completes with its Table I row.
+TEST_F(FaultCampaignTest, DeviceFaultsDuringARun) {
+  time_scale_ = 20;
+  write_config(
+      {{"silent_timeout_s = 60.0\n[chamber.alarm]", "silent_timeout_s = 10.0\n[chamber.alarm]"},
+       {"rate_hz = 10", "rate_hz = 100"}},
+      "[control]\nmin_silent_wall_s = 0.2\n");
+  write(dir_ / "schedule.toml", R"(name = "device faults"
+[[step]]
+type = "soak"
+setpoint_c = 23.0
+stability_window_min = 1
+acquire_min = 6
+)");
+  ASSERT_NO_FATAL_FAILURE(start_sim_in_process());
+  start_daemon();
+  ASSERT_TRUE(wait_status([](const json& s) { return s["state"] == "acquiring"; },
+                          std::chrono::seconds(120)))
+      << diag();
+  sim::Simulator& sim = *in_process_sim_;
+  auto gyro = [&](const char* key) { return daemon_status()["devices"]["gyro"][key]; };
+
+  // 1. The chamber's Modbus link, down for 30 s of station time.
+  const auto reconnects_before = last_["devices"]["chamber"]["reconnects"].get<uint64_t>();
+  const double setpoint_before_c = sim.status().setpoint_c;
+  const double down_at_s = sim.status().t_s;
+  sim.set_modbus_down(true);
+  ASSERT_TRUE(wait_sim_time(down_at_s + 30.0));
+  sim.set_modbus_down(false);
+  const double up_at_s = sim.status().t_s;
+  EXPECT_EQ(sim.status().setpoint_c, setpoint_before_c) << "the controller kept its set point";
+  ASSERT_TRUE(wait_status(
+      [&](const json& s) {
+        return s["devices"]["chamber"]["connected"].get<bool>() && s["interlocks"].empty() &&
+               s["state"] == "acquiring" &&
+               s["devices"]["chamber"]["reconnects"].get<uint64_t>() > reconnects_before;
+      },
+      std::chrono::seconds(60)))
+      << diag();
+  EXPECT_EQ(sim.status().setpoint_c, setpoint_before_c);
+
+  // 2. The gyro line hung up for 10 s of station time, then a new pty.
+  const uint64_t samples_before = gyro("samples").get<uint64_t>();
+  const uint64_t reopens_before = gyro("reopens").get<uint64_t>();
+  const double closed_at_s = sim.status().t_s;
+  sim.close_pty();
+  ASSERT_TRUE(wait_until([&] { return !gyro("connected").get<bool>(); }, std::chrono::seconds(30)))
+      << diag();
+  ASSERT_TRUE(wait_sim_time(closed_at_s + 10.0));
+  ASSERT_TRUE(sim.reopen_pty().ok());
+  ASSERT_TRUE(wait_until(
+      [&] {
+        return gyro("connected").get<bool>() &&
+               gyro("samples").get<uint64_t>() > samples_before + 2000;
+      },
+      std::chrono::seconds(60)))
+      << diag();
+  const uint64_t reopens = gyro("reopens").get<uint64_t>() - reopens_before;
+  EXPECT_GE(reopens, 1u);
+
+  // 3. 1 % of the frames corrupted: every one rejected by its CRC, counted,
+  //    and missing from the samples.
+  const uint64_t crc_before = gyro("crc_failures").get<uint64_t>();
+  const uint64_t missed_before = gyro("frames_missed").get<uint64_t>();
+  const uint64_t corrupted_before = sim.status().frames_fault_corrupted;
+  const uint64_t generated_before = sim.status().frames_generated;
+  sim.set_frame_corruption_rate(0.01);
+  ASSERT_TRUE(
+      wait_until([&] { return sim.status().frames_fault_corrupted >= corrupted_before + 100; },
+                 std::chrono::seconds(60)));
+  sim.set_frame_corruption_rate(0.0);
+  const uint64_t corrupted = sim.status().frames_fault_corrupted - corrupted_before;
+  const uint64_t generated = sim.status().frames_generated - generated_before;
+  ASSERT_TRUE(wait_until(
+      [&] {
+        return gyro("crc_failures").get<uint64_t>() - crc_before >= corrupted &&
+               gyro("frames_missed").get<uint64_t>() - missed_before >= corrupted;
+      },
+      std::chrono::seconds(30)))
+      << diag();
+  const uint64_t rejected = gyro("crc_failures").get<uint64_t>() - crc_before;
+  EXPECT_EQ(rejected, corrupted);
+  EXPECT_EQ(gyro("frames_missed").get<uint64_t>() - missed_before, corrupted)
+      << "each corrupted frame is a missing sample";
+
+  ASSERT_TRUE(wait_until(
+      [&] {
+        auto runs = get_json("/api/v1/runs");
+        return runs.is_array() && !runs.empty() && runs[0]["state"] == "completed";
+      },
+      std::chrono::seconds(static_cast<int>(120 * time_factor()))))
+      << diag();
+  daemon_->signal(SIGTERM);
+  ASSERT_EQ(daemon_->wait(std::chrono::seconds(30)), std::optional<int>(0)) << daemon_->log();
+
+  ASSERT_EQ(integrity_check(db_path()), "ok");
+  auto db = storage::Database::open_read_only(db_path().string());
+  ASSERT_TRUE(db.ok());
+  const std::string events = events_text(*db, 1);
+  EXPECT_THAT(events, HasSubstr("chamber: no answer"));
+  EXPECT_THAT(events, HasSubstr("answers again after"));
+  EXPECT_THAT(events, HasSubstr("chamber controller silent"));
+  EXPECT_THAT(events, HasSubstr("interlock chamber_silent cleared"));
+  // The gap, as recorded: temperature rows without a chamber reading.
+  auto temps = db->temperature_samples(1, -1e12, 1e12);
+  ASSERT_TRUE(temps.ok());
+  double gap_s = 0, gap_from_s = 0;
+  bool in_gap = false;
+  for (const auto& t : *temps) {
+    if (std::isnan(t.chamber_c)) {
+      if (!in_gap) gap_from_s = t.t_s;
+      in_gap = true;
+      gap_s = std::max(gap_s, t.t_s - gap_from_s);
+    } else {
+      in_gap = false;
+    }
+  }
+  EXPECT_GE(gap_s, 20.0) << "the chamber gap is in the temperature rows";
+  EXPECT_LE(gap_s, 45.0);
+  auto samples = db->gyro_samples(1, -1e12, 1e12);
+  ASSERT_TRUE(samples.ok());
+  for (std::size_t i = 1; i < samples->size(); ++i) {
+    ASSERT_GT((*samples)[i].t_s, (*samples)[i - 1].t_s) << i;
+  }
+  auto stats = db->segment_stats(1);
+  ASSERT_TRUE(stats.ok());
+  EXPECT_EQ(stats->size(), 1u) << events;
+
+  std::printf(
+      "fault-campaign: Modbus link down %.1f s station time: reconnected, gap of %.1f s recorded "
+      "(temperature rows, device and interlock events), set point held at %.1f °C\n",
+      up_at_s - down_at_s, gap_s, setpoint_before_c);
+  std::printf(
+      "fault-campaign: gyro pty closed 10 s station time and reopened: stream resumed (%llu "
+      "reopen(s)), timestamps strictly increasing\n",
+      static_cast<unsigned long long>(reopens));
+  std::printf(
+      "fault-campaign: 1 %% corrupted frames: %llu of %llu frames corrupted, %llu rejected by CRC "
+      "and counted, %llu accepted\n",
+      static_cast<unsigned long long>(corrupted), static_cast<unsigned long long>(generated),
+      static_cast<unsigned long long>(rejected),
+      static_cast<unsigned long long>(rejected >= corrupted ? 0 : corrupted - rejected));
+}
+
+// The disk fills up under the daemon (a 1 MB tmpfs holding the database):
+// commits fail, the storage_failing interlock suspends the run with a clear
+// event, the samples wait in memory; when the tmpfs grows, the held samples
+// are committed, the run goes on and completes — the file intact, the gyro
+// series without a hole.
+TEST_F(FaultCampaignTest, DiskFullSuspendsAcquisitionAndResumes) {
+  const std::filesystem::path disk = dir_ / "disk";
+  std::filesystem::create_directories(disk);
+  if (::mount("tmpfs", disk.c_str(), "tmpfs", 0, "size=1m,mode=0755") != 0) {
+    GTEST_SKIP() << "mounting a tmpfs needs root (CAP_SYS_ADMIN): " << std::strerror(errno);
+  }
+  tmpfs_ = disk.string();
+  db_path_ = disk / "station.db";
+  time_scale_ = 20;
+  write_config({{fmt::format("db = \"{}/station.db\"", dir_.string()),
+                 fmt::format("db = \"{}\"", db_path_.string())},
+                {"rate_hz = 10", "rate_hz = 100"}});
+  write(dir_ / "schedule.toml", R"(name = "disk full"
+[[step]]
+type = "soak"
+setpoint_c = 23.0
+stability_window_min = 1
+acquire_min = 10
+)");
+  ASSERT_NO_FATAL_FAILURE(start_sim_in_process());
+  start_daemon();
+
+  // The database grows until the tmpfs is full.
+  ASSERT_TRUE(wait_status(
+      [](const json& s) {
+        for (const auto& i : s["interlocks"]) {
+          if (i["kind"] == "storage_failing") return true;
+        }
+        return false;
+      },
+      std::chrono::seconds(120)))
+      << diag();
+  EXPECT_EQ(last_["state"], "suspended") << diag();
+  EXPECT_GT(last_["storage"]["consecutive_failures"].get<uint64_t>(), 0u);
+  EXPECT_THAT(last_["storage"]["last_error"].get<std::string>(), HasSubstr("full"));
+  std::string message;
+  for (const auto& i : last_["interlocks"]) message += i["message"].get<std::string>();
+  EXPECT_THAT(message, HasSubstr("acquisition suspended"));
+  EXPECT_EQ(in_process_sim_->status().setpoint_c, 23.0) << "the set point is held";
+  // Acquisition goes on into memory meanwhile.
+  const auto pending_at_trip = last_["storage"]["pending"].get<uint64_t>();
+  ASSERT_TRUE(wait_status(
+      [&](const json& s) {
+        return s["storage"]["pending"].get<uint64_t>() > pending_at_trip + 2000;
+      },
+      std::chrono::seconds(30)))
+      << diag();
+  const auto held = last_["storage"]["pending"].get<uint64_t>();
+  EXPECT_EQ(last_["state"], "suspended");
+
+  // Space returns.
+  ASSERT_EQ(::mount("tmpfs", disk.c_str(), "tmpfs", MS_REMOUNT, "size=256m,mode=0755"), 0)
+      << std::strerror(errno);
+  ASSERT_TRUE(wait_status(
+      [](const json& s) {
+        return s["interlocks"].empty() && s["storage"]["consecutive_failures"] == 0 &&
+               s["state"] != "suspended";
+      },
+      std::chrono::seconds(60)))
+      << diag();
+  ASSERT_TRUE(wait_until(
+      [&] {
+        auto runs = get_json("/api/v1/runs");
+        return runs.is_array() && !runs.empty() && runs[0]["state"] == "completed";
+      },
+      std::chrono::seconds(static_cast<int>(120 * time_factor()))))
+      << diag();
+  const json final_status = daemon_status();
+  EXPECT_EQ(final_status["storage"]["dropped"], 0) << "no sample was dropped";
+  daemon_->signal(SIGTERM);
+  ASSERT_EQ(daemon_->wait(std::chrono::seconds(30)), std::optional<int>(0)) << daemon_->log();
+
+  ASSERT_EQ(integrity_check(db_path()), "ok");
+  auto db = storage::Database::open_read_only(db_path().string());
+  ASSERT_TRUE(db.ok());
+  const std::string events = events_text(*db, 1);
+  EXPECT_THAT(events, HasSubstr("storage failing for"))
+      << "the event of the suspension was written once the disk took writes again";
+  EXPECT_THAT(events, HasSubstr("interlock storage_failing cleared"));
+  auto rows = db->events(1);
+  ASSERT_TRUE(rows.ok());
+  EXPECT_TRUE(std::any_of(rows->begin(), rows->end(), [](const storage::EventRecord& e) {
+    return e.kind == "state" && e.to_state == "suspended";
+  })) << events;
+  auto samples = db->gyro_samples(1, -1e12, 1e12);
+  ASSERT_TRUE(samples.ok());
+  ASSERT_GT(samples->size(), 1000u);
+  double max_step_s = 0;
+  for (std::size_t i = 1; i < samples->size(); ++i) {
+    ASSERT_GT((*samples)[i].t_s, (*samples)[i - 1].t_s) << i;
+    max_step_s = std::max(max_step_s, (*samples)[i].t_s - (*samples)[i - 1].t_s);
+  }
+  // 100 Hz: a hole would show as a step well beyond 10 ms.
+  EXPECT_LT(max_step_s, 0.5) << "the gyro series has no hole across the full disk";
+  auto stats = db->segment_stats(1);
+  ASSERT_TRUE(stats.ok());
+  EXPECT_EQ(stats->size(), 1u) << events;
+  std::printf(
+      "fault-campaign: disk full (1 MB tmpfs): storage_failing tripped, run suspended, %llu "
+      "samples held in memory, resumed after the tmpfs grew; %zu gyro samples, largest step "
+      "%.3f s, dropped 0, integrity_check ok\n",
+      static_cast<unsigned long long>(held), samples->size(), max_step_s);
+}
+
+}  // namespace
+}  // namespace gyrotherm
