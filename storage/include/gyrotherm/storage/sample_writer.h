@@ -40,12 +40,12 @@ struct SampleWriterStats {
   uint64_t commits = 0;
   uint64_t commit_failures = 0;
   uint64_t consecutive_failures = 0;  // failed commits since the last successful one
-  uint64_t dropped = 0;       // samples dropped because the queue was full
-                              // (or still uncommitted when stop() failed)
-  uint64_t rejected = 0;      // refused at push: t_s not finite, or pushed after stop()
-  uint64_t duplicates = 0;    // ignored at commit: (run_id, t_s) already stored
-  std::size_t pending = 0;    // samples waiting for the next commit
-  double last_commit_ms = 0;  // duration of the last commit, wall ms
+  uint64_t dropped = 0;               // samples dropped because the queue was full
+                                      // (or still uncommitted when stop() failed)
+  uint64_t rejected = 0;              // refused at push: t_s not finite, or pushed after stop()
+  uint64_t duplicates = 0;            // ignored at commit: (run_id, t_s) already stored
+  std::size_t pending = 0;            // samples waiting for the next commit
+  double last_commit_ms = 0;          // duration of the last commit, wall ms
   double max_commit_ms = 0;
   std::string last_error;  // of the most recent failed commit; kept after recovery
 };
