@@ -84,7 +84,9 @@ namespace {
 // input and reads past the end of some malformed rules):
 //   std offset [dst [offset] ,start[/time],end[/time]]
 // names of >= 3 letters; offsets [+-]hh[:mm[:ss]], hh <= 24; start and end
-// Jn (1..365), n (0..365) or Mm.w.d (m 1..12, w 1..5, d 0..6); times
+// both Jn (1..365) or both Mm.w.d (m 1..12, w 1..5, d 0..6) — Boost reads
+// the end in the start's form (it asserts on "M10.5.0,6") and mis-reads the
+// zero-based n form, so neither a mix nor n is let through; times
 // hh[:mm[:ss]], hh <= 24. A zone with DST must give its rule. Returns why
 // the rule is not one, or "" when it is.
 std::string posix_tz_problem(std::string_view r) {
@@ -117,22 +119,20 @@ std::string posix_tz_problem(std::string_view r) {
     }
     return true;
   };
-  const auto date = [&] {
+  const auto date = [&](char form) {
     int a = 0, b = 0, c = 0;
-    if (i < r.size() && r[i] == 'J') {
+    if (i >= r.size() || r[i] != form) return false;
+    if (r[i] == 'J') {
       ++i;
       return number(365, a) && a >= 1;
     }
-    if (i < r.size() && r[i] == 'M') {
-      ++i;
-      if (!number(12, a) || a < 1 || i >= r.size() || r[i++] != '.') return false;
-      if (!number(5, b) || b < 1 || i >= r.size() || r[i++] != '.') return false;
-      return number(6, c);
-    }
-    return number(365, a);
+    ++i;
+    if (!number(12, a) || a < 1 || i >= r.size() || r[i++] != '.') return false;
+    if (!number(5, b) || b < 1 || i >= r.size() || r[i++] != '.') return false;
+    return number(6, c);
   };
-  const auto transition = [&] {
-    if (!date()) return false;
+  const auto transition = [&](char form) {
+    if (!date(form)) return false;
     if (i < r.size() && r[i] == '/') {
       ++i;
       return clock(false);
@@ -151,9 +151,13 @@ std::string posix_tz_problem(std::string_view r) {
            ",M3.5.0,M10.5.0/3)";
   }
   ++i;
-  if (!transition()) return "the start of daylight saving must be Jn, n or Mm.w.d[/hh[:mm]]";
+  const char form = i < r.size() && r[i] == 'J' ? 'J' : 'M';
+  if (!transition(form)) return "the start of daylight saving must be Jn or Mm.w.d[/hh[:mm]]";
   if (i >= r.size() || r[i++] != ',') return "expected ',' before the end of daylight saving";
-  if (!transition()) return "the end of daylight saving must be Jn, n or Mm.w.d[/hh[:mm]]";
+  if (!transition(form)) {
+    return form == 'J' ? "the end of daylight saving must be Jn[/hh[:mm]], like its start"
+                       : "the end of daylight saving must be Mm.w.d[/hh[:mm]], like its start";
+  }
   if (i != r.size()) return "unexpected text after the rule";
   return "";
 }
