@@ -296,7 +296,7 @@ std::optional<std::string> api_exposure_warning(const ApiSection& api) {
 }
 
 std::string redact_config_secrets(std::string_view toml_text, const ApiSection& api) {
-  constexpr std::string_view kRedacted = "<redacted>";
+  static constexpr std::string_view kRedacted = "<redacted>";
   TomlErrors errors("config");
   auto root = parse_toml_string(toml_text, errors);
   if (!root) return "# station config not recorded: it no longer parses as TOML\n";
