@@ -16,6 +16,7 @@
 #endif
 
 #include "compensated_sum.h"
+#include "target_clones.h"
 
 namespace gyrotherm::analysis {
 namespace {
@@ -178,10 +179,8 @@ std::optional<double> median_from_scan(const ScanResult& s, std::size_t nd, doub
 
 // sum_{k=k0}^{k1-1} (C[k+2m] - 2 C[k+m] + C[k])^2: m^2 times the squared
 // difference of adjacent cluster means. Cloned for AVX2/FMA where available.
-[[gnu::target_clones("arch=x86-64-v3", "default")]] double cluster_diff_squares(const double* c,
-                                                                                std::size_t m,
-                                                                                std::size_t k0,
-                                                                                std::size_t k1) {
+GYROTHERM_AVX2_CLONES double cluster_diff_squares(const double* c, std::size_t m, std::size_t k0,
+                                                  std::size_t k1) {
   const double* c0 = c + k0;
   const double* c1 = c + k0 + m;
   const double* c2 = c + k0 + 2 * m;

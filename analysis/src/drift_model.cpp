@@ -16,6 +16,7 @@
 #include <thread>
 
 #include "compensated_sum.h"
+#include "target_clones.h"
 
 namespace gyrotherm::analysis {
 namespace {
@@ -547,10 +548,8 @@ using Vec4 = double __attribute__((vector_size(32)));
 
 // G[a][b] += column a . column b for a <= b < q (g with row stride q4, x
 // with q4 columns, those past q zero; entries with b >= q are not computed).
-[[gnu::target_clones("arch=x86-64-v3", "default")]] void gram_accumulate(const double* x,
-                                                                         std::size_t q,
-                                                                         std::size_t rows4,
-                                                                         double* g) {
+GYROTHERM_AVX2_CLONES void gram_accumulate(const double* x, std::size_t q, std::size_t rows4,
+                                           double* g) {
   const std::size_t q4 = (q + 3) / 4 * 4;
   for (std::size_t a0 = 0; a0 < q4; a0 += 4) {
     const double* xa = x + a0 * kRowBlock;

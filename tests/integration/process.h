@@ -34,7 +34,9 @@ class ChildProcess {
   std::string log_path_;
 };
 
-// Polls `pred` every 20 ms until it holds or `timeout` passes.
+// Polls `pred` every 20 ms until it holds or `timeout` passes. `timeout` is
+// stretched by the factor in GYROTHERM_TEST_TIME_FACTOR (default 1), which
+// scripts/test-sanitizers sets: sanitized processes are several times slower.
 bool wait_until(const std::function<bool()>& pred, std::chrono::milliseconds timeout);
 
 // A TCP port that was free a moment ago (bind port 0, read it, close).

@@ -366,7 +366,7 @@ TEST_F(ControlSocketTest, AlarmWithoutARegisterIsAnError) {
 }
 
 TEST_F(ControlSocketTest, ChamberForceDrivesTheAirOutOfLimitsAndReleaseBringsItBack) {
-  ManualClock clock;
+  ManualClock& clock = manual_clock_;
   ASSERT_NO_FATAL_FAILURE(start(&clock));
   ModbusClient client(port(), chamber_unit());
   const auto& map = config_.chamber.map;

@@ -112,6 +112,10 @@ class SimFixture : public ::testing::Test {
   std::string dir_;
   daemon::StationConfig config_;
   SimulatorOptions options_;
+  // For tests that step time by hand: start(&manual_clock_). A member, not a
+  // local of the test, so it outlives the simulator's threads (sim_ stops in
+  // TearDown, after the test body has returned).
+  ManualClock manual_clock_;
   std::unique_ptr<Simulator> sim_;
 };
 

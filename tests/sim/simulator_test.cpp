@@ -268,7 +268,8 @@ TEST_F(SimulatorTest, StalledProbeKeepsItsValue) {
 }
 
 TEST_F(SimulatorTest, ManualClockStepsExactly) {
-  ManualClock clock(1000.0);
+  ManualClock& clock = manual_clock_;
+  clock.set(1000.0);
   ASSERT_NO_FATAL_FAILURE(start(&clock));
   clock.advance(600.0);
   ASSERT_TRUE(wait_for([&] { return sim_->status().t_s >= 600.0 - 1e-6; }));
