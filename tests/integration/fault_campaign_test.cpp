@@ -123,6 +123,15 @@ class FaultCampaignTest : public StationTest {
         },
         timeout);
   }
+  // Waits until the first run has completed.
+  bool wait_run_completed() {
+    return wait_until(
+        [&] {
+          auto runs = get_json("/api/v1/runs");
+          return runs.is_array() && !runs.empty() && runs[0]["state"] == "completed";
+        },
+        std::chrono::seconds(120));
+  }
   std::string diag() {
     return "\nlast status: " + last_.dump() + "\ndaemon log:\n" + daemon_->log();
   }
@@ -321,13 +330,7 @@ TEST_F(FaultCampaignTest, DeviceFaultsDuringARun) {
       {{"silent_timeout_s = 60.0\n[chamber.alarm]", "silent_timeout_s = 10.0\n[chamber.alarm]"},
        {"rate_hz = 10", "rate_hz = 100"}},
       "[control]\nmin_silent_wall_s = 0.2\n");
-  write(dir_ / "schedule.toml", R"(name = "device faults"
-[[step]]
-type = "soak"
-setpoint_c = 23.0
-stability_window_min = 1
-acquire_min = 6
-)");
+  write(dir_ / "schedule.toml", testing::soak_schedule("device faults", 23.0, 6, 1));
   ASSERT_NO_FATAL_FAILURE(start_sim_in_process());
   start_daemon();
   ASSERT_TRUE(wait_status([](const json& s) { return s["state"] == "acquiring"; },
@@ -399,13 +402,7 @@ acquire_min = 6
   EXPECT_EQ(gyro("frames_missed").get<uint64_t>() - missed_before, corrupted)
       << "each corrupted frame is a missing sample";
 
-  ASSERT_TRUE(wait_until(
-      [&] {
-        auto runs = get_json("/api/v1/runs");
-        return runs.is_array() && !runs.empty() && runs[0]["state"] == "completed";
-      },
-      std::chrono::seconds(120)))
-      << diag();
+  ASSERT_TRUE(wait_run_completed()) << diag();
   daemon_->signal(SIGTERM);
   ASSERT_EQ(daemon_->wait(std::chrono::seconds(30)), std::optional<int>(0)) << daemon_->log();
 
@@ -475,13 +472,7 @@ TEST_F(FaultCampaignTest, DiskFullSuspendsAcquisitionAndResumes) {
   write_config({{fmt::format("db = \"{}/station.db\"", dir_.string()),
                  fmt::format("db = \"{}\"", db_path_.string())},
                 {"rate_hz = 10", "rate_hz = 100"}});
-  write(dir_ / "schedule.toml", R"(name = "disk full"
-[[step]]
-type = "soak"
-setpoint_c = 23.0
-stability_window_min = 1
-acquire_min = 10
-)");
+  write(dir_ / "schedule.toml", testing::soak_schedule("disk full", 23.0, 10, 1));
   ASSERT_NO_FATAL_FAILURE(start_sim_in_process());
   start_daemon();
 
@@ -523,13 +514,7 @@ acquire_min = 10
       },
       std::chrono::seconds(60)))
       << diag();
-  ASSERT_TRUE(wait_until(
-      [&] {
-        auto runs = get_json("/api/v1/runs");
-        return runs.is_array() && !runs.empty() && runs[0]["state"] == "completed";
-      },
-      std::chrono::seconds(120)))
-      << diag();
+  ASSERT_TRUE(wait_run_completed()) << diag();
   const json final_status = daemon_status();
   EXPECT_EQ(final_status["storage"]["dropped"], 0) << "no sample was dropped";
   daemon_->signal(SIGTERM);

@@ -15,20 +15,10 @@ namespace gyrotherm {
 namespace {
 
 using ::testing::HasSubstr;
+using testing::soak_schedule;
 using testing::StationTest;
 using testing::wait_until;
 using json = nlohmann::json;
-
-std::string soak_schedule(const std::string& name, double setpoint_c, double acquire_min) {
-  return fmt::format(R"(name = "{}"
-[[step]]
-type = "soak"
-setpoint_c = {}
-stability_window_min = 2
-acquire_min = {}
-)",
-                     name, setpoint_c, acquire_min);
-}
 
 json queue_body(const std::string& toml, const std::string& source) {
   return {{"schedule_toml", toml}, {"source", source}};

@@ -109,6 +109,19 @@ stability_window_min = 2
 acquire_min = 6
 )";
 
+// A schedule of one soak.
+inline std::string soak_schedule(const std::string& name, double setpoint_c, double acquire_min,
+                                 double stability_window_min = 2) {
+  return fmt::format(R"(name = "{}"
+[[step]]
+type = "soak"
+setpoint_c = {}
+stability_window_min = {}
+acquire_min = {}
+)",
+                     name, setpoint_c, stability_window_min, acquire_min);
+}
+
 class StationTest : public testing::TempDirTest {
  protected:
   StationTest() : TempDirTest("gyrotherm-it") {}
