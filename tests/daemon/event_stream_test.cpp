@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "gyrotherm/daemon/http_server.h"
+#include "test_time.h"
 
 namespace gyrotherm::daemon {
 namespace {
@@ -124,13 +125,14 @@ int connect_to(int port, int rcvbuf_bytes = 0) {
   return fd;
 }
 
-// Reads until `done(text)` or the deadline; returns what was read. Sets
+// Reads until `done(text)` or `timeout` (stretched by
+// GYROTHERM_TEST_TIME_FACTOR) passes; returns what was read. Sets
 // `closed` when the server closed the connection.
 template <class Done>
 std::string read_until(int fd, Done done, std::chrono::milliseconds timeout,
                        bool* closed = nullptr) {
   std::string text;
-  const auto deadline = Steady::now() + timeout;
+  const auto deadline = Steady::now() + testing::scaled(timeout);
   char buf[65536];
   while (!done(text) && Steady::now() < deadline) {
     pollfd p{fd, POLLIN, 0};
@@ -181,7 +183,7 @@ TEST(EventStreamHttp, ClientsReceiveTicksAndEventsAStalledClientIsDropped) {
     EXPECT_NE(head.find("retry: 3000"), std::string::npos);
     EXPECT_GE(count_of(head, "event: status"), 2u);
   }
-  const auto deadline = Steady::now() + 5s;
+  const auto deadline = Steady::now() + testing::scaled(5s);
   while (stream.clients() < 4 && Steady::now() < deadline) std::this_thread::sleep_for(10ms);
   ASSERT_EQ(stream.clients(), 4);
 
@@ -214,8 +216,12 @@ TEST(EventStreamHttp, ClientsReceiveTicksAndEventsAStalledClientIsDropped) {
   const double total_ms = std::chrono::duration<double, std::milli>(Steady::now() - t0).count();
 
   EXPECT_EQ(stream.dropped(), 1u) << "the stalled client is dropped";
-  EXPECT_LT(slowest_publish_ms, 50.0) << "publish never waits on a client";
-  EXPECT_LT(total_ms, 20000.0);
+  // Waiting on the stalled client would block a publish until the 60 s write
+  // timeout; a few seconds tell that apart from a loaded machine's
+  // scheduling delays (throughput is measured in bench/, not here).
+  EXPECT_LT(slowest_publish_ms, static_cast<double>(testing::scaled(5s).count()))
+      << "publish never waits on a client";
+  EXPECT_LT(total_ms, static_cast<double>(testing::scaled(20s).count()));
   for (std::size_t i = 0; i < readers.size(); ++i) {
     EXPECT_EQ(count_of(got[i], "event: bulk"), static_cast<std::size_t>(kEvents)) << "reader " << i;
     EXPECT_NE(got[i].find("event: last"), std::string::npos);

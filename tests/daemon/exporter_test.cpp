@@ -28,6 +28,7 @@
 #include <vector>
 
 #include "gyrotherm/storage/sample_writer.h"
+#include "test_time.h"
 #include "utc_time.h"
 
 namespace gyrotherm::daemon {
@@ -788,7 +789,7 @@ TEST_F(ExporterTest, ThreadExportsWhenTheClockReachesTheSlot) {
   const int64_t run = complete_run();
   e->start();
   // The thread's first poll records the first start.
-  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+  const auto deadline = std::chrono::steady_clock::now() + testing::scaled(std::chrono::seconds(5));
   bool started = false;
   while (!started && std::chrono::steady_clock::now() < deadline) {
     auto since = db().meta("nightly_export_since_unix_s");

@@ -14,6 +14,8 @@
 #include <mutex>
 #include <thread>
 
+#include "test_time.h"
+
 namespace gyrotherm::drivers {
 namespace {
 
@@ -258,7 +260,7 @@ TEST(ModbusDevice, UnreachableDeviceIsATransientError) {
   auto again = dev.read(spec(0, RegisterType::kInt16));
   ASSERT_FALSE(again.ok());
   EXPECT_TRUE(again.error().transient);
-  EXPECT_LT(std::chrono::steady_clock::now() - t0, 50ms);
+  EXPECT_LT(std::chrono::steady_clock::now() - t0, testing::scaled(50ms));
 
   const DeviceHealth h = dev.health();
   EXPECT_FALSE(h.connected);
@@ -295,7 +297,7 @@ TEST(ModbusDevice, ReconnectsAfterTheServerDropsTheConnection) {
   EXPECT_FALSE(dev.health().connected);
 
   Result<double> v = Error::Transient("not tried");
-  const auto deadline = std::chrono::steady_clock::now() + 5s;
+  const auto deadline = std::chrono::steady_clock::now() + testing::scaled(5s);
   while (std::chrono::steady_clock::now() < deadline) {
     v = dev.read(reg);
     if (v.ok()) break;

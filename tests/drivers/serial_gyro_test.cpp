@@ -16,20 +16,17 @@
 #include "gyrotherm/drivers/kvh1750.h"
 #include "gyrotherm/drivers/pty.h"
 #include "gyrotherm/drivers/serial_port.h"
+#include "test_time.h"
 
 namespace gyrotherm::drivers {
 namespace {
 
 using namespace std::chrono_literals;
 
-// Polls `cond` until it holds or 5 s (wall) pass.
+// Polls `cond` until it holds or 5 s (wall, stretched by
+// GYROTHERM_TEST_TIME_FACTOR) pass.
 bool wait_for(const std::function<bool()>& cond, std::chrono::milliseconds limit = 5000ms) {
-  const auto deadline = std::chrono::steady_clock::now() + limit;
-  while (std::chrono::steady_clock::now() < deadline) {
-    if (cond()) return true;
-    std::this_thread::sleep_for(2ms);
-  }
-  return cond();
+  return testing::wait_for_condition(cond, limit);
 }
 
 Pty open_pty() {
@@ -303,7 +300,7 @@ TEST(GyroReader, MissingDeviceKeepsRetryingAndStopsPromptly) {
   EXPECT_NE(h.last_error.find("/dev/gyrotherm-no-such-tty"), std::string::npos);
   const auto t0 = std::chrono::steady_clock::now();
   reader.stop();
-  EXPECT_LT(std::chrono::steady_clock::now() - t0, 1s);
+  EXPECT_LT(std::chrono::steady_clock::now() - t0, testing::scaled(1s));
 }
 
 }  // namespace

@@ -40,15 +40,6 @@ int env_int(const char* name, int fallback) {
   return v && *v ? std::atoi(v) : fallback;
 }
 
-// GYROTHERM_TEST_TIME_FACTOR (set by the sanitizer runs: slower processes).
-// wait_until() stretches its deadlines by it; this is for the other waits and
-// the allowance on lost samples.
-double time_factor() {
-  const char* v = std::getenv("GYROTHERM_TEST_TIME_FACTOR");
-  const double f = v && *v ? std::atof(v) : 1.0;
-  return f >= 1.0 ? f : 1.0;
-}
-
 double seconds_since(Clock::time_point t) {
   return std::chrono::duration<double>(Clock::now() - t).count();
 }
@@ -206,7 +197,7 @@ TEST_F(FaultCampaignTest, KillNineAtRandomMoments) {
   int resumes_checked = 0;
   int64_t open_run = 0;  // a run the previous kill left open (0: none)
   int resumes_before = 0;
-  const double allowance_s = 0.25 * time_factor();
+  const double allowance_s = 0.25 * testing::time_factor();
 
   for (int k = 0; k < kills; ++k) {
     // Poll the status until the random moment; the last answer tells what
@@ -276,7 +267,8 @@ TEST_F(FaultCampaignTest, KillNineAtRandomMoments) {
   daemon_->signal(SIGKILL);
   ASSERT_TRUE(daemon_->wait(std::chrono::seconds(10)).has_value());
   start_daemon({"--exit-when-done"}, false);
-  const auto code = daemon_->wait(std::chrono::seconds(static_cast<int>(240 * time_factor())));
+  const auto code =
+      daemon_->wait(std::chrono::seconds(static_cast<int>(240 * testing::time_factor())));
   ASSERT_EQ(code, std::optional<int>(0)) << daemon_->log();
 
   ASSERT_EQ(integrity_check(db_path()), "ok");

@@ -79,13 +79,7 @@ std::string ChildProcess::log() const {
 }
 
 bool wait_until(const std::function<bool()>& pred, std::chrono::milliseconds timeout) {
-  static const double factor = [] {
-    const char* env = std::getenv("GYROTHERM_TEST_TIME_FACTOR");
-    const double f = env ? std::atof(env) : 1.0;
-    return f >= 1.0 ? f : 1.0;
-  }();
-  const auto deadline = std::chrono::steady_clock::now() +
-                        std::chrono::duration_cast<std::chrono::milliseconds>(timeout * factor);
+  const auto deadline = std::chrono::steady_clock::now() + scaled(timeout);
   for (;;) {
     if (pred()) return true;
     if (std::chrono::steady_clock::now() >= deadline) return false;

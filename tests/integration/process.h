@@ -10,6 +10,8 @@
 #include <string>
 #include <vector>
 
+#include "test_time.h"
+
 namespace gyrotherm::testing {
 
 class ChildProcess {

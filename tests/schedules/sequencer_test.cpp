@@ -257,7 +257,7 @@ TEST(Sequencer, MissingProbeReadingsNeverOpenTheGate) {
 }
 
 // The paper's whole Table I campaign (32 soaks, ~80 h of station time) in
-// virtual time, well under a second of wall time.
+// virtual time. How fast it runs is measured by bench/sequencer_bench.cpp.
 TEST(Sequencer, PaperTable1CampaignInVirtualTime) {
   auto plan =
       load_schedule(std::string(GYROTHERM_SOURCE_DIR) + "/config/schedules/paper-table1.toml",
@@ -266,11 +266,8 @@ TEST(Sequencer, PaperTable1CampaignInVirtualTime) {
   RecordingObserver obs;
   Sequencer seq(std::move(*plan), {}, obs);
   FakePlant plant;
-  const auto wall0 = std::chrono::steady_clock::now();
   seq.start(0.0, 23.0);
   const double t_end = run(seq, plant, 30 * 24 * 3600.0);
-  const double wall_s =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
   EXPECT_EQ(seq.state(), RunState::kCompleted);
   ASSERT_EQ(obs.finished.size(), 32u);
   double acquired_s = 0;
@@ -280,7 +277,6 @@ TEST(Sequencer, PaperTable1CampaignInVirtualTime) {
   }
   EXPECT_DOUBLE_EQ(acquired_s, 4 * 60.0 * (103 + 143 + 136 + 68 + 141 + 153 + 135 + 133));
   EXPECT_GT(t_end, acquired_s);
-  EXPECT_LT(wall_s, 1.0) << "station time " << t_end << " s";
 }
 
 // ------------------------------------------------------------- holds and interlocks

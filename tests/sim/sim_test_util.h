@@ -17,21 +17,18 @@
 
 #include "gyrotherm/drivers/registers.h"
 #include "gyrotherm/sim/simulator.h"
+#include "test_time.h"
 
 namespace gyrotherm::sim::test_util {
 
 using namespace std::chrono_literals;
 using SteadyClock = std::chrono::steady_clock;
 
-// Polls `pred` until it holds or `timeout` (wall) passes.
+// Polls `pred` until it holds or `timeout` (wall, stretched by
+// GYROTHERM_TEST_TIME_FACTOR) passes.
 template <class Pred>
 bool wait_for(Pred pred, std::chrono::milliseconds timeout = 3000ms) {
-  const auto deadline = SteadyClock::now() + timeout;
-  while (!pred()) {
-    if (SteadyClock::now() > deadline) return pred();
-    std::this_thread::sleep_for(1ms);
-  }
-  return true;
+  return gyrotherm::testing::wait_for_condition(pred, timeout, 1ms);
 }
 
 class ModbusClient {

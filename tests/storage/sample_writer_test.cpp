@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "gyrotherm/storage/database.h"
+#include "test_time.h"
 #include "test_util.h"
 
 namespace gyrotherm::storage {
@@ -43,15 +44,11 @@ TemperatureSample temperature_sample(int j) {
           .side_c = 19.125 - j / 7.0};
 }
 
-// Polls `pred` until it holds or `timeout` passes; true if it held.
+// Polls `pred` until it holds or `timeout` (stretched by
+// GYROTHERM_TEST_TIME_FACTOR) passes; true if it held.
 template <class Pred>
 bool wait_for(Pred pred, std::chrono::milliseconds timeout) {
-  const auto deadline = std::chrono::steady_clock::now() + timeout;
-  while (!pred()) {
-    if (std::chrono::steady_clock::now() > deadline) return false;
-    std::this_thread::sleep_for(2ms);
-  }
-  return true;
+  return gyrotherm::testing::wait_for_condition(pred, timeout);
 }
 
 TEST(SampleWriter, TwoThreadsPushFlushAndReadBackExactly) {
@@ -191,7 +188,7 @@ TEST(SampleWriter, CommitsWithinTheIntervalWithoutFlush) {
       << "rows not committed within 5 s";
   const auto elapsed = std::chrono::steady_clock::now() - pushed;
   // Interval plus a generous margin for a loaded CI machine.
-  EXPECT_LT(elapsed, 100ms + 2s);
+  EXPECT_LT(elapsed, gyrotherm::testing::scaled(100ms + 2s));
   EXPECT_GE(writer->stats().commits, 1u);
 }
 
