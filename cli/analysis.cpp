@@ -599,31 +599,24 @@ struct AllanView {
   int64_t n_samples = 0;
   std::vector<double> tau_s, adev, lo, hi, edf;
   std::vector<int64_t> n_terms;
-  std::optional<double> arw, bi, bi_tau, rrw;
+  analysis::AllanNoiseTerms noise;
   std::string bi_method;
 };
 
 AllanView view_of(const analysis::AllanResult& a) {
-  AllanView v{a.tau0_s,
-              static_cast<int64_t>(a.n_samples),
-              a.tau_s,
-              a.adev_dph,
-              a.adev_lo_dph,
-              a.adev_hi_dph,
-              a.edf,
-              {},
-              a.angle_random_walk_dprh,
-              a.bias_instability_dph,
-              a.bias_instability_tau_s,
-              a.rate_random_walk_dphprh,
-              a.bias_instability_method};
+  AllanView v{a.tau0_s,      static_cast<int64_t>(a.n_samples),
+              a.tau_s,       a.adev_dph,
+              a.adev_lo_dph, a.adev_hi_dph,
+              a.edf,         {},
+              a.noise,       a.bias_instability_method};
   for (auto t : a.n_terms) v.n_terms.push_back(static_cast<int64_t>(t));
   return v;
 }
 
-// The stored record lacks the number of terms and the edf; both follow from
-// n and the cluster size m = tau / tau0.
+// The stored record lacks the number of terms, the edf and the bounds; all
+// follow from n and the cluster size m = tau / tau0 (allan_noise_terms).
 AllanView view_of(const storage::AllanRecord& a) {
+  const auto n = static_cast<std::size_t>(std::max<int64_t>(a.n_samples, 0));
   AllanView v{a.tau0_s,
               a.n_samples,
               a.tau_s,
@@ -632,12 +625,8 @@ AllanView view_of(const storage::AllanRecord& a) {
               a.adev_hi_dph,
               {},
               {},
-              a.angle_random_walk_dprh,
-              a.bias_instability_dph,
-              a.bias_instability_tau_s,
-              a.rate_random_walk_dphprh,
+              analysis::allan_noise_terms(n, a.tau0_s, a.tau_s, a.adev_dph),
               a.bias_instability_method};
-  const auto n = static_cast<std::size_t>(std::max<int64_t>(a.n_samples, 0));
   for (const double tau : a.tau_s) {
     const auto m = static_cast<std::size_t>(std::llround(a.tau0_s > 0 ? tau / a.tau0_s : 0));
     v.n_terms.push_back(2 * m <= n + 1 ? static_cast<int64_t>(n - 2 * m + 1) : 0);
@@ -646,12 +635,27 @@ AllanView view_of(const storage::AllanRecord& a) {
   return v;
 }
 
+// One noise term as JSON: kind (value, upper_bound, unavailable), value (the
+// value or the bound; null when unavailable), tau_s and tau_relation, note.
+json noise_term_json(const analysis::NoiseTerm& t) {
+  const bool has = t.kind != analysis::NoiseTermKind::kUnavailable;
+  return {{"kind", analysis::to_string(t.kind)},
+          {"value", has ? num(t.value) : json(nullptr)},
+          {"tau_s", num(t.tau_s)},
+          {"tau_relation", t.tau_relation},
+          {"note", t.note}};
+}
+
 json allan_json(const AllanView& v, std::string_view taus) {
   auto arr = [](const std::vector<double>& x) {
     json a = json::array();
     for (double d : x) a.push_back(num(d));
     return a;
   };
+  const auto value = [](const analysis::NoiseTerm& t) {
+    return t.is_value() ? num(t.value) : json(nullptr);
+  };
+  const auto& bi = v.noise.bias_instability_dph;
   return {{"taus", taus},
           {"tau0_s", num(v.tau0_s)},
           {"n_samples", v.n_samples},
@@ -661,11 +665,41 @@ json allan_json(const AllanView& v, std::string_view taus) {
           {"adev_hi_dph", arr(v.hi)},
           {"n_terms", v.n_terms},
           {"edf", arr(v.edf)},
-          {"angle_random_walk_dprh", num(v.arw)},
-          {"bias_instability_dph", num(v.bi)},
-          {"bias_instability_tau_s", num(v.bi_tau)},
+          {"angle_random_walk_dprh", value(v.noise.angle_random_walk_dprh)},
+          {"bias_instability_dph", value(bi)},
+          {"bias_instability_tau_s", bi.is_value() && bi.tau_s ? num(*bi.tau_s) : json(nullptr)},
           {"bias_instability_method", v.bi_method},
-          {"rate_random_walk_dphprh", num(v.rrw)}};
+          {"rate_random_walk_dphprh", value(v.noise.rate_random_walk_dphprh)},
+          {"noise_terms",
+           {{"angle_random_walk_dprh", noise_term_json(v.noise.angle_random_walk_dprh)},
+            {"bias_instability_dph", noise_term_json(bi)},
+            {"rate_random_walk_dphprh", noise_term_json(v.noise.rate_random_walk_dphprh)}}}};
+}
+
+// A noise term for the text output: "0.0123 °/h", "< 0.0456 °/h", "—".
+std::string noise_term_short(const analysis::NoiseTerm& t, std::string_view unit) {
+  switch (t.kind) {
+    case analysis::NoiseTermKind::kValue:
+      return fmt::format("{} {}", general(t.value), unit);
+    case analysis::NoiseTermKind::kUpperBound:
+      return fmt::format("< {} {}", general(t.value), unit);
+    case analysis::NoiseTermKind::kUnavailable:
+      break;
+  }
+  return std::string(kDash);
+}
+
+// The term with where it was read and how: "< 0.0456 °/h at τ ≥ 1200 s (upper
+// bound: no minimum yet: ...)".
+std::string noise_term_line(const analysis::NoiseTerm& t, std::string_view unit) {
+  std::string out = noise_term_short(t, unit);
+  if (t.tau_s && t.kind != analysis::NoiseTermKind::kUnavailable) {
+    const std::string_view rel = t.tau_relation == ">=" ? "≥" : t.tau_relation == "<=" ? "≤" : "=";
+    out += fmt::format(" at τ {} {} s", rel, general(*t.tau_s));
+  }
+  const bool bound = t.kind == analysis::NoiseTermKind::kUpperBound;
+  if (!t.note.empty()) out += fmt::format(" ({}{})", bound ? "upper bound: " : "", t.note);
+  return out;
 }
 
 std::string allan_text(const std::string& title, const AllanView& v, std::string_view taus) {
@@ -679,18 +713,41 @@ std::string allan_text(const std::string& title, const AllanView& v, std::string
                     i < v.edf.size() ? general(v.edf[i]) : kDash});
   }
   out += table({"τ s", "σ °/h", "σ lo °/h", "σ hi °/h", "terms", "edf"}, rows, 0, "  ");
-  // "—" alone (no unit) when the term cannot be read off the curve.
-  auto g = [](const std::optional<double>& x, std::string_view unit) {
-    return x && std::isfinite(*x) ? fmt::format("{} {}", general(*x), unit) : std::string(kDash);
-  };
-  out += fmt::format("  angle random walk  {}\n", g(v.arw, "°/√h"));
-  out += fmt::format("  bias instability   {}{} ({}{})\n", g(v.bi, "°/h"),
-                     v.bi_tau ? fmt::format(" at τ = {} s", general(*v.bi_tau)) : "",
-                     v.bi_method.empty() ? "minimum / 0.664" : v.bi_method,
-                     v.bi ? "" : "; no minimum inside the curve yet");
-  out += fmt::format("  rate random walk   {}\n", g(v.rrw, "°/h/√h"));
-  out += "  (bounds: 68.3 % chi-squared, white rate noise edf)\n";
+  out += fmt::format("  angle random walk  {}\n",
+                     noise_term_line(v.noise.angle_random_walk_dprh, "°/√h"));
+  out += fmt::format("  bias instability   {}\n",
+                     noise_term_line(v.noise.bias_instability_dph, "°/h"));
+  out += fmt::format("  rate random walk   {}\n",
+                     noise_term_line(v.noise.rate_random_walk_dphprh, "°/h/√h"));
+  out +=
+      "  (bounds: 68.3 % chi-squared, white rate noise edf; \"< x\": the curve does not reach "
+      "the term's region, so the term is below x)\n";
   return out;
+}
+
+// One summary row per curve (several soaks / runs / files): the three terms.
+struct AllanSummaryRow {
+  std::string who;
+  analysis::AllanNoiseTerms noise;
+};
+
+std::string allan_summary(const std::vector<AllanSummaryRow>& rows) {
+  std::vector<std::vector<std::string>> cells;
+  for (const auto& r : rows) {
+    const auto& bi = r.noise.bias_instability_dph;
+    std::string bi_text = noise_term_short(bi, "°/h");
+    if (bi.tau_s && bi.kind != analysis::NoiseTermKind::kUnavailable) {
+      const std::string_view rel = bi.tau_relation == ">="   ? "≥"
+                                   : bi.tau_relation == "<=" ? "≤"
+                                                             : "=";
+      bi_text += fmt::format(" (τ {} {} s)", rel, general(*bi.tau_s));
+    }
+    cells.push_back({r.who, noise_term_short(r.noise.angle_random_walk_dprh, "°/√h"), bi_text,
+                     noise_term_short(r.noise.rate_random_walk_dphprh, "°/h/√h")});
+  }
+  return "Summary (\"< x\": upper bound, the curve does not reach the term's region; "
+         "—: unavailable, see the curve's own lines)\n" +
+         table({"curve", "ARW", "bias instability", "RRW"}, cells, 1, "  ");
 }
 
 int cmd_allan(const Parsed& p) {
@@ -709,6 +766,7 @@ int cmd_allan(const Parsed& p) {
   if (auto check = tau_set({}); !check) return fail(check.error().message, kExitInput);
   json out = json::array();
   std::string text;
+  std::vector<AllanSummaryRow> summary;
   if (in->db) {
     auto& db = in->db->db;
     for (const auto& run : in->db->runs) {
@@ -732,6 +790,9 @@ int cmd_allan(const Parsed& p) {
                   {"t_to_s", num(rec->t_to_s)}};
         j.update(allan_json(v, taus_name));
         out.push_back(std::move(j));
+        summary.push_back({fmt::format("run {} segment {} ({:g} °C)", run.id,
+                                       soak.segment_index + 1, soak.setpoint_c),
+                           v.noise});
         text += allan_text(fmt::format("run {} segment {} (soak {:g} °C), samples {}–{} s", run.id,
                                        soak.segment_index + 1, soak.setpoint_c,
                                        general(rec->t_from_s), general(rec->t_to_s)),
@@ -748,12 +809,15 @@ int cmd_allan(const Parsed& p) {
       json j = {{"source", w.source}};
       j.update(allan_json(v, taus_name));
       out.push_back(std::move(j));
+      summary.push_back({w.source, v.noise});
       text += allan_text(w.source, v, taus_name);
     }
   }
   if (p.json) {
     std::cout << out.dump(2) << "\n";
   } else {
+    // Several curves (a campaign, several soaks or files): a summary after them.
+    if (summary.size() > 1) text += "\n" + allan_summary(summary);
     std::cout << (text.empty() ? "no Allan deviation\n" : text);
   }
   return 0;

@@ -239,8 +239,11 @@ std::vector<double> allan_variances(const double* c, std::size_t n,
       }
     }
     if (!strided || first_large == ms.size()) return;
+    // X = k0 + 2m runs up to the last term's k0 + 2m = n (inclusive): when n
+    // is a multiple of kChunk, the chunk holding the last difference of every
+    // large m starts exactly at X = n.
     for (std::size_t base = base_begin; base < base_end; base += kChunk) {
-      for (std::size_t x = base; x < n; x += kLarge) {
+      for (std::size_t x = base; x <= n; x += kLarge) {
         for (std::size_t j = first_large; j < ms.size(); ++j) {
           if (x < 2 * ms[j]) break;
           const std::size_t k0 = x - 2 * ms[j];
@@ -271,15 +274,16 @@ std::vector<double> allan_variances(const double* c, std::size_t n,
   return var;
 }
 
-// C of the fixed-slope line log sigma = log C + slope log tau (allan.h).
-std::optional<double> fit_fixed_slope(const AllanResult& r, double slope) {
-  const std::size_t n = r.tau_s.size();
-  if (n < 3) return std::nullopt;
+// C of the fixed-slope line log sigma = log C + slope log tau (allan.h), over
+// a curve whose sigmas are all positive and finite and that has >= 3 taus.
+std::optional<double> fit_fixed_slope(std::span<const double> tau_s,
+                                      std::span<const double> adev_dph, std::span<const double> edf,
+                                      double slope) {
+  const std::size_t n = tau_s.size();
   std::vector<double> lt(n), ls(n);
   for (std::size_t i = 0; i < n; ++i) {
-    if (!(r.adev_dph[i] > 0) || !std::isfinite(r.adev_dph[i])) return std::nullopt;
-    lt[i] = std::log(r.tau_s[i]);
-    ls[i] = std::log(r.adev_dph[i]);
+    lt[i] = std::log(tau_s[i]);
+    ls[i] = std::log(adev_dph[i]);
   }
   double wsum = 0;
   double sum = 0;
@@ -288,11 +292,29 @@ std::optional<double> fit_fixed_slope(const AllanResult& r, double slope) {
     const std::size_t hi = i + 1 == n ? n - 1 : i + 1;
     const double local = (ls[hi] - ls[lo]) / (lt[hi] - lt[lo]);
     if (std::abs(local - slope) > kSlopeTolerance) continue;
-    wsum += r.edf[i];
-    sum += r.edf[i] * (ls[i] - slope * lt[i]);
+    wsum += edf[i];
+    sum += edf[i] * (ls[i] - slope * lt[i]);
   }
   if (!(wsum > 0)) return std::nullopt;
   return std::exp(sum / wsum);
+}
+
+NoiseTerm term_value(double value, std::string note) {
+  NoiseTerm t;
+  t.kind = NoiseTermKind::kValue;
+  t.value = value;
+  t.note = std::move(note);
+  return t;
+}
+
+NoiseTerm term_bound(double bound, double tau_s, std::string relation, std::string note) {
+  NoiseTerm t;
+  t.kind = NoiseTermKind::kUpperBound;
+  t.value = bound;
+  t.tau_s = tau_s;
+  t.tau_relation = std::move(relation);
+  t.note = std::move(note);
+  return t;
 }
 
 double chi2_quantile(double dof, double p) {
@@ -352,6 +374,118 @@ double allan_edf_white_fm(std::size_t n_rate_samples, std::size_t m) {
          (4.0 * md * md + 5.0);
 }
 
+std::string_view to_string(NoiseTermKind kind) {
+  switch (kind) {
+    case NoiseTermKind::kValue:
+      return "value";
+    case NoiseTermKind::kUpperBound:
+      return "upper_bound";
+    case NoiseTermKind::kUnavailable:
+      return "unavailable";
+  }
+  return "?";
+}
+
+AllanNoiseTerms allan_noise_terms(std::span<const double> tau_s, std::span<const double> adev_dph,
+                                  std::span<const double> edf) {
+  AllanNoiseTerms out;
+  const auto unavailable = [&](const std::string& why) {
+    for (NoiseTerm* t :
+         {&out.angle_random_walk_dprh, &out.bias_instability_dph, &out.rate_random_walk_dphprh}) {
+      t->note = why;
+    }
+    return out;
+  };
+  const std::size_t n = tau_s.size();
+  if (adev_dph.size() != n || edf.size() != n) {
+    return unavailable(
+        fmt::format("the curve's arrays differ in length ({} taus, {} sigmas, {} edf)", n,
+                    adev_dph.size(), edf.size()));
+  }
+  if (n < 3) {
+    return unavailable(fmt::format("{} tau(s) on the curve, at least 3 are needed", n));
+  }
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!(adev_dph[i] > 0) || !std::isfinite(adev_dph[i]) || !(tau_s[i] > 0) ||
+        !std::isfinite(tau_s[i])) {
+      return unavailable(
+          fmt::format("sigma is {} at tau = {:g} s (a constant rate?)", adev_dph[i], tau_s[i]));
+    }
+  }
+  const double tau_min = tau_s.front(), tau_max = tau_s.back();
+  const double sigma_first = adev_dph.front(), sigma_last = adev_dph.back();
+
+  // Angle random walk: sigma_line(1 s) / 60.
+  if (auto c = fit_fixed_slope(tau_s, adev_dph, edf, -0.5)) {
+    const bool on_grid = tau_min <= 1.0 && 1.0 <= tau_max;
+    out.angle_random_walk_dprh =
+        term_value(*c / 60.0, on_grid ? "slope -1/2 line at tau = 1 s"
+                                      : "slope -1/2 line extrapolated to tau = 1 s");
+  } else {
+    out.angle_random_walk_dprh =
+        term_bound(sigma_first * std::sqrt(tau_min) / 60.0, tau_min, "<=",
+                   fmt::format("no slope -1/2 region on the curve: the -1/2 line through the "
+                               "first point (tau = {:g} s) bounds it",
+                               tau_min));
+  }
+
+  // Rate random walk: K = 60 sigma_line(3 s) = 60 sqrt(3) C.
+  if (auto c = fit_fixed_slope(tau_s, adev_dph, edf, 0.5)) {
+    out.rate_random_walk_dphprh = term_value(60.0 * *c * std::sqrt(3.0), "slope +1/2 line");
+  } else {
+    out.rate_random_walk_dphprh = term_bound(
+        60.0 * sigma_last * std::sqrt(3.0 / tau_max), tau_max, ">=",
+        fmt::format("no slope +1/2 region up to tau_max = {:g} s: the +1/2 line through the last "
+                    "point bounds it",
+                    tau_max));
+  }
+
+  // Bias instability: the minimum / 0.664.
+  const auto it = std::min_element(adev_dph.begin(), adev_dph.end());
+  const auto i = static_cast<std::size_t>(it - adev_dph.begin());
+  if (i > 0 && i + 1 < n) {
+    out.bias_instability_dph = term_value(*it / kBiasInstabilityFactor, "minimum / 0.664");
+    out.bias_instability_dph.tau_s = tau_s[i];
+    out.bias_instability_dph.tau_relation = "=";
+  } else if (i + 1 == n) {
+    out.bias_instability_dph =
+        term_bound(sigma_last / kBiasInstabilityFactor, tau_max, ">=",
+                   fmt::format("no minimum yet: the curve still falls at tau_max = {:g} s "
+                               "(record longer to reach the floor); sigma(tau_max) / 0.664",
+                               tau_max));
+  } else {
+    out.bias_instability_dph =
+        term_bound(sigma_first / kBiasInstabilityFactor, tau_min, "<=",
+                   fmt::format("the curve rises from the first tau = {:g} s: the floor lies at "
+                               "shorter tau; sigma(tau_min) / 0.664",
+                               tau_min));
+  }
+  return out;
+}
+
+AllanNoiseTerms allan_noise_terms(std::size_t n_samples, double tau0_s,
+                                  std::span<const double> tau_s, std::span<const double> adev_dph) {
+  std::vector<double> edf;
+  edf.reserve(tau_s.size());
+  for (const double tau : tau_s) {
+    const double m = tau0_s > 0 ? std::round(tau / tau0_s) : 0.0;
+    edf.push_back(m >= 1 && 2 * m <= static_cast<double>(n_samples)
+                      ? allan_edf_white_fm(n_samples, static_cast<std::size_t>(m))
+                      : kNaN);
+  }
+  for (const double e : edf) {
+    if (!(e > 0)) {
+      AllanNoiseTerms out;
+      const std::string why = fmt::format(
+          "the stored curve does not fit n = {} samples at tau0 = {:g} s", n_samples, tau0_s);
+      out.angle_random_walk_dprh.note = out.bias_instability_dph.note =
+          out.rate_random_walk_dphprh.note = why;
+      return out;
+    }
+  }
+  return allan_noise_terms(tau_s, adev_dph, edf);
+}
+
 Result<AllanResult> allan_deviation(std::span<const double> t_s, std::span<const double> rate_dph,
                                     const AllanOptions& options) {
   if (t_s.size() != rate_dph.size()) {
@@ -408,18 +542,11 @@ Result<AllanResult> allan_deviation(std::span<const double> t_s, std::span<const
     r.edf.push_back(edf);
   }
 
-  if (auto c = fit_fixed_slope(r, -0.5)) r.angle_random_walk_dprh = *c / 60.0;  // sigma(1 s) / 60
-  if (auto c = fit_fixed_slope(r, 0.5)) {
-    r.rate_random_walk_dphprh = 60.0 * *c * std::sqrt(3.0);  // 60 sigma(3 s)
-  }
-  if (r.adev_dph.size() >= 3) {
-    const auto it = std::min_element(r.adev_dph.begin(), r.adev_dph.end());
-    const auto i = static_cast<std::size_t>(it - r.adev_dph.begin());
-    if (i > 0 && i + 1 < r.adev_dph.size()) {
-      r.bias_instability_dph = *it / kBiasInstabilityFactor;
-      r.bias_instability_tau_s = r.tau_s[i];
-    }
-  }
+  r.noise = allan_noise_terms(r.tau_s, r.adev_dph, r.edf);
+  r.angle_random_walk_dprh = r.noise.angle_random_walk_dprh.value_if_read();
+  r.rate_random_walk_dphprh = r.noise.rate_random_walk_dphprh.value_if_read();
+  r.bias_instability_dph = r.noise.bias_instability_dph.value_if_read();
+  if (r.bias_instability_dph) r.bias_instability_tau_s = r.noise.bias_instability_dph.tau_s;
   return r;
 }
 

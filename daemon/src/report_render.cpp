@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 #include <set>
 
+#include "gyrotherm/analysis/allan.h"
 #include "gyrotherm/analysis/start_temperature.h"
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/daemon/report.h"
@@ -233,6 +234,40 @@ std::string comparison_html(const analysis::Comparison& c) {
   return h;
 }
 
+// An Allan noise term's cell: the value; "< bound" (class bound) when the
+// curve does not reach the term's region; "—" when unavailable. The tooltip
+// says how it was read or why it is a bound / missing.
+std::string noise_term_cell(const analysis::NoiseTerm& t, int decimals) {
+  switch (t.kind) {
+    case analysis::NoiseTermKind::kValue:
+      return fmt::format("<td class=\"num\" title=\"{}\">{:.{}f}</td>", escape(t.note), t.value,
+                         decimals);
+    case analysis::NoiseTermKind::kUpperBound:
+      return fmt::format("<td class=\"num bound\" title=\"upper bound: {}\">&lt; {:.{}f}</td>",
+                         escape(t.note), t.value, decimals);
+    case analysis::NoiseTermKind::kUnavailable:
+      break;
+  }
+  return fmt::format("<td class=\"num missing\" title=\"{}\">{}</td>", escape(t.note), kDash);
+}
+
+// The tau a bias instability was read at: "512", "≥ 1200" (the floor not
+// reached yet), "≤ 0.1" (the curve rises from the start), "—".
+std::string noise_term_tau_cell(const analysis::NoiseTerm& t) {
+  if (!t.tau_s || t.kind == analysis::NoiseTermKind::kUnavailable) {
+    return fmt::format("<td class=\"num missing\">{}</td>", kDash);
+  }
+  const char* rel = t.tau_relation == ">=" ? "≥ " : t.tau_relation == "<=" ? "≤ " : "";
+  return fmt::format("<td class=\"num\">{}{:.0f}</td>", rel, *t.tau_s);
+}
+
+// The noise terms of a stored curve (the record keeps only the values; the
+// bounds and reasons follow from the curve, n and tau0).
+analysis::AllanNoiseTerms noise_terms_of(const storage::AllanRecord& a) {
+  return analysis::allan_noise_terms(static_cast<std::size_t>(std::max<int64_t>(a.n_samples, 0)),
+                                     a.tau0_s, a.tau_s, a.adev_dph);
+}
+
 std::string allan_html(const std::vector<const storage::AllanRecord*>& records, bool with_run) {
   if (records.empty()) return "<p class=\"problem\">No Allan deviation.</p>\n";
   std::string h = "<table class=\"numbers\">\n<thead><tr>";
@@ -240,21 +275,33 @@ std::string allan_html(const std::vector<const storage::AllanRecord*>& records, 
   h += "<th>step</th><th>samples</th><th>τ0 (s)</th><th>angle random walk (°/√h)</th>"
        "<th>bias instability (°/h)</th><th>at τ (s)</th><th>rate random walk (°/h/√h)</th>"
        "</tr></thead>\n<tbody>\n";
+  bool any_bound = false;
   for (const auto* a : records) {
+    const analysis::AllanNoiseTerms terms = noise_terms_of(*a);
+    for (const auto* t : {&terms.angle_random_walk_dprh, &terms.bias_instability_dph,
+                          &terms.rate_random_walk_dphprh}) {
+      any_bound |= t->kind == analysis::NoiseTermKind::kUpperBound;
+    }
     h += "<tr>";
     if (with_run) h += fmt::format("<td class=\"num\">{}</td>", a->run_id);
     h += fmt::format("<td class=\"num\">{}</td><td class=\"num\">{}</td>",
                      step_name(a->segment_index), a->n_samples) +
-         num_cell(a->tau0_s, 4) + num_cell(a->angle_random_walk_dprh, 5) +
-         num_cell(a->bias_instability_dph, 5) + num_cell(a->bias_instability_tau_s, 0) +
-         num_cell(a->rate_random_walk_dphprh, 5) + "</tr>\n";
+         num_cell(a->tau0_s, 4) + noise_term_cell(terms.angle_random_walk_dprh, 5) +
+         noise_term_cell(terms.bias_instability_dph, 5) +
+         noise_term_tau_cell(terms.bias_instability_dph) +
+         noise_term_cell(terms.rate_random_walk_dphprh, 5) + "</tr>\n";
   }
   h += "</tbody></table>\n";
   h += fmt::format(
       "<p class=\"note\">Overlapping Allan deviation of each soak's longest acquisition window, "
       "samples as recorded, {} τ; the band is the 1σ confidence interval (χ²). Bias "
-      "instability: {}.</p>\n",
-      records.front()->taus, records.front()->bias_instability_method);
+      "instability: {}.{}</p>\n",
+      records.front()->taus, records.front()->bias_instability_method,
+      any_bound ? " “&lt; x”: an upper bound — the curve does not reach the term's region (bias "
+                  "instability: no minimum yet, the floor lies at τ ≥ the last τ; random walks: "
+                  "no slope ∓½ stretch), so the term is below x, read from the curve's end point "
+                  "(hover for details). A dash: not readable (hover for the reason)."
+                : "");
   return h;
 }
 
@@ -377,13 +424,30 @@ std::string table1_csv(const std::vector<storage::SegmentStatsRecord>& rows) {
 std::string allan_csv(const std::vector<storage::AllanRecord>& records) {
   std::string out =
       "run_id,step,segment_index,taus,tau0_s,n_samples,angle_random_walk_dprh,"
-      "bias_instability_dph,bias_instability_tau_s,rate_random_walk_dphprh,t_from_s,t_to_s\n";
+      "bias_instability_dph,bias_instability_tau_s,rate_random_walk_dphprh,t_from_s,t_to_s,"
+      "angle_random_walk_kind,angle_random_walk_bound_dprh,bias_instability_kind,"
+      "bias_instability_bound_dph,bias_instability_bound_tau_s,rate_random_walk_kind,"
+      "rate_random_walk_bound_dphprh\n";
+  // The value columns are empty unless the term is a value; the *_kind columns
+  // say value, upper_bound or unavailable, the *_bound_* columns the bound.
+  const auto bound = [](const analysis::NoiseTerm& t) {
+    return t.kind == analysis::NoiseTermKind::kUpperBound ? exact(t.value) : std::string();
+  };
   for (const auto& a : records) {
-    out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{}\n", a.run_id, a.segment_index + 1,
-                       a.segment_index, csv_field(a.taus), exact(a.tau0_s), a.n_samples,
-                       exact(a.angle_random_walk_dprh), exact(a.bias_instability_dph),
-                       exact(a.bias_instability_tau_s), exact(a.rate_random_walk_dphprh),
-                       exact(a.t_from_s), exact(a.t_to_s));
+    const analysis::AllanNoiseTerms terms = noise_terms_of(a);
+    const auto& arw = terms.angle_random_walk_dprh;
+    const auto& bi = terms.bias_instability_dph;
+    const auto& rrw = terms.rate_random_walk_dphprh;
+    out +=
+        fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", a.run_id,
+                    a.segment_index + 1, a.segment_index, csv_field(a.taus), exact(a.tau0_s),
+                    a.n_samples, exact(a.angle_random_walk_dprh), exact(a.bias_instability_dph),
+                    exact(a.bias_instability_tau_s), exact(a.rate_random_walk_dphprh),
+                    exact(a.t_from_s), exact(a.t_to_s), analysis::to_string(arw.kind), bound(arw),
+                    analysis::to_string(bi.kind), bound(bi),
+                    bi.kind == analysis::NoiseTermKind::kUpperBound && bi.tau_s ? exact(*bi.tau_s)
+                                                                                : std::string(),
+                    analysis::to_string(rrw.kind), bound(rrw));
   }
   return out;
 }

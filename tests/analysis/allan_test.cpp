@@ -12,6 +12,7 @@
 #include <limits>
 #include <map>
 #include <random>
+#include <span>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -150,6 +151,62 @@ INSTANTIATE_TEST_SUITE_P(Cases, AllanReference,
                          ::testing::Values("white_walk", "offset_1e4", "jittered_all"),
                          [](const auto& info) { return std::string("case_") + info.param; });
 
+// Every tau of octave, decade and all for the lengths 2^k - 1, 2^k, 2^k + 1
+// (k = 2 ... 18; all only up to k = 10) and some multiples of 1024, against
+// long-double cumulative sums in numpy (tools/reference/allan_lengths_reference.py).
+// Tolerance 1e-10 relative: the double prefix sums cost ~1e-12 here; a
+// missed or doubled overlapping difference costs >= 1 / (n - 2m + 1) > 1e-6.
+TEST(AllanLengths, EveryTauOfEveryLengthMatchesNumpy) {
+  const auto lines = testing::read_reference_lines("allan_lengths.txt",
+                                                   "tools/reference/allan_lengths_reference.py");
+  ASSERT_FALSE(lines.empty());
+  std::map<std::string, std::string> gen;
+  std::size_t i = 0;
+  for (; i < lines.size() && lines[i][0] == "gen"; ++i) gen[lines[i][1]] = lines[i][2];
+  const auto seed = static_cast<uint64_t>(std::stoull(gen.at("seed")));
+  const auto n_max = static_cast<std::size_t>(std::stoull(gen.at("n")));
+  const double dt = std::stod(gen.at("dt")), offset = std::stod(gen.at("offset_dph"));
+  const double white = std::stod(gen.at("white_sigma_dph"));
+  const double step = std::stod(gen.at("walk_step_dph"));
+  std::vector<double> t(n_max), y(n_max);
+  double walk = 0;
+  for (std::size_t k = 0; k < n_max; ++k) {
+    walk += noise(seed + 1, k, step);  // np.cumsum: sequential
+    t[k] = dt * static_cast<double>(k);
+    y[k] = offset + noise(seed, k, white) + walk;
+  }
+  for (; i < lines.size() && lines[i][0] == "check"; ++i) {
+    const std::size_t k = std::stoul(lines[i][1]);
+    ASSERT_EQ(t.at(k), std::stod(lines[i][2])) << "sample " << k;
+    ASSERT_EQ(y.at(k), std::stod(lines[i][3])) << "sample " << k;
+  }
+  std::size_t cases = 0;
+  while (i < lines.size()) {
+    ASSERT_EQ(lines[i][0], "case");
+    const std::size_t n = std::stoul(lines[i][1]);
+    const std::string taus_name = lines[i][2];
+    const std::size_t count = std::stoul(lines[i][3]);
+    ++i;
+    SCOPED_TRACE("n = " + std::to_string(n) + ", taus " + taus_name);
+    auto taus = parse_tau_set(taus_name);
+    ASSERT_TRUE(taus.ok());
+    auto r = allan_deviation(std::span(t).first(n), std::span(y).first(n), {.taus = *taus});
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    ASSERT_EQ(r->m.size(), count);
+    for (std::size_t k = 0; k < count; ++k, ++i) {
+      ASSERT_LT(i, lines.size());
+      ASSERT_EQ(lines[i][0], "p");
+      ASSERT_EQ(r->m[k], std::stoul(lines[i][1]));
+      const double expected = std::stod(lines[i][2]);
+      EXPECT_NEAR(r->adev_dph[k], expected, 1e-10 * expected)
+          << "m = " << r->m[k] << " (" << r->n_terms[k] << " terms), relative error "
+          << (r->adev_dph[k] - expected) / expected;
+    }
+    ++cases;
+  }
+  EXPECT_EQ(cases, 135u);
+}
+
 TEST(AllanTaus, OctaveRuleIsTwoMLessThanNPlusOne) {
   using V = std::vector<std::size_t>;
   EXPECT_EQ(allan_cluster_sizes(9, TauSet::kOctave), (V{1, 2, 4}));
@@ -276,6 +333,150 @@ TEST(AllanNoise, WhitePlusWalkHasAFloorReadAsBiasInstability) {
   EXPECT_GT(min_tau, r->tau_s.front());
   EXPECT_LT(min_tau, r->tau_s.back());
   EXPECT_EQ(r->bias_instability_method, "minimum / 0.664");
+}
+
+// A 20-minute soak of white noise at 10 Hz: the curve falls to its last tau,
+// so there is no floor and no +1/2 stretch. Bias instability and RRW are
+// upper bounds read from the last point, ARW a value.
+TEST(AllanNoiseTerms, ShortSoakGivesBoundsForBiasInstabilityAndRrw) {
+  const double sigma = 3.0, tau0 = 0.1;
+  const std::size_t n = 12000;
+  std::mt19937_64 rng(5);
+  std::normal_distribution<double> normal(0.0, sigma);
+  std::vector<double> y(n);
+  for (double& v : y) v = 8.0 + normal(rng);
+  auto r = allan_deviation(times(n, 0.0, tau0), y);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  const double tau_max = r->tau_s.back(), sigma_last = r->adev_dph.back();
+  ASSERT_LT(sigma_last, r->adev_dph[r->adev_dph.size() - 2]) << "the curve must still fall";
+
+  const NoiseTerm& bi = r->noise.bias_instability_dph;
+  EXPECT_EQ(bi.kind, NoiseTermKind::kUpperBound) << bi.note;
+  EXPECT_DOUBLE_EQ(bi.value, sigma_last / 0.664);
+  ASSERT_TRUE(bi.tau_s.has_value());
+  EXPECT_EQ(*bi.tau_s, tau_max);
+  EXPECT_EQ(bi.tau_relation, ">=");
+  EXPECT_NE(bi.note.find("no minimum"), std::string::npos) << bi.note;
+  EXPECT_FALSE(r->bias_instability_dph.has_value());  // the value fields stay values only
+
+  const NoiseTerm& rrw = r->noise.rate_random_walk_dphprh;
+  EXPECT_EQ(rrw.kind, NoiseTermKind::kUpperBound) << rrw.note;
+  EXPECT_DOUBLE_EQ(rrw.value, 60.0 * sigma_last * std::sqrt(3.0 / tau_max));
+  EXPECT_EQ(rrw.tau_relation, ">=");
+  EXPECT_FALSE(r->rate_random_walk_dphprh.has_value());
+
+  const NoiseTerm& arw = r->noise.angle_random_walk_dprh;
+  ASSERT_EQ(arw.kind, NoiseTermKind::kValue) << arw.note;
+  EXPECT_NEAR(arw.value, sigma * std::sqrt(tau0) / 60.0, 0.05 * sigma * std::sqrt(tau0) / 60.0);
+  ASSERT_TRUE(r->angle_random_walk_dprh.has_value());
+  EXPECT_EQ(*r->angle_random_walk_dprh, arw.value);
+  EXPECT_EQ(to_string(bi.kind), "upper_bound");
+  EXPECT_EQ(to_string(arw.kind), "value");
+}
+
+// One sample every 2 s: tau = 1 s is not on the grid; ARW is still read from
+// the -1/2 line (extrapolated to 1 s).
+TEST(AllanNoiseTerms, ArwComesFromTheLineWhenOneSecondIsOffTheGrid) {
+  for (const double tau0 : {2.0, 0.3}) {
+    SCOPED_TRACE("tau0 = " + std::to_string(tau0));
+    const double sigma = 1.5;
+    const std::size_t n = 20000;
+    std::mt19937_64 rng(17);
+    std::normal_distribution<double> normal(0.0, sigma);
+    std::vector<double> y(n);
+    for (double& v : y) v = -4.0 + normal(rng);
+    auto r = allan_deviation(times(n, 100.0, tau0), y);
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    for (double tau : r->tau_s) EXPECT_GT(std::abs(tau - 1.0), 0.05);
+    const NoiseTerm& arw = r->noise.angle_random_walk_dprh;
+    ASSERT_EQ(arw.kind, NoiseTermKind::kValue) << arw.note;
+    const double expected = sigma * std::sqrt(tau0) / 60.0;  // sigma(1 s) / 60
+    EXPECT_NEAR(arw.value, expected, 0.05 * expected);
+  }
+}
+
+// A pure random walk: the curve rises from the first tau. RRW is a value;
+// ARW and bias instability are bounds read at the first point (their regions
+// lie at shorter tau than recorded).
+TEST(AllanNoiseTerms, RisingCurveBoundsArwAndBiasInstabilityAtTheFirstTau) {
+  const std::size_t n = 50000;
+  std::mt19937_64 rng(23);
+  std::normal_distribution<double> normal(0.0, 0.02);
+  std::vector<double> y(n);
+  double walk = 0;
+  for (double& v : y) v = (walk += normal(rng));
+  auto r = allan_deviation(times(n, 0.0, 1.0), y);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  const double tau_min = r->tau_s.front(), sigma_first = r->adev_dph.front();
+  EXPECT_EQ(r->noise.rate_random_walk_dphprh.kind, NoiseTermKind::kValue);
+  const NoiseTerm& arw = r->noise.angle_random_walk_dprh;
+  EXPECT_EQ(arw.kind, NoiseTermKind::kUpperBound) << arw.note;
+  EXPECT_DOUBLE_EQ(arw.value, sigma_first * std::sqrt(tau_min) / 60.0);
+  EXPECT_EQ(arw.tau_relation, "<=");
+  const NoiseTerm& bi = r->noise.bias_instability_dph;
+  EXPECT_EQ(bi.kind, NoiseTermKind::kUpperBound) << bi.note;
+  EXPECT_DOUBLE_EQ(bi.value, sigma_first / 0.664);
+  ASSERT_TRUE(bi.tau_s.has_value());
+  EXPECT_EQ(*bi.tau_s, tau_min);
+  EXPECT_EQ(bi.tau_relation, "<=");
+}
+
+// A white + walk curve with a floor: every term a value, the same as the
+// value fields; and the stored-curve overload (n, tau0, tau, adev) gives the
+// same terms as the analysis did.
+TEST(AllanNoiseTerms, FloorGivesValuesAndAStoredCurveGivesTheSameTerms) {
+  const std::size_t n = 100000;
+  std::mt19937_64 rng(11);
+  std::normal_distribution<double> white(0.0, 1.0), steps(0.0, 0.002);
+  std::vector<double> y(n);
+  double walk = 0;
+  for (double& v : y) v = white(rng) + (walk += steps(rng));
+  auto r = allan_deviation(times(n, 0.0, 0.5), y);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_EQ(r->noise.bias_instability_dph.kind, NoiseTermKind::kValue);
+  EXPECT_EQ(r->noise.bias_instability_dph.tau_relation, "=");
+  EXPECT_EQ(r->bias_instability_dph, r->noise.bias_instability_dph.value_if_read());
+  EXPECT_EQ(r->bias_instability_tau_s, r->noise.bias_instability_dph.tau_s);
+  EXPECT_EQ(r->angle_random_walk_dprh, r->noise.angle_random_walk_dprh.value_if_read());
+  EXPECT_EQ(r->rate_random_walk_dphprh, r->noise.rate_random_walk_dphprh.value_if_read());
+
+  for (std::size_t len : {n, std::size_t{3000}}) {  // values, and bounds for a short record
+    SCOPED_TRACE("n = " + std::to_string(len));
+    auto a = allan_deviation(times(len, 0.0, 0.5), std::span(y).first(len));
+    ASSERT_TRUE(a.ok());
+    const AllanNoiseTerms stored =
+        allan_noise_terms(a->n_samples, a->tau0_s, a->tau_s, a->adev_dph);
+    const std::pair<const NoiseTerm*, const NoiseTerm*> pairs[] = {
+        {&stored.angle_random_walk_dprh, &a->noise.angle_random_walk_dprh},
+        {&stored.bias_instability_dph, &a->noise.bias_instability_dph},
+        {&stored.rate_random_walk_dphprh, &a->noise.rate_random_walk_dphprh}};
+    for (const auto& [got, want] : pairs) {
+      EXPECT_EQ(got->kind, want->kind);
+      EXPECT_DOUBLE_EQ(got->value, want->value);
+      EXPECT_EQ(got->tau_s, want->tau_s);
+      EXPECT_EQ(got->tau_relation, want->tau_relation);
+      EXPECT_EQ(got->note, want->note);
+    }
+  }
+}
+
+TEST(AllanNoiseTerms, ShortOrZeroCurvesAreUnavailableWithAReason) {
+  auto flat = allan_deviation(times(100, 0.0, 0.5), std::vector<double>(100, 1234.5));
+  ASSERT_TRUE(flat.ok());
+  for (const NoiseTerm* t : {&flat->noise.angle_random_walk_dprh, &flat->noise.bias_instability_dph,
+                             &flat->noise.rate_random_walk_dphprh}) {
+    EXPECT_EQ(t->kind, NoiseTermKind::kUnavailable);
+    EXPECT_NE(t->note.find("sigma is 0"), std::string::npos) << t->note;
+  }
+  auto tiny = allan_deviation(times(5, 0.0, 1.0), std::vector<double>{1, 3, 2, 5, 4});
+  ASSERT_TRUE(tiny.ok());
+  EXPECT_EQ(tiny->noise.bias_instability_dph.kind, NoiseTermKind::kUnavailable);
+  EXPECT_NE(tiny->noise.bias_instability_dph.note.find("at least 3"), std::string::npos)
+      << tiny->noise.bias_instability_dph.note;
+  const std::vector<double> tau{1, 2, 4}, adev{1, 0.7, 0.5};
+  const AllanNoiseTerms bad = allan_noise_terms(10, 0.0, tau, adev);  // tau0 = 0
+  EXPECT_EQ(bad.angle_random_walk_dprh.kind, NoiseTermKind::kUnavailable);
+  EXPECT_NE(bad.angle_random_walk_dprh.note.find("does not fit"), std::string::npos);
 }
 
 TEST(AllanNumerics, LargeOffsetCostsNoDigits) {

@@ -394,6 +394,27 @@ void expect_allan(const json& w, const analysis::AllanResult& a) {
     }
   }
   EXPECT_EQ(w.at("bias_instability_method").get<std::string>(), "minimum / 0.664");
+  // Every term with its kind (value, upper_bound, unavailable), as the analysis read it.
+  const json& terms = w.at("noise_terms");
+  for (auto [key, t] : {std::pair{"angle_random_walk_dprh", &a.noise.angle_random_walk_dprh},
+                        std::pair{"bias_instability_dph", &a.noise.bias_instability_dph},
+                        std::pair{"rate_random_walk_dphprh", &a.noise.rate_random_walk_dphprh}}) {
+    SCOPED_TRACE(key);
+    const json& j = terms.at(key);
+    EXPECT_EQ(j.at("kind").get<std::string>(), analysis::to_string(t->kind));
+    if (t->kind == analysis::NoiseTermKind::kUnavailable) {
+      EXPECT_TRUE(j.at("value").is_null());
+    } else {
+      EXPECT_EQ(j.at("value").get<double>(), t->value);
+    }
+    if (t->tau_s) {
+      EXPECT_EQ(j.at("tau_s").get<double>(), *t->tau_s);
+    } else {
+      EXPECT_TRUE(j.at("tau_s").is_null());
+    }
+    EXPECT_EQ(j.at("tau_relation").get<std::string>(), t->tau_relation);
+    EXPECT_EQ(j.at("note").get<std::string>(), t->note);
+  }
 }
 
 TEST_F(CliAnalysisTest, AllanOnADatabaseUsesTheLongestWindowAsRecorded) {
@@ -414,6 +435,61 @@ TEST_F(CliAnalysisTest, AllanOnADatabaseUsesTheLongestWindowAsRecorded) {
   EXPECT_EQ(j[1].at("t_from_s").get<double>(), from_s);
   EXPECT_EQ(j[1].at("taus").get<std::string>(), "octave");
   expect_allan(j[1], *a);
+}
+
+// A short soak (150 s of white noise): the curve still falls at its last tau.
+// The text gives the bias instability and RRW as bounds with their tau, not a
+// dash; a campaign of runs ends with one summary line per soak.
+TEST_F(CliAnalysisTest, AllanTextGivesBoundsAndACampaignGetsASummary) {
+  const std::string path = file("short.csv");
+  write_text(path, run_csv(data_[0], 1050.05, 1200.05));
+  auto w = analysis::read_csv_window(path);
+  ASSERT_TRUE(w);
+  auto a = analysis::allan_deviation(w->t_s, w->rate_dph);
+  ASSERT_TRUE(a) << a.error().message;
+  const analysis::NoiseTerm& bi = a->noise.bias_instability_dph;
+  ASSERT_EQ(bi.kind, analysis::NoiseTermKind::kUpperBound) << bi.note;
+  Run r = cli({"allan", "--csv", path});
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_THAT(r.out,
+              HasSubstr(fmt::format(
+                  "bias instability   < {:.6g} °/h at τ ≥ {:.6g} s (upper bound: no minimum yet",
+                  bi.value, *bi.tau_s)));
+  EXPECT_THAT(r.out, HasSubstr(fmt::format("rate random walk   < {:.6g} °/h/√h at τ ≥",
+                                           a->noise.rate_random_walk_dphprh.value)));
+  EXPECT_EQ(r.out.find("Summary"), std::string::npos) << "one curve, no summary";
+
+  const std::string runs = fmt::format("{},{}", run_ids_[0], run_ids_[2]);
+  r = cli({"allan", "--db", db_path_, "--runs", runs});
+  ASSERT_EQ(r.code, 0) << r.err;
+  const std::size_t summary = r.out.find("Summary");
+  ASSERT_NE(summary, std::string::npos) << r.out;
+  EXPECT_GT(summary, r.out.rfind("rate random walk   ")) << "the summary follows every table";
+  const Run j = cli({"allan", "--db", db_path_, "--runs", runs, "--json"});
+  ASSERT_EQ(j.code, 0) << j.err;
+  const json curves = j.parsed();
+  ASSERT_EQ(curves.size(), 4u);  // two soaks of two runs
+  std::istringstream lines(r.out.substr(summary));
+  std::vector<std::string> rows;
+  for (std::string line; std::getline(lines, line);) {
+    if (line.rfind("  run ", 0) == 0) rows.push_back(line);
+  }
+  ASSERT_EQ(rows.size(), curves.size()) << r.out.substr(summary);
+  for (std::size_t i = 0; i < curves.size(); ++i) {
+    const json& c = curves[i];
+    SCOPED_TRACE(rows[i]);
+    EXPECT_THAT(rows[i], HasSubstr(fmt::format("run {} segment {}", c.at("run_id").get<int64_t>(),
+                                               c.at("segment").get<int>())));
+    const json& t = c.at("noise_terms").at("bias_instability_dph");
+    const std::string kind = t.at("kind").get<std::string>();
+    ASSERT_NE(kind, "unavailable");
+    EXPECT_THAT(rows[i], HasSubstr(fmt::format("{}{:.6g} °/h", kind == "upper_bound" ? "< " : "",
+                                               t.at("value").get<double>())));
+    const json& rrw = c.at("noise_terms").at("rate_random_walk_dphprh");
+    EXPECT_THAT(rows[i], HasSubstr(fmt::format("{}{:.6g} °/h/√h",
+                                               rrw.at("kind") == "upper_bound" ? "< " : "",
+                                               rrw.at("value").get<double>())));
+  }
 }
 
 TEST_F(CliAnalysisTest, AllanOnACsvWithDecadeTausAndTheTextSaysHowBiasInstabilityIsRead) {

@@ -24,8 +24,10 @@
 #include <regex>
 #include <sstream>
 #include <string>
+#include <tuple>
 #include <vector>
 
+#include "gyrotherm/analysis/allan.h"
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/storage/database.h"
 #include "station_fixture.h"
@@ -451,9 +453,36 @@ TEST_F(ReportTest, ExportCarriesTheDatabaseNumbers) {
       expect_exact(csv, i, "rate_random_walk_dphprh", a.rate_random_walk_dphprh);
       expect_exact(csv, i, "t_from_s", a.t_from_s);
       expect_exact(csv, i, "t_to_s", a.t_to_s);
+      // Each term's kind and bound, as recomputed from the stored curve.
+      const analysis::AllanNoiseTerms terms = analysis::allan_noise_terms(
+          static_cast<std::size_t>(a.n_samples), a.tau0_s, a.tau_s, a.adev_dph);
+      const std::tuple<const char*, const char*, const analysis::NoiseTerm*> columns[] = {
+          {"angle_random_walk_kind", "angle_random_walk_bound_dprh", &terms.angle_random_walk_dprh},
+          {"bias_instability_kind", "bias_instability_bound_dph", &terms.bias_instability_dph},
+          {"rate_random_walk_kind", "rate_random_walk_bound_dphprh",
+           &terms.rate_random_walk_dphprh}};
+      for (const auto& [kind_column, bound_column, term] : columns) {
+        EXPECT_EQ(csv.at(i, kind_column), analysis::to_string(term->kind)) << kind_column;
+        if (term->kind == analysis::NoiseTermKind::kUpperBound) {
+          expect_exact(csv, i, bound_column, term->value);
+        } else {
+          EXPECT_EQ(csv.at(i, bound_column), "") << bound_column;
+        }
+      }
+      // White noise over a short soak: the curve still falls at its last tau,
+      // so the bias instability is a bound, sigma(tau_max) / 0.664 at tau >= tau_max.
+      EXPECT_EQ(csv.at(i, "bias_instability_kind"), "upper_bound");
+      ASSERT_FALSE(a.adev_dph.empty());
+      expect_exact(csv, i, "bias_instability_bound_dph", a.adev_dph.back() / 0.664);
+      expect_exact(csv, i, "bias_instability_bound_tau_s", a.tau_s.back());
     }
     // White noise only: the ARW is there, so the comparison saw a number.
     EXPECT_TRUE((*allan)[0].angle_random_walk_dprh.has_value());
+    // The page shows the bound, not a dash.
+    const std::string page = read_file(out_dir / "run-0001/report.html");
+    EXPECT_THAT(page, ::testing::HasSubstr(fmt::format(
+                          "&lt; {:.5f}</td><td class=\"num\">≥ {:.0f}</td>",
+                          (*allan)[0].adev_dph.back() / 0.664, (*allan)[0].tau_s.back())));
   }
 
   for (const char* form : {"paper", "centered"}) {

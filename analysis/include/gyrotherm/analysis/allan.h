@@ -1,4 +1,4 @@
-// Overlapping Allan deviation of the gyro rate (DESIGN.md §7).
+// Overlapping Allan deviation of the gyro rate, and the noise terms read off it.
 //
 // On the samples as recorded (not the analysis bins): rates y_i in °/h at
 // times t_i, taken as evenly spaced at tau0 = the median of the time
@@ -19,21 +19,31 @@
 // Confidence bounds: 1 sigma (68.3 %), chi-squared with the equivalent degrees
 // of freedom for white FM noise, overlapping estimator (see allan_edf_white_fm).
 //
-// Noise terms read off the curve (IEEE Std 952 conventions):
+// Noise terms read off the curve (IEEE Std 952 conventions), each a value, an
+// upper bound or unavailable (NoiseTerm):
 // - A line of fixed log-log slope s is fitted as log sigma = log C + s log tau,
 //   C = the weighted mean of (log sigma_i - s log tau_i), weights edf_i (the
 //   inverse variance of log sigma_i is ~2 edf_i), over the taus whose local
 //   slope is within ±0.25 of s. The local slope of point i is the log-log
 //   slope between its neighbours i-1 and i+1 (one-sided at the two ends).
-//   No such tau (or fewer than 3 taus on the curve): nullopt.
-// - Angle random walk: the slope -½ line at tau = 1 s, sigma(1 s) in °/h,
-//   divided by 60 -> °/√h.
+// - Angle random walk: the slope -½ line read at tau = 1 s (extrapolated when
+//   1 s is off the grid), sigma(1 s) in °/h, divided by 60 -> °/√h.
 // - Rate random walk: sigma(tau) = K sqrt(tau / 3) (tau in h, K in °/h/√h);
 //   the slope +½ line read at tau = 3 s gives sigma(3 s) = K / 60, so
 //   K = 60 * sigma_line(3 s).
-// - Bias instability: the minimum of the curve divided by 0.664 (reported
-//   with the tau of the minimum and the label "minimum / 0.664"). nullopt when
-//   the minimum is at the first or last tau (no floor reached yet).
+// - Bias instability: the minimum of the curve divided by 0.664, with the tau
+//   of the minimum.
+// Bounds: the Allan variances of independent noises add, so each term's own
+// curve lies below the measured one at every tau. When the curve shows no
+// slope -½ region, ARW < sigma(tau_min) sqrt(tau_min) / 60 (its -½ line through
+// the first point); no +½ region: RRW < 60 sigma(tau_max) sqrt(3 / tau_max)
+// (its +½ line through the last point); the minimum at the last tau (the
+// curve still falls): bias instability < sigma(tau_max) / 0.664, the floor at
+// tau >= tau_max; the minimum at the first tau (the curve rises from the
+// start): < sigma(tau_min) / 0.664, the floor at tau <= tau_min. The bounds use
+// the estimates sigma(tau), not their confidence limits (the last tau has few
+// degrees of freedom). Unavailable: fewer than 3 taus, or a sigma that is 0 or
+// not finite (e.g. a constant rate).
 #pragma once
 
 #include <cstddef>
@@ -72,6 +82,49 @@ struct AllanOptions {
   TauSet taus = TauSet::kOctave;
 };
 
+enum class NoiseTermKind {
+  kValue,        // read off the curve
+  kUpperBound,   // the curve does not reach the term's region: the term is < value
+  kUnavailable,  // not readable (note says why)
+};
+std::string_view to_string(NoiseTermKind kind);  // "value", "upper_bound", "unavailable"
+
+// One noise term read off the curve (see the top of this file).
+struct NoiseTerm {
+  NoiseTermKind kind = NoiseTermKind::kUnavailable;
+  double value = 0;  // the value, or the bound; 0 when unavailable. Unit of the term.
+  // The tau it was read at: bias instability value: the minimum's tau; bounds:
+  // the tau of the point the bound comes from (ARW: tau_min, RRW: tau_max, bias
+  // instability: tau_max or tau_min). nullopt for ARW / RRW values and when
+  // unavailable.
+  std::optional<double> tau_s;
+  // Where the term's region lies relative to tau_s: "=" (value), ">=" (not
+  // reached yet, at longer tau), "<=" (at shorter tau than recorded); "" when
+  // tau_s is nullopt.
+  std::string tau_relation;
+  std::string note;  // how it was read, or why it is a bound / unavailable; one line
+
+  bool is_value() const { return kind == NoiseTermKind::kValue; }
+  std::optional<double> value_if_read() const {
+    return is_value() ? std::optional<double>(value) : std::nullopt;
+  }
+};
+
+struct AllanNoiseTerms {
+  NoiseTerm angle_random_walk_dprh;   // °/√h
+  NoiseTerm bias_instability_dph;     // °/h
+  NoiseTerm rate_random_walk_dphprh;  // °/h/√h
+};
+
+// The noise terms of a curve: tau_s ascending, adev_dph and edf per tau (all
+// the same length; otherwise every term is unavailable).
+AllanNoiseTerms allan_noise_terms(std::span<const double> tau_s, std::span<const double> adev_dph,
+                                  std::span<const double> edf);
+// The same for a stored curve without its edf: m = round(tau / tau0) and
+// edf = allan_edf_white_fm(n_samples, m), as allan_deviation computed them.
+AllanNoiseTerms allan_noise_terms(std::size_t n_samples, double tau0_s,
+                                  std::span<const double> tau_s, std::span<const double> adev_dph);
+
 struct AllanResult {
   double tau0_s = 0;  // median sample spacing
   std::size_t n_samples = 0;
@@ -85,7 +138,9 @@ struct AllanResult {
   std::vector<std::size_t> n_terms;  // N - 2m + 1 overlapping differences
   std::vector<double> edf;           // allan_edf_white_fm(N, m)
 
-  // Noise terms (see the top of this file); nullopt when not readable.
+  // Noise terms (see the top of this file): value, bound or unavailable.
+  AllanNoiseTerms noise;
+  // The values alone (nullopt when a term is a bound or unavailable).
   std::optional<double> angle_random_walk_dprh;   // °/√h
   std::optional<double> rate_random_walk_dphprh;  // °/h/√h
   std::optional<double> bias_instability_dph;     // minimum adev / 0.664
