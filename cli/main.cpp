@@ -96,13 +96,36 @@ std::string reading(const Result<double>& r, const char* unit) {
   return r ? fmt::format("{:.3f} {}", *r, unit) : fmt::format("ERROR: {}", r.error().message);
 }
 
+// The unit the chamber serves temperatures in: its units register where the
+// profile has one (watlow-f4t), else °C. Error when unreadable or neither.
+Result<drivers::TemperatureUnit> chamber_unit(drivers::ModbusDevice& chamber,
+                                              const drivers::ChamberMap& map) {
+  if (!map.units) return drivers::TemperatureUnit::kCelsius;
+  auto v = chamber.read(map.units->reg);
+  if (!v) return v.error();
+  if (auto unit = map.units->decode(*v)) return *unit;
+  return Error::Permanent(fmt::format("units register {} holds {}, neither °C ({}) nor °F ({})",
+                                      map.units->reg.address, *v, map.units->celsius,
+                                      map.units->fahrenheit));
+}
+
+// A temperature register of the chamber, in °C.
+Result<double> read_chamber_c(drivers::ModbusDevice& chamber, const drivers::RegisterSpec& spec,
+                              const Result<drivers::TemperatureUnit>& unit) {
+  if (!unit) return unit.error();
+  auto v = chamber.read(spec);
+  if (!v) return v;
+  return drivers::to_celsius(*v, *unit);
+}
+
 int cmd_devices(const std::string& config_path, bool json) {
   auto cfg = load_config_for_tools(config_path);
   if (!cfg) return fail(cfg.error().message, 2);
   drivers::ModbusDevice chamber("chamber", cfg->chamber.endpoint);
   drivers::ModbusDevice probes("probes", cfg->probes.endpoint);
-  const auto pv = chamber.read(cfg->chamber.map.process_value);
-  const auto sp = chamber.read(cfg->chamber.map.setpoint);
+  const auto unit = chamber_unit(chamber, cfg->chamber.map);
+  const auto pv = read_chamber_c(chamber, cfg->chamber.map.process_value, unit);
+  const auto sp = read_chamber_c(chamber, cfg->chamber.map.setpoint, unit);
   const auto top = probes.read(cfg->probes.top);
   const auto side = probes.read(cfg->probes.side);
 
@@ -177,10 +200,13 @@ int cmd_chamber_setpoint(const std::string& config_path, double setpoint_c) {
                 2);
   }
   drivers::ModbusDevice chamber("chamber", cfg->chamber.endpoint);
-  if (auto st = chamber.write(cfg->chamber.map.setpoint, setpoint_c); !st) {
+  const auto unit = chamber_unit(chamber, cfg->chamber.map);
+  if (!unit) return fail(unit.error().message);
+  if (auto st = chamber.write(cfg->chamber.map.setpoint, drivers::from_celsius(setpoint_c, *unit));
+      !st) {
     return fail(st.error().message);
   }
-  auto back = chamber.read(cfg->chamber.map.setpoint);
+  auto back = read_chamber_c(chamber, cfg->chamber.map.setpoint, unit);
   if (!back) return fail(back.error().message);
   std::cout << fmt::format("chamber set point {:.2f} °C\n", *back);
   return 0;

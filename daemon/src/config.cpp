@@ -7,10 +7,12 @@
 #include <algorithm>
 #include <boost/asio/ip/address.hpp>
 #include <cerrno>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <sstream>
 
 #include "gyrotherm/analysis/allan.h"
@@ -23,8 +25,12 @@ namespace {
 
 // Reads "{ address = N, function = "holding", type = "float32", word_order = "low-first",
 // scale = 1.0 }" into a RegisterSpec.
-std::optional<drivers::RegisterSpec> read_register(TableReader t) {
-  drivers::RegisterSpec spec;
+// `base`: the spec the keys change (a profile's); without it, address is
+// required. `extra` reads further keys of the table before it is finished.
+std::optional<drivers::RegisterSpec> read_register(
+    TableReader t, std::optional<drivers::RegisterSpec> base = std::nullopt,
+    const std::function<bool(TableReader&)>& extra = {}) {
+  drivers::RegisterSpec spec = base.value_or(drivers::RegisterSpec{});
   bool ok = true;
   if (auto a = t.integer("address")) {
     if (*a < 0 || *a > 65535) {
@@ -32,7 +38,7 @@ std::optional<drivers::RegisterSpec> read_register(TableReader t) {
       ok = false;
     }
     spec.address = static_cast<int>(*a);
-  } else {
+  } else if (!base) {
     if (!t.raw().contains("address")) t.error("address", "missing (required integer)");
     ok = false;
   }
@@ -57,9 +63,55 @@ std::optional<drivers::RegisterSpec> read_register(TableReader t) {
     }
     spec.scale = *s;
   }
+  if (extra && !extra(t)) ok = false;
   t.finish();
   if (!ok) return std::nullopt;
   return spec;
+}
+
+// [chamber.alarm]: the register (defaults: the profile's alarm) and either
+// ok_values or alarm_values, lists of numbers.
+std::optional<drivers::ChamberAlarm> read_alarm(TableReader t, const std::string& profile) {
+  const auto profile_alarm = drivers::chamber_alarm_default(profile);
+  drivers::ChamberAlarm alarm = profile_alarm.value_or(drivers::ChamberAlarm{});
+  auto read_values = [&](TableReader& r) {
+    const bool has_ok = r.raw().contains("ok_values");
+    const bool has_alarm = r.raw().contains("alarm_values");
+    if (has_ok && has_alarm) {
+      r.error("alarm_values", "give either ok_values or alarm_values, not both");
+      r.skip("ok_values");
+      r.skip("alarm_values");
+      return false;
+    }
+    if (!has_ok && !has_alarm) return true;
+    const char* key = has_ok ? "ok_values" : "alarm_values";
+    const toml::array* list = r.array(key);
+    if (!list) return false;  // the reader reported the wrong type
+    std::vector<double> values;
+    for (std::size_t i = 0; i < list->size(); ++i) {
+      auto v = list->get(i)->value<double>();
+      if (!v || !std::isfinite(*v)) {
+        r.error(key, fmt::format("entry {} is not a number", i + 1));
+        return false;
+      }
+      values.push_back(*v);
+    }
+    if (values.empty()) {
+      r.error(key, "must list at least one value");
+      return false;
+    }
+    alarm.mode =
+        has_ok ? drivers::ChamberAlarm::Mode::kOkValues : drivers::ChamberAlarm::Mode::kAlarmValues;
+    alarm.values = std::move(values);
+    return true;
+  };
+  std::optional<drivers::RegisterSpec> base;
+  if (profile_alarm) base = profile_alarm->reg;
+  auto reg = read_register(t, base, read_values);
+  if (!reg) return std::nullopt;
+  alarm.reg = *reg;
+  alarm.reg.read_only = true;
+  return alarm;
 }
 
 void read_endpoint(TableReader& t, drivers::ModbusEndpoint& ep, int default_unit) {
@@ -123,19 +175,23 @@ void read_chamber(TableReader t, ChamberSection& c) {
     if (!pv) regs->error("process_value", "missing (required register)");
     if (sp)
       if (auto r = read_register(*sp)) c.map.setpoint = *r;
-    if (pv)
-      if (auto r = read_register(*pv)) c.map.process_value = *r;
+    if (pv) {
+      if (auto r = read_register(*pv)) {
+        c.map.process_value = *r;
+        c.map.process_value.read_only = true;
+      }
+    }
     regs->finish();
   } else {
     if (profile) c.profile = *profile;
-    auto map = drivers::chamber_profile(c.profile);
+    auto map = drivers::chamber_profile(c.profile, c.endpoint.transport);
     if (map)
       c.map = *map;
     else
       t.error("profile", map.error().message);
   }
   if (auto alarm = t.table("alarm")) {
-    if (auto r = read_register(*alarm)) c.map.alarm = *r;
+    if (auto a = read_alarm(*alarm, c.profile)) c.map.alarm = *a;
   }
   t.finish();
 }

@@ -302,11 +302,18 @@ schedules::Readings Station::read_devices(double now_s) {
       ok = false;
     }
   };
-  read(*chamber_, config_.chamber.map.process_value, chamber_ok_, r.chamber_c);
+  if (chamber_units_known()) {
+    read(*chamber_, config_.chamber.map.process_value, chamber_ok_, r.chamber_c);
+    if (r.chamber_c) {
+      r.chamber_c = drivers::to_celsius(*r.chamber_c, *chamber_unit_);
+    } else {
+      chamber_unit_.reset();  // read again once the chamber answers
+    }
+  }
   if (r.chamber_c && config_.chamber.map.alarm) {
     std::optional<double> alarm;
-    read(*chamber_, *config_.chamber.map.alarm, chamber_ok_, alarm);
-    r.chamber_alarm = alarm && *alarm != 0.0;
+    read(*chamber_, config_.chamber.map.alarm->reg, chamber_ok_, alarm);
+    r.chamber_alarm = alarm && config_.chamber.map.alarm->is_alarm(*alarm);
   }
   read(*probes_, config_.probes.top, probes_ok_, r.top_c);
   if (r.top_c) read(*probes_, config_.probes.side, probes_ok_, r.side_c);
@@ -412,6 +419,46 @@ void Station::tick() {
   if (sequencer_ && sequencer_->finished()) end_run();
 }
 
+bool Station::chamber_units_known() {
+  const auto& units = config_.chamber.map.units;
+  if (!units) {
+    chamber_unit_ = drivers::TemperatureUnit::kCelsius;
+    return true;
+  }
+  // Read every time (each tick, before the process value): the units can
+  // be changed at the controller, and a set point written in the wrong unit
+  // would move the chamber far off.
+  auto v = chamber_->read(units->reg);
+  if (!v) {
+    if (chamber_ok_) spdlog::warn("{}", v.error().message);
+    chamber_ok_ = false;
+    chamber_unit_.reset();
+    return false;
+  }
+  const auto unit = units->decode(*v);
+  if (!unit) {
+    if (refused_units_value_ != *v) {
+      spdlog::error(
+          "chamber: units register {} holds {}, neither °C ({}) nor °F ({}); the chamber's "
+          "readings and set point are not used until it does",
+          units->reg.address, *v, units->celsius, units->fahrenheit);
+      refused_units_value_ = *v;
+    }
+    chamber_unit_.reset();
+    return false;
+  }
+  refused_units_value_.reset();
+  if (chamber_unit_ != unit) {
+    spdlog::info("chamber: serves {} (units register {} = {}){}", drivers::unit_symbol(*unit),
+                 units->reg.address, *v,
+                 *unit == drivers::TemperatureUnit::kCelsius
+                     ? ""
+                     : "; readings and set points are converted to and from °C");
+  }
+  chamber_unit_ = unit;
+  return true;
+}
+
 void Station::write_setpoint(double setpoint_c, bool force) {
   ++ticks_since_setpoint_write_;
   const bool changed =
@@ -420,7 +467,12 @@ void Station::write_setpoint(double setpoint_c, bool force) {
   // or changed by hand comes back to the schedule.
   if (!force && !changed && ticks_since_setpoint_write_ < 30) return;
   ticks_since_setpoint_write_ = 0;
-  if (auto st = chamber_->write(config_.chamber.map.setpoint, setpoint_c); st) {
+  if (!chamber_unit_ && !chamber_units_known()) {
+    last_written_setpoint_c_.reset();  // retry next tick
+    return;
+  }
+  const double value = drivers::from_celsius(setpoint_c, *chamber_unit_);
+  if (auto st = chamber_->write(config_.chamber.map.setpoint, value); st) {
     last_written_setpoint_c_ = setpoint_c;
   } else {
     last_written_setpoint_c_.reset();  // retry next tick

@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <bit>
 #include <cmath>
 #include <limits>
@@ -112,31 +113,100 @@ Result<WordOrder> parse_word_order(std::string_view s) {
       fmt::format("unknown word order '{}' (expected one of: low-first, high-first)", s));
 }
 
-Result<ChamberMap> chamber_profile(std::string_view name) {
+bool ChamberAlarm::is_alarm(double value) const {
+  const bool listed = std::find(values.begin(), values.end(), value) != values.end();
+  return mode == Mode::kOkValues ? !listed : listed;
+}
+
+namespace {
+// The smallest of `preferred`, 0, 1, 2, ... that is not in `values`.
+double first_not_in(const std::vector<double>& values, double preferred) {
+  auto in = [&](double v) { return std::find(values.begin(), values.end(), v) != values.end(); };
+  if (!in(preferred)) return preferred;
+  double v = 0;
+  while (in(v)) v += 1;
+  return v;
+}
+}  // namespace
+
+double ChamberAlarm::quiet_value() const {
+  if (mode == Mode::kOkValues && !values.empty()) return values.front();
+  return first_not_in(values, 0.0);
+}
+
+double ChamberAlarm::alarm_value() const {
+  if (mode == Mode::kAlarmValues && !values.empty()) return values.front();
+  return first_not_in(values, watlow::kAlarmHigh);
+}
+
+std::optional<TemperatureUnit> UnitsRegister::decode(double value) const {
+  if (value == celsius) return TemperatureUnit::kCelsius;
+  if (value == fahrenheit) return TemperatureUnit::kFahrenheit;
+  return std::nullopt;
+}
+
+double UnitsRegister::encode(TemperatureUnit unit) const {
+  return unit == TemperatureUnit::kCelsius ? celsius : fahrenheit;
+}
+
+double to_celsius(double value, TemperatureUnit unit) {
+  return unit == TemperatureUnit::kCelsius ? value : (value - 32.0) / 1.8;
+}
+
+double from_celsius(double celsius, TemperatureUnit unit) {
+  return unit == TemperatureUnit::kCelsius ? celsius : celsius * 1.8 + 32.0;
+}
+
+const char* unit_symbol(TemperatureUnit unit) {
+  return unit == TemperatureUnit::kCelsius ? "°C" : "°F";
+}
+
+Result<ChamberMap> chamber_profile(std::string_view name, std::string_view transport) {
   using F = RegisterFunction;
   using T = RegisterType;
   constexpr auto kLow = WordOrder::kLowFirst;
   ChamberMap map;
   if (name == "watlow-f4t") {
+    // ChamberConnectLibrary watlowf4t.py: set_loop_sp / get_loop_pv (2782,
+    // 2820 for loop 1), __profile_units (6730 over TCP, 14080 over RTU).
     map.setpoint = spec(2782, F::kHolding, T::kFloat32, kLow, 1.0);
     map.process_value = spec(2820, F::kHolding, T::kFloat32, kLow, 1.0);
+    map.process_value.read_only = true;
     map.ramp_rate = spec(2798, F::kHolding, T::kFloat32, kLow, 1.0);
     map.ramp_action = spec(2794, F::kHolding, T::kUint16, kLow, 1.0);
     map.ramp_scale = spec(2796, F::kHolding, T::kUint16, kLow, 1.0);
+    UnitsRegister units;
+    units.reg = spec(transport == "rtu" ? 14080 : 6730, F::kHolding, T::kUint16, kLow, 1.0);
+    map.units = units;
     return map;
   }
   if (name == "watlow-f4") {
     map.setpoint = spec(300, F::kHolding, T::kInt16, kLow, 0.1);
     map.process_value = spec(100, F::kHolding, T::kInt16, kLow, 0.1);
+    map.process_value.read_only = true;
     return map;
   }
   if (name == "generic") {
     map.setpoint = spec(0, F::kHolding, T::kInt16, kLow, 0.1);
     map.process_value = spec(0, F::kInput, T::kInt16, kLow, 0.1);
+    map.process_value.read_only = true;
     return map;
   }
   return Error::Permanent(fmt::format(
       "unknown chamber profile '{}' (expected one of: watlow-f4t, watlow-f4, generic)", name));
+}
+
+std::optional<ChamberAlarm> chamber_alarm_default(std::string_view profile) {
+  if (profile != "watlow-f4t") return std::nullopt;
+  // ChamberConnectLibrary watlowf4t.py get_alarm_status: alarm i (from 0)
+  // at 1356 + 100 i is inactive when it reads 88, 61 or 12.
+  ChamberAlarm alarm;
+  alarm.reg =
+      spec(1356, RegisterFunction::kHolding, RegisterType::kUint16, WordOrder::kLowFirst, 1.0);
+  alarm.reg.read_only = true;
+  alarm.mode = ChamberAlarm::Mode::kOkValues;
+  alarm.values = {watlow::kNone, watlow::kStartup, watlow::kAlarmBlocked};
+  return alarm;
 }
 
 Result<RegisterSpec> probe_channel_spec(std::string_view profile, int channel) {
@@ -148,7 +218,10 @@ Result<RegisterSpec> probe_channel_spec(std::string_view profile, int channel) {
     return Error::Permanent(
         fmt::format("probe channel {} out of range (expected 0..65535)", channel));
   }
-  return spec(channel, RegisterFunction::kInput, RegisterType::kInt16, WordOrder::kLowFirst, 0.1);
+  RegisterSpec s =
+      spec(channel, RegisterFunction::kInput, RegisterType::kInt16, WordOrder::kLowFirst, 0.1);
+  s.read_only = true;
+  return s;
 }
 
 }  // namespace gyrotherm::drivers

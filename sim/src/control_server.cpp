@@ -170,10 +170,18 @@ Result<ControlCommand> parse_chamber(const Words& w) {
         Kind::kChamberForce);
   }
   if (sub == "release") return simple(w, 2, "chamber release", Kind::kChamberRelease);
-  if (sub.empty()) return bad("'chamber' needs one of: alarm on|off, force TEMP_C, release");
-  return bad(
-      fmt::format("unknown 'chamber' subcommand {}; expected alarm on|off, force TEMP_C or release",
-                  quoted(sub)));
+  if (sub == "units") {
+    if (w.size() < 3) return bad("'chamber units' needs c or f");
+    if (w[2] == "c") return simple(w, 3, "chamber units c", Kind::kChamberUnitsC);
+    if (w[2] == "f") return simple(w, 3, "chamber units f", Kind::kChamberUnitsF);
+    return bad(fmt::format("'chamber units': expected c or f, got {}", quoted(w[2])));
+  }
+  if (sub.empty()) {
+    return bad("'chamber' needs one of: alarm on|off, force TEMP_C, release, units c|f");
+  }
+  return bad(fmt::format(
+      "unknown 'chamber' subcommand {}; expected alarm on|off, force TEMP_C, release or units c|f",
+      quoted(sub)));
 }
 
 std::string ok_json(const nlohmann::ordered_json& j) { return "ok " + j.dump(); }
@@ -196,6 +204,8 @@ const std::vector<ControlCommandHelp>& control_commands() {
       {"probe stall top|side", "freeze the probe's register at its last value"},
       {"probe release top|side", "let a stalled probe read again"},
       {"chamber alarm on|off", "raise or clear the chamber controller's alarm register"},
+      {"chamber units c|f",
+       "serve the chamber's temperatures in °C or °F (and say so in its units register)"},
       {"chamber force TEMP_C",
        "runaway controller: drive the air to TEMP_C whatever the set point"},
       {"chamber release", "end 'chamber force': back to the requested set point"},
@@ -258,7 +268,8 @@ std::string status_json(const SimulatorStatus& s) {
         {"frame_drop_rate", f.frame_drop_rate},
         {"probe_stalled", {{"top", f.top_stalled}, {"side", f.side_stalled}}},
         {"chamber_alarm", f.chamber_alarm},
-        {"chamber_forced_c", optional_json(f.chamber_forced_c)}}},
+        {"chamber_forced_c", optional_json(f.chamber_forced_c)},
+        {"chamber_units", f.chamber_units == drivers::TemperatureUnit::kCelsius ? "C" : "F"}}},
       {"counters",
        {{"frames_generated", s.frames_generated},
         {"frames_fault_dropped", s.frames_fault_dropped},
@@ -321,6 +332,15 @@ std::string execute_control_command(Simulator& sim, const ControlCommand& c) {
                "[chamber.alarm] table (address, function, type)";
       }
       sim.set_chamber_alarm(c.kind == Kind::kChamberAlarmOn);
+      return "ok";
+    case Kind::kChamberUnitsC:
+    case Kind::kChamberUnitsF:
+      if (!sim.has_chamber_units()) {
+        return "error the chamber's profile has no units register (watlow-f4t has one); "
+               "it serves °C";
+      }
+      sim.set_chamber_units(c.kind == Kind::kChamberUnitsC ? drivers::TemperatureUnit::kCelsius
+                                                           : drivers::TemperatureUnit::kFahrenheit);
       return "ok";
     case Kind::kChamberForce:
       sim.force_chamber_c(c.value);

@@ -37,6 +37,7 @@ std::string errno_text() { return std::strerror(errno); }
 
 struct ModbusServer::DeviceImage {
   int unit_id = 0;
+  Device device;  // the served registers and the write check
   modbus_mapping_t* mapping = nullptr;
   int holding_start = 0;
   int input_start = 0;
@@ -91,6 +92,7 @@ Result<std::unique_ptr<ModbusServer>> ModbusServer::start(Options options) {
   for (const Device& d : server->options_.devices) {
     auto image = std::make_unique<DeviceImage>();
     image->unit_id = d.unit_id;
+    image->device = d;
     int hr_lo = 65536, hr_hi = -1, ir_lo = 65536, ir_hi = -1;
     for (const auto& spec : d.registers) {
       if (spec.address < 0 || spec.address + spec.word_count() > 65536) {
@@ -277,12 +279,116 @@ void ModbusServer::answer(Client& client, const std::vector<uint8_t>& request) {
     modbus_reply_exception(ctx_, request.data(), MODBUS_EXCEPTION_GATEWAY_TARGET);
     return;
   }
+  if (const int code = check_request(*d, request); code != 0) {
+    modbus_reply_exception(ctx_, request.data(), static_cast<unsigned>(code));
+    return;
+  }
   int rc;
   {
     std::lock_guard lock(image_mu_);
     rc = modbus_reply(ctx_, request.data(), static_cast<int>(request.size()), d->mapping);
   }
   if (rc >= 0 && is_write_function(function) && options_.on_write) options_.on_write(unit_id);
+}
+
+int ModbusServer::check_request(const DeviceImage& d, const std::vector<uint8_t>& request) const {
+  using drivers::RegisterFunction;
+  const std::size_t n = request.size();
+  auto u16 = [&](std::size_t at) -> int {
+    return at + 1 < n ? (request[at] << 8) | request[at + 1] : -1;
+  };
+  const auto& registers = d.device.registers;
+  // Every address of [address, address + count) lies in a served register.
+  auto covered = [&](RegisterFunction fn, int address, int count) {
+    for (int a = address; a < address + count; ++a) {
+      const bool in = std::any_of(registers.begin(), registers.end(), [&](const auto& r) {
+        return r.function == fn && a >= r.address && a < r.address + r.word_count();
+      });
+      if (!in) return false;
+    }
+    return true;
+  };
+  // A write of `words` from `address`: 0 when every touched register may
+  // take the value it would hold.
+  auto check_write = [&](int address, const std::vector<uint16_t>& words) -> int {
+    const int count = static_cast<int>(words.size());
+    if (address < 0 || count <= 0 || !covered(RegisterFunction::kHolding, address, count)) {
+      return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+    }
+    std::vector<std::pair<const drivers::RegisterSpec*, double>> values;
+    for (const auto& r : registers) {
+      if (r.function != RegisterFunction::kHolding || r.address >= address + count ||
+          address >= r.address + r.word_count()) {
+        continue;
+      }
+      if (r.read_only) return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+      std::vector<uint16_t> image(static_cast<std::size_t>(r.word_count()));
+      {
+        std::lock_guard lock(image_mu_);
+        const uint16_t* src = d.words(r);
+        if (src) std::copy(src, src + r.word_count(), image.begin());
+      }
+      for (int k = 0; k < r.word_count(); ++k) {
+        const int a = r.address + k;
+        if (a >= address && a < address + count) {
+          image[static_cast<std::size_t>(k)] = words[static_cast<std::size_t>(a - address)];
+        }
+      }
+      values.emplace_back(&r, drivers::decode_register(r, image));
+    }
+    if (d.device.accept_write) {
+      for (const auto& [spec, value] : values) {
+        if (!d.device.accept_write(*spec, value)) return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+      }
+    }
+    return 0;
+  };
+  auto words_at = [&](std::size_t at, int count) {
+    std::vector<uint16_t> words;
+    for (int k = 0; k < count; ++k) {
+      const int w = u16(at + 2 * static_cast<std::size_t>(k));
+      if (w < 0) return std::vector<uint16_t>{};
+      words.push_back(static_cast<uint16_t>(w));
+    }
+    return words;
+  };
+  const int function = request[kFunctionOffset];
+  const std::size_t data = kFunctionOffset + 1;
+  switch (function) {
+    case MODBUS_FC_READ_HOLDING_REGISTERS:
+    case MODBUS_FC_READ_INPUT_REGISTERS: {
+      const int address = u16(data), count = u16(data + 2);
+      if (address < 0 || count < 1 || count > MODBUS_MAX_READ_REGISTERS) return 0;  // libmodbus
+      const auto fn = function == MODBUS_FC_READ_HOLDING_REGISTERS ? RegisterFunction::kHolding
+                                                                   : RegisterFunction::kInput;
+      return covered(fn, address, count) ? 0 : MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+    }
+    case MODBUS_FC_WRITE_SINGLE_REGISTER:
+      return check_write(u16(data), words_at(data + 2, 1));
+    case MODBUS_FC_WRITE_MULTIPLE_REGISTERS: {
+      const int count = u16(data + 2);
+      if (count < 1 || count > MODBUS_MAX_WRITE_REGISTERS) return 0;  // libmodbus answers
+      return check_write(u16(data), words_at(data + 5, count));
+    }
+    case MODBUS_FC_WRITE_AND_READ_REGISTERS: {
+      const int read_address = u16(data), read_count = u16(data + 2);
+      const int write_count = u16(data + 6);
+      if (read_count < 1 || read_count > MODBUS_MAX_WR_READ_REGISTERS || write_count < 1 ||
+          write_count > MODBUS_MAX_WR_WRITE_REGISTERS) {
+        return 0;  // libmodbus answers
+      }
+      if (const int code = check_write(u16(data + 4), words_at(data + 9, write_count))) {
+        return code;
+      }
+      return covered(RegisterFunction::kHolding, read_address, read_count)
+                 ? 0
+                 : MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+    }
+    case MODBUS_FC_MASK_WRITE_REGISTER:
+      return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;  // not offered, as most controllers
+    default:
+      return 0;  // libmodbus answers (coils: none served, exception 0x02)
+  }
 }
 
 void ModbusServer::run() {

@@ -110,6 +110,10 @@ Result<SimulatorOptions> read_simulator_options(const daemon::StationConfig& con
       else
         o.seed = static_cast<uint64_t>(*s);
     }
+    if (auto u = t.choice("chamber_units", {"C", "F"}, std::nullopt)) {
+      o.chamber_units =
+          *u == "C" ? drivers::TemperatureUnit::kCelsius : drivers::TemperatureUnit::kFahrenheit;
+    }
     o.thermal.initial_temp_c = t.number_in("initial_temp_c", o.thermal.initial_temp_c, -100, 200);
     if (auto th = t.table("thermal")) read_thermal(*th, o.thermal);
     if (auto g = t.table("gyro")) read_gyro(*g, o.gyro);

@@ -19,7 +19,6 @@ namespace {
 constexpr double kMaxStepS = 0.1;
 constexpr double kMinSetpointC = -100.0;
 constexpr double kMaxSetpointC = 200.0;
-constexpr uint16_t kRampScaleMinutes = 57;  // Watlow F4T ramp scale: °/min
 constexpr auto kTick = std::chrono::milliseconds(2);
 // Work done per tick before the loop yields to publish registers and write
 // frames, when the simulation cannot keep up with the clock.
@@ -32,6 +31,21 @@ std::size_t pending_frames_limit(const SimulatorOptions& o) {
   // catches up instead of losing samples (a real UART loses them sooner).
   const double five_wall_seconds = 5.0 * o.time_scale * o.gyro_format.rate_hz;
   return static_cast<std::size_t>(std::clamp(five_wall_seconds, 256.0, 1e7));
+}
+
+// The probe readings no finer than the probe registers can hold: an integer
+// register's resolution is its scale (0.1 °C for int16 x 0.1).
+SimulatorOptions honest_probe_quantum(SimulatorOptions o, const daemon::StationConfig& config) {
+  for (const auto* spec : {&config.probes.top, &config.probes.side}) {
+    if (spec->type != drivers::RegisterType::kFloat32) {
+      o.thermal.probe_quantum_c = std::max(o.thermal.probe_quantum_c, std::abs(spec->scale));
+    }
+  }
+  return o;
+}
+
+bool is_one_of(double v, std::initializer_list<uint16_t> values) {
+  return std::any_of(values.begin(), values.end(), [&](uint16_t x) { return v == x; });
 }
 
 uint64_t derive_seed(uint64_t seed, uint64_t stream) {
@@ -57,7 +71,8 @@ Result<std::unique_ptr<Simulator>> Simulator::create(const daemon::StationConfig
     return Error::Permanent(fmt::format(
         "{}: the chamber set point register must be a holding register", config.source_path));
   }
-  return std::unique_ptr<Simulator>(new Simulator(config, options, clock));
+  return std::unique_ptr<Simulator>(
+      new Simulator(config, honest_probe_quantum(options, config), clock));
 }
 
 Simulator::Simulator(daemon::StationConfig config, SimulatorOptions options, const Clock* clock)
@@ -76,6 +91,7 @@ Simulator::Simulator(daemon::StationConfig config, SimulatorOptions options, con
       setpoint_c_(options_.thermal.initial_temp_c),
       forced_chamber_c_(std::numeric_limits<double>::quiet_NaN()),
       stream_(drivers::kKvh1750FrameSize, pending_frames_limit(options_)) {
+  chamber_units_.store(options_.chamber_units);
   truth_json_ = gyro_.truth_json(options_.seed);
   status_.setpoint_c = options_.thermal.initial_temp_c;
   status_.truth = plant_.truth();
@@ -92,24 +108,64 @@ Status Simulator::start() {
   ModbusServer::Options server_options;
   server_options.host = options_.modbus_host;
   server_options.port = options_.modbus_port;
-  ModbusServer::Device chamber{chamber_unit_, {map.setpoint, map.process_value}};
-  for (const auto* extra : {&map.ramp_rate, &map.ramp_action, &map.ramp_scale, &map.alarm}) {
+  ModbusServer::Device chamber{chamber_unit_, {map.setpoint, map.process_value}, {}};
+  for (const auto* extra : {&map.ramp_rate, &map.ramp_action, &map.ramp_scale}) {
     if (*extra) chamber.registers.push_back(**extra);
   }
+  if (map.alarm) chamber.registers.push_back(map.alarm->reg);  // read-only (config)
+  if (map.units) {
+    drivers::RegisterSpec units = map.units->reg;
+    units.read_only = true;  // set at the controller (menus), not by a client
+    chamber.registers.push_back(units);
+  }
+  chamber.accept_write = [this](const drivers::RegisterSpec& spec, double value) {
+    const auto& map = config_.chamber.map;
+    const auto same = [&](const std::optional<drivers::RegisterSpec>& r) {
+      return r && r->function == spec.function && r->address == spec.address;
+    };
+    if (spec.function == map.setpoint.function && spec.address == map.setpoint.address) {
+      const double c = drivers::to_celsius(value, chamber_units_.load());
+      const bool ok = std::isfinite(c) && c >= kMinSetpointC && c <= kMaxSetpointC;
+      if (!ok) {
+        std::lock_guard lock(sim_mu_);
+        ++status_.setpoint_writes_rejected;
+      }
+      return ok;
+    }
+    namespace w = drivers::watlow;
+    if (same(map.ramp_action)) {
+      return is_one_of(value, {w::kOff, w::kStartup, w::kSetPointChange, w::kBoth});
+    }
+    if (same(map.ramp_scale)) return is_one_of(value, {w::kMinutes, w::kHours});
+    if (same(map.ramp_rate)) return std::isfinite(value) && value >= 0;
+    return true;
+  };
   server_options.devices = {
-      chamber, ModbusServer::Device{probes_unit_, {config_.probes.top, config_.probes.side}}};
+      chamber, ModbusServer::Device{probes_unit_, {config_.probes.top, config_.probes.side}, {}}};
   server_options.on_write = [this](int unit_id) { on_modbus_write(unit_id); };
   auto server = ModbusServer::start(std::move(server_options));
   if (!server.ok()) return server.error();
   server_ = std::move(server).value();
   modbus_port_.store(server_->port());
 
-  // Initial image: the controller's set point and ramp settings, then the plant.
-  (void)server_->set(chamber_unit_, map.setpoint, setpoint_c_.load());
-  if (map.ramp_rate)
-    (void)server_->set(chamber_unit_, *map.ramp_rate, plant_.params().max_ramp_c_per_min);
-  if (map.ramp_action) (void)server_->set(chamber_unit_, *map.ramp_action, 0);
-  if (map.ramp_scale) (void)server_->set(chamber_unit_, *map.ramp_scale, kRampScaleMinutes);
+  // Initial image: the controller's set point and ramp settings (ramping
+  // off, as an F4T ships), then the plant.
+  {
+    const auto unit = chamber_units_.load();
+    (void)server_->set(chamber_unit_, map.setpoint,
+                       drivers::from_celsius(setpoint_c_.load(), unit));
+    if (map.units) (void)server_->set(chamber_unit_, map.units->reg, map.units->encode(unit));
+    if (map.ramp_rate) {
+      // A rate (per minute): °F/min = 1.8 °C/min.
+      const double per_c = unit == drivers::TemperatureUnit::kCelsius ? 1.0 : 1.8;
+      (void)server_->set(chamber_unit_, *map.ramp_rate, plant_.params().max_ramp_c_per_min * per_c);
+    }
+  }
+  if (map.ramp_action) (void)server_->set(chamber_unit_, *map.ramp_action, drivers::watlow::kOff);
+  if (map.ramp_scale) {
+    (void)server_->set(chamber_unit_, *map.ramp_scale, drivers::watlow::kMinutes);
+  }
+  if (map.alarm) (void)server_->set(chamber_unit_, map.alarm->reg, map.alarm->quiet_value());
   publish_registers();
 
   auto fail = [&](Error e) -> Status {
@@ -260,6 +316,7 @@ SimulatorStatus Simulator::status() const {
   f.top_stalled = stalled_[0].load();
   f.side_stalled = stalled_[1].load();
   f.chamber_alarm = chamber_alarm_.load();
+  f.chamber_units = chamber_units_.load();
   if (const double forced = forced_chamber_c_.load(); !std::isnan(forced)) {
     f.chamber_forced_c = forced;
   }
@@ -341,42 +398,54 @@ void Simulator::publish_registers() {
   }
   // A value that does not fit its register (e.g. int16 x 0.1 beyond 3276.7)
   // leaves the register as it was.
-  (void)server_->set(chamber_unit_, config_.chamber.map.process_value, air_c);
+  {
+    std::lock_guard lock(units_mu_);
+    (void)server_->set(chamber_unit_, config_.chamber.map.process_value,
+                       drivers::from_celsius(air_c, chamber_units_.load()));
+  }
   (void)server_->set(probes_unit_, config_.probes.top, top_c);
   (void)server_->set(probes_unit_, config_.probes.side, side_c);
-  if (config_.chamber.map.alarm) {
+  if (const auto& alarm = config_.chamber.map.alarm) {
     std::lock_guard lock(alarm_mu_);
-    (void)server_->set(chamber_unit_, *config_.chamber.map.alarm, chamber_alarm_.load() ? 1 : 0);
+    (void)server_->set(chamber_unit_, alarm->reg,
+                       chamber_alarm_.load() ? alarm->alarm_value() : alarm->quiet_value());
   }
 }
 
 void Simulator::on_modbus_write(int unit_id) {
   if (unit_id != chamber_unit_) return;
   const auto& map = config_.chamber.map;
+  std::lock_guard units_lock(units_mu_);
+  const auto unit = chamber_units_.load();
+  // The server took only set points within range (accept_write).
   const auto requested = server_->get(chamber_unit_, map.setpoint);
   const double current = setpoint_c_.load();
-  if (requested.ok() && std::isfinite(*requested) && *requested >= kMinSetpointC &&
-      *requested <= kMaxSetpointC) {
-    if (*requested != current) {
-      setpoint_c_.store(*requested);
+  if (requested.ok()) {
+    const double requested_c = drivers::to_celsius(*requested, unit);
+    // A write of the same value, or of another register, reads back the set
+    // point through a float round trip: not a change.
+    if (std::abs(requested_c - current) > 1e-4) {
+      setpoint_c_.store(requested_c);
       std::lock_guard lock(sim_mu_);
       ++status_.setpoint_writes;
     }
-  } else {
-    (void)server_->set(chamber_unit_, map.setpoint, current);
-    std::lock_guard lock(sim_mu_);
-    ++status_.setpoint_writes_rejected;
   }
   if (map.ramp_action && map.ramp_rate) {
+    namespace w = drivers::watlow;
     const auto action = server_->get(chamber_unit_, *map.ramp_action);
     const auto rate = server_->get(chamber_unit_, *map.ramp_rate);
-    double scale = kRampScaleMinutes;
+    double scale = w::kMinutes;
     if (map.ramp_scale) {
       if (auto s = server_->get(chamber_unit_, *map.ramp_scale); s.ok()) scale = *s;
     }
+    // Set Point Change and Both ramp on a set point change; Off and Startup
+    // (power-up only) do not.
     double limit_c_per_min = 0;  // the plant's own limit
-    if (action.ok() && rate.ok() && *action != 0 && std::isfinite(*rate) && *rate > 0) {
-      limit_c_per_min = scale == kRampScaleMinutes ? *rate : *rate / 60.0;
+    if (action.ok() && rate.ok() && is_one_of(*action, {w::kSetPointChange, w::kBoth}) &&
+        std::isfinite(*rate) && *rate > 0) {
+      const double per_c = unit == drivers::TemperatureUnit::kCelsius ? 1.0 : 1.8;
+      const double rate_c = *rate / per_c;
+      limit_c_per_min = scale == w::kMinutes ? rate_c : rate_c / 60.0;
     }
     ramp_limit_c_per_min_.store(limit_c_per_min);
   }
@@ -384,8 +453,34 @@ void Simulator::on_modbus_write(int unit_id) {
 
 void Simulator::set_setpoint_c(double setpoint_c) {
   std::lock_guard life(life_mu_);
+  std::lock_guard units_lock(units_mu_);
   setpoint_c_.store(setpoint_c);
-  if (server_) (void)server_->set(chamber_unit_, config_.chamber.map.setpoint, setpoint_c);
+  if (server_) {
+    (void)server_->set(chamber_unit_, config_.chamber.map.setpoint,
+                       drivers::from_celsius(setpoint_c, chamber_units_.load()));
+  }
+}
+
+void Simulator::set_chamber_units(drivers::TemperatureUnit unit) {
+  std::lock_guard life(life_mu_);
+  std::lock_guard units_lock(units_mu_);
+  const auto before = chamber_units_.exchange(unit);
+  const auto& map = config_.chamber.map;
+  if (!server_ || !map.units || before == unit) return;
+  (void)server_->set(chamber_unit_, map.units->reg, map.units->encode(unit));
+  (void)server_->set(chamber_unit_, map.setpoint, drivers::from_celsius(setpoint_c_.load(), unit));
+  if (map.ramp_rate) {
+    if (auto rate = server_->get(chamber_unit_, *map.ramp_rate); rate.ok()) {
+      const double factor = unit == drivers::TemperatureUnit::kFahrenheit ? 1.8 : 1 / 1.8;
+      (void)server_->set(chamber_unit_, *map.ramp_rate, *rate * factor);
+    }
+  }
+  double air_c;
+  {
+    std::lock_guard lock(sim_mu_);
+    air_c = status_.truth.air_c;
+  }
+  (void)server_->set(chamber_unit_, map.process_value, drivers::from_celsius(air_c, unit));
 }
 
 void Simulator::set_frame_corruption_rate(double p) {
@@ -431,8 +526,9 @@ void Simulator::set_chamber_alarm(bool raised) {
   std::lock_guard lock(alarm_mu_);
   chamber_alarm_.store(raised);
   // At once, not at the next tick: a read right after the command sees it.
-  if (server_ && config_.chamber.map.alarm) {
-    (void)server_->set(chamber_unit_, *config_.chamber.map.alarm, raised ? 1 : 0);
+  if (const auto& alarm = config_.chamber.map.alarm; server_ && alarm) {
+    (void)server_->set(chamber_unit_, alarm->reg,
+                       raised ? alarm->alarm_value() : alarm->quiet_value());
   }
 }
 

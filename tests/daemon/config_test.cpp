@@ -95,6 +95,92 @@ device = "/dev/ttyS0"
   EXPECT_THAT(m, HasSubstr("chamber.registers.process_value: missing"));
 }
 
+TEST(Config, F4tAlarmDefaultsToAlarmOneWithWatlowsStates) {
+  auto cfg = parse_station_config(R"([station]
+[chamber]
+profile = "watlow-f4t"
+[chamber.alarm]
+[probes]
+[gyro]
+device = "/dev/ttyS0"
+)",
+                                  "alarm.toml");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  ASSERT_TRUE(cfg->chamber.map.alarm);
+  const auto& alarm = *cfg->chamber.map.alarm;
+  EXPECT_EQ(alarm.reg.address, 1356);
+  EXPECT_EQ(alarm.reg.type, drivers::RegisterType::kUint16);
+  EXPECT_FALSE(alarm.is_alarm(61));  // None: the value an F4T reads with no alarm
+  EXPECT_TRUE(alarm.is_alarm(7));
+  ASSERT_TRUE(cfg->chamber.map.units);
+  EXPECT_EQ(cfg->chamber.map.units->reg.address, 6730);
+  EXPECT_TRUE(cfg->chamber.map.process_value.read_only);
+}
+
+TEST(Config, AlarmValuesAreNamedByTheConfig) {
+  auto cfg = parse_station_config(R"([station]
+[chamber]
+profile = "watlow-f4"
+[chamber.alarm]
+address = 200
+alarm_values = [1, 2]
+[probes]
+[gyro]
+device = "/dev/ttyS0"
+)",
+                                  "alarm.toml");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  ASSERT_TRUE(cfg->chamber.map.alarm);
+  EXPECT_EQ(cfg->chamber.map.alarm->reg.address, 200);
+  EXPECT_FALSE(cfg->chamber.map.alarm->is_alarm(0));
+  EXPECT_TRUE(cfg->chamber.map.alarm->is_alarm(2));
+  EXPECT_FALSE(cfg->chamber.map.alarm->is_alarm(3));
+
+  auto ok = parse_station_config(R"([station]
+[chamber]
+[chamber.alarm]
+address = 1456
+ok_values = [61, 88, 12, 5]
+[probes]
+[gyro]
+device = "/dev/ttyS0"
+)",
+                                 "alarm.toml");
+  ASSERT_TRUE(ok.ok()) << ok.error().message;
+  EXPECT_EQ(ok->chamber.map.alarm->reg.address, 1456);
+  EXPECT_FALSE(ok->chamber.map.alarm->is_alarm(5));
+  EXPECT_TRUE(ok->chamber.map.alarm->is_alarm(7));
+
+  auto bad = parse_station_config(R"([station]
+[chamber]
+profile = "generic"
+[chamber.alarm]
+ok_values = [0]
+alarm_values = ["x"]
+[probes]
+[gyro]
+device = "/dev/ttyS0"
+)",
+                                  "alarm.toml");
+  ASSERT_FALSE(bad.ok());
+  EXPECT_THAT(bad.error().message, HasSubstr("chamber.alarm.address: missing"));
+  EXPECT_THAT(bad.error().message,
+              HasSubstr("chamber.alarm.alarm_values: give either ok_values or alarm_values"));
+
+  auto empty = parse_station_config(R"([station]
+[chamber]
+[chamber.alarm]
+alarm_values = []
+[probes]
+[gyro]
+device = "/dev/ttyS0"
+)",
+                                    "alarm.toml");
+  ASSERT_FALSE(empty.ok());
+  EXPECT_THAT(empty.error().message,
+              HasSubstr("alarm.toml:4: chamber.alarm.alarm_values: must list at least one value"));
+}
+
 TEST(Config, EveryErrorNamesFileLineAndKey) {
   auto cfg = parse_station_config(R"([station]
 latitude_deg = 120

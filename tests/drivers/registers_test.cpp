@@ -132,6 +132,64 @@ TEST(Registers, WatlowF4tProfile) {
   EXPECT_EQ(p->ramp_scale->address, 2796);
 }
 
+// ChamberConnectLibrary (watlowf4t.py): the PV is read, never written; the
+// units register is 6730 over TCP and 14080 over RTU.
+TEST(Registers, WatlowF4tProcessValueIsReadOnlyAndUnitsFollowTheTransport) {
+  auto tcp = chamber_profile("watlow-f4t");
+  ASSERT_TRUE(tcp.ok());
+  EXPECT_TRUE(tcp->process_value.read_only);
+  EXPECT_FALSE(tcp->setpoint.read_only);
+  ASSERT_TRUE(tcp->units);
+  EXPECT_EQ(tcp->units->reg.address, 6730);
+  EXPECT_EQ(tcp->units->reg.type, RegisterType::kUint16);
+  EXPECT_EQ(tcp->units->decode(15), TemperatureUnit::kCelsius);
+  EXPECT_EQ(tcp->units->decode(30), TemperatureUnit::kFahrenheit);
+  EXPECT_EQ(tcp->units->decode(0), std::nullopt);
+  auto rtu = chamber_profile("watlow-f4t", "rtu");
+  ASSERT_TRUE(rtu.ok() && rtu->units);
+  EXPECT_EQ(rtu->units->reg.address, 14080);
+  EXPECT_FALSE(chamber_profile("watlow-f4")->units.has_value());
+}
+
+TEST(Registers, FahrenheitConversions) {
+  EXPECT_DOUBLE_EQ(to_celsius(77.0, TemperatureUnit::kFahrenheit), 25.0);
+  EXPECT_DOUBLE_EQ(to_celsius(-4.0, TemperatureUnit::kFahrenheit), -20.0);
+  EXPECT_DOUBLE_EQ(from_celsius(-40.0, TemperatureUnit::kFahrenheit), -40.0);
+  EXPECT_DOUBLE_EQ(from_celsius(100.0, TemperatureUnit::kFahrenheit), 212.0);
+  EXPECT_DOUBLE_EQ(to_celsius(23.5, TemperatureUnit::kCelsius), 23.5);
+}
+
+// The F4T's alarm state enumerations (ChamberConnectLibrary
+// get_alarm_status: 88, 61, 12 are inactive; Watlow: Alarm High 7, Alarm
+// Low 8, Error 28).
+TEST(Registers, F4tAlarmStatesAreEnumerations) {
+  auto alarm = chamber_alarm_default("watlow-f4t");
+  ASSERT_TRUE(alarm);
+  EXPECT_EQ(alarm->reg.address, 1356);
+  EXPECT_TRUE(alarm->reg.read_only);
+  for (double quiet : {61.0, 88.0, 12.0}) EXPECT_FALSE(alarm->is_alarm(quiet)) << quiet;
+  for (double active : {7.0, 8.0, 28.0, 0.0, 1.0}) EXPECT_TRUE(alarm->is_alarm(active)) << active;
+  EXPECT_EQ(alarm->quiet_value(), 61.0);
+  EXPECT_EQ(alarm->alarm_value(), 7.0);
+  EXPECT_FALSE(chamber_alarm_default("generic"));
+
+  ChamberAlarm flag;  // no profile: 0 quiet, anything else an alarm
+  EXPECT_FALSE(flag.is_alarm(0));
+  EXPECT_TRUE(flag.is_alarm(1));
+  EXPECT_TRUE(flag.is_alarm(61));
+  EXPECT_EQ(flag.quiet_value(), 0.0);
+  EXPECT_TRUE(flag.is_alarm(flag.alarm_value()));
+
+  ChamberAlarm listed;
+  listed.mode = ChamberAlarm::Mode::kAlarmValues;
+  listed.values = {0, 3};  // only these are alarms
+  EXPECT_TRUE(listed.is_alarm(0));
+  EXPECT_TRUE(listed.is_alarm(3));
+  EXPECT_FALSE(listed.is_alarm(1));
+  EXPECT_FALSE(listed.is_alarm(listed.quiet_value()));
+  EXPECT_EQ(listed.alarm_value(), 0.0);
+}
+
 TEST(Registers, WatlowF4Profile) {
   auto p = chamber_profile("watlow-f4");
   ASSERT_TRUE(p.ok());

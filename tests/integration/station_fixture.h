@@ -44,9 +44,7 @@ unit_id = 1
 profile = "watlow-f4t"
 silent_timeout_s = 60.0
 [chamber.alarm]
-address = 1500
-function = "holding"
-type = "uint16"
+address = 1356
 [probes]
 unit_id = 2
 profile = "generic"

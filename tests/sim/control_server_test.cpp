@@ -10,6 +10,7 @@
 #include <sys/un.h>
 #include <unistd.h>
 
+#include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -341,20 +342,52 @@ class ControlSocketTest : public SimFixture {
 TEST_F(ControlSocketTest, ChamberAlarmReadsThroughModbus) {
   ASSERT_NO_FATAL_FAILURE(start());
   ASSERT_TRUE(config_.chamber.map.alarm);
-  const drivers::RegisterSpec alarm = *config_.chamber.map.alarm;  // holding 1500 in demo.toml
+  // The F4T's alarm 1 state (demo.toml): Watlow's enumerations.
+  const drivers::RegisterSpec alarm = config_.chamber.map.alarm->reg;
+  EXPECT_EQ(alarm.address, 1356);
   ModbusClient client(port(), chamber_unit());
-  EXPECT_EQ(client.read(alarm), 0.0);
+  EXPECT_EQ(client.read(alarm), 61.0);  // None
 
   EXPECT_EQ(command("chamber alarm on"), "ok");
-  EXPECT_EQ(client.read(alarm), 1.0);  // at once, not at the next tick
+  EXPECT_EQ(client.read(alarm), 7.0);  // Alarm High, at once, not at the next tick
   EXPECT_TRUE(sim_->status().faults.chamber_alarm);
   EXPECT_EQ(status_reply()["faults_active"], (nlohmann::json{"chamber_alarm"}));
 
   EXPECT_EQ(command("chamber alarm off"), "ok");
-  EXPECT_EQ(client.read(alarm), 0.0);
-  // A client cannot clear or raise it by writing the register.
-  ASSERT_TRUE(client.write(alarm, 1));
-  EXPECT_TRUE(wait_for([&] { return client.read(alarm) == 0.0; }));
+  EXPECT_EQ(client.read(alarm), 61.0);
+  // A client cannot clear or raise it: the state is read-only (exception 2).
+  ASSERT_FALSE(client.write(alarm, 7));
+  EXPECT_EQ(errno, EMBXILADD) << modbus_strerror(errno);
+  EXPECT_EQ(client.read(alarm), 61.0);
+}
+
+// "chamber units f": the F4T's units register says °F and the temperature
+// registers follow; the set point stays where it was.
+TEST_F(ControlSocketTest, ChamberUnitsSwitchTheServedTemperatures) {
+  ManualClock& clock = manual_clock_;
+  ASSERT_NO_FATAL_FAILURE(start(&clock));
+  const auto& map = config_.chamber.map;
+  ASSERT_TRUE(map.units);
+  ModbusClient client(port(), chamber_unit());
+  EXPECT_EQ(client.read(map.units->reg), 15.0);
+  EXPECT_EQ(client.read(map.setpoint), 23.0);
+  const double air_c = sim_->status().truth.air_c;
+  EXPECT_NEAR(client.read(map.process_value).value_or(-999), air_c, 1e-4);
+
+  EXPECT_EQ(command("chamber units f"), "ok");
+  EXPECT_EQ(client.read(map.units->reg), 30.0);
+  EXPECT_NEAR(client.read(map.setpoint).value_or(-999), 73.4, 1e-4);
+  EXPECT_NEAR(client.read(map.process_value).value_or(-999), air_c * 1.8 + 32, 1e-4);
+  EXPECT_EQ(status_reply()["faults"]["chamber_units"], "F");
+  // A set point written in °F: 104 °F = 40 °C.
+  ASSERT_TRUE(client.write(map.setpoint, 104.0));
+  EXPECT_TRUE(wait_for([&] { return std::abs(sim_->status().setpoint_c - 40.0) < 1e-4; }));
+  // °F beyond 200 °C is refused: 400 °C = 752 °F.
+  EXPECT_FALSE(client.write(map.setpoint, 752.0));
+
+  EXPECT_EQ(command("chamber units c"), "ok");
+  EXPECT_EQ(client.read(map.units->reg), 15.0);
+  EXPECT_NEAR(client.read(map.setpoint).value_or(-999), 40.0, 1e-4);
 }
 
 TEST_F(ControlSocketTest, AlarmWithoutARegisterIsAnError) {

@@ -123,9 +123,10 @@ TEST_F(SimulatorTest, ChamberOverModbusReadsAirAndTakesSetPoint) {
   // The controller ramps towards it (5 °C/min: 1 °C in 12 station s).
   EXPECT_TRUE(wait_for([&] { return sim_->status().truth.ramped_setpoint_c > 24.0; }));
 
-  // Out of range: answered, but not taken; the register shows the set point.
-  ASSERT_TRUE(client.write(map.setpoint, 500.0));
-  EXPECT_TRUE(wait_for([&] { return sim_->status().setpoint_writes_rejected >= 1; }));
+  // Out of range: refused with exception 3 (illegal data value), not taken.
+  ASSERT_FALSE(client.write(map.setpoint, 500.0));
+  EXPECT_EQ(errno, EMBXILVAL) << modbus_strerror(errno);
+  EXPECT_EQ(sim_->status().setpoint_writes_rejected, 1u);
   EXPECT_EQ(client.read(map.setpoint).value_or(0), 40.0);
   EXPECT_EQ(sim_->status().setpoint_c, 40.0);
 }
@@ -265,6 +266,53 @@ TEST_F(SimulatorTest, StalledProbeKeepsItsValue) {
   EXPECT_NEAR(client.read(config_.probes.top).value_or(-99), frozen, 0.051);  // int16 x 0.1
   sim_->stall_probe(ProbeRole::kTop, false);
   EXPECT_TRUE(wait_for([&] { return sim_->status().readings.top_c != frozen; }));
+}
+
+// demo.toml asks for 0.01 °C probes, but the generic profile's registers
+// hold int16 x 0.1: the readings the status shows are what a client reads.
+TEST_F(SimulatorTest, ProbeReadingsAreWhatTheRegistersHold) {
+  ASSERT_EQ(config_.probes.top.type, drivers::RegisterType::kInt16);
+  ASSERT_DOUBLE_EQ(config_.probes.top.scale, 0.1);
+  ManualClock& clock = manual_clock_;
+  ASSERT_NO_FATAL_FAILURE(start(&clock));
+  ModbusClient client(port(), probes_unit());
+  for (int k = 1; k <= 5; ++k) {
+    clock.advance(37.0);
+    ASSERT_TRUE(wait_for([&] { return sim_->status().t_s >= 37.0 * k - 1e-6; }));
+    const auto readings = sim_->status().readings;
+    // Published just after the step.
+    ASSERT_TRUE(wait_for([&] {
+      return client.read(config_.probes.top) == readings.top_c &&
+             client.read(config_.probes.side) == readings.side_c;
+    })) << "status top "
+        << readings.top_c << " side " << readings.side_c << ", registers top "
+        << client.read(config_.probes.top).value_or(-99) << " side "
+        << client.read(config_.probes.side).value_or(-99);
+  }
+}
+
+// Watlow's ramp action enumeration: Off is 62, not 0. A ramp rate with the
+// action Off leaves the chamber's own ramp; Set Point Change (1647) applies it.
+TEST_F(SimulatorTest, RampActionFollowsWatlowsEnumeration) {
+  const auto& map = config_.chamber.map;
+  ASSERT_TRUE(map.ramp_action && map.ramp_rate && map.ramp_scale);
+  ManualClock& clock = manual_clock_;
+  ASSERT_NO_FATAL_FAILURE(start(&clock));
+  ModbusClient client(port(), chamber_unit());
+  ASSERT_TRUE(client.write(*map.ramp_scale, 57));   // Minutes
+  ASSERT_TRUE(client.write(*map.ramp_rate, 1.0));   // 1 °C/min
+  ASSERT_TRUE(client.write(*map.ramp_action, 62));  // Off
+  ASSERT_TRUE(client.write(map.setpoint, 40.0));
+  ASSERT_TRUE(wait_for([&] { return sim_->status().setpoint_c == 40.0; }));
+  clock.advance(60.0);
+  ASSERT_TRUE(wait_for([&] { return sim_->status().t_s >= 60.0 - 1e-6; }));
+  // The plant's 5 °C/min from 23 °C: 28 °C after a minute.
+  EXPECT_NEAR(sim_->status().truth.ramped_setpoint_c, 28.0, 0.2);
+
+  ASSERT_TRUE(client.write(*map.ramp_action, 1647));  // Set Point Change
+  clock.advance(60.0);
+  ASSERT_TRUE(wait_for([&] { return sim_->status().t_s >= 120.0 - 1e-6; }));
+  EXPECT_NEAR(sim_->status().truth.ramped_setpoint_c, 29.0, 0.2);  // 1 °C/min
 }
 
 TEST_F(SimulatorTest, ManualClockStepsExactly) {

@@ -191,6 +191,14 @@ class Station final : public StationControl, private schedules::SequencerObserve
 
   // Control-thread only.
   bool chamber_ok_ = true, probes_ok_ = true;
+  // The unit the chamber serves temperatures in, from its units register
+  // (ChamberMap::units, read every tick; °C without one). Unknown until
+  // read, after a failed chamber read, and while the register holds neither
+  // °C nor °F (then the chamber is not used: no readings, no set point
+  // writes).
+  std::optional<drivers::TemperatureUnit> chamber_unit_;
+  std::optional<double> refused_units_value_;  // logged once per value
+  bool chamber_units_known();
   // Station and wall (steady) time of the last good reading.
   double chamber_ok_s_ = 0, probes_ok_s_ = 0;
   double chamber_ok_wall_s_ = 0, probes_ok_wall_s_ = 0;

@@ -42,6 +42,8 @@ struct ControlCommand {
     kChamberAlarmOff,  // chamber alarm off
     kChamberForce,     // chamber force TEMP_C        value = °C
     kChamberRelease,   // chamber release
+    kChamberUnitsC,    // chamber units c
+    kChamberUnitsF,    // chamber units f
     kStatus,           // status
     kHelp,             // help
   };

@@ -2,12 +2,23 @@
 // (modbus_receive / modbus_reply, as libmodbus's own test servers).
 //
 // Serves several devices, told apart by the request's unit id, each with its
-// own register image (holding and input registers spanning the RegisterSpecs
-// it was given). Several clients at once: one thread polls the listening
-// socket and every connection. A request for a unit id nobody serves gets
-// exception 0x0B (gateway target device failed to respond), so a client
-// fails at once instead of waiting for its timeout; a register outside a
-// device's image gets exception 0x02 (illegal data address) from libmodbus.
+// own register image: exactly the RegisterSpecs it was given, as a real
+// controller serves its data map. Several clients at once: one thread polls
+// the listening socket and every connection. Answers, as a Watlow
+// controller does (Watlow's communications guides: exception 02 for a
+// parameter that cannot be accessed, 03 for a value out of range):
+//   - a unit id nobody serves: exception 0x0B (gateway target device failed
+//     to respond), so a client fails at once instead of waiting for its
+//     timeout;
+//   - a read or write touching any address no register covers: exception
+//     0x02 (illegal data address), even between two served registers;
+//   - a write touching a read-only register (RegisterSpec::read_only):
+//     exception 0x02 too: for a write, that address is not an allowable
+//     one; the request is valid in form, so not 0x03;
+//   - a write whose value the device's `accept_write` refuses (a set point
+//     out of range, an unknown enumeration): exception 0x03 (illegal data
+//     value), nothing written.
+// Coils and discrete inputs are not served (exception 0x02).
 //
 // Thread-safe: the image is read and written under one mutex by the server
 // thread and by set()/get().
@@ -43,6 +54,10 @@ class ModbusServer {
   struct Device {
     int unit_id = 1;
     std::vector<drivers::RegisterSpec> registers;  // what the image must hold
+    // Called on the server thread, without the image lock, for each register
+    // a write request touches, with the value it would hold; false refuses
+    // the whole request with exception 0x03. Unset: every value is taken.
+    std::function<bool(const drivers::RegisterSpec& spec, double value)> accept_write;
   };
   struct Options {
     std::string host = "127.0.0.1";  // IPv4 address to bind
@@ -91,6 +106,8 @@ class ModbusServer {
   void accept_clients();
   void close_client(std::size_t index);
   void answer(Client& client, const std::vector<uint8_t>& request);
+  // The exception code a request must get before libmodbus sees it, or 0.
+  int check_request(const DeviceImage& device, const std::vector<uint8_t>& request) const;
   void wake();
   DeviceImage* find(int unit_id) const;
 

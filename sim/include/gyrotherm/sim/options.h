@@ -10,6 +10,8 @@
 //   modbus_port = 0                             # 0: any free port
 //   seed = 1
 //   initial_temp_c = 23.0
+//   chamber_units = "C"                         # C or F: what a chamber with a
+//                                               # units register serves (watlow-f4t)
 //   pending_frames_limit = 0                    # see SimulatorOptions
 //   [simulator.thermal]  -> ThermalParams (thermal_plant.h), same key names
 //   [simulator.gyro]     -> GyroParams (gyro_model.h), same key names
@@ -46,6 +48,10 @@ struct SimulatorOptions {
   std::string modbus_host = "127.0.0.1";
   int modbus_port = 0;  // 0 = any free port
   uint64_t seed = 1;
+  // The temperature unit the chamber serves its set point, process value and
+  // ramp rate in, when its map has a units register (watlow-f4t: 6730).
+  // Without one it serves °C.
+  drivers::TemperatureUnit chamber_units = drivers::TemperatureUnit::kCelsius;
   double time_scale = 1.0;  // station seconds per wall second
   ThermalParams thermal;
   GyroParams gyro;

@@ -12,15 +12,30 @@
 // A request for any other unit id is answered with exception 0x0B (gateway
 // target device failed to respond).
 //
-// Set point writes outside [-100, 200] °C or not finite are not taken: the
-// register is put back to the current set point. With the watlow-f4t ramp
-// registers, a ramp action other than 0 makes the ramp rate register
-// (°C/min when ramp scale is 57, else °C/h) limit the chamber's ramp, never
-// beyond [simulator.thermal] max_ramp_c_per_min.
+// The chamber serves exactly its map's registers (ModbusServer: exception 2
+// elsewhere and for writes to the read-only process value, alarm and units
+// registers). Set point writes outside [-100, 200] °C or not finite are
+// refused with exception 3. With the watlow-f4t ramp registers (Watlow's
+// enumerations, as a real F4T: ramp action Off 62 at start, Startup 88,
+// Set Point Change 1647, Both 13; ramp scale Minutes 57 or Hours 39; any
+// other value is refused with exception 3), a ramp action of Set Point
+// Change or Both makes the ramp rate register (per minute or per hour, by
+// the ramp scale) limit the chamber's ramp, never beyond
+// [simulator.thermal] max_ramp_c_per_min; Off and Startup (which ramps only
+// at power-up) leave the plant's own limit.
 //
-// With config.chamber.map.alarm set, the chamber also serves that register:
-// 0, or 1 while set_chamber_alarm(true) (refreshed every tick, so a client's
-// write to it does not stick).
+// With a units register (watlow-f4t: 6730), the set point, process value
+// and ramp rate are served in options.chamber_units (°C by default, °F on
+// request or set_chamber_units()), and the register says which (Watlow's
+// 15 °C, 30 °F). Without one, °C.
+//
+// With config.chamber.map.alarm set, the chamber also serves that register,
+// read-only: its quiet value (watlow-f4t: None 61), or an alarm value (Alarm
+// High 7) while set_chamber_alarm(true).
+//
+// The probe readings are quantised to the coarser of [simulator.thermal]
+// probe_quantum_c and the probe registers' resolution (0.1 °C for int16 x
+// 0.1), so the status shows what a client reads.
 //
 // Fault hooks are plain methods, safe to call from any thread while running.
 // With options.control_socket set, start() also opens a ControlServer
@@ -63,6 +78,7 @@ struct SimulatorFaults {
   bool side_stalled = false;
   bool chamber_alarm = false;
   std::optional<double> chamber_forced_c;  // force_chamber_c() target, °C
+  drivers::TemperatureUnit chamber_units = drivers::TemperatureUnit::kCelsius;
 };
 
 struct SimulatorStatus {
@@ -135,6 +151,10 @@ class Simulator {
   // the config (has_chamber_alarm() false) only the status shows it.
   void set_chamber_alarm(bool raised);
   bool has_chamber_alarm() const { return config_.chamber.map.alarm.has_value(); }
+  // The unit the chamber serves temperatures in (only with a units register;
+  // has_chamber_units()). The set point stays; its register is rewritten.
+  void set_chamber_units(drivers::TemperatureUnit unit);
+  bool has_chamber_units() const { return config_.chamber.map.units.has_value(); }
   // Runaway controller (ThermalPlant::force_air_c): while set, the chamber
   // air heads to target_c (clamped to [-100, 200] °C) at the plant's max ramp
   // rate whatever the requested set point; the set point register keeps what
@@ -176,7 +196,11 @@ class Simulator {
   std::atomic<double> drop_rate_{0.0};
   std::atomic<bool> stalled_[2] = {false, false};
   std::atomic<bool> chamber_alarm_{false};
-  std::mutex alarm_mu_;                   // orders the alarm register's writes with its changes
+  std::mutex alarm_mu_;  // orders the alarm register's writes with its changes
+  // Chamber units (atomic for status()); units_mu_ orders a change with the
+  // temperature registers' writes and the reading of a client's write.
+  std::atomic<drivers::TemperatureUnit> chamber_units_;
+  std::mutex units_mu_;
   std::atomic<double> forced_chamber_c_;  // NaN = not forced
 
   mutable std::mutex stream_mu_;
