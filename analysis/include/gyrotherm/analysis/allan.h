@@ -1,4 +1,4 @@
-// Overlapping Allan deviation of the gyro rate (DESIGN.md §7).
+// Overlapping Allan deviation of the gyro rate (docs/analysis.md).
 //
 // On the samples as recorded (not the analysis bins): rates y_i in °/h at
 // times t_i, taken as evenly spaced at tau0 = the median of the time

@@ -3,7 +3,7 @@
 // A RegisterSpec says where a quantity lives (address, holding or input),
 // how it is encoded (int16, uint16, float32 with a word order) and its scale
 // (value = raw x scale). Profiles bundle the specs of known controllers
-// (DESIGN.md §3); a station with another controller writes its own map in the
+// (docs/devices.md); a station with another controller writes its own map in the
 // config.
 #pragma once
 
