@@ -20,6 +20,7 @@
 #include <nlohmann/json.hpp>
 #include <set>
 
+#include "control.h"
 #include "gyrotherm/analysis/allan.h"
 #include "gyrotherm/analysis/comparison.h"
 #include "gyrotherm/analysis/csv_window.h"
@@ -189,6 +190,7 @@ struct Args {
 
   // Input.
   std::string db_path;
+  std::string config_path;  // --config: its [storage] db is the database
   std::optional<int64_t> run;
   std::optional<std::string> runs;
   std::vector<std::string> csv;
@@ -1154,7 +1156,10 @@ struct AnalysisCommands::Parsed : Args {};
 AnalysisCommands::AnalysisCommands(CLI::App& app) : parsed_(std::make_unique<Parsed>()) {
   Parsed& p = *parsed_;
   auto input = [&p](CLI::App* cmd, bool several_csv) {
-    cmd->add_option("--db", p.db_path, "station database file");
+    auto* db = cmd->add_option("--db", p.db_path, "station database file");
+    cmd->add_option("--config", p.config_path,
+                    "station config: its [storage] db is the database (instead of --db)")
+        ->excludes(db);
     cmd->add_option("--run", p.run, "one run id");
     cmd->add_option("--runs", p.runs, "run ids: \"1,2,5\", ranges \"3-7\"");
     cmd->add_option("--csv", p.csv,
@@ -1217,6 +1222,11 @@ AnalysisCommands::~AnalysisCommands() = default;
 std::optional<int> AnalysisCommands::run(bool json) {
   Parsed& p = *parsed_;
   p.json = p.json || json;
+  if (!p.config_path.empty()) {
+    auto db = choose_database(p.db_path, p.config_path);
+    if (!db) return fail(db.error().message, kExitInput);
+    p.db_path = db->path;
+  }
   try {
     if (*p.stats) return cmd_stats(p);
     if (*p.allan) return cmd_allan(p);

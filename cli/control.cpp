@@ -4,7 +4,9 @@
 
 #include <CLI/CLI.hpp>
 #include <algorithm>
+#include <charconv>
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <functional>
 #include <iostream>
@@ -12,7 +14,12 @@
 #include <variant>
 #include <vector>
 
+#include "gyrotherm/core/files.h"
+#include "gyrotherm/core/toml_reader.h"
+#include "gyrotherm/daemon/config.h"
+#include "gyrotherm/daemon/control.h"
 #include "gyrotherm/daemon/http_client.h"
+#include "gyrotherm/storage/database.h"
 
 namespace gyrotherm::cli {
 
@@ -186,13 +193,28 @@ int exchange(const DaemonOptions& o, const Request& r,
 }
 
 int cmd_queue_add(const DaemonOptions& o, const std::string& path, bool ignore_failures) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return fail(fmt::format("{}: cannot open", path), 2);
-  std::ostringstream ss;
-  ss << in.rdbuf();
+  // Bounded, and only a regular file: /dev/zero is refused, not read forever.
+  auto text = read_bounded_file(path, kMaxTomlFileBytes);
+  if (!text) return fail(text.error().message, 2);
   const json body = {
-      {"schedule_toml", ss.str()}, {"source", path}, {"ignore_failures", ignore_failures}};
-  return exchange(o, {"POST", "/api/v1/queue", body.dump()}, format_queued);
+      {"schedule_toml", *text}, {"source", path}, {"ignore_failures", ignore_failures}};
+  const int code = exchange(o, {"POST", "/api/v1/queue", body.dump()}, format_queued);
+  if (code != 0 || o.json) return code;
+  // Queued onto a held queue, the entry waits: say so and what releases it.
+  auto queue = send(o, {"GET", "/api/v1/queue", ""});
+  if (const Answer* a = std::get_if<Answer>(&queue); a && a->status == 200) {
+    const json q = json::parse(a->body, nullptr, false);
+    if (truthy(field(q, "held"))) {
+      const json& reason = field(q, "hold_reason");
+      std::cout << (reason.is_string() && !reason.get<std::string>().empty()
+                        ? fmt::format("the queue is held ({}): the entry waits until gyrotherm "
+                                      "resume releases the queue\n",
+                                      reason.get<std::string>())
+                        : std::string("the queue is held: the entry waits until gyrotherm resume "
+                                      "releases the queue\n"));
+    }
+  }
+  return 0;
 }
 
 int cmd_control(const DaemonOptions& o, const std::string& action, const std::string& reason) {
@@ -235,6 +257,60 @@ int cmd_run(const DaemonOptions& o, int64_t id) {
   return 0;
 }
 
+// `runs` and `run ID` on a database file, answering as the daemon would.
+int offline_runs(const std::string& db_path, bool as_json) {
+  auto db = storage::Database::open_read_only(db_path);
+  if (!db) return fail(db.error().message, 2);
+  auto runs = db->runs();
+  if (!runs) return fail(runs.error().message);
+  json out = json::array();
+  for (auto it = runs->rbegin(); it != runs->rend(); ++it) out.push_back(daemon::to_json(*it));
+  std::cout << (as_json ? out.dump(2) + "\n" : format_runs(out));
+  return 0;
+}
+
+int offline_run(const std::string& db_path, int64_t id, bool as_json) {
+  auto db = storage::Database::open_read_only(db_path);
+  if (!db) return fail(db.error().message, 2);
+  auto run = db->run(id);
+  if (!run) {
+    return fail(run.error().transient ? run.error().message
+                                      : fmt::format("no run {} in {}", id, db_path));
+  }
+  auto segments = db->segments(id);
+  if (!segments) return fail(segments.error().message);
+  auto events = db->events(id);
+  if (!events) return fail(events.error().message);
+  json run_json = daemon::to_json(*run);
+  json list = json::array();
+  for (const auto& s : *segments) list.push_back(daemon::to_json(s));
+  run_json["segments"] = std::move(list);
+  json events_json = json::array();
+  for (const auto& e : *events) events_json.push_back(daemon::to_json(e));
+  if (as_json) {
+    run_json["events"] = std::move(events_json);
+    std::cout << run_json.dump(2) << "\n";
+    return 0;
+  }
+  std::cout << format_run(run_json, events_json);
+  return 0;
+}
+
+// A whole number >= min for CLI11, refused in words ("-1 is not a
+// position (0 = next, 1, 2, …)") instead of CLI11's range bounds.
+CLI::Validator whole_number(int64_t min, std::string what) {
+  return CLI::Validator(
+      [min, what](std::string& text) -> std::string {
+        int64_t v = 0;
+        const char* end = text.data() + text.size();
+        const auto [ptr, ec] = std::from_chars(text.data(), end, v);
+        if (ec == std::errc() && ptr == end && v >= min) return "";
+        return fmt::format("{} is not {}", text.size() > 40 ? text.substr(0, 40) + "…" : text,
+                           what);
+      },
+      min == 0 ? "INTEGER >= 0" : "INTEGER >= 1");
+}
+
 std::string env_or(const char* name, const std::string& fallback) {
   const char* v = std::getenv(name);
   return v && *v ? std::string(v) : fallback;
@@ -255,6 +331,7 @@ struct ControlCommands::Parsed {
   CLI::App* runs = nullptr;
   CLI::App* run = nullptr;
   std::string schedule_path;
+  std::string db_path, config_path;  // runs, run: read this database, not the daemon
   bool ignore_failures = false;
   int64_t id = 0;
   int64_t position = 0;
@@ -283,12 +360,13 @@ ControlCommands::ControlCommands(CLI::App& app) : parsed_(std::make_unique<Parse
                         "keep the queue going when this run fails");
   p.queue_list = common(queue->add_subcommand("list", "the running and waiting entries"));
   p.queue_remove = common(queue->add_subcommand("remove", "remove a waiting entry"));
-  p.queue_remove->add_option("id", p.id, "queue entry id")->required()->check(CLI::PositiveNumber);
+  const CLI::Validator entry_id = whole_number(1, "a queue entry id (1, 2, …)");
+  p.queue_remove->add_option("id", p.id, "queue entry id")->required()->check(entry_id);
   p.queue_move = common(queue->add_subcommand("move", "move a waiting entry"));
-  p.queue_move->add_option("id", p.id, "queue entry id")->required()->check(CLI::PositiveNumber);
+  p.queue_move->add_option("id", p.id, "queue entry id")->required()->check(entry_id);
   p.queue_move->add_option("position", p.position, "new position (0 = next)")
       ->required()
-      ->check(CLI::NonNegativeNumber);
+      ->check(whole_number(0, "a position (0 = next, 1, 2, …)"));
 
   const std::pair<const char*, const char*> actions[] = {
       {"pause", "hold the set point and stop the acquisition clock"},
@@ -304,7 +382,13 @@ ControlCommands::ControlCommands(CLI::App& app) : parsed_(std::make_unique<Parse
 
   p.runs = common(app.add_subcommand("runs", "runs recorded by the daemon, newest first"));
   p.run = common(app.add_subcommand("run", "one run: its segments and events"));
-  p.run->add_option("id", p.id, "run id")->required()->check(CLI::PositiveNumber);
+  p.run->add_option("id", p.id, "run id")->required()->check(whole_number(1, "a run id (1, 2, …)"));
+  for (CLI::App* cmd : {p.runs, p.run}) {
+    auto* db = cmd->add_option("--db", p.db_path, "read this database file instead of the daemon");
+    auto* config = cmd->add_option("--config", p.config_path,
+                                   "read the database of this station config ([storage] db)");
+    db->excludes(config);
+  }
 }
 
 ControlCommands::~ControlCommands() = default;
@@ -328,8 +412,14 @@ std::optional<int> ControlCommands::run(bool json_flag) {
   for (const auto& [name, cmd] : p.actions) {
     if (*cmd) return cmd_control(o, name, p.reason);
   }
-  if (*p.runs) return exchange(o, {"GET", "/api/v1/runs", ""}, format_runs);
-  if (*p.run) return cmd_run(o, p.id);
+  if (*p.runs || *p.run) {
+    auto db = choose_database(p.db_path, p.config_path);
+    if (!db) return fail(db.error().message, 2);
+    if (db->given)
+      return *p.runs ? offline_runs(db->path, o.json) : offline_run(db->path, p.id, o.json);
+    if (*p.runs) return exchange(o, {"GET", "/api/v1/runs", ""}, format_runs);
+    return cmd_run(o, p.id);
+  }
   return std::nullopt;
 }
 
@@ -483,8 +573,9 @@ std::string format_queue(const json& q) {
 }
 
 std::string format_queued(const json& e) {
-  return fmt::format("queued entry {}: {} ({} steps) at position {}{}\n", text(field(e, "id")),
-                     text(field(e, "schedule_name")), text(field(e, "steps")),
+  const json& steps = field(e, "steps");
+  return fmt::format("queued entry {}: {} ({} step{}) at position {}{}\n", text(field(e, "id")),
+                     text(field(e, "schedule_name")), text(steps), steps == 1 ? "" : "s",
                      text(field(e, "position")),
                      truthy(field(e, "ignore_failures")) ? ", failures ignored" : "");
 }
@@ -565,6 +656,30 @@ std::string format_run(const json& run, const json& events) {
   out += table({"time", "kind", "from → to", "message"},
                {Align::kRight, Align::kLeft, Align::kLeft, Align::kLeft}, rows);
   return out;
+}
+
+Result<DatabaseChoice> choose_database(const std::string& db_path, const std::string& config_path) {
+  if (!db_path.empty() && !config_path.empty()) {
+    return Error::Permanent("give --db FILE or --config FILE, not both");
+  }
+  DatabaseChoice choice;
+  if (!config_path.empty()) {
+    auto cfg = daemon::load_station_config(config_path);
+    if (!cfg) return Error::Permanent("bad station config:\n" + cfg.error().message);
+    choice.path = cfg->storage.db_path;
+  } else {
+    choice.path = db_path;
+  }
+  choice.given = !choice.path.empty();
+  if (choice.given) {
+    std::error_code ec;
+    if (!std::filesystem::is_regular_file(choice.path, ec)) {
+      return Error::Permanent(fmt::format(
+          "{}: no such database{}", choice.path,
+          config_path.empty() ? std::string() : fmt::format(" ([storage] db of {})", config_path)));
+    }
+  }
+  return choice;
 }
 
 std::string redact_tokens(std::string text, const std::vector<std::string>& args) {

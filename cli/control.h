@@ -1,7 +1,8 @@
 // Daemon control from the command line: `status`, `queue add|list|remove|move`,
 // `pause`, `resume`, `abort`, `stop`, `runs`, `run ID` as thin clients of the
 // REST API (docs/api.md), plus the pure formatters (daemon JSON in, text out)
-// behind their human output.
+// behind their human output. `runs` and `run ID` read a database file
+// instead when given one (--db FILE, or --config FILE and its [storage] db).
 //
 // Exit codes: 0 done; 1 the daemon could not be reached, refused the token or
 // answered 4xx/5xx (its `error` and `errors` go to stderr); 2 usage (bad URL,
@@ -15,6 +16,8 @@
 #include <optional>
 #include <string>
 #include <vector>
+
+#include "gyrotherm/core/result.h"
 
 namespace CLI {
 class App;
@@ -48,6 +51,15 @@ class ControlCommands {
   struct Parsed;
   std::unique_ptr<Parsed> parsed_;
 };
+
+// The database file the commands that read one use: `db_path` (--db), or
+// the [storage] db of the station config `config_path` (--config). A
+// permanent error when both or neither are given, or the config is bad.
+struct DatabaseChoice {
+  std::string path;
+  bool given = false;  // false: neither option (the caller's default applies)
+};
+Result<DatabaseChoice> choose_database(const std::string& db_path, const std::string& config_path);
 
 // ---- formatters: pure, never throw on missing or mistyped fields ("—").
 

@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 
 #include "analysis.h"
+#include "control.h"
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/daemon/exporter.h"
 #include "gyrotherm/schedules/sequencer.h"
@@ -30,7 +31,7 @@ int fail(const std::string& message, int code) {
 
 struct ExportCommand::Parsed {
   CLI::App* command = nullptr;
-  std::string db_path, out_dir;
+  std::string db_path, config_path, out_dir;
   std::optional<std::string> since, runs;
   bool json = false;
 };
@@ -41,7 +42,10 @@ ExportCommand::ExportCommand(CLI::App& app) : parsed_(std::make_unique<Parsed>()
       "export",
       "write the calibration reports of stored runs (HTML, CSV, coefficients as JSON and C "
       "header) into a new directory, and record the export in the database");
-  p.command->add_option("--db", p.db_path, "station database")->required();
+  auto* db = p.command->add_option("--db", p.db_path, "station database");
+  auto* config = p.command->add_option(
+      "--config", p.config_path, "station config: its [storage] db is the database (or --db)");
+  db->excludes(config);
   p.command->add_option("--out", p.out_dir, "output directory (must not exist, or be empty)")
       ->required();
   auto* since =
@@ -56,9 +60,15 @@ ExportCommand::ExportCommand(CLI::App& app) : parsed_(std::make_unique<Parsed>()
 ExportCommand::~ExportCommand() = default;
 
 std::optional<int> ExportCommand::run(bool json) {
-  const Parsed& p = *parsed_;
+  Parsed& p = *parsed_;
   if (!*p.command) return std::nullopt;
   json = json || p.json;
+  {
+    auto db = choose_database(p.db_path, p.config_path);
+    if (!db) return fail(db.error().message, kExitInput);
+    if (!db->given) return fail("give --db FILE or --config FILE (the station database)", 2);
+    p.db_path = db->path;
+  }
   namespace fs = std::filesystem;
   std::error_code ec;
   if (!fs::exists(p.db_path, ec)) return fail(fmt::format("{}: no such database", p.db_path), 2);

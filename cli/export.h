@@ -1,5 +1,5 @@
 // `gyrotherm export`: the calibration reports of stored runs on demand
-// (DESIGN.md §10; the nightly job's code, daemon/exporter.h), written
+// (docs/reports.md; the nightly job's code, daemon/exporter.h), written
 // atomically into --out and recorded in the database as a manual export.
 //
 //   gyrotherm export --db FILE --out DIR [--since DATE | --runs LIST] [--json]

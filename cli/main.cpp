@@ -4,6 +4,7 @@
 #include <fmt/format.h>
 
 #include <CLI/CLI.hpp>
+#include <cinttypes>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -221,10 +222,17 @@ int cmd_schedule_check(const std::string& config_path, const std::string& schedu
   auto plan = schedules::load_schedule(schedule_path, limits);
   if (!plan) {
     if (json) {
+      // The report ends with "... and N more errors" when it was cut.
       nlohmann::json errors = nlohmann::json::array();
+      int64_t more = 0;
       std::istringstream ss(plan.error().message);
-      for (std::string line; std::getline(ss, line);) errors.push_back(line);
-      std::cout << nlohmann::json({{"ok", false}, {"errors", errors}}).dump(2) << "\n";
+      for (std::string line; std::getline(ss, line);) {
+        if (std::sscanf(line.c_str(), "... and %" SCNd64 " more error", &more) == 1) continue;
+        errors.push_back(line);
+      }
+      std::cout
+          << nlohmann::json({{"ok", false}, {"errors", errors}, {"more_errors", more}}).dump(2)
+          << "\n";
       return 1;
     }
     return fail("schedule refused:\n" + plan.error().message, 1);
@@ -236,7 +244,8 @@ int cmd_schedule_check(const std::string& config_path, const std::string& schedu
               << "\n";
     return 0;
   }
-  std::cout << fmt::format("{}: ok, {} steps\n", plan->name, plan->steps.size());
+  std::cout << fmt::format("{}: ok, {} step{}\n", plan->name, plan->steps.size(),
+                           plan->steps.size() == 1 ? "" : "s");
   for (const auto& s : plan->steps) std::cout << "  " << s.label << "\n";
   return 0;
 }

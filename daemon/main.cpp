@@ -18,6 +18,8 @@
 #include <thread>
 
 #include "gyrotherm/core/clock.h"
+#include "gyrotherm/core/files.h"
+#include "gyrotherm/core/toml_reader.h"
 #include "gyrotherm/daemon/api.h"
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/daemon/http_server.h"
@@ -46,8 +48,14 @@ int main(int argc, char** argv) {
                "exit 0 once the queue is empty and no run is active (scripts, tests)");
   app.add_option("--endpoints-wait", endpoints_wait_s,
                  "seconds to wait for the simulator's endpoints file");
-  app.add_option("--log-level", log_level, "trace, debug, info, warn, error");
-  CLI11_PARSE(app, argc, argv);
+  app.add_option("--log-level", log_level, "trace, debug, info, warn, error")
+      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}));
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    // --help exits 0; every usage error exits 2, as a bad config does.
+    return app.exit(e) == 0 ? 0 : 2;
+  }
   spdlog::set_level(spdlog::level::from_str(log_level));
   spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %^%l%$ %v");
 
@@ -88,10 +96,12 @@ int main(int argc, char** argv) {
       std::cerr << "gyrothermd: schedule refused, nothing queued:\n" << p.error().message;
       return 2;
     }
-    std::ifstream in(schedule_path, std::ios::binary);
-    std::ostringstream ss;
-    ss << in.rdbuf();
-    schedule_text = ss.str();
+    auto text = gyrotherm::read_bounded_file(schedule_path, gyrotherm::kMaxTomlFileBytes);
+    if (!text) {
+      std::cerr << "gyrothermd: " << text.error().message << "\n";
+      return 2;
+    }
+    schedule_text = std::move(*text);
   }
 
   // Signals are taken by sigwait() below, never by the worker threads.

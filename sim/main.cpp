@@ -1,4 +1,4 @@
-// gyrotherm-sim: the simulated station (DESIGN.md §8). Thin main: options,
+// gyrotherm-sim: the simulated station (docs/simulator.md). Thin main: options,
 // signals, printing; the Simulator class does the work.
 //
 //   gyrotherm-sim --config FILE [...]                    run the station

@@ -229,7 +229,7 @@ Result<StartTemperatureModel> fit_start_temperature_model(std::span<const Analys
   if (distinct.size() < options.min_distinct_t0) {
     return Error::Permanent(fmt::format(
         "start-temperature model needs runs started at >= {} distinct temperatures T0 (differing "
-        "by more than {} degC); found {}: {} degC (T0 of the {} run(s): {} degC)",
+        "by more than {} °C); found {}: {} °C (T0 of the {} run(s): {} °C)",
         options.min_distinct_t0, options.distinct_t0_c, distinct.size(), join_c(distinct),
         runs.size(), join_c(model.t0_c)));
   }
@@ -237,7 +237,7 @@ Result<StartTemperatureModel> fit_start_temperature_model(std::span<const Analys
   for (std::size_t r = 0; r < runs.size(); ++r) {
     auto fit = fit_drift_model(runs[r], options.spec, options.form, options.fit);
     if (!fit) {
-      return Error::Permanent(fmt::format("start-temperature model: run {} (T0 = {:.2f} degC): {}",
+      return Error::Permanent(fmt::format("start-temperature model: run {} (T0 = {:.2f} °C): {}",
                                           r + 1, model.t0_c[r], fit.error().message));
     }
     model.run_coefficients.push_back(fit->coefficients);

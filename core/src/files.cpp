@@ -83,4 +83,60 @@ Status rename_directory_durably(const std::string& from, const std::string& to) 
   return Status::Ok();
 }
 
+std::string format_bytes(std::size_t bytes) {
+  if (bytes >= (1u << 20) && bytes % (1u << 20) == 0) return fmt::format("{} MiB", bytes >> 20);
+  if (bytes >= (1u << 10) && bytes % (1u << 10) == 0) return fmt::format("{} KiB", bytes >> 10);
+  return fmt::format("{} bytes", bytes);
+}
+
+Result<std::string> read_bounded_file(const std::string& path, std::size_t max_bytes) {
+  // O_NONBLOCK: opening a FIFO with no writer must not block; it is refused
+  // below anyway.
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
+  if (fd < 0) {
+    return Error::Permanent(fmt::format("{}: cannot open file: {}", path, std::strerror(errno)));
+  }
+  struct Closer {
+    int fd;
+    ~Closer() { ::close(fd); }
+  } closer{fd};
+  struct stat st {};
+  if (::fstat(fd, &st) != 0) {
+    return Error::Permanent(fmt::format("{}: cannot read file: {}", path, std::strerror(errno)));
+  }
+  if (S_ISDIR(st.st_mode)) {
+    return Error::Permanent(fmt::format("{}: is a directory, not a file", path));
+  }
+  if (!S_ISREG(st.st_mode)) {
+    const char* what = S_ISCHR(st.st_mode)    ? "a character device"
+                       : S_ISBLK(st.st_mode)  ? "a block device"
+                       : S_ISFIFO(st.st_mode) ? "a FIFO (named pipe)"
+                       : S_ISSOCK(st.st_mode) ? "a socket"
+                                              : "not a regular file";
+    return Error::Permanent(fmt::format("{}: is {}, not a regular file; give a file", path, what));
+  }
+  auto too_large = [&](std::size_t seen) {
+    return Error::Permanent(
+        fmt::format("{}: is {} bytes, over the limit of {}", path, seen, format_bytes(max_bytes)));
+  };
+  if (static_cast<std::size_t>(st.st_size) > max_bytes) {
+    return too_large(static_cast<std::size_t>(st.st_size));
+  }
+  std::string content;
+  content.resize(max_bytes + 1);
+  std::size_t got = 0;
+  while (got < content.size()) {
+    const ssize_t n = ::read(fd, content.data() + got, content.size() - got);
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) {
+      return Error::Permanent(fmt::format("{}: cannot read file: {}", path, std::strerror(errno)));
+    }
+    if (n == 0) break;
+    got += static_cast<std::size_t>(n);
+  }
+  if (got > max_bytes) return too_large(got);
+  content.resize(got);
+  return content;
+}
+
 }  // namespace gyrotherm

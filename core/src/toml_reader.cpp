@@ -2,26 +2,81 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <cmath>
-#include <fstream>
-#include <sstream>
+
+#include "gyrotherm/core/files.h"
 
 namespace gyrotherm {
 
-void TomlErrors::add(int line, std::string_view key_path, std::string_view message) {
-  std::string where = line > 0 ? fmt::format("{}:{}", file_, line) : file_;
-  if (key_path.empty()) {
-    messages_.push_back(fmt::format("{}: {}", where, message));
-  } else {
-    messages_.push_back(fmt::format("{}: {}: {}", where, key_path, message));
+namespace {
+
+// The length of the control character at text[i] (1 for C0/DEL, 2 for a C1
+// control in UTF-8), 0 when there is none.
+std::size_t control_at(std::string_view text, std::size_t i) {
+  const auto c = static_cast<unsigned char>(text[i]);
+  if (c < 0x20 || c == 0x7F) return 1;
+  if (c == 0xC2 && i + 1 < text.size()) {
+    const auto next = static_cast<unsigned char>(text[i + 1]);
+    if (next >= 0x80 && next <= 0x9F) return 2;
   }
+  return 0;
 }
 
-std::string TomlErrors::joined() const {
+}  // namespace
+
+std::string escape_control_characters(std::string_view text) {
   std::string out;
-  for (const auto& m : messages_) {
-    out += m;
+  out.reserve(text.size());
+  for (std::size_t i = 0; i < text.size();) {
+    const std::size_t n = control_at(text, i);
+    if (n == 0) {
+      out += text[i++];
+    } else if (n == 1) {
+      out += fmt::format("\\x{:02X}", static_cast<unsigned char>(text[i]));
+      i += 1;
+    } else {
+      out += fmt::format("\\u{{{:02X}}}", static_cast<unsigned char>(text[i + 1]));
+      i += 2;
+    }
+  }
+  return out;
+}
+
+bool has_control_characters(std::string_view text) {
+  for (std::size_t i = 0; i < text.size(); ++i) {
+    if (control_at(text, i) > 0) return true;
+  }
+  return false;
+}
+
+std::string more_errors_line(std::size_t n) {
+  if (n == 0) return "";
+  return fmt::format("... and {} more error{}", n, n == 1 ? "" : "s");
+}
+
+void TomlErrors::add(int line, std::string_view key_path, std::string_view message) {
+  if (messages_.size() >= kMaxStored) {
+    ++dropped_;
+    return;
+  }
+  std::string where = line > 0 ? fmt::format("{}:{}", file_, line) : file_;
+  std::string m = key_path.empty() ? fmt::format("{}: {}", where, message)
+                                   : fmt::format("{}: {}: {}", where, key_path, message);
+  if (has_control_characters(m)) m = escape_control_characters(m);
+  if (!seen_.insert(m).second) return;
+  messages_.push_back(std::move(m));
+}
+
+std::string TomlErrors::joined(std::size_t max_lines) const {
+  std::string out;
+  const std::size_t shown = std::min(max_lines, messages_.size());
+  for (std::size_t i = 0; i < shown; ++i) {
+    out += messages_[i];
     out += '\n';
+  }
+  if (const std::size_t more = messages_.size() - shown + dropped_; more > 0) {
+    out += more_errors_line(more) + "\n";
   }
   return out;
 }
@@ -36,15 +91,17 @@ std::optional<toml::table> parse_toml_string(std::string_view text, TomlErrors& 
   }
 }
 
-std::optional<toml::table> parse_toml_file(const std::string& path, TomlErrors& errors) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) {
-    errors.add(0, "", "cannot open file");
+std::optional<toml::table> parse_toml_file(const std::string& path, TomlErrors& errors,
+                                           std::size_t max_bytes) {
+  auto text = read_bounded_file(path, max_bytes);
+  if (!text) {
+    // The message starts with the path, which every message here gets anyway.
+    std::string_view reason = text.error().message;
+    if (reason.substr(0, path.size() + 2) == path + ": ") reason.remove_prefix(path.size() + 2);
+    errors.add(0, "", reason);
     return std::nullopt;
   }
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  return parse_toml_string(ss.str(), errors);
+  return parse_toml_string(*text, errors);
 }
 
 std::string_view toml_type_name(const toml::node& node) {

@@ -4,6 +4,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <cctype>
 #include <charconv>
 #include <cmath>
 #include <optional>
@@ -488,6 +489,20 @@ Found find_route(const HttpRequest& req) {
   return f;
 }
 
+// The token of an "Authorization: Bearer TOKEN" value, "" when the value is
+// not of that form. RFC 9110 §11.1: the scheme is case-insensitive and one
+// or more spaces separate it from the credentials.
+std::string_view bearer_token(std::string_view value) {
+  constexpr std::string_view kBearer = "bearer";
+  if (value.size() <= kBearer.size() || value[kBearer.size()] != ' ') return {};
+  for (std::size_t i = 0; i < kBearer.size(); ++i) {
+    if (std::tolower(static_cast<unsigned char>(value[i])) != kBearer[i]) return {};
+  }
+  value.remove_prefix(kBearer.size());
+  while (!value.empty() && value.front() == ' ') value.remove_prefix(1);
+  return value;
+}
+
 // The refusal of a request to a route with `access`, or nullopt.
 std::optional<HttpResponse> authorize(const HttpRequest& req, const ApiContext& ctx,
                                       std::string_view peer, Access access) {
@@ -509,13 +524,8 @@ std::optional<HttpResponse> authorize(const HttpRequest& req, const ApiContext& 
   }
   const auto it = req.find(http::field::authorization);
   std::string_view presented;
-  if (it != req.end()) {
-    std::string_view value(it->value().data(), it->value().size());
-    constexpr std::string_view kBearer = "Bearer ";
-    if (value.size() > kBearer.size() && value.substr(0, kBearer.size()) == kBearer) {
-      presented = value.substr(kBearer.size());
-    }
-  }
+  if (it != req.end())
+    presented = bearer_token(std::string_view(it->value().data(), it->value().size()));
   const TokenRole role =
       presented.empty() ? TokenRole::kNone : token_role(presented, ctx.tokens, ctx.read_tokens);
   if (role == TokenRole::kNone) {

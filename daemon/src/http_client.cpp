@@ -33,7 +33,8 @@ Result<HttpResult> http_request(const std::string& method, const std::string& ur
   tcp::resolver resolver(ioc);
   beast::flat_buffer buffer;
   http::request<http::string_body> req{http::string_to_verb(method), target, 11};
-  req.set(http::field::host, host);
+  // RFC 9110 §7.2: the port goes with the host unless it is the default.
+  req.set(http::field::host, m[2].matched && port != "80" ? host + ":" + port : host);
   req.set(http::field::user_agent, "gyrotherm");
   if (!token.empty()) req.set(http::field::authorization, "Bearer " + token);
   if (!body.empty()) {

@@ -9,6 +9,7 @@
 #include <boost/asio/strand.hpp>
 #include <boost/beast/core.hpp>
 #include <boost/beast/version.hpp>
+#include <cctype>
 #include <nlohmann/json.hpp>
 
 namespace gyrotherm::daemon {
@@ -35,6 +36,54 @@ HttpResponse error_response(const HttpRequest& req, http::status status, std::st
   // not UTF-8 become U+FFFD instead of throwing.
   return json_response(req, status,
                        j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace));
+}
+
+std::optional<std::string> host_problem(const HttpRequest& req) {
+  const auto count = req.count(http::field::host);
+  if (count == 0) {
+    if (req.version() >= 11) return std::string("an HTTP/1.1 request needs a Host header");
+    return std::nullopt;
+  }
+  if (count > 1) return std::string("more than one Host header");
+  const auto v = req[http::field::host];
+  const std::string_view value(v.data(), v.size());
+  // uri-host [":" port] (RFC 3986): an IP literal in brackets, or reg-name
+  // characters; the port digits only.
+  std::string_view host = value;
+  std::string_view port;
+  if (!host.empty() && host.front() == '[') {
+    const auto close = host.find(']');
+    if (close == std::string_view::npos) return std::string("Host: an unclosed [");
+    port = host.substr(close + 1);
+    host = host.substr(1, close - 1);
+    for (const char c : host) {
+      if (!(std::isxdigit(static_cast<unsigned char>(c)) || c == ':' || c == '.')) {
+        return std::string("Host: not a valid IP literal");
+      }
+    }
+  } else {
+    const auto colon = host.rfind(':');
+    if (colon != std::string_view::npos) {
+      port = host.substr(colon);
+      host = host.substr(0, colon);
+    }
+    constexpr std::string_view kRegName = "-._~%!$&'()*+,;=";
+    for (const char c : host) {
+      if (!std::isalnum(static_cast<unsigned char>(c)) &&
+          kRegName.find(c) == std::string_view::npos) {
+        return std::string("Host: not a valid host name");
+      }
+    }
+  }
+  if (!port.empty()) {
+    if (port.front() != ':') return std::string("Host: not a valid host name");
+    port.remove_prefix(1);
+    for (const char c : port) {
+      if (!std::isdigit(static_cast<unsigned char>(c)))
+        return std::string("Host: not a valid port");
+    }
+  }
+  return std::nullopt;
 }
 
 // --- EventStream ---------------------------------------------------------
@@ -227,6 +276,13 @@ class Session : public std::enable_shared_from_this<Session> {
                                 fmt::format("bad request: the header is {} bytes, over the limit "
                                             "of {} ([api] max_header_bytes)",
                                             header_bytes, options().header_limit));
+      res.keep_alive(false);
+      return send(std::move(res));
+    }
+    if (const auto problem = host_problem(req)) {
+      ++server_.bad_requests;
+      auto res = error_response(req, http::status::bad_request,
+                                fmt::format("bad request: {} (RFC 9112 §3.2)", *problem));
       res.keep_alive(false);
       return send(std::move(res));
     }

@@ -714,7 +714,10 @@ void Station::end_run() {
   if (final_state == RunState::kCompleted && run_id != 0) analysis_->submit(RunJob{run_id});
   if (stop_after_current_ && final_state != RunState::kInterrupted) {
     stop_after_current_ = false;
-    if (!hold_reason_) hold_queue(fmt::format("stopped after run {} by the operator", run_id));
+    if (!hold_reason_) {
+      hold_queue(fmt::format("stopped after run {} by the operator ({}); resume releases the queue",
+                             run_id, stop_reason_));
+    }
   }
   run_id_.store(0);
   sequencer_.reset();
@@ -1117,13 +1120,14 @@ Reply Station::control(std::string_view action, const std::string& reason_in) {
   if (action == "stop") {
     if (running) {
       stop_after_current_ = true;
+      stop_reason_ = reason;
       const std::string message =
           fmt::format("the queue holds after run {} completes ({})", run_id_.load(), reason);
       log_command(message);
       return Reply::ok({{"ok", true}, {"message", message}});
     }
     if (hold_reason_) return Reply::refused(Refusal::Kind::kConflict, "the queue is already held");
-    hold_queue("stopped by the operator (" + reason + ")");
+    hold_queue("stopped by the operator (" + reason + "); resume releases the queue");
     return Reply::ok({{"ok", true}, {"message", "queue held"}});
   }
   return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no control action '{}'", action));

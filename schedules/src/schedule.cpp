@@ -6,6 +6,7 @@
 #include <charconv>
 #include <cmath>
 #include <set>
+#include <utility>
 
 #include "gyrotherm/core/toml_reader.h"
 
@@ -440,7 +441,8 @@ void check_ramps(const std::vector<Expanded>& steps, TomlErrors& errors) {
   }
 }
 
-// The messages in file order (stable within a line), without repeats.
+// The messages in file order (stable within a line; TomlErrors keeps no
+// repeats), at most TomlErrors::kMaxReported of them, then how many more.
 std::string sorted_errors(const TomlErrors& errors) {
   const std::string prefix = errors.file() + ":";
   auto line_of = [&](const std::string& m) {
@@ -450,15 +452,17 @@ std::string sorted_errors(const TomlErrors& errors) {
     }
     return line;
   };
-  std::vector<std::string> messages;
-  for (const auto& m : errors.messages()) {
-    if (std::find(messages.begin(), messages.end(), m) == messages.end()) messages.push_back(m);
-  }
-  std::stable_sort(
-      messages.begin(), messages.end(),
-      [&](const std::string& a, const std::string& b) { return line_of(a) < line_of(b); });
+  std::vector<std::pair<int, const std::string*>> messages;
+  messages.reserve(errors.messages().size());
+  for (const auto& m : errors.messages()) messages.emplace_back(line_of(m), &m);
+  std::stable_sort(messages.begin(), messages.end(),
+                   [](const auto& a, const auto& b) { return a.first < b.first; });
+  const std::size_t shown = std::min(messages.size(), TomlErrors::kMaxReported);
   std::string out;
-  for (const auto& m : messages) out += m + "\n";
+  for (std::size_t i = 0; i < shown; ++i) out += *messages[i].second + "\n";
+  if (const std::size_t more = messages.size() - shown + errors.dropped(); more > 0) {
+    out += more_errors_line(more) + "\n";
+  }
   return out;
 }
 
@@ -471,10 +475,24 @@ Result<Plan> build_plan(std::optional<toml::table> root, TomlErrors& errors,
   if (auto n = top.string("name")) {
     if (n->find_first_not_of(" \t") == std::string::npos) {
       top.error("name", "must not be empty (leave it out to name the schedule after its file)");
+    } else if (has_control_characters(*n)) {
+      // The name is printed on terminals and in logs: no escape sequences.
+      top.error("name", fmt::format("\"{}\" holds control characters (shown escaped); a name "
+                                    "is one line of printable text",
+                                    escape_control_characters(*n)));
     }
     plan.name = *n;
   }
-  if (auto d = top.string("description")) plan.description = *d;
+  if (auto d = top.string("description")) {
+    // Lines and tabs are text; any other control character is not.
+    std::string other = *d;
+    std::erase_if(other, [](char c) { return c == '\n' || c == '\t'; });
+    if (has_control_characters(other)) {
+      top.error("description",
+                "holds control characters other than new lines and tabs; write plain text");
+    }
+    plan.description = *d;
+  }
   ScheduleReader reader(errors, limits);
   std::vector<Expanded> steps;
   reader.read_steps(top, "step", "a schedule", 0, steps);
@@ -487,7 +505,8 @@ Result<Plan> build_plan(std::optional<toml::table> root, TomlErrors& errors,
 
   if (plan.name.empty()) {
     const auto slash = source.find_last_of('/');
-    plan.name = source.substr(slash == std::string::npos ? 0 : slash + 1);
+    plan.name =
+        escape_control_characters(source.substr(slash == std::string::npos ? 0 : slash + 1));
   }
   plan.steps.reserve(steps.size());
   for (std::size_t i = 0; i < steps.size(); ++i) {

@@ -170,7 +170,7 @@ Status Simulator::start() {
 
   auto fail = [&](Error e) -> Status {
     control_.reset();  // never served: no command can be waiting for life_mu_
-    server_.reset();
+    release_modbus_server();
     std::lock_guard lock(stream_mu_);
     stream_.close();
     return e;
@@ -240,7 +240,7 @@ void Simulator::stop() {
   }
   wake_cv_.notify_all();
   thread_.join();
-  server_.reset();
+  release_modbus_server();
   {
     std::lock_guard lock(stream_mu_);
     stream_.close();
@@ -253,6 +253,15 @@ void Simulator::stop() {
   if (!options_.gyro_link.empty()) std::filesystem::remove(options_.gyro_link, ec);
   std::lock_guard lock(sim_mu_);
   status_.running = false;
+}
+
+void Simulator::release_modbus_server() {
+  if (!server_) return;
+  // Its thread first: a write it is answering calls on_modbus_write(), which
+  // reads server_. Released while that thread still ran, the pointer was
+  // already null there (a segfault on SIGTERM while a client wrote).
+  server_->stop();
+  server_.reset();
 }
 
 Status Simulator::point_gyro_link_locked() {

@@ -209,7 +209,7 @@ CREATE TABLE allan(
 CREATE UNIQUE INDEX allan_by_run ON allan(run_id, segment_index, taus);
 )sql";
 
-// v5: the record of calibration exports (DESIGN.md §10). A nightly export
+// v5: the record of calibration exports (docs/reports.md). A nightly export
 // is tied to its scheduled slot (one export per slot: a daemon that was down
 // catches up on the slots it missed, and never writes a slot twice);
 // export_runs lists the runs each export covered.

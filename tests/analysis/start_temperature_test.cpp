@@ -232,7 +232,7 @@ TEST(StartTemperature, AFailingRunIsNamed) {
   options.spec = *parse_model_spec("T2+G1");
   auto model = fit_start_temperature_model(runs, options);
   ASSERT_FALSE(model.ok());
-  EXPECT_NE(model.error().message.find("run 3 (T0 = 21.25 degC)"), std::string::npos)
+  EXPECT_NE(model.error().message.find("run 3 (T0 = 21.25 °C)"), std::string::npos)
       << model.error().message;
   EXPECT_NE(model.error().message.find("term T"), std::string::npos) << model.error().message;
 

@@ -1,9 +1,15 @@
 #include "gyrotherm/daemon/api.h"
 
+#include <arpa/inet.h>
 #include <fmt/format.h>
 #include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <sys/socket.h>
 #include <unistd.h>
 
+#include <atomic>
+#include <chrono>
 #include <filesystem>
 #include <fstream>
 #include <mutex>
@@ -641,6 +647,109 @@ TEST(HttpServer, PassesThePeerAddressAndGatesTheStream) {
   std::lock_guard lock(mu);
   EXPECT_EQ(peers, (std::vector<std::string>{"127.0.0.1", "gate 127.0.0.1"}));
   EXPECT_EQ(stream.clients(), 0);
+}
+
+// RFC 9110 §11.1: the authentication scheme is case-insensitive, and one or
+// more spaces separate it from the credentials. "bearer TOKEN" was refused.
+TEST(Api, TheBearerSchemeIsCaseInsensitive) {
+  FakeControl control;
+  const ApiContext ctx = fake_context(&control);
+  for (const char* scheme : {"Bearer ", "bearer ", "BEARER ", "bEaReR ", "Bearer   "}) {
+    const auto res = handle_api_request(
+        request(http::verb::post, "/api/v1/control/stop", "", std::string(scheme) + kToken), ctx);
+    EXPECT_EQ(res.result(), http::status::ok) << "'" << scheme << "': " << res.body();
+  }
+  EXPECT_EQ(control.calls.size(), 5u);
+  // Still refused: another scheme, a scheme glued to the token, no token.
+  for (const std::string& auth :
+       {std::string("Basic ") + kToken, std::string("bearer") + kToken,
+        std::string("xbearer ") + kToken, std::string("bearer "), std::string("bearer")}) {
+    const auto res =
+        handle_api_request(request(http::verb::post, "/api/v1/control/stop", "", auth), ctx);
+    EXPECT_EQ(res.result(), http::status::unauthorized) << "'" << auth << "'";
+  }
+  EXPECT_EQ(control.calls.size(), 5u);
+}
+
+// One request over a fresh loopback connection; the status code of the
+// answer, 0 when none came within 5 s.
+int status_of_raw_request(int port, const std::string& request) {
+  const int fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_port = htons(static_cast<uint16_t>(port));
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  if (::connect(fd, reinterpret_cast<const sockaddr*>(&addr), sizeof addr) != 0 ||
+      ::send(fd, request.data(), request.size(), MSG_NOSIGNAL) !=
+          static_cast<ssize_t>(request.size())) {
+    ::close(fd);
+    return 0;
+  }
+  std::string text;
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+  while (text.find("\r\n") == std::string::npos && std::chrono::steady_clock::now() < deadline) {
+    pollfd p{fd, POLLIN, 0};
+    if (::poll(&p, 1, 50) <= 0) continue;
+    char buf[4096];
+    const ssize_t n = ::recv(fd, buf, sizeof buf, 0);
+    if (n <= 0) break;
+    text.append(buf, static_cast<std::size_t>(n));
+  }
+  ::close(fd);
+  int status = 0;
+  std::sscanf(text.c_str(), "HTTP/1.%*1d %3d", &status);
+  return status;
+}
+
+// RFC 9112 §3.2: an HTTP/1.1 request without Host, with two, or with one
+// that is not a valid host gets 400, and the handler never sees it. An
+// HTTP/1.0 request may leave Host out. Every request used to get 200.
+TEST(HttpServer, HostIsRequiredOnHttp11) {
+  HttpServerOptions options;
+  options.port = 0;
+  std::atomic<int> handled{0};
+  auto server = HttpServer::create(options, [&](const HttpRequest& req) {
+    ++handled;
+    return json_response(req, http::status::ok, "{}");
+  });
+  ASSERT_TRUE(server.ok()) << server.error().message;
+  (*server)->start();
+  const int port = (*server)->port();
+  auto status = [&](const std::string& head) {
+    return status_of_raw_request(port, head + "Connection: close\r\n\r\n");
+  };
+  EXPECT_EQ(status("GET /api/v1/status HTTP/1.1\r\nHost: 127.0.0.1:8080\r\n"), 200);
+  EXPECT_EQ(status("GET /api/v1/status HTTP/1.1\r\nhost: [::1]:8080\r\n"), 200);
+  EXPECT_EQ(status("GET /api/v1/status HTTP/1.0\r\n"), 200);
+  EXPECT_EQ(handled.load(), 3);
+  EXPECT_EQ(status("GET /api/v1/status HTTP/1.1\r\n"), 400);
+  EXPECT_EQ(status("GET /api/v1/status HTTP/1.1\r\nHost: a\r\nHost: b\r\n"), 400);
+  EXPECT_EQ(status("GET /api/v1/status HTTP/1.1\r\nHost: a b\r\n"), 400);
+  EXPECT_EQ(status("GET /api/v1/status HTTP/1.1\r\nHost: a/b\r\n"), 400);
+  EXPECT_EQ(status("GET /api/v1/stream HTTP/1.1\r\n"), 400);
+  EXPECT_EQ(handled.load(), 3) << "the handler saw a request without a valid Host";
+}
+
+// The CLI's and the dashboard's client sends Host (it is what the server
+// now requires).
+TEST(HttpServer, TheClientSendsHost) {
+  HttpServerOptions options;
+  options.port = 0;
+  std::mutex mu;
+  std::string host;
+  auto server = HttpServer::create(options, [&](const HttpRequest& req) {
+    std::lock_guard lock(mu);
+    host = std::string(req[http::field::host]);
+    return json_response(req, http::status::ok, "{}");
+  });
+  ASSERT_TRUE(server.ok()) << server.error().message;
+  (*server)->start();
+  const auto res = http_request(
+      "GET", fmt::format("http://127.0.0.1:{}/api/v1/status", (*server)->port()), "", "");
+  ASSERT_TRUE(res.ok()) << res.error().message;
+  EXPECT_EQ(res->status, 200);
+  std::lock_guard lock(mu);
+  EXPECT_EQ(host, fmt::format("127.0.0.1:{}", (*server)->port()));
 }
 
 }  // namespace

@@ -95,7 +95,7 @@ std::vector<S> in_window(const std::vector<S>& v, double from_s, double to_s) {
 }
 
 // The analysis series of a soak computed here: each window binned on its own,
-// joined (DESIGN §7; run_analysis.h).
+// joined (docs/analysis.md; run_analysis.h).
 analysis::AnalysisSeries soak_series(const RunData& d,
                                      const std::vector<std::pair<double, double>>& windows) {
   analysis::AnalysisSeries joined;

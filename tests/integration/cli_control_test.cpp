@@ -10,6 +10,8 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <cctype>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -19,6 +21,7 @@
 
 #include "control.h"
 #include "gyrotherm/daemon/http_server.h"
+#include "gyrotherm/storage/database.h"
 #include "process.h"
 #include "temp_dir_test.h"
 
@@ -328,7 +331,12 @@ TEST_F(CliControlTest, EachCommandSendsItsRequest) {
     EXPECT_EQ(r.code, 0) << r.err;
     EXPECT_THAT(r.out, HasSubstr(c.says));
     const auto seen = d.seen();
-    ASSERT_EQ(seen.size(), 1u);
+    // queue add then asks whether the queue is held (to say so).
+    const bool add = c.args[0] == "queue" && c.args[1] == "add";
+    ASSERT_EQ(seen.size(), add ? 2u : 1u);
+    if (add) {
+      EXPECT_EQ(seen[1].target, "/api/v1/queue");
+    }
     EXPECT_EQ(seen[0].method, c.method);
     EXPECT_EQ(seen[0].target, c.target);
     if (c.body.is_null()) {
@@ -488,6 +496,143 @@ TEST_F(CliControlTest, UsageErrorsExitTwo) {
   EXPECT_EQ(cli({"pause", kToken}, {std::string("GYROTHERM_TOKEN=") + kToken}).code, 2);
   EXPECT_TRUE(d.seen().empty()) << "nothing sent on a usage error";
   EXPECT_EQ(cli({"queue", "add", "--help"}).code, 0);
+}
+
+// A schedule queued while the queue is held waits: the CLI says why and that
+// resume releases the queue (it only said "queued entry N").
+TEST_F(CliControlTest, QueueAddOntoAHeldQueueSaysResumeReleasesIt) {
+  FakeDaemon d;
+  d.answer("POST", "/api/v1/queue", 201, entry(8, 0, "demo", 1, false));
+  json held = queue_answer();
+  held["held"] = true;
+  held["hold_reason"] = "stopped by the operator (weekend)";
+  held["current"] = nullptr;
+  d.answer("GET", "/api/v1/queue", 200, held);
+  const std::string schedule = (dir_ / "demo.toml").string();
+  std::ofstream(schedule) << "name = \"demo\"\n";
+  const Run r = cli(to(d, {"queue", "add", schedule}));
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(r.out,
+            "queued entry 8: demo (1 step) at position 0\n"
+            "the queue is held (stopped by the operator (weekend)): the entry waits until "
+            "gyrotherm resume releases the queue\n");
+  // Not held: nothing more is said.
+  d.answer("GET", "/api/v1/queue", 200, queue_answer());
+  const Run free = cli(to(d, {"queue", "add", schedule}));
+  EXPECT_EQ(free.out, "queued entry 8: demo (1 step) at position 0\n");
+}
+
+// A bad number is refused in words: `queue move 3 -1` printed CLI11's range
+// bound, a 300-digit number.
+TEST_F(CliControlTest, BadNumbersAreRefusedInWords) {
+  FakeDaemon d;
+  struct Case {
+    std::vector<std::string> args;
+    std::string says;
+  };
+  for (const auto& c : std::vector<Case>{
+           {{"queue", "move", "3", "-1"}, "position: -1 is not a position (0 = next, 1, 2, …)"},
+           {{"queue", "move", "0", "1"}, "id: 0 is not a queue entry id (1, 2, …)"},
+           {{"queue", "remove", "-4"}, "id: -4 is not a queue entry id (1, 2, …)"},
+           {{"run", "0"}, "id: 0 is not a run id (1, 2, …)"},
+           {{"queue", "move", "3", "1e400"}, "position: 1e400 is not a position"}}) {
+    SCOPED_TRACE(fmt::format("{}", fmt::join(c.args, " ")));
+    const Run r = cli(to(d, c.args));
+    EXPECT_EQ(r.code, 2);
+    EXPECT_THAT(r.err, HasSubstr(c.says));
+    EXPECT_LT(r.err.size(), 400u) << r.err;
+    int digits = 0, longest = 0;
+    for (char ch : r.err) longest = std::max(longest, digits = std::isdigit(ch) ? digits + 1 : 0);
+    EXPECT_LT(longest, 20) << r.err;
+  }
+  EXPECT_TRUE(d.seen().empty());
+}
+
+// `runs` and `run ID` read a database file when given one (--db FILE, or
+// --config FILE naming it in [storage] db): no daemon needed. They used to
+// work only while a daemon ran.
+TEST_F(CliControlTest, RunsAndRunReadTheDatabaseFileOffline) {
+  const std::string db_path = (dir_ / "station.db").string();
+  {
+    auto db = storage::Database::open(db_path);
+    ASSERT_TRUE(db.ok()) << db.error().message;
+    for (const char* name : {"monday", "tuesday"}) {
+      storage::RunRecord run;
+      run.schedule_name = name;
+      run.state = "completed";
+      run.started_utc = "2026-11-21T05:38:43.120Z";
+      auto id = db->create_run(run);
+      ASSERT_TRUE(id.ok()) << id.error().message;
+      storage::SegmentRecord seg;
+      seg.run_id = *id;
+      seg.index = 0;
+      seg.kind = "soak";
+      seg.label = "soak 20 °C";
+      seg.setpoint_c = 20;
+      ASSERT_TRUE(db->create_segment(seg).ok());
+      storage::EventRecord ev;
+      ev.run_id = *id;
+      ev.t_s = 1800.4;
+      ev.kind = "state";
+      ev.from_state = "settling";
+      ev.to_state = "acquiring";
+      ev.message = std::string("stability gate held in ") + name;
+      ASSERT_TRUE(db->add_event(ev).ok());
+    }
+  }
+  std::string cfg;
+  {
+    std::ifstream in(std::string(GYROTHERM_SOURCE_DIR) + "/config/station.toml");
+    std::ostringstream ss;
+    ss << in.rdbuf();
+    cfg = ss.str();
+    const std::string from = "\"/var/lib/gyrotherm/station.db\"";
+    const auto pos = cfg.find(from);
+    ASSERT_NE(pos, std::string::npos);
+    cfg.replace(pos, from.size(), "\"" + db_path + "\"");
+  }
+  const std::string cfg_path = (dir_ / "station.toml").string();
+  std::ofstream(cfg_path) << cfg;
+  const std::string url = dead_url();  // nothing listens: the file is read
+
+  for (const auto& source :
+       std::vector<std::vector<std::string>>{{"--db", db_path}, {"--config", cfg_path}}) {
+    SCOPED_TRACE(source[0]);
+    auto args = std::vector<std::string>{"runs", "--url", url};
+    args.insert(args.end(), source.begin(), source.end());
+    const Run runs = cli(args);
+    ASSERT_EQ(runs.code, 0) << runs.err;
+    EXPECT_THAT(runs.out, HasSubstr("2  tuesday    completed"));
+    EXPECT_LT(runs.out.find("tuesday"), runs.out.find("monday")) << "newest first\n" << runs.out;
+
+    args = {"run", "1", "--url", url};
+    args.insert(args.end(), source.begin(), source.end());
+    const Run run = cli(args);
+    ASSERT_EQ(run.code, 0) << run.err;
+    EXPECT_THAT(run.out, HasSubstr("run 1  monday  completed"));
+    EXPECT_THAT(run.out, HasSubstr("soak 20 °C"));
+    EXPECT_THAT(run.out, HasSubstr("settling → acquiring  stability gate held in monday"));
+
+    args = {"run", "1", "--json", "--url", url};
+    args.insert(args.end(), source.begin(), source.end());
+    const Run j = cli(args);
+    ASSERT_EQ(j.code, 0) << j.err;
+    const json answer = json::parse(j.out);
+    EXPECT_EQ(answer["schedule_name"], "monday");
+    EXPECT_EQ(answer["segments"].size(), 1u);
+    EXPECT_EQ(answer["events"][0]["message"], "stability gate held in monday");
+
+    args = {"run", "9", "--url", url};
+    args.insert(args.end(), source.begin(), source.end());
+    const Run missing = cli(args);
+    EXPECT_EQ(missing.code, 1);
+    EXPECT_THAT(missing.err, HasSubstr("no run 9"));
+  }
+  const Run both = cli({"runs", "--db", db_path, "--config", cfg_path});
+  EXPECT_EQ(both.code, 2);
+  const Run nofile = cli({"runs", "--db", (dir_ / "none.db").string()});
+  EXPECT_EQ(nofile.code, 2);
+  EXPECT_THAT(nofile.err, HasSubstr("none.db"));
 }
 
 // ---------------------------------------------------------------- formatters

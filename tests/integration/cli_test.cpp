@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -29,9 +30,11 @@ class CliTest : public testing::TempDirTest {
     int code;
     std::string out, err;
   };
-  Run cli(std::vector<std::string> args) {
+  // `limit_s` > 0: killed after that many seconds (exit code 137).
+  Run cli(std::vector<std::string> args, int limit_s = 0) {
     const std::string out = (dir_ / "out.txt").string(), err = (dir_ / "err.txt").string();
-    std::string cmd = std::string(GYROTHERM_BIN_DIR) + "/gyrotherm";
+    std::string cmd = limit_s > 0 ? fmt::format("timeout -s KILL {} ", limit_s) : std::string();
+    cmd += std::string(GYROTHERM_BIN_DIR) + "/gyrotherm";
     for (const auto& a : args) cmd += " '" + a + "'";
     cmd += " >" + out + " 2>" + err;
     const int st = std::system(cmd.c_str());
@@ -162,6 +165,18 @@ TEST_F(CliTest, StatsPrintsTableOneRowsAsTextAndJson) {
   const Run none = cli({"stats", "--db", (dir_ / "missing.db").string()});
   EXPECT_NE(none.code, 0);
   EXPECT_THAT(none.err, HasSubstr("missing.db"));
+
+  // --config names the database ([storage] db) as well as --db does.
+  std::string cfg = testing::read_file(std::string(GYROTHERM_SOURCE_DIR) + "/config/station.toml");
+  const std::string from = "\"/var/lib/gyrotherm/station.db\"";
+  ASSERT_NE(cfg.find(from), std::string::npos);
+  cfg.replace(cfg.find(from), from.size(), "\"" + db_path + "\"");
+  const std::string cfg_path = (dir_ / "station.toml").string();
+  std::ofstream(cfg_path) << cfg;
+  const Run by_config = cli({"stats", "--config", cfg_path, "--stored"});
+  ASSERT_EQ(by_config.code, 0) << by_config.err;
+  EXPECT_EQ(by_config.out, text.out);
+  EXPECT_EQ(cli({"stats", "--config", cfg_path, "--db", db_path, "--stored"}).code, 2);
 }
 
 TEST_F(CliTest, DevicesAndChamberSetpointAgainstTheSimulator) {
@@ -221,6 +236,93 @@ TEST_F(CliTest, ScheduleCheckListsEveryError) {
                       "--config", station});
   EXPECT_EQ(ok.code, 0) << ok.err;
   EXPECT_THAT(ok.out, HasSubstr("32 steps"));
+}
+
+// What is not a schedule file ends at once with an error naming it:
+// /dev/zero used to be read until memory ran out, a directory was reported
+// as a schedule without [[step]].
+TEST_F(CliTest, ScheduleCheckRefusesWhatIsNotAFile) {
+  const std::string station = std::string(GYROTHERM_SOURCE_DIR) + "/config/station.toml";
+  const Run zero = cli({"schedule", "check", "/dev/zero", "--config", station}, 60);
+  EXPECT_EQ(zero.code, 1) << zero.err;
+  EXPECT_THAT(zero.err, HasSubstr("/dev/zero: is a character device, not a regular file"));
+  const Run dir = cli({"schedule", "check", dir_.string(), "--config", station}, 60);
+  EXPECT_EQ(dir.code, 1) << dir.err;
+  EXPECT_THAT(dir.err, HasSubstr(dir_.string() + ": is a directory, not a file"));
+  const Run config = cli({"schedule", "check",
+                          std::string(GYROTHERM_SOURCE_DIR) + "/config/schedules/paper-table1.toml",
+                          "--config", "/dev/zero"},
+                         60);
+  EXPECT_EQ(config.code, 2) << config.err;
+  EXPECT_THAT(config.err, HasSubstr("/dev/zero: is a character device"));
+}
+
+// Thousands of errors: the first 50 in file order and a count of the rest.
+TEST_F(CliTest, ScheduleCheckCapsTheErrorReport) {
+  const std::string bad = (dir_ / "many.toml").string();
+  {
+    std::ofstream out(bad);
+    for (int i = 0; i < 3000; ++i) out << "[[step]]\ntype = \"hold\"\nsetpoint_c = 99\n";
+  }
+  const std::string station = std::string(GYROTHERM_SOURCE_DIR) + "/config/station.toml";
+  const Run r = cli({"schedule", "check", bad, "--config", station}, 60);
+  EXPECT_EQ(r.code, 1);
+  // 2 errors a step (set point out of limits, duration_min missing).
+  EXPECT_THAT(r.err, HasSubstr("\n... and 5950 more errors\n"));
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 52) << r.err.substr(0, 3000);
+  const Run j = cli({"schedule", "check", bad, "--config", station, "--json"}, 60);
+  EXPECT_EQ(j.code, 1);
+  const auto answer = nlohmann::json::parse(j.out);
+  EXPECT_EQ(answer["errors"].size(), 50u);
+  EXPECT_EQ(answer["more_errors"], 5950);
+}
+
+// A name with control characters is refused with its line; nothing from
+// the file reaches the terminal raw.
+TEST_F(CliTest, ScheduleCheckRefusesControlCharactersInTheName) {
+  const std::string bad = (dir_ / "ctl.toml").string();
+  std::ofstream(bad) << "name = \"\\u001b[2Jx\"\n[[step]]\ntype = \"hold\"\nsetpoint_c = 20\n"
+                        "duration_min = 5\n";
+  const std::string station = std::string(GYROTHERM_SOURCE_DIR) + "/config/station.toml";
+  const Run r = cli({"schedule", "check", bad, "--config", station}, 60);
+  EXPECT_EQ(r.code, 1) << r.out;
+  EXPECT_THAT(r.err, HasSubstr("ctl.toml:1: name: \"\\x1B[2Jx\" holds control characters"));
+  EXPECT_EQ(r.out.find('\x1b'), std::string::npos);
+  EXPECT_EQ(r.err.find('\x1b'), std::string::npos);
+}
+
+// One step is "1 step", not "1 steps".
+TEST_F(CliTest, ScheduleCheckCountsOneStep) {
+  const std::string one = (dir_ / "one.toml").string();
+  std::ofstream(one) << "name = \"one\"\n[[step]]\ntype = \"hold\"\nsetpoint_c = 20\n"
+                        "duration_min = 5\n";
+  const std::string station = std::string(GYROTHERM_SOURCE_DIR) + "/config/station.toml";
+  const Run r = cli({"schedule", "check", one, "--config", station});
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(r.out, "one: ok, 1 step\n  step 1: hold 20 °C\n");
+}
+
+// gyrothermd's usage errors exit 2, as a bad config does (a bad option
+// exited 105-109, CLI11's own codes).
+TEST_F(CliTest, DaemonUsageErrorsExitTwo) {
+  const std::string daemon = std::string(GYROTHERM_BIN_DIR) + "/gyrothermd";
+  const std::string station = std::string(GYROTHERM_SOURCE_DIR) + "/config/station.toml";
+  auto run = [&](const std::string& args) {
+    const std::string log = (dir_ / "daemon.log").string();
+    const int st =
+        std::system(fmt::format("timeout -s KILL 30 {} {} >{} 2>&1", daemon, args, log).c_str());
+    return std::pair{WIFEXITED(st) ? WEXITSTATUS(st) : -1, testing::read_file(log)};
+  };
+  for (const std::string& args : std::vector<std::string>{
+           "--bogus", "--config", "--config " + station + " --time-scale 0",
+           "--config " + station + " --log-level loud", "--config " + station + " extra"}) {
+    const auto [code, log] = run(args);
+    EXPECT_EQ(code, 2) << args << "\n" << log;
+  }
+  const auto [bad_config, log] = run("--config /dev/zero");
+  EXPECT_EQ(bad_config, 2) << log;
+  EXPECT_THAT(log, HasSubstr("/dev/zero: is a character device"));
+  EXPECT_EQ(run("--help").first, 0);
 }
 
 }  // namespace

@@ -208,6 +208,30 @@ TEST_F(QueueTest, QueuePauseResumeReorderAbortOverRest) {
   EXPECT_EQ(r->status, 409) << "nothing to pause";
 }
 
+// `stop --reason TEXT` during a run: once the run completes, the queue's
+// hold message carries the reason (it said only "stopped after run N by the
+// operator") and says how to release it.
+TEST_F(QueueTest, StopReasonReachesTheHoldMessage) {
+  start_sim();
+  start_daemon({}, false);
+  ASSERT_TRUE(wait_state("idle")) << diag();
+  auto r = call("POST", "/api/v1/queue",
+                queue_body(soak_schedule("short", 23, 1, 1), "short.toml").dump());
+  ASSERT_TRUE(r && r->status == 201) << (r ? r->body : "no answer");
+  ASSERT_TRUE(wait_json("/api/v1/status", [](const json& s) { return s["run_id"] == 1; }))
+      << diag();
+  r = call("POST", "/api/v1/control/stop", R"({"reason":"chamber service"})");
+  ASSERT_TRUE(r && r->status == 200) << (r ? r->body : "");
+  ASSERT_TRUE(wait_json(
+      "/api/v1/runs/1", [](const json& run) { return run["state"] == "completed"; },
+      std::chrono::seconds(120)))
+      << diag();
+  ASSERT_TRUE(wait_json("/api/v1/queue", [](const json& q) { return q["held"] == true; }))
+      << diag();
+  EXPECT_EQ(last_["hold_reason"],
+            "stopped after run 1 by the operator (chamber service); resume releases the queue");
+}
+
 TEST_F(QueueTest, QueueSurvivesARestart) {
   // No simulator needed: the queue is held, so nothing starts.
   daemon::SimEndpoints ep{"127.0.0.1", testing::free_tcp_port(), (dir_ / "no-pty").string(), 0, ""};

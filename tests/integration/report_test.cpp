@@ -1,4 +1,4 @@
-// End-to-end: calibration reports (DESIGN.md §10). The simulated station runs
+// End-to-end: calibration reports (docs/reports.md). The simulated station runs
 // a short schedule, the daemon stores its analysis, and the exports must carry
 // exactly the database's numbers: `gyrotherm export` on demand (CSV and JSON
 // read back with ==, the C header compiled), the daemon's nightly job on a

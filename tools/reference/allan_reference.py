@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Reference values for the overlapping Allan deviation (DESIGN.md section 7).
+"""Reference values for the overlapping Allan deviation (docs/analysis.md).
 
 Writes tests/analysis/data/allan_<case>.txt, read by
 tests/analysis/allan_test.cpp. Computed here with numpy, independently of the

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Reference values for the drift model fit (paper eq. 1, DESIGN.md section 7).
+"""Reference values for the drift model fit (paper eq. 1, docs/analysis.md).
 
 Writes tests/analysis/data/drift_series.txt (a synthetic 1 Hz analysis series
 and its smoothing derivative) and tests/analysis/data/drift_fit_<case>.txt (one

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Reference values for the Table I statistics (DESIGN.md section 7).
+"""Reference values for the Table I statistics (docs/analysis.md).
 
 Writes tests/analysis/data/table1_<case>.txt, read by
 tests/analysis/table1_reference_test.cpp. Everything expected is computed here
@@ -47,7 +47,7 @@ def generate(g):
 
 
 def analysis_series(gt, rate, tt, top, side, bin_s):
-    """Binning of DESIGN.md section 7 as specified in table1.h."""
+    """The analysis series of docs/analysis.md, as specified in table1.h."""
     tau = float(np.median(np.diff(gt))) if len(gt) > 1 else bin_s
     if tau >= bin_s * (1 - BOUNDARY_TOL):
         # Used as is: sample i stands for [t_i, t_{i+1}), the last for [t_last, t_last + tau).

@@ -1,4 +1,5 @@
-// Overlapping Allan deviation of the gyro rate, and the noise terms read off it.
+// Overlapping Allan deviation of the gyro rate, and the noise terms read off
+// it (docs/analysis.md).
 //
 // On the samples as recorded (not the analysis bins): rates y_i in °/h at
 // times t_i, taken as evenly spaced at tau0 = the median of the time

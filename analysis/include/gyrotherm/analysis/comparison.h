@@ -1,4 +1,4 @@
-// The paper's comparison of compensation models (Tables II-IV, DESIGN.md §7).
+// The paper's comparison of compensation models (Tables II-IV, docs/analysis.md).
 //
 // For polynomial orders 1 ... max_order of the temperature T and the term sets
 // {T}, {T, dT} and {T, dT, dT/dt} (the gradient and rate terms at the paper's

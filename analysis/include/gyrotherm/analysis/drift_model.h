@@ -1,4 +1,4 @@
-// Temperature drift model of the reference paper, eq. 1 (DESIGN.md §7):
+// Temperature drift model of the reference paper, eq. 1 (docs/analysis.md):
 //
 //   L - L0 = sum_i=1..m A_i T^i + sum_j=1..n B_j (dT/dt)^j + sum_k=1..q C_k dT^k
 //

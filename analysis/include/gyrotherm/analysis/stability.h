@@ -1,4 +1,5 @@
-// Sliding window of a station signal for the soak stability gate (DESIGN.md §5).
+// Sliding window of a station signal for the soak stability gate (docs/schedules.md, the soak
+// step).
 //
 // The sequencer pushes the shell temperature (or any signal) with its station
 // time; the window keeps the last window_s seconds and answers whether the

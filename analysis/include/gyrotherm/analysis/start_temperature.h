@@ -1,4 +1,4 @@
-// Start-temperature model of the reference paper (eq. 3, DESIGN.md §7), and
+// Start-temperature model of the reference paper (eq. 3, docs/analysis.md), and
 // coefficient export for the gyro's computer.
 //
 // Each run is fitted on its own with the drift model (paper form by default),

@@ -1,4 +1,4 @@
-// Table I statistics of the reference paper (DESIGN.md §7).
+// Table I statistics of the reference paper (docs/analysis.md).
 //
 // Per soak acquisition window, on the *analysis series*: the gyro rate
 // averaged into consecutive bins of bin_s (default 1 s, the paper's 1 Hz

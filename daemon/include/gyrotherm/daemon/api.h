@@ -1,4 +1,4 @@
-// The REST API (DESIGN.md §9, docs/api.md) as a pure function from request
+// The REST API (docs/api.md) as a pure function from request
 // to response.
 //
 // One table of routes (api_routes() lists it; daemon/openapi.json describes

@@ -1,4 +1,5 @@
-// Station configuration (DESIGN.md §3), loaded from TOML.
+// Station configuration (config/station.toml shows every key; docs/operations.md,
+// "Configure"; the device maps: docs/devices.md), loaded from TOML.
 //
 // Every section and key is checked: unknown keys and bad values are errors
 // naming file, line and key, all reported at once. Relative paths in the file
@@ -86,7 +87,7 @@ struct ApiSection {
 };
 
 struct ExportSection {
-  bool nightly = true;                // the nightly export (DESIGN.md §10)
+  bool nightly = true;                // the nightly export (docs/reports.md)
   std::string directory = "reports";  // one directory per export under it
   std::string local_time = "02:00";   // "HH:MM" in time_zone
   std::string time_zone;  // POSIX TZ rule, e.g. "CET-1CEST,M3.5.0,M10.5.0/3"; "" = system

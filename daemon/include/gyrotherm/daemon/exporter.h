@@ -1,4 +1,4 @@
-// Calibration exports (DESIGN.md §10): the reports of some runs written into
+// Calibration exports (docs/reports.md): the reports of some runs written into
 // one directory, atomically, and recorded in the database; and the nightly
 // job that makes one every day at [export] local_time (nightly.h) for the
 // runs completed since the last one.

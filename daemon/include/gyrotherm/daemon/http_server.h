@@ -5,7 +5,8 @@
 // kept apart from sessions and the listener, as in Beast's async example
 // server. Every read has a timeout, headers and bodies are size-limited and
 // the number of connections is bounded; a bad request gets a 4xx and the
-// server keeps serving. Exceptions thrown by the handler become 500s. Log
+// server keeps serving. An HTTP/1.1 request without exactly one valid Host
+// gets 400 (RFC 9112 §3.2). Exceptions thrown by the handler become 500s. Log
 // lines name the method and path, never a header or the query.
 //
 // A GET of options.stream_path turns the connection into an event stream
@@ -132,6 +133,12 @@ class HttpServer {
   int port_ = 0;
   std::vector<std::thread> threads_;
 };
+
+// What breaks RFC 9112 §3.2 in `req`'s Host: none on an HTTP/1.1 request,
+// more than one, or a value that is no uri-host[:port]; nullopt when it is
+// fine (HTTP/1.0 may leave Host out). The server answers such a request 400
+// before any handler sees it.
+std::optional<std::string> host_problem(const HttpRequest& req);
 
 // Helpers for handlers.
 HttpResponse json_response(const HttpRequest& req, boost::beast::http::status status,

@@ -1,4 +1,4 @@
-// When the nightly calibration export runs (DESIGN.md §10): every day at a
+// When the nightly calibration export runs (docs/reports.md): every day at a
 // local time of day ([export] local_time, "HH:MM") in the station's time
 // zone, on the daemon's injected clock. Pure functions of their arguments, so
 // tests can walk across daylight-saving changes and downtime in virtual time.

@@ -1,4 +1,4 @@
-// Calibration reports (DESIGN.md §10): what a test engineer hands to a
+// Calibration reports (docs/reports.md): what a test engineer hands to a
 // customer for a run, and the campaign summary of several runs.
 //
 // collect_run_report() gathers a run's numbers: the Table I rows, Allan

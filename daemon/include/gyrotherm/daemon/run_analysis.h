@@ -1,4 +1,4 @@
-// Analysis of stored runs (DESIGN.md §7): what the daemon computes and
+// Analysis of stored runs (docs/analysis.md): what the daemon computes and
 // stores after each run, and what `gyrotherm stats|allan|fit|compare` compute
 // offline from a database. One code path, so the CLI reproduces the stored
 // numbers exactly.

@@ -170,6 +170,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
   std::vector<int64_t> segment_ids_;
   std::string last_reason_;  // of the last state change
   bool stop_after_current_ = false;
+  std::string stop_reason_;                 // the operator's, for the hold message
   std::optional<std::string> hold_reason_;  // queue held
   std::string checkpoint_state_;
   double last_checkpoint_wall_s_ = -1e9;

@@ -1,4 +1,4 @@
-// KVH 1750 IMU "Format A" frames (DESIGN.md §4).
+// KVH 1750 IMU "Format A" frames (docs/devices.md).
 //
 // 36 bytes, big-endian: header FE 81 FF 55; gyro X/Y/Z float32; accel X/Y/Z
 // float32 (g); status byte; sequence counter 0..127 (wraps); int16

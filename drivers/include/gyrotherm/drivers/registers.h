@@ -3,7 +3,7 @@
 // A RegisterSpec says where a quantity lives (address, holding or input),
 // how it is encoded (int16, uint16, float32 with a word order) and its scale
 // (value = raw x scale) and whether a client may write it. Profiles bundle
-// the specs of known controllers; a station with another controller writes
+// the specs of known controllers (docs/devices.md); a station with another controller writes
 // its own map in the config.
 //
 // Watlow F4T: the addresses and enumerations below follow Watlow's F4T

@@ -1,4 +1,5 @@
-// Interlocks (DESIGN.md §5): conditions under which a run must not go on.
+// Interlocks (docs/schedules.md, "Interlocks"; docs/api.md, "Interlock kinds"): conditions under
+// which a run must not go on.
 //
 // Each tick the sequencer evaluates the readings against these limits. A
 // tripped interlock suspends the run (the set point is held, the acquisition

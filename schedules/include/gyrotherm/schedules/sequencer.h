@@ -1,4 +1,5 @@
-// The run state machine (DESIGN.md §5).
+// The run state machine (docs/architecture.md, "The run state machine";
+// the soak stability gate and the step types: docs/schedules.md).
 //
 // A Sequencer executes one Plan. It owns no I/O and no clock: the daemon
 // calls tick() with the station time (seconds since run start) and the

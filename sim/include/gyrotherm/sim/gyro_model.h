@@ -1,4 +1,4 @@
-// Gyro of the simulated station (DESIGN.md §8): the "truth" the fits are
+// Gyro of the simulated station (docs/simulator.md): the "truth" the fits are
 // checked against, and the frames that carry it.
 //
 // Rate of the sensitive axis, °/h, at each output sample:

@@ -1,4 +1,4 @@
-// The simulated station (gyrotherm-sim, DESIGN.md §8), as a library so tests
+// The simulated station (gyrotherm-sim, docs/simulator.md), as a library so tests
 // run it in-process.
 //
 // Wiring: a ThermalPlant and a GyroModel advanced in station time (the
@@ -167,6 +167,9 @@ class Simulator {
   void advance_to(double target_s, std::vector<uint8_t>& batch);
   void publish_registers();
   void on_modbus_write(int unit_id);
+  // Stops the Modbus server's thread (no on_modbus_write() after it), then
+  // destroys the server.
+  void release_modbus_server();
   Status write_endpoints_file();
   // Points options_.gyro_link (if set) at the current pty. Needs stream_mu_.
   Status point_gyro_link_locked();

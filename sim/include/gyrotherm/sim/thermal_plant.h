@@ -1,4 +1,4 @@
-// Thermal plant of the simulated station (DESIGN.md §8).
+// Thermal plant of the simulated station (docs/simulator.md).
 //
 // The chamber controller ramps its internal set point towards the requested
 // one at most at max_ramp_c_per_min; the chamber air follows that ramped set

@@ -95,7 +95,7 @@ struct EventRecord {
   std::string message;  // what a technician reads
 };
 
-// One Table I row (DESIGN.md §7) with the inputs it was computed with.
+// One Table I row (docs/analysis.md) with the inputs it was computed with.
 struct SegmentStatsRecord {
   int64_t segment_id = 0;
   int64_t run_id = 0;
@@ -130,7 +130,7 @@ struct FitRecord {
   std::string computed_utc;  // "" = now (add_fit)
 };
 
-// The Allan deviation of one soak's acquisition (DESIGN.md §7) with what it
+// The Allan deviation of one soak's acquisition (docs/analysis.md) with what it
 // was computed from (schema v4, table `allan`). The curve is stored as JSON
 // arrays of the same length so sqlite3's json functions can read it.
 struct AllanRecord {
@@ -152,7 +152,7 @@ struct AllanRecord {
   std::string computed_utc;  // "" = now (put_allan)
 };
 
-// One calibration export (DESIGN.md §10; schema v5, tables `exports` and
+// One calibration export (docs/reports.md; schema v5, tables `exports` and
 // `export_runs`): the reports of some runs written into one directory.
 // Nightly exports carry the slot they ran for; at most one export per slot
 // (a unique index), and a completed run is in at most one nightly export
