@@ -64,7 +64,12 @@ std::optional<drivers::RegisterSpec> read_register(TableReader t) {
 
 void read_endpoint(TableReader& t, drivers::ModbusEndpoint& ep, int default_unit) {
   ep.transport = t.choice("transport", {"tcp", "rtu"}, "tcp").value_or("tcp");
-  if (auto h = t.string("host")) ep.host = *h;
+  if (auto h = t.string("host")) {
+    if (const std::string problem = drivers::tcp_host_problem(*h); !problem.empty())
+      t.error("host", problem);
+    else
+      ep.host = *h;
+  }
   if (auto p = t.integer("port")) {
     if (*p < 0 || *p > 65535)
       t.error("port", fmt::format("{} is not a TCP port", *p));

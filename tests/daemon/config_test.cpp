@@ -1,5 +1,6 @@
 #include "gyrotherm/daemon/config.h"
 
+#include <fmt/format.h>
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 #include <unistd.h>
@@ -119,6 +120,40 @@ commit_interval_s = 5
   EXPECT_THAT(m, HasSubstr("watlow-f9"));
   EXPECT_THAT(m, HasSubstr("bad.toml:10: gyro.unit: \"grad\" is not one of: rad, deg"));
   EXPECT_THAT(m, HasSubstr("bad.toml:12: storage.commit_interval_s: 5 is out of range"));
+}
+
+// Issue 15 item 18: a host that cannot be an address is refused at load,
+// naming file, line and key; names and IP literals are accepted (names are
+// resolved at connect).
+TEST(Config, ModbusHostIsANameOrAnAddress) {
+  auto with_host = [](const std::string& host) {
+    return parse_station_config(fmt::format(R"([station]
+latitude_deg = 31.9
+[chamber]
+host = "{}"
+port = 1502
+[probes]
+port = 1502
+[gyro]
+device = "/dev/ttyUSB0"
+)",
+                                            host),
+                                "hosts.toml");
+  };
+  for (const char* good : {"127.0.0.1", "localhost", "chamber-3.lab.example.org", "::1", "fe80::1",
+                           "chamber.invalid"}) {
+    auto cfg = with_host(good);
+    ASSERT_TRUE(cfg.ok()) << good << ": " << cfg.error().message;
+    EXPECT_EQ(cfg->chamber.endpoint.host, good);
+  }
+  for (const char* bad : {"300.1.2.3", "1.2.3", "10.0.0.256", "chamber_3.lab", "-chamber", "a..b",
+                          "::g", "", "chamber 3"}) {
+    auto cfg = with_host(bad);
+    ASSERT_FALSE(cfg.ok()) << "accepted host \"" << bad << "\"";
+    EXPECT_THAT(cfg.error().message, HasSubstr("hosts.toml:4: chamber.host: ")) << bad;
+  }
+  EXPECT_THAT(with_host("300.1.2.3").error().message,
+              HasSubstr("\"300.1.2.3\" is not a valid IPv4 address"));
 }
 
 TEST(Config, MissingSectionsAndSyntaxErrors) {
