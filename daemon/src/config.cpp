@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <boost/asio/ip/address.hpp>
 #include <cerrno>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -491,6 +492,12 @@ Result<SimEndpoints> read_sim_endpoints(const std::string& path) {
   if (auto d = t.required_string("gyro_device")) ep.gyro_device = *d;
   if (auto p = t.integer("pid")) ep.pid = static_cast<long>(*p);
   if (auto c = t.string("control_socket")) ep.control_socket = *c;
+  if (auto s = t.number("time_scale")) {
+    if (*s > 0)
+      ep.time_scale = *s;
+    else
+      t.error("time_scale", "must be positive");
+  }
   t.finish();
   if (!errors.empty()) return Error::Permanent(errors.joined());
   return ep;
@@ -502,10 +509,22 @@ Status write_sim_endpoints(const std::string& path, const SimEndpoints& ep) {
                 {"gyro_device", ep.gyro_device},
                 {"pid", static_cast<int64_t>(ep.pid)}};
   if (!ep.control_socket.empty()) t.insert("control_socket", ep.control_socket);
+  if (ep.time_scale > 0) t.insert("time_scale", ep.time_scale);
   std::ostringstream ss;
   ss << "# written by gyrotherm-sim; read by gyrothermd ([simulator] endpoints_file)\n"
      << t << "\n";
   return write_file_atomically(path, ss.str());
+}
+
+std::string sim_time_scale_mismatch(const SimEndpoints& ep, double daemon_time_scale,
+                                    const std::string& endpoints_file) {
+  if (ep.time_scale <= 0) return "";  // an older simulator: nothing to compare
+  if (std::fabs(ep.time_scale - daemon_time_scale) <= 1e-9 * ep.time_scale) return "";
+  return fmt::format(
+      "the simulator runs at time scale {:g} ({}) but the daemon was asked for {:g}; the two "
+      "clocks would disagree (set points, ramps and acquisition windows would be wrong): start "
+      "both with the same --time-scale",
+      ep.time_scale, endpoints_file, daemon_time_scale);
 }
 
 void apply_sim_endpoints(StationConfig& config, const SimEndpoints& ep) {

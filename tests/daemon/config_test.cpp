@@ -338,10 +338,11 @@ TEST(SimEndpoints, RoundTripThroughAFile) {
   const auto dir =
       std::filesystem::temp_directory_path() / ("gyrotherm-ep-" + std::to_string(::getpid()));
   const std::string path = (dir / "ep.toml").string();
-  SimEndpoints ep{"127.0.0.1", 40123, "/dev/pts/7", 4242, "/tmp/sim.sock"};
+  SimEndpoints ep{"127.0.0.1", 40123, "/dev/pts/7", 4242, "/tmp/sim.sock", 250.0};
   ASSERT_TRUE(write_sim_endpoints(path, ep).ok());
   auto back = read_sim_endpoints(path);
   ASSERT_TRUE(back.ok()) << back.error().message;
+  EXPECT_DOUBLE_EQ(back->time_scale, 250.0);
   EXPECT_EQ(back->modbus_port, 40123);
   EXPECT_EQ(back->gyro_device, "/dev/pts/7");
   EXPECT_EQ(back->pid, 4242);
@@ -353,6 +354,18 @@ TEST(SimEndpoints, RoundTripThroughAFile) {
   EXPECT_EQ(cfg->probes.endpoint.port, 40123);
   EXPECT_EQ(cfg->gyro.serial.device, "/dev/pts/7");
   std::filesystem::remove_all(dir);
+}
+
+// Issue 15 item 19: a daemon and a simulator at different time scales.
+TEST(SimEndpoints, TimeScaleMismatchIsNamed) {
+  SimEndpoints ep;
+  ep.time_scale = 200;
+  EXPECT_EQ(sim_time_scale_mismatch(ep, 200.0, "ep.toml"), "");
+  const std::string why = sim_time_scale_mismatch(ep, 100.0, "ep.toml");
+  EXPECT_THAT(why, HasSubstr("time scale 200 (ep.toml)"));
+  EXPECT_THAT(why, HasSubstr("asked for 100"));
+  ep.time_scale = 0;  // an older simulator's file says nothing
+  EXPECT_EQ(sim_time_scale_mismatch(ep, 100.0, "ep.toml"), "");
 }
 
 }  // namespace
