@@ -10,12 +10,14 @@
 #include <fstream>
 #include <iostream>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <sstream>
 
 #include "analysis.h"
 #include "control.h"
 #include "export.h"
 #include "gyrotherm/daemon/config.h"
+#include "gyrotherm/daemon/station_lock.h"
 #include "gyrotherm/drivers/frame_parser.h"
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/drivers/modbus_device.h"
@@ -93,6 +95,39 @@ Result<daemon::StationConfig> load_config_for_tools(const std::string& path) {
   return cfg;
 }
 
+// Commissioning talks to the devices directly, so it needs the station to
+// itself: nullopt when it has it, else the exit code after saying who owns
+// it. A daemon holds the station lock beside its database; a daemon started
+// on another database (--db) is still caught by the gyro line's lock, which
+// `gyro_port` tries to take (it is kept open, held, until the command ends).
+std::optional<int> refuse_if_station_owned(const daemon::StationConfig& cfg,
+                                           std::optional<drivers::SerialPort>& gyro_port,
+                                           std::string& gyro_error) {
+  if (const auto owner = daemon::station_owner(cfg.storage.db_path)) {
+    std::string who = "gyrothermd";
+    if (owner->pid > 0) who += fmt::format(" (pid {})", owner->pid);
+    const std::string api = owner->api_url.empty() ? "" : fmt::format(" at {}", owner->api_url);
+    return fail(
+        fmt::format("the station is run by {}{} (station lock {}); commissioning commands talk to "
+                    "the devices directly and would disturb it. Use `gyrotherm status` for live "
+                    "readings and the queue for set points, or stop the daemon first.",
+                    who, api, daemon::station_lock_path(cfg.storage.db_path)),
+        2);
+  }
+  auto port = drivers::SerialPort::open(cfg.gyro.serial);
+  if (port) {
+    gyro_port.emplace(std::move(*port));
+  } else if (drivers::serial_line_in_use(port.error())) {
+    return fail(fmt::format("{}; a daemon seems to run this station (on another database?): "
+                            "stop it before commissioning",
+                            port.error().message),
+                2);
+  } else {
+    gyro_error = port.error().message;
+  }
+  return std::nullopt;
+}
+
 std::string reading(const Result<double>& r, const char* unit) {
   return r ? fmt::format("{:.3f} {}", *r, unit) : fmt::format("ERROR: {}", r.error().message);
 }
@@ -122,6 +157,9 @@ Result<double> read_chamber_c(drivers::ModbusDevice& chamber, const drivers::Reg
 int cmd_devices(const std::string& config_path, bool json) {
   auto cfg = load_config_for_tools(config_path);
   if (!cfg) return fail(cfg.error().message, 2);
+  std::optional<drivers::SerialPort> port;
+  std::string gyro_error;
+  if (auto refused = refuse_if_station_owned(*cfg, port, gyro_error)) return *refused;
   drivers::ModbusDevice chamber("chamber", cfg->chamber.endpoint);
   drivers::ModbusDevice probes("probes", cfg->probes.endpoint);
   const auto unit = chamber_unit(chamber, cfg->chamber.map);
@@ -133,10 +171,10 @@ int cmd_devices(const std::string& config_path, bool json) {
   // Gyro: listen for up to two seconds (wall).
   std::string gyro_text;
   nlohmann::json gyro_json;
-  auto port = drivers::SerialPort::open(cfg->gyro.serial);
+  bool gyro_ok = false;
   if (!port) {
-    gyro_text = "ERROR: " + port.error().message;
-    gyro_json = {{"error", port.error().message}};
+    gyro_text = "ERROR: " + gyro_error;
+    gyro_json = {{"error", gyro_error}};
   } else {
     auto parser = drivers::make_frame_parser(cfg->gyro.protocol);
     std::vector<uint8_t> buf(4096);
@@ -161,6 +199,7 @@ int cmd_devices(const std::string& config_path, bool json) {
           "CRC failures",
           rate, static_cast<char>('x' + cfg->gyro.format.axis), f.seq, f.status, f.temp_c,
           c.frames_ok, c.crc_failures);
+      gyro_ok = true;
       gyro_json = {{"rate_dph", rate},         {"seq", f.seq},
                    {"status", f.status},       {"temp_c", f.temp_c},
                    {"frames_ok", c.frames_ok}, {"crc_failures", c.crc_failures}};
@@ -189,12 +228,18 @@ int cmd_devices(const std::string& config_path, bool json) {
                              reading(side, "°C"));
     std::cout << fmt::format("gyro     {}\n  {}\n", cfg->gyro.serial.device, gyro_text);
   }
-  return (pv && sp && top && side && port) ? 0 : 1;
+  return (pv && sp && top && side && gyro_ok) ? 0 : 1;
 }
 
 int cmd_chamber_setpoint(const std::string& config_path, double setpoint_c) {
+  if (!std::isfinite(setpoint_c)) {
+    return fail(fmt::format("{} is not a temperature", setpoint_c), 2);
+  }
   auto cfg = load_config_for_tools(config_path);
   if (!cfg) return fail(cfg.error().message, 2);
+  std::optional<drivers::SerialPort> gyro_line;  // held so no daemon starts meanwhile
+  std::string gyro_error;
+  if (auto refused = refuse_if_station_owned(*cfg, gyro_line, gyro_error)) return *refused;
   if (setpoint_c < cfg->station.min_temp_c || setpoint_c > cfg->station.max_temp_c) {
     return fail(fmt::format("{:g} °C is outside the station's limits [{:g}, {:g}] °C", setpoint_c,
                             cfg->station.min_temp_c, cfg->station.max_temp_c),

@@ -2,6 +2,7 @@
 // wire Station + HTTP server, wait for a signal. Under systemd (Type=notify)
 // it reports READY, STOPPING and, while the control loop ticks, WATCHDOG;
 // without NOTIFY_SOCKET those calls do nothing.
+#include <fmt/format.h>
 #include <signal.h>
 #include <spdlog/spdlog.h>
 #include <systemd/sd-daemon.h>
@@ -20,11 +21,13 @@
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/core/files.h"
 #include "gyrotherm/core/toml_reader.h"
+#include "gyrotherm/core/time_scale.h"
 #include "gyrotherm/daemon/api.h"
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/daemon/http_server.h"
 #include "gyrotherm/daemon/metrics.h"
 #include "gyrotherm/daemon/station.h"
+#include "gyrotherm/daemon/station_lock.h"
 #include "gyrotherm/daemon/web_assets.h"
 #include "gyrotherm/schedules/schedule.h"
 
@@ -40,7 +43,7 @@ int main(int argc, char** argv) {
   app.add_option("--db", db_path, "database file (overrides [storage] db)");
   app.add_option("--schedule", schedule_path, "queue this schedule file at start-up");
   app.add_option("--time-scale", time_scale, "station seconds per wall second (simulation)")
-      ->check(CLI::Range(1e-3, 1e5));
+      ->check(CLI::Range(gyrotherm::kMinTimeScale, gyrotherm::kMaxTimeScale));
   app.add_option("--wall-start", wall_start,
                  "simulation: the nightly export's wall clock starts at this ISO-8601 instant "
                  "(e.g. 2026-03-29T00:40:00Z) and runs at --time-scale");
@@ -65,6 +68,13 @@ int main(int argc, char** argv) {
     return 2;
   }
   if (!db_path.empty()) config->storage.db_path = db_path;
+  // One daemon per station database; the CLI's commissioning commands look
+  // at this lock and keep off the devices while it is held.
+  auto station_lock = gd::StationLock::acquire(config->storage.db_path);
+  if (!station_lock) {
+    std::cerr << "gyrothermd: " << station_lock.error().message << "\n";
+    return 1;
+  }
 
   if (!config->simulator.endpoints_file.empty()) {
     const std::string& file = config->simulator.endpoints_file;
@@ -79,6 +89,10 @@ int main(int argc, char** argv) {
                 << " s (is gyrotherm-sim running with the same config?):\n"
                 << ep.error().message << "\n";
       return 1;
+    }
+    if (const std::string why = gd::sim_time_scale_mismatch(*ep, time_scale, file); !why.empty()) {
+      std::cerr << "gyrothermd: " << why << "\n";
+      return 2;
     }
     gd::apply_sim_endpoints(*config, *ep);
     spdlog::info("simulated station: modbus {}:{}, gyro {}", ep->modbus_host, ep->modbus_port,
@@ -197,6 +211,7 @@ int main(int argc, char** argv) {
   server_ptr = http->get();
   (*station)->start();
   (*http)->start();
+  station_lock->note_api(fmt::format("http://{}:{}", config->api.bind, (*http)->port()));
   spdlog::info(
       "gyrothermd: station \"{}\", database {}, API http://{}:{}/api/v1/status, time "
       "scale {:g}",

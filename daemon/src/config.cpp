@@ -116,7 +116,12 @@ std::optional<drivers::ChamberAlarm> read_alarm(TableReader t, const std::string
 
 void read_endpoint(TableReader& t, drivers::ModbusEndpoint& ep, int default_unit) {
   ep.transport = t.choice("transport", {"tcp", "rtu"}, "tcp").value_or("tcp");
-  if (auto h = t.string("host")) ep.host = *h;
+  if (auto h = t.string("host")) {
+    if (const std::string problem = drivers::tcp_host_problem(*h); !problem.empty())
+      t.error("host", problem);
+    else
+      ep.host = *h;
+  }
   if (auto p = t.integer("port")) {
     if (*p < 0 || *p > 65535)
       t.error("port", fmt::format("{} is not a TCP port", *p));
@@ -542,6 +547,12 @@ Result<SimEndpoints> read_sim_endpoints(const std::string& path) {
   if (auto d = t.required_string("gyro_device")) ep.gyro_device = *d;
   if (auto p = t.integer("pid")) ep.pid = static_cast<long>(*p);
   if (auto c = t.string("control_socket")) ep.control_socket = *c;
+  if (auto s = t.number("time_scale")) {
+    if (*s > 0)
+      ep.time_scale = *s;
+    else
+      t.error("time_scale", "must be positive");
+  }
   t.finish();
   if (!errors.empty()) return Error::Permanent(errors.joined());
   return ep;
@@ -553,10 +564,22 @@ Status write_sim_endpoints(const std::string& path, const SimEndpoints& ep) {
                 {"gyro_device", ep.gyro_device},
                 {"pid", static_cast<int64_t>(ep.pid)}};
   if (!ep.control_socket.empty()) t.insert("control_socket", ep.control_socket);
+  if (ep.time_scale > 0) t.insert("time_scale", ep.time_scale);
   std::ostringstream ss;
   ss << "# written by gyrotherm-sim; read by gyrothermd ([simulator] endpoints_file)\n"
      << t << "\n";
   return write_file_atomically(path, ss.str());
+}
+
+std::string sim_time_scale_mismatch(const SimEndpoints& ep, double daemon_time_scale,
+                                    const std::string& endpoints_file) {
+  if (ep.time_scale <= 0) return "";  // an older simulator: nothing to compare
+  if (std::fabs(ep.time_scale - daemon_time_scale) <= 1e-9 * ep.time_scale) return "";
+  return fmt::format(
+      "the simulator runs at time scale {:g} ({}) but the daemon was asked for {:g}; the two "
+      "clocks would disagree (set points, ramps and acquisition windows would be wrong): start "
+      "both with the same --time-scale",
+      ep.time_scale, endpoints_file, daemon_time_scale);
 }
 
 void apply_sim_endpoints(StationConfig& config, const SimEndpoints& ep) {

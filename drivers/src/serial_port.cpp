@@ -3,6 +3,7 @@
 #include <fcntl.h>
 #include <fmt/format.h>
 #include <poll.h>
+#include <sys/file.h>
 #include <termios.h>
 #include <unistd.h>
 
@@ -97,6 +98,10 @@ Result<Parity> parse_parity(std::string_view s) {
   return Error::Permanent(fmt::format("unknown parity '{}' (expected one of: none, even, odd)", s));
 }
 
+bool serial_line_in_use(const Error& e) {
+  return e.message.find(kSerialLineInUse) != std::string::npos;
+}
+
 Result<SerialPort> SerialPort::open(const SerialOptions& options) {
   const auto speed = baud_constant(options.baud);
   if (!speed) {
@@ -112,6 +117,20 @@ Result<SerialPort> SerialPort::open(const SerialOptions& options) {
     // A permission problem will not fix itself; a missing or busy device may come back.
     if (err == EACCES || err == EPERM) return Error::Permanent(std::move(msg));
     return Error::Transient(std::move(msg));
+  }
+  // One reader per line: frames a second reader takes are lost to the first.
+  // flock, not TIOCEXCL: a flock dies with its holder, whereas TIOCEXCL
+  // outlives a crashed holder on a pty the simulator keeps open (locking the
+  // restarted daemon out) and does not stop root.
+  if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
+    const int err = errno;
+    ::close(fd);
+    if (err == EWOULDBLOCK) {
+      return Error::Transient(fmt::format("serial device {}: {} (a running gyrothermd?)",
+                                          options.device, kSerialLineInUse));
+    }
+    return Error::Transient(
+        fmt::format("serial device {}: cannot lock: {}", options.device, errno_text(err)));
   }
   SerialPort port(fd, options.device);
   if (!::isatty(fd)) return port;  // a FIFO or similar: nothing to configure

@@ -4,6 +4,7 @@
 
 #include <cmath>
 
+#include "gyrotherm/core/time_scale.h"
 #include "gyrotherm/core/toml_reader.h"
 
 namespace gyrotherm::sim {
@@ -71,8 +72,11 @@ bool SimulatorOptions::IsValid(std::string* error) const {
   if (modbus_port < 0 || modbus_port > 65535) {
     return fail(fmt::format("modbus_port = {} is not a TCP port (0..65535)", modbus_port));
   }
-  if (!(time_scale > 0) || !std::isfinite(time_scale) || time_scale > 1e6) {
-    return fail(fmt::format("time scale {} must be in (0, 1e6]", time_scale));
+  if (!(time_scale >= kMinTimeScale && time_scale <= kMaxTimeScale)) {
+    return fail(
+        fmt::format("time scale {:g} must be in [{:g}, {:g}] (above {:g} the daemon "
+                    "cannot keep up with the gyro stream; see docs/simulator.md)",
+                    time_scale, kMinTimeScale, kMaxTimeScale, kMaxTimeScale));
   }
   if (!(gyro_format.rate_hz >= 0.1 && gyro_format.rate_hz <= 10000)) {
     return fail(fmt::format("gyro rate_hz = {} must be in [0.1, 10000]", gyro_format.rate_hz));

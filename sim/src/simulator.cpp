@@ -295,6 +295,7 @@ daemon::SimEndpoints Simulator::endpoints() const {
   }
   ep.pid = static_cast<long>(::getpid());
   ep.control_socket = options_.control_socket;
+  ep.time_scale = clock_->time_scale();
   return ep;
 }
 

@@ -1,5 +1,6 @@
 #include "gyrotherm/daemon/config.h"
 
+#include <fmt/format.h>
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 #include <unistd.h>
@@ -207,6 +208,40 @@ commit_interval_s = 5
   EXPECT_THAT(m, HasSubstr("bad.toml:12: storage.commit_interval_s: 5 is out of range"));
 }
 
+// Issue 15 item 18: a host that cannot be an address is refused at load,
+// naming file, line and key; names and IP literals are accepted (names are
+// resolved at connect).
+TEST(Config, ModbusHostIsANameOrAnAddress) {
+  auto with_host = [](const std::string& host) {
+    return parse_station_config(fmt::format(R"([station]
+latitude_deg = 31.9
+[chamber]
+host = "{}"
+port = 1502
+[probes]
+port = 1502
+[gyro]
+device = "/dev/ttyUSB0"
+)",
+                                            host),
+                                "hosts.toml");
+  };
+  for (const char* good : {"127.0.0.1", "localhost", "chamber-3.lab.example.org", "::1", "fe80::1",
+                           "chamber.invalid"}) {
+    auto cfg = with_host(good);
+    ASSERT_TRUE(cfg.ok()) << good << ": " << cfg.error().message;
+    EXPECT_EQ(cfg->chamber.endpoint.host, good);
+  }
+  for (const char* bad : {"300.1.2.3", "1.2.3", "10.0.0.256", "chamber_3.lab", "-chamber", "a..b",
+                          "::g", "", "chamber 3"}) {
+    auto cfg = with_host(bad);
+    ASSERT_FALSE(cfg.ok()) << "accepted host \"" << bad << "\"";
+    EXPECT_THAT(cfg.error().message, HasSubstr("hosts.toml:4: chamber.host: ")) << bad;
+  }
+  EXPECT_THAT(with_host("300.1.2.3").error().message,
+              HasSubstr("\"300.1.2.3\" is not a valid IPv4 address"));
+}
+
 TEST(Config, MissingSectionsAndSyntaxErrors) {
   auto cfg = parse_station_config("[station]\n", "a.toml");
   ASSERT_FALSE(cfg.ok());
@@ -389,10 +424,11 @@ TEST(SimEndpoints, RoundTripThroughAFile) {
   const auto dir =
       std::filesystem::temp_directory_path() / ("gyrotherm-ep-" + std::to_string(::getpid()));
   const std::string path = (dir / "ep.toml").string();
-  SimEndpoints ep{"127.0.0.1", 40123, "/dev/pts/7", 4242, "/tmp/sim.sock"};
+  SimEndpoints ep{"127.0.0.1", 40123, "/dev/pts/7", 4242, "/tmp/sim.sock", 250.0};
   ASSERT_TRUE(write_sim_endpoints(path, ep).ok());
   auto back = read_sim_endpoints(path);
   ASSERT_TRUE(back.ok()) << back.error().message;
+  EXPECT_DOUBLE_EQ(back->time_scale, 250.0);
   EXPECT_EQ(back->modbus_port, 40123);
   EXPECT_EQ(back->gyro_device, "/dev/pts/7");
   EXPECT_EQ(back->pid, 4242);
@@ -404,6 +440,18 @@ TEST(SimEndpoints, RoundTripThroughAFile) {
   EXPECT_EQ(cfg->probes.endpoint.port, 40123);
   EXPECT_EQ(cfg->gyro.serial.device, "/dev/pts/7");
   std::filesystem::remove_all(dir);
+}
+
+// Issue 15 item 19: a daemon and a simulator at different time scales.
+TEST(SimEndpoints, TimeScaleMismatchIsNamed) {
+  SimEndpoints ep;
+  ep.time_scale = 200;
+  EXPECT_EQ(sim_time_scale_mismatch(ep, 200.0, "ep.toml"), "");
+  const std::string why = sim_time_scale_mismatch(ep, 100.0, "ep.toml");
+  EXPECT_THAT(why, HasSubstr("time scale 200 (ep.toml)"));
+  EXPECT_THAT(why, HasSubstr("asked for 100"));
+  ep.time_scale = 0;  // an older simulator's file says nothing
+  EXPECT_EQ(sim_time_scale_mismatch(ep, 100.0, "ep.toml"), "");
 }
 
 }  // namespace

@@ -1,18 +1,31 @@
-// ModbusDevice against a real libmodbus TCP server on 127.0.0.1, port 0.
+// ModbusDevice against a real libmodbus TCP server on 127.0.0.1, port 0,
+// and over RTU against a pymodbus server (an independent implementation) on
+// a pair of pseudo-terminals joined back to back.
 #include "gyrotherm/drivers/modbus_device.h"
 
 #include <arpa/inet.h>
+#include <fcntl.h>
 #include <gtest/gtest.h>
 #include <modbus/modbus.h>
 #include <netinet/in.h>
 #include <poll.h>
+#include <signal.h>
+#include <spawn.h>
 #include <sys/socket.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <atomic>
 #include <chrono>
 #include <mutex>
+#include <optional>
+#include <string>
 #include <thread>
+#include <vector>
+
+#include "gyrotherm/drivers/pty.h"
+
+extern char** environ;
 
 #include "test_time.h"
 
@@ -272,6 +285,40 @@ TEST(ModbusDevice, UnreachableDeviceIsATransientError) {
   EXPECT_TRUE(dev.connect().error().transient);
 }
 
+// Issue 15 item 18: host names are resolved ("localhost" used to become
+// 255.255.255.255, "Network is unreachable"); a name that does not resolve
+// is reported as such, not as a network fault.
+TEST(ModbusDevice, HostNamesAreResolved) {
+  TestServer server;
+  ASSERT_TRUE(server.ok());
+  server.set_holding(9, 4242);
+  ModbusEndpoint ep = endpoint_for(server.port());
+  ep.host = "localhost";
+  ModbusDevice dev("chamber", ep);
+  auto v = dev.read(spec(9, RegisterType::kUint16));
+  ASSERT_TRUE(v.ok()) << v.error().message;
+  EXPECT_EQ(*v, 4242.0);
+
+  ep.host = "chamber.invalid";  // RFC 2606: never resolves
+  ModbusDevice nowhere("chamber", ep);
+  const Status s = nowhere.connect();
+  ASSERT_FALSE(s.ok());
+  EXPECT_TRUE(s.error().transient);
+  EXPECT_NE(s.error().message.find("cannot resolve host name \"chamber.invalid\""),
+            std::string::npos)
+      << s.error().message;
+  EXPECT_EQ(s.error().message.find("unreachable"), std::string::npos) << s.error().message;
+}
+
+TEST(ModbusDevice, HostSpelling) {
+  for (const char* good : {"127.0.0.1", "localhost", "a-b.c9.example", "::1", "2001:db8::5"}) {
+    EXPECT_EQ(tcp_host_problem(good), "") << good;
+  }
+  for (const char* bad : {"300.1.2.3", "1.2.3.4.5", "a_b", "a..b", "-a", "a-", "", "1::2::3"}) {
+    EXPECT_NE(tcp_host_problem(bad), "") << bad;
+  }
+}
+
 TEST(ModbusDevice, BadEndpointIsPermanent) {
   ModbusEndpoint ep = endpoint_for(502);
   ep.transport = "udp";
@@ -309,6 +356,164 @@ TEST(ModbusDevice, ReconnectsAfterTheServerDropsTheConnection) {
   EXPECT_TRUE(h.connected);
   EXPECT_EQ(h.reconnects, 1u);
   EXPECT_EQ(server.accepted(), 2);
+}
+
+// ---------------------------------------------------------------- Modbus RTU
+
+// Two pseudo-terminals joined back to back (a null-modem cable): bytes
+// written to one slave come out of the other. The peer opens one slave path,
+// the device under test the other.
+class PtyCable {
+ public:
+  PtyCable() {
+    auto a = Pty::open(true);
+    auto b = Pty::open(true);
+    if (!a || !b) return;
+    a_.emplace(std::move(*a));
+    b_.emplace(std::move(*b));
+    thread_ = std::thread([this] { relay(); });
+  }
+  ~PtyCable() {
+    stop_ = true;
+    if (thread_.joinable()) thread_.join();
+  }
+  bool ok() const { return a_.has_value() && b_.has_value(); }
+  const std::string& end_a() const { return a_->slave_path(); }
+  const std::string& end_b() const { return b_->slave_path(); }
+
+ private:
+  void relay() {
+    uint8_t buf[512];
+    while (!stop_) {
+      pollfd fds[2] = {{a_->master_fd(), POLLIN, 0}, {b_->master_fd(), POLLIN, 0}};
+      if (::poll(fds, 2, 20) <= 0) continue;
+      for (int i = 0; i < 2; ++i) {
+        if (!(fds[i].revents & POLLIN)) continue;
+        const ssize_t n = ::read(fds[i].fd, buf, sizeof buf);
+        if (n <= 0) continue;
+        (void)(i == 0 ? *b_ : *a_).write_master(std::span<const uint8_t>(buf, n));
+      }
+    }
+  }
+  std::optional<Pty> a_, b_;
+  std::atomic<bool> stop_{false};
+  std::thread thread_;
+};
+
+// tests/drivers/peers/slow_rtu_peer.py on `device`: holding registers of
+// units 1 and 2, the one at `delayed_address` answered `delay_s` late.
+class SlowRtuPeer {
+ public:
+  SlowRtuPeer(const std::string& device, int delayed_address, double delay_s,
+              const std::vector<std::string>& registers) {
+    int out[2];
+    if (::pipe2(out, O_CLOEXEC) != 0) return;
+    std::vector<std::string> args = {
+        "/usr/bin/python3", GYROTHERM_SOURCE_DIR "/tests/drivers/peers/slow_rtu_peer.py", device,
+        std::to_string(delayed_address), std::to_string(delay_s)};
+    args.insert(args.end(), registers.begin(), registers.end());
+    std::vector<char*> argv;
+    for (auto& a : args) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    posix_spawn_file_actions_t actions;
+    posix_spawn_file_actions_init(&actions);
+    posix_spawn_file_actions_adddup2(&actions, out[1], STDOUT_FILENO);
+    if (::posix_spawn(&pid_, argv[0], &actions, nullptr, argv.data(), environ) != 0) pid_ = -1;
+    posix_spawn_file_actions_destroy(&actions);
+    ::close(out[1]);
+    // Wait (wall, up to 20 s: Python starts slowly on a loaded machine) for "ready".
+    std::string said;
+    const auto deadline = std::chrono::steady_clock::now() + 20s;
+    while (pid_ > 0 && said.find("ready") == std::string::npos &&
+           std::chrono::steady_clock::now() < deadline) {
+      pollfd pfd{out[0], POLLIN, 0};
+      if (::poll(&pfd, 1, 100) <= 0) continue;
+      char buf[256];
+      const ssize_t n = ::read(out[0], buf, sizeof buf);
+      if (n <= 0) break;
+      said.append(buf, static_cast<std::size_t>(n));
+    }
+    // The pipe stays open while the peer runs: an unbuffered Python writes
+    // "ready" and "\n" separately, and the second write must not fail.
+    out_ = out[0];
+    ready_ = said.find("ready") != std::string::npos;
+  }
+  ~SlowRtuPeer() {
+    if (pid_ > 0) {
+      ::kill(pid_, SIGTERM);
+      ::waitpid(pid_, nullptr, 0);
+    }
+    if (out_ >= 0) ::close(out_);
+  }
+  // False when the peer did not start (python3-pymodbus, python3-serial-asyncio
+  // missing: scripts/install-deps installs them).
+  bool ready() const { return ready_; }
+
+ private:
+  pid_t pid_ = -1;
+  int out_ = -1;  // the read end of the peer's stdout
+  bool ready_ = false;
+};
+
+ModbusEndpoint rtu_endpoint(const std::string& device, int unit, double timeout_s) {
+  ModbusEndpoint ep;
+  ep.transport = "rtu";
+  ep.device = device;
+  ep.baud = 19200;
+  ep.parity = 'N';
+  ep.unit_id = unit;
+  ep.response_timeout_s = timeout_s;
+  return ep;
+}
+
+// Issue 15 item 17: a reply that comes after the response timeout must not be
+// taken as the answer to the next request. The chamber (unit 1) answers its
+// process value 1.5 s late with a 1.0 s timeout; the reads that follow, as in
+// `gyrotherm devices`, must each get their own register's value.
+TEST(ModbusDeviceRtu, LateReplyIsNotTakenAsTheNextAnswer) {
+  constexpr int kPv = 100, kSp = 300, kAlarm = 310, kTop = 200, kSide = 201;
+  PtyCable cable;
+  ASSERT_TRUE(cable.ok());
+  SlowRtuPeer peer(cable.end_a(), kPv, 1.5,
+                   {"1=100:413", "1=300:250", "1=310:7", "2=200:222", "2=201:223"});
+  ASSERT_TRUE(peer.ready()) << "the pymodbus RTU peer did not start (python3-pymodbus and "
+                               "python3-serial-asyncio installed?)";
+  const auto u16 = spec(0, RegisterType::kUint16);
+  auto at = [&](int address) {
+    RegisterSpec s = u16;
+    s.address = address;
+    return s;
+  };
+  {
+    ModbusDevice chamber("chamber", rtu_endpoint(cable.end_b(), 1, 1.0));
+    ModbusDevice probes("probes", rtu_endpoint(cable.end_b(), 2, 1.0));
+    auto pv = chamber.read(at(kPv));
+    ASSERT_FALSE(pv.ok()) << "the process value came within the timeout: " << *pv;
+    EXPECT_TRUE(pv.error().transient);
+
+    auto sp = chamber.read(at(kSp));
+    ASSERT_TRUE(sp.ok()) << sp.error().message;
+    EXPECT_EQ(*sp, 250.0) << "the set point read returned another register's value";
+    auto top = probes.read(at(kTop));
+    ASSERT_TRUE(top.ok()) << top.error().message;
+    EXPECT_EQ(*top, 222.0);
+    auto side = probes.read(at(kSide));
+    ASSERT_TRUE(side.ok()) << side.error().message;
+    EXPECT_EQ(*side, 223.0);
+    // The daemon's poll: a late process value must not land as the alarm word.
+    EXPECT_FALSE(chamber.read(at(kPv)).ok());
+    auto alarm = chamber.read(at(kAlarm));
+    ASSERT_TRUE(alarm.ok()) << alarm.error().message;
+    EXPECT_EQ(*alarm, 7.0);
+    // The last request timed out again; its reply is still on the way when
+    // this process's devices close the line.
+    EXPECT_FALSE(chamber.read(at(kPv)).ok());
+  }
+  // The next process (a fresh device on the same line) must not see it either.
+  ModbusDevice next("chamber", rtu_endpoint(cable.end_b(), 1, 1.0));
+  auto sp = next.read(at(kSp));
+  ASSERT_TRUE(sp.ok()) << sp.error().message;
+  EXPECT_EQ(*sp, 250.0) << "stale bytes from the previous user of the line";
 }
 
 }  // namespace

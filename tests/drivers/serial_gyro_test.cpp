@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <functional>
 #include <mutex>
+#include <optional>
 #include <thread>
 #include <vector>
 
@@ -162,6 +163,27 @@ TEST(SerialPort, OpenErrors) {
   EXPECT_TRUE(SerialPort::open({pty.slave_path(), 19200, Parity::kEven}).ok());
   EXPECT_EQ(*parse_parity("odd"), Parity::kOdd);
   EXPECT_FALSE(parse_parity("mark").ok());
+}
+
+// Issue 15 item 13: a second reader of the gyro line took frames from the
+// daemon's. The line is held exclusively; the holder's close frees it.
+TEST(SerialPort, OneHolderPerLine) {
+  Pty pty = open_pty();
+  std::optional<SerialPort> first;
+  {
+    auto port = SerialPort::open({pty.slave_path(), 921600, Parity::kNone});
+    ASSERT_TRUE(port.ok()) << port.error().message;
+    first.emplace(std::move(*port));
+  }
+  auto second = SerialPort::open({pty.slave_path(), 921600, Parity::kNone});
+  ASSERT_FALSE(second.ok()) << "a second reader opened the line";
+  EXPECT_TRUE(second.error().transient);
+  EXPECT_TRUE(serial_line_in_use(second.error())) << second.error().message;
+  EXPECT_NE(second.error().message.find(pty.slave_path()), std::string::npos);
+
+  first.reset();
+  auto third = SerialPort::open({pty.slave_path(), 921600, Parity::kNone});
+  EXPECT_TRUE(third.ok()) << third.error().message;
 }
 
 TEST(SerialPort, HangUpIsATransientError) {

@@ -220,6 +220,20 @@ TEST_F(CliTest, DevicesAndChamberSetpointAgainstTheSimulator) {
   // Earth rate plus the truth's bias, within a sample's noise (≈ 3 °/h at 10 Hz).
   EXPECT_NEAR(j["gyro"]["rate_dph"].get<double>(), 8.0, 20.0);
   EXPECT_EQ(j["gyro"]["crc_failures"], 0);
+
+  // Issue 15 item 17: every refusal of a set point exits 2, "nan" too.
+  const Run nan = cli({"chamber", "set-point", "nan", "--config", cfg_path});
+  EXPECT_EQ(nan.code, 2) << nan.err;
+  EXPECT_THAT(nan.err, HasSubstr("not a temperature"));
+
+  // A gyro that gives no valid frame is a failed reading: exit 1.
+  ChildProcess ctl({std::string(GYROTHERM_BIN_DIR) + "/gyrotherm-sim", "ctl", "--socket",
+                    (dir_ / "sim.sock").string(), "frames", "corrupt", "1"},
+                   (dir_ / "ctl.log").string());
+  ASSERT_EQ(ctl.wait(std::chrono::seconds(10)), std::optional<int>(0)) << ctl.log();
+  const Run silent = cli({"devices", "--config", cfg_path});
+  EXPECT_EQ(silent.code, 1) << silent.out << silent.err;
+  EXPECT_THAT(silent.out, HasSubstr("no valid frame"));
 }
 
 TEST_F(CliTest, ScheduleCheckListsEveryError) {

@@ -159,14 +159,21 @@ Result<StationConfig> parse_station_config(std::string_view toml_text,
 
 // What gyrotherm-sim writes for the daemon (TOML):
 //   modbus_host = "127.0.0.1"; modbus_port = N; gyro_device = "/dev/pts/N"; pid = N;
-//   control_socket = "PATH" (optional)
+//   control_socket = "PATH" (optional); time_scale = X (station seconds per
+//   wall second the simulator runs at; absent from older simulators)
 struct SimEndpoints {
   std::string modbus_host = "127.0.0.1";
   int modbus_port = 0;
   std::string gyro_device;
   long pid = 0;
   std::string control_socket;  // fault-injection command socket ("" = none)
+  double time_scale = 0;       // 0 = not stated
 };
+// "" when a daemon at `daemon_time_scale` may run against the simulator
+// that wrote `ep`, else why not (the two clocks would disagree: the
+// daemon's set points, rates and acquisition windows would be wrong).
+std::string sim_time_scale_mismatch(const SimEndpoints& ep, double daemon_time_scale,
+                                    const std::string& endpoints_file);
 Result<SimEndpoints> read_sim_endpoints(const std::string& path);
 Status write_sim_endpoints(const std::string& path, const SimEndpoints& endpoints);
 // Applies endpoints to the chamber, probes and gyro sections.

@@ -5,6 +5,13 @@
 // (doubling from 100 ms to 5 s of wall time), so a dead device costs the
 // control loop a timeout, not a hang. Every request and error is counted for
 // the health report. Thread-safe: calls are serialised by an internal mutex.
+//
+// TCP hosts may be names or IPv4/IPv6 literals (resolved at each connect). A
+// Modbus RTU frame has no transaction id, so after a timeout or a garbled
+// reply the line is drained until it has been silent for one response
+// timeout, and flushed on every connect: a late reply is never taken as the
+// answer to the next request (libmodbus checks each reply's unit, function
+// and byte count; that cannot tell two replies of the same shape apart).
 #pragma once
 
 #include <chrono>
@@ -36,6 +43,12 @@ struct ModbusEndpoint {
 
   std::string describe() const;  // "tcp 127.0.0.1:502 unit 1"
 };
+
+// Checks the spelling of a TCP host: an IPv4 literal (four numbers 0..255),
+// an IPv6 literal, or a host name (RFC 1123 labels: letters, digits, '-',
+// 1..63 characters each, 253 in all). Returns what is wrong, or "" when it
+// is well formed; whether a name resolves is only known at connect.
+std::string tcp_host_problem(std::string_view host);
 
 struct DeviceHealth {
   bool connected = false;
@@ -76,6 +89,13 @@ class ModbusDevice {
  private:
   // `op` ("read holding register 2782") goes into the error message.
   Status connect_locked(const std::string& op);
+  Status setup_and_connect_locked(modbus_t* ctx, const std::string& where);
+  Status connected_locked(modbus_t* ctx);  // takes `ctx` as the connection
+  double response_timeout_s() const;
+  // RTU, after a timeout or a garbled reply: reads and discards until the
+  // line has been silent for one response timeout (at most four in all),
+  // then flushes. Returns the bytes discarded.
+  std::size_t drain_line_locked();
   Status ensure_connected_locked(const std::string& op);
   void disconnect_locked();
   void record_error_locked(const std::string& what);

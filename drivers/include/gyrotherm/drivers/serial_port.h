@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <span>
 #include <string>
+#include <string_view>
 
 #include "gyrotherm/core/result.h"
 
@@ -21,11 +22,17 @@ struct SerialOptions {
 
 Result<Parity> parse_parity(std::string_view s);  // "none", "even", "odd"
 
+// In the error of an open refused because another process holds the line.
+inline constexpr std::string_view kSerialLineInUse = "in use by another process";
+bool serial_line_in_use(const Error& e);
+
 // Owns the file descriptor. Move-only.
 class SerialPort {
  public:
   // Opens `device` non-blocking, raw 8 data bits, given parity, 1 stop bit,
-  // no flow control. Errors name the device and the cause; a missing device
+  // no flow control, and holds it exclusively (flock LOCK_EX, released on
+  // close or exit): a line another process holds is a transient error
+  // (serial_line_in_use()). Errors name the device and the cause; a missing device
   // is transient (it may come back), an unsupported baud rate permanent.
   static Result<SerialPort> open(const SerialOptions& options);
 
