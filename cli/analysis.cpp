@@ -195,7 +195,8 @@ struct Args {
   std::optional<std::string> runs;
   std::vector<std::string> csv;
   bool json = false;
-  bool stored = false;  // stats: the rows the daemon stored, not recomputed
+  bool stored = false;       // stats: the rows the daemon stored, not recomputed
+  bool by_setpoint = false;  // stats: one row per set point (the paper's Table I)
 
   // Table I.
   std::optional<double> bin_s;
@@ -472,6 +473,58 @@ analysis::Table1Row row_of(const storage::SegmentStatsRecord& r) {
   return row;
 }
 
+json mean_spread_json(const analysis::MeanSpread& m) {
+  return {{"mean", num(m.mean)}, {"std", num(m.std)}, {"n", m.n}};
+}
+
+std::string mean_spread_text(const analysis::MeanSpread& m, int decimals) {
+  if (m.n == 0) return kDash;
+  return fmt::format("{} ± {}", fixed(m.mean, decimals), fixed(m.std, decimals));
+}
+
+// `gyrotherm stats --by-setpoint`: Table I as the paper prints it, the soaks
+// grouped by their schedule set point (analysis::table1_by_setpoint).
+int print_by_setpoint(const Parsed& p, const std::vector<analysis::Table1Soak>& soaks,
+                      const std::vector<json>& soak_ids, const std::vector<std::string>& notes,
+                      const std::set<std::string>& footer) {
+  auto groups = analysis::table1_by_setpoint(soaks);
+  if (!groups) return fail(groups.error().message, kExitAnalysis);
+  json out = json::array();
+  std::vector<std::vector<std::string>> rows;
+  for (const auto& g : *groups) {
+    json members = json::array();
+    for (std::size_t i : g.soaks) members.push_back(soak_ids[i]);
+    out.push_back(
+        {{"setpoint_c", num(g.setpoint_c)},
+         {"repetitions", g.repetitions},
+         {"soaks", members},
+         {"temp_mean_c", mean_spread_json(g.temp_mean_c)},
+         {"bias_mean_dph", mean_spread_json(g.bias_mean_dph)},
+         {"bias_std_dph", mean_spread_json(g.bias_std_dph)},
+         {"bias_std_ma101_dph", mean_spread_json(g.bias_std_ma_dph)},
+         {"bias_mean_earth_removed_dph", mean_spread_json(g.bias_mean_earth_removed_dph)}});
+    rows.push_back({fixed(g.setpoint_c, 2), std::to_string(g.repetitions),
+                    mean_spread_text(g.temp_mean_c, 2), mean_spread_text(g.bias_mean_dph, 4),
+                    mean_spread_text(g.bias_std_dph, 4), mean_spread_text(g.bias_std_ma_dph, 4),
+                    mean_spread_text(g.bias_mean_earth_removed_dph, 4)});
+  }
+  if (p.json) {
+    std::cout << out.dump(2) << "\n";
+    return 0;
+  }
+  for (const auto& n : notes) std::cout << n << "\n";
+  if (rows.empty()) {
+    std::cout << "no Table I rows\n";
+    return 0;
+  }
+  std::cout << table(
+      {"setpt °C", "reps", "temp °C", "bias °/h", "std °/h", "std MA °/h", "bias−Ω °/h"}, rows);
+  std::cout << "(each column: mean ± sample std over the soaks of the set point; soaks grouped by "
+               "their schedule set point)\n";
+  for (const auto& f : footer) std::cout << "(" << f << ")\n";
+  return 0;
+}
+
 int cmd_stats(const Parsed& p) {
   auto in = open_input(p, RunsNeeded::kOptional);
   if (!in) return fail(in.error().message, kExitInput);
@@ -479,6 +532,9 @@ int cmd_stats(const Parsed& p) {
   std::vector<std::vector<std::string>> rows;
   std::vector<std::string> notes;
   std::set<std::string> footer;
+  // For --by-setpoint: each soak's set point, row and JSON identity.
+  std::vector<analysis::Table1Soak> soaks_for_groups;
+  std::vector<json> soak_ids;
   auto add_row = [&](std::vector<std::string> lead, const analysis::Table1Row& r,
                      const analysis::Table1Options& o) {
     for (std::string v : {std::to_string(r.n), fixed(r.duration_s, 0), fixed(r.temp_mean_c, 2),
@@ -516,6 +572,8 @@ int cmd_stats(const Parsed& p) {
                   {"computed_utc", rec.computed_utc}};
         j.update(stats_json(row, o));
         out.push_back(std::move(j));
+        soaks_for_groups.push_back({rec.setpoint_c, row});
+        soak_ids.push_back({{"run_id", rec.run_id}, {"segment", rec.segment_index + 1}});
         add_row({std::to_string(rec.run_id), std::to_string(rec.segment_index + 1),
                  fixed(rec.setpoint_c, 2)},
                 row, o);
@@ -545,12 +603,18 @@ int cmd_stats(const Parsed& p) {
                   {"t_to_s", num(rec->t_to_s)}};
         j.update(stats_json(row, *opts));
         out.push_back(std::move(j));
+        soaks_for_groups.push_back({soak.setpoint_c, row});
+        soak_ids.push_back({{"run_id", run.id}, {"segment", soak.segment_index + 1}});
         add_row({std::to_string(run.id), std::to_string(soak.segment_index + 1),
                  fixed(soak.setpoint_c, 2)},
                 row, *opts);
       }
     }
   } else {
+    if (p.by_setpoint) {
+      return fail("--by-setpoint groups a database's soaks by their set point; a CSV file has none",
+                  kExitInput);
+    }
     auto opts = table1_options(p, RunConfig{}, nullptr);
     if (!opts) return fail(opts.error().message, kExitInput);
     for (const auto& w : in->csv) {
@@ -565,6 +629,7 @@ int cmd_stats(const Parsed& p) {
       add_row({w.source}, *row, *opts);
     }
   }
+  if (p.by_setpoint) return print_by_setpoint(p, soaks_for_groups, soak_ids, notes, footer);
   if (p.json) {
     std::cout << out.dump(2) << "\n";
     return 0;
@@ -1189,6 +1254,8 @@ AnalysisCommands::AnalysisCommands(CLI::App& app) : parsed_(std::make_unique<Par
   p.stats->add_option("--latitude", p.latitude_deg, "latitude, degrees (default: the run's)");
   p.stats->add_option("--orientation", p.orientation, "axis: up, down or horizontal");
   p.stats->add_flag("--stored", p.stored, "print the rows the daemon stored (no recomputation)");
+  p.stats->add_flag("--by-setpoint", p.by_setpoint,
+                    "one row per set point: mean and std of each column over its repetitions");
 
   p.allan = input(app.add_subcommand("allan", "Allan deviation and noise terms per soak"), false);
   p.allan->add_option("--taus", p.taus, "octave, decade or all (default: config, else octave)");

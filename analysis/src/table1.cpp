@@ -304,4 +304,60 @@ Result<Table1Row> table1_row(const AnalysisSeries& series, const Table1Options& 
   return row;
 }
 
+namespace {
+
+MeanSpread mean_spread(std::vector<double> values) {
+  std::erase_if(values, [](double v) { return std::isnan(v); });
+  MeanSpread out;
+  out.n = values.size();
+  out.mean = values.empty() ? kNaN : mean(values);
+  out.std = values.size() < 2 ? kNaN : std_ddof1(values);
+  return out;
+}
+
+}  // namespace
+
+Result<std::vector<Table1SetpointRow>> table1_by_setpoint(std::span<const Table1Soak> soaks) {
+  std::vector<std::size_t> order(soaks.size());
+  for (std::size_t i = 0; i < soaks.size(); ++i) {
+    if (!std::isfinite(soaks[i].setpoint_c)) {
+      return Error::Permanent(fmt::format(
+          "Table I by set point: soak {} has no finite set point ({})", i, soaks[i].setpoint_c));
+    }
+    order[i] = i;
+  }
+  // Stable: the repetitions of a set point keep their order (run, then step).
+  std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) {
+    return soaks[a].setpoint_c < soaks[b].setpoint_c;
+  });
+  std::vector<Table1SetpointRow> out;
+  for (std::size_t k = 0; k < order.size();) {
+    const double first_c = soaks[order[k]].setpoint_c;
+    std::vector<double> temp, bias, sd, sd_ma, bias_e;
+    std::size_t j = k;
+    for (; j < order.size() && soaks[order[j]].setpoint_c - first_c < kSetpointGroupTolC; ++j) {
+      const Table1Row& r = soaks[order[j]].row;
+      temp.push_back(r.temp_mean_c);
+      bias.push_back(r.bias_mean_dph);
+      sd.push_back(r.bias_std_dph);
+      sd_ma.push_back(r.bias_std_ma_dph);
+      bias_e.push_back(r.bias_mean_earth_removed_dph);
+    }
+    Table1SetpointRow g;
+    g.setpoint_c = first_c;
+    g.repetitions = j - k;
+    g.soaks.assign(order.begin() + static_cast<std::ptrdiff_t>(k),
+                   order.begin() + static_cast<std::ptrdiff_t>(j));
+    std::sort(g.soaks.begin(), g.soaks.end());
+    g.temp_mean_c = mean_spread(std::move(temp));
+    g.bias_mean_dph = mean_spread(std::move(bias));
+    g.bias_std_dph = mean_spread(std::move(sd));
+    g.bias_std_ma_dph = mean_spread(std::move(sd_ma));
+    g.bias_mean_earth_removed_dph = mean_spread(std::move(bias_e));
+    out.push_back(g);
+    k = j;
+  }
+  return out;
+}
+
 }  // namespace gyrotherm::analysis

@@ -54,10 +54,27 @@
     return minus(String(Number(v.toPrecision(5))));
   }
 
-  // Tick labels of a linear axis: as many decimals as the tick spacing needs.
+  // Decimals that write the tick step exactly: 0.25 needs 2, 2.5 needs 1,
+  // 5 needs 0 (uPlot's steps are 1, 2, 2.5 and 5 x 10^k; the power of ten
+  // alone would lose the 5 of a 2.5 step). Ticks are multiples of the step,
+  // so they need no more.
+  function tickDecimals(incr) {
+    if (!(incr > 0) || !Number.isFinite(incr)) return 0;
+    for (let d = 0; d < 12; d++) {
+      const scaled = incr * 10 ** d;
+      if (Math.abs(scaled - Math.round(scaled)) <= 1e-9 * scaled) return d;
+    }
+    return 12;
+  }
+
+  // Tick labels of a linear axis: as many decimals as the tick step has.
   function linearTicks(u, splits, axisIdx, space, incr) {
-    const decimals = Math.min(12, Math.max(0, Math.ceil(-Math.log10(incr) - 1e-9)));
-    return splits.map((v) => (v == null ? '' : minus(v.toFixed(decimals))));
+    const decimals = tickDecimals(incr);
+    return splits.map((v) => {
+      if (v == null) return '';
+      const s = v.toFixed(decimals);
+      return minus(/^-0(\.0*)?$/.test(s) ? s.slice(1) : s);  // a rounding -1e-17 is 0
+    });
   }
 
   // Tick labels of a log axis: plain numbers, or powers of ten when far from 1.
@@ -562,6 +579,13 @@
     window.addEventListener('beforeprint', resizeAll);
     window.addEventListener('afterprint', resizeAll);
     window.matchMedia('print').addEventListener('change', resizeAll);
+  }
+
+  // Outside a page (node's unit test, tests/browser/report_format.test.mjs):
+  // only the pure formatters, nothing drawn.
+  if (typeof document === 'undefined') {
+    globalThis.gyrothermReportFormat = { linearTicks, logTicks, fmtValue };
+    return;
   }
 
   try {

@@ -43,6 +43,29 @@ std::vector<double> bucket_means(const std::vector<double>& y, std::size_t max_p
   return out;
 }
 
+// The mean of the `window` consecutive points centred on each point (the
+// window of Table I's last column; an even window reaches one point further
+// right); NaN where the window does not fit or holds a NaN. A running sum,
+// restarted from a fresh sum every 1024 points so rounding cannot build up.
+std::vector<double> centred_moving_average(const std::vector<double>& y, std::size_t window) {
+  const std::size_t n = y.size();
+  std::vector<double> out(n, kNaN);
+  if (window == 0 || window > n) return out;
+  const std::size_t left = (window - 1) / 2;
+  const double w = static_cast<double>(window);
+  double sum = 0;
+  for (std::size_t start = 0; start + window <= n; ++start) {
+    if (start % 1024 == 0) {
+      sum = 0;
+      for (std::size_t j = start; j < start + window; ++j) sum += y[j];
+    } else {
+      sum += y[start + window - 1] - y[start - 1];
+    }
+    out[start + left] = sum / w;
+  }
+  return out;
+}
+
 std::vector<double> mean_temperature_c(const analysis::AnalysisSeries& s) {
   std::vector<double> t(s.top_c.size());
   for (std::size_t i = 0; i < t.size(); ++i) t[i] = 0.5 * (s.top_c[i] + s.side_c[i]);
@@ -159,10 +182,13 @@ Plot bias_temperature_plot(const std::vector<const analysis::AnalysisSeries*>& s
   return p;
 }
 
-// Fig. 4 / Fig. 6: raw and compensated output over the run, temperature on y2.
+}  // namespace
+
+// Fig. 4 / Fig. 6 (report.h): smoothed raw and compensated output over the
+// run over the faint raw output, temperature on y2.
 Plot output_plot(const analysis::AnalysisSeries& s, const analysis::Comparison& comparison,
                  analysis::TermSet terms, std::string id, std::string title, std::size_t max_points,
-                 std::vector<std::string>& problems) {
+                 std::size_t ma_window, std::vector<std::string>& problems) {
   Plot p;
   p.id = std::move(id);
   p.title = std::move(title);
@@ -173,7 +199,14 @@ Plot output_plot(const analysis::AnalysisSeries& s, const analysis::Comparison& 
   std::vector<double> t_h(s.t_s.size());
   for (std::size_t i = 0; i < t_h.size(); ++i) t_h[i] = s.t_s[i] / 3600.0;
   const auto x = bucket_means(t_h, max_points);
-  p.series.push_back(make_series("raw", x, bucket_means(s.rate_dph, max_points)));
+  // The 1 s noise (tenths of a °/h) is larger than what the compensation
+  // removes: the lines are the moving averages, the raw output faint dots.
+  p.series.push_back(
+      make_series("raw (1 s bins)", x, bucket_means(s.rate_dph, max_points), "points"));
+  const std::string smoothed = fmt::format("{}-point moving average", ma_window);
+  p.series.push_back(
+      make_series(fmt::format("raw, {}", smoothed), x,
+                  bucket_means(centred_moving_average(s.rate_dph, ma_window), max_points)));
   for (int order : {2, 4}) {
     const auto* cell = find_cell(comparison, terms, order);
     if (cell == nullptr) continue;
@@ -183,8 +216,9 @@ Plot output_plot(const analysis::AnalysisSeries& s, const analysis::Comparison& 
                                      analysis::to_string(cell->spec), comp.error().message));
       continue;
     }
-    p.series.push_back(make_series(fmt::format("compensated, {}", analysis::to_string(cell->spec)),
-                                   x, bucket_means(*comp, max_points)));
+    p.series.push_back(
+        make_series(fmt::format("compensated, {}, {}", analysis::to_string(cell->spec), smoothed),
+                    x, bucket_means(centred_moving_average(*comp, ma_window), max_points)));
   }
   PlotSeries temperature =
       make_series("temperature", x, bucket_means(mean_temperature_c(s), max_points));
@@ -193,6 +227,8 @@ Plot output_plot(const analysis::AnalysisSeries& s, const analysis::Comparison& 
   p.series.push_back(std::move(temperature));
   return p;
 }
+
+namespace {
 
 // Fig. 5: bias against the shell gradient, raw and after the order-4
 // temperature compensation (what is left for the gradient term to explain).
@@ -423,12 +459,12 @@ Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
   if (r.series && comparison != nullptr) {
     r.plots.push_back(output_plot(*r.series, *comparison, analysis::TermSet::kT, "chart-output-t",
                                   "Raw and compensated output, temperature terms (Fig. 4)",
-                                  max_points, r.problems));
+                                  max_points, r.settings.table1.ma_window, r.problems));
     r.plots.push_back(bias_gradient_plot(*r.series, *comparison, max_points));
     r.plots.push_back(
         output_plot(*r.series, *comparison, analysis::TermSet::kTGR, "chart-output-tgr",
                     "Raw and compensated output, temperature, gradient and rate terms (Fig. 6)",
-                    max_points, r.problems));
+                    max_points, r.settings.table1.ma_window, r.problems));
   }
   std::vector<std::pair<std::string, const storage::AllanRecord*>> allan_records;
   for (const auto& a : r.allan) {

@@ -157,6 +157,79 @@ std::string table1_html(const std::vector<const storage::SegmentStatsRecord*>& r
   return h;
 }
 
+// Table I as the paper prints it: the soaks grouped by their schedule set
+// point (analysis::table1_by_setpoint), each column's mean ± sample std over
+// the repetitions. A run's page shows it when a set point repeats; the
+// campaign summary always.
+std::vector<analysis::Table1Soak> table1_soaks(
+    const std::vector<const storage::SegmentStatsRecord*>& rows) {
+  std::vector<analysis::Table1Soak> soaks;
+  for (const auto* r : rows) {
+    analysis::Table1Soak s;
+    s.setpoint_c = r->setpoint_c;
+    s.row.n = static_cast<std::size_t>(std::max<int64_t>(r->n, 0));
+    s.row.duration_s = r->duration_s;
+    s.row.temp_mean_c = r->temp_mean_c;
+    s.row.bias_mean_dph = r->bias_mean_dph;
+    s.row.bias_std_dph = r->bias_std_dph;
+    s.row.bias_std_ma_dph = r->bias_std_ma_dph;
+    s.row.bias_mean_earth_removed_dph = r->bias_mean_earth_removed_dph;
+    soaks.push_back(s);
+  }
+  return soaks;
+}
+
+bool has_repetitions(const std::vector<analysis::Table1SetpointRow>& groups) {
+  return std::any_of(groups.begin(), groups.end(),
+                     [](const analysis::Table1SetpointRow& g) { return g.repetitions > 1; });
+}
+
+std::string spread_cells(const analysis::MeanSpread& m, int decimals) {
+  return num_cell(m.n == 0 ? std::nan("") : m.mean, decimals) + num_cell(m.std, decimals);
+}
+
+std::string table1_groups_html(const std::vector<analysis::Table1SetpointRow>& groups) {
+  std::string h =
+      "<table class=\"numbers\" id=\"table1-by-setpoint\">\n<thead><tr><th rowspan=\"2\">set "
+      "point (°C)</th><th rowspan=\"2\">soaks</th><th colspan=\"2\">mean shell temperature "
+      "(°C)</th><th colspan=\"2\">mean zero bias (°/h)</th><th colspan=\"2\">std (°/h)</th>"
+      "<th colspan=\"2\">std after the moving average (°/h)</th><th colspan=\"2\">mean, Earth "
+      "rate removed (°/h)</th></tr>\n<tr>";
+  for (int i = 0; i < 5; ++i) h += "<th>mean</th><th>spread</th>";
+  h += "</tr></thead>\n<tbody>\n";
+  for (const auto& g : groups) {
+    h += g.bias_std_ma_dph.n == g.repetitions ? "<tr>" : "<tr class=\"warn\">";
+    h += num_cell(g.setpoint_c, 1) + fmt::format("<td class=\"num\">{}</td>", g.repetitions) +
+         spread_cells(g.temp_mean_c, 3) + spread_cells(g.bias_mean_dph, 4) +
+         spread_cells(g.bias_std_dph, 4) + spread_cells(g.bias_std_ma_dph, 4) +
+         spread_cells(g.bias_mean_earth_removed_dph, 4) + "</tr>\n";
+  }
+  h += "</tbody></table>\n<p class=\"note\">The paper's form of Table I: the soaks are grouped "
+       "by their schedule set point (set points within 0.001 °C are one), not by the measured "
+       "temperature; each column is the mean over the soaks of a set point and its spread, the "
+       "sample standard deviation (ddof = 1; — for a single soak). A soak too short for the "
+       "moving average is left out of that column (row marked).</p>\n";
+  return h;
+}
+
+std::string table1_groups_csv(const std::vector<analysis::Table1SetpointRow>& groups) {
+  std::string out = "setpoint_c,soaks";
+  for (const char* c : {"temp_mean_c", "bias_mean_dph", "bias_std_dph", "bias_std_ma_dph",
+                        "bias_mean_earth_removed_dph"}) {
+    out += fmt::format(",{0}_mean,{0}_std,{0}_n", c);
+  }
+  out += "\n";
+  for (const auto& g : groups) {
+    out += fmt::format("{},{}", exact(g.setpoint_c), g.repetitions);
+    for (const auto* m : {&g.temp_mean_c, &g.bias_mean_dph, &g.bias_std_dph, &g.bias_std_ma_dph,
+                          &g.bias_mean_earth_removed_dph}) {
+      out += fmt::format(",{},{},{}", exact(m->mean), exact(m->std), m->n);
+    }
+    out += "\n";
+  }
+  return out;
+}
+
 std::string fit_html(const ReportFit& rf, const std::string& file_stem) {
   const auto& f = rf.fit;
   std::string h = fmt::format(
@@ -385,8 +458,9 @@ std::string figures_html(const std::vector<Plot>& plots, bool campaign) {
   if (const auto* p = find_plot(plots, "chart-output-t")) {
     h += "<h3>Output compensated with temperature terms (Fig. 4)</h3>\n" +
          chart(*p,
-               "Raw output and the output compensated by the order-2 and order-4 polynomials in "
-               "T, with the mean shell temperature (right axis).");
+               "The output and the output compensated by the order-2 and order-4 polynomials in "
+               "T, each as its moving average (the window of Table I's last column), over the raw "
+               "1 s output (dots), with the mean shell temperature (right axis).");
   }
   if (const auto* p = find_plot(plots, "chart-bias-gradient")) {
     h += "<h3>Bias vs temperature gradient (Fig. 5)</h3>\n" +
@@ -396,7 +470,10 @@ std::string figures_html(const std::vector<Plot>& plots, bool campaign) {
   }
   if (const auto* p = find_plot(plots, "chart-output-tgr")) {
     h += "<h3>Output compensated with temperature, gradient and rate terms (Fig. 6)</h3>\n" +
-         chart(*p, "Raw output and the output compensated by T² and T⁴ models with dT and dT/dt.");
+         chart(*p,
+               "The output and the output compensated by T² and T⁴ models with dT and dT/dt, each "
+               "as its moving average (the window of Table I's last column), over the raw 1 s "
+               "output (dots).");
   }
   return h;
 }
@@ -567,6 +644,18 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
   add_section(page, "table1", "Table I — zero bias at each set point", table1_html(rows, false));
   files.push_back({dir + "table1.csv", table1_csv(r.table1)});
   listed.emplace_back("table1.csv", "Table I rows");
+  // A schedule that repeats set points: the paper's grouped form too.
+  if (auto groups = analysis::table1_by_setpoint(table1_soaks(rows))) {
+    if (has_repetitions(*groups)) {
+      add_section(page, "table1-by-setpoint", "Table I — by set point",
+                  table1_groups_html(*groups));
+      files.push_back({dir + "table1-by-setpoint.csv", table1_groups_csv(*groups)});
+      listed.emplace_back("table1-by-setpoint.csv", "Table I by set point");
+    }
+  } else {
+    add_section(page, "table1-by-setpoint", "Table I — by set point",
+                fmt::format("<p class=\"problem\">{}</p>\n", escape(groups.error().message)));
+  }
 
   std::string fits;
   for (const auto& rf : r.fits) {
@@ -574,7 +663,11 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
     fits += fit_html(rf, stem);
     const auto info = export_info(r.station_name, rf, when);
     files.push_back({dir + stem + ".json", analysis::drift_fit_json(rf.fit, info)});
-    files.push_back({dir + stem + ".h", analysis::drift_fit_c_header(rf.fit, info)});
+    // Names (and guard) per form: the gyro's build can include both headers.
+    files.push_back(
+        {dir + stem + ".h",
+         analysis::drift_fit_c_header(
+             rf.fit, info, fmt::format("gyrotherm_drift_{}", analysis::to_string(rf.fit.form)))});
     listed.emplace_back(stem + ".json", "coefficients (JSON)");
     listed.emplace_back(stem + ".h", "coefficients (C99 header)");
   }
@@ -668,6 +761,17 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
   add_section(page, "table1", "Table I — every run", table1_html(rows, true));
   files.push_back({"table1.csv", table1_csv(all_rows)});
   listed.emplace_back("table1.csv", "Table I rows of every run");
+  if (!rows.empty()) {
+    auto groups = analysis::table1_by_setpoint(table1_soaks(rows));
+    add_section(page, "table1-by-setpoint", "Table I — by set point, all runs",
+                groups
+                    ? table1_groups_html(*groups)
+                    : fmt::format("<p class=\"problem\">{}</p>\n", escape(groups.error().message)));
+    if (groups) {
+      files.push_back({"table1-by-setpoint.csv", table1_groups_csv(*groups)});
+      listed.emplace_back("table1-by-setpoint.csv", "Table I by set point, all runs");
+    }
+  }
 
   if (c.comparison) {
     add_section(page, "comparison", "Tables II–IV — all runs", comparison_html(*c.comparison));

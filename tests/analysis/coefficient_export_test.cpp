@@ -256,7 +256,7 @@ TEST(CoefficientExport, CHeadersCompileAndAgreeWithTheLibrary) {
 TEST(CoefficientExport, HeaderNamesAreCIdentifiers) {
   const DriftFit fit = pooled_fit(DriftModelForm::kPaper);
   const std::string h = drift_fit_c_header(fit, kInfo, "3-axis fog");
-  EXPECT_NE(h.find("#ifndef _3_AXIS_FOG_H_"), std::string::npos) << h;
+  EXPECT_NE(h.find("#ifndef _3_AXIS_FOG_DRIFT_FIT_PAPER_H_"), std::string::npos) << h;
   EXPECT_NE(h.find("static const double _3_axis_fog_T4 = "), std::string::npos) << h;
   EXPECT_NE(h.find("static inline double _3_axis_fog_terms("), std::string::npos) << h;
   EXPECT_NE(h.find("FOG-0042"), std::string::npos);

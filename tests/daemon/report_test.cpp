@@ -2,11 +2,20 @@
 // export and compensation, the CSV of Table I rows, the plots' JSON.
 #include "gyrotherm/daemon/report.h"
 
+#include <fmt/format.h>
 #include <gtest/gtest.h>
+#include <stdlib.h>
+#include <unistd.h>
 
 #include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
 #include <nlohmann/json.hpp>
 #include <random>
+#include <regex>
+#include <set>
+#include <span>
 #include <sstream>
 
 namespace gyrotherm::daemon {
@@ -128,6 +137,294 @@ TEST(Report, PlotsJsonKeepsGapsAndCannotCloseTheScriptElement) {
   EXPECT_NEAR(j["charts"][0]["series"][0]["y"][2].get<double>(), 1.2345678912345, 1e-6);
   EXPECT_EQ(j["charts"][0]["title"], p.title);
   EXPECT_EQ(text.find("</"), std::string::npos) << text;
+}
+
+ReportOptions fixed_time() {
+  ReportOptions o;
+  o.generated_utc = "2026-11-24T00:00:00Z";
+  return o;
+}
+
+// A soak's Table I row as stored.
+storage::SegmentStatsRecord soak_row(int64_t run_id, int segment, double setpoint_c,
+                                     double bias_dph) {
+  storage::SegmentStatsRecord r;
+  r.run_id = run_id;
+  r.segment_index = segment;
+  r.setpoint_c = setpoint_c;
+  r.n = 3600;
+  r.duration_s = 3600;
+  r.temp_mean_c = setpoint_c + 0.25;
+  r.bias_mean_dph = bias_dph;
+  r.bias_std_dph = 0.05;
+  r.bias_std_ma_dph = 0.007;
+  r.bias_mean_earth_removed_dph = bias_dph - 7.95;
+  r.bin_s = 1;
+  r.ma_window = 101;
+  r.earth_rate_dph = 7.95;
+  return r;
+}
+
+const ReportFile* find_file(const std::vector<ReportFile>& files, const std::string& path) {
+  for (const auto& f : files) {
+    if (f.path == path) return &f;
+  }
+  return nullptr;
+}
+
+// The CSV's rows as field lists (no quoted fields in these files).
+std::vector<std::vector<std::string>> csv_rows(const std::string& text) {
+  std::vector<std::vector<std::string>> rows;
+  std::istringstream in(text);
+  for (std::string line; std::getline(in, line);) {
+    std::vector<std::string> f;
+    std::stringstream ls(line);
+    for (std::string x; std::getline(ls, x, ',');) f.push_back(x);
+    if (!line.empty() && line.back() == ',') f.push_back("");
+    rows.push_back(f);
+  }
+  return rows;
+}
+
+TEST(Report, RepeatedSetpointsGetThePapersTableIGroupedBySetpoint) {
+  // One run that visits 20 °C three times and 40 °C once.
+  RunReport r;
+  r.run.id = 5;
+  r.table1 = {soak_row(5, 0, 20, 7.0), soak_row(5, 2, 40, 8.0), soak_row(5, 4, 20, 7.2),
+              soak_row(5, 6, 20, 7.4)};
+  const auto files = render_run_files(r, fixed_time());
+  const ReportFile* csv = find_file(files, "run-0005/table1-by-setpoint.csv");
+  ASSERT_NE(csv, nullptr) << "no run-0005/table1-by-setpoint.csv";
+  const auto rows = csv_rows(csv->content);
+  ASSERT_EQ(rows.size(), 3u) << csv->content;
+  ASSERT_EQ(rows[0][0], "setpoint_c");
+  ASSERT_EQ(rows[0].size(), 17u);
+  ASSERT_EQ(rows[1].size(), 17u);
+  // 20 °C: biases 7.0, 7.2, 7.4: mean 7.2, sample std 0.2 (by hand).
+  EXPECT_EQ(rows[1][0], "20");
+  EXPECT_EQ(rows[1][1], "3");
+  EXPECT_NEAR(std::stod(rows[1][2]), 20.25, 1e-12);  // temperature mean
+  EXPECT_NEAR(std::stod(rows[1][3]), 0.0, 1e-12);    // temperature spread
+  EXPECT_NEAR(std::stod(rows[1][5]), 7.2, 1e-12);
+  EXPECT_NEAR(std::stod(rows[1][6]), 0.2, 1e-12);
+  EXPECT_EQ(rows[1][7], "3");
+  // 40 °C: one soak, no spread.
+  EXPECT_EQ(rows[2][0], "40");
+  EXPECT_EQ(rows[2][1], "1");
+  EXPECT_EQ(std::stod(rows[2][5]), 8.0);
+  EXPECT_EQ(rows[2][6], "");
+  const ReportFile* html = find_file(files, "run-0005/report.html");
+  ASSERT_NE(html, nullptr);
+  EXPECT_NE(html->content.find("id=\"table1-by-setpoint\""), std::string::npos);
+
+  // Without a repeated set point a run's page keeps its one table.
+  RunReport single;
+  single.run.id = 6;
+  single.table1 = {soak_row(6, 0, 20, 7.0), soak_row(6, 2, 40, 8.0)};
+  const auto single_files = render_run_files(single, ReportOptions{});
+  EXPECT_EQ(find_file(single_files, "run-0006/table1-by-setpoint.csv"), nullptr);
+
+  // The campaign summary groups the soaks of every run: 20 °C from both runs.
+  CampaignReport c;
+  c.runs = {r, single};
+  const auto campaign = render_campaign_files(c, ReportOptions{});
+  const ReportFile* all = find_file(campaign, "table1-by-setpoint.csv");
+  ASSERT_NE(all, nullptr) << "no table1-by-setpoint.csv in the campaign";
+  const auto all_rows = csv_rows(all->content);
+  ASSERT_EQ(all_rows.size(), 3u) << all->content;
+  EXPECT_EQ(all_rows[1][1], "4");
+  EXPECT_NEAR(std::stod(all_rows[1][5]), 7.15, 1e-12);  // 7.0, 7.2, 7.4, 7.0
+  EXPECT_NEAR(std::stod(all_rows[1][6]), std::sqrt(0.11 / 3), 1e-12);
+  EXPECT_EQ(all_rows[2][1], "2");
+  const ReportFile* index = find_file(campaign, "index.html");
+  ASSERT_NE(index, nullptr);
+  EXPECT_NE(index->content.find("Table I — by set point"), std::string::npos);
+}
+
+// Runs `cmd` through the shell; its exit status, and stderr in `log`.
+int run_logged(const std::string& cmd, const std::filesystem::path& log, std::string* text) {
+  const int st = std::system((cmd + " 2>'" + log.string() + "'").c_str());
+  std::ifstream in(log);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  *text = ss.str();
+  return st;
+}
+
+TEST(Report, CHeadersWithAHostileStationNameCompileInOneTranslationUnit) {
+  // A station name and a gyro serial that try to close the comment, open a
+  // nested one, and start lines of their own.
+  const std::string hostile = "Lab */ #error closed /* nested\n#error injected\r\n */";
+  const auto series = drifting_series();
+  const analysis::DriftModelSpec spec{.t_order = 2, .r_order = 1, .g_order = 1};
+  RunReport r;
+  r.run.id = 7;
+  r.station_name = hostile;
+  for (auto form : {analysis::DriftModelForm::kPaper, analysis::DriftModelForm::kCentered}) {
+    auto fit = analysis::fit_drift_model(series, spec, form);
+    ASSERT_TRUE(fit) << fit.error().message;
+    r.fits.push_back(ReportFit{.fit = *fit, .stored_id = 0, .run_ids = {7}});
+  }
+  const auto run_files = render_run_files(r, fixed_time());
+  CampaignReport c;
+  c.station_name = hostile;
+  c.joint_fit = r.fits.front();
+  const auto campaign_files = render_campaign_files(c, ReportOptions{});
+  analysis::ExportInfo info;
+  info.station = hostile;
+  info.gyro_serial = "SN*/1\n#error serial";
+  info.computed_utc = "2026-11-24T00:00:00Z ?\?/";  // a trigraph at the end of its line
+
+  std::string tmpl = (std::filesystem::temp_directory_path() / "gyrotherm-hdr-XXXXXX").string();
+  ASSERT_NE(mkdtemp(tmpl.data()), nullptr);
+  const std::filesystem::path dir = tmpl;
+  std::vector<std::pair<std::string, std::string>> headers;  // file name, text
+  for (const char* path : {"run-0007/drift-fit-paper.h", "run-0007/drift-fit-centered.h"}) {
+    const ReportFile* f = find_file(run_files, path);
+    ASSERT_NE(f, nullptr) << path;
+    headers.emplace_back(std::filesystem::path(path).filename().string(), f->content);
+  }
+  const ReportFile* joint = find_file(campaign_files, "drift-fit.h");
+  ASSERT_NE(joint, nullptr);
+  headers.emplace_back("drift-fit.h", joint->content);
+  headers.emplace_back("serial.h", analysis::drift_fit_c_header(r.fits.back().fit, info, "serial"));
+
+  std::string main_c;
+  std::set<std::string> guards;
+  for (const auto& [name, text] : headers) {
+    SCOPED_TRACE(name);
+    // The leading comment: every line opens it or continues it with " *";
+    // the text of the station cannot end it early.
+    std::istringstream lines(text);
+    std::string line;
+    std::getline(lines, line);
+    EXPECT_EQ(line.rfind("/* ", 0), 0u) << line;
+    while (std::getline(lines, line) && line != " */") {
+      EXPECT_EQ(line.rfind(" *", 0), 0u)
+          << "a comment line that does not continue the comment: " << line;
+      EXPECT_EQ(line.find("*/"), std::string::npos) << line;
+    }
+    std::smatch m;
+    ASSERT_TRUE(std::regex_search(text, m, std::regex(R"(#ifndef (\w+)\n#define (\w+)\n)")))
+        << text;
+    EXPECT_EQ(m[1].str(), m[2].str());
+    EXPECT_TRUE(guards.insert(m[1].str()).second) << "include guard " << m[1] << " used twice";
+    ASSERT_TRUE(std::regex_search(text, m, std::regex(R"(static inline double (\w+)_terms\()")))
+        << text;
+    std::ofstream(dir / name) << text;
+    main_c += fmt::format("#include \"{}\"\n", name);
+    main_c += fmt::format(
+        "double call_{0}(void);\ndouble call_{0}(void) {{ return {0}_terms(20.0, "
+        "0.001, 0.5); }}\n",
+        m[1].str());
+  }
+  std::ofstream(dir / "main.c") << main_c;
+  std::string log;
+  const std::string c99 = fmt::format(
+      "cc -std=c99 -Wall -Wextra -pedantic -Werror -c '{0}/main.c' -o '{0}/main.o'", dir.string());
+  EXPECT_EQ(run_logged(c99, dir / "cc.log", &log), 0) << c99 << "\n" << log << "\n" << main_c;
+  const std::string cxx = fmt::format(
+      "g++ -x c++ -std=c++17 -Wall -Wextra -pedantic -Werror -c '{0}/main.c' -o '{0}/main_cxx.o'",
+      dir.string());
+  EXPECT_EQ(run_logged(cxx, dir / "cxx.log", &log), 0) << cxx << "\n" << log;
+  if (!::testing::Test::HasFailure()) std::filesystem::remove_all(dir);
+}
+
+// report.js's tick labels: node's test runner on tests/browser/report_format.test.mjs.
+TEST(Report, ScriptTickLabelsKeepTheDigitsOfTheirStep) {
+  const std::filesystem::path dir =
+      std::filesystem::temp_directory_path() / fmt::format("gyrotherm-node-{}", ::getpid());
+  std::filesystem::create_directories(dir);
+  ASSERT_EQ(std::system("command -v node >/dev/null 2>&1"), 0)
+      << "node is not on PATH; run scripts/install-deps";
+  std::string log;
+  const std::string cmd = fmt::format("node --test '{}/tests/browser/report_format.test.mjs' >'{}'",
+                                      GYROTHERM_SOURCE_DIR, (dir / "out.log").string());
+  const int st = run_logged(cmd, dir / "err.log", &log);
+  std::ifstream out(dir / "out.log");
+  std::stringstream ss;
+  ss << out.rdbuf();
+  EXPECT_EQ(st, 0) << cmd << "\n" << ss.str() << log;
+  std::filesystem::remove_all(dir);
+}
+
+// The mean of the `window` points centred on each point (NaN where the window
+// does not fit), summed directly: the reference for the smoothed figures.
+std::vector<double> centred_average(const std::vector<double>& y, std::size_t window) {
+  const std::size_t half = window / 2;
+  std::vector<double> out(y.size(), std::nan(""));
+  for (std::size_t i = half; i + half < y.size(); ++i) {
+    double sum = 0;
+    for (std::size_t j = i - half; j <= i + half; ++j) sum += y[j];
+    out[i] = sum / static_cast<double>(window);
+  }
+  return out;
+}
+
+const PlotSeries* find_series(const Plot& p, const std::string& label) {
+  for (const auto& s : p.series) {
+    if (s.label == label) return &s;
+  }
+  return nullptr;
+}
+
+void expect_same_curve(const std::vector<double>& got, const std::vector<double>& want,
+                       const std::string& what) {
+  ASSERT_EQ(got.size(), want.size()) << what;
+  std::size_t checked = 0;
+  for (std::size_t i = 0; i < want.size(); ++i) {
+    if (std::isnan(want[i])) {
+      EXPECT_TRUE(std::isnan(got[i])) << what << " point " << i << ": " << got[i];
+      continue;
+    }
+    ASSERT_NEAR(got[i], want[i], 1e-9) << what << " point " << i;
+    ++checked;
+  }
+  EXPECT_GT(checked, want.size() / 2) << what;
+}
+
+TEST(Report, Figures4And6DrawTheMovingAverageOverAFaintRawOutput) {
+  const auto series = drifting_series();
+  auto cmp = analysis::compare_models(std::span(&series, 1));
+  ASSERT_TRUE(cmp) << cmp.error().message;
+  for (auto terms : {analysis::TermSet::kT, analysis::TermSet::kTGR}) {
+    SCOPED_TRACE(std::string(analysis::to_string(terms)));
+    std::vector<std::string> problems;
+    const Plot p = output_plot(series, *cmp, terms, "chart-output", "Fig.", 10000, 101, problems);
+    EXPECT_TRUE(problems.empty()) << problems.front();
+    // The raw 1 s output stays, as faint dots under the lines.
+    const PlotSeries* raw = find_series(p, "raw (1 s bins)");
+    ASSERT_NE(raw, nullptr) << "no faint raw series";
+    EXPECT_EQ(raw->style, "points");
+    EXPECT_EQ(raw->y, series.rate_dph);
+    // The lines are the 101-point moving averages (Table I's last column).
+    const PlotSeries* smooth = find_series(p, "raw, 101-point moving average");
+    ASSERT_NE(smooth, nullptr) << "no smoothed raw output";
+    EXPECT_EQ(smooth->style, "line");
+    expect_same_curve(smooth->y, centred_average(series.rate_dph, 101), "raw average");
+    int compensated = 0;
+    for (const auto& cell : cmp->cells) {
+      if (cell.terms != terms || (cell.order != 2 && cell.order != 4) || !cell.fit) continue;
+      const std::string label =
+          fmt::format("compensated, {}, 101-point moving average", analysis::to_string(cell.spec));
+      const PlotSeries* c = find_series(p, label);
+      ASSERT_NE(c, nullptr) << "no series " << label;
+      EXPECT_EQ(c->style, "line");
+      auto drift = analysis::drift_terms(*cell.fit, series);
+      ASSERT_TRUE(drift);
+      std::vector<double> out(series.rate_dph.size());
+      for (std::size_t i = 0; i < out.size(); ++i) out[i] = series.rate_dph[i] - (*drift)[i];
+      expect_same_curve(c->y, centred_average(out, 101), label);
+      ++compensated;
+    }
+    EXPECT_EQ(compensated, 2);
+    // Every line is drawn over the dots: nothing but the raw output is a raw series.
+    for (const auto& s : p.series) {
+      if (s.axis == "y" && &s != raw) {
+        EXPECT_NE(s.style, "points") << s.label;
+      }
+    }
+  }
 }
 
 }  // namespace

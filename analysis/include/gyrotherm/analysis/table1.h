@@ -131,4 +131,46 @@ struct Table1Row {
 // of different lengths; a non-finite value in the series.
 Result<Table1Row> table1_row(const AnalysisSeries& series, const Table1Options& options);
 
+// ---- Table I as the paper prints it: one row per set point ----------------
+//
+// The paper's campaign repeats each of its set points four times and prints,
+// per set point, the mean of each column over the repetitions. Soaks are
+// grouped by their schedule set point (the temperature the chamber was asked
+// to hold), not by the measured shell temperature: the measured means of two
+// repetitions differ by the chamber's tolerance and the gyro's self-heating,
+// and would split or merge groups at random. Set points within
+// kSetpointGroupTolC of the lowest set point of a group join it; groups come
+// in increasing set point order.
+
+constexpr double kSetpointGroupTolC = 1e-3;
+
+// Mean and sample standard deviation (ddof = 1) of one column over the
+// repetitions of a set point. Values that are NaN (e.g. a soak too short for
+// the moving average) are left out; n counts the values used. mean is NaN
+// when n = 0, std when n < 2.
+struct MeanSpread {
+  double mean = 0;
+  double std = 0;
+  std::size_t n = 0;
+};
+
+struct Table1Soak {
+  double setpoint_c = 0;  // the schedule's set point of the soak
+  Table1Row row;
+};
+
+struct Table1SetpointRow {
+  double setpoint_c = 0;  // the group's lowest set point
+  std::size_t repetitions = 0;
+  std::vector<std::size_t> soaks;  // indices into the input, in input order
+  MeanSpread temp_mean_c;
+  MeanSpread bias_mean_dph;
+  MeanSpread bias_std_dph;
+  MeanSpread bias_std_ma_dph;
+  MeanSpread bias_mean_earth_removed_dph;
+};
+
+// Errors: a set point that is not finite (the message names the soak's index).
+Result<std::vector<Table1SetpointRow>> table1_by_setpoint(std::span<const Table1Soak> soaks);
+
 }  // namespace gyrotherm::analysis

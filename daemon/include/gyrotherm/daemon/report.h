@@ -123,6 +123,14 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& report,
                                               const ReportOptions& options);
 
 // Pieces, exposed for tests.
+// Fig. 4 (terms kT) / Fig. 6 (kTGR): the output over the run and the output
+// compensated by the order-2 and order-4 fits of `terms`, each as its
+// ma_window-point centred moving average (Table I's last column; NaN where
+// the window does not fit), over the raw 1 s output as faint dots; the mean
+// shell temperature on y2. A compensation that fails is listed in `problems`.
+Plot output_plot(const analysis::AnalysisSeries& s, const analysis::Comparison& comparison,
+                 analysis::TermSet terms, std::string id, std::string title, std::size_t max_points,
+                 std::size_t ma_window, std::vector<std::string>& problems);
 std::string table1_csv(const std::vector<storage::SegmentStatsRecord>& rows);
 std::string allan_csv(const std::vector<storage::AllanRecord>& records);
 std::string comparison_csv(const analysis::Comparison& comparison);
