@@ -352,8 +352,7 @@ Result<analysis::Table1Options> table1_options(const Parsed& p, const RunConfig&
 
 // The first run's stored config for multi-run commands ({} for CSV).
 RunConfig first_run_config(const Input& in) {
-  return in.db && !in.db->runs.empty() ? read_run_config(in.db->runs.front().config_json)
-                                       : RunConfig{};
+  return in.db && !in.db->runs.empty() ? read_run_config(in.db->runs.front()) : RunConfig{};
 }
 
 Result<analysis::DriftFitOptions> fit_options(const Parsed& p, const RunConfig& cfg) {
@@ -582,7 +581,7 @@ int cmd_stats(const Parsed& p) {
   } else if (in->db) {
     auto& db = in->db->db;
     for (const auto& run : in->db->runs) {
-      const RunConfig cfg = read_run_config(run.config_json);
+      const RunConfig cfg = read_run_config(run);
       auto opts = table1_options(p, cfg, &run);
       if (!opts) return fail(opts.error().message, kExitInput);
       auto soaks = daemon::soak_windows(db, run.id);
@@ -837,7 +836,7 @@ int cmd_allan(const Parsed& p) {
   if (in->db) {
     auto& db = in->db->db;
     for (const auto& run : in->db->runs) {
-      auto taus = tau_set(read_run_config(run.config_json));
+      auto taus = tau_set(read_run_config(run));
       if (!taus) return fail(taus.error().message, kExitInput);
       const std::string taus_name(analysis::to_string(*taus));
       auto soaks = daemon::soak_windows(db, run.id);

@@ -387,8 +387,8 @@ Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
   } else {
     r.problems.push_back(settings.error().message + " (the defaults are used)");
   }
-  r.station_name = options.station_name.empty() ? read_run_config(r.run.config_json).station_name
-                                                : options.station_name;
+  r.station_name =
+      options.station_name.empty() ? read_run_config(r.run).station_name : options.station_name;
   const std::size_t max_points = static_cast<std::size_t>(std::max(100, options.max_plot_points));
 
   auto soaks = soak_windows(db, run_id);

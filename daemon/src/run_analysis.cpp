@@ -126,8 +126,166 @@ RunConfig read_run_config(const std::string& text) {
   return c;
 }
 
+RunConfig read_run_config(const storage::RunRecord& run) {
+  return read_run_config(run.config_json.empty() ? run.config_toml : run.config_json);
+}
+
+namespace {
+
+std::string_view name_of(drivers::RegisterFunction f) {
+  return f == drivers::RegisterFunction::kInput ? "input" : "holding";
+}
+std::string_view name_of(drivers::RegisterType t) {
+  switch (t) {
+    case drivers::RegisterType::kInt16:
+      return "int16";
+    case drivers::RegisterType::kUint16:
+      return "uint16";
+    case drivers::RegisterType::kFloat32:
+      break;
+  }
+  return "float32";
+}
+std::string_view name_of(drivers::WordOrder w) {
+  return w == drivers::WordOrder::kHighFirst ? "high-first" : "low-first";
+}
+std::string_view name_of(drivers::Parity p) {
+  switch (p) {
+    case drivers::Parity::kEven:
+      return "even";
+    case drivers::Parity::kOdd:
+      return "odd";
+    case drivers::Parity::kNone:
+      break;
+  }
+  return "none";
+}
+
+nlohmann::json register_json(const drivers::RegisterSpec& r) {
+  return {{"address", r.address},
+          {"function", name_of(r.function)},
+          {"type", name_of(r.type)},
+          {"word_order", name_of(r.word_order)},
+          {"scale", r.scale}};
+}
+
+nlohmann::json endpoint_json(const drivers::ModbusEndpoint& e) {
+  nlohmann::json j = {{"transport", e.transport},
+                      {"unit_id", e.unit_id},
+                      {"response_timeout_s", e.response_timeout_s}};
+  if (e.transport == "rtu") {
+    j["device"] = e.device;
+    j["baud"] = e.baud;
+    j["parity"] = std::string(1, e.parity);
+    j["data_bits"] = e.data_bits;
+    j["stop_bits"] = e.stop_bits;
+  } else {
+    j["host"] = e.host;
+    j["port"] = e.port;
+  }
+  return j;
+}
+
+nlohmann::json redacted(const std::vector<std::string>& tokens) {
+  return nlohmann::json(std::vector<std::string>(tokens.size(), "<redacted>"));
+}
+
+}  // namespace
+
+nlohmann::json run_config_json(const StationConfig& config) {
+  using json = nlohmann::json;
+  const StationSection& st = config.station;
+  json chamber = endpoint_json(config.chamber.endpoint);
+  chamber["profile"] = config.chamber.profile;
+  chamber["silent_timeout_s"] = config.chamber.silent_timeout_s;
+  const drivers::ChamberMap& map = config.chamber.map;
+  json registers = {{"setpoint", register_json(map.setpoint)},
+                    {"process_value", register_json(map.process_value)}};
+  for (const auto& [key, reg] :
+       {std::pair{"ramp_rate", &map.ramp_rate}, std::pair{"ramp_action", &map.ramp_action},
+        std::pair{"ramp_scale", &map.ramp_scale}}) {
+    if (*reg) registers[key] = register_json(**reg);
+  }
+  chamber["registers"] = std::move(registers);
+  if (map.alarm) chamber["alarm"] = register_json(*map.alarm);
+  json probes = endpoint_json(config.probes.endpoint);
+  probes["profile"] = config.probes.profile;
+  probes["channels"] = {{"top", config.probes.top_channel}, {"side", config.probes.side_channel}};
+  probes["registers"] = {{"top", register_json(config.probes.top)},
+                         {"side", register_json(config.probes.side)}};
+  probes["silent_timeout_s"] = config.probes.silent_timeout_s;
+  const GyroSection& g = config.gyro;
+  static constexpr const char* kAxes[] = {"x", "y", "z"};
+  json interlocks = {{"limit_margin_c", config.interlocks.limit_margin_c},
+                     {"probe_disagreement_c", config.interlocks.probe_disagreement_c},
+                     {"hysteresis_c", config.interlocks.hysteresis_c}};
+  for (int k = 0; k < schedules::kInterlockKindCount; ++k) {
+    const auto kind = static_cast<schedules::InterlockKind>(k);
+    interlocks[fmt::format("{}_grace_min", schedules::to_string(kind))] =
+        config.interlocks.grace_for(kind) / 60.0;
+  }
+  const ApiSection& api = config.api;
+  return json{
+      {"source_path", config.source_path},
+      {"station",
+       {{"name", st.name},
+        {"latitude_deg", st.latitude_deg},
+        {"orientation", analysis::to_string(st.orientation)},
+        {"min_temp_c", st.min_temp_c},
+        {"max_temp_c", st.max_temp_c},
+        {"max_ramp_c_per_min", st.max_ramp_c_per_min},
+        {"safe_setpoint_c", st.safe_setpoint_c}}},
+      {"chamber", std::move(chamber)},
+      {"probes", std::move(probes)},
+      {"gyro",
+       {{"device", g.serial.device},
+        {"baud", g.serial.baud},
+        {"parity", name_of(g.serial.parity)},
+        {"protocol", g.protocol},
+        {"unit", g.format.unit == drivers::AngleUnit::kDeg ? "deg" : "rad"},
+        {"output", g.format.kind == drivers::OutputKind::kDeltaAngle ? "delta" : "rate"},
+        {"axis", g.format.axis >= 0 && g.format.axis < 3 ? kAxes[g.format.axis] : "?"},
+        {"rate_hz", g.format.rate_hz},
+        {"silent_timeout_s", g.silent_timeout_s}}},
+      {"storage",
+       {{"db", config.storage.db_path}, {"commit_interval_s", config.storage.commit_interval_s}}},
+      {"api",
+       {{"bind", api.bind},
+        {"port", api.port},
+        {"tokens", redacted(api.tokens)},
+        {"read_tokens", redacted(api.read_tokens)},
+        {"read_access", api.read_access},
+        {"max_auth_failures", api.max_auth_failures},
+        {"read_timeout_s", api.read_timeout_s},
+        {"max_connections", api.max_connections},
+        {"max_header_bytes", api.max_header_bytes},
+        {"max_body_bytes", api.max_body_bytes},
+        {"max_stream_clients", api.max_stream_clients},
+        {"stream_queue_bytes", api.stream_queue_bytes},
+        {"web_root", api.web_root}}},
+      {"export",
+       {{"nightly", config.export_.nightly},
+        {"directory", config.export_.directory},
+        {"local_time", config.export_.local_time},
+        {"time_zone", config.export_.time_zone}}},
+      {"analysis",
+       {{"bin_s", config.analysis.bin_s},
+        {"ma_window", config.analysis.ma_window},
+        {"l0_window_s", config.analysis.l0_window_s},
+        {"model", config.analysis.model},
+        {"derivative_window_s", config.analysis.derivative_window_s},
+        {"allan_taus", config.analysis.allan_taus}}},
+      {"control",
+       {{"tick_s", config.control.tick_s},
+        {"min_tick_wall_s", config.control.min_tick_wall_s},
+        {"min_silent_wall_s", config.control.min_silent_wall_s}}},
+      {"interlocks", std::move(interlocks)},
+      {"simulator", {{"endpoints_file", config.simulator.endpoints_file}}},
+  };
+}
+
 Result<AnalysisSettings> analysis_settings_of_run(const storage::RunRecord& run) {
-  const RunConfig cfg = read_run_config(run.config_json);
+  const RunConfig cfg = read_run_config(run);
   AnalysisSettings s;
   if (cfg.bin_s) s.table1.bin_s = *cfg.bin_s;
   if (cfg.ma_window) s.table1.ma_window = static_cast<std::size_t>(*cfg.ma_window);

@@ -5,10 +5,11 @@
 
 #include <algorithm>
 #include <cmath>
-#include <fstream>
 #include <limits>
 #include <nlohmann/json.hpp>
 #include <sstream>
+
+#include "gyrotherm/daemon/run_analysis.h"
 
 namespace gyrotherm::daemon {
 namespace {
@@ -23,13 +24,6 @@ double steady_now_s() {
 
 double unix_now_s() {
   return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
-}
-
-std::string read_text(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
 }
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
@@ -179,7 +173,7 @@ void Station::start() {
       queue_held_.store(true);
       spdlog::info("queue held: {}", *hold_reason_);
     }
-    refresh_queue_length();
+    count_queue();
     resume_interrupted_run();
     submit_missing_analyses();
   }
@@ -261,10 +255,10 @@ void Station::stop(const std::string& reason) {
 }
 
 bool Station::idle() const {
-  return !busy_.load() && (queue_length_.load() == 0 || queue_held_.load());
+  return !busy_.load() && (queue_length_.load() <= 0 || queue_held_.load());
 }
 
-double Station::run_time_s() const { return clock_.now_s() - run_t0_s_.load(); }
+double Station::run_time_s() const { return clock_.now_s() - run_clock_.load().t0_s; }
 
 void Station::control_loop() {
   const double tick_s = config_.control.tick_s;
@@ -368,7 +362,7 @@ void Station::tick() {
 
   double t_run_s = 0;
   if (sequencer_) {
-    t_run_s = now_s - run_t0_s_.load();
+    t_run_s = now_s - run_clock_.load().t0_s;
     if (sequencer_->state() == RunState::kAborting) {
       write_setpoint(sequencer_->setpoint_c(), true);
       if (last_written_setpoint_c_) sequencer_->safe_state_reached(t_run_s);
@@ -382,7 +376,7 @@ void Station::tick() {
     ts.chamber_c = r.chamber_c.value_or(kNaN);
     ts.top_c = r.top_c.value_or(kNaN);
     ts.side_c = r.side_c.value_or(kNaN);
-    writer_->push_temperature(run_id_.load(), ts);
+    writer_->push_temperature(current_run_id(), ts);
     checkpoint(false);
   }
 
@@ -398,7 +392,7 @@ void Station::tick() {
         (r.top_c && r.side_c) ? std::optional<double>(*r.top_c - *r.side_c) : std::nullopt;
     const double rate = shell_rate_window_.slope_per_s();
     s.temp_rate_c_per_min = std::isfinite(rate) ? std::optional<double>(rate * 60.0) : std::nullopt;
-    s.queue_length = queue_length_.load();
+    s.queue_length = std::max(0, queue_length_.load());
     s.queue_held = hold_reason_.has_value();
     s.queue_hold_reason = hold_reason_.value_or("");
     s.interlocks.clear();
@@ -482,7 +476,7 @@ void Station::write_setpoint(double setpoint_c, bool force) {
 
 // ---------------------------------------------------------------- queue and runs
 
-void Station::refresh_queue_length() {
+void Station::count_queue() {
   auto entries = db_.queue_entries();
   if (!entries) return;
   queue_length_.store(static_cast<int>(std::count_if(
@@ -505,7 +499,10 @@ void Station::release_queue() {
 }
 
 void Station::start_next_run(double now_s) {
-  if (hold_reason_ || queue_length_.load() == 0) return;
+  // queue_length_ > 0: an entry was added and not yet taken or removed. It
+  // may be a little behind the database (an add counted just after its
+  // commit), never ahead for long: the next tick sees it.
+  if (hold_reason_ || queue_length_.load() <= 0) return;
   auto entries = db_.queue_entries();
   if (!entries) {
     spdlog::error("{}", entries.error().message);
@@ -513,10 +510,7 @@ void Station::start_next_run(double now_s) {
   }
   auto it = std::find_if(entries->begin(), entries->end(),
                          [](const auto& e) { return e.state == "queued"; });
-  if (it == entries->end()) {
-    queue_length_.store(0);
-    return;
-  }
+  if (it == entries->end()) return;
   storage::QueueEntry entry = *it;
   const std::string source = entry.source_path.empty() ? entry.schedule_name : entry.source_path;
 
@@ -527,26 +521,25 @@ void Station::start_next_run(double now_s) {
   rec.time_scale = clock_.time_scale();
   rec.latitude_deg = config_.station.latitude_deg;
   rec.orientation = std::string(analysis::to_string(config_.station.orientation));
-  rec.config_json = redact_config_secrets(read_text(config_.source_path), config_.api);
-  rec.queue_id = entry.id;
-  rec.schedule_id = entry.schedule_id;
-  auto id = db_.create_run(rec);
+  // The configuration in force (loaded at start-up), not the file as it is
+  // on disk now.
+  rec.config_json = run_config_json(config_).dump();
+  // One transaction: an entry removed meanwhile starts no run and leaves no
+  // run row behind.
+  auto id = db_.queue_start_run(entry.id, rec);
   if (!id) {
     spdlog::error("cannot start run of {}: {}", entry.schedule_name, id.error().message);
     return;
   }
-  if (auto claimed = db_.queue_claim(entry.id, *id); !claimed || !*claimed) {
-    (void)db_.set_run_state(*id, "failed", true);
-    return;
-  }
-  refresh_queue_length();
+  if (!*id) return;  // removed (or moved on) since it was read; the next tick looks again
+  const int64_t run_id = **id;
+  queue_length_.fetch_sub(1);
   busy_.store(true);
-  run_id_.store(*id);
-  run_t0_s_.store(now_s);
+  run_clock_.publish(run_id, now_s);
   entry_ = entry;
   {
     std::lock_guard lock(mu_);
-    snapshot_.run_id = *id;
+    snapshot_.run_id = run_id;
     snapshot_.schedule_name = entry.schedule_name;
   }
 
@@ -555,12 +548,12 @@ void Station::start_next_run(double now_s) {
   if (!plan) {
     add_event("error", "queued", "failed",
               "schedule refused at start (station limits changed?):\n" + plan.error().message);
-    (void)db_.set_run_state(*id, "failed", true);
+    (void)db_.set_run_state(run_id, "failed", true);
     last_reason_ = "schedule refused at start";
     end_run();
     return;
   }
-  spdlog::info("run {}: {} ({} steps)", *id, plan->name, plan->steps.size());
+  spdlog::info("run {}: {} ({} steps)", run_id, plan->name, plan->steps.size());
   segment_ids_.assign(plan->steps.size(), 0);
   const double start_sp = last_written_setpoint_c_.value_or(
       snapshot_.chamber_c.value_or(config_.station.safe_setpoint_c));
@@ -606,18 +599,18 @@ void Station::resume_interrupted_run() {
   }
   if (open.empty()) return;
   for (std::size_t i = 0; i + 1 < open.size(); ++i) {
-    run_id_.store(open[i].id);
+    run_clock_.publish(open[i].id, 0.0);
     add_event("state", open[i].state, "interrupted", "closed at start-up: a newer run exists");
     (void)db_.set_run_state(open[i].id, "interrupted", true);
   }
   const storage::RunRecord& run = open.back();
-  run_id_.store(run.id);
+  run_clock_.publish(run.id, 0.0);  // for the events below; its start once known
   auto give_up = [&](const std::string& why) {
     add_event("state", run.state, "interrupted", "not resumed: " + why);
     (void)db_.set_run_state(run.id, "interrupted", true);
     if (run.queue_id) (void)db_.queue_finish(*run.queue_id, "interrupted");
     spdlog::warn("run {} not resumed: {}", run.id, why);
-    run_id_.store(0);
+    run_clock_.publish(0, 0.0);
   };
   if (!run.queue_id) return give_up("it did not come from the queue");
   auto entry = db_.queue_entry(*run.queue_id);
@@ -652,7 +645,7 @@ void Station::resume_interrupted_run() {
   }
   entry_ = **entry;
   busy_.store(true);
-  run_t0_s_.store(clock_.now_s() - t_resume_s);
+  run_clock_.publish(run.id, clock_.now_s() - t_resume_s);
   {
     std::lock_guard lock(mu_);
     snapshot_.run_id = run.id;
@@ -683,7 +676,7 @@ void Station::checkpoint(bool force) {
   if (!force && state == checkpoint_state_ && wall_s - last_checkpoint_wall_s_ < 1.0) return;
   const double t_run_s = run_time_s();
   const std::string json = to_json(sequencer_->snapshot(t_run_s)).dump();
-  if (auto st = db_.set_run_checkpoint(run_id_.load(), json, unix_now_s()); !st) {
+  if (auto st = db_.set_run_checkpoint(current_run_id(), json, unix_now_s()); !st) {
     // Tried again next tick; logged once per failing spell.
     if (!checkpoint_failing_) spdlog::error("run checkpoint not written: {}", st.error().message);
     checkpoint_failing_ = true;
@@ -697,18 +690,28 @@ void Station::checkpoint(bool force) {
 
 void Station::end_run() {
   const RunState final_state = sequencer_ ? sequencer_->state() : RunState::kFailed;
-  const int64_t run_id = run_id_.load();
+  const int64_t run_id = current_run_id();
   write_setpoint(config_.station.safe_setpoint_c, true);
   (void)writer_->flush();
   if (entry_ && final_state != RunState::kInterrupted) {
     if (auto st = db_.queue_finish(entry_->id, to_string(final_state)); !st) {
       spdlog::error("{}", st.error().message);
     }
-    if (final_state == RunState::kFailed && !entry_->ignore_failures && !hold_reason_) {
-      hold_queue(
-          fmt::format("run {} failed ({}); resume releases the queue", run_id, last_reason_));
-    } else if (final_state == RunState::kFailed) {
-      add_event("queue", "", "", "run failed; the queue goes on (ignore_failures)");
+    // Say what the queue does now: an abort (or a stop) has already held
+    // it, whatever ignore_failures says.
+    if (final_state == RunState::kFailed) {
+      if (hold_reason_) {
+        add_event("queue", "", "",
+                  fmt::format("run {} failed; the queue stays held ({})", run_id, *hold_reason_));
+      } else if (!entry_->ignore_failures) {
+        hold_queue(
+            fmt::format("run {} failed ({}); resume releases the queue", run_id, last_reason_));
+      } else {
+        add_event("queue", "", "",
+                  fmt::format("run {} failed; the queue goes on with the next entry "
+                              "(ignore_failures)",
+                              run_id));
+      }
     }
   }
   if (final_state == RunState::kCompleted && run_id != 0) analysis_->submit(RunJob{run_id});
@@ -719,7 +722,7 @@ void Station::end_run() {
                              run_id, stop_reason_));
     }
   }
-  run_id_.store(0);
+  run_clock_.publish(0, 0.0);
   sequencer_.reset();
   entry_.reset();
   checkpoint_state_.clear();
@@ -740,11 +743,14 @@ void Station::end_run() {
 void Station::on_gyro_samples(std::span<const GyroSample> samples) {
   gyro_last_s_.store(clock_.now_s());
   gyro_last_wall_s_.store(steady_now_s());
-  const int64_t run_id = run_id_.load();
+  // One read of the pair: the batch is timed from the start of the run it
+  // is stored under.
+  const RunClock::Value run = run_clock_.load();
+  const int64_t run_id = run.run_id;
   if (run_id != 0) {
     thread_local std::vector<GyroSample> rel;
     rel.assign(samples.begin(), samples.end());
-    const double t0 = run_t0_s_.load();
+    const double t0 = run.t0_s;
     for (auto& s : rel) s.t_s -= t0;
     writer_->push_gyro(run_id, rel);
   }
@@ -842,7 +848,7 @@ void Station::record_unrecorded() {
 void Station::add_event(const std::string& kind, const std::string& from, const std::string& to,
                         const std::string& message) {
   storage::EventRecord ev;
-  const int64_t run_id = run_id_.load();
+  const int64_t run_id = current_run_id();
   if (run_id != 0) ev.run_id = run_id;
   ev.t_s = run_id != 0 ? run_time_s() : 0.0;
   ev.wall_utc = wall_time_utc_iso();
@@ -870,11 +876,11 @@ void Station::add_event(const std::string& kind, const std::string& from, const 
 }
 
 void Station::on_state(RunState from, RunState to, double t_s, const std::string& reason) {
-  spdlog::info("run {} t={:.0f} s: {} -> {}: {}", run_id_.load(), t_s, to_string(from),
+  spdlog::info("run {} t={:.0f} s: {} -> {}: {}", current_run_id(), t_s, to_string(from),
                to_string(to), reason);
   last_reason_ = reason;
   if (hooks_.publish) {
-    const int64_t run_id = run_id_.load();
+    const int64_t run_id = current_run_id();
     hooks_.publish("state", {{"run_id", run_id != 0 ? nlohmann::json(run_id) : nlohmann::json()},
                              {"from", to_string(from)},
                              {"to", to_string(to)},
@@ -883,7 +889,7 @@ void Station::on_state(RunState from, RunState to, double t_s, const std::string
   }
   add_event("state", std::string(to_string(from)), std::string(to_string(to)), reason);
   unrecorded_run_state_ =
-      UnrecordedRunState{run_id_.load(), std::string(to_string(to)), schedules::is_terminal(to)};
+      UnrecordedRunState{current_run_id(), std::string(to_string(to)), schedules::is_terminal(to)};
   record_unrecorded();
 }
 
@@ -892,9 +898,9 @@ void Station::on_interlock(schedules::InterlockKind kind, bool tripped, double t
   (void)kind;
   (void)t_s;
   if (tripped) {
-    spdlog::warn("run {}: {}", run_id_.load(), message);
+    spdlog::warn("run {}: {}", current_run_id(), message);
   } else {
-    spdlog::info("run {}: {}", run_id_.load(), message);
+    spdlog::info("run {}: {}", current_run_id(), message);
   }
   add_event("interlock", "", "", message);
 }
@@ -928,7 +934,7 @@ int64_t Station::segment_id(std::size_t index, const schedules::PlanStep& step, 
   if (segment_ids_[index] != 0) return segment_ids_[index];
   schedules::StepTimes times;
   times.start_s = t_s;
-  storage::SegmentRecord seg = segment_record(0, run_id_.load(), index, step, times, "running");
+  storage::SegmentRecord seg = segment_record(0, current_run_id(), index, step, times, "running");
   auto id = db_.create_segment(seg);
   if (!id) {
     spdlog::error("{}", id.error().message);
@@ -947,13 +953,13 @@ void Station::on_step_changed(std::size_t index, const schedules::PlanStep& step
                               const schedules::StepTimes& times) {
   const int64_t id = segment_id(index, step, times.start_s);
   if (id == 0) return;
-  unrecorded_segments_[id] = segment_record(id, run_id_.load(), index, step, times, "running");
+  unrecorded_segments_[id] = segment_record(id, current_run_id(), index, step, times, "running");
   record_unrecorded();
 }
 
 void Station::on_step_finished(std::size_t index, const schedules::PlanStep& step,
                                const schedules::StepTimes& times, bool completed) {
-  const int64_t run_id = run_id_.load();
+  const int64_t run_id = current_run_id();
   const int64_t id = segment_id(index, step, times.start_s);
   if (id == 0) return;
   unrecorded_segments_[id] =
@@ -1079,7 +1085,7 @@ Reply Station::control(std::string_view action, const std::string& reason_in) {
     checkpoint(true);
     return Reply::ok({{"ok", true},
                       {"message", fmt::format("run {} paused; set point held at {:.2f} °C",
-                                              run_id_.load(), sequencer_->setpoint_c())}});
+                                              current_run_id(), sequencer_->setpoint_c())}});
   }
   if (action == "resume") {
     std::vector<std::string> done;
@@ -1088,7 +1094,7 @@ Reply Station::control(std::string_view action, const std::string& reason_in) {
         return Reply::refused(Refusal::Kind::kConflict, st.error().message);
       }
       checkpoint(true);
-      done.push_back(fmt::format("run {} resumed", run_id_.load()));
+      done.push_back(fmt::format("run {} resumed", current_run_id()));
     }
     if (hold_reason_) {
       release_queue();
@@ -1110,19 +1116,19 @@ Reply Station::control(std::string_view action, const std::string& reason_in) {
     }
     sequencer_->abort(run_time_s(), "aborted by the operator (" + reason + ")");
     hold_queue(
-        fmt::format("run {} aborted by the operator; resume releases the queue", run_id_.load()));
+        fmt::format("run {} aborted by the operator; resume releases the queue", current_run_id()));
     checkpoint(true);
     return Reply::ok(
         {{"ok", true},
          {"message", fmt::format("run {} aborting; chamber to the safe set point {:g} °C",
-                                 run_id_.load(), config_.station.safe_setpoint_c)}});
+                                 current_run_id(), config_.station.safe_setpoint_c)}});
   }
   if (action == "stop") {
     if (running) {
       stop_after_current_ = true;
       stop_reason_ = reason;
       const std::string message =
-          fmt::format("the queue holds after run {} completes ({})", run_id_.load(), reason);
+          fmt::format("the queue holds after run {} completes ({})", current_run_id(), reason);
       log_command(message);
       return Reply::ok({{"ok", true}, {"message", message}});
     }

@@ -122,7 +122,7 @@ std::string now_if_empty(const std::string& utc) { return utc.empty() ? wall_tim
 
 constexpr const char* kRunColumns =
     "id, schedule_name, state, started_utc, ended_utc, time_scale, latitude_deg, orientation, "
-    "config_json, queue_id, schedule_id, resume_json, checkpoint_wall_unix_s";
+    "config_json, queue_id, schedule_id, resume_json, checkpoint_wall_unix_s, config_toml";
 
 RunRecord read_run(const Stmt& st) {
   RunRecord r;
@@ -139,6 +139,7 @@ RunRecord read_run(const Stmt& st) {
   r.schedule_id = st.column_optional_int64(10);
   r.resume_json = st.column_text(11);
   r.checkpoint_wall_unix_s = st.column_optional_double(12);
+  r.config_toml = st.column_text(13);
   return r;
 }
 
@@ -277,7 +278,7 @@ Result<int64_t> Database::create_run(const RunRecord& run) {
   auto st = Stmt::prepare(db_, path_,
                           "INSERT INTO runs(schedule_name, state, started_utc, ended_utc, "
                           "time_scale, latitude_deg, orientation, config_json, queue_id, "
-                          "schedule_id) VALUES(?, ?, ?, NULL, ?, ?, ?, ?, ?, ?)");
+                          "schedule_id, config_toml) VALUES(?, ?, ?, NULL, ?, ?, ?, ?, ?, ?, ?)");
   if (!st) return st.error();
   st->bind(1, std::string_view(run.schedule_name));
   st->bind(2, std::string_view(run.state));
@@ -285,9 +286,10 @@ Result<int64_t> Database::create_run(const RunRecord& run) {
   st->bind(4, run.time_scale);
   st->bind(5, run.latitude_deg);
   st->bind(6, std::string_view(run.orientation));
-  st->bind(7, std::string_view(run.config_json));
+  st->bind_text_or_null(7, run.config_json);
   st->bind(8, run.queue_id);
   st->bind(9, run.schedule_id);
+  st->bind_text_or_null(10, run.config_toml);
   if (Status s = expect_done(*st, db_, path_, "creating a run"); !s) return s.error();
   return static_cast<int64_t>(sqlite3_last_insert_rowid(db_));
 }
@@ -785,5 +787,16 @@ Result<std::vector<AllanRecord>> Database::allan(int64_t run_id) {
 }
 
 Status Database::exec(std::string_view sql) { return internal::exec(db_, path_, sql); }
+
+Result<std::vector<std::string>> Database::integrity_check(bool quick) {
+  const char* pragma = quick ? "PRAGMA quick_check" : "PRAGMA integrity_check";
+  auto st = Stmt::prepare(db_, path_, pragma);
+  if (!st) return st.error();
+  std::vector<std::string> rows;
+  int rc;
+  while ((rc = st->step()) == SQLITE_ROW) rows.push_back(st->column_text(0));
+  if (rc != SQLITE_DONE) return sqlite_error(db_, path_, pragma);
+  return rows;
+}
 
 }  // namespace gyrotherm::storage

@@ -237,12 +237,30 @@ CREATE TABLE export_runs(
 CREATE INDEX export_runs_by_run ON export_runs(run_id);
 )sql";
 
+// v6: runs.config_json holds what its name says: the configuration in force
+// when the run started, as JSON. Versions 1-5 stored the config file's TOML
+// text there, re-read from disk at run start; that text moves to its own
+// column, config_toml, and stays readable. The triggers refuse text that is
+// not JSON in config_json from now on.
+constexpr const char* kSchemaV6 = R"sql(
+ALTER TABLE runs ADD COLUMN config_toml TEXT;  -- before v6: the config file's TOML text read at run start (tokens redacted); NULL from v6 on
+UPDATE runs SET config_toml = config_json, config_json = NULL
+  WHERE config_json IS NOT NULL AND NOT json_valid(config_json);
+CREATE TRIGGER runs_config_json_is_json_on_insert BEFORE INSERT ON runs
+  WHEN NEW.config_json IS NOT NULL AND NOT json_valid(NEW.config_json)
+  BEGIN SELECT RAISE(ABORT, 'runs.config_json must be JSON'); END;
+CREATE TRIGGER runs_config_json_is_json_on_update BEFORE UPDATE OF config_json ON runs
+  WHEN NEW.config_json IS NOT NULL AND NOT json_valid(NEW.config_json)
+  BEGIN SELECT RAISE(ABORT, 'runs.config_json must be JSON'); END;
+)sql";
+
 constexpr Migration kMigrations[] = {
     {1, "initial schema", kSchemaV1},
     {2, "queue, crash resume, acquisition windows", kSchemaV2},
     {3, "gyro rate rollups, drift-model fits", kSchemaV3},
     {4, "Allan deviation per soak", kSchemaV4},
     {5, "calibration exports", kSchemaV5},
+    {6, "runs.config_json is JSON, old TOML in runs.config_toml", kSchemaV6},
 };
 
 static_assert(sizeof(kMigrations) / sizeof(kMigrations[0]) == kSchemaVersion,

@@ -203,6 +203,43 @@ Result<bool> Database::queue_claim(int64_t id, int64_t run_id) {
   return true;
 }
 
+Result<std::optional<int64_t>> Database::queue_start_run(int64_t id, const RunRecord& run) {
+  // One IMMEDIATE transaction: the claim and the run row commit together, or
+  // neither does. Another connection's queue_remove either ran before (the
+  // claim finds the entry removed: no run row) or waits for the commit (and
+  // finds the entry running).
+  Transaction tx(db_, path_);
+  if (Status s = tx.begin_immediate(); !s) return s.error();
+  auto claim = Stmt::prepare(db_, path_,
+                             "UPDATE queue SET state = 'running', position = -1 "
+                             "WHERE id = ? AND state = 'queued' RETURNING schedule_id");
+  if (!claim) return claim.error();
+  claim->bind(1, id);
+  int rc = claim->step();
+  if (rc == SQLITE_DONE) return std::optional<int64_t>();  // not queued: rolled back
+  if (rc != SQLITE_ROW) return sqlite_error(db_, path_, fmt::format("taking queue entry {}", id));
+  RunRecord rec = run;
+  rec.queue_id = id;
+  rec.schedule_id = claim->column_int64(0);
+  if (Status s = expect_done(*claim, db_, path_, fmt::format("taking queue entry {}", id)); !s) {
+    return s.error();
+  }
+  auto run_id = create_run(rec);
+  if (!run_id) return run_id.error();
+  auto link = Stmt::prepare(db_, path_, "UPDATE queue SET run_id = ? WHERE id = ?");
+  if (!link) return link.error();
+  link->bind(1, *run_id);
+  link->bind(2, id);
+  if (Status s = expect_done(*link, db_, path_, fmt::format("starting queue entry {}", id)); !s) {
+    return s.error();
+  }
+  auto ids = queued_ids(db_, path_);
+  if (!ids) return ids.error();
+  if (Status s = renumber(db_, path_, *ids); !s) return s.error();
+  if (Status s = tx.commit(); !s) return s.error();
+  return std::optional<int64_t>(*run_id);
+}
+
 Status Database::queue_finish(int64_t id, std::string_view state) {
   auto st = Stmt::prepare(db_, path_, "UPDATE queue SET state = ?, position = -1 WHERE id = ?");
   if (!st) return st.error();

@@ -155,7 +155,8 @@ class CliAnalysisTest : public ::testing::Test {
       run.state = "acquiring";
       run.latitude_deg = kLatitudeDeg;
       run.orientation = "up";
-      run.config_json = fmt::format(
+      // TOML, as runs stored before schema v6 kept it: still read.
+      run.config_toml = fmt::format(
           "[station]\nname = \"test station\"\n[analysis]\nma_window = {}\n", kStoredMaWindow);
       auto id = db->create_run(run);
       ASSERT_TRUE(id) << id.error().message;

@@ -15,6 +15,7 @@ namespace gyrotherm {
 namespace {
 
 using ::testing::HasSubstr;
+using ::testing::Not;
 using testing::soak_schedule;
 using testing::StationTest;
 using testing::wait_until;
@@ -287,8 +288,7 @@ TEST_F(QueueTest, CrashResumeAfterKill9) {
   {
     auto db = storage::Database::open_read_only((dir_ / "station.db").string());
     ASSERT_TRUE(db.ok()) << db.error().message;
-    auto check = db->exec("PRAGMA integrity_check");
-    EXPECT_TRUE(check.ok());
+    EXPECT_TRUE(testing::integrity_ok(*db));
     auto run = db->run(1);
     ASSERT_TRUE(run.ok());
     EXPECT_EQ(run->state, "acquiring") << "killed, so nothing marked the run";
@@ -408,6 +408,75 @@ acquire_min = 3
   for (const auto& e : *rows) events += e.message + "\n";
   EXPECT_THAT(events, HasSubstr("not stable at 23 ± 0.5 °C within 3 min"));
   EXPECT_THAT(events, HasSubstr("interlock settle_timeout cleared"));
+}
+
+// The event at the end of a failed run says what the queue does: an abort
+// holds the queue (with or without ignore_failures) and the event says so; a
+// run that fails by itself with ignore_failures lets the queue go on.
+TEST_F(QueueTest, FailedRunEventSaysWhetherTheQueueHoldsOrGoesOn) {
+  append_config("[interlocks]\nout_of_limits_grace_min = 1.0\n");
+  start_sim();
+  start_daemon({}, false);
+  ASSERT_TRUE(wait_state("idle")) << diag();
+  auto add = [&](const std::string& name, double setpoint_c, bool ignore_failures) {
+    auto r = call("POST", "/api/v1/queue",
+                  json{{"schedule_toml", soak_schedule(name, setpoint_c, 600)},
+                       {"source", name + ".toml"},
+                       {"ignore_failures", ignore_failures}}
+                      .dump());
+    EXPECT_TRUE(r && r->status == 201) << (r ? r->body : "no answer");
+  };
+  add("aborted", 23, false);
+  add("aborted-too", 23, true);
+  add("runaway", 30, true);
+
+  // Run 1: aborted, without ignore_failures: the queue holds.
+  ASSERT_TRUE(wait_json("/api/v1/status", [](const json& s) { return s["run_id"] == 1; }))
+      << diag();
+  auto r = call("POST", "/api/v1/control/abort", R"({"reason":"wrong gyro"})");
+  ASSERT_TRUE(r && r->status == 200) << (r ? r->body : "");
+  ASSERT_TRUE(wait_json("/api/v1/runs/1", [](const json& run) { return run["state"] == "failed"; }))
+      << diag();
+  EXPECT_TRUE(get_json("/api/v1/queue")["held"].get<bool>());
+  std::string events = events_text(1);
+  EXPECT_THAT(events, Not(HasSubstr("goes on"))) << events;
+  EXPECT_THAT(events,
+              HasSubstr("run 1 failed; the queue stays held (run 1 aborted by the operator"))
+      << events;
+
+  // Run 2: aborted with ignore_failures: an abort holds the queue all the same.
+  r = call("POST", "/api/v1/control/resume");
+  ASSERT_TRUE(r && r->status == 200) << (r ? r->body : "");
+  ASSERT_TRUE(wait_json("/api/v1/status", [](const json& s) { return s["run_id"] == 2; }))
+      << diag();
+  r = call("POST", "/api/v1/control/abort", R"({"reason":"wrong chamber"})");
+  ASSERT_TRUE(r && r->status == 200) << (r ? r->body : "");
+  ASSERT_TRUE(wait_json("/api/v1/runs/2", [](const json& run) { return run["state"] == "failed"; }))
+      << diag();
+  EXPECT_TRUE(get_json("/api/v1/queue")["held"].get<bool>());
+  events = events_text(2);
+  EXPECT_THAT(events, Not(HasSubstr("goes on"))) << events;
+  EXPECT_THAT(events, HasSubstr("run 2 failed; the queue stays held")) << events;
+
+  // Run 3: fails by itself (an interlock beyond its grace), ignore_failures:
+  // the queue goes on.
+  r = call("POST", "/api/v1/control/resume");
+  ASSERT_TRUE(r && r->status == 200) << (r ? r->body : "");
+  ASSERT_TRUE(wait_json(
+      "/api/v1/status", [](const json& s) { return s["run_id"] == 3 && s["state"] == "acquiring"; },
+      std::chrono::seconds(90)))
+      << diag();
+  ASSERT_TRUE(sim_ctl("chamber force 80"));
+  ASSERT_TRUE(wait_json(
+      "/api/v1/runs/3", [](const json& run) { return run["state"] == "failed"; },
+      std::chrono::seconds(90)))
+      << diag();
+  events = events_text(3);
+  EXPECT_THAT(events,
+              HasSubstr("run 3 failed; the queue goes on with the next entry (ignore_failures)"))
+      << events;
+  EXPECT_THAT(events, Not(HasSubstr("stays held"))) << events;
+  EXPECT_FALSE(get_json("/api/v1/queue")["held"].get<bool>());
 }
 
 TEST_F(QueueTest, InterlockBeyondItsGraceAbortsToTheSafeState) {

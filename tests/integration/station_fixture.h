@@ -19,6 +19,7 @@
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/daemon/http_client.h"
 #include "gyrotherm/sim/simulator.h"
+#include "gyrotherm/storage/database.h"
 #include "process.h"
 #include "temp_dir_test.h"
 
@@ -118,6 +119,19 @@ stability_window_min = {}
 acquire_min = {}
 )",
                      name, setpoint_c, stability_window_min, acquire_min);
+}
+
+// The database passes PRAGMA integrity_check: its rows are exactly {"ok"}
+// (a failure lists them, or says why the check could not run).
+inline ::testing::AssertionResult integrity_ok(storage::Database& db) {
+  auto rows = db.integrity_check();
+  if (!rows) {
+    return ::testing::AssertionFailure() << "integrity_check did not run: " << rows.error().message;
+  }
+  if (*rows == std::vector<std::string>{"ok"}) return ::testing::AssertionSuccess();
+  auto failure = ::testing::AssertionFailure() << "integrity_check: " << rows->size() << " row(s)";
+  for (const auto& row : *rows) failure << "\n  " << row;
+  return failure;
 }
 
 class StationTest : public testing::TempDirTest {

@@ -14,6 +14,7 @@
 
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/daemon/http_client.h"
+#include "gyrotherm/daemon/run_analysis.h"
 #include "gyrotherm/drivers/modbus_device.h"
 #include "gyrotherm/sim/simulator.h"
 #include "gyrotherm/storage/database.h"
@@ -182,6 +183,63 @@ TEST_F(StationTest, ShortScheduleEndToEnd) {
   }
 }
 
+// The configuration stored with a run is the one in force: the file edited
+// on disk after the daemon started changes neither what is stored nor what
+// the analysis uses; the CLI and reports read the same settings back.
+TEST_F(StationTest, StoredConfigIsTheOneInForceNotTheFileOnDisk) {
+  const fs::path config = dir_ / "station.toml";
+  auto edit = [&](const std::string& from, const std::string& to) {
+    std::ifstream in(config);
+    std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    const auto at = text.find(from);
+    ASSERT_NE(at, std::string::npos) << from;
+    text.replace(at, from.size(), to);
+    write(config, text);
+  };
+  edit("model = \"T1+R1+G1\"", "model = \"T1+R1+G1\"\nma_window = 51");
+  start_sim();
+  start_daemon({"--exit-when-done"}, /*with_schedule=*/false);
+  ASSERT_TRUE(wait_until([&] { return status().has_value(); }, std::chrono::seconds(30)))
+      << daemon_->log();
+  // The daemon runs with ma_window 51; the file now says 11 and another name.
+  edit("ma_window = 51", "ma_window = 11");
+  edit("name = \"integration\"", "name = \"edited on disk\"");
+  auto r = call("POST", "/api/v1/queue",
+                nlohmann::json{{"schedule_toml", testing::soak_schedule("cfg", 23, 3)},
+                               {"source", "cfg.toml"}}
+                    .dump());
+  ASSERT_TRUE(r && r->status == 201) << (r ? r->body : "no answer");
+  const auto code = daemon_->wait(std::chrono::seconds(120));
+  ASSERT_TRUE(code.has_value()) << daemon_->log();
+  EXPECT_EQ(*code, 0) << daemon_->log();
+
+  // Read-write: a file an older daemon wrote is migrated first.
+  auto db = storage::Database::open((dir_ / "station.db").string());
+  ASSERT_TRUE(db.ok()) << db.error().message;
+  auto run = db->run(1);
+  ASSERT_TRUE(run.ok()) << run.error().message;
+  EXPECT_EQ(run->state, "completed");
+  EXPECT_EQ(run->config_toml, "");
+  const auto stored = nlohmann::json::parse(run->config_json, nullptr, false);
+  ASSERT_TRUE(stored.is_object()) << "runs.config_json is not JSON:\n" << run->config_json;
+  EXPECT_EQ(stored["analysis"]["ma_window"], 51);
+  EXPECT_EQ(stored["station"]["name"], "integration");
+  EXPECT_EQ(stored["analysis"]["model"], "T1+R1+G1");
+  EXPECT_EQ(run->config_json.find(kToken), std::string::npos) << "no token in the database";
+  // The daemon's analysis used it.
+  auto stats = db->segment_stats(1);
+  ASSERT_TRUE(stats.ok());
+  ASSERT_EQ(stats->size(), 1u) << daemon_->log();
+  EXPECT_EQ((*stats)[0].ma_window, 51);
+  // And so do the CLI and the reports, which read the stored config.
+  const daemon::RunConfig back = daemon::read_run_config(*run);
+  EXPECT_EQ(back.ma_window, 51);
+  EXPECT_EQ(back.station_name, "integration");
+  auto settings = daemon::analysis_settings_of_run(*run);
+  ASSERT_TRUE(settings.ok()) << settings.error().message;
+  EXPECT_EQ(settings->table1.ma_window, 51u);
+}
+
 TEST_F(StationTest, SigtermInterruptsTheRunAndLeavesTheChamberSafe) {
   start_sim();
   start_daemon();
@@ -206,8 +264,7 @@ TEST_F(StationTest, SigtermInterruptsTheRunAndLeavesTheChamberSafe) {
   ASSERT_TRUE(events.ok());
   ASSERT_FALSE(events->empty());
   EXPECT_THAT(events->back().message, HasSubstr("SIGTERM"));
-  auto integrity = db->exec("PRAGMA integrity_check");
-  EXPECT_TRUE(integrity.ok());
+  EXPECT_TRUE(testing::integrity_ok(*db));
 
   // The chamber was left at the safe set point (23 °C).
   auto cfg = daemon::load_station_config((dir_ / "station.toml").string());

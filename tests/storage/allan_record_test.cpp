@@ -440,12 +440,12 @@ TEST(Allan, MigratesASchema3DatabaseKeepingItsRows) {
   {
     auto ro = Database::open_read_only(path);
     ASSERT_FALSE(ro.ok());
-    EXPECT_NE(ro.error().message.find("schema version 3, older than this build's 5"),
+    EXPECT_NE(ro.error().message.find("schema version 3, older than this build's 6"),
               std::string::npos)
         << ro.error().message;
   }
   Database db = open_ok(path);
-  EXPECT_EQ(*db.schema_version(), 5);
+  EXPECT_EQ(*db.schema_version(), kSchemaVersion);
   const auto count = [&](const char* table) {
     return query_int(db.handle(), std::string("SELECT count(*) FROM ") + table);
   };

@@ -3,7 +3,11 @@
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
+#include <atomic>
+#include <chrono>
 #include <cmath>
+#include <filesystem>
+#include <fstream>
 #include <limits>
 #include <regex>
 #include <set>
@@ -15,6 +19,7 @@
 namespace gyrotherm::storage {
 namespace {
 
+using testing::integrity_ok;
 using testing::open_ok;
 using testing::query_int;
 using testing::query_text;
@@ -40,7 +45,7 @@ TEST(Database, OpenCreatesTheCurrentSchemaInWalMode) {
   auto version = db.schema_version();
   ASSERT_TRUE(version.ok()) << version.error().message;
   EXPECT_EQ(*version, kSchemaVersion);
-  EXPECT_EQ(kSchemaVersion, 5);
+  EXPECT_EQ(kSchemaVersion, 6);
   EXPECT_EQ(query_text(db.handle(), "PRAGMA journal_mode"), "wal");
   EXPECT_EQ(query_int(db.handle(), "PRAGMA synchronous"), 1);  // NORMAL
   EXPECT_EQ(query_int(db.handle(), "PRAGMA foreign_keys"), 1);
@@ -122,19 +127,19 @@ TEST(Database, NewerSchemaIsRefusedWithAClearMessage) {
   const std::string path = dir.file("station.db");
   {
     Database db = open_ok(path);
-    ASSERT_TRUE(db.exec("UPDATE meta SET value='6' WHERE key='schema_version'").ok());
+    ASSERT_TRUE(db.exec("UPDATE meta SET value='7' WHERE key='schema_version'").ok());
   }
   auto db = Database::open(path);
   ASSERT_FALSE(db.ok());
   EXPECT_FALSE(db.error().transient);
   EXPECT_NE(db.error().message.find(path), std::string::npos) << db.error().message;
-  EXPECT_NE(db.error().message.find("schema version 6, newer than this build's 5"),
+  EXPECT_NE(db.error().message.find("schema version 7, newer than this build's 6"),
             std::string::npos)
       << db.error().message;
 
   auto ro = Database::open_read_only(path);
   ASSERT_FALSE(ro.ok());
-  EXPECT_NE(ro.error().message.find("schema version 6"), std::string::npos) << ro.error().message;
+  EXPECT_NE(ro.error().message.find("schema version 7"), std::string::npos) << ro.error().message;
 }
 
 TEST(Database, RefusesAnotherApplicationsDatabase) {
@@ -528,6 +533,126 @@ TEST(Queue, AddListMoveRemoveClaimFinish) {
   EXPECT_EQ(queued_ids(db), (std::vector<int64_t>{ids[0], ids[3]}));
 }
 
+// A database whose table pages are overwritten fails the integrity check:
+// the check reads the rows. (Database::exec("PRAGMA integrity_check") says
+// ok on the same file: it discards the rows.)
+TEST(Database, IntegrityCheckFailsOnACorruptedFile) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  {
+    Database db = open_ok(path);
+    EXPECT_TRUE(integrity_ok(db)) << "a fresh file is sound";
+    ASSERT_TRUE(db.exec("BEGIN").ok());
+    for (int i = 0; i < 2000; ++i) {
+      EventRecord ev;
+      ev.kind = "info";
+      ev.message = fmt::format("event {} {}", i, std::string(200, 'x'));
+      ASSERT_TRUE(db.add_event(ev).ok());
+    }
+    ASSERT_TRUE(db.exec("COMMIT").ok());
+    EXPECT_TRUE(integrity_ok(db));
+  }  // the last connection closes: the WAL is checkpointed into the file
+  ASSERT_FALSE(std::filesystem::exists(path + "-wal"));
+  const auto size = std::filesystem::file_size(path);
+  constexpr std::uintmax_t kPage = 4096;
+  ASSERT_GT(size, 40 * kPage);
+  {
+    // The events were written last: garbage over the middle of the last
+    // pages (their headers and cells), the schema on page 1 untouched.
+    std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
+    const std::string garbage(kPage / 2, '\x5a');
+    for (std::uintmax_t page = size / kPage - 8; page < size / kPage; ++page) {
+      f.seekp(static_cast<std::streamoff>(page * kPage + 100));
+      f.write(garbage.data(), static_cast<std::streamsize>(garbage.size()));
+    }
+    ASSERT_TRUE(f.good());
+  }
+  Database db = open_ok(path);
+  EXPECT_TRUE(db.exec("PRAGMA integrity_check").ok()) << "exec cannot tell";
+  EXPECT_FALSE(integrity_ok(db));
+  auto rows = db.integrity_check();
+  if (rows) {
+    EXPECT_NE(*rows, std::vector<std::string>{"ok"});
+    EXPECT_FALSE(rows->empty());
+  }
+  auto quick = db.integrity_check(/*quick=*/true);
+  EXPECT_TRUE(!quick || *quick != std::vector<std::string>{"ok"}) << "quick_check too";
+}
+
+// An entry removed before its run starts leaves no run row.
+TEST(Queue, StartingARemovedEntryCreatesNoRun) {
+  TempDir dir;
+  Database db = open_ok(dir.file("station.db"));
+  const QueueEntry e = *db.queue_add("a", "a.toml", "name = \"a\"", false);
+  ASSERT_TRUE(*db.queue_remove(e.id));
+  RunRecord rec = sample_run();
+  auto started = db.queue_start_run(e.id, rec);
+  ASSERT_TRUE(started.ok()) << started.error().message;
+  EXPECT_FALSE(started->has_value());
+  EXPECT_TRUE(db.runs()->empty()) << "no phantom run";
+
+  const QueueEntry b = *db.queue_add("b", "b.toml", "name = \"b\"", false);
+  started = db.queue_start_run(b.id, rec);
+  ASSERT_TRUE(started.ok() && started->has_value());
+  const RunRecord run = *db.run(**started);
+  EXPECT_EQ(run.queue_id, b.id);
+  EXPECT_EQ(run.schedule_id, b.schedule_id);
+  EXPECT_EQ(run.config_json, rec.config_json);
+  const QueueEntry running = **db.queue_entry(b.id);
+  EXPECT_EQ(running.state, "running");
+  EXPECT_EQ(running.run_id, **started);
+  EXPECT_FALSE(db.queue_start_run(b.id, rec)->has_value()) << "started once";
+  EXPECT_EQ(db.runs()->size(), 1u);
+}
+
+// The HTTP thread adds and removes entries while the control thread starts
+// runs, each on its own connection: every run row belongs to the entry it
+// started, none is left behind by an entry removed under it.
+TEST(Queue, StartRunAgainstConcurrentRemoveLeavesNoPhantomRun) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  Database api = open_ok(path);
+  Database control = open_ok(path);
+  constexpr int kEntries = 1500;
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+  std::atomic<bool> done{false};
+  std::atomic<int> removed{0};
+  std::thread http([&] {
+    for (int i = 0; i < kEntries && std::chrono::steady_clock::now() < deadline; ++i) {
+      auto e = api.queue_add(fmt::format("s{}", i), "", "name = \"s\"", false);
+      if (!e) continue;
+      if (auto r = api.queue_remove(e->id); r && *r) ++removed;
+    }
+    done = true;
+  });
+  int started = 0;
+  while (!done) {
+    auto entries = control.queue_entries();
+    if (!entries) continue;
+    for (const auto& e : *entries) {
+      if (e.state != "queued") continue;
+      auto run = control.queue_start_run(e.id, sample_run());
+      if (run && *run) {
+        ++started;
+        ASSERT_TRUE(control.queue_finish(e.id, "completed").ok());
+      }
+      break;
+    }
+  }
+  http.join();
+  auto runs = *control.runs();
+  int phantoms = 0;
+  for (const auto& r : runs) {
+    ASSERT_TRUE(r.queue_id.has_value());
+    const auto entry = *control.queue_entry(*r.queue_id);
+    if (!entry || entry->run_id != r.id || entry->state == "removed") ++phantoms;
+  }
+  EXPECT_EQ(phantoms, 0) << runs.size() << " runs, " << started << " started, " << removed
+                         << " entries removed";
+  EXPECT_EQ(static_cast<int>(runs.size()), started);
+  EXPECT_GT(removed.load(), 0) << "the race was exercised";
+}
+
 TEST(Queue, SurvivesReopen) {
   TempDir dir;
   const std::string path = dir.file("station.db");
@@ -597,6 +722,51 @@ TEST(Database, MigratesASchema1Database) {
   EXPECT_EQ((*runs)[0].schedule_name, "old");
   EXPECT_FALSE((*runs)[0].queue_id.has_value());
   EXPECT_TRUE(db.queue_add("n", "", "", false).ok());
+}
+
+// Schema 6: what versions 1-5 stored in runs.config_json (the config file's
+// TOML text) moves to runs.config_toml, readable as before; JSON stays in
+// config_json, which refuses anything but JSON from then on.
+TEST(Database, MigratesStoredTomlConfigToItsOwnColumn) {
+  TempDir dir;
+  const std::string path = dir.file("v5.db");
+  {
+    sqlite3* raw = nullptr;
+    ASSERT_EQ(sqlite3_open(path.c_str(), &raw), SQLITE_OK);
+    std::string sql = "CREATE TABLE meta(key TEXT PRIMARY KEY, value TEXT NOT NULL);";
+    for (const auto& m : internal::migrations()) {
+      if (m.version <= 5) sql += m.sql;
+    }
+    sql +=
+        "INSERT INTO meta VALUES('schema_version', '5');"
+        "INSERT INTO runs(schedule_name, state, started_utc, config_json) VALUES('toml', "
+        "'completed', 'x', '[station]\nname = \"lab-1\"\n[analysis]\nma_window = 51\n');"
+        "INSERT INTO runs(schedule_name, state, started_utc, config_json) VALUES('json', "
+        "'completed', 'x', '{\"station\":{\"name\":\"lab-2\"}}');"
+        "INSERT INTO runs(schedule_name, state, started_utc) VALUES('none', 'completed', 'x');";
+    ASSERT_EQ(sqlite3_exec(raw, sql.c_str(), nullptr, nullptr, nullptr), SQLITE_OK)
+        << sqlite3_errmsg(raw);
+    sqlite3_close(raw);
+  }
+  Database db = open_ok(path);
+  EXPECT_EQ(*db.schema_version(), 6);
+  auto runs = *db.runs();
+  ASSERT_EQ(runs.size(), 3u);
+  EXPECT_EQ(runs[0].config_json, "");
+  EXPECT_EQ(runs[0].config_toml, "[station]\nname = \"lab-1\"\n[analysis]\nma_window = 51\n");
+  EXPECT_EQ(runs[1].config_json, R"({"station":{"name":"lab-2"}})");
+  EXPECT_EQ(runs[1].config_toml, "");
+  EXPECT_EQ(runs[2].config_json, "");
+  EXPECT_EQ(runs[2].config_toml, "");
+  EXPECT_TRUE(integrity_ok(db));
+
+  RunRecord toml = sample_run();
+  toml.config_json = "[station]\nname = \"x\"\n";
+  auto refused = db.create_run(toml);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_NE(refused.error().message.find("runs.config_json must be JSON"), std::string::npos)
+      << refused.error().message;
+  EXPECT_FALSE(db.exec("UPDATE runs SET config_json = 'name = 1' WHERE id = 2").ok());
 }
 
 }  // namespace

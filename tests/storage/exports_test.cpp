@@ -513,12 +513,12 @@ TEST(Exports, MigratesASchema4DatabaseKeepingItsRows) {
   {
     auto ro = Database::open_read_only(path);
     ASSERT_FALSE(ro.ok());
-    EXPECT_NE(ro.error().message.find("schema version 4, older than this build's 5"),
+    EXPECT_NE(ro.error().message.find("schema version 4, older than this build's 6"),
               std::string::npos)
         << ro.error().message;
   }
   Database db = open_ok(path);
-  EXPECT_EQ(*db.schema_version(), 5);
+  EXPECT_EQ(*db.schema_version(), kSchemaVersion);
   for (const char* table : {"segments", "segment_stats", "gyro_samples", "allan"}) {
     EXPECT_EQ(count(db, table), 1) << table;
   }
@@ -543,7 +543,7 @@ TEST(Exports, MigratesASchema4DatabaseKeepingItsRows) {
   EXPECT_TRUE(not_exported(db).empty());
   // Opening again does not migrate twice.
   Database again = open_ok(path);
-  EXPECT_EQ(*again.schema_version(), 5);
+  EXPECT_EQ(*again.schema_version(), kSchemaVersion);
   EXPECT_EQ(count(again, "exports"), 1);
 }
 

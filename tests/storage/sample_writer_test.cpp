@@ -337,7 +337,7 @@ TEST(SampleWriter, DatabaseLeftByAKilledWriterIsConsistent) {
 
   auto db = Database::open(path);
   ASSERT_TRUE(db.ok()) << db.error().message;
-  EXPECT_EQ(query_text(db->handle(), "PRAGMA integrity_check"), "ok");
+  EXPECT_TRUE(testing::integrity_ok(*db));
   const int64_t n = *db->count_gyro_samples(kRun);
   EXPECT_GE(n, kFlushed);
   EXPECT_LE(n, kFlushed + 100'000);

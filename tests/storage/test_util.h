@@ -11,6 +11,7 @@
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
@@ -46,6 +47,19 @@ inline Database open_ok(const std::string& path) {
     std::abort();
   }
   return std::move(*db);
+}
+
+// The file passes PRAGMA integrity_check: its rows are exactly {"ok"}. A
+// failure lists the rows (or why the check could not run).
+inline ::testing::AssertionResult integrity_ok(Database& db) {
+  auto rows = db.integrity_check();
+  if (!rows) {
+    return ::testing::AssertionFailure() << "integrity_check did not run: " << rows.error().message;
+  }
+  if (*rows == std::vector<std::string>{"ok"}) return ::testing::AssertionSuccess();
+  auto failure = ::testing::AssertionFailure() << "integrity_check: " << rows->size() << " row(s)";
+  for (const auto& row : *rows) failure << "\n  " << row;
+  return failure;
 }
 
 inline std::unique_ptr<SampleWriter> start_ok(const std::string& path,

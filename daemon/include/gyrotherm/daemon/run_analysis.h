@@ -16,6 +16,7 @@
 #pragma once
 
 #include <cstdint>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
 #include <utility>
@@ -44,10 +45,18 @@ struct AnalysisSettings {
 // orientation. The model spec was checked when the config was loaded.
 AnalysisSettings analysis_settings(const StationConfig& config);
 
-// What a run's stored station config (runs.config_json: TOML, or JSON from
-// older tools) says under [analysis] and [station] name. Read leniently: a
-// config that is missing or does not parse, or a key of the wrong type,
-// leaves the value unset.
+// The configuration a run is stored with (runs.config_json): the station
+// config in force, as loaded at start-up and completed with the defaults,
+// as a JSON object laid out like the TOML file ({"station": {"name": ...},
+// "analysis": {"ma_window": 101, ...}, ...}); API tokens are replaced by
+// "<redacted>" (the lists keep their length).
+nlohmann::json run_config_json(const StationConfig& config);
+
+// What a run's stored station config says under [analysis] and [station]
+// name: runs.config_json (JSON), or for runs stored before schema v6
+// runs.config_toml (the config file's TOML text). Read leniently: a config
+// that is missing or does not parse, or a key of the wrong type, leaves the
+// value unset. The text overload takes either (JSON when it starts with '{').
 struct RunConfig {
   std::optional<double> bin_s, l0_window_s, derivative_window_s;
   std::optional<int> ma_window;
@@ -56,6 +65,7 @@ struct RunConfig {
   std::string station_name;
 };
 RunConfig read_run_config(const std::string& text);
+RunConfig read_run_config(const storage::RunRecord& run);
 
 // The settings a stored run is analysed with offline (reports, the CLI's
 // defaults): its own config's [analysis] over the defaults, and the Earth

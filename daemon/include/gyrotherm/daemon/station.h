@@ -18,6 +18,10 @@
 // Locking: run_mu_ guards the sequencer, the control-thread database
 // connection and the queue hold; api_mu_ guards the HTTP thread's own
 // connection; mu_ guards the status snapshot. Order: run_mu_, api_mu_, mu_.
+// The run's id and start time go to the gyro reader together (RunClock).
+// The count of waiting queue entries changes only by read-modify-write, by
+// the thread that changed the queue in the database (HTTP: add, remove;
+// control: start), never by storing a count read earlier.
 //
 // Device errors after start-up are counted, logged on change and reported
 // in status(); they never stop the daemon.
@@ -43,6 +47,7 @@
 #include "gyrotherm/daemon/control.h"
 #include "gyrotherm/daemon/exporter.h"
 #include "gyrotherm/daemon/metrics.h"
+#include "gyrotherm/daemon/run_clock.h"
 #include "gyrotherm/daemon/status.h"
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/drivers/modbus_device.h"
@@ -127,7 +132,10 @@ class Station final : public StationControl, private schedules::SequencerObserve
   void checkpoint(bool force);
   void hold_queue(const std::string& reason);
   void release_queue();
-  void refresh_queue_length();
+  // Counts the waiting entries into queue_length_; at start() only, before
+  // any other thread changes the queue.
+  void count_queue();
+  int64_t current_run_id() const { return run_clock_.load().run_id; }
   double run_time_s() const;
   void write_setpoint(double setpoint_c, bool force);
   void on_gyro_samples(std::span<const GyroSample> samples);
@@ -216,8 +224,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
   std::atomic<uint64_t> heartbeat_{0};
 
   // Shared with the gyro reader thread.
-  std::atomic<int64_t> run_id_{0};  // 0: no run
-  std::atomic<double> run_t0_s_{0};
+  RunClock run_clock_;
   // A plan has been taken from pending_ and its run is not over.
   std::atomic<bool> busy_{false};
 

@@ -24,7 +24,7 @@ struct sqlite3;
 
 namespace gyrotherm::storage {
 
-inline constexpr int kSchemaVersion = 5;
+inline constexpr int kSchemaVersion = 6;
 
 // Rollup blocks of the gyro rate (table gyro_rollup): block length of each
 // level, station seconds. A sample at t_s is in block floor(t_s / length).
@@ -40,7 +40,14 @@ struct RunRecord {
   double time_scale = 1.0;
   double latitude_deg = 0;
   std::string orientation;  // up, down, horizontal
-  std::string config_json;  // the station config the run used
+  // The station configuration in force when the run started, as a JSON
+  // object (API tokens redacted); "" when unknown. Schema v6 refuses text
+  // that is not JSON.
+  std::string config_json;
+  // Runs stored before schema v6: the config file's TOML text as re-read
+  // from disk at run start (not necessarily the config in force); "" for
+  // later runs. Read-only history: new runs store config_json.
+  std::string config_toml;
   std::optional<int64_t> queue_id;
   std::optional<int64_t> schedule_id;
   // Crash resume: the sequencer's last snapshot (JSON) and the wall time it
@@ -237,6 +244,11 @@ class Database {
   Result<bool> queue_move(int64_t id, int position);
   // Queued -> running with its run. False when the entry is no longer queued.
   Result<bool> queue_claim(int64_t id, int64_t run_id);
+  // Starts the run of a queued entry in one transaction: the entry goes
+  // queued -> running and a run row is created from `run` (its queue_id and
+  // schedule_id are the entry's). nullopt, and no run row, when the entry is
+  // no longer queued (removed or moved on by another connection meanwhile).
+  Result<std::optional<int64_t>> queue_start_run(int64_t id, const RunRecord& run);
   // running -> a final state (completed, failed, interrupted).
   Status queue_finish(int64_t id, std::string_view state);
   // Running -> queued again at the head (a run that could not start).
@@ -305,7 +317,15 @@ class Database {
   // or done, ascending.
   Result<std::vector<int64_t>> runs_not_exported();
 
+  // PRAGMA integrity_check (quick: PRAGMA quick_check, which skips the
+  // index contents): its rows, exactly {"ok"} when the file is sound, one
+  // problem per row otherwise. An error when the check could not run (the
+  // file is too damaged to read, I/O error).
+  Result<std::vector<std::string>> integrity_check(bool quick = false);
+
   // Direct SQL for statements the API above does not cover (tests, tools).
+  // Result rows are discarded: a check that answers in rows (integrity_check,
+  // foreign_key_check, wal_checkpoint) needs its own reader.
   Status exec(std::string_view sql);
   sqlite3* handle() { return db_; }
   const std::string& path() const { return path_; }
