@@ -295,6 +295,101 @@ TEST_F(CliAnalysisTest, StatsOnADatabaseMatchesTheLibraryAndUsesTheRunsSettings)
   EXPECT_EQ(j[1].at("bias_mean_dph").get<double>(), rec->bias_mean_dph);
 }
 
+TEST_F(CliAnalysisTest, StatsBySetpointGroupsTheSoaksOfEveryRunLikeThePapersTableI) {
+  // Stored rows of a campaign that repeats 20 °C three times (two runs) and
+  // visits 40 °C once; one 20 °C soak was too short for the moving average.
+  const std::string db_copy = file("by-setpoint.db");
+  fs::copy_file(db_path_, db_copy, fs::copy_options::overwrite_existing);
+  struct Stored {
+    int run;  // index into run_ids_
+    int segment_index;
+    double setpoint_c, temp_c, bias_dph, std_dph, std_ma_dph;
+  };
+  const double nan = std::nan("");
+  const std::vector<Stored> stored = {{0, 0, 20.0, 20.3, 7.0, 0.05, 0.006},
+                                      {0, 2, 40.0, 40.4, 8.0, 0.06, 0.007},
+                                      {1, 0, 20.0, 20.1, 7.2, 0.07, nan},
+                                      {1, 2, 20.0, 20.2, 7.4, 0.09, 0.008}};
+  {
+    auto db = storage::Database::open(db_copy);
+    ASSERT_TRUE(db) << db.error().message;
+    for (const auto& s : stored) {
+      auto segments = db->segments(run_ids_[s.run]);
+      ASSERT_TRUE(segments) << segments.error().message;
+      storage::SegmentStatsRecord r;
+      r.segment_id = segments->at(static_cast<std::size_t>(s.segment_index)).id;
+      r.run_id = run_ids_[s.run];
+      r.segment_index = s.segment_index;
+      r.setpoint_c = s.setpoint_c;
+      r.n = 300;
+      r.duration_s = 300;
+      r.temp_mean_c = s.temp_c;
+      r.bias_mean_dph = s.bias_dph;
+      r.bias_std_dph = s.std_dph;
+      r.bias_std_ma_dph = s.std_ma_dph;
+      r.bias_mean_earth_removed_dph = s.bias_dph - 7.9;
+      r.earth_rate_dph = 7.9;
+      ASSERT_TRUE(db->put_segment_stats(r).ok());
+    }
+  }
+  const std::string runs = fmt::format("{},{}", run_ids_[0], run_ids_[1]);
+  const Run r =
+      cli({"stats", "--db", db_copy, "--runs", runs, "--stored", "--by-setpoint", "--json"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  const json j = r.parsed();
+  ASSERT_TRUE(j.is_array()) << r.out;
+  ASSERT_EQ(j.size(), 2u) << r.out;
+  const json& g20 = j[0];
+  EXPECT_EQ(g20.at("setpoint_c").get<double>(), 20.0);
+  EXPECT_EQ(g20.at("repetitions").get<int>(), 3);
+  EXPECT_EQ(g20.at("soaks"),
+            json::parse(fmt::format(R"([{{"run_id":{0},"segment":1}},{{"run_id":{1},"segment":1}},)"
+                                    R"({{"run_id":{1},"segment":3}}])",
+                                    run_ids_[0], run_ids_[1])));
+  // By hand: biases 7.0, 7.2, 7.4 -> mean 7.2, sample std 0.2; temperatures
+  // 20.3, 20.1, 20.2 -> 20.2, 0.1; std MA of two soaks 0.006, 0.008 -> 0.007,
+  // sqrt(2) x 0.001.
+  auto expect_col = [&](const json& g, const char* key, double mean, double std, int n) {
+    SCOPED_TRACE(key);
+    const json& c = g.at(key);
+    EXPECT_NEAR(c.at("mean").get<double>(), mean, 1e-12);
+    if (std::isnan(std)) {
+      EXPECT_TRUE(c.at("std").is_null()) << c.dump();
+    } else {
+      EXPECT_NEAR(c.at("std").get<double>(), std, 1e-12);
+    }
+    EXPECT_EQ(c.at("n").get<int>(), n);
+  };
+  expect_col(g20, "bias_mean_dph", 7.2, 0.2, 3);
+  expect_col(g20, "temp_mean_c", 20.2, 0.1, 3);
+  expect_col(g20, "bias_std_ma101_dph", 0.007, std::sqrt(2.0) * 0.001, 2);
+  expect_col(g20, "bias_mean_earth_removed_dph", 7.2 - 7.9, 0.2, 3);
+  const json& g40 = j[1];
+  EXPECT_EQ(g40.at("setpoint_c").get<double>(), 40.0);
+  EXPECT_EQ(g40.at("repetitions").get<int>(), 1);
+  expect_col(g40, "bias_mean_dph", 8.0, nan, 1);
+
+  // Text: one line per set point, mean ± std.
+  const Run text = cli({"stats", "--db", db_copy, "--runs", runs, "--stored", "--by-setpoint"});
+  ASSERT_EQ(text.code, 0) << text.err;
+  EXPECT_THAT(text.out, HasSubstr("reps"));
+  EXPECT_THAT(text.out, HasSubstr("7.2000 ± 0.2000"));
+  EXPECT_THAT(text.out, HasSubstr("schedule set point"));
+
+  // Recomputed rows group the same way (here every set point once).
+  const Run all = cli({"stats", "--db", db_path_, "--by-setpoint", "--json"});
+  ASSERT_EQ(all.code, 0) << all.err;
+  const json ja = all.parsed();
+  ASSERT_EQ(ja.size(), 2u * kRuns) << all.out;
+  for (std::size_t i = 1; i < ja.size(); ++i) {
+    EXPECT_LT(ja[i - 1].at("setpoint_c").get<double>(), ja[i].at("setpoint_c").get<double>());
+  }
+  // A CSV file has no set point.
+  const Run csv = cli({"stats", "--csv", run_csv_file(0), "--by-setpoint"});
+  EXPECT_EQ(csv.code, 2) << csv.out;
+  EXPECT_THAT(csv.err, HasSubstr("set point"));
+}
+
 TEST_F(CliAnalysisTest, StatsOptionsOverrideTheStoredSettings) {
   const Run r = cli({"stats", "--db", db_path_, "--run", std::to_string(run_ids_[2]), "--ma-window",
                      "101", "--earth-rate-dph", "7.5", "--json"});
