@@ -328,7 +328,9 @@ schedules::Readings Station::read_devices(double now_s) {
   r.chamber_silent_s = silent(chamber_ok_s_, chamber_ok_wall_s_);
   r.probes_silent_s = silent(probes_ok_s_, probes_ok_wall_s_);
   r.gyro_silent_s = silent(gyro_last_s_.load(), gyro_last_wall_s_.load());
+  r.gyro_heard = gyro_heard_.load();
   const storage::SampleWriterStats ws = writer_->stats();
+  r.storage_committed = ws.commits > 0;
   if (ws.consecutive_failures == 0) {
     storage_ok_s_ = now_s;
     storage_ok_wall_s_ = wall_s;
@@ -632,7 +634,18 @@ void Station::resume_interrupted_run() {
   // The downtime in station time; never before a committed sample.
   const double down_wall_s = std::max(0.0, unix_now_s() - *run.checkpoint_wall_unix_s);
   double t_resume_s = snap->t_s + down_wall_s * clock_.time_scale();
-  if (auto last = db_.last_sample_t_s(run.id); last && *last) {
+  // Acquisition is credited up to the last committed gyro sample only: the
+  // samples after it died uncommitted with the daemon (run seconds).
+  double data_until_s = -std::numeric_limits<double>::infinity();
+  if (auto last = db_.last_sample_t_s(run.id); !last) {
+    // Cannot tell: trust the checkpoint's clock rather than drop the run.
+    spdlog::error(
+        "run {}: last committed sample unknown ({}); acquisition credited up to the "
+        "checkpoint",
+        run.id, last.error().message);
+    data_until_s = snap->t_s;
+  } else if (*last) {
+    data_until_s = **last;
     t_resume_s = std::max(t_resume_s, **last + 1e-3);
   }
   segment_ids_.assign(plan->steps.size(), 0);
@@ -664,7 +677,7 @@ void Station::resume_interrupted_run() {
       std::move(*plan), opt, static_cast<schedules::SequencerObserver&>(*this));
   add_event("resume", "", "", reason);
   last_written_setpoint_c_.reset();
-  sequencer_->restore(*snap, t_resume_s, reason);
+  sequencer_->restore(*snap, t_resume_s, data_until_s, reason);
   (void)db_.set_run_state(run.id, to_string(sequencer_->state()), false);
   checkpoint(true);
 }
@@ -743,6 +756,7 @@ void Station::end_run() {
 void Station::on_gyro_samples(std::span<const GyroSample> samples) {
   gyro_last_s_.store(clock_.now_s());
   gyro_last_wall_s_.store(steady_now_s());
+  gyro_heard_.store(true);
   // One read of the pair: the batch is timed from the start of the run it
   // is stored under.
   const RunClock::Value run = run_clock_.load();

@@ -28,6 +28,34 @@ std::string_view to_string(InterlockKind kind) {
   return "?";
 }
 
+std::optional<InterlockKind> parse_interlock_kind(std::string_view name) {
+  for (int k = 0; k < kInterlockKindCount; ++k) {
+    if (to_string(static_cast<InterlockKind>(k)) == name) return static_cast<InterlockKind>(k);
+  }
+  return std::nullopt;
+}
+
+bool readings_can_clear(InterlockKind kind, const Readings& r) {
+  const bool probes = r.top_c && r.side_c;
+  switch (kind) {
+    case InterlockKind::kOutOfLimits:
+      return r.chamber_c && probes;
+    case InterlockKind::kProbeDisagreement:
+    case InterlockKind::kProbesSilent:
+      return probes;
+    case InterlockKind::kChamberSilent:
+    case InterlockKind::kChamberAlarm:
+      return r.chamber_c.has_value();
+    case InterlockKind::kGyroLost:
+      return r.gyro_heard;
+    case InterlockKind::kStorageFailing:
+      return r.storage_committed;
+    case InterlockKind::kSettleTimeout:
+      return false;
+  }
+  return false;
+}
+
 std::vector<InterlockCondition> evaluate_interlocks(const Readings& r, const InterlockOptions& o,
                                                     const bool (&tripped)[kInterlockKindCount]) {
   auto was = [&](InterlockKind k) { return tripped[static_cast<int>(k)]; };

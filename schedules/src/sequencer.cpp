@@ -210,7 +210,7 @@ void Sequencer::evaluate(double t_s, const Readings& readings) {
   }
   for (int k = 0; k < kInterlockKindCount; ++k) {
     const auto kind = static_cast<InterlockKind>(k);
-    if (kind != InterlockKind::kSettleTimeout && tripped_[k] && !present[k]) clear(kind, t_s);
+    if (tripped_[k] && !present[k] && readings_can_clear(kind, readings)) clear(kind, t_s);
   }
 }
 
@@ -262,7 +262,10 @@ void Sequencer::tick(double t_s, const Readings& readings) {
   } else {
     step_active_s_ += dt_s;
   }
-  if (restore_pending_ && readings.chamber_c && readings.top_c && readings.side_c) {
+  // After a restart the run waits for chamber and shell readings and for the
+  // gyro stream: a window opened before the first sample would hold no data.
+  if (restore_pending_ && readings.chamber_c && readings.top_c && readings.side_c &&
+      readings.gyro_heard) {
     restore_pending_ = false;
   }
   evaluate(t_s, readings);
@@ -426,10 +429,16 @@ SequencerSnapshot Sequencer::snapshot(double t_s) const {
   s.setpoint_c = setpoint_c_;
   s.ramp_from_c = ramp_from_c_;
   s.paused = paused_;
+  for (int k = 0; k < kInterlockKindCount; ++k) {
+    if (tripped_[k]) {
+      s.trips.push_back({static_cast<InterlockKind>(k), trip_since_s_[k], trip_message_[k]});
+    }
+  }
   return s;
 }
 
-void Sequencer::restore(const SequencerSnapshot& s, double t_s, const std::string& reason) {
+void Sequencer::restore(const SequencerSnapshot& s, double t_s, double data_until_s,
+                        const std::string& reason) {
   state_ = s.state;
   last_tick_s_ = t_s;
   if (s.state == RunState::kAborting) {
@@ -455,9 +464,27 @@ void Sequencer::restore(const SequencerSnapshot& s, double t_s, const std::strin
   const PlanStep& step = plan_.steps[index_];
   shell_window_ = analysis::StabilityWindow(step.stability_window_s);
   chamber_window_ = analysis::StabilityWindow(step.stability_window_s);
-  // The window that was open when the snapshot was taken ends there.
+  // The window that was open when the snapshot was taken ends there, and no
+  // window reaches past the last committed sample: the samples after it died
+  // with the daemon, so that time is not credited (the soak acquires it again).
   if (s.window_open_s) {
     times_.windows.push_back({*s.window_open_s, std::max(s.t_s, *s.window_open_s)});
+  }
+  std::vector<AcquisitionWindow> covered;
+  for (AcquisitionWindow w : times_.windows) {
+    if (w.from_s >= data_until_s) continue;
+    w.to_s = std::min(w.to_s, data_until_s);
+    covered.push_back(w);
+  }
+  times_.windows = std::move(covered);
+  if (times_.windows.empty()) times_.acquire_start_s.reset();
+  // Tripped interlocks come back with their trip times (already reported).
+  std::fill(std::begin(tripped_), std::end(tripped_), false);
+  for (const InterlockTrip& trip : s.trips) {
+    const int k = static_cast<int>(trip.kind);
+    tripped_[k] = true;
+    trip_since_s_[k] = trip.since_s;
+    trip_message_[k] = trip.message;
   }
   const double down_s = std::max(0.0, t_s - s.t_s);
   if (step.kind == StepKind::kRamp || paused_) {
@@ -479,6 +506,10 @@ nlohmann::json to_json(const SequencerSnapshot& s) {
   auto opt = [](const std::optional<double>& v) {
     return v ? nlohmann::json(*v) : nlohmann::json(nullptr);
   };
+  nlohmann::json trips = nlohmann::json::array();
+  for (const auto& t : s.trips) {
+    trips.push_back({{"kind", to_string(t.kind)}, {"since_s", t.since_s}, {"message", t.message}});
+  }
   return {{"t_s", s.t_s},
           {"state", to_string(s.state)},
           {"activity", to_string(s.activity)},
@@ -492,7 +523,8 @@ nlohmann::json to_json(const SequencerSnapshot& s) {
           {"step_active_s", s.step_active_s},
           {"setpoint_c", s.setpoint_c},
           {"ramp_from_c", s.ramp_from_c},
-          {"paused", s.paused}};
+          {"paused", s.paused},
+          {"trips", trips}};
 }
 
 Result<SequencerSnapshot> snapshot_from_json(const nlohmann::json& j) {
@@ -522,6 +554,18 @@ Result<SequencerSnapshot> snapshot_from_json(const nlohmann::json& j) {
     s.setpoint_c = j.at("setpoint_c").get<double>();
     s.ramp_from_c = j.at("ramp_from_c").get<double>();
     s.paused = j.at("paused").get<bool>();
+    // Checkpoints written before trips were kept have none.
+    if (auto it = j.find("trips"); it != j.end()) {
+      for (const auto& t : *it) {
+        const auto name = t.at("kind").get<std::string>();
+        const auto kind = parse_interlock_kind(name);
+        if (!kind) {
+          return Error::Permanent(fmt::format("run snapshot: unknown interlock '{}'", name));
+        }
+        s.trips.push_back(
+            {*kind, t.at("since_s").get<double>(), t.at("message").get<std::string>()});
+      }
+    }
     return s;
   } catch (const nlohmann::json::exception& e) {
     return Error::Permanent(fmt::format("run snapshot: {}", e.what()));

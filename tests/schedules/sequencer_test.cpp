@@ -6,6 +6,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <nlohmann/json.hpp>
 #include <vector>
 
@@ -516,7 +517,7 @@ TEST(Sequencer, RestoredSoakKeepsItsAcquisitionWhenStillInTolerance) {
   const SequencerSnapshot s = f.seq.snapshot(300);
   RecordingObserver obs;
   Sequencer seq(make_plan({quick_soak(30, 600)}), {}, obs);
-  seq.restore(s, 400, "daemon restarted");
+  seq.restore(s, 400, 300, "daemon restarted");
   EXPECT_EQ(seq.state(), RunState::kSuspended) << "held until the first readings";
   seq.tick(401, Readings{});
   EXPECT_EQ(seq.state(), RunState::kSuspended);
@@ -535,7 +536,7 @@ TEST(Sequencer, RestoredSoakStartsOverWhenTemperatureLeftTolerance) {
   tick_range(f.seq, 61, 300, at(30));
   RecordingObserver obs;
   Sequencer seq(make_plan({quick_soak(30, 600)}), {}, obs);
-  seq.restore(f.seq.snapshot(300), 400, "daemon restarted");
+  seq.restore(f.seq.snapshot(300), 400, 300, "daemon restarted");
   seq.tick(401, at(31));
   EXPECT_EQ(seq.state(), RunState::kSettling);
   EXPECT_TRUE(seq.step_times().windows.empty());
@@ -555,7 +556,7 @@ TEST(Sequencer, RestoredRampGoesOnFromItsSetPoint) {
   EXPECT_EQ(first.state(), RunState::kInterrupted);
   RecordingObserver obs;
   Sequencer seq(make_plan({ramp(30, 1.0)}), {}, obs);
-  seq.restore(first.snapshot(120.5), 1000, "restart");
+  seq.restore(first.snapshot(120.5), 1000, 120.5, "restart");
   EXPECT_NEAR(seq.setpoint_c(), 22.0, 1e-9);
   seq.tick(1001, at(22));
   tick_range(seq, 1002, 1060, at(22));
@@ -571,12 +572,221 @@ TEST(Sequencer, RestoredPausedRunStaysPaused) {
   ASSERT_TRUE(f.seq.pause(100, "x").ok());
   RecordingObserver obs;
   Sequencer seq(make_plan({quick_soak(30, 600)}), {}, obs);
-  seq.restore(f.seq.snapshot(100), 200, "restart");
+  seq.restore(f.seq.snapshot(100), 200, 100, "restart");
   tick_range(seq, 201, 300, at(30));
   EXPECT_EQ(seq.state(), RunState::kPaused);
   ASSERT_TRUE(seq.resume(300.5, "x").ok());
   tick_range(seq, 301, 2000, at(30));
   EXPECT_EQ(seq.state(), RunState::kCompleted);
+}
+
+// A kill -9 loses the samples not yet committed, and the time down holds no
+// samples either: the resumed soak is credited only the acquisition time up
+// to the last committed gyro sample, and acquires until the covered time
+// reaches its acquire time (issue 15, item 7).
+TEST(Sequencer, RestoreCreditsAcquisitionOnlyUpToTheLastCommittedSample) {
+  AcquiringSoak f;
+  const double start_s = *f.seq.step_times().acquire_start_s;
+  tick_range(f.seq, 61, start_s + 400, at(30));
+  const SequencerSnapshot s = f.seq.snapshot(start_s + 400);
+  ASSERT_TRUE(s.window_open_s.has_value());
+  ASSERT_DOUBLE_EQ(s.times.acquired_s() + (s.t_s - *s.window_open_s), 400.0)
+      << "the checkpoint says 400 s acquired";
+  RecordingObserver obs;
+  Sequencer seq(make_plan({quick_soak(30, 600)}), {}, obs);
+  const double resume_s = start_s + 500;
+  seq.restore(s, resume_s, /*data_until_s=*/start_s + 380, "daemon restarted");
+  tick_range(seq, resume_s + 1, resume_s + 2000, at(30));
+  ASSERT_EQ(seq.state(), RunState::kCompleted);
+  const StepTimes& t = obs.finished.at(0).times;
+  ASSERT_EQ(t.windows.size(), 2u);
+  EXPECT_DOUBLE_EQ(t.windows[0].from_s, start_s);
+  EXPECT_DOUBLE_EQ(t.windows[0].to_s, start_s + 380) << "cut at the last committed sample";
+  EXPECT_DOUBLE_EQ(t.windows[1].from_s, resume_s + 1);
+  EXPECT_DOUBLE_EQ(t.windows[1].to_s - t.windows[1].from_s, 220.0)
+      << "the resumed acquisition goes on for 220 s more";
+  EXPECT_DOUBLE_EQ(t.acquired_s(), 600.0);
+  EXPECT_THAT(obs.transitions.at(1).reason, HasSubstr("acquisition goes on (6.3 of 10 min done)"));
+}
+
+// After a restart the acquisition waits for the gyro stream too: a window
+// opened before the first sample would credit time without data.
+TEST(Sequencer, RestoredSoakWaitsForTheGyroBeforeItAcquires) {
+  AcquiringSoak f;
+  tick_range(f.seq, 61, 300, at(30));
+  RecordingObserver obs;
+  Sequencer seq(make_plan({quick_soak(30, 600)}), {}, obs);
+  seq.restore(f.seq.snapshot(300), 400, 300, "daemon restarted");
+  const Readings no_gyro = with(at(30), [](Readings& r) { r.gyro_heard = false; });
+  tick_range(seq, 401, 410, no_gyro);
+  EXPECT_EQ(seq.state(), RunState::kSuspended) << "no gyro sample since the restart";
+  EXPECT_EQ(seq.step_times().windows.size(), 1u);
+  tick_range(seq, 411, 2000, at(30));
+  ASSERT_EQ(seq.state(), RunState::kCompleted);
+  const StepTimes& t = obs.finished.at(0).times;
+  ASSERT_EQ(t.windows.size(), 2u);
+  EXPECT_DOUBLE_EQ(t.windows[1].from_s, 411);
+}
+
+// Windows closed before the checkpoint are cut too, and without any
+// committed sample nothing is credited.
+TEST(Sequencer, RestoreCutsClosedWindowsAndCreditsNothingWithoutSamples) {
+  {
+    AcquiringSoak f;
+    const double start_s = *f.seq.step_times().acquire_start_s;
+    tick_range(f.seq, 61, start_s + 300, at(30));
+    ASSERT_TRUE(f.seq.pause(start_s + 300.5, "x").ok());  // window closed at +300.5
+    RecordingObserver obs;
+    Sequencer seq(make_plan({quick_soak(30, 600)}), {}, obs);
+    seq.restore(f.seq.snapshot(start_s + 350), start_s + 400, start_s + 290, "restart");
+    ASSERT_EQ(seq.step_times().windows.size(), 1u);
+    EXPECT_DOUBLE_EQ(seq.step_times().windows[0].to_s, start_s + 290);
+    ASSERT_TRUE(seq.resume(start_s + 400.5, "x").ok());
+    tick_range(seq, start_s + 401, start_s + 2000, at(30));
+    ASSERT_EQ(seq.state(), RunState::kCompleted);
+    EXPECT_DOUBLE_EQ(obs.finished.at(0).times.acquired_s(), 600.0);
+    EXPECT_DOUBLE_EQ(obs.finished.at(0).times.windows.back().to_s, start_s + 401 + 310);
+  }
+  {
+    AcquiringSoak f;
+    tick_range(f.seq, 61, 300, at(30));
+    RecordingObserver obs;
+    Sequencer seq(make_plan({quick_soak(30, 600)}), {}, obs);
+    seq.restore(f.seq.snapshot(300), 400, -std::numeric_limits<double>::infinity(), "restart");
+    EXPECT_TRUE(seq.step_times().windows.empty()) << "no committed sample: no time credited";
+    tick_range(seq, 401, 2000, at(30));
+    ASSERT_EQ(seq.state(), RunState::kCompleted);
+    const StepTimes& t = obs.finished.at(0).times;
+    ASSERT_EQ(t.windows.size(), 1u);
+    EXPECT_DOUBLE_EQ(t.windows[0].from_s, 401);
+    EXPECT_DOUBLE_EQ(t.acquired_s(), 600.0);
+  }
+}
+
+// A daemon restart must not start an interlock's grace over: the trip and its
+// start time are in the checkpoint (issue 15, item 12). Chamber alarm grace
+// 2 min, alarm at 161 s, kill 1.4 min later, restart at 260 s: the abort
+// comes at 161 + 120 s, not 260 + 120 s.
+TEST(Sequencer, RestoredInterlockKeepsItsGraceFromItsTripTime) {
+  SequencerOptions opt;
+  opt.interlocks.grace_s[static_cast<int>(InterlockKind::kChamberAlarm)] = 120;
+  const Readings alarm = with(at(30), [](Readings& r) { r.chamber_alarm = true; });
+  AcquiringSoak f(opt);
+  tick_range(f.seq, 61, 160, at(30));
+  tick_range(f.seq, 161, 245, alarm);
+  ASSERT_EQ(f.seq.state(), RunState::kSuspended);
+  auto back = snapshot_from_json(nlohmann::json::parse(to_json(f.seq.snapshot(245.5)).dump()));
+  ASSERT_TRUE(back.ok()) << back.error().message;
+  ASSERT_EQ(back->trips.size(), 1u);
+  EXPECT_EQ(back->trips[0].kind, InterlockKind::kChamberAlarm);
+  EXPECT_DOUBLE_EQ(back->trips[0].since_s, 161);
+
+  RecordingObserver obs;
+  Sequencer seq(make_plan({quick_soak(30, 600)}), opt, obs);
+  seq.restore(*back, 260, 245, "daemon restarted");
+  ASSERT_EQ(seq.tripped().size(), 1u);
+  EXPECT_EQ(seq.tripped()[0].kind, InterlockKind::kChamberAlarm);
+  EXPECT_EQ(seq.state(), RunState::kSuspended);
+  // The first tick after a restart may come without a chamber reading: that
+  // cannot tell the alarm is gone, so the trip (and its grace) stays.
+  seq.tick(261, Readings{});
+  ASSERT_EQ(seq.tripped().size(), 1u) << "no chamber reading, no verdict on the alarm";
+  tick_range(seq, 262, 600, alarm);
+  ASSERT_EQ(seq.state(), RunState::kAborting);
+  EXPECT_DOUBLE_EQ(obs.transitions.back().t_s, 281) << "alarm start + grace, not restart + grace";
+  EXPECT_THAT(obs.transitions.back().reason, HasSubstr("chamber_alarm still tripped after 2 min"));
+  EXPECT_TRUE(obs.interlocks.empty()) << "the restored trip is not reported again";
+}
+
+// A restored trip whose condition is gone clears at the first tick that can
+// tell, and the soak goes on.
+TEST(Sequencer, RestoredInterlockClearsWhenItsConditionIsGone) {
+  AcquiringSoak f;
+  tick_range(f.seq, 61, 100, at(30));
+  f.seq.tick(101, with(at(30), [](Readings& r) { r.chamber_alarm = true; }));
+  RecordingObserver obs;
+  Sequencer seq(make_plan({quick_soak(30, 600)}), {}, obs);
+  seq.restore(f.seq.snapshot(101.5), 150, 101, "daemon restarted");
+  tick_range(seq, 151, 2000, at(30));
+  ASSERT_EQ(seq.state(), RunState::kCompleted);
+  ASSERT_EQ(obs.interlocks.size(), 1u);
+  EXPECT_FALSE(obs.interlocks[0].tripped);
+  EXPECT_THAT(obs.interlocks[0].message, HasSubstr("chamber_alarm cleared after 50 s"));
+  EXPECT_DOUBLE_EQ(obs.finished.at(0).times.acquired_s(), 600.0);
+}
+
+// A checkpoint written before trips were checkpointed has no "trips": none.
+TEST(Sequencer, CheckpointWithoutTripsLoads) {
+  AcquiringSoak f;
+  tick_range(f.seq, 61, 100, at(30));
+  nlohmann::json j = to_json(f.seq.snapshot(100));
+  ASSERT_TRUE(j.contains("trips"));
+  j.erase("trips");
+  auto back = snapshot_from_json(j);
+  ASSERT_TRUE(back.ok()) << back.error().message;
+  EXPECT_TRUE(back->trips.empty());
+  j["trips"] = nlohmann::json::array({{{"kind", "meteor"}, {"since_s", 1}, {"message", "x"}}});
+  auto bad = snapshot_from_json(j);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_THAT(bad.error().message, HasSubstr("unknown interlock 'meteor'"));
+}
+
+// Tripped interlocks are not cleared by a tick that lacks the readings their
+// condition depends on (a silent device, a daemon that just restarted): the
+// grace of a persistent fault runs on.
+TEST(Sequencer, MissingReadingsDoNotClearATrippedInterlock) {
+  struct Case {
+    InterlockKind kind;
+    Readings bad, unknown;
+  };
+  const Case cases[] = {
+      {InterlockKind::kOutOfLimits, Readings{63.0, 30.0, 30.0}, Readings{std::nullopt, 30.0, 30.0}},
+      {InterlockKind::kProbeDisagreement, Readings{30.0, 31.5, 28.5},
+       Readings{30.0, 31.5, std::nullopt}},
+      {InterlockKind::kChamberAlarm, with(at(30), [](Readings& r) { r.chamber_alarm = true; }),
+       Readings{std::nullopt, 30.05, 29.95}},
+      {InterlockKind::kChamberSilent, with(at(30), [](Readings& r) { r.chamber_silent_s = 11; }),
+       Readings{std::nullopt, 30.05, 29.95}},
+      {InterlockKind::kProbesSilent, with(at(30), [](Readings& r) { r.probes_silent_s = 11; }),
+       Readings{30.0, std::nullopt, std::nullopt}},
+      {InterlockKind::kGyroLost, with(at(30), [](Readings& r) { r.gyro_silent_s = 6; }),
+       with(at(30), [](Readings& r) { r.gyro_heard = false; })},
+      {InterlockKind::kStorageFailing, with(at(30), [](Readings& r) { r.storage_failing_s = 11; }),
+       with(at(30), [](Readings& r) { r.storage_committed = false; })},
+  };
+  for (const auto& c : cases) {
+    SCOPED_TRACE(std::string(to_string(c.kind)));
+    AcquiringSoak f;
+    tick_range(f.seq, 61, 100, at(30));
+    f.seq.tick(101, c.bad);
+    ASSERT_EQ(f.seq.tripped().size(), 1u);
+    tick_range(f.seq, 102, 150, c.unknown);
+    bool still = false;
+    for (const auto& t : f.seq.tripped()) still = still || t.kind == c.kind;
+    EXPECT_TRUE(still) << "cleared without the readings to tell";
+    tick_range(f.seq, 151, 2000, at(30));
+    EXPECT_EQ(f.seq.state(), RunState::kCompleted);
+  }
+}
+
+// Sibling timers across a restart: the settle timeout counts the soak's
+// time before the crash (and the time down), not only the time since.
+TEST(Sequencer, RestoredSettleTimeoutCountsTheTimeBeforeTheRestart) {
+  RecordingObserver obs0;
+  PlanStep step = quick_soak(30, 60);
+  step.settle_timeout_s = 100;
+  Sequencer first(make_plan({step}), {}, obs0);
+  first.start(0, 23);
+  tick_range(first, 1, 80, at(23));  // far from 30 °C: never stable
+  RecordingObserver obs;
+  Sequencer seq(make_plan({step}), {}, obs);
+  seq.restore(first.snapshot(80), 90, 80, "restart");
+  tick_range(seq, 91, 200, at(23));
+  ASSERT_FALSE(obs.interlocks.empty());
+  EXPECT_EQ(obs.interlocks[0].kind, InterlockKind::kSettleTimeout);
+  // 100 s of the soak's time: 80 before the crash, 10 down, then ticks; the
+  // first tick after the restart is held (it waits for readings).
+  EXPECT_DOUBLE_EQ(obs.interlocks[0].t_s, 102) << "not 90 + 100 s: the timeout did not start over";
 }
 
 // ------------------------------------------------------------- transition table

@@ -219,6 +219,9 @@ class Station final : public StationControl, private schedules::SequencerObserve
   analysis::StabilityWindow shell_rate_window_{60.0};
   std::atomic<double> gyro_last_s_{0};  // station time of the last gyro sample
   std::atomic<double> gyro_last_wall_s_{0};
+  // A gyro sample has arrived since start(): only then can a gyro_lost trip
+  // restored from a checkpoint clear.
+  std::atomic<bool> gyro_heard_{false};
   std::atomic<int> queue_length_{0};
   std::atomic<bool> queue_held_{false};
   std::atomic<uint64_t> heartbeat_{0};

@@ -32,6 +32,7 @@ enum class InterlockKind {
 };
 inline constexpr int kInterlockKindCount = 8;
 std::string_view to_string(InterlockKind kind);
+std::optional<InterlockKind> parse_interlock_kind(std::string_view name);
 
 // One control-loop reading; nullopt where the device gave no value this tick.
 // The *_silent_s fields are station seconds since the device's last good
@@ -49,6 +50,12 @@ struct Readings {
   double storage_failing_s = 0;
   std::string storage_error{};
   std::size_t storage_pending = 0;
+  // Whether a gyro sample has arrived, and a sample commit succeeded, since
+  // the daemon started. Until then gyro_silent_s and storage_failing_s only
+  // count from the start, so they cannot tell that a trip restored from a
+  // checkpoint is over.
+  bool gyro_heard = true;
+  bool storage_committed = true;
 };
 
 struct InterlockOptions {
@@ -72,6 +79,14 @@ struct InterlockCondition {
   InterlockKind kind;
   std::string message;  // what a technician reads, with the values
 };
+
+// Whether `readings` can show that a tripped interlock's condition is over.
+// A tick without the readings a condition depends on (a device silent, a
+// daemon just restarted) does not clear it, so the grace of a fault that
+// persists runs on. The chamber alarm is judged with a chamber reading (the
+// station reads the alarm register only with the air temperature). The
+// settle timeout is cleared by the stability gate only: never here.
+bool readings_can_clear(InterlockKind kind, const Readings& readings);
 
 // The conditions that hold now. `tripped` tells which kinds are already
 // tripped: those clear only past the hysteresis. The settle timeout is

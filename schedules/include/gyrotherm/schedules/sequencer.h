@@ -104,6 +104,14 @@ struct SequencerOptions {
   InterlockOptions interlocks;
 };
 
+// A tripped interlock in a snapshot: a restart keeps its grace running from
+// when it tripped, not from the restart.
+struct InterlockTrip {
+  InterlockKind kind = InterlockKind::kOutOfLimits;
+  double since_s = 0;  // station s since run start when it tripped
+  std::string message;
+};
+
 // What a restart needs to continue a run (stored as JSON with the run).
 struct SequencerSnapshot {
   double t_s = 0;  // when taken
@@ -116,6 +124,7 @@ struct SequencerSnapshot {
   double setpoint_c = 0;
   double ramp_from_c = 0;
   bool paused = false;
+  std::vector<InterlockTrip> trips;  // tripped interlocks (JSON "trips"; absent = none)
 };
 nlohmann::json to_json(const SequencerSnapshot& snapshot);
 Result<SequencerSnapshot> snapshot_from_json(const nlohmann::json& j);
@@ -130,9 +139,14 @@ class Sequencer {
   // Continues a run from a snapshot at t_s (>= snapshot.t_s; the time
   // between counts as held for ramps and as elapsed for soaks and holds,
   // whose set point the controller kept). The run is held until the first
-  // tick with chamber and shell readings, then goes on by the same rule as
-  // after any hold. `reason` goes into the state change event.
-  void restore(const SequencerSnapshot& snapshot, double t_s, const std::string& reason);
+  // tick with chamber and shell readings and a gyro sample heard since the
+  // restart, then goes on by the same rule as after any hold. `reason` goes into the state change
+  // event. `data_until_s` is the station time (s since run start) of the run's last committed gyro
+  // sample (-infinity when none is): acquisition windows are cut there, since the time after it
+  // holds no data, so a soak acquires until the covered time reaches its acquire time. Tripped
+  // interlocks come back with their trip times: their grace runs on across the restart.
+  void restore(const SequencerSnapshot& snapshot, double t_s, double data_until_s,
+               const std::string& reason);
   void tick(double t_s, const Readings& readings);
 
   // Operator commands. Permanent error, nothing changed, when they do not
