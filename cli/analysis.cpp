@@ -208,7 +208,8 @@ struct Args {
   std::optional<std::string> taus;
   // Fits.
   std::optional<std::string> model;
-  std::string form = "paper";
+  std::string form{analysis::to_string(analysis::kDefaultDriftModelForm)};
+  std::optional<int> smooth_points;  // compare: moving-average points, 1 = raw
   std::optional<double> derivative_window_s;
   std::optional<double> l0_window_s;
   int max_order = 4, g_order = 1, r_order = 1;
@@ -324,7 +325,7 @@ Result<double> earth_rate_dph(const Parsed& p, const storage::RunRecord* run) {
 // positive"); the user typed the option (--l0-window-s).
 std::string as_option(std::string message) {
   for (const char* field : {"max_order", "g_order", "r_order", "l0_window_s", "derivative_window_s",
-                            "t0_window_s", "bin_s", "ma_window"}) {
+                            "t0_window_s", "bin_s", "ma_window", "smooth_points"}) {
     const std::string f = field;
     if (message.rfind(f, 0) == 0) {
       std::string option = "--" + f;
@@ -946,8 +947,12 @@ int cmd_fit(const Parsed& p) {
   inputs["l0_window_s"] = options->l0_window_s;
   json l0s = json::array();
   for (double l : fit->l0_per_series_dph) l0s.push_back(num(l));
+  const std::string warning = analysis::near_zero_warning(*fit);
   const json out = {{"model", analysis::to_string(fit->spec)},
                     {"form", analysis::to_string(fit->form)},
+                    {"form_label", std::string(analysis::form_label(fit->form))},
+                    {"near_zero", analysis::near_zero_coefficients(*fit)},
+                    {"warnings", warning.empty() ? json::array() : json::array({warning})},
                     {"coefficients", coefficient_map(fit->coefficients)},
                     {"standard_errors", coefficient_map(fit->std_errors)},
                     {"residual_std_dph", num(fit->residual_std_dph)},
@@ -971,8 +976,8 @@ int cmd_fit(const Parsed& p) {
     std::cout << out.dump(2) << "\n";
     return 0;
   }
-  std::cout << fmt::format("model {}, {} form, {}: {} points ({:g} s bins)\n",
-                           analysis::to_string(fit->spec), analysis::to_string(fit->form), what,
+  std::cout << fmt::format("model {}, {}, {}: {} points ({:g} s bins)\n",
+                           analysis::to_string(fit->spec), analysis::form_label(fit->form), what,
                            fit->n, bin_s);
   if (fit->form == analysis::DriftModelForm::kPaper) {
     std::cout << fmt::format("L0 {} °/h (mean rate over the first {:g} s", fixed(fit->l0_dph, 4),
@@ -994,6 +999,7 @@ int cmd_fit(const Parsed& p) {
   std::cout << fmt::format("residual std {} °/h, R² {}, condition {}\n",
                            fixed(fit->residual_std_dph, 4), fixed(fit->r_squared, 6),
                            general(fit->condition_estimate));
+  if (!warning.empty()) std::cout << "warning: " << warning << "\n";
   if (!p.coefficients_json.empty()) std::cout << "wrote " << p.coefficients_json << "\n";
   if (!p.c_header.empty()) std::cout << "wrote " << p.c_header << "\n";
   return 0;
@@ -1020,6 +1026,10 @@ int cmd_compare(const Parsed& p) {
   auto fo = fit_options(p, cfg);
   if (!fo) return fail(fo.error().message, kExitInput);
   options.fit = *fo;
+  const int smooth = p.smooth_points.value_or(
+      cfg.compare_smooth_points.value_or(static_cast<int>(options.smooth_points)));
+  if (smooth < 1) return fail(fmt::format("--smooth-points {}: must be >= 1", smooth), kExitInput);
+  options.smooth_points = static_cast<std::size_t>(smooth);
   std::string why;
   if (!options.IsValid(&why)) return fail(as_option(why), kExitInput);
   const double bin_s = bin_s_of(p, cfg);
@@ -1034,6 +1044,7 @@ int cmd_compare(const Parsed& p) {
   json inputs = set->inputs;
   inputs["derivative_window_s"] = options.fit.derivative_window_s;
   inputs["l0_window_s"] = options.fit.l0_window_s;
+  inputs["smooth_points"] = options.smooth_points;
   json cells = json::array();
   for (const auto& c : cmp->cells) {
     cells.push_back({{"terms", analysis::to_string(c.terms)},
@@ -1047,6 +1058,8 @@ int cmd_compare(const Parsed& p) {
   }
   const json out = {{"runs", cmp->runs},
                     {"form", analysis::to_string(options.form)},
+                    {"smooth_points", options.smooth_points},
+                    {"smoothing", analysis::smoothing_label(options.smooth_points)},
                     {"max_order", options.max_order},
                     {"g_order", options.g_order},
                     {"r_order", options.r_order},
@@ -1058,10 +1071,11 @@ int cmd_compare(const Parsed& p) {
     return 0;
   }
   std::cout << fmt::format(
-      "Compensated gyro output, {} form, {} {} ({:g} s bins). in-sample: one fit on all, "
-      "applied to all (the paper); LORO: each run compensated by a fit on the others.\n",
+      "Compensated gyro output, {} form, {} {} ({:g} s bins), std {}. in-sample: one fit on "
+      "all, applied to all (the paper); LORO: each run compensated by a fit on the others.\n",
       analysis::to_string(options.form), cmp->runs,
-      in->db ? (cmp->runs == 1 ? "run" : "runs") : (cmp->runs == 1 ? "file" : "files"), bin_s);
+      in->db ? (cmp->runs == 1 ? "run" : "runs") : (cmp->runs == 1 ? "file" : "files"), bin_s,
+      analysis::smoothing_label(options.smooth_points));
   const std::pair<analysis::TermSet, const char*> sets[] = {
       {analysis::TermSet::kT, "Table II — temperature T"},
       {analysis::TermSet::kTG, "Table III — T + gradient ΔT"},
@@ -1232,7 +1246,9 @@ AnalysisCommands::AnalysisCommands(CLI::App& app) : parsed_(std::make_unique<Par
     return cmd;
   };
   auto fit_opts = [&p](CLI::App* cmd) {
-    cmd->add_option("--form", p.form, "paper (y = L - L0, no intercept) or centered")
+    cmd->add_option("--form", p.form,
+                    "centered (intercept, unbiased; the default) or paper (the paper's form: "
+                    "y = L - L0, no intercept; biased when runs start away from 0 °C)")
         ->capture_default_str();
     cmd->add_option("--derivative-window-s", p.derivative_window_s,
                     "smoothing-derivative window, s (default: the run's config, else 60)");
@@ -1269,6 +1285,9 @@ AnalysisCommands::AnalysisCommands(CLI::App& app) : parsed_(std::make_unique<Par
   p.compare->add_option("--max-order", p.max_order, "T orders 1..N")->capture_default_str();
   p.compare->add_option("--g-order", p.g_order, "order of the gradient ΔT")->capture_default_str();
   p.compare->add_option("--r-order", p.r_order, "order of dT/dt")->capture_default_str();
+  p.compare->add_option("--smooth-points", p.smooth_points,
+                        "std after this many points' centred moving average, odd; 1 = raw bins "
+                        "(default: config compare_smooth_points, else 101)");
   fit_opts(p.compare);
 
   p.start_model =

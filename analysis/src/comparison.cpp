@@ -12,10 +12,32 @@ namespace {
 
 constexpr int kMaxOrder = 4;
 
-// Pooled mean and sample std of several vectors: two passes in long double.
+// The means of every `points` consecutive values (the n - points + 1 full
+// windows; x itself when points <= 1): a running sum in long double,
+// restarted from a fresh sum every 1024 windows so rounding cannot build up.
+std::vector<double> moving_average(std::vector<double> x, std::size_t points) {
+  if (points <= 1 || x.size() < points) return x;
+  const std::size_t windows = x.size() - points + 1;
+  std::vector<double> out(windows);
+  long double sum = 0;
+  for (std::size_t w = 0; w < windows; ++w) {
+    if (w % 1024 == 0) {
+      sum = 0;
+      for (std::size_t k = w; k < w + points; ++k) sum += x[k];
+    } else {
+      sum += static_cast<long double>(x[w + points - 1]) - x[w - 1];
+    }
+    out[w] = static_cast<double>(sum / static_cast<long double>(points));
+  }
+  return out;
+}
+
+// Pooled mean and sample std of several vectors (each smoothed first by a
+// `points`-point moving average): two passes in long double.
 class Pool {
  public:
-  void add(std::vector<double> v) { parts_.push_back(std::move(v)); }
+  explicit Pool(std::size_t points) : points_(points) {}
+  void add(std::vector<double> v) { parts_.push_back(moving_average(std::move(v), points_)); }
 
   Result<CompensatedStats> stats(std::string_view what) const {
     CompensatedStats s;
@@ -48,16 +70,22 @@ class Pool {
   }
 
  private:
+  std::size_t points_;
   std::vector<std::vector<double>> parts_;
 };
 
-Status check_run(const AnalysisSeries& s, std::size_t index) {
+Status check_run(const AnalysisSeries& s, std::size_t index, std::size_t smooth_points) {
   if (Status st = check_analysis_series(s, fmt::format("compare: run {}", index + 1)); !st.ok()) {
     return st;
   }
   if (s.t_s.size() < 2) {
     return Error::Permanent(
         fmt::format("compare: run {} has {} point(s) (need 2)", index + 1, s.t_s.size()));
+  }
+  if (s.t_s.size() < smooth_points) {
+    return Error::Permanent(fmt::format(
+        "compare: run {} has {} point(s), fewer than the {}-point moving average (smooth_points)",
+        index + 1, s.t_s.size(), smooth_points));
   }
   return Status::Ok();
 }
@@ -86,7 +114,7 @@ void in_sample(std::span<const AnalysisSeries> runs, const ComparisonOptions& o,
     cell.in_sample_error = fit.error().message;
     return;
   }
-  Pool pool;
+  Pool pool(o.smooth_points);
   for (std::size_t r = 0; r < runs.size(); ++r) {
     auto c = compensate(*fit, runs[r]);
     if (!c) {
@@ -116,7 +144,7 @@ void cross_validated(std::span<const AnalysisSeries> runs, std::vector<AnalysisS
         fmt::format("leave-one-run-out needs >= 2 runs ({} given)", runs.size());
     return;
   }
-  Pool pool;
+  Pool pool(o.smooth_points);
   // The held-out run is swapped to the end; the fit sees the others.
   const std::size_t last = work.size() - 1;
   for (std::size_t held = 0; held < runs.size(); ++held) {
@@ -172,9 +200,20 @@ bool ComparisonOptions::IsValid(std::string* error) const {
   if (r_order < 1 || r_order > kMaxOrder) {
     return fail(fmt::format("r_order must be 1..{} ({})", kMaxOrder, r_order));
   }
+  if (smooth_points < 1 || smooth_points > 100001 || smooth_points % 2 == 0) {
+    return fail(fmt::format("smooth_points must be odd, 1..100001 ({})", smooth_points));
+  }
   std::string why;
   if (!fit.IsValid(&why)) return fail("fit: " + why);
   return true;
+}
+
+std::string smoothing_label(std::size_t smooth_points) {
+  if (smooth_points <= 1) return "of the raw bins (not smoothed)";
+  return fmt::format(
+      "after a {}-point centred moving average of each run (the n − {} full "
+      "windows)",
+      smooth_points, smooth_points - 1);
 }
 
 Result<Comparison> compare_models(std::span<const AnalysisSeries> runs,
@@ -182,9 +221,9 @@ Result<Comparison> compare_models(std::span<const AnalysisSeries> runs,
   std::string why;
   if (!options.IsValid(&why)) return Error::Permanent("compare options: " + why);
   if (runs.empty()) return Error::Permanent("compare: no runs");
-  Pool none;
+  Pool none(options.smooth_points);
   for (std::size_t r = 0; r < runs.size(); ++r) {
-    if (Status st = check_run(runs[r], r); !st.ok()) return st.error();
+    if (Status st = check_run(runs[r], r, options.smooth_points); !st.ok()) return st.error();
     none.add(runs[r].rate_dph);
   }
 

@@ -1197,6 +1197,37 @@ std::vector<std::string> coefficient_names(const DriftModelSpec& spec, DriftMode
   return names;
 }
 
+std::string_view form_label(DriftModelForm form) {
+  return form == DriftModelForm::kPaper
+             ? "the paper's form (L − L0, no intercept; biased when runs start away from 0 °C)"
+             : "centred form";
+}
+
+std::vector<std::string> near_zero_coefficients(const DriftFit& fit, double sigmas) {
+  std::vector<std::string> out;
+  for (const std::string& name : coefficient_names(fit.spec, fit.form)) {
+    if (name == "intercept") continue;
+    const auto c = fit.coefficients.find(name);
+    const auto e = fit.std_errors.find(name);
+    if (c == fit.coefficients.end() || e == fit.std_errors.end()) continue;
+    if (!std::isfinite(e->second) || !(std::abs(c->second) >= sigmas * e->second)) {
+      out.push_back(name);
+    }
+  }
+  return out;
+}
+
+std::string near_zero_warning(const DriftFit& fit, double sigmas) {
+  const auto names = near_zero_coefficients(fit, sigmas);
+  if (names.empty()) return "";
+  std::string list;
+  for (const auto& n : names) list += (list.empty() ? "" : ", ") + n;
+  return fmt::format(
+      "{} within {:g} standard errors of zero: not determined by these data (a lower order or "
+      "more varied runs may be needed)",
+      list, sigmas);
+}
+
 std::string coefficient_unit(const std::string& name) {
   if (name == "intercept") return "°/h";
   if (name.size() != 2) return "";

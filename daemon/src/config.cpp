@@ -440,6 +440,12 @@ void read_analysis(TableReader t, AnalysisSection& a) {
     else
       a.ma_window = static_cast<int>(*w);
   }
+  if (auto w = t.integer("compare_smooth_points")) {
+    if (*w < 1 || *w > 100001 || *w % 2 == 0)
+      t.error("compare_smooth_points", "must be odd, in [1, 100001] (1 = not smoothed)");
+    else
+      a.compare_smooth_points = static_cast<int>(*w);
+  }
   a.l0_window_s = t.number_in("l0_window_s", a.l0_window_s, 1.0, 86400.0);
   if (auto m = t.string("model")) {
     if (auto spec = analysis::parse_model_spec(*m); !spec) {

@@ -311,6 +311,7 @@ void collect_fits(storage::Database& db, RunReport& r) {
 analysis::ComparisonOptions comparison_options(const AnalysisSettings& s, bool cross_validate) {
   analysis::ComparisonOptions o;
   o.fit = s.fit;
+  o.smooth_points = s.compare_smooth_points;
   o.cross_validate = cross_validate;
   return o;
 }
@@ -511,7 +512,7 @@ CampaignReport collect_campaign_report(std::vector<RunReport> runs, const Report
     c.comparison_error = "no run has an analysis series";
   }
   if (series.size() >= 2) {
-    auto fit = analysis::fit_drift_model(series, settings.model, analysis::DriftModelForm::kPaper,
+    auto fit = analysis::fit_drift_model(series, settings.model, analysis::kDefaultDriftModelForm,
                                          settings.fit);
     if (fit) {
       c.joint_fit = ReportFit{.fit = std::move(*fit),

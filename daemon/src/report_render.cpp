@@ -233,9 +233,9 @@ std::string table1_groups_csv(const std::vector<analysis::Table1SetpointRow>& gr
 std::string fit_html(const ReportFit& rf, const std::string& file_stem) {
   const auto& f = rf.fit;
   std::string h = fmt::format(
-      "<h3>{} — {} form</h3>\n<table class=\"numbers\">\n<thead><tr><th>coefficient</th>"
+      "<h3>{} — {}</h3>\n<table class=\"numbers\">\n<thead><tr><th>coefficient</th>"
       "<th>value</th><th>standard error</th><th>unit</th></tr></thead>\n<tbody>\n",
-      escape(analysis::to_string(f.spec)), escape(analysis::to_string(f.form)));
+      escape(analysis::to_string(f.spec)), escape(analysis::form_label(f.form)));
   for (const auto& name : analysis::coefficient_names(f.spec, f.form)) {
     const auto c = f.coefficients.find(name);
     const auto e = f.std_errors.find(name);
@@ -245,6 +245,9 @@ std::string fit_html(const ReportFit& rf, const std::string& file_stem) {
                      escape(analysis::coefficient_unit(name)));
   }
   h += "</tbody></table>\n";
+  if (const std::string warning = analysis::near_zero_warning(f); !warning.empty()) {
+    h += fmt::format("<p class=\"problem\">Warning: {}</p>\n", escape(warning));
+  }
   std::string l0;
   if (f.form == analysis::DriftModelForm::kPaper && !f.l0_per_series_dph.empty()) {
     std::vector<std::string> parts;
@@ -298,10 +301,10 @@ std::string comparison_html(const analysis::Comparison& c) {
   h += "</tbody></table>\n";
   h += fmt::format(
       "<p class=\"note\">Standard deviation (°/h) of the output after compensation with each "
-      "model ({} form, dT and dT/dt of order {} and {}), fitted on {} run{}{}. A dash: the fit "
-      "was not possible (hover for the reason).</p>\n",
-      analysis::to_string(c.options.form), c.options.g_order, c.options.r_order, c.runs,
-      c.runs == 1 ? "" : "s",
+      "model ({} form, dT and dT/dt of order {} and {}), {}, fitted on {} run{}{}. A dash: the "
+      "fit was not possible (hover for the reason).</p>\n",
+      analysis::to_string(c.options.form), c.options.g_order, c.options.r_order,
+      escape(analysis::smoothing_label(c.options.smooth_points)), c.runs, c.runs == 1 ? "" : "s",
       loro ? "; in-sample / leave-one-run-out (each run compensated by the fit of the others)"
            : "");
   return h;

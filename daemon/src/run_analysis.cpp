@@ -74,6 +74,7 @@ AnalysisSettings analysis_settings(const StationConfig& config) {
   if (auto spec = analysis::parse_model_spec(config.analysis.model)) s.model = *spec;
   s.fit.derivative_window_s = config.analysis.derivative_window_s;
   s.fit.l0_window_s = config.analysis.l0_window_s;
+  s.compare_smooth_points = static_cast<std::size_t>(config.analysis.compare_smooth_points);
   return s;
 }
 
@@ -99,6 +100,9 @@ RunConfig read_run_config(const std::string& text) {
       c.l0_window_s = get_num(a, "l0_window_s");
       c.derivative_window_s = get_num(a, "derivative_window_s");
       if (auto w = get_num(a, "ma_window")) c.ma_window = static_cast<int>(*w);
+      if (auto w = get_num(a, "compare_smooth_points")) {
+        c.compare_smooth_points = static_cast<int>(*w);
+      }
       if (a.is_object() && a.contains("model") && a["model"].is_string()) {
         c.model = a["model"].get<std::string>();
       }
@@ -118,6 +122,9 @@ RunConfig read_run_config(const std::string& text) {
     c.l0_window_s = number(t["analysis"]["l0_window_s"]);
     c.derivative_window_s = number(t["analysis"]["derivative_window_s"]);
     if (auto w = t["analysis"]["ma_window"].value<int64_t>()) c.ma_window = static_cast<int>(*w);
+    if (auto w = t["analysis"]["compare_smooth_points"].value<int64_t>()) {
+      c.compare_smooth_points = static_cast<int>(*w);
+    }
     if (auto m = t["analysis"]["model"].value<std::string>()) c.model = *m;
     if (auto m = t["analysis"]["allan_taus"].value<std::string>()) c.allan_taus = *m;
     if (auto n = t["station"]["name"].value<std::string>()) c.station_name = *n;
@@ -291,6 +298,9 @@ Result<AnalysisSettings> analysis_settings_of_run(const storage::RunRecord& run)
   if (cfg.ma_window) s.table1.ma_window = static_cast<std::size_t>(*cfg.ma_window);
   if (cfg.l0_window_s) s.fit.l0_window_s = *cfg.l0_window_s;
   if (cfg.derivative_window_s) s.fit.derivative_window_s = *cfg.derivative_window_s;
+  if (cfg.compare_smooth_points && *cfg.compare_smooth_points >= 1) {
+    s.compare_smooth_points = static_cast<std::size_t>(*cfg.compare_smooth_points);
+  }
   const auto bad = [&run](std::string_view what, const std::string& value, const Error& e) {
     return Error::Permanent(
         fmt::format("run {}: stored {} \"{}\": {}", run.id, what, value, e.message));

@@ -177,7 +177,9 @@ TEST(CoefficientExport, CHeadersCompileAndAgreeWithTheLibrary) {
 
   const DriftFit paper = pooled_fit(DriftModelForm::kPaper);
   const DriftFit centred = pooled_fit(DriftModelForm::kCentered);
-  auto model = fit_start_temperature_model(start_runs());
+  StartTemperatureOptions paper_form;  // the header without an intercept
+  paper_form.form = DriftModelForm::kPaper;
+  auto model = fit_start_temperature_model(start_runs(), paper_form);
   ASSERT_TRUE(model.ok()) << model.error().message;
   write_file(dir.path / "drift_paper.h", drift_fit_c_header(paper, kInfo, "fog_paper"));
   write_file(dir.path / "drift_centred.h", drift_fit_c_header(centred, kInfo, "fog-centred"));

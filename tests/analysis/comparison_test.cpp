@@ -37,9 +37,11 @@ TEST(ComparisonReference, GridMatchesNumpy) {
   const std::vector<Tokens> lines = read_reference_lines("comparison_grid.txt", kScript);
   const std::vector<AnalysisSeries> runs = load_runs(lines);
   ASSERT_EQ(runs.size(), 3u);
-  ComparisonOptions paper;
+  ComparisonOptions paper;  // the raw bins, as comparison_grid.txt
   ComparisonOptions centred;
+  paper.form = DriftModelForm::kPaper;
   centred.form = DriftModelForm::kCentered;
+  paper.smooth_points = centred.smooth_points = 1;
   for (const Tokens& t : lines) {
     if (t[0] == "derivative_window_s") {
       paper.fit.derivative_window_s = centred.fit.derivative_window_s = std::stod(t[1]);
@@ -77,12 +79,69 @@ TEST(ComparisonReference, GridMatchesNumpy) {
   EXPECT_EQ(cells, 15u);
 }
 
-// Paper form: compensated = L0 + residual, so the in-sample std equals the
-// std of the fit's residuals around their mean; the grid's layout.
+// The default grid smooths each run's compensated output (and the "none"
+// row) by Table I's 101-point centred moving average before pooling, as the
+// paper's Table II std implies; against numpy (comparison_grid_smoothed.txt).
+TEST(ComparisonReference, SmoothedGridMatchesNumpy) {
+  const std::vector<Tokens> lines = read_reference_lines("comparison_grid_smoothed.txt", kScript);
+  const std::vector<AnalysisSeries> runs = load_runs(lines);
+  ASSERT_EQ(runs.size(), 3u);
+  ComparisonOptions centred;  // the defaults: smoothed
+  ComparisonOptions paper;
+  EXPECT_EQ(centred.smooth_points, 101u);
+  for (const Tokens& t : lines) {
+    if (t[0] == "smooth_points") {
+      EXPECT_EQ(centred.smooth_points, std::stoul(t[1]));
+    }
+  }
+  centred.form = DriftModelForm::kCentered;
+  paper.form = DriftModelForm::kPaper;
+  for (const Tokens& t : lines) {
+    if (t[0] == "derivative_window_s") {
+      paper.fit.derivative_window_s = centred.fit.derivative_window_s = std::stod(t[1]);
+    }
+    if (t[0] == "l0_window_s") paper.fit.l0_window_s = std::stod(t[1]);
+  }
+  auto by_paper = compare_models(runs, paper);
+  ASSERT_TRUE(by_paper.ok()) << by_paper.error().message;
+  auto by_centred = compare_models(runs, centred);
+  ASSERT_TRUE(by_centred.ok()) << by_centred.error().message;
+
+  std::size_t cells = 0;
+  for (const Tokens& t : lines) {
+    if (t[0] == "none") {
+      EXPECT_EQ(by_centred->none.n, std::stoul(t[1]));
+      expect_rel(by_centred->none.mean_dph, std::stod(t[2]), 1e-10, "none mean");
+      expect_rel(by_centred->none.std_dph, std::stod(t[3]), 1e-10, "none std");
+      EXPECT_EQ(by_paper->none.n, by_centred->none.n);
+    }
+    if (t[0] != "cell") continue;
+    ++cells;
+    const Comparison& c = t[1] == "paper" ? *by_paper : *by_centred;
+    const ComparisonCell* cell = find_cell(c, t[2]);
+    ASSERT_NE(cell, nullptr) << t[2];
+    const std::string what = t[1] + " " + t[2];
+    ASSERT_TRUE(cell->in_sample.has_value()) << what << ": " << cell->in_sample_error;
+    ASSERT_TRUE(cell->cross_validated.has_value()) << what << ": " << cell->cross_validated_error;
+    EXPECT_EQ(cell->in_sample->n, std::stoul(t[3])) << what;
+    EXPECT_EQ(cell->cross_validated->n, std::stoul(t[3])) << what;
+    expect_rel(cell->in_sample->mean_dph, std::stod(t[4]), 1e-9, what + " in-sample mean");
+    expect_rel(cell->in_sample->std_dph, std::stod(t[5]), 1e-9, what + " in-sample std");
+    expect_rel(cell->cross_validated->mean_dph, std::stod(t[6]), 1e-9, what + " LORO mean");
+    // The LORO std of a high order can be large (extrapolation in T): 1e-8.
+    expect_rel(cell->cross_validated->std_dph, std::stod(t[7]), 1e-8, what + " LORO std");
+  }
+  EXPECT_EQ(cells, 24u);
+}
+
+// Paper form, raw bins: compensated = L0 + residual, so the in-sample std
+// equals the std of the fit's residuals around their mean; the grid's layout.
 TEST(Comparison, LayoutAndInSampleFit) {
   const std::vector<Tokens> lines = read_reference_lines("comparison_grid.txt", kScript);
   const std::vector<AnalysisSeries> runs = load_runs(lines);
   ComparisonOptions options;
+  options.form = DriftModelForm::kPaper;
+  options.smooth_points = 1;
   options.max_order = 3;
   options.cross_validate = false;
   auto c = compare_models(runs, options);
@@ -185,6 +244,19 @@ TEST(Comparison, BadInputIsAnErrorNamingTheRun) {
   bad.fit.derivative_window_s = -1;
   EXPECT_FALSE(bad.IsValid(&why));
   EXPECT_NE(why.find("derivative_window_s"), std::string::npos) << why;
+  for (std::size_t points : {0u, 100u, 100003u}) {
+    bad = {};
+    bad.smooth_points = points;
+    EXPECT_FALSE(bad.IsValid(&why)) << points;
+    EXPECT_NE(why.find("smooth_points"), std::string::npos) << why;
+  }
+  // A run shorter than the moving average is named.
+  runs = {flat_run(300, 0, 20, 8), flat_run(60, 1e4, 30, 8)};
+  c = compare_models(runs);
+  ASSERT_FALSE(c.ok());
+  EXPECT_NE(c.error().message.find("run 2 has 60 point(s), fewer than the 101-point"),
+            std::string::npos)
+      << c.error().message;
 }
 
 // Constant temperature: every cell keeps its error, no numbers, no NaN; the
@@ -193,7 +265,7 @@ TEST(Comparison, ConstantTemperatureGivesCellErrors) {
   const std::vector<AnalysisSeries> runs = {flat_run(400, 0, 25, 8), flat_run(400, 1e4, 25, 8.2)};
   auto c = compare_models(runs);
   ASSERT_TRUE(c.ok()) << c.error().message;
-  EXPECT_EQ(c->none.n, 800u);
+  EXPECT_EQ(c->none.n, 600u);  // 2 x (400 - 100) full 101-point windows
   EXPECT_TRUE(std::isfinite(c->none.std_dph));
   ASSERT_EQ(c->cells.size(), 12u);
   for (const ComparisonCell& cell : c->cells) {

@@ -242,7 +242,7 @@ TEST(StartTemperature, AFailingRunIsNamed) {
   model = fit_start_temperature_model(runs, options);
   ASSERT_FALSE(model.ok());
   EXPECT_NE(model.error().message.find("run 2"), std::string::npos) << model.error().message;
-  EXPECT_NE(model.error().message.find("3 points for 3 parameters"), std::string::npos)
+  EXPECT_NE(model.error().message.find("3 points for 4 parameters"), std::string::npos)
       << model.error().message;
 }
 

@@ -7,6 +7,8 @@
 
 #include <filesystem>
 
+#include "gyrotherm/daemon/run_analysis.h"
+
 namespace gyrotherm::daemon {
 namespace {
 
@@ -54,6 +56,24 @@ TEST(Config, DefaultsFromTheBrief) {
   EXPECT_EQ(cfg->analysis.ma_window, 101);
   EXPECT_DOUBLE_EQ(cfg->analysis.l0_window_s, 120.0);
   EXPECT_EQ(cfg->gyro.protocol, "kvh1750");
+}
+
+// [analysis] compare_smooth_points: the Tables II-IV moving average (odd;
+// 1 = raw), into the daemon's analysis settings.
+TEST(Config, CompareSmoothPoints) {
+  auto cfg = parse_station_config(kMinimal, "min.toml");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  EXPECT_EQ(cfg->analysis.compare_smooth_points, 101);
+  EXPECT_EQ(analysis_settings(*cfg).compare_smooth_points, 101u);
+  cfg = parse_station_config(std::string(kMinimal) + "[analysis]\ncompare_smooth_points = 1\n",
+                             "raw.toml");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  EXPECT_EQ(analysis_settings(*cfg).compare_smooth_points, 1u);
+  cfg = parse_station_config(std::string(kMinimal) + "[analysis]\ncompare_smooth_points = 100\n",
+                             "even.toml");
+  ASSERT_FALSE(cfg.ok());
+  EXPECT_THAT(cfg.error().message, HasSubstr("even.toml:11: analysis.compare_smooth_points"));
+  EXPECT_EQ(read_run_config("[analysis]\ncompare_smooth_points = 51\n").compare_smooth_points, 51);
 }
 
 TEST(Config, ExplicitRegisterMap) {

@@ -91,6 +91,80 @@ TEST(Report, AStoredFitThatDoesNotParseIsNamed) {
   EXPECT_NE(bad_model.error().message.find("T9"), std::string::npos);
 }
 
+// Issue 15 item 3: the daemon stores the centred fit first, the campaign's
+// joint fit (drift-fit.json / drift-fit.h) and the start model are centred,
+// the paper's form is labelled as the paper's, and a coefficient within 2
+// standard errors of zero is warned about under its table (and only then).
+analysis::AnalysisSeries started_at(double t0_c, double t_offset_s, unsigned seed) {
+  analysis::AnalysisSeries s;
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> noise(0.0, 0.05);
+  for (int i = 0; i < 3000; ++i) {
+    const double t = t_offset_s + i;
+    const double temp = t0_c + 12.0 * std::tanh(i / 900.0) + 0.8 * std::sin(i / 150.0);
+    const double grad = 0.2 + 0.1 * std::sin(i / 230.0);
+    s.t_s.push_back(t);
+    s.top_c.push_back(temp + grad / 2);
+    s.side_c.push_back(temp - grad / 2);
+    s.rate_dph.push_back(7.5 + 0.004 * temp - 1e-4 * temp * temp + 0.8 * grad + noise(rng));
+  }
+  return s;
+}
+
+TEST(Report, DefaultsAreTheCentredFormAndThePapersIsLabelled) {
+  EXPECT_EQ(AnalysisSettings{}.forms.front(), analysis::DriftModelForm::kCentered);
+  std::vector<RunReport> runs;
+  for (int k = 0; k < 5; ++k) {
+    RunReport r;
+    r.run.id = k + 1;
+    r.settings.model = {.t_order = 2, .g_order = 1};
+    r.series = started_at(-15.0 + 15.0 * k, 1e4 * k, 11 + k);
+    runs.push_back(std::move(r));
+  }
+  ReportOptions options;
+  options.generated_utc = "2026-11-21T02:00:00.000Z";
+  const CampaignReport c = collect_campaign_report(runs, options);
+  ASSERT_TRUE(c.joint_fit) << c.joint_fit_error;
+  EXPECT_EQ(c.joint_fit->fit.form, analysis::DriftModelForm::kCentered);
+  ASSERT_TRUE(c.start_model) << c.start_model_note;
+  EXPECT_EQ(c.start_model->form, analysis::DriftModelForm::kCentered);
+  ASSERT_TRUE(c.comparison) << c.comparison_error;
+  EXPECT_EQ(c.comparison->options.smooth_points, 101u);
+  std::string header, index;
+  for (const auto& f : render_campaign_files(c, options)) {
+    if (f.path == "drift-fit.h") header = f.content;
+    if (f.path == "index.html") index = f.content;
+  }
+  EXPECT_NE(header.find("intercept"), std::string::npos) << header;
+  EXPECT_NE(header.find("Centred form"), std::string::npos) << header;
+  EXPECT_EQ(header.find("Paper form"), std::string::npos) << header;
+  EXPECT_NE(index.find("101-point centred moving average"), std::string::npos);
+
+  // A run's report: the centred fit is clean; the paper's form is labelled
+  // and (forced) a coefficient within 2 SE of zero is flagged.
+  RunReport r = runs.front();
+  auto centred =
+      analysis::fit_drift_model(*r.series, r.settings.model, analysis::DriftModelForm::kCentered);
+  ASSERT_TRUE(centred) << centred.error().message;
+  // (forced) every coefficient 10 standard errors from zero: no warning.
+  for (auto& [name, se] : centred->std_errors) se = std::abs(centred->coefficients.at(name)) / 10;
+  ASSERT_TRUE(analysis::near_zero_coefficients(*centred).empty());
+  auto paper =
+      analysis::fit_drift_model(*r.series, r.settings.model, analysis::DriftModelForm::kPaper);
+  ASSERT_TRUE(paper) << paper.error().message;
+  paper->std_errors["G1"] = std::abs(paper->coefficients.at("G1")) / 1.9;  // 1.9 SE from zero
+  r.fits = {{.fit = *centred, .run_ids = {1}}, {.fit = *paper, .run_ids = {1}}};
+  std::string html;
+  for (const auto& f : render_run_files(r, options)) {
+    if (f.path.find("report.html") != std::string::npos) html = f.content;
+  }
+  ASSERT_FALSE(html.empty());
+  EXPECT_NE(html.find("the paper&#39;s form"), std::string::npos);
+  const auto warning = html.find("Warning: G1 within 2 standard errors of zero");
+  EXPECT_NE(warning, std::string::npos);
+  EXPECT_EQ(html.find("Warning:", warning + 1), std::string::npos) << "only the paper fit warns";
+}
+
 TEST(Report, Table1CsvReadsBackExactly) {
   storage::SegmentStatsRecord r;
   r.run_id = 2;

@@ -705,9 +705,64 @@ TEST_F(CliAnalysisTest, FitTextOutputListsEveryTerm) {
   const Run r =
       cli({"fit", "--db", db_path_, "--run", std::to_string(run_ids_[0]), "--model", "T1+R1+G1"});
   ASSERT_EQ(r.code, 0) << r.err;
-  for (const char* s : {"T1", "R1", "G1", "L0", "residual std", "R²"}) {
+  for (const char* s : {"centred form", "intercept", "T1", "R1", "G1", "residual std", "R²"}) {
     EXPECT_THAT(r.out, HasSubstr(s));
   }
+  const Run paper = cli({"fit", "--db", db_path_, "--run", std::to_string(run_ids_[0]), "--model",
+                         "T1+R1+G1", "--form", "paper"});
+  ASSERT_EQ(paper.code, 0) << paper.err;
+  for (const char* s : {"the paper's form", "biased", "L0", "T1", "R1", "G1"}) {
+    EXPECT_THAT(paper.out, HasSubstr(s));
+  }
+}
+
+// Issue 15 item 3: without --form the fit is the centred (unbiased) one, and
+// a coefficient within 2 standard errors of zero is warned about (text and
+// JSON), exactly as the library finds them.
+TEST_F(CliAnalysisTest, FitWithoutFormIsCentredAndWarnsAboutNearZeroCoefficients) {
+  const std::string a = run_csv_file(0), b = run_csv_file(2);
+  std::vector<analysis::AnalysisSeries> series;
+  for (const auto& p : {a, b}) {
+    auto w = analysis::read_csv_window(p);
+    ASSERT_TRUE(w);
+    auto s = analysis::csv_analysis_series(*w, 1.0);
+    ASSERT_TRUE(s);
+    series.push_back(std::move(*s));
+  }
+  bool saw_warning = false, saw_clean = false;
+  for (const char* model : {"T1+R1+G1", "T4+R2+G2"}) {
+    SCOPED_TRACE(model);
+    const Run r = cli({"fit", "--csv", a, "--csv", b, "--model", model, "--json"});
+    ASSERT_EQ(r.code, 0) << r.err;
+    const json j = r.parsed();
+    EXPECT_EQ(j.at("form").get<std::string>(), "centered");
+    EXPECT_TRUE(j.at("coefficients").contains("intercept"));
+    auto fit = analysis::fit_drift_model(series, *analysis::parse_model_spec(model),
+                                         analysis::DriftModelForm::kCentered);
+    ASSERT_TRUE(fit) << fit.error().message;
+    expect_fit(j, *fit);
+    const auto near = analysis::near_zero_coefficients(*fit);
+    EXPECT_EQ(j.at("near_zero").get<std::vector<std::string>>(), near);
+    // Each listed one is within 2 SE, each other one is not.
+    for (const auto& [k, v] : fit->coefficients) {
+      if (k == "intercept") continue;
+      const bool listed = std::find(near.begin(), near.end(), k) != near.end();
+      EXPECT_EQ(listed, std::abs(v) < 2 * fit->std_errors.at(k)) << k;
+    }
+    EXPECT_EQ(j.at("warnings").size(), near.empty() ? 0u : 1u);
+    const Run text = cli({"fit", "--csv", a, "--csv", b, "--model", model});
+    ASSERT_EQ(text.code, 0) << text.err;
+    if (near.empty()) {
+      saw_clean = true;
+      EXPECT_EQ(text.out.find("warning"), std::string::npos) << text.out;
+    } else {
+      saw_warning = true;
+      EXPECT_THAT(text.out, HasSubstr("warning: " + near.front()));
+      EXPECT_THAT(text.out, HasSubstr("within 2 standard errors of zero"));
+    }
+  }
+  EXPECT_TRUE(saw_clean) << "T1+R1+G1 is determined by these runs";
+  EXPECT_TRUE(saw_warning) << "T4+R2+G2 has terms these runs do not determine";
 }
 
 // ---------------------------------------------------------------- compare
@@ -753,6 +808,14 @@ TEST_F(CliAnalysisTest, CompareGridMatchesTheLibraryInSampleAndLeaveOneRunOut) {
 TEST_F(CliAnalysisTest, CompareTextIsLaidOutLikeThePapersTables) {
   const Run r = cli({"compare", "--csv", run_csv_file(0), run_csv_file(1), "--max-order", "2"});
   ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("101-point centred moving average"));
+  const Run raw = cli({"compare", "--csv", run_csv_file(0), run_csv_file(1), "--max-order", "2",
+                       "--smooth-points", "1", "--json"});
+  ASSERT_EQ(raw.code, 0) << raw.err;
+  EXPECT_EQ(raw.parsed().at("smooth_points").get<int>(), 1);
+  const Run even = cli({"compare", "--csv", run_csv_file(0), "--smooth-points", "100"});
+  EXPECT_EQ(even.code, 2) << even.out;
+  EXPECT_THAT(even.err, HasSubstr("--smooth-points"));
   for (const char* s :
        {"Table II", "Table III", "Table IV", "none", "linear", "2 order", "LORO std °/h"}) {
     EXPECT_THAT(r.out, HasSubstr(s));
@@ -848,10 +911,13 @@ TEST_F(CliAnalysisTest, ExportOfFourRunsCarriesTheLibrarysNumbers) {
     EXPECT_EQ(std::stod(row.at(8)), cell.cross_validated->std_dph) << i;
   }
 
-  // The joint fit and the start-temperature model.
-  auto joint = analysis::fit_drift_model(series, spec, analysis::DriftModelForm::kPaper);
+  // The joint fit (the centred form: the default) and the start-temperature model.
+  auto joint = analysis::fit_drift_model(series, spec, analysis::DriftModelForm::kCentered);
   ASSERT_TRUE(joint) << joint.error().message;
   const json drift = json::parse(read_file(out / "drift-fit.json"));
+  EXPECT_EQ(drift.at("form").get<std::string>(), "centered");
+  EXPECT_TRUE(drift.at("coefficients").contains("intercept"));
+  EXPECT_THAT(read_file(out / "drift-fit.h"), HasSubstr("Centred form"));
   for (const auto& [name, v] : joint->coefficients) {
     EXPECT_EQ(drift.at("coefficients").at(name).get<double>(), v) << name;
   }

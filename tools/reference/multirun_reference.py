@@ -7,6 +7,11 @@ Writes, into tests/analysis/data/:
   and, per cell (term set x order, paper and centred form), the mean and
   sample std of the compensated output rate - drift_terms in-sample and
   leave-one-run-out; read by tests/analysis/comparison_test.cpp;
+- comparison_grid_smoothed.txt: the same three runs and grid, the
+  compensated output of each run smoothed by a SMOOTH_POINTS-point centred
+  moving average (the n - SMOOTH_POINTS + 1 full windows, numpy.convolve
+  "valid") before the runs are pooled (and "none" likewise); read by
+  tests/analysis/comparison_test.cpp;
 - start_temperature_cubic.txt: five runs started at different temperatures,
   each run's own fit and the cubic in T0 of every coefficient (eq. 3); read
   by tests/analysis/start_temperature_test.cpp;
@@ -124,6 +129,11 @@ def stats(parts):
     return len(c), float(np.mean(c)), float(np.std(c, ddof=1))
 
 
+def smoothed(parts, points):
+    """Each run's SMOOTH_POINTS-point moving average (full windows only)."""
+    return [np.convolve(p, np.ones(points) / points, mode="valid") for p in parts]
+
+
 def fmt(v):
     return repr(float(v))
 
@@ -178,6 +188,40 @@ def write_comparison():
         _, lo_m, lo_s = stats(held)
         lines.append(f"cell {form} {spec} {n} {fmt(in_m)} {fmt(in_s)} {fmt(lo_m)} {fmt(lo_s)}")
     with open(os.path.join(OUT_DIR, "comparison_grid.txt"), "w") as f:
+        f.write("\n".join(lines) + "\n")
+
+
+SMOOTH_POINTS = 101
+SMOOTHED_CELLS = [(form, f"T{o}" if s == "T" else f"T{o}+G1" if s == "T+G" else f"T{o}+R1+G1")
+                  for form in ("centered", "paper") for s in ("T", "T+G", "T+G+R")
+                  for o in (1, 2, 3, 4)]
+
+
+def write_comparison_smoothed():
+    runs = [make_run(p) for p in COMPARISON_RUNS]
+    vars_ = [variables(r) for r in runs]
+    lines = ["# multirun_reference.py: comparison grid on three generated runs, each run's "
+             f"compensated output smoothed by a {SMOOTH_POINTS}-point moving average",
+             f"derivative_window_s {DERIVATIVE_WINDOW_S!r}", f"l0_window_s {L0_WINDOW_S!r}",
+             f"smooth_points {SMOOTH_POINTS}"]
+    for i, (p, r) in enumerate(zip(COMPARISON_RUNS, runs)):
+        lines.append(run_line(p))
+        lines += check_lines(i, r)
+    n, m, s = stats(smoothed([r["rate"] for r in runs], SMOOTH_POINTS))
+    lines.append(f"none {n} {fmt(m)} {fmt(s)}")
+    lines.append("# cell form spec n in_mean in_std loro_mean loro_std")
+    for form, spec in SMOOTHED_CELLS:
+        beta, _, _ = fit(runs, vars_, spec, form)
+        parts = [compensated(r, v, spec, beta) for r, v in zip(runs, vars_)]
+        n, in_m, in_s = stats(smoothed(parts, SMOOTH_POINTS))
+        held = []
+        for h in range(len(runs)):
+            others = [i for i in range(len(runs)) if i != h]
+            b, _, _ = fit([runs[i] for i in others], [vars_[i] for i in others], spec, form)
+            held.append(compensated(runs[h], vars_[h], spec, b))
+        _, lo_m, lo_s = stats(smoothed(held, SMOOTH_POINTS))
+        lines.append(f"cell {form} {spec} {n} {fmt(in_m)} {fmt(in_s)} {fmt(lo_m)} {fmt(lo_s)}")
+    with open(os.path.join(OUT_DIR, "comparison_grid_smoothed.txt"), "w") as f:
         f.write("\n".join(lines) + "\n")
 
 
@@ -264,6 +308,7 @@ def write_paper_table1():
 
 def main():
     write_comparison()
+    write_comparison_smoothed()
     write_start_temperature()
     write_paper_table1()
 

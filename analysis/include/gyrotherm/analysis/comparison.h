@@ -6,7 +6,9 @@
 // gyro output compensated: compensated = rate - drift_terms(fit) (L0 plus
 // the residual in the paper form). Each cell reports the mean and sample std
 // (ddof = 1) of the compensated output over every point of every run, beside
-// the uncompensated ("none") row:
+// the uncompensated ("none") row, each run's output first smoothed by a
+// smooth_points-point centred moving average (default 101, as Table I's last
+// column; at 1 s bins the raw white noise hides every temperature term):
 // - in-sample, as the paper did: one fit on all runs together, applied to
 //   them;
 // - leave-one-run-out (what the paper did not do): for each run, a fit on
@@ -36,8 +38,14 @@ struct ComparisonOptions {
   int max_order = 4;  // T orders 1 ... max_order (1..4)
   int g_order = 1;    // order of dT in {T, dT} and {T, dT, dT/dt}
   int r_order = 1;    // order of dT/dt in {T, dT, dT/dt}
-  DriftModelForm form = DriftModelForm::kPaper;
-  DriftFitOptions fit;         // derivative and L0 windows, tolerances
+  DriftModelForm form = kDefaultDriftModelForm;
+  DriftFitOptions fit;  // derivative and L0 windows, tolerances
+  // Each run's compensated output (and its uncompensated rate, "none") is
+  // smoothed by this many points' centred moving average before the pooled
+  // mean and std: Table I's last column (101 points, the n - 100 full
+  // windows of each run). 1 = the raw bins. Odd, 1 ... 100001. The fits
+  // themselves are always made on the raw series.
+  std::size_t smooth_points = 101;
   bool cross_validate = true;  // leave-one-run-out when >= 2 runs
 
   // False with a message naming the bad field.
@@ -69,8 +77,13 @@ struct Comparison {
   ComparisonOptions options;
 };
 
+// "raw bins (not smoothed)" or "after a 101-point centred moving average of
+// each run (full windows only)", for people.
+std::string smoothing_label(std::size_t smooth_points);
+
 // Errors (permanent): invalid options; no runs; a run that is invalid as a
-// series (non-finite, not increasing; names the 1-based run) or has < 2 points.
+// series (non-finite, not increasing; names the 1-based run), has < 2 points
+// or fewer points than smooth_points.
 Result<Comparison> compare_models(std::span<const AnalysisSeries> runs,
                                   const ComparisonOptions& options = {});
 

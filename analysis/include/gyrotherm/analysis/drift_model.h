@@ -49,6 +49,14 @@ enum class DriftModelForm {
   kCentered,  // y = L, intercept, powers of (x - mean(x)) / std(x)
 };
 std::string_view to_string(DriftModelForm form);
+// The form every fit, export and report uses unless told otherwise: the
+// centred one. The paper's form is biased whenever a run does not start at
+// 0 °C: L0 (the first minutes' mean rate) holds the temperature terms at the
+// start temperature, a constant no term of the no-intercept model can
+// represent, so the T (and correlated R, G) coefficients absorb it.
+inline constexpr DriftModelForm kDefaultDriftModelForm = DriftModelForm::kCentered;
+// For people: "centred form" or "the paper's form (L − L0, no intercept; biased ...)".
+std::string_view form_label(DriftModelForm form);
 // The model's coefficient names in design order: "intercept" (centred form),
 // T1..Tm, R1..Rn, G1..Gq.
 std::vector<std::string> coefficient_names(const DriftModelSpec& spec, DriftModelForm form);
@@ -87,7 +95,7 @@ std::vector<double> smoothing_derivative(std::span<const double> t_s, std::span<
 
 struct DriftFit {
   DriftModelSpec spec;
-  DriftModelForm form = DriftModelForm::kPaper;
+  DriftModelForm form = kDefaultDriftModelForm;
   // Physical units: "T1".."T4" in °/h per °C^i, "R1".."R4" in °/h per
   // (°C/s)^j, "G1".."G4" in °/h per °C^k, "intercept" (centred form) in °/h.
   std::map<std::string, double> coefficients;
@@ -115,6 +123,14 @@ struct DriftFit {
   std::vector<double> scaled_coefficients;
   double t_center = 0, t_scale = 1, r_center = 0, r_scale = 1, g_center = 0, g_scale = 1;
 };
+
+// The fit's T, R and G coefficients (design order; not the intercept) whose
+// value is within `sigmas` standard errors of zero (|c| < sigmas x SE, or a
+// standard error that is not finite): the data do not determine them.
+std::vector<std::string> near_zero_coefficients(const DriftFit& fit, double sigmas = 2.0);
+// "" when near_zero_coefficients is empty, else a sentence for people naming
+// them: "T3, G1 within 2 standard errors of zero: ...".
+std::string near_zero_warning(const DriftFit& fit, double sigmas = 2.0);
 
 // Checks a series as the fits need it: its four vectors of one length, every
 // value finite, t_s strictly increasing. Errors name `what`, the vector and

@@ -1,7 +1,8 @@
 // Start-temperature model of the reference paper (eq. 3, docs/analysis.md), and
 // coefficient export for the gyro's computer.
 //
-// Each run is fitted on its own with the drift model (paper form by default),
+// Each run is fitted on its own with the drift model (centred form by
+// default; the paper's form is biased, see kDefaultDriftModelForm),
 // giving coefficients a_i (T1..T4, R1.., G1..). With runs started at >= 4
 // distinct start temperatures T0, each coefficient is fitted as a cubic in T0:
 //   a_i(T0) = A_i0 + A_i1 T0 + A_i2 T0^2 + A_i3 T0^3
@@ -31,7 +32,7 @@ namespace gyrotherm::analysis {
 
 struct StartTemperatureOptions {
   DriftModelSpec spec{.t_order = 4, .r_order = 1, .g_order = 1};
-  DriftModelForm form = DriftModelForm::kPaper;
+  DriftModelForm form = kDefaultDriftModelForm;
   DriftFitOptions fit;
   double t0_window_s = 120.0;
   double distinct_t0_c = 1.0;
@@ -45,7 +46,7 @@ Result<double> start_temperature_c(const AnalysisSeries& series, double t0_windo
 
 struct StartTemperatureModel {
   DriftModelSpec spec;
-  DriftModelForm form = DriftModelForm::kPaper;
+  DriftModelForm form = kDefaultDriftModelForm;
   double derivative_window_s = 60.0;
   double l0_window_s = 120.0;
   double t0_window_s = 120.0;

@@ -97,7 +97,10 @@ struct AnalysisSection {
   double bin_s = 1.0;
   int ma_window = 101;
   double l0_window_s = 120.0;
-  std::string model = "T4+R1+G1";  // fitted after each run, paper and centred forms
+  std::string model = "T4+R1+G1";  // fitted after each run, centred and paper forms
+  // Tables II-IV: each run's compensated output smoothed by this many points
+  // (centred moving average, full windows only) before its std; 1 = raw.
+  int compare_smooth_points = 101;
   double derivative_window_s = 60.0;
   std::string allan_taus = "octave";  // octave, decade, all
 };

@@ -75,7 +75,7 @@ struct RunReport {
   bool table1_stored = true;  // false: computed for the report
   std::vector<storage::AllanRecord> allan;
   bool allan_stored = true;
-  std::vector<ReportFit> fits;  // the configured model, paper then centred form
+  std::vector<ReportFit> fits;  // the configured model, centred (default) then paper form
   std::optional<analysis::Comparison> comparison;
   std::string comparison_error;
   std::vector<Plot> plots;

@@ -37,9 +37,12 @@ struct AnalysisSettings {
   analysis::Table1Options table1;  // bin_s, ma_window, earth_rate_dph
   analysis::TauSet allan_taus = analysis::TauSet::kOctave;
   analysis::DriftModelSpec model{.t_order = 4, .r_order = 1, .g_order = 1};
-  std::vector<analysis::DriftModelForm> forms = {analysis::DriftModelForm::kPaper,
-                                                 analysis::DriftModelForm::kCentered};
-  analysis::DriftFitOptions fit;  // derivative_window_s, l0_window_s
+  // Stored in this order: the default (unbiased, centred) form first, then
+  // the paper's form for comparison with the paper.
+  std::vector<analysis::DriftModelForm> forms = {analysis::kDefaultDriftModelForm,
+                                                 analysis::DriftModelForm::kPaper};
+  std::size_t compare_smooth_points = 101;  // Tables II-IV, [analysis] compare_smooth_points
+  analysis::DriftFitOptions fit;            // derivative_window_s, l0_window_s
 };
 // From the config: [analysis] and the Earth rate of [station] latitude and
 // orientation. The model spec was checked when the config was loaded.
@@ -59,7 +62,7 @@ nlohmann::json run_config_json(const StationConfig& config);
 // value unset. The text overload takes either (JSON when it starts with '{').
 struct RunConfig {
   std::optional<double> bin_s, l0_window_s, derivative_window_s;
-  std::optional<int> ma_window;
+  std::optional<int> ma_window, compare_smooth_points;
   std::optional<std::string> model;
   std::optional<std::string> allan_taus;
   std::string station_name;
