@@ -782,8 +782,13 @@ std::string allan_text(const std::string& title, const AllanView& v, std::string
   out += table({"τ s", "σ °/h", "σ lo °/h", "σ hi °/h", "terms", "edf"}, rows, 0, "  ");
   out += fmt::format("  angle random walk  {}\n",
                      noise_term_line(v.noise.angle_random_walk_dprh, "°/√h"));
-  out += fmt::format("  bias instability   {}\n",
-                     noise_term_line(v.noise.bias_instability_dph, "°/h"));
+  // A value's note is the method; a bound or a dash names it too.
+  const auto& bi = v.noise.bias_instability_dph;
+  out += fmt::format(
+      "  bias instability   {}{}\n", noise_term_line(bi, "°/h"),
+      bi.is_value()
+          ? std::string()
+          : fmt::format(" [method: {}]", v.bi_method.empty() ? "minimum / 0.664" : v.bi_method));
   out += fmt::format("  rate random walk   {}\n",
                      noise_term_line(v.noise.rate_random_walk_dphprh, "°/h/√h"));
   out +=
