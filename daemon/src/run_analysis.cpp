@@ -214,7 +214,18 @@ nlohmann::json run_config_json(const StationConfig& config) {
     if (*reg) registers[key] = register_json(**reg);
   }
   chamber["registers"] = std::move(registers);
-  if (map.alarm) chamber["alarm"] = register_json(*map.alarm);
+  if (map.alarm) {
+    json alarm = register_json(map.alarm->reg);
+    const bool ok_values = map.alarm->mode == drivers::ChamberAlarm::Mode::kOkValues;
+    alarm[ok_values ? "ok_values" : "alarm_values"] = map.alarm->values;
+    chamber["alarm"] = std::move(alarm);
+  }
+  if (map.units) {
+    json units = register_json(map.units->reg);
+    units["celsius_value"] = map.units->celsius;
+    units["fahrenheit_value"] = map.units->fahrenheit;
+    chamber["units"] = std::move(units);
+  }
   json probes = endpoint_json(config.probes.endpoint);
   probes["profile"] = config.probes.profile;
   probes["channels"] = {{"top", config.probes.top_channel}, {"side", config.probes.side_channel}};
@@ -281,6 +292,7 @@ nlohmann::json run_config_json(const StationConfig& config) {
         {"l0_window_s", config.analysis.l0_window_s},
         {"model", config.analysis.model},
         {"derivative_window_s", config.analysis.derivative_window_s},
+        {"compare_smooth_points", config.analysis.compare_smooth_points},
         {"allan_taus", config.analysis.allan_taus}}},
       {"control",
        {{"tick_s", config.control.tick_s},

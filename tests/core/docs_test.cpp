@@ -44,8 +44,8 @@ std::vector<fs::path> repository_files() {
     }
   }
   if (!files.empty()) return files;
-  for (auto it = fs::recursive_directory_iterator(kSource); it != fs::recursive_directory_iterator();
-       ++it) {
+  for (auto it = fs::recursive_directory_iterator(kSource);
+       it != fs::recursive_directory_iterator(); ++it) {
     const std::string name = it->path().filename().string();
     if (it->is_directory() &&
         (name == ".git" || name == "node_modules" || name.rfind("build", 0) == 0)) {
@@ -61,7 +61,8 @@ TEST(Docs, NoFileRefersToADocumentOutsideTheRepository) {
   // Spelt in pieces so that this file does not name them itself.
   const std::string design = std::string("DESIGN") + ".md";
   const std::string shared = std::string("../") + "shared";
-  // "DESIGN §7", "DESIGN section 7" without the extension.
+  // The design document cited by section (the name, then "§7" or "section 7")
+  // without the extension.
   const std::regex design_section(std::string("DESIGN") + R"((\.md)?\s*(§|section))");
   const auto files = repository_files();
   ASSERT_GT(files.size(), 100u) << "the source tree was not found at " << kSource;
@@ -90,9 +91,8 @@ TEST(Docs, RelativeLinksReachFilesOfTheRepository) {
     const std::string text = read_text(page);
     for (std::sregex_iterator it(text.begin(), text.end(), link), end; it != end; ++it) {
       const fs::path target = page.parent_path() / (*it)[1].str();
-      EXPECT_TRUE(fs::exists(target))
-          << fs::relative(page, kSource).string() << " links to " << (*it)[1].str()
-          << ", which is not there";
+      EXPECT_TRUE(fs::exists(target)) << fs::relative(page, kSource).string() << " links to "
+                                      << (*it)[1].str() << ", which is not there";
     }
   }
 }

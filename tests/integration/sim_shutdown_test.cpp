@@ -36,15 +36,17 @@ class SimShutdownTest : public testing::TempDirTest {
     std::ostringstream ss;
     ss << demo.rdbuf();
     std::string cfg = ss.str();
+    // fmt, not "\"" + string: gcc 12 warns -Wrestrict on that (a false positive).
+    auto quoted = [](const std::filesystem::path& p) { return fmt::format("\"{}\"", p.string()); };
     auto replace = [&](const std::string& from, const std::string& to) {
       const auto pos = cfg.find(from);
       EXPECT_NE(pos, std::string::npos) << from;
       if (pos != std::string::npos) cfg.replace(pos, from.size(), to);
     };
-    replace("\"demo/sim-endpoints.toml\"", "\"" + (dir_ / "ep.toml").string() + "\"");
-    replace("\"demo/sim-truth.json\"", "\"" + (dir_ / "truth.json").string() + "\"");
-    replace("\"demo/gyro-pty\"", "\"" + (dir_ / "gyro-pty").string() + "\"");
-    replace("\"demo/sim.sock\"", "\"" + (dir_ / "sim.sock").string() + "\"");
+    replace("\"demo/sim-endpoints.toml\"", quoted(dir_ / "ep.toml"));
+    replace("\"demo/sim-truth.json\"", quoted(dir_ / "truth.json"));
+    replace("\"demo/gyro-pty\"", quoted(dir_ / "gyro-pty"));
+    replace("\"demo/sim.sock\"", quoted(dir_ / "sim.sock"));
     const std::string path = (dir_ / "station.toml").string();
     std::ofstream(path) << cfg;
     return path;
@@ -63,8 +65,8 @@ TEST_F(SimShutdownTest, SigtermWhileServingExitsCleanlyEveryTime) {
     ChildProcess sim({std::string(GYROTHERM_BIN_DIR) + "/gyrotherm-sim", "--config", cfg_path,
                       "--time-scale", "10"},
                      log);
-    ASSERT_TRUE(testing::wait_until([&] { return fs::exists(dir_ / "ep.toml"); },
-                                    std::chrono::seconds(20)))
+    ASSERT_TRUE(
+        testing::wait_until([&] { return fs::exists(dir_ / "ep.toml"); }, std::chrono::seconds(20)))
         << sim.log();
     auto ep = daemon::read_sim_endpoints((dir_ / "ep.toml").string());
     ASSERT_TRUE(ep.ok()) << ep.error().message;
