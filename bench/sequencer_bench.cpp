@@ -42,7 +42,8 @@ struct Plant {
 };
 
 void BM_PaperTable1Campaign(benchmark::State& state) {
-  const std::string path = std::string(GYROTHERM_SOURCE_DIR) + "/config/schedules/paper-table1.toml";
+  const std::string path =
+      std::string(GYROTHERM_SOURCE_DIR) + "/config/schedules/paper-table1.toml";
   auto plan = gs::load_schedule(path, {-20.0, 60.0, 2.0});
   if (!plan.ok()) {
     state.SkipWithError(plan.error().message.c_str());
@@ -65,9 +66,8 @@ void BM_PaperTable1Campaign(benchmark::State& state) {
     benchmark::DoNotOptimize(t);
   }
   state.counters["station_h"] = station_s / 3600.0;
-  state.counters["station_s_per_wall_s"] =
-      benchmark::Counter(station_s * static_cast<double>(state.iterations()),
-                         benchmark::Counter::kIsRate);
+  state.counters["station_s_per_wall_s"] = benchmark::Counter(
+      station_s * static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
 }
 BENCHMARK(BM_PaperTable1Campaign)->Unit(benchmark::kMillisecond);
 

@@ -70,17 +70,17 @@ Result<StationLock> StationLock::acquire(const std::string& db_path, double wait
         return Error::Permanent(
             fmt::format("station lock {}: cannot lock: {}", path, std::strerror(err)));
       }
-      return Error::Permanent(fmt::format(
-          "station lock {}: the station is run by another gyrothermd{} (one daemon per "
-          "database)",
-          path, owner.pid > 0 ? fmt::format(" (pid {})", owner.pid) : std::string()));
+      return Error::Permanent(
+          fmt::format("station lock {}: the station is run by another gyrothermd{} (one daemon per "
+                      "database)",
+                      path, owner.pid > 0 ? fmt::format(" (pid {})", owner.pid) : std::string()));
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(50));
   }
   StationLock lock(fd, path);
   if (Status s = write_all(fd, fmt::format("pid {}\n", ::getpid())); !s.ok()) {
-    return Error::Permanent(fmt::format("station lock {}: cannot write: {}", path,
-                                        s.error().message));
+    return Error::Permanent(
+        fmt::format("station lock {}: cannot write: {}", path, s.error().message));
   }
   return lock;
 }
@@ -101,7 +101,8 @@ void StationLock::note_api(const std::string& url) {
 std::optional<StationOwner> station_owner(const std::string& db_path) {
   const std::string path = station_lock_path(db_path);
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) return std::nullopt;  // never run here (or not readable: the daemon's own check stands)
+  if (fd < 0)
+    return std::nullopt;  // never run here (or not readable: the daemon's own check stands)
   // A shared lock can be had only while no daemon holds the exclusive one.
   if (::flock(fd, LOCK_SH | LOCK_NB) == 0) {
     ::close(fd);

@@ -2,6 +2,8 @@
 // regular file is refused without being read, a file over the limit is
 // refused after at most limit + 1 bytes, and error lists stay linear in time
 // and bounded in memory whatever the input.
+#include "gyrotherm/core/files.h"
+
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 #include <sys/stat.h>
@@ -11,7 +13,6 @@
 #include <fstream>
 #include <string>
 
-#include "gyrotherm/core/files.h"
 #include "gyrotherm/core/toml_reader.h"
 
 namespace gyrotherm {
@@ -56,8 +57,7 @@ TEST_F(BoundedFileTest, RefusesWhatIsNotARegularFile) {
   EXPECT_NE(piped.error().message.find("is a FIFO (named pipe)"), std::string::npos);
   auto missing = read_bounded_file((dir_ / "none").string(), 1024);
   ASSERT_FALSE(missing.ok());
-  EXPECT_NE(missing.error().message.find("none: cannot open file: No such file"),
-            std::string::npos)
+  EXPECT_NE(missing.error().message.find("none: cannot open file: No such file"), std::string::npos)
       << missing.error().message;
 }
 

@@ -58,8 +58,8 @@ class CommissioningTest : public StationTest {
   // The daemon's frame counters after it has read `more` further frames.
   void expect_no_frames_lost(uint64_t gaps_before, uint64_t missed_before) {
     const uint64_t frames = gyro("frames_ok");
-    ASSERT_TRUE(wait_until([&] { return gyro("frames_ok") > frames + 200; },
-                           std::chrono::seconds(30)));
+    ASSERT_TRUE(
+        wait_until([&] { return gyro("frames_ok") > frames + 200; }, std::chrono::seconds(30)));
     EXPECT_EQ(gyro("sequence_gaps"), gaps_before) << "the daemon lost gyro frames";
     EXPECT_EQ(gyro("frames_missed"), missed_before) << "the daemon lost gyro frames";
   }

@@ -1,10 +1,11 @@
 // The daemon's and the simulator's clocks must run at the same time scale,
 // within the range that works (issue 15 item 19).
+#include "gyrotherm/core/time_scale.h"
+
 #include <fmt/format.h>
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
-#include "gyrotherm/core/time_scale.h"
 #include "station_fixture.h"
 
 namespace gyrotherm::testing {
@@ -40,9 +41,9 @@ TEST_F(TimeScaleTest, ScalesOutsideTheWorkingRangeAreRefused) {
   EXPECT_EQ(*sim_code, 2) << sim.log();
   EXPECT_THAT(sim.log(), HasSubstr("time scale"));
 
-  ChildProcess daemon({bin("gyrothermd"), "--config", (dir_ / "station.toml").string(),
-                       "--time-scale", too_fast},
-                      (dir_ / "daemon.log").string());
+  ChildProcess daemon(
+      {bin("gyrothermd"), "--config", (dir_ / "station.toml").string(), "--time-scale", too_fast},
+      (dir_ / "daemon.log").string());
   const auto daemon_code = daemon.wait(std::chrono::seconds(20));
   ASSERT_TRUE(daemon_code.has_value()) << "the daemon runs at " << too_fast;
   EXPECT_NE(*daemon_code, 0) << daemon.log();
