@@ -71,9 +71,11 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     FUZZ_CHECK(map.ok());
     check_spec(map->setpoint, in);
     check_spec(map->process_value, in);
-    for (const auto& opt : {map->ramp_rate, map->ramp_action, map->ramp_scale, map->alarm}) {
+    for (const auto& opt : {map->ramp_rate, map->ramp_action, map->ramp_scale}) {
       if (opt) check_spec(*opt, in);
     }
+    if (map->alarm) check_spec(map->alarm->reg, in);
+    if (map->units) check_spec(map->units->reg, in);
   }
   const int channel = in.ConsumeIntegral<int>();
   const auto probe = probe_channel_spec("generic", channel);
