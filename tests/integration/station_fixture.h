@@ -21,6 +21,7 @@
 #include "gyrotherm/sim/simulator.h"
 #include "gyrotherm/storage/database.h"
 #include "process.h"
+#include "storage/test_util.h"
 #include "temp_dir_test.h"
 
 namespace gyrotherm::testing {
@@ -121,18 +122,8 @@ acquire_min = {}
                      name, setpoint_c, stability_window_min, acquire_min);
 }
 
-// The database passes PRAGMA integrity_check: its rows are exactly {"ok"}
-// (a failure lists them, or says why the check could not run).
-inline ::testing::AssertionResult integrity_ok(storage::Database& db) {
-  auto rows = db.integrity_check();
-  if (!rows) {
-    return ::testing::AssertionFailure() << "integrity_check did not run: " << rows.error().message;
-  }
-  if (*rows == std::vector<std::string>{"ok"}) return ::testing::AssertionSuccess();
-  auto failure = ::testing::AssertionFailure() << "integrity_check: " << rows->size() << " row(s)";
-  for (const auto& row : *rows) failure << "\n  " << row;
-  return failure;
-}
+// The database passes PRAGMA integrity_check: its rows are exactly {"ok"}.
+using storage::testing::integrity_ok;
 
 class StationTest : public testing::TempDirTest {
  protected:
