@@ -298,10 +298,19 @@ void Sequencer::tick(double t_s, const Readings& readings) {
     const double span = step.setpoint_c - ramp_from_c_;
     const double moved = std::min(std::abs(span), std::abs(setpoint_c_ - ramp_from_c_) +
                                                       step.rate_c_per_min * active_dt_s / 60.0);
+    const double wanted =
+        std::abs(setpoint_c_ - ramp_from_c_) + step.rate_c_per_min * active_dt_s / 60.0;
     setpoint_c_ = ramp_from_c_ + std::copysign(moved, span);
     if (moved >= std::abs(span)) {
       setpoint_c_ = step.setpoint_c;
       done = true;
+      // The set point's trajectory reached the target before this tick (a
+      // late tick, or one tick period's quantum): the ramp's acquisition ends
+      // there, so its window is span / rate of unheld time whatever the ticks.
+      if (step.rate_c_per_min > 0 && window_open_s_) {
+        const double late_s = (wanted - std::abs(span)) / step.rate_c_per_min * 60.0;
+        close_window(std::max(*window_open_s_, t_s - late_s));
+      }
     }
   } else {
     done = step_active_s_ >= step.hold_s;

@@ -212,6 +212,27 @@ TEST(Sequencer, RampMovesTheSetpointLinearlyFromWhereItWas) {
   EXPECT_EQ(seq.state(), RunState::kCompleted);
 }
 
+TEST(Sequencer, RampWindowEndsWhereTheSetPointReachedItsTargetNotAtTheLateTick) {
+  // 3 °C at 2 °C/min is 90 s; ticks every 7 s and one 15 s late tick (a busy
+  // control thread at a high time scale) must not lengthen the window.
+  for (const std::vector<double>& ticks :
+       {std::vector<double>{7, 14, 21, 28, 35, 42, 49, 56, 63, 70, 77, 84, 91},
+        std::vector<double>{30, 60, 80, 105}}) {
+    RecordingObserver obs;
+    Sequencer seq(make_plan({ramp(26, 2.0), ramp(23, 2.0)}), {}, obs);
+    seq.start(0.0, 23.0);
+    for (double t : ticks) seq.tick(t, {});
+    ASSERT_EQ(obs.finished.size(), 1u);
+    const StepTimes& times = obs.finished[0].times;
+    ASSERT_TRUE(times.acquire_start_s && times.acquire_end_s);
+    EXPECT_DOUBLE_EQ(*times.acquire_start_s, 0.0);
+    EXPECT_NEAR(*times.acquire_end_s, 90.0, 1e-9);
+    EXPECT_NEAR(times.acquired_s(), 90.0, 1e-9);
+    EXPECT_DOUBLE_EQ(*times.end_s, ticks.back()) << "the step ends when the sequencer acts";
+    EXPECT_DOUBLE_EQ(seq.setpoint_c(), 26.0);
+  }
+}
+
 TEST(Sequencer, DownwardRamp) {
   RecordingObserver obs;
   Sequencer seq(make_plan({ramp(-20, 2.0)}), {}, obs);
