@@ -705,6 +705,9 @@ void Station::end_run() {
   const RunState final_state = sequencer_ ? sequencer_->state() : RunState::kFailed;
   const int64_t run_id = current_run_id();
   write_setpoint(config_.station.safe_setpoint_c, true);
+  // No batch is stored under the run from here on, so the flush holds all of
+  // its samples before its analysis reads them.
+  run_clock_.close_samples();
   (void)writer_->flush();
   if (entry_ && final_state != RunState::kInterrupted) {
     if (auto st = db_.queue_finish(entry_->id, to_string(final_state)); !st) {
@@ -758,16 +761,14 @@ void Station::on_gyro_samples(std::span<const GyroSample> samples) {
   gyro_last_wall_s_.store(steady_now_s());
   gyro_heard_.store(true);
   // One read of the pair: the batch is timed from the start of the run it
-  // is stored under.
-  const RunClock::Value run = run_clock_.load();
-  const int64_t run_id = run.run_id;
-  if (run_id != 0) {
+  // is stored under, and handed to the writer before that run can end.
+  run_clock_.with_samples_run([&](const RunClock::Value& run) {
+    if (run.run_id == 0) return;
     thread_local std::vector<GyroSample> rel;
     rel.assign(samples.begin(), samples.end());
-    const double t0 = run.t0_s;
-    for (auto& s : rel) s.t_s -= t0;
-    writer_->push_gyro(run_id, rel);
-  }
+    for (auto& s : rel) s.t_s -= run.t0_s;
+    writer_->push_gyro(run.run_id, rel);
+  });
   std::lock_guard lock(mu_);
   for (const auto& s : samples) {
     if (gyro_window_start_s_ < 0 || s.t_s < gyro_window_start_s_) {

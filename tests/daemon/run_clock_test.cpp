@@ -6,6 +6,7 @@
 
 #include <atomic>
 #include <chrono>
+#include <future>
 #include <thread>
 
 namespace gyrotherm::daemon {
@@ -41,6 +42,38 @@ TEST(RunClock, IdAndStartTimeAreReadTogether) {
   reader.join();
   EXPECT_EQ(torn.load(), 0) << "of " << reads.load() << " reads over " << run << " runs";
   EXPECT_GE(runs_seen.load(), 2) << "the reader saw the runs change";
+}
+
+// A batch being handed over when the run ends is stored under it before
+// close_samples returns; batches after it belong to no run, while the
+// control thread still reads the run's id and start.
+TEST(RunClock, CloseSamplesWaitsForTheBatchBeingStored) {
+  RunClock clock;
+  clock.publish(7, 70.0);
+  std::promise<void> entered, release;
+  std::atomic<int64_t> stored_under{0};
+  std::thread reader([&] {
+    clock.with_samples_run([&](const RunClock::Value& run) {
+      entered.set_value();
+      release.get_future().wait();
+      stored_under = run.run_id;
+    });
+  });
+  entered.get_future().wait();
+  auto closed = std::async(std::launch::async, [&] { clock.close_samples(); });
+  EXPECT_EQ(closed.wait_for(std::chrono::milliseconds(50)), std::future_status::timeout)
+      << "close_samples returned while a batch was still being stored";
+  release.set_value();
+  closed.get();
+  reader.join();
+  EXPECT_EQ(stored_under.load(), 7);
+  int64_t after = -1;
+  clock.with_samples_run([&](const RunClock::Value& run) { after = run.run_id; });
+  EXPECT_EQ(after, 0) << "no batch is stored under a closed run";
+  EXPECT_EQ(clock.load().run_id, 7) << "the control thread still reads the run";
+  clock.publish(8, 80.0);
+  clock.with_samples_run([&](const RunClock::Value& run) { after = run.run_id; });
+  EXPECT_EQ(after, 8) << "the next run stores samples again";
 }
 
 }  // namespace
