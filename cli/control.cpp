@@ -14,11 +14,11 @@
 #include <variant>
 #include <vector>
 
+#include "gyrotherm/cli/http_client.h"
 #include "gyrotherm/core/files.h"
 #include "gyrotherm/core/toml_reader.h"
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/daemon/control.h"
-#include "gyrotherm/daemon/http_client.h"
 #include "gyrotherm/storage/database.h"
 
 namespace gyrotherm::cli {
@@ -152,7 +152,7 @@ std::variant<Answer, int> send(const DaemonOptions& o, const Request& r) {
   const auto base = base_url(o.url);
   if (!base) return 2;
   const std::string url = *base + r.path;
-  auto res = daemon::http_request(r.method, url, r.body, o.token);
+  auto res = cli::http_request(r.method, url, r.body, o.token);
   if (!res) {
     // The client's message is "METHOD URL: reason"; keep the reason.
     std::string reason = res.error().message;

@@ -146,7 +146,10 @@ int main(int argc, char** argv) {
   stream_options.status_json = [&station_ptr] { return gd::to_json(station_ptr->status()).dump(); };
   gd::EventStream stream(stream_options);
   gd::StationHooks hooks;
-  hooks.metrics = &metrics;
+  hooks.observe_modbus = [&metrics](std::string_view device, double seconds) {
+    metrics.observe_modbus(device, seconds);
+  };
+  hooks.observe_commit = [&metrics](double seconds) { metrics.observe_commit(seconds); };
   hooks.wall_clock = wall_clock ? &*wall_clock : nullptr;
   hooks.publish = [&stream](std::string_view event, const nlohmann::json& data) {
     stream.publish(event, data.dump());

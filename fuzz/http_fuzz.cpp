@@ -1,5 +1,5 @@
 // Fuzzes HTTP request handling: Beast's request parser with the daemon's
-// limits (as daemon/src/http_server.cpp reads a request), then the REST API
+// limits (as daemon/api/src/http_server.cpp reads a request), then the REST API
 // (daemon/api.h, handle_api_request) with a fake station, and the response
 // serialised as the server would send it.
 //

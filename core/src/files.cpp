@@ -65,6 +65,20 @@ Status write_file_atomically(const std::string& path, std::string_view content) 
   return Status::Ok();
 }
 
+Status write_file_creating_folders(const std::string& path, std::string_view content) {
+  namespace fs = std::filesystem;
+  const fs::path target(path);
+  if (target.has_parent_path()) {
+    std::error_code ec;
+    fs::create_directories(target.parent_path(), ec);
+    if (ec) {
+      return Error::Permanent(fmt::format("{}: cannot create the folder {}: {}", path,
+                                          target.parent_path().string(), ec.message()));
+    }
+  }
+  return write_file_atomically(path, content);
+}
+
 Status rename_directory_durably(const std::string& from, const std::string& to) {
   namespace fs = std::filesystem;
   std::error_code ec;

@@ -10,6 +10,7 @@
 #include <limits>
 
 #include "gyrotherm/analysis/table1.h"
+#include "gyrotherm/core/files.h"
 #include "gyrotherm/drivers/kvh1750.h"
 #include "gyrotherm/sim/control_server.h"
 
@@ -188,7 +189,7 @@ Status Simulator::start() {
     control_ = std::move(control).value();
   }
   if (!options_.truth_file.empty()) {
-    if (Status s = daemon::write_file_atomically(options_.truth_file, truth_json_); !s.ok()) {
+    if (Status s = write_file_creating_folders(options_.truth_file, truth_json_); !s.ok()) {
       return fail(Error::Permanent("cannot write the truth file: " + s.error().message));
     }
   }

@@ -1,4 +1,4 @@
-// Unit test of the report's tick-label formatters (daemon/report/report.js),
+// Unit test of the report's tick-label formatters (daemon/calibration/report/report.js),
 // run by node's own test runner:
 //
 //   node --test tests/browser/report_format.test.mjs
@@ -16,7 +16,7 @@ import { fileURLToPath } from 'node:url';
 import vm from 'node:vm';
 
 const here = path.dirname(fileURLToPath(import.meta.url));
-const source = fs.readFileSync(path.join(here, '../../daemon/report/report.js'), 'utf8');
+const source = fs.readFileSync(path.join(here, '../../daemon/calibration/report/report.js'), 'utf8');
 const context = vm.createContext({ console });
 vm.runInContext(source, context, { filename: 'report.js' });
 const format = context.gyrothermReportFormat;

@@ -61,6 +61,21 @@ TEST_F(BoundedFileTest, RefusesWhatIsNotARegularFile) {
       << missing.error().message;
 }
 
+// The simulator's endpoints and truth files may name folders that do not
+// exist yet; a folder that cannot be made is an error naming it.
+TEST_F(BoundedFileTest, WriteCreatingFoldersMakesTheFoldersFirst) {
+  const fs::path path = dir_ / "run" / "sim" / "endpoints.toml";
+  ASSERT_TRUE(write_file_creating_folders(path.string(), "x = 1\n").ok());
+  auto text = read_bounded_file(path.string(), 100);
+  ASSERT_TRUE(text.ok()) << text.error().message;
+  EXPECT_EQ(*text, "x = 1\n");
+  std::ofstream(dir_ / "plain") << "a file";
+  const auto blocked = write_file_creating_folders((dir_ / "plain" / "f.toml").string(), "x");
+  ASSERT_FALSE(blocked.ok());
+  EXPECT_NE(blocked.error().message.find("cannot create the folder"), std::string::npos)
+      << blocked.error().message;
+}
+
 TEST(FormatBytes, UsesBinaryUnitsWhenExact) {
   EXPECT_EQ(format_bytes(1 << 20), "1 MiB");
   EXPECT_EQ(format_bytes(64 * 1024), "64 KiB");

@@ -15,15 +15,16 @@
 #include <mutex>
 #include <nlohmann/json.hpp>
 
+#include "gyrotherm/cli/http_client.h"
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/daemon/auth_limiter.h"
-#include "gyrotherm/daemon/http_client.h"
 #include "gyrotherm/daemon/http_server.h"
 
 namespace gyrotherm::daemon {
 namespace {
 
 namespace http = boost::beast::http;
+using cli::http_request;
 
 HttpRequest get(std::string target, http::verb verb = http::verb::get) {
   HttpRequest req{verb, target, 11};

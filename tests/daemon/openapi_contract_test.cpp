@@ -1,4 +1,4 @@
-// The OpenAPI document (daemon/openapi.json) against the daemon: the same
+// The OpenAPI document (daemon/api/openapi.json) against the daemon: the same
 // routes, every documented operation answered with a documented status, and
 // the bodies of those answers shaped as the document's schemas say.
 #include <fmt/format.h>
@@ -17,7 +17,7 @@
 #include "gyrotherm/daemon/web_assets.h"
 
 #ifndef GYROTHERM_OPENAPI_PATH
-#define GYROTHERM_OPENAPI_PATH GYROTHERM_SOURCE_DIR "/daemon/openapi.json"
+#define GYROTHERM_OPENAPI_PATH GYROTHERM_SOURCE_DIR "/daemon/api/openapi.json"
 #endif
 
 namespace gyrotherm::daemon {
@@ -442,9 +442,9 @@ TEST(OpenApi, DocumentsExactlyTheServedRoutes) {
                       std::back_inserter(undocumented));
   std::set_difference(documented.begin(), documented.end(), served.begin(), served.end(),
                       std::back_inserter(not_served));
-  EXPECT_TRUE(undocumented.empty()) << "served but not in daemon/openapi.json:\n  "
+  EXPECT_TRUE(undocumented.empty()) << "served but not in daemon/api/openapi.json:\n  "
                                     << fmt::format("{}", fmt::join(undocumented, "\n  "));
-  EXPECT_TRUE(not_served.empty()) << "in daemon/openapi.json but not served (api_routes()):\n  "
+  EXPECT_TRUE(not_served.empty()) << "in daemon/api/openapi.json but not served (api_routes()):\n  "
                                   << fmt::format("{}", fmt::join(not_served, "\n  "));
 }
 

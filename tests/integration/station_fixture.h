@@ -16,8 +16,8 @@
 #include <string>
 #include <vector>
 
+#include "gyrotherm/cli/http_client.h"
 #include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/http_client.h"
 #include "gyrotherm/sim/simulator.h"
 #include "gyrotherm/storage/database.h"
 #include "process.h"
@@ -186,16 +186,16 @@ class StationTest : public testing::TempDirTest {
   }
   std::optional<nlohmann::json> status() {
     auto r =
-        daemon::http_request("GET", url("/api/v1/status"), "", "", std::chrono::milliseconds(500));
+        cli::http_request("GET", url("/api/v1/status"), "", "", std::chrono::milliseconds(500));
     if (!r || r->status != 200) return std::nullopt;
     return nlohmann::json::parse(r->body, nullptr, false);
   }
 
   // A request to the daemon; nullopt when it does not answer.
-  std::optional<daemon::HttpResult> call(const std::string& method, const std::string& path,
-                                         const std::string& body = "",
-                                         const std::string& token = kToken) {
-    auto r = daemon::http_request(method, url(path), body, token, std::chrono::seconds(5));
+  std::optional<cli::HttpResult> call(const std::string& method, const std::string& path,
+                                      const std::string& body = "",
+                                      const std::string& token = kToken) {
+    auto r = cli::http_request(method, url(path), body, token, std::chrono::seconds(5));
     if (!r) return std::nullopt;
     return *r;
   }

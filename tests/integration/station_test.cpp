@@ -12,8 +12,8 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 
+#include "gyrotherm/cli/http_client.h"
 #include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/http_client.h"
 #include "gyrotherm/daemon/run_analysis.h"
 #include "gyrotherm/drivers/modbus_device.h"
 #include "gyrotherm/sim/simulator.h"

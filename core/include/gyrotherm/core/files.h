@@ -16,6 +16,10 @@ namespace gyrotherm {
 // failure.
 Status write_file_atomically(const std::string& path, std::string_view content);
 
+// write_file_atomically after creating the folders `path` lies in, for files
+// whose folder may not exist yet (the simulator's endpoints and truth files).
+Status write_file_creating_folders(const std::string& path, std::string_view content);
+
 // Renames directory `from` to `to` (same file system) after syncing it, then
 // syncs the parent of `to`, so the directory appears whole or not at all.
 // `to` must not exist. Errors name both paths and the reason.

@@ -36,7 +36,7 @@ struct ReportOptions {
   std::string export_label;    // e.g. "nightly export of 2026-11-21 02:00 CET"
 };
 
-// One plotted series as report.js draws it (daemon/report/report.js).
+// One plotted series as report.js draws it (daemon/calibration/report/report.js).
 struct PlotSeries {
   std::string label;
   std::vector<double> x, y;    // y NaN = gap

@@ -59,11 +59,7 @@ Result<std::unique_ptr<Station>> Station::create(StationConfig config, const Clo
   storage::SampleWriterOptions wopt;
   wopt.commit_interval =
       std::chrono::milliseconds(static_cast<int64_t>(config.storage.commit_interval_s * 1000));
-  std::function<void(double)> on_commit;
-  if (hooks.metrics) {
-    on_commit = [m = hooks.metrics](double seconds) { m->observe_commit(seconds); };
-  }
-  auto writer = storage::SampleWriter::start(config.storage.db_path, wopt, std::move(on_commit));
+  auto writer = storage::SampleWriter::start(config.storage.db_path, wopt, hooks.observe_commit);
   if (!writer) return writer.error();
   return std::unique_ptr<Station>(new Station(std::move(config), clock, std::move(hooks),
                                               std::move(*db), std::move(*api_db),
@@ -136,9 +132,9 @@ Station::Station(StationConfig config, const Clock& clock, StationHooks hooks, s
                                                analysis_settings(config_), std::move(callbacks));
   chamber_ = std::make_unique<drivers::ModbusDevice>("chamber", config_.chamber.endpoint);
   probes_ = std::make_unique<drivers::ModbusDevice>("probes", config_.probes.endpoint);
-  if (Metrics* m = hooks_.metrics) {
-    chamber_->set_latency_observer([m](double s) { m->observe_modbus("chamber", s); });
-    probes_->set_latency_observer([m](double s) { m->observe_modbus("probes", s); });
+  if (auto observe = hooks_.observe_modbus) {
+    chamber_->set_latency_observer([observe](double s) { observe("chamber", s); });
+    probes_->set_latency_observer([observe](double s) { observe("probes", s); });
   }
   auto parser = drivers::make_frame_parser(config_.gyro.protocol);
   gyro_ = std::make_unique<drivers::GyroReader>(
@@ -149,6 +145,14 @@ Station::Station(StationConfig config, const Clock& clock, StationHooks hooks, s
 }
 
 Station::~Station() { stop("daemon shutting down"); }
+
+void Station::make_sequencer(schedules::Plan plan) {
+  schedules::SequencerOptions opt;
+  opt.safe_setpoint_c = config_.station.safe_setpoint_c;
+  opt.interlocks = config_.interlocks;
+  sequencer_ = std::make_unique<schedules::Sequencer>(
+      std::move(plan), opt, static_cast<schedules::SequencerObserver&>(*this));
+}
 
 schedules::StationLimits Station::limits() const {
   return {config_.station.min_temp_c, config_.station.max_temp_c,
@@ -559,11 +563,7 @@ void Station::start_next_run(double now_s) {
   segment_ids_.assign(plan->steps.size(), 0);
   const double start_sp = last_written_setpoint_c_.value_or(
       snapshot_.chamber_c.value_or(config_.station.safe_setpoint_c));
-  schedules::SequencerOptions opt;
-  opt.safe_setpoint_c = config_.station.safe_setpoint_c;
-  opt.interlocks = config_.interlocks;
-  sequencer_ = std::make_unique<schedules::Sequencer>(
-      std::move(*plan), opt, static_cast<schedules::SequencerObserver&>(*this));
+  make_sequencer(std::move(*plan));
   sequencer_->start(0.0, start_sp);
   checkpoint(true);
 }
@@ -670,11 +670,7 @@ void Station::resume_interrupted_run() {
       std::min(snap->step_index + 1, plan->steps.size()), plan->steps.size(),
       (t_resume_s - snap->t_s) / 60.0, run.state);
   spdlog::info("run {}: {}", run.id, reason);
-  schedules::SequencerOptions opt;
-  opt.safe_setpoint_c = config_.station.safe_setpoint_c;
-  opt.interlocks = config_.interlocks;
-  sequencer_ = std::make_unique<schedules::Sequencer>(
-      std::move(*plan), opt, static_cast<schedules::SequencerObserver&>(*this));
+  make_sequencer(std::move(*plan));
   add_event("resume", "", "", reason);
   last_written_setpoint_c_.reset();
   sequencer_->restore(*snap, t_resume_s, data_until_s, reason);

@@ -182,8 +182,4 @@ Status write_sim_endpoints(const std::string& path, const SimEndpoints& endpoint
 // Applies endpoints to the chamber, probes and gyro sections.
 void apply_sim_endpoints(StationConfig& config, const SimEndpoints& endpoints);
 
-// Writes `content` to `path` atomically (temporary file in the same folder,
-// fsync, rename).
-Status write_file_atomically(const std::string& path, std::string_view content);
-
 }  // namespace gyrotherm::daemon

@@ -17,6 +17,7 @@
 
 #include "gyrotherm/analysis/allan.h"
 #include "gyrotherm/analysis/drift_model.h"
+#include "gyrotherm/core/files.h"
 #include "gyrotherm/core/toml_reader.h"
 #include "gyrotherm/daemon/nightly.h"
 
@@ -574,7 +575,7 @@ Status write_sim_endpoints(const std::string& path, const SimEndpoints& ep) {
   std::ostringstream ss;
   ss << "# written by gyrotherm-sim; read by gyrothermd ([simulator] endpoints_file)\n"
      << t << "\n";
-  return write_file_atomically(path, ss.str());
+  return write_file_creating_folders(path, ss.str());
 }
 
 std::string sim_time_scale_mismatch(const SimEndpoints& ep, double daemon_time_scale,
@@ -595,38 +596,6 @@ void apply_sim_endpoints(StationConfig& config, const SimEndpoints& ep) {
     endpoint->port = ep.modbus_port;
   }
   config.gyro.serial.device = ep.gyro_device;
-}
-
-Status write_file_atomically(const std::string& path, std::string_view content) {
-  namespace fs = std::filesystem;
-  const fs::path target(path);
-  std::error_code ec;
-  if (target.has_parent_path()) fs::create_directories(target.parent_path(), ec);
-  const std::string tmp = path + ".tmp." + std::to_string(::getpid());
-  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) {
-    return Error::Permanent(fmt::format("{}: cannot create: {}", tmp, std::strerror(errno)));
-  }
-  std::size_t done = 0;
-  while (done < content.size()) {
-    const ssize_t n = ::write(fd, content.data() + done, content.size() - done);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      const int err = errno;
-      ::close(fd);
-      ::unlink(tmp.c_str());
-      return Error::Transient(fmt::format("{}: write failed: {}", tmp, std::strerror(err)));
-    }
-    done += static_cast<std::size_t>(n);
-  }
-  ::fsync(fd);
-  ::close(fd);
-  if (::rename(tmp.c_str(), path.c_str()) != 0) {
-    const int err = errno;
-    ::unlink(tmp.c_str());
-    return Error::Permanent(fmt::format("{}: rename failed: {}", path, std::strerror(err)));
-  }
-  return Status::Ok();
 }
 
 }  // namespace gyrotherm::daemon

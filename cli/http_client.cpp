@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/http_client.h"
+#include "gyrotherm/cli/http_client.h"
 
 #include <fmt/format.h>
 
@@ -9,7 +9,7 @@
 #include <boost/beast/http.hpp>
 #include <regex>
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::cli {
 
 namespace asio = boost::asio;
 namespace beast = boost::beast;
@@ -83,4 +83,4 @@ Result<HttpResult> http_request(const std::string& method, const std::string& ur
   return out;
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::cli

@@ -1,7 +1,7 @@
 // The REST API (docs/api.md) as a pure function from request
 // to response.
 //
-// One table of routes (api_routes() lists it; daemon/openapi.json describes
+// One table of routes (api_routes() lists it; daemon/api/openapi.json describes
 // it and a test keeps the two equal): status, the queue, operator controls,
 // run records and decimated samples, fits, /metrics, /healthz, the OpenAPI
 // document and the dashboard's files. GET /api/v1/stream is answered by the
@@ -56,14 +56,14 @@ std::optional<HttpResponse> check_access(const HttpRequest& req, const ApiContex
                                          std::string_view peer = {});
 
 // Every (method, path template) served, e.g. {"GET", "/api/v1/runs/{id}"};
-// HEAD is served wherever GET is and not listed. docs: daemon/openapi.json.
+// HEAD is served wherever GET is and not listed. docs: daemon/api/openapi.json.
 struct RouteInfo {
   std::string method;
   std::string path;
 };
 std::vector<RouteInfo> api_routes();
 
-// The OpenAPI 3 document (daemon/openapi.json, embedded at build time).
+// The OpenAPI 3 document (daemon/api/openapi.json, embedded at build time).
 std::string_view openapi_document();
 
 // What a presented token may do: kControl when it equals one of

@@ -46,7 +46,6 @@
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/daemon/control.h"
 #include "gyrotherm/daemon/exporter.h"
-#include "gyrotherm/daemon/metrics.h"
 #include "gyrotherm/daemon/run_clock.h"
 #include "gyrotherm/daemon/status.h"
 #include "gyrotherm/drivers/gyro_reader.h"
@@ -57,9 +56,13 @@
 
 namespace gyrotherm::daemon {
 
-// What the station tells the rest of the daemon; both optional.
+// What the station tells the rest of the daemon; each optional.
 struct StationHooks {
-  Metrics* metrics = nullptr;  // latency histograms (not owned; outlives the station)
+  // Latencies as they happen, for the metrics' histograms: each Modbus
+  // request (device "chamber" or "probes") and each database commit, in
+  // seconds. Called from the control and writer threads; thread-safe.
+  std::function<void(std::string_view device, double seconds)> observe_modbus;
+  std::function<void(double seconds)> observe_commit;
   // Live events for /api/v1/stream: "state", "event", "stats" with their
   // JSON. Called from the control and analysis threads; must not block.
   std::function<void(std::string_view event, const nlohmann::json& data)> publish;
@@ -85,6 +88,8 @@ class Station final : public StationControl, private schedules::SequencerObserve
   void stop(const std::string& reason);
 
   schedules::StationLimits limits() const;
+  // The sequencer of a run starting or resuming, with the config in force.
+  void make_sequencer(schedules::Plan plan);
 
   StatusSnapshot status() const;
   // True when no run is active and nothing will start by itself (the queue

@@ -6,7 +6,7 @@
 
 #include "gyrotherm/core/result.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::cli {
 
 struct HttpResult {
   int status = 0;
@@ -21,4 +21,4 @@ Result<HttpResult> http_request(const std::string& method, const std::string& ur
                                 const std::string& body = "", const std::string& token = "",
                                 std::chrono::milliseconds timeout = std::chrono::seconds(5));
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::cli

@@ -1,4 +1,4 @@
-// The files the report page inlines (generated from daemon/report/ and
+// The files the report page inlines (generated from daemon/calibration/report/ and
 // uPlot's npm package at configure time; report_assets.cpp.in).
 #pragma once
 
