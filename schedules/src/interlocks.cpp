@@ -3,115 +3,119 @@
 #include <fmt/format.h>
 
 #include <cmath>
+#include <utility>
 
 namespace gyrotherm::schedules {
 
-std::string_view to_string(InterlockKind kind) {
-  switch (kind) {
-    case InterlockKind::kOutOfLimits:
-      return "out_of_limits";
-    case InterlockKind::kProbeDisagreement:
-      return "probe_disagreement";
-    case InterlockKind::kSettleTimeout:
-      return "settle_timeout";
-    case InterlockKind::kChamberSilent:
-      return "chamber_silent";
-    case InterlockKind::kProbesSilent:
-      return "probes_silent";
-    case InterlockKind::kGyroLost:
-      return "gyro_lost";
-    case InterlockKind::kChamberAlarm:
-      return "chamber_alarm";
-    case InterlockKind::kStorageFailing:
-      return "storage_failing";
+namespace interlock_checks {
+
+std::optional<std::string> out_of_limits(const Readings& r, const InterlockOptions& o,
+                                         bool tripped) {
+  // Once tripped, a temperature must come back hysteresis_c inside the
+  // limit band before the condition clears.
+  const double inset = tripped ? o.hysteresis_c : 0.0;
+  const double lo = o.min_temp_c - o.limit_margin_c + inset;
+  const double hi = o.max_temp_c + o.limit_margin_c - inset;
+  std::string what;
+  for (auto [name, value] : {std::pair{"chamber air", r.chamber_c}, std::pair{"top probe", r.top_c},
+                             std::pair{"side probe", r.side_c}}) {
+    if (value && (*value < lo || *value > hi || !std::isfinite(*value))) {
+      what += fmt::format("{}{} {:.2f} °C", what.empty() ? "" : ", ", name, *value);
+    }
   }
-  return "?";
+  if (what.empty()) return std::nullopt;
+  return fmt::format("{} outside the station limits {:g} … {:g} °C (± {:g} °C margin)", what,
+                     o.min_temp_c, o.max_temp_c, o.limit_margin_c);
+}
+
+std::optional<std::string> probe_disagreement(const Readings& r, const InterlockOptions& o,
+                                              bool tripped) {
+  if (!r.top_c || !r.side_c) return std::nullopt;
+  const double limit_c = o.probe_disagreement_c - (tripped ? o.hysteresis_c : 0.0);
+  const double diff_c = *r.top_c - *r.side_c;
+  // Written as "trips when beyond", so a NaN difference does not trip.
+  if (std::abs(diff_c) > limit_c) {
+    return fmt::format(
+        "top {:.2f} °C and side {:.2f} °C probes disagree by {:.2f} °C (limit {:g} °C)", *r.top_c,
+        *r.side_c, std::abs(diff_c), o.probe_disagreement_c);
+  }
+  return std::nullopt;
+}
+
+namespace {
+std::optional<std::string> silent(double silent_s, double timeout_s, const char* what) {
+  if (silent_s > timeout_s) {
+    return fmt::format("{} silent for {:.0f} s (timeout {:g} s)", what, silent_s, timeout_s);
+  }
+  return std::nullopt;
+}
+}  // namespace
+
+std::optional<std::string> chamber_silent(const Readings& r, const InterlockOptions& o, bool) {
+  return silent(r.chamber_silent_s, o.chamber_timeout_s, "chamber controller");
+}
+
+std::optional<std::string> probes_silent(const Readings& r, const InterlockOptions& o, bool) {
+  return silent(r.probes_silent_s, o.probes_timeout_s, "probe module");
+}
+
+std::optional<std::string> gyro_lost(const Readings& r, const InterlockOptions& o, bool) {
+  return silent(r.gyro_silent_s, o.gyro_timeout_s, "gyro stream");
+}
+
+std::optional<std::string> chamber_alarm(const Readings& r, const InterlockOptions&, bool) {
+  if (!r.chamber_alarm) return std::nullopt;
+  return "the chamber controller reports an alarm";
+}
+
+std::optional<std::string> storage_failing(const Readings& r, const InterlockOptions& o, bool) {
+  if (r.storage_failing_s > o.storage_timeout_s) {
+    return fmt::format(
+        "storage failing for {:.0f} s (timeout {:g} s): {}; acquisition suspended, {} samples "
+        "held in memory until commits succeed",
+        r.storage_failing_s, o.storage_timeout_s,
+        r.storage_error.empty() ? "commits fail" : r.storage_error, r.storage_pending);
+  }
+  return std::nullopt;
+}
+
+}  // namespace interlock_checks
+
+namespace {
+// The row of `kind`, or nullptr for a value outside the enum (a cast from a
+// number).
+const InterlockDefinition* definition(InterlockKind kind) {
+  const int k = static_cast<int>(kind);
+  if (k < 0 || k >= kInterlockKindCount) return nullptr;
+  return &kInterlockDefinitions[k];
+}
+}  // namespace
+
+std::string_view to_string(InterlockKind kind) {
+  const InterlockDefinition* d = definition(kind);
+  return d ? d->name : "?";
 }
 
 std::optional<InterlockKind> parse_interlock_kind(std::string_view name) {
-  for (int k = 0; k < kInterlockKindCount; ++k) {
-    if (to_string(static_cast<InterlockKind>(k)) == name) return static_cast<InterlockKind>(k);
+  for (const InterlockDefinition& d : kInterlockDefinitions) {
+    if (d.name == name) return d.kind;
   }
   return std::nullopt;
 }
 
 bool readings_can_clear(InterlockKind kind, const Readings& r) {
-  const bool probes = r.top_c && r.side_c;
-  switch (kind) {
-    case InterlockKind::kOutOfLimits:
-      return r.chamber_c && probes;
-    case InterlockKind::kProbeDisagreement:
-    case InterlockKind::kProbesSilent:
-      return probes;
-    case InterlockKind::kChamberSilent:
-    case InterlockKind::kChamberAlarm:
-      return r.chamber_c.has_value();
-    case InterlockKind::kGyroLost:
-      return r.gyro_heard;
-    case InterlockKind::kStorageFailing:
-      return r.storage_committed;
-    case InterlockKind::kSettleTimeout:
-      return false;
-  }
-  return false;
+  const InterlockDefinition* d = definition(kind);
+  return d && d->can_clear(r);
 }
 
 std::vector<InterlockCondition> evaluate_interlocks(const Readings& r, const InterlockOptions& o,
                                                     const bool (&tripped)[kInterlockKindCount]) {
-  auto was = [&](InterlockKind k) { return tripped[static_cast<int>(k)]; };
   std::vector<InterlockCondition> out;
-
-  {
-    // Once tripped, a temperature must come back hysteresis_c inside the
-    // limit band before the condition clears.
-    const double inset = was(InterlockKind::kOutOfLimits) ? o.hysteresis_c : 0.0;
-    const double lo = o.min_temp_c - o.limit_margin_c + inset;
-    const double hi = o.max_temp_c + o.limit_margin_c - inset;
-    std::string what;
-    for (auto [name, value] :
-         {std::pair{"chamber air", r.chamber_c}, std::pair{"top probe", r.top_c},
-          std::pair{"side probe", r.side_c}}) {
-      if (value && (*value < lo || *value > hi || !std::isfinite(*value))) {
-        what += fmt::format("{}{} {:.2f} °C", what.empty() ? "" : ", ", name, *value);
-      }
+  for (const InterlockDefinition& d : kInterlockDefinitions) {
+    if (!d.check) continue;  // tripped by the sequencer
+    if (auto message = d.check(r, o, tripped[static_cast<int>(d.kind)])) {
+      out.push_back({d.kind, std::move(*message)});
     }
-    if (!what.empty()) {
-      out.push_back({InterlockKind::kOutOfLimits,
-                     fmt::format("{} outside the station limits {:g} … {:g} °C (± {:g} °C margin)",
-                                 what, o.min_temp_c, o.max_temp_c, o.limit_margin_c)});
-    }
-  }
-  if (r.top_c && r.side_c) {
-    const double limit =
-        o.probe_disagreement_c - (was(InterlockKind::kProbeDisagreement) ? o.hysteresis_c : 0.0);
-    const double diff = *r.top_c - *r.side_c;
-    if (std::abs(diff) > limit) {
-      out.push_back({InterlockKind::kProbeDisagreement,
-                     fmt::format("top {:.2f} °C and side {:.2f} °C probes disagree by {:.2f} °C "
-                                 "(limit {:g} °C)",
-                                 *r.top_c, *r.side_c, std::abs(diff), o.probe_disagreement_c)});
-    }
-  }
-  auto silent = [&](InterlockKind kind, double silent_s, double timeout_s, const char* what) {
-    if (silent_s > timeout_s) {
-      out.push_back({kind, fmt::format("{} silent for {:.0f} s (timeout {:g} s)", what, silent_s,
-                                       timeout_s)});
-    }
-  };
-  silent(InterlockKind::kChamberSilent, r.chamber_silent_s, o.chamber_timeout_s,
-         "chamber controller");
-  silent(InterlockKind::kProbesSilent, r.probes_silent_s, o.probes_timeout_s, "probe module");
-  silent(InterlockKind::kGyroLost, r.gyro_silent_s, o.gyro_timeout_s, "gyro stream");
-  if (r.chamber_alarm) {
-    out.push_back({InterlockKind::kChamberAlarm, "the chamber controller reports an alarm"});
-  }
-  if (r.storage_failing_s > o.storage_timeout_s) {
-    out.push_back({InterlockKind::kStorageFailing,
-                   fmt::format("storage failing for {:.0f} s (timeout {:g} s): {}; acquisition "
-                               "suspended, {} samples held in memory until commits succeed",
-                               r.storage_failing_s, o.storage_timeout_s,
-                               r.storage_error.empty() ? "commits fail" : r.storage_error,
-                               r.storage_pending)});
   }
   return out;
 }

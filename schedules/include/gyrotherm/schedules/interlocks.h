@@ -11,8 +11,20 @@
 // evaluate_interlocks() is a pure function of the readings, so each
 // condition is tested on its own; the settle timeout is the sequencer's
 // (it depends on the step).
+//
+// Every interlock is one row of kInterlockDefinitions: its name, default
+// grace, check and clear rule; the functions below only look the table up.
+// To add one: an enumerator at the end of InterlockKind, its check in
+// interlocks.cpp (declared in interlock_checks), a row at the end of the
+// table, and a row in the interlock tests (tests/schedules/). A row out of
+// the enum's order, or a duplicate name, does not compile; the name is the
+// user's (events, REST, `<name>_grace_min` in [interlocks]), so it never
+// changes once released.
 #pragma once
 
+#include <array>
+#include <cstddef>
+#include <iterator>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -30,9 +42,6 @@ enum class InterlockKind {
   kChamberAlarm,       // the controller reports an alarm
   kStorageFailing,     // samples cannot be committed (disk full, I/O error) for too long
 };
-inline constexpr int kInterlockKindCount = 8;
-std::string_view to_string(InterlockKind kind);
-std::optional<InterlockKind> parse_interlock_kind(std::string_view name);
 
 // One control-loop reading; nullopt where the device gave no value this tick.
 // The *_silent_s fields are station seconds since the device's last good
@@ -58,6 +67,95 @@ struct Readings {
   bool storage_committed = true;
 };
 
+struct InterlockOptions;
+
+// The checks of the table's rows (interlocks.cpp). Each returns the message a
+// technician reads when its condition holds now; `tripped` tells that the
+// interlock is already tripped, so a temperature condition clears only past
+// the hysteresis.
+namespace interlock_checks {
+using Check = std::optional<std::string> (*)(const Readings&, const InterlockOptions&,
+                                             bool tripped);
+std::optional<std::string> out_of_limits(const Readings&, const InterlockOptions&, bool tripped);
+std::optional<std::string> probe_disagreement(const Readings&, const InterlockOptions&,
+                                              bool tripped);
+std::optional<std::string> chamber_silent(const Readings&, const InterlockOptions&, bool tripped);
+std::optional<std::string> probes_silent(const Readings&, const InterlockOptions&, bool tripped);
+std::optional<std::string> gyro_lost(const Readings&, const InterlockOptions&, bool tripped);
+std::optional<std::string> chamber_alarm(const Readings&, const InterlockOptions&, bool tripped);
+std::optional<std::string> storage_failing(const Readings&, const InterlockOptions&, bool tripped);
+}  // namespace interlock_checks
+
+struct InterlockDefinition {
+  InterlockKind kind;
+  std::string_view name;     // in events, REST and `<name>_grace_min`: never renamed
+  double default_grace_min;  // tripped this long, the run is aborted
+  // nullptr: not a condition of the readings (settle_timeout: the sequencer
+  // trips it from the step's clock).
+  interlock_checks::Check check;
+  // Whether the readings can show that the condition is over (see
+  // readings_can_clear).
+  bool (*can_clear)(const Readings&);
+};
+
+// One row per InterlockKind, in the enum's order.
+inline constexpr InterlockDefinition kInterlockDefinitions[] = {
+    {InterlockKind::kOutOfLimits, "out_of_limits", 5, &interlock_checks::out_of_limits,
+     [](const Readings& r) { return r.chamber_c && r.top_c && r.side_c; }},
+    {InterlockKind::kProbeDisagreement, "probe_disagreement", 30,
+     &interlock_checks::probe_disagreement, [](const Readings& r) { return r.top_c && r.side_c; }},
+    // Cleared by the stability gate only.
+    {InterlockKind::kSettleTimeout, "settle_timeout", 60, nullptr,
+     [](const Readings&) { return false; }},
+    {InterlockKind::kChamberSilent, "chamber_silent", 30, &interlock_checks::chamber_silent,
+     [](const Readings& r) { return r.chamber_c.has_value(); }},
+    {InterlockKind::kProbesSilent, "probes_silent", 30, &interlock_checks::probes_silent,
+     [](const Readings& r) { return r.top_c && r.side_c; }},
+    {InterlockKind::kGyroLost, "gyro_lost", 30, &interlock_checks::gyro_lost,
+     [](const Readings& r) { return r.gyro_heard; }},
+    // The station reads the alarm register only with the air temperature.
+    {InterlockKind::kChamberAlarm, "chamber_alarm", 10, &interlock_checks::chamber_alarm,
+     [](const Readings& r) { return r.chamber_c.has_value(); }},
+    {InterlockKind::kStorageFailing, "storage_failing", 60, &interlock_checks::storage_failing,
+     [](const Readings& r) { return r.storage_committed; }},
+};
+inline constexpr int kInterlockKindCount = static_cast<int>(std::size(kInterlockDefinitions));
+
+namespace interlock_table {
+// Row k defines the kind whose value is k, so the table can be indexed by
+// kind: a missing or swapped row fails here.
+constexpr bool in_enum_order() {
+  for (int k = 0; k < kInterlockKindCount; ++k) {
+    if (static_cast<int>(kInterlockDefinitions[k].kind) != k) return false;
+  }
+  return true;
+}
+// Names are config keys and parsed back from events and checkpoints.
+constexpr bool names_unique() {
+  for (int a = 0; a < kInterlockKindCount; ++a) {
+    if (kInterlockDefinitions[a].name.empty()) return false;
+    for (int b = a + 1; b < kInterlockKindCount; ++b) {
+      if (kInterlockDefinitions[a].name == kInterlockDefinitions[b].name) return false;
+    }
+  }
+  return true;
+}
+constexpr std::array<double, kInterlockKindCount> default_grace_s() {
+  std::array<double, kInterlockKindCount> out{};
+  for (int k = 0; k < kInterlockKindCount; ++k) {
+    out[k] = 60.0 * kInterlockDefinitions[k].default_grace_min;
+  }
+  return out;
+}
+}  // namespace interlock_table
+static_assert(interlock_table::in_enum_order(),
+              "kInterlockDefinitions: one row per InterlockKind, in the enum's order");
+static_assert(interlock_table::names_unique(),
+              "kInterlockDefinitions: every interlock needs its own non-empty name");
+
+std::string_view to_string(InterlockKind kind);
+std::optional<InterlockKind> parse_interlock_kind(std::string_view name);
+
 struct InterlockOptions {
   double min_temp_c = -20.0;  // station limits
   double max_temp_c = 60.0;
@@ -70,7 +168,7 @@ struct InterlockOptions {
   double storage_timeout_s = 10.0;
   // Station seconds an interlock may stay tripped before the run is aborted
   // to the safe state; indexed by InterlockKind. 0 aborts at once.
-  double grace_s[kInterlockKindCount] = {300, 1800, 3600, 1800, 1800, 1800, 600, 3600};
+  std::array<double, kInterlockKindCount> grace_s = interlock_table::default_grace_s();
 
   double grace_for(InterlockKind kind) const { return grace_s[static_cast<int>(kind)]; }
 };

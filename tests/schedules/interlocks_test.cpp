@@ -1,0 +1,140 @@
+// The interlock table (interlocks.h, kInterlockDefinitions) walked row by row:
+// what every interlock must have, so that a new row is checked without a new
+// test. Each row's messages and hysteresis are tested in sequencer_test.cpp.
+#include "gyrotherm/schedules/interlocks.h"
+
+#include <fmt/format.h>
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <map>
+#include <regex>
+#include <set>
+#include <sstream>
+#include <string>
+
+namespace gyrotherm::schedules {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string read_text(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+// The default grace of each interlock as docs/schedules.md's "Interlocks"
+// table gives it (`| `name` | trips when | N min |`), in minutes.
+std::map<std::string, double> documented_grace_min() {
+  std::istringstream doc(read_text(fs::path(GYROTHERM_SOURCE_DIR) / "docs/schedules.md"));
+  const std::regex row(R"(^\| `([a-z_]+)` \|.*\| ([0-9.]+) min \|\s*$)");
+  std::map<std::string, double> out;
+  bool in_section = false;
+  for (std::string line; std::getline(doc, line);) {
+    if (line.rfind("### ", 0) == 0) in_section = line == "### Interlocks";
+    std::smatch m;
+    if (in_section && std::regex_match(line, m, row)) out[m[1]] = std::stod(m[2]);
+  }
+  return out;
+}
+
+// Readings of a station at 30 °C with every device answering.
+const Readings kNominal{30.0, 30.05, 29.95};
+
+// Readings that trip each interlock that has a check. A new row needs one
+// here: the table test fails without it.
+const std::map<InterlockKind, Readings>& tripping_readings() {
+  static const std::map<InterlockKind, Readings> readings = [] {
+    std::map<InterlockKind, Readings> m;
+    m[InterlockKind::kOutOfLimits] = Readings{63.0, 30.0, 30.0};
+    m[InterlockKind::kProbeDisagreement] = Readings{30.0, 31.5, 28.5};
+    auto edit = [&](InterlockKind kind, auto change) {
+      Readings r = kNominal;
+      change(r);
+      m[kind] = r;
+    };
+    edit(InterlockKind::kChamberSilent, [](Readings& r) { r.chamber_silent_s = 11; });
+    edit(InterlockKind::kProbesSilent, [](Readings& r) { r.probes_silent_s = 11; });
+    edit(InterlockKind::kGyroLost, [](Readings& r) { r.gyro_silent_s = 6; });
+    edit(InterlockKind::kChamberAlarm, [](Readings& r) { r.chamber_alarm = true; });
+    edit(InterlockKind::kStorageFailing, [](Readings& r) { r.storage_failing_s = 11; });
+    return m;
+  }();
+  return readings;
+}
+
+TEST(InterlockTable, EveryKindHasAUniqueNameThatRoundTrips) {
+  std::set<std::string_view> names;
+  for (int k = 0; k < kInterlockKindCount; ++k) {
+    const auto kind = static_cast<InterlockKind>(k);
+    const InterlockDefinition& d = kInterlockDefinitions[k];
+    SCOPED_TRACE(std::string(d.name));
+    EXPECT_EQ(d.kind, kind);
+    EXPECT_FALSE(d.name.empty());
+    EXPECT_TRUE(names.insert(d.name).second) << "name used twice";
+    EXPECT_EQ(to_string(kind), d.name);
+    EXPECT_EQ(parse_interlock_kind(d.name), kind);
+  }
+  EXPECT_EQ(parse_interlock_kind("meteor"), std::nullopt);
+  EXPECT_EQ(parse_interlock_kind(""), std::nullopt);
+  EXPECT_EQ(to_string(static_cast<InterlockKind>(kInterlockKindCount)), "?");
+}
+
+TEST(InterlockTable, DefaultGraceIsTheDocumentedOne) {
+  const auto documented = documented_grace_min();
+  EXPECT_EQ(documented.size(), static_cast<std::size_t>(kInterlockKindCount))
+      << "docs/schedules.md, Interlocks: one row per interlock";
+  const std::string api_md = read_text(fs::path(GYROTHERM_SOURCE_DIR) / "docs/api.md");
+  const InterlockOptions options;
+  for (const InterlockDefinition& d : kInterlockDefinitions) {
+    SCOPED_TRACE(std::string(d.name));
+    EXPECT_GT(d.default_grace_min, 0) << "0 would abort at the first trip";
+    const auto it = documented.find(std::string(d.name));
+    ASSERT_NE(it, documented.end()) << "not in docs/schedules.md's Interlocks table";
+    EXPECT_DOUBLE_EQ(d.default_grace_min, it->second);
+    EXPECT_DOUBLE_EQ(options.grace_for(d.kind), 60.0 * it->second) << "InterlockOptions{}";
+    EXPECT_NE(api_md.find(fmt::format("`{}`", d.name)), std::string::npos)
+        << "not in docs/api.md's Interlock kinds";
+  }
+}
+
+TEST(InterlockTable, EachCheckTripsOnItsReadingsAndIsQuietOnNominalOnes) {
+  const InterlockOptions o;
+  bool none[kInterlockKindCount] = {};
+  bool all[kInterlockKindCount];
+  std::fill(std::begin(all), std::end(all), true);
+  EXPECT_TRUE(evaluate_interlocks(kNominal, o, none).empty());
+  EXPECT_TRUE(evaluate_interlocks(kNominal, o, all).empty());
+  for (const InterlockDefinition& d : kInterlockDefinitions) {
+    SCOPED_TRACE(std::string(d.name));
+    ASSERT_NE(d.can_clear, nullptr);
+    if (d.kind == InterlockKind::kSettleTimeout) {
+      // Tripped by the sequencer from the step's clock, cleared by the gate.
+      EXPECT_EQ(d.check, nullptr);
+      EXPECT_FALSE(readings_can_clear(d.kind, kNominal));
+      continue;
+    }
+    ASSERT_NE(d.check, nullptr) << "only settle_timeout is tripped outside the table";
+    EXPECT_EQ(d.check(kNominal, o, false), std::nullopt);
+    EXPECT_EQ(d.check(kNominal, o, true), std::nullopt) << "nominal readings clear it";
+    EXPECT_TRUE(readings_can_clear(d.kind, kNominal)) << "else it could never clear";
+    const auto bad = tripping_readings().find(d.kind);
+    ASSERT_NE(bad, tripping_readings().end()) << "add readings that trip it to this test";
+    const auto message = d.check(bad->second, o, false);
+    ASSERT_TRUE(message.has_value());
+    EXPECT_FALSE(message->empty());
+    // evaluate_interlocks runs the row's check, and only it trips.
+    const auto conditions = evaluate_interlocks(bad->second, o, none);
+    ASSERT_EQ(conditions.size(), 1u);
+    EXPECT_EQ(conditions[0].kind, d.kind);
+    EXPECT_EQ(conditions[0].message, *message);
+  }
+}
+
+}  // namespace
+}  // namespace gyrotherm::schedules
