@@ -309,7 +309,7 @@ TEST_F(FaultCampaignTest, KillNineAtRandomMoments) {
     const auto windows = static_cast<int64_t>(seg->windows.size());
     EXPECT_GE(row.n, 240 - windows - 6 * (windows - 1))
         << "soak " << row.segment_index + 1 << " of run " << run.id << "\n"
-        << events_text(*db, run.id);
+        << testing::window_coverage(*db, run.id, seg->windows) << events_text(*db, run.id);
   }
   // Timestamps stay strictly increasing across every restart.
   auto samples = db->gyro_samples(run.id, -1e12, 1e12);

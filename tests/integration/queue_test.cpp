@@ -344,18 +344,34 @@ TEST_F(QueueTest, CrashResumeAfterKill9) {
   auto segs = db->segments(1);
   ASSERT_TRUE(segs.ok());
   ASSERT_EQ(segs->size(), 1u);
-  const auto& w = (*segs)[0].windows;
-  ASSERT_EQ(w.size(), 2u);
-  EXPECT_NEAR((w[0].second - w[0].first) + (w[1].second - w[1].first), kAcquireS, 1e-6)
-      << "the soak acquired its whole time";
-  EXPECT_LE(w[0].second, last_t_before_s + 1e-9)
-      << "time past the last committed sample is not credited (the checkpoint was " << gap_s
-      << " s past it)";
-  EXPECT_GT(w[1].first, last_t_before_s);
   std::string events;
   const auto event_rows = db->events(1);
   ASSERT_TRUE(event_rows.ok());
   for (const auto& e : *event_rows) events += e.message + "\n";
+  // A window before the kill and one after it; an interlock that trips and
+  // clears (the test's SIGSTOPs stall the daemon on a loaded machine) splits
+  // one in two, and then says so in the events.
+  const auto& w = (*segs)[0].windows;
+  const std::string coverage = testing::window_coverage(*db, 1, w);
+  ASSERT_GE(w.size(), 2u) << coverage << events;
+  if (w.size() > 2) {
+    EXPECT_THAT(events, HasSubstr("interlock")) << "only a hold splits a window\n" << coverage;
+  }
+  double acquired_s = 0;
+  bool resumed_after_the_kill = false;
+  for (const auto& [from_s, to_s] : w) {
+    acquired_s += to_s - from_s;
+    if (from_s <= last_t_before_s) {
+      EXPECT_LE(to_s, last_t_before_s + 1e-9)
+          << "time past the last committed sample is not credited (the checkpoint was " << gap_s
+          << " s past it)\n"
+          << coverage;
+    } else {
+      resumed_after_the_kill = true;
+    }
+  }
+  EXPECT_NEAR(acquired_s, kAcquireS, 1e-6) << "the soak acquired its whole time\n" << coverage;
+  EXPECT_TRUE(resumed_after_the_kill) << coverage;
   EXPECT_THAT(events, HasSubstr("daemon restarted: run resumes at step 1 of 1"));
   EXPECT_THAT(events, HasSubstr("acquisition goes on"));
   auto stats = db->segment_stats(1);
@@ -368,8 +384,8 @@ TEST_F(QueueTest, CrashResumeAfterKill9) {
   // missing too (here >= 30 s).
   EXPECT_GE((*stats)[0].n, static_cast<int>(kAcquireS) - 10)
       << "Table I has the data the schedule asked for (checkpoint " << gap_s
-      << " s past the last committed sample at the kill); windows [" << w[0].first << ", "
-      << w[0].second << "] [" << w[1].first << ", " << w[1].second << "]";
+      << " s past the last committed sample at the kill)\n"
+      << coverage;
   EXPECT_LE((*stats)[0].n, static_cast<int>(kAcquireS));
   auto entry = db->queue_entry(*db->run(1)->queue_id);
   ASSERT_TRUE(entry.ok() && entry->has_value());

@@ -28,6 +28,28 @@ namespace gyrotherm::testing {
 
 namespace fs = std::filesystem;
 
+// Each acquisition window with the samples stored in it and its longest
+// stretch without one (from the window's start, between samples, to its end):
+// where a soak's Table I row lost its bins.
+inline std::string window_coverage(storage::Database& db, int64_t run_id,
+                                   const std::vector<std::pair<double, double>>& windows) {
+  std::string out;
+  for (const auto& [from_s, to_s] : windows) {
+    auto samples = db.gyro_samples(run_id, from_s, to_s);
+    if (!samples.ok()) return "window coverage unknown: " + samples.error().message + "\n";
+    double prev_s = from_s, gap_s = 0, gap_at_s = from_s;
+    for (const auto& g : *samples) {
+      if (g.t_s - prev_s > gap_s) gap_s = g.t_s - prev_s, gap_at_s = prev_s;
+      prev_s = g.t_s;
+    }
+    if (to_s - prev_s > gap_s) gap_s = to_s - prev_s, gap_at_s = prev_s;
+    out +=
+        fmt::format("window [{:.3f}, {:.3f}] s: {} samples, longest gap {:.3f} s from {:.3f} s\n",
+                    from_s, to_s, samples->size(), gap_s, gap_at_s);
+  }
+  return out;
+}
+
 inline constexpr double kTimeScale = 200.0;
 inline constexpr double kRateHz = 10.0;
 inline constexpr double kWhiteNoiseDph = 1.0;
