@@ -97,6 +97,16 @@ Result<std::optional<double>> Database::last_sample_t_s(int64_t run_id) {
   return last;
 }
 
+Result<std::optional<double>> Database::last_gyro_sample_t_s(int64_t run_id) {
+  auto st = Stmt::prepare(db_, path_, "SELECT max(t_s) FROM gyro_samples WHERE run_id = ?1");
+  if (!st) return st.error();
+  st->bind(1, run_id);
+  if (st->step() != SQLITE_ROW) {
+    return sqlite_error(db_, path_, fmt::format("reading the last gyro sample of run {}", run_id));
+  }
+  return st->column_optional_double(0);
+}
+
 Result<QueueEntry> Database::queue_add(const std::string& schedule_name,
                                        const std::string& source_path, const std::string& toml_text,
                                        bool ignore_failures) {

@@ -299,7 +299,7 @@ TEST_F(QueueTest, CrashResumeAfterKill9) {
     auto db = storage::Database::open_read_only((dir_ / "station.db").string());
     if (db.ok()) {
       auto run = db->run(1);
-      auto last = db->last_sample_t_s(1);
+      auto last = db->last_gyro_sample_t_s(1);
       if (run.ok() && last.ok() && *last && !run->resume_json.empty()) {
         const json cp = json::parse(run->resume_json, nullptr, false);
         if (cp.is_object() && cp["window_open_s"].is_number() &&
@@ -326,7 +326,7 @@ TEST_F(QueueTest, CrashResumeAfterKill9) {
     ASSERT_TRUE(run.ok());
     EXPECT_EQ(run->state, "acquiring") << "killed, so nothing marked the run";
     samples_before = *db->count_gyro_samples(1);
-    last_t_before_s = **db->last_sample_t_s(1);
+    last_t_before_s = **db->last_gyro_sample_t_s(1);
   }
   ASSERT_GT(samples_before, 1500);
 

@@ -692,11 +692,19 @@ TEST(Database, CheckpointAndLastSample) {
                                   run_id))
                   .ok());
   EXPECT_EQ(*db.last_sample_t_s(run_id), 12.5);
+  EXPECT_FALSE(db.last_gyro_sample_t_s(run_id)->has_value()) << "temperatures are not gyro data";
   ASSERT_TRUE(db.exec(fmt::format("INSERT INTO gyro_samples(run_id, t_s, seq, status) "
                                   "VALUES({0}, 13.25, 1, 119);",
                                   run_id))
                   .ok());
   EXPECT_EQ(*db.last_sample_t_s(run_id), 13.25);
+  EXPECT_EQ(*db.last_gyro_sample_t_s(run_id), 13.25);
+  // The control loop's temperatures run ahead of a lagging gyro stream.
+  ASSERT_TRUE(db.exec(fmt::format("INSERT INTO temperature_samples(run_id, t_s) VALUES({0}, 90.0);",
+                                  run_id))
+                  .ok());
+  EXPECT_EQ(*db.last_sample_t_s(run_id), 90.0);
+  EXPECT_EQ(*db.last_gyro_sample_t_s(run_id), 13.25);
 }
 
 // A database written by schema 1 opens with its data and gains schema 2.

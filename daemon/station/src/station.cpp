@@ -635,17 +635,22 @@ void Station::resume_interrupted_run() {
   const double down_wall_s = std::max(0.0, unix_now_s() - *run.checkpoint_wall_unix_s);
   double t_resume_s = snap->t_s + down_wall_s * clock_.time_scale();
   // Acquisition is credited up to the last committed gyro sample only: the
-  // samples after it died uncommitted with the daemon (run seconds).
+  // samples after it died uncommitted with the daemon, and Table I is made of
+  // gyro samples (the temperatures, committed each control tick, can reach
+  // well past a lagging gyro stream). Run seconds.
   double data_until_s = -std::numeric_limits<double>::infinity();
-  if (auto last = db_.last_sample_t_s(run.id); !last) {
+  if (auto last_gyro = db_.last_gyro_sample_t_s(run.id); !last_gyro) {
     // Cannot tell: trust the checkpoint's clock rather than drop the run.
     spdlog::error(
-        "run {}: last committed sample unknown ({}); acquisition credited up to the "
+        "run {}: last committed gyro sample unknown ({}); acquisition credited up to the "
         "checkpoint",
-        run.id, last.error().message);
+        run.id, last_gyro.error().message);
     data_until_s = snap->t_s;
-  } else if (*last) {
-    data_until_s = **last;
+  } else if (*last_gyro) {
+    data_until_s = **last_gyro;
+  }
+  // The run resumes after every committed sample, gyro or temperature.
+  if (auto last = db_.last_sample_t_s(run.id); last && *last) {
     t_resume_s = std::max(t_resume_s, **last + 1e-3);
   }
   segment_ids_.assign(plan->steps.size(), 0);

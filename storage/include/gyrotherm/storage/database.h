@@ -230,6 +230,11 @@ class Database {
   // Latest station time with a committed sample of the run (gyro or
   // temperature); nullopt when it has none.
   Result<std::optional<double>> last_sample_t_s(int64_t run_id);
+  // Latest station time with a committed gyro sample of the run; nullopt
+  // when it has none. What a crash resume credits acquisition up to: Table I
+  // is made of gyro samples, and temperatures (one per control tick) can be
+  // committed well past them when the gyro stream lags.
+  Result<std::optional<double>> last_gyro_sample_t_s(int64_t run_id);
 
   // The queue. Positions of queued entries are kept 0..n-1 in run order.
   // add: stores the schedule text and appends the entry.
