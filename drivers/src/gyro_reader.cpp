@@ -22,7 +22,7 @@ constexpr std::chrono::milliseconds kReadTimeout{50};
 SampleClock::SampleClock(double rate_hz, double tolerance_s)
     : period_s_(1.0 / rate_hz), tolerance_s_(tolerance_s) {}
 
-double SampleClock::stamp(int seq, double now_s, bool after_silence) {
+double SampleClock::stamp(int seq, double now_s) {
   seq %= kKvh1750SeqModulo;
   if (anchored_) {
     // Counter steps (1 + frames missed); the KVH 1750 counter wraps at 128.
@@ -31,11 +31,8 @@ double SampleClock::stamp(int seq, double now_s, bool after_silence) {
   }
   last_seq_ = seq;
   double t_s = anchor_s_ + static_cast<double>(n_) * period_s_;
-  // Only the first frame after a silence can reveal a stall: frames read
-  // back to back are a backlog, late by design.
-  const bool stalled = after_silence && now_s - t_s > tolerance_s_;
   const bool ahead = t_s - now_s > tolerance_s_;
-  if (!anchored_ || stalled || ahead) {
+  if (!anchored_ || ahead) {
     // Ahead: frames come faster than rate_hz says (misconfigured); back to
     // the clock, but strictly after the previous sample.
     t_s = anchored_ && ahead ? std::max(now_s, last_t_s_ + 1e-6) : now_s;
@@ -45,6 +42,15 @@ double SampleClock::stamp(int seq, double now_s, bool after_silence) {
   }
   last_t_s_ = t_s;
   return t_s;
+}
+
+double SampleClock::realign(double now_s) {
+  if (!anchored_) return 0.0;
+  const double lag_s = now_s - last_t_s_;
+  if (lag_s <= tolerance_s_) return 0.0;
+  anchor_s_ += lag_s;
+  last_t_s_ = now_s;
+  return lag_s;
 }
 
 void SampleClock::reset() { anchored_ = false; }
@@ -139,7 +145,6 @@ void GyroReader::run() {
     opened_before = true;
 
     SampleClock sample_clock(format_.rate_hz, tolerance_s);
-    auto last_data_wall = std::chrono::steady_clock::now() - kReadTimeout;
 
     while (!stop_) {
       auto got = port->read(buf, kReadTimeout);
@@ -151,11 +156,8 @@ void GyroReader::run() {
         break;
       }
       if (*got == 0) continue;
-      // Silent line: no data for at least a read timeout (wall), measured
-      // between data so that a descheduled reader still sees it.
-      const auto wall_now = std::chrono::steady_clock::now();
-      const bool idle = wall_now - last_data_wall >= kReadTimeout;
-      last_data_wall = wall_now;
+      // Nothing left on the line: this read's last frame arrived just now.
+      const bool drained = port->pending_bytes() == 0;
       backoff = kMinBackoff;  // the port delivers data: a later hang-up starts afresh
 
       frames.clear();
@@ -165,7 +167,7 @@ void GyroReader::run() {
       const double now_s = clock_.now_s();
       for (std::size_t i = 0; i < frames.size(); ++i) {
         const GyroFrame& f = frames[i];
-        const double t_s = sample_clock.stamp(f.seq, now_s, idle && i == 0);
+        const double t_s = sample_clock.stamp(f.seq, now_s);
         if (!(f.status & valid_bit)) {
           ++invalid;
           continue;
@@ -177,6 +179,11 @@ void GyroReader::run() {
         s.status = f.status;
         s.temp_c = f.temp_c;
         samples.push_back(s);
+      }
+      if (drained) {
+        if (const double shift_s = sample_clock.realign(now_s); shift_s > 0) {
+          for (auto& s : samples) s.t_s += shift_s;
+        }
       }
       {
         std::lock_guard lock(mu_);

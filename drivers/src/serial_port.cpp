@@ -4,6 +4,7 @@
 #include <fmt/format.h>
 #include <poll.h>
 #include <sys/file.h>
+#include <sys/ioctl.h>
 #include <termios.h>
 #include <unistd.h>
 
@@ -177,6 +178,12 @@ SerialPort& SerialPort::operator=(SerialPort&& other) noexcept {
 
 SerialPort::~SerialPort() {
   if (fd_ >= 0) ::close(fd_);
+}
+
+std::size_t SerialPort::pending_bytes() const {
+  int n = 0;
+  if (fd_ < 0 || ::ioctl(fd_, FIONREAD, &n) != 0 || n < 0) return 0;
+  return static_cast<std::size_t>(n);
 }
 
 Result<std::size_t> SerialPort::read(std::span<uint8_t> buf, std::chrono::milliseconds timeout) {

@@ -334,36 +334,71 @@ namespace {
 // 10 Hz, tolerance 2 s.
 TEST(SampleClock, BacklogReadBackToBackKeepsTheSampleClock) {
   SampleClock c(10.0, 2.0);
-  EXPECT_DOUBLE_EQ(c.stamp(0, 100.0, true), 100.0);
+  EXPECT_DOUBLE_EQ(c.stamp(0, 100.0), 100.0);
   // 300 frames generated over 30 s arrive late, back to back, while the
   // station clock already reads 130 s: no re-anchoring inside the backlog.
   double prev = 100.0;
   for (int i = 1; i <= 300; ++i) {
-    const double t = c.stamp(i % 128, 130.0, false);
+    const double t = c.stamp(i % 128, 130.0);
     EXPECT_NEAR(t, 100.0 + 0.1 * i, 1e-9) << i;
     EXPECT_GT(t, prev);
     prev = t;
   }
+  // The read that empties the line ends with a fresh frame: on time.
+  EXPECT_DOUBLE_EQ(c.realign(130.05), 0.0);
 }
 
-TEST(SampleClock, SilenceThenLagReanchorsForward) {
+// A reader stopped (SIGSTOP, or descheduled on a loaded machine) for longer
+// than the tolerance comes back to a backlog. Its first frame after the pause
+// lags the clock by the whole pause, yet it is no stall: the counter places
+// every frame, and nothing moves (before, the first frame after a silent
+// read was re-anchored to the clock, leaving a hole as long as the backlog).
+TEST(SampleClock, ABacklogAfterTheReaderWasStoppedKeepsItsSlots) {
   SampleClock c(10.0, 2.0);
-  c.stamp(0, 100.0, true);
-  c.stamp(1, 100.1, false);
-  // The line went silent; the next frame comes 60 s later.
-  EXPECT_DOUBLE_EQ(c.stamp(2, 160.0, true), 160.0);
-  EXPECT_DOUBLE_EQ(c.stamp(3, 160.1, false), 160.1);
+  c.stamp(0, 100.0);
+  c.stamp(1, 100.1);
+  EXPECT_DOUBLE_EQ(c.realign(100.1), 0.0);
+  // Stopped 60 s; the line holds 600 frames, read 113 at a time.
+  for (int i = 2; i <= 601; ++i) {
+    EXPECT_NEAR(c.stamp(i % 128, 160.1), 100.0 + 0.1 * i, 1e-9) << i;
+  }
+  EXPECT_DOUBLE_EQ(c.realign(160.1), 0.0) << "the last frame of the backlog is on time";
+}
+
+TEST(SampleClock, AStalledLineRealignsTheReadThatEmptiesItForward) {
+  SampleClock c(10.0, 2.0);
+  c.stamp(0, 100.0);
+  c.stamp(1, 100.1);
+  // The line went silent; the next frame comes 60 s later, counted as the
+  // next one (the counter cannot tell): the read that brought it moves.
+  EXPECT_NEAR(c.stamp(2, 160.0), 100.2, 1e-9);
+  EXPECT_NEAR(c.realign(160.0), 59.8, 1e-9);
+  EXPECT_NEAR(c.stamp(3, 160.1), 160.1, 1e-9);
   // A short silence within tolerance keeps the sample clock.
-  EXPECT_NEAR(c.stamp(4, 161.5, true), 160.2, 1e-9);
+  EXPECT_NEAR(c.stamp(4, 161.5), 160.2, 1e-9);
+  EXPECT_DOUBLE_EQ(c.realign(161.5), 0.0);
+}
+
+// 200 frames lost at once step the 7-bit counter by 200 mod 128 = 72: the
+// estimate falls 12.8 s behind. Once that exceeds the tolerance at a read
+// that empties the line, the anchor comes back to the clock.
+TEST(SampleClock, LossBeyondTheCounterWrapIsCaughtAtTheNextEmptyLine) {
+  SampleClock c(10.0, 2.0);
+  c.stamp(0, 100.0);
+  EXPECT_DOUBLE_EQ(c.realign(100.0), 0.0);
+  const double behind = c.stamp(200 % 128, 120.0);
+  EXPECT_NEAR(behind, 107.2, 1e-9);
+  EXPECT_NEAR(c.realign(120.0), 12.8, 1e-9);
+  EXPECT_NEAR(c.stamp(201 % 128, 120.1), 120.1, 1e-9);
 }
 
 TEST(SampleClock, AheadOfTheClockComesBackButNeverGoesBackwards) {
   SampleClock c(10.0, 2.0);
-  c.stamp(0, 100.0, true);
+  c.stamp(0, 100.0);
   // Frames come twice as fast as configured: the estimate runs ahead.
   double prev = 100.0;
   for (int i = 1; i < 200; ++i) {
-    const double t = c.stamp(i % 128, 100.0 + 0.05 * i, false);
+    const double t = c.stamp(i % 128, 100.0 + 0.05 * i);
     EXPECT_GT(t, prev) << i;
     EXPECT_LE(t, 100.0 + 0.05 * i + 2.0 + 1e-9) << i;
     prev = t;
@@ -372,12 +407,12 @@ TEST(SampleClock, AheadOfTheClockComesBackButNeverGoesBackwards) {
 
 TEST(SampleClock, CounterGapsKeepTheirSlotsAndWrapCounts) {
   SampleClock c(10.0, 2.0);
-  c.stamp(126, 50.0, true);
-  EXPECT_NEAR(c.stamp(127, 50.1, false), 50.1, 1e-9);
-  EXPECT_NEAR(c.stamp(0, 50.2, false), 50.2, 1e-9);  // wrap
-  EXPECT_NEAR(c.stamp(3, 50.5, false), 50.5, 1e-9);  // two frames missed
+  c.stamp(126, 50.0);
+  EXPECT_NEAR(c.stamp(127, 50.1), 50.1, 1e-9);
+  EXPECT_NEAR(c.stamp(0, 50.2), 50.2, 1e-9);  // wrap
+  EXPECT_NEAR(c.stamp(3, 50.5), 50.5, 1e-9);  // two frames missed
   c.reset();
-  EXPECT_DOUBLE_EQ(c.stamp(9, 80.0, false), 80.0);
+  EXPECT_DOUBLE_EQ(c.stamp(9, 80.0), 80.0);
 }
 
 }  // namespace

@@ -4,12 +4,15 @@
 // Timestamps come from the gyro's own sample clock: t = anchor + n / rate_hz,
 // where n counts frames since the anchor including frames missed according to
 // the sequence counter. The anchor is the station clock at the first frame.
-// It is re-taken, with tolerance max(2 s, 1 wall s x time_scale): forward to
-// the clock when the first frame after a silent read (the stream stalled, the
-// port was reopened) lags the clock by more than that — frames read back to
-// back are a backlog, late by design, and never re-anchor forward; and back
-// to the clock when the estimate runs ahead of it, never earlier than the
-// previous sample. Timestamps therefore always increase.
+// It is re-taken, with tolerance max(2 s, 1 wall s x time_scale): forward,
+// when the last frame of a read that emptied the line (so it arrived just
+// now) lags the clock by more than that: the stream stalled, or more frames
+// were lost than the counter can count (it wraps at 128). The whole read moves
+// with it. A read that leaves bytes on the line is a backlog, late by design:
+// however long the reader was descheduled or stopped, its frames keep their
+// counter's slots and never re-anchor forward. And back to the clock when the
+// estimate runs ahead of it, never earlier than the previous sample.
+// Timestamps therefore always increase.
 // Frames whose configured axis is flagged invalid in the status byte are
 // counted and not emitted. The port is reopened with backoff (100 ms doubling
 // to 5 s wall) after a hang-up or when it cannot be opened; nothing of this
@@ -51,9 +54,13 @@ class SampleClock {
  public:
   SampleClock(double rate_hz, double tolerance_s);
   // `seq`: the frame's counter; `now_s`: the station clock when the frame was
-  // read; `after_silence`: the first frame after a read that timed out.
-  // Returns the frame's station time.
-  double stamp(int seq, double now_s, bool after_silence);
+  // read. Returns the frame's station time.
+  double stamp(int seq, double now_s);
+  // After the frames of a read that emptied the line were stamped: when the
+  // last one lags `now_s` by more than the tolerance, the anchor moves
+  // forward so that it is stamped `now_s`. Returns how far (s, 0 if not): the
+  // caller adds it to that read's stamps.
+  double realign(double now_s);
   void reset();  // the next frame anchors on the clock
 
  private:

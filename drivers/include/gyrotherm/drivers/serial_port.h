@@ -46,6 +46,8 @@ class SerialPort {
   // `buf`. Returns 0 bytes on timeout. A hang-up (pty closed by the other
   // side, USB adapter unplugged) is a transient error: close and reopen.
   Result<std::size_t> read(std::span<uint8_t> buf, std::chrono::milliseconds timeout);
+  // Bytes received and not yet read (FIONREAD); 0 when it cannot tell.
+  std::size_t pending_bytes() const;
   // Writes all of `bytes` (for tests and commissioning).
   Status write(std::span<const uint8_t> bytes);
 
