@@ -110,8 +110,11 @@ Result<ControlCommand> parse_pty(const Words& w) {
   const std::string_view sub = w.size() > 1 ? w[1] : "";
   if (sub == "close") return simple(w, 2, "pty close", Kind::kPtyClose);
   if (sub == "reopen") return simple(w, 2, "pty reopen", Kind::kPtyReopen);
-  if (sub.empty()) return bad("'pty' needs one of: close, reopen");
-  return bad(fmt::format("unknown 'pty' subcommand {}; expected close or reopen", quoted(sub)));
+  if (sub == "hold") return simple(w, 2, "pty hold", Kind::kPtyHold);
+  if (sub == "release") return simple(w, 2, "pty release", Kind::kPtyRelease);
+  if (sub.empty()) return bad("'pty' needs one of: close, reopen, hold, release");
+  return bad(fmt::format("unknown 'pty' subcommand {}; expected close, reopen, hold or release",
+                         quoted(sub)));
 }
 
 Result<ControlCommand> parse_frames(const Words& w) {
@@ -199,6 +202,8 @@ const std::vector<ControlCommandHelp>& control_commands() {
       {"modbus delay WALL_S", "answer every Modbus request WALL_S wall seconds late (0 = none)"},
       {"pty close", "hang up the gyro line; frames due while closed are dropped"},
       {"pty reopen", "open a new pty (new path; the gyro link and endpoints file follow)"},
+      {"pty hold", "hold the gyro frames back (they queue; the line is quiet)"},
+      {"pty release", "send the held frames as one backlog, then stream again"},
       {"frames corrupt P", "alter one byte after the CRC of each frame with probability P"},
       {"frames drop P", "skip each frame with probability P (the reader sees a sequence gap)"},
       {"probe stall top|side", "freeze the probe's register at its last value"},
@@ -236,6 +241,7 @@ std::string status_json(const SimulatorStatus& s) {
   if (f.modbus_down) active.push_back("modbus_down");
   if (f.modbus_reply_delay_s > 0) active.push_back("modbus_delay");
   if (s.running && !f.pty_open) active.push_back("pty_closed");
+  if (f.pty_held) active.push_back("pty_held");
   if (f.frame_corruption_rate > 0) active.push_back("frames_corrupt");
   if (f.frame_drop_rate > 0) active.push_back("frames_drop");
   if (f.top_stalled) active.push_back("probe_stall_top");
@@ -264,6 +270,7 @@ std::string status_json(const SimulatorStatus& s) {
        {{"modbus_down", f.modbus_down},
         {"modbus_reply_delay_s", f.modbus_reply_delay_s},
         {"pty_open", f.pty_open},
+        {"pty_held", f.pty_held},
         {"frame_corruption_rate", f.frame_corruption_rate},
         {"frame_drop_rate", f.frame_drop_rate},
         {"probe_stalled", {{"top", f.top_stalled}, {"side", f.side_stalled}}},
@@ -308,6 +315,10 @@ std::string execute_control_command(Simulator& sim, const ControlCommand& c) {
       return "ok";
     case Kind::kPtyClose:
       sim.close_pty();
+      return "ok";
+    case Kind::kPtyHold:
+    case Kind::kPtyRelease:
+      sim.hold_pty(c.kind == Kind::kPtyHold);
       return "ok";
     case Kind::kPtyReopen: {
       if (Status s = sim.reopen_pty(); !s.ok()) {

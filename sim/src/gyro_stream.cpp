@@ -110,7 +110,7 @@ void GyroStream::write_frames(std::span<const uint8_t> bytes) {
 }
 
 void GyroStream::flush() {
-  if (!pty_) return;
+  if (!pty_ || held_) return;
   while (pending_offset_ < pending_.size()) {
     const ssize_t n = ::write(pty_->master_fd(), pending_.data() + pending_offset_,
                               pending_.size() - pending_offset_);

@@ -321,6 +321,7 @@ SimulatorStatus Simulator::status() const {
   {
     std::lock_guard lock(stream_mu_);
     f.pty_open = stream_.is_open();
+    f.pty_held = stream_.held();
   }
   f.frame_corruption_rate = corruption_rate_.load();
   f.frame_drop_rate = drop_rate_.load();
@@ -515,6 +516,12 @@ void Simulator::set_modbus_reply_delay_s(double wall_s) {
 void Simulator::close_pty() {
   std::lock_guard lock(stream_mu_);
   stream_.close();
+}
+
+void Simulator::hold_pty(bool held) {
+  std::lock_guard lock(stream_mu_);
+  stream_.set_held(held);
+  if (!held) stream_.flush();
 }
 
 Status Simulator::reopen_pty() {

@@ -42,6 +42,8 @@ TEST(ParseControlCommand, AcceptsEveryCommand) {
       {"modbus delay 600", Kind::kModbusDelay, 600},
       {"pty close", Kind::kPtyClose},
       {"pty reopen", Kind::kPtyReopen},
+      {"pty hold", Kind::kPtyHold},
+      {"pty release", Kind::kPtyRelease},
       {"frames corrupt 1", Kind::kFramesCorrupt, 1},
       {"frames drop 0.5", Kind::kFramesDrop, 0.5},
       {"frames drop 1e-3", Kind::kFramesDrop, 1e-3},
@@ -123,9 +125,10 @@ TEST(ControlCommands, HelpListsEveryCommand) {
   std::string all;
   for (const auto& h : control_commands()) all += std::string(h.usage) + "\n";
   for (const char* usage :
-       {"modbus down", "modbus up", "modbus delay WALL_S", "pty close", "pty reopen",
-        "frames corrupt P", "frames drop P", "probe stall top|side", "probe release top|side",
-        "chamber alarm on|off", "chamber force TEMP_C", "chamber release", "status", "help"}) {
+       {"modbus down", "modbus up", "modbus delay WALL_S", "pty close", "pty reopen", "pty hold",
+        "pty release", "frames corrupt P", "frames drop P", "probe stall top|side",
+        "probe release top|side", "chamber alarm on|off", "chamber force TEMP_C", "chamber release",
+        "status", "help"}) {
     EXPECT_NE(all.find(std::string(usage) + "\n"), std::string::npos) << usage;
   }
 }
@@ -453,6 +456,8 @@ TEST_F(ControlSocketTest, EveryFaultCommandReachesItsHook) {
   EXPECT_EQ(command("frames corrupt 0.25"), "ok");
   EXPECT_EQ(command("frames drop 0.5"), "ok");
   EXPECT_EQ(command("probe stall side"), "ok");
+  EXPECT_EQ(command("pty hold"), "ok");
+  EXPECT_TRUE(sim_->status().faults.pty_held);
   EXPECT_EQ(command("pty close"), "ok");
   SimulatorFaults f = sim_->status().faults;
   EXPECT_DOUBLE_EQ(f.modbus_reply_delay_s, 0.05);
@@ -462,8 +467,8 @@ TEST_F(ControlSocketTest, EveryFaultCommandReachesItsHook) {
   EXPECT_FALSE(f.top_stalled);
   EXPECT_FALSE(f.pty_open);
   EXPECT_EQ(status_reply()["faults_active"],
-            (nlohmann::json{"modbus_delay", "pty_closed", "frames_corrupt", "frames_drop",
-                            "probe_stall_side"}));
+            (nlohmann::json{"modbus_delay", "pty_closed", "pty_held", "frames_corrupt",
+                            "frames_drop", "probe_stall_side"}));
 
   const std::string reopened = command("pty reopen");
   ASSERT_EQ(reopened.rfind("ok {", 0), 0u) << reopened;
@@ -472,8 +477,10 @@ TEST_F(ControlSocketTest, EveryFaultCommandReachesItsHook) {
   EXPECT_EQ(command("frames corrupt 0"), "ok");
   EXPECT_EQ(command("frames drop 0"), "ok");
   EXPECT_EQ(command("probe release side"), "ok");
+  EXPECT_EQ(command("pty release"), "ok");
   f = sim_->status().faults;
   EXPECT_TRUE(f.pty_open);
+  EXPECT_FALSE(f.pty_held);
   EXPECT_EQ(status_reply()["faults_active"], nlohmann::json::array());
 
   const std::string help = command("help");

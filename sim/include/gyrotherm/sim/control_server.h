@@ -34,6 +34,8 @@ struct ControlCommand {
     kModbusDelay,      // modbus delay WALL_S         value = wall seconds
     kPtyClose,         // pty close
     kPtyReopen,        // pty reopen
+    kPtyHold,          // pty hold
+    kPtyRelease,       // pty release
     kFramesCorrupt,    // frames corrupt P            value = probability
     kFramesDrop,       // frames drop P               value = probability
     kProbeStall,       // probe stall top|side        probe

@@ -56,8 +56,12 @@ class GyroStream {
 
   // Queues `bytes` (a whole number of frames) and writes what the pty takes.
   void write_frames(std::span<const uint8_t> bytes);
-  // Writes pending bytes, as far as the pty takes them.
+  // Writes pending bytes, as far as the pty takes them (none while held).
   void flush();
+  // Held: frames queue here (up to the pending limit, like a reader that
+  // does not read) and reach the line only when released, as one backlog.
+  void set_held(bool held) { held_ = held; }
+  bool held() const { return held_; }
 
   const GyroStreamStats& stats() const { return stats_; }
 
@@ -71,6 +75,7 @@ class GyroStream {
   std::optional<drivers::Pty> pty_;
   std::vector<uint8_t> pending_;
   std::size_t pending_offset_ = 0;  // bytes of pending_ already written
+  bool held_ = false;
   int inotify_fd_ = -1;
   GyroStreamStats stats_;
 };

@@ -72,6 +72,7 @@ struct SimulatorFaults {
   bool modbus_down = false;
   double modbus_reply_delay_s = 0;  // wall seconds
   bool pty_open = false;            // false while closed by close_pty() (or not running)
+  bool pty_held = false;            // hold_pty(true): frames queue, the line is quiet
   double frame_corruption_rate = 0;
   double frame_drop_rate = 0;
   bool top_stalled = false;
@@ -145,6 +146,10 @@ class Simulator {
   void close_pty();
   // Opens a new pty (a new path: endpoints() and the endpoints file follow).
   Status reopen_pty();
+  // Holds the gyro frames back (true): they queue in the simulator, up to
+  // its pending limit, and the line stays quiet; released (false), they go
+  // out as one backlog, as from a reader that was descheduled.
+  void hold_pty(bool held);
   // A stalled probe's register keeps its last value.
   void stall_probe(ProbeRole role, bool stalled);
   // Raises (true) or clears the chamber alarm. Without an alarm register in
