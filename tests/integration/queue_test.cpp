@@ -7,6 +7,7 @@
 #include <signal.h>
 
 #include <nlohmann/json.hpp>
+#include <thread>
 
 #include "gyrotherm/storage/database.h"
 #include "station_fixture.h"
@@ -390,6 +391,54 @@ TEST_F(QueueTest, CrashResumeAfterKill9) {
   auto entry = db->queue_entry(*db->run(1)->queue_id);
   ASSERT_TRUE(entry.ok() && entry->has_value());
   EXPECT_EQ((*entry)->state, "completed");
+}
+
+// A soak ends on the station clock while its last gyro samples may still be
+// on their way (a reader behind on a loaded machine). Here the simulator
+// holds its frames back around the end of the run's last soak, then sends
+// them as one backlog: the soak's Table I row must hold them. Before, the run
+// ended at once, samples arriving after its end were not stored under it,
+// and the row lacked the soak's last seconds (n = 95 of 120).
+TEST_F(QueueTest, TableIWaitsForTheLastSecondsOfTheGyroStream) {
+  constexpr double kAcquireS = 120;
+  write(dir_ / "schedule.toml", soak_schedule("late", 23, kAcquireS / 60));
+  start_sim();
+  start_daemon({"--exit-when-done"});
+  ASSERT_TRUE(wait_json("/api/v1/runs/1", [](const json& run) {
+    return !run["segments"].empty() && !run["segments"][0]["t_acquire_start_s"].is_null();
+  })) << diag();
+  const double acquire_start_s = last_["segments"][0]["t_acquire_start_s"].get<double>();
+  // 30 s of station time before the end (0.15 s of wall time at 200x).
+  ASSERT_TRUE(wait_json("/api/v1/status", [&](const json& st) {
+    return st["t_run_s"].get<double>() > acquire_start_s + kAcquireS - 30;
+  })) << diag();
+  ASSERT_TRUE(sim_ctl("pty hold")) << sim_->log();
+  // Held until the run is over on the station clock (or the daemon is gone,
+  // as it was before: it did not wait), for less than the 1 s of wall time
+  // that would trip gyro_lost.
+  ASSERT_TRUE(wait_until(
+      [&] {
+        const json st = get_json("/api/v1/status");
+        return !daemon_->running() || (!st.is_null() && st["state"] == "completed");
+      },
+      std::chrono::seconds(60)))
+      << diag();
+  ASSERT_TRUE(sim_ctl("pty release")) << sim_->log();
+  const auto code = daemon_->wait(std::chrono::seconds(60));
+  ASSERT_EQ(code, std::optional<int>(0)) << daemon_->log();
+
+  auto db = storage::Database::open_read_only((dir_ / "station.db").string());
+  ASSERT_TRUE(db.ok()) << db.error().message;
+  auto segs = db->segments(1);
+  ASSERT_TRUE(segs.ok());
+  ASSERT_EQ(segs->size(), 1u);
+  const std::string coverage = testing::window_coverage(*db, 1, (*segs)[0].windows);
+  auto stats = db->segment_stats(1);
+  ASSERT_TRUE(stats.ok());
+  ASSERT_EQ(stats->size(), 1u) << daemon_->log();
+  EXPECT_GE((*stats)[0].n, static_cast<int>(kAcquireS) - 2)
+      << "the soak's last seconds are in its Table I row\n"
+      << coverage << daemon_->log();
 }
 
 // A restart does not start an interlock's grace over (issue 15, item 12):

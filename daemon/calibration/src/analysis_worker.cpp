@@ -78,6 +78,9 @@ void AnalysisWorker::run() {
       ++busy_;
     }
     Status opened = Status::Ok();
+    if (auto* t1 = std::get_if<Table1Job>(&job); t1 && callbacks_.await_gyro) {
+      callbacks_.await_gyro(t1->run_id, t1->t_to_s);
+    }
     (void)writer_.flush();  // the job's samples must be committed first
     if (!db) {
       auto d = storage::Database::open(db_path_);

@@ -27,6 +27,9 @@ double unix_now_s() {
 }
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+// How long (wall) a soak's Table I and a completed run's end wait for the
+// gyro samples of their last station seconds to come off the line.
+constexpr std::chrono::milliseconds kAwaitGyro{2000};
 
 std::vector<std::string> split_lines(const std::string& text) {
   std::vector<std::string> out;
@@ -76,6 +79,14 @@ Station::Station(StationConfig config, const Clock& clock, StationHooks hooks, s
       writer_(std::move(writer)),
       started_wall_s_(steady_now_s()) {
   AnalysisWorker::Callbacks callbacks;
+  callbacks.await_gyro = [this](int64_t run_id, double until_s) {
+    if (!await_gyro(run_id, until_s, kAwaitGyro)) {
+      spdlog::warn(
+          "run {}: Table I computed without the gyro samples after t = {:.1f} s (the stream had "
+          "not reached the soak's end after {} ms)",
+          run_id, until_s, kAwaitGyro.count());
+    }
+  };
   callbacks.table1_done = [publish = hooks_.publish](const Table1Job& job,
                                                      const Result<storage::SegmentStatsRecord>& r) {
     if (r && publish) publish("stats", to_json(*r));
@@ -706,8 +717,16 @@ void Station::end_run() {
   const RunState final_state = sequencer_ ? sequencer_->state() : RunState::kFailed;
   const int64_t run_id = current_run_id();
   write_setpoint(config_.station.safe_setpoint_c, true);
-  // No batch is stored under the run from here on, so the flush holds all of
-  // its samples before its analysis reads them.
+  // A completed run's last samples may still be on the line (a reader behind
+  // on a loaded machine): they are waited for, a bounded time, before no
+  // batch is stored under the run any more; the flush then holds all of its
+  // samples before its analysis reads them.
+  if (final_state == RunState::kCompleted && run_id != 0) {
+    if (!await_gyro(run_id, run_time_s(), kAwaitGyro)) {
+      spdlog::warn("run {}: the gyro stream had not reached the run's end after {} ms", run_id,
+                   kAwaitGyro.count());
+    }
+  }
   run_clock_.close_samples();
   (void)writer_->flush();
   if (entry_ && final_state != RunState::kInterrupted) {
@@ -769,6 +788,13 @@ void Station::on_gyro_samples(std::span<const GyroSample> samples) {
     rel.assign(samples.begin(), samples.end());
     for (auto& s : rel) s.t_s -= run.t0_s;
     writer_->push_gyro(run.run_id, rel);
+    if (rel.empty()) return;
+    {
+      std::lock_guard handed(handed_mu_);
+      handed_run_id_ = run.run_id;
+      handed_until_s_ = rel.back().t_s;
+    }
+    handed_cv_.notify_all();
   });
   std::lock_guard lock(mu_);
   for (const auto& s : samples) {
@@ -789,6 +815,12 @@ void Station::on_gyro_samples(std::span<const GyroSample> samples) {
     gyro_window_sum_ += s.rate_dph;
     ++gyro_window_n_;
   }
+}
+
+bool Station::await_gyro(int64_t run_id, double until_s, std::chrono::milliseconds max_wait) {
+  std::unique_lock lock(handed_mu_);
+  return handed_cv_.wait_for(
+      lock, max_wait, [&] { return handed_run_id_ == run_id && handed_until_s_ >= until_s; });
 }
 
 StatusSnapshot Station::status() const {

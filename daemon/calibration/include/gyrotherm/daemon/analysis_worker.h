@@ -57,6 +57,12 @@ class AnalysisWorker {
     // an event about the run).
     std::function<void(storage::Database&, const RunJob&, const Result<RunAnalysisSummary>&)>
         run_done;
+    // Called on the worker thread before a Table I row is computed: returns
+    // once the gyro stream has handed over the run's samples up to `until_s`
+    // (run seconds), or after a bounded wait. A soak ends on the station
+    // clock, while its last samples may still be on the line (a reader behind
+    // on a loaded machine). Unset: no wait.
+    std::function<void(int64_t run_id, double until_s)> await_gyro;
   };
 
   AnalysisWorker(std::string db_path, storage::SampleWriter& writer, AnalysisSettings settings,

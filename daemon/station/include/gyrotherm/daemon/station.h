@@ -144,6 +144,9 @@ class Station final : public StationControl, private schedules::SequencerObserve
   double run_time_s() const;
   void write_setpoint(double setpoint_c, bool force);
   void on_gyro_samples(std::span<const GyroSample> samples);
+  // Waits, up to `max_wait` (wall), until gyro samples of `run_id` up to
+  // `until_s` (run seconds) have been handed to the writer. False on timeout.
+  bool await_gyro(int64_t run_id, double until_s, std::chrono::milliseconds max_wait);
   void add_event(const std::string& kind, const std::string& from, const std::string& to,
                  const std::string& message);
   int64_t segment_id(std::size_t index, const schedules::PlanStep& step, double t_s);
@@ -233,6 +236,12 @@ class Station final : public StationControl, private schedules::SequencerObserve
 
   // Shared with the gyro reader thread.
   RunClock run_clock_;
+  // The run of the last gyro batch handed to the writer and the run time of
+  // its last sample (await_gyro).
+  std::mutex handed_mu_;
+  std::condition_variable handed_cv_;
+  int64_t handed_run_id_ = 0;
+  double handed_until_s_ = 0;
   // A plan has been taken from pending_ and its run is not over.
   std::atomic<bool> busy_{false};
 
