@@ -50,6 +50,19 @@ class QueueTest : public StationTest {
     }
     return all;
   }
+  // The run's events once they include `text`: the queue's event about a
+  // failed run is written just after the run's state (all events if it never
+  // comes).
+  std::string events_once(int64_t run_id, const std::string& text) {
+    std::string events;
+    wait_until(
+        [&] {
+          events = events_text(run_id);
+          return events.find(text) != std::string::npos;
+        },
+        std::chrono::seconds(10));
+    return events;
+  }
   // Appends a section to the station config (before the processes start).
   void append_config(const std::string& text) {
     std::ofstream(dir_ / "station.toml", std::ios::app) << text;
@@ -611,7 +624,7 @@ TEST_F(QueueTest, FailedRunEventSaysWhetherTheQueueHoldsOrGoesOn) {
   ASSERT_TRUE(wait_json("/api/v1/runs/1", [](const json& run) { return run["state"] == "failed"; }))
       << diag();
   EXPECT_TRUE(get_json("/api/v1/queue")["held"].get<bool>());
-  std::string events = events_text(1);
+  std::string events = events_once(1, "run 1 failed");
   EXPECT_THAT(events, Not(HasSubstr("goes on"))) << events;
   EXPECT_THAT(events,
               HasSubstr("run 1 failed; the queue stays held (run 1 aborted by the operator"))
@@ -627,7 +640,7 @@ TEST_F(QueueTest, FailedRunEventSaysWhetherTheQueueHoldsOrGoesOn) {
   ASSERT_TRUE(wait_json("/api/v1/runs/2", [](const json& run) { return run["state"] == "failed"; }))
       << diag();
   EXPECT_TRUE(get_json("/api/v1/queue")["held"].get<bool>());
-  events = events_text(2);
+  events = events_once(2, "run 2 failed");
   EXPECT_THAT(events, Not(HasSubstr("goes on"))) << events;
   EXPECT_THAT(events, HasSubstr("run 2 failed; the queue stays held")) << events;
 
@@ -644,7 +657,7 @@ TEST_F(QueueTest, FailedRunEventSaysWhetherTheQueueHoldsOrGoesOn) {
       "/api/v1/runs/3", [](const json& run) { return run["state"] == "failed"; },
       std::chrono::seconds(90)))
       << diag();
-  events = events_text(3);
+  events = events_once(3, "run 3 failed");
   EXPECT_THAT(events,
               HasSubstr("run 3 failed; the queue goes on with the next entry (ignore_failures)"))
       << events;
