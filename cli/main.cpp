@@ -20,7 +20,7 @@
 #include "gyrotherm/daemon/station_lock.h"
 #include "gyrotherm/drivers/frame_parser.h"
 #include "gyrotherm/drivers/gyro_reader.h"
-#include "gyrotherm/drivers/modbus_device.h"
+#include "gyrotherm/drivers/modbus_devices.h"
 #include "gyrotherm/drivers/serial_port.h"
 #include "gyrotherm/schedules/schedule.h"
 
@@ -132,26 +132,20 @@ std::string reading(const Result<double>& r, const char* unit) {
   return r ? fmt::format("{:.3f} {}", *r, unit) : fmt::format("ERROR: {}", r.error().message);
 }
 
-// The unit the chamber serves temperatures in: its units register where the
-// profile has one (watlow-f4t), else °C. Error when unreadable or neither.
-Result<drivers::TemperatureUnit> chamber_unit(drivers::ModbusDevice& chamber,
-                                              const drivers::ChamberMap& map) {
-  if (!map.units) return drivers::TemperatureUnit::kCelsius;
-  auto v = chamber.read(map.units->reg);
-  if (!v) return v.error();
-  if (auto unit = map.units->decode(*v)) return *unit;
-  return Error::Permanent(fmt::format("units register {} holds {}, neither °C ({}) nor °F ({})",
-                                      map.units->reg.address, *v, map.units->celsius,
-                                      map.units->fahrenheit));
+// The unit the chamber serves temperatures in: its units register where
+// its map has one, else °C. Error when unreadable or neither.
+Result<drivers::TemperatureUnit> chamber_unit(drivers::Chamber& chamber) {
+  auto units = chamber.units();
+  if (!units) return units.error();
+  if (!units->unit) return Error::Permanent(units->note);
+  return *units->unit;
 }
 
-// A temperature register of the chamber, in °C.
-Result<double> read_chamber_c(drivers::ModbusDevice& chamber, const drivers::RegisterSpec& spec,
-                              const Result<drivers::TemperatureUnit>& unit) {
+// A chamber temperature (`read`: its process value or set point), in °C.
+Result<double> chamber_c(const Result<double>& read, const Result<drivers::TemperatureUnit>& unit) {
   if (!unit) return unit.error();
-  auto v = chamber.read(spec);
-  if (!v) return v;
-  return drivers::to_celsius(*v, *unit);
+  if (!read) return read;
+  return drivers::to_celsius(*read, *unit);
 }
 
 int cmd_devices(const std::string& config_path, bool json) {
@@ -160,13 +154,13 @@ int cmd_devices(const std::string& config_path, bool json) {
   std::optional<drivers::SerialPort> port;
   std::string gyro_error;
   if (auto refused = refuse_if_station_owned(*cfg, port, gyro_error)) return *refused;
-  drivers::ModbusDevice chamber("chamber", cfg->chamber.endpoint);
-  drivers::ModbusDevice probes("probes", cfg->probes.endpoint);
-  const auto unit = chamber_unit(chamber, cfg->chamber.map);
-  const auto pv = read_chamber_c(chamber, cfg->chamber.map.process_value, unit);
-  const auto sp = read_chamber_c(chamber, cfg->chamber.map.setpoint, unit);
-  const auto top = probes.read(cfg->probes.top);
-  const auto side = probes.read(cfg->probes.side);
+  drivers::ModbusChamber chamber(cfg->chamber.endpoint, cfg->chamber.map);
+  drivers::ModbusProbes probes(cfg->probes.endpoint, cfg->probes.top, cfg->probes.side);
+  const auto unit = chamber_unit(chamber);
+  const auto pv = unit ? chamber_c(chamber.process_value(), unit) : unit.error();
+  const auto sp = unit ? chamber_c(chamber.setpoint(), unit) : unit.error();
+  const auto top = probes.top_c();
+  const auto side = probes.side_c();
 
   // Gyro: listen for up to two seconds (wall).
   std::string gyro_text;
@@ -245,14 +239,13 @@ int cmd_chamber_setpoint(const std::string& config_path, double setpoint_c) {
                             cfg->station.min_temp_c, cfg->station.max_temp_c),
                 2);
   }
-  drivers::ModbusDevice chamber("chamber", cfg->chamber.endpoint);
-  const auto unit = chamber_unit(chamber, cfg->chamber.map);
+  drivers::ModbusChamber chamber(cfg->chamber.endpoint, cfg->chamber.map);
+  const auto unit = chamber_unit(chamber);
   if (!unit) return fail(unit.error().message);
-  if (auto st = chamber.write(cfg->chamber.map.setpoint, drivers::from_celsius(setpoint_c, *unit));
-      !st) {
+  if (auto st = chamber.write_setpoint(drivers::from_celsius(setpoint_c, *unit)); !st) {
     return fail(st.error().message);
   }
-  auto back = read_chamber_c(chamber, cfg->chamber.map.setpoint, unit);
+  auto back = chamber_c(chamber.setpoint(), unit);
   if (!back) return fail(back.error().message);
   std::cout << fmt::format("chamber set point {:.2f} °C\n", *back);
   return 0;

@@ -150,11 +150,17 @@ int main(int argc, char** argv) {
     metrics.observe_modbus(device, seconds);
   };
   hooks.observe_commit = [&metrics](double seconds) { metrics.observe_commit(seconds); };
-  hooks.wall_clock = wall_clock ? &*wall_clock : nullptr;
   hooks.publish = [&stream](std::string_view event, const nlohmann::json& data) {
     stream.publish(event, data.dump());
   };
-  auto station = gd::Station::create(*config, clock, hooks);
+  auto devices = gd::devices_from_config(*config, clock, hooks);
+  if (!devices) {
+    std::cerr << "gyrothermd: " << devices.error().message << "\n";
+    return 1;
+  }
+  const gd::StationClocks clocks{clock, gyrotherm::system_wall_clock(),
+                                 wall_clock ? &*wall_clock : nullptr};
+  auto station = gd::Station::create(*config, std::move(*devices), clocks, hooks);
   if (!station) {
     std::cerr << "gyrothermd: " << station.error().message << "\n";
     return 1;

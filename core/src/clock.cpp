@@ -26,7 +26,16 @@ double SystemWallClock::unix_now_s() const {
   return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
 
-std::string wall_time_utc_iso() { return utc_iso(SystemWallClock().unix_now_s()); }
+double SystemWallClock::monotonic_s() const {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+const WallClock& system_wall_clock() {
+  static const SystemWallClock clock;
+  return clock;
+}
+
+std::string wall_time_utc_iso() { return utc_iso(system_wall_clock().unix_now_s()); }
 
 std::string utc_iso(double unix_s) {
   const auto ms = static_cast<int64_t>(std::floor(unix_s * 1000.0 + 0.5));

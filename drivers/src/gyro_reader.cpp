@@ -209,4 +209,14 @@ void GyroReader::run() {
   health_.connected = false;
 }
 
+SerialGyro::SerialGyro(SerialOptions serial, GyroFormat format, std::unique_ptr<FrameParser> parser,
+                       const Clock& clock)
+    : reader_(std::move(serial), format, std::move(parser), clock,
+              [this](std::span<const GyroSample> samples) { sink_(samples); }) {}
+
+void SerialGyro::start(Sink sink) {
+  sink_ = std::move(sink);
+  reader_.start();
+}
+
 }  // namespace gyrotherm::drivers

@@ -72,7 +72,7 @@ Error newer_schema_error(const std::string& path, int version) {
                   path, version, kSchemaVersion));
 }
 
-Status migrate(sqlite3* db, const std::string& path) {
+Status migrate(sqlite3* db, const std::string& path, const WallClock& wall) {
   auto current = read_schema_version(db, path);
   if (!current) return current.error();
   if (*current > kSchemaVersion) return newer_schema_error(path, *current);
@@ -111,14 +111,12 @@ Status migrate(sqlite3* db, const std::string& path) {
     auto created =
         Stmt::prepare(db, path, "INSERT OR IGNORE INTO meta(key, value) VALUES('created_utc', ?)");
     if (!created) return created.error();
-    created->bind(1, std::string_view(wall_time_utc_iso()));
+    created->bind(1, std::string_view(utc_iso(wall.unix_now_s())));
     if (created->step() != SQLITE_DONE) return sqlite_error(db, path, what);
     if (Status s = txn.commit(); !s) return s;
   }
   return Status::Ok();
 }
-
-std::string now_if_empty(const std::string& utc) { return utc.empty() ? wall_time_utc_iso() : utc; }
 
 constexpr const char* kRunColumns =
     "id, schedule_name, state, started_utc, ended_utc, time_scale, latitude_deg, orientation, "
@@ -192,11 +190,11 @@ constexpr const char* kStatsColumns =
 
 }  // namespace
 
-Result<Database> Database::open(const std::string& path) {
+Result<Database> Database::open(const std::string& path, const WallClock& wall) {
   sqlite3* raw = nullptr;
   const int rc =
       sqlite3_open_v2(path.c_str(), &raw, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE, nullptr);
-  Database db(raw, path);  // owns the handle even when opening failed
+  Database db(raw, path, wall);  // owns the handle even when opening failed
   if (rc != SQLITE_OK) return sqlite_error(raw, path, "cannot open");
   sqlite3_extended_result_codes(raw, 1);
   sqlite3_busy_timeout(raw, kBusyTimeoutMs);
@@ -232,14 +230,14 @@ Result<Database> Database::open(const std::string& path) {
       !s) {
     return s.error();
   }
-  if (Status s = migrate(raw, path); !s) return s.error();
+  if (Status s = migrate(raw, path, wall); !s) return s.error();
   return db;
 }
 
 Result<Database> Database::open_read_only(const std::string& path) {
   sqlite3* raw = nullptr;
   const int rc = sqlite3_open_v2(path.c_str(), &raw, SQLITE_OPEN_READONLY, nullptr);
-  Database db(raw, path);
+  Database db(raw, path, system_wall_clock());  // stamps nothing
   if (rc != SQLITE_OK) return sqlite_error(raw, path, "cannot open read-only");
   sqlite3_extended_result_codes(raw, 1);
   sqlite3_busy_timeout(raw, kBusyTimeoutMs);
@@ -259,18 +257,21 @@ Result<Database> Database::open_read_only(const std::string& path) {
 }
 
 Database::Database(Database&& other) noexcept
-    : db_(std::exchange(other.db_, nullptr)), path_(std::move(other.path_)) {}
+    : db_(std::exchange(other.db_, nullptr)), path_(std::move(other.path_)), wall_(other.wall_) {}
 
 Database& Database::operator=(Database&& other) noexcept {
   if (this != &other) {
     sqlite3_close_v2(db_);
     db_ = std::exchange(other.db_, nullptr);
     path_ = std::move(other.path_);
+    wall_ = other.wall_;
   }
   return *this;
 }
 
 Database::~Database() { sqlite3_close_v2(db_); }
+
+std::string Database::utc_now() const { return utc_iso(wall_->unix_now_s()); }
 
 Result<int> Database::schema_version() { return read_schema_version(db_, path_); }
 
@@ -282,7 +283,7 @@ Result<int64_t> Database::create_run(const RunRecord& run) {
   if (!st) return st.error();
   st->bind(1, std::string_view(run.schedule_name));
   st->bind(2, std::string_view(run.state));
-  st->bind(3, std::string_view(now_if_empty(run.started_utc)));
+  st->bind(3, std::string_view(utc_or_now(run.started_utc)));
   st->bind(4, run.time_scale);
   st->bind(5, run.latitude_deg);
   st->bind(6, std::string_view(run.orientation));
@@ -299,7 +300,7 @@ Status Database::set_run_state(int64_t run_id, std::string_view state, bool ende
   if (!st) return st.error();
   st->bind(1, state);
   if (ended) {
-    st->bind(2, std::string_view(wall_time_utc_iso()));
+    st->bind(2, std::string_view(utc_now()));
   } else {
     st->bind_null(2);
   }
@@ -422,7 +423,7 @@ Result<int64_t> Database::add_event(const EventRecord& event) {
   if (!st) return st.error();
   st->bind(1, event.run_id);
   st->bind(2, event.t_s);
-  st->bind(3, std::string_view(now_if_empty(event.wall_utc)));
+  st->bind(3, std::string_view(utc_or_now(event.wall_utc)));
   st->bind(4, std::string_view(event.kind));
   st->bind_text_or_null(5, event.from_state);
   st->bind_text_or_null(6, event.to_state);
@@ -482,7 +483,7 @@ Status Database::put_segment_stats(const SegmentStatsRecord& s) {
   st->bind(i++, s.earth_rate_dph);
   st->bind(i++, s.t_from_s);
   st->bind(i++, s.t_to_s);
-  st->bind(i++, std::string_view(now_if_empty(s.computed_utc)));
+  st->bind(i++, std::string_view(utc_or_now(s.computed_utc)));
   return expect_done(*st, db_, path_,
                      fmt::format("storing statistics of segment {}", s.segment_id));
 }
@@ -740,7 +741,7 @@ Result<int64_t> Database::put_allan(const AllanRecord& a) {
   st->bind(i++, a.rate_random_walk_dphprh);
   st->bind(i++, std::string_view(a.bias_instability_method));
   st->bind(i++, std::string_view(inputs));
-  st->bind(i++, std::string_view(now_if_empty(a.computed_utc)));
+  st->bind(i++, std::string_view(utc_or_now(a.computed_utc)));
   const std::string what = fmt::format("storing {}", allan_label(a));
   if (st->step() != SQLITE_ROW) return sqlite_error(db_, path_, what);
   const int64_t id = st->column_int64(0);

@@ -195,8 +195,7 @@ Result<int64_t> Database::begin_export(const ExportRecord& record) {
   ins->bind(2, record.slot_unix_s);
   ins->bind(3, std::string_view(record.slot_local));
   ins->bind(4, std::string_view(record.directory));
-  ins->bind(
-      5, std::string_view(record.started_utc.empty() ? wall_time_utc_iso() : record.started_utc));
+  ins->bind(5, std::string_view(utc_or_now(record.started_utc)));
   ins->bind(6, std::string_view(record.message));
   if (Status s = expect_done(*ins, db_, path_, what); !s) return s.error();
   const auto export_id = static_cast<int64_t>(sqlite3_last_insert_rowid(db_));
@@ -259,7 +258,7 @@ Status Database::finish_export(int64_t export_id, std::string_view state,
   st->bind(1, state);
   st->bind(2, std::string_view(files_json));
   st->bind(3, message);
-  st->bind(4, std::string_view(wall_time_utc_iso()));
+  st->bind(4, std::string_view(utc_now()));
   st->bind(5, export_id);
   if (Status s = expect_done(*st, db_, path_, what); !s) return s;
   return tx.commit();

@@ -221,7 +221,7 @@ Result<int64_t> Database::add_fit(const FitRecord& fit) {
   st->bind(6, fit.residual_std_dph);
   st->bind(7, fit.r_squared);
   st->bind(8, fit.inputs_json.empty() ? std::string_view("{}") : fit.inputs_json);
-  st->bind(9, fit.computed_utc.empty() ? wall_time_utc_iso() : fit.computed_utc);
+  st->bind(9, utc_or_now(fit.computed_utc));
   if (st->step() != SQLITE_DONE) return sqlite_error(db_, path_, "storing a fit");
   const int64_t id = sqlite3_last_insert_rowid(db_);
   auto link =

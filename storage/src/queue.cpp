@@ -112,7 +112,7 @@ Result<QueueEntry> Database::queue_add(const std::string& schedule_name,
                                        bool ignore_failures) {
   Transaction tx(db_, path_);
   if (Status s = tx.begin_immediate(); !s) return s.error();
-  const std::string now = wall_time_utc_iso();
+  const std::string now = utc_now();
   auto sched = Stmt::prepare(
       db_, path_,
       "INSERT INTO schedules(name, source_path, toml_text, created_utc) VALUES(?, ?, ?, ?)");

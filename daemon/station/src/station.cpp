@@ -10,6 +10,8 @@
 #include <sstream>
 
 #include "gyrotherm/daemon/run_analysis.h"
+#include "gyrotherm/drivers/gyro_reader.h"
+#include "gyrotherm/drivers/modbus_devices.h"
 
 namespace gyrotherm::daemon {
 namespace {
@@ -17,14 +19,6 @@ namespace {
 using schedules::RunState;
 
 constexpr const char* kHoldKey = "queue_hold";
-
-double steady_now_s() {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
-}
-
-double unix_now_s() {
-  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
-}
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 // How long (wall) a soak's Table I and a completed run's end wait for the
@@ -53,31 +47,60 @@ Reply run_lookup_failure(const Error& e, int64_t id) {
 
 }  // namespace
 
-Result<std::unique_ptr<Station>> Station::create(StationConfig config, const Clock& clock,
-                                                 StationHooks hooks) {
-  auto db = storage::Database::open(config.storage.db_path);
+Result<StationDevices> devices_from_config(const StationConfig& config, const Clock& clock,
+                                           const StationHooks& hooks) {
+  auto parser = drivers::make_frame_parser(config.gyro.protocol);
+  if (!parser) return parser.error();
+  auto chamber =
+      std::make_unique<drivers::ModbusChamber>(config.chamber.endpoint, config.chamber.map);
+  auto probes = std::make_unique<drivers::ModbusProbes>(config.probes.endpoint, config.probes.top,
+                                                        config.probes.side);
+  if (auto observe = hooks.observe_modbus) {
+    chamber->set_latency_observer([observe](double s) { observe("chamber", s); });
+    probes->set_latency_observer([observe](double s) { observe("probes", s); });
+  }
+  StationDevices devices;
+  devices.chamber = std::move(chamber);
+  devices.probes = std::move(probes);
+  devices.gyro = std::make_unique<drivers::SerialGyro>(config.gyro.serial, config.gyro.format,
+                                                       std::move(*parser), clock);
+  return devices;
+}
+
+Result<std::unique_ptr<Station>> Station::create(StationConfig config, StationDevices devices,
+                                                 StationClocks clocks, StationHooks hooks) {
+  if (!devices.chamber || !devices.probes || !devices.gyro) {
+    return Error::Permanent("station: a chamber, a probe module and a gyro source are needed");
+  }
+  auto db = storage::Database::open(config.storage.db_path, clocks.wall);
   if (!db) return db.error();
-  auto api_db = storage::Database::open(config.storage.db_path);
+  auto api_db = storage::Database::open(config.storage.db_path, clocks.wall);
   if (!api_db) return api_db.error();
   storage::SampleWriterOptions wopt;
   wopt.commit_interval =
       std::chrono::milliseconds(static_cast<int64_t>(config.storage.commit_interval_s * 1000));
   auto writer = storage::SampleWriter::start(config.storage.db_path, wopt, hooks.observe_commit);
   if (!writer) return writer.error();
-  return std::unique_ptr<Station>(new Station(std::move(config), clock, std::move(hooks),
-                                              std::move(*db), std::move(*api_db),
+  return std::unique_ptr<Station>(new Station(std::move(config), std::move(devices), clocks,
+                                              std::move(hooks), std::move(*db), std::move(*api_db),
                                               std::move(*writer)));
 }
 
-Station::Station(StationConfig config, const Clock& clock, StationHooks hooks, storage::Database db,
-                 storage::Database api_db, std::unique_ptr<storage::SampleWriter> writer)
+Station::Station(StationConfig config, StationDevices devices, StationClocks clocks,
+                 StationHooks hooks, storage::Database db, storage::Database api_db,
+                 std::unique_ptr<storage::SampleWriter> writer)
     : config_(std::move(config)),
-      clock_(clock),
+      clock_(clocks.station),
+      wall_(clocks.wall),
+      nightly_wall_(clocks.nightly ? *clocks.nightly : clocks.wall),
       hooks_(std::move(hooks)),
       db_(std::move(db)),
       api_db_(std::move(api_db)),
       writer_(std::move(writer)),
-      started_wall_s_(steady_now_s()) {
+      chamber_(std::move(devices.chamber)),
+      probes_(std::move(devices.probes)),
+      gyro_(std::move(devices.gyro)),
+      started_wall_s_(wall_.monotonic_s()) {
   AnalysisWorker::Callbacks callbacks;
   callbacks.await_gyro = [this](int64_t run_id, double until_s) {
     if (!await_gyro(run_id, until_s, kAwaitGyro)) {
@@ -100,12 +123,13 @@ Station::Station(StationConfig config, const Clock& clock, StationHooks hooks, s
       spdlog::error("Table I row not computed: {}", r.error().message);
     }
   };
-  callbacks.run_done = [publish = hooks_.publish](storage::Database& db, const RunJob& job,
-                                                  const Result<RunAnalysisSummary>& r) {
+  callbacks.run_done = [publish = hooks_.publish, &wall = wall_](
+                           storage::Database& db, const RunJob& job,
+                           const Result<RunAnalysisSummary>& r) {
     storage::EventRecord ev;
     ev.run_id = job.run_id;
     if (auto last = db.last_sample_t_s(job.run_id); last && *last) ev.t_s = **last;
-    ev.wall_utc = wall_time_utc_iso();
+    ev.wall_utc = utc_iso(wall.unix_now_s());
     ev.kind = "analysis";
     if (r) {
       std::string fits;
@@ -141,16 +165,6 @@ Station::Station(StationConfig config, const Clock& clock, StationHooks hooks, s
   };
   analysis_ = std::make_unique<AnalysisWorker>(config_.storage.db_path, *writer_,
                                                analysis_settings(config_), std::move(callbacks));
-  chamber_ = std::make_unique<drivers::ModbusDevice>("chamber", config_.chamber.endpoint);
-  probes_ = std::make_unique<drivers::ModbusDevice>("probes", config_.probes.endpoint);
-  if (auto observe = hooks_.observe_modbus) {
-    chamber_->set_latency_observer([observe](double s) { observe("chamber", s); });
-    probes_->set_latency_observer([observe](double s) { observe("probes", s); });
-  }
-  auto parser = drivers::make_frame_parser(config_.gyro.protocol);
-  gyro_ = std::make_unique<drivers::GyroReader>(
-      config_.gyro.serial, config_.gyro.format, std::move(*parser), clock_,
-      [this](std::span<const GyroSample> s) { on_gyro_samples(s); });
   snapshot_.station_name = config_.station.name;
   snapshot_.time_scale = clock_.time_scale();
 }
@@ -170,8 +184,9 @@ schedules::StationLimits Station::limits() const {
           config_.station.max_ramp_c_per_min};
 }
 
-void Station::start() {
-  for (auto* dev : {chamber_.get(), probes_.get()}) {
+void Station::start(ControlLoop loop) {
+  for (drivers::PolledDevice* dev :
+       std::initializer_list<drivers::PolledDevice*>{chamber_.get(), probes_.get()}) {
     if (auto st = dev->connect(); !st) {
       spdlog::warn("{}: {} (will keep retrying)", dev->name(), st.error().message);
     }
@@ -179,7 +194,7 @@ void Station::start() {
   const double now_s = clock_.now_s();
   chamber_ok_s_ = probes_ok_s_ = storage_ok_s_ = now_s;
   gyro_last_s_.store(now_s);
-  chamber_ok_wall_s_ = probes_ok_wall_s_ = storage_ok_wall_s_ = steady_now_s();
+  chamber_ok_wall_s_ = probes_ok_wall_s_ = storage_ok_wall_s_ = wall_.monotonic_s();
   gyro_last_wall_s_.store(chamber_ok_wall_s_);
   {
     std::lock_guard lock(run_mu_);
@@ -192,8 +207,8 @@ void Station::start() {
     resume_interrupted_run();
     submit_missing_analyses();
   }
-  gyro_->start();
-  control_thread_ = std::thread([this] { control_loop(); });
+  gyro_->start([this](std::span<const GyroSample> s) { on_gyro_samples(s); });
+  if (loop == ControlLoop::kOwnThread) control_thread_ = std::thread([this] { control_loop(); });
   start_nightly_export();
 }
 
@@ -208,10 +223,11 @@ void Station::start_nightly_export() {
   options.directory = e.directory;
   options.report.station_name = config_.station.name;
   const TimeZone zone = options.zone;
-  const WallClock& wall = hooks_.wall_clock ? *hooks_.wall_clock : system_wall_clock_;
-  auto done = [publish = hooks_.publish](storage::Database& db, const Result<ExportOutcome>& r) {
+  const WallClock& wall = nightly_wall_;
+  auto done = [publish = hooks_.publish, &stamp = wall_](storage::Database& db,
+                                                         const Result<ExportOutcome>& r) {
     storage::EventRecord ev;
-    ev.wall_utc = wall_time_utc_iso();
+    ev.wall_utc = utc_iso(stamp.unix_now_s());
     ev.kind = "export";
     if (r) {
       ev.message =
@@ -299,9 +315,9 @@ void Station::control_loop() {
 
 schedules::Readings Station::read_devices(double now_s) {
   schedules::Readings r;
-  auto read = [](drivers::ModbusDevice& dev, const drivers::RegisterSpec& spec, bool& ok,
-                 std::optional<double>& out) {
-    auto v = dev.read(spec);
+  // A reading of `dev`; `ok` follows whether it answers, logged on change.
+  auto read = [](const drivers::PolledDevice& dev, auto&& result, bool& ok, auto& out) {
+    auto v = std::forward<decltype(result)>(result);
     if (v) {
       out = *v;
       if (!ok) spdlog::info("{}: readings back", dev.name());
@@ -312,21 +328,21 @@ schedules::Readings Station::read_devices(double now_s) {
     }
   };
   if (chamber_units_known()) {
-    read(*chamber_, config_.chamber.map.process_value, chamber_ok_, r.chamber_c);
+    read(*chamber_, chamber_->process_value(), chamber_ok_, r.chamber_c);
     if (r.chamber_c) {
       r.chamber_c = drivers::to_celsius(*r.chamber_c, *chamber_unit_);
     } else {
       chamber_unit_.reset();  // read again once the chamber answers
     }
   }
-  if (r.chamber_c && config_.chamber.map.alarm) {
-    std::optional<double> alarm;
-    read(*chamber_, config_.chamber.map.alarm->reg, chamber_ok_, alarm);
-    r.chamber_alarm = alarm && config_.chamber.map.alarm->is_alarm(*alarm);
+  if (r.chamber_c && chamber_->has_alarm()) {
+    std::optional<bool> alarm;
+    read(*chamber_, chamber_->alarm(), chamber_ok_, alarm);
+    r.chamber_alarm = alarm.value_or(false);
   }
-  read(*probes_, config_.probes.top, probes_ok_, r.top_c);
-  if (r.top_c) read(*probes_, config_.probes.side, probes_ok_, r.side_c);
-  const double wall_s = steady_now_s();
+  read(*probes_, probes_->top_c(), probes_ok_, r.top_c);
+  if (r.top_c) read(*probes_, probes_->side_c(), probes_ok_, r.side_c);
+  const double wall_s = wall_.monotonic_s();
   if (r.chamber_c) {
     chamber_ok_s_ = now_s;
     chamber_ok_wall_s_ = wall_s;
@@ -431,38 +447,31 @@ void Station::tick() {
 }
 
 bool Station::chamber_units_known() {
-  const auto& units = config_.chamber.map.units;
-  if (!units) {
-    chamber_unit_ = drivers::TemperatureUnit::kCelsius;
-    return true;
-  }
   // Read every time (each tick, before the process value): the units can
   // be changed at the controller, and a set point written in the wrong unit
-  // would move the chamber far off.
-  auto v = chamber_->read(units->reg);
+  // would move the chamber far off. A controller without a units register
+  // serves °C (nothing is read).
+  auto v = chamber_->units();
   if (!v) {
     if (chamber_ok_) spdlog::warn("{}", v.error().message);
     chamber_ok_ = false;
     chamber_unit_.reset();
     return false;
   }
-  const auto unit = units->decode(*v);
-  if (!unit) {
-    if (refused_units_value_ != *v) {
-      spdlog::error(
-          "chamber: units register {} holds {}, neither °C ({}) nor °F ({}); the chamber's "
-          "readings and set point are not used until it does",
-          units->reg.address, *v, units->celsius, units->fahrenheit);
-      refused_units_value_ = *v;
+  if (!v->unit) {
+    if (refused_units_code_ != v->code) {
+      spdlog::error("chamber: {}; the chamber's readings and set point are not used until it does",
+                    v->note);
+      refused_units_code_ = v->code;
     }
     chamber_unit_.reset();
     return false;
   }
-  refused_units_value_.reset();
-  if (chamber_unit_ != unit) {
-    spdlog::info("chamber: serves {} (units register {} = {}){}", drivers::unit_symbol(*unit),
-                 units->reg.address, *v,
-                 *unit == drivers::TemperatureUnit::kCelsius
+  refused_units_code_.reset();
+  const drivers::TemperatureUnit unit = *v->unit;
+  if (chamber_unit_ != unit && !v->note.empty()) {
+    spdlog::info("chamber: serves {} ({}){}", drivers::unit_symbol(unit), v->note,
+                 unit == drivers::TemperatureUnit::kCelsius
                      ? ""
                      : "; readings and set points are converted to and from °C");
   }
@@ -483,7 +492,7 @@ void Station::write_setpoint(double setpoint_c, bool force) {
     return;
   }
   const double value = drivers::from_celsius(setpoint_c, *chamber_unit_);
-  if (auto st = chamber_->write(config_.chamber.map.setpoint, value); st) {
+  if (auto st = chamber_->write_setpoint(value); st) {
     last_written_setpoint_c_ = setpoint_c;
   } else {
     last_written_setpoint_c_.reset();  // retry next tick
@@ -534,7 +543,7 @@ void Station::start_next_run(double now_s) {
   storage::RunRecord rec;
   rec.schedule_name = entry.schedule_name;
   rec.state = "queued";
-  rec.started_utc = wall_time_utc_iso();
+  rec.started_utc = utc_iso(wall_.unix_now_s());
   rec.time_scale = clock_.time_scale();
   rec.latitude_deg = config_.station.latitude_deg;
   rec.orientation = std::string(analysis::to_string(config_.station.orientation));
@@ -643,7 +652,7 @@ void Station::resume_interrupted_run() {
   if (!snap) return give_up(snap.error().message);
 
   // The downtime in station time; never before a committed sample.
-  const double down_wall_s = std::max(0.0, unix_now_s() - *run.checkpoint_wall_unix_s);
+  const double down_wall_s = std::max(0.0, wall_.unix_now_s() - *run.checkpoint_wall_unix_s);
   double t_resume_s = snap->t_s + down_wall_s * clock_.time_scale();
   // Acquisition is credited up to the last committed gyro sample only: the
   // samples after it died uncommitted with the daemon, and Table I is made of
@@ -696,12 +705,12 @@ void Station::resume_interrupted_run() {
 
 void Station::checkpoint(bool force) {
   if (!sequencer_) return;
-  const double wall_s = steady_now_s();
+  const double wall_s = wall_.monotonic_s();
   const std::string state(to_string(sequencer_->state()));
   if (!force && state == checkpoint_state_ && wall_s - last_checkpoint_wall_s_ < 1.0) return;
   const double t_run_s = run_time_s();
   const std::string json = to_json(sequencer_->snapshot(t_run_s)).dump();
-  if (auto st = db_.set_run_checkpoint(current_run_id(), json, unix_now_s()); !st) {
+  if (auto st = db_.set_run_checkpoint(current_run_id(), json, wall_.unix_now_s()); !st) {
     // Tried again next tick; logged once per failing spell.
     if (!checkpoint_failing_) spdlog::error("run checkpoint not written: {}", st.error().message);
     checkpoint_failing_ = true;
@@ -778,7 +787,7 @@ void Station::end_run() {
 
 void Station::on_gyro_samples(std::span<const GyroSample> samples) {
   gyro_last_s_.store(clock_.now_s());
-  gyro_last_wall_s_.store(steady_now_s());
+  gyro_last_wall_s_.store(wall_.monotonic_s());
   gyro_heard_.store(true);
   // One read of the pair: the batch is timed from the start of the run it
   // is stored under, and handed to the writer before that run can end.
@@ -829,7 +838,7 @@ StatusSnapshot Station::status() const {
     std::lock_guard lock(mu_);
     s = snapshot_;
   }
-  s.uptime_s = steady_now_s() - started_wall_s_;
+  s.uptime_s = wall_.monotonic_s() - started_wall_s_;
   s.chamber = chamber_->health();
   s.probes = probes_->health();
   s.gyro = gyro_->health();
@@ -839,7 +848,7 @@ StatusSnapshot Station::status() const {
 
 // A device's gap in the event log: when it stopped answering and how long
 // the readings were missing once it answers again.
-void Station::note_link(const drivers::ModbusDevice& device, bool ok,
+void Station::note_link(const drivers::PolledDevice& device, bool ok,
                         std::optional<double>& lost_since_s, double now_s) {
   if (!ok && !lost_since_s) {
     lost_since_s = now_s;
@@ -899,7 +908,7 @@ void Station::add_event(const std::string& kind, const std::string& from, const 
   const int64_t run_id = current_run_id();
   if (run_id != 0) ev.run_id = run_id;
   ev.t_s = run_id != 0 ? run_time_s() : 0.0;
-  ev.wall_utc = wall_time_utc_iso();
+  ev.wall_utc = utc_iso(wall_.unix_now_s());
   ev.kind = kind;
   ev.from_state = from;
   ev.to_state = to;

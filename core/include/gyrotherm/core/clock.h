@@ -60,20 +60,32 @@ class ManualClock final : public Clock {
   double scale_;
 };
 
-// Wall time (Unix seconds) for what happens at a local time of day: the
-// nightly export. Injected like the station clock, so tests walk across
-// days, daylight-saving changes and downtime without waiting.
+// Wall time: Unix seconds for what is stamped for humans (event and run
+// rows, the nightly export's local time of day, a run's downtime across a
+// restart), and a monotonic reading for wall durations (how long a device
+// has been silent, checkpoint intervals, uptime). Injected like the station
+// clock: into the station, storage and the nightly export, so tests walk
+// across days, daylight-saving changes and downtime without waiting.
 class WallClock {
  public:
   virtual ~WallClock() = default;
   virtual double unix_now_s() const = 0;  // thread-safe
+  // Seconds from an arbitrary origin, never going back: for durations only.
+  // Defaults to unix_now_s() (right for the clocks that tests move).
+  virtual double monotonic_s() const { return unix_now_s(); }
 };
 
-// The system's real-time clock.
+// The system's real-time clock; monotonic_s() is the steady clock, so a
+// step of the system time does not change a duration.
 class SystemWallClock final : public WallClock {
  public:
   double unix_now_s() const override;
+  double monotonic_s() const override;
 };
+
+// One SystemWallClock for the process: what the daemon, storage and tools use
+// unless a test hands them another.
+const WallClock& system_wall_clock();
 
 // Simulation: wall time that starts at `start_unix_s` when constructed and
 // advances with a station clock (so at its time scale).

@@ -30,6 +30,7 @@
 
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/core/samples.h"
+#include "gyrotherm/drivers/devices.h"
 #include "gyrotherm/drivers/frame_parser.h"
 #include "gyrotherm/drivers/serial_port.h"
 
@@ -73,17 +74,6 @@ class SampleClock {
   double last_t_s_ = 0;
 };
 
-struct GyroReaderHealth {
-  bool connected = false;
-  uint64_t samples = 0;          // samples emitted
-  uint64_t invalid_samples = 0;  // frames whose axis-valid bit was clear
-  ParserCounters parser;         // frames, CRC failures, skipped bytes, gaps
-  uint64_t reopens = 0;          // times the port was (re)opened after the first
-  uint64_t read_errors = 0;
-  double last_sample_station_s = -1;  // station time of the last sample, -1 if none
-  std::string last_error;
-};
-
 class GyroReader {
  public:
   using Sink = std::function<void(std::span<const GyroSample>)>;
@@ -113,6 +103,21 @@ class GyroReader {
   mutable std::mutex mu_;
   std::condition_variable stop_cv_;  // wakes the backoff wait on stop()
   GyroReaderHealth health_;
+};
+
+// The GyroSource of a gyro on a serial line: a GyroReader whose batches go
+// to the sink given at start().
+class SerialGyro final : public GyroSource {
+ public:
+  SerialGyro(SerialOptions serial, GyroFormat format, std::unique_ptr<FrameParser> parser,
+             const Clock& clock);
+  void start(Sink sink) override;
+  void stop() override { reader_.stop(); }
+  GyroReaderHealth health() const override { return reader_.health(); }
+
+ private:
+  Sink sink_;  // set before the reader's thread starts
+  GyroReader reader_;
 };
 
 }  // namespace gyrotherm::drivers

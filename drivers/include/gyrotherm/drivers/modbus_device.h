@@ -23,6 +23,7 @@
 #include <string_view>
 
 #include "gyrotherm/core/result.h"
+#include "gyrotherm/drivers/devices.h"
 #include "gyrotherm/drivers/registers.h"
 
 typedef struct _modbus modbus_t;  // libmodbus handle
@@ -49,16 +50,6 @@ struct ModbusEndpoint {
 // 1..63 characters each, 253 in all). Returns what is wrong, or "" when it
 // is well formed; whether a name resolves is only known at connect.
 std::string tcp_host_problem(std::string_view host);
-
-struct DeviceHealth {
-  bool connected = false;
-  std::string last_success_utc;  // wall time of the last successful request, "" if none
-  uint64_t requests = 0;
-  uint64_t errors = 0;
-  uint64_t reconnects = 0;
-  std::string last_error;
-  double last_latency_ms = 0;
-};
 
 class ModbusDevice {
  public:

@@ -17,6 +17,7 @@
 #include <utility>
 #include <vector>
 
+#include "gyrotherm/core/clock.h"
 #include "gyrotherm/core/result.h"
 #include "gyrotherm/core/samples.h"
 
@@ -203,8 +204,11 @@ class Database {
  public:
   // Opens or creates `path`, sets WAL and busy_timeout, migrates to
   // kSchemaVersion. Errors name the file. A file with a newer schema than this
-  // build knows is a permanent error (never downgraded).
-  static Result<Database> open(const std::string& path);
+  // build knows is a permanent error (never downgraded). The UTC times it
+  // stamps (a run's start and end, events, statistics, fits, exports, queue
+  // entries) come from `wall` (not owned; outlives the connection).
+  static Result<Database> open(const std::string& path,
+                               const WallClock& wall = system_wall_clock());
   // Opens an existing database read-only (for the CLI and HTTP readers); no
   // migration. Error if it does not exist or its schema is unknown.
   static Result<Database> open_read_only(const std::string& path);
@@ -336,9 +340,15 @@ class Database {
   const std::string& path() const { return path_; }
 
  private:
-  Database(sqlite3* db, std::string path) : db_(db), path_(std::move(path)) {}
+  Database(sqlite3* db, std::string path, const WallClock& wall)
+      : db_(db), path_(std::move(path)), wall_(&wall) {}
+  // Now, from the wall clock, as ISO-8601 UTC; `utc` itself when it is set.
+  std::string utc_now() const;
+  std::string utc_or_now(const std::string& utc) const { return utc.empty() ? utc_now() : utc; }
+
   sqlite3* db_ = nullptr;  // owned
   std::string path_;
+  const WallClock* wall_;
 };
 
 }  // namespace gyrotherm::storage

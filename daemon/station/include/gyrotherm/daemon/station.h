@@ -48,8 +48,7 @@
 #include "gyrotherm/daemon/exporter.h"
 #include "gyrotherm/daemon/run_clock.h"
 #include "gyrotherm/daemon/status.h"
-#include "gyrotherm/drivers/gyro_reader.h"
-#include "gyrotherm/drivers/modbus_device.h"
+#include "gyrotherm/drivers/devices.h"
 #include "gyrotherm/schedules/sequencer.h"
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
@@ -66,22 +65,55 @@ struct StationHooks {
   // Live events for /api/v1/stream: "state", "event", "stats" with their
   // JSON. Called from the control and analysis threads; must not block.
   std::function<void(std::string_view event, const nlohmann::json& data)> publish;
-  // The nightly export's wall clock (not owned; outlives the station);
-  // nullptr: the system's.
-  const WallClock* wall_clock = nullptr;
+};
+
+// The station's devices, owned by the station. devices_from_config() builds
+// the real ones; tests hand fakes.
+struct StationDevices {
+  std::unique_ptr<drivers::Chamber> chamber;
+  std::unique_ptr<drivers::ShellProbes> probes;
+  std::unique_ptr<drivers::GyroSource> gyro;
+};
+
+// The devices a station config names: its chamber and probe module over
+// Modbus, its gyro on the serial line (timestamped on `clock`). Request
+// latencies go to hooks.observe_modbus. Permanent error for an unknown gyro
+// protocol (the config loader has checked it).
+Result<StationDevices> devices_from_config(const StationConfig& config, const Clock& clock,
+                                           const StationHooks& hooks = {});
+
+// The clocks the station reads (not owned; they outlive it).
+struct StationClocks {
+  const Clock& station;  // station time: the control loop, runs, samples
+  // Wall time: event and run stamps (storage included), checkpoint times and
+  // a run's downtime across a restart, device silence in wall seconds.
+  const WallClock& wall = system_wall_clock();
+  // The nightly export's wall clock when it is simulated (gyrothermd
+  // --wall-start); nullptr: `wall`.
+  const WallClock* nightly = nullptr;
 };
 
 class Station final : public StationControl, private schedules::SequencerObserver {
  public:
-  // Opens the database (creating/migrating it), the sample writer and the
-  // devices' clients. Fails (permanent) when the database cannot be opened;
-  // unreachable devices are not an error here (they are retried).
-  static Result<std::unique_ptr<Station>> create(StationConfig config, const Clock& clock,
-                                                 StationHooks hooks = {});
+  // Opens the database (creating/migrating it) and the sample writer, and
+  // takes the devices (all three are needed). Fails (permanent) when the
+  // database cannot be opened; unreachable devices are not an error here
+  // (they are retried).
+  static Result<std::unique_ptr<Station>> create(StationConfig config, StationDevices devices,
+                                                 StationClocks clocks, StationHooks hooks = {});
   ~Station() override;
 
-  // Starts the gyro reader and the control loop.
-  void start();
+  // Resumes an interrupted run (or closes it), starts the gyro source, the
+  // nightly export and, with kOwnThread, the control loop: one tick() per
+  // [control] tick_s of station time. kCaller: whoever started the station
+  // calls tick() (the unit tests, stepping a manual clock).
+  enum class ControlLoop { kOwnThread, kCaller };
+  void start(ControlLoop loop = ControlLoop::kOwnThread);
+  // One control tick: reads the devices, claims the next queue entry when
+  // idle, advances the run's sequencer, writes the set point, records the
+  // temperatures and the checkpoint. Only from the control loop's thread
+  // (or, with ControlLoop::kCaller, one caller at a time).
+  void tick();
   // Interrupts a run in progress (its state becomes "interrupted"), drives
   // the chamber to the safe set point, commits everything and joins the
   // threads. Idempotent.
@@ -118,15 +150,15 @@ class Station final : public StationControl, private schedules::SequencerObserve
   Reply exports() override;
 
  private:
-  Station(StationConfig config, const Clock& clock, StationHooks hooks, storage::Database db,
-          storage::Database api_db, std::unique_ptr<storage::SampleWriter> writer);
+  Station(StationConfig config, StationDevices devices, StationClocks clocks, StationHooks hooks,
+          storage::Database db, storage::Database api_db,
+          std::unique_ptr<storage::SampleWriter> writer);
 
   void control_loop();
-  void tick();
   schedules::Readings read_devices(double now_s);
   // Needs run_mu_.
   void resume_interrupted_run();
-  void note_link(const drivers::ModbusDevice& device, bool ok, std::optional<double>& lost_since_s,
+  void note_link(const drivers::PolledDevice& device, bool ok, std::optional<double>& lost_since_s,
                  double now_s);
   void keep_unrecorded(const storage::EventRecord& ev);
   void record_unrecorded();
@@ -166,6 +198,8 @@ class Station final : public StationControl, private schedules::SequencerObserve
 
   StationConfig config_;
   const Clock& clock_;
+  const WallClock& wall_;
+  const WallClock& nightly_wall_;
   StationHooks hooks_;
   std::mutex run_mu_;
   storage::Database db_;  // control-thread connection (run_mu_)
@@ -173,12 +207,11 @@ class Station final : public StationControl, private schedules::SequencerObserve
   storage::Database api_db_;  // HTTP-thread connection (api_mu_)
   std::unique_ptr<storage::SampleWriter> writer_;
   std::unique_ptr<AnalysisWorker> analysis_;
-  SystemWallClock system_wall_clock_;
   std::unique_ptr<NightlyExporter> nightly_;  // [export] nightly
-  std::unique_ptr<drivers::ModbusDevice> chamber_;
-  std::unique_ptr<drivers::ModbusDevice> probes_;
-  std::unique_ptr<drivers::GyroReader> gyro_;
-  const double started_wall_s_;
+  std::unique_ptr<drivers::Chamber> chamber_;
+  std::unique_ptr<drivers::ShellProbes> probes_;
+  std::unique_ptr<drivers::GyroSource> gyro_;
+  const double started_wall_s_;  // wall_.monotonic_s() at create()
 
   // Run state (run_mu_).
   std::unique_ptr<schedules::Sequencer> sequencer_;
@@ -214,9 +247,9 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // °C nor °F (then the chamber is not used: no readings, no set point
   // writes).
   std::optional<drivers::TemperatureUnit> chamber_unit_;
-  std::optional<double> refused_units_value_;  // logged once per value
+  std::optional<double> refused_units_code_;  // logged once per value
   bool chamber_units_known();
-  // Station and wall (steady) time of the last good reading.
+  // Station and wall (monotonic) time of the last good reading.
   double chamber_ok_s_ = 0, probes_ok_s_ = 0;
   double chamber_ok_wall_s_ = 0, probes_ok_wall_s_ = 0;
   // Station and wall time of the last moment the sample writer's commits

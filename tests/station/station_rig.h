@@ -1,0 +1,311 @@
+// The station on a bench: a real Station (its database a real SQLite file)
+// with fake devices and manual clocks, ticked by the test. No process, no
+// socket, no pty: an hour of schedule runs in well under a second.
+//
+// The fakes share one FakePlant: the chamber's air follows its set point and
+// the gyro's shell follows the air, each as a first-order lag; the gyro
+// sends a constant rate plus a temperature term at its output rate. A test
+// makes a device fall silent, raise an alarm or serve °F through the plant.
+#pragma once
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <vector>
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "gyrotherm/core/clock.h"
+#include "gyrotherm/daemon/config.h"
+#include "gyrotherm/daemon/station.h"
+#include "gyrotherm/drivers/devices.h"
+#include "integration/temp_dir_test.h"
+
+namespace gyrotherm::testing {
+
+// The physics behind the fake devices. Thread-safe (the station's status()
+// reads health from the HTTP thread in the daemon; here from the test).
+class FakePlant {
+ public:
+  struct State {
+    double air_c = 23.0;
+    double shell_c = 23.0;
+    double setpoint_c = 23.0;  // as written (°C; the plant converts °F)
+    double air_tau_s = 20.0;
+    double shell_tau_s = 40.0;
+    bool chamber_silent = false;
+    bool probes_silent = false;
+    bool chamber_alarm = false;
+    bool fahrenheit = false;    // the controller serves °F
+    double side_offset_c = 0;   // added to the side probe
+    std::optional<double> force_air_c;  // the air stays here whatever the set point
+    int setpoint_writes = 0;
+  };
+
+  void advance(double dt_s) {
+    std::lock_guard lock(mu_);
+    if (s_.force_air_c) {
+      s_.air_c = *s_.force_air_c;
+    } else {
+      s_.air_c += (s_.setpoint_c - s_.air_c) * (1 - std::exp(-dt_s / s_.air_tau_s));
+    }
+    s_.shell_c += (s_.air_c - s_.shell_c) * (1 - std::exp(-dt_s / s_.shell_tau_s));
+  }
+  template <class F>
+  void change(F&& f) {
+    std::lock_guard lock(mu_);
+    f(s_);
+  }
+  State state() const {
+    std::lock_guard lock(mu_);
+    return s_;
+  }
+
+ private:
+  mutable std::mutex mu_;
+  State s_;
+};
+
+class FakeChamber final : public drivers::Chamber {
+ public:
+  explicit FakeChamber(std::shared_ptr<FakePlant> plant) : plant_(std::move(plant)) {}
+  const std::string& name() const override { return name_; }
+  Status connect() override { return Status::Ok(); }
+  drivers::DeviceHealth health() const override {
+    std::lock_guard lock(mu_);
+    return health_;
+  }
+  Result<drivers::UnitsReading> units() override {
+    if (auto e = silent()) return *e;
+    const bool f = plant_->state().fahrenheit;
+    return drivers::UnitsReading{
+        f ? drivers::TemperatureUnit::kFahrenheit : drivers::TemperatureUnit::kCelsius,
+        f ? "units register = 30" : "units register = 15", f ? 30.0 : 15.0};
+  }
+  Result<double> process_value() override {
+    if (auto e = silent()) return *e;
+    const auto s = plant_->state();
+    return s.fahrenheit ? s.air_c * 1.8 + 32 : s.air_c;
+  }
+  Result<double> setpoint() override {
+    if (auto e = silent()) return *e;
+    const auto s = plant_->state();
+    return s.fahrenheit ? s.setpoint_c * 1.8 + 32 : s.setpoint_c;
+  }
+  Status write_setpoint(double value) override {
+    if (auto e = silent()) return *e;
+    plant_->change([&](FakePlant::State& s) {
+      s.setpoint_c = s.fahrenheit ? (value - 32) / 1.8 : value;
+      ++s.setpoint_writes;
+    });
+    return Status::Ok();
+  }
+  bool has_alarm() const override { return true; }
+  Result<bool> alarm() override {
+    if (auto e = silent()) return *e;
+    return plant_->state().chamber_alarm;
+  }
+
+ private:
+  std::optional<Error> silent() {
+    std::lock_guard lock(mu_);
+    ++health_.requests;
+    if (!plant_->state().chamber_silent) {
+      health_.connected = true;
+      return std::nullopt;
+    }
+    ++health_.errors;
+    health_.connected = false;
+    health_.last_error = "chamber: no answer (fake)";
+    return Error::Transient(health_.last_error);
+  }
+
+  std::shared_ptr<FakePlant> plant_;
+  std::string name_ = "chamber";
+  mutable std::mutex mu_;
+  drivers::DeviceHealth health_;
+};
+
+class FakeProbes final : public drivers::ShellProbes {
+ public:
+  explicit FakeProbes(std::shared_ptr<FakePlant> plant) : plant_(std::move(plant)) {}
+  const std::string& name() const override { return name_; }
+  Status connect() override { return Status::Ok(); }
+  drivers::DeviceHealth health() const override { return {}; }
+  Result<double> top_c() override {
+    const auto s = plant_->state();
+    if (s.probes_silent) return Error::Transient("probes: no answer (fake)");
+    return s.shell_c;
+  }
+  Result<double> side_c() override {
+    const auto s = plant_->state();
+    if (s.probes_silent) return Error::Transient("probes: no answer (fake)");
+    return s.shell_c + s.side_offset_c;
+  }
+
+ private:
+  std::shared_ptr<FakePlant> plant_;
+  std::string name_ = "probes";
+};
+
+// Sends samples when the test says so (emit_until), on the test's thread.
+class FakeGyro final : public drivers::GyroSource {
+ public:
+  FakeGyro(std::shared_ptr<FakePlant> plant, double rate_hz)
+      : plant_(std::move(plant)), rate_hz_(rate_hz) {}
+  void start(Sink sink) override { sink_ = std::move(sink); }
+  void stop() override { sink_ = nullptr; }
+  drivers::GyroReaderHealth health() const override { return {}; }
+
+  // Samples from the last one sent up to `t_s` (station seconds), unless
+  // muted: then they are lost (the stream resumes at `t_s`).
+  void emit_until(double t_s) {
+    if (k_ < 0) {
+      t0_s_ = t_s;
+      k_ = 0;
+    }
+    std::vector<GyroSample> batch;
+    const double shell_c = plant_->state().shell_c;
+    // Times as t0 + k / rate: no rounding accumulates, so the last sample of
+    // a tick lands exactly on the clock.
+    for (; t0_s_ + static_cast<double>(k_) / rate_hz_ <= t_s; ++k_) {
+      GyroSample g;
+      g.t_s = t0_s_ + static_cast<double>(k_) / rate_hz_;
+      g.rate_dph = bias_dph + drift_dph_per_c * (shell_c - 23.0);
+      g.seq = static_cast<uint8_t>(seq_++ & 0x7f);
+      g.temp_c = static_cast<int16_t>(std::lround(shell_c));
+      batch.push_back(g);
+    }
+    if (muted) return;
+    if (sink_ && !batch.empty()) sink_(batch);
+  }
+
+  bool muted = false;
+  double bias_dph = 1.5;
+  double drift_dph_per_c = 0.01;
+
+ private:
+  std::shared_ptr<FakePlant> plant_;
+  double rate_hz_;
+  double t0_s_ = 0;
+  int64_t k_ = -1;
+  int seq_ = 0;
+  Sink sink_;
+};
+
+// A minimal station config for the rig: 1 s control ticks, no wall-time
+// floor on device silence (the wall clock is manual).
+inline std::string rig_config_toml(const std::string& db_path) {
+  return "[station]\nname = \"bench\"\nlatitude_deg = 31.9\n"
+         "[chamber]\nport = 1502\n[probes]\nport = 1502\n[gyro]\ndevice = \"/dev/null\"\n"
+         "rate_hz = 10\n"
+         "[storage]\ndb = \"" +
+         db_path +
+         "\"\ncommit_interval_s = 0.05\n"
+         "[control]\ntick_s = 1.0\nmin_silent_wall_s = 0\n";
+}
+
+// A rig's station and its devices; step() is one control tick.
+class StationRig {
+ public:
+  // `config_toml`: a whole station config (rig_config_toml() by default).
+  explicit StationRig(const std::filesystem::path& dir, std::string config_toml = {})
+      : db_path_((dir / "station.db").string()),
+        config_toml_(config_toml.empty() ? rig_config_toml(db_path_) : std::move(config_toml)) {}
+
+  // Creates and starts a station over the database (ControlLoop::kCaller).
+  void open() {
+    auto cfg = daemon::parse_station_config(config_toml_, "rig.toml");
+    ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+    daemon::StationDevices devices;
+    devices.chamber = std::make_unique<FakeChamber>(plant);
+    devices.probes = std::make_unique<FakeProbes>(plant);
+    auto gyro = std::make_unique<FakeGyro>(plant, cfg->gyro.format.rate_hz);
+    gyro_ = gyro.get();
+    devices.gyro = std::move(gyro);
+    daemon::StationHooks hooks;
+    hooks.publish = [this](std::string_view event, const nlohmann::json& data) {
+      std::lock_guard lock(published_mu_);
+      published_.push_back(std::string(event) + " " + data.dump());
+    };
+    auto st = daemon::Station::create(*cfg, std::move(devices), {clock, wall}, std::move(hooks));
+    ASSERT_TRUE(st.ok()) << st.error().message;
+    station = std::move(*st);
+    station->start(daemon::Station::ControlLoop::kCaller);
+  }
+  // Stops the station (a run in progress is interrupted) and drops it.
+  void close() {
+    if (station) station->stop("rig closed");
+    station.reset();
+    gyro_ = nullptr;
+  }
+  ~StationRig() { close(); }
+
+  FakeGyro& gyro() { return *gyro_; }
+
+  // One control tick after `dt_s` station (and wall) seconds.
+  void step(double dt_s = 1.0) {
+    clock.advance(dt_s);
+    wall.advance(dt_s);
+    plant->advance(dt_s);
+    if (gyro_) gyro_->emit_until(clock.now_s());
+    station->tick();
+  }
+  // Ticks until `done()` or `max_station_s` of station time; true when done.
+  bool step_until(const std::function<bool()>& done, double max_station_s, double dt_s = 1.0) {
+    for (double t = 0; t <= max_station_s; t += dt_s) {
+      if (done()) return true;
+      step(dt_s);
+    }
+    return done();
+  }
+
+  // A schedule queued through the station's control interface.
+  int64_t queue(const std::string& toml_text, bool ignore_failures = false) {
+    auto r = station->queue_add(toml_text, "bench.toml", ignore_failures);
+    EXPECT_FALSE(r.refusal) << r.refusal->message;
+    return r.refusal ? 0 : r.body.at("id").get<int64_t>();
+  }
+  std::string state() const { return station->status().state; }
+  nlohmann::json reply(const daemon::Reply& r) const {
+    EXPECT_FALSE(r.refusal) << (r.refusal ? r.refusal->message : "");
+    return r.body;
+  }
+  nlohmann::json events(int64_t run_id) { return reply(station->run_events(run_id)); }
+  // Whether an event of `kind` whose message contains `text` is recorded.
+  bool has_event(int64_t run_id, std::string_view kind, std::string_view text) {
+    for (const auto& e : events(run_id)) {
+      if (e.value("kind", "") == kind &&
+          e.value("message", "").find(text) != std::string::npos) {
+        return true;
+      }
+    }
+    return false;
+  }
+  std::vector<std::string> published() {
+    std::lock_guard lock(published_mu_);
+    return published_;
+  }
+
+  const std::string& db_path() const { return db_path_; }
+
+  std::shared_ptr<FakePlant> plant = std::make_shared<FakePlant>();
+  ManualClock clock{1000.0, 1.0};
+  ManualWallClock wall{1.8e9};
+  std::unique_ptr<daemon::Station> station;
+
+ private:
+  std::string db_path_;
+  std::string config_toml_;
+  FakeGyro* gyro_ = nullptr;
+  std::mutex published_mu_;
+  std::vector<std::string> published_;
+};
+
+}  // namespace gyrotherm::testing

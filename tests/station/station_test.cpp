@@ -1,0 +1,363 @@
+// The station's run controller on fake devices and manual clocks
+// (station_rig.h): whole runs, pause, each interlock, crash resume and the
+// queue's races, each in milliseconds of wall time. The same behaviours are
+// tested end to end, through the simulator, in tests/integration.
+#include <gtest/gtest.h>
+#include <sqlite3.h>
+
+#include <atomic>
+#include <chrono>
+#include <set>
+#include <thread>
+
+#include "station/station_rig.h"
+
+namespace gyrotherm::testing {
+namespace {
+
+using namespace std::chrono_literals;
+
+// A soak at the chamber's starting temperature, a ramp, a soak.
+constexpr const char* kSoakRampSoak = R"(
+name = "soak-ramp-soak"
+[[step]]
+type = "soak"
+setpoint_c = 23.0
+stability_window_min = 1
+settle_timeout_min = 30
+acquire_min = 2
+[[step]]
+type = "ramp"
+target_c = 25.0
+rate_c_per_min = 1.0
+[[step]]
+type = "soak"
+setpoint_c = 25.0
+stability_window_min = 1
+settle_timeout_min = 30
+acquire_min = 2
+)";
+
+// One soak with a long acquisition, for what happens in the middle of one.
+constexpr const char* kLongSoak = R"(
+name = "long soak"
+[[step]]
+type = "soak"
+setpoint_c = 23.0
+stability_window_min = 1
+settle_timeout_min = 30
+acquire_min = 10
+)";
+
+class StationUnitTest : public TempDirTest {
+ protected:
+  StationUnitTest() : TempDirTest("gyrotherm-station") {}
+
+  // Waits (wall, with a deadline) for the analysis thread's Table I rows.
+  nlohmann::json wait_for_stats(StationRig& rig, int64_t run_id, std::size_t rows) {
+    const auto deadline = std::chrono::steady_clock::now() + 20s;
+    nlohmann::json stats;
+    do {
+      stats = rig.reply(rig.station->run_stats(run_id));
+      if (stats.size() >= rows) return stats;
+      std::this_thread::sleep_for(5ms);
+    } while (std::chrono::steady_clock::now() < deadline);
+    ADD_FAILURE() << "run " << run_id << ": " << stats.size() << " Table I rows, not " << rows;
+    return stats;
+  }
+
+  // Ticks until the run is acquiring (the gate held); its run id.
+  int64_t until_acquiring(StationRig& rig) {
+    EXPECT_TRUE(rig.step_until([&] { return rig.state() == "acquiring"; }, 3600))
+        << "state " << rig.state();
+    return rig.station->status().run_id.value_or(0);
+  }
+};
+
+TEST_F(StationUnitTest, SoakRampSoakRunCompletesWithItsRecordsAndTableI) {
+  StationRig rig(dir_);
+  rig.open();
+  rig.queue(kSoakRampSoak);
+  ASSERT_TRUE(rig.step_until([&] { return rig.station->status().run_id.has_value(); }, 5));
+  const int64_t run_id = *rig.station->status().run_id;
+  std::set<std::string> states;
+  ASSERT_TRUE(rig.step_until(
+      [&] {
+        states.insert(rig.state());
+        return rig.station->idle() && !rig.station->status().run_id;
+      },
+      4 * 3600));
+  EXPECT_TRUE(states.count("settling") && states.count("acquiring") && states.count("ramping"))
+      << "states seen: " << states.size();
+
+  const auto run = rig.reply(rig.station->run(run_id));
+  EXPECT_EQ(run.at("state"), "completed");
+  ASSERT_EQ(run.at("segments").size(), 3u);
+  for (const auto& seg : run.at("segments")) EXPECT_EQ(seg.at("state"), "completed") << seg;
+  // The ramp's window is its whole time: 2 °C at 1 °C/min.
+  const auto& ramp = run.at("segments")[1];
+  EXPECT_NEAR(ramp.at("t_acquire_end_s").get<double>() - ramp.at("t_acquire_start_s").get<double>(),
+              120.0, 1.0);
+
+  // One Table I row per soak: 2 min (in 1 s bins of the 10 Hz samples), at
+  // the soak's temperature, with the gyro's bias and its temperature term.
+  const auto stats = wait_for_stats(rig, run_id, 2);
+  ASSERT_EQ(stats.size(), 2u);
+  const double setpoints_c[] = {23.0, 25.0};
+  for (std::size_t i = 0; i < 2; ++i) {
+    SCOPED_TRACE(i);
+    EXPECT_GE(stats[i].at("n").get<int64_t>(), 119);
+    EXPECT_LE(stats[i].at("n").get<int64_t>(), 121);
+    EXPECT_NEAR(stats[i].at("temp_mean_c").get<double>(), setpoints_c[i], 0.5);
+    EXPECT_NEAR(stats[i].at("bias_mean_dph").get<double>(),
+                1.5 + 0.01 * (setpoints_c[i] - 23.0), 0.01);
+  }
+  // The run ended at the safe set point; the wall clock stamped its rows.
+  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 23.0);
+  EXPECT_EQ(run.at("started_utc").get<std::string>().substr(0, 4), "2027");
+}
+
+TEST_F(StationUnitTest, PauseHoldsTheSetPointAndStopsTheAcquisitionClock) {
+  StationRig rig(dir_);
+  rig.open();
+  rig.queue(kLongSoak);
+  const int64_t run_id = until_acquiring(rig);
+  ASSERT_NE(run_id, 0);
+  auto r = rig.station->control("pause", "bench");
+  ASSERT_FALSE(r.refusal) << r.refusal->message;
+  const int writes_before = rig.plant->state().setpoint_writes;
+  for (int i = 0; i < 300; ++i) rig.step();
+  EXPECT_EQ(rig.state(), "paused");
+  EXPECT_TRUE(rig.station->status().paused);
+  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 23.0);
+  // Held, re-asserted now and then, never moved.
+  EXPECT_LE(rig.plant->state().setpoint_writes - writes_before, 300 / 30 + 1);
+  ASSERT_FALSE(rig.station->control("resume", "bench").refusal);
+  ASSERT_TRUE(rig.step_until([&] { return !rig.station->status().run_id; }, 3600));
+  const auto run = rig.reply(rig.station->run(run_id));
+  EXPECT_EQ(run.at("state"), "completed");
+  const auto& seg = run.at("segments")[0];
+  EXPECT_NEAR(seg.at("paused_s").get<double>(), 300.0, 2.0);
+  // The pause is left out: acquisition windows add up to 10 min.
+  double acquired_s = 0;
+  for (const auto& w : seg.at("windows")) acquired_s += w[1].get<double>() - w[0].get<double>();
+  EXPECT_NEAR(acquired_s, 600.0, 1.0);
+  EXPECT_TRUE(rig.has_event(run_id, "operator", "") || rig.has_event(run_id, "state", "bench"));
+}
+
+// One interlock: what trips it on the bench, and how it is undone.
+struct InterlockCase {
+  const char* kind;
+  std::function<void(StationRig&)> trip;
+  std::function<void(StationRig&)> clear;
+};
+
+class StationInterlockTest : public StationUnitTest,
+                             public ::testing::WithParamInterface<InterlockCase> {};
+
+TEST_P(StationInterlockTest, TripsSuspendsTheRunAndClears) {
+  const InterlockCase& c = GetParam();
+  StationRig rig(dir_);
+  rig.open();
+  rig.queue(kLongSoak);
+  const int64_t run_id = until_acquiring(rig);
+  ASSERT_NE(run_id, 0);
+  c.trip(rig);
+  auto tripped = [&] {
+    for (const auto& i : rig.station->status().interlocks) {
+      if (i.kind == c.kind) return true;
+    }
+    return false;
+  };
+  ASSERT_TRUE(rig.step_until(tripped, 120)) << c.kind << " did not trip; state " << rig.state();
+  EXPECT_EQ(rig.state(), "suspended");
+  const double setpoint_c = rig.plant->state().setpoint_c;
+  for (int i = 0; i < 20; ++i) rig.step();
+  EXPECT_EQ(rig.state(), "suspended");
+  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, setpoint_c) << "the set point is held";
+  c.clear(rig);
+  ASSERT_TRUE(rig.step_until([&] { return !tripped(); }, 600)) << c.kind << " did not clear";
+  ASSERT_TRUE(rig.step_until([&] { return !rig.station->status().run_id; }, 7200));
+  const auto run = rig.reply(rig.station->run(run_id));
+  EXPECT_EQ(run.at("state"), "completed");
+  EXPECT_TRUE(rig.has_event(run_id, "interlock", c.kind)) << c.kind;
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    EachKind, StationInterlockTest,
+    ::testing::Values(
+        InterlockCase{"out_of_limits",
+                      [](StationRig& r) {
+                        r.plant->change([](FakePlant::State& s) { s.force_air_c = 70.0; });
+                      },
+                      [](StationRig& r) {
+                        r.plant->change([](FakePlant::State& s) { s.force_air_c.reset(); });
+                      }},
+        InterlockCase{"probe_disagreement",
+                      [](StationRig& r) {
+                        r.plant->change([](FakePlant::State& s) { s.side_offset_c = 3.0; });
+                      },
+                      [](StationRig& r) {
+                        r.plant->change([](FakePlant::State& s) { s.side_offset_c = 0; });
+                      }},
+        InterlockCase{"chamber_silent",
+                      [](StationRig& r) {
+                        r.plant->change([](FakePlant::State& s) { s.chamber_silent = true; });
+                      },
+                      [](StationRig& r) {
+                        r.plant->change([](FakePlant::State& s) { s.chamber_silent = false; });
+                      }},
+        InterlockCase{"probes_silent",
+                      [](StationRig& r) {
+                        r.plant->change([](FakePlant::State& s) { s.probes_silent = true; });
+                      },
+                      [](StationRig& r) {
+                        r.plant->change([](FakePlant::State& s) { s.probes_silent = false; });
+                      }},
+        InterlockCase{"gyro_lost", [](StationRig& r) { r.gyro().muted = true; },
+                      [](StationRig& r) { r.gyro().muted = false; }},
+        InterlockCase{"chamber_alarm",
+                      [](StationRig& r) {
+                        r.plant->change([](FakePlant::State& s) { s.chamber_alarm = true; });
+                      },
+                      [](StationRig& r) {
+                        r.plant->change([](FakePlant::State& s) { s.chamber_alarm = false; });
+                      }}),
+    [](const ::testing::TestParamInfo<InterlockCase>& info) { return std::string(info.param.kind); });
+
+// settle_timeout is the sequencer's: the gate never held in time. It does
+// not clear by itself; its grace ends the run.
+TEST_F(StationUnitTest, SettleTimeoutTripsAndItsGraceAbortsTheRun) {
+  StationRig rig(dir_, rig_config_toml((dir_ / "station.db").string()) +
+                           "[interlocks]\nsettle_timeout_grace_min = 2\n");
+  rig.open();
+  rig.plant->change([](FakePlant::State& s) { s.force_air_c = 26.0; });  // ignores the set point
+  rig.queue(R"(
+[[step]]
+type = "soak"
+setpoint_c = 23.0
+stability_window_min = 1
+settle_timeout_min = 3
+acquire_min = 2
+)");
+  ASSERT_TRUE(rig.step_until([&] { return rig.station->status().run_id.has_value(); }, 5));
+  const int64_t run_id = *rig.station->status().run_id;
+  ASSERT_TRUE(rig.step_until([&] { return !rig.station->status().run_id; }, 3600));
+  rig.step();  // the status's queue fields are those of the tick before
+  EXPECT_EQ(rig.reply(rig.station->run(run_id)).at("state"), "failed");
+  EXPECT_TRUE(rig.has_event(run_id, "interlock", "settle_timeout"));
+  // A failed run holds the queue; the chamber went to the safe set point.
+  EXPECT_TRUE(rig.station->status().queue_held);
+  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 23.0);
+}
+
+// What a kill -9 leaves: the database as committed at one moment (a copy
+// taken by SQLite from another connection, VACUUM INTO), the process gone.
+// The next station resumes the run from its checkpoint, counting the
+// downtime from the wall clock, and credits acquisition only up to the last
+// committed gyro sample.
+TEST_F(StationUnitTest, CrashResumeFromTheCheckpoint) {
+  const std::string crashed_db = (dir_ / "crashed.db").string();
+  int64_t run_id = 0;
+  double wall_at_crash = 0, acquired_before_s = 0;
+  {
+    StationRig rig(dir_);
+    rig.open();
+    rig.queue(kLongSoak);
+    run_id = until_acquiring(rig);
+    ASSERT_NE(run_id, 0);
+    for (int i = 0; i < 240; ++i) rig.step();  // 4 of the 10 min
+    acquired_before_s = 240;
+    // The kill comes after the writer committed what it was handed (else
+    // nothing of the 4 min is in the file, and all 10 are acquired again).
+    const auto deadline = std::chrono::steady_clock::now() + 20s;
+    while (rig.station->status().storage.pending > 0 &&
+           std::chrono::steady_clock::now() < deadline) {
+      std::this_thread::sleep_for(2ms);
+    }
+    ASSERT_EQ(rig.station->status().storage.pending, 0u);
+    sqlite3* db = nullptr;
+    ASSERT_EQ(sqlite3_open(rig.db_path().c_str(), &db), SQLITE_OK);
+    const std::string sql = "VACUUM INTO '" + crashed_db + "'";
+    char* err = nullptr;
+    const int rc = sqlite3_exec(db, sql.c_str(), nullptr, nullptr, &err);
+    EXPECT_EQ(rc, SQLITE_OK) << (err ? err : "");
+    sqlite3_free(err);
+    sqlite3_close(db);
+    wall_at_crash = rig.wall.unix_now_s();
+  }  // this station is closed normally, but its file is not used again
+
+  StationRig rig(dir_, rig_config_toml(crashed_db));
+  rig.wall.set(wall_at_crash + 90.0);  // down for 90 s of wall time
+  rig.open();
+  EXPECT_EQ(rig.station->status().run_id.value_or(0), run_id) << "the run resumes";
+  rig.step();
+  EXPECT_EQ(rig.state(), "acquiring");
+  EXPECT_TRUE(rig.has_event(run_id, "resume", "daemon restarted"));
+  ASSERT_TRUE(rig.step_until([&] { return !rig.station->status().run_id; }, 3600));
+  EXPECT_EQ(rig.reply(rig.station->run(run_id)).at("state"), "completed");
+  // Table I holds the whole 10 min: what was committed before the crash and
+  // what was acquired after, without the downtime.
+  const auto stats = wait_for_stats(rig, run_id, 1);
+  ASSERT_EQ(stats.size(), 1u);
+  EXPECT_GE(stats[0].at("n").get<int64_t>(), 599) << "acquired before: " << acquired_before_s;
+  EXPECT_LE(stats[0].at("n").get<int64_t>(), 601);
+  const auto run = rig.reply(rig.station->run(run_id));
+  const auto& windows = run.at("segments")[0].at("windows");
+  ASSERT_EQ(windows.size(), 2u) << "the downtime splits the acquisition: " << run.dump();
+  EXPECT_NEAR(windows[0][1].get<double>() - windows[0][0].get<double>(), acquired_before_s, 1.5);
+  EXPECT_GE(windows[1][0].get<double>() - windows[0][1].get<double>(), 89.0);
+}
+
+// The HTTP thread adds and removes entries while the control loop claims
+// them: every entry runs once or stays queued, a removed one never runs, and
+// the queue's count matches the database.
+TEST_F(StationUnitTest, QueueAddAndRemoveRaceTheClaim) {
+  StationRig rig(dir_);
+  rig.open();
+  constexpr const char* kHold = R"(
+[[step]]
+type = "hold"
+setpoint_c = 23.0
+duration_min = 0.05
+)";
+  std::atomic<bool> done{false};
+  std::atomic<int> added{0}, removed{0}, refused_removals{0};
+  std::thread http([&] {
+    for (int i = 0; i < 60; ++i) {
+      auto r = rig.station->queue_add(kHold, "race.toml", false);
+      if (r.refusal) continue;
+      ++added;
+      const int64_t id = r.body.at("id").get<int64_t>();
+      if (i % 3 == 0) {
+        auto rm = rig.station->queue_remove(id);
+        if (rm.refusal) {
+          ++refused_removals;
+        } else {
+          ++removed;
+        }
+      }
+      std::this_thread::yield();
+    }
+    done = true;
+  });
+  while (!done) rig.step(1.0);
+  http.join();
+  ASSERT_TRUE(rig.step_until(
+      [&] { return rig.station->idle() && !rig.station->status().run_id; }, 3600));
+  EXPECT_EQ(added.load(), 60);
+  const auto runs = rig.reply(rig.station->runs());
+  std::set<int64_t> queue_ids;
+  for (const auto& r : runs) {
+    ASSERT_FALSE(r.at("queue_id").is_null());
+    EXPECT_TRUE(queue_ids.insert(r.at("queue_id").get<int64_t>()).second) << "ran twice: " << r;
+    EXPECT_EQ(r.at("state"), "completed") << r;
+  }
+  EXPECT_EQ(static_cast<int>(runs.size()), added.load() - removed.load());
+  EXPECT_EQ(rig.station->status().queue_length, 0);
+  const auto queue = rig.reply(rig.station->queue_list());
+  EXPECT_TRUE(queue.at("entries").empty()) << queue.dump();
+}
+
+}  // namespace
+}  // namespace gyrotherm::testing
