@@ -16,10 +16,10 @@
 #include <functional>
 #include <memory>
 #include <mutex>
-#include <optional>
-#include <vector>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
+#include <vector>
 
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/daemon/config.h"
@@ -42,8 +42,8 @@ class FakePlant {
     bool chamber_silent = false;
     bool probes_silent = false;
     bool chamber_alarm = false;
-    bool fahrenheit = false;    // the controller serves °F
-    double side_offset_c = 0;   // added to the side probe
+    bool fahrenheit = false;            // the controller serves °F
+    double side_offset_c = 0;           // added to the side probe
     std::optional<double> force_air_c;  // the air stays here whatever the set point
     int setpoint_writes = 0;
   };
@@ -281,8 +281,7 @@ class StationRig {
   // Whether an event of `kind` whose message contains `text` is recorded.
   bool has_event(int64_t run_id, std::string_view kind, std::string_view text) {
     for (const auto& e : events(run_id)) {
-      if (e.value("kind", "") == kind &&
-          e.value("message", "").find(text) != std::string::npos) {
+      if (e.value("kind", "") == kind && e.value("message", "").find(text) != std::string::npos) {
         return true;
       }
     }

@@ -109,8 +109,8 @@ TEST_F(StationUnitTest, SoakRampSoakRunCompletesWithItsRecordsAndTableI) {
     EXPECT_GE(stats[i].at("n").get<int64_t>(), 119);
     EXPECT_LE(stats[i].at("n").get<int64_t>(), 121);
     EXPECT_NEAR(stats[i].at("temp_mean_c").get<double>(), setpoints_c[i], 0.5);
-    EXPECT_NEAR(stats[i].at("bias_mean_dph").get<double>(),
-                1.5 + 0.01 * (setpoints_c[i] - 23.0), 0.01);
+    EXPECT_NEAR(stats[i].at("bias_mean_dph").get<double>(), 1.5 + 0.01 * (setpoints_c[i] - 23.0),
+                0.01);
   }
   // The run ended at the safe set point; the wall clock stamped its rows.
   EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 23.0);
@@ -151,6 +151,8 @@ struct InterlockCase {
   std::function<void(StationRig&)> trip;
   std::function<void(StationRig&)> clear;
 };
+
+void PrintTo(const InterlockCase& c, std::ostream* os) { *os << c.kind; }
 
 class StationInterlockTest : public StationUnitTest,
                              public ::testing::WithParamInterface<InterlockCase> {};
@@ -223,7 +225,9 @@ INSTANTIATE_TEST_SUITE_P(
                       [](StationRig& r) {
                         r.plant->change([](FakePlant::State& s) { s.chamber_alarm = false; });
                       }}),
-    [](const ::testing::TestParamInfo<InterlockCase>& info) { return std::string(info.param.kind); });
+    [](const ::testing::TestParamInfo<InterlockCase>& info) {
+      return std::string(info.param.kind);
+    });
 
 // settle_timeout is the sequencer's: the gate never held in time. It does
 // not clear by itself; its grace ends the run.
@@ -343,8 +347,8 @@ duration_min = 0.05
   });
   while (!done) rig.step(1.0);
   http.join();
-  ASSERT_TRUE(rig.step_until(
-      [&] { return rig.station->idle() && !rig.station->status().run_id; }, 3600));
+  ASSERT_TRUE(
+      rig.step_until([&] { return rig.station->idle() && !rig.station->status().run_id; }, 3600));
   EXPECT_EQ(added.load(), 60);
   const auto runs = rig.reply(rig.station->runs());
   std::set<int64_t> queue_ids;
