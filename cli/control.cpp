@@ -17,7 +17,7 @@
 
 #include "gyrotherm/cli/http_client.h"
 #include "gyrotherm/core/files.h"
-#include "gyrotherm/core/toml_reader.h"
+#include "gyrotherm/core/toml_errors.h"
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/daemon/control.h"
 #include "gyrotherm/storage/database.h"
