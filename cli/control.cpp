@@ -10,13 +10,14 @@
 #include <fstream>
 #include <functional>
 #include <iostream>
+#include <nlohmann/json.hpp>
 #include <sstream>
 #include <variant>
 #include <vector>
 
 #include "gyrotherm/cli/http_client.h"
 #include "gyrotherm/core/files.h"
-#include "gyrotherm/core/toml_reader.h"
+#include "gyrotherm/core/toml_errors.h"
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/daemon/control.h"
 #include "gyrotherm/storage/database.h"

@@ -24,6 +24,7 @@
 #include "gyrotherm/core/toml_reader.h"
 #include "gyrotherm/daemon/api.h"
 #include "gyrotherm/daemon/config.h"
+#include "gyrotherm/daemon/http_message.h"
 #include "gyrotherm/daemon/http_server.h"
 #include "gyrotherm/daemon/metrics.h"
 #include "gyrotherm/daemon/station.h"

@@ -18,6 +18,7 @@
 #include "gyrotherm/cli/http_client.h"
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/daemon/auth_limiter.h"
+#include "gyrotherm/daemon/http_message.h"
 #include "gyrotherm/daemon/http_server.h"
 
 namespace gyrotherm::daemon {

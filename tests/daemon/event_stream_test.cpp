@@ -15,6 +15,7 @@
 #include <thread>
 #include <vector>
 
+#include "gyrotherm/daemon/http_message.h"
 #include "gyrotherm/daemon/http_server.h"
 #include "test_time.h"
 

@@ -13,6 +13,7 @@
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/daemon/api.h"
 #include "gyrotherm/daemon/auth_limiter.h"
+#include "gyrotherm/daemon/http_message.h"
 #include "gyrotherm/daemon/metrics.h"
 #include "gyrotherm/daemon/web_assets.h"
 

@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 #include <toml++/toml.h>
 
+#include <nlohmann/json.hpp>
 #include <string>
 
 #include "gyrotherm/daemon/config.h"

@@ -20,6 +20,7 @@
 #include <sstream>
 
 #include "control.h"
+#include "gyrotherm/daemon/http_message.h"
 #include "gyrotherm/daemon/http_server.h"
 #include "gyrotherm/storage/database.h"
 #include "process.h"

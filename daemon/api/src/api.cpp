@@ -7,7 +7,10 @@
 #include <cctype>
 #include <charconv>
 #include <cmath>
+#include <nlohmann/json.hpp>
 #include <optional>
+
+#include "gyrotherm/daemon/http_message.h"
 
 namespace gyrotherm::daemon {
 

@@ -4,13 +4,16 @@
 #include <spdlog/spdlog.h>
 
 #include <array>
+#include <boost/asio/io_context.hpp>
 #include <boost/asio/ip/tcp.hpp>
 #include <boost/asio/steady_timer.hpp>
 #include <boost/asio/strand.hpp>
 #include <boost/beast/core.hpp>
+#include <boost/beast/http.hpp>
 #include <boost/beast/version.hpp>
 #include <cctype>
 #include <nlohmann/json.hpp>
+#include <type_traits>
 
 namespace gyrotherm::daemon {
 
@@ -18,6 +21,10 @@ namespace asio = boost::asio;
 namespace beast = boost::beast;
 namespace http = beast::http;
 using tcp = asio::ip::tcp;
+
+// http_server.h declares Beast's types itself (see there).
+static_assert(std::is_same_v<HttpRequest, http::request<http::string_body>>);
+static_assert(std::is_same_v<HttpResponse, http::response<http::string_body>>);
 
 HttpResponse json_response(const HttpRequest& req, http::status status, std::string body) {
   HttpResponse res{status, req.version()};

@@ -2,6 +2,7 @@
 
 #include <fcntl.h>
 #include <fmt/format.h>
+#include <toml++/toml.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -21,7 +22,27 @@
 #include "gyrotherm/core/toml_reader.h"
 #include "gyrotherm/daemon/nightly.h"
 
+static_assert(TOML_LIB_MAJOR == 3, "config.h declares toml::table as toml::v3::table");
+
 namespace gyrotherm::daemon {
+
+OptionalTomlTable::OptionalTomlTable() noexcept = default;
+OptionalTomlTable::OptionalTomlTable(const OptionalTomlTable& other)
+    : table_(other.table_ ? std::make_unique<toml::table>(*other.table_) : nullptr) {}
+OptionalTomlTable::OptionalTomlTable(OptionalTomlTable&& other) noexcept = default;
+OptionalTomlTable& OptionalTomlTable::operator=(const OptionalTomlTable& other) {
+  if (this != &other)
+    table_ = other.table_ ? std::make_unique<toml::table>(*other.table_) : nullptr;
+  return *this;
+}
+OptionalTomlTable& OptionalTomlTable::operator=(OptionalTomlTable&& other) noexcept = default;
+OptionalTomlTable::~OptionalTomlTable() = default;
+
+OptionalTomlTable& OptionalTomlTable::operator=(toml::table&& table) {
+  table_ = std::make_unique<toml::table>(std::move(table));
+  return *this;
+}
+
 namespace {
 
 // Reads "{ address = N, function = "holding", type = "float32", word_order = "low-first",

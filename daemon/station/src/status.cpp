@@ -1,5 +1,7 @@
 #include "gyrotherm/daemon/status.h"
 
+#include <nlohmann/json.hpp>
+
 namespace gyrotherm::daemon {
 namespace {
 

@@ -18,8 +18,6 @@
 #pragma once
 
 #include <atomic>
-#include <boost/asio/io_context.hpp>
-#include <boost/beast/http.hpp>
 #include <chrono>
 #include <cstdint>
 #include <deque>
@@ -34,10 +32,33 @@
 
 #include "gyrotherm/core/result.h"
 
+// Boost.Beast's message types, declared only: <boost/beast/http.hpp>
+// preprocesses to about 190000 lines, and most users of this header (and of
+// api.h) only pass requests and responses on. Beast 1.74 has no
+// forward-declaration headers; a declaration that no longer matches Beast's
+// fails to compile where both are seen, and http_server.cpp checks that the
+// aliases below are Beast's request and response. A file that builds or reads
+// a request or response includes gyrotherm/daemon/http_message.h.
+namespace boost::beast::http {
+template <bool isRequest, class Body, class Fields>
+class message;
+template <class CharT, class Traits, class Allocator>
+struct basic_string_body;
+template <class Allocator>
+class basic_fields;
+enum class status : unsigned;
+}  // namespace boost::beast::http
+
 namespace gyrotherm::daemon {
 
-using HttpRequest = boost::beast::http::request<boost::beast::http::string_body>;
-using HttpResponse = boost::beast::http::response<boost::beast::http::string_body>;
+// boost::beast::http::request<string_body> and response<string_body>.
+using HttpRequest = boost::beast::http::message<
+    true, boost::beast::http::basic_string_body<char, std::char_traits<char>, std::allocator<char>>,
+    boost::beast::http::basic_fields<std::allocator<char>>>;
+using HttpResponse = boost::beast::http::message<
+    false,
+    boost::beast::http::basic_string_body<char, std::char_traits<char>, std::allocator<char>>,
+    boost::beast::http::basic_fields<std::allocator<char>>>;
 using HttpHandler = std::function<HttpResponse(const HttpRequest&)>;
 // A handler that is also told the client's address ("127.0.0.1", "::1").
 using HttpPeerHandler = std::function<HttpResponse(const HttpRequest&, std::string_view peer)>;

@@ -7,10 +7,10 @@
 // values documented in config/station.toml.
 #pragma once
 
-#include <toml++/toml.h>
-
+#include <memory>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "gyrotherm/analysis/table1.h"
@@ -21,7 +21,44 @@
 #include "gyrotherm/drivers/serial_port.h"
 #include "gyrotherm/schedules/interlocks.h"
 
+// toml++ 3's table, declared only: this header is included far more widely
+// than TOML is read, and only the raw [simulator] table below names it.
+// config.cpp includes toml++ and checks the version.
+namespace toml {
+inline namespace v3 {
+class table;
+}  // namespace v3
+}  // namespace toml
+
 namespace gyrotherm::daemon {
+
+// An optional toml::table held through a pointer, so that users of this
+// header need not see toml++: the part of std::optional's interface that
+// StationConfig::simulator_table is used with. Moves keep the table (and its
+// source lines); copies copy it (toml++ copies drop source lines).
+class OptionalTomlTable {
+ public:
+  OptionalTomlTable() noexcept;
+  OptionalTomlTable(const OptionalTomlTable& other);
+  OptionalTomlTable(OptionalTomlTable&& other) noexcept;
+  OptionalTomlTable& operator=(const OptionalTomlTable& other);
+  OptionalTomlTable& operator=(OptionalTomlTable&& other) noexcept;
+  ~OptionalTomlTable();
+
+  // Holds `table` (moved: its source lines are kept).
+  OptionalTomlTable& operator=(toml::table&& table);
+
+  bool has_value() const noexcept { return table_ != nullptr; }
+  explicit operator bool() const noexcept { return has_value(); }
+  // Only when has_value().
+  toml::table& operator*() noexcept { return *table_; }
+  const toml::table& operator*() const noexcept { return *table_; }
+  toml::table* operator->() noexcept { return table_.get(); }
+  const toml::table* operator->() const noexcept { return table_.get(); }
+
+ private:
+  std::unique_ptr<toml::table> table_;
+};
 
 struct StationSection {
   std::string name = "station";
@@ -140,7 +177,7 @@ struct StationConfig {
   SimulatorSection simulator;
   // Raw [simulator], for gyrotherm-sim. Keeps source lines only in the
   // StationConfig that load_station_config() returned (toml++ copies drop them).
-  std::optional<toml::table> simulator_table;
+  OptionalTomlTable simulator_table;
 };
 
 // A warning for the log when the API is exposed beyond this machine with
