@@ -30,6 +30,7 @@
 #include "gyrotherm/core/files.h"
 #include "gyrotherm/daemon/run_analysis.h"
 #include "gyrotherm/storage/database.h"
+#include "output.h"
 
 namespace gyrotherm::cli {
 
@@ -40,12 +41,6 @@ namespace {
 constexpr const char* kDash = "—";
 constexpr int kExitAnalysis = 1;
 constexpr int kExitInput = 2;
-
-int fail(const std::string& message, int code) {
-  std::cerr << "gyrotherm: " << message;
-  if (message.empty() || message.back() != '\n') std::cerr << '\n';
-  return code;
-}
 
 json num(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
 json num(const std::optional<double>& v) { return v ? num(*v) : json(nullptr); }
@@ -70,43 +65,6 @@ std::string now_utc_iso() {
   char buf[32];
   std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", &tm);
   return buf;
-}
-
-// ---------------------------------------------------------------- tables
-
-std::size_t cells(std::string_view s) {
-  std::size_t n = 0;
-  for (const char c : s) n += (static_cast<unsigned char>(c) & 0xC0) != 0x80;
-  return n;
-}
-
-// A header row and data rows, columns two spaces apart; the first `left`
-// columns left-aligned, the others right-aligned; no trailing blanks.
-std::string table(const std::vector<std::string>& header,
-                  const std::vector<std::vector<std::string>>& rows, std::size_t left = 0,
-                  std::string_view indent = "") {
-  std::vector<std::size_t> width(header.size());
-  auto measure = [&](const std::vector<std::string>& row) {
-    for (std::size_t c = 0; c < row.size() && c < width.size(); ++c) {
-      width[c] = std::max(width[c], cells(row[c]));
-    }
-  };
-  measure(header);
-  for (const auto& r : rows) measure(r);
-  std::string out;
-  auto emit = [&](const std::vector<std::string>& row) {
-    std::string line(indent);
-    for (std::size_t c = 0; c < row.size() && c < width.size(); ++c) {
-      if (c > 0) line += "  ";
-      const std::string pad(width[c] - cells(row[c]), ' ');
-      line += c < left ? row[c] + pad : pad + row[c];
-    }
-    while (!line.empty() && line.back() == ' ') line.pop_back();
-    out += line + "\n";
-  };
-  emit(header);
-  for (const auto& r : rows) emit(r);
-  return out;
 }
 
 using daemon::read_run_config;

@@ -23,16 +23,13 @@
 #include "gyrotherm/drivers/modbus_device.h"
 #include "gyrotherm/drivers/serial_port.h"
 #include "gyrotherm/schedules/schedule.h"
+#include "output.h"
 
 namespace {
 
 using namespace gyrotherm;
 
-int fail(const std::string& message, int code = 1) {
-  std::cerr << "gyrotherm: " << message;
-  if (message.empty() || message.back() != '\n') std::cerr << '\n';
-  return code;
-}
+using cli::fail;
 
 // ---------------------------------------------------------------- decode
 int cmd_decode(const std::string& protocol, const std::string& path, bool json) {
