@@ -367,13 +367,21 @@ Result<SeriesSet> load_series(Input& in, double bin_s) {
   return s;
 }
 
-double bin_s_of(const Parsed& p, const RunConfig& cfg) {
-  return p.bin_s.value_or(cfg.bin_s.value_or(1.0));
+// --bin-s, else the run's [analysis] bin_s, else 1 s; an error unless positive.
+Result<double> bin_s_of(const Parsed& p, const RunConfig& cfg) {
+  const double bin_s = p.bin_s.value_or(cfg.bin_s.value_or(1.0));
+  if (!(bin_s > 0) || !std::isfinite(bin_s)) {
+    return Error::Permanent(fmt::format("--bin-s {:g}: must be positive", bin_s));
+  }
+  return bin_s;
 }
 
-analysis::ExportInfo export_info(const Input& in, const RunConfig& cfg) {
+// What the coefficient exports say of where they come from; `l0_window_s`:
+// the fit's L0 window.
+analysis::ExportInfo export_info(const Input& in, const RunConfig& cfg, double l0_window_s) {
   analysis::ExportInfo info;
   info.station = cfg.station_name;
+  info.l0_window_s = l0_window_s;
   if (in.db) info.run_ids = in.db->ids();
   info.computed_utc = now_utc_iso();
   return info;
@@ -889,10 +897,9 @@ int cmd_fit(const Parsed& p) {
   if (!form) return fail("--form: " + form.error().message, kExitInput);
   auto options = fit_options(p, cfg);
   if (!options) return fail(options.error().message, kExitInput);
-  const double bin_s = bin_s_of(p, cfg);
-  if (!(bin_s > 0) || !std::isfinite(bin_s)) {
-    return fail(fmt::format("--bin-s {:g}: must be positive", bin_s), kExitInput);
-  }
+  const auto bin = bin_s_of(p, cfg);
+  if (!bin) return fail(bin.error().message, kExitInput);
+  const double bin_s = *bin;
 
   auto set = load_series(*in, bin_s);
   if (!set) return fail(set.error().message, kExitAnalysis);
@@ -927,8 +934,7 @@ int cmd_fit(const Parsed& p) {
                     {"condition_estimate", num(fit->condition_estimate)},
                     {"inputs", inputs}};
 
-  auto info = export_info(*in, cfg);
-  info.l0_window_s = options->l0_window_s;
+  const auto info = export_info(*in, cfg, options->l0_window_s);
   if (int code = write_exports(
           p, [&] { return analysis::drift_fit_json(*fit, info); },
           [&] { return analysis::drift_fit_c_header(*fit, info); });
@@ -995,10 +1001,9 @@ int cmd_compare(const Parsed& p) {
   options.smooth_points = static_cast<std::size_t>(smooth);
   std::string why;
   if (!options.IsValid(&why)) return fail(as_option(why), kExitInput);
-  const double bin_s = bin_s_of(p, cfg);
-  if (!(bin_s > 0) || !std::isfinite(bin_s)) {
-    return fail(fmt::format("--bin-s {:g}: must be positive", bin_s), kExitInput);
-  }
+  const auto bin = bin_s_of(p, cfg);
+  if (!bin) return fail(bin.error().message, kExitInput);
+  const double bin_s = *bin;
   auto set = load_series(*in, bin_s);
   if (!set) return fail(set.error().message, kExitAnalysis);
   auto cmp = analysis::compare_models(set->series, options);
@@ -1098,10 +1103,9 @@ int cmd_start_model(const Parsed& p) {
   std::string why;
   if (!options.IsValid(&why)) return fail(as_option(why), kExitInput);
   if (p.t0_c && !std::isfinite(*p.t0_c)) return fail("--t0: must be a finite °C", kExitInput);
-  const double bin_s = bin_s_of(p, cfg);
-  if (!(bin_s > 0) || !std::isfinite(bin_s)) {
-    return fail(fmt::format("--bin-s {:g}: must be positive", bin_s), kExitInput);
-  }
+  const auto bin = bin_s_of(p, cfg);
+  if (!bin) return fail(bin.error().message, kExitInput);
+  const double bin_s = *bin;
   auto set = load_series(*in, bin_s);
   if (!set) return fail(set.error().message, kExitAnalysis);
   auto model = analysis::fit_start_temperature_model(set->series, options);
@@ -1143,8 +1147,7 @@ int cmd_start_model(const Parsed& p) {
                     {"coefficients", coefficient_map(at->fit.coefficients)}};
   }
 
-  auto info = export_info(*in, cfg);
-  info.l0_window_s = model->l0_window_s;
+  const auto info = export_info(*in, cfg, model->l0_window_s);
   if (int code = write_exports(
           p, [&] { return analysis::start_model_json(*model, info); },
           [&] { return analysis::start_model_c_header(*model, info); });
