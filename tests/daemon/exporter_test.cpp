@@ -154,6 +154,18 @@ class ExporterTest : public ::testing::Test {
     return ids.ok() ? *ids : std::vector<int64_t>{};
   }
 
+  // The record of a nightly export of `run_id` for Saturday 2026-11-21's
+  // 02:00 slot, for a test to record as begun: what a crash during it leaves.
+  storage::ExportRecord crashed_export(int64_t run_id, const TimeZone& zone) const {
+    storage::ExportRecord r;
+    r.kind = "nightly";
+    r.slot_unix_s = utc(2026, 11, 21, 2);
+    r.slot_local = local_time_label(*r.slot_unix_s, zone);
+    r.directory = (fs::path(root_) / "2026-11-21").string();
+    r.run_ids = {run_id};
+    return r;
+  }
+
   // poll() that must not fail; the export made, if any.
   static std::optional<ExportOutcome> poll_ok(NightlyExporter& e) {
     auto r = e.poll();
@@ -435,12 +447,7 @@ TEST_F(ExporterTest, InterruptedExportNotWrittenIsWrittenOnTheNextPoll) {
   const TimeZone zone = TimeZone::fixed(0);
   const int64_t a = complete_run();
   // The crash: recorded (state writing) for Saturday's slot, nothing on disk.
-  storage::ExportRecord crashed;
-  crashed.kind = "nightly";
-  crashed.slot_unix_s = utc(2026, 11, 21, 2);
-  crashed.slot_local = local_time_label(*crashed.slot_unix_s, zone);
-  crashed.directory = (fs::path(root_) / "2026-11-21").string();
-  crashed.run_ids = {a};
+  const storage::ExportRecord crashed = crashed_export(a, zone);
   auto id = db().begin_export(crashed);
   ASSERT_TRUE(id.ok()) << id.error().message;
   const int64_t b = complete_run();
@@ -475,12 +482,7 @@ TEST_F(ExporterTest, InterruptedExportNotWrittenIsWrittenOnTheNextPoll) {
 TEST_F(ExporterTest, InterruptedExportAlreadyRenamedIsMarkedDone) {
   const TimeZone zone = TimeZone::fixed(0);
   const int64_t a = complete_run();
-  storage::ExportRecord crashed;
-  crashed.kind = "nightly";
-  crashed.slot_unix_s = utc(2026, 11, 21, 2);
-  crashed.slot_local = local_time_label(*crashed.slot_unix_s, zone);
-  crashed.directory = (fs::path(root_) / "2026-11-21").string();
-  crashed.run_ids = {a};
+  const storage::ExportRecord crashed = crashed_export(a, zone);
   auto id = db().begin_export(crashed);
   ASSERT_TRUE(id.ok()) << id.error().message;
   // The crash came after the rename, before the record: the files are there.
