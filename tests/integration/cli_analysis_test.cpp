@@ -225,6 +225,18 @@ class CliAnalysisTest : public ::testing::Test {
     return path;
   }
 
+  // The series of the CSV files at `paths` in 1 s bins, as `--csv` reads them.
+  static void read_csv_series(const std::vector<std::string>& paths,
+                              std::vector<analysis::AnalysisSeries>& series) {
+    for (const auto& p : paths) {
+      auto w = analysis::read_csv_window(p);
+      ASSERT_TRUE(w);
+      auto s = analysis::csv_analysis_series(*w, 1.0);
+      ASSERT_TRUE(s);
+      series.push_back(std::move(*s));
+    }
+  }
+
   static inline fs::path dir_;
   static inline std::string db_path_;
   static inline std::vector<RunData> data_;
@@ -683,13 +695,7 @@ TEST_F(CliAnalysisTest, FitOnCsvFilesCenteredFormHasAnIntercept) {
   ASSERT_EQ(r.code, 0) << r.err;
   const json j = r.parsed();
   std::vector<analysis::AnalysisSeries> series;
-  for (const auto& p : {a, b}) {
-    auto w = analysis::read_csv_window(p);
-    ASSERT_TRUE(w);
-    auto s = analysis::csv_analysis_series(*w, 1.0);
-    ASSERT_TRUE(s);
-    series.push_back(std::move(*s));
-  }
+  ASSERT_NO_FATAL_FAILURE(read_csv_series({a, b}, series));
   analysis::DriftFitOptions o;
   o.derivative_window_s = 90;
   auto fit = analysis::fit_drift_model(series, {.t_order = 3, .g_order = 1},
@@ -723,13 +729,7 @@ TEST_F(CliAnalysisTest, FitTextOutputListsEveryTerm) {
 TEST_F(CliAnalysisTest, FitWithoutFormIsCentredAndWarnsAboutNearZeroCoefficients) {
   const std::string a = run_csv_file(0), b = run_csv_file(2);
   std::vector<analysis::AnalysisSeries> series;
-  for (const auto& p : {a, b}) {
-    auto w = analysis::read_csv_window(p);
-    ASSERT_TRUE(w);
-    auto s = analysis::csv_analysis_series(*w, 1.0);
-    ASSERT_TRUE(s);
-    series.push_back(std::move(*s));
-  }
+  ASSERT_NO_FATAL_FAILURE(read_csv_series({a, b}, series));
   bool saw_warning = false, saw_clean = false;
   for (const char* model : {"T1+R1+G1", "T4+R2+G2"}) {
     SCOPED_TRACE(model);
