@@ -64,10 +64,6 @@ class QueueTest : public StationTest {
         std::chrono::seconds(10));
     return events;
   }
-  // Appends a section to the station config (before the processes start).
-  void append_config(const std::string& text) {
-    std::ofstream(dir_ / "station.toml", std::ios::app) << text;
-  }
   std::string diag() {
     return "\nlast answer: " + last_.dump() + "\ndaemon log:\n" + daemon_->log();
   }

@@ -279,6 +279,14 @@ class ReportTest : public StationTest {
 
   fs::path db_path() const { return dir_ / "station.db"; }
 
+  // [export]: the nightly export into `reports` at 00:45 UTC.
+  void append_nightly_export(const fs::path& reports) {
+    append_config(
+        fmt::format("[export]\nnightly = true\ndirectory = \"{}\"\nlocal_time = "
+                    "\"00:45\"\ntime_zone = \"UTC0\"\n",
+                    reports.string()));
+  }
+
   struct CliRun {
     int code = -1;
     std::string out, err;
@@ -571,10 +579,7 @@ TEST_F(ReportTest, NightlyExportByTheDaemon) {
   constexpr const char* kWallStart = "2026-06-10T00:00:00Z";
   constexpr const char* kAfterSlot = "2026-06-10T01:30:00Z";  // before the next, 06-11 00:45
   const fs::path reports = dir_ / "reports";
-  append_config(
-      fmt::format("[export]\nnightly = true\ndirectory = \"{}\"\nlocal_time = "
-                  "\"00:45\"\ntime_zone = \"UTC0\"\n",
-                  reports.string()));
+  append_nightly_export(reports);
   const auto start_unix_s = parse_utc_iso(kWallStart);
   ASSERT_TRUE(start_unix_s.ok());
   const double slot_unix_s = *start_unix_s + 45 * 60;
@@ -662,10 +667,7 @@ TEST_F(ReportTest, NightlyExportCatchesUpAfterDowntime) {
   constexpr const char* kWallStart = "2026-06-10T00:00:00Z";
   constexpr const char* kBackAt = "2026-06-10T03:00:00Z";
   const fs::path reports = dir_ / "reports";
-  append_config(
-      fmt::format("[export]\nnightly = true\ndirectory = \"{}\"\nlocal_time = "
-                  "\"00:45\"\ntime_zone = \"UTC0\"\n",
-                  reports.string()));
+  append_nightly_export(reports);
   const auto start_unix_s = parse_utc_iso(kWallStart);
   ASSERT_TRUE(start_unix_s.ok());
 
