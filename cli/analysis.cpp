@@ -30,6 +30,7 @@
 #include "gyrotherm/core/files.h"
 #include "gyrotherm/daemon/run_analysis.h"
 #include "gyrotherm/storage/database.h"
+#include "output.h"
 
 namespace gyrotherm::cli {
 
@@ -40,12 +41,6 @@ namespace {
 constexpr const char* kDash = "—";
 constexpr int kExitAnalysis = 1;
 constexpr int kExitInput = 2;
-
-int fail(const std::string& message, int code) {
-  std::cerr << "gyrotherm: " << message;
-  if (message.empty() || message.back() != '\n') std::cerr << '\n';
-  return code;
-}
 
 json num(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
 json num(const std::optional<double>& v) { return v ? num(*v) : json(nullptr); }
@@ -70,43 +65,6 @@ std::string now_utc_iso() {
   char buf[32];
   std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", &tm);
   return buf;
-}
-
-// ---------------------------------------------------------------- tables
-
-std::size_t cells(std::string_view s) {
-  std::size_t n = 0;
-  for (const char c : s) n += (static_cast<unsigned char>(c) & 0xC0) != 0x80;
-  return n;
-}
-
-// A header row and data rows, columns two spaces apart; the first `left`
-// columns left-aligned, the others right-aligned; no trailing blanks.
-std::string table(const std::vector<std::string>& header,
-                  const std::vector<std::vector<std::string>>& rows, std::size_t left = 0,
-                  std::string_view indent = "") {
-  std::vector<std::size_t> width(header.size());
-  auto measure = [&](const std::vector<std::string>& row) {
-    for (std::size_t c = 0; c < row.size() && c < width.size(); ++c) {
-      width[c] = std::max(width[c], cells(row[c]));
-    }
-  };
-  measure(header);
-  for (const auto& r : rows) measure(r);
-  std::string out;
-  auto emit = [&](const std::vector<std::string>& row) {
-    std::string line(indent);
-    for (std::size_t c = 0; c < row.size() && c < width.size(); ++c) {
-      if (c > 0) line += "  ";
-      const std::string pad(width[c] - cells(row[c]), ' ');
-      line += c < left ? row[c] + pad : pad + row[c];
-    }
-    while (!line.empty() && line.back() == ' ') line.pop_back();
-    out += line + "\n";
-  };
-  emit(header);
-  for (const auto& r : rows) emit(r);
-  return out;
 }
 
 using daemon::read_run_config;
@@ -409,13 +367,21 @@ Result<SeriesSet> load_series(Input& in, double bin_s) {
   return s;
 }
 
-double bin_s_of(const Parsed& p, const RunConfig& cfg) {
-  return p.bin_s.value_or(cfg.bin_s.value_or(1.0));
+// --bin-s, else the run's [analysis] bin_s, else 1 s; an error unless positive.
+Result<double> bin_s_of(const Parsed& p, const RunConfig& cfg) {
+  const double bin_s = p.bin_s.value_or(cfg.bin_s.value_or(1.0));
+  if (!(bin_s > 0) || !std::isfinite(bin_s)) {
+    return Error::Permanent(fmt::format("--bin-s {:g}: must be positive", bin_s));
+  }
+  return bin_s;
 }
 
-analysis::ExportInfo export_info(const Input& in, const RunConfig& cfg) {
+// What the coefficient exports say of where they come from; `l0_window_s`:
+// the fit's L0 window.
+analysis::ExportInfo export_info(const Input& in, const RunConfig& cfg, double l0_window_s) {
   analysis::ExportInfo info;
   info.station = cfg.station_name;
+  info.l0_window_s = l0_window_s;
   if (in.db) info.run_ids = in.db->ids();
   info.computed_utc = now_utc_iso();
   return info;
@@ -931,10 +897,9 @@ int cmd_fit(const Parsed& p) {
   if (!form) return fail("--form: " + form.error().message, kExitInput);
   auto options = fit_options(p, cfg);
   if (!options) return fail(options.error().message, kExitInput);
-  const double bin_s = bin_s_of(p, cfg);
-  if (!(bin_s > 0) || !std::isfinite(bin_s)) {
-    return fail(fmt::format("--bin-s {:g}: must be positive", bin_s), kExitInput);
-  }
+  const auto bin = bin_s_of(p, cfg);
+  if (!bin) return fail(bin.error().message, kExitInput);
+  const double bin_s = *bin;
 
   auto set = load_series(*in, bin_s);
   if (!set) return fail(set.error().message, kExitAnalysis);
@@ -969,8 +934,7 @@ int cmd_fit(const Parsed& p) {
                     {"condition_estimate", num(fit->condition_estimate)},
                     {"inputs", inputs}};
 
-  auto info = export_info(*in, cfg);
-  info.l0_window_s = options->l0_window_s;
+  const auto info = export_info(*in, cfg, options->l0_window_s);
   if (int code = write_exports(
           p, [&] { return analysis::drift_fit_json(*fit, info); },
           [&] { return analysis::drift_fit_c_header(*fit, info); });
@@ -1037,10 +1001,9 @@ int cmd_compare(const Parsed& p) {
   options.smooth_points = static_cast<std::size_t>(smooth);
   std::string why;
   if (!options.IsValid(&why)) return fail(as_option(why), kExitInput);
-  const double bin_s = bin_s_of(p, cfg);
-  if (!(bin_s > 0) || !std::isfinite(bin_s)) {
-    return fail(fmt::format("--bin-s {:g}: must be positive", bin_s), kExitInput);
-  }
+  const auto bin = bin_s_of(p, cfg);
+  if (!bin) return fail(bin.error().message, kExitInput);
+  const double bin_s = *bin;
   auto set = load_series(*in, bin_s);
   if (!set) return fail(set.error().message, kExitAnalysis);
   auto cmp = analysis::compare_models(set->series, options);
@@ -1140,10 +1103,9 @@ int cmd_start_model(const Parsed& p) {
   std::string why;
   if (!options.IsValid(&why)) return fail(as_option(why), kExitInput);
   if (p.t0_c && !std::isfinite(*p.t0_c)) return fail("--t0: must be a finite °C", kExitInput);
-  const double bin_s = bin_s_of(p, cfg);
-  if (!(bin_s > 0) || !std::isfinite(bin_s)) {
-    return fail(fmt::format("--bin-s {:g}: must be positive", bin_s), kExitInput);
-  }
+  const auto bin = bin_s_of(p, cfg);
+  if (!bin) return fail(bin.error().message, kExitInput);
+  const double bin_s = *bin;
   auto set = load_series(*in, bin_s);
   if (!set) return fail(set.error().message, kExitAnalysis);
   auto model = analysis::fit_start_temperature_model(set->series, options);
@@ -1185,8 +1147,7 @@ int cmd_start_model(const Parsed& p) {
                     {"coefficients", coefficient_map(at->fit.coefficients)}};
   }
 
-  auto info = export_info(*in, cfg);
-  info.l0_window_s = model->l0_window_s;
+  const auto info = export_info(*in, cfg, model->l0_window_s);
   if (int code = write_exports(
           p, [&] { return analysis::start_model_json(*model, info); },
           [&] { return analysis::start_model_c_header(*model, info); });

@@ -21,6 +21,7 @@
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/daemon/control.h"
 #include "gyrotherm/storage/database.h"
+#include "output.h"
 
 namespace gyrotherm::cli {
 
@@ -74,54 +75,12 @@ bool truthy(const json& v) { return v.is_boolean() && v.get<bool>(); }
 
 // ---------------------------------------------------------------- tables
 
-// Columns in terminal cells: UTF-8 continuation bytes take none.
-std::size_t cells(std::string_view s) {
-  std::size_t n = 0;
-  for (const char c : s) n += (static_cast<unsigned char>(c) & 0xC0) != 0x80;
-  return n;
-}
-
-enum class Align { kLeft, kRight };
-
-// A header row and data rows, columns two spaces apart, no trailing blanks.
-std::string table(const std::vector<std::string>& header, const std::vector<Align>& align,
-                  const std::vector<std::vector<std::string>>& rows) {
-  std::vector<std::size_t> width(header.size());
-  auto measure = [&](const std::vector<std::string>& row) {
-    for (std::size_t c = 0; c < row.size() && c < width.size(); ++c) {
-      width[c] = std::max(width[c], cells(row[c]));
-    }
-  };
-  measure(header);
-  for (const auto& r : rows) measure(r);
-  std::string out;
-  auto emit = [&](const std::vector<std::string>& row) {
-    std::string line;
-    for (std::size_t c = 0; c < row.size() && c < width.size(); ++c) {
-      if (c > 0) line += "  ";
-      const std::string pad(width[c] - cells(row[c]), ' ');
-      line += align[c] == Align::kRight ? pad + row[c] : row[c] + pad;
-    }
-    while (!line.empty() && line.back() == ' ') line.pop_back();
-    out += line + "\n";
-  };
-  emit(header);
-  for (const auto& r : rows) emit(r);
-  return out;
-}
-
 // "label       value" lines of a summary.
 std::string labelled(std::string_view label, std::string_view value) {
   return fmt::format("{:<12}{}\n", label, value);
 }
 
 // ---------------------------------------------------------------- talking to the daemon
-
-int fail(const std::string& message, int code = 1) {
-  std::cerr << "gyrotherm: " << message;
-  if (message.empty() || message.back() != '\n') std::cerr << '\n';
-  return code;
-}
 
 // Checks and tidies --url; nullopt (after saying why) when it is unusable.
 std::optional<std::string> base_url(const std::string& url) {

@@ -13,6 +13,7 @@
 #include "gyrotherm/daemon/exporter.h"
 #include "gyrotherm/schedules/sequencer.h"
 #include "gyrotherm/storage/database.h"
+#include "output.h"
 
 namespace gyrotherm::cli {
 
@@ -20,12 +21,7 @@ namespace {
 
 constexpr int kExitInput = 2;
 constexpr int kExitFailed = 1;
-
-int fail(const std::string& message, int code) {
-  std::cerr << "gyrotherm export: " << message;
-  if (message.empty() || message.back() != '\n') std::cerr << '\n';
-  return code;
-}
+constexpr std::string_view kWho = "gyrotherm export";
 
 }  // namespace
 
@@ -65,34 +61,35 @@ std::optional<int> ExportCommand::run(bool json) {
   json = json || p.json;
   {
     auto db = choose_database(p.db_path, p.config_path);
-    if (!db) return fail(db.error().message, kExitInput);
-    if (!db->given) return fail("give --db FILE or --config FILE (the station database)", 2);
+    if (!db) return fail(db.error().message, kExitInput, kWho);
+    if (!db->given) return fail("give --db FILE or --config FILE (the station database)", 2, kWho);
     p.db_path = db->path;
   }
   namespace fs = std::filesystem;
   std::error_code ec;
-  if (!fs::exists(p.db_path, ec)) return fail(fmt::format("{}: no such database", p.db_path), 2);
+  if (!fs::exists(p.db_path, ec))
+    return fail(fmt::format("{}: no such database", p.db_path), 2, kWho);
   auto db = storage::Database::open(p.db_path);
-  if (!db) return fail(db.error().message, kExitInput);
+  if (!db) return fail(db.error().message, kExitInput, kWho);
 
   auto all = db->runs();
-  if (!all) return fail(all.error().message, kExitFailed);
+  if (!all) return fail(all.error().message, kExitFailed, kWho);
   std::vector<int64_t> ids;
   std::string what;
   if (p.runs) {
     auto list = parse_run_list(*p.runs);
-    if (!list) return fail(fmt::format("--runs: {}", list.error().message), kExitInput);
+    if (!list) return fail(fmt::format("--runs: {}", list.error().message), kExitInput, kWho);
     for (int64_t id : *list) {
       const auto it = std::find_if(all->begin(), all->end(),
                                    [id](const storage::RunRecord& r) { return r.id == id; });
       if (it == all->end()) {
-        return fail(fmt::format("--runs: run {} is not in {}", id, p.db_path), kExitInput);
+        return fail(fmt::format("--runs: run {} is not in {}", id, p.db_path), kExitInput, kWho);
       }
       const auto state = schedules::parse_run_state(it->state);
       if (!state || !schedules::is_terminal(*state)) {
         return fail(fmt::format("--runs: run {} has not ended (state {}); export it once it has",
                                 id, it->state),
-                    kExitInput);
+                    kExitInput, kWho);
       }
     }
     ids = *list;
@@ -100,7 +97,7 @@ std::optional<int> ExportCommand::run(bool json) {
     what = fmt::format("runs {}", *p.runs);
   } else if (p.since) {
     auto since = parse_utc_iso(*p.since);
-    if (!since) return fail(fmt::format("--since: {}", since.error().message), kExitInput);
+    if (!since) return fail(fmt::format("--since: {}", since.error().message), kExitInput, kWho);
     for (const auto& r : *all) {
       if (r.state != "completed" || r.ended_utc.empty()) continue;
       auto ended = parse_utc_iso(r.ended_utc);
@@ -109,7 +106,7 @@ std::optional<int> ExportCommand::run(bool json) {
     what = fmt::format("completed runs that ended since {}", utc_iso(*since));
   } else {
     auto pending = db->runs_not_exported();
-    if (!pending) return fail(pending.error().message, kExitFailed);
+    if (!pending) return fail(pending.error().message, kExitFailed, kWho);
     ids = *pending;
     what = "completed runs not yet in a nightly export";
   }
@@ -126,7 +123,7 @@ std::optional<int> ExportCommand::run(bool json) {
       (!fs::is_directory(p.out_dir, ec) || !fs::is_empty(p.out_dir, ec))) {
     return fail(
         fmt::format("--out {}: exists and is not an empty directory; give a new one", p.out_dir),
-        kExitInput);
+        kExitInput, kWho);
   }
 
   daemon::ExportRequest request;
@@ -135,7 +132,7 @@ std::optional<int> ExportCommand::run(bool json) {
   request.directory = fs::absolute(p.out_dir, ec).lexically_normal().string();
   request.report.export_label = fmt::format("on demand (gyrotherm export), {}", what);
   auto out = daemon::write_export(*db, request);
-  if (!out) return fail(out.error().message, kExitFailed);
+  if (!out) return fail(out.error().message, kExitFailed, kWho);
   if (json) {
     std::cout << nlohmann::json({{"export_id", out->export_id},
                                  {"directory", out->directory},

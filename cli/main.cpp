@@ -23,16 +23,13 @@
 #include "gyrotherm/drivers/modbus_devices.h"
 #include "gyrotherm/drivers/serial_port.h"
 #include "gyrotherm/schedules/schedule.h"
+#include "output.h"
 
 namespace {
 
 using namespace gyrotherm;
 
-int fail(const std::string& message, int code = 1) {
-  std::cerr << "gyrotherm: " << message;
-  if (message.empty() || message.back() != '\n') std::cerr << '\n';
-  return code;
-}
+using cli::fail;
 
 // ---------------------------------------------------------------- decode
 int cmd_decode(const std::string& protocol, const std::string& path, bool json) {
@@ -255,9 +252,7 @@ int cmd_schedule_check(const std::string& config_path, const std::string& schedu
                        bool json) {
   auto cfg = daemon::load_station_config(config_path);
   if (!cfg) return fail("bad station config:\n" + cfg.error().message, 2);
-  const schedules::StationLimits limits{cfg->station.min_temp_c, cfg->station.max_temp_c,
-                                        cfg->station.max_ramp_c_per_min};
-  auto plan = schedules::load_schedule(schedule_path, limits);
+  auto plan = schedules::load_schedule(schedule_path, daemon::station_limits(*cfg));
   if (!plan) {
     if (json) {
       // The report ends with "... and N more errors" when it was cut.

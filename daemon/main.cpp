@@ -104,9 +104,7 @@ int main(int argc, char** argv) {
   // starts anything; the queue checks it again when it is added.
   std::string schedule_text;
   if (!schedule_path.empty()) {
-    const gyrotherm::schedules::StationLimits limits{
-        config->station.min_temp_c, config->station.max_temp_c, config->station.max_ramp_c_per_min};
-    auto p = gyrotherm::schedules::load_schedule(schedule_path, limits);
+    auto p = gyrotherm::schedules::load_schedule(schedule_path, gd::station_limits(*config));
     if (!p) {
       std::cerr << "gyrothermd: schedule refused, nothing queued:\n" << p.error().message;
       return 2;

@@ -257,13 +257,41 @@ std::vector<double> times(std::size_t n, double t0, double dt) {
   return t;
 }
 
+// `n` rates of white noise of std `sigma` around `mean`, drawn from `seed`.
+std::vector<double> white_noise(std::size_t n, double mean, double sigma, uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> normal(0.0, sigma);
+  std::vector<double> y(n);
+  for (double& v : y) v = mean + normal(rng);
+  return y;
+}
+
+// `n` rates of a random walk from `start` with steps of std `step`, drawn
+// from `seed` (the first rate is already one step away).
+std::vector<double> random_walk(std::size_t n, double start, double step, uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> normal(0.0, step);
+  std::vector<double> y(n);
+  double walk = start;
+  for (double& v : y) v = (walk += normal(rng));
+  return y;
+}
+
+// `n` rates of unit white noise plus a random walk from 0 with steps of std
+// 0.002 (seed 11): a curve with a floor.
+std::vector<double> white_plus_walk(std::size_t n) {
+  std::mt19937_64 rng(11);
+  std::normal_distribution<double> white(0.0, 1.0), steps(0.0, 0.002);
+  std::vector<double> y(n);
+  double walk = 0;
+  for (double& v : y) v = white(rng) + (walk += steps(rng));
+  return y;
+}
+
 TEST(AllanNoise, WhiteNoiseFollowsMinusHalfSlopeAndGivesArw) {
   const double sigma = 3.0, tau0 = 0.1;
   const std::size_t n = 200000;
-  std::mt19937_64 rng(42);
-  std::normal_distribution<double> normal(0.0, sigma);
-  std::vector<double> y(n);
-  for (double& v : y) v = 8.0 + normal(rng);
+  const std::vector<double> y = white_noise(n, 8.0, sigma, 42);
   auto r = allan_deviation(times(n, 0.0, tau0), y);
   ASSERT_TRUE(r.ok()) << r.error().message;
   EXPECT_NEAR(r->tau0_s, tau0, 1e-12);
@@ -293,11 +321,7 @@ TEST(AllanNoise, WhiteNoiseFollowsMinusHalfSlopeAndGivesArw) {
 TEST(AllanNoise, RandomWalkFollowsPlusHalfSlopeAndGivesRrw) {
   const double step = 0.02, tau0 = 1.0;  // rate steps of 0.02 °/h per second
   const std::size_t n = 200000;
-  std::mt19937_64 rng(7);
-  std::normal_distribution<double> normal(0.0, step);
-  std::vector<double> y(n);
-  double walk = 100.0;
-  for (double& v : y) v = (walk += normal(rng));
+  const std::vector<double> y = random_walk(n, 100.0, step, 7);
   auto r = allan_deviation(times(n, 0.0, tau0), y);
   ASSERT_TRUE(r.ok()) << r.error().message;
   // The rate variance grows by step^2 / tau0 per second: K = 60 step / sqrt(tau0) °/h/√h.
@@ -311,11 +335,7 @@ TEST(AllanNoise, RandomWalkFollowsPlusHalfSlopeAndGivesRrw) {
 
 TEST(AllanNoise, WhitePlusWalkHasAFloorReadAsBiasInstability) {
   const std::size_t n = 100000;
-  std::mt19937_64 rng(11);
-  std::normal_distribution<double> white(0.0, 1.0), steps(0.0, 0.002);
-  std::vector<double> y(n);
-  double walk = 0;
-  for (double& v : y) v = white(rng) + (walk += steps(rng));
+  const std::vector<double> y = white_plus_walk(n);
   auto r = allan_deviation(times(n, 0.0, 1.0), y);
   ASSERT_TRUE(r.ok()) << r.error().message;
   ASSERT_TRUE(r->bias_instability_dph.has_value());
@@ -341,10 +361,7 @@ TEST(AllanNoise, WhitePlusWalkHasAFloorReadAsBiasInstability) {
 TEST(AllanNoiseTerms, ShortSoakGivesBoundsForBiasInstabilityAndRrw) {
   const double sigma = 3.0, tau0 = 0.1;
   const std::size_t n = 12000;
-  std::mt19937_64 rng(5);
-  std::normal_distribution<double> normal(0.0, sigma);
-  std::vector<double> y(n);
-  for (double& v : y) v = 8.0 + normal(rng);
+  const std::vector<double> y = white_noise(n, 8.0, sigma, 5);
   auto r = allan_deviation(times(n, 0.0, tau0), y);
   ASSERT_TRUE(r.ok()) << r.error().message;
   const double tau_max = r->tau_s.back(), sigma_last = r->adev_dph.back();
@@ -381,10 +398,7 @@ TEST(AllanNoiseTerms, ArwComesFromTheLineWhenOneSecondIsOffTheGrid) {
     SCOPED_TRACE("tau0 = " + std::to_string(tau0));
     const double sigma = 1.5;
     const std::size_t n = 20000;
-    std::mt19937_64 rng(17);
-    std::normal_distribution<double> normal(0.0, sigma);
-    std::vector<double> y(n);
-    for (double& v : y) v = -4.0 + normal(rng);
+    const std::vector<double> y = white_noise(n, -4.0, sigma, 17);
     auto r = allan_deviation(times(n, 100.0, tau0), y);
     ASSERT_TRUE(r.ok()) << r.error().message;
     for (double tau : r->tau_s) EXPECT_GT(std::abs(tau - 1.0), 0.05);
@@ -400,11 +414,7 @@ TEST(AllanNoiseTerms, ArwComesFromTheLineWhenOneSecondIsOffTheGrid) {
 // lie at shorter tau than recorded).
 TEST(AllanNoiseTerms, RisingCurveBoundsArwAndBiasInstabilityAtTheFirstTau) {
   const std::size_t n = 50000;
-  std::mt19937_64 rng(23);
-  std::normal_distribution<double> normal(0.0, 0.02);
-  std::vector<double> y(n);
-  double walk = 0;
-  for (double& v : y) v = (walk += normal(rng));
+  const std::vector<double> y = random_walk(n, 0, 0.02, 23);
   auto r = allan_deviation(times(n, 0.0, 1.0), y);
   ASSERT_TRUE(r.ok()) << r.error().message;
   const double tau_min = r->tau_s.front(), sigma_first = r->adev_dph.front();
@@ -426,11 +436,7 @@ TEST(AllanNoiseTerms, RisingCurveBoundsArwAndBiasInstabilityAtTheFirstTau) {
 // same terms as the analysis did.
 TEST(AllanNoiseTerms, FloorGivesValuesAndAStoredCurveGivesTheSameTerms) {
   const std::size_t n = 100000;
-  std::mt19937_64 rng(11);
-  std::normal_distribution<double> white(0.0, 1.0), steps(0.0, 0.002);
-  std::vector<double> y(n);
-  double walk = 0;
-  for (double& v : y) v = white(rng) + (walk += steps(rng));
+  const std::vector<double> y = white_plus_walk(n);
   auto r = allan_deviation(times(n, 0.0, 0.5), y);
   ASSERT_TRUE(r.ok()) << r.error().message;
   EXPECT_EQ(r->noise.bias_instability_dph.kind, NoiseTermKind::kValue);

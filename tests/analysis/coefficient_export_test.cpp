@@ -14,16 +14,17 @@
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
-#include <sstream>
 #include <string>
 #include <vector>
 
 #include "gyrotherm/analysis/start_temperature.h"
 #include "multirun_data.h"
+#include "test_files.h"
 
 namespace gyrotherm::analysis {
 namespace {
 
+using gyrotherm::testing::read_text;
 using testing::load_runs;
 using testing::read_reference_lines;
 
@@ -128,10 +129,7 @@ std::vector<double> compile_and_run(const std::string& cc, const std::filesystem
       fmt::format("{} -std=c99 -Wall -Wextra -pedantic -Werror -O2 -o '{}' '{}' -lm 2>'{}'", cc,
                   exe, (dir / "main.c").string(), (dir / "cc.log").string());
   if (std::system(compile.c_str()) != 0) {
-    std::ifstream log(dir / "cc.log");
-    std::stringstream ss;
-    ss << log.rdbuf();
-    ADD_FAILURE() << "C compile failed: " << compile << "\n" << ss.str();
+    ADD_FAILURE() << "C compile failed: " << compile << "\n" << read_text(dir / "cc.log");
     return {};
   }
   std::vector<double> out;

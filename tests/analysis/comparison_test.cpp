@@ -33,37 +33,43 @@ void expect_rel(double actual, double expected, double rel, const std::string& w
   EXPECT_NEAR(actual, expected, rel * std::abs(expected)) << what;
 }
 
-TEST(ComparisonReference, GridMatchesNumpy) {
-  const std::vector<Tokens> lines = read_reference_lines("comparison_grid.txt", kScript);
-  const std::vector<AnalysisSeries> runs = load_runs(lines);
-  ASSERT_EQ(runs.size(), 3u);
-  ComparisonOptions paper;  // the raw bins, as comparison_grid.txt
-  ComparisonOptions centred;
-  paper.form = DriftModelForm::kPaper;
-  centred.form = DriftModelForm::kCentered;
-  paper.smooth_points = centred.smooth_points = 1;
+// Both forms' fit windows from the reference file's derivative_window_s and
+// l0_window_s lines (the L0 window is the paper form's).
+void read_fit_windows(const std::vector<Tokens>& lines, ComparisonOptions& paper,
+                      ComparisonOptions& centred) {
   for (const Tokens& t : lines) {
     if (t[0] == "derivative_window_s") {
       paper.fit.derivative_window_s = centred.fit.derivative_window_s = std::stod(t[1]);
     }
     if (t[0] == "l0_window_s") paper.fit.l0_window_s = std::stod(t[1]);
   }
-  auto by_paper = compare_models(runs, paper);
-  ASSERT_TRUE(by_paper.ok()) << by_paper.error().message;
-  auto by_centred = compare_models(runs, centred);
-  ASSERT_TRUE(by_centred.ok()) << by_centred.error().message;
+}
 
-  std::size_t cells = 0;
+// The reference file's "none" line (n, mean and std of the uncompensated
+// rates) against `grid`, to 1e-10 relative; `other` has the same n.
+void expect_none_matches(const std::vector<Tokens>& lines, const Comparison& grid,
+                         const Comparison& other) {
   for (const Tokens& t : lines) {
     if (t[0] == "none") {
-      EXPECT_EQ(by_paper->none.n, std::stoul(t[1]));
-      expect_rel(by_paper->none.mean_dph, std::stod(t[2]), 1e-10, "none mean");
-      expect_rel(by_paper->none.std_dph, std::stod(t[3]), 1e-10, "none std");
-      EXPECT_EQ(by_centred->none.n, by_paper->none.n);
+      EXPECT_EQ(grid.none.n, std::stoul(t[1]));
+      expect_rel(grid.none.mean_dph, std::stod(t[2]), 1e-10, "none mean");
+      expect_rel(grid.none.std_dph, std::stod(t[3]), 1e-10, "none std");
+      EXPECT_EQ(other.none.n, grid.none.n);
     }
+  }
+}
+
+// Each "cell" line of the reference file (form, spec, n, in-sample mean and
+// std, LORO mean and std) against the grid of its form; the LORO std to
+// `loro_std_rel`, the rest to 1e-9 relative; `expected_cells` such lines.
+void expect_cells_match(const std::vector<Tokens>& lines, const Comparison& by_paper,
+                        const Comparison& by_centred, double loro_std_rel,
+                        std::size_t expected_cells) {
+  std::size_t cells = 0;
+  for (const Tokens& t : lines) {
     if (t[0] != "cell") continue;
     ++cells;
-    const Comparison& c = t[1] == "paper" ? *by_paper : *by_centred;
+    const Comparison& c = t[1] == "paper" ? by_paper : by_centred;
     const ComparisonCell* cell = find_cell(c, t[2]);
     ASSERT_NE(cell, nullptr) << t[2];
     const std::string what = t[1] + " " + t[2];
@@ -74,9 +80,28 @@ TEST(ComparisonReference, GridMatchesNumpy) {
     expect_rel(cell->in_sample->mean_dph, std::stod(t[4]), 1e-9, what + " in-sample mean");
     expect_rel(cell->in_sample->std_dph, std::stod(t[5]), 1e-9, what + " in-sample std");
     expect_rel(cell->cross_validated->mean_dph, std::stod(t[6]), 1e-9, what + " LORO mean");
-    expect_rel(cell->cross_validated->std_dph, std::stod(t[7]), 1e-9, what + " LORO std");
+    expect_rel(cell->cross_validated->std_dph, std::stod(t[7]), loro_std_rel, what + " LORO std");
   }
-  EXPECT_EQ(cells, 15u);
+  EXPECT_EQ(cells, expected_cells);
+}
+
+TEST(ComparisonReference, GridMatchesNumpy) {
+  const std::vector<Tokens> lines = read_reference_lines("comparison_grid.txt", kScript);
+  const std::vector<AnalysisSeries> runs = load_runs(lines);
+  ASSERT_EQ(runs.size(), 3u);
+  ComparisonOptions paper;  // the raw bins, as comparison_grid.txt
+  ComparisonOptions centred;
+  paper.form = DriftModelForm::kPaper;
+  centred.form = DriftModelForm::kCentered;
+  paper.smooth_points = centred.smooth_points = 1;
+  read_fit_windows(lines, paper, centred);
+  auto by_paper = compare_models(runs, paper);
+  ASSERT_TRUE(by_paper.ok()) << by_paper.error().message;
+  auto by_centred = compare_models(runs, centred);
+  ASSERT_TRUE(by_centred.ok()) << by_centred.error().message;
+
+  expect_none_matches(lines, *by_paper, *by_centred);
+  expect_cells_match(lines, *by_paper, *by_centred, 1e-9, 15u);
 }
 
 // The default grid smooths each run's compensated output (and the "none"
@@ -96,42 +121,15 @@ TEST(ComparisonReference, SmoothedGridMatchesNumpy) {
   }
   centred.form = DriftModelForm::kCentered;
   paper.form = DriftModelForm::kPaper;
-  for (const Tokens& t : lines) {
-    if (t[0] == "derivative_window_s") {
-      paper.fit.derivative_window_s = centred.fit.derivative_window_s = std::stod(t[1]);
-    }
-    if (t[0] == "l0_window_s") paper.fit.l0_window_s = std::stod(t[1]);
-  }
+  read_fit_windows(lines, paper, centred);
   auto by_paper = compare_models(runs, paper);
   ASSERT_TRUE(by_paper.ok()) << by_paper.error().message;
   auto by_centred = compare_models(runs, centred);
   ASSERT_TRUE(by_centred.ok()) << by_centred.error().message;
 
-  std::size_t cells = 0;
-  for (const Tokens& t : lines) {
-    if (t[0] == "none") {
-      EXPECT_EQ(by_centred->none.n, std::stoul(t[1]));
-      expect_rel(by_centred->none.mean_dph, std::stod(t[2]), 1e-10, "none mean");
-      expect_rel(by_centred->none.std_dph, std::stod(t[3]), 1e-10, "none std");
-      EXPECT_EQ(by_paper->none.n, by_centred->none.n);
-    }
-    if (t[0] != "cell") continue;
-    ++cells;
-    const Comparison& c = t[1] == "paper" ? *by_paper : *by_centred;
-    const ComparisonCell* cell = find_cell(c, t[2]);
-    ASSERT_NE(cell, nullptr) << t[2];
-    const std::string what = t[1] + " " + t[2];
-    ASSERT_TRUE(cell->in_sample.has_value()) << what << ": " << cell->in_sample_error;
-    ASSERT_TRUE(cell->cross_validated.has_value()) << what << ": " << cell->cross_validated_error;
-    EXPECT_EQ(cell->in_sample->n, std::stoul(t[3])) << what;
-    EXPECT_EQ(cell->cross_validated->n, std::stoul(t[3])) << what;
-    expect_rel(cell->in_sample->mean_dph, std::stod(t[4]), 1e-9, what + " in-sample mean");
-    expect_rel(cell->in_sample->std_dph, std::stod(t[5]), 1e-9, what + " in-sample std");
-    expect_rel(cell->cross_validated->mean_dph, std::stod(t[6]), 1e-9, what + " LORO mean");
-    // The LORO std of a high order can be large (extrapolation in T): 1e-8.
-    expect_rel(cell->cross_validated->std_dph, std::stod(t[7]), 1e-8, what + " LORO std");
-  }
-  EXPECT_EQ(cells, 24u);
+  expect_none_matches(lines, *by_centred, *by_paper);
+  // The LORO std of a high order can be large (extrapolation in T): 1e-8.
+  expect_cells_match(lines, *by_paper, *by_centred, 1e-8, 24u);
 }
 
 // Paper form, raw bins: compensated = L0 + residual, so the in-sample std

@@ -6,25 +6,19 @@
 
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <regex>
-#include <sstream>
 #include <string>
 #include <vector>
+
+#include "test_files.h"
 
 namespace gyrotherm {
 namespace {
 
 namespace fs = std::filesystem;
+using testing::read_text;
 
 const fs::path kSource(GYROTHERM_SOURCE_DIR);
-
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
 
 // The files git tracks, or (no git) every file outside build trees,
 // node_modules and .git.

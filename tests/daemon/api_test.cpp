@@ -337,6 +337,19 @@ TEST(Api, WebFilesAreOnlyThoseReadAtStartUp) {
   EXPECT_FALSE(WebAssets::load(dir.string()).ok()) << "a missing web root is an error";
 }
 
+TEST(Api, AWebFileOverTheLimitIsAnErrorNamingIt) {
+  const auto dir =
+      std::filesystem::temp_directory_path() / ("gyrotherm-web-big-" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  std::ofstream(dir / "index.html") << "<html>dashboard</html>";
+  std::ofstream(dir / "big.js") << std::string(kMaxWebFileBytes + 1, 'x');
+  auto web = WebAssets::load(dir.string());
+  std::filesystem::remove_all(dir);
+  ASSERT_FALSE(web.ok());
+  EXPECT_NE(web.error().message.find("web files: " + (dir / "big.js").string()), std::string::npos)
+      << web.error().message;
+}
+
 TEST(Api, RefusalsMapToStatusesWithTheirMessages) {
   FakeControl control;
   const ApiContext ctx = fake_context(&control);

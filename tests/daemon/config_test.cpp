@@ -59,6 +59,25 @@ TEST(Config, DefaultsFromTheBrief) {
   EXPECT_EQ(cfg->gyro.protocol, "kvh1750");
 }
 
+// The limits schedules are checked against come from [station].
+TEST(Config, StationLimitsComeFromTheStationSection) {
+  auto cfg = parse_station_config(kMinimal, "min.toml");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  auto limits = station_limits(*cfg);
+  EXPECT_DOUBLE_EQ(limits.min_temp_c, -20.0);
+  EXPECT_DOUBLE_EQ(limits.max_temp_c, 60.0);
+  EXPECT_DOUBLE_EQ(limits.max_ramp_c_per_min, 2.0);
+  std::string text = kMinimal;
+  text.insert(text.find("[chamber]"),
+              "min_temp_c = -40.0\nmax_temp_c = 85.0\nmax_ramp_c_per_min = 0.5\n");
+  cfg = parse_station_config(text, "wide.toml");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  limits = station_limits(*cfg);
+  EXPECT_DOUBLE_EQ(limits.min_temp_c, -40.0);
+  EXPECT_DOUBLE_EQ(limits.max_temp_c, 85.0);
+  EXPECT_DOUBLE_EQ(limits.max_ramp_c_per_min, 0.5);
+}
+
 // [analysis] compare_smooth_points: the Tables II-IV moving average (odd;
 // 1 = raw), into the daemon's analysis settings.
 TEST(Config, CompareSmoothPoints) {

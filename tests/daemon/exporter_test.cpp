@@ -22,12 +22,12 @@
 #include <memory>
 #include <mutex>
 #include <set>
-#include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
 
 #include "gyrotherm/storage/sample_writer.h"
+#include "test_files.h"
 #include "test_time.h"
 #include "utc_time.h"
 
@@ -65,13 +65,6 @@ std::vector<std::string> partial_dirs(const fs::path& dir) {
     }
   }
   return out;
-}
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
 }
 
 class ExporterTest : public ::testing::Test {
@@ -159,6 +152,18 @@ class ExporterTest : public ::testing::Test {
     auto ids = db().runs_not_exported();
     EXPECT_TRUE(ids.ok()) << ids.error().message;
     return ids.ok() ? *ids : std::vector<int64_t>{};
+  }
+
+  // The record of a nightly export of `run_id` for Saturday 2026-11-21's
+  // 02:00 slot, for a test to record as begun: what a crash during it leaves.
+  storage::ExportRecord crashed_export(int64_t run_id, const TimeZone& zone) const {
+    storage::ExportRecord r;
+    r.kind = "nightly";
+    r.slot_unix_s = utc(2026, 11, 21, 2);
+    r.slot_local = local_time_label(*r.slot_unix_s, zone);
+    r.directory = (fs::path(root_) / "2026-11-21").string();
+    r.run_ids = {run_id};
+    return r;
   }
 
   // poll() that must not fail; the export made, if any.
@@ -442,12 +447,7 @@ TEST_F(ExporterTest, InterruptedExportNotWrittenIsWrittenOnTheNextPoll) {
   const TimeZone zone = TimeZone::fixed(0);
   const int64_t a = complete_run();
   // The crash: recorded (state writing) for Saturday's slot, nothing on disk.
-  storage::ExportRecord crashed;
-  crashed.kind = "nightly";
-  crashed.slot_unix_s = utc(2026, 11, 21, 2);
-  crashed.slot_local = local_time_label(*crashed.slot_unix_s, zone);
-  crashed.directory = (fs::path(root_) / "2026-11-21").string();
-  crashed.run_ids = {a};
+  const storage::ExportRecord crashed = crashed_export(a, zone);
   auto id = db().begin_export(crashed);
   ASSERT_TRUE(id.ok()) << id.error().message;
   const int64_t b = complete_run();
@@ -482,12 +482,7 @@ TEST_F(ExporterTest, InterruptedExportNotWrittenIsWrittenOnTheNextPoll) {
 TEST_F(ExporterTest, InterruptedExportAlreadyRenamedIsMarkedDone) {
   const TimeZone zone = TimeZone::fixed(0);
   const int64_t a = complete_run();
-  storage::ExportRecord crashed;
-  crashed.kind = "nightly";
-  crashed.slot_unix_s = utc(2026, 11, 21, 2);
-  crashed.slot_local = local_time_label(*crashed.slot_unix_s, zone);
-  crashed.directory = (fs::path(root_) / "2026-11-21").string();
-  crashed.run_ids = {a};
+  const storage::ExportRecord crashed = crashed_export(a, zone);
   auto id = db().begin_export(crashed);
   ASSERT_TRUE(id.ok()) << id.error().message;
   // The crash came after the rename, before the record: the files are there.
@@ -504,7 +499,8 @@ TEST_F(ExporterTest, InterruptedExportAlreadyRenamedIsMarkedDone) {
   EXPECT_EQ(rec.files,
             (std::vector<std::string>{"index.html", fmt::format("run-{:04}/report.html", a)}));
   // Left as it was: not written again.
-  EXPECT_EQ(slurp(fs::path(crashed.directory) / "index.html"), "index written before the crash");
+  EXPECT_EQ(testing::read_text(fs::path(crashed.directory) / "index.html"),
+            "index written before the crash");
   EXPECT_EQ(files_on_disk(crashed.directory), rec.files);
   EXPECT_TRUE(not_exported().empty());
   EXPECT_EQ(nightly_exports().size(), 1u);
@@ -659,7 +655,7 @@ TEST_F(ExporterTest, ManualExportsLeaveTheNightlySelectionAlone) {
   EXPECT_NE(refused.error().message.find("not an empty directory"), std::string::npos)
       << refused.error().message;
   EXPECT_EQ(files_on_disk(busy), std::vector<std::string>{"notes.txt"});
-  EXPECT_EQ(slurp(busy / "notes.txt"), "someone's notes");
+  EXPECT_EQ(testing::read_text(busy / "notes.txt"), "someone's notes");
   EXPECT_TRUE(partial_dirs(dir_).empty());
 
   // The nightly export still takes both runs.
@@ -759,9 +755,10 @@ TEST_F(ExporterTest, ExportDirectoryLayoutMatchesTheRecord) {
   }
 
   // The run with samples has its Table I row; the other is listed as a problem.
-  const std::string table1 = slurp(dir / fmt::format("run-{:04}", with_samples) / "table1.csv");
+  const std::string table1 =
+      testing::read_text(dir / fmt::format("run-{:04}", with_samples) / "table1.csv");
   EXPECT_EQ(std::count(table1.begin(), table1.end(), '\n'), 2) << table1;
-  const std::string index = slurp(dir / "index.html");
+  const std::string index = testing::read_text(dir / "index.html");
   EXPECT_NE(index.find(fmt::format("run-{:04}/report.html", with_samples)), std::string::npos);
   EXPECT_NE(index.find(fmt::format("run-{:04}/report.html", without)), std::string::npos);
   bool problem_named = false;
@@ -769,7 +766,8 @@ TEST_F(ExporterTest, ExportDirectoryLayoutMatchesTheRecord) {
     if (p.find(fmt::format("run {}", without)) != std::string::npos) problem_named = true;
   }
   EXPECT_TRUE(problem_named) << "no problem names run " << without;
-  const std::string report = slurp(dir / fmt::format("run-{:04}", with_samples) / "report.html");
+  const std::string report =
+      testing::read_text(dir / fmt::format("run-{:04}", with_samples) / "report.html");
   EXPECT_NE(report.find("chart-"), std::string::npos);
 }
 

@@ -18,6 +18,8 @@
 #include <span>
 #include <sstream>
 
+#include "test_files.h"
+
 namespace gyrotherm::daemon {
 namespace {
 
@@ -318,10 +320,7 @@ TEST(Report, RepeatedSetpointsGetThePapersTableIGroupedBySetpoint) {
 // Runs `cmd` through the shell; its exit status, and stderr in `log`.
 int run_logged(const std::string& cmd, const std::filesystem::path& log, std::string* text) {
   const int st = std::system((cmd + " 2>'" + log.string() + "'").c_str());
-  std::ifstream in(log);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  *text = ss.str();
+  *text = testing::read_text(log);
   return st;
 }
 
@@ -415,10 +414,7 @@ TEST(Report, ScriptTickLabelsKeepTheDigitsOfTheirStep) {
   const std::string cmd = fmt::format("node --test '{}/tests/browser/report_format.test.mjs' >'{}'",
                                       GYROTHERM_SOURCE_DIR, (dir / "out.log").string());
   const int st = run_logged(cmd, dir / "err.log", &log);
-  std::ifstream out(dir / "out.log");
-  std::stringstream ss;
-  ss << out.rdbuf();
-  EXPECT_EQ(st, 0) << cmd << "\n" << ss.str() << log;
+  EXPECT_EQ(st, 0) << cmd << "\n" << testing::read_text(dir / "out.log") << log;
   std::filesystem::remove_all(dir);
 }
 

@@ -20,7 +20,6 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <iterator>
 #include <optional>
 #include <string>
@@ -28,6 +27,7 @@
 #include <vector>
 
 #include "station_fixture.h"
+#include "test_files.h"
 
 namespace gyrotherm {
 namespace {
@@ -126,8 +126,7 @@ class AccessTest : public StationTest {
  protected:
   // Replaces the fixture's [api] tokens line with `api_lines`.
   void set_api(const std::string& api_lines) {
-    std::ifstream in(dir_ / "station.toml");
-    std::string config((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    std::string config = testing::read_text(dir_ / "station.toml");
     const std::string fixture_tokens = fmt::format("tokens = [\"{}\"]\n", kToken);
     const auto at = config.find(fixture_tokens);
     ASSERT_NE(at, std::string::npos) << "the fixture's [api] tokens line moved";
@@ -336,10 +335,10 @@ TEST_F(AccessTest, RolesTokenReadsThrottlingAndNoTokenInLogsAnswersOrDatabase) {
   for (const auto& entry : fs::directory_iterator(dir_)) {
     const std::string name = entry.path().filename().string();
     if (name.rfind("station.db", 0) == 0) {
-      places.emplace_back(name, testing::read_file(entry.path().string()));
+      places.emplace_back(name, testing::read_text(entry.path().string()));
     }
   }
-  const std::string db = testing::read_file((dir_ / "station.db").string());
+  const std::string db = testing::read_text((dir_ / "station.db").string());
   EXPECT_NE(db.find("access"), std::string::npos) << "the database holds the queued schedule";
   EXPECT_NE(daemon_->log().find("gyrothermd: station"), std::string::npos) << "the log was read";
   expect_no_token_anywhere(places);
@@ -366,9 +365,7 @@ std::optional<std::string> non_loopback_ipv4() {
 // connection on the machine's other address.
 TEST_F(AccessTest, DefaultBindIsLoopbackOnly) {
   {
-    std::ifstream in(dir_ / "station.toml");
-    const std::string config((std::istreambuf_iterator<char>(in)),
-                             std::istreambuf_iterator<char>());
+    const std::string config = testing::read_text(dir_ / "station.toml");
     ASSERT_EQ(config.find("bind"), std::string::npos) << "the fixture's config sets a bind";
   }
   start_sim();

@@ -29,6 +29,7 @@
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
 #include "process.h"
+#include "test_files.h"
 
 namespace gyrotherm {
 namespace {
@@ -36,7 +37,7 @@ namespace {
 namespace fs = std::filesystem;
 using nlohmann::json;
 using ::testing::HasSubstr;
-using testing::read_file;
+using testing::read_text;
 
 constexpr double kLatitudeDeg = 31.9;
 constexpr int kStoredMaWindow = 51;  // the runs' [analysis] ma_window
@@ -215,13 +216,25 @@ class CliAnalysisTest : public ::testing::Test {
     for (const auto& a : args) cmd += " '" + a + "'";
     cmd += " >" + out + " 2>" + err;
     const int st = std::system(cmd.c_str());
-    return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, read_file(out), read_file(err)};
+    return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, read_text(out), read_text(err)};
   }
   static std::string file(const std::string& name) { return (dir_ / name).string(); }
   static std::string run_csv_file(int k) {
     const std::string path = file(fmt::format("run{}.csv", k));
     if (!fs::exists(path)) write_text(path, run_csv(data_[k]));
     return path;
+  }
+
+  // The series of the CSV files at `paths` in 1 s bins, as `--csv` reads them.
+  static void read_csv_series(const std::vector<std::string>& paths,
+                              std::vector<analysis::AnalysisSeries>& series) {
+    for (const auto& p : paths) {
+      auto w = analysis::read_csv_window(p);
+      ASSERT_TRUE(w);
+      auto s = analysis::csv_analysis_series(*w, 1.0);
+      ASSERT_TRUE(s);
+      series.push_back(std::move(*s));
+    }
   }
 
   static inline fs::path dir_;
@@ -663,10 +676,10 @@ TEST_F(CliAnalysisTest, FitOnDatabaseRunsMatchesTheLibraryAndTheDaemonAndExports
   EXPECT_EQ(j["coefficients"], json::parse(rec.coefficients_json));
   EXPECT_EQ(j["standard_errors"], json::parse(rec.standard_errors_json));
 
-  const json exported = json::parse(read_file(json_path), nullptr, false);
-  ASSERT_FALSE(exported.is_discarded()) << read_file(json_path);
+  const json exported = json::parse(read_text(json_path), nullptr, false);
+  ASSERT_FALSE(exported.is_discarded()) << read_text(json_path);
   EXPECT_EQ(exported.at("coefficients"), j["coefficients"]);
-  const std::string header = read_file(header_path);
+  const std::string header = read_text(header_path);
   EXPECT_THAT(header, HasSubstr("static const double"));
   EXPECT_THAT(header, HasSubstr("test station"));
   for (const auto& e : fs::directory_iterator(dir_)) {
@@ -682,13 +695,7 @@ TEST_F(CliAnalysisTest, FitOnCsvFilesCenteredFormHasAnIntercept) {
   ASSERT_EQ(r.code, 0) << r.err;
   const json j = r.parsed();
   std::vector<analysis::AnalysisSeries> series;
-  for (const auto& p : {a, b}) {
-    auto w = analysis::read_csv_window(p);
-    ASSERT_TRUE(w);
-    auto s = analysis::csv_analysis_series(*w, 1.0);
-    ASSERT_TRUE(s);
-    series.push_back(std::move(*s));
-  }
+  ASSERT_NO_FATAL_FAILURE(read_csv_series({a, b}, series));
   analysis::DriftFitOptions o;
   o.derivative_window_s = 90;
   auto fit = analysis::fit_drift_model(series, {.t_order = 3, .g_order = 1},
@@ -722,13 +729,7 @@ TEST_F(CliAnalysisTest, FitTextOutputListsEveryTerm) {
 TEST_F(CliAnalysisTest, FitWithoutFormIsCentredAndWarnsAboutNearZeroCoefficients) {
   const std::string a = run_csv_file(0), b = run_csv_file(2);
   std::vector<analysis::AnalysisSeries> series;
-  for (const auto& p : {a, b}) {
-    auto w = analysis::read_csv_window(p);
-    ASSERT_TRUE(w);
-    auto s = analysis::csv_analysis_series(*w, 1.0);
-    ASSERT_TRUE(s);
-    series.push_back(std::move(*s));
-  }
+  ASSERT_NO_FATAL_FAILURE(read_csv_series({a, b}, series));
   bool saw_warning = false, saw_clean = false;
   for (const char* model : {"T1+R1+G1", "T4+R2+G2"}) {
     SCOPED_TRACE(model);
@@ -855,9 +856,9 @@ TEST_F(CliAnalysisTest, StartModelMatchesTheLibraryAndExports) {
   for (const auto& [k, v] : at->fit.coefficients) {
     EXPECT_EQ(j["at_t0"]["coefficients"].at(k).get<double>(), v) << k;
   }
-  const json exported = json::parse(read_file(json_path), nullptr, false);
-  EXPECT_FALSE(exported.is_discarded()) << read_file(json_path);
-  const std::string header = read_file(header_path);
+  const json exported = json::parse(read_text(json_path), nullptr, false);
+  EXPECT_FALSE(exported.is_discarded()) << read_text(json_path);
+  const std::string header = read_text(header_path);
   EXPECT_FALSE(header.empty());
   EXPECT_THAT(header, HasSubstr("gyrotherm_start"));
 }
@@ -865,7 +866,7 @@ TEST_F(CliAnalysisTest, StartModelMatchesTheLibraryAndExports) {
 // A CSV of the export as rows of fields (no quoted fields in these files).
 std::vector<std::vector<std::string>> read_csv_rows(const fs::path& p) {
   std::vector<std::vector<std::string>> rows;
-  std::istringstream in(read_file(p));
+  std::istringstream in(read_text(p));
   std::string line;
   while (std::getline(in, line)) {
     std::vector<std::string> fields;
@@ -914,10 +915,10 @@ TEST_F(CliAnalysisTest, ExportOfFourRunsCarriesTheLibrarysNumbers) {
   // The joint fit (the centred form: the default) and the start-temperature model.
   auto joint = analysis::fit_drift_model(series, spec, analysis::DriftModelForm::kCentered);
   ASSERT_TRUE(joint) << joint.error().message;
-  const json drift = json::parse(read_file(out / "drift-fit.json"));
+  const json drift = json::parse(read_text(out / "drift-fit.json"));
   EXPECT_EQ(drift.at("form").get<std::string>(), "centered");
   EXPECT_TRUE(drift.at("coefficients").contains("intercept"));
-  EXPECT_THAT(read_file(out / "drift-fit.h"), HasSubstr("Centred form"));
+  EXPECT_THAT(read_text(out / "drift-fit.h"), HasSubstr("Centred form"));
   for (const auto& [name, v] : joint->coefficients) {
     EXPECT_EQ(drift.at("coefficients").at(name).get<double>(), v) << name;
   }
@@ -925,18 +926,18 @@ TEST_F(CliAnalysisTest, ExportOfFourRunsCarriesTheLibrarysNumbers) {
   o.spec = spec;
   auto model = analysis::fit_start_temperature_model(series, o);
   ASSERT_TRUE(model) << model.error().message;
-  const json start = json::parse(read_file(out / "start-model.json"));
+  const json start = json::parse(read_text(out / "start-model.json"));
   for (const auto& [name, a] : model->cubic) {
     for (int i = 0; i < 4; ++i) EXPECT_EQ(start.at("cubic").at(name)[i].get<double>(), a[i]);
   }
-  EXPECT_THAT(read_file(out / "start-model.h"), HasSubstr("gyrotherm_start_coefficients"));
+  EXPECT_THAT(read_text(out / "start-model.h"), HasSubstr("gyrotherm_start_coefficients"));
 
   // Each run: Table I and the fit in both forms, computed for the report.
   const auto all_rows = read_csv_rows(out / "table1.csv");
   std::size_t campaign_row = 1;
   for (int k = 0; k < kRuns; ++k) {
     const fs::path run_dir = out / fmt::format("run-{:04}", run_ids_[k]);
-    const std::string html = read_file(run_dir / "report.html");
+    const std::string html = read_text(run_dir / "report.html");
     EXPECT_THAT(html, HasSubstr("computed for this report"));
     const auto rows = read_csv_rows(run_dir / "table1.csv");
     ASSERT_EQ(rows.size(), 3u) << "header and two soaks";
@@ -960,7 +961,7 @@ TEST_F(CliAnalysisTest, ExportOfFourRunsCarriesTheLibrarysNumbers) {
       auto fit = analysis::fit_drift_model(series[k], spec, form);
       ASSERT_TRUE(fit) << fit.error().message;
       const json exported = json::parse(
-          read_file(run_dir / fmt::format("drift-fit-{}.json", analysis::to_string(form))));
+          read_text(run_dir / fmt::format("drift-fit-{}.json", analysis::to_string(form))));
       for (const auto& [name, v] : fit->coefficients) {
         EXPECT_EQ(exported.at("coefficients").at(name).get<double>(), v) << name;
         EXPECT_EQ(exported.at("std_errors").at(name).get<double>(), fit->std_errors.at(name));
@@ -1094,7 +1095,7 @@ TEST(CliAnalysisHelpers, AtomicWriteReplacesTheFile) {
   const std::string path = (dir / "out.h").string();
   ASSERT_TRUE(write_file_atomically(path, "first").ok());
   ASSERT_TRUE(write_file_atomically(path, "second").ok());
-  EXPECT_EQ(read_file(path), "second");
+  EXPECT_EQ(read_text(path), "second");
   EXPECT_EQ(std::distance(fs::directory_iterator(dir), fs::directory_iterator()), 1);
   fs::remove_all(dir);
 }

@@ -17,7 +17,6 @@
 #include <map>
 #include <mutex>
 #include <nlohmann/json.hpp>
-#include <sstream>
 
 #include "control.h"
 #include "gyrotherm/daemon/http_message.h"
@@ -25,6 +24,7 @@
 #include "gyrotherm/storage/database.h"
 #include "process.h"
 #include "temp_dir_test.h"
+#include "test_files.h"
 
 extern char** environ;
 
@@ -244,18 +244,11 @@ class CliControlTest : public testing::TempDirTest {
       ADD_FAILURE() << "gyrotherm did not finish within 20 s";
     }
     r.code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-    r.out = slurp(out_path);
-    r.err = slurp(err_path);
+    r.out = testing::read_text(out_path);
+    r.err = testing::read_text(err_path);
     EXPECT_THAT(r.out, Not(HasSubstr(kToken)));
     EXPECT_THAT(r.err, Not(HasSubstr(kToken)));
     return r;
-  }
-
-  static std::string slurp(const std::string& path) {
-    std::ifstream in(path);
-    std::ostringstream ss;
-    ss << in.rdbuf();
-    return ss.str();
   }
 
   // --url and --token of the fake daemon, after `args`.
@@ -584,10 +577,7 @@ TEST_F(CliControlTest, RunsAndRunReadTheDatabaseFileOffline) {
   }
   std::string cfg;
   {
-    std::ifstream in(std::string(GYROTHERM_SOURCE_DIR) + "/config/station.toml");
-    std::ostringstream ss;
-    ss << in.rdbuf();
-    cfg = ss.str();
+    cfg = testing::read_text(std::string(GYROTHERM_SOURCE_DIR) + "/config/station.toml");
     const std::string from = "\"/var/lib/gyrotherm/station.db\"";
     const auto pos = cfg.find(from);
     ASSERT_NE(pos, std::string::npos);

@@ -14,6 +14,7 @@
 #include "gyrotherm/storage/database.h"
 #include "process.h"
 #include "temp_dir_test.h"
+#include "test_files.h"
 
 namespace gyrotherm {
 namespace {
@@ -38,13 +39,7 @@ class CliTest : public testing::TempDirTest {
     for (const auto& a : args) cmd += " '" + a + "'";
     cmd += " >" + out + " 2>" + err;
     const int st = std::system(cmd.c_str());
-    auto slurp = [](const std::string& p) {
-      std::ifstream in(p);
-      std::ostringstream ss;
-      ss << in.rdbuf();
-      return ss.str();
-    };
-    return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, slurp(out), slurp(err)};
+    return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, testing::read_text(out), testing::read_text(err)};
   }
 };
 
@@ -167,7 +162,7 @@ TEST_F(CliTest, StatsPrintsTableOneRowsAsTextAndJson) {
   EXPECT_THAT(none.err, HasSubstr("missing.db"));
 
   // --config names the database ([storage] db) as well as --db does.
-  std::string cfg = testing::read_file(std::string(GYROTHERM_SOURCE_DIR) + "/config/station.toml");
+  std::string cfg = testing::read_text(std::string(GYROTHERM_SOURCE_DIR) + "/config/station.toml");
   const std::string from = "\"/var/lib/gyrotherm/station.db\"";
   ASSERT_NE(cfg.find(from), std::string::npos);
   cfg.replace(cfg.find(from), from.size(), "\"" + db_path + "\"");
@@ -180,10 +175,7 @@ TEST_F(CliTest, StatsPrintsTableOneRowsAsTextAndJson) {
 }
 
 TEST_F(CliTest, DevicesAndChamberSetpointAgainstTheSimulator) {
-  std::ifstream demo(std::string(GYROTHERM_SOURCE_DIR) + "/config/demo.toml");
-  std::ostringstream ss;
-  ss << demo.rdbuf();
-  std::string cfg = ss.str();
+  std::string cfg = testing::read_text(std::string(GYROTHERM_SOURCE_DIR) + "/config/demo.toml");
   auto replace = [&](const std::string& from, const std::string& to) {
     const auto pos = cfg.find(from);
     ASSERT_NE(pos, std::string::npos) << from;
@@ -325,7 +317,7 @@ TEST_F(CliTest, DaemonUsageErrorsExitTwo) {
     const std::string log = (dir_ / "daemon.log").string();
     const int st =
         std::system(fmt::format("timeout -s KILL 30 {} {} >{} 2>&1", daemon, args, log).c_str());
-    return std::pair{WIFEXITED(st) ? WEXITSTATUS(st) : -1, testing::read_file(log)};
+    return std::pair{WIFEXITED(st) ? WEXITSTATUS(st) : -1, testing::read_text(log)};
   };
   for (const std::string& args : std::vector<std::string>{
            "--bogus", "--config", "--config " + station + " --time-scale 0",

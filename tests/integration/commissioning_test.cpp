@@ -12,6 +12,7 @@
 #include <sstream>
 
 #include "station_fixture.h"
+#include "test_files.h"
 
 namespace gyrotherm::testing {
 namespace {
@@ -31,7 +32,7 @@ class CommissioningTest : public StationTest {
     for (const auto& a : args) cmd += " '" + a + "'";
     cmd += " >" + out + " 2>" + err;
     const int st = std::system(cmd.c_str());
-    return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, read_file(out), read_file(err)};
+    return {WIFEXITED(st) ? WEXITSTATUS(st) : -1, read_text(out), read_text(err)};
   }
   // Waits for an acquiring soak with gyro frames flowing.
   void wait_acquiring() {

@@ -8,13 +8,13 @@
 
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <iterator>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
 #include "station_fixture.h"
+#include "test_files.h"
 
 #ifndef GYROTHERM_DASHBOARD_PNG
 #define GYROTHERM_DASHBOARD_PNG GYROTHERM_BIN_DIR "/../dashboard.png"
@@ -99,8 +99,7 @@ TEST_F(DashboardTest, LiveInHeadlessChromium) {
 // it in the Authorization header (the stream read through fetch()).
 TEST_F(DashboardTest, AsksForATokenWhenReadsNeedOne) {
   constexpr const char* kReadToken = "dashboard-read-token-0123456789";
-  std::ifstream in(dir_ / "station.toml");
-  std::string config((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  std::string config = testing::read_text(dir_ / "station.toml");
   const auto api = config.find("[api]\n");
   ASSERT_NE(api, std::string::npos);
   config.insert(api + 6,

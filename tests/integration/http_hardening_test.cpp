@@ -15,7 +15,6 @@
 #include <cerrno>
 #include <chrono>
 #include <cstdio>
-#include <fstream>
 #include <iterator>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -25,6 +24,7 @@
 #include <vector>
 
 #include "station_fixture.h"
+#include "test_files.h"
 
 namespace gyrotherm {
 namespace {
@@ -163,8 +163,7 @@ class HttpHardeningTest : public StationTest {
     if (HasFatalFailure()) return;
     // The fixture's config with tight server limits (read back and edited
     // here so the other station tests keep theirs).
-    std::ifstream in(dir_ / "station.toml");
-    std::string config((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    std::string config = testing::read_text(dir_ / "station.toml");
     const auto api = config.find("[api]\n");
     ASSERT_NE(api, std::string::npos);
     config.insert(api + 6,

@@ -14,6 +14,7 @@
 
 #include "gyrotherm/daemon/config.h"
 #include "station_fixture.h"
+#include "test_files.h"
 
 namespace gyrotherm {
 namespace {
@@ -46,7 +47,7 @@ class InstallTest : public StationTest {
 };
 
 TEST_F(InstallTest, InstallsBinariesUnitConfigAndWebAssets) {
-  ASSERT_EQ(install(), 0) << testing::read_file((dir_ / "install.log").string());
+  ASSERT_EQ(install(), 0) << testing::read_text((dir_ / "install.log").string());
 
   for (const char* name : {"gyrothermd", "gyrotherm", "gyrotherm-sim"}) {
     const fs::path bin = staged(std::string("bin/") + name);
@@ -73,7 +74,7 @@ TEST_F(InstallTest, InstallsBinariesUnitConfigAndWebAssets) {
 
   // The unit: Type=notify with a watchdog and the sandbox, starting the
   // installed daemon on the installed config.
-  const std::string unit = testing::read_file(staged("lib/systemd/system/gyrothermd.service"));
+  const std::string unit = testing::read_text(staged("lib/systemd/system/gyrothermd.service"));
   ASSERT_FALSE(unit.empty());
   for (const char* line :
        {"Type=notify", "WatchdogSec=30", "NoNewPrivileges=yes", "ProtectSystem=strict",
@@ -101,14 +102,14 @@ TEST_F(InstallTest, InstallsBinariesUnitConfigAndWebAssets) {
 
   // A reinstall (an upgrade) keeps the station's own config.
   { std::ofstream(config, std::ios::app) << "# edited on the station\n"; }
-  ASSERT_EQ(install(), 0) << testing::read_file((dir_ / "install.log").string());
-  EXPECT_THAT(testing::read_file(config.string()), HasSubstr("# edited on the station"));
+  ASSERT_EQ(install(), 0) << testing::read_text((dir_ / "install.log").string());
+  EXPECT_THAT(testing::read_text(config.string()), HasSubstr("# edited on the station"));
 }
 
 // The installed gyrothermd finds the installed dashboard (its default web
 // root is <bin>/../share/gyrotherm/web) and runs a simulated station.
 TEST_F(InstallTest, InstalledDaemonServesTheInstalledDashboard) {
-  ASSERT_EQ(install(), 0) << testing::read_file((dir_ / "install.log").string());
+  ASSERT_EQ(install(), 0) << testing::read_text((dir_ / "install.log").string());
   fs::remove(staged("share/gyrotherm/web/style.css"));
   start_sim();
   daemon_ = std::make_unique<testing::ChildProcess>(
@@ -120,7 +121,7 @@ TEST_F(InstallTest, InstalledDaemonServesTheInstalledDashboard) {
   auto page = call("GET", "/", "", "");
   ASSERT_TRUE(page.has_value());
   EXPECT_EQ(page->status, 200);
-  EXPECT_EQ(page->body, testing::read_file(staged("share/gyrotherm/web/index.html").string()));
+  EXPECT_EQ(page->body, testing::read_text(staged("share/gyrotherm/web/index.html").string()));
   // It is the installed copy that is served (read at start-up): the style
   // sheet taken out of it below is missing.
   auto script = call("GET", "/web/app.js", "", "");

@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "test_files.h"
 #include "test_time.h"
 
 namespace gyrotherm::testing {
@@ -46,9 +47,6 @@ int free_tcp_port();
 
 // The absolute path of `program` on PATH, "" when there is none.
 std::string find_program(const std::string& program);
-
-// A file's whole contents ("" when it cannot be read).
-std::string read_file(const std::string& path);
 
 // What the browser tests (tests/browser/*.mjs) need: node on PATH, Debian's
 // /usr/bin/chromium and playwright-core in <source_dir>/node_modules.

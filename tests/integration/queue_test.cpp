@@ -11,6 +11,7 @@
 
 #include "gyrotherm/storage/database.h"
 #include "station_fixture.h"
+#include "test_files.h"
 
 namespace gyrotherm {
 namespace {
@@ -62,10 +63,6 @@ class QueueTest : public StationTest {
         },
         std::chrono::seconds(10));
     return events;
-  }
-  // Appends a section to the station config (before the processes start).
-  void append_config(const std::string& text) {
-    std::ofstream(dir_ / "station.toml", std::ios::app) << text;
   }
   std::string diag() {
     return "\nlast answer: " + last_.dump() + "\ndaemon log:\n" + daemon_->log();
@@ -176,8 +173,8 @@ TEST_F(QueueTest, QueuePauseResumeReorderAbortOverRest) {
   // checked against this station, then reordered.
   std::vector<int64_t> paper;
   for (const char* file : {"paper-table1.toml", "paper-ramp.toml"}) {
-    std::ifstream in(std::string(GYROTHERM_SOURCE_DIR) + "/config/schedules/" + file);
-    const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    const std::string text =
+        testing::read_text(std::string(GYROTHERM_SOURCE_DIR) + "/config/schedules/" + file);
     r = call("POST", "/api/v1/queue",
              json{{"schedule_toml", text}, {"source", file}, {"ignore_failures", true}}.dump());
     ASSERT_TRUE(r && r->status == 201) << (r ? r->body : "");
@@ -290,8 +287,7 @@ TEST_F(QueueTest, QueueSurvivesARestart) {
 TEST_F(QueueTest, CrashResumeAfterKill9) {
   constexpr double kAcquireS = 3600;
   {
-    std::ifstream in(dir_ / "station.toml");
-    std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    std::string text = testing::read_text(dir_ / "station.toml");
     const std::string from = "commit_interval_s = 0.2";
     ASSERT_NE(text.find(from), std::string::npos);
     text.replace(text.find(from), from.size(), "commit_interval_s = 1.0");
@@ -684,8 +680,7 @@ TEST_F(QueueTest, InterlockBeyondItsGraceAbortsToTheSafeState) {
       << diag();
   // The chamber's set point register holds the safe set point.
   ASSERT_TRUE(sim_ctl("status"));
-  std::ifstream ctl(dir_ / "ctl.log");
-  std::string text((std::istreambuf_iterator<char>(ctl)), std::istreambuf_iterator<char>());
+  std::string text = testing::read_text(dir_ / "ctl.log");
   const auto brace = text.find('{');
   ASSERT_NE(brace, std::string::npos) << text;
   EXPECT_DOUBLE_EQ(json::parse(text.substr(brace))["setpoint_c"].get<double>(), 23.0) << text;

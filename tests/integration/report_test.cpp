@@ -31,6 +31,7 @@
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/storage/database.h"
 #include "station_fixture.h"
+#include "test_files.h"
 
 #ifndef GYROTHERM_REPORT_PNG_DIR
 #define GYROTHERM_REPORT_PNG_DIR GYROTHERM_BIN_DIR "/.."
@@ -44,7 +45,7 @@ using json = nlohmann::json;
 using testing::ChildProcess;
 using ::testing::HasSubstr;
 using testing::kTimeScale;
-using testing::read_file;
+using testing::read_text;
 using testing::StationTest;
 using testing::wait_until;
 
@@ -278,6 +279,14 @@ class ReportTest : public StationTest {
 
   fs::path db_path() const { return dir_ / "station.db"; }
 
+  // [export]: the nightly export into `reports` at 00:45 UTC.
+  void append_nightly_export(const fs::path& reports) {
+    append_config(
+        fmt::format("[export]\nnightly = true\ndirectory = \"{}\"\nlocal_time = "
+                    "\"00:45\"\ntime_zone = \"UTC0\"\n",
+                    reports.string()));
+  }
+
   struct CliRun {
     int code = -1;
     std::string out, err;
@@ -294,7 +303,7 @@ class ReportTest : public StationTest {
     for (const auto& a : args) cmd += fmt::format(" {}", shell_quote(a));
     cmd += fmt::format(" >{} 2>{}", shell_quote(out.string()), shell_quote(err.string()));
     const int st = std::system(cmd.c_str());
-    CliRun r{WIFEXITED(st) ? WEXITSTATUS(st) : -1, read_file(out), read_file(err)};
+    CliRun r{WIFEXITED(st) ? WEXITSTATUS(st) : -1, read_text(out), read_text(err)};
     EXPECT_NE(r.code, 124) << "gyrotherm did not finish in 120 s: " << cmd;
     return r;
   }
@@ -427,16 +436,16 @@ TEST_F(ReportTest, ExportCarriesTheDatabaseNumbers) {
 
   {
     SCOPED_TRACE("run-0001/table1.csv");
-    expect_table1(parse_csv(read_file(out_dir / "run-0001/table1.csv")), *stats);
+    expect_table1(parse_csv(read_text(out_dir / "run-0001/table1.csv")), *stats);
   }
   {
     SCOPED_TRACE("table1.csv (every run)");
-    expect_table1(parse_csv(read_file(out_dir / "table1.csv")), *stats);
+    expect_table1(parse_csv(read_text(out_dir / "table1.csv")), *stats);
   }
 
   {
     SCOPED_TRACE("run-0001/allan.csv");
-    const Csv csv = parse_csv(read_file(out_dir / "run-0001/allan.csv"));
+    const Csv csv = parse_csv(read_text(out_dir / "run-0001/allan.csv"));
     ASSERT_EQ(csv.rows.size(), allan->size());
     for (std::size_t i = 0; i < allan->size(); ++i) {
       const auto& a = (*allan)[i];
@@ -479,7 +488,7 @@ TEST_F(ReportTest, ExportCarriesTheDatabaseNumbers) {
     // White noise only: the ARW is there, so the comparison saw a number.
     EXPECT_TRUE((*allan)[0].angle_random_walk_dprh.has_value());
     // The page shows the bound, not a dash.
-    const std::string page = read_file(out_dir / "run-0001/report.html");
+    const std::string page = read_text(out_dir / "run-0001/report.html");
     EXPECT_THAT(page, ::testing::HasSubstr(fmt::format(
                           "&lt; {:.5f}</td><td class=\"num\">≥ {:.0f}</td>",
                           (*allan)[0].adev_dph.back() / 0.664, (*allan)[0].tau_s.back())));
@@ -490,7 +499,7 @@ TEST_F(ReportTest, ExportCarriesTheDatabaseNumbers) {
     const auto stored = std::find_if(fits->begin(), fits->end(),
                                      [&](const storage::FitRecord& f) { return f.form == form; });
     ASSERT_NE(stored, fits->end()) << "no stored " << form << " fit";
-    const json j = json::parse(read_file(out_dir / fmt::format("run-0001/drift-fit-{}.json", form)),
+    const json j = json::parse(read_text(out_dir / fmt::format("run-0001/drift-fit-{}.json", form)),
                                nullptr, false);
     ASSERT_FALSE(j.is_discarded());
     EXPECT_EQ(j.at("model"), stored->model);
@@ -542,7 +551,7 @@ TEST_F(ReportTest, ExportCarriesTheDatabaseNumbers) {
   for (const char* form : {"paper", "centered"}) {
     SCOPED_TRACE(fmt::format("drift-fit-{}.h", form));
     const std::string header = fmt::format("drift-fit-{}.h", form);
-    const std::string text = read_file(out_dir / "run-0001" / header);
+    const std::string text = read_text(out_dir / "run-0001" / header);
     std::smatch m;
     ASSERT_TRUE(std::regex_search(text, m, std::regex(R"(static inline double (\w+)_terms\()")))
         << text;
@@ -557,7 +566,7 @@ TEST_F(ReportTest, ExportCarriesTheDatabaseNumbers) {
         "{} -std=c99 -Wall -Wextra -pedantic -Werror -I{} -c {} -o {} 2>{}", cc,
         shell_quote((out_dir / "run-0001").string()), shell_quote((c_dir / "main.c").string()),
         shell_quote((c_dir / "main.o").string()), shell_quote((c_dir / "cc.log").string()));
-    EXPECT_EQ(std::system(cmd.c_str()), 0) << cmd << "\n" << read_file(c_dir / "cc.log");
+    EXPECT_EQ(std::system(cmd.c_str()), 0) << cmd << "\n" << read_text(c_dir / "cc.log");
   }
 }
 
@@ -570,10 +579,7 @@ TEST_F(ReportTest, NightlyExportByTheDaemon) {
   constexpr const char* kWallStart = "2026-06-10T00:00:00Z";
   constexpr const char* kAfterSlot = "2026-06-10T01:30:00Z";  // before the next, 06-11 00:45
   const fs::path reports = dir_ / "reports";
-  append_config(
-      fmt::format("[export]\nnightly = true\ndirectory = \"{}\"\nlocal_time = "
-                  "\"00:45\"\ntime_zone = \"UTC0\"\n",
-                  reports.string()));
+  append_nightly_export(reports);
   const auto start_unix_s = parse_utc_iso(kWallStart);
   ASSERT_TRUE(start_unix_s.ok());
   const double slot_unix_s = *start_unix_s + 45 * 60;
@@ -661,10 +667,7 @@ TEST_F(ReportTest, NightlyExportCatchesUpAfterDowntime) {
   constexpr const char* kWallStart = "2026-06-10T00:00:00Z";
   constexpr const char* kBackAt = "2026-06-10T03:00:00Z";
   const fs::path reports = dir_ / "reports";
-  append_config(
-      fmt::format("[export]\nnightly = true\ndirectory = \"{}\"\nlocal_time = "
-                  "\"00:45\"\ntime_zone = \"UTC0\"\n",
-                  reports.string()));
+  append_nightly_export(reports);
   const auto start_unix_s = parse_utc_iso(kWallStart);
   ASSERT_TRUE(start_unix_s.ok());
 
@@ -734,7 +737,7 @@ TEST_F(ReportTest, ReportRendersInChromium) {
                                        std::pair{"index.html", "report-index.png"}}) {
     SCOPED_TRACE(page);
     const fs::path html = out_dir / page;
-    const std::string text = read_file(html);
+    const std::string text = read_text(html);
     const auto charts = static_cast<int>(std::distance(
         std::sregex_iterator(text.begin(), text.end(), chart_div), std::sregex_iterator()));
     EXPECT_GT(charts, 0) << "no <div class=\"chart\"> in " << html;
@@ -818,8 +821,8 @@ TEST_F(ReportTest, ExportRefusesANonEmptyOutputDirectory) {
   EXPECT_THAT(r.err, HasSubstr("not an empty directory"));
   // Left untouched, and nothing beside it.
   EXPECT_EQ(files_under(out_dir), (std::vector<std::string>{"notes.txt", "sub/data.csv"}));
-  EXPECT_EQ(read_file(out_dir / "notes.txt"), "keep me\n");
-  EXPECT_EQ(read_file(out_dir / "sub/data.csv"), "a,b\n1,2\n");
+  EXPECT_EQ(read_text(out_dir / "notes.txt"), "keep me\n");
+  EXPECT_EQ(read_text(out_dir / "sub/data.csv"), "a,b\n1,2\n");
   EXPECT_EQ(hidden_entries(dir_), std::vector<std::string>{});
   auto db = storage::Database::open_read_only(db_path().string());
   ASSERT_TRUE(db.ok());
@@ -833,7 +836,7 @@ TEST_F(ReportTest, ExportRefusesANonEmptyOutputDirectory) {
   const CliRun f =
       cli({"export", "--db", db_path().string(), "--out", file_out.string(), "--runs", "1"});
   EXPECT_EQ(f.code, 2) << f.out << f.err;
-  EXPECT_EQ(read_file(file_out), "x");
+  EXPECT_EQ(read_text(file_out), "x");
 }
 
 TEST_F(ReportTest, ExportRefusesAMissingDatabase) {

@@ -11,7 +11,6 @@
 #include <atomic>
 #include <filesystem>
 #include <fstream>
-#include <sstream>
 #include <thread>
 #include <vector>
 
@@ -19,6 +18,7 @@
 #include "gyrotherm/drivers/modbus_device.h"
 #include "process.h"
 #include "temp_dir_test.h"
+#include "test_files.h"
 
 namespace gyrotherm {
 namespace {
@@ -32,10 +32,7 @@ class SimShutdownTest : public testing::TempDirTest {
 
   // demo.toml with every file of the simulator in this test's folder.
   std::string write_config() {
-    std::ifstream demo(std::string(GYROTHERM_SOURCE_DIR) + "/config/demo.toml");
-    std::ostringstream ss;
-    ss << demo.rdbuf();
-    std::string cfg = ss.str();
+    std::string cfg = testing::read_text(std::string(GYROTHERM_SOURCE_DIR) + "/config/demo.toml");
     // fmt, not "\"" + string: gcc 12 warns -Wrestrict on that (a false positive).
     auto quoted = [](const std::filesystem::path& p) { return fmt::format("\"{}\"", p.string()); };
     auto replace = [&](const std::string& from, const std::string& to) {

@@ -9,7 +9,6 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <nlohmann/json.hpp>
 
 #include "gyrotherm/cli/http_client.h"
@@ -20,6 +19,7 @@
 #include "gyrotherm/storage/database.h"
 #include "process.h"
 #include "station_fixture.h"
+#include "test_files.h"
 
 namespace gyrotherm {
 namespace {
@@ -189,8 +189,7 @@ TEST_F(StationTest, ShortScheduleEndToEnd) {
 TEST_F(StationTest, StoredConfigIsTheOneInForceNotTheFileOnDisk) {
   const fs::path config = dir_ / "station.toml";
   auto edit = [&](const std::string& from, const std::string& to) {
-    std::ifstream in(config);
-    std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    std::string text = testing::read_text(config);
     const auto at = text.find(from);
     ASSERT_NE(at, std::string::npos) << from;
     text.replace(at, from.size(), to);

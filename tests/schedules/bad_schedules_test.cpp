@@ -14,22 +14,17 @@
 #include <vector>
 
 #include "gyrotherm/schedules/schedule.h"
+#include "test_files.h"
 
 namespace gyrotherm::schedules {
 namespace {
 
 namespace fs = std::filesystem;
+using testing::read_text;
 
 const StationLimits kLimits{-20.0, 60.0, 2.0};
 
 fs::path corpus_dir() { return fs::path(GYROTHERM_SOURCE_DIR) / "tests/schedules/bad"; }
-
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
 
 std::vector<std::string> lines_of(const std::string& text) {
   std::vector<std::string> lines;

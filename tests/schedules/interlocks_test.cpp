@@ -8,7 +8,6 @@
 
 #include <algorithm>
 #include <filesystem>
-#include <fstream>
 #include <iterator>
 #include <map>
 #include <regex>
@@ -16,17 +15,13 @@
 #include <sstream>
 #include <string>
 
+#include "test_files.h"
+
 namespace gyrotherm::schedules {
 namespace {
 
 namespace fs = std::filesystem;
-
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
+using testing::read_text;
 
 // The default grace of each interlock as docs/schedules.md's "Interlocks"
 // table gives it (`| `name` | trips when | N min |`), in minutes.

@@ -6,16 +6,14 @@
 #include <filesystem>
 #include <fstream>
 #include <regex>
-#include <sstream>
+
+#include "test_files.h"
 
 namespace gyrotherm::sim {
 namespace {
 
 std::string demo_text() {
-  std::ifstream in(std::string(GYROTHERM_SOURCE_DIR) + "/config/demo.toml");
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
+  return testing::read_text(std::string(GYROTHERM_SOURCE_DIR) + "/config/demo.toml");
 }
 
 std::string replace(std::string text, const std::string& from, const std::string& to) {

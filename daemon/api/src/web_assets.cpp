@@ -3,8 +3,8 @@
 #include <fmt/format.h>
 
 #include <filesystem>
-#include <fstream>
-#include <sstream>
+
+#include "gyrotherm/core/files.h"
 
 namespace gyrotherm::daemon {
 
@@ -36,13 +36,9 @@ Result<WebAssets> WebAssets::load(const std::string& dir) {
     if (!entry.is_regular_file(ec)) continue;
     const char* type = content_type_of(entry.path());
     if (!type) continue;
-    std::ifstream in(entry.path(), std::ios::binary);
-    std::ostringstream body;
-    body << in.rdbuf();
-    if (!in) {
-      return Error::Permanent(fmt::format("web files: cannot read {}", entry.path().string()));
-    }
-    assets.files_[entry.path().filename().string()] = File{type, std::move(body).str()};
+    auto body = read_bounded_file(entry.path().string(), kMaxWebFileBytes);
+    if (!body) return Error::Permanent("web files: " + body.error().message);
+    assets.files_[entry.path().filename().string()] = File{type, std::move(*body)};
   }
   if (!assets.find("index.html")) {
     return Error::Permanent(fmt::format("web files: no index.html in {}", dir));

@@ -367,6 +367,10 @@ void read_api(TableReader t, ApiSection& a) {
 
 }  // namespace
 
+schedules::StationLimits station_limits(const StationConfig& config) {
+  return {config.station.min_temp_c, config.station.max_temp_c, config.station.max_ramp_c_per_min};
+}
+
 std::optional<std::string> api_exposure_warning(const ApiSection& api) {
   boost::system::error_code ec;
   const auto address = boost::asio::ip::make_address(api.bind, ec);

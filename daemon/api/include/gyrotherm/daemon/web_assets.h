@@ -3,6 +3,7 @@
 // no part of a request path ever reaches the file system.
 #pragma once
 
+#include <cstddef>
 #include <functional>
 #include <map>
 #include <string>
@@ -12,6 +13,9 @@
 
 namespace gyrotherm::daemon {
 
+// The largest dashboard file read (the chart library is about 50 KiB).
+inline constexpr std::size_t kMaxWebFileBytes = 4 << 20;
+
 class WebAssets {
  public:
   struct File {
@@ -20,8 +24,9 @@ class WebAssets {
   };
 
   // Reads the regular files of `dir` (not recursive) with a known type
-  // (.html .js .css .svg .png .json .map .ico). Error when `dir` cannot be
-  // read or has no index.html.
+  // (.html .js .css .svg .png .json .map .ico). Error when `dir` or one of
+  // those files cannot be read (naming it), a file is over kMaxWebFileBytes,
+  // or there is no index.html.
   static Result<WebAssets> load(const std::string& dir);
 
   const File* find(std::string_view name) const;

@@ -20,6 +20,7 @@
 #include "gyrotherm/drivers/registers.h"
 #include "gyrotherm/drivers/serial_port.h"
 #include "gyrotherm/schedules/interlocks.h"
+#include "gyrotherm/schedules/schedule.h"
 
 // toml++ 3's table, declared only: this header is included far more widely
 // than TOML is read, and only the raw [simulator] table below names it.
@@ -179,6 +180,10 @@ struct StationConfig {
   // StationConfig that load_station_config() returned (toml++ copies drop them).
   OptionalTomlTable simulator_table;
 };
+
+// The limits from [station] that schedules are checked against (min_temp_c,
+// max_temp_c, max_ramp_c_per_min).
+schedules::StationLimits station_limits(const StationConfig& config);
 
 // A warning for the log when the API is exposed beyond this machine with
 // open reads (bind not a loopback address, read_access "open"); nullopt
