@@ -7,7 +7,7 @@
 
 #include <string>
 
-#include "gyrotherm/core/toml_reader.h"
+#include "gyrotherm/core/toml_errors.h"
 #include "gyrotherm/schedules/schedule.h"
 
 namespace {

@@ -21,7 +21,7 @@
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/core/files.h"
 #include "gyrotherm/core/time_scale.h"
-#include "gyrotherm/core/toml_reader.h"
+#include "gyrotherm/core/toml_errors.h"
 #include "gyrotherm/daemon/api.h"
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/daemon/http_message.h"

@@ -179,11 +179,6 @@ void Station::make_sequencer(schedules::Plan plan) {
       std::move(plan), opt, static_cast<schedules::SequencerObserver&>(*this));
 }
 
-schedules::StationLimits Station::limits() const {
-  return {config_.station.min_temp_c, config_.station.max_temp_c,
-          config_.station.max_ramp_c_per_min};
-}
-
 void Station::start(ControlLoop loop) {
   for (drivers::PolledDevice* dev :
        std::initializer_list<drivers::PolledDevice*>{chamber_.get(), probes_.get()}) {
@@ -570,7 +565,7 @@ void Station::start_next_run(double now_s) {
   }
 
   // Checked again: the station config may have changed since it was queued.
-  auto plan = schedules::parse_schedule(entry.toml_text, source, limits());
+  auto plan = schedules::parse_schedule(entry.toml_text, source, station_limits(config_));
   if (!plan) {
     add_event("error", "queued", "failed",
               "schedule refused at start (station limits changed?):\n" + plan.error().message);
@@ -640,7 +635,8 @@ void Station::resume_interrupted_run() {
   if (run.resume_json.empty() || !run.checkpoint_wall_unix_s) {
     return give_up("the daemon stopped before the run's first checkpoint");
   }
-  auto plan = schedules::parse_schedule((*entry)->toml_text, (*entry)->source_path, limits());
+  auto plan = schedules::parse_schedule((*entry)->toml_text, (*entry)->source_path,
+                                        station_limits(config_));
   if (!plan) return give_up("its schedule is refused now:\n" + plan.error().message);
   nlohmann::json j;
   try {
@@ -1044,7 +1040,7 @@ Reply Station::queue_list() {
   nlohmann::json current = nullptr;
   nlohmann::json list = nlohmann::json::array();
   for (const auto& e : *entries) {
-    auto plan = schedules::parse_schedule(e.toml_text, e.source_path, limits());
+    auto plan = schedules::parse_schedule(e.toml_text, e.source_path, station_limits(config_));
     const int steps = plan ? static_cast<int>(plan->steps.size()) : 0;
     if (e.state == "running") {
       current = to_json(e, steps);
@@ -1064,7 +1060,7 @@ Reply Station::queue_list() {
 Reply Station::queue_add(const std::string& toml_text, const std::string& source,
                          bool ignore_failures) {
   const std::string name = source.empty() ? std::string("schedule") : source;
-  auto plan = schedules::parse_schedule(toml_text, name, limits());
+  auto plan = schedules::parse_schedule(toml_text, name, station_limits(config_));
   if (!plan) {
     return Reply::refused(Refusal::Kind::kInvalid, "schedule refused, nothing queued",
                           split_lines(plan.error().message));
@@ -1081,17 +1077,20 @@ Reply Station::queue_add(const std::string& toml_text, const std::string& source
   return Reply::ok(to_json(*entry, static_cast<int>(plan->steps.size())));
 }
 
-Reply Station::queue_remove(int64_t id) {
-  std::lock_guard lock(api_mu_);
+std::optional<Reply> Station::unless_queued(int64_t id, std::string_view when_running) {
   auto entry = api_db_.queue_entry(id);
   if (!entry) return db_failure(entry.error());
-  if (!*entry || (*entry)->state != "queued") {
-    if (*entry && (*entry)->state == "running") {
-      return Reply::refused(Refusal::Kind::kConflict,
-                            fmt::format("queue entry {} is running; abort the run instead", id));
-    }
-    return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no queued entry {}", id));
+  if (*entry && (*entry)->state == "queued") return std::nullopt;
+  if (*entry && (*entry)->state == "running") {
+    return Reply::refused(Refusal::Kind::kConflict,
+                          fmt::format("queue entry {} is running; {}", id, when_running));
   }
+  return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no queued entry {}", id));
+}
+
+Reply Station::queue_remove(int64_t id) {
+  std::lock_guard lock(api_mu_);
+  if (auto refused = unless_queued(id, "abort the run instead")) return *refused;
   auto removed = api_db_.queue_remove(id);
   if (!removed) return db_failure(removed.error());
   if (!*removed) {
@@ -1107,15 +1106,7 @@ Reply Station::queue_remove(int64_t id) {
 Reply Station::queue_move(int64_t id, int position) {
   {
     std::lock_guard lock(api_mu_);
-    auto entry = api_db_.queue_entry(id);
-    if (!entry) return db_failure(entry.error());
-    if (!*entry || (*entry)->state != "queued") {
-      if (*entry && (*entry)->state == "running") {
-        return Reply::refused(Refusal::Kind::kConflict,
-                              fmt::format("queue entry {} is running; it cannot move", id));
-      }
-      return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no queued entry {}", id));
-    }
+    if (auto refused = unless_queued(id, "it cannot move")) return *refused;
     auto moved = api_db_.queue_move(id, position);
     if (!moved) return db_failure(moved.error());
     if (!*moved) {

@@ -119,7 +119,6 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // threads. Idempotent.
   void stop(const std::string& reason);
 
-  schedules::StationLimits limits() const;
   // The sequencer of a run starting or resuming, with the config in force.
   void make_sequencer(schedules::Plan plan);
 
@@ -184,6 +183,9 @@ class Station final : public StationControl, private schedules::SequencerObserve
   int64_t segment_id(std::size_t index, const schedules::PlanStep& step, double t_s);
   template <class Fetch>
   Reply run_records(int64_t id, Fetch fetch);
+  // nullopt when queue entry `id` is waiting; else the refusal (404, or 409
+  // with `when_running` for the running entry). Needs api_mu_.
+  std::optional<Reply> unless_queued(int64_t id, std::string_view when_running);
 
   // SequencerObserver
   void on_state(schedules::RunState from, schedules::RunState to, double t_s,
