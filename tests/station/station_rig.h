@@ -1,5 +1,6 @@
-// The station on a bench: a real Station (its database a real SQLite file)
-// with fake devices and manual clocks, ticked by the test. No process, no
+// The station on a bench: a real Station (its database a real SQLite file,
+// its samples through a real SampleWriter that a test can make fail as on a
+// full disk) with fake devices and manual clocks, ticked by the test. No process, no
 // socket, no pty: an hour of schedule runs in well under a second.
 //
 // The fakes share one FakePlant: the chamber's air follows its set point and
@@ -18,13 +19,16 @@
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <optional>
+#include <span>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/daemon/station.h"
 #include "gyrotherm/drivers/devices.h"
+#include "gyrotherm/storage/sample_writer.h"
 #include "integration/temp_dir_test.h"
 
 namespace gyrotherm::testing {
@@ -199,6 +203,64 @@ class FakeGyro final : public drivers::GyroSource {
   Sink sink_;
 };
 
+// The station's samples go to a real SampleWriter through this; while
+// `full` is set its commits fail as on a full disk: pushes are held, flush()
+// fails, stats() shows the failing commits and what waits. Cleared, the held
+// samples go to the writer in order.
+class FullDiskSink final : public storage::SampleSink {
+ public:
+  explicit FullDiskSink(std::unique_ptr<storage::SampleWriter> writer)
+      : writer_(std::move(writer)) {}
+
+  void set_full(bool full) {
+    std::lock_guard lock(mu_);
+    full_ = full;
+    if (full_) return;
+    for (auto& [run_id, g] : held_gyro_) writer_->push_gyro(run_id, std::span(&g, 1));
+    for (auto& [run_id, t] : held_temperatures_) writer_->push_temperature(run_id, t);
+    held_gyro_.clear();
+    held_temperatures_.clear();
+    failures_ = 0;
+  }
+  void push_gyro(int64_t run_id, std::span<const GyroSample> samples) override {
+    std::lock_guard lock(mu_);
+    if (!full_) return writer_->push_gyro(run_id, samples);
+    for (const auto& g : samples) held_gyro_.emplace_back(run_id, g);
+  }
+  void push_temperature(int64_t run_id, const TemperatureSample& sample) override {
+    std::lock_guard lock(mu_);
+    if (!full_) return writer_->push_temperature(run_id, sample);
+    held_temperatures_.emplace_back(run_id, sample);
+  }
+  Status flush() override {
+    {
+      std::lock_guard lock(mu_);
+      if (full_) return Error::Transient(kFull);
+    }
+    return writer_->flush();
+  }
+  void stop() override { writer_->stop(); }
+  storage::SampleWriterStats stats() const override {
+    std::lock_guard lock(mu_);
+    storage::SampleWriterStats s = writer_->stats();
+    if (full_) {
+      s.consecutive_failures = s.commit_failures = ++failures_;
+      s.last_error = kFull;
+      s.pending += held_gyro_.size() + held_temperatures_.size();
+    }
+    return s;
+  }
+
+ private:
+  static constexpr const char* kFull = "database or disk is full (bench)";
+  std::unique_ptr<storage::SampleWriter> writer_;
+  mutable std::mutex mu_;
+  bool full_ = false;
+  mutable uint64_t failures_ = 0;
+  std::vector<std::pair<int64_t, GyroSample>> held_gyro_;
+  std::vector<std::pair<int64_t, TemperatureSample>> held_temperatures_;
+};
+
 // A minimal station config for the rig: 1 s control ticks, no wall-time
 // floor on device silence (the wall clock is manual).
 inline std::string rig_config_toml(const std::string& db_path) {
@@ -234,7 +296,14 @@ class StationRig {
       std::lock_guard lock(published_mu_);
       published_.push_back(std::string(event) + " " + data.dump());
     };
-    auto st = daemon::Station::create(*cfg, std::move(devices), {clock, wall}, std::move(hooks));
+    storage::SampleWriterOptions wopt;
+    wopt.commit_interval = std::chrono::milliseconds(20);
+    auto writer = storage::SampleWriter::start(cfg->storage.db_path, wopt);
+    ASSERT_TRUE(writer.ok()) << writer.error().message;
+    auto sink = std::make_unique<FullDiskSink>(std::move(*writer));
+    disk_ = sink.get();
+    auto st = daemon::Station::create(*cfg, std::move(devices), {clock, wall}, std::move(hooks),
+                                      std::move(sink));
     ASSERT_TRUE(st.ok()) << st.error().message;
     station = std::move(*st);
     station->start(daemon::Station::ControlLoop::kCaller);
@@ -244,10 +313,12 @@ class StationRig {
     if (station) station->stop("rig closed");
     station.reset();
     gyro_ = nullptr;
+    disk_ = nullptr;
   }
   ~StationRig() { close(); }
 
   FakeGyro& gyro() { return *gyro_; }
+  FullDiskSink& disk() { return *disk_; }
 
   // One control tick after `dt_s` station (and wall) seconds.
   void step(double dt_s = 1.0) {
@@ -303,6 +374,7 @@ class StationRig {
   std::string db_path_;
   std::string config_toml_;
   FakeGyro* gyro_ = nullptr;
+  FullDiskSink* disk_ = nullptr;
   std::mutex published_mu_;
   std::vector<std::string> published_;
 };

@@ -229,6 +229,60 @@ INSTANTIATE_TEST_SUITE_P(
       return std::string(info.param.kind);
     });
 
+// A full disk: the writer's commits fail, storage_failing suspends the run
+// (after [interlocks] storage timeout), the samples wait in memory; when
+// the disk takes writes again they are all committed and the run goes on.
+TEST_F(StationUnitTest, StorageFailingSuspendsTheRunAndLosesNoSample) {
+  StationRig rig(dir_);
+  rig.open();
+  rig.queue(kLongSoak);
+  const int64_t run_id = until_acquiring(rig);
+  ASSERT_NE(run_id, 0);
+  const double full_from_s = rig.station->status().t_run_s;
+  rig.disk().set_full(true);
+  auto tripped = [&] {
+    for (const auto& i : rig.station->status().interlocks) {
+      if (i.kind == "storage_failing") return true;
+    }
+    return false;
+  };
+  ASSERT_TRUE(rig.step_until(tripped, 120)) << "state " << rig.state();
+  EXPECT_EQ(rig.state(), "suspended");
+  for (int i = 0; i < 30; ++i) rig.step();
+  EXPECT_GT(rig.station->status().storage.pending, 300u) << "the samples wait in memory";
+  const double full_to_s = rig.station->status().t_run_s;
+  rig.disk().set_full(false);
+  // The writer commits on its own thread, in wall time: the interlock can
+  // clear once a commit has succeeded since the start.
+  const auto deadline = std::chrono::steady_clock::now() + 20s;
+  while (
+      (rig.station->status().storage.commits == 0 || rig.station->status().storage.pending > 0) &&
+      std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(2ms);
+  }
+  ASSERT_TRUE(rig.step_until([&] { return !tripped(); }, 120));
+  ASSERT_TRUE(rig.step_until([&] { return !rig.station->status().run_id; }, 3600));
+  EXPECT_EQ(rig.reply(rig.station->run(run_id)).at("state"), "completed");
+  EXPECT_TRUE(rig.has_event(run_id, "interlock", "storage_failing"));
+  // Every 10 Hz sample of the full spell is in the file.
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(rig.db_path().c_str(), &db), SQLITE_OK);
+  sqlite3_stmt* st = nullptr;
+  ASSERT_EQ(sqlite3_prepare_v2(db,
+                               "SELECT COUNT(*) FROM gyro_samples WHERE run_id = ? AND t_s > ? "
+                               "AND t_s <= ?",
+                               -1, &st, nullptr),
+            SQLITE_OK);
+  sqlite3_bind_int64(st, 1, run_id);
+  sqlite3_bind_double(st, 2, full_from_s);
+  sqlite3_bind_double(st, 3, full_to_s);
+  ASSERT_EQ(sqlite3_step(st), SQLITE_ROW);
+  const int64_t stored = sqlite3_column_int64(st, 0);
+  sqlite3_finalize(st);
+  sqlite3_close(db);
+  EXPECT_NEAR(static_cast<double>(stored), (full_to_s - full_from_s) * 10.0, 1.0);
+}
+
 // settle_timeout is the sequencer's: the gate never held in time. It does
 // not clear by itself; its grace ends the run.
 TEST_F(StationUnitTest, SettleTimeoutTripsAndItsGraceAbortsTheRun) {

@@ -29,7 +29,7 @@ Result<storage::SegmentStatsRecord> compute_table1(storage::Database& db, const 
   return rec;
 }
 
-AnalysisWorker::AnalysisWorker(std::string db_path, storage::SampleWriter& writer,
+AnalysisWorker::AnalysisWorker(std::string db_path, storage::SampleSink& writer,
                                AnalysisSettings settings, Callbacks callbacks)
     : db_path_(std::move(db_path)),
       writer_(writer),

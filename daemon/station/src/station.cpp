@@ -68,7 +68,8 @@ Result<StationDevices> devices_from_config(const StationConfig& config, const Cl
 }
 
 Result<std::unique_ptr<Station>> Station::create(StationConfig config, StationDevices devices,
-                                                 StationClocks clocks, StationHooks hooks) {
+                                                 StationClocks clocks, StationHooks hooks,
+                                                 std::unique_ptr<storage::SampleSink> samples) {
   if (!devices.chamber || !devices.probes || !devices.gyro) {
     return Error::Permanent("station: a chamber, a probe module and a gyro source are needed");
   }
@@ -76,19 +77,22 @@ Result<std::unique_ptr<Station>> Station::create(StationConfig config, StationDe
   if (!db) return db.error();
   auto api_db = storage::Database::open(config.storage.db_path, clocks.wall);
   if (!api_db) return api_db.error();
-  storage::SampleWriterOptions wopt;
-  wopt.commit_interval =
-      std::chrono::milliseconds(static_cast<int64_t>(config.storage.commit_interval_s * 1000));
-  auto writer = storage::SampleWriter::start(config.storage.db_path, wopt, hooks.observe_commit);
-  if (!writer) return writer.error();
+  if (!samples) {
+    storage::SampleWriterOptions wopt;
+    wopt.commit_interval =
+        std::chrono::milliseconds(static_cast<int64_t>(config.storage.commit_interval_s * 1000));
+    auto writer = storage::SampleWriter::start(config.storage.db_path, wopt, hooks.observe_commit);
+    if (!writer) return writer.error();
+    samples = std::move(*writer);
+  }
   return std::unique_ptr<Station>(new Station(std::move(config), std::move(devices), clocks,
                                               std::move(hooks), std::move(*db), std::move(*api_db),
-                                              std::move(*writer)));
+                                              std::move(samples)));
 }
 
 Station::Station(StationConfig config, StationDevices devices, StationClocks clocks,
                  StationHooks hooks, storage::Database db, storage::Database api_db,
-                 std::unique_ptr<storage::SampleWriter> writer)
+                 std::unique_ptr<storage::SampleSink> writer)
     : config_(std::move(config)),
       clock_(clocks.station),
       wall_(clocks.wall),

@@ -50,7 +50,22 @@ struct SampleWriterStats {
   std::string last_error;  // of the most recent failed commit; kept after recovery
 };
 
-class SampleWriter {
+// Where the station's samples go: the SampleWriter below, or, in the
+// station's unit tests, a double that makes commits fail as on a full disk.
+class SampleSink {
+ public:
+  virtual ~SampleSink() = default;
+  // Thread-safe; t_s must already be relative to the run's start.
+  virtual void push_gyro(int64_t run_id, std::span<const GyroSample> samples) = 0;
+  virtual void push_temperature(int64_t run_id, const TemperatureSample& sample) = 0;
+  // Blocks until everything pushed before the call is committed (or the
+  // commit failed): the commit's status.
+  virtual Status flush() = 0;
+  virtual void stop() = 0;  // commits what is pending; idempotent
+  virtual SampleWriterStats stats() const = 0;
+};
+
+class SampleWriter final : public SampleSink {
  public:
   // Opens its own connection to `db_path` (created/migrated as by
   // Database::open) and starts the writer thread.
@@ -59,22 +74,22 @@ class SampleWriter {
   static Result<std::unique_ptr<SampleWriter>> start(
       const std::string& db_path, SampleWriterOptions options = {},
       std::function<void(double seconds)> on_commit = {});
-  ~SampleWriter();  // stop()
+  ~SampleWriter() override;  // stop()
 
   // Thread-safe; t_s must already be relative to the run's start. A sample
   // with a non-finite t_s is refused (stats().rejected); one whose
   // (run_id, t_s) is already stored is ignored at commit (stats().duplicates).
-  void push_gyro(int64_t run_id, std::span<const GyroSample> samples);
-  void push_temperature(int64_t run_id, const TemperatureSample& sample);
+  void push_gyro(int64_t run_id, std::span<const GyroSample> samples) override;
+  void push_temperature(int64_t run_id, const TemperatureSample& sample) override;
 
   // Blocks until everything pushed before the call is committed (or the
   // commit failed). Returns the commit's status; on failure the rows stay
   // pending for the next attempt. After stop(): Ok if nothing is pending.
-  Status flush();
+  Status flush() override;
   // Commits what is pending and stops the thread. Idempotent.
-  void stop();
+  void stop() override;
 
-  SampleWriterStats stats() const;
+  SampleWriterStats stats() const override;
 
  private:
   SampleWriter() = default;

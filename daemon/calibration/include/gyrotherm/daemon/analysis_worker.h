@@ -65,7 +65,7 @@ class AnalysisWorker {
     std::function<void(int64_t run_id, double until_s)> await_gyro;
   };
 
-  AnalysisWorker(std::string db_path, storage::SampleWriter& writer, AnalysisSettings settings,
+  AnalysisWorker(std::string db_path, storage::SampleSink& writer, AnalysisSettings settings,
                  Callbacks callbacks);
   ~AnalysisWorker();  // finishes queued jobs, then stops
 
@@ -81,7 +81,7 @@ class AnalysisWorker {
   void run();
 
   std::string db_path_;
-  storage::SampleWriter& writer_;
+  storage::SampleSink& writer_;
   AnalysisSettings settings_;
   Callbacks callbacks_;
   std::mutex mu_;

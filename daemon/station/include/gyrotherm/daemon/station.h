@@ -99,8 +99,11 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // takes the devices (all three are needed). Fails (permanent) when the
   // database cannot be opened; unreachable devices are not an error here
   // (they are retried).
-  static Result<std::unique_ptr<Station>> create(StationConfig config, StationDevices devices,
-                                                 StationClocks clocks, StationHooks hooks = {});
+  // `samples`: where samples go; nullptr (the daemon): a SampleWriter on
+  // the config's database.
+  static Result<std::unique_ptr<Station>> create(
+      StationConfig config, StationDevices devices, StationClocks clocks, StationHooks hooks = {},
+      std::unique_ptr<storage::SampleSink> samples = nullptr);
   ~Station() override;
 
   // Resumes an interrupted run (or closes it), starts the gyro source, the
@@ -151,7 +154,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
  private:
   Station(StationConfig config, StationDevices devices, StationClocks clocks, StationHooks hooks,
           storage::Database db, storage::Database api_db,
-          std::unique_ptr<storage::SampleWriter> writer);
+          std::unique_ptr<storage::SampleSink> writer);
 
   void control_loop();
   schedules::Readings read_devices(double now_s);
@@ -207,7 +210,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
   storage::Database db_;  // control-thread connection (run_mu_)
   std::mutex api_mu_;
   storage::Database api_db_;  // HTTP-thread connection (api_mu_)
-  std::unique_ptr<storage::SampleWriter> writer_;
+  std::unique_ptr<storage::SampleSink> writer_;
   std::unique_ptr<AnalysisWorker> analysis_;
   std::unique_ptr<NightlyExporter> nightly_;  // [export] nightly
   std::unique_ptr<drivers::Chamber> chamber_;
