@@ -11,6 +11,7 @@
 #include <thread>
 
 #include "station/station_rig.h"
+#include "test_time.h"
 
 namespace gyrotherm::testing {
 namespace {
@@ -55,13 +56,15 @@ class StationUnitTest : public TempDirTest {
 
   // Waits (wall, with a deadline) for the analysis thread's Table I rows.
   nlohmann::json wait_for_stats(StationRig& rig, int64_t run_id, std::size_t rows) {
-    const auto deadline = std::chrono::steady_clock::now() + 20s;
     nlohmann::json stats;
-    do {
-      stats = rig.reply(rig.station->run_stats(run_id));
-      if (stats.size() >= rows) return stats;
-      std::this_thread::sleep_for(5ms);
-    } while (std::chrono::steady_clock::now() < deadline);
+    if (wait_for_condition(
+            [&] {
+              stats = rig.reply(rig.station->run_stats(run_id));
+              return stats.size() >= rows;
+            },
+            20s)) {
+      return stats;
+    }
     ADD_FAILURE() << "run " << run_id << ": " << stats.size() << " Table I rows, not " << rows;
     return stats;
   }
@@ -254,12 +257,12 @@ TEST_F(StationUnitTest, StorageFailingSuspendsTheRunAndLosesNoSample) {
   rig.disk().set_full(false);
   // The writer commits on its own thread, in wall time: the interlock can
   // clear once a commit has succeeded since the start.
-  const auto deadline = std::chrono::steady_clock::now() + 20s;
-  while (
-      (rig.station->status().storage.commits == 0 || rig.station->status().storage.pending > 0) &&
-      std::chrono::steady_clock::now() < deadline) {
-    std::this_thread::sleep_for(2ms);
-  }
+  ASSERT_TRUE(wait_for_condition(
+      [&] {
+        const auto storage = rig.station->status().storage;
+        return storage.commits > 0 && storage.pending == 0;
+      },
+      20s));
   ASSERT_TRUE(rig.step_until([&] { return !tripped(); }, 120));
   ASSERT_TRUE(rig.step_until([&] { return !rig.station->status().run_id; }, 3600));
   EXPECT_EQ(rig.reply(rig.station->run(run_id)).at("state"), "completed");
@@ -328,12 +331,8 @@ TEST_F(StationUnitTest, CrashResumeFromTheCheckpoint) {
     acquired_before_s = 240;
     // The kill comes after the writer committed what it was handed (else
     // nothing of the 4 min is in the file, and all 10 are acquired again).
-    const auto deadline = std::chrono::steady_clock::now() + 20s;
-    while (rig.station->status().storage.pending > 0 &&
-           std::chrono::steady_clock::now() < deadline) {
-      std::this_thread::sleep_for(2ms);
-    }
-    ASSERT_EQ(rig.station->status().storage.pending, 0u);
+    ASSERT_TRUE(
+        wait_for_condition([&] { return rig.station->status().storage.pending == 0; }, 20s));
     sqlite3* db = nullptr;
     ASSERT_EQ(sqlite3_open(rig.db_path().c_str(), &db), SQLITE_OK);
     const std::string sql = "VACUUM INTO '" + crashed_db + "'";
