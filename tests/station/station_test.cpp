@@ -115,7 +115,9 @@ TEST_F(StationUnitTest, SoakRampSoakRunCompletesWithItsRecordsAndTableI) {
     EXPECT_NEAR(stats[i].at("bias_mean_dph").get<double>(), 1.5 + 0.01 * (setpoints_c[i] - 23.0),
                 0.01);
   }
-  // The run ended at the safe set point; the wall clock stamped its rows.
+  // The run ended at the safe set point; the wall clock stamped its rows,
+  // Table I's included.
+  EXPECT_EQ(stats[0].at("computed_utc").get<std::string>().substr(0, 4), "2027");
   EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 23.0);
   EXPECT_EQ(run.at("started_utc").get<std::string>().substr(0, 4), "2027");
 }

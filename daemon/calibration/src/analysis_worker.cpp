@@ -30,9 +30,11 @@ Result<storage::SegmentStatsRecord> compute_table1(storage::Database& db, const 
 }
 
 AnalysisWorker::AnalysisWorker(std::string db_path, storage::SampleSink& writer,
-                               AnalysisSettings settings, Callbacks callbacks)
+                               AnalysisSettings settings, Callbacks callbacks,
+                               const WallClock& wall)
     : db_path_(std::move(db_path)),
       writer_(writer),
+      wall_(wall),
       settings_(std::move(settings)),
       callbacks_(std::move(callbacks)),
       thread_([this] { run(); }) {}
@@ -83,7 +85,7 @@ void AnalysisWorker::run() {
     }
     (void)writer_.flush();  // the job's samples must be committed first
     if (!db) {
-      auto d = storage::Database::open(db_path_);
+      auto d = storage::Database::open(db_path_, wall_);
       if (d) {
         db.emplace(std::move(*d));
       } else {

@@ -474,7 +474,7 @@ Result<storage::SegmentStatsRecord> soak_table1(storage::Database& db, const Soa
   rec.earth_rate_dph = options.earth_rate_dph;
   rec.t_from_s = soak.t_from_s;
   rec.t_to_s = soak.t_to_s;
-  rec.computed_utc = wall_time_utc_iso();
+  rec.computed_utc = db.utc_now();
   return rec;
 }
 
@@ -514,7 +514,7 @@ Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow&
                                    {"windows", windows_json(soak.windows)},
                                    {"window_rule", "the longest acquisition window"}}
                         .dump();
-  rec.computed_utc = wall_time_utc_iso();
+  rec.computed_utc = db.utc_now();
   return rec;
 }
 

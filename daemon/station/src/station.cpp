@@ -167,8 +167,8 @@ Station::Station(StationConfig config, StationDevices devices, StationClocks clo
       }
     }
   };
-  analysis_ = std::make_unique<AnalysisWorker>(config_.storage.db_path, *writer_,
-                                               analysis_settings(config_), std::move(callbacks));
+  analysis_ = std::make_unique<AnalysisWorker>(
+      config_.storage.db_path, *writer_, analysis_settings(config_), std::move(callbacks), wall_);
   snapshot_.station_name = config_.station.name;
   snapshot_.time_scale = clock_.time_scale();
 }

@@ -338,12 +338,14 @@ class Database {
   Status exec(std::string_view sql);
   sqlite3* handle() { return db_; }
   const std::string& path() const { return path_; }
+  // Now, from the wall clock the connection was opened with, as ISO-8601
+  // UTC: what it stamps rows with (and what callers stamp records with).
+  std::string utc_now() const;
 
  private:
   Database(sqlite3* db, std::string path, const WallClock& wall)
       : db_(db), path_(std::move(path)), wall_(&wall) {}
-  // Now, from the wall clock, as ISO-8601 UTC; `utc` itself when it is set.
-  std::string utc_now() const;
+  // `utc` itself when it is set, else utc_now().
   std::string utc_or_now(const std::string& utc) const { return utc.empty() ? utc_now() : utc; }
 
   sqlite3* db_ = nullptr;  // owned

@@ -19,6 +19,7 @@
 #include <variant>
 #include <vector>
 
+#include "gyrotherm/core/clock.h"
 #include "gyrotherm/core/result.h"
 #include "gyrotherm/daemon/run_analysis.h"
 #include "gyrotherm/storage/database.h"
@@ -65,8 +66,9 @@ class AnalysisWorker {
     std::function<void(int64_t run_id, double until_s)> await_gyro;
   };
 
+  // `wall` stamps the rows it stores (not owned; outlives the worker).
   AnalysisWorker(std::string db_path, storage::SampleSink& writer, AnalysisSettings settings,
-                 Callbacks callbacks);
+                 Callbacks callbacks, const WallClock& wall = system_wall_clock());
   ~AnalysisWorker();  // finishes queued jobs, then stops
 
   void submit(Table1Job job);
@@ -82,6 +84,7 @@ class AnalysisWorker {
 
   std::string db_path_;
   storage::SampleSink& writer_;
+  const WallClock& wall_;
   AnalysisSettings settings_;
   Callbacks callbacks_;
   std::mutex mu_;
