@@ -138,11 +138,11 @@ Result<drivers::TemperatureUnit> chamber_unit(drivers::Chamber& chamber) {
   return *units->unit;
 }
 
-// A chamber temperature (`read`: its process value or set point), in °C.
-Result<double> chamber_c(const Result<double>& read, const Result<drivers::TemperatureUnit>& unit) {
-  if (!unit) return unit.error();
+// A chamber temperature (`read`: its process value or set point, in `unit`),
+// in °C.
+Result<double> chamber_c(const Result<double>& read, drivers::TemperatureUnit unit) {
   if (!read) return read;
-  return drivers::to_celsius(*read, *unit);
+  return drivers::to_celsius(*read, unit);
 }
 
 int cmd_devices(const std::string& config_path, bool json) {
@@ -154,8 +154,8 @@ int cmd_devices(const std::string& config_path, bool json) {
   drivers::ModbusChamber chamber(cfg->chamber.endpoint, cfg->chamber.map);
   drivers::ModbusProbes probes(cfg->probes.endpoint, cfg->probes.top, cfg->probes.side);
   const auto unit = chamber_unit(chamber);
-  const auto pv = unit ? chamber_c(chamber.process_value(), unit) : unit.error();
-  const auto sp = unit ? chamber_c(chamber.setpoint(), unit) : unit.error();
+  const Result<double> pv = unit ? chamber_c(chamber.process_value(), *unit) : unit.error();
+  const Result<double> sp = unit ? chamber_c(chamber.setpoint(), *unit) : unit.error();
   const auto top = probes.top_c();
   const auto side = probes.side_c();
 
@@ -242,7 +242,7 @@ int cmd_chamber_setpoint(const std::string& config_path, double setpoint_c) {
   if (auto st = chamber.write_setpoint(drivers::from_celsius(setpoint_c, *unit)); !st) {
     return fail(st.error().message);
   }
-  auto back = chamber_c(chamber.setpoint(), unit);
+  auto back = chamber_c(chamber.setpoint(), *unit);
   if (!back) return fail(back.error().message);
   std::cout << fmt::format("chamber set point {:.2f} °C\n", *back);
   return 0;

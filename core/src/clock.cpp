@@ -35,7 +35,9 @@ const WallClock& system_wall_clock() {
   return clock;
 }
 
-std::string wall_time_utc_iso() { return utc_iso(system_wall_clock().unix_now_s()); }
+std::string wall_time_utc_iso() { return utc_iso(system_wall_clock()); }
+
+std::string utc_iso(const WallClock& clock) { return utc_iso(clock.unix_now_s()); }
 
 std::string utc_iso(double unix_s) {
   const auto ms = static_cast<int64_t>(std::floor(unix_s * 1000.0 + 0.5));

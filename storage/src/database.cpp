@@ -111,7 +111,7 @@ Status migrate(sqlite3* db, const std::string& path, const WallClock& wall) {
     auto created =
         Stmt::prepare(db, path, "INSERT OR IGNORE INTO meta(key, value) VALUES('created_utc', ?)");
     if (!created) return created.error();
-    created->bind(1, std::string_view(utc_iso(wall.unix_now_s())));
+    created->bind(1, std::string_view(utc_iso(wall)));
     if (created->step() != SQLITE_DONE) return sqlite_error(db, path, what);
     if (Status s = txn.commit(); !s) return s;
   }
@@ -271,7 +271,7 @@ Database& Database::operator=(Database&& other) noexcept {
 
 Database::~Database() { sqlite3_close_v2(db_); }
 
-std::string Database::utc_now() const { return utc_iso(wall_->unix_now_s()); }
+std::string Database::utc_now() const { return utc_iso(*wall_); }
 
 Result<int> Database::schema_version() { return read_schema_version(db_, path_); }
 

@@ -133,7 +133,7 @@ Station::Station(StationConfig config, StationDevices devices, StationClocks clo
     storage::EventRecord ev;
     ev.run_id = job.run_id;
     if (auto last = db.last_sample_t_s(job.run_id); last && *last) ev.t_s = **last;
-    ev.wall_utc = utc_iso(wall.unix_now_s());
+    ev.wall_utc = utc_iso(wall);
     ev.kind = "analysis";
     if (r) {
       std::string fits;
@@ -226,7 +226,7 @@ void Station::start_nightly_export() {
   auto done = [publish = hooks_.publish, &stamp = wall_](storage::Database& db,
                                                          const Result<ExportOutcome>& r) {
     storage::EventRecord ev;
-    ev.wall_utc = utc_iso(stamp.unix_now_s());
+    ev.wall_utc = utc_iso(stamp);
     ev.kind = "export";
     if (r) {
       ev.message =
@@ -314,9 +314,8 @@ void Station::control_loop() {
 
 schedules::Readings Station::read_devices(double now_s) {
   schedules::Readings r;
-  // A reading of `dev`; `ok` follows whether it answers, logged on change.
-  auto read = [](const drivers::PolledDevice& dev, auto&& result, bool& ok, auto& out) {
-    auto v = std::forward<decltype(result)>(result);
+  // A reading `v` of `dev`; `ok` follows whether it answers, logged on change.
+  auto read = [](const drivers::PolledDevice& dev, const auto& v, bool& ok, auto& out) {
     if (v) {
       out = *v;
       if (!ok) spdlog::info("{}: readings back", dev.name());
@@ -542,7 +541,7 @@ void Station::start_next_run(double now_s) {
   storage::RunRecord rec;
   rec.schedule_name = entry.schedule_name;
   rec.state = "queued";
-  rec.started_utc = utc_iso(wall_.unix_now_s());
+  rec.started_utc = utc_iso(wall_);
   rec.time_scale = clock_.time_scale();
   rec.latitude_deg = config_.station.latitude_deg;
   rec.orientation = std::string(analysis::to_string(config_.station.orientation));
@@ -908,7 +907,7 @@ void Station::add_event(const std::string& kind, const std::string& from, const 
   const int64_t run_id = current_run_id();
   if (run_id != 0) ev.run_id = run_id;
   ev.t_s = run_id != 0 ? run_time_s() : 0.0;
-  ev.wall_utc = utc_iso(wall_.unix_now_s());
+  ev.wall_utc = utc_iso(wall_);
   ev.kind = kind;
   ev.from_state = from;
   ev.to_state = to;

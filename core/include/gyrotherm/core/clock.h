@@ -118,6 +118,8 @@ class ManualWallClock final : public WallClock {
 std::string wall_time_utc_iso();
 // Unix seconds as ISO-8601 UTC with milliseconds.
 std::string utc_iso(double unix_s);
+// The clock's wall time now, as ISO-8601 UTC with milliseconds.
+std::string utc_iso(const WallClock& clock);
 // ISO-8601 to Unix seconds: "2026-11-21" (midnight UTC),
 // "2026-11-21T05:38" / "T05:38:43" / "T05:38:43.120" followed by "Z" or an
 // offset "+01:00" / "-0500" (no zone: UTC). Errors name the text.
