@@ -256,6 +256,7 @@ std::string status_json(const SimulatorStatus& s) {
       {"t_s", s.t_s},
       {"lag_s", s.lag_s},
       {"setpoint_c", s.setpoint_c},
+      {"ramp_limit_c_per_min", s.ramp_limit_c_per_min},
       {"ramped_setpoint_c", s.truth.ramped_setpoint_c},
       {"air_c", s.truth.air_c},
       {"case_c", s.truth.case_c},

@@ -312,6 +312,7 @@ SimulatorStatus Simulator::status() const {
     s.stream = stream_.stats();
   }
   s.setpoint_c = setpoint_c_.load();
+  s.ramp_limit_c_per_min = ramp_limit_c_per_min_.load();
   SimulatorFaults& f = s.faults;
   if (server_) {
     s.modbus = server_->stats();

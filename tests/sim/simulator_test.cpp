@@ -310,6 +310,8 @@ TEST_F(SimulatorTest, RampActionFollowsWatlowsEnumeration) {
   EXPECT_NEAR(sim_->status().truth.ramped_setpoint_c, 28.0, 0.2);
 
   ASSERT_TRUE(client.write(*map.ramp_action, 1647));  // Set Point Change
+  // The reply goes out before the simulator takes the write in.
+  ASSERT_TRUE(wait_for([&] { return sim_->status().ramp_limit_c_per_min == 1.0; }));
   clock.advance(60.0);
   ASSERT_TRUE(wait_for([&] { return sim_->status().t_s >= 120.0 - 1e-6; }));
   EXPECT_NEAR(sim_->status().truth.ramped_setpoint_c, 29.0, 0.2);  // 1 °C/min

@@ -507,6 +507,27 @@ void Station::count_queue() {
       entries->begin(), entries->end(), [](const auto& e) { return e.state == "queued"; })));
 }
 
+// Says what the queue does after the current run failed, once per run, and
+// before the run's failed state is recorded: whoever sees the run failed
+// sees the queue's answer too. An abort (or a stop) has already held it,
+// whatever ignore_failures says.
+void Station::answer_failed_run() {
+  if (queue_answered_ || !entry_) return;
+  queue_answered_ = true;
+  const int64_t run_id = current_run_id();
+  if (hold_reason_) {
+    add_event("queue", "", "",
+              fmt::format("run {} failed; the queue stays held ({})", run_id, *hold_reason_));
+  } else if (!entry_->ignore_failures) {
+    hold_queue(fmt::format("run {} failed ({}); resume releases the queue", run_id, last_reason_));
+  } else {
+    add_event("queue", "", "",
+              fmt::format("run {} failed; the queue goes on with the next entry "
+                          "(ignore_failures)",
+                          run_id));
+  }
+}
+
 void Station::hold_queue(const std::string& reason) {
   hold_reason_ = reason;
   queue_held_.store(true);
@@ -572,8 +593,9 @@ void Station::start_next_run(double now_s) {
   if (!plan) {
     add_event("error", "queued", "failed",
               "schedule refused at start (station limits changed?):\n" + plan.error().message);
-    (void)db_.set_run_state(run_id, "failed", true);
     last_reason_ = "schedule refused at start";
+    answer_failed_run();
+    (void)db_.set_run_state(run_id, "failed", true);
     end_run();
     return;
   }
@@ -741,23 +763,9 @@ void Station::end_run() {
     if (auto st = db_.queue_finish(entry_->id, to_string(final_state)); !st) {
       spdlog::error("{}", st.error().message);
     }
-    // Say what the queue does now: an abort (or a stop) has already held
-    // it, whatever ignore_failures says.
-    if (final_state == RunState::kFailed) {
-      if (hold_reason_) {
-        add_event("queue", "", "",
-                  fmt::format("run {} failed; the queue stays held ({})", run_id, *hold_reason_));
-      } else if (!entry_->ignore_failures) {
-        hold_queue(
-            fmt::format("run {} failed ({}); resume releases the queue", run_id, last_reason_));
-      } else {
-        add_event("queue", "", "",
-                  fmt::format("run {} failed; the queue goes on with the next entry "
-                              "(ignore_failures)",
-                              run_id));
-      }
-    }
+    if (final_state == RunState::kFailed) answer_failed_run();
   }
+  queue_answered_ = false;
   if (final_state == RunState::kCompleted && run_id != 0) analysis_->submit(RunJob{run_id});
   if (stop_after_current_ && final_state != RunState::kInterrupted) {
     stop_after_current_ = false;
@@ -944,6 +952,7 @@ void Station::on_state(RunState from, RunState to, double t_s, const std::string
                              {"reason", reason}});
   }
   add_event("state", std::string(to_string(from)), std::string(to_string(to)), reason);
+  if (to == RunState::kFailed) answer_failed_run();
   unrecorded_run_state_ =
       UnrecordedRunState{current_run_id(), std::string(to_string(to)), schedules::is_terminal(to)};
   record_unrecorded();

@@ -84,9 +84,12 @@ struct SimulatorFaults {
 
 struct SimulatorStatus {
   bool running = false;
-  double t_s = 0;            // station seconds simulated since start()
-  double lag_s = 0;          // how far the simulation trails the clock (0 when keeping up)
-  double setpoint_c = 0;     // requested set point (Modbus or set_setpoint_c)
+  double t_s = 0;         // station seconds simulated since start()
+  double lag_s = 0;       // how far the simulation trails the clock (0 when keeping up)
+  double setpoint_c = 0;  // requested set point (Modbus or set_setpoint_c)
+  // The controller's ramp limit from its ramp registers, as the plant takes
+  // it at its next step (0: the plant's own max_ramp_c_per_min).
+  double ramp_limit_c_per_min = 0;
   ThermalTruth truth;        // the plant's state at t_s
   ProbeReadings readings;    // what the probe registers hold (unless stalled)
   double last_rate_dph = 0;  // the last gyro sample of the sensitive axis, noise included

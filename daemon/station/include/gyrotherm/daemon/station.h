@@ -169,6 +169,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
   void start_next_run(double now_s);
   void end_run();
   void checkpoint(bool force);
+  void answer_failed_run();
   void hold_queue(const std::string& reason);
   void release_queue();
   // Counts the waiting entries into queue_length_; at start() only, before
@@ -224,6 +225,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
   std::vector<int64_t> segment_ids_;
   std::string last_reason_;  // of the last state change
   bool stop_after_current_ = false;
+  bool queue_answered_ = false;             // answer_failed_run() spoke for the current run
   std::string stop_reason_;                 // the operator's, for the hold message
   std::optional<std::string> hold_reason_;  // queue held
   std::string checkpoint_state_;
