@@ -79,6 +79,18 @@ std::optional<std::string> storage_failing(const Readings& r, const InterlockOpt
   return std::nullopt;
 }
 
+std::optional<std::string> table_fault(const Readings& r, const InterlockOptions&, bool) {
+  if (!r.table_present || !r.table_fault) return std::nullopt;
+  return r.table_fault_text.empty()
+             ? std::string("the rate table's interlock is in fault")
+             : fmt::format("the rate table's interlock is in fault: {}", r.table_fault_text);
+}
+
+std::optional<std::string> table_silent(const Readings& r, const InterlockOptions& o, bool) {
+  if (!r.table_present) return std::nullopt;
+  return silent(r.table_silent_s, o.table_timeout_s, "rate table controller");
+}
+
 }  // namespace interlock_checks
 
 namespace {

@@ -348,7 +348,10 @@ class ScheduleReader {
     Number table_rate = number(t, "table_rate_dps");
     check_range(t, "table_rate_dps", table_rate, "°/s", -kMaxTableRateDps, false,
                 fmt::format("{:g} °/s", kMaxTableRateDps), kMaxTableRateDps);
-    s.table_rate_dps = table_rate.value.value_or(0);
+    if (table_rate.value && *table_rate.value != 0) {
+      s.table.mode = TableDemandMode::kRate;
+      s.table.rate_dps = *table_rate.value;
+    }
 
     const Keys& keys = s.kind == StepKind::kSoak   ? kSoakKeys
                        : s.kind == StepKind::kRamp ? kRampKeys
@@ -526,6 +529,20 @@ std::string_view to_string(StepKind kind) {
       return "ramp";
     case StepKind::kHold:
       return "hold";
+    case StepKind::kRate:
+      return "rate";
+  }
+  return "?";
+}
+
+std::string_view to_string(TableDemandMode mode) {
+  switch (mode) {
+    case TableDemandMode::kNone:
+      return "none";
+    case TableDemandMode::kStatic:
+      return "static";
+    case TableDemandMode::kRate:
+      return "rate";
   }
   return "?";
 }

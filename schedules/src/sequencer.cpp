@@ -132,6 +132,7 @@ void Sequencer::begin_step(std::size_t index, double t_s) {
       update_state(t_s, fmt::format("{} from {:.2f} °C", step.label, ramp_from_c_));
       break;
     case StepKind::kHold:
+    case StepKind::kRate:  // TODO(issue 17): spin up, then dwell over whole turns
       setpoint_c_ = step.setpoint_c;
       activity_ = RunState::kSettling;
       update_state(t_s, fmt::format("{} for {:g} min", step.label, step.hold_s / 60.0));

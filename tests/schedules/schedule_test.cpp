@@ -9,7 +9,7 @@ namespace {
 
 using ::testing::HasSubstr;
 
-const StationLimits kLimits{-20.0, 60.0, 2.0};
+const StationLimits kLimits{-20.0, 60.0, 2.0, StationLimits::Table{1000.0, 1000.0}};
 
 Result<Plan> load_shipped(const std::string& name) {
   return load_schedule(std::string(GYROTHERM_SOURCE_DIR) + "/config/schedules/" + name, kLimits);
@@ -113,7 +113,8 @@ table_rate_dps = 1000
                              "edges.toml", kLimits);
   ASSERT_TRUE(plan.ok()) << plan.error().message;
   ASSERT_EQ(plan->steps.size(), 3u);
-  EXPECT_DOUBLE_EQ(plan->steps[0].table_rate_dps, -1000.0);
+  EXPECT_EQ(plan->steps[0].table.mode, TableDemandMode::kRate);
+  EXPECT_DOUBLE_EQ(plan->steps[0].table.rate_dps, -1000.0);
   EXPECT_DOUBLE_EQ(plan->steps[1].stability_window_s, 1440 * 60.0);
   EXPECT_DOUBLE_EQ(plan->steps[1].settle_timeout_s, 10080 * 60.0);
   EXPECT_DOUBLE_EQ(plan->steps[2].hold_s, 43200 * 60.0);

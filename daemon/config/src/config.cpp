@@ -368,7 +368,13 @@ void read_api(TableReader t, ApiSection& a) {
 }  // namespace
 
 schedules::StationLimits station_limits(const StationConfig& config) {
-  return {config.station.min_temp_c, config.station.max_temp_c, config.station.max_ramp_c_per_min};
+  schedules::StationLimits limits{config.station.min_temp_c, config.station.max_temp_c,
+                                  config.station.max_ramp_c_per_min, std::nullopt};
+  if (config.table) {
+    limits.table =
+        schedules::StationLimits::Table{config.table->max_rate_dps, config.table->max_accel_dps2};
+  }
+  return limits;
 }
 
 std::optional<std::string> api_exposure_warning(const ApiSection& api) {

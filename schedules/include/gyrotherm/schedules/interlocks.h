@@ -41,6 +41,8 @@ enum class InterlockKind {
   kGyroLost,           // no gyro sample for longer than its timeout
   kChamberAlarm,       // the controller reports an alarm
   kStorageFailing,     // samples cannot be committed (disk full, I/O error) for too long
+  kTableFault,         // the rate table's interlock is in fault (over-speed, a safety input)
+  kTableSilent,        // no good rate-table reading for longer than its timeout
 };
 
 // One control-loop reading; nullopt where the device gave no value this tick.
@@ -65,6 +67,13 @@ struct Readings {
   // checkpoint is over.
   bool gyro_heard = true;
   bool storage_committed = true;
+  // The rate table (when the station has one: table_present).
+  bool table_present = false;
+  std::optional<double> table_rate_dps{};      // measured
+  std::optional<double> table_position_deg{};  // measured
+  bool table_fault = false;                    // interlock in fault
+  std::string table_fault_text{};              // what the controller says
+  double table_silent_s = 0;
 };
 
 struct InterlockOptions;
@@ -84,6 +93,8 @@ std::optional<std::string> probes_silent(const Readings&, const InterlockOptions
 std::optional<std::string> gyro_lost(const Readings&, const InterlockOptions&, bool tripped);
 std::optional<std::string> chamber_alarm(const Readings&, const InterlockOptions&, bool tripped);
 std::optional<std::string> storage_failing(const Readings&, const InterlockOptions&, bool tripped);
+std::optional<std::string> table_fault(const Readings&, const InterlockOptions&, bool tripped);
+std::optional<std::string> table_silent(const Readings&, const InterlockOptions&, bool tripped);
 }  // namespace interlock_checks
 
 struct InterlockDefinition {
@@ -118,6 +129,12 @@ inline constexpr InterlockDefinition kInterlockDefinitions[] = {
      [](const Readings& r) { return r.chamber_c.has_value(); }},
     {InterlockKind::kStorageFailing, "storage_failing", 60, &interlock_checks::storage_failing,
      [](const Readings& r) { return r.storage_committed; }},
+    // A fault is latched by the controller: the station resets it (ACL :I:R)
+    // while the run is held, so a cleared reading shows the cause is gone.
+    {InterlockKind::kTableFault, "table_fault", 5, &interlock_checks::table_fault,
+     [](const Readings& r) { return r.table_rate_dps.has_value(); }},
+    {InterlockKind::kTableSilent, "table_silent", 5, &interlock_checks::table_silent,
+     [](const Readings& r) { return r.table_rate_dps.has_value(); }},
 };
 inline constexpr int kInterlockKindCount = static_cast<int>(std::size(kInterlockDefinitions));
 
@@ -157,7 +174,7 @@ std::string_view to_string(InterlockKind kind);
 std::optional<InterlockKind> parse_interlock_kind(std::string_view name);
 
 struct InterlockOptions {
-  double min_temp_c = -20.0;  // station limits
+  double min_temp_c = -20.0;
   double max_temp_c = 60.0;
   double limit_margin_c = 2.0;
   double probe_disagreement_c = 2.0;
@@ -166,6 +183,7 @@ struct InterlockOptions {
   double probes_timeout_s = 10.0;
   double gyro_timeout_s = 5.0;
   double storage_timeout_s = 10.0;
+  double table_timeout_s = 10.0;
   // Station seconds an interlock may stay tripped before the run is aborted
   // to the safe state; indexed by InterlockKind. 0 aborts at once.
   std::array<double, kInterlockKindCount> grace_s = interlock_table::default_grace_s();

@@ -19,8 +19,26 @@
 
 namespace gyrotherm::schedules {
 
-enum class StepKind { kSoak, kRamp, kHold };
+// kRate: one rate point of a scale-factor sequence (a [[step]] of type
+// "scale_factor" expands into one per rate, direction and repetition): the
+// set point is held, the table spins up to the rate, then the step acquires
+// over whole turns (dwell_s).
+enum class StepKind { kSoak, kRamp, kHold, kRate };
 std::string_view to_string(StepKind kind);
+
+// What the table does during a step.
+enum class TableDemandMode {
+  kNone,    // the step says nothing: the table is left at rest where it is
+  kStatic,  // at rest (stopped), at position_deg if given: zero-bias soaks
+  kRate,    // spinning at rate_dps
+};
+std::string_view to_string(TableDemandMode mode);
+
+struct TableDemand {
+  TableDemandMode mode = TableDemandMode::kNone;
+  std::optional<double> position_deg;  // kStatic: move there first, then hold
+  double rate_dps = 0;                 // kRate
+};
 
 // One executable step of the expanded plan (repeats unrolled).
 struct PlanStep {
@@ -38,8 +56,15 @@ struct PlanStep {
   double rate_c_per_min = 0;
   // hold
   double hold_s = 0;
-  // any: turntable rate during the step, °/s (0: at rest)
-  double table_rate_dps = 0;
+  // any: the table during the step (table_rate_dps = R is a kRate demand)
+  TableDemand table;
+  // rate point (kRate): acquisition at rate, a whole number of turns
+  double dwell_s = 0;
+  int turns = 0;
+  // rate point: which scale-factor sequence of the plan (from 1, in plan
+  // order) and which repetition of it (from 1); 0 for other steps
+  int sf_sequence = 0;
+  int sf_repetition = 0;
 };
 
 struct Plan {
@@ -57,6 +82,13 @@ struct StationLimits {
   double min_temp_c = -20.0;
   double max_temp_c = 60.0;
   double max_ramp_c_per_min = 2.0;
+  // The rate table ([table]); nullopt: the station has none, and a step
+  // that asks for a rate (or a position) is refused.
+  struct Table {
+    double max_rate_dps = 500.0;
+    double max_accel_dps2 = 100.0;
+  };
+  std::optional<Table> table{};
 };
 
 // Sanity bounds every schedule is held to besides the station's limits

@@ -102,6 +102,12 @@ class SequencerObserver {
 struct SequencerOptions {
   double safe_setpoint_c = 23.0;
   InterlockOptions interlocks;
+  // Rate points ([table]): the dwell starts once the measured rate has been
+  // within at_rate_tolerance_dps of the demand for at_rate_hold_s; not so
+  // within spin_up_timeout_s fails the step.
+  double at_rate_tolerance_dps = 0.05;
+  double at_rate_hold_s = 1.0;
+  double spin_up_timeout_s = 120.0;
 };
 
 // A tripped interlock in a snapshot: a restart keeps its grace running from

@@ -17,6 +17,7 @@
 #include "gyrotherm/core/result.h"
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/drivers/modbus_device.h"
+#include "gyrotherm/drivers/rate_table.h"
 #include "gyrotherm/drivers/registers.h"
 #include "gyrotherm/drivers/serial_port.h"
 #include "gyrotherm/schedules/interlocks.h"
@@ -95,6 +96,30 @@ struct GyroSection {
   double silent_timeout_s = 5.0;  // station s without a sample = stream lost
 };
 
+// [table]: the rate table. Absent from station.toml: the station has no
+// table (schedules that ask for a rate are refused; static steps need none).
+struct TableSection {
+  drivers::TableConnection connection;
+  // The station's working limits, which schedules are checked against; at
+  // start-up they are checked against what the controller reports (limits()).
+  double max_rate_dps = 500.0;
+  double max_accel_dps2 = 100.0;
+  // A rate step's dwell starts once |measured − demanded| ≤ this for
+  // at_rate_hold_s; it must within spin_up_timeout_s.
+  double at_rate_tolerance_dps = 0.05;
+  double at_rate_hold_s = 1.0;
+  double spin_up_timeout_s = 120.0;
+  // At rest: |rate| below this (the safe state then opens the interlock).
+  double rest_rate_dps = 0.01;
+  double silent_timeout_s = 10.0;  // station s without a good reading = device silent
+  // The gyro's sensitive axis, for the Earth-rate projection of a static
+  // position: "along_table" (parallel to the table's vertical axis: Ω·sin φ,
+  // whatever the position) or "radial" (horizontal, turning with the table:
+  // Ω·cos φ·cos(heading_at_zero_deg + position)).
+  std::string sensitive_axis = "along_table";
+  double heading_at_zero_deg = 0.0;  // azimuth from north, clockwise, at position 0
+};
+
 struct StorageSection {
   std::string db_path = "gyrotherm.db";
   double commit_interval_s = 0.5;  // wall seconds
@@ -170,6 +195,7 @@ struct StationConfig {
   ChamberSection chamber;
   ProbesSection probes;
   GyroSection gyro;
+  std::optional<TableSection> table;
   StorageSection storage;
   ApiSection api;
   ExportSection export_;
@@ -213,6 +239,10 @@ struct SimEndpoints {
   long pid = 0;
   std::string control_socket;  // fault-injection command socket ("" = none)
   double time_scale = 0;       // 0 = not stated
+  // The rate table the simulator serves (0 / "" = none): ACL over TCP, and
+  // the AERO grammar on a pty.
+  int table_port = 0;
+  std::string table_device{};
 };
 // "" when a daemon at `daemon_time_scale` may run against the simulator
 // that wrote `ep`, else why not (the two clocks would disagree: the
