@@ -9,6 +9,7 @@
 // makes a device fall silent, raise an alarm or serve °F through the plant.
 #pragma once
 
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -30,6 +31,7 @@
 #include "gyrotherm/drivers/devices.h"
 #include "gyrotherm/storage/sample_writer.h"
 #include "integration/temp_dir_test.h"
+#include "station/fake_table.h"
 
 namespace gyrotherm::testing {
 
@@ -50,6 +52,9 @@ class FakePlant {
     double side_offset_c = 0;           // added to the side probe
     std::optional<double> force_air_c;  // the air stays here whatever the set point
     int setpoint_writes = 0;
+    // Set point writes ("setpoint 23") and table commands ("table stop"),
+    // in the order they happened.
+    std::vector<std::string> log;
   };
 
   void advance(double dt_s) {
@@ -107,6 +112,7 @@ class FakeChamber final : public drivers::Chamber {
     plant_->change([&](FakePlant::State& s) {
       s.setpoint_c = s.fahrenheit ? (value - 32) / 1.8 : value;
       ++s.setpoint_writes;
+      s.log.push_back(fmt::format("setpoint {:g}", s.setpoint_c));
     });
     return Status::Ok();
   }
@@ -291,6 +297,12 @@ class StationRig {
     auto gyro = std::make_unique<FakeGyro>(plant, cfg->gyro.format.rate_hz);
     gyro_ = gyro.get();
     devices.gyro = std::move(gyro);
+    if (cfg->table) {
+      table.on_command = [plant = plant](const std::string& what) {
+        plant->change([&](FakePlant::State& s) { s.log.push_back("table " + what); });
+      };
+      devices.table = std::make_unique<FakeTableHandle>(table);
+    }
     daemon::StationHooks hooks;
     hooks.publish = [this](std::string_view event, const nlohmann::json& data) {
       std::lock_guard lock(published_mu_);
@@ -325,6 +337,7 @@ class StationRig {
     clock.advance(dt_s);
     wall.advance(dt_s);
     plant->advance(dt_s);
+    table.advance(dt_s);
     if (gyro_) gyro_->emit_until(clock.now_s());
     station->tick();
   }
@@ -366,6 +379,7 @@ class StationRig {
   const std::string& db_path() const { return db_path_; }
 
   std::shared_ptr<FakePlant> plant = std::make_shared<FakePlant>();
+  FakeTable table;  // the station's when the config has a [table]
   ManualClock clock{1000.0, 1.0};
   ManualWallClock wall{1.8e9};
   std::unique_ptr<daemon::Station> station;

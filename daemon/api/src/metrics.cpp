@@ -137,6 +137,32 @@ std::string Metrics::scrape(const StatusSnapshot& s, const ServerFigures& server
               static_cast<double>(h->errors), {{"device", name}});
   }
 
+  if (const auto& t = s.table) {
+    // Present only on a station with a [table].
+    f.gauge("gyrotherm_table_connected", "1 while the rate table's controller answers",
+            t->connected ? 1.0 : 0.0);
+    std::optional<double> rate, position;
+    if (t->state) {
+      rate = t->state->rate_dps;
+      position = t->state->position_deg;
+    }
+    f.gauge("gyrotherm_table_rate_dps", "Rate table's measured rate, deg/s", rate);
+    f.gauge("gyrotherm_table_position_deg", "Rate table's measured position, deg", position);
+    f.gauge("gyrotherm_table_demand_rate_dps", "Rate the station demands of the table, deg/s",
+            t->demand.mode == schedules::TableDemandMode::kRate ? t->demand.rate_dps : 0.0);
+    for (auto state : {drivers::TableInterlock::kOpen, drivers::TableInterlock::kClosed,
+                       drivers::TableInterlock::kFault}) {
+      f.gauge("gyrotherm_table_interlock",
+              "1 for the table interlock's current state (open, closed, fault), 0 for the others",
+              t->state && t->state->interlock == state ? 1.0 : 0.0,
+              {{"state", std::string(drivers::to_string(state))}});
+    }
+    f.counter("gyrotherm_table_requests_total", "Requests sent to the rate table's controller",
+              static_cast<double>(t->health.requests));
+    f.counter("gyrotherm_table_errors_total", "Rate-table requests that failed",
+              static_cast<double>(t->health.errors));
+  }
+
   const auto& st = s.storage;
   f.counter("gyrotherm_db_rows_committed_total", "Sample rows committed to the database",
             static_cast<double>(st.gyro_rows), {{"table", "gyro_samples"}});

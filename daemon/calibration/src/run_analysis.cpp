@@ -114,6 +114,14 @@ RunConfig read_run_config(const std::string& text) {
         j["station"]["name"].is_string()) {
       c.station_name = j["station"]["name"].get<std::string>();
     }
+    if (j.contains("table") && j["table"].is_object()) {
+      const json& t = j["table"];
+      c.table_present = true;
+      if (t.contains("sensitive_axis") && t["sensitive_axis"].is_string()) {
+        c.table_sensitive_axis = t["sensitive_axis"].get<std::string>();
+      }
+      c.table_heading_at_zero_deg = get_num(t, "heading_at_zero_deg");
+    }
     return c;
   }
   try {
@@ -128,6 +136,11 @@ RunConfig read_run_config(const std::string& text) {
     if (auto m = t["analysis"]["model"].value<std::string>()) c.model = *m;
     if (auto m = t["analysis"]["allan_taus"].value<std::string>()) c.allan_taus = *m;
     if (auto n = t["station"]["name"].value<std::string>()) c.station_name = *n;
+    if (t["table"].is_table()) {
+      c.table_present = true;
+      if (auto a = t["table"]["sensitive_axis"].value<std::string>()) c.table_sensitive_axis = *a;
+      c.table_heading_at_zero_deg = number(t["table"]["heading_at_zero_deg"]);
+    }
   } catch (const toml::parse_error&) {
   }
   return c;
@@ -242,6 +255,27 @@ nlohmann::json run_config_json(const StationConfig& config) {
     interlocks[fmt::format("{}_grace_min", schedules::to_string(kind))] =
         config.interlocks.grace_for(kind) / 60.0;
   }
+  json table = nullptr;
+  if (const auto& t = config.table) {
+    const drivers::TableConnection& c = t->connection;
+    table = {{"profile", c.profile},
+             {"host", c.host},
+             {"port", c.port},
+             {"reply_header", c.reply_header},
+             {"device", c.device},
+             {"baud", c.baud},
+             {"axis", c.axis},
+             {"timeout_s", c.timeout_s},
+             {"max_rate_dps", t->max_rate_dps},
+             {"max_accel_dps2", t->max_accel_dps2},
+             {"at_rate_tolerance_dps", t->at_rate_tolerance_dps},
+             {"at_rate_hold_s", t->at_rate_hold_s},
+             {"spin_up_timeout_s", t->spin_up_timeout_s},
+             {"rest_rate_dps", t->rest_rate_dps},
+             {"silent_timeout_s", t->silent_timeout_s},
+             {"sensitive_axis", t->sensitive_axis},
+             {"heading_at_zero_deg", t->heading_at_zero_deg}};
+  }
   const ApiSection& api = config.api;
   return json{
       {"source_path", config.source_path},
@@ -255,6 +289,7 @@ nlohmann::json run_config_json(const StationConfig& config) {
         {"safe_setpoint_c", st.safe_setpoint_c}}},
       {"chamber", std::move(chamber)},
       {"probes", std::move(probes)},
+      {"table", std::move(table)},
       {"gyro",
        {{"device", g.serial.device},
         {"baud", g.serial.baud},

@@ -12,6 +12,7 @@
 #include "gyrotherm/daemon/run_analysis.h"
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/drivers/modbus_devices.h"
+#include "gyrotherm/drivers/rate_tables.h"
 
 namespace gyrotherm::daemon {
 namespace {
@@ -64,6 +65,13 @@ Result<StationDevices> devices_from_config(const StationConfig& config, const Cl
   devices.probes = std::move(probes);
   devices.gyro = std::make_unique<drivers::SerialGyro>(config.gyro.serial, config.gyro.format,
                                                        std::move(*parser), clock);
+  if (config.table) {
+    const drivers::TableLimits declared{config.table->max_rate_dps, config.table->max_accel_dps2,
+                                        std::nullopt};
+    auto table = drivers::make_rate_table(config.table->connection, declared, "table");
+    if (!table) return table.error();
+    devices.table = std::move(*table);
+  }
   return devices;
 }
 
@@ -72,6 +80,10 @@ Result<std::unique_ptr<Station>> Station::create(StationConfig config, StationDe
                                                  std::unique_ptr<storage::SampleSink> samples) {
   if (!devices.chamber || !devices.probes || !devices.gyro) {
     return Error::Permanent("station: a chamber, a probe module and a gyro source are needed");
+  }
+  if (config.table.has_value() != (devices.table != nullptr)) {
+    return Error::Permanent(config.table ? "station: the config has a [table] but no table was given"
+                                         : "station: a table was given but the config has no [table]");
   }
   auto db = storage::Database::open(config.storage.db_path, clocks.wall);
   if (!db) return db.error();
@@ -104,7 +116,9 @@ Station::Station(StationConfig config, StationDevices devices, StationClocks clo
       chamber_(std::move(devices.chamber)),
       probes_(std::move(devices.probes)),
       gyro_(std::move(devices.gyro)),
+      table_device_(std::move(devices.table)),
       started_wall_s_(wall_.monotonic_s()) {
+  if (table_device_) table_ = std::make_unique<TableControl>(*table_device_, *config_.table);
   AnalysisWorker::Callbacks callbacks;
   callbacks.await_gyro = [this](int64_t run_id, double until_s) {
     if (!await_gyro(run_id, until_s, kAwaitGyro)) {
@@ -179,13 +193,19 @@ void Station::make_sequencer(schedules::Plan plan) {
   schedules::SequencerOptions opt;
   opt.safe_setpoint_c = config_.station.safe_setpoint_c;
   opt.interlocks = config_.interlocks;
+  if (config_.table) {
+    opt.at_rate_tolerance_dps = config_.table->at_rate_tolerance_dps;
+    opt.at_rate_hold_s = config_.table->at_rate_hold_s;
+    opt.spin_up_timeout_s = config_.table->spin_up_timeout_s;
+  }
   sequencer_ = std::make_unique<schedules::Sequencer>(
       std::move(plan), opt, static_cast<schedules::SequencerObserver&>(*this));
 }
 
 void Station::start(ControlLoop loop) {
-  for (drivers::PolledDevice* dev :
-       std::initializer_list<drivers::PolledDevice*>{chamber_.get(), probes_.get()}) {
+  for (drivers::PolledDevice* dev : std::initializer_list<drivers::PolledDevice*>{
+           chamber_.get(), probes_.get(), table_device_.get()}) {
+    if (!dev) continue;
     if (auto st = dev->connect(); !st) {
       spdlog::warn("{}: {} (will keep retrying)", dev->name(), st.error().message);
     }
@@ -276,6 +296,7 @@ void Station::stop(const std::string& reason) {
       end_run();
     }
   }
+  make_table_safe_now();
   write_setpoint(config_.station.safe_setpoint_c, true);
   gyro_->stop();
   if (nightly_) nightly_->stop();
@@ -358,6 +379,7 @@ schedules::Readings Station::read_devices(double now_s) {
   r.probes_silent_s = silent(probes_ok_s_, probes_ok_wall_s_);
   r.gyro_silent_s = silent(gyro_last_s_.load(), gyro_last_wall_s_.load());
   r.gyro_heard = gyro_heard_.load();
+  if (table_) table_->read(now_s, wall_s, min_wall_s, r);
   const storage::SampleWriterStats ws = writer_->stats();
   r.storage_committed = ws.commits > 0;
   if (ws.consecutive_failures == 0) {
@@ -395,11 +417,28 @@ void Station::tick() {
   if (sequencer_) {
     t_run_s = now_s - run_clock_.load().t0_s;
     if (sequencer_->state() == RunState::kAborting) {
+      // The table stops before the chamber heads for its safe set point.
+      if (table_) table_->make_safe(wall_.monotonic_s());
       write_setpoint(sequencer_->setpoint_c(), true);
       if (last_written_setpoint_c_) sequencer_->safe_state_reached(t_run_s);
     } else {
       sequencer_->tick(t_run_s, r);
+      if (table_ && !sequencer_->finished()) {
+        const schedules::TableDemand demand = table_demand();
+        const bool moves = demand.mode == schedules::TableDemandMode::kRate ||
+                           demand.position_deg.has_value();
+        if (moves || !table_->safing()) {
+          if (!moves && !table_->at_rest()) {
+            table_->make_safe(wall_.monotonic_s());
+          } else {
+            table_->drive(demand, wall_.monotonic_s());
+          }
+        }
+      }
       write_setpoint(sequencer_->setpoint_c(), false);
+    }
+    if (table_) {
+      if (auto sample = table_->sample(t_run_s)) writer_->push_table(current_run_id(), *sample);
     }
     TemperatureSample ts;
     ts.t_s = t_run_s;
@@ -441,7 +480,42 @@ void Station::tick() {
       s.setpoint_c = sequencer_->setpoint_c();
     }
   }
+  if (table_) {
+    table_->finish_safe_state(wall_.monotonic_s());
+    std::lock_guard lock(mu_);
+    snapshot_.table = table_->status();
+  }
   if (sequencer_ && sequencer_->finished()) end_run();
+}
+
+schedules::TableDemand Station::table_demand() const {
+  if (!sequencer_ || sequencer_->finished() || sequencer_->paused() ||
+      !sequencer_->tripped().empty() || sequencer_->state() == RunState::kAborting) {
+    return {};
+  }
+  return sequencer_->table_demand();
+}
+
+void Station::make_table_safe_now() {
+  if (!table_) return;
+  // Real waiting, whatever the clocks: 100 ms polls, 30 s at most.
+  constexpr int kPolls = 300;
+  constexpr auto kPoll = std::chrono::milliseconds(100);
+  schedules::Readings r;
+  table_->read(clock_.now_s(), wall_.monotonic_s(), config_.control.min_silent_wall_s, r);
+  table_->make_safe(wall_.monotonic_s());
+  for (int poll = 0;; ++poll) {
+    const double wall_s = wall_.monotonic_s();
+    table_->read(clock_.now_s(), wall_s, config_.control.min_silent_wall_s, r);
+    table_->finish_safe_state(wall_s);
+    if (!table_->safing()) break;
+    if (poll == kPolls) {
+      spdlog::error("table: not at rest after {} s; left stopping, servo on",
+                    kPolls * kPoll.count() / 1000);
+      break;
+    }
+    std::this_thread::sleep_for(kPoll);
+  }
 }
 
 bool Station::chamber_units_known() {
@@ -746,6 +820,8 @@ void Station::checkpoint(bool force) {
 void Station::end_run() {
   const RunState final_state = sequencer_ ? sequencer_->state() : RunState::kFailed;
   const int64_t run_id = current_run_id();
+  // The table stops first; its servo goes off once it is at rest (ticks).
+  if (table_) table_->make_safe(wall_.monotonic_s());
   write_setpoint(config_.station.safe_setpoint_c, true);
   // A completed run's last samples may still be on the line (a reader behind
   // on a loaded machine): they are waited for, a bounded time, before no

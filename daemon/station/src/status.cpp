@@ -20,6 +20,32 @@ nlohmann::json to_json(const drivers::DeviceHealth& h) {
           {"last_latency_ms", h.last_latency_ms}};
 }
 
+// null when the station has no table.
+nlohmann::json table_json(const std::optional<TableStatus>& t) {
+  if (!t) return nullptr;
+  nlohmann::json j = {
+      {"connected", t->connected},
+      {"demand",
+       {{"mode", schedules::to_string(t->demand.mode)},
+        {"rate_dps", t->demand.rate_dps},
+        {"position_deg", opt(t->demand.position_deg)}}},
+      {"safing", t->safing},
+      {"mode", nullptr},
+      {"interlock", nullptr},
+      {"rate_dps", nullptr},
+      {"position_deg", nullptr},
+      {"fault", ""},
+  };
+  if (t->state) {
+    j["mode"] = drivers::to_string(t->state->mode);
+    j["interlock"] = drivers::to_string(t->state->interlock);
+    j["rate_dps"] = t->state->rate_dps;
+    j["position_deg"] = t->state->position_deg;
+    j["fault"] = t->state->fault;
+  }
+  return j;
+}
+
 }  // namespace
 
 nlohmann::json to_json(const StatusSnapshot& s) {
@@ -51,6 +77,7 @@ nlohmann::json to_json(const StatusSnapshot& s) {
       {"queue_length", s.queue_length},
       {"queue_held", s.queue_held},
       {"queue_hold_reason", s.queue_hold_reason},
+      {"table", table_json(s.table)},
       {"devices",
        {{"chamber", to_json(s.chamber)},
         {"probes", to_json(s.probes)},
@@ -65,7 +92,8 @@ nlohmann::json to_json(const StatusSnapshot& s) {
           {"invalid_samples", g.invalid_samples},
           {"reopens", g.reopens},
           {"read_errors", g.read_errors},
-          {"last_error", g.last_error}}}}},
+          {"last_error", g.last_error}}},
+        {"table", s.table ? to_json(s.table->health) : nlohmann::json(nullptr)}}},
       {"storage",
        {{"gyro_rows", s.storage.gyro_rows},
         {"temperature_rows", s.storage.temperature_rows},

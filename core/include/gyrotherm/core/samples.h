@@ -2,6 +2,8 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
+#include <string>
 
 namespace gyrotherm {
 
@@ -23,6 +25,19 @@ struct TemperatureSample {
   double chamber_c = 0;
   double top_c = 0;
   double side_c = 0;
+};
+
+// One control-loop reading of the rate table, with what the station
+// demanded of it.
+struct TableSample {
+  double t_s = 0;                // same convention as GyroSample::t_s
+  std::string demand_mode{};     // none, static, rate
+  double demand_rate_dps = 0;
+  std::optional<double> demand_position_deg{};
+  double rate_dps = 0;           // measured
+  double position_deg = 0;       // measured
+  std::string mode{};            // off, rate, position, unknown
+  std::string interlock{};       // open, closed, fault
 };
 
 }  // namespace gyrotherm

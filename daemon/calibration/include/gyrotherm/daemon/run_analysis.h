@@ -66,6 +66,10 @@ struct RunConfig {
   std::optional<std::string> model;
   std::optional<std::string> allan_taus;
   std::string station_name;
+  // [table]: whether the run had one, and how the gyro sits on it.
+  bool table_present = false;
+  std::optional<std::string> table_sensitive_axis;
+  std::optional<double> table_heading_at_zero_deg;
 };
 RunConfig read_run_config(const std::string& text);
 RunConfig read_run_config(const storage::RunRecord& run);

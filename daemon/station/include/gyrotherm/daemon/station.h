@@ -48,6 +48,7 @@
 #include "gyrotherm/daemon/exporter.h"
 #include "gyrotherm/daemon/run_clock.h"
 #include "gyrotherm/daemon/status.h"
+#include "gyrotherm/daemon/table_control.h"
 #include "gyrotherm/drivers/devices.h"
 #include "gyrotherm/schedules/sequencer.h"
 #include "gyrotherm/storage/database.h"
@@ -73,10 +74,13 @@ struct StationDevices {
   std::unique_ptr<drivers::Chamber> chamber;
   std::unique_ptr<drivers::ShellProbes> probes;
   std::unique_ptr<drivers::GyroSource> gyro;
+  // The rate table; nullptr when the config has no [table].
+  std::unique_ptr<drivers::RateTable> table;
 };
 
 // The devices a station config names: its chamber and probe module over
-// Modbus, its gyro on the serial line (timestamped on `clock`). Request
+// Modbus, its gyro on the serial line (timestamped on `clock`) and, with a
+// [table], its rate table. Request
 // latencies go to hooks.observe_modbus. Permanent error for an unknown gyro
 // protocol (the config loader has checked it).
 Result<StationDevices> devices_from_config(const StationConfig& config, const Clock& clock,
@@ -178,6 +182,13 @@ class Station final : public StationControl, private schedules::SequencerObserve
   int64_t current_run_id() const { return run_clock_.load().run_id; }
   double run_time_s() const;
   void write_setpoint(double setpoint_c, bool force);
+  // The table's demand now: the step's, or at rest while the run is held
+  // (paused, an interlock tripped) or aborting.
+  schedules::TableDemand table_demand() const;
+  // Stops the table (the safe state's first move) and waits, a bounded wall
+  // time, for it to come to rest and open its interlock: at shutdown, when
+  // no control loop is left to finish the safe state.
+  void make_table_safe_now();
   void on_gyro_samples(std::span<const GyroSample> samples);
   // Waits, up to `max_wait` (wall), until gyro samples of `run_id` up to
   // `until_s` (run seconds) have been handed to the writer. False on timeout.
@@ -217,6 +228,8 @@ class Station final : public StationControl, private schedules::SequencerObserve
   std::unique_ptr<drivers::Chamber> chamber_;
   std::unique_ptr<drivers::ShellProbes> probes_;
   std::unique_ptr<drivers::GyroSource> gyro_;
+  std::unique_ptr<drivers::RateTable> table_device_;
+  std::unique_ptr<TableControl> table_;  // nullptr: no table
   const double started_wall_s_;  // wall_.monotonic_s() at create()
 
   // Run state (run_mu_).

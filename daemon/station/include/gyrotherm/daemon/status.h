@@ -9,9 +9,20 @@
 
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/drivers/modbus_device.h"
+#include "gyrotherm/drivers/rate_table.h"
+#include "gyrotherm/schedules/schedule.h"
 #include "gyrotherm/storage/sample_writer.h"
 
 namespace gyrotherm::daemon {
+
+// What status() shows of the rate table.
+struct TableStatus {
+  bool connected = false;
+  std::optional<drivers::TableState> state;  // the last good reading
+  schedules::TableDemand demand;             // what the station wants now
+  bool safing = false;                       // stopping; servo off once at rest
+  drivers::DeviceHealth health;
+};
 
 struct StatusSnapshot {
   std::string station_name;
@@ -36,6 +47,7 @@ struct StatusSnapshot {
   drivers::DeviceHealth chamber;
   drivers::DeviceHealth probes;
   drivers::GyroReaderHealth gyro;
+  std::optional<TableStatus> table;  // nullopt: the station has no table
   storage::SampleWriterStats storage;
   std::string last_event;
   bool paused = false;

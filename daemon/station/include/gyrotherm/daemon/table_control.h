@@ -1,0 +1,79 @@
+// TableControl: the station's side of the rate table. It reads the table
+// each control tick (into the readings the interlocks see), brings it to
+// what the current step demands, and takes it to its safe state.
+//
+// Demands: none or static without a position -> not spinning (a spinning
+// table is stopped; a held position is kept); static at P -> position mode
+// at P; rate R -> rate mode at R. A command is sent when the demand changes
+// and again whenever the controller's mode or interlock does not match it
+// (a reconnect, a fault that was reset at the panel: the interlock is open
+// again), at most once per wall second. Nothing is sent while the
+// interlock is in fault: the table_fault interlock holds the run.
+//
+// Safe state (an abort, the end of a run, a pause, a tripped interlock,
+// the daemon stopping): stop (decelerate at the controller's limits, the
+// axis stays servoed); once the measured rate is below rest_rate_dps the
+// interlock is opened (servo off). The station stops the table before it
+// sends the chamber's safe set point.
+#pragma once
+
+#include <optional>
+#include <string>
+
+#include "gyrotherm/core/samples.h"
+#include "gyrotherm/daemon/config.h"
+#include "gyrotherm/daemon/status.h"
+#include "gyrotherm/drivers/rate_table.h"
+#include "gyrotherm/schedules/interlocks.h"
+#include "gyrotherm/schedules/schedule.h"
+
+namespace gyrotherm::daemon {
+
+class TableControl {
+ public:
+  TableControl(drivers::RateTable& table, const TableSection& config);
+
+  // Reads the table at station time now_s (wall: monotonic wall seconds)
+  // and fills the table fields of `r`. Silence counts in station time once
+  // it is also min_silent_wall_s of wall time, like the other devices.
+  void read(double now_s, double wall_s, double min_silent_wall_s, schedules::Readings& r);
+  // Brings the table towards `demand` (see above). Cancels a safe state in
+  // progress when the demand is a rate or a position.
+  void drive(const schedules::TableDemand& demand, double wall_s);
+  // Stops the table now (once per safe state) and arms the servo off.
+  void make_safe(double wall_s);
+  // Opens the interlock once a safe state's stop has brought the table to
+  // rest. Each tick, whatever else happens.
+  void finish_safe_state(double wall_s);
+  // At rest and stopped (or not servoed): the safe state is reached.
+  bool at_rest() const;
+  bool safing() const { return safing_; }
+
+  // The record of this tick's reading (nullopt before any good reading).
+  std::optional<TableSample> sample(double t_run_s) const;
+  TableStatus status() const;
+  drivers::RateTable& device() { return table_; }
+
+ private:
+  bool matches(const schedules::TableDemand& demand) const;
+  Status send(const schedules::TableDemand& demand);
+  void log_failure(const Status& st, const std::string& what);
+
+  drivers::RateTable& table_;
+  TableSection config_;
+  std::optional<drivers::TableState> state_;  // last good reading
+  bool ok_ = true;                            // the last read answered
+  double ok_s_ = 0, ok_wall_s_ = 0;           // last good reading
+  bool started_ = false;
+  schedules::TableDemand demand_;  // the demand drive() was last given
+  std::optional<schedules::TableDemand> sent_;
+  double last_send_wall_s_ = -1e9;
+  bool safing_ = false;
+  bool stop_sent_ = false;
+  bool failing_ = false;  // a command failed; logged once per spell
+};
+
+// "static at 90.0°", "rate +10 °/s", "none".
+std::string describe(const schedules::TableDemand& demand);
+
+}  // namespace gyrotherm::daemon

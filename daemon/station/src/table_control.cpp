@@ -1,0 +1,198 @@
+#include "gyrotherm/daemon/table_control.h"
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace gyrotherm::daemon {
+
+namespace {
+
+using schedules::TableDemand;
+using schedules::TableDemandMode;
+
+constexpr double kResendWallS = 1.0;  // at most one command per wall second
+
+bool same_demand(const TableDemand& a, const TableDemand& b) {
+  return a.mode == b.mode && a.rate_dps == b.rate_dps && a.position_deg == b.position_deg;
+}
+
+}  // namespace
+
+std::string describe(const TableDemand& demand) {
+  switch (demand.mode) {
+    case TableDemandMode::kNone:
+      return "none";
+    case TableDemandMode::kStatic:
+      return demand.position_deg ? fmt::format("static at {:g}°", *demand.position_deg)
+                                 : std::string("static");
+    case TableDemandMode::kRate:
+      return fmt::format("rate {:+g} °/s", demand.rate_dps);
+  }
+  return "?";
+}
+
+TableControl::TableControl(drivers::RateTable& table, const TableSection& config)
+    : table_(table), config_(config) {}
+
+void TableControl::read(double now_s, double wall_s, double min_silent_wall_s,
+                        schedules::Readings& r) {
+  if (!started_) {
+    started_ = true;
+    ok_s_ = now_s;
+    ok_wall_s_ = wall_s;
+  }
+  r.table_present = true;
+  auto state = table_.read();
+  if (state) {
+    if (!ok_) spdlog::info("{}: readings back", table_.name());
+    ok_ = true;
+    state_ = *state;
+    ok_s_ = now_s;
+    ok_wall_s_ = wall_s;
+    r.table_rate_dps = state->rate_dps;
+    r.table_position_deg = state->position_deg;
+    r.table_fault = state->interlock == drivers::TableInterlock::kFault;
+    r.table_fault_text = state->fault;
+  } else {
+    if (ok_) spdlog::warn("{}", state.error().message);
+    ok_ = false;
+  }
+  r.table_silent_s =
+      wall_s - ok_wall_s_ >= min_silent_wall_s ? std::max(0.0, now_s - ok_s_) : 0.0;
+}
+
+bool TableControl::matches(const TableDemand& demand) const {
+  if (!state_) return false;
+  const drivers::TableState& s = *state_;
+  const bool servoed = s.interlock == drivers::TableInterlock::kClosed;
+  switch (demand.mode) {
+    case TableDemandMode::kNone:
+    case TableDemandMode::kStatic:
+      if (demand.position_deg) {
+        return servoed && s.mode == drivers::TableMode::kPosition &&
+               (sent_ && same_demand(*sent_, demand));
+      }
+      // Not spinning: off, holding a position, or not servoed at all.
+      return s.mode != drivers::TableMode::kRate || !servoed;
+    case TableDemandMode::kRate:
+      return servoed && s.mode == drivers::TableMode::kRate && sent_ &&
+             same_demand(*sent_, demand);
+  }
+  return false;
+}
+
+Status TableControl::send(const TableDemand& demand) {
+  switch (demand.mode) {
+    case TableDemandMode::kNone:
+    case TableDemandMode::kStatic:
+      if (demand.position_deg) return table_.set_position(*demand.position_deg);
+      return table_.stop();
+    case TableDemandMode::kRate:
+      return table_.set_rate(demand.rate_dps);
+  }
+  return Status::Ok();
+}
+
+void TableControl::log_failure(const Status& st, const std::string& what) {
+  if (st) {
+    if (failing_) spdlog::info("{}: commands answered again", table_.name());
+    failing_ = false;
+    return;
+  }
+  if (!failing_) spdlog::error("{}: {}: {}", table_.name(), what, st.error().message);
+  failing_ = true;
+}
+
+void TableControl::drive(const TableDemand& demand, double wall_s) {
+  demand_ = demand;
+  const bool moves = demand.mode == TableDemandMode::kRate || demand.position_deg.has_value();
+  if (safing_ && moves) {
+    safing_ = false;
+    stop_sent_ = false;
+  }
+  if (safing_) return;
+  if (state_ && state_->interlock == drivers::TableInterlock::kFault) return;
+  const bool changed = !sent_ || !same_demand(*sent_, demand);
+  if (!changed && matches(demand)) return;
+  if (!changed && wall_s - last_send_wall_s_ < kResendWallS) return;
+  last_send_wall_s_ = wall_s;
+  const Status st = send(demand);
+  log_failure(st, "commanding " + describe(demand));
+  if (st) {
+    if (changed) spdlog::info("{}: {}", table_.name(), describe(demand));
+    sent_ = demand;
+  }
+}
+
+void TableControl::make_safe(double wall_s) {
+  demand_ = TableDemand{TableDemandMode::kStatic, std::nullopt, 0};
+  if (safing_ && stop_sent_) return;
+  safing_ = true;
+  if (state_ && state_->interlock == drivers::TableInterlock::kOpen) {
+    // Not servoed: nothing spins, nothing to switch off.
+    safing_ = false;
+    return;
+  }
+  last_send_wall_s_ = wall_s;
+  const Status st = table_.stop();
+  log_failure(st, "stopping");
+  stop_sent_ = st.ok();
+  if (stop_sent_) {
+    spdlog::info("{}: stopping (safe state); servo off once at rest", table_.name());
+    sent_ = demand_;
+  }
+}
+
+void TableControl::finish_safe_state(double wall_s) {
+  if (!safing_) return;
+  if (!stop_sent_) {
+    if (wall_s - last_send_wall_s_ >= kResendWallS) make_safe(wall_s);
+    return;
+  }
+  if (!state_ || std::abs(state_->rate_dps) >= config_.rest_rate_dps) return;
+  if (state_->interlock == drivers::TableInterlock::kClosed) {
+    const Status st = table_.servo_off();
+    log_failure(st, "servo off");
+    if (!st) return;
+    spdlog::info("{}: at rest, servo off", table_.name());
+  }
+  safing_ = false;
+  stop_sent_ = false;
+  sent_.reset();
+}
+
+bool TableControl::at_rest() const {
+  if (!state_) return false;
+  return std::abs(state_->rate_dps) < config_.rest_rate_dps &&
+         (state_->mode != drivers::TableMode::kRate ||
+          state_->interlock != drivers::TableInterlock::kClosed);
+}
+
+std::optional<TableSample> TableControl::sample(double t_run_s) const {
+  if (!state_ || !ok_) return std::nullopt;
+  TableSample s;
+  s.t_s = t_run_s;
+  s.demand_mode = std::string(schedules::to_string(demand_.mode));
+  s.demand_rate_dps = demand_.rate_dps;
+  s.demand_position_deg = demand_.position_deg;
+  s.rate_dps = state_->rate_dps;
+  s.position_deg = state_->position_deg;
+  s.mode = std::string(drivers::to_string(state_->mode));
+  s.interlock = std::string(drivers::to_string(state_->interlock));
+  return s;
+}
+
+TableStatus TableControl::status() const {
+  TableStatus s;
+  s.health = table_.health();
+  s.connected = ok_ && state_.has_value();
+  s.state = state_;
+  s.demand = demand_;
+  s.safing = safing_;
+  return s;
+}
+
+}  // namespace gyrotherm::daemon

@@ -1,0 +1,184 @@
+// The station with a rate table (tests/station/fake_table.h) on manual
+// clocks: the table follows each step's demand, stops before the chamber
+// goes to its safe set point, stops while a run is held, trips its
+// interlock on a fault, and is recorded at every tick.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "gyrotherm/storage/database.h"
+#include "station/station_rig.h"
+#include "test_time.h"
+
+namespace gyrotherm::testing {
+namespace {
+
+using namespace std::chrono_literals;
+
+std::string table_config(const std::string& db_path) {
+  return rig_config_toml(db_path) +
+         "[table]\nprofile = \"acutrol\"\nmax_rate_dps = 500\nmax_accel_dps2 = 100\n"
+         "rest_rate_dps = 0.01\n";
+}
+
+// A soak with the table held at 90°, then a hold spinning at +100 °/s.
+constexpr const char* kStaticThenSpin = R"(
+name = "static then spin"
+[[step]]
+type = "soak"
+setpoint_c = 23.0
+stability_window_min = 1
+settle_timeout_min = 30
+acquire_min = 2
+table = { mode = "static", position_deg = 90.0 }
+[[step]]
+type = "hold"
+setpoint_c = 23.0
+duration_min = 30
+table_rate_dps = 100.0
+)";
+
+class StationTableTest : public TempDirTest {
+ protected:
+  StationTableTest() : TempDirTest("gyrotherm-station-table") {}
+
+  // Ticks until the table spins at `rate_dps` (within 0.5 °/s).
+  void until_spinning(StationRig& rig, double rate_dps) {
+    ASSERT_TRUE(rig.step_until(
+        [&] { return std::abs(rig.table.state().rate_dps - rate_dps) < 0.5; }, 3600))
+        << "table rate " << rig.table.state().rate_dps << ", state " << rig.state();
+  }
+  static std::ptrdiff_t index_of(const std::vector<std::string>& log, const std::string& entry,
+                                 std::ptrdiff_t from = 0) {
+    auto it = std::find(log.begin() + from, log.end(), entry);
+    return it == log.end() ? -1 : it - log.begin();
+  }
+};
+
+TEST_F(StationTableTest, EachStepGetsItsDemandAndEveryTickIsRecorded) {
+  StationRig rig(dir_, table_config(dir_ / "station.db"));
+  rig.open();
+  const int64_t queued = rig.queue(kStaticThenSpin);
+  ASSERT_NE(queued, 0);
+  ASSERT_TRUE(rig.step_until([&] { return rig.state() == "acquiring"; }, 3600));
+  auto s = rig.table.state();
+  EXPECT_EQ(s.mode, drivers::TableMode::kPosition);
+  EXPECT_DOUBLE_EQ(s.demand_position_deg, 90.0);
+  until_spinning(rig, 100.0);
+  EXPECT_EQ(rig.table.state().mode, drivers::TableMode::kRate);
+  const auto status = rig.station->status();
+  ASSERT_TRUE(status.table.has_value());
+  ASSERT_TRUE(status.table->state.has_value());
+  EXPECT_NEAR(status.table->state->rate_dps, 100.0, 0.5);
+  EXPECT_EQ(status.table->demand.mode, schedules::TableDemandMode::kRate);
+
+  // The run's table rows: one per control tick (1 s), demand beside the reading.
+  const int64_t run_id = *status.run_id;
+  auto db = storage::Database::open(rig.db_path(), rig.wall);
+  ASSERT_TRUE(db.ok()) << db.error().message;
+  std::vector<TableSample> rows;
+  ASSERT_TRUE(wait_for_condition(
+      [&] {
+        auto r = db->table_samples(run_id, 0.0, status.t_run_s);
+        if (!r.ok()) return false;
+        rows = *r;
+        return !rows.empty() && rows.back().t_s >= status.t_run_s - 1.0;
+      },
+      20s))
+      << rows.size() << " table rows";
+  for (std::size_t i = 1; i < rows.size(); ++i) {
+    ASSERT_LE(rows[i].t_s - rows[i - 1].t_s, 1.0 + 1e-9) << "gap before row " << i;
+  }
+  EXPECT_EQ(rows.back().demand_mode, "rate");
+  EXPECT_DOUBLE_EQ(rows.back().demand_rate_dps, 100.0);
+  EXPECT_EQ(rows.back().mode, "rate");
+  EXPECT_EQ(rows.front().demand_mode, "static");
+}
+
+TEST_F(StationTableTest, AbortWhileSpinningStopsTheTableBeforeTheChamberGoesSafe) {
+  StationRig rig(dir_, table_config(dir_ / "station.db"));
+  rig.open();
+  rig.queue(kStaticThenSpin);
+  until_spinning(rig, 100.0);
+  rig.plant->change([](FakePlant::State& s) { s.log.clear(); });
+  ASSERT_FALSE(rig.station->control("abort", "bench").refusal);
+  ASSERT_TRUE(rig.step_until([&] { return !rig.station->status().run_id; }, 600));
+  // At rest, servo off, within the deceleration time (100 °/s at 100 °/s²).
+  ASSERT_TRUE(rig.step_until(
+      [&] { return rig.table.state().interlock == drivers::TableInterlock::kOpen; }, 30));
+  EXPECT_LT(std::abs(rig.table.state().rate_dps), 0.01);
+  const auto log = rig.plant->state().log;
+  const auto stop = index_of(log, "table stop");
+  const auto safe = index_of(log, "setpoint 23");
+  const auto off = index_of(log, "table servo off");
+  ASSERT_GE(stop, 0) << ::testing::PrintToString(log);
+  ASSERT_GE(safe, 0) << ::testing::PrintToString(log);
+  ASSERT_GE(off, 0) << ::testing::PrintToString(log);
+  EXPECT_LT(stop, safe) << ::testing::PrintToString(log);
+  EXPECT_LT(stop, off) << ::testing::PrintToString(log);
+}
+
+TEST_F(StationTableTest, PauseStopsTheTableAndResumeSpinsItUpAgain) {
+  StationRig rig(dir_, table_config(dir_ / "station.db"));
+  rig.open();
+  rig.queue(kStaticThenSpin);
+  until_spinning(rig, 100.0);
+  ASSERT_FALSE(rig.station->control("pause", "bench").refusal);
+  ASSERT_TRUE(rig.step_until([&] { return std::abs(rig.table.state().rate_dps) < 0.01; }, 60))
+      << rig.table.state().rate_dps;
+  for (int i = 0; i < 30; ++i) rig.step();
+  EXPECT_LT(std::abs(rig.table.state().rate_dps), 0.01) << "the table stays stopped while paused";
+  ASSERT_FALSE(rig.station->control("resume", "bench").refusal);
+  until_spinning(rig, 100.0);
+}
+
+TEST_F(StationTableTest, AFaultTripsTheTableInterlockAndItsGraceAbortsTheRun) {
+  StationRig rig(dir_, table_config(dir_ / "station.db") +
+                           "[interlocks]\ntable_fault_grace_min = 1.0\n");
+  rig.open();
+  rig.queue(kStaticThenSpin);
+  until_spinning(rig, 100.0);
+  const int64_t run_id = *rig.station->status().run_id;
+  rig.table.fault();
+  ASSERT_TRUE(rig.step_until(
+      [&] {
+        for (const auto& i : rig.station->status().interlocks) {
+          if (i.kind == "table_fault") return true;
+        }
+        return false;
+      },
+      10));
+  ASSERT_TRUE(rig.step_until([&] { return !rig.station->status().run_id; }, 300));
+  EXPECT_EQ(rig.reply(rig.station->run(run_id)).at("state"), "failed");
+  EXPECT_TRUE(rig.has_event(run_id, "interlock", "table_fault") ||
+              rig.has_event(run_id, "interlock", "rate table"));
+}
+
+TEST_F(StationTableTest, StoppingTheDaemonLeavesTheTableAtRestAndServoOff) {
+  StationRig rig(dir_, table_config(dir_ / "station.db"));
+  rig.open();
+  rig.queue(kStaticThenSpin);
+  until_spinning(rig, 100.0);
+  // No control loop is left at shutdown: the station waits for the table
+  // itself, so the fake must move in wall time meanwhile.
+  std::atomic<bool> done{false};
+  std::thread mover([&] {
+    while (!done) {
+      rig.table.advance(0.1);
+      std::this_thread::sleep_for(5ms);
+    }
+  });
+  rig.close();
+  done = true;
+  mover.join();
+  EXPECT_LT(std::abs(rig.table.state().rate_dps), 0.01);
+  EXPECT_EQ(rig.table.state().interlock, drivers::TableInterlock::kOpen);
+}
+
+}  // namespace
+}  // namespace gyrotherm::testing
