@@ -1,0 +1,145 @@
+// Scale-factor calibration on a rate table (docs/analysis.md, "Scale
+// factor"): the least-squares line output = K·Ω + B through the mean gyro
+// output at each table rate, its nonlinearity, asymmetry and repeatability
+// (IEEE Std 952 practice), K and B as polynomials in temperature, and the
+// Earth-rate projection on the sensitive axis of a table at rest.
+//
+// Units: table rates Ω and gyro outputs in °/s (the output converted to the
+// table's unit, so K is dimensionless and near 1); biases also in °/h;
+// ratios in ppm. Pure functions of their arguments, safe from any thread.
+// The line is fitted from centred sums (two passes; for a straight line this
+// is as stable as a QR factorisation): about 1e-15 relative to the largest
+// output in the fitted values.
+#pragma once
+
+#include <cstddef>
+#include <optional>
+#include <span>
+#include <string_view>
+#include <vector>
+
+#include "gyrotherm/core/result.h"
+
+namespace gyrotherm::analysis {
+
+// One dwell at a constant table rate.
+struct RatePoint {
+  double rate_dps = 0;       // table rate: demanded, or the measured mean over the dwell
+  double output_dps = 0;     // mean gyro output over the dwell, °/s
+  int repetition = 1;        // which pass through the rate sequence (repeatability)
+  double temperature_c = 0;  // mean temperature over the dwell (carried, not fitted)
+  std::size_t n = 0;         // gyro samples averaged (carried, not fitted)
+  double duration_s = 0;     // dwell length (carried, not fitted)
+};
+
+// K of one repetition, fitted on that repetition's points alone.
+struct RepetitionScaleFactor {
+  int repetition = 0;
+  std::size_t points = 0;
+  double k = 0;
+  double bias_dps = 0;
+};
+
+struct ScaleFactorFit {
+  std::size_t points = 0;
+  std::size_t distinct_rates = 0;
+  double full_scale_dps = 0;      // max |Ω| over the points
+  double temperature_mean_c = 0;  // mean of the points' temperature_c
+
+  double k = 0;  // scale factor, (°/s out) per (°/s in)
+  double bias_dps = 0;
+  double bias_dph = 0;
+  // Standard errors from s² = RSS / (points − 2) and (XᵀX)⁻¹; NaN with
+  // exactly 2 points (no degree of freedom left).
+  double k_std_error = 0;
+  double bias_std_error_dps = 0;
+  double bias_std_error_dph = 0;
+  double residual_std_dps = 0;  // s; NaN with exactly 2 points
+
+  // output_i − (K·Ω_i + B), °/s, in input order.
+  std::vector<double> residuals_dps;
+
+  // Relative to K: max over points with Ω ≠ 0 of |residual_i| / |K·Ω_i|, ppm;
+  // the point where it is largest.
+  double nonlinearity_ppm = 0;
+  std::size_t nonlinearity_point = 0;
+  // Relative to the full-scale output: max over all points of
+  // |residual_i| / (|K| · full_scale_dps), ppm.
+  double nonlinearity_fs_ppm = 0;
+
+  // K₊, K₋: least-squares slopes through the origin of (output − B) over the
+  // points with Ω > 0 and Ω < 0; asymmetry = (K₊ − K₋) / ((K₊ + K₋)/2), ppm.
+  // nullopt unless both directions are present.
+  std::optional<double> k_positive;
+  std::optional<double> k_negative;
+  std::optional<double> asymmetry_ppm;
+
+  // One entry per repetition number that has ≥ 2 distinct rates, in
+  // increasing repetition order (repetitions with fewer are left out).
+  std::vector<RepetitionScaleFactor> repetitions;
+  // Sample std (ddof 1) of the repetitions' K / their mean × 1e6, ppm;
+  // nullopt with fewer than 2 such repetitions.
+  std::optional<double> repeatability_ppm;
+};
+
+// Fits output = K·Ω + B over all points (every repetition together).
+// Errors (permanent, naming the point's index and field): no points; a rate,
+// output, temperature or duration that is NaN or infinite; fewer than 2
+// distinct rates (a constant rate leaves K undetermined).
+Result<ScaleFactorFit> fit_scale_factor(std::span<const RatePoint> points);
+
+// ---- Over temperature -----------------------------------------------------
+
+// The result of one plateau's fit.
+struct ScaleFactorAtTemperature {
+  double temperature_c = 0;
+  double k = 0;
+  double bias_dph = 0;
+};
+
+struct ScaleFactorTemperatureFit {
+  int order = 0;
+  std::size_t temperatures = 0;   // plateaus given
+  double temperature_mean_c = 0;  // T̄, the mean of the plateaus' temperatures
+  // K(T) = Σⱼ k_coefficients[j] · (T − T̄)ʲ, j = 0 … order (per °Cʲ).
+  std::vector<double> k_coefficients;
+  // B(T) = Σⱼ bias_coefficients_dph[j] · (T − T̄)ʲ, °/h per °Cʲ.
+  std::vector<double> bias_coefficients_dph;
+  double k_at_mean = 0;  // K(T̄) = k_coefficients[0]
+  // (dK/dT at T̄) / K(T̄) × 1e6 = k_coefficients[1] / k_coefficients[0] × 1e6.
+  double sf_temperature_coefficient_ppm_per_c = 0;
+  // dB/dT at T̄ = bias_coefficients_dph[1], (°/h)/°C.
+  double bias_temperature_coefficient_dph_per_c = 0;
+  // Data − polynomial, in input order (all 0 when order = distinct − 1).
+  std::vector<double> k_residuals;
+  std::vector<double> bias_residuals_dph;
+};
+
+// Least squares (Householder QR on (T − T̄) / max|T − T̄|, the coefficients
+// scaled back). Errors (permanent): order not 1 or 2; order ≥ the number of
+// distinct temperatures; a non-finite value (naming the plateau's index and
+// field); K(T̄) = 0.
+Result<ScaleFactorTemperatureFit> fit_scale_factor_over_temperature(
+    std::span<const ScaleFactorAtTemperature> plateaus, int order);
+
+// ---- Earth rate at a static table position ---------------------------------
+
+// How the gyro's sensitive axis is mounted on the table (the [table]
+// sensitive_axis setting).
+enum class SensitiveAxis {
+  kAlongTable,  // parallel to the table's rotation axis, which points up
+  kRadial,      // horizontal, turning with the table
+};
+Result<SensitiveAxis> parse_sensitive_axis(std::string_view s);  // "along_table", "radial"
+std::string_view to_string(SensitiveAxis axis);
+
+// Earth-rate component on the sensitive axis, °/h, with Ω_E = 15.041067 °/h
+// (units::kEarthRateDph) and φ the latitude:
+//   along_table: Ω_E · sin φ, whatever the position (earth_rate_component_dph, up);
+//   radial:      Ω_E · cos φ · cos(heading_at_zero_deg + position_deg),
+// heading_at_zero_deg the axis' azimuth (from north, clockwise seen from
+// above) at table position 0, the position counted the same way.
+double earth_rate_projection_dph(double latitude_deg, SensitiveAxis axis,
+                                 double heading_at_zero_deg, double position_deg);
+
+}  // namespace gyrotherm::analysis
