@@ -246,7 +246,11 @@ nlohmann::ordered_json table_json(const TableStatus& t) {
       {"fault", s.fault},
       {"port", t.port},
       {"device", t.device},
-      {"requests", {{"acl", t.acl_requests}, {"aero", t.aero_requests}}},
+      {"requests",
+       {{"acl", t.acl_requests},
+        {"acl_unanswered", t.acl_unanswered},
+        {"acl_refused_connections", t.acl_refused_connections},
+        {"aero", t.aero_requests}}},
   };
 }
 

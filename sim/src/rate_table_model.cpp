@@ -119,15 +119,21 @@ void RateTableModel::substep(double h) {
   const double a_max = accel_limit_dps2_;
   const double target = target_rate_dps();
   const double e = target - v0;
-  if (std::abs(e) <= 0.5 * j_max * h * h && std::abs(a0) <= j_max * h) {
+  if (std::abs(e) <= j_max * h * h && std::abs(a0) <= j_max * h * (1 + 1e-9)) {
     // At the target within what one substep of jerk can resolve.
     position_deg_ += 0.5 * (v0 + target) * h;
     rate_dps_ = target;
     accel_dps2_ = 0;
   } else {
-    // Time-optimal under |j| ≤ J, |a| ≤ A: the acceleration that, ramped to
-    // zero at J, uses up the remaining rate error exactly, a = sqrt(2 J |e|).
-    const double a_des = sign(e) * std::min(a_max, std::sqrt(2.0 * j_max * std::abs(e)));
+    // Time-optimal under |j| ≤ J, |a| ≤ A: the acceleration a1 at the end of
+    // this substep that, ramped to zero at J, uses up the rate error left
+    // then exactly: a1² = 2 J (|e| − (a0 + a1) h / 2) (in the direction of e).
+    const double s = sign(e);
+    const double alpha0 = s * a0;
+    const double c = 2.0 * j_max * std::abs(e) - j_max * h * alpha0;
+    const double a1 =
+        c > 0 ? 0.5 * (-j_max * h + std::sqrt(j_max * j_max * h * h + 4.0 * c)) : -a_max;
+    const double a_des = s * std::min(a_max, a1);
     const double j = std::clamp((a_des - a0) / h, -j_max, j_max);
     position_deg_ += v0 * h + 0.5 * a0 * h * h + j * h * h * h / 6.0;
     rate_dps_ = v0 + a0 * h + 0.5 * j * h * h;

@@ -390,7 +390,10 @@ SimulatorStatus Simulator::status() const {
     t.disconnected = table_disconnected_.load();
     if (table_server_) {
       t.port = table_server_->port();
-      t.acl_requests = table_server_->stats().requests;
+      const TableServerStats stats = table_server_->stats();
+      t.acl_requests = stats.requests;
+      t.acl_unanswered = stats.unanswered;
+      t.acl_refused_connections = stats.refused_connections;
     }
     if (aero_server_) {
       t.device = aero_server_->device();

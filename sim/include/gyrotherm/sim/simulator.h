@@ -87,6 +87,8 @@ struct TableStatus {
   int port = 0;               // ACL over TCP
   std::string device;         // AERO pty
   uint64_t acl_requests = 0;
+  uint64_t acl_unanswered = 0;  // dropped while hung
+  uint64_t acl_refused_connections = 0;
   uint64_t aero_requests = 0;
 };
 
