@@ -30,8 +30,10 @@
 
 namespace gyrotherm::sim {
 
-// [simulator.table] in the station config. Defaults after an Acutronic
-// BD125 table (its datasheet: 1000 °/s, 1000 °/s²) and the paper's rate noise.
+// [simulator.table] in the station config. The rate limit is an Acutronic
+// BD125's (datasheet: 1000 °/s; it gives 4200 °/s² without load, the
+// default acceleration here is a loaded table's 1000 °/s²); the rate noise
+// is the paper's table's.
 struct TableParams {
   double max_rate_dps = 1000.0;  // rate limit (and the gyro model's full scale)
   double max_accel_dps2 = 1000.0;
