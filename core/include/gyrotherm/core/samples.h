@@ -2,6 +2,8 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
+#include <string>
 
 namespace gyrotherm {
 
@@ -23,6 +25,19 @@ struct TemperatureSample {
   double chamber_c = 0;
   double top_c = 0;
   double side_c = 0;
+};
+
+// One reading of the rate table (turntable) with the demand in force.
+// Angles are degrees, rates °/s (the table's own units; gyro rates are °/h).
+struct TableSample {
+  double t_s = 0;                               // same convention as GyroSample::t_s
+  std::string demand_mode{};                    // none, static, rate: the step's demand
+  double demand_rate_dps = 0;                   // demanded rate (rate demands; 0 otherwise)
+  std::optional<double> demand_position_deg{};  // demanded position; nullopt: none
+  double rate_dps = 0;                          // measured rate
+  double position_deg = 0;                      // measured position, [0, 360) on a continuous axis
+  std::string mode{};                           // servo mode reported: off, rate, position, unknown
+  std::string interlock{};                      // open, closed, fault
 };
 
 }  // namespace gyrotherm
