@@ -18,6 +18,7 @@
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
 #include "migrations.h"
+#include "test_files.h"
 #include "test_util.h"
 
 namespace gyrotherm::storage {
@@ -644,6 +645,125 @@ TEST(TableStorage, ScaleFactorRowsStoreReplaceAndRead) {
   auto orphan = db.store_scale_factor(run_id, {point(seg_id + 100, 1, 1.0, 1.0)}, {}, std::nullopt);
   EXPECT_FALSE(orphan.ok());
   EXPECT_TRUE(integrity_ok(db));
+}
+
+// The sqlite3 statements of docs/storage.md that read the v7 tables, run
+// against a database holding such rows: they parse, return rows, and the
+// figures they compute agree with the stored records.
+TEST(TableStorage, DocumentedQueriesRun) {
+  const std::string doc =
+      gyrotherm::testing::read_text(std::string(GYROTHERM_SOURCE_DIR) + "/docs/storage.md");
+  std::vector<std::string> statements;
+  for (std::size_t at = 0; (at = doc.find("```sql\n", at)) != std::string::npos;) {
+    at += 7;
+    const std::size_t end = doc.find("```", at);
+    ASSERT_NE(end, std::string::npos);
+    const std::string block = doc.substr(at, end - at);
+    at = end + 3;
+    if (block.find("scale_factor") == std::string::npos &&
+        block.find("table_samples") == std::string::npos) {
+      continue;
+    }
+    for (std::size_t from = 0, semi; (semi = block.find(';', from)) != std::string::npos;
+         from = semi + 1) {
+      statements.push_back(block.substr(from, semi + 1 - from));
+    }
+  }
+  ASSERT_EQ(statements.size(), 4u) << "the documented v7 queries changed: update this test";
+
+  TempDir dir;
+  Database db = open_ok(dir.file("station.db"));
+  int64_t run_id = 0;
+  for (int i = 0; i < 3; ++i) run_id = *db.create_run(a_run());  // run 3, the last
+  int64_t seg_id = 0;
+  for (int idx = 0; idx <= 12; ++idx) {
+    SegmentRecord seg;
+    seg.run_id = run_id;
+    seg.index = idx;
+    seg.kind = idx == 12 ? "rate" : "soak";
+    seg.state = "completed";
+    seg.t_start_s = idx * 100.0;
+    seg.t_end_s = idx * 100.0 + 100.0;
+    seg_id = *db.create_segment(seg);
+  }
+  auto writer = start_ok(db.path(), {.commit_interval = 1h});
+  for (int j = 0; j < 40; ++j) {
+    TableSample t = table_sample(j);
+    t.t_s = 1200.0 + j * 0.5;
+    writer->push_table(run_id, t);
+  }
+  ASSERT_TRUE(writer->flush().ok());
+  std::vector<ScaleFactorPointRecord> points;
+  for (int rep = 1; rep <= 2; ++rep) {
+    for (double rate : {-100.0, 100.0}) {
+      ScaleFactorPointRecord p = point(seg_id, rep, rate, 1.000012);
+      p.sf_sequence = 2;
+      p.output_dps += 1e-5 * rate / 100.0;  // an asymmetry
+      points.push_back(p);
+    }
+  }
+  ScaleFactorFitRecord cold;
+  cold.sf_sequence = 1;
+  cold.temperature_c = -20.0;
+  cold.k = 1.0000100;
+  cold.asymmetry_ppm = 1.5;
+  cold.n_points = 4;
+  ScaleFactorFitRecord warm = cold;
+  warm.sf_sequence = 2;
+  warm.temperature_c = 40.0;
+  warm.k = 1.0000121;
+  warm.bias_dps = 0.002;
+  warm.asymmetry_ppm.reset();
+  ScaleFactorTemperatureFitRecord tfit;
+  tfit.order = 1;
+  tfit.t_centre_c = 10.0;
+  tfit.k_coeffs_json = "[1.00001105,3.5e-8]";
+  tfit.bias_coeffs_json = "[0.001,1.6e-5]";
+  tfit.k_ppm_per_c = 0.035;
+  tfit.bias_dph_per_c = 0.0576;
+  ASSERT_TRUE(db.store_scale_factor(run_id, points, {cold, warm}, tfit).ok());
+
+  std::vector<std::vector<std::vector<std::string>>> results;
+  for (const std::string& sql : statements) {
+    SCOPED_TRACE(sql);
+    sqlite3_stmt* st = nullptr;
+    ASSERT_EQ(sqlite3_prepare_v2(db.handle(), sql.c_str(), -1, &st, nullptr), SQLITE_OK)
+        << sqlite3_errmsg(db.handle());
+    std::vector<std::vector<std::string>> rows;
+    int rc;
+    while ((rc = sqlite3_step(st)) == SQLITE_ROW) {
+      std::vector<std::string> row;
+      for (int c = 0; c < sqlite3_column_count(st); ++c) {
+        const unsigned char* p = sqlite3_column_text(st, c);
+        row.push_back(p != nullptr ? reinterpret_cast<const char*>(p) : "NULL");
+      }
+      rows.push_back(std::move(row));
+    }
+    EXPECT_EQ(rc, SQLITE_DONE) << sqlite3_errmsg(db.handle());
+    sqlite3_finalize(st);
+    EXPECT_FALSE(rows.empty());
+    results.push_back(std::move(rows));
+  }
+  ASSERT_EQ(results.size(), 4u);
+  // Scale factor over temperature: coldest first, K relative to it.
+  ASSERT_EQ(results[0].size(), 2u);
+  EXPECT_EQ(results[0][0][0], "1");
+  EXPECT_EQ(results[0][1][2], "1.000012100");
+  EXPECT_EQ(std::stod(results[0][1].back()), std::round((warm.k / cold.k - 1) * 1e7) / 10);
+  EXPECT_EQ(results[0][1][6], "NULL");  // no asymmetry stored for the warm sequence
+  ASSERT_EQ(results[1].size(), 1u);
+  EXPECT_EQ(results[1][0][2], tfit.k_coeffs_json);
+  // The points of sequence 2 with their residual from the line, in ppm.
+  ASSERT_EQ(results[2].size(), 4u);
+  for (std::size_t i = 0; i < 4; ++i) {
+    const auto& p = points[i];  // stored order: repetition, then rate
+    const double want =
+        (p.output_dps - (warm.k * p.rate_dps + warm.bias_dps)) / (warm.k * p.rate_dps) * 1e6;
+    EXPECT_NEAR(std::stod(results[2][i].back()), want, 0.05 + 1e-9) << i;
+  }
+  // The table during step 12: 40 readings at 2 a second.
+  EXPECT_EQ(results[3].size(), 20u);
+  EXPECT_EQ(results[3][0].back(), "closed");
 }
 
 }  // namespace
