@@ -306,10 +306,9 @@ class ScheduleReader {
       return false;
     }
     if (limits_.table && std::abs(rate_dps) > limits_.table->max_rate_dps) {
-      t.error(key,
-              fmt::format("{:g} °/s exceeds the station's max table rate {:g} °/s ([table] "
-                          "max_rate_dps)",
-                          std::abs(rate_dps), limits_.table->max_rate_dps));
+      t.error(key, fmt::format("{:g} °/s is faster than the station's max table rate {:g} °/s "
+                               "([table] max_rate_dps)",
+                               rate_dps, limits_.table->max_rate_dps));
       return false;
     }
     return true;
@@ -403,7 +402,12 @@ class ScheduleReader {
     const double setpoint_c = temperature(t, "setpoint_c").value.value_or(0);
 
     // rates_dps: positive magnitudes, each once.
-    std::vector<std::pair<double, int>> rates;  // magnitude, line
+    struct Rate {
+      double dps;
+      int line;
+      std::string key;  // rates_dps[i]
+    };
+    std::vector<Rate> rates;
     t.skip("rates_dps");
     if (const toml::node* node = t.raw().get("rates_dps"); !node) {
       t.error("rates_dps", "missing (required, array of rates in °/s)");
@@ -437,14 +441,15 @@ class ScheduleReader {
           report(fmt::format("{:g} °/s is out of range: must be > 0 and <= {:g} °/s", *v,
                              kMaxTableRateDps));
         } else if (limits_.table && *v > limits_.table->max_rate_dps) {
-          report(fmt::format(
-              "{:g} °/s exceeds the station's max table rate {:g} °/s ([table] max_rate_dps)", *v,
-              limits_.table->max_rate_dps));
+          report(
+              fmt::format("{:g} °/s is faster than the station's max table rate {:g} °/s ([table] "
+                          "max_rate_dps)",
+                          *v, limits_.table->max_rate_dps));
         } else if (std::any_of(rates.begin(), rates.end(),
-                               [&](const auto& r) { return r.first == *v; })) {
+                               [&](const Rate& r) { return r.dps == *v; })) {
           report(fmt::format("{:g} °/s is listed twice", *v));
         } else {
-          rates.emplace_back(*v, n_line);
+          rates.push_back({*v, n_line, key});
         }
       }
     }
@@ -475,13 +480,14 @@ class ScheduleReader {
     };
     std::vector<Point> points;
     if (turns && min_dwell.value) {
-      for (const auto& [rate_dps, rate_line] : rates) {
+      for (const Rate& rate : rates) {
+        const double rate_dps = rate.dps;
         // ceil, forgiving the rounding of an exact quotient (10 s at 36 °/s: 1 turn).
         const double needed = std::ceil(*min_dwell.value * rate_dps / 360.0 - 1e-9);
         const double n = std::max(static_cast<double>(*turns), needed);
         const double dwell_s = n * 360.0 / rate_dps;
         if (dwell_s > kMaxRateDwellMin * 60) {
-          errors_.add(rate_line, t.key_path("rates_dps"),
+          errors_.add(rate.line, t.key_path(rate.key),
                       fmt::format("at {:g} °/s, {:g} turns take {:.1f} h; a rate point may "
                                   "dwell at most {:g} h",
                                   rate_dps, n, dwell_s / 3600, kMaxRateDwellMin / 60));

@@ -140,8 +140,8 @@ void Sequencer::begin_step(std::size_t index, double t_s) {
       setpoint_c_ = step.setpoint_c;
       restart_spin_up();
       last_table_rate_dps_.reset();
-      update_state(t_s, fmt::format("{}: spinning up to {:+g} °/s", step.label,
-                                    step.table.rate_dps));
+      update_state(t_s,
+                   fmt::format("{}: spinning up to {:+g} °/s", step.label, step.table.rate_dps));
       break;
   }
 }
@@ -432,9 +432,9 @@ void Sequencer::tick_rate(double t_s, double active_dt_s, const Readings& readin
 
   if (activity_ == RunState::kSettling) {
     spin_up_s_ += active_dt_s;
-    const bool at_rate = readings.table_rate_dps &&
-                         std::abs(*readings.table_rate_dps - demand_dps) <=
-                             options_.at_rate_tolerance_dps;
+    const bool at_rate =
+        readings.table_rate_dps &&
+        std::abs(*readings.table_rate_dps - demand_dps) <= options_.at_rate_tolerance_dps;
     if (!at_rate) {
       at_rate_since_s_.reset();
     } else if (!at_rate_since_s_) {
@@ -447,8 +447,8 @@ void Sequencer::tick_rate(double t_s, double active_dt_s, const Readings& readin
       update_state(t_s, fmt::format("{}: at {:+g} °/s (measured {:+.4f} °/s for {:g} s); "
                                     "acquiring {} turn{} over {:g} s",
                                     step.label, demand_dps, *readings.table_rate_dps,
-                                    options_.at_rate_hold_s, step.turns,
-                                    step.turns == 1 ? "" : "s", step.dwell_s));
+                                    options_.at_rate_hold_s, step.turns, step.turns == 1 ? "" : "s",
+                                    step.dwell_s));
       return;
     }
     if (spin_up_s_ > options_.spin_up_timeout_s) {

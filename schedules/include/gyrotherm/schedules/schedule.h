@@ -114,9 +114,9 @@ inline constexpr double kMaxToleranceC = 10;
 inline constexpr double kMaxStabilityCPerMin = 10;  // and > 0
 inline constexpr double kMaxTableRateDps = 1000;    // |table_rate_dps|, |rate_dps|, rates_dps
 // scale_factor steps
-inline constexpr int64_t kMaxTurnsPerPoint = 1000;           // turns
-inline constexpr double kMaxMinDwellS = 12 * 3600;           // min_dwell_s: 12 h
-inline constexpr double kMaxRateDwellMin = 24 * 60;          // a rate point's dwell: 24 h
+inline constexpr int64_t kMaxTurnsPerPoint = 1000;          // turns
+inline constexpr double kMaxMinDwellS = 12 * 3600;          // min_dwell_s: 12 h
+inline constexpr double kMaxRateDwellMin = 24 * 60;         // a rate point's dwell: 24 h
 inline constexpr int64_t kMaxScaleFactorRepetitions = 100;  // repetitions
 
 // Parses and validates. On failure the error lists every problem, one per
