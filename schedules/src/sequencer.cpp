@@ -478,10 +478,12 @@ Status Sequencer::pause(double t_s, const std::string& reason) {
   if (end_ || state_ == RunState::kQueued) return Error::Permanent("no run in progress to pause");
   if (paused_) return Error::Permanent("the run is already paused");
   paused_ = true;
+  const bool rate_dwell = window_open_s_ && plan_.steps[index_].kind == StepKind::kRate;
   close_window(t_s);
   was_held_ = true;
-  update_state(t_s, fmt::format("paused ({}); holding {:.2f} °C, acquisition clock stopped", reason,
-                                setpoint_c_));
+  update_state(t_s, fmt::format("paused ({}); holding {:.2f} °C, acquisition clock stopped{}",
+                                reason, setpoint_c_,
+                                rate_dwell ? "; the rate point's partial dwell is discarded" : ""));
   return Status::Ok();
 }
 
@@ -490,7 +492,12 @@ Status Sequencer::resume(double t_s, const std::string& reason) {
   if (!paused_) return Error::Permanent("the run is not paused");
   paused_ = false;
   // The window reopens (or the soak restarts) at the next tick, with readings.
-  update_state(t_s, fmt::format("resumed ({})", reason));
+  const PlanStep& step = plan_.steps[index_];
+  update_state(t_s, step.kind == StepKind::kRate
+                        ? fmt::format("resumed ({}); {}: spinning up to {:+g} °/s, the dwell "
+                                      "starts over",
+                                      reason, step.label, step.table.rate_dps)
+                        : fmt::format("resumed ({})", reason));
   return Status::Ok();
 }
 
