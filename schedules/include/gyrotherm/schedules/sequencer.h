@@ -33,6 +33,17 @@
 // Ramp: the set point moves from where the previous step left it to the
 // target at the step's rate; the whole ramp (minus holds) is acquisition.
 // Hold: the set point is held for the step's duration, no acquisition.
+// Rate point (kRate, from a scale_factor step): the set point is held and the
+// step is settling ("spinning up") until the measured table rate has been
+// within at_rate_tolerance_dps of the demand for at_rate_hold_s; then one
+// acquisition window of exactly dwell_s (whole turns) of unheld time. A hold
+// during the dwell discards the partial window (a window covers whole turns)
+// and, once released, the point spins up and dwells in full again. Not at
+// rate within spin_up_timeout_s of unheld time aborts the run. A restore
+// restarts a rate point in progress the same way.
+// Every step carries a table demand (table_demand()): the daemon commands the
+// table from it when a step starts (on_step_started) and stops the table when
+// the run ends.
 // After the last step, and on failure or abort, the safe set point is
 // commanded.
 #pragma once
@@ -174,6 +185,10 @@ class Sequencer {
   bool finished() const { return is_terminal(state_); }
   bool paused() const { return paused_; }
   double setpoint_c() const { return setpoint_c_; }
+  // The table demand of the current step; kNone before start() and once the
+  // run has ended (aborting, completed, failed, interrupted): the daemon
+  // stops the table then.
+  const TableDemand& table_demand() const;
   // Index of the current step (== steps().size() once finished).
   std::size_t step_index() const { return index_; }
   const Plan& plan() const { return plan_; }
@@ -197,6 +212,9 @@ class Sequencer {
   void close_window(double t_s);
   void on_unheld(double t_s, const Readings& readings);
   void tick_soak(double t_s, const Readings& readings);
+  void tick_rate(double t_s, double active_dt_s, const Readings& readings);
+  // A rate point starts its spin-up (again): no window, the gate unheld.
+  void restart_spin_up();
 
   Plan plan_;
   SequencerOptions options_;
@@ -220,6 +238,11 @@ class Sequencer {
   analysis::StabilityWindow shell_window_{600.0};
   analysis::StabilityWindow chamber_window_{600.0};
   std::optional<double> last_shell_c_;
+  // Rate point: unheld station s of the current spin-up, since when the
+  // measured rate has been within tolerance, the last measured rate.
+  double spin_up_s_ = 0;
+  std::optional<double> at_rate_since_s_;
+  std::optional<double> last_table_rate_dps_;
 };
 
 }  // namespace gyrotherm::schedules
