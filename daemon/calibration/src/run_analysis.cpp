@@ -274,6 +274,7 @@ nlohmann::json run_config_json(const StationConfig& config) {
              {"max_rate_dps", t->max_rate_dps},
              {"max_accel_dps2", t->max_accel_dps2},
              {"at_rate_tolerance_dps", t->at_rate_tolerance_dps},
+             {"at_rate_tolerance_ppm", t->at_rate_tolerance_ppm},
              {"at_rate_hold_s", t->at_rate_hold_s},
              {"spin_up_timeout_s", t->spin_up_timeout_s},
              {"rest_rate_dps", t->rest_rate_dps},

@@ -195,6 +195,8 @@ void Station::make_sequencer(schedules::Plan plan) {
   opt.interlocks = config_.interlocks;
   if (config_.table) {
     opt.at_rate_tolerance_dps = config_.table->at_rate_tolerance_dps;
+    opt.at_rate_tolerance_ppm = config_.table->at_rate_tolerance_ppm;
+    opt.interlocks.table_timeout_s = config_.table->silent_timeout_s;
     opt.at_rate_hold_s = config_.table->at_rate_hold_s;
     opt.spin_up_timeout_s = config_.table->spin_up_timeout_s;
   }

@@ -48,6 +48,8 @@
 // commanded.
 #pragma once
 
+#include <algorithm>
+#include <cmath>
 #include <cstddef>
 #include <nlohmann/json_fwd.hpp>
 #include <optional>
@@ -116,7 +118,10 @@ struct SequencerOptions {
   // Rate points ([table]): the dwell starts once the measured rate has been
   // within at_rate_tolerance_dps of the demand for at_rate_hold_s; not so
   // within spin_up_timeout_s fails the step.
+  // The tolerance is the larger of at_rate_tolerance_dps and
+  // at_rate_tolerance_ppm of the demand (a table's rate noise is relative).
   double at_rate_tolerance_dps = 0.05;
+  double at_rate_tolerance_ppm = 1000.0;
   double at_rate_hold_s = 1.0;
   double spin_up_timeout_s = 120.0;
 };
@@ -198,6 +203,10 @@ class Sequencer {
 
  private:
   bool held() const;
+  double at_rate_tolerance_dps(double demand_dps) const {
+    return std::max(options_.at_rate_tolerance_dps,
+                    options_.at_rate_tolerance_ppm * 1e-6 * std::abs(demand_dps));
+  }
   RunState derived_state() const;
   // Emits on_state when the derived state differs from state_.
   void update_state(double t_s, const std::string& reason);
