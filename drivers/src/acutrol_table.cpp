@@ -177,7 +177,8 @@ Result<acl::Reply> AcutrolTable::roundtrip(const std::string& command) {
     auto next = decoder_.next();
     if (!next) return lost(next.error().message);
     if (*next) {
-      link_->on_success(std::chrono::duration<double, std::milli>(Steady::now() - t0).count());
+      link_->on_success(std::chrono::duration<double, std::milli>(Steady::now() - t0).count(),
+                        command != acl::take_remote());
       return std::move(**next);
     }
     pollfd p{fd_, POLLIN, 0};

@@ -28,11 +28,14 @@ class TableLink {
     ever_connected_ = true;
     health_.connected = true;
   }
-  void on_success(double latency_ms) {
+  // A request answered. `reset_backoff`: false for the connection's own
+  // handshake, so a controller that accepts and then drops every request
+  // is retried ever more slowly.
+  void on_success(double latency_ms, bool reset_backoff = true) {
     ++health_.requests;
     health_.last_latency_ms = latency_ms;
     health_.last_success_utc = wall_time_utc_iso();
-    backoff_s_ = kMinBackoffS;
+    if (reset_backoff) backoff_s_ = kMinBackoffS;
     failed_ = false;
   }
   // The link is lost or could not be made: the next attempt waits.
