@@ -21,6 +21,7 @@
 #include "gyrotherm/drivers/frame_parser.h"
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/drivers/modbus_devices.h"
+#include "gyrotherm/drivers/rate_tables.h"
 #include "gyrotherm/drivers/serial_port.h"
 #include "gyrotherm/schedules/schedule.h"
 #include "output.h"
@@ -248,6 +249,104 @@ int cmd_chamber_setpoint(const std::string& config_path, double setpoint_c) {
   return 0;
 }
 
+// ---------------------------------------------------------------- table
+// Commissioning of the rate table ([table]; docs/table.md): one reading, or
+// one demand, straight to the controller.
+std::string table_endpoint(const drivers::TableConnection& c) {
+  if (c.profile == "aero") return fmt::format("aero {} ({} baud)", c.device, c.baud);
+  return fmt::format("acutrol {}:{} axis {} ({} replies)", c.host, c.port, c.axis, c.reply_header);
+}
+
+int cmd_table(const std::string& config_path, const std::string& action, double value, bool json) {
+  if ((action == "rate" || action == "position") && !std::isfinite(value)) {
+    return fail(fmt::format("{} is not a {}", value, action), 2);
+  }
+  auto cfg = load_config_for_tools(config_path);
+  if (!cfg) return fail(cfg.error().message, 2);
+  if (!cfg->table) {
+    return fail(fmt::format("{}: no [table] section: this station has no rate table", config_path),
+                2);
+  }
+  const daemon::TableSection& section = *cfg->table;
+  if (action == "rate" && std::fabs(value) > section.max_rate_dps) {
+    return fail(fmt::format("{:g} °/s is beyond the station's table limit ±{:g} °/s ([table] "
+                            "max_rate_dps in {})",
+                            value, section.max_rate_dps, config_path),
+                2);
+  }
+  std::optional<drivers::SerialPort> gyro_line;  // held so no daemon starts meanwhile
+  std::string gyro_error;
+  if (auto refused = refuse_if_station_owned(*cfg, gyro_line, gyro_error)) return *refused;
+  auto made = drivers::make_rate_table(
+      section.connection,
+      drivers::TableLimits{section.max_rate_dps, section.max_accel_dps2, std::nullopt}, "table");
+  if (!made) return fail(made.error().message, 2);
+  drivers::RateTable& table = **made;
+  const std::string where = table_endpoint(section.connection);
+  if (auto st = table.connect(); !st) return fail(fmt::format("{}: {}", where, st.error().message));
+
+  Status done;
+  if (action == "rate") done = table.set_rate(value);
+  if (action == "position") done = table.set_position(value);
+  if (action == "stop") done = table.stop();
+  if (!done) return fail(fmt::format("{}: {}", where, done.error().message));
+
+  const auto state = table.read();
+  const auto limits = table.limits();
+  if (json) {
+    nlohmann::json out = {{"device", where}, {"action", action}};
+    if (state) {
+      out["mode"] = std::string(drivers::to_string(state->mode));
+      out["mode_text"] = state->mode_text;
+      out["interlock"] = std::string(drivers::to_string(state->interlock));
+      out["rate_dps"] = state->rate_dps;
+      out["position_deg"] = state->position_deg;
+      out["fault"] = state->fault;
+    } else {
+      out["error"] = state.error().message;
+    }
+    if (limits) {
+      out["limits"] = {
+          {"max_rate_dps", limits->max_rate_dps},
+          {"max_accel_dps2", limits->max_accel_dps2},
+          {"trip_rate_dps", limits->trip_rate_dps ? nlohmann::json(*limits->trip_rate_dps)
+                                                  : nlohmann::json(nullptr)}};
+    } else {
+      out["limits"] = {{"error", limits.error().message}};
+    }
+    out["station_limits"] = {{"max_rate_dps", section.max_rate_dps},
+                             {"max_accel_dps2", section.max_accel_dps2}};
+    std::cout << out.dump(2) << "\n";
+  } else {
+    if (action == "rate") std::cout << fmt::format("table rate demand {:g} °/s sent\n", value);
+    if (action == "position") std::cout << fmt::format("table position demand {:g}° sent\n", value);
+    if (action == "stop") std::cout << "table stop sent (decelerates to rest, stays servoed)\n";
+    std::cout << fmt::format("table    {}\n", where);
+    if (state) {
+      std::cout << fmt::format(
+          "  mode             {} ({})\n  interlock        {}\n  rate             {:.4f} °/s\n"
+          "  position         {:.4f}°\n",
+          drivers::to_string(state->mode), state->mode_text, drivers::to_string(state->interlock),
+          state->rate_dps, state->position_deg);
+      if (!state->fault.empty()) std::cout << fmt::format("  fault            {}\n", state->fault);
+    } else {
+      std::cout << fmt::format("  ERROR: {}\n", state.error().message);
+    }
+    if (limits) {
+      std::cout << fmt::format(
+          "  limits           rate {:g} °/s, acceleration {:g} °/s², trip {}\n",
+          limits->max_rate_dps, limits->max_accel_dps2,
+          limits->trip_rate_dps ? fmt::format("{:g} °/s", *limits->trip_rate_dps)
+                                : std::string("not reported"));
+    } else {
+      std::cout << fmt::format("  limits           ERROR: {}\n", limits.error().message);
+    }
+    std::cout << fmt::format("  station limits   rate {:g} °/s, acceleration {:g} °/s² ([table])\n",
+                             section.max_rate_dps, section.max_accel_dps2);
+  }
+  return (state && limits) ? 0 : 1;
+}
+
 int cmd_schedule_check(const std::string& config_path, const std::string& schedule_path,
                        bool json) {
   auto cfg = daemon::load_station_config(config_path);
@@ -309,6 +408,20 @@ int main(int argc, char** argv) {
   set_point->add_option("celsius", setpoint_c, "set point, °C")->required();
   set_point->add_option("--config", config_path, "station config")->required();
 
+  auto* table = app.add_subcommand("table", "rate table commissioning (docs/table.md)");
+  table->require_subcommand(1);
+  double table_value = 0;
+  auto* table_status = table->add_subcommand("status", "mode, interlock, rate, position, limits");
+  auto* table_rate = table->add_subcommand("rate", "spin at a rate (°/s, signed)");
+  table_rate->add_option("dps", table_value, "rate, °/s")->required();
+  auto* table_position = table->add_subcommand("position", "move to and hold a position (°)");
+  table_position->add_option("deg", table_value, "position, °")->required();
+  auto* table_stop = table->add_subcommand("stop", "decelerate to rest (stays servoed)");
+  for (auto* sub : {table_status, table_rate, table_position, table_stop}) {
+    sub->add_option("--config", config_path, "station config")->required();
+    sub->add_flag("--json", json);
+  }
+
   auto* schedule = app.add_subcommand("schedule", "schedule files");
   schedule->require_subcommand(1);
   auto* check = schedule->add_subcommand("check", "validate a schedule against a station");
@@ -340,6 +453,13 @@ int main(int argc, char** argv) {
     if (*devices) return cmd_devices(config_path, json);
     if (*set_point) return cmd_chamber_setpoint(config_path, setpoint_c);
     if (*check) return cmd_schedule_check(config_path, schedule_path, json);
+    if (*table) {
+      const char* action = *table_status     ? "status"
+                           : *table_rate     ? "rate"
+                           : *table_position ? "position"
+                                             : "stop";
+      return cmd_table(config_path, action, table_value, json);
+    }
     if (auto code = control.run(json)) return *code;
     if (auto code = analysis.run(json)) return *code;
     if (auto code = export_command.run(json)) return *code;
