@@ -65,7 +65,9 @@ TEST(TableDemand, InlineTableAndItsShortForm) {
     const TableDemand& d = plan->steps.at(0).table;
     EXPECT_EQ(d.mode, c.mode);
     EXPECT_EQ(d.position_deg.has_value(), c.position_deg.has_value());
-    if (d.position_deg && c.position_deg) EXPECT_DOUBLE_EQ(*d.position_deg, *c.position_deg);
+    if (d.position_deg && c.position_deg) {
+      EXPECT_DOUBLE_EQ(*d.position_deg, *c.position_deg);
+    }
     EXPECT_DOUBLE_EQ(d.rate_dps, c.rate_dps);
     EXPECT_EQ(plan->steps[0].kind, StepKind::kHold) << "a demand does not change the step";
   }
@@ -128,7 +130,9 @@ TEST(ScaleFactor, ExpandsAscendingPlusThenMinusWithWholeTurns) {
     EXPECT_NEAR(s.dwell_s * rate, 360.0 * s.turns, 1e-9);
     EXPECT_GE(s.turns, 1);
     EXPECT_GE(s.dwell_s, 100.0 - 1e-9);
-    if (s.turns > 1) EXPECT_LT((s.turns - 1) * 360.0 / rate, 100.0);
+    if (s.turns > 1) {
+      EXPECT_LT((s.turns - 1) * 360.0 / rate, 100.0);
+    }
     EXPECT_DOUBLE_EQ(s.acquire_s, 0);
     EXPECT_DOUBLE_EQ(s.hold_s, 0);
   }

@@ -18,13 +18,15 @@ std::string coefficients_json(const std::vector<double>& c) { return nlohmann::j
 
 // One rate point from its segment's windows; nullopt (with the reason in
 // `problem`) when it cannot be used.
-Result<std::optional<storage::ScaleFactorPointRecord>> rate_point(storage::Database& db,
+using MaybePoint = std::optional<storage::ScaleFactorPointRecord>;
+
+Result<MaybePoint> rate_point(storage::Database& db,
                                                                   const storage::SegmentRecord& seg,
                                                                   std::string& problem) {
   const std::string where = fmt::format("run {} segment {} ({})", seg.run_id, seg.index + 1, seg.label);
   if (!seg.table_rate_dps || *seg.table_rate_dps == 0) {
     problem = where + ": no demanded rate stored";
-    return std::nullopt;
+    return MaybePoint{};
   }
   double sum_dph = 0;
   int64_t n = 0;
@@ -47,7 +49,7 @@ Result<std::optional<storage::ScaleFactorPointRecord>> rate_point(storage::Datab
   }
   if (n == 0) {
     problem = where + ": no gyro samples in its acquisition windows";
-    return std::nullopt;
+    return MaybePoint{};
   }
   auto table = db.mean_table_over_windows(seg.run_id, seg.windows);
   if (!table) return table.error();
@@ -69,14 +71,14 @@ Result<std::optional<storage::ScaleFactorPointRecord>> rate_point(storage::Datab
       problem = fmt::format("{}: the table measured {:.6g} °/s for a demand of {:g} °/s ({:.0f} ppm "
                             "off); point left out",
                             where, *table->rate_dps, p.rate_dps, error_ppm);
-      return std::nullopt;
+      return MaybePoint{};
     }
   }
   if (std::isnan(p.temperature_c)) {
     problem = where + ": no shell temperature in its acquisition windows";
-    return std::nullopt;
+    return MaybePoint{};
   }
-  return p;
+  return MaybePoint{p};
 }
 
 }  // namespace
