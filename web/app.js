@@ -319,6 +319,40 @@
     setText(`${prefix}-error`, d.last_error || '');
   }
 
+  // The rate table's card: shown only when the station has a table
+  // (status.table not null). mode off/rate/position, interlock
+  // open/closed/fault; null figures while the controller has not answered.
+  const TABLE_DEMAND = {
+    none: () => 'none',
+    static: (d) => (d.position_deg == null ? 'static' : `static at ${fmtNum(d.position_deg, 2)}°`),
+    rate: (d) => `${fmtNum(d.rate_dps, 3)} °/s`,
+  };
+
+  function renderTable(t, health) {
+    const card = $('health-table');
+    card.hidden = t == null;
+    card.parentElement.classList.toggle('with-table', t != null);
+    if (t == null) return;
+    const up = !!t.connected;
+    const fault = t.interlock === 'fault' || !!t.fault;
+    $('table-conn').dataset.ok = !up || fault ? 'bad' : t.safing ? 'warn' : 'ok';
+    setText('table-link', up ? 'connected' : 'DISCONNECTED');
+    setLevel('table-link', up ? '' : 'bad');
+    setText('table-mode', t.mode || '—');
+    setText('table-interlock', t.interlock === 'fault' ? 'FAULT' : (t.interlock || '—'));
+    setLevel('table-interlock', t.interlock === 'fault' ? 'bad' : '');
+    setText('table-rate', t.rate_dps == null ? '—' : `${fmtNum(t.rate_dps, 3)} °/s`);
+    setText('table-position', t.position_deg == null ? '—' : `${fmtNum(t.position_deg, 2)}°`);
+    const d = t.demand || {};
+    const demand = TABLE_DEMAND[d.mode];
+    setText('table-demand', demand ? demand(d) : (d.mode || '—'));
+    $('table-stopping').hidden = !t.safing;
+    const h = health || {};
+    setText('table-errors', fmtCount(h.errors));
+    setLevel('table-errors', h.errors > 0 ? 'warn' : '');
+    setText('table-fault', t.fault || (up ? '' : h.last_error || ''));
+  }
+
   function renderStatus(s) {
     const dev = s.devices || {};
     const running = s.run_id != null;
@@ -367,6 +401,7 @@
 
     renderDevice('chamber', dev.chamber);
     renderDevice('probes', dev.probes);
+    renderTable(s.table, dev.table);
 
     const g = dev.gyro || {};
     $('gyro-conn').dataset.ok = g.connected ? 'ok' : 'bad';

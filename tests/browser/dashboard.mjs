@@ -1,7 +1,8 @@
 // Browser test of the station dashboard: headless Chromium (Debian's, through
 // playwright-core) loads the page served by gyrothermd, waits until the live
 // values move (station time changes twice, both plots hold points, some of
-// them from the stream), and saves a full-page screenshot.
+// them from the stream), checks the rate-table card is shown exactly when the
+// status has a table, and saves a full-page screenshot.
 //
 //   node tests/browser/dashboard.mjs --url http://127.0.0.1:PORT/ --screenshot OUT.png
 //       [--timeout-s 60] [--chromium /usr/bin/chromium] [--token TOKEN]
@@ -150,6 +151,22 @@ try {
       if (auth !== `Bearer ${args.token}`) failures.push(`${p} without the token's header`);
     }
     if (!apiRequests.some(([, , given]) => !given)) failures.push('no 401 before the token');
+  }
+
+  // The rate-table card: shown exactly when the station has a table.
+  if (done) {
+    const table = await page.evaluate(async () => {
+      const token = sessionStorage.getItem('gyrotherm.token');
+      const r = await fetch('/api/v1/status', {
+        cache: 'no-store', headers: token ? { Authorization: `Bearer ${token}` } : {},
+      });
+      const s = await r.json();
+      return { hasTable: s.table != null, hidden: document.getElementById('health-table').hidden };
+    });
+    if (table.hasTable === table.hidden) {
+      failures.push(`the rate-table card is ${table.hidden ? 'hidden' : 'shown'} on a station ` +
+        `${table.hasTable ? 'with' : 'without'} a table`);
+    }
   }
 
   // Let the plots settle on the last data before the picture.

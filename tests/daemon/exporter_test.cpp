@@ -22,11 +22,13 @@
 #include <memory>
 #include <mutex>
 #include <set>
+#include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
 
 #include "gyrotherm/storage/sample_writer.h"
+#include "scale_factor_rows.h"
 #include "test_files.h"
 #include "test_time.h"
 #include "utc_time.h"
@@ -769,6 +771,55 @@ TEST_F(ExporterTest, ExportDirectoryLayoutMatchesTheRecord) {
   const std::string report =
       testing::read_text(dir / fmt::format("run-{:04}", with_samples) / "report.html");
   EXPECT_NE(report.find("chart-"), std::string::npos);
+}
+
+// A run with scale-factor rows gets its scale-factor files, on disk and in
+// the record; a run without gets none, and the summary's CSV has the rows.
+TEST_F(ExporterTest, ScaleFactorFilesOnlyForARunWithScaleFactorRows) {
+  const int64_t with = complete_run("scale factor");
+  const int64_t without = complete_run();
+  const gyrotherm::test::StoredScaleFactor stored =
+      gyrotherm::test::store_scale_factor_rows(db(), with);
+  ASSERT_EQ(stored.fits.size(), 3u);
+  ExportRequest manual;
+  manual.run_ids = {with, without};
+  manual.directory = (dir_ / "manual").string();
+  auto out = write_export(db(), manual);
+  ASSERT_TRUE(out.ok()) << out.error().message;
+  const auto on_disk = files_on_disk(manual.directory);
+  EXPECT_EQ(record(out->export_id).files, on_disk);
+  std::set<std::string> scale_factor_files;
+  for (const auto& f : on_disk) {
+    if (f.find("scale-factor") != std::string::npos) scale_factor_files.insert(f);
+  }
+  const std::string run_dir = fmt::format("run-{:04}/", with);
+  EXPECT_EQ(scale_factor_files,
+            (std::set<std::string>{"scale-factor.csv", run_dir + "scale-factor-points.csv",
+                                   run_dir + "scale-factor.csv", run_dir + "scale-factor.h",
+                                   run_dir + "scale-factor.json"}));
+  const fs::path dir = manual.directory;
+  // The summary's CSV: one line per sequence, K to the last bit.
+  const std::string csv = testing::read_text(dir / "scale-factor.csv");
+  std::istringstream lines(csv);
+  std::string line;
+  std::getline(lines, line);
+  EXPECT_EQ(line.rfind("run_id,sf_sequence,temperature_c,k,", 0), 0u) << line;
+  for (const auto& f : stored.fits) {
+    ASSERT_TRUE(std::getline(lines, line)) << csv;
+    std::vector<std::string> fields;
+    std::stringstream ls(line);
+    for (std::string x; std::getline(ls, x, ',');) fields.push_back(x);
+    ASSERT_GE(fields.size(), 4u) << line;
+    EXPECT_EQ(std::stoll(fields[0]), with);
+    EXPECT_EQ(std::stoi(fields[1]), f.sf_sequence);
+    EXPECT_EQ(std::stod(fields[3]), f.k);
+  }
+  EXPECT_FALSE(std::getline(lines, line)) << csv;
+  EXPECT_NE(testing::read_text(dir / run_dir / "report.html").find("id=\"scale-factor\""),
+            std::string::npos);
+  EXPECT_EQ(testing::read_text(dir / fmt::format("run-{:04}", without) / "report.html")
+                .find("scale-factor"),
+            std::string::npos);
 }
 
 TEST_F(ExporterTest, ThreadExportsWhenTheClockReachesTheSlot) {

@@ -5,6 +5,7 @@
 // A station whose reads need a token: the page asks for one, then goes live.
 #include <fmt/format.h>
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <cstdio>
 #include <filesystem>
@@ -120,6 +121,29 @@ TEST_F(DashboardTest, AsksForATokenWhenReadsNeedOne) {
   run_browser(fs::weakly_canonical(fs::path(GYROTHERM_DASHBOARD_PNG))
                   .replace_filename("dashboard-token.png"),
               {"--token", kReadToken});
+}
+
+// The rate-table card against statuses the browser test feeds the page
+// itself (tests/browser/dashboard_table.mjs; no daemon): at rate, an
+// interlock fault while the table is safing, and a station without a table.
+TEST(DashboardPage, RateTableCardFollowsTheStatus) {
+  const fs::path source_dir = GYROTHERM_SOURCE_DIR;
+  const testing::BrowserTools tools = testing::browser_tools(source_dir.string());
+  if (!tools.missing.empty()) GTEST_FAIL() << tools.missing;
+  const fs::path png = fs::weakly_canonical(fs::path(GYROTHERM_DASHBOARD_PNG))
+                           .replace_filename("dashboard-table.png");
+  fs::remove(png);
+  const fs::path log =
+      fs::temp_directory_path() / fmt::format("gyrotherm-dashboard-table-{}.log", ::getpid());
+  testing::ChildProcess browser(
+      {tools.node, (source_dir / "tests/browser/dashboard_table.mjs").string(), "--screenshot",
+       png.string(), "--timeout-s", "30"},
+      log.string());
+  const auto code = browser.wait(std::chrono::seconds(90));
+  ASSERT_TRUE(code.has_value()) << "the browser test did not finish in 90 s\n" << browser.log();
+  EXPECT_EQ(*code, 0) << browser.log();
+  EXPECT_TRUE(fs::exists(png)) << "no screenshot at " << png << "\n" << browser.log();
+  if (!::testing::Test::HasFailure()) fs::remove(log);
 }
 
 }  // namespace

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <map>
 #include <nlohmann/json.hpp>
@@ -377,6 +378,168 @@ Result<ReportFit> report_fit_of_record(const storage::FitRecord& record) {
   return out;
 }
 
+namespace {
+
+// A JSON array of numbers, or nullopt.
+std::optional<std::vector<double>> number_list(const std::string& text) {
+  const json j = json::parse(text, nullptr, false);
+  if (!j.is_array()) return std::nullopt;
+  std::vector<double> out;
+  for (const auto& v : j) {
+    if (!v.is_number()) return std::nullopt;
+    out.push_back(v.get<double>());
+  }
+  return out;
+}
+
+double polynomial(const std::vector<double>& coeffs, double x) {
+  double y = 0;
+  for (auto c = coeffs.rbegin(); c != coeffs.rend(); ++c) y = y * x + *c;
+  return y;
+}
+
+// y_of(Σ coeffs[j] (T − t_centre_c)^j) over T in [lo_c, hi_c], 121 points.
+PlotSeries polynomial_curve(const std::vector<double>& coeffs, double t_centre_c, double lo_c,
+                            double hi_c, std::string label,
+                            const std::function<double(double)>& y_of) {
+  PlotSeries c;
+  c.label = std::move(label);
+  constexpr int kPoints = 121;
+  for (int k = 0; k < kPoints; ++k) {
+    const double t = k == kPoints - 1 ? hi_c : lo_c + (hi_c - lo_c) * k / (kPoints - 1);
+    c.x.push_back(t);
+    c.y.push_back(y_of(polynomial(coeffs, t - t_centre_c)));
+  }
+  return c;
+}
+
+}  // namespace
+
+Result<std::optional<ReportScaleFactor>> collect_scale_factor(storage::Database& db, int64_t run_id,
+                                                              std::vector<std::string>& problems) {
+  ReportScaleFactor sf;
+  auto fits = db.scale_factor_fits(run_id);
+  if (!fits) return fits.error();
+  auto points = db.scale_factor_points(run_id);
+  if (!points) return points.error();
+  auto temperature = db.scale_factor_temperature_fit(run_id);
+  if (!temperature) return temperature.error();
+  if (fits->empty() && points->empty() && !temperature->has_value()) {
+    return std::optional<ReportScaleFactor>();
+  }
+  sf.fits = std::move(*fits);
+  sf.points = std::move(*points);
+  sf.temperature_fit = std::move(*temperature);
+  if (sf.temperature_fit) {
+    const auto& t = *sf.temperature_fit;
+    const auto k = number_list(t.k_coeffs_json);
+    const auto b = number_list(t.bias_coeffs_json);
+    const auto size = static_cast<std::size_t>(std::max(0, t.order) + 1);
+    if (!k || k->size() != size) {
+      problems.push_back(fmt::format(
+          "scale-factor temperature fit of run {}: k_coeffs_json \"{}\" is not an array of {} "
+          "numbers (order {})",
+          run_id, t.k_coeffs_json, size, t.order));
+    } else if (!b || b->size() != size) {
+      problems.push_back(fmt::format(
+          "scale-factor temperature fit of run {}: bias_coeffs_json \"{}\" is not an array of "
+          "{} numbers (order {})",
+          run_id, t.bias_coeffs_json, size, t.order));
+    } else {
+      sf.k_coeffs = *k;
+      for (double v : *b) sf.bias_coeffs_dph.push_back(v * 3600.0);
+    }
+  }
+  return std::optional<ReportScaleFactor>(std::move(sf));
+}
+
+double scale_factor_residual_dps(const storage::ScaleFactorPointRecord& point,
+                                 const storage::ScaleFactorFitRecord& fit) {
+  return point.output_dps - (fit.k * point.rate_dps + fit.bias_dps);
+}
+
+std::vector<Plot> scale_factor_plots(const ReportScaleFactor& sf) {
+  std::vector<Plot> plots;
+  if (sf.fits.size() < 2) return plots;
+  double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+  for (const auto& f : sf.fits) {
+    if (!std::isfinite(f.temperature_c)) continue;
+    lo = std::min(lo, f.temperature_c);
+    hi = std::max(hi, f.temperature_c);
+  }
+  const bool curves = !sf.k_coeffs.empty() && std::isfinite(lo) && hi > lo;
+  // K near 1 varies by ppm: plotted relative to K at the centre temperature
+  // (the fit's k0), or to the sequences' mean K without a fit.
+  double k_ref = 0;
+  if (!sf.k_coeffs.empty() && sf.k_coeffs.front() != 0) {
+    k_ref = sf.k_coeffs.front();
+  } else {
+    for (const auto& f : sf.fits) k_ref += f.k / static_cast<double>(sf.fits.size());
+  }
+  const auto ppm_of_ref = [k_ref](double k) { return (k / k_ref - 1.0) * 1e6; };
+  const std::string order =
+      sf.temperature_fit ? fmt::format("order {}", sf.temperature_fit->order) : std::string();
+  const double t_centre_c = sf.temperature_fit ? sf.temperature_fit->t_centre_c : 0.0;
+
+  Plot k;
+  k.id = "chart-sf-k-temperature";
+  k.title = "Scale factor vs temperature";
+  k.x = {"mean shell temperature (°C)", false};
+  k.y = {fmt::format("K / {:.9f} − 1 (ppm)", k_ref), false};
+  PlotSeries k_points;
+  k_points.label = "K of each sequence";
+  k_points.style = "markers";
+  for (const auto& f : sf.fits) {
+    k_points.x.push_back(f.temperature_c);
+    k_points.y.push_back(ppm_of_ref(f.k));
+  }
+  k.series.push_back(std::move(k_points));
+  if (curves) {
+    k.series.push_back(polynomial_curve(sf.k_coeffs, t_centre_c, lo, hi,
+                                        fmt::format("K(T), {} fit", order), ppm_of_ref));
+  }
+  plots.push_back(std::move(k));
+
+  Plot b;
+  b.id = "chart-sf-bias-temperature";
+  b.title = "Scale-factor bias vs temperature";
+  b.x = {"mean shell temperature (°C)", false};
+  b.y = {"bias of the line (°/h)", false};
+  PlotSeries b_points;
+  b_points.label = "bias of each sequence";
+  b_points.style = "markers";
+  for (const auto& f : sf.fits) {
+    b_points.x.push_back(f.temperature_c);
+    b_points.y.push_back(f.bias_dps * 3600.0);
+  }
+  b.series.push_back(std::move(b_points));
+  if (curves) {
+    b.series.push_back(polynomial_curve(sf.bias_coeffs_dph, t_centre_c, lo, hi,
+                                        fmt::format("B(T), {} fit", order),
+                                        [](double v) { return v; }));
+  }
+  plots.push_back(std::move(b));
+
+  Plot n;
+  n.id = "chart-sf-nonlinearity";
+  n.title = "Scale-factor nonlinearity vs temperature";
+  n.x = {"mean shell temperature (°C)", false};
+  n.y = {"nonlinearity (ppm)", false};
+  PlotSeries rel_k, rel_fs;
+  rel_k.label = "relative to K";
+  rel_fs.label = "relative to full scale";
+  for (const auto& f : sf.fits) {
+    rel_k.x.push_back(f.temperature_c);
+    rel_k.y.push_back(f.nonlinearity_ppm);
+    rel_fs.x.push_back(f.temperature_c);
+    rel_fs.y.push_back(f.nonlinearity_fs_ppm);
+  }
+  n.series.push_back(std::move(rel_k));
+  n.series.push_back(std::move(rel_fs));
+  plots.push_back(std::move(n));
+  return plots;
+}
+
 Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
                                      const ReportOptions& options) {
   RunReport r;
@@ -476,6 +639,13 @@ Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
     allan_records.emplace_back(step_label(a.segment_index, setpoint_c), &a);
   }
   if (!allan_records.empty()) r.plots.push_back(allan_plot(allan_records));
+
+  auto sf = collect_scale_factor(db, run_id, r.problems);
+  if (!sf) return sf.error();
+  r.scale_factor = std::move(*sf);
+  if (r.scale_factor) {
+    for (auto& p : scale_factor_plots(*r.scale_factor)) r.plots.push_back(std::move(p));
+  }
   return r;
 }
 

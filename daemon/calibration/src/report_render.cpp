@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <map>
 #include <nlohmann/json.hpp>
@@ -381,6 +382,219 @@ std::string allan_html(const std::vector<const storage::AllanRecord*>& records, 
   return h;
 }
 
+// ------------------------------------------------------------ scale factor
+
+// A ppm cell of an optional figure (asymmetry, repeatability): "—" with the
+// reason as its tooltip when absent.
+std::string ppm_cell(const std::optional<double>& v, const char* why_absent) {
+  if (!v) return fmt::format("<td class=\"num missing\" title=\"{}\">{}</td>", why_absent, kDash);
+  return num_cell(*v, 1);
+}
+
+// The sequences' lines (one row each), with the run when `with_run`.
+std::string sf_fits_html(const std::vector<const ReportScaleFactor*>& runs, bool with_run) {
+  std::string h = "<table class=\"numbers\" id=\"sf-sequences\">\n<thead><tr>";
+  if (with_run) h += "<th>run</th>";
+  h += "<th>sequence</th><th>temperature (°C)</th><th>K</th><th>standard error of K</th>"
+       "<th>bias (°/h)</th><th>nonlinearity (ppm of K)</th><th>nonlinearity (ppm of full "
+       "scale)</th><th>asymmetry (ppm)</th><th>repeatability (ppm)</th><th>points</th>"
+       "</tr></thead>\n<tbody>\n";
+  for (const auto* sf : runs) {
+    for (const auto& f : sf->fits) {
+      h += "<tr>";
+      if (with_run) h += fmt::format("<td class=\"num\">{}</td>", f.run_id);
+      h += fmt::format("<td class=\"num\">{}</td>", f.sf_sequence) + num_cell(f.temperature_c, 2) +
+           num_cell(f.k, 9) + sci_cell(f.k_se) + num_cell(f.bias_dps * 3600.0, 4) +
+           num_cell(f.nonlinearity_ppm, 1) + num_cell(f.nonlinearity_fs_ppm, 1) +
+           ppm_cell(f.asymmetry_ppm, "one direction only") +
+           ppm_cell(f.repeatability_ppm, "fewer than 2 repetitions") +
+           fmt::format("<td class=\"num\">{}</td>", f.n_points) + "</tr>\n";
+    }
+  }
+  h += "</tbody></table>\n";
+  h += "<p class=\"note\">Each sequence's rate points (both directions, every repetition) "
+       "fitted by least squares to output = K · rate + bias, rates and output in °/s (the bias "
+       "shown in °/h). Nonlinearity: the largest residual relative to K · rate (points at zero "
+       "rate left out) and relative to K · the largest rate; asymmetry (K₊ − K₋) / K̄; "
+       "repeatability the spread of K over the repetitions. A dash: not measured (hover for "
+       "why). Definitions: docs/analysis.md, “Scale factor”.</p>\n";
+  return h;
+}
+
+// K(T) and B(T): the coefficients and the temperature coefficients.
+std::string sf_temperature_html(const ReportScaleFactor& sf) {
+  const auto& t = *sf.temperature_fit;
+  std::string h = fmt::format(
+      "<h3>K and bias over temperature</h3>\n<p>Polynomials of order {} in T − {:.3f} °C "
+      "(the mean of the sequences' temperatures): K(T) = Σ kⱼ (T − T̄)ʲ, B(T) = Σ bⱼ (T − "
+      "T̄)ʲ.</p>\n",
+      t.order, t.t_centre_c);
+  h += fmt::format(
+      "<dl class=\"sf-coefficients\"><dt>Scale-factor temperature coefficient</dt><dd "
+      "id=\"sf-k-ppm-per-c\">{:.3f} ppm/°C</dd><dt>Bias temperature coefficient</dt><dd "
+      "id=\"sf-bias-dph-per-c\">{:.4f} (°/h)/°C</dd></dl>\n",
+      t.k_ppm_per_c, t.bias_dph_per_c);
+  if (sf.k_coeffs.empty()) return h;
+  h += "<table class=\"numbers\" id=\"sf-polynomials\">\n<thead><tr><th>power j</th><th>kⱼ "
+       "(per °Cʲ)</th><th>bⱼ (°/h per °Cʲ)</th></tr></thead>\n<tbody>\n";
+  for (std::size_t j = 0; j < sf.k_coeffs.size(); ++j) {
+    h +=
+        fmt::format("<tr><td class=\"num\">{}</td>{}{}</tr>\n", j, sci_cell(sf.k_coeffs[j]),
+                    sci_cell(j < sf.bias_coeffs_dph.size() ? sf.bias_coeffs_dph[j] : std::nan("")));
+  }
+  h += "</tbody></table>\n<p class=\"note\">The temperature coefficients are dK/dT / K and "
+       "dB/dT at T̄ (k₁ / k₀ × 10⁶ and b₁). Coefficients for the gyro's computer: <a "
+       "href=\"scale-factor.json\">scale-factor.json</a>, <a "
+       "href=\"scale-factor.h\">scale-factor.h</a> (C99).</p>\n";
+  return h;
+}
+
+const storage::ScaleFactorFitRecord* sf_fit_of(const ReportScaleFactor& sf, int sequence) {
+  for (const auto& f : sf.fits) {
+    if (f.sf_sequence == sequence) return &f;
+  }
+  return nullptr;
+}
+
+// residual / (K · rate) × 1e6; NaN at zero rate or without the line.
+double residual_ppm(const storage::ScaleFactorPointRecord& p,
+                    const storage::ScaleFactorFitRecord* f) {
+  if (f == nullptr || p.rate_dps == 0 || f->k == 0) return std::nan("");
+  return scale_factor_residual_dps(p, *f) / (f->k * p.rate_dps) * 1e6;
+}
+
+// Each sequence's rate points with their residuals from its line.
+std::string sf_points_html(const ReportScaleFactor& sf) {
+  std::string h;
+  std::set<int> sequences;
+  for (const auto& p : sf.points) sequences.insert(p.sf_sequence);
+  for (int seq : sequences) {
+    const auto* f = sf_fit_of(sf, seq);
+    h += f ? fmt::format("<h3>Sequence {} at {:.2f} °C — rate points</h3>\n", seq, f->temperature_c)
+           : fmt::format("<h3>Sequence {} — rate points (no line stored)</h3>\n", seq);
+    h += fmt::format(
+        "<table class=\"numbers sf-points\" id=\"sf-points-{}\">\n<thead><tr><th>repetition</th>"
+        "<th>rate (°/s)</th><th>measured rate (°/s)</th><th>output (°/s)</th><th>temperature "
+        "(°C)</th><th>turns</th><th>duration (s)</th><th>residual (°/h)</th><th>residual (ppm "
+        "of K · rate)</th></tr></thead>\n<tbody>\n",
+        seq);
+    for (const auto& p : sf.points) {
+      if (p.sf_sequence != seq) continue;
+      h += fmt::format("<tr><td class=\"num\">{}</td>", p.repetition) + num_cell(p.rate_dps, 3) +
+           num_cell(p.measured_rate_dps, 6) + num_cell(p.output_dps, 6) +
+           num_cell(p.temperature_c, 2) + num_cell(p.turns, 2) + num_cell(p.duration_s, 1) +
+           num_cell(f ? scale_factor_residual_dps(p, *f) * 3600.0 : std::nan(""), 4) +
+           num_cell(residual_ppm(p, f), 1) + "</tr>\n";
+    }
+    h += "</tbody></table>\n";
+  }
+  if (!h.empty()) {
+    h += "<p class=\"note\">Residual: output − (K · rate + bias) with the demanded rate and the "
+         "sequence's line; in ppm relative to K · rate (none at zero rate). The measured rate is "
+         "the table's mean over the acquisition. <a href=\"scale-factor-points.csv\">"
+         "scale-factor-points.csv</a> has every value to 17 significant digits.</p>\n";
+  }
+  return h;
+}
+
+// The C identifier of a prefix: characters other than [A-Za-z0-9_] become
+// '_', a leading digit gets a '_' in front.
+std::string c_identifier(const std::string& prefix) {
+  std::string out = prefix.empty() ? std::string("gyrotherm_sf") : prefix;
+  for (char& c : out) {
+    if (!std::isalnum(static_cast<unsigned char>(c)) && c != '_') c = '_';
+  }
+  if (std::isdigit(static_cast<unsigned char>(out.front()))) out.insert(out.begin(), '_');
+  return out;
+}
+
+// Configuration text (station name, serial) made safe inside a C block
+// comment, as the drift-fit headers do (docs/analysis.md, "Coefficient
+// export and the C header"): control characters become spaces, and "*/",
+// "/*" and "??" (a trigraph) are broken by a space.
+std::string c_comment_text(std::string_view s) {
+  std::string out;
+  for (char c : s) {
+    const auto u = static_cast<unsigned char>(c);
+    if (u < 0x20 || u == 0x7f) c = ' ';
+    if (!out.empty()) {
+      const char prev = out.back();
+      if ((prev == '*' && c == '/') || (prev == '/' && c == '*') || (prev == '?' && c == '?')) {
+        out += ' ';
+      }
+    }
+    out += c;
+  }
+  return out;
+}
+
+std::string c_array(const std::vector<double>& v) {
+  std::string out;
+  for (double x : v) out += (out.empty() ? "" : ", ") + fmt::format("{:.17g}", x);
+  return out;
+}
+
+// Horner's rule on names[0] + x * (names[1] + ...), as C.
+std::string c_horner(const std::string& array, std::size_t n, const std::string& x) {
+  std::string e = fmt::format("{}[{}]", array, n - 1);
+  for (std::size_t j = n - 1; j-- > 0;) e = fmt::format("{}[{}] + {} * ({})", array, j, x, e);
+  return e;
+}
+
+// A run's "Scale factor" section: the sequences, K(T) and B(T), the
+// figures, the rate points.
+std::string sf_section_html(const ReportScaleFactor& sf, const std::vector<Plot>& plots) {
+  std::string h = sf.fits.empty()
+                      ? std::string(
+                            "<p class=\"problem\">Rate points are stored but no line was "
+                            "fitted to them.</p>\n")
+                      : sf_fits_html({&sf}, false);
+  if (sf.temperature_fit) h += sf_temperature_html(sf);
+  if (const auto* p = find_plot(plots, "chart-sf-k-temperature")) {
+    h += chart(*p,
+               "K of each sequence relative to K at the centre temperature, in ppm, with the "
+               "fitted polynomial K(T).");
+  }
+  if (const auto* p = find_plot(plots, "chart-sf-bias-temperature")) {
+    h += chart(*p, "The bias of each sequence's line, °/h, with the fitted polynomial B(T).");
+  }
+  if (const auto* p = find_plot(plots, "chart-sf-nonlinearity")) {
+    h += chart(*p, "Nonlinearity of each sequence, relative to K · rate and to full scale.");
+  }
+  h += sf_points_html(sf);
+  return h;
+}
+
+// The summary's "Scale factor" section: every run's sequences, and each
+// run's temperature coefficients.
+std::string sf_campaign_html(const CampaignReport& c) {
+  std::vector<const ReportScaleFactor*> runs;
+  std::string coefficients;
+  for (const auto& r : c.runs) {
+    if (!r.scale_factor) continue;
+    runs.push_back(&*r.scale_factor);
+    const auto& sf = *r.scale_factor;
+    if (!sf.temperature_fit) continue;
+    const auto& t = *sf.temperature_fit;
+    coefficients += fmt::format(
+        "<tr><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td>{}{}{}{}"
+        "<td><a href=\"run-{:04}/report.html#scale-factor\">run-{:04}</a></td></tr>\n",
+        r.run.id, sf.fits.size(), t.order, num_cell(t.t_centre_c, 2),
+        num_cell(sf.k_coeffs.empty() ? std::nan("") : sf.k_coeffs.front(), 9),
+        num_cell(t.k_ppm_per_c, 3), num_cell(t.bias_dph_per_c, 4), r.run.id, r.run.id);
+  }
+  std::string h = sf_fits_html(runs, true);
+  if (!coefficients.empty()) {
+    h += "<h3>Over temperature, per run</h3>\n<table class=\"numbers\" "
+         "id=\"sf-temperature-coefficients\">\n<thead><tr><th>run</th><th>sequences</th>"
+         "<th>order</th><th>centre temperature (°C)</th><th>K at the centre</th><th>K "
+         "temperature coefficient (ppm/°C)</th><th>bias temperature coefficient "
+         "((°/h)/°C)</th><th>report</th></tr></thead>\n<tbody>\n" +
+         coefficients + "</tbody></table>\n";
+  }
+  return h;
+}
+
 std::string problems_html(const std::vector<std::string>& problems) {
   std::string h;
   for (const auto& p : problems) h += fmt::format("<p class=\"problem\">{}</p>\n", escape(p));
@@ -569,6 +783,161 @@ std::string comparison_csv(const analysis::Comparison& c) {
   return out;
 }
 
+std::string scale_factor_csv(const std::vector<const ReportScaleFactor*>& runs) {
+  std::string out =
+      "run_id,sf_sequence,temperature_c,k,k_se,bias_dps,bias_dph,nonlinearity_ppm,"
+      "nonlinearity_fs_ppm,asymmetry_ppm,repeatability_ppm,n_points,created_utc\n";
+  for (const auto* sf : runs) {
+    for (const auto& f : sf->fits) {
+      out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.run_id, f.sf_sequence,
+                         exact(f.temperature_c), exact(f.k), exact(f.k_se), exact(f.bias_dps),
+                         exact(f.bias_dps * 3600.0), exact(f.nonlinearity_ppm),
+                         exact(f.nonlinearity_fs_ppm), exact(f.asymmetry_ppm),
+                         exact(f.repeatability_ppm), f.n_points, csv_field(f.created_utc));
+    }
+  }
+  return out;
+}
+
+std::string scale_factor_points_csv(const ReportScaleFactor& sf) {
+  std::string out =
+      "run_id,sf_sequence,repetition,segment_id,rate_dps,measured_rate_dps,output_dps,n,"
+      "temperature_c,duration_s,turns,residual_dps,residual_ppm\n";
+  for (const auto& p : sf.points) {
+    const auto* f = sf_fit_of(sf, p.sf_sequence);
+    out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{}\n", p.run_id, p.sf_sequence,
+                       p.repetition, p.segment_id, exact(p.rate_dps), exact(p.measured_rate_dps),
+                       exact(p.output_dps), p.n, exact(p.temperature_c), exact(p.duration_s),
+                       exact(p.turns), f ? exact(scale_factor_residual_dps(p, *f)) : std::string(),
+                       exact(residual_ppm(p, f)));
+  }
+  return out;
+}
+
+std::string scale_factor_json(const ReportScaleFactor& sf, const analysis::ExportInfo& info) {
+  using ojson = nlohmann::ordered_json;
+  const auto number = [](double v) { return std::isfinite(v) ? ojson(v) : ojson(nullptr); };
+  const auto optional = [&number](const std::optional<double>& v) {
+    return v ? number(*v) : ojson(nullptr);
+  };
+  ojson j;
+  j["kind"] = "gyrotherm scale factor over temperature";
+  j["model"] = "output_dps = K(T) * rate_dps + bias_dph(T) / 3600";
+  j["units"] = {{"rate", "deg/s (table rate and gyro output)"},
+                {"K", "(deg/s)/(deg/s)"},
+                {"bias", "deg/h"},
+                {"T", "degC, mean shell temperature (top + side) / 2"},
+                {"k_coefficients", "per degC^j, j = 0 ... order, in (T - t_centre_c)"},
+                {"bias_coefficients_dph", "deg/h per degC^j, in (T - t_centre_c)"}};
+  if (sf.temperature_fit && !sf.k_coeffs.empty()) {
+    const auto& t = *sf.temperature_fit;
+    ojson k = ojson::array(), b = ojson::array();
+    for (double v : sf.k_coeffs) k.push_back(number(v));
+    for (double v : sf.bias_coeffs_dph) b.push_back(number(v));
+    j["temperature_fit"] = {{"order", t.order},
+                            {"t_centre_c", number(t.t_centre_c)},
+                            {"k_coefficients", k},
+                            {"bias_coefficients_dph", b},
+                            {"k_ppm_per_c", number(t.k_ppm_per_c)},
+                            {"bias_dph_per_c", number(t.bias_dph_per_c)}};
+  } else {
+    j["temperature_fit"] = nullptr;
+  }
+  ojson sequences = ojson::array();
+  for (const auto& f : sf.fits) {
+    sequences.push_back({{"sf_sequence", f.sf_sequence},
+                         {"temperature_c", number(f.temperature_c)},
+                         {"k", number(f.k)},
+                         {"k_se", number(f.k_se)},
+                         {"bias_dph", number(f.bias_dps * 3600.0)},
+                         {"nonlinearity_ppm", number(f.nonlinearity_ppm)},
+                         {"nonlinearity_fs_ppm", number(f.nonlinearity_fs_ppm)},
+                         {"asymmetry_ppm", optional(f.asymmetry_ppm)},
+                         {"repeatability_ppm", optional(f.repeatability_ppm)},
+                         {"n_points", f.n_points}});
+  }
+  j["sequences"] = sequences;
+  j["station"] = info.station;
+  j["gyro_serial"] = info.gyro_serial;
+  j["runs"] = info.run_ids;
+  j["computed_utc"] = info.computed_utc;
+  return j.dump(2);
+}
+
+std::string scale_factor_c_header(const ReportScaleFactor& sf, const analysis::ExportInfo& info,
+                                  const std::string& prefix) {
+  const std::string p = c_identifier(prefix);
+  std::string up = p;
+  for (char& c : up) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+  const std::string guard = up + "_SCALE_FACTOR_H_";
+  std::string runs;
+  for (int64_t id : info.run_ids) runs += (runs.empty() ? "" : ", ") + std::to_string(id);
+  std::string out = fmt::format(
+      "/* {}.h: scale factor and bias of a fiber-optic gyro over temperature, from rate-table\n"
+      " * sequences. Generated by gyrotherm; do not edit.\n"
+      " * Station: {}; gyro: {}; runs: {}; computed: {}\n"
+      " *\n"
+      " * output_dps = K(T) * rate_dps + bias_dph(T) / 3600, where\n"
+      " *   rate_dps   = the rate about the sensitive axis, deg/s\n"
+      " *   output_dps = the gyro's output converted to deg/s\n"
+      " *   T          = mean shell temperature (top + side) / 2, degC\n"
+      " *   K(T) = sum_j k[j] * (T - t_centre_c)^j, bias_dph(T) = sum_j bias_dph[j] * (T - "
+      "t_centre_c)^j.\n"
+      " * The table of sequences gives K and the bias measured at each temperature.\n"
+      " */\n",
+      p, c_comment_text(info.station.empty() ? "(unnamed)" : info.station),
+      c_comment_text(info.gyro_serial.empty() ? "(no serial)" : info.gyro_serial),
+      runs.empty() ? "(none)" : runs,
+      c_comment_text(info.computed_utc.empty() ? "(unknown)" : info.computed_utc));
+  out += fmt::format("#ifndef {0}\n#define {0}\n\n", guard);
+  if (sf.temperature_fit && !sf.k_coeffs.empty()) {
+    const auto& t = *sf.temperature_fit;
+    const std::size_t n = sf.k_coeffs.size();
+    out += fmt::format("#define {}_ORDER {}\n", up, t.order);
+    out += fmt::format("static const double {}_t_centre_c = {:.17g};\n", p, t.t_centre_c);
+    out += fmt::format("static const double {}_k[{}_ORDER + 1] = {{{}}};\n", p, up,
+                       c_array(sf.k_coeffs));
+    out += fmt::format("static const double {}_bias_dph[{}_ORDER + 1] = {{{}}};\n", p, up,
+                       c_array(sf.bias_coeffs_dph));
+    out += "/* dK/dT / K at t_centre_c, ppm/degC; dbias/dT there, (deg/h)/degC. */\n";
+    out += fmt::format("static const double {}_k_ppm_per_c = {:.17g};\n", p, t.k_ppm_per_c);
+    out += fmt::format("static const double {}_bias_dph_per_c = {:.17g};\n\n", p, t.bias_dph_per_c);
+    out += fmt::format(
+        "/* K at temperature t_c (degC). */\n"
+        "static inline double {0}_k_at(double t_c) {{\n"
+        "  const double x = t_c - {0}_t_centre_c;\n"
+        "  return {1};\n}}\n\n"
+        "/* The bias at temperature t_c (degC), deg/h. */\n"
+        "static inline double {0}_bias_dph_at(double t_c) {{\n"
+        "  const double x = t_c - {0}_t_centre_c;\n"
+        "  return {2};\n}}\n\n"
+        "/* The rate about the sensitive axis, deg/s, from the output (deg/s) at t_c (degC). */\n"
+        "static inline double {0}_rate_dps(double output_dps, double t_c) {{\n"
+        "  return (output_dps - {0}_bias_dph_at(t_c) / 3600.0) / {0}_k_at(t_c);\n}}\n\n",
+        p, c_horner(p + "_k", n, "x"), c_horner(p + "_bias_dph", n, "x"));
+  }
+  std::vector<double> t_c, k, bias_dph;
+  for (const auto& f : sf.fits) {
+    if (!std::isfinite(f.temperature_c) || !std::isfinite(f.k) || !std::isfinite(f.bias_dps)) {
+      continue;
+    }
+    t_c.push_back(f.temperature_c);
+    k.push_back(f.k);
+    bias_dph.push_back(f.bias_dps * 3600.0);
+  }
+  if (!t_c.empty()) {
+    out += fmt::format(
+        "/* The sequences: mean temperature (degC), K and bias (deg/h) of each. */\n"
+        "#define {0}_N_SEQUENCES {1}\n"
+        "static const double {2}_table_temperature_c[{0}_N_SEQUENCES] = {{{3}}};\n"
+        "static const double {2}_table_k[{0}_N_SEQUENCES] = {{{4}}};\n"
+        "static const double {2}_table_bias_dph[{0}_N_SEQUENCES] = {{{5}}};\n\n",
+        up, t_c.size(), p, c_array(t_c), c_array(k), c_array(bias_dph));
+  }
+  out += fmt::format("#endif /* {} */\n", guard);
+  return out;
+}
+
 std::string plots_json(const std::vector<Plot>& plots) {
   json charts = json::array();
   for (const auto& p : plots) {
@@ -701,6 +1070,25 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
   files.push_back({dir + "allan-curves.csv", allan_curves_csv(allan)});
   listed.emplace_back("allan.csv", "Allan noise terms per soak");
   listed.emplace_back("allan-curves.csv", "Allan deviation curves with bounds");
+
+  if (r.scale_factor) {
+    const ReportScaleFactor& sf = *r.scale_factor;
+    add_section(page, "scale-factor", "Scale factor", sf_section_html(sf, r.plots));
+    files.push_back({dir + "scale-factor.csv", scale_factor_csv({&sf})});
+    files.push_back({dir + "scale-factor-points.csv", scale_factor_points_csv(sf)});
+    listed.emplace_back("scale-factor.csv", "scale factor of each sequence");
+    listed.emplace_back("scale-factor-points.csv", "rate points with their residuals");
+    if (!sf.fits.empty()) {
+      analysis::ExportInfo info;
+      info.station = r.station_name;
+      info.run_ids = {r.run.id};
+      info.computed_utc = when;
+      files.push_back({dir + "scale-factor.json", scale_factor_json(sf, info)});
+      files.push_back({dir + "scale-factor.h", scale_factor_c_header(sf, info)});
+      listed.emplace_back("scale-factor.json", "scale factor over temperature (JSON)");
+      listed.emplace_back("scale-factor.h", "scale factor over temperature (C99 header)");
+    }
+  }
 
   if (!r.problems.empty()) add_section(page, "problems", "Problems", problems_html(r.problems));
   add_section(page, "files", "Files", files_html(listed));
@@ -844,6 +1232,16 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
   add_section(page, "allan", "Allan deviation", allan_body);
   files.push_back({"allan.csv", allan_csv(all_allan)});
   listed.emplace_back("allan.csv", "Allan noise terms of every soak");
+
+  std::vector<const ReportScaleFactor*> sf_runs;
+  for (const auto& r : c.runs) {
+    if (r.scale_factor) sf_runs.push_back(&*r.scale_factor);
+  }
+  if (!sf_runs.empty()) {
+    add_section(page, "scale-factor", "Scale factor — every run", sf_campaign_html(c));
+    files.push_back({"scale-factor.csv", scale_factor_csv(sf_runs)});
+    listed.emplace_back("scale-factor.csv", "scale factor of each sequence of every run");
+  }
 
   if (!c.problems.empty()) add_section(page, "problems", "Problems", problems_html(c.problems));
   for (const auto& r : c.runs) {

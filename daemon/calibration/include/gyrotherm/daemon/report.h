@@ -59,6 +59,22 @@ struct Plot {
   int height_px = 340;
 };
 
+// A run's scale-factor results as the daemon stored them after the run
+// (schema v7; docs/analysis.md "Scale factor"): the report repeats them, it
+// recomputes nothing. Rates and outputs in °/s, biases in °/h where the
+// name says so.
+struct ReportScaleFactor {
+  std::vector<storage::ScaleFactorFitRecord> fits;      // by sf_sequence
+  std::vector<storage::ScaleFactorPointRecord> points;  // by sequence, repetition, rate
+  std::optional<storage::ScaleFactorTemperatureFitRecord> temperature_fit;
+  // The temperature fit's polynomials read from its JSON, lowest power
+  // first: K(T) = Σ k_coeffs[j] (T − t_centre_c)^j, bias in °/h (the stored
+  // °/s × 3600). Empty without a temperature fit, or when its JSON is not
+  // an array of order + 1 numbers (then listed in the run's problems).
+  std::vector<double> k_coeffs;
+  std::vector<double> bias_coeffs_dph;
+};
+
 // A fit the report shows, with where it came from.
 struct ReportFit {
   analysis::DriftFit fit;
@@ -81,6 +97,9 @@ struct RunReport {
   std::vector<Plot> plots;
   std::vector<std::string> problems;               // what could not be computed, one line each
   std::optional<analysis::AnalysisSeries> series;  // the whole run, binned (campaign analyses)
+  // nullopt when the run has no scale-factor rows (no rate table, or an
+  // older database): no section, no file, nothing said.
+  std::optional<ReportScaleFactor> scale_factor;
 };
 
 // Reads run `run_id` and builds its report. Errors: an unknown run, a run
@@ -114,11 +133,14 @@ struct ReportFile {
 };
 
 // The files of one run's report, under "run-<id>/": report.html, table1.csv,
-// allan.csv, allan-curves.csv, comparison.csv, drift-fit-<form>.json/.h.
+// allan.csv, allan-curves.csv, comparison.csv, drift-fit-<form>.json/.h;
+// with scale-factor results also scale-factor.csv, scale-factor-points.csv,
+// scale-factor.json and scale-factor.h.
 std::vector<ReportFile> render_run_files(const RunReport& report, const ReportOptions& options);
 // The campaign files at the top: index.html (summary, links to each run's
 // report), table1.csv (every run), allan.csv, comparison.csv, drift-fit.json/.h
-// (joint fit), start-model.json/.h (when there is a model).
+// (joint fit), start-model.json/.h (when there is a model), scale-factor.csv
+// (every run's sequences, when a run has any).
 std::vector<ReportFile> render_campaign_files(const CampaignReport& report,
                                               const ReportOptions& options);
 
@@ -140,5 +162,28 @@ std::string plots_json(const std::vector<Plot>& plots);
 // A fit as the export JSON / C header (analysis::drift_fit_json) from a
 // stored record.
 Result<ReportFit> report_fit_of_record(const storage::FitRecord& record);
+
+// Scale factor. A run's stored rows (nullopt when it has none); a database
+// error is an error, a temperature fit whose JSON does not parse a line in
+// `problems`.
+Result<std::optional<ReportScaleFactor>> collect_scale_factor(storage::Database& db, int64_t run_id,
+                                                              std::vector<std::string>& problems);
+// A rate point's residual from its sequence's line, output − (K·Ω + B), °/s,
+// with Ω the demanded rate (as docs/storage.md's query of the points).
+double scale_factor_residual_dps(const storage::ScaleFactorPointRecord& point,
+                                 const storage::ScaleFactorFitRecord& fit);
+// The figures: K relative to K at the centre temperature (ppm) with the K(T)
+// polynomial, bias (°/h) with B(T), and the nonlinearity, each against
+// temperature. None with fewer than 2 sequences.
+std::vector<Plot> scale_factor_plots(const ReportScaleFactor& sf);
+// CSV of the sequences' fits (runs in the given order) and of the rate
+// points with their residuals.
+std::string scale_factor_csv(const std::vector<const ReportScaleFactor*>& runs);
+std::string scale_factor_points_csv(const ReportScaleFactor& sf);
+// The coefficients for the gyro's computer (docs/reports.md): JSON, and a
+// C99 header whose names start with `prefix` (a C identifier).
+std::string scale_factor_json(const ReportScaleFactor& sf, const analysis::ExportInfo& info);
+std::string scale_factor_c_header(const ReportScaleFactor& sf, const analysis::ExportInfo& info,
+                                  const std::string& prefix = "gyrotherm_sf");
 
 }  // namespace gyrotherm::daemon
