@@ -52,21 +52,26 @@ std::size_t distinct(std::vector<double> v) {
   return static_cast<std::size_t>(std::unique(v.begin(), v.end()) - v.begin());
 }
 
-// Slope through the origin of (y − b) on x over the points whose x has the
-// given sign; nullopt when there are none.
-std::optional<double> slope_through_origin(const std::vector<double>& x,
-                                           const std::vector<double>& y, double b, int sign) {
-  CompensatedSum sxx, sxy;
-  std::size_t used = 0;
-  for (std::size_t i = 0; i < x.size(); ++i) {
-    if ((sign > 0 && x[i] > 0) || (sign < 0 && x[i] < 0)) {
-      sxx.add(x[i] * x[i]);
-      sxy.add(x[i] * (y[i] - b));
-      ++used;
-    }
+// y = k₊·x⁺ + k₋·x⁻ + b by least squares (Householder QR on x / scale_x,
+// the slopes scaled back), for the asymmetry. The caller guarantees a
+// positive and a negative x and ≥ 3 distinct x, so the design has rank 3.
+struct SplitLine {
+  double k_positive = 0, k_negative = 0, b = 0;
+};
+SplitLine fit_split_line(const std::vector<double>& x, const std::vector<double>& y,
+                         double scale_x) {
+  const auto rows = static_cast<Eigen::Index>(x.size());
+  Eigen::MatrixXd design(rows, 3);
+  Eigen::VectorXd rhs(rows);
+  for (Eigen::Index i = 0; i < rows; ++i) {
+    const double u = x[static_cast<std::size_t>(i)] / scale_x;
+    design(i, 0) = std::max(u, 0.0);
+    design(i, 1) = std::min(u, 0.0);
+    design(i, 2) = 1;
+    rhs(i) = y[static_cast<std::size_t>(i)];
   }
-  if (used == 0) return std::nullopt;
-  return sxy.value() / sxx.value();
+  const Eigen::VectorXd coef = design.householderQr().solve(rhs);
+  return {coef(0) / scale_x, coef(1) / scale_x, coef(2)};
 }
 
 }  // namespace
@@ -148,11 +153,15 @@ Result<ScaleFactorFit> fit_scale_factor(std::span<const RatePoint> points) {
   fit.nonlinearity_ppm = worst * kPpm;  // some Ω ≠ 0 exists: 2 distinct rates
   fit.nonlinearity_fs_ppm = worst_abs / (std::fabs(fit.k) * fit.full_scale_dps) * kPpm;
 
-  fit.k_positive = slope_through_origin(x, y, fit.bias_dps, +1);
-  fit.k_negative = slope_through_origin(x, y, fit.bias_dps, -1);
-  if (fit.k_positive && fit.k_negative) {
-    const double k_mean = (*fit.k_positive + *fit.k_negative) / 2;
-    fit.asymmetry_ppm = (*fit.k_positive - *fit.k_negative) / k_mean * kPpm;
+  const bool has_positive = std::any_of(x.begin(), x.end(), [](double r) { return r > 0; });
+  const bool has_negative = std::any_of(x.begin(), x.end(), [](double r) { return r < 0; });
+  if (has_positive && has_negative && fit.distinct_rates >= 3) {
+    const SplitLine split = fit_split_line(x, y, fit.full_scale_dps);
+    fit.k_positive = split.k_positive;
+    fit.k_negative = split.k_negative;
+    fit.asymmetry_bias_dps = split.b;
+    const double k_mean = (split.k_positive + split.k_negative) / 2;
+    if (k_mean != 0) fit.asymmetry_ppm = (split.k_positive - split.k_negative) / k_mean * kPpm;
   }
 
   std::map<int, std::pair<std::vector<double>, std::vector<double>>> by_repetition;

@@ -67,11 +67,17 @@ struct ScaleFactorFit {
   // |residual_i| / (|K| · full_scale_dps), ppm.
   double nonlinearity_fs_ppm = 0;
 
-  // K₊, K₋: least-squares slopes through the origin of (output − B) over the
-  // points with Ω > 0 and Ω < 0; asymmetry = (K₊ − K₋) / ((K₊ + K₋)/2), ppm.
-  // nullopt unless both directions are present.
+  // K₊, K₋ and B± minimise Σ (yᵢ − K₊·Ωᵢ⁺ − K₋·Ωᵢ⁻ − B±)² over all points
+  // (Ω⁺ = max(Ω, 0), Ω⁻ = min(Ω, 0); one bias shared by both directions),
+  // solved by Householder QR on the rates scaled by the full scale;
+  // asymmetry = (K₊ − K₋) / ((K₊ + K₋)/2) × 1e6, ppm. An output
+  // K(1 ± a/2)·Ω + B gives back a exactly whatever the rates; an even error
+  // (Q·Ω²) still reads as asymmetry (docs/analysis.md). All four nullopt
+  // unless a rate > 0 and a rate < 0 were measured and there are ≥ 3
+  // distinct rates (with only +a and −b, K₊, K₋ and B± are not determined).
   std::optional<double> k_positive;
   std::optional<double> k_negative;
+  std::optional<double> asymmetry_bias_dps;  // B± of that fit, °/s
   std::optional<double> asymmetry_ppm;
 
   // One entry per repetition number that has ≥ 2 distinct rates, in
