@@ -11,6 +11,7 @@
 #include <map>
 
 #include "compensated_sum.h"
+#include "gyrotherm/analysis/csv_window.h"
 #include "gyrotherm/analysis/table1.h"
 #include "gyrotherm/core/units.h"
 
@@ -185,6 +186,58 @@ Result<ScaleFactorFit> fit_scale_factor(std::span<const RatePoint> points) {
     fit.repeatability_ppm = sd / k_mean * kPpm;
   }
   return fit;
+}
+
+namespace {
+
+constexpr CsvColumn kRatePointColumns[] = {
+    {"rate_dps", true}, {"output_dps", true}, {"repetition", false}, {"temperature_c", false}};
+
+Result<RatePointsCsv> rate_points_of(const CsvColumns& table) {
+  RatePointsCsv out;
+  out.source = table.source;
+  out.has_repetition = table.present[2];
+  out.has_temperature = table.present[3];
+  std::string errors;
+  std::size_t error_count = 0;
+  for (std::size_t i = 0; i < table.row_count; ++i) {
+    RatePoint p;
+    p.rate_dps = table.values[0][i];
+    p.output_dps = table.values[1][i];
+    if (out.has_repetition) {
+      const double rep = table.values[2][i];
+      if (rep != std::floor(rep) || std::fabs(rep) > 1e9) {
+        if (++error_count <= kMaxCsvErrors) {
+          errors += fmt::format("{}{}:{}: column repetition: {} is not a whole number",
+                                errors.empty() ? "" : "\n", table.source, table.line[i], rep);
+        }
+        continue;
+      }
+      p.repetition = static_cast<int>(rep);
+    }
+    if (out.has_temperature) p.temperature_c = table.values[3][i];
+    out.points.push_back(p);
+    out.lines.push_back(table.line[i]);
+  }
+  if (error_count > kMaxCsvErrors) {
+    errors += fmt::format("\n... and {} more errors", error_count - kMaxCsvErrors);
+  }
+  if (error_count > 0) return Error::Permanent(std::move(errors));
+  return out;
+}
+
+}  // namespace
+
+Result<RatePointsCsv> parse_rate_points_csv(std::string_view text, const std::string& source_name) {
+  auto table = parse_csv_columns(text, source_name, kRatePointColumns);
+  if (!table) return table.error();
+  return rate_points_of(*table);
+}
+
+Result<RatePointsCsv> read_rate_points_csv(const std::string& path) {
+  auto table = read_csv_columns(path, kRatePointColumns);
+  if (!table) return table.error();
+  return rate_points_of(*table);
 }
 
 Result<ScaleFactorTemperatureFit> fit_scale_factor_over_temperature(

@@ -369,6 +369,53 @@ TEST(ScaleFactor, NonFiniteInputIsRefusedNamingPointAndField) {
   EXPECT_NE(fit.error().message.find("temperature_c"), std::string::npos) << fit.error().message;
 }
 
+// ---- Rate points from CSV --------------------------------------------------------
+
+TEST(RatePointsCsv, ReadsRequiredAndOptionalColumnsInAnyOrder) {
+  const std::string text =
+      "note, output_dps ,temperature_c,rate_dps,repetition\r\n"
+      "a,-10.002,25.5,-10,1\r\n"
+      "\r\n"
+      "b,+10.001,25.5,10,2\r\n";
+  auto csv = parse_rate_points_csv(text, "sf.csv");
+  ASSERT_TRUE(csv) << csv.error().message;
+  EXPECT_TRUE(csv->has_repetition);
+  EXPECT_TRUE(csv->has_temperature);
+  ASSERT_EQ(csv->points.size(), 2u);
+  EXPECT_EQ(csv->lines, (std::vector<std::size_t>{2, 4}));
+  EXPECT_EQ(csv->points[0].rate_dps, -10);
+  EXPECT_EQ(csv->points[0].output_dps, -10.002);
+  EXPECT_EQ(csv->points[1].repetition, 2);
+  EXPECT_EQ(csv->points[1].temperature_c, 25.5);
+
+  csv = parse_rate_points_csv("rate_dps,output_dps\n1,1.0001\n", "min.csv");
+  ASSERT_TRUE(csv) << csv.error().message;
+  EXPECT_FALSE(csv->has_repetition);
+  EXPECT_FALSE(csv->has_temperature);
+  EXPECT_EQ(csv->points[0].repetition, 1);
+}
+
+TEST(RatePointsCsv, ErrorsNameFileLineAndColumn) {
+  auto csv = parse_rate_points_csv("rate_dps,temperature_c\n1,25\n", "sf.csv");
+  ASSERT_FALSE(csv);
+  EXPECT_NE(csv.error().message.find("sf.csv:1: header lacks column(s) output_dps"),
+            std::string::npos)
+      << csv.error().message;
+  csv = parse_rate_points_csv("rate_dps,output_dps\n1,1\n5,abc\n10,10\n", "sf.csv");
+  ASSERT_FALSE(csv);
+  EXPECT_NE(csv.error().message.find("sf.csv:3: column output_dps: 'abc' is not a number"),
+            std::string::npos)
+      << csv.error().message;
+  csv = parse_rate_points_csv("rate_dps,output_dps,repetition\n1,1,1\n5,5,1.5\n", "sf.csv");
+  ASSERT_FALSE(csv);
+  EXPECT_NE(csv.error().message.find("sf.csv:3: column repetition: 1.5 is not a whole number"),
+            std::string::npos)
+      << csv.error().message;
+  csv = parse_rate_points_csv("rate_dps,output_dps\n", "sf.csv");
+  ASSERT_FALSE(csv);
+  EXPECT_NE(csv.error().message.find("no data rows"), std::string::npos) << csv.error().message;
+}
+
 // ---- Over temperature -------------------------------------------------------
 
 void check_temperature_case(const std::string& name) {

@@ -15,6 +15,7 @@
 #include <cstddef>
 #include <optional>
 #include <span>
+#include <string>
 #include <string_view>
 #include <vector>
 
@@ -93,6 +94,23 @@ struct ScaleFactorFit {
 // output, temperature or duration that is NaN or infinite; fewer than 2
 // distinct rates (a constant rate leaves K undetermined).
 Result<ScaleFactorFit> fit_scale_factor(std::span<const RatePoint> points);
+
+// ---- Rate points from a CSV file ---------------------------------------------
+// `gyrotherm scale-factor --csv FILE`: one row per dwell, columns rate_dps and
+// output_dps (°/s, required), repetition (a whole number; 1 when the column
+// is absent) and temperature_c (°C; 0 when absent), in any order, other
+// columns ignored. The format rules and the errors (file:line: column ...)
+// are those of analysis/csv_window.h; a repetition that is not a whole number
+// between −1e9 and 1e9 is refused the same way.
+struct RatePointsCsv {
+  std::string source;
+  std::vector<RatePoint> points;   // in file order
+  std::vector<std::size_t> lines;  // the file line of each point
+  bool has_repetition = false;
+  bool has_temperature = false;
+};
+Result<RatePointsCsv> parse_rate_points_csv(std::string_view text, const std::string& source_name);
+Result<RatePointsCsv> read_rate_points_csv(const std::string& path);
 
 // ---- Over temperature -----------------------------------------------------
 
