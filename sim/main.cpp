@@ -107,7 +107,8 @@ int main(int argc, char** argv) {
 
   CLI::App app{
       "gyrotherm-sim: simulated thermal test station. Serves the chamber controller and the "
-      "probe module over Modbus TCP on 127.0.0.1 and streams KVH 1750 gyro frames on a pty."};
+      "probe module over Modbus TCP on 127.0.0.1 and streams KVH 1750 gyro frames on a pty; "
+      "with a rate table, serves it over ACL (TCP) and the AERO grammar (a second pty)."};
   app.footer(
       "Fault injection while it runs: gyrotherm-sim ctl --socket PATH COMMAND... "
       "(gyrotherm-sim ctl --help).");
@@ -118,6 +119,7 @@ int main(int argc, char** argv) {
   std::string control_socket;
   uint64_t seed = 0;
   double rate_hz = 0;
+  int table_port = 0;
   app.add_option("--config", config_path, "station config (TOML) with a [simulator] section")
       ->required();
   auto* time_scale_opt = app.add_option("--time-scale", time_scale,
@@ -132,6 +134,13 @@ int main(int argc, char** argv) {
                      "Unix socket for fault-injection commands ([simulator] control_socket)");
   auto* seed_opt = app.add_option("--seed", seed, "random seed ([simulator] seed)");
   auto* rate_opt = app.add_option("--rate-hz", rate_hz, "gyro output rate, Hz ([gyro] rate_hz)");
+  auto* table_port_opt =
+      app.add_option("--table-port", table_port,
+                     "the rate table's ACL TCP port, 0 = any free ([simulator] table_port)")
+          ->check(CLI::Range(0, 65535));
+  bool serve_table = false;
+  app.add_flag("--table", serve_table,
+               "serve a rate table even without a [table] section in the station config");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -146,6 +155,8 @@ int main(int argc, char** argv) {
   if (*control_opt) overrides.control_socket = control_socket;
   if (*seed_opt) overrides.seed = seed;
   if (*rate_opt) overrides.rate_hz = rate_hz;
+  if (*table_port_opt) overrides.table_port = table_port;
+  overrides.serve_table = serve_table;
 
   auto config = daemon::load_station_config(config_path);
   if (!config.ok()) {
@@ -194,6 +205,8 @@ int main(int argc, char** argv) {
   const auto ep = s.endpoints();
   fmt::print("modbus {}:{}\n", ep.modbus_host, ep.modbus_port);
   fmt::print("gyro {}\n", ep.gyro_device);
+  if (ep.table_port != 0) fmt::print("table acl {}:{}\n", ep.modbus_host, ep.table_port);
+  if (!ep.table_device.empty()) fmt::print("table aero {}\n", ep.table_device);
   if (!s.truth_file().empty()) fmt::print("truth {}\n", s.truth_file());
   if (!ep.control_socket.empty()) fmt::print("control {}\n", ep.control_socket);
   if (!s.endpoints_file().empty()) fmt::print("endpoints {}\n", s.endpoints_file());

@@ -23,17 +23,25 @@ const Keys kSoakKeys{"type",
                      "stability_c_per_min",
                      "stability_window_min",
                      "settle_timeout_min",
+                     "table",
                      "table_rate_dps"};
-const Keys kRampKeys{"type", "target_c", "rate_c_per_min", "table_rate_dps"};
-const Keys kHoldKeys{"type", "setpoint_c", "duration_min", "table_rate_dps"};
+const Keys kRampKeys{"type", "target_c", "rate_c_per_min", "table", "table_rate_dps"};
+const Keys kHoldKeys{"type", "setpoint_c", "duration_min", "table", "table_rate_dps"};
+const Keys kScaleFactorKeys{"type",  "setpoint_c",  "rates_dps",   "directions",
+                            "turns", "min_dwell_s", "repetitions", "order"};
 const Keys kRepeatKeys{"type", "count", "steps"};
+// The inline table of a step's `table = { ... }`.
+const Keys kTableKeys{"mode", "position_deg", "rate_dps"};
 
 struct KindKeys {
   std::string_view kind;
   const Keys* keys;
 };
-const KindKeys kKinds[] = {
-    {"soak", &kSoakKeys}, {"ramp", &kRampKeys}, {"hold", &kHoldKeys}, {"repeat", &kRepeatKeys}};
+const KindKeys kKinds[] = {{"soak", &kSoakKeys},
+                           {"ramp", &kRampKeys},
+                           {"hold", &kHoldKeys},
+                           {"scale_factor", &kScaleFactorKeys},
+                           {"repeat", &kRepeatKeys}};
 
 bool contains(const Keys& keys, std::string_view key) {
   return std::find(keys.begin(), keys.end(), key) != keys.end();
@@ -65,6 +73,29 @@ std::size_t edit_distance(std::string_view a, std::string_view b) {
 }
 
 std::string format_c(double c) { return fmt::format("{:g} °C", c); }
+
+// An angle in [0, 360).
+double normalise_deg(double deg) {
+  double d = std::fmod(deg, 360.0);
+  if (d < 0) d += 360.0;
+  if (d >= 360.0) d = 0;  // -1e-20 + 360 rounds to 360
+  return d + 0.0;         // no -0
+}
+
+// What a demand asks of the table, for messages.
+std::string describe(const TableDemand& d) {
+  switch (d.mode) {
+    case TableDemandMode::kRate:
+      return fmt::format("the step asks for the table turning at {:+g} °/s", d.rate_dps);
+    case TableDemandMode::kStatic:
+      return d.position_deg
+                 ? fmt::format("the step asks for the table at rest at {:g}°", *d.position_deg)
+                 : std::string("the step asks for the table at rest");
+    case TableDemandMode::kNone:
+      break;
+  }
+  return "the step asks nothing of the table";
+}
 
 // "43200 min (30 days)", "1440 min (24 h)", "5 min".
 std::string format_min(double min) {
@@ -100,6 +131,9 @@ struct Expanded {
   // takes the steps around it for neighbours.
   bool placeholder = false;
   std::size_t weight = 1;
+  // The first rate point of a scale_factor step's expansion: a new
+  // sequence starts here (each pass of a repeat is a sequence of its own).
+  bool sf_first = false;
 };
 
 Expanded placeholder(std::size_t weight) {
@@ -173,7 +207,9 @@ class ScheduleReader {
   // Reports the keys of `t` that are not in `keys`, with a hint where one
   // is likely: a key of another step type, a misspelling, or the keys that
   // belong here.
-  void unknown_keys(const TableReader& t, const Keys& keys, std::string_view what, bool is_step) {
+  // `inline_table`: the keys of a value table inside a step (`table = {...}`).
+  void unknown_keys(const TableReader& t, const Keys& keys, std::string_view what, bool is_step,
+                    bool inline_table = false) {
     static const Keys step_keys = all_step_keys();
     for (const auto& [k, node] : t.raw()) {
       const std::string_view key = k.str();
@@ -206,7 +242,7 @@ class ScheduleReader {
                               fmt::join(owners, ", "), owners.empty() ? "" : " and ", last);
       } else if (!nearest.empty()) {
         message = fmt::format("unknown key: did you mean {}?", nearest);
-      } else if (!is_step && contains(step_keys, key)) {
+      } else if (!is_step && !inline_table && contains(step_keys, key)) {
         message = "unknown key at the top level: is a [[step]] header missing above it?";
       } else if (what == "a step") {
         message = "unknown key: no step type takes it";
@@ -261,13 +297,259 @@ class ScheduleReader {
     return n;
   }
 
+  // Checks a table rate (either sign) against the sanity bound and the
+  // station's table; reports at `key` of `t` and returns false when refused.
+  bool check_table_rate(TableReader& t, std::string_view key, double rate_dps) {
+    if (std::abs(rate_dps) > kMaxTableRateDps) {
+      t.error(key, fmt::format("{:g} °/s is out of range: must be >= {:g} and <= {:g} °/s",
+                               rate_dps, -kMaxTableRateDps, kMaxTableRateDps));
+      return false;
+    }
+    if (limits_.table && std::abs(rate_dps) > limits_.table->max_rate_dps) {
+      t.error(key, fmt::format("{:g} °/s is faster than the station's max table rate {:g} °/s "
+                               "([table] max_rate_dps)",
+                               rate_dps, limits_.table->max_rate_dps));
+      return false;
+    }
+    return true;
+  }
+
+  // `table = { mode = "static", position_deg = P }` or
+  // `table = { mode = "rate", rate_dps = R }`.
+  void read_inline_table(TableReader& tt, TableDemand& out) {
+    std::optional<std::string> mode;
+    if (!tt.raw().contains("mode")) {
+      tt.error("mode", "missing: \"static\" or \"rate\"");
+    } else {
+      mode = tt.choice("mode", {"static", "rate"}, std::nullopt);
+    }
+    const Number position = number(tt, "position_deg");  // finite, any value
+    const Number rate = number(tt, "rate_dps");
+    if (mode == "static") {
+      if (rate.present) {
+        tt.error("rate_dps", "only mode = \"rate\" takes it (a static table does not turn)");
+      }
+      out.mode = TableDemandMode::kStatic;
+      if (position.value) out.position_deg = normalise_deg(*position.value);
+    } else if (mode == "rate") {
+      if (position.present) {
+        tt.error("position_deg",
+                 "only mode = \"static\" takes it (a turning table holds no position)");
+      }
+      if (!rate.present) {
+        tt.error("rate_dps", "missing (required for mode = \"rate\", °/s)");
+      } else if (rate.value && *rate.value == 0) {
+        tt.error("rate_dps",
+                 "0 °/s: a rate demand must be non-zero (mode = \"static\" stops the table)");
+      } else if (rate.value && check_table_rate(tt, "rate_dps", *rate.value)) {
+        out.mode = TableDemandMode::kRate;
+        out.rate_dps = *rate.value;
+      }
+    }
+    unknown_keys(tt, kTableKeys, "a table demand", false, true);
+  }
+
+  // The step's table demand, `table = {...}` or its short form
+  // `table_rate_dps = R` (0: static). Refused on a station without a table.
+  void read_table_demand(TableReader& t, TableDemand& out) {
+    const bool has_inline = t.raw().contains("table");
+    const bool has_short = t.raw().contains("table_rate_dps");
+    if (has_inline && has_short) {
+      t.error("table_rate_dps",
+              "give the table's demand once: table_rate_dps = R is the short form of table = { "
+              "mode = \"rate\", rate_dps = R }");
+      return;
+    }
+    std::string_view key;
+    const std::size_t errors_before = errors_.messages().size();
+    if (has_short) {
+      key = "table_rate_dps";
+      Number rate = number(t, key);
+      if (!rate.value || !check_table_rate(t, key, *rate.value)) return;
+      if (*rate.value == 0) {
+        out.mode = TableDemandMode::kStatic;
+      } else {
+        out.mode = TableDemandMode::kRate;
+        out.rate_dps = *rate.value;
+      }
+    } else if (has_inline) {
+      key = "table";
+      std::optional<TableReader> tt = t.table(key);
+      if (!tt) return;
+      read_inline_table(*tt, out);
+    } else {
+      return;
+    }
+    if (errors_.messages().size() != errors_before) {
+      out = TableDemand{};
+      return;
+    }
+    if (!limits_.table) {
+      t.error(key, fmt::format("the station has no [table]: {}", describe(out)));
+      out = TableDemand{};
+    }
+  }
+
+  // A scale_factor step: expands into one kRate point per rate, direction
+  // and repetition, each dwelling over a whole number of turns.
+  void read_scale_factor(TableReader& t, std::size_t errors_before, std::vector<Expanded>& out) {
+    const int line = static_cast<int>(t.raw().source().begin.line);
+    const std::string path = t.key_path("");
+    if (!limits_.table) {
+      t.error("type",
+              "the station has no [table]: a scale_factor step turns the table through its rates");
+    }
+    const double setpoint_c = temperature(t, "setpoint_c").value.value_or(0);
+
+    // rates_dps: positive magnitudes, each once.
+    struct Rate {
+      double dps;
+      int line;
+      std::string key;  // rates_dps[i]
+    };
+    std::vector<Rate> rates;
+    t.skip("rates_dps");
+    if (const toml::node* node = t.raw().get("rates_dps"); !node) {
+      t.error("rates_dps", "missing (required, array of rates in °/s)");
+    } else if (const toml::array* a = node->as_array(); !a) {
+      t.error("rates_dps",
+              fmt::format("expected an array of rates in °/s, got {}", toml_type_name(*node)));
+    } else if (a->empty()) {
+      t.error("rates_dps", "is empty: give at least one rate");
+    } else {
+      std::size_t i = 0;
+      for (const toml::node& n : *a) {
+        const std::string key = fmt::format("rates_dps[{}]", i++);
+        const int n_line = static_cast<int>(n.source().begin.line);
+        auto report = [&](const std::string& message) {
+          errors_.add(n_line, t.key_path(key), message);
+        };
+        std::optional<double> v;
+        if (auto x = n.value_exact<int64_t>()) {
+          v = static_cast<double>(*x);
+        } else if (auto y = n.value_exact<double>()) {
+          v = *y;
+        } else {
+          report(fmt::format("expected a number, got {}", toml_type_name(n)));
+          continue;
+        }
+        if (!std::isfinite(*v)) {
+          report("must be a finite number");
+        } else if (!(*v > 0)) {
+          report(fmt::format("{:g} °/s: give magnitudes (> 0); directions sets the signs", *v));
+        } else if (*v > kMaxTableRateDps) {
+          report(fmt::format("{:g} °/s is out of range: must be > 0 and <= {:g} °/s", *v,
+                             kMaxTableRateDps));
+        } else if (limits_.table && *v > limits_.table->max_rate_dps) {
+          report(
+              fmt::format("{:g} °/s is faster than the station's max table rate {:g} °/s ([table] "
+                          "max_rate_dps)",
+                          *v, limits_.table->max_rate_dps));
+        } else if (std::any_of(rates.begin(), rates.end(),
+                               [&](const Rate& r) { return r.dps == *v; })) {
+          report(fmt::format("{:g} °/s is listed twice", *v));
+        } else {
+          rates.push_back({*v, n_line, key});
+        }
+      }
+    }
+
+    const auto directions = t.choice("directions", {"both", "positive", "negative"}, "both");
+    auto integer_in = [&](std::string_view key, int64_t default_value, int64_t max) {
+      std::optional<int64_t> v = t.raw().contains(key) ? t.integer(key) : default_value;
+      if (v && (*v < 1 || *v > max)) {
+        t.error(key, fmt::format("{} is out of range: must be in [1, {}]", *v, max));
+        v.reset();
+      }
+      return v;
+    };
+    const auto turns = integer_in("turns", 1, kMaxTurnsPerPoint);
+    Number min_dwell = number(t, "min_dwell_s");
+    check_range(t, "min_dwell_s", min_dwell, "s", 0, true, fmt::format("{:g} s", kMaxMinDwellS),
+                kMaxMinDwellS);
+    if (!min_dwell.present) min_dwell.value = 10.0;
+    const auto repetitions = integer_in("repetitions", 1, kMaxScaleFactorRepetitions);
+    const auto order = t.choice("order", {"ascending", "descending"}, "ascending");
+    unknown_keys(t, kScaleFactorKeys, "a scale_factor step", true);
+
+    // Turns and dwell per magnitude; a point dwells at most kMaxRateDwellMin.
+    struct Point {
+      double rate_dps;
+      int turns;
+      double dwell_s;
+    };
+    std::vector<Point> points;
+    if (turns && min_dwell.value) {
+      for (const Rate& rate : rates) {
+        const double rate_dps = rate.dps;
+        // ceil, forgiving the rounding of an exact quotient (10 s at 36 °/s: 1 turn).
+        const double needed = std::ceil(*min_dwell.value * rate_dps / 360.0 - 1e-9);
+        const double n = std::max(static_cast<double>(*turns), needed);
+        const double dwell_s = n * 360.0 / rate_dps;
+        if (dwell_s > kMaxRateDwellMin * 60) {
+          errors_.add(rate.line, t.key_path(rate.key),
+                      fmt::format("at {:g} °/s, {:g} turns take {:.1f} h; a rate point may "
+                                  "dwell at most {:g} h",
+                                  rate_dps, n, dwell_s / 3600, kMaxRateDwellMin / 60));
+          continue;
+        }
+        points.push_back({rate_dps, static_cast<int>(n), dwell_s});
+      }
+    }
+    const std::size_t signs = directions == "both" ? 2 : 1;
+    if (repetitions && !points.empty()) {
+      const std::size_t count = points.size() * signs * static_cast<std::size_t>(*repetitions);
+      if (plan_size(out) + count > kMaxPlanSteps) {
+        t.error("repetitions",
+                fmt::format("{} repetitions of {} rate points would make the plan {} steps "
+                            "long; the limit is {}",
+                            *repetitions, points.size() * signs, plan_size(out) + count,
+                            kMaxPlanSteps));
+      }
+    }
+    if (errors_.messages().size() != errors_before || !directions || !order || !repetitions) {
+      out.push_back(placeholder(0));
+      return;
+    }
+
+    std::stable_sort(points.begin(), points.end(), [&](const Point& a, const Point& b) {
+      return *order == "ascending" ? a.rate_dps < b.rate_dps : a.rate_dps > b.rate_dps;
+    });
+    std::vector<double> sign_list;
+    if (*directions != "negative") sign_list.push_back(1.0);
+    if (*directions != "positive") sign_list.push_back(-1.0);
+    bool first = true;
+    for (int64_t rep = 1; rep <= *repetitions; ++rep) {
+      for (const Point& p : points) {
+        for (double sign : sign_list) {
+          Expanded e;
+          e.path = path;
+          e.sf_first = first;
+          first = false;
+          PlanStep& s = e.step;
+          s.kind = StepKind::kRate;
+          s.source_line = line;
+          s.setpoint_c = setpoint_c;
+          s.table.mode = TableDemandMode::kRate;
+          s.table.rate_dps = sign * p.rate_dps;
+          s.turns = p.turns;
+          s.dwell_s = p.dwell_s;
+          s.sf_repetition = static_cast<int>(rep);
+          s.label = fmt::format("SF {:+g} °/s, rep {} ({} turn{})", s.table.rate_dps, rep, p.turns,
+                                p.turns == 1 ? "" : "s");
+          out.push_back(std::move(e));
+        }
+      }
+    }
+  }
+
   void read_step(TableReader& t, int depth, std::vector<Expanded>& out) {
     const std::size_t errors_before = errors_.messages().size();
     std::optional<std::string> type;
     if (!t.raw().contains("type")) {
-      t.error("type", "missing: one of soak, ramp, hold, repeat");
+      t.error("type", "missing: one of soak, ramp, hold, scale_factor, repeat");
     } else {
-      type = t.choice("type", {"soak", "ramp", "hold", "repeat"}, std::nullopt);
+      type = t.choice("type", {"soak", "ramp", "hold", "scale_factor", "repeat"}, std::nullopt);
     }
     if (!type) {
       static const Keys any_step = all_step_keys();
@@ -277,6 +559,10 @@ class ScheduleReader {
     }
     if (*type == "repeat") {
       read_repeat(t, depth, out);
+      return;
+    }
+    if (*type == "scale_factor") {
+      read_scale_factor(t, errors_before, out);
       return;
     }
 
@@ -345,13 +631,7 @@ class ScheduleReader {
       s.hold_s = minutes(t, "duration_min", true, kMaxHoldMin).value.value_or(0) * 60.0;
       s.label = fmt::format("hold {}", format_c(s.setpoint_c));
     }
-    Number table_rate = number(t, "table_rate_dps");
-    check_range(t, "table_rate_dps", table_rate, "°/s", -kMaxTableRateDps, false,
-                fmt::format("{:g} °/s", kMaxTableRateDps), kMaxTableRateDps);
-    if (table_rate.value && *table_rate.value != 0) {
-      s.table.mode = TableDemandMode::kRate;
-      s.table.rate_dps = *table_rate.value;
-    }
+    read_table_demand(t, s.table);
 
     const Keys& keys = s.kind == StepKind::kSoak   ? kSoakKeys
                        : s.kind == StepKind::kRamp ? kRampKeys
@@ -511,9 +791,13 @@ Result<Plan> build_plan(std::optional<toml::table> root, TomlErrors& errors,
     plan.name =
         escape_control_characters(source.substr(slash == std::string::npos ? 0 : slash + 1));
   }
+  plan.table_accel_dps2 = limits.table ? limits.table->max_accel_dps2 : 0.0;
   plan.steps.reserve(steps.size());
+  int sf_sequence = 0;
   for (std::size_t i = 0; i < steps.size(); ++i) {
+    if (steps[i].sf_first) ++sf_sequence;
     PlanStep& s = plan.steps.emplace_back(std::move(steps[i].step));
+    if (s.kind == StepKind::kRate) s.sf_sequence = sf_sequence;
     s.label = fmt::format("step {}: {}", i + 1, s.label);
   }
   return plan;
@@ -549,7 +833,16 @@ std::string_view to_string(TableDemandMode mode) {
 
 double Plan::nominal_duration_s() const {
   double total = 0;
-  for (const auto& s : steps) total += s.acquire_s + s.hold_s;
+  double rate_dps = 0;  // the table's demand before the step
+  for (const auto& s : steps) {
+    total += s.acquire_s + s.hold_s;
+    const double next_dps = s.table.mode == TableDemandMode::kRate ? s.table.rate_dps : 0.0;
+    if (s.kind == StepKind::kRate) {
+      total += s.dwell_s;
+      if (table_accel_dps2 > 0) total += std::abs(next_dps - rate_dps) / table_accel_dps2;
+    }
+    rate_dps = next_dps;
+  }
   return total;
 }
 

@@ -132,12 +132,30 @@ void Sequencer::begin_step(std::size_t index, double t_s) {
       update_state(t_s, fmt::format("{} from {:.2f} °C", step.label, ramp_from_c_));
       break;
     case StepKind::kHold:
-    case StepKind::kRate:  // TODO(issue 17): spin up, then dwell over whole turns
       setpoint_c_ = step.setpoint_c;
       activity_ = RunState::kSettling;
       update_state(t_s, fmt::format("{} for {:g} min", step.label, step.hold_s / 60.0));
       break;
+    case StepKind::kRate:
+      setpoint_c_ = step.setpoint_c;
+      restart_spin_up();
+      last_table_rate_dps_.reset();
+      update_state(t_s,
+                   fmt::format("{}: spinning up to {:+g} °/s", step.label, step.table.rate_dps));
+      break;
   }
+}
+
+const TableDemand& Sequencer::table_demand() const {
+  static const TableDemand kNoDemand{};
+  if (end_ || state_ == RunState::kQueued || index_ >= plan_.steps.size()) return kNoDemand;
+  return plan_.steps[index_].table;
+}
+
+void Sequencer::restart_spin_up() {
+  activity_ = RunState::kSettling;
+  spin_up_s_ = 0;
+  at_rate_since_s_.reset();
 }
 
 void Sequencer::open_window(double t_s) {
@@ -149,6 +167,16 @@ void Sequencer::open_window(double t_s) {
 
 void Sequencer::close_window(double t_s) {
   if (!window_open_s_) return;
+  if (index_ < plan_.steps.size() && plan_.steps[index_].kind == StepKind::kRate) {
+    // A rate point's window covers whole turns or nothing: a window cut
+    // short (a hold, an abort) is discarded, never stored, and the point
+    // spins up and dwells in full again.
+    window_open_s_.reset();
+    if (times_.windows.empty()) times_.acquire_start_s.reset();
+    restart_spin_up();
+    observer_.on_step_changed(index_, plan_.steps[index_], times_);
+    return;
+  }
   times_.windows.push_back({*window_open_s_, std::max(t_s, *window_open_s_)});
   window_open_s_.reset();
   observer_.on_step_changed(index_, plan_.steps[index_], times_);
@@ -284,6 +312,10 @@ void Sequencer::tick(double t_s, const Readings& readings) {
     tick_soak(t_s, readings);
     return;
   }
+  if (step.kind == StepKind::kRate) {
+    tick_rate(t_s, active_dt_s, readings);
+    return;
+  }
   if (held()) {
     if (!was_held_) close_window(t_s);
     was_held_ = true;
@@ -380,14 +412,78 @@ void Sequencer::tick_soak(double t_s, const Readings& readings) {
   }
 }
 
+void Sequencer::tick_rate(double t_s, double active_dt_s, const Readings& readings) {
+  const PlanStep& step = plan_.steps[index_];
+  const double demand_dps = step.table.rate_dps;
+  if (readings.table_rate_dps) last_table_rate_dps_ = readings.table_rate_dps;
+  if (held()) {
+    if (!was_held_) close_window(t_s);  // discards a partial dwell
+    restart_spin_up();
+    was_held_ = true;
+    update_state(t_s, "held");
+    return;
+  }
+  if (was_held_) {
+    was_held_ = false;
+    update_state(t_s, fmt::format("{}: holds released; spinning up to {:+g} °/s again, the dwell "
+                                  "starts over ({} turns, {:g} s)",
+                                  step.label, demand_dps, step.turns, step.dwell_s));
+  }
+
+  if (activity_ == RunState::kSettling) {
+    spin_up_s_ += active_dt_s;
+    const double tolerance_dps = at_rate_tolerance_dps(demand_dps);
+    const bool at_rate = readings.table_rate_dps &&
+                         std::abs(*readings.table_rate_dps - demand_dps) <= tolerance_dps;
+    if (!at_rate) {
+      at_rate_since_s_.reset();
+    } else if (!at_rate_since_s_) {
+      at_rate_since_s_ = t_s;
+    }
+    if (at_rate && t_s - *at_rate_since_s_ >= options_.at_rate_hold_s) {
+      if (!times_.settled_s) times_.settled_s = t_s;
+      activity_ = RunState::kAcquiring;
+      open_window(t_s);
+      update_state(t_s, fmt::format("{}: at {:+g} °/s (measured {:+.4f} °/s for {:g} s); "
+                                    "acquiring {} turn{} over {:g} s",
+                                    step.label, demand_dps, *readings.table_rate_dps,
+                                    options_.at_rate_hold_s, step.turns, step.turns == 1 ? "" : "s",
+                                    step.dwell_s));
+      return;
+    }
+    if (spin_up_s_ > options_.spin_up_timeout_s) {
+      const std::string measured = last_table_rate_dps_
+                                       ? fmt::format("{:+.4f} °/s", *last_table_rate_dps_)
+                                       : std::string("no table reading");
+      abort(t_s, fmt::format("{}: the table did not reach {:+g} °/s (± {:g} °/s for {:g} s) "
+                             "within {:g} s; last measured {}",
+                             step.label, demand_dps, tolerance_dps,
+                             options_.at_rate_hold_s, options_.spin_up_timeout_s, measured));
+      return;
+    }
+    update_state(t_s, fmt::format("{}: spinning up to {:+g} °/s", step.label, demand_dps));
+    return;
+  }
+
+  // Acquiring: the window ends after exactly dwell_s (ticks are coarse).
+  if (window_open_s_ && t_s - *window_open_s_ >= step.dwell_s) {
+    times_.windows.push_back({*window_open_s_, *window_open_s_ + step.dwell_s});
+    window_open_s_.reset();
+    observer_.on_step_changed(index_, step, times_);
+    advance(t_s);
+  }
+}
+
 Status Sequencer::pause(double t_s, const std::string& reason) {
   if (end_ || state_ == RunState::kQueued) return Error::Permanent("no run in progress to pause");
   if (paused_) return Error::Permanent("the run is already paused");
   paused_ = true;
+  const bool rate_dwell = window_open_s_ && plan_.steps[index_].kind == StepKind::kRate;
   close_window(t_s);
   was_held_ = true;
-  update_state(t_s, fmt::format("paused ({}); holding {:.2f} °C, acquisition clock stopped", reason,
-                                setpoint_c_));
+  update_state(t_s, fmt::format("paused ({}); holding {:.2f} °C, acquisition clock stopped{}",
+                                reason, setpoint_c_,
+                                rate_dwell ? "; the rate point's partial dwell is discarded" : ""));
   return Status::Ok();
 }
 
@@ -396,7 +492,12 @@ Status Sequencer::resume(double t_s, const std::string& reason) {
   if (!paused_) return Error::Permanent("the run is not paused");
   paused_ = false;
   // The window reopens (or the soak restarts) at the next tick, with readings.
-  update_state(t_s, fmt::format("resumed ({})", reason));
+  const PlanStep& step = plan_.steps[index_];
+  update_state(t_s, step.kind == StepKind::kRate
+                        ? fmt::format("resumed ({}); {}: spinning up to {:+g} °/s, the dwell "
+                                      "starts over",
+                                      reason, step.label, step.table.rate_dps)
+                        : fmt::format("resumed ({})", reason));
   return Status::Ok();
 }
 
@@ -474,10 +575,17 @@ void Sequencer::restore(const SequencerSnapshot& s, double t_s, double data_unti
   const PlanStep& step = plan_.steps[index_];
   shell_window_ = analysis::StabilityWindow(step.stability_window_s);
   chamber_window_ = analysis::StabilityWindow(step.stability_window_s);
-  // The window that was open when the snapshot was taken ends there, and no
-  // window reaches past the last committed sample: the samples after it died
-  // with the daemon, so that time is not credited (the soak acquires it again).
-  if (s.window_open_s) {
+  if (step.kind == StepKind::kRate) {
+    // A rate point in progress starts over: it spins up again and dwells
+    // its whole turns (a partial window is never stored).
+    times_.windows.clear();
+    times_.acquire_start_s.reset();
+    restart_spin_up();
+    last_table_rate_dps_.reset();
+  } else if (s.window_open_s) {
+    // The window that was open when the snapshot was taken ends there, and no
+    // window reaches past the last committed sample: the samples after it died
+    // with the daemon, so that time is not credited (the soak acquires it again).
     times_.windows.push_back({*s.window_open_s, std::max(s.t_s, *s.window_open_s)});
   }
   std::vector<AcquisitionWindow> covered;
@@ -497,7 +605,7 @@ void Sequencer::restore(const SequencerSnapshot& s, double t_s, double data_unti
     trip_message_[k] = trip.message;
   }
   const double down_s = std::max(0.0, t_s - s.t_s);
-  if (step.kind == StepKind::kRamp || paused_) {
+  if (step.kind == StepKind::kRamp || step.kind == StepKind::kRate || paused_) {
     times_.held_s += down_s;
   } else {
     step_active_s_ += down_s;

@@ -187,6 +187,73 @@ Result<ControlCommand> parse_chamber(const Words& w) {
       quoted(sub)));
 }
 
+Result<ControlCommand> parse_table(const Words& w) {
+  const std::string_view sub = w.size() > 1 ? w[1] : "";
+  if (sub == "fault") return simple(w, 2, "table fault", Kind::kTableFault);
+  if (sub == "hang") return simple(w, 2, "table hang", Kind::kTableHang);
+  if (sub == "disconnect") return simple(w, 2, "table disconnect", Kind::kTableDisconnect);
+  if (sub == "connect") return simple(w, 2, "table connect", Kind::kTableConnect);
+  if (sub == "clear") return simple(w, 2, "table clear", Kind::kTableClear);
+  if (sub == "status") return simple(w, 2, "table status", Kind::kTableStatus);
+  constexpr const char* kChoices = "fault, hang, disconnect, connect, clear or status";
+  if (sub.empty()) return bad(fmt::format("'table' needs one of: {}", kChoices));
+  return bad(fmt::format("unknown 'table' subcommand {}; expected {}", quoted(sub), kChoices));
+}
+
+std::string_view mode_name(drivers::TableMode m) {
+  switch (m) {
+    case drivers::TableMode::kRate:
+      return "rate";
+    case drivers::TableMode::kPosition:
+      return "position";
+    case drivers::TableMode::kOff:
+      return "off";
+    default:
+      return "unknown";
+  }
+}
+
+std::string_view interlock_name(drivers::TableInterlock i) {
+  switch (i) {
+    case drivers::TableInterlock::kOpen:
+      return "open";
+    case drivers::TableInterlock::kClosed:
+      return "closed";
+    default:
+      return "fault";
+  }
+}
+
+nlohmann::ordered_json table_json(const TableStatus& t) {
+  const TableModelState& s = t.state;
+  nlohmann::ordered_json faults = nlohmann::ordered_json::array();
+  if (s.interlock == drivers::TableInterlock::kFault) faults.push_back("interlock_fault");
+  if (t.hung) faults.push_back("hang");
+  if (t.disconnected) faults.push_back("disconnect");
+  return {
+      {"mode", mode_name(s.mode)},
+      {"interlock", interlock_name(s.interlock)},
+      {"rate_dps", s.rate_dps},
+      {"measured_rate_dps", s.measured_rate_dps},
+      {"accel_dps2", s.accel_dps2},
+      {"position_deg", s.position_deg},
+      {"demand", {{"rate_dps", s.rate_demand_dps}, {"position_deg", s.position_demand_deg}}},
+      {"limits",
+       {{"rate_dps", s.rate_limit_dps},
+        {"accel_dps2", s.accel_limit_dps2},
+        {"trip_rate_dps", s.trip_rate_dps}}},
+      {"faults", faults},
+      {"fault", s.fault},
+      {"port", t.port},
+      {"device", t.device},
+      {"requests",
+       {{"acl", t.acl_requests},
+        {"acl_unanswered", t.acl_unanswered},
+        {"acl_refused_connections", t.acl_refused_connections},
+        {"aero", t.aero_requests}}},
+  };
+}
+
 std::string ok_json(const nlohmann::ordered_json& j) { return "ok " + j.dump(); }
 
 nlohmann::ordered_json optional_json(const std::optional<double>& v) {
@@ -209,6 +276,13 @@ const std::vector<ControlCommandHelp>& control_commands() {
       {"probe stall top|side", "freeze the probe's register at its last value"},
       {"probe release top|side", "let a stalled probe read again"},
       {"chamber alarm on|off", "raise or clear the chamber controller's alarm register"},
+      {"table fault", "put the rate table's interlock in fault now (latched until :I:R)"},
+      {"table hang", "the rate table answers no request (ACL or AERO); connections stay"},
+      {"table disconnect",
+       "close the table's ACL connections and refuse new ones, silence the AERO line"},
+      {"table connect", "accept table connections again (after table disconnect)"},
+      {"table clear", "end table hang and disconnect (a latched interlock fault stays)"},
+      {"table status", "the rate table as JSON: mode, interlock, rate, position, demand, faults"},
       {"chamber units c|f",
        "serve the chamber's temperatures in °C or °F (and say so in its units register)"},
       {"chamber force TEMP_C",
@@ -230,6 +304,7 @@ Result<ControlCommand> parse_control_command(std::string_view line) {
   if (first == "frames") return parse_frames(w);
   if (first == "probe") return parse_probe(w);
   if (first == "chamber") return parse_chamber(w);
+  if (first == "table") return parse_table(w);
   if (first == "status") return simple(w, 1, "status", Kind::kStatus);
   if (first == "help") return simple(w, 1, "help", Kind::kHelp);
   return bad(fmt::format("unknown command {}; send 'help' for the list", quoted(first)));
@@ -300,8 +375,11 @@ std::string status_json(const SimulatorStatus& s) {
           {"unknown_unit_requests", mb.unknown_unit_requests},
           {"refused_connections", mb.refused_connections}}}}},
   };
+  if (s.table.served) j["table"] = table_json(s.table);
   return j.dump();
 }
+
+std::string table_status_json(const TableStatus& table) { return table_json(table).dump(); }
 
 std::string execute_control_command(Simulator& sim, const ControlCommand& c) {
   switch (c.kind) {
@@ -359,6 +437,36 @@ std::string execute_control_command(Simulator& sim, const ControlCommand& c) {
       return "ok";
     case Kind::kChamberRelease:
       sim.force_chamber_c(std::nullopt);
+      return "ok";
+    case Kind::kTableFault:
+    case Kind::kTableHang:
+    case Kind::kTableDisconnect:
+    case Kind::kTableConnect:
+    case Kind::kTableClear:
+    case Kind::kTableStatus:
+      if (!sim.has_table()) {
+        return "error the simulator serves no table (add a [table] section to the station "
+               "config or start gyrotherm-sim with --table)";
+      }
+      switch (c.kind) {
+        case Kind::kTableFault:
+          sim.table_fault();
+          break;
+        case Kind::kTableHang:
+          sim.table_hang(true);
+          break;
+        case Kind::kTableDisconnect:
+          sim.table_disconnect(true);
+          break;
+        case Kind::kTableConnect:
+          sim.table_disconnect(false);
+          break;
+        case Kind::kTableClear:
+          sim.table_clear();
+          break;
+        default:
+          return "ok " + table_status_json(sim.status().table);
+      }
       return "ok";
     case Kind::kStatus:
       return "ok " + status_json(sim.status());

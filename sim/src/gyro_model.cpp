@@ -51,6 +51,21 @@ bool GyroParams::IsValid(std::string* error) const {
            bad("accel_noise_g", accel_noise_g, 0, 10));
 }
 
+bool ScaleFactorParams::IsValid(std::string* error) const {
+  auto bad = [&](const char* name, double v, double lo, double hi) {
+    if (std::isfinite(v) && v >= lo && v <= hi) return false;
+    if (error) {
+      *error =
+          fmt::format("scale_factor {} = {} is out of range: must be in [{}, {}]", name, v, lo, hi);
+    }
+    return true;
+  };
+  return !(bad("k_ppm", k_ppm, -1e5, 1e5) || bad("k_tc_ppm_per_c", k_tc_ppm_per_c, -1e4, 1e4) ||
+           bad("reference_temp_c", reference_temp_c, -100, 200) ||
+           bad("asymmetry_ppm", asymmetry_ppm, -1e5, 1e5) ||
+           bad("nonlinearity_ppm", nonlinearity_ppm, -1e5, 1e5));
+}
+
 GyroModel::GyroModel(GyroParams params, drivers::GyroFormat format, double earth_rate_dph,
                      uint64_t seed)
     : params_(std::move(params)), format_(format), earth_rate_dph_(earth_rate_dph), rng_(seed) {
@@ -69,12 +84,44 @@ double GyroModel::model_rate_dph(double case_c, double case_rate_c_per_s, double
          poly_without_constant(params_.gradient_coeffs, gradient_c);
 }
 
-double GyroModel::next_rate_dph(const ThermalTruth& truth) {
+void GyroModel::enable_table(ScaleFactorParams sf, TableMount mount) {
+  on_table_ = true;
+  sf_ = sf;
+  mount_ = mount;
+}
+
+double GyroModel::scale_factor(double case_c, bool positive) const {
+  const double k = 1.0 + (sf_.k_ppm + sf_.k_tc_ppm_per_c * (case_c - sf_.reference_temp_c)) * 1e-6;
+  return k * (1.0 + (positive ? 0.5 : -0.5) * sf_.asymmetry_ppm * 1e-6);
+}
+
+double GyroModel::earth_projection_dph(double position_deg) const {
+  if (mount_.axis == SensitiveAxis::kAlongTable) return earth_rate_dph_;
+  return units::kEarthRateDph * std::cos(units::deg_to_rad(mount_.latitude_deg)) *
+         std::cos(units::deg_to_rad(mount_.heading_at_zero_deg + position_deg));
+}
+
+double GyroModel::model_rate_on_table_dph(const ThermalTruth& truth,
+                                          const TableInput& table) const {
+  const double input_dph =
+      table.rate_dps * units::kSecondsPerHour + earth_projection_dph(table.position_deg);
+  const double full_scale_dph = mount_.full_scale_dps * units::kSecondsPerHour;
+  const double k = scale_factor(truth.case_c, input_dph >= 0);
+  const double sensed =
+      k * input_dph * (1.0 + sf_.nonlinearity_ppm * 1e-6 * std::abs(input_dph) / full_scale_dph);
+  // model_rate_dph() less its Earth rate: the bias and the polynomials.
+  return sensed + model_rate_dph(truth.case_c, truth.case_rate_c_per_s, truth.gradient_c) -
+         earth_rate_dph_;
+}
+
+double GyroModel::next_rate_dph(const ThermalTruth& truth, const TableInput& table) {
   ++samples_;
   gm_bias_dph_ = gm_a_ * gm_bias_dph_ + gm_drive_dph_ * normal_(rng_);
   if (rrw_step_dph_ > 0) rrw_dph_ += rrw_step_dph_ * normal_(rng_);
-  last_rate_dph_ = model_rate_dph(truth.case_c, truth.case_rate_c_per_s, truth.gradient_c) +
-                   white_sample_std_dph_ * normal_(rng_) + gm_bias_dph_ + rrw_dph_;
+  const double model =
+      on_table_ ? model_rate_on_table_dph(truth, table)
+                : model_rate_dph(truth.case_c, truth.case_rate_c_per_s, truth.gradient_c);
+  last_rate_dph_ = model + white_sample_std_dph_ * normal_(rng_) + gm_bias_dph_ + rrw_dph_;
   return last_rate_dph_;
 }
 
@@ -85,9 +132,9 @@ double GyroModel::to_output(double rate_dph) const {
   return v;
 }
 
-drivers::GyroFrame GyroModel::next_frame(const ThermalTruth& truth) {
+drivers::GyroFrame GyroModel::next_frame(const ThermalTruth& truth, const TableInput& table) {
   drivers::GyroFrame f;
-  const double rate_dph = next_rate_dph(truth);
+  const double rate_dph = next_rate_dph(truth, table);
   for (int axis = 0; axis < 3; ++axis) {
     const double v = axis == format_.axis ? rate_dph : white_sample_std_dph_ * normal_(rng_);
     f.gyro[static_cast<std::size_t>(axis)] = static_cast<float>(to_output(v));
@@ -139,6 +186,35 @@ std::string GyroModel::truth_json(uint64_t seed) const {
       {"axis", kAxes[std::clamp(format_.axis, 0, 2)]},
   };
   j["formula"] = formula();
+  if (on_table_) {
+    j["scale_factor"] = {
+        {"k_ppm", sf_.k_ppm},
+        {"k_tc_ppm_per_c", sf_.k_tc_ppm_per_c},
+        {"reference_temp_c", sf_.reference_temp_c},
+        {"asymmetry_ppm", sf_.asymmetry_ppm},
+        {"nonlinearity_ppm", sf_.nonlinearity_ppm},
+        {"full_scale_dps", mount_.full_scale_dps},
+        {"sensitive_axis", mount_.axis == SensitiveAxis::kRadial ? "radial" : "along_table"},
+        {"latitude_deg", mount_.latitude_deg},
+        {"heading_at_zero_deg", mount_.heading_at_zero_deg},
+        // K(T) = k0 + k1 (T - reference_temp_c), for the sign-averaged K.
+        {"K_of_T", {{"k0", 1.0 + sf_.k_ppm * 1e-6}, {"k1_per_c", sf_.k_tc_ppm_per_c * 1e-6}}},
+        {"formula",
+         "Omega_dph = table_rate_dps*3600 + earth_projection_dph; "
+         "K = (1 + (k_ppm + k_tc_ppm_per_c*(T - reference_temp_c))*1e-6) * "
+         "(1 + s*asymmetry_ppm/2*1e-6), s = +1 if Omega >= 0 else -1; "
+         "rate_dph = K*Omega*(1 + nonlinearity_ppm*1e-6*|Omega|/Omega_fs) + bias_dph + "
+         "polynomials + noise; Omega_fs = full_scale_dps*3600; "
+         "earth_projection_dph = earth_rate_dph (along_table) or "
+         "15.041067*cos(latitude)*cos(heading_at_zero_deg + position_deg) (radial); "
+         "T = gyro case temperature (degC); the table's true rate enters, not its measured one"},
+        {"asymmetry_definition", "(K+ - K-)/K_mean, ppm"},
+        {"nonlinearity_definition",
+         "output deviates from K*Omega by K*Omega*nonlinearity_ppm*1e-6*|Omega|/Omega_fs: "
+         "at full scale the relative deviation is nonlinearity_ppm; it is even in Omega, so a "
+         "straight-line fit over +-Omega_fs leaves residuals of that shape"},
+    };
+  }
   j["seed"] = seed;
   return j.dump(2) + "\n";
 }

@@ -61,16 +61,44 @@ void read_gyro(TableReader t, GyroParams& p) {
   t.finish();
 }
 
+void read_table(TableReader t, TableParams& p) {
+  p.max_rate_dps = t.number_in("max_rate_dps", p.max_rate_dps, 1e-3, 1e5);
+  p.max_accel_dps2 = t.number_in("max_accel_dps2", p.max_accel_dps2, 1e-3, 1e6);
+  p.max_jerk_dps3 = t.number_in("max_jerk_dps3", p.max_jerk_dps3, 1e-3, 1e8);
+  p.trip_rate_dps = t.number_in("trip_rate_dps", p.trip_rate_dps, 1e-3, 2e5);
+  p.rate_noise_rel = t.number_in("rate_noise_rel", p.rate_noise_rel, 0, 0.1);
+  if (auto h =
+          t.choice("reply_header", {"ascii", "binary-le", "binary-be", "line"}, std::nullopt)) {
+    p.reply_header = *h;
+  }
+  t.finish();
+}
+
+void read_scale_factor(TableReader t, ScaleFactorParams& p) {
+  p.k_ppm = t.number_in("k_ppm", p.k_ppm, -1e5, 1e5);
+  p.k_tc_ppm_per_c = t.number_in("k_tc_ppm_per_c", p.k_tc_ppm_per_c, -1e4, 1e4);
+  p.reference_temp_c = t.number_in("reference_temp_c", p.reference_temp_c, -100, 200);
+  p.asymmetry_ppm = t.number_in("asymmetry_ppm", p.asymmetry_ppm, -1e5, 1e5);
+  p.nonlinearity_ppm = t.number_in("nonlinearity_ppm", p.nonlinearity_ppm, -1e5, 1e5);
+  t.finish();
+}
+
 }  // namespace
 
 bool SimulatorOptions::IsValid(std::string* error) const {
-  if (!thermal.IsValid(error) || !gyro.IsValid(error)) return false;
+  if (!thermal.IsValid(error) || !gyro.IsValid(error) || !table.IsValid(error) ||
+      !scale_factor.IsValid(error)) {
+    return false;
+  }
   auto fail = [&](std::string msg) {
     if (error) *error = std::move(msg);
     return false;
   };
   if (modbus_port < 0 || modbus_port > 65535) {
     return fail(fmt::format("modbus_port = {} is not a TCP port (0..65535)", modbus_port));
+  }
+  if (table_port < 0 || table_port > 65535) {
+    return fail(fmt::format("table_port = {} is not a TCP port (0..65535)", table_port));
   }
   if (!(time_scale >= kMinTimeScale && time_scale <= kMaxTimeScale)) {
     return fail(
@@ -108,6 +136,12 @@ Result<SimulatorOptions> read_simulator_options(const daemon::StationConfig& con
       else
         o.modbus_port = static_cast<int>(*p);
     }
+    if (auto p = t.integer("table_port")) {
+      if (*p < 0 || *p > 65535)
+        t.error("table_port", fmt::format("{} is not a TCP port", *p));
+      else
+        o.table_port = static_cast<int>(*p);
+    }
     if (auto s = t.integer("seed")) {
       if (*s < 0)
         t.error("seed", "must be a non-negative integer");
@@ -121,6 +155,8 @@ Result<SimulatorOptions> read_simulator_options(const daemon::StationConfig& con
     o.thermal.initial_temp_c = t.number_in("initial_temp_c", o.thermal.initial_temp_c, -100, 200);
     if (auto th = t.table("thermal")) read_thermal(*th, o.thermal);
     if (auto g = t.table("gyro")) read_gyro(*g, o.gyro);
+    if (auto tb = t.table("table")) read_table(*tb, o.table);
+    if (auto sf = t.table("scale_factor")) read_scale_factor(*sf, o.scale_factor);
     if (auto n = t.integer("pending_frames_limit")) {
       if (*n < 0 || *n > 10'000'000)
         t.error("pending_frames_limit", "must be in [0, 10000000]");
@@ -135,6 +171,8 @@ Result<SimulatorOptions> read_simulator_options(const daemon::StationConfig& con
   if (overrides.control_socket) o.control_socket = *overrides.control_socket;
   if (overrides.seed) o.seed = *overrides.seed;
   if (overrides.rate_hz) o.gyro_format.rate_hz = *overrides.rate_hz;
+  if (overrides.table_port) o.table_port = *overrides.table_port;
+  o.serve_table = overrides.serve_table || config.table.has_value();
   // Keys already reported above kept their defaults, so what IsValid() finds
   // now comes from the overrides or from combinations of keys.
   std::string message = errors.joined();

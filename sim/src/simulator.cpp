@@ -12,7 +12,9 @@
 #include "gyrotherm/analysis/table1.h"
 #include "gyrotherm/core/files.h"
 #include "gyrotherm/drivers/kvh1750.h"
+#include "gyrotherm/sim/aero_server.h"
 #include "gyrotherm/sim/control_server.h"
+#include "gyrotherm/sim/table_server.h"
 
 namespace gyrotherm::sim {
 namespace {
@@ -72,6 +74,12 @@ Result<std::unique_ptr<Simulator>> Simulator::create(const daemon::StationConfig
     return Error::Permanent(fmt::format(
         "{}: the chamber set point register must be a holding register", config.source_path));
   }
+  if (config.table && config.table->sensitive_axis != "along_table" &&
+      config.table->sensitive_axis != "radial") {
+    return Error::Permanent(
+        fmt::format("{}: [table] sensitive_axis = '{}' must be along_table or radial",
+                    config.source_path, config.table->sensitive_axis));
+  }
   return std::unique_ptr<Simulator>(
       new Simulator(config, honest_probe_quantum(options, config), clock));
 }
@@ -93,6 +101,18 @@ Simulator::Simulator(daemon::StationConfig config, SimulatorOptions options, con
       forced_chamber_c_(std::numeric_limits<double>::quiet_NaN()),
       stream_(drivers::kKvh1750FrameSize, pending_frames_limit(options_)) {
   chamber_units_.store(options_.chamber_units);
+  if (options_.serve_table || config_.table) {
+    table_.emplace(options_.table, derive_seed(options_.seed, 4));
+    TableMount mount;
+    mount.latitude_deg = config_.station.latitude_deg;
+    mount.full_scale_dps = options_.table.max_rate_dps;
+    if (config_.table) {
+      mount.axis = config_.table->sensitive_axis == "radial" ? SensitiveAxis::kRadial
+                                                             : SensitiveAxis::kAlongTable;
+      mount.heading_at_zero_deg = config_.table->heading_at_zero_deg;
+    }
+    gyro_.enable_table(options_.scale_factor, mount);
+  }
   truth_json_ = gyro_.truth_json(options_.seed);
   status_.setpoint_c = options_.thermal.initial_temp_c;
   status_.truth = plant_.truth();
@@ -171,6 +191,8 @@ Status Simulator::start() {
 
   auto fail = [&](Error e) -> Status {
     control_.reset();  // never served: no command can be waiting for life_mu_
+    table_server_.reset();
+    aero_server_.reset();
     release_modbus_server();
     std::lock_guard lock(stream_mu_);
     stream_.close();
@@ -180,6 +202,26 @@ Status Simulator::start() {
     std::lock_guard lock(stream_mu_);
     if (Status s = stream_.open(); !s.ok()) return fail(s.error());
     if (Status s = point_gyro_link_locked(); !s.ok()) return fail(s.error());
+  }
+  if (table_) {
+    TableServer::Options table_options;
+    table_options.host = options_.modbus_host;
+    table_options.port = options_.table_port;
+    table_options.handler = [this](std::string_view line) {
+      return frame_acl_reply(table_acl(line), options_.table.reply_header);
+    };
+    auto table_server = TableServer::start(std::move(table_options));
+    if (!table_server.ok()) return fail(table_server.error());
+    table_server_ = std::move(table_server).value();
+    auto aero = AeroServer::start([this](std::string_view line) {
+      std::lock_guard lock(sim_mu_);
+      return handle_aero_line(*table_, line);
+    });
+    if (!aero.ok()) return fail(aero.error());
+    aero_server_ = std::move(aero).value();
+    table_server_->set_hung(table_hung_.load());
+    table_server_->set_disconnected(table_disconnected_.load());
+    aero_server_->set_silent(table_hung_.load() || table_disconnected_.load());
   }
   if (!options_.control_socket.empty()) {
     ControlServer::Options control_options;
@@ -242,6 +284,8 @@ void Simulator::stop() {
   wake_cv_.notify_all();
   thread_.join();
   release_modbus_server();
+  table_server_.reset();  // their threads take sim_mu_ only
+  aero_server_.reset();
   {
     std::lock_guard lock(stream_mu_);
     stream_.close();
@@ -297,6 +341,8 @@ daemon::SimEndpoints Simulator::endpoints() const {
   ep.pid = static_cast<long>(::getpid());
   ep.control_socket = options_.control_socket;
   ep.time_scale = clock_->time_scale();
+  if (table_server_) ep.table_port = table_server_->port();
+  if (aero_server_) ep.table_device = aero_server_->device();
   return ep;
 }
 
@@ -332,6 +378,27 @@ SimulatorStatus Simulator::status() const {
   f.chamber_units = chamber_units_.load();
   if (const double forced = forced_chamber_c_.load(); !std::isnan(forced)) {
     f.chamber_forced_c = forced;
+  }
+  if (table_) {
+    TableStatus& t = s.table;
+    t.served = true;
+    {
+      std::lock_guard lock(sim_mu_);
+      t.state = table_->state();
+    }
+    t.hung = table_hung_.load();
+    t.disconnected = table_disconnected_.load();
+    if (table_server_) {
+      t.port = table_server_->port();
+      const TableServerStats stats = table_server_->stats();
+      t.acl_requests = stats.requests;
+      t.acl_unanswered = stats.unanswered;
+      t.acl_refused_connections = stats.refused_connections;
+    }
+    if (aero_server_) {
+      t.device = aero_server_->device();
+      t.aero_requests = aero_server_->requests();
+    }
   }
   return s;
 }
@@ -372,12 +439,18 @@ void Simulator::advance_to(double target_s, std::vector<uint8_t>& batch) {
   int64_t done = 0;
   while (static_cast<double>(steps_ + 1) * step_s <= target_s) {
     plant_.step(step_s, setpoint_c);
+    TableInput table_input;
+    if (table_) {
+      table_->step(step_s);
+      table_input.rate_dps = table_->rate_dps();  // the true rate, not the measured one
+      table_input.position_deg = table_->unwrapped_position_deg();
+    }
     ++steps_;
     const double t_s = static_cast<double>(steps_) * step_s;
     while (static_cast<double>(next_frame_) * period_s <= t_s + 1e-9) {
       ++next_frame_;
       ++status_.frames_generated;
-      const drivers::GyroFrame frame = gyro_.next_frame(plant_.truth());
+      const drivers::GyroFrame frame = gyro_.next_frame(plant_.truth(), table_input);
       if (drop > 0 && uniform(fault_rng_) < drop) {
         ++status_.frames_fault_dropped;
         continue;
@@ -557,6 +630,40 @@ void Simulator::force_chamber_c(std::optional<double> target_c) {
     forced = std::clamp(*target_c, kMinSetpointC, kMaxSetpointC);
   }
   forced_chamber_c_.store(forced);
+}
+
+}  // namespace gyrotherm::sim
+
+namespace gyrotherm::sim {
+
+AclReply Simulator::table_acl(std::string_view line) {
+  std::lock_guard lock(sim_mu_);
+  if (!table_) return AclReply{kAclRefused, ""};
+  return handle_acl_line(*table_, acl_state_, line);
+}
+
+void Simulator::table_fault() {
+  std::lock_guard lock(sim_mu_);
+  if (table_) table_->trip("injected fault (control socket: table fault)");
+}
+
+void Simulator::table_hang(bool hung) {
+  std::lock_guard life(life_mu_);
+  table_hung_.store(hung);
+  if (table_server_) table_server_->set_hung(hung);
+  if (aero_server_) aero_server_->set_silent(hung || table_disconnected_.load());
+}
+
+void Simulator::table_disconnect(bool disconnected) {
+  std::lock_guard life(life_mu_);
+  table_disconnected_.store(disconnected);
+  if (table_server_) table_server_->set_disconnected(disconnected);
+  if (aero_server_) aero_server_->set_silent(disconnected || table_hung_.load());
+}
+
+void Simulator::table_clear() {
+  table_hang(false);
+  table_disconnect(false);
 }
 
 }  // namespace gyrotherm::sim

@@ -143,7 +143,9 @@ RunRecord read_run(const Stmt& st) {
 
 constexpr const char* kSegmentColumns =
     "id, run_id, idx, kind, label, setpoint_c, ramp_rate_c_per_min, t_start_s, t_settled_s, "
-    "t_acquire_start_s, t_acquire_end_s, t_end_s, paused_s, state";
+    "t_acquire_start_s, t_acquire_end_s, t_end_s, paused_s, state, table_mode, table_rate_dps, "
+    "table_position_deg, table_mean_rate_dps, table_mean_position_deg, turns, dwell_s, "
+    "sf_sequence, sf_repetition";
 
 SegmentRecord read_segment(const Stmt& st) {
   SegmentRecord s;
@@ -161,6 +163,15 @@ SegmentRecord read_segment(const Stmt& st) {
   s.t_end_s = st.column_optional_double(11);
   s.paused_s = st.column_double(12);
   s.state = st.column_text(13);
+  s.table_mode = st.column_text(14);
+  s.table_rate_dps = st.column_optional_double(15);
+  s.table_position_deg = st.column_optional_double(16);
+  s.table_mean_rate_dps = st.column_optional_double(17);
+  s.table_mean_position_deg = st.column_optional_double(18);
+  s.turns = static_cast<int>(st.column_int64(19));
+  s.dwell_s = st.column_double(20);
+  s.sf_sequence = static_cast<int>(st.column_int64(21));
+  s.sf_repetition = static_cast<int>(st.column_int64(22));
   return s;
 }
 
@@ -181,7 +192,17 @@ void bind_segment(Stmt& st, const SegmentRecord& s, int first) {
   st.bind(i++, s.t_end_s);
   st.bind(i++, s.paused_s);
   st.bind(i++, std::string_view(s.state));
+  st.bind(i++, std::string_view(s.table_mode));
+  st.bind(i++, s.table_rate_dps);
+  st.bind(i++, s.table_position_deg);
+  st.bind(i++, s.table_mean_rate_dps);
+  st.bind(i++, s.table_mean_position_deg);
+  st.bind(i++, s.turns);
+  st.bind(i++, s.dwell_s);
+  st.bind(i++, s.sf_sequence);
+  st.bind(i++, s.sf_repetition);
 }
+constexpr int kSegmentBoundColumns = 22;  // bind_segment's parameters
 
 constexpr const char* kStatsColumns =
     "segment_id, run_id, segment_index, setpoint_c, n, duration_s, temp_mean_c, bias_mean_dph, "
@@ -339,8 +360,11 @@ Result<int64_t> Database::create_segment(const SegmentRecord& segment) {
   auto st = Stmt::prepare(db_, path_,
                           "INSERT INTO segments(run_id, idx, kind, label, setpoint_c, "
                           "ramp_rate_c_per_min, t_start_s, t_settled_s, t_acquire_start_s, "
-                          "t_acquire_end_s, t_end_s, paused_s, state) "
-                          "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+                          "t_acquire_end_s, t_end_s, paused_s, state, table_mode, "
+                          "table_rate_dps, table_position_deg, table_mean_rate_dps, "
+                          "table_mean_position_deg, turns, dwell_s, sf_sequence, sf_repetition) "
+                          "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
+                          "?)");
   if (!st) return st.error();
   bind_segment(*st, segment, 1);
   if (Status s =
@@ -359,10 +383,13 @@ Status Database::update_segment(const SegmentRecord& segment) {
                           "UPDATE segments SET run_id = ?, idx = ?, kind = ?, label = ?, "
                           "setpoint_c = ?, ramp_rate_c_per_min = ?, t_start_s = ?, "
                           "t_settled_s = ?, t_acquire_start_s = ?, t_acquire_end_s = ?, "
-                          "t_end_s = ?, paused_s = ?, state = ? WHERE id = ?");
+                          "t_end_s = ?, paused_s = ?, state = ?, table_mode = ?, "
+                          "table_rate_dps = ?, table_position_deg = ?, table_mean_rate_dps = ?, "
+                          "table_mean_position_deg = ?, turns = ?, dwell_s = ?, sf_sequence = ?, "
+                          "sf_repetition = ? WHERE id = ?");
   if (!st) return st.error();
   bind_segment(*st, segment, 1);
-  st->bind(14, segment.id);
+  st->bind(kSegmentBoundColumns + 1, segment.id);
   const std::string what = fmt::format("updating segment {}", segment.id);
   if (Status s = expect_done(*st, db_, path_, what); !s) return s;
   if (sqlite3_changes(db_) == 0) {

@@ -254,6 +254,82 @@ CREATE TRIGGER runs_config_json_is_json_on_update BEFORE UPDATE OF config_json O
   BEGIN SELECT RAISE(ABORT, 'runs.config_json must be JSON'); END;
 )sql";
 
+// v7: the rate table (turntable) and scale-factor calibration. The table's
+// readings go to table_samples (written by the sample writer like the other
+// samples); each segment records the table demand of its step, the table's
+// measured means over the acquisition windows and, for rate points, the
+// scale-factor sequence it belongs to. The scale-factor analysis of a run is
+// stored in three tables, replaced as a whole when the run is re-analysed.
+// Segments stored before v7 read table_mode 'none' and zeros.
+constexpr const char* kSchemaV7 = R"sql(
+CREATE TABLE table_samples(
+  run_id INTEGER NOT NULL,      -- runs.id (not enforced, for insert speed)
+  t_s REAL NOT NULL,            -- station s since run start
+  demand_mode TEXT NOT NULL,    -- the step's demand: none, static, rate
+  demand_rate_dps REAL,         -- demanded rate, deg/s (0 unless demand_mode is rate)
+  demand_position_deg REAL,     -- demanded position, deg; NULL when none
+  rate_dps REAL,                -- measured rate, deg/s (positive counter-clockwise from above)
+  position_deg REAL,            -- measured position, deg, [0, 360) on a continuous axis
+  mode TEXT,                    -- servo mode reported: off, rate, position, unknown
+  interlock TEXT,               -- open, closed, fault
+  PRIMARY KEY(run_id, t_s)
+) WITHOUT ROWID;
+
+ALTER TABLE segments ADD COLUMN table_mode TEXT NOT NULL DEFAULT 'none'
+  CHECK(table_mode IN ('none', 'static', 'rate'));  -- the step's table demand
+ALTER TABLE segments ADD COLUMN table_rate_dps REAL;       -- demanded rate, deg/s; NULL when table_mode is none
+ALTER TABLE segments ADD COLUMN table_position_deg REAL;   -- demanded position, deg; NULL when none
+ALTER TABLE segments ADD COLUMN table_mean_rate_dps REAL;  -- measured rate over the acquisition windows, deg/s; NULL until known
+ALTER TABLE segments ADD COLUMN table_mean_position_deg REAL;  -- circular mean of the measured position over the windows, deg; NULL until known (or spread round the circle)
+ALTER TABLE segments ADD COLUMN turns INTEGER NOT NULL DEFAULT 0;     -- rate points: whole turns acquired; 0 otherwise
+ALTER TABLE segments ADD COLUMN dwell_s REAL NOT NULL DEFAULT 0;      -- rate points: acquisition time over those turns, station s; 0 otherwise
+ALTER TABLE segments ADD COLUMN sf_sequence INTEGER NOT NULL DEFAULT 0;    -- rate points: scale-factor sequence of the plan, from 1; 0 otherwise
+ALTER TABLE segments ADD COLUMN sf_repetition INTEGER NOT NULL DEFAULT 0;  -- rate points: repetition of that sequence, from 1; 0 otherwise
+
+CREATE TABLE scale_factor_points(
+  id INTEGER PRIMARY KEY,
+  run_id INTEGER NOT NULL REFERENCES runs(id),
+  segment_id INTEGER REFERENCES segments(id),  -- the rate point's segment; NULL: not tied to one
+  sf_sequence INTEGER NOT NULL,     -- segments.sf_sequence
+  repetition INTEGER NOT NULL,      -- segments.sf_repetition
+  rate_dps REAL,                    -- demanded table rate, deg/s
+  measured_rate_dps REAL,           -- table rate measured over the windows, deg/s
+  output_dps REAL,                  -- mean gyro output over the windows, deg/s
+  n INTEGER NOT NULL,               -- gyro samples averaged
+  temperature_c REAL,               -- mean shell temperature (top + side)/2, degC
+  duration_s REAL,                  -- acquisition time, station s
+  turns REAL                        -- turns of the table over the acquisition
+);
+CREATE INDEX scale_factor_points_by_run ON scale_factor_points(run_id, sf_sequence, repetition);
+
+CREATE TABLE scale_factor_fits(
+  run_id INTEGER NOT NULL REFERENCES runs(id),
+  sf_sequence INTEGER NOT NULL,     -- the sequence fitted (its points in scale_factor_points)
+  temperature_c REAL,               -- mean temperature of its points, degC
+  k REAL,                           -- scale factor K of output = K * rate + bias, (deg/s)/(deg/s)
+  k_se REAL,                        -- standard error of K
+  bias_dps REAL,                    -- bias B0 of the fit, deg/s
+  nonlinearity_ppm REAL,            -- largest deviation of a point from the line relative to K, ppm
+  nonlinearity_fs_ppm REAL,         -- the same relative to the full-scale output, ppm
+  asymmetry_ppm REAL,               -- (K+ - K-) / mean K, ppm; NULL with one direction only
+  repeatability_ppm REAL,           -- spread of K over the repetitions, ppm; NULL with fewer than 2
+  n_points INTEGER NOT NULL,        -- points fitted
+  created_utc TEXT NOT NULL,        -- ISO-8601 UTC wall time
+  PRIMARY KEY(run_id, sf_sequence)
+) WITHOUT ROWID;
+
+CREATE TABLE scale_factor_temperature_fits(
+  run_id INTEGER PRIMARY KEY REFERENCES runs(id),
+  poly_order INTEGER NOT NULL,      -- degree of the polynomials in (T - t_centre_c)
+  t_centre_c REAL,                  -- temperature the polynomials are centred on, degC
+  k_coeffs_json TEXT NOT NULL,      -- [k0, k1, ...]: K(T) = sum k_i (T - t_centre_c)^i
+  bias_coeffs_json TEXT NOT NULL,   -- [b0, b1, ...]: bias(T) = sum b_i (T - t_centre_c)^i, deg/s
+  k_ppm_per_c REAL,                 -- dK/dT at t_centre_c relative to K, ppm/degC
+  bias_dph_per_c REAL,              -- dbias/dT at t_centre_c, (deg/h)/degC
+  created_utc TEXT NOT NULL         -- ISO-8601 UTC wall time
+);
+)sql";
+
 constexpr Migration kMigrations[] = {
     {1, "initial schema", kSchemaV1},
     {2, "queue, crash resume, acquisition windows", kSchemaV2},
@@ -261,6 +337,7 @@ constexpr Migration kMigrations[] = {
     {4, "Allan deviation per soak", kSchemaV4},
     {5, "calibration exports", kSchemaV5},
     {6, "runs.config_json is JSON, old TOML in runs.config_toml", kSchemaV6},
+    {7, "rate table samples and segments, scale-factor points and fits", kSchemaV7},
 };
 
 static_assert(sizeof(kMigrations) / sizeof(kMigrations[0]) == kSchemaVersion,

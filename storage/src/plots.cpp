@@ -1,6 +1,9 @@
 // Database: decimated reads of a run's samples (for plots and the REST
 // samples route) and stored drift-model fits.
 //
+// Temperatures and the rate table (about one reading a control tick) are
+// bucketed from their rows.
+//
 // Decimation reads the gyro_rollup blocks written with the samples, so the
 // cost depends on max_points, not on the run's length: with w the bucket
 // width asked for, the coarsest level whose block fits in w is read (at most
@@ -192,6 +195,39 @@ Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, double from
     tp.chamber_c.push_back(st->column_double(3));
     tp.top_c.push_back(st->column_double(4));
     tp.side_c.push_back(st->column_double(5));
+  }
+  if (rc != SQLITE_DONE) return sqlite_error(db_, path_, what);
+
+  // The rate table, on the temperatures' buckets: the rate's mean and
+  // envelope, and the state of the bucket's last reading (found by its key).
+  auto table = Stmt::prepare(
+      db_, path_,
+      "WITH buckets AS (SELECT min(CAST((t_s - ?2) / ?4 AS INTEGER), ?5) AS b, count(*) AS n, "
+      "avg(t_s) AS t_mean_s, avg(rate_dps) AS mean_dps, min(rate_dps) AS min_dps, "
+      "max(rate_dps) AS max_dps, max(t_s) AS t_last_s FROM table_samples "
+      "WHERE run_id = ?1 AND t_s >= ?2 AND t_s <= ?3 GROUP BY b) "
+      "SELECT k.t_mean_s, k.n, k.mean_dps, k.min_dps, k.max_dps, s.position_deg, "
+      "s.demand_rate_dps, s.demand_mode, s.mode, s.interlock FROM buckets k "
+      "JOIN table_samples s ON s.run_id = ?1 AND s.t_s = k.t_last_s ORDER BY k.b");
+  if (!table) return table.error();
+  table->bind(1, run_id);
+  table->bind(2, out.from_s);
+  table->bind(3, out.to_s);
+  table->bind(4, temp_bucket_s > 0 ? temp_bucket_s : 1.0);
+  table->bind(5, static_cast<int64_t>(max_points - 1));
+  auto& tb = out.table;
+  while ((rc = table->step()) == SQLITE_ROW) {
+    int c = 0;
+    tb.t_s.push_back(table->column_double(c++));
+    tb.n.push_back(table->column_int64(c++));
+    tb.mean_rate_dps.push_back(table->column_double(c++));
+    tb.min_rate_dps.push_back(table->column_double(c++));
+    tb.max_rate_dps.push_back(table->column_double(c++));
+    tb.position_deg.push_back(table->column_double(c++));
+    tb.demand_rate_dps.push_back(table->column_double(c++));
+    tb.demand_mode.push_back(table->column_text(c++));
+    tb.mode.push_back(table->column_text(c++));
+    tb.interlock.push_back(table->column_text(c++));
   }
   if (rc != SQLITE_DONE) return sqlite_error(db_, path_, what);
   return out;

@@ -79,19 +79,18 @@ Status Database::set_run_checkpoint(int64_t run_id, std::string_view resume_json
 
 Result<std::optional<double>> Database::last_sample_t_s(int64_t run_id) {
   auto st = Stmt::prepare(db_, path_,
-                          "SELECT max((SELECT max(t_s) FROM gyro_samples WHERE run_id = ?1), "
-                          "(SELECT max(t_s) FROM temperature_samples WHERE run_id = ?1)), "
-                          "(SELECT max(t_s) FROM gyro_samples WHERE run_id = ?1), "
-                          "(SELECT max(t_s) FROM temperature_samples WHERE run_id = ?1)");
+                          "SELECT (SELECT max(t_s) FROM gyro_samples WHERE run_id = ?1), "
+                          "(SELECT max(t_s) FROM temperature_samples WHERE run_id = ?1), "
+                          "(SELECT max(t_s) FROM table_samples WHERE run_id = ?1)");
   if (!st) return st.error();
   st->bind(1, run_id);
   if (st->step() != SQLITE_ROW) {
     return sqlite_error(db_, path_, fmt::format("reading the last sample of run {}", run_id));
   }
-  // SQLite's scalar max() is NULL when any argument is NULL: take the larger
-  // of whichever exist.
-  std::optional<double> last = st->column_optional_double(0);
-  for (int c : {1, 2}) {
+  // The largest of whichever exist (SQLite's scalar max() would be NULL when
+  // any one is).
+  std::optional<double> last;
+  for (int c : {0, 1, 2}) {
     if (auto v = st->column_optional_double(c)) last = std::max(last.value_or(*v), *v);
   }
   return last;

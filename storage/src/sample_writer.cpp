@@ -30,6 +30,11 @@ struct TempRow {
   TemperatureSample s;
 };
 
+struct TableRow {
+  int64_t run_id;
+  TableSample s;
+};
+
 // Rows in push order; dropping the oldest advances `head` (O(1)) and
 // compacts once half the vector is dead, so a stalled disk under a full
 // queue costs amortised O(1) per dropped row.
@@ -85,9 +90,10 @@ struct SampleWriter::Impl {
   std::string path;
   SampleWriterOptions options;
   std::function<void(double)> on_commit;
-  Stmt begin, commit, rollback, insert_gyro, insert_temp, upsert_rollup;
+  Stmt begin, commit, rollback, insert_gyro, insert_temp, insert_table, upsert_rollup;
   Pending<GyroRow> batch_gyro;
   Pending<TempRow> batch_temps;
+  Pending<TableRow> batch_table;
 
   mutable std::mutex mu;
   std::condition_variable wake;  // to the writer: flush or stop requested
@@ -95,6 +101,7 @@ struct SampleWriter::Impl {
   // Guarded by mu.
   Pending<GyroRow> gyro;
   Pending<TempRow> temps;
+  Pending<TableRow> table;
   std::size_t inflight = 0;  // rows of the batch being committed
   uint64_t next_batch = 1;   // number the buffered rows get when taken
   uint64_t committed_through = 0;
@@ -152,6 +159,10 @@ Status SampleWriter::Impl::prepare() {
       {&insert_temp,
        "INSERT OR IGNORE INTO temperature_samples(run_id, t_s, setpoint_c, chamber_c, top_c, "
        "side_c) VALUES(?, ?, ?, ?, ?, ?)"},
+      {&insert_table,
+       "INSERT OR IGNORE INTO table_samples(run_id, t_s, demand_mode, demand_rate_dps, "
+       "demand_position_deg, rate_dps, position_deg, mode, interlock) "
+       "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?)"},
       {&upsert_rollup,
        "INSERT INTO gyro_rollup(run_id, level, block, n, t_sum_s, rate_n, rate_sum_dph, "
        "rate_min_dph, rate_max_dph) VALUES(?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9) "
@@ -173,6 +184,7 @@ SampleWriter::Impl::Outcome SampleWriter::Impl::fail_batch(std::string_view what
   begin.reset();
   insert_gyro.reset();
   insert_temp.reset();
+  insert_table.reset();
   upsert_rollup.reset();
   commit.reset();
   if (!sqlite3_get_autocommit(db.handle())) {
@@ -200,9 +212,10 @@ void SampleWriter::Impl::add_to_rollups(const GyroRow& r) {
 SampleWriter::Impl::Outcome SampleWriter::Impl::commit_batch() {
   const std::size_t n_gyro = batch_gyro.size();
   const std::size_t n_temps = batch_temps.size();
-  if (n_gyro + n_temps == 0) return {};
-  const std::string what =
-      fmt::format("committing {} gyro and {} temperature samples", n_gyro, n_temps);
+  const std::size_t n_table = batch_table.size();
+  if (n_gyro + n_temps + n_table == 0) return {};
+  const std::string what = fmt::format("committing {} gyro, {} temperature and {} table samples",
+                                       n_gyro, n_temps, n_table);
   sqlite3* h = db.handle();
   if (begin.step() != SQLITE_DONE) return fail_batch(what);
   begin.reset();
@@ -253,21 +266,40 @@ SampleWriter::Impl::Outcome SampleWriter::Impl::commit_batch() {
     insert_temp.reset();
     if (sqlite3_changes(h) == 0) ++duplicates;
   }
+  for (std::size_t i = batch_table.head; i < batch_table.rows.size(); ++i) {
+    const TableRow& r = batch_table.rows[i];
+    int c = 1;
+    insert_table.bind(c++, r.run_id);
+    insert_table.bind(c++, r.s.t_s);
+    insert_table.bind(c++, std::string_view(r.s.demand_mode));
+    insert_table.bind(c++, r.s.demand_rate_dps);
+    insert_table.bind(c++, r.s.demand_position_deg);
+    insert_table.bind(c++, r.s.rate_dps);
+    insert_table.bind(c++, r.s.position_deg);
+    insert_table.bind_text_or_null(c++, r.s.mode);
+    insert_table.bind_text_or_null(c++, r.s.interlock);
+    if (insert_table.step() != SQLITE_DONE) return fail_batch(what);
+    insert_table.reset();
+    if (sqlite3_changes(h) == 0) ++duplicates;
+  }
   if (commit.step() != SQLITE_DONE) return fail_batch(what);
   commit.reset();
   return {Status::Ok(), duplicates};
 }
 
 void SampleWriter::Impl::trim_locked() {
-  const std::size_t total = gyro.size() + temps.size() + inflight;
+  const std::size_t total = gyro.size() + table.size() + temps.size() + inflight;
   if (total <= options.max_pending) return;
   std::size_t excess = total - options.max_pending;
   const std::size_t from_gyro = std::min(excess, gyro.size());
   gyro.drop_oldest(from_gyro);
   excess -= from_gyro;
+  const std::size_t from_table = std::min(excess, table.size());
+  table.drop_oldest(from_table);
+  excess -= from_table;
   const std::size_t from_temps = std::min(excess, temps.size());
   temps.drop_oldest(from_temps);
-  stats.dropped += from_gyro + from_temps;
+  stats.dropped += from_gyro + from_table + from_temps;
 }
 
 void SampleWriter::Impl::loop() {
@@ -280,17 +312,20 @@ void SampleWriter::Impl::loop() {
     flush_requested = false;
     gyro.take_into(batch_gyro);
     temps.take_into(batch_temps);
+    table.take_into(batch_table);
     const uint64_t batch = next_batch++;
     const std::size_t n_gyro = batch_gyro.size();
     const std::size_t n_temps = batch_temps.size();
-    inflight = n_gyro + n_temps;
+    const std::size_t n_table = batch_table.size();
+    const std::size_t n_rows = n_gyro + n_temps + n_table;
+    inflight = n_rows;
     const auto t0 = Clock::now();
     next_commit = t0 + options.commit_interval;
     lk.unlock();
 
     Outcome out = commit_batch();
     const double elapsed_ms = ms_since(t0);
-    if (out.status.ok() && n_gyro + n_temps > 0 && on_commit) {
+    if (out.status.ok() && n_rows > 0 && on_commit) {
       on_commit(elapsed_ms / 1000.0);
     }
 
@@ -299,9 +334,10 @@ void SampleWriter::Impl::loop() {
     if (out.status.ok()) {
       committed_through = batch;
       stats.consecutive_failures = 0;
-      if (n_gyro + n_temps > 0) {
+      if (n_rows > 0) {
         stats.gyro_rows += n_gyro;
         stats.temperature_rows += n_temps;
+        stats.table_rows += n_table;
         stats.duplicates += out.duplicates;
         ++stats.commits;
         stats.last_commit_ms = elapsed_ms;
@@ -309,6 +345,7 @@ void SampleWriter::Impl::loop() {
       }
       batch_gyro.clear();
       batch_temps.clear();
+      batch_table.clear();
     } else {
       failed_through = batch;
       last_failure = out.status.error();
@@ -317,17 +354,19 @@ void SampleWriter::Impl::loop() {
       stats.last_error = out.status.error().message;
       gyro.requeue_front(batch_gyro);
       temps.requeue_front(batch_temps);
+      table.requeue_front(batch_table);
       trim_locked();
     }
     done.notify_all();
 
     if (stopping) {
-      const std::size_t left = gyro.size() + temps.size();
+      const std::size_t left = gyro.size() + temps.size() + table.size();
       if (left == 0) break;
       if (!out.status.ok()) {
         stats.dropped += left;  // lost: the final commit failed
         gyro.clear();
         temps.clear();
+        table.clear();
         break;
       }
       flush_requested = true;  // rows that raced stop(): one more round
@@ -418,10 +457,21 @@ void SampleWriter::push_temperature(int64_t run_id, const TemperatureSample& sam
   m.trim_locked();
 }
 
+void SampleWriter::push_table(int64_t run_id, const TableSample& sample) {
+  Impl& m = *impl_;
+  std::lock_guard lk(m.mu);
+  if (!m.accepting || !std::isfinite(sample.t_s)) {
+    ++m.stats.rejected;
+    return;
+  }
+  m.table.rows.push_back(TableRow{run_id, sample});
+  m.trim_locked();
+}
+
 Status SampleWriter::flush() {
   Impl& m = *impl_;
   std::unique_lock lk(m.mu);
-  const std::size_t buffered = m.gyro.size() + m.temps.size();
+  const std::size_t buffered = m.gyro.size() + m.temps.size() + m.table.size();
   if (buffered == 0 && m.inflight == 0) return Status::Ok();
   if (m.thread_done) {
     return Error::Permanent(fmt::format(
@@ -455,7 +505,7 @@ SampleWriterStats SampleWriter::stats() const {
   const Impl& m = *impl_;
   std::lock_guard lk(m.mu);
   SampleWriterStats s = m.stats;
-  s.pending = m.gyro.size() + m.temps.size() + m.inflight;
+  s.pending = m.gyro.size() + m.temps.size() + m.table.size() + m.inflight;
   return s;
 }
 

@@ -94,6 +94,10 @@ class FakeControl : public StationControl {
     calls.push_back(fmt::format("allan {}", id));
     return Reply::ok(nlohmann::json::array());
   }
+  Reply run_scale_factor(int64_t id) override {
+    calls.push_back(fmt::format("scale-factor {}", id));
+    return Reply::ok({{"points", nlohmann::json::array()}});
+  }
   Reply fit(int64_t id) override {
     calls.push_back(fmt::format("fit {}", id));
     if (id == 5) return Reply::refused(Refusal::Kind::kNotFound, "no fit 5");

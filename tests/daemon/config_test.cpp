@@ -482,6 +482,162 @@ TEST(SimEndpoints, RoundTripThroughAFile) {
   std::filesystem::remove_all(dir);
 }
 
+// [table]: every key read; absent, the station has no table.
+TEST(TableConfig, AbsentMeansNoTable) {
+  auto cfg = parse_station_config(kMinimal, "min.toml");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  EXPECT_FALSE(cfg->table.has_value());
+  EXPECT_FALSE(station_limits(*cfg).table.has_value());
+}
+
+TEST(TableConfig, EveryKeyIsRead) {
+  auto cfg = parse_station_config(std::string(kMinimal) + R"(
+[table]
+profile = "acutrol"
+host = "10.0.0.7"
+port = 9888
+reply_header = "binary-be"
+axis = 2
+timeout_s = 0.5
+max_rate_dps = 1000
+max_accel_dps2 = 4200
+at_rate_tolerance_dps = 0.1
+at_rate_hold_s = 2
+spin_up_timeout_s = 60
+rest_rate_dps = 0.02
+silent_timeout_s = 5
+sensitive_axis = "radial"
+heading_at_zero_deg = 90
+)",
+                                  "t.toml");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  ASSERT_TRUE(cfg->table.has_value());
+  const TableSection& t = *cfg->table;
+  EXPECT_EQ(t.connection.profile, "acutrol");
+  EXPECT_EQ(t.connection.host, "10.0.0.7");
+  EXPECT_EQ(t.connection.port, 9888);
+  EXPECT_EQ(t.connection.reply_header, "binary-be");
+  EXPECT_EQ(t.connection.axis, 2);
+  EXPECT_DOUBLE_EQ(t.connection.timeout_s, 0.5);
+  EXPECT_DOUBLE_EQ(t.max_rate_dps, 1000);
+  EXPECT_DOUBLE_EQ(t.max_accel_dps2, 4200);
+  EXPECT_DOUBLE_EQ(t.at_rate_tolerance_dps, 0.1);
+  EXPECT_DOUBLE_EQ(t.at_rate_hold_s, 2);
+  EXPECT_DOUBLE_EQ(t.spin_up_timeout_s, 60);
+  EXPECT_DOUBLE_EQ(t.rest_rate_dps, 0.02);
+  EXPECT_DOUBLE_EQ(t.silent_timeout_s, 5);
+  EXPECT_EQ(t.sensitive_axis, "radial");
+  EXPECT_DOUBLE_EQ(t.heading_at_zero_deg, 90);
+  const auto limits = station_limits(*cfg);
+  ASSERT_TRUE(limits.table.has_value());
+
+  auto aero = parse_station_config(std::string(kMinimal) + R"(
+[table]
+profile = "aero"
+device = "/dev/ttyS1"
+baud = 19200
+)",
+                                   "a.toml");
+  ASSERT_TRUE(aero.ok()) << aero.error().message;
+  EXPECT_EQ(aero->table->connection.device, "/dev/ttyS1");
+  EXPECT_EQ(aero->table->connection.baud, 19200);
+  // Defaults where not given.
+  auto defaults = parse_station_config(std::string(kMinimal) + "[table]\n", "d.toml");
+  ASSERT_TRUE(defaults.ok()) << defaults.error().message;
+  EXPECT_EQ(defaults->table->connection.profile, "acutrol");
+  EXPECT_EQ(defaults->table->connection.port, 9878);
+  EXPECT_EQ(defaults->table->connection.reply_header, "ascii");
+  EXPECT_DOUBLE_EQ(defaults->table->max_rate_dps, 500.0);
+}
+
+TEST(TableConfig, BadValuesNameFileLineAndKey) {
+  auto cfg = parse_station_config(std::string(kMinimal) + R"([table]
+profile = "contraves"
+port = 70000
+reply_header = "hex"
+axis = 0
+timeout_s = 0
+max_rate_dps = -5
+max_accel_dps2 = 0
+sensitive_axis = "vertical"
+spin_rate = 3
+host = "no host"
+baud = -1
+)",
+                                  "bad.toml");
+  ASSERT_FALSE(cfg.ok());
+  const std::string& m = cfg.error().message;
+  // kMinimal ends on line 9; [table] is line 10.
+  EXPECT_THAT(m,
+              HasSubstr("bad.toml:11: table.profile: \"contraves\" is not one of: acutrol, aero"));
+  EXPECT_THAT(m, HasSubstr("bad.toml:12: table.port: 70000 is not a TCP port"));
+  EXPECT_THAT(m,
+              HasSubstr("bad.toml:13: table.reply_header: \"hex\" is not one of: ascii, binary-le, "
+                        "binary-be, line"));
+  EXPECT_THAT(m, HasSubstr("bad.toml:14: table.axis: 0 is not an axis number"));
+  EXPECT_THAT(m, HasSubstr("bad.toml:15: table.timeout_s: 0 must be positive"));
+  EXPECT_THAT(m, HasSubstr("bad.toml:16: table.max_rate_dps: -5 must be positive"));
+  EXPECT_THAT(m, HasSubstr("bad.toml:17: table.max_accel_dps2: 0 must be positive"));
+  EXPECT_THAT(m, HasSubstr("bad.toml:18: table.sensitive_axis: \"vertical\" is not one of"));
+  EXPECT_THAT(m, HasSubstr("bad.toml:19: table.spin_rate: unknown key"));
+  EXPECT_THAT(m, HasSubstr("bad.toml:20: table.host:"));
+  EXPECT_THAT(m, HasSubstr("bad.toml:21: table.baud: must be positive"));
+}
+
+TEST(TableConfig, AeroNeedsADeviceUnlessSimulated) {
+  auto cfg =
+      parse_station_config(std::string(kMinimal) + "[table]\nprofile = \"aero\"\n", "a.toml");
+  ASSERT_FALSE(cfg.ok());
+  EXPECT_THAT(cfg.error().message, HasSubstr("a.toml:10: table.device: missing"));
+  auto sim = parse_station_config(std::string(kMinimal) +
+                                      "[table]\nprofile = \"aero\"\n"
+                                      "[simulator]\nendpoints_file = \"ep.toml\"\n",
+                                  "s.toml");
+  EXPECT_TRUE(sim.ok()) << sim.error().message;
+}
+
+TEST(SimEndpoints, TableEndpointsRoundTripAndApply) {
+  const auto dir =
+      std::filesystem::temp_directory_path() / ("gyrotherm-ep-table-" + std::to_string(::getpid()));
+  const std::string path = (dir / "ep.toml").string();
+  SimEndpoints ep{"127.0.0.1", 40123, "/dev/pts/7", 4242, "", 0};
+  ep.table_port = 40999;
+  ep.table_device = "/dev/pts/9";
+  ASSERT_TRUE(write_sim_endpoints(path, ep).ok());
+  auto back = read_sim_endpoints(path);
+  ASSERT_TRUE(back.ok()) << back.error().message;
+  EXPECT_EQ(back->table_port, 40999);
+  EXPECT_EQ(back->table_device, "/dev/pts/9");
+
+  // No [table]: nothing to apply.
+  auto none = parse_station_config(kMinimal, "min.toml");
+  ASSERT_TRUE(none.ok());
+  apply_sim_endpoints(*none, *back);
+  EXPECT_FALSE(none->table.has_value());
+  // acutrol: loopback and the simulator's port.
+  auto acutrol =
+      parse_station_config(std::string(kMinimal) + "[table]\nhost = \"10.0.0.7\"\n", "t.toml");
+  ASSERT_TRUE(acutrol.ok());
+  apply_sim_endpoints(*acutrol, *back);
+  EXPECT_EQ(acutrol->table->connection.host, "127.0.0.1");
+  EXPECT_EQ(acutrol->table->connection.port, 40999);
+  // aero: the simulator's pty.
+  auto aero = parse_station_config(
+      std::string(kMinimal) + "[table]\nprofile = \"aero\"\ndevice = \"/dev/ttyS1\"\n", "a.toml");
+  ASSERT_TRUE(aero.ok());
+  apply_sim_endpoints(*aero, *back);
+  EXPECT_EQ(aero->table->connection.device, "/dev/pts/9");
+
+  // An older simulator's file without table keys still reads.
+  SimEndpoints old{"127.0.0.1", 40123, "/dev/pts/7", 4242, "", 0};
+  ASSERT_TRUE(write_sim_endpoints(path, old).ok());
+  auto old_back = read_sim_endpoints(path);
+  ASSERT_TRUE(old_back.ok());
+  EXPECT_EQ(old_back->table_port, 0);
+  EXPECT_EQ(old_back->table_device, "");
+  std::filesystem::remove_all(dir);
+}
+
 // Issue 15 item 19: a daemon and a simulator at different time scales.
 TEST(SimEndpoints, TimeScaleMismatchIsNamed) {
   SimEndpoints ep;

@@ -340,6 +340,42 @@ class ContractControl : public StationControl {
     a.computed_utc = "2026-11-21T07:38:43.120Z";
     return Reply::ok(json::array({to_json(a)}));
   }
+  Reply run_scale_factor(int64_t) override {
+    storage::ScaleFactorPointRecord p;
+    p.segment_id = 7;
+    p.sf_sequence = 1;
+    p.repetition = 1;
+    p.rate_dps = -10.0;
+    p.measured_rate_dps = -10.0004;
+    p.output_dps = -10.0015;
+    p.n = 36000;
+    p.temperature_c = 20.1;
+    p.duration_s = 36.0;
+    p.turns = 1.0;
+    storage::ScaleFactorFitRecord f;
+    f.sf_sequence = 1;
+    f.temperature_c = 20.1;
+    f.k = 1.00015;
+    f.k_se = 2e-7;
+    f.bias_dps = 0.0021;
+    f.nonlinearity_ppm = 41.0;
+    f.nonlinearity_fs_ppm = 12.5;
+    f.asymmetry_ppm = 30.2;
+    f.repeatability_ppm = std::nullopt;  // a null figure must match the schema too
+    f.n_points = 14;
+    f.created_utc = "2026-11-21T07:38:43.120Z";
+    storage::ScaleFactorTemperatureFitRecord t;
+    t.order = 1;
+    t.t_centre_c = 25.0;
+    t.k_coeffs_json = "[1.00015, 2.0e-5]";
+    t.bias_coeffs_json = "[0.0021, 1.0e-6]";
+    t.k_ppm_per_c = 20.0;
+    t.bias_dph_per_c = 0.0036;
+    t.created_utc = "2026-11-21T07:38:43.120Z";
+    return Reply::ok({{"points", json::array({to_json(p)})},
+                      {"fits", json::array({to_json(f)})},
+                      {"temperature_fit", to_json(t)}});
+  }
   Reply exports() override {
     storage::ExportRecord done;
     done.id = 2;

@@ -1,6 +1,8 @@
 // The bad-schedule corpus: every tests/schedules/bad/NAME.toml must be refused
 // with exactly the lines of NAME.expected (parsed as "NAME.toml" against the
-// station limits -20 ... 60 °C, 2 °C/min).
+// station limits -20 ... 60 °C, 2 °C/min, a rate table of 500 °/s and
+// 100 °/s²; a file named no-table-*.toml against the same station without a
+// table).
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 #include <sys/stat.h>
@@ -22,7 +24,8 @@ namespace {
 namespace fs = std::filesystem;
 using testing::read_text;
 
-const StationLimits kLimits{-20.0, 60.0, 2.0};
+const StationLimits kLimits{-20.0, 60.0, 2.0, StationLimits::Table{500.0, 100.0}};
+const StationLimits kNoTableLimits{-20.0, 60.0, 2.0};
 
 fs::path corpus_dir() { return fs::path(GYROTHERM_SOURCE_DIR) / "tests/schedules/bad"; }
 
@@ -61,7 +64,8 @@ TEST(BadSchedules, EachIsRefusedWithExactlyTheExpectedErrors) {
     SCOPED_TRACE(name);
     const auto expected = lines_of(read_text(fs::path(path).replace_extension(".expected")));
     EXPECT_FALSE(expected.empty());
-    auto plan = parse_schedule(read_text(path), name, kLimits);
+    const bool no_table = name.rfind("no-table-", 0) == 0;
+    auto plan = parse_schedule(read_text(path), name, no_table ? kNoTableLimits : kLimits);
     if (plan.ok()) {
       ADD_FAILURE() << "accepted, " << plan->steps.size() << " steps";
       continue;

@@ -38,8 +38,15 @@ std::map<std::string, double> documented_grace_min() {
   return out;
 }
 
-// Readings of a station at 30 °C with every device answering.
-const Readings kNominal{30.0, 30.05, 29.95};
+// Readings of a station at 30 °C with every device answering, its rate
+// table at rest.
+const Readings kNominal = [] {
+  Readings r{30.0, 30.05, 29.95};
+  r.table_present = true;
+  r.table_rate_dps = 0.0;
+  r.table_position_deg = 90.0;
+  return r;
+}();
 
 // Readings that trip each interlock that has a check. A new row needs one
 // here: the table test fails without it.
@@ -58,6 +65,15 @@ const std::map<InterlockKind, Readings>& tripping_readings() {
     edit(InterlockKind::kGyroLost, [](Readings& r) { r.gyro_silent_s = 6; });
     edit(InterlockKind::kChamberAlarm, [](Readings& r) { r.chamber_alarm = true; });
     edit(InterlockKind::kStorageFailing, [](Readings& r) { r.storage_failing_s = 11; });
+    edit(InterlockKind::kTableFault, [](Readings& r) {
+      r.table_fault = true;
+      r.table_fault_text = "axis 1 over-speed";
+    });
+    edit(InterlockKind::kTableSilent, [](Readings& r) {
+      r.table_rate_dps.reset();
+      r.table_position_deg.reset();
+      r.table_silent_s = 11;
+    });
     return m;
   }();
   return readings;
@@ -129,6 +145,50 @@ TEST(InterlockTable, EachCheckTripsOnItsReadingsAndIsQuietOnNominalOnes) {
     EXPECT_EQ(conditions[0].kind, d.kind);
     EXPECT_EQ(conditions[0].message, *message);
   }
+}
+
+// The table rows: they trip only on a station with a table, say what the
+// controller says, and clear only on a tick with a table reading.
+TEST(InterlockTable, TableRowsTripAndClear) {
+  const InterlockOptions o;
+  bool none[kInterlockKindCount] = {};
+  bool all[kInterlockKindCount];
+  std::fill(std::begin(all), std::end(all), true);
+
+  Readings fault = kNominal;
+  fault.table_fault = true;
+  auto c = evaluate_interlocks(fault, o, none);
+  ASSERT_EQ(c.size(), 1u);
+  EXPECT_EQ(c[0].kind, InterlockKind::kTableFault);
+  EXPECT_EQ(c[0].message, "the rate table's interlock is in fault");
+  fault.table_fault_text = "axis 1 over-speed";
+  EXPECT_EQ(evaluate_interlocks(fault, o, none).at(0).message,
+            "the rate table's interlock is in fault: axis 1 over-speed");
+  fault.table_present = false;  // a station without a table
+  EXPECT_TRUE(evaluate_interlocks(fault, o, none).empty());
+  // Cleared (the station reset the latched fault): nothing holds, and a
+  // reading of the table can show it.
+  EXPECT_TRUE(evaluate_interlocks(kNominal, o, all).empty());
+  EXPECT_TRUE(readings_can_clear(InterlockKind::kTableFault, kNominal));
+  Readings no_reply = kNominal;
+  no_reply.table_rate_dps.reset();
+  EXPECT_FALSE(readings_can_clear(InterlockKind::kTableFault, no_reply));
+
+  // Silent: beyond table_timeout_s (10 s by default), not at it.
+  Readings silent = no_reply;
+  silent.table_silent_s = 10;
+  EXPECT_TRUE(evaluate_interlocks(silent, o, none).empty());
+  silent.table_silent_s = 12;
+  c = evaluate_interlocks(silent, o, none);
+  ASSERT_EQ(c.size(), 1u);
+  EXPECT_EQ(c[0].kind, InterlockKind::kTableSilent);
+  EXPECT_NE(c[0].message.find("rate table controller silent for 12 s (timeout 10 s)"),
+            std::string::npos)
+      << c[0].message;
+  silent.table_present = false;
+  EXPECT_TRUE(evaluate_interlocks(silent, o, none).empty());
+  EXPECT_FALSE(readings_can_clear(InterlockKind::kTableSilent, no_reply));
+  EXPECT_TRUE(readings_can_clear(InterlockKind::kTableSilent, kNominal));
 }
 
 }  // namespace

@@ -303,8 +303,14 @@ TEST(Sequencer, PaperTable1CampaignInVirtualTime) {
 
 // ------------------------------------------------------------- holds and interlocks
 
-// Readings of a chamber sitting exactly at `c`.
-Readings at(double c) { return Readings{c, c + 0.05, c - 0.05}; }
+// Readings of a chamber sitting exactly at `c`, its rate table at rest.
+Readings at(double c) {
+  Readings r{c, c + 0.05, c - 0.05};
+  r.table_present = true;
+  r.table_rate_dps = 0.0;
+  r.table_position_deg = 0.0;
+  return r;
+}
 
 PlanStep quick_soak(double sp, double acquire_s) {
   PlanStep s = soak(sp, 0);
@@ -462,7 +468,22 @@ INSTANTIATE_TEST_SUITE_P(
                                            r.storage_pending = 240;
                                          }),
                                     "storage failing for 12 s (timeout 10 s): database or disk is "
-                                    "full; acquisition suspended, 240 samples held in memory"}),
+                                    "full; acquisition suspended, 240 samples held in memory"},
+                      InterlockCase{InterlockKind::kTableFault,
+                                    with(at(30),
+                                         [](Readings& r) {
+                                           r.table_fault = true;
+                                           r.table_fault_text = "axis 1 over-speed";
+                                         }),
+                                    "the rate table's interlock is in fault: axis 1 over-speed"},
+                      InterlockCase{InterlockKind::kTableSilent,
+                                    with(at(30),
+                                         [](Readings& r) {
+                                           r.table_rate_dps.reset();
+                                           r.table_position_deg.reset();
+                                           r.table_silent_s = 11;
+                                         }),
+                                    "rate table controller silent for 11 s (timeout 10 s)"}),
     [](const auto& info) { return std::string(to_string(info.param.kind)); });
 
 TEST(Sequencer, OutOfLimitsAbortsAfterItsGraceAndASoakDisturbedStartsOver) {
@@ -774,6 +795,17 @@ TEST(Sequencer, MissingReadingsDoNotClearATrippedInterlock) {
        with(at(30), [](Readings& r) { r.gyro_heard = false; })},
       {InterlockKind::kStorageFailing, with(at(30), [](Readings& r) { r.storage_failing_s = 11; }),
        with(at(30), [](Readings& r) { r.storage_committed = false; })},
+      // The table answered nothing this tick: its fault (latched) and its
+      // silence stay tripped.
+      {InterlockKind::kTableFault, with(at(30), [](Readings& r) { r.table_fault = true; }),
+       with(at(30), [](Readings& r) { r.table_rate_dps.reset(); })},
+      {InterlockKind::kTableSilent,
+       with(at(30),
+            [](Readings& r) {
+              r.table_rate_dps.reset();
+              r.table_silent_s = 11;
+            }),
+       with(at(30), [](Readings& r) { r.table_rate_dps.reset(); })},
   };
   for (const auto& c : cases) {
     SCOPED_TRACE(std::string(to_string(c.kind)));

@@ -147,5 +147,34 @@ TEST(SimulatorOptions, ControlSocketPathMustFitASocketAddress) {
   EXPECT_NE(o.error().message.find("at most 107"), std::string::npos) << o.error().message;
 }
 
+TEST(SimulatorOptions, ReadsTheTableAndScaleFactorSections) {
+  const std::string base = "[station]\n[chamber]\n[probes]\n[gyro]\ndevice = \"x\"\n[simulator]\n";
+  auto o = options_from(base +
+                        "table_port = 9878\n[simulator.table]\nmax_accel_dps2 = 4200\n"
+                        "reply_header = \"binary-be\"\n[simulator.scale_factor]\nk_ppm = -80\n");
+  ASSERT_TRUE(o.ok()) << o.error().message;
+  EXPECT_EQ(o->table_port, 9878);
+  EXPECT_EQ(o->table.max_accel_dps2, 4200);
+  EXPECT_EQ(o->table.max_jerk_dps3, 5000);  // default
+  EXPECT_EQ(o->table.reply_header, "binary-be");
+  EXPECT_EQ(o->scale_factor.k_ppm, -80);
+  EXPECT_FALSE(o->serve_table);  // no [table], no --table
+  SimulatorOverrides with_table;
+  with_table.serve_table = true;
+  with_table.table_port = 0;
+  auto t = options_from(base, with_table);
+  ASSERT_TRUE(t.ok());
+  EXPECT_TRUE(t->serve_table);
+  EXPECT_EQ(t->table_port, 0);
+
+  auto bad = options_from(base + "[simulator.table]\nreply_header = \"xml\"\n");
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.error().message.find("simulator.table.reply_header"), std::string::npos)
+      << bad.error().message;
+  auto trip = options_from(base + "[simulator.table]\ntrip_rate_dps = 900\n");
+  ASSERT_FALSE(trip.ok());
+  EXPECT_NE(trip.error().message.find("trip_rate_dps"), std::string::npos) << trip.error().message;
+}
+
 }  // namespace
 }  // namespace gyrotherm::sim

@@ -224,8 +224,10 @@ class FullDiskSink final : public storage::SampleSink {
     if (full_) return;
     for (auto& [run_id, g] : held_gyro_) writer_->push_gyro(run_id, std::span(&g, 1));
     for (auto& [run_id, t] : held_temperatures_) writer_->push_temperature(run_id, t);
+    for (auto& [run_id, t] : held_table_) writer_->push_table(run_id, t);
     held_gyro_.clear();
     held_temperatures_.clear();
+    held_table_.clear();
     failures_ = 0;
   }
   void push_gyro(int64_t run_id, std::span<const GyroSample> samples) override {
@@ -237,6 +239,11 @@ class FullDiskSink final : public storage::SampleSink {
     std::lock_guard lock(mu_);
     if (!full_) return writer_->push_temperature(run_id, sample);
     held_temperatures_.emplace_back(run_id, sample);
+  }
+  void push_table(int64_t run_id, const TableSample& sample) override {
+    std::lock_guard lock(mu_);
+    if (!full_) return writer_->push_table(run_id, sample);
+    held_table_.emplace_back(run_id, sample);
   }
   Status flush() override {
     {
@@ -252,7 +259,7 @@ class FullDiskSink final : public storage::SampleSink {
     if (full_) {
       s.consecutive_failures = s.commit_failures = ++failures_;
       s.last_error = kFull;
-      s.pending += held_gyro_.size() + held_temperatures_.size();
+      s.pending += held_gyro_.size() + held_temperatures_.size() + held_table_.size();
     }
     return s;
   }
@@ -265,6 +272,7 @@ class FullDiskSink final : public storage::SampleSink {
   mutable uint64_t failures_ = 0;
   std::vector<std::pair<int64_t, GyroSample>> held_gyro_;
   std::vector<std::pair<int64_t, TemperatureSample>> held_temperatures_;
+  std::vector<std::pair<int64_t, TableSample>> held_table_;
 };
 
 // A minimal station config for the rig: 1 s control ticks, no wall-time

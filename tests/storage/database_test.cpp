@@ -45,7 +45,7 @@ TEST(Database, OpenCreatesTheCurrentSchemaInWalMode) {
   auto version = db.schema_version();
   ASSERT_TRUE(version.ok()) << version.error().message;
   EXPECT_EQ(*version, kSchemaVersion);
-  EXPECT_EQ(kSchemaVersion, 6);
+  EXPECT_EQ(kSchemaVersion, 7);
   EXPECT_EQ(query_text(db.handle(), "PRAGMA journal_mode"), "wal");
   EXPECT_EQ(query_int(db.handle(), "PRAGMA synchronous"), 1);  // NORMAL
   EXPECT_EQ(query_int(db.handle(), "PRAGMA foreign_keys"), 1);
@@ -78,7 +78,11 @@ TEST(Database, OpenCreatesTheCurrentSchemaInWalMode) {
                                           "fit_runs",
                                           "allan",
                                           "exports",
-                                          "export_runs"};
+                                          "export_runs",
+                                          "table_samples",
+                                          "scale_factor_points",
+                                          "scale_factor_fits",
+                                          "scale_factor_temperature_fits"};
   EXPECT_EQ(tables, expected);
 }
 
@@ -127,19 +131,19 @@ TEST(Database, NewerSchemaIsRefusedWithAClearMessage) {
   const std::string path = dir.file("station.db");
   {
     Database db = open_ok(path);
-    ASSERT_TRUE(db.exec("UPDATE meta SET value='7' WHERE key='schema_version'").ok());
+    ASSERT_TRUE(db.exec("UPDATE meta SET value='8' WHERE key='schema_version'").ok());
   }
   auto db = Database::open(path);
   ASSERT_FALSE(db.ok());
   EXPECT_FALSE(db.error().transient);
   EXPECT_NE(db.error().message.find(path), std::string::npos) << db.error().message;
-  EXPECT_NE(db.error().message.find("schema version 7, newer than this build's 6"),
+  EXPECT_NE(db.error().message.find("schema version 8, newer than this build's 7"),
             std::string::npos)
       << db.error().message;
 
   auto ro = Database::open_read_only(path);
   ASSERT_FALSE(ro.ok());
-  EXPECT_NE(ro.error().message.find("schema version 7"), std::string::npos) << ro.error().message;
+  EXPECT_NE(ro.error().message.find("schema version 8"), std::string::npos) << ro.error().message;
 }
 
 TEST(Database, RefusesAnotherApplicationsDatabase) {
@@ -757,7 +761,7 @@ TEST(Database, MigratesStoredTomlConfigToItsOwnColumn) {
     sqlite3_close(raw);
   }
   Database db = open_ok(path);
-  EXPECT_EQ(*db.schema_version(), 6);
+  EXPECT_EQ(*db.schema_version(), kSchemaVersion);
   auto runs = *db.runs();
   ASSERT_EQ(runs.size(), 3u);
   EXPECT_EQ(runs[0].config_json, "");

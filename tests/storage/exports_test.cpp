@@ -513,7 +513,7 @@ TEST(Exports, MigratesASchema4DatabaseKeepingItsRows) {
   {
     auto ro = Database::open_read_only(path);
     ASSERT_FALSE(ro.ok());
-    EXPECT_NE(ro.error().message.find("schema version 4, older than this build's 6"),
+    EXPECT_NE(ro.error().message.find("schema version 4, older than this build's 7"),
               std::string::npos)
         << ro.error().message;
   }

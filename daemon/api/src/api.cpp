@@ -370,6 +370,10 @@ constexpr Route kRoutes[] = {
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        return reply_response(req, ctx.control->run_allan(*parse_id(p[0])));
      }},
+    {http::verb::get, "/api/v1/runs/{id}/scale-factor", Access::kRead, true,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
+       return reply_response(req, ctx.control->run_scale_factor(*parse_id(p[0])));
+     }},
     {http::verb::get, "/api/v1/exports", Access::kRead, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
        return reply_response(req, ctx.control->exports());

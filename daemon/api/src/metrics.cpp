@@ -168,6 +168,8 @@ std::string Metrics::scrape(const StatusSnapshot& s, const ServerFigures& server
             static_cast<double>(st.gyro_rows), {{"table", "gyro_samples"}});
   f.counter("gyrotherm_db_rows_committed_total", "Sample rows committed to the database",
             static_cast<double>(st.temperature_rows), {{"table", "temperature_samples"}});
+  f.counter("gyrotherm_db_rows_committed_total", "Sample rows committed to the database",
+            static_cast<double>(st.table_rows), {{"table", "table_samples"}});
   f.counter("gyrotherm_db_commits_total", "Sample-writer commits", static_cast<double>(st.commits));
   f.counter("gyrotherm_db_commit_failures_total", "Sample-writer commits that failed (retried)",
             static_cast<double>(st.commit_failures));

@@ -8,8 +8,10 @@
 #include <cmath>
 #include <nlohmann/json.hpp>
 
+#include "gyrotherm/analysis/scale_factor.h"
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/daemon/config.h"
+#include "gyrotherm/daemon/scale_factor_run.h"
 
 namespace gyrotherm::daemon {
 namespace {
@@ -17,6 +19,9 @@ namespace {
 // Station seconds of samples read at a time for a whole-run series: 600 s
 // of a 1 kHz gyro is 6e5 samples, ~25 MB.
 constexpr double kRunChunkS = 600.0;
+// After a rate step the table decelerates (500 °/s at 100 °/s²: 5 s): the
+// drift fit leaves this much after each spinning step out too.
+constexpr double kSpinDownMarginS = 10.0;
 
 nlohmann::json num(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(); }
 
@@ -269,6 +274,7 @@ nlohmann::json run_config_json(const StationConfig& config) {
              {"max_rate_dps", t->max_rate_dps},
              {"max_accel_dps2", t->max_accel_dps2},
              {"at_rate_tolerance_dps", t->at_rate_tolerance_dps},
+             {"at_rate_tolerance_ppm", t->at_rate_tolerance_ppm},
              {"at_rate_hold_s", t->at_rate_hold_s},
              {"spin_up_timeout_s", t->spin_up_timeout_s},
              {"rest_rate_dps", t->rest_rate_dps},
@@ -380,7 +386,8 @@ Result<std::vector<SoakWindow>> soak_windows(storage::Database& db, int64_t run_
   if (!segments) return segments.error();
   std::vector<SoakWindow> out;
   for (const auto& seg : *segments) {
-    if (seg.kind != "soak" || seg.state != "completed") continue;
+    // Static soaks only: Table I is the zero bias at rest.
+    if (seg.kind != "soak" || seg.state != "completed" || seg.table_mode == "rate") continue;
     SoakWindow soak;
     soak.run_id = run_id;
     soak.segment_id = seg.id;
@@ -453,11 +460,29 @@ Result<RecordedSamples> soak_recorded_samples(storage::Database& db, const SoakW
   return out;
 }
 
+namespace {
+// The stretches of a run when the table spun (steps demanding a rate, and a
+// spin-down margin after each): the drift model is of the gyro at rest.
+Result<std::vector<std::pair<double, double>>> spinning_spans(storage::Database& db,
+                                                              int64_t run_id, double last_s) {
+  auto segments = db.segments(run_id);
+  if (!segments) return segments.error();
+  std::vector<std::pair<double, double>> out;
+  for (const auto& seg : *segments) {
+    if (seg.table_mode != "rate") continue;
+    out.emplace_back(seg.t_start_s, seg.t_end_s.value_or(last_s) + kSpinDownMarginS);
+  }
+  return out;
+}
+}  // namespace
+
 Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_id, double bin_s) {
   auto span = gyro_span(db, run_id);
   if (!span) return span.error();
   if (!*span) return Error::Permanent(fmt::format("run {}: no gyro samples recorded", run_id));
   const auto [first_s, last_s] = **span;
+  auto spinning = spinning_spans(db, run_id, last_s);
+  if (!spinning) return spinning.error();
   analysis::AnalysisSeries joined;
   joined.bin_s = bin_s;
   // Chunks start on the run's first sample so the bins of consecutive chunks
@@ -468,6 +493,10 @@ Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_i
         from_s + chunk_s > last_s ? std::nextafter(last_s, INFINITY) : from_s + chunk_s;
     auto gyro = db.gyro_samples(run_id, from_s, to_s);
     if (!gyro) return gyro.error();
+    std::erase_if(*gyro, [&](const GyroSample& g) {
+      return std::any_of(spinning->begin(), spinning->end(),
+                         [&](const auto& w) { return g.t_s >= w.first && g.t_s < w.second; });
+    });
     if (gyro->empty()) continue;
     auto temps = shell_readings(db, run_id, from_s, to_s);
     if (!temps) return temps.error();
@@ -486,8 +515,33 @@ Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_i
   return joined;
 }
 
+Result<double> soak_earth_rate_dph(storage::Database& db, const SoakWindow& soak,
+                                   double default_dph) {
+  auto run = db.run(soak.run_id);
+  if (!run) return run.error();
+  const RunConfig cfg = read_run_config(*run);
+  if (!cfg.table_present || cfg.table_sensitive_axis.value_or("along_table") != "radial") {
+    return default_dph;
+  }
+  auto means = db.mean_table_over_windows(soak.run_id, soak.windows);
+  if (!means) return Error::Transient(fmt::format("{}: {}", soak_name(soak), means.error().message));
+  if (!means->position_deg) {
+    return Error::Permanent(fmt::format(
+        "{}: no table position recorded over the soak: the Earth-rate projection of a radial "
+        "sensitive axis is unknown",
+        soak_name(soak)));
+  }
+  return analysis::earth_rate_projection_dph(run->latitude_deg, analysis::SensitiveAxis::kRadial,
+                                             cfg.table_heading_at_zero_deg.value_or(0.0),
+                                             *means->position_deg);
+}
+
 Result<storage::SegmentStatsRecord> soak_table1(storage::Database& db, const SoakWindow& soak,
-                                                const analysis::Table1Options& options) {
+                                                const analysis::Table1Options& table1_options) {
+  analysis::Table1Options options = table1_options;
+  auto earth = soak_earth_rate_dph(db, soak, options.earth_rate_dph);
+  if (!earth) return earth.error();
+  options.earth_rate_dph = *earth;
   auto series = soak_series(db, soak, options.bin_s);
   if (!series) return series.error();
   auto row = analysis::table1_row(*series, options);
@@ -610,6 +664,13 @@ Result<RunAnalysisSummary> analyse_run(storage::Database& db, int64_t run_id,
     } else if (Status st = problem(adev.error()); !st.ok()) {
       return st.error();
     }
+  }
+  if (auto sf = analyse_scale_factor(db, run_id)) {
+    summary.scale_factor_points = sf->points;
+    summary.scale_factor_sequences = sf->sequences;
+    for (auto& p : sf->problems) summary.problems.push_back(std::move(p));
+  } else if (Status st = problem(sf.error()); !st.ok()) {
+    return st.error();
   }
   auto series = run_series(db, run_id, settings.table1.bin_s);
   if (!series) {

@@ -290,6 +290,72 @@ void read_gyro(TableReader t, GyroSection& g) {
   t.finish();
 }
 
+// [table]: the rate table (docs/configuration.md, docs/table.md).
+// `simulated`: [simulator] endpoints_file is set (the simulator then names
+// the AERO device).
+void read_table(TableReader t, TableSection& s, bool simulated) {
+  drivers::TableConnection& c = s.connection;
+  if (auto p = t.choice("profile", {"acutrol", "aero"}, std::nullopt)) c.profile = *p;
+  if (auto h = t.string("host")) {
+    if (const std::string problem = drivers::tcp_host_problem(*h); !problem.empty())
+      t.error("host", problem);
+    else
+      c.host = *h;
+  }
+  if (auto p = t.integer("port")) {
+    if (*p < 1 || *p > 65535)
+      t.error("port", fmt::format("{} is not a TCP port (1..65535)", *p));
+    else
+      c.port = static_cast<int>(*p);
+  }
+  if (auto r = t.choice("reply_header", {"ascii", "binary-le", "binary-be", "line"}, std::nullopt))
+    c.reply_header = *r;
+  if (auto d = t.string("device")) {
+    if (d->empty())
+      t.error("device", "must not be empty");
+    else
+      c.device = *d;
+  }
+  if (auto b = t.integer("baud")) {
+    if (*b <= 0)
+      t.error("baud", "must be positive");
+    else
+      c.baud = static_cast<int>(*b);
+  }
+  if (auto a = t.integer("axis")) {
+    if (*a < 1 || *a > 64)
+      t.error("axis", fmt::format("{} is not an axis number (1..64)", *a));
+    else
+      c.axis = static_cast<int>(*a);
+  }
+  // Positive numbers: 0 or less is refused, with the key's line.
+  const auto positive = [&](std::string_view key, double value, double hi) {
+    if (auto v = t.number(key)) {
+      if (!(*v > 0) || *v > hi)
+        t.error(key, fmt::format("{:g} must be positive (and at most {:g})", *v, hi));
+      else
+        return *v;
+    }
+    return value;
+  };
+  c.timeout_s = positive("timeout_s", c.timeout_s, 60.0);
+  s.max_rate_dps = positive("max_rate_dps", s.max_rate_dps, 1e5);
+  s.max_accel_dps2 = positive("max_accel_dps2", s.max_accel_dps2, 1e6);
+  s.at_rate_tolerance_dps = positive("at_rate_tolerance_dps", s.at_rate_tolerance_dps, 1e3);
+  s.at_rate_hold_s = positive("at_rate_hold_s", s.at_rate_hold_s, 3600.0);
+  s.spin_up_timeout_s = positive("spin_up_timeout_s", s.spin_up_timeout_s, 86400.0);
+  s.rest_rate_dps = positive("rest_rate_dps", s.rest_rate_dps, 1e3);
+  s.silent_timeout_s = positive("silent_timeout_s", s.silent_timeout_s, 86400.0);
+  if (auto a = t.choice("sensitive_axis", {"along_table", "radial"}, std::nullopt))
+    s.sensitive_axis = *a;
+  s.heading_at_zero_deg = t.number_in("heading_at_zero_deg", s.heading_at_zero_deg, -360.0, 360.0);
+  if (c.profile == "aero" && c.device.empty() && !simulated) {
+    t.error("device",
+            "missing (required for profile aero unless [simulator] endpoints_file is set)");
+  }
+  t.finish();
+}
+
 void read_storage(TableReader t, StorageSection& s) {
   if (auto d = t.string("db")) s.db_path = *d;
   s.commit_interval_s = t.number_in("commit_interval_s", s.commit_interval_s, 0.01, 1.0);
@@ -533,6 +599,8 @@ Result<StationConfig> build_config(std::optional<toml::table> root, TomlErrors& 
   section("chamber", true, [&](TableReader t) { read_chamber(t, cfg.chamber); });
   section("probes", true, [&](TableReader t) { read_probes(t, cfg.probes); });
   section("gyro", true, [&](TableReader t) { read_gyro(t, cfg.gyro); });
+  const bool simulated = root->at_path("simulator.endpoints_file").is_string();
+  section("table", false, [&](TableReader t) { read_table(t, cfg.table.emplace(), simulated); });
   section("storage", false, [&](TableReader t) { read_storage(t, cfg.storage); });
   section("api", false, [&](TableReader t) { read_api(t, cfg.api); });
   section("export", false, [&](TableReader t) { read_export(t, cfg.export_); });
@@ -585,6 +653,13 @@ Result<SimEndpoints> read_sim_endpoints(const std::string& path) {
   if (auto d = t.required_string("gyro_device")) ep.gyro_device = *d;
   if (auto p = t.integer("pid")) ep.pid = static_cast<long>(*p);
   if (auto c = t.string("control_socket")) ep.control_socket = *c;
+  if (auto p = t.integer("table_port")) {
+    if (*p < 0 || *p > 65535)
+      t.error("table_port", fmt::format("{} is not a TCP port", *p));
+    else
+      ep.table_port = static_cast<int>(*p);
+  }
+  if (auto d = t.string("table_device")) ep.table_device = *d;
   if (auto s = t.number("time_scale")) {
     if (*s > 0)
       ep.time_scale = *s;
@@ -603,6 +678,8 @@ Status write_sim_endpoints(const std::string& path, const SimEndpoints& ep) {
                 {"pid", static_cast<int64_t>(ep.pid)}};
   if (!ep.control_socket.empty()) t.insert("control_socket", ep.control_socket);
   if (ep.time_scale > 0) t.insert("time_scale", ep.time_scale);
+  if (ep.table_port > 0) t.insert("table_port", ep.table_port);
+  if (!ep.table_device.empty()) t.insert("table_device", ep.table_device);
   std::ostringstream ss;
   ss << "# written by gyrotherm-sim; read by gyrothermd ([simulator] endpoints_file)\n"
      << t << "\n";
@@ -627,6 +704,17 @@ void apply_sim_endpoints(StationConfig& config, const SimEndpoints& ep) {
     endpoint->port = ep.modbus_port;
   }
   config.gyro.serial.device = ep.gyro_device;
+  // The simulator's table, for a station that has one: ACL on loopback TCP,
+  // the AERO grammar on a pty.
+  if (config.table) {
+    drivers::TableConnection& c = config.table->connection;
+    if (c.profile == "acutrol" && ep.table_port > 0) {
+      c.host = "127.0.0.1";
+      c.port = ep.table_port;
+    } else if (c.profile == "aero" && !ep.table_device.empty()) {
+      c.device = ep.table_device;
+    }
+  }
 }
 
 }  // namespace gyrotherm::daemon

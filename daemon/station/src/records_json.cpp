@@ -69,7 +69,59 @@ nlohmann::json to_json(const storage::SegmentRecord& s) {
           {"t_end_s", opt(s.t_end_s)},
           {"paused_s", num(s.paused_s)},
           {"state", s.state},
-          {"windows", windows}};
+          {"windows", windows},
+          {"table",
+           {{"mode", s.table_mode},
+            {"rate_dps", opt(s.table_rate_dps)},
+            {"position_deg", opt(s.table_position_deg)},
+            {"mean_rate_dps", opt(s.table_mean_rate_dps)},
+            {"mean_position_deg", opt(s.table_mean_position_deg)}}},
+          {"turns", s.turns},
+          {"dwell_s", num(s.dwell_s)},
+          {"sf_sequence", s.sf_sequence},
+          {"sf_repetition", s.sf_repetition}};
+}
+
+nlohmann::json to_json(const storage::ScaleFactorPointRecord& p) {
+  return {{"segment_id", p.segment_id},
+          {"sf_sequence", p.sf_sequence},
+          {"repetition", p.repetition},
+          {"rate_dps", num(p.rate_dps)},
+          {"measured_rate_dps", num(p.measured_rate_dps)},
+          {"output_dps", num(p.output_dps)},
+          {"n", p.n},
+          {"temperature_c", num(p.temperature_c)},
+          {"duration_s", num(p.duration_s)},
+          {"turns", num(p.turns)}};
+}
+
+nlohmann::json to_json(const storage::ScaleFactorFitRecord& f) {
+  return {{"sf_sequence", f.sf_sequence},
+          {"temperature_c", num(f.temperature_c)},
+          {"k", num(f.k)},
+          {"k_se", num(f.k_se)},
+          {"bias_dps", num(f.bias_dps)},
+          {"bias_dph", num(f.bias_dps * 3600.0)},
+          {"nonlinearity_ppm", num(f.nonlinearity_ppm)},
+          {"nonlinearity_fs_ppm", num(f.nonlinearity_fs_ppm)},
+          {"asymmetry_ppm", opt(f.asymmetry_ppm)},
+          {"repeatability_ppm", opt(f.repeatability_ppm)},
+          {"n_points", f.n_points},
+          {"created_utc", f.created_utc}};
+}
+
+nlohmann::json to_json(const storage::ScaleFactorTemperatureFitRecord& t) {
+  auto array = [](const std::string& text) {
+    auto j = nlohmann::json::parse(text.empty() ? "[]" : text, nullptr, false);
+    return j.is_array() ? j : nlohmann::json::array();
+  };
+  return {{"order", t.order},
+          {"t_centre_c", num(t.t_centre_c)},
+          {"k_coefficients", array(t.k_coeffs_json)},
+          {"bias_coefficients_dps", array(t.bias_coeffs_json)},
+          {"k_ppm_per_c", num(t.k_ppm_per_c)},
+          {"bias_dph_per_c", num(t.bias_dph_per_c)},
+          {"created_utc", t.created_utc}};
 }
 
 nlohmann::json to_json(const storage::EventRecord& e) {
@@ -161,6 +213,23 @@ nlohmann::json to_json(const storage::AllanRecord& a) {
           {"computed_utc", a.computed_utc}};
 }
 
+namespace {
+// The rate table's series; null for a run without a table.
+nlohmann::json table_series(const storage::DecimatedSamples::Table& t) {
+  if (t.t_s.empty()) return nullptr;
+  return {{"t_s", numbers(t.t_s)},
+          {"n", t.n},
+          {"mean_rate_dps", numbers(t.mean_rate_dps)},
+          {"min_rate_dps", numbers(t.min_rate_dps)},
+          {"max_rate_dps", numbers(t.max_rate_dps)},
+          {"position_deg", numbers(t.position_deg)},
+          {"demand_rate_dps", numbers(t.demand_rate_dps)},
+          {"demand_mode", t.demand_mode},
+          {"mode", t.mode},
+          {"interlock", t.interlock}};
+}
+}  // namespace
+
 nlohmann::json to_json(const storage::DecimatedSamples& d) {
   const auto& g = d.gyro;
   const auto& t = d.temperature;
@@ -179,7 +248,8 @@ nlohmann::json to_json(const storage::DecimatedSamples& d) {
             {"setpoint_c", numbers(t.setpoint_c)},
             {"chamber_c", numbers(t.chamber_c)},
             {"top_c", numbers(t.top_c)},
-            {"side_c", numbers(t.side_c)}}}};
+            {"side_c", numbers(t.side_c)}}},
+          {"table", table_series(d.table)}};
 }
 
 }  // namespace gyrotherm::daemon

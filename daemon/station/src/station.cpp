@@ -195,6 +195,8 @@ void Station::make_sequencer(schedules::Plan plan) {
   opt.interlocks = config_.interlocks;
   if (config_.table) {
     opt.at_rate_tolerance_dps = config_.table->at_rate_tolerance_dps;
+    opt.at_rate_tolerance_ppm = config_.table->at_rate_tolerance_ppm;
+    opt.interlocks.table_timeout_s = config_.table->silent_timeout_s;
     opt.at_rate_hold_s = config_.table->at_rate_hold_s;
     opt.spin_up_timeout_s = config_.table->spin_up_timeout_s;
   }
@@ -1066,6 +1068,17 @@ storage::SegmentRecord segment_record(int64_t id, int64_t run_id, std::size_t in
   seg.paused_s = times.held_s;
   seg.state = std::move(state);
   for (const auto& w : times.windows) seg.windows.emplace_back(w.from_s, w.to_s);
+  seg.table_mode = std::string(schedules::to_string(step.table.mode));
+  if (step.table.mode == schedules::TableDemandMode::kRate) {
+    seg.table_rate_dps = step.table.rate_dps;
+  } else if (step.table.mode == schedules::TableDemandMode::kStatic) {
+    seg.table_rate_dps = 0.0;
+    seg.table_position_deg = step.table.position_deg;
+  }
+  seg.turns = step.turns;
+  seg.dwell_s = step.dwell_s;
+  seg.sf_sequence = step.sf_sequence;
+  seg.sf_repetition = step.sf_repetition;
   return seg;
 }
 }  // namespace
@@ -1106,7 +1119,10 @@ void Station::on_step_finished(std::size_t index, const schedules::PlanStep& ste
   unrecorded_segments_[id] =
       segment_record(id, run_id, index, step, times, completed ? "completed" : "aborted");
   record_unrecorded();
-  if (completed && step.kind == schedules::StepKind::kSoak && !times.windows.empty()) {
+  // Table I is of static soaks only: a soak with the table spinning is not
+  // a zero-bias measurement.
+  if (completed && step.kind == schedules::StepKind::kSoak &&
+      step.table.mode != schedules::TableDemandMode::kRate && !times.windows.empty()) {
     Table1Job job{run_id,
                   id,
                   static_cast<int>(index),
@@ -1323,6 +1339,24 @@ Reply Station::run_fits(int64_t id) {
 
 Reply Station::run_allan(int64_t id) {
   return run_records(id, [id](storage::Database& db) { return db.allan(id); });
+}
+
+Reply Station::run_scale_factor(int64_t id) {
+  std::lock_guard lock(api_mu_);
+  if (auto run = api_db_.run(id); !run) return run_lookup_failure(run.error(), id);
+  auto points = api_db_.scale_factor_points(id);
+  if (!points) return db_failure(points.error());
+  auto fits = api_db_.scale_factor_fits(id);
+  if (!fits) return db_failure(fits.error());
+  auto over_t = api_db_.scale_factor_temperature_fit(id);
+  if (!over_t) return db_failure(over_t.error());
+  nlohmann::json out = {{"points", nlohmann::json::array()},
+                        {"fits", nlohmann::json::array()},
+                        {"temperature_fit", nullptr}};
+  for (const auto& p : *points) out["points"].push_back(to_json(p));
+  for (const auto& f : *fits) out["fits"].push_back(to_json(f));
+  if (*over_t) out["temperature_fit"] = to_json(**over_t);
+  return Reply::ok(std::move(out));
 }
 
 Reply Station::fit(int64_t id) {

@@ -97,6 +97,7 @@ nlohmann::json to_json(const StatusSnapshot& s) {
       {"storage",
        {{"gyro_rows", s.storage.gyro_rows},
         {"temperature_rows", s.storage.temperature_rows},
+        {"table_rows", s.storage.table_rows},
         {"commits", s.storage.commits},
         {"commit_failures", s.storage.commit_failures},
         {"consecutive_failures", s.storage.consecutive_failures},

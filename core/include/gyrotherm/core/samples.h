@@ -27,17 +27,17 @@ struct TemperatureSample {
   double side_c = 0;
 };
 
-// One control-loop reading of the rate table, with what the station
-// demanded of it.
+// One reading of the rate table (turntable) with the demand in force.
+// Angles are degrees, rates °/s (the table's own units; gyro rates are °/h).
 struct TableSample {
-  double t_s = 0;                // same convention as GyroSample::t_s
-  std::string demand_mode{};     // none, static, rate
-  double demand_rate_dps = 0;
-  std::optional<double> demand_position_deg{};
-  double rate_dps = 0;           // measured
-  double position_deg = 0;       // measured
-  std::string mode{};            // off, rate, position, unknown
-  std::string interlock{};       // open, closed, fault
+  double t_s = 0;                               // same convention as GyroSample::t_s
+  std::string demand_mode{};                    // none, static, rate: the step's demand
+  double demand_rate_dps = 0;                   // demanded rate (rate demands; 0 otherwise)
+  std::optional<double> demand_position_deg{};  // demanded position; nullopt: none
+  double rate_dps = 0;                          // measured rate
+  double position_deg = 0;                      // measured position, [0, 360) on a continuous axis
+  std::string mode{};                           // servo mode reported: off, rate, position, unknown
+  std::string interlock{};                      // open, closed, fault
 };
 
 }  // namespace gyrotherm

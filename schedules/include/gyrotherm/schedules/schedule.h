@@ -1,11 +1,13 @@
 // Schedule files (TOML) -> a validated, expanded plan of steps.
 //
-// A schedule is a list of [[step]] tables: soak, ramp, hold, repeat (with its
-// own [[step.steps]]). Durations are in minutes of station time, temperatures
-// in °C, rates in °C/min; docs/schedules.md lists every key and default.
-// Validation against the station (temperature limits, max ramp rate) happens
-// here too, so a bad schedule is refused with every error listed by file,
-// line and key, and nothing runs.
+// A schedule is a list of [[step]] tables: soak, ramp, hold, scale_factor,
+// repeat (with its own [[step.steps]]). Durations are in minutes of station
+// time, temperatures in °C, rates in °C/min, table rates in °/s;
+// docs/schedules.md lists every key and default. A scale_factor step expands
+// into rate points (StepKind::kRate), each dwelling over whole turns.
+// Validation against the station (temperature limits, max ramp rate, its rate
+// table) happens here too, so a bad schedule is refused with every error
+// listed by file, line and key, and nothing runs.
 #pragma once
 
 #include <cstddef>
@@ -72,8 +74,13 @@ struct Plan {
   std::string description;
   std::string source_path;
   std::vector<PlanStep> steps;
+  // The station's table acceleration the plan was checked against ([table]
+  // max_accel_dps2; 0 without a table): the spin-up time of rate points.
+  double table_accel_dps2 = 0;
 
-  // Station seconds of acquisition and ramp time (excludes settling).
+  // Station seconds the plan takes at least: soak acquisition, holds, and
+  // each rate point's dwell plus its spin-up (|rate - the previous step's
+  // rate| / table_accel_dps2). Settling and ramps are not counted.
   double nominal_duration_s() const;
 };
 
@@ -105,7 +112,12 @@ inline constexpr double kMaxStabilityWindowMin = 24 * 60;    // and never above 
 inline constexpr double kMinToleranceC = 0.01;               // below probe resolution
 inline constexpr double kMaxToleranceC = 10;
 inline constexpr double kMaxStabilityCPerMin = 10;  // and > 0
-inline constexpr double kMaxTableRateDps = 1000;    // |table_rate_dps|
+inline constexpr double kMaxTableRateDps = 1000;    // |table_rate_dps|, |rate_dps|, rates_dps
+// scale_factor steps
+inline constexpr int64_t kMaxTurnsPerPoint = 1000;          // turns
+inline constexpr double kMaxMinDwellS = 12 * 3600;          // min_dwell_s: 12 h
+inline constexpr double kMaxRateDwellMin = 24 * 60;         // a rate point's dwell: 24 h
+inline constexpr int64_t kMaxScaleFactorRepetitions = 100;  // repetitions
 
 // Parses and validates. On failure the error lists every problem, one per
 // line in file order, as "file:line: key: message".

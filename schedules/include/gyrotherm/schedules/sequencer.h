@@ -33,10 +33,23 @@
 // Ramp: the set point moves from where the previous step left it to the
 // target at the step's rate; the whole ramp (minus holds) is acquisition.
 // Hold: the set point is held for the step's duration, no acquisition.
+// Rate point (kRate, from a scale_factor step): the set point is held and the
+// step is settling ("spinning up") until the measured table rate has been
+// within at_rate_tolerance_dps of the demand for at_rate_hold_s; then one
+// acquisition window of exactly dwell_s (whole turns) of unheld time. A hold
+// during the dwell discards the partial window (a window covers whole turns)
+// and, once released, the point spins up and dwells in full again. Not at
+// rate within spin_up_timeout_s of unheld time aborts the run. A restore
+// restarts a rate point in progress the same way.
+// Every step carries a table demand (table_demand()): the daemon commands the
+// table from it when a step starts (on_step_started) and stops the table when
+// the run ends.
 // After the last step, and on failure or abort, the safe set point is
 // commanded.
 #pragma once
 
+#include <algorithm>
+#include <cmath>
 #include <cstddef>
 #include <nlohmann/json_fwd.hpp>
 #include <optional>
@@ -105,7 +118,10 @@ struct SequencerOptions {
   // Rate points ([table]): the dwell starts once the measured rate has been
   // within at_rate_tolerance_dps of the demand for at_rate_hold_s; not so
   // within spin_up_timeout_s fails the step.
+  // The tolerance is the larger of at_rate_tolerance_dps and
+  // at_rate_tolerance_ppm of the demand (a table's rate noise is relative).
   double at_rate_tolerance_dps = 0.05;
+  double at_rate_tolerance_ppm = 1000.0;
   double at_rate_hold_s = 1.0;
   double spin_up_timeout_s = 120.0;
 };
@@ -174,6 +190,10 @@ class Sequencer {
   bool finished() const { return is_terminal(state_); }
   bool paused() const { return paused_; }
   double setpoint_c() const { return setpoint_c_; }
+  // The table demand of the current step; kNone before start() and once the
+  // run has ended (aborting, completed, failed, interrupted): the daemon
+  // stops the table then.
+  const TableDemand& table_demand() const;
   // Index of the current step (== steps().size() once finished).
   std::size_t step_index() const { return index_; }
   const Plan& plan() const { return plan_; }
@@ -183,6 +203,10 @@ class Sequencer {
 
  private:
   bool held() const;
+  double at_rate_tolerance_dps(double demand_dps) const {
+    return std::max(options_.at_rate_tolerance_dps,
+                    options_.at_rate_tolerance_ppm * 1e-6 * std::abs(demand_dps));
+  }
   RunState derived_state() const;
   // Emits on_state when the derived state differs from state_.
   void update_state(double t_s, const std::string& reason);
@@ -197,6 +221,9 @@ class Sequencer {
   void close_window(double t_s);
   void on_unheld(double t_s, const Readings& readings);
   void tick_soak(double t_s, const Readings& readings);
+  void tick_rate(double t_s, double active_dt_s, const Readings& readings);
+  // A rate point starts its spin-up (again): no window, the gate unheld.
+  void restart_spin_up();
 
   Plan plan_;
   SequencerOptions options_;
@@ -220,6 +247,11 @@ class Sequencer {
   analysis::StabilityWindow shell_window_{600.0};
   analysis::StabilityWindow chamber_window_{600.0};
   std::optional<double> last_shell_c_;
+  // Rate point: unheld station s of the current spin-up, since when the
+  // measured rate has been within tolerance, the last measured rate.
+  double spin_up_s_ = 0;
+  std::optional<double> at_rate_since_s_;
+  std::optional<double> last_table_rate_dps_;
 };
 
 }  // namespace gyrotherm::schedules

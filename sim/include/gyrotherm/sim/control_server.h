@@ -46,6 +46,12 @@ struct ControlCommand {
     kChamberRelease,   // chamber release
     kChamberUnitsC,    // chamber units c
     kChamberUnitsF,    // chamber units f
+    kTableFault,       // table fault
+    kTableHang,        // table hang
+    kTableDisconnect,  // table disconnect
+    kTableConnect,     // table connect
+    kTableClear,       // table clear
+    kTableStatus,      // table status
     kStatus,           // status
     kHelp,             // help
   };
@@ -72,8 +78,11 @@ std::string execute_control_command(Simulator& sim, const ControlCommand& comman
 // parse + execute: the reply to one line.
 std::string handle_control_line(Simulator& sim, std::string_view line);
 
-// The status as one line of JSON (the "status" reply without "ok ").
+// The status as one line of JSON (the "status" reply without "ok "); with a
+// table served it has a "table" object (table_status_json()).
 std::string status_json(const SimulatorStatus& status);
+// The table's part: mode, interlock, rate, position, demand, limits, faults.
+std::string table_status_json(const TableStatus& table);
 
 // Every command with a one-line description, in help order.
 struct ControlCommandHelp {

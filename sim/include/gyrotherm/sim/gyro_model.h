@@ -14,6 +14,19 @@
 // from its stationary distribution); the rate random walk grows as
 // rate_random_walk_dph_per_sqrt_h x sqrt(hours), starting at 0.
 //
+// With a rate table (enable_table(); the simulator does it when it serves a
+// table), the input the gyro sees is the table's true rate plus the Earth
+// rate projected on the sensitive axis, through a scale factor:
+//   Ω   = table_rate_dps · 3600 + earth_projection_dph            (°/h)
+//   K   = (1 + (k_ppm + k_tc_ppm_per_c · (T − reference_temp_c)) · 1e-6)
+//         · (1 ± asymmetry_ppm / 2 · 1e-6)      (+ for Ω ≥ 0, − for Ω < 0)
+//   rate = K · Ω · (1 + nonlinearity_ppm · 1e-6 · |Ω| / Ω_fs)
+//        + bias_dph + the three polynomials + noise
+// with Ω_fs the table's maximum rate in °/h. earth_projection_dph is
+// earth_rate_dph() for a sensitive axis along the table's axis, and
+// Ω_E · cos(latitude) · cos(heading_at_zero_deg + position) for a radial
+// one. Without a table the formula above (no scale factor) holds.
+//
 // Deterministic given the seed. Not thread-safe.
 #pragma once
 
@@ -43,6 +56,33 @@ struct GyroParams {
   bool IsValid(std::string* error) const;
 };
 
+// [simulator.scale_factor]: the scale-factor truth (see the formula above).
+struct ScaleFactorParams {
+  double k_ppm = 150.0;            // K − 1 at reference_temp_c, ppm
+  double k_tc_ppm_per_c = 20.0;    // dK/dT, ppm/°C
+  double reference_temp_c = 20.0;  // T where K − 1 = k_ppm
+  double asymmetry_ppm = 30.0;     // (K+ − K−) / K̄, ppm
+  double nonlinearity_ppm = 40.0;  // quadratic-in-|Ω| deviation at full scale, ppm
+
+  bool IsValid(std::string* error) const;
+};
+
+// How the gyro's sensitive axis sits on the table ([table] sensitive_axis).
+enum class SensitiveAxis { kAlongTable, kRadial };
+
+struct TableMount {
+  SensitiveAxis axis = SensitiveAxis::kAlongTable;
+  double latitude_deg = 0;
+  double heading_at_zero_deg = 0;  // azimuth of the sensitive axis at position 0
+  double full_scale_dps = 1000;    // Ω_fs, the table's max rate
+};
+
+// What the gyro sees of the table at a sample.
+struct TableInput {
+  double rate_dps = 0;  // true rate
+  double position_deg = 0;
+};
+
 inline constexpr uint8_t kGyroStatusAllValid = 0x77;  // gyro X/Y/Z and accel X/Y/Z valid
 
 class GyroModel {
@@ -53,15 +93,27 @@ class GyroModel {
   // The noise-free part (Earth rate, bias and the three polynomials), °/h.
   double model_rate_dph(double case_c, double case_rate_c_per_s, double gradient_c) const;
 
+  // Puts the gyro on a rate table: from now on next_rate_dph() and
+  // next_frame() take a TableInput and apply the scale factor.
+  void enable_table(ScaleFactorParams sf, TableMount mount);
+  bool on_table() const { return on_table_; }
+  // K at case temperature `case_c` for an input of sign `positive`.
+  double scale_factor(double case_c, bool positive) const;
+  // Earth rate on the sensitive axis, °/h, at table position `position_deg`.
+  double earth_projection_dph(double position_deg) const;
+  // The noise-free output on the table, °/h.
+  double model_rate_on_table_dph(const ThermalTruth& truth, const TableInput& table) const;
+
   // One sample of the sensitive axis, °/h, noise included; advances the
   // noise processes by one sample period (1 / rate_hz station seconds).
-  double next_rate_dph(const ThermalTruth& truth);
+  // `table` is ignored unless on_table().
+  double next_rate_dph(const ThermalTruth& truth, const TableInput& table = {});
 
   // One KVH 1750 frame: the sensitive axis carries next_rate_dph() in the
   // configured output; the other two axes carry white noise only; accel is
   // (0, 0, 1 g) + noise; status 0x77; seq counts 0..127; temp_c is the
   // rounded case temperature.
-  drivers::GyroFrame next_frame(const ThermalTruth& truth);
+  drivers::GyroFrame next_frame(const ThermalTruth& truth, const TableInput& table = {});
 
   // Converts a rate in °/h into the configured output value.
   double to_output(double rate_dph) const;
@@ -76,7 +128,8 @@ class GyroModel {
   // The model as a human-readable formula (for the truth file).
   static std::string formula();
   // The truth file's JSON: earth rate, bias, coefficients, noise figures,
-  // output format, units, the formula and the seed.
+  // output format, units, the formula and the seed; on a table also
+  // "scale_factor" (every parameter, the mount and the formula).
   std::string truth_json(uint64_t seed) const;
 
  private:
@@ -92,6 +145,9 @@ class GyroModel {
   double gm_bias_dph_ = 0;
   double rrw_dph_ = 0;
   double last_rate_dph_ = 0;
+  bool on_table_ = false;
+  ScaleFactorParams sf_;
+  TableMount mount_;
   uint8_t seq_ = 0;
   uint64_t samples_ = 0;
 };

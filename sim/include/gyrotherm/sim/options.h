@@ -13,8 +13,14 @@
 //   chamber_units = "C"                         # C or F: what a chamber with a
 //                                               # units register serves (watlow-f4t)
 //   pending_frames_limit = 0                    # see SimulatorOptions
+//   table_port = 0                              # the rate table's ACL port; 0: any free port
 //   [simulator.thermal]  -> ThermalParams (thermal_plant.h), same key names
 //   [simulator.gyro]     -> GyroParams (gyro_model.h), same key names
+//   [simulator.table]    -> TableParams (rate_table_model.h), same key names
+//   [simulator.scale_factor] -> ScaleFactorParams (gyro_model.h), same key names
+//
+// The table is served when the station config has a [table] section or
+// with `--table` (serve_table).
 //
 // The gyro output format (unit, rate/delta, axis, rate_hz) comes from [gyro].
 #pragma once
@@ -28,6 +34,7 @@
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/sim/gyro_model.h"
+#include "gyrotherm/sim/rate_table_model.h"
 #include "gyrotherm/sim/thermal_plant.h"
 
 namespace gyrotherm::sim {
@@ -60,6 +67,12 @@ struct SimulatorOptions {
   // pending_frames_limit); beyond that new frames are dropped (and counted).
   // 0 = five wall seconds of frames, at least 256.
   std::size_t pending_frames_limit = 0;
+  // The rate table: served when the station config has [table] or when
+  // serve_table is set (--table).
+  bool serve_table = false;
+  int table_port = 0;  // ACL over TCP on modbus_host; 0 = any free port
+  TableParams table;
+  ScaleFactorParams scale_factor;
 
   bool IsValid(std::string* error) const;
 };
@@ -72,6 +85,8 @@ struct SimulatorOverrides {
   std::optional<std::string> control_socket;
   std::optional<uint64_t> seed;
   std::optional<double> rate_hz;
+  std::optional<int> table_port;
+  bool serve_table = false;  // --table
 };
 
 // Reads config.simulator_table strictly (unknown keys and out-of-range values

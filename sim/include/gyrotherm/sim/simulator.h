@@ -37,6 +37,13 @@
 // probe_quantum_c and the probe registers' resolution (0.1 °C for int16 x
 // 0.1), so the status shows what a client reads.
 //
+// With a rate table (config.table set, or options.serve_table), the
+// simulator also serves one table (RateTableModel, stepped with the plant)
+// two ways: ACL over TCP on loopback (TableServer, port options.table_port)
+// and the AERO grammar on a second pty (AeroServer); the gyro sees the
+// table's true rate and position through its scale factor
+// (GyroModel::enable_table).
+//
 // Fault hooks are plain methods, safe to call from any thread while running.
 // With options.control_socket set, start() also opens a ControlServer
 // (control_server.h) that calls them on command.
@@ -59,6 +66,8 @@
 #include "gyrotherm/sim/gyro_stream.h"
 #include "gyrotherm/sim/modbus_server.h"
 #include "gyrotherm/sim/options.h"
+#include "gyrotherm/sim/rate_table_model.h"
+#include "gyrotherm/sim/table_server.h"
 #include "gyrotherm/sim/thermal_plant.h"
 
 namespace gyrotherm::sim {
@@ -66,6 +75,22 @@ namespace gyrotherm::sim {
 enum class ProbeRole { kTop, kSide };
 
 class ControlServer;
+class TableServer;
+class AeroServer;
+
+// The rate table as the status shows it.
+struct TableStatus {
+  bool served = false;
+  TableModelState state;
+  bool hung = false;          // table hang: requests go unanswered
+  bool disconnected = false;  // table disconnect: ACL clients closed and refused
+  int port = 0;               // ACL over TCP
+  std::string device;         // AERO pty
+  uint64_t acl_requests = 0;
+  uint64_t acl_unanswered = 0;  // dropped while hung
+  uint64_t acl_refused_connections = 0;
+  uint64_t aero_requests = 0;
+};
 
 // The faults in force.
 struct SimulatorFaults {
@@ -101,6 +126,7 @@ struct SimulatorStatus {
   uint64_t setpoint_writes = 0;
   uint64_t setpoint_writes_rejected = 0;
   SimulatorFaults faults;
+  TableStatus table;
 };
 
 class Simulator {
@@ -169,6 +195,20 @@ class Simulator {
   // the client wrote. nullopt (or a non-finite target) releases it.
   void force_chamber_c(std::optional<double> target_c);
 
+  // --- The rate table (has_table()); each a no-op without one ---
+  bool has_table() const { return table_.has_value(); }
+  // Interlock to fault now (latched until :I:R), mode off; the axis coasts.
+  void table_fault();
+  // Hang: the table answers no request (ACL or AERO); connections stay.
+  void table_hang(bool hung);
+  // Disconnect: ACL clients are closed and new ones refused (accepted and
+  // closed), the AERO line goes silent, until false (`table connect`).
+  void table_disconnect(bool disconnected);
+  // Ends hang and disconnect. A latched interlock fault stays (:I:R).
+  void table_clear();
+  // One ACL request line handled as the TCP server would (code + payload).
+  AclReply table_acl(std::string_view line);
+
  private:
   Simulator(daemon::StationConfig config, SimulatorOptions options, const Clock* clock);
   void run();
@@ -200,6 +240,8 @@ class Simulator {
   int64_t steps_ = 0;
   uint64_t next_frame_ = 1;
   SimulatorStatus status_;
+  std::optional<RateTableModel> table_;  // guarded by sim_mu_
+  AclControllerState acl_state_;         // guarded by sim_mu_
 
   std::atomic<double> setpoint_c_;
   std::atomic<double> ramp_limit_c_per_min_{0.0};  // <= 0: the plant's own limit
@@ -220,6 +262,10 @@ class Simulator {
   mutable std::mutex life_mu_;  // start/stop against the hooks that reach server_
   std::unique_ptr<ModbusServer> server_;
   std::unique_ptr<ControlServer> control_;
+  std::unique_ptr<TableServer> table_server_;
+  std::unique_ptr<AeroServer> aero_server_;
+  std::atomic<bool> table_hung_{false};
+  std::atomic<bool> table_disconnected_{false};
   std::atomic<int> modbus_port_{0};
   std::thread thread_;
   std::mutex wake_mu_;

@@ -25,7 +25,7 @@ struct sqlite3;
 
 namespace gyrotherm::storage {
 
-inline constexpr int kSchemaVersion = 6;
+inline constexpr int kSchemaVersion = 7;
 
 // Rollup blocks of the gyro rate (table gyro_rollup): block length of each
 // level, station seconds. A sample at t_s is in block floor(t_s / length).
@@ -76,6 +76,25 @@ struct SegmentRecord {
   // Acquisition windows (from_s, to_s), station s; pauses and suspensions
   // cut out. update_segment() replaces the stored list.
   std::vector<std::pair<double, double>> windows;
+  // The rate table during the step (schema v7). The demand, from the plan
+  // step: table_mode none, static or rate; table_rate_dps the demanded rate
+  // (0 for static), nullopt when the mode is none; table_position_deg the
+  // demanded position, nullopt when none was given.
+  std::string table_mode = "none";
+  std::optional<double> table_rate_dps{};
+  std::optional<double> table_position_deg{};
+  // Measured over the acquisition windows (mean_table_over_windows): the
+  // mean rate, °/s, and the circular mean position, degrees in [0, 360);
+  // nullopt until known.
+  std::optional<double> table_mean_rate_dps{};
+  std::optional<double> table_mean_position_deg{};
+  // Rate points (kind "rate"): the whole turns acquired and the dwell over
+  // them (station s), the scale-factor sequence of the plan and the
+  // repetition (both from 1); 0 for other steps.
+  int turns = 0;
+  double dwell_s = 0;
+  int sf_sequence = 0;
+  int sf_repetition = 0;
 };
 
 // One entry of the persistent run queue, with its schedule.
@@ -181,10 +200,73 @@ struct ExportRecord {
   std::string message;             // failed: why; done: a summary (may be "")
 };
 
+// One rate point of a scale-factor sequence (schema v7, table
+// scale_factor_points): the gyro's mean output against the table's rate over
+// the point's acquisition windows. Rates in °/s (the gyro output converted
+// from °/h). NaN is stored as NULL and read back as NaN.
+struct ScaleFactorPointRecord {
+  int64_t id = 0;                // set when read
+  int64_t run_id = 0;            // 0: the run store_scale_factor() is given
+  int64_t segment_id = 0;        // the rate point's segment (0: not tied to one)
+  int sf_sequence = 0;           // segments.sf_sequence
+  int repetition = 0;            // segments.sf_repetition
+  double rate_dps = 0;           // demanded table rate
+  double measured_rate_dps = 0;  // table rate measured over the windows
+  double output_dps = 0;         // mean gyro output over the windows
+  int64_t n = 0;                 // gyro samples averaged
+  double temperature_c = 0;      // mean shell temperature (top + side) / 2
+  double duration_s = 0;         // acquisition time, station s
+  double turns = 0;              // table turns over the acquisition
+};
+
+// The fit output = K * rate + bias of one scale-factor sequence (table
+// scale_factor_fits; docs/analysis.md defines the figures).
+struct ScaleFactorFitRecord {
+  int64_t run_id = 0;  // 0: the run store_scale_factor() is given
+  int sf_sequence = 0;
+  double temperature_c = 0;  // mean temperature of the sequence's points
+  double k = 0;              // scale factor, (°/s) / (°/s)
+  double k_se = 0;           // its standard error
+  double bias_dps = 0;
+  double nonlinearity_ppm = 0;                // relative to K
+  double nonlinearity_fs_ppm = 0;             // relative to the full-scale output
+  std::optional<double> asymmetry_ppm{};      // nullopt: one direction only
+  std::optional<double> repeatability_ppm{};  // nullopt: fewer than 2 repetitions
+  int64_t n_points = 0;
+  std::string created_utc{};  // ISO-8601 UTC; "" = now (store_scale_factor)
+};
+
+// K(T) and bias(T) of a run as polynomials in (T - t_centre_c) (table
+// scale_factor_temperature_fits, column poly_order for `order`). The
+// coefficients are JSON arrays of numbers, lowest power first; bias in °/s.
+struct ScaleFactorTemperatureFitRecord {
+  int64_t run_id = 0;  // 0: the run store_scale_factor() is given
+  int order = 0;       // polynomial degree
+  double t_centre_c = 0;
+  std::string k_coeffs_json{};     // e.g. "[1.0000123, 2.1e-6]"; "" stores "[]"
+  std::string bias_coeffs_json{};  // °/s; "" stores "[]"
+  double k_ppm_per_c = 0;          // dK/dT / K at t_centre_c, ppm/°C
+  double bias_dph_per_c = 0;       // dbias/dT at t_centre_c, (°/h)/°C
+  std::string created_utc{};       // "" = now (store_scale_factor)
+};
+
+// The table over a segment's acquisition windows (mean_table_over_windows).
+struct TableWindowMeans {
+  int64_t n = 0;                     // table samples in the windows
+  std::optional<double> rate_dps{};  // mean measured rate; nullopt: no rate
+  // Circular mean of the measured position, [0, 360); nullopt when there is
+  // none or the positions are spread evenly round the circle (resultant
+  // below kMinResultant, e.g. whole turns at rate).
+  std::optional<double> position_deg{};
+  double position_resultant = 0;  // mean resultant length of the positions, 0..1
+  static constexpr double kMinResultant = 1e-6;
+};
+
 // A run's samples in [from_s, to_s] reduced to at most max_points points
 // each: the gyro rate as mean with a min/max envelope, the temperatures as
-// means. Points are buckets of bucket_s station seconds; bucket_s == 0 when
-// the samples are returned as recorded (no more than max_points of them).
+// means, the table's rate as mean with an envelope and its state as last seen. Points are buckets
+// of bucket_s station seconds; bucket_s == 0 when the samples are returned as recorded (no more
+// than max_points of them).
 struct DecimatedSamples {
   double from_s = 0, to_s = 0;
   double bucket_s = 0;
@@ -198,6 +280,17 @@ struct DecimatedSamples {
     std::vector<double> t_s;
     std::vector<double> setpoint_c, chamber_c, top_c, side_c;  // NaN: none
   } temperature;
+  // The rate table (schema v7), bucketed like the temperatures: the
+  // measured rate as mean with a min/max envelope (°/s), the rest as the
+  // bucket's last reading. Empty for a run without a table.
+  struct Table {
+    std::vector<double> t_s;  // mean time of the bucket's samples
+    std::vector<int64_t> n;
+    std::vector<double> mean_rate_dps, min_rate_dps, max_rate_dps;  // NaN: no rate
+    std::vector<double> position_deg;                       // last measured position; NaN: none
+    std::vector<double> demand_rate_dps;                    // last demanded rate
+    std::vector<std::string> demand_mode, mode, interlock;  // last
+  } table;
 };
 
 class Database {
@@ -231,8 +324,8 @@ class Database {
 
   // Stores the sequencer snapshot for crash resume.
   Status set_run_checkpoint(int64_t run_id, std::string_view resume_json, double wall_unix_s);
-  // Latest station time with a committed sample of the run (gyro or
-  // temperature); nullopt when it has none.
+  // Latest station time with a committed sample of the run (gyro,
+  // temperature or table); nullopt when it has none.
   Result<std::optional<double>> last_sample_t_s(int64_t run_id);
   // Latest station time with a committed gyro sample of the run; nullopt
   // when it has none. What a crash resume credits acquisition up to: Table I
@@ -287,7 +380,14 @@ class Database {
   Result<std::vector<GyroSample>> gyro_samples(int64_t run_id, double t_from_s, double t_to_s);
   Result<std::vector<TemperatureSample>> temperature_samples(int64_t run_id, double t_from_s,
                                                              double t_to_s);
+  Result<std::vector<TableSample>> table_samples(int64_t run_id, double t_from_s, double t_to_s);
   Result<int64_t> count_gyro_samples(int64_t run_id);
+  // The table's mean rate and circular mean position over `windows`
+  // ((from_s, to_s) station s, each half-open like table_samples): what a
+  // segment's table_mean_* columns hold. Overlapping windows count a sample
+  // once per window.
+  Result<TableWindowMeans> mean_table_over_windows(
+      int64_t run_id, const std::vector<std::pair<double, double>>& windows);
   // Decimated samples for plots (docs/storage.md "Rollups"). Reads at most
   // about 10 * max_points rows whatever the run's length: gyro buckets are
   // made of whole rollup blocks (so [from_s, to_s] widens to block edges)
@@ -306,6 +406,21 @@ class Database {
   Result<int64_t> put_allan(const AllanRecord& allan);
   // A run's Allan records, by segment_index then taus.
   Result<std::vector<AllanRecord>> allan(int64_t run_id);
+
+  // Scale factor (schema v7). store_scale_factor replaces the run's points,
+  // fits and temperature fit (none stored when `temperature_fit` is nullopt)
+  // in one transaction: after a failure the previous rows are intact.
+  // Records with run_id 0 take `run_id`; another run_id is refused (named).
+  // Rows are stamped created_utc from the wall clock when theirs is "".
+  Status store_scale_factor(int64_t run_id, const std::vector<ScaleFactorPointRecord>& points,
+                            const std::vector<ScaleFactorFitRecord>& fits,
+                            const std::optional<ScaleFactorTemperatureFitRecord>& temperature_fit);
+  // By sf_sequence, repetition, demanded rate.
+  Result<std::vector<ScaleFactorPointRecord>> scale_factor_points(int64_t run_id);
+  // By sf_sequence.
+  Result<std::vector<ScaleFactorFitRecord>> scale_factor_fits(int64_t run_id);
+  Result<std::optional<ScaleFactorTemperatureFitRecord>> scale_factor_temperature_fit(
+      int64_t run_id);
 
   // Exports. begin_export inserts the record in state "writing" with its
   // runs (one transaction) and returns its id; errors: a nightly export

@@ -1,5 +1,5 @@
-// SampleWriter: batched, asynchronous insertion of gyro and temperature
-// samples.
+// SampleWriter: batched, asynchronous insertion of gyro, temperature and
+// rate-table samples.
 //
 // Acquisition threads push samples into an in-memory batch (a mutex and a
 // vector append; never a disk wait); a writer thread with its own connection
@@ -7,8 +7,8 @@
 // time), so a crash loses at most the last uncommitted interval. If the disk
 // stalls, the batch grows up to max_pending samples, after which the oldest
 // pending samples are dropped and counted (acquisition is never blocked);
-// gyro samples go first, temperatures (one a second) only when no gyro
-// sample is left to drop. The batch being committed counts as pending.
+// gyro samples go first, then table samples, temperatures (one a second)
+// only when nothing else is left to drop. The batch being committed counts as pending.
 // A failing commit is retried on the next interval; the error is kept for
 // the health report.
 #pragma once
@@ -37,6 +37,7 @@ struct SampleWriterOptions {
 struct SampleWriterStats {
   uint64_t gyro_rows = 0;         // committed
   uint64_t temperature_rows = 0;  // committed
+  uint64_t table_rows = 0;        // committed (rate table)
   uint64_t commits = 0;
   uint64_t commit_failures = 0;
   uint64_t consecutive_failures = 0;  // failed commits since the last successful one
@@ -58,6 +59,7 @@ class SampleSink {
   // Thread-safe; t_s must already be relative to the run's start.
   virtual void push_gyro(int64_t run_id, std::span<const GyroSample> samples) = 0;
   virtual void push_temperature(int64_t run_id, const TemperatureSample& sample) = 0;
+  virtual void push_table(int64_t run_id, const TableSample& sample) = 0;
   // Blocks until everything pushed before the call is committed (or the
   // commit failed): the commit's status.
   virtual Status flush() = 0;
@@ -81,6 +83,7 @@ class SampleWriter final : public SampleSink {
   // (run_id, t_s) is already stored is ignored at commit (stats().duplicates).
   void push_gyro(int64_t run_id, std::span<const GyroSample> samples) override;
   void push_temperature(int64_t run_id, const TemperatureSample& sample) override;
+  void push_table(int64_t run_id, const TableSample& sample) override;
 
   // Blocks until everything pushed before the call is committed (or the
   // commit failed). Returns the commit's status; on failure the rows stay

@@ -127,6 +127,8 @@ struct RunAnalysisSummary {
   int table1_rows = 0;
   int allan_records = 0;
   std::vector<int64_t> fit_ids;
+  int scale_factor_points = 0;     // rate points stored (0: the run had none)
+  int scale_factor_sequences = 0;  // lines fitted
   std::vector<std::string> problems;
 };
 Result<RunAnalysisSummary> analyse_run(storage::Database& db, int64_t run_id,

@@ -104,9 +104,11 @@ struct TableSection {
   // start-up they are checked against what the controller reports (limits()).
   double max_rate_dps = 500.0;
   double max_accel_dps2 = 100.0;
-  // A rate step's dwell starts once |measured − demanded| ≤ this for
+  // A rate step's dwell starts once |measured − demanded| has stayed within
+  // max(at_rate_tolerance_dps, at_rate_tolerance_ppm of the demand) for
   // at_rate_hold_s; it must within spin_up_timeout_s.
   double at_rate_tolerance_dps = 0.05;
+  double at_rate_tolerance_ppm = 1000.0;  // of the demand, when larger
   double at_rate_hold_s = 1.0;
   double spin_up_timeout_s = 120.0;
   // At rest: |rate| below this (the safe state then opens the interlock).

@@ -64,6 +64,9 @@ class StationControl {
   virtual Reply run_samples(int64_t id, const SamplesQuery& query) = 0;
   virtual Reply run_fits(int64_t id) = 0;
   virtual Reply run_allan(int64_t id) = 0;  // Allan deviation per soak
+  // Scale factor: {"points", "fits", "temperature_fit"} (empty / null when
+  // the run has no rate points or was not analysed yet).
+  virtual Reply run_scale_factor(int64_t id) = 0;
   virtual Reply fit(int64_t id) = 0;
   // Calibration exports (nightly and manual), newest first.
   virtual Reply exports() = 0;
@@ -77,6 +80,9 @@ nlohmann::json to_json(const storage::EventRecord& e);
 nlohmann::json to_json(const storage::SegmentStatsRecord& s);
 nlohmann::json to_json(const storage::FitRecord& f);
 nlohmann::json to_json(const storage::AllanRecord& a);
+nlohmann::json to_json(const storage::ScaleFactorPointRecord& p);
+nlohmann::json to_json(const storage::ScaleFactorFitRecord& f);
+nlohmann::json to_json(const storage::ScaleFactorTemperatureFitRecord& t);
 nlohmann::json to_json(const storage::DecimatedSamples& d);
 nlohmann::json to_json(const storage::ExportRecord& e);
 

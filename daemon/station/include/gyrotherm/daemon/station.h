@@ -152,6 +152,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
   Reply run_samples(int64_t id, const SamplesQuery& query) override;
   Reply run_fits(int64_t id) override;
   Reply run_allan(int64_t id) override;
+  Reply run_scale_factor(int64_t id) override;
   Reply fit(int64_t id) override;
   Reply exports() override;
 

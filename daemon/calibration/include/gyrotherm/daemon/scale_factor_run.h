@@ -1,0 +1,36 @@
+// A run's scale-factor calibration: its rate points (segments of kind
+// "rate", expanded from the schedule's scale_factor steps), a line per
+// scale-factor sequence, and K(T), B(T) across the sequences' temperatures
+// (docs/analysis.md, "Scale factor").
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "gyrotherm/core/result.h"
+#include "gyrotherm/storage/database.h"
+
+namespace gyrotherm::daemon {
+
+struct ScaleFactorSummary {
+  int points = 0;
+  int sequences = 0;          // fitted
+  bool temperature_fit = false;
+  std::vector<std::string> problems;  // a sequence or point that could not be used, and why
+};
+
+// Fills each table step's measured means (segments.table_mean_*). Each
+// completed rate point's mean gyro output (°/s) and the table's rate
+// over its acquisition windows; each sequence's fit against the demanded
+// rates (the controller holds the demand; the measured mean, stored beside
+// it, is a check: a point whose mean is off the demand by more than
+// kMaxRateErrorPpm is left out and named); K(T) and B(T) of order 1 with
+// two or three temperatures, 2 with four or more. Stores everything,
+// replacing the run's earlier results. A run without rate points: nothing
+// stored, a summary with no points.
+Result<ScaleFactorSummary> analyse_scale_factor(storage::Database& db, int64_t run_id);
+
+inline constexpr double kMaxRateErrorPpm = 1000.0;
+
+}  // namespace gyrotherm::daemon

@@ -1,0 +1,179 @@
+#include "gyrotherm/daemon/scale_factor_run.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <nlohmann/json.hpp>
+
+#include "gyrotherm/analysis/scale_factor.h"
+
+namespace gyrotherm::daemon {
+namespace {
+
+constexpr double kDphPerDps = 3600.0;
+
+std::string coefficients_json(const std::vector<double>& c) { return nlohmann::json(c).dump(); }
+
+// One rate point from its segment's windows; nullopt (with the reason in
+// `problem`) when it cannot be used.
+Result<std::optional<storage::ScaleFactorPointRecord>> rate_point(storage::Database& db,
+                                                                  const storage::SegmentRecord& seg,
+                                                                  std::string& problem) {
+  const std::string where = fmt::format("run {} segment {} ({})", seg.run_id, seg.index + 1, seg.label);
+  if (!seg.table_rate_dps || *seg.table_rate_dps == 0) {
+    problem = where + ": no demanded rate stored";
+    return std::nullopt;
+  }
+  double sum_dph = 0;
+  int64_t n = 0;
+  double duration_s = 0;
+  double temp_sum_c = 0;
+  int64_t temp_n = 0;
+  for (const auto& [from_s, to_s] : seg.windows) {
+    auto gyro = db.gyro_samples(seg.run_id, from_s, to_s);
+    if (!gyro) return gyro.error();
+    for (const auto& g : *gyro) sum_dph += g.rate_dph;
+    n += static_cast<int64_t>(gyro->size());
+    duration_s += to_s - from_s;
+    auto temps = db.temperature_samples(seg.run_id, from_s, to_s);
+    if (!temps) return temps.error();
+    for (const auto& t : *temps) {
+      if (std::isnan(t.top_c) || std::isnan(t.side_c)) continue;
+      temp_sum_c += (t.top_c + t.side_c) / 2.0;
+      ++temp_n;
+    }
+  }
+  if (n == 0) {
+    problem = where + ": no gyro samples in its acquisition windows";
+    return std::nullopt;
+  }
+  auto table = db.mean_table_over_windows(seg.run_id, seg.windows);
+  if (!table) return table.error();
+  storage::ScaleFactorPointRecord p;
+  p.run_id = seg.run_id;
+  p.segment_id = seg.id;
+  p.sf_sequence = seg.sf_sequence;
+  p.repetition = seg.sf_repetition;
+  p.rate_dps = *seg.table_rate_dps;
+  p.measured_rate_dps = table->rate_dps.value_or(NAN);
+  p.output_dps = sum_dph / static_cast<double>(n) / kDphPerDps;
+  p.n = n;
+  p.temperature_c = temp_n > 0 ? temp_sum_c / static_cast<double>(temp_n) : NAN;
+  p.duration_s = duration_s;
+  p.turns = std::abs(p.rate_dps) * duration_s / 360.0;
+  if (table->rate_dps) {
+    const double error_ppm = std::abs(*table->rate_dps / p.rate_dps - 1.0) * 1e6;
+    if (error_ppm > kMaxRateErrorPpm) {
+      problem = fmt::format("{}: the table measured {:.6g} °/s for a demand of {:g} °/s ({:.0f} ppm "
+                            "off); point left out",
+                            where, *table->rate_dps, p.rate_dps, error_ppm);
+      return std::nullopt;
+    }
+  }
+  if (std::isnan(p.temperature_c)) {
+    problem = where + ": no shell temperature in its acquisition windows";
+    return std::nullopt;
+  }
+  return p;
+}
+
+}  // namespace
+
+Result<ScaleFactorSummary> analyse_scale_factor(storage::Database& db, int64_t run_id) {
+  auto segments = db.segments(run_id);
+  if (!segments) return segments.error();
+  ScaleFactorSummary summary;
+  // Each step with a table demand gets the table's measured means over its
+  // windows (segments.table_mean_*), once.
+  for (auto seg : *segments) {
+    if (seg.table_mode == "none" || seg.windows.empty() || seg.table_mean_rate_dps) continue;
+    auto means = db.mean_table_over_windows(run_id, seg.windows);
+    if (!means) return means.error();
+    if (!means->rate_dps) continue;
+    seg.table_mean_rate_dps = means->rate_dps;
+    seg.table_mean_position_deg = means->position_deg;
+    if (auto st = db.update_segment(seg); !st) return st.error();
+  }
+  std::vector<storage::ScaleFactorPointRecord> points;
+  std::map<int, std::vector<const storage::ScaleFactorPointRecord*>> by_sequence;
+  for (const auto& seg : *segments) {
+    if (seg.kind != "rate" || seg.state != "completed" || seg.windows.empty()) continue;
+    std::string problem;
+    auto p = rate_point(db, seg, problem);
+    if (!p) return p.error();
+    if (!*p) {
+      summary.problems.push_back(problem);
+      continue;
+    }
+    points.push_back(**p);
+  }
+  if (points.empty()) return summary;
+  summary.points = static_cast<int>(points.size());
+  for (const auto& p : points) by_sequence[p.sf_sequence].push_back(&p);
+
+  std::vector<storage::ScaleFactorFitRecord> fits;
+  std::vector<analysis::ScaleFactorAtTemperature> plateaus;
+  for (const auto& [sequence, members] : by_sequence) {
+    std::vector<analysis::RatePoint> input;
+    for (const auto* p : members) {
+      analysis::RatePoint r;
+      r.rate_dps = p->rate_dps;
+      r.output_dps = p->output_dps;
+      r.repetition = p->repetition;
+      r.temperature_c = p->temperature_c;
+      r.n = static_cast<std::size_t>(p->n);
+      r.duration_s = p->duration_s;
+      input.push_back(r);
+    }
+    auto fit = analysis::fit_scale_factor(input);
+    if (!fit) {
+      summary.problems.push_back(
+          fmt::format("run {} scale-factor sequence {}: {}", run_id, sequence, fit.error().message));
+      continue;
+    }
+    storage::ScaleFactorFitRecord rec;
+    rec.run_id = run_id;
+    rec.sf_sequence = sequence;
+    rec.temperature_c = fit->temperature_mean_c;
+    rec.k = fit->k;
+    rec.k_se = fit->k_std_error;
+    rec.bias_dps = fit->bias_dps;
+    rec.nonlinearity_ppm = fit->nonlinearity_ppm;
+    rec.nonlinearity_fs_ppm = fit->nonlinearity_fs_ppm;
+    rec.asymmetry_ppm = fit->asymmetry_ppm;
+    rec.repeatability_ppm = fit->repeatability_ppm;
+    rec.n_points = static_cast<int64_t>(fit->points);
+    fits.push_back(rec);
+    plateaus.push_back({fit->temperature_mean_c, fit->k, fit->bias_dph});
+  }
+  summary.sequences = static_cast<int>(fits.size());
+
+  std::optional<storage::ScaleFactorTemperatureFitRecord> over_t;
+  if (plateaus.size() >= 2) {
+    const int order = plateaus.size() >= 4 ? 2 : 1;
+    auto tf = analysis::fit_scale_factor_over_temperature(plateaus, order);
+    if (tf) {
+      storage::ScaleFactorTemperatureFitRecord rec;
+      rec.run_id = run_id;
+      rec.order = tf->order;
+      rec.t_centre_c = tf->temperature_mean_c;
+      rec.k_coeffs_json = coefficients_json(tf->k_coefficients);
+      std::vector<double> bias_dps;
+      for (double c : tf->bias_coefficients_dph) bias_dps.push_back(c / kDphPerDps);
+      rec.bias_coeffs_json = coefficients_json(bias_dps);
+      rec.k_ppm_per_c = tf->sf_temperature_coefficient_ppm_per_c;
+      rec.bias_dph_per_c = tf->bias_temperature_coefficient_dph_per_c;
+      over_t = rec;
+      summary.temperature_fit = true;
+    } else {
+      summary.problems.push_back(
+          fmt::format("run {}: scale factor over temperature: {}", run_id, tf.error().message));
+    }
+  }
+  if (auto st = db.store_scale_factor(run_id, points, fits, over_t); !st) return st.error();
+  return summary;
+}
+
+}  // namespace gyrotherm::daemon

@@ -1,0 +1,337 @@
+#include "gyrotherm/drivers/acutrol_table.h"
+
+#include <fcntl.h>
+#include <fmt/format.h>
+#include <netdb.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+#include <poll.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+
+#include "table_link.h"
+
+namespace gyrotherm::drivers {
+
+namespace {
+
+using Steady = std::chrono::steady_clock;
+
+int remaining_ms(Steady::time_point deadline) {
+  const auto left =
+      std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Steady::now()).count();
+  return left < 0 ? 0 : static_cast<int>(left);
+}
+
+}  // namespace
+
+AcutrolTable::AcutrolTable(TableConnection connection, std::string name, const WallClock& clock)
+    : connection_(std::move(connection)),
+      name_(std::move(name)),
+      decoder_(acl::ReplyFraming::kAscii),
+      link_(std::make_unique<TableLink>(clock)) {
+  auto framing = acl::parse_reply_framing(connection_.reply_header);
+  if (!framing) {
+    config_error_ = Error::Permanent(fmt::format("{}: {}", name_, framing.error().message));
+  } else {
+    decoder_ = acl::ReplyDecoder(*framing);
+  }
+  if (connection_.axis < 1) {
+    config_error_ =
+        Error::Permanent(fmt::format("{}: axis {} (must be ≥ 1)", name_, connection_.axis));
+  }
+  if (connection_.port < 1 || connection_.port > 65535) {
+    config_error_ =
+        Error::Permanent(fmt::format("{}: port {} is not a TCP port", name_, connection_.port));
+  }
+  if (!(connection_.timeout_s > 0)) {
+    config_error_ = Error::Permanent(
+        fmt::format("{}: timeout_s {} (must be positive)", name_, connection_.timeout_s));
+  }
+}
+
+AcutrolTable::~AcutrolTable() {
+  if (fd_ >= 0) ::close(fd_);
+}
+
+DeviceHealth AcutrolTable::health() const {
+  std::lock_guard lock(mu_);
+  return link_->health();
+}
+
+Error AcutrolTable::named(const std::string& command, const Error& e) const {
+  return Error{fmt::format("{} ({}:{}): `{}`: {}", name_, connection_.host, connection_.port,
+                           command, e.message),
+               e.transient};
+}
+
+void AcutrolTable::drop(const std::string& why) {
+  if (fd_ >= 0) ::close(fd_);
+  fd_ = -1;
+  decoder_.reset();
+  link_->on_link_failure(why);
+}
+
+Status AcutrolTable::open_socket() {
+  const std::string where = fmt::format("{} ({}:{})", name_, connection_.host, connection_.port);
+  addrinfo hints{};
+  hints.ai_family = AF_UNSPEC;
+  hints.ai_socktype = SOCK_STREAM;
+  addrinfo* found = nullptr;
+  const std::string port = std::to_string(connection_.port);
+  if (int rc = ::getaddrinfo(connection_.host.c_str(), port.c_str(), &hints, &found); rc != 0) {
+    return Error::Transient(fmt::format("{}: cannot resolve host: {}", where, gai_strerror(rc)));
+  }
+  std::string last = "no address";
+  const auto deadline = Steady::now() + std::chrono::duration_cast<Steady::duration>(
+                                            std::chrono::duration<double>(connection_.timeout_s));
+  for (addrinfo* a = found; a != nullptr; a = a->ai_next) {
+    int fd = ::socket(a->ai_family, a->ai_socktype | SOCK_CLOEXEC | SOCK_NONBLOCK, a->ai_protocol);
+    if (fd < 0) {
+      last = std::strerror(errno);
+      continue;
+    }
+    int rc = ::connect(fd, a->ai_addr, a->ai_addrlen);
+    if (rc != 0 && errno == EINPROGRESS) {
+      pollfd p{fd, POLLOUT, 0};
+      rc = ::poll(&p, 1, remaining_ms(deadline));
+      if (rc == 0) {
+        last = fmt::format("no connection within {:g} s", connection_.timeout_s);
+        ::close(fd);
+        continue;
+      }
+      int err = 0;
+      socklen_t len = sizeof err;
+      ::getsockopt(fd, SOL_SOCKET, SO_ERROR, &err, &len);
+      rc = err == 0 ? 0 : -1;
+      errno = err;
+    }
+    if (rc != 0) {
+      last = std::strerror(errno);
+      ::close(fd);
+      continue;
+    }
+    int one = 1;
+    ::setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+    ::freeaddrinfo(found);
+    fd_ = fd;
+    return Status::Ok();
+  }
+  ::freeaddrinfo(found);
+  return Error::Transient(fmt::format("{}: cannot connect: {}", where, last));
+}
+
+Status AcutrolTable::ensure_connected(bool ignore_backoff) {
+  if (config_error_) return *config_error_;
+  if (fd_ >= 0) return Status::Ok();
+  if (!ignore_backoff) {
+    if (const double wait = link_->wait_s(); wait > 0) {
+      return Error::Transient(
+          fmt::format("{}: not connected (last error: {}); next attempt in {:.1f} s", name_,
+                      link_->health().last_error, wait));
+    }
+  }
+  if (auto st = open_socket(); !st) {
+    link_->on_link_failure(st.error().message);
+    return st;
+  }
+  decoder_.reset();
+  link_->on_connected();
+  // Remote control (TM-8004 §4.14.2 Utility:Lockout): the controller's front
+  // panel and other interfaces no longer take motion commands.
+  auto r = exchange(acl::take_remote());
+  if (!r) return r.error();
+  return Status::Ok();
+}
+
+Result<acl::Reply> AcutrolTable::roundtrip(const std::string& command) {
+  const auto t0 = Steady::now();
+  const auto deadline = t0 + std::chrono::duration_cast<Steady::duration>(
+                                 std::chrono::duration<double>(connection_.timeout_s));
+  auto lost = [&](const std::string& why) -> Error {
+    Error e = named(command, Error::Transient(why));
+    drop(e.message);
+    return e;
+  };
+  const std::string line = acl::command_line(command);
+  std::size_t sent = 0;
+  while (sent < line.size()) {
+    pollfd p{fd_, POLLOUT, 0};
+    const int rc = ::poll(&p, 1, remaining_ms(deadline));
+    if (rc == 0) return lost(fmt::format("could not send within {:g} s", connection_.timeout_s));
+    if (rc < 0 && errno == EINTR) continue;
+    const ssize_t n = ::send(fd_, line.data() + sent, line.size() - sent, MSG_NOSIGNAL);
+    if (n < 0) {
+      if (errno == EAGAIN || errno == EINTR) continue;
+      return lost(fmt::format("send failed: {}", std::strerror(errno)));
+    }
+    sent += static_cast<std::size_t>(n);
+  }
+  char buf[1024];
+  for (;;) {
+    auto next = decoder_.next();
+    if (!next) return lost(next.error().message);
+    if (*next) {
+      link_->on_success(std::chrono::duration<double, std::milli>(Steady::now() - t0).count(),
+                        command != acl::take_remote());
+      return std::move(**next);
+    }
+    pollfd p{fd_, POLLIN, 0};
+    const int rc = ::poll(&p, 1, remaining_ms(deadline));
+    if (rc == 0) return lost(fmt::format("no reply within {:g} s", connection_.timeout_s));
+    if (rc < 0) {
+      if (errno == EINTR) continue;
+      return lost(fmt::format("poll failed: {}", std::strerror(errno)));
+    }
+    const ssize_t n = ::recv(fd_, buf, sizeof buf, 0);
+    if (n == 0) return lost("connection closed by the controller");
+    if (n < 0) {
+      if (errno == EAGAIN || errno == EINTR) continue;
+      return lost(fmt::format("receive failed: {}", std::strerror(errno)));
+    }
+    decoder_.feed(std::string_view(buf, static_cast<std::size_t>(n)));
+  }
+}
+
+Result<std::string> AcutrolTable::exchange(const std::string& command) {
+  auto reply = roundtrip(command);
+  if (!reply) return reply.error();
+  if (reply->code == 0) return std::move(reply->payload);
+  // The controller refused: ask once for the text of its code.
+  std::string text;
+  const std::string query = acl::error_text_query(reply->code);
+  if (auto t = roundtrip(query); t && t->code == 0 && !t->payload.empty()) {
+    text = fmt::format(" ({})", t->payload);
+  }
+  Error e = named(command, Error::Permanent(fmt::format("error code {}{}", reply->code, text)));
+  link_->on_refusal(e.message);
+  return e;
+}
+
+Status AcutrolTable::connect() {
+  std::lock_guard lock(mu_);
+  if (config_error_) return *config_error_;
+  if (fd_ >= 0) return Status::Ok();
+  return ensure_connected(/*ignore_backoff=*/true);
+}
+
+Status AcutrolTable::simple_command(const std::string& command) {
+  if (auto st = ensure_connected(false); !st) return st;
+  auto r = exchange(command);
+  if (!r) return r.error();
+  return Status::Ok();
+}
+
+Result<TableState> AcutrolTable::read() {
+  std::lock_guard lock(mu_);
+  if (auto st = ensure_connected(false); !st) return st.error();
+  const std::string q = acl::state_query(connection_.axis);
+  auto payload = exchange(q);
+  if (!payload) return payload.error();
+  auto state = acl::parse_state(*payload);
+  if (!state) {
+    // The reply was framed but its content is wrong: resynchronise anyway.
+    Error e = named(q, Error::Transient(state.error().message));
+    drop(e.message);
+    return e;
+  }
+  return state;
+}
+
+Result<TableLimits> AcutrolTable::limits_locked() {
+  if (limits_) return *limits_;
+  if (auto st = ensure_connected(false); !st) return st.error();
+  const std::string q = acl::limits_query(connection_.axis);
+  auto payload = exchange(q);
+  if (!payload) return payload.error();
+  auto limits = acl::parse_limits(*payload);
+  if (!limits) {
+    Error e = named(q, Error::Transient(limits.error().message));
+    drop(e.message);
+    return e;
+  }
+  limits_ = *limits;
+  return *limits;
+}
+
+Result<TableLimits> AcutrolTable::limits() {
+  std::lock_guard lock(mu_);
+  return limits_locked();
+}
+
+Status AcutrolTable::servo_on_locked() {
+  const std::string q = acl::interlock_query(connection_.axis);
+  auto answer = exchange(q);
+  if (!answer) return answer.error();
+  auto interlock = acl::parse_interlock(*answer);
+  if (!interlock) {
+    Error e = named(q, Error::Transient(interlock.error().message));
+    drop(e.message);
+    return e;
+  }
+  if (*interlock == TableInterlock::kFault) {
+    Error e = named(q, Error::Permanent("the interlock is in fault: reset faults first"));
+    link_->on_local_error(e.message);
+    return e;
+  }
+  if (*interlock == TableInterlock::kOpen)
+    return simple_command(acl::interlock_close(connection_.axis));
+  return Status::Ok();
+}
+
+Status AcutrolTable::set_rate(double rate_dps) {
+  std::lock_guard lock(mu_);
+  const std::string command = acl::demand_rate(connection_.axis, rate_dps);
+  if (!std::isfinite(rate_dps)) {
+    return named(command, Error::Permanent(fmt::format("{} is not a rate", rate_dps)));
+  }
+  auto limits = limits_locked();
+  if (!limits) {
+    return Error{fmt::format("{}: rate {:g} °/s not sent, the limits are unknown: {}", name_,
+                             rate_dps, limits.error().message),
+                 limits.error().transient};
+  }
+  if (std::fabs(rate_dps) > limits->max_rate_dps) {
+    Error e = named(command, Error::Permanent(fmt::format(
+                                 "refused, not sent: |{:g}| °/s is beyond the rate limit {:g} °/s",
+                                 rate_dps, limits->max_rate_dps)));
+    link_->on_local_error(e.message);
+    return e;
+  }
+  if (auto st = ensure_connected(false); !st) return st;
+  if (auto st = servo_on_locked(); !st) return st;
+  return simple_command(command);
+}
+
+Status AcutrolTable::set_position(double position_deg) {
+  std::lock_guard lock(mu_);
+  const std::string command = acl::demand_position(connection_.axis, position_deg);
+  if (!std::isfinite(position_deg)) {
+    return named(command, Error::Permanent(fmt::format("{} is not a position", position_deg)));
+  }
+  if (auto st = ensure_connected(false); !st) return st;
+  if (auto st = servo_on_locked(); !st) return st;
+  return simple_command(command);
+}
+
+Status AcutrolTable::stop() {
+  std::lock_guard lock(mu_);
+  return simple_command(acl::mode_off(connection_.axis));
+}
+
+Status AcutrolTable::servo_off() {
+  std::lock_guard lock(mu_);
+  return simple_command(acl::interlock_open(connection_.axis));
+}
+
+Status AcutrolTable::reset_faults() {
+  std::lock_guard lock(mu_);
+  return simple_command(acl::interlock_reset());
+}
+
+}  // namespace gyrotherm::drivers

@@ -1,0 +1,345 @@
+// Database: the rate table's samples (reads, window means) and the stored
+// scale-factor analysis (schema v7; docs/storage.md).
+#include <fmt/format.h>
+#include <sqlite3.h>
+
+#include <cmath>
+#include <nlohmann/json.hpp>
+#include <numbers>
+
+#include "gyrotherm/storage/database.h"
+#include "sqlite_util.h"
+
+namespace gyrotherm::storage {
+
+using internal::expect_done;
+using internal::sqlite_error;
+using internal::Stmt;
+using internal::Transaction;
+
+namespace {
+
+constexpr const char* kTableSampleColumns =
+    "t_s, demand_mode, demand_rate_dps, demand_position_deg, rate_dps, position_deg, mode, "
+    "interlock";
+
+TableSample read_table_sample(const Stmt& st) {
+  TableSample t;
+  t.t_s = st.column_double(0);
+  t.demand_mode = st.column_text(1);
+  t.demand_rate_dps = st.column_double(2);
+  t.demand_position_deg = st.column_optional_double(3);
+  t.rate_dps = st.column_double(4);
+  t.position_deg = st.column_double(5);
+  t.mode = st.column_text(6);
+  t.interlock = st.column_text(7);
+  return t;
+}
+
+// The coefficients must be a JSON array of numbers ("" means none: "[]").
+Result<std::string> coefficients_json(const std::string& text, const char* field, int64_t run_id,
+                                      const std::string& path) {
+  if (text.empty()) return std::string("[]");
+  const nlohmann::json j = nlohmann::json::parse(text, nullptr, /*allow_exceptions=*/false);
+  bool ok = !j.is_discarded() && j.is_array();
+  if (ok) {
+    for (const auto& v : j) ok = ok && v.is_number();
+  }
+  if (!ok) {
+    return Error::Permanent(
+        fmt::format("storage: {}: storing the scale-factor temperature fit of run {}: {} is not "
+                    "a JSON array of numbers: '{}'",
+                    path, run_id, field, text));
+  }
+  return text;
+}
+
+}  // namespace
+
+Result<std::vector<TableSample>> Database::table_samples(int64_t run_id, double t_from_s,
+                                                         double t_to_s) {
+  auto st = Stmt::prepare(db_, path_,
+                          fmt::format("SELECT {} FROM table_samples WHERE run_id = ? AND t_s >= ? "
+                                      "AND t_s < ? ORDER BY t_s",
+                                      kTableSampleColumns));
+  if (!st) return st.error();
+  st->bind(1, run_id);
+  st->bind(2, t_from_s);
+  st->bind(3, t_to_s);
+  std::vector<TableSample> out;
+  int rc;
+  while ((rc = st->step()) == SQLITE_ROW) out.push_back(read_table_sample(*st));
+  if (rc != SQLITE_DONE) {
+    return sqlite_error(db_, path_, fmt::format("reading table samples of run {}", run_id));
+  }
+  return out;
+}
+
+// The circular mean of angles θ_i is atan2(Σ sin θ_i, Σ cos θ_i); the mean
+// resultant length R = |Σ (cos θ_i, sin θ_i)| / n says how concentrated they
+// are (1: all equal, 0: spread evenly). sin and cos are taken here, not in
+// SQL: SQLite's math functions are optional in a build.
+Result<TableWindowMeans> Database::mean_table_over_windows(
+    int64_t run_id, const std::vector<std::pair<double, double>>& windows) {
+  auto st = Stmt::prepare(db_, path_,
+                          "SELECT rate_dps, position_deg FROM table_samples WHERE run_id = ? AND "
+                          "t_s >= ? AND t_s < ?");
+  if (!st) return st.error();
+  TableWindowMeans out;
+  int64_t rate_n = 0, position_n = 0;
+  double rate_sum = 0, sin_sum = 0, cos_sum = 0;
+  constexpr double kRadPerDeg = std::numbers::pi / 180.0;
+  for (const auto& [from_s, to_s] : windows) {
+    st->reset();
+    st->bind(1, run_id);
+    st->bind(2, from_s);
+    st->bind(3, to_s);
+    int rc;
+    while ((rc = st->step()) == SQLITE_ROW) {
+      ++out.n;
+      if (auto rate = st->column_optional_double(0)) {
+        ++rate_n;
+        rate_sum += *rate;
+      }
+      if (auto position = st->column_optional_double(1)) {
+        ++position_n;
+        sin_sum += std::sin(*position * kRadPerDeg);
+        cos_sum += std::cos(*position * kRadPerDeg);
+      }
+    }
+    if (rc != SQLITE_DONE) {
+      return sqlite_error(
+          db_, path_,
+          fmt::format("reading table samples of run {} in [{}, {}) s", run_id, from_s, to_s));
+    }
+  }
+  if (rate_n > 0) out.rate_dps = rate_sum / static_cast<double>(rate_n);
+  if (position_n > 0) {
+    out.position_resultant = std::hypot(sin_sum, cos_sum) / static_cast<double>(position_n);
+    if (out.position_resultant >= TableWindowMeans::kMinResultant) {
+      double deg = std::atan2(sin_sum, cos_sum) / kRadPerDeg;
+      if (deg < 0) deg += 360.0;
+      if (deg >= 360.0) deg -= 360.0;  // -tiny + 360 rounds to 360
+      out.position_deg = deg;
+    }
+  }
+  return out;
+}
+
+Status Database::store_scale_factor(
+    int64_t run_id, const std::vector<ScaleFactorPointRecord>& points,
+    const std::vector<ScaleFactorFitRecord>& fits,
+    const std::optional<ScaleFactorTemperatureFitRecord>& temperature_fit) {
+  const std::string what = fmt::format("storing the scale factor of run {}", run_id);
+  const auto wrong_run = [&](const char* record, int64_t other) {
+    return Error::Permanent(
+        fmt::format("storage: {}: {}: a {} record belongs to run {}", path_, what, record, other));
+  };
+  for (const auto& p : points) {
+    if (p.run_id != 0 && p.run_id != run_id) return wrong_run("point", p.run_id);
+  }
+  for (const auto& f : fits) {
+    if (f.run_id != 0 && f.run_id != run_id) return wrong_run("fit", f.run_id);
+  }
+  std::string k_coeffs, bias_coeffs;
+  if (temperature_fit) {
+    if (temperature_fit->run_id != 0 && temperature_fit->run_id != run_id) {
+      return wrong_run("temperature fit", temperature_fit->run_id);
+    }
+    auto k = coefficients_json(temperature_fit->k_coeffs_json, "k_coeffs_json", run_id, path_);
+    if (!k) return k.error();
+    auto b =
+        coefficients_json(temperature_fit->bias_coeffs_json, "bias_coeffs_json", run_id, path_);
+    if (!b) return b.error();
+    k_coeffs = std::move(*k);
+    bias_coeffs = std::move(*b);
+  }
+
+  Transaction tx(db_, path_);
+  if (Status s = tx.begin_immediate(); !s) return s;
+  for (const char* table :
+       {"scale_factor_points", "scale_factor_fits", "scale_factor_temperature_fits"}) {
+    auto del = Stmt::prepare(db_, path_, fmt::format("DELETE FROM {} WHERE run_id = ?", table));
+    if (!del) return del.error();
+    del->bind(1, run_id);
+    if (Status s = expect_done(*del, db_, path_, what); !s) return s;
+  }
+
+  auto ins_point = Stmt::prepare(
+      db_, path_,
+      "INSERT INTO scale_factor_points(run_id, segment_id, sf_sequence, repetition, rate_dps, "
+      "measured_rate_dps, output_dps, n, temperature_c, duration_s, turns) "
+      "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  if (!ins_point) return ins_point.error();
+  for (const auto& p : points) {
+    Stmt& st = *ins_point;
+    st.reset();
+    int i = 1;
+    st.bind(i++, run_id);
+    if (p.segment_id == 0) {
+      st.bind_null(i++);
+    } else {
+      st.bind(i++, p.segment_id);
+    }
+    st.bind(i++, p.sf_sequence);
+    st.bind(i++, p.repetition);
+    st.bind(i++, p.rate_dps);
+    st.bind(i++, p.measured_rate_dps);
+    st.bind(i++, p.output_dps);
+    st.bind(i++, p.n);
+    st.bind(i++, p.temperature_c);
+    st.bind(i++, p.duration_s);
+    st.bind(i++, p.turns);
+    const std::string point =
+        fmt::format("{}: point of sequence {} repetition {} at {} °/s (segment {})", what,
+                    p.sf_sequence, p.repetition, p.rate_dps, p.segment_id);
+    if (Status s = expect_done(st, db_, path_, point); !s) return s;
+  }
+
+  auto ins_fit = Stmt::prepare(
+      db_, path_,
+      "INSERT INTO scale_factor_fits(run_id, sf_sequence, temperature_c, k, k_se, bias_dps, "
+      "nonlinearity_ppm, nonlinearity_fs_ppm, asymmetry_ppm, repeatability_ppm, n_points, "
+      "created_utc) VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  if (!ins_fit) return ins_fit.error();
+  for (const auto& f : fits) {
+    Stmt& st = *ins_fit;
+    st.reset();
+    int i = 1;
+    st.bind(i++, run_id);
+    st.bind(i++, f.sf_sequence);
+    st.bind(i++, f.temperature_c);
+    st.bind(i++, f.k);
+    st.bind(i++, f.k_se);
+    st.bind(i++, f.bias_dps);
+    st.bind(i++, f.nonlinearity_ppm);
+    st.bind(i++, f.nonlinearity_fs_ppm);
+    st.bind(i++, f.asymmetry_ppm);
+    st.bind(i++, f.repeatability_ppm);
+    st.bind(i++, f.n_points);
+    st.bind(i++, std::string_view(utc_or_now(f.created_utc)));
+    if (Status s =
+            expect_done(st, db_, path_, fmt::format("{}: fit of sequence {}", what, f.sf_sequence));
+        !s) {
+      return s;
+    }
+  }
+
+  if (temperature_fit) {
+    const auto& t = *temperature_fit;
+    auto st =
+        Stmt::prepare(db_, path_,
+                      "INSERT INTO scale_factor_temperature_fits(run_id, poly_order, t_centre_c, "
+                      "k_coeffs_json, bias_coeffs_json, k_ppm_per_c, bias_dph_per_c, created_utc) "
+                      "VALUES(?, ?, ?, ?, ?, ?, ?, ?)");
+    if (!st) return st.error();
+    int i = 1;
+    st->bind(i++, run_id);
+    st->bind(i++, t.order);
+    st->bind(i++, t.t_centre_c);
+    st->bind(i++, std::string_view(k_coeffs));
+    st->bind(i++, std::string_view(bias_coeffs));
+    st->bind(i++, t.k_ppm_per_c);
+    st->bind(i++, t.bias_dph_per_c);
+    st->bind(i++, std::string_view(utc_or_now(t.created_utc)));
+    if (Status s = expect_done(*st, db_, path_, fmt::format("{}: temperature fit", what)); !s) {
+      return s;
+    }
+  }
+  return tx.commit();
+}
+
+Result<std::vector<ScaleFactorPointRecord>> Database::scale_factor_points(int64_t run_id) {
+  auto st = Stmt::prepare(
+      db_, path_,
+      "SELECT id, run_id, segment_id, sf_sequence, repetition, rate_dps, measured_rate_dps, "
+      "output_dps, n, temperature_c, duration_s, turns FROM scale_factor_points WHERE run_id = ? "
+      "ORDER BY sf_sequence, repetition, rate_dps, id");
+  if (!st) return st.error();
+  st->bind(1, run_id);
+  std::vector<ScaleFactorPointRecord> out;
+  int rc;
+  while ((rc = st->step()) == SQLITE_ROW) {
+    ScaleFactorPointRecord p;
+    int c = 0;
+    p.id = st->column_int64(c++);
+    p.run_id = st->column_int64(c++);
+    p.segment_id = st->column_optional_int64(c++).value_or(0);
+    p.sf_sequence = static_cast<int>(st->column_int64(c++));
+    p.repetition = static_cast<int>(st->column_int64(c++));
+    p.rate_dps = st->column_double(c++);
+    p.measured_rate_dps = st->column_double(c++);
+    p.output_dps = st->column_double(c++);
+    p.n = st->column_int64(c++);
+    p.temperature_c = st->column_double(c++);
+    p.duration_s = st->column_double(c++);
+    p.turns = st->column_double(c++);
+    out.push_back(p);
+  }
+  if (rc != SQLITE_DONE) {
+    return sqlite_error(db_, path_, fmt::format("reading scale-factor points of run {}", run_id));
+  }
+  return out;
+}
+
+Result<std::vector<ScaleFactorFitRecord>> Database::scale_factor_fits(int64_t run_id) {
+  auto st = Stmt::prepare(
+      db_, path_,
+      "SELECT run_id, sf_sequence, temperature_c, k, k_se, bias_dps, nonlinearity_ppm, "
+      "nonlinearity_fs_ppm, asymmetry_ppm, repeatability_ppm, n_points, created_utc "
+      "FROM scale_factor_fits WHERE run_id = ? ORDER BY sf_sequence");
+  if (!st) return st.error();
+  st->bind(1, run_id);
+  std::vector<ScaleFactorFitRecord> out;
+  int rc;
+  while ((rc = st->step()) == SQLITE_ROW) {
+    ScaleFactorFitRecord f;
+    int c = 0;
+    f.run_id = st->column_int64(c++);
+    f.sf_sequence = static_cast<int>(st->column_int64(c++));
+    f.temperature_c = st->column_double(c++);
+    f.k = st->column_double(c++);
+    f.k_se = st->column_double(c++);
+    f.bias_dps = st->column_double(c++);
+    f.nonlinearity_ppm = st->column_double(c++);
+    f.nonlinearity_fs_ppm = st->column_double(c++);
+    f.asymmetry_ppm = st->column_optional_double(c++);
+    f.repeatability_ppm = st->column_optional_double(c++);
+    f.n_points = st->column_int64(c++);
+    f.created_utc = st->column_text(c++);
+    out.push_back(std::move(f));
+  }
+  if (rc != SQLITE_DONE) {
+    return sqlite_error(db_, path_, fmt::format("reading scale-factor fits of run {}", run_id));
+  }
+  return out;
+}
+
+Result<std::optional<ScaleFactorTemperatureFitRecord>> Database::scale_factor_temperature_fit(
+    int64_t run_id) {
+  auto st = Stmt::prepare(
+      db_, path_,
+      "SELECT run_id, poly_order, t_centre_c, k_coeffs_json, bias_coeffs_json, k_ppm_per_c, "
+      "bias_dph_per_c, created_utc FROM scale_factor_temperature_fits WHERE run_id = ?");
+  if (!st) return st.error();
+  st->bind(1, run_id);
+  const int rc = st->step();
+  if (rc == SQLITE_DONE) return std::optional<ScaleFactorTemperatureFitRecord>();
+  if (rc != SQLITE_ROW) {
+    return sqlite_error(db_, path_,
+                        fmt::format("reading the scale-factor temperature fit of run {}", run_id));
+  }
+  ScaleFactorTemperatureFitRecord t;
+  int c = 0;
+  t.run_id = st->column_int64(c++);
+  t.order = static_cast<int>(st->column_int64(c++));
+  t.t_centre_c = st->column_double(c++);
+  t.k_coeffs_json = st->column_text(c++);
+  t.bias_coeffs_json = st->column_text(c++);
+  t.k_ppm_per_c = st->column_double(c++);
+  t.bias_dph_per_c = st->column_double(c++);
+  t.created_utc = st->column_text(c++);
+  return std::optional<ScaleFactorTemperatureFitRecord>(std::move(t));
+}
+
+}  // namespace gyrotherm::storage
