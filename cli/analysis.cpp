@@ -25,6 +25,7 @@
 #include "gyrotherm/analysis/comparison.h"
 #include "gyrotherm/analysis/csv_window.h"
 #include "gyrotherm/analysis/drift_model.h"
+#include "gyrotherm/analysis/scale_factor.h"
 #include "gyrotherm/analysis/start_temperature.h"
 #include "gyrotherm/analysis/table1.h"
 #include "gyrotherm/core/files.h"
@@ -145,6 +146,7 @@ struct Args {
   CLI::App* fit = nullptr;
   CLI::App* compare = nullptr;
   CLI::App* start_model = nullptr;
+  CLI::App* scale_factor = nullptr;
 
   // Input.
   std::string db_path;
@@ -175,6 +177,9 @@ struct Args {
   std::optional<double> t0_window_s;
   std::string coefficients_json;
   std::string c_header;
+  // Scale factor.
+  std::string sf_csv;
+  int sf_order = 1;
 };
 
 using Parsed = Args;
@@ -1191,6 +1196,201 @@ int cmd_start_model(const Parsed& p) {
   return 0;
 }
 
+// ---------------------------------------------------------------- scale-factor
+
+// The points of one temperature (all of them when the file has no
+// temperature_c column), with their file lines.
+struct SfGroup {
+  std::optional<double> temperature_c;
+  std::vector<analysis::RatePoint> points;
+  std::vector<std::size_t> lines;
+};
+
+json sf_fit_json(const SfGroup& g, const analysis::ScaleFactorFit& f) {
+  json residuals = json::array();
+  for (std::size_t i = 0; i < g.points.size(); ++i) {
+    const auto& pt = g.points[i];
+    const double r = f.residuals_dps[i];
+    residuals.push_back(
+        {{"line", g.lines[i]},
+         {"rate_dps", num(pt.rate_dps)},
+         {"output_dps", num(pt.output_dps)},
+         {"repetition", pt.repetition},
+         {"residual_dps", num(r)},
+         {"residual_ppm",
+          pt.rate_dps == 0 ? json(nullptr) : num(r / std::fabs(f.k * pt.rate_dps) * 1e6)}});
+  }
+  json reps = json::array();
+  for (const auto& r : f.repetitions) {
+    reps.push_back({{"repetition", r.repetition},
+                    {"points", r.points},
+                    {"k", num(r.k)},
+                    {"bias_dps", num(r.bias_dps)}});
+  }
+  return {{"temperature_c", g.temperature_c ? num(*g.temperature_c) : json(nullptr)},
+          {"points", f.points},
+          {"distinct_rates", f.distinct_rates},
+          {"full_scale_dps", num(f.full_scale_dps)},
+          {"k", num(f.k)},
+          {"k_std_error", num(f.k_std_error)},
+          {"bias_dps", num(f.bias_dps)},
+          {"bias_std_error_dps", num(f.bias_std_error_dps)},
+          {"bias_dph", num(f.bias_dph)},
+          {"bias_std_error_dph", num(f.bias_std_error_dph)},
+          {"residual_std_dps", num(f.residual_std_dps)},
+          {"nonlinearity_ppm", num(f.nonlinearity_ppm)},
+          {"nonlinearity_rate_dps", num(g.points[f.nonlinearity_point].rate_dps)},
+          {"nonlinearity_line", g.lines[f.nonlinearity_point]},
+          {"nonlinearity_fs_ppm", num(f.nonlinearity_fs_ppm)},
+          {"k_positive", num(f.k_positive)},
+          {"k_negative", num(f.k_negative)},
+          {"asymmetry_bias_dps", num(f.asymmetry_bias_dps)},
+          {"asymmetry_ppm", num(f.asymmetry_ppm)},
+          {"repeatability_ppm", num(f.repeatability_ppm)},
+          {"repetitions", reps},
+          {"residuals", residuals}};
+}
+
+std::string sf_fit_text(const SfGroup& g, const analysis::ScaleFactorFit& f) {
+  std::string t;
+  t += fmt::format("K  {} ± {} (standard error)\n", fixed(f.k, 9), sci(f.k_std_error));
+  t += fmt::format("B  {} °/s ± {} = {} °/h ± {}\n", fixed(f.bias_dps, 6),
+                   fixed(f.bias_std_error_dps, 6), fixed(f.bias_dph, 3),
+                   fixed(f.bias_std_error_dph, 3));
+  t += fmt::format("residual std {} °/s\n", sci(f.residual_std_dps));
+  t += fmt::format(
+      "nonlinearity {} ppm of K·Ω (largest at {:g} °/s, line {}); {} ppm of full scale "
+      "({:g} °/s)\n",
+      fixed(f.nonlinearity_ppm, 1), g.points[f.nonlinearity_point].rate_dps,
+      g.lines[f.nonlinearity_point], fixed(f.nonlinearity_fs_ppm, 1), f.full_scale_dps);
+  if (f.asymmetry_ppm) {
+    t += fmt::format("asymmetry {} ppm (K+ {}, K- {}, bias {} °/s)\n", fixed(*f.asymmetry_ppm, 1),
+                     fixed(f.k_positive.value_or(NAN), 9), fixed(f.k_negative.value_or(NAN), 9),
+                     fixed(f.asymmetry_bias_dps.value_or(NAN), 6));
+  } else {
+    t += fmt::format("asymmetry {} (needs rates in both directions and 3 distinct rates)\n", kDash);
+  }
+  if (f.repeatability_ppm) {
+    std::vector<std::string> ks;
+    for (const auto& r : f.repetitions)
+      ks.push_back(fmt::format("{}: {}", r.repetition, fixed(r.k, 9)));
+    t += fmt::format("repeatability {} ppm over {} repetitions (K {})\n",
+                     fixed(*f.repeatability_ppm, 2), f.repetitions.size(), fmt::join(ks, ", "));
+  } else {
+    t += fmt::format("repeatability {} (needs 2 repetitions with 2 distinct rates each)\n", kDash);
+  }
+  std::vector<std::vector<std::string>> rows;
+  for (std::size_t i = 0; i < g.points.size(); ++i) {
+    const auto& pt = g.points[i];
+    const double r = f.residuals_dps[i];
+    rows.push_back({std::to_string(g.lines[i]), general(pt.rate_dps), fixed(pt.output_dps, 6),
+                    std::to_string(pt.repetition), sci(r),
+                    pt.rate_dps == 0 ? kDash : fixed(r / std::fabs(f.k * pt.rate_dps) * 1e6, 1)});
+  }
+  t +=
+      table({"line", "rate °/s", "output °/s", "rep", "residual °/s", "ppm of K·Ω"}, rows, 0, "  ");
+  return t;
+}
+
+int cmd_scale_factor(const Parsed& p) {
+  if (p.sf_order != 1 && p.sf_order != 2) {
+    return fail(fmt::format("--order {}: must be 1 or 2", p.sf_order), kExitInput);
+  }
+  auto csv = analysis::read_rate_points_csv(p.sf_csv);
+  if (!csv) return fail(csv.error().message, kExitInput);
+
+  // One group per distinct temperature_c value, in increasing temperature.
+  std::vector<SfGroup> groups;
+  if (csv->has_temperature) {
+    std::map<double, SfGroup> by_t;
+    for (std::size_t i = 0; i < csv->points.size(); ++i) {
+      SfGroup& g = by_t[csv->points[i].temperature_c];
+      g.temperature_c = csv->points[i].temperature_c;
+      g.points.push_back(csv->points[i]);
+      g.lines.push_back(csv->lines[i]);
+    }
+    for (auto& [t, g] : by_t) groups.push_back(std::move(g));
+  } else {
+    groups.push_back({std::nullopt, csv->points, csv->lines});
+  }
+
+  json fits = json::array();
+  std::string text = fmt::format(
+      "scale factor from {}: {} points{}\n", csv->source, csv->points.size(),
+      groups.size() > 1 ? fmt::format(" at {} temperatures", groups.size()) : std::string());
+  std::vector<analysis::ScaleFactorAtTemperature> plateaus;
+  for (const SfGroup& g : groups) {
+    auto fit = analysis::fit_scale_factor(g.points);
+    const std::string where =
+        g.temperature_c ? fmt::format("{} at {:g} °C", csv->source, *g.temperature_c) : csv->source;
+    if (!fit) return fail(fmt::format("{}: {}", where, fit.error().message), kExitAnalysis);
+    fits.push_back(sf_fit_json(g, *fit));
+    text += "\n";
+    text += g.temperature_c ? fmt::format("at {:g} °C: ", *g.temperature_c) : std::string();
+    text += fmt::format("{} points, {} distinct rates, full scale {:g} °/s\n", fit->points,
+                        fit->distinct_rates, fit->full_scale_dps);
+    text += sf_fit_text(g, *fit);
+    if (g.temperature_c) plateaus.push_back({*g.temperature_c, fit->k, fit->bias_dph});
+  }
+
+  json over = nullptr;
+  if (plateaus.size() > 1) {
+    auto tf = analysis::fit_scale_factor_over_temperature(plateaus, p.sf_order);
+    if (!tf) {
+      return fail(fmt::format("{}: {}", csv->source, tf.error().message), kExitAnalysis);
+    }
+    json plateau_rows = json::array();
+    std::vector<std::vector<std::string>> rows;
+    for (std::size_t i = 0; i < plateaus.size(); ++i) {
+      plateau_rows.push_back({{"temperature_c", num(plateaus[i].temperature_c)},
+                              {"k", num(plateaus[i].k)},
+                              {"bias_dph", num(plateaus[i].bias_dph)},
+                              {"k_residual", num(tf->k_residuals[i])},
+                              {"bias_residual_dph", num(tf->bias_residuals_dph[i])}});
+      rows.push_back({general(plateaus[i].temperature_c), fixed(plateaus[i].k, 9),
+                      fixed(plateaus[i].bias_dph, 3), sci(tf->k_residuals[i]),
+                      sci(tf->bias_residuals_dph[i])});
+    }
+    json kc = json::array(), bc = json::array();
+    for (double c : tf->k_coefficients) kc.push_back(num(c));
+    for (double c : tf->bias_coefficients_dph) bc.push_back(num(c));
+    over = {
+        {"order", tf->order},
+        {"temperature_mean_c", num(tf->temperature_mean_c)},
+        {"k_coefficients", kc},
+        {"bias_coefficients_dph", bc},
+        {"k_at_mean", num(tf->k_at_mean)},
+        {"sf_temperature_coefficient_ppm_per_c", num(tf->sf_temperature_coefficient_ppm_per_c)},
+        {"bias_temperature_coefficient_dph_per_c", num(tf->bias_temperature_coefficient_dph_per_c)},
+        {"plateaus", plateau_rows}};
+    std::vector<std::string> kcs, bcs;
+    for (double c : tf->k_coefficients) kcs.push_back(sci(c));
+    for (double c : tf->bias_coefficients_dph) bcs.push_back(sci(c));
+    text += fmt::format("\nover temperature: order {} in T − T̄, T̄ = {:g} °C\n", tf->order,
+                        tf->temperature_mean_c);
+    text +=
+        fmt::format("K(T̄) {}, scale-factor temperature coefficient {} ppm/°C\n",
+                    fixed(tf->k_at_mean, 9), fixed(tf->sf_temperature_coefficient_ppm_per_c, 3));
+    text += fmt::format("B(T̄) {} °/h, bias temperature coefficient {} (°/h)/°C\n",
+                        fixed(tf->bias_coefficients_dph[0], 3),
+                        fixed(tf->bias_temperature_coefficient_dph_per_c, 4));
+    text += fmt::format("K coefficients (per °C^j) {}; B coefficients (°/h per °C^j) {}\n",
+                        fmt::join(kcs, ", "), fmt::join(bcs, ", "));
+    text += table({"T °C", "K", "B °/h", "K residual", "B residual °/h"}, rows, 0, "  ");
+  }
+
+  if (p.json) {
+    const json out = {{"source", csv->source},
+                      {"points", csv->points.size()},
+                      {"fits", fits},
+                      {"over_temperature", over}};
+    std::cout << out.dump(2) << "\n";
+  } else {
+    std::cout << text;
+  }
+  return 0;
+}
+
 }  // namespace
 
 struct AnalysisCommands::Parsed : Args {};
@@ -1266,6 +1466,19 @@ AnalysisCommands::AnalysisCommands(CLI::App& app) : parsed_(std::make_unique<Par
   p.start_model->add_option("--t0-window-s", p.t0_window_s, "T0 = mean over the first s (120)");
   fit_opts(p.start_model);
   exports(p.start_model);
+
+  p.scale_factor = app.add_subcommand(
+      "scale-factor",
+      "scale factor, bias, nonlinearity, asymmetry, repeatability from rate points");
+  p.scale_factor
+      ->add_option("--csv", p.sf_csv,
+                   "CSV: rate_dps,output_dps[,repetition][,temperature_c], one row per dwell")
+      ->required();
+  p.scale_factor->add_flag("--json", p.json, "JSON output");
+  p.scale_factor
+      ->add_option("--order", p.sf_order,
+                   "order of K(T) and B(T) with several temperatures: 1 or 2")
+      ->capture_default_str();
 }
 
 AnalysisCommands::~AnalysisCommands() = default;
@@ -1284,6 +1497,7 @@ std::optional<int> AnalysisCommands::run(bool json) {
     if (*p.fit) return cmd_fit(p);
     if (*p.compare) return cmd_compare(p);
     if (*p.start_model) return cmd_start_model(p);
+    if (*p.scale_factor) return cmd_scale_factor(p);
   } catch (const std::exception& e) {
     return fail(e.what(), kExitAnalysis);
   }

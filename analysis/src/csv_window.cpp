@@ -170,6 +170,88 @@ bool parse_value(std::string_view raw, std::size_t line_no, std::string_view col
   return true;
 }
 
+// Column asked for (index into `columns`, or kIgnored) of each header column.
+Result<std::vector<int>> parse_column_header(std::string_view line, std::size_t line_no,
+                                             const std::string& source,
+                                             std::span<const CsvColumn> columns) {
+  if (line.find('"') != std::string_view::npos) {
+    return Error::Permanent(fmt::format(
+        "{}:{}: quoted fields are not supported (found '\"' in the header)", source, line_no));
+  }
+  std::vector<int> roles;
+  std::vector<std::string_view> names;
+  std::vector<std::size_t> column_of(columns.size(), 0);  // 1-based, 0 = absent
+  for (std::size_t start = 0;;) {
+    const std::size_t comma = line.find(',', start);
+    const std::string_view name =
+        trim(line.substr(start, comma == std::string_view::npos ? line.npos : comma - start));
+    int role = kIgnored;
+    for (std::size_t r = 0; r < columns.size(); ++r) {
+      if (name != columns[r].name) continue;
+      if (column_of[r] != 0) {
+        return Error::Permanent(
+            fmt::format("{}:{}: column {} appears twice in the header (columns {} and {})", source,
+                        line_no, name, column_of[r], names.size() + 1));
+      }
+      column_of[r] = names.size() + 1;
+      role = static_cast<int>(r);
+    }
+    roles.push_back(role);
+    names.push_back(name);
+    if (comma == std::string_view::npos) break;
+    start = comma + 1;
+  }
+  std::string missing, required;
+  for (std::size_t r = 0; r < columns.size(); ++r) {
+    if (!columns[r].required) continue;
+    required += fmt::format("{}{}", required.empty() ? "" : ", ", columns[r].name);
+    if (column_of[r] == 0)
+      missing += fmt::format("{}{}", missing.empty() ? "" : ", ", columns[r].name);
+  }
+  if (!missing.empty()) {
+    std::string found;
+    for (std::string_view n : names) {
+      if (!found.empty()) found += ", ";
+      found += fmt::format("'{}'", shown(n));
+    }
+    return Error::Permanent(fmt::format("{}:{}: header lacks column(s) {} (found {}; required {})",
+                                        source, line_no, missing, found, required));
+  }
+  return roles;
+}
+
+// The whole file's bytes.
+Result<std::string> read_whole_file(const std::string& path) {
+  struct Closer {
+    void operator()(std::FILE* f) const { std::fclose(f); }
+  };
+  std::unique_ptr<std::FILE, Closer> f(std::fopen(path.c_str(), "rb"));
+  if (!f) {
+    return Error::Permanent(
+        fmt::format("cannot open CSV file '{}': {}", path, std::strerror(errno)));
+  }
+  std::string text;
+  std::error_code ec;
+  const auto size = std::filesystem::file_size(path, ec);
+  std::size_t capacity = ec ? std::size_t{1} << 20 : static_cast<std::size_t>(size) + 1;
+  std::size_t used = 0;
+  for (;;) {
+    text.resize(capacity);
+    const std::size_t got = std::fread(text.data() + used, 1, capacity - used, f.get());
+    used += got;
+    if (used < capacity) {
+      if (std::ferror(f.get())) {
+        return Error::Permanent(
+            fmt::format("cannot read CSV file '{}': {}", path, std::strerror(errno)));
+      }
+      break;  // end of file
+    }
+    capacity *= 2;
+  }
+  text.resize(used);
+  return text;
+}
+
 }  // namespace
 
 Result<CsvWindow> parse_csv_window(std::string_view text, const std::string& source_name) {
@@ -254,34 +336,9 @@ Result<CsvWindow> parse_csv_window(std::string_view text, const std::string& sou
 }
 
 Result<CsvWindow> read_csv_window(const std::string& path) {
-  struct Closer {
-    void operator()(std::FILE* f) const { std::fclose(f); }
-  };
-  std::unique_ptr<std::FILE, Closer> f(std::fopen(path.c_str(), "rb"));
-  if (!f) {
-    return Error::Permanent(
-        fmt::format("cannot open CSV file '{}': {}", path, std::strerror(errno)));
-  }
-  std::string text;
-  std::error_code ec;
-  const auto size = std::filesystem::file_size(path, ec);
-  std::size_t capacity = ec ? std::size_t{1} << 20 : static_cast<std::size_t>(size) + 1;
-  std::size_t used = 0;
-  for (;;) {
-    text.resize(capacity);
-    const std::size_t got = std::fread(text.data() + used, 1, capacity - used, f.get());
-    used += got;
-    if (used < capacity) {
-      if (std::ferror(f.get())) {
-        return Error::Permanent(
-            fmt::format("cannot read CSV file '{}': {}", path, std::strerror(errno)));
-      }
-      break;  // end of file
-    }
-    capacity *= 2;
-  }
-  text.resize(used);
-  return parse_csv_window(text, path);
+  auto text = read_whole_file(path);
+  if (!text) return text.error();
+  return parse_csv_window(*text, path);
 }
 
 CsvSamples csv_window_samples(const CsvWindow& window) {
@@ -306,6 +363,89 @@ CsvSamples csv_window_samples(const CsvWindow& window) {
 Result<AnalysisSeries> csv_analysis_series(const CsvWindow& window, double bin_s) {
   const CsvSamples samples = csv_window_samples(window);
   return make_analysis_series(samples.gyro, samples.temps, bin_s);
+}
+
+Result<CsvColumns> parse_csv_columns(std::string_view text, const std::string& source_name,
+                                     std::span<const CsvColumn> columns) {
+  static constexpr std::string_view kBom = "\xEF\xBB\xBF";
+  if (text.substr(0, kBom.size()) == kBom) text.remove_prefix(kBom.size());
+
+  LineReader lines(text);
+  std::string_view line;
+  bool have_header = false;
+  while (lines.next(&line)) {
+    if (!is_blank(line)) {
+      have_header = true;
+      break;
+    }
+  }
+  if (!have_header) {
+    std::string names;
+    for (const CsvColumn& c : columns)
+      names += fmt::format("{}{}", names.empty() ? "" : ", ", c.name);
+    return Error::Permanent(
+        fmt::format("{}: no header row (expected a header naming {})", source_name, names));
+  }
+  const std::size_t header_line = lines.number();
+  Result<std::vector<int>> roles = parse_column_header(line, header_line, source_name, columns);
+  if (!roles.ok()) return roles.error();
+  const std::size_t n_columns = roles->size();
+
+  CsvColumns out;
+  out.source = source_name;
+  out.present.assign(columns.size(), false);
+  out.values.resize(columns.size());
+  for (int role : *roles) {
+    if (role != kIgnored) out.present[static_cast<std::size_t>(role)] = true;
+  }
+
+  ErrorList errors(source_name);
+  std::vector<double> values(columns.size());
+  while (lines.next(&line)) {
+    if (is_blank(line)) continue;
+    const std::size_t line_no = lines.number();
+    if (std::memchr(line.data(), '"', line.size()) != nullptr) {
+      errors.add(line_no, "quoted fields are not supported (found '\"')");
+      continue;
+    }
+    std::size_t n_fields = 1;
+    for (char c : line) n_fields += c == ',';
+    if (n_fields != n_columns) {
+      errors.add(line_no, "{} value (row has {} fields, header has {})",
+                 n_fields < n_columns ? "missing" : "extra", n_fields, n_columns);
+      continue;
+    }
+    bool row_ok = true;
+    std::size_t start = 0;
+    for (std::size_t c = 0; c < n_columns; ++c) {
+      const std::size_t comma = c + 1 < n_columns ? line.find(',', start) : line.size();
+      const int role = (*roles)[c];
+      if (role != kIgnored) {
+        const auto r = static_cast<std::size_t>(role);
+        row_ok &= parse_value(line.substr(start, comma - start), line_no, columns[r].name, &errors,
+                              &values[r]);
+      }
+      start = comma + 1;
+    }
+    if (!row_ok || !errors.empty()) continue;  // no data will be returned
+    out.line.push_back(line_no);
+    for (std::size_t r = 0; r < columns.size(); ++r) {
+      if (out.present[r]) out.values[r].push_back(values[r]);
+    }
+  }
+  if (!errors.empty()) return errors.error();
+  if (out.line.empty()) {
+    return Error::Permanent(
+        fmt::format("{}: no data rows (only the header, line {})", source_name, header_line));
+  }
+  out.row_count = out.line.size();
+  return out;
+}
+
+Result<CsvColumns> read_csv_columns(const std::string& path, std::span<const CsvColumn> columns) {
+  auto text = read_whole_file(path);
+  if (!text) return text.error();
+  return parse_csv_columns(*text, path, columns);
 }
 
 }  // namespace gyrotherm::analysis

@@ -11,6 +11,7 @@
 #include <map>
 
 #include "compensated_sum.h"
+#include "gyrotherm/analysis/csv_window.h"
 #include "gyrotherm/analysis/table1.h"
 #include "gyrotherm/core/units.h"
 
@@ -52,21 +53,26 @@ std::size_t distinct(std::vector<double> v) {
   return static_cast<std::size_t>(std::unique(v.begin(), v.end()) - v.begin());
 }
 
-// Slope through the origin of (y − b) on x over the points whose x has the
-// given sign; nullopt when there are none.
-std::optional<double> slope_through_origin(const std::vector<double>& x,
-                                           const std::vector<double>& y, double b, int sign) {
-  CompensatedSum sxx, sxy;
-  std::size_t used = 0;
-  for (std::size_t i = 0; i < x.size(); ++i) {
-    if ((sign > 0 && x[i] > 0) || (sign < 0 && x[i] < 0)) {
-      sxx.add(x[i] * x[i]);
-      sxy.add(x[i] * (y[i] - b));
-      ++used;
-    }
+// y = k₊·x⁺ + k₋·x⁻ + b by least squares (Householder QR on x / scale_x,
+// the slopes scaled back), for the asymmetry. The caller guarantees a
+// positive and a negative x and ≥ 3 distinct x, so the design has rank 3.
+struct SplitLine {
+  double k_positive = 0, k_negative = 0, b = 0;
+};
+SplitLine fit_split_line(const std::vector<double>& x, const std::vector<double>& y,
+                         double scale_x) {
+  const auto rows = static_cast<Eigen::Index>(x.size());
+  Eigen::MatrixXd design(rows, 3);
+  Eigen::VectorXd rhs(rows);
+  for (Eigen::Index i = 0; i < rows; ++i) {
+    const double u = x[static_cast<std::size_t>(i)] / scale_x;
+    design(i, 0) = std::max(u, 0.0);
+    design(i, 1) = std::min(u, 0.0);
+    design(i, 2) = 1;
+    rhs(i) = y[static_cast<std::size_t>(i)];
   }
-  if (used == 0) return std::nullopt;
-  return sxy.value() / sxx.value();
+  const Eigen::VectorXd coef = design.householderQr().solve(rhs);
+  return {coef(0) / scale_x, coef(1) / scale_x, coef(2)};
 }
 
 }  // namespace
@@ -148,11 +154,15 @@ Result<ScaleFactorFit> fit_scale_factor(std::span<const RatePoint> points) {
   fit.nonlinearity_ppm = worst * kPpm;  // some Ω ≠ 0 exists: 2 distinct rates
   fit.nonlinearity_fs_ppm = worst_abs / (std::fabs(fit.k) * fit.full_scale_dps) * kPpm;
 
-  fit.k_positive = slope_through_origin(x, y, fit.bias_dps, +1);
-  fit.k_negative = slope_through_origin(x, y, fit.bias_dps, -1);
-  if (fit.k_positive && fit.k_negative) {
-    const double k_mean = (*fit.k_positive + *fit.k_negative) / 2;
-    fit.asymmetry_ppm = (*fit.k_positive - *fit.k_negative) / k_mean * kPpm;
+  const bool has_positive = std::any_of(x.begin(), x.end(), [](double r) { return r > 0; });
+  const bool has_negative = std::any_of(x.begin(), x.end(), [](double r) { return r < 0; });
+  if (has_positive && has_negative && fit.distinct_rates >= 3) {
+    const SplitLine split = fit_split_line(x, y, fit.full_scale_dps);
+    fit.k_positive = split.k_positive;
+    fit.k_negative = split.k_negative;
+    fit.asymmetry_bias_dps = split.b;
+    const double k_mean = (split.k_positive + split.k_negative) / 2;
+    if (k_mean != 0) fit.asymmetry_ppm = (split.k_positive - split.k_negative) / k_mean * kPpm;
   }
 
   std::map<int, std::pair<std::vector<double>, std::vector<double>>> by_repetition;
@@ -176,6 +186,58 @@ Result<ScaleFactorFit> fit_scale_factor(std::span<const RatePoint> points) {
     fit.repeatability_ppm = sd / k_mean * kPpm;
   }
   return fit;
+}
+
+namespace {
+
+constexpr CsvColumn kRatePointColumns[] = {
+    {"rate_dps", true}, {"output_dps", true}, {"repetition", false}, {"temperature_c", false}};
+
+Result<RatePointsCsv> rate_points_of(const CsvColumns& table) {
+  RatePointsCsv out;
+  out.source = table.source;
+  out.has_repetition = table.present[2];
+  out.has_temperature = table.present[3];
+  std::string errors;
+  std::size_t error_count = 0;
+  for (std::size_t i = 0; i < table.row_count; ++i) {
+    RatePoint p;
+    p.rate_dps = table.values[0][i];
+    p.output_dps = table.values[1][i];
+    if (out.has_repetition) {
+      const double rep = table.values[2][i];
+      if (rep != std::floor(rep) || std::fabs(rep) > 1e9) {
+        if (++error_count <= kMaxCsvErrors) {
+          errors += fmt::format("{}{}:{}: column repetition: {} is not a whole number",
+                                errors.empty() ? "" : "\n", table.source, table.line[i], rep);
+        }
+        continue;
+      }
+      p.repetition = static_cast<int>(rep);
+    }
+    if (out.has_temperature) p.temperature_c = table.values[3][i];
+    out.points.push_back(p);
+    out.lines.push_back(table.line[i]);
+  }
+  if (error_count > kMaxCsvErrors) {
+    errors += fmt::format("\n... and {} more errors", error_count - kMaxCsvErrors);
+  }
+  if (error_count > 0) return Error::Permanent(std::move(errors));
+  return out;
+}
+
+}  // namespace
+
+Result<RatePointsCsv> parse_rate_points_csv(std::string_view text, const std::string& source_name) {
+  auto table = parse_csv_columns(text, source_name, kRatePointColumns);
+  if (!table) return table.error();
+  return rate_points_of(*table);
+}
+
+Result<RatePointsCsv> read_rate_points_csv(const std::string& path) {
+  auto table = read_csv_columns(path, kRatePointColumns);
+  if (!table) return table.error();
+  return rate_points_of(*table);
 }
 
 Result<ScaleFactorTemperatureFit> fit_scale_factor_over_temperature(

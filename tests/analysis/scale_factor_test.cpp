@@ -37,7 +37,7 @@ double parse(const std::string& s) {
 
 struct RefCase {
   std::vector<RatePoint> points;
-  std::vector<double> fit;  // the "fit" line's 12 numbers
+  std::vector<double> fit;  // the "fit" line's 13 numbers
   std::vector<double> residuals;
   std::vector<RepetitionScaleFactor> repetitions;
 };
@@ -125,8 +125,8 @@ ScaleFactorFit check_case(const std::string& name) {
   EXPECT_NE(it, references().cases.end()) << "no case " << name << " in scale_factor.txt";
   if (it == references().cases.end()) return {};
   const RefCase& ref = it->second;
-  EXPECT_EQ(ref.fit.size(), 12u);
-  if (ref.fit.size() != 12u) return {};
+  EXPECT_EQ(ref.fit.size(), 13u);
+  if (ref.fit.size() != 13u) return {};
   auto fit = fit_scale_factor(ref.points);
   EXPECT_TRUE(fit) << fit.error().message;
   if (!fit) return {};
@@ -162,6 +162,15 @@ ScaleFactorFit check_case(const std::string& name) {
   } else {
     EXPECT_TRUE(f.k_negative.has_value());
     if (f.k_negative) expect_rel(*f.k_negative, ref.fit[9], kRel, "K-");
+  }
+  if (std::isnan(ref.fit[12])) {
+    EXPECT_FALSE(f.asymmetry_bias_dps.has_value());
+  } else {
+    EXPECT_TRUE(f.asymmetry_bias_dps.has_value());
+    // B± is ~1e-3 °/s beside outputs of 500 °/s: absolute, as the residuals.
+    if (f.asymmetry_bias_dps) {
+      EXPECT_NEAR(*f.asymmetry_bias_dps, ref.fit[12], kResidualAbsDps) << "B of the split fit";
+    }
   }
   expect_optional_ppm(f.asymmetry_ppm, ref.fit[10], "asymmetry");
   expect_optional_ppm(f.repeatability_ppm, ref.fit[11], "repeatability");
@@ -205,7 +214,9 @@ TEST(ScaleFactor, OneUsableRepetitionMatchesNumpy) {
 // The noise-free model output = K(1 + A/2·sign Ω)Ω + QΩ² + B on the
 // symmetric rate set ±{1, 5, 10, 50, 100, 200, 500}: |Ω| and Ω² are even, so
 // the line's slope is K exactly and the even terms go to the intercept and
-// the residuals; K₊ and K₋ follow in closed form.
+// the residuals. In the split fit both directions see Q·|Ω|² against |Ω|:
+// the slope of that regression, c = Σ(|Ω| − mean|Ω|)·Ω² / Σ(|Ω| − mean|Ω|)²
+// over one direction, adds to K₊ and subtracts from K₋.
 TEST(ScaleFactor, NoiseFreeModelRecoveredInClosedForm) {
   const double k = 1.00025, b = 0.0021, a = 300e-6, q = 4e-8;
   const double magnitudes[] = {1, 5, 10, 50, 100, 200, 500};
@@ -216,16 +227,22 @@ TEST(ScaleFactor, NoiseFreeModelRecoveredInClosedForm) {
       points.push_back({w, k * (1 + a / 2 * sign) * w + q * w * w + b});
     }
   }
-  double s1 = 0, s2 = 0, s3 = 0;  // Σ|Ω|, ΣΩ², Σ|Ω|³ over one direction
+  double s1 = 0, s2 = 0;  // Σ|Ω|, ΣΩ² over one direction
   for (double m : magnitudes) {
     s1 += m;
     s2 += m * m;
-    s3 += m * m * m;
   }
   const double mean_abs = s1 / 7, mean_sq = s2 / 7;
+  double sxx = 0, sxy = 0;
+  for (double m : magnitudes) {
+    sxx += (m - mean_abs) * (m - mean_abs);
+    sxy += (m - mean_abs) * m * m;
+  }
+  const double c = sxy / sxx;
   const double b_fit = b + k * a / 2 * mean_abs + q * mean_sq;
-  const double k_pos = k * (1 + a / 2) + q * s3 / s2 - (b_fit - b) * s1 / s2;
-  const double k_neg = k * (1 - a / 2) - q * s3 / s2 + (b_fit - b) * s1 / s2;
+  const double k_pos = k * (1 + a / 2) + q * c;
+  const double k_neg = k * (1 - a / 2) - q * c;
+  const double b_split = b + q * (mean_sq - c * mean_abs);
 
   auto fit = fit_scale_factor(points);
   ASSERT_TRUE(fit) << fit.error().message;
@@ -239,12 +256,63 @@ TEST(ScaleFactor, NoiseFreeModelRecoveredInClosedForm) {
   // The largest |residual| / |KΩ| is at ±1 °/s (residual ≈ −(K·A/2·mean|Ω| + Q·mean Ω²)).
   const double r1 = k * a / 2 * (1 - mean_abs) + q * (1 - mean_sq);
   EXPECT_NEAR(fit->nonlinearity_ppm, std::fabs(r1) / k * 1e6, 1e-9 * std::fabs(r1) / k * 1e6);
-  ASSERT_TRUE(fit->k_positive && fit->k_negative && fit->asymmetry_ppm);
+  ASSERT_TRUE(fit->k_positive && fit->k_negative && fit->asymmetry_ppm && fit->asymmetry_bias_dps);
   EXPECT_NEAR(*fit->k_positive, k_pos, 1e-9 * k_pos);
   EXPECT_NEAR(*fit->k_negative, k_neg, 1e-9 * k_neg);
+  EXPECT_NEAR(*fit->asymmetry_bias_dps, b_split, kResidualAbsDps);
   const double asym_ppm = (k_pos - k_neg) / ((k_pos + k_neg) / 2) * 1e6;
   EXPECT_NEAR(*fit->asymmetry_ppm, asym_ppm, 1e-9 * asym_ppm);
+  // The quadratic's share: 2Q·c / K, about 39.6 ppm with Q = 4e-8 (°/s)⁻¹.
+  EXPECT_NEAR(*fit->asymmetry_ppm - a * 1e6, 2 * q * c / k * 1e6, 1e-3);
   EXPECT_FALSE(fit->repeatability_ppm.has_value());  // one repetition
+}
+
+// A pure asymmetry, output = K(1 ± A/2)Ω + B, is recovered exactly: on the
+// symmetric set of the docs and on lopsided sets (more, and other, rates on
+// one side; a zero-rate point).
+TEST(ScaleFactor, TrueAsymmetryRecoveredExactly) {
+  const double k = 1.00025, b = 0.0021, a = 300e-6;
+  const std::vector<std::vector<double>> rate_sets = {
+      {-500, -200, -100, -50, -10, -5, -1, 1, 5, 10, 50, 100, 200, 500},
+      {-100, -10, 1, 5, 50, 300, 500},
+      {-7, 0, 2, 20, 200},
+      {-500, -3, 400},
+  };
+  for (const auto& rates : rate_sets) {
+    SCOPED_TRACE("rates from " + std::to_string(rates.front()) + " to " +
+                 std::to_string(rates.back()) + ", " + std::to_string(rates.size()) + " points");
+    std::vector<RatePoint> points;
+    for (double w : rates) {
+      const double sign = w > 0 ? 1.0 : (w < 0 ? -1.0 : 0.0);
+      points.push_back({w, k * (1 + a / 2 * sign) * w + b});
+    }
+    auto fit = fit_scale_factor(points);
+    ASSERT_TRUE(fit) << fit.error().message;
+    ASSERT_TRUE(fit->asymmetry_ppm && fit->k_positive && fit->k_negative &&
+                fit->asymmetry_bias_dps);
+    EXPECT_NEAR(*fit->asymmetry_ppm, 300.0, 1e-9 * 300.0);
+    EXPECT_NEAR(*fit->k_positive, k * (1 + a / 2), 1e-12);
+    EXPECT_NEAR(*fit->k_negative, k * (1 - a / 2), 1e-12);
+    EXPECT_NEAR(*fit->asymmetry_bias_dps, b, 1e-12);
+  }
+}
+
+TEST(ScaleFactor, AsymmetryNeedsBothDirectionsAndThreeRates) {
+  // +a and −b only: K₊, K₋ and B are not separately determined.
+  std::vector<RatePoint> points = {{-50, -50.01}, {200, 200.03}, {-50, -50.012}};
+  auto fit = fit_scale_factor(points);
+  ASSERT_TRUE(fit) << fit.error().message;
+  EXPECT_FALSE(fit->asymmetry_ppm.has_value());
+  EXPECT_FALSE(fit->k_positive.has_value());
+  // A third rate on either side (or zero) makes it determined.
+  points.push_back({0, 0.002});
+  fit = fit_scale_factor(points);
+  ASSERT_TRUE(fit) << fit.error().message;
+  EXPECT_TRUE(fit->asymmetry_ppm.has_value());
+  // One direction only, however many rates: none.
+  fit = fit_scale_factor(std::vector<RatePoint>{{1, 1.0}, {10, 10.01}, {100, 100.02}, {0, 0}});
+  ASSERT_TRUE(fit) << fit.error().message;
+  EXPECT_FALSE(fit->asymmetry_ppm.has_value());
 }
 
 TEST(ScaleFactor, PureLineRecoveredExactly) {
@@ -299,6 +367,53 @@ TEST(ScaleFactor, NonFiniteInputIsRefusedNamingPointAndField) {
   fit = fit_scale_factor(points);
   ASSERT_FALSE(fit);
   EXPECT_NE(fit.error().message.find("temperature_c"), std::string::npos) << fit.error().message;
+}
+
+// ---- Rate points from CSV --------------------------------------------------------
+
+TEST(RatePointsCsv, ReadsRequiredAndOptionalColumnsInAnyOrder) {
+  const std::string text =
+      "note, output_dps ,temperature_c,rate_dps,repetition\r\n"
+      "a,-10.002,25.5,-10,1\r\n"
+      "\r\n"
+      "b,+10.001,25.5,10,2\r\n";
+  auto csv = parse_rate_points_csv(text, "sf.csv");
+  ASSERT_TRUE(csv) << csv.error().message;
+  EXPECT_TRUE(csv->has_repetition);
+  EXPECT_TRUE(csv->has_temperature);
+  ASSERT_EQ(csv->points.size(), 2u);
+  EXPECT_EQ(csv->lines, (std::vector<std::size_t>{2, 4}));
+  EXPECT_EQ(csv->points[0].rate_dps, -10);
+  EXPECT_EQ(csv->points[0].output_dps, -10.002);
+  EXPECT_EQ(csv->points[1].repetition, 2);
+  EXPECT_EQ(csv->points[1].temperature_c, 25.5);
+
+  csv = parse_rate_points_csv("rate_dps,output_dps\n1,1.0001\n", "min.csv");
+  ASSERT_TRUE(csv) << csv.error().message;
+  EXPECT_FALSE(csv->has_repetition);
+  EXPECT_FALSE(csv->has_temperature);
+  EXPECT_EQ(csv->points[0].repetition, 1);
+}
+
+TEST(RatePointsCsv, ErrorsNameFileLineAndColumn) {
+  auto csv = parse_rate_points_csv("rate_dps,temperature_c\n1,25\n", "sf.csv");
+  ASSERT_FALSE(csv);
+  EXPECT_NE(csv.error().message.find("sf.csv:1: header lacks column(s) output_dps"),
+            std::string::npos)
+      << csv.error().message;
+  csv = parse_rate_points_csv("rate_dps,output_dps\n1,1\n5,abc\n10,10\n", "sf.csv");
+  ASSERT_FALSE(csv);
+  EXPECT_NE(csv.error().message.find("sf.csv:3: column output_dps: 'abc' is not a number"),
+            std::string::npos)
+      << csv.error().message;
+  csv = parse_rate_points_csv("rate_dps,output_dps,repetition\n1,1,1\n5,5,1.5\n", "sf.csv");
+  ASSERT_FALSE(csv);
+  EXPECT_NE(csv.error().message.find("sf.csv:3: column repetition: 1.5 is not a whole number"),
+            std::string::npos)
+      << csv.error().message;
+  csv = parse_rate_points_csv("rate_dps,output_dps\n", "sf.csv");
+  ASSERT_FALSE(csv);
+  EXPECT_NE(csv.error().message.find("no data rows"), std::string::npos) << csv.error().message;
 }
 
 // ---- Over temperature -------------------------------------------------------

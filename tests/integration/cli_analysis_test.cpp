@@ -22,6 +22,7 @@
 #include "gyrotherm/analysis/comparison.h"
 #include "gyrotherm/analysis/csv_window.h"
 #include "gyrotherm/analysis/drift_model.h"
+#include "gyrotherm/analysis/scale_factor.h"
 #include "gyrotherm/analysis/start_temperature.h"
 #include "gyrotherm/analysis/table1.h"
 #include "gyrotherm/core/files.h"
@@ -1076,6 +1077,177 @@ TEST_F(CliAnalysisTest, AnExportFileThatCannotBeWrittenIsAnError) {
                      file("no/such/dir/fit.json")});
   EXPECT_EQ(r.code, 1);
   EXPECT_THAT(r.err, HasSubstr("no/such/dir/fit.json"));
+}
+
+// ---------------------------------------------------------------- scale-factor
+
+constexpr double kSfRatesDps[] = {1, 5, 10, 50, 100, 200, 500};
+
+// Rate points of a gyro whose output is K(1 ± A/2)·Ω + B (+ for Ω > 0), at
+// ±kSfRatesDps, one row per dwell, K of repetition r times (1 + dk·(r − 1.5)).
+std::string sf_csv(double k, double a, double b_dps, const std::vector<int>& repetitions, double dk,
+                   const std::vector<double>& temperatures_c, double tc_ppm_per_c = 0,
+                   double b_tc_dph_per_c = 0) {
+  std::string text = "repetition, rate_dps,output_dps,temperature_c,note\n";
+  for (double t : temperatures_c) {
+    for (int r : repetitions) {
+      const double k_t = k * (1 + tc_ppm_per_c * 1e-6 * (t - 25)) * (1 + dk * (r - 1.5));
+      const double b_t = b_dps + b_tc_dph_per_c / 3600 * (t - 25);
+      for (double sign : {1.0, -1.0}) {
+        for (double m : kSfRatesDps) {
+          const double w = sign * m;
+          text += fmt::format("{},{:.17g},{:.17g},{:.17g},dwell\n", r, w,
+                              k_t * (1 + sign * a / 2) * w + b_t, t);
+        }
+      }
+    }
+  }
+  return text;
+}
+
+TEST_F(CliAnalysisTest, ScaleFactorOnACsvRecoversKBAsymmetryAndRepeatability) {
+  const double k = 1.0003, a = 250e-6, b_dps = 0.002, dk = 4e-6;
+  const std::string path = file("sf.csv");
+  write_text(path, sf_csv(k, a, b_dps, {1, 2}, dk, {25.0}));
+  Run r = cli({"scale-factor", "--csv", path, "--json"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  const json j = r.parsed();
+  EXPECT_EQ(j.at("source"), path);
+  EXPECT_EQ(j.at("points").get<std::size_t>(), 28u);
+  ASSERT_EQ(j.at("fits").size(), 1u);
+  EXPECT_TRUE(j.at("over_temperature").is_null());
+  const json& f = j.at("fits")[0];
+
+  // Exactly the library's numbers on the same file.
+  auto csv = analysis::read_rate_points_csv(path);
+  ASSERT_TRUE(csv) << csv.error().message;
+  auto lib = analysis::fit_scale_factor(csv->points);
+  ASSERT_TRUE(lib) << lib.error().message;
+  expect_number(f, "k", lib->k);
+  expect_number(f, "k_std_error", lib->k_std_error);
+  expect_number(f, "bias_dps", lib->bias_dps);
+  expect_number(f, "bias_dph", lib->bias_dph);
+  expect_number(f, "bias_std_error_dph", lib->bias_std_error_dph);
+  expect_number(f, "nonlinearity_ppm", lib->nonlinearity_ppm);
+  expect_number(f, "nonlinearity_fs_ppm", lib->nonlinearity_fs_ppm);
+  expect_number(f, "asymmetry_ppm", *lib->asymmetry_ppm);
+  expect_number(f, "repeatability_ppm", *lib->repeatability_ppm);
+  ASSERT_EQ(f.at("residuals").size(), 28u);
+  for (std::size_t i = 0; i < 28; ++i) {
+    EXPECT_EQ(f.at("residuals")[i].at("line").get<std::size_t>(), i + 2);  // after the header
+    expect_number(f.at("residuals")[i], "residual_dps", lib->residuals_dps[i]);
+  }
+
+  // And the truth. Both repetitions see the same symmetric rates, so the line's
+  // slope is the mean K exactly; the asymmetry (|Ω|, even) moves the line's B
+  // by K·A/2·mean|Ω| and leaves the split fit's bias at B.
+  double mean_abs = 0;
+  for (double m : kSfRatesDps) mean_abs += m / 7;
+  EXPECT_NEAR(f.at("k").get<double>(), k, 1e-12);
+  EXPECT_NEAR(f.at("asymmetry_ppm").get<double>(), 250.0, 1e-9 * 250);
+  EXPECT_NEAR(f.at("asymmetry_bias_dps").get<double>(), b_dps, 1e-12);
+  EXPECT_NEAR(f.at("bias_dps").get<double>(), b_dps + k * a / 2 * mean_abs, 1e-12);
+  EXPECT_NEAR(f.at("bias_dph").get<double>(), (b_dps + k * a / 2 * mean_abs) * 3600, 1e-8);
+  // K₁, K₂ = K(1 ∓ dk/2): std (ddof 1) = K·dk/√2, over their mean K.
+  EXPECT_NEAR(f.at("repeatability_ppm").get<double>(), dk / std::sqrt(2.0) * 1e6, 1e-6);
+  EXPECT_EQ(f.at("repetitions").size(), 2u);
+  EXPECT_DOUBLE_EQ(f.at("temperature_c").get<double>(), 25.0);
+
+  // The text gives the same figures and the residual table by file line.
+  r = cli({"scale-factor", "--csv", path});
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr(fmt::format("K  {:.9f} ±", lib->k)));
+  EXPECT_THAT(r.out, HasSubstr(fmt::format("= {:.3f} °/h", lib->bias_dph)));
+  EXPECT_THAT(r.out, HasSubstr("asymmetry 250.0 ppm"));
+  EXPECT_THAT(r.out, HasSubstr(fmt::format("repeatability {:.2f} ppm over 2 repetitions",
+                                           *lib->repeatability_ppm)));
+  EXPECT_THAT(r.out,
+              HasSubstr(fmt::format("nonlinearity {:.1f} ppm of K·Ω", lib->nonlinearity_ppm)));
+  EXPECT_THAT(r.out, HasSubstr("ppm of K·Ω"));
+  EXPECT_THAT(r.out, HasSubstr("  29  "));  // the last row's line
+}
+
+TEST_F(CliAnalysisTest, ScaleFactorAtSeveralTemperaturesFitsKAndBOverTemperature) {
+  const double k = 0.99985, b_dps = -0.001;
+  const std::string path = file("sf_temps.csv");
+  // No asymmetry here: the line's B is then B(T) itself.
+  write_text(path, sf_csv(k, 0, b_dps, {1}, 0, {-10.0, 25.0, 60.0}, 30.0, 0.05));
+  Run r = cli({"scale-factor", "--csv", path, "--json"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  json j = r.parsed();
+  ASSERT_EQ(j.at("fits").size(), 3u);
+  EXPECT_EQ(j.at("fits")[0].at("temperature_c").get<double>(), -10.0);  // increasing T
+  EXPECT_EQ(j.at("fits")[2].at("temperature_c").get<double>(), 60.0);
+  const json& o = j.at("over_temperature");
+  ASSERT_TRUE(o.is_object()) << j.dump(2);
+  EXPECT_EQ(o.at("order").get<int>(), 1);
+  EXPECT_NEAR(o.at("temperature_mean_c").get<double>(), 25.0, 1e-12);
+  EXPECT_NEAR(o.at("sf_temperature_coefficient_ppm_per_c").get<double>(), 30.0, 1e-6);
+  EXPECT_NEAR(o.at("bias_temperature_coefficient_dph_per_c").get<double>(), 0.05, 1e-9);
+  EXPECT_NEAR(o.at("k_at_mean").get<double>(), k, 1e-12);
+  EXPECT_NEAR(o.at("bias_coefficients_dph")[0].get<double>(), b_dps * 3600, 1e-9);
+  EXPECT_EQ(o.at("plateaus").size(), 3u);
+  // The library on the per-temperature K and B gives the same numbers.
+  std::vector<analysis::ScaleFactorAtTemperature> plateaus;
+  for (const json& f : j.at("fits")) {
+    plateaus.push_back({f.at("temperature_c").get<double>(), f.at("k").get<double>(),
+                        f.at("bias_dph").get<double>()});
+  }
+  auto tf = analysis::fit_scale_factor_over_temperature(plateaus, 1);
+  ASSERT_TRUE(tf) << tf.error().message;
+  expect_number(o, "sf_temperature_coefficient_ppm_per_c",
+                tf->sf_temperature_coefficient_ppm_per_c);
+  expect_number(o, "bias_temperature_coefficient_dph_per_c",
+                tf->bias_temperature_coefficient_dph_per_c);
+
+  r = cli({"scale-factor", "--csv", path});
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("at 3 temperatures"));
+  EXPECT_THAT(r.out, HasSubstr("scale-factor temperature coefficient 30.000 ppm/°C"));
+  EXPECT_THAT(r.out, HasSubstr("bias temperature coefficient 0.0500 (°/h)/°C"));
+
+  r = cli({"scale-factor", "--csv", path, "--order", "2", "--json"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(r.parsed().at("over_temperature").at("order").get<int>(), 2);
+  r = cli({"scale-factor", "--csv", path, "--order", "3"});
+  EXPECT_EQ(r.code, 2);
+  EXPECT_THAT(r.err, HasSubstr("--order 3"));
+  // Two temperatures cannot carry a quadratic: an analysis error naming why.
+  const std::string two = file("sf_two_temps.csv");
+  write_text(two, sf_csv(k, 0, b_dps, {1}, 0, {0.0, 50.0}, 30.0, 0.05));
+  r = cli({"scale-factor", "--csv", two, "--order", "2"});
+  EXPECT_EQ(r.code, 1) << r.out;
+  EXPECT_THAT(r.err, HasSubstr(two));
+  EXPECT_THAT(r.err, HasSubstr("distinct temperatures"));
+}
+
+TEST_F(CliAnalysisTest, ScaleFactorRefusesABadCsvNamingFileLineAndColumn) {
+  const std::string path = file("sf_bad.csv");
+  write_text(path, "rate_dps,output_dps\n-10,-10.003\n10,10.002\n50,abc\n100,100.03\n");
+  Run r = cli({"scale-factor", "--csv", path, "--json"});
+  EXPECT_EQ(r.code, 2);
+  EXPECT_THAT(r.err, HasSubstr(path + ":4: column output_dps: 'abc' is not a number"));
+  EXPECT_TRUE(r.out.empty()) << r.out;
+
+  write_text(path, "rate_dps,output_dph\n-10,-10.003\n");
+  r = cli({"scale-factor", "--csv", path});
+  EXPECT_EQ(r.code, 2);
+  EXPECT_THAT(r.err, HasSubstr(path + ":1: header lacks column(s) output_dps"));
+
+  write_text(path, "rate_dps,output_dps,repetition\n-10,-10.003,1\n10,10.002,2.5\n");
+  r = cli({"scale-factor", "--csv", path});
+  EXPECT_EQ(r.code, 2);
+  EXPECT_THAT(r.err, HasSubstr(path + ":3: column repetition: 2.5 is not a whole number"));
+
+  // Readable, but one rate only: the analysis fails (exit 1) and says why.
+  write_text(path, "rate_dps,output_dps\n100,100.01\n100,100.02\n");
+  r = cli({"scale-factor", "--csv", path});
+  EXPECT_EQ(r.code, 1);
+  EXPECT_THAT(r.err, HasSubstr("2 distinct rates"));
+
+  r = cli({"scale-factor", "--csv", file("no_such.csv")});
+  EXPECT_EQ(r.code, 2);
+  EXPECT_THAT(r.err, HasSubstr("no_such.csv"));
 }
 
 // ---------------------------------------------------------------- helpers

@@ -5,7 +5,7 @@ Writes tests/analysis/data/scale_factor.txt, read by
 tests/analysis/scale_factor_test.cpp:
 - "case NAME" then its points "p RATE_DPS OUTPUT_DPS REPETITION TEMPERATURE_C",
   "fit K B_DPS K_SE B_SE_DPS S_DPS NONLIN_PPM NONLIN_POINT NONLIN_FS_PPM
-  K_POS K_NEG ASYM_PPM REPEAT_PPM" ("nan" = absent / undefined), one
+  K_POS K_NEG ASYM_PPM REPEAT_PPM B_SPLIT_DPS" ("nan" = absent / undefined), one
   "r RESIDUAL_DPS" per point in input order, one "rep REPETITION K B_DPS" per
   repetition with >= 2 distinct rates, then "end";
 - "tcase NAME ORDER" then "tp T_C K BIAS_DPH" per plateau, "tfit T_MEAN_C
@@ -15,8 +15,9 @@ tests/analysis/scale_factor_test.cpp:
 
 Independent of the C++ code (centred sums; Householder QR): the line is
 numpy.linalg.lstsq on the design [rate, 1]; standard errors are
-s^2 (X'X)^-1 with numpy.linalg.inv; K+ and K- are lstsq through the origin of
-(output - B) on the rates of one sign; each repetition is its own lstsq;
+s^2 (X'X)^-1 with numpy.linalg.inv; K+, K- and their bias B_SPLIT are one
+lstsq on the design [max(rate, 0), min(rate, 0), 1]; each repetition is its
+own lstsq;
 repeatability is numpy.std(ddof=1) / numpy.mean of their K. The temperature
 polynomials are numpy.polyfit on T - mean(T).
 
@@ -82,17 +83,14 @@ def scale_factor_case(name, rate, output, rep, temp):
     nonlin = float(np.max(rel)) * 1e6
     nonlin_fs = float(np.max(np.abs(resid))) / (abs(k) * float(np.max(np.abs(rate)))) * 1e6
 
-    def through_origin(mask):
-        if not mask.any():
-            return None
-        c, _, _, _ = np.linalg.lstsq(rate[mask][:, None], output[mask] - b, rcond=None)
-        return float(c[0])
-
-    k_pos = through_origin(rate > 0)
-    k_neg = through_origin(rate < 0)
-    asym = None
-    if k_pos is not None and k_neg is not None:
-        asym = (k_pos - k_neg) / ((k_pos + k_neg) / 2) * 1e6
+    # The asymmetry: one joint lstsq on [rate+, rate-, 1], defined when both
+    # directions are present and the design has full rank (>= 3 distinct rates).
+    k_pos = k_neg = b_split = asym = None
+    if (rate > 0).any() and (rate < 0).any():
+        split = np.column_stack([np.maximum(rate, 0), np.minimum(rate, 0), np.ones_like(rate)])
+        if np.linalg.matrix_rank(split) == 3:
+            (k_pos, k_neg, b_split), _, _, _ = np.linalg.lstsq(split, output, rcond=None)
+            asym = (k_pos - k_neg) / ((k_pos + k_neg) / 2) * 1e6
 
     reps = []
     for r in sorted(set(rep.tolist())):
@@ -111,7 +109,7 @@ def scale_factor_case(name, rate, output, rep, temp):
         lines.append(f"p {fmt(rate[i])} {fmt(output[i])} {int(rep[i])} {fmt(temp[i])}")
     lines.append("fit " + " ".join(
         [fmt(k), fmt(b), fmt(k_se), fmt(b_se), fmt(s), fmt(nonlin), str(nonlin_point),
-         fmt(nonlin_fs), fmt(k_pos), fmt(k_neg), fmt(asym), fmt(repeat)]))
+         fmt(nonlin_fs), fmt(k_pos), fmt(k_neg), fmt(asym), fmt(repeat), fmt(b_split)]))
     for v in resid:
         lines.append(f"r {fmt(v)}")
     for r, kr, br in reps:

@@ -25,6 +25,7 @@
 #pragma once
 
 #include <cstddef>
+#include <span>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -73,5 +74,32 @@ CsvSamples csv_window_samples(const CsvWindow& window);
 // samples as recorded: pass window.t_s and window.rate_dph to allan_deviation.
 // Errors: those of make_analysis_series (only a bad bin_s, once parsed).
 Result<AnalysisSeries> csv_analysis_series(const CsvWindow& window, double bin_s = 1.0);
+
+// ---- Any named numeric columns ----------------------------------------------
+// The same reader for other tables (the scale-factor points of
+// `gyrotherm scale-factor --csv`): the format rules above, with the columns
+// the caller names instead of t_s, rate_dph, top_c, side_c, and no ordering
+// rule between rows. Required columns must be in the header (the message
+// lists them); optional ones may be absent, and then nothing is read for
+// them. Every value read must be a finite number, as above.
+
+struct CsvColumn {
+  std::string_view name;
+  bool required = true;
+};
+
+struct CsvColumns {
+  std::string source;
+  std::size_t row_count = 0;
+  std::vector<std::size_t> line;  // 1-based file line of each data row
+  // One entry per column asked for, in the order asked.
+  std::vector<bool> present;
+  std::vector<std::vector<double>> values;  // one per data row; empty when absent
+};
+
+Result<CsvColumns> parse_csv_columns(std::string_view text, const std::string& source_name,
+                                     std::span<const CsvColumn> columns);
+// Reads the file in one go (errors as read_csv_window's), then parses it.
+Result<CsvColumns> read_csv_columns(const std::string& path, std::span<const CsvColumn> columns);
 
 }  // namespace gyrotherm::analysis

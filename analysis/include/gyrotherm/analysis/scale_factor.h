@@ -15,6 +15,7 @@
 #include <cstddef>
 #include <optional>
 #include <span>
+#include <string>
 #include <string_view>
 #include <vector>
 
@@ -67,11 +68,17 @@ struct ScaleFactorFit {
   // |residual_i| / (|K| · full_scale_dps), ppm.
   double nonlinearity_fs_ppm = 0;
 
-  // K₊, K₋: least-squares slopes through the origin of (output − B) over the
-  // points with Ω > 0 and Ω < 0; asymmetry = (K₊ − K₋) / ((K₊ + K₋)/2), ppm.
-  // nullopt unless both directions are present.
+  // K₊, K₋ and B± minimise Σ (yᵢ − K₊·Ωᵢ⁺ − K₋·Ωᵢ⁻ − B±)² over all points
+  // (Ω⁺ = max(Ω, 0), Ω⁻ = min(Ω, 0); one bias shared by both directions),
+  // solved by Householder QR on the rates scaled by the full scale;
+  // asymmetry = (K₊ − K₋) / ((K₊ + K₋)/2) × 1e6, ppm. An output
+  // K(1 ± a/2)·Ω + B gives back a exactly whatever the rates; an even error
+  // (Q·Ω²) still reads as asymmetry (docs/analysis.md). All four nullopt
+  // unless a rate > 0 and a rate < 0 were measured and there are ≥ 3
+  // distinct rates (with only +a and −b, K₊, K₋ and B± are not determined).
   std::optional<double> k_positive;
   std::optional<double> k_negative;
+  std::optional<double> asymmetry_bias_dps;  // B± of that fit, °/s
   std::optional<double> asymmetry_ppm;
 
   // One entry per repetition number that has ≥ 2 distinct rates, in
@@ -87,6 +94,23 @@ struct ScaleFactorFit {
 // output, temperature or duration that is NaN or infinite; fewer than 2
 // distinct rates (a constant rate leaves K undetermined).
 Result<ScaleFactorFit> fit_scale_factor(std::span<const RatePoint> points);
+
+// ---- Rate points from a CSV file ---------------------------------------------
+// `gyrotherm scale-factor --csv FILE`: one row per dwell, columns rate_dps and
+// output_dps (°/s, required), repetition (a whole number; 1 when the column
+// is absent) and temperature_c (°C; 0 when absent), in any order, other
+// columns ignored. The format rules and the errors (file:line: column ...)
+// are those of analysis/csv_window.h; a repetition that is not a whole number
+// between −1e9 and 1e9 is refused the same way.
+struct RatePointsCsv {
+  std::string source;
+  std::vector<RatePoint> points;   // in file order
+  std::vector<std::size_t> lines;  // the file line of each point
+  bool has_repetition = false;
+  bool has_temperature = false;
+};
+Result<RatePointsCsv> parse_rate_points_csv(std::string_view text, const std::string& source_name);
+Result<RatePointsCsv> read_rate_points_csv(const std::string& path);
 
 // ---- Over temperature -----------------------------------------------------
 
