@@ -433,8 +433,8 @@ void Sequencer::tick_rate(double t_s, double active_dt_s, const Readings& readin
   if (activity_ == RunState::kSettling) {
     spin_up_s_ += active_dt_s;
     const double tolerance_dps = at_rate_tolerance_dps(demand_dps);
-    const bool at_rate = readings.table_rate_dps &&
-                         std::abs(*readings.table_rate_dps - demand_dps) <= tolerance_dps;
+    const bool at_rate =
+        readings.table_rate_dps && std::abs(*readings.table_rate_dps - demand_dps) <= tolerance_dps;
     if (!at_rate) {
       at_rate_since_s_.reset();
     } else if (!at_rate_since_s_) {
@@ -457,8 +457,8 @@ void Sequencer::tick_rate(double t_s, double active_dt_s, const Readings& readin
                                        : std::string("no table reading");
       abort(t_s, fmt::format("{}: the table did not reach {:+g} °/s (± {:g} °/s for {:g} s) "
                              "within {:g} s; last measured {}",
-                             step.label, demand_dps, tolerance_dps,
-                             options_.at_rate_hold_s, options_.spin_up_timeout_s, measured));
+                             step.label, demand_dps, tolerance_dps, options_.at_rate_hold_s,
+                             options_.spin_up_timeout_s, measured));
       return;
     }
     update_state(t_s, fmt::format("{}: spinning up to {:+g} °/s", step.label, demand_dps));

@@ -13,6 +13,8 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <atomic>
+#include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <functional>
@@ -22,6 +24,7 @@
 #include <optional>
 #include <span>
 #include <string>
+#include <thread>
 #include <utility>
 #include <vector>
 
@@ -330,7 +333,18 @@ class StationRig {
   }
   // Stops the station (a run in progress is interrupted) and drops it.
   void close() {
+    // At shutdown the station waits (wall time) for a spinning table to come
+    // to rest: the fake table moves meanwhile.
+    std::atomic<bool> stopped{false};
+    std::thread mover([&] {
+      while (!stopped) {
+        table.advance(0.1);
+        std::this_thread::sleep_for(std::chrono::milliseconds(2));
+      }
+    });
     if (station) station->stop("rig closed");
+    stopped = true;
+    mover.join();
     station.reset();
     gyro_ = nullptr;
     disk_ = nullptr;

@@ -463,8 +463,8 @@ Result<RecordedSamples> soak_recorded_samples(storage::Database& db, const SoakW
 namespace {
 // The stretches of a run when the table spun (steps demanding a rate, and a
 // spin-down margin after each): the drift model is of the gyro at rest.
-Result<std::vector<std::pair<double, double>>> spinning_spans(storage::Database& db,
-                                                              int64_t run_id, double last_s) {
+Result<std::vector<std::pair<double, double>>> spinning_spans(storage::Database& db, int64_t run_id,
+                                                              double last_s) {
   auto segments = db.segments(run_id);
   if (!segments) return segments.error();
   std::vector<std::pair<double, double>> out;
@@ -524,7 +524,8 @@ Result<double> soak_earth_rate_dph(storage::Database& db, const SoakWindow& soak
     return default_dph;
   }
   auto means = db.mean_table_over_windows(soak.run_id, soak.windows);
-  if (!means) return Error::Transient(fmt::format("{}: {}", soak_name(soak), means.error().message));
+  if (!means)
+    return Error::Transient(fmt::format("{}: {}", soak_name(soak), means.error().message));
   if (!means->position_deg) {
     return Error::Permanent(fmt::format(
         "{}: no table position recorded over the soak: the Earth-rate projection of a radial "

@@ -20,10 +20,10 @@ std::string coefficients_json(const std::vector<double>& c) { return nlohmann::j
 // `problem`) when it cannot be used.
 using MaybePoint = std::optional<storage::ScaleFactorPointRecord>;
 
-Result<MaybePoint> rate_point(storage::Database& db,
-                                                                  const storage::SegmentRecord& seg,
-                                                                  std::string& problem) {
-  const std::string where = fmt::format("run {} segment {} ({})", seg.run_id, seg.index + 1, seg.label);
+Result<MaybePoint> rate_point(storage::Database& db, const storage::SegmentRecord& seg,
+                              std::string& problem) {
+  const std::string where =
+      fmt::format("run {} segment {} ({})", seg.run_id, seg.index + 1, seg.label);
   if (!seg.table_rate_dps || *seg.table_rate_dps == 0) {
     problem = where + ": no demanded rate stored";
     return MaybePoint{};
@@ -68,9 +68,10 @@ Result<MaybePoint> rate_point(storage::Database& db,
   if (table->rate_dps) {
     const double error_ppm = std::abs(*table->rate_dps / p.rate_dps - 1.0) * 1e6;
     if (error_ppm > kMaxRateErrorPpm) {
-      problem = fmt::format("{}: the table measured {:.6g} °/s for a demand of {:g} °/s ({:.0f} ppm "
-                            "off); point left out",
-                            where, *table->rate_dps, p.rate_dps, error_ppm);
+      problem = fmt::format(
+          "{}: the table measured {:.6g} °/s for a demand of {:g} °/s ({:.0f} ppm "
+          "off); point left out",
+          where, *table->rate_dps, p.rate_dps, error_ppm);
       return MaybePoint{};
     }
   }
@@ -131,8 +132,8 @@ Result<ScaleFactorSummary> analyse_scale_factor(storage::Database& db, int64_t r
     }
     auto fit = analysis::fit_scale_factor(input);
     if (!fit) {
-      summary.problems.push_back(
-          fmt::format("run {} scale-factor sequence {}: {}", run_id, sequence, fit.error().message));
+      summary.problems.push_back(fmt::format("run {} scale-factor sequence {}: {}", run_id,
+                                             sequence, fit.error().message));
       continue;
     }
     storage::ScaleFactorFitRecord rec;

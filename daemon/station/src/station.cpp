@@ -82,8 +82,9 @@ Result<std::unique_ptr<Station>> Station::create(StationConfig config, StationDe
     return Error::Permanent("station: a chamber, a probe module and a gyro source are needed");
   }
   if (config.table.has_value() != (devices.table != nullptr)) {
-    return Error::Permanent(config.table ? "station: the config has a [table] but no table was given"
-                                         : "station: a table was given but the config has no [table]");
+    return Error::Permanent(config.table
+                                ? "station: the config has a [table] but no table was given"
+                                : "station: a table was given but the config has no [table]");
   }
   auto db = storage::Database::open(config.storage.db_path, clocks.wall);
   if (!db) return db.error();
@@ -427,8 +428,8 @@ void Station::tick() {
       sequencer_->tick(t_run_s, r);
       if (table_ && !sequencer_->finished()) {
         const schedules::TableDemand demand = table_demand();
-        const bool moves = demand.mode == schedules::TableDemandMode::kRate ||
-                           demand.position_deg.has_value();
+        const bool moves =
+            demand.mode == schedules::TableDemandMode::kRate || demand.position_deg.has_value();
         if (moves || !table_->safing()) {
           if (!moves && !table_->at_rest()) {
             table_->make_safe(wall_.monotonic_s());

@@ -60,8 +60,7 @@ void TableControl::read(double now_s, double wall_s, double min_silent_wall_s,
     if (ok_) spdlog::warn("{}", state.error().message);
     ok_ = false;
   }
-  r.table_silent_s =
-      wall_s - ok_wall_s_ >= min_silent_wall_s ? std::max(0.0, now_s - ok_s_) : 0.0;
+  r.table_silent_s = wall_s - ok_wall_s_ >= min_silent_wall_s ? std::max(0.0, now_s - ok_s_) : 0.0;
 }
 
 bool TableControl::matches(const TableDemand& demand) const {
@@ -78,8 +77,7 @@ bool TableControl::matches(const TableDemand& demand) const {
       // Not spinning: off, holding a position, or not servoed at all.
       return s.mode != drivers::TableMode::kRate || !servoed;
     case TableDemandMode::kRate:
-      return servoed && s.mode == drivers::TableMode::kRate && sent_ &&
-             same_demand(*sent_, demand);
+      return servoed && s.mode == drivers::TableMode::kRate && sent_ && same_demand(*sent_, demand);
   }
   return false;
 }

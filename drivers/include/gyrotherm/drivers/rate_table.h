@@ -75,9 +75,9 @@ struct TableConnection {
   // bridge that passes the GPIB-style answers). To be checked on the real
   // controller: docs/table.md, "Commissioning".
   std::string reply_header = "ascii";
-  std::string device;  // aero: serial device path
-  int baud = 9600;     // aero
-  int axis = 1;        // acutrol: the axis number commands name
+  std::string device;      // aero: serial device path
+  int baud = 9600;         // aero
+  int axis = 1;            // acutrol: the axis number commands name
   double timeout_s = 1.0;  // per request, wall seconds
 };
 

@@ -15,7 +15,7 @@ namespace gyrotherm::daemon {
 
 struct ScaleFactorSummary {
   int points = 0;
-  int sequences = 0;          // fitted
+  int sequences = 0;  // fitted
   bool temperature_fit = false;
   std::vector<std::string> problems;  // a sequence or point that could not be used, and why
 };

@@ -231,7 +231,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
   std::unique_ptr<drivers::GyroSource> gyro_;
   std::unique_ptr<drivers::RateTable> table_device_;
   std::unique_ptr<TableControl> table_;  // nullptr: no table
-  const double started_wall_s_;  // wall_.monotonic_s() at create()
+  const double started_wall_s_;          // wall_.monotonic_s() at create()
 
   // Run state (run_mu_).
   std::unique_ptr<schedules::Sequencer> sequencer_;
