@@ -192,6 +192,12 @@ StatusSnapshot busy_station() {
   s.queue_length = 2;
   s.queue_held = true;
   s.queue_hold_reason = "stopped by the operator";
+  TableStatus table;
+  table.connected = true;
+  table.state = drivers::TableState{
+      drivers::TableMode::kRate, "Rate", drivers::TableInterlock::kClosed, 100.0004, 123.4, ""};
+  table.demand = {schedules::TableDemandMode::kRate, std::nullopt, 100.0};
+  s.table = table;
   return s;
 }
 
