@@ -502,6 +502,7 @@ timeout_s = 0.5
 max_rate_dps = 1000
 max_accel_dps2 = 4200
 at_rate_tolerance_dps = 0.1
+at_rate_tolerance_ppm = 200
 at_rate_hold_s = 2
 spin_up_timeout_s = 60
 rest_rate_dps = 0.02
@@ -522,6 +523,7 @@ heading_at_zero_deg = 90
   EXPECT_DOUBLE_EQ(t.max_rate_dps, 1000);
   EXPECT_DOUBLE_EQ(t.max_accel_dps2, 4200);
   EXPECT_DOUBLE_EQ(t.at_rate_tolerance_dps, 0.1);
+  EXPECT_DOUBLE_EQ(t.at_rate_tolerance_ppm, 200);
   EXPECT_DOUBLE_EQ(t.at_rate_hold_s, 2);
   EXPECT_DOUBLE_EQ(t.spin_up_timeout_s, 60);
   EXPECT_DOUBLE_EQ(t.rest_rate_dps, 0.02);

@@ -6,6 +6,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <csignal>
 #include <cmath>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -328,6 +329,49 @@ TEST_F(TurntableTest, ScaleFactorCampaignRecoversTheSimulatorsTruth) {
   const json samples = get_json("/api/v1/runs/1/samples?max_points=100");
   ASSERT_TRUE(samples["table"].is_object()) << samples.dump().substr(0, 2000);
   EXPECT_FALSE(samples["table"]["t_s"].empty());
+}
+
+// kill -9 during a rate point: the restarted daemon spins the table up again
+// and dwells the whole point again; every rate point's acquisition is one
+// window of whole turns.
+TEST_F(TurntableTest, CrashDuringARatePointRedwellsItInFull) {
+  write(dir_ / "schedule.toml", R"(
+name = "crash while spinning"
+[[step]]
+type = "scale_factor"
+setpoint_c = 23.0
+rates_dps = [10, 100]
+min_dwell_s = 60
+)");
+  start_sim();
+  start_daemon();
+  ASSERT_TRUE(wait_json(
+      "/api/v1/status",
+      [](const json& s) {
+        return s["state"] == "acquiring" && spinning_at(s, 100.0) && s["t_run_s"].get<double>() > 0;
+      },
+      120s))
+      << diag();
+  daemon_->signal(SIGKILL);
+  ASSERT_TRUE(daemon_->wait(10s).has_value());
+  start_daemon({}, false);
+  ASSERT_TRUE(wait_json(
+      "/api/v1/runs/1", [](const json& r) { return r["state"] == "completed"; }, 300s))
+      << diag();
+  const json run = last_;
+  int points = 0;
+  for (const json& seg : run["segments"]) {
+    if (seg["kind"] != "rate") continue;
+    ++points;
+    SCOPED_TRACE(seg.dump());
+    ASSERT_EQ(seg["windows"].size(), 1u) << "a rate point's dwell is never split";
+    const double length_s = seg["windows"][0][1].get<double>() - seg["windows"][0][0].get<double>();
+    EXPECT_NEAR(length_s, seg["dwell_s"].get<double>(), 1e-6);
+    const double turns = std::abs(seg["table"]["rate_dps"].get<double>()) * length_s / 360.0;
+    EXPECT_NEAR(turns, std::round(turns), 1e-6);
+    EXPECT_EQ(seg["state"], "completed");
+  }
+  EXPECT_EQ(points, 4);
 }
 
 TEST_F(TurntableTest, AbortWhileSpinningEndsAtRestWithTheChamberSafe) {

@@ -342,6 +342,7 @@ void read_table(TableReader t, TableSection& s, bool simulated) {
   s.max_rate_dps = positive("max_rate_dps", s.max_rate_dps, 1e5);
   s.max_accel_dps2 = positive("max_accel_dps2", s.max_accel_dps2, 1e6);
   s.at_rate_tolerance_dps = positive("at_rate_tolerance_dps", s.at_rate_tolerance_dps, 1e3);
+  s.at_rate_tolerance_ppm = positive("at_rate_tolerance_ppm", s.at_rate_tolerance_ppm, 1e5);
   s.at_rate_hold_s = positive("at_rate_hold_s", s.at_rate_hold_s, 3600.0);
   s.spin_up_timeout_s = positive("spin_up_timeout_s", s.spin_up_timeout_s, 86400.0);
   s.rest_rate_dps = positive("rest_rate_dps", s.rest_rate_dps, 1e3);

@@ -415,6 +415,13 @@ void Station::tick() {
   note_link(*chamber_, chamber_ok_, chamber_lost_s_, now_s);
   note_link(*probes_, probes_ok_, probes_lost_s_, now_s);
   if (!sequencer_) start_next_run(now_s);
+  // Idle, the table is at rest and not servoed (a daemon that crashed may
+  // have left it spinning).
+  if (!sequencer_ && table_ && !table_->safing() && table_->status().state &&
+      (!table_->at_rest() ||
+       table_->status().state->interlock == drivers::TableInterlock::kClosed)) {
+    table_->make_safe(wall_.monotonic_s());
+  }
 
   double t_run_s = 0;
   if (sequencer_) {
