@@ -6,8 +6,8 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
-#include <csignal>
 #include <cmath>
+#include <csignal>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <string>
@@ -119,14 +119,15 @@ class TurntableTest : public StationTest {
 // (docs/simulator.md, "The gyro on the table"), less the bias.
 double truth_output_dps(const json& sf, double case_c, double rate_dps, double earth_dph) {
   const double input_dph = rate_dps * 3600.0 + earth_dph;
-  double k = 1.0 + (sf["k_ppm"].get<double>() +
-                    sf["k_tc_ppm_per_c"].get<double>() *
-                        (case_c - sf["reference_temp_c"].get<double>())) *
-                       1e-6;
+  double k =
+      1.0 + (sf["k_ppm"].get<double>() +
+             sf["k_tc_ppm_per_c"].get<double>() * (case_c - sf["reference_temp_c"].get<double>())) *
+                1e-6;
   k *= 1.0 + (input_dph >= 0 ? 0.5 : -0.5) * sf["asymmetry_ppm"].get<double>() * 1e-6;
   const double full_scale_dph = sf["full_scale_dps"].get<double>() * 3600.0;
   return k * input_dph *
-         (1.0 + sf["nonlinearity_ppm"].get<double>() * 1e-6 * std::abs(input_dph) / full_scale_dph) /
+         (1.0 +
+          sf["nonlinearity_ppm"].get<double>() * 1e-6 * std::abs(input_dph) / full_scale_dph) /
          3600.0;
 }
 
@@ -134,9 +135,7 @@ TEST_F(TurntableTest, AcutrolDriverAgainstTheSimulatorInEachFraming) {
   for (const char* framing : {"ascii", "binary-le", "binary-be", "line"}) {
     SCOPED_TRACE(framing);
     in_process_sim_.reset();
-    write(dir_ / "station.toml",
-          testing::station_config(dir_, api_port_) +
-              fmt::format(R"(
+    write(dir_ / "station.toml", testing::station_config(dir_, api_port_) + fmt::format(R"(
 [table]
 profile = "acutrol"
 max_rate_dps = 500
@@ -144,7 +143,7 @@ max_accel_dps2 = 1000
 [simulator.table]
 reply_header = "{}"
 )",
-                          framing));
+                                                                                        framing));
     ASSERT_NO_FATAL_FAILURE(start_sim_in_process());
     const auto ep = in_process_sim_->endpoints();
     ASSERT_GT(ep.table_port, 0);
@@ -301,14 +300,14 @@ TEST_F(TurntableTest, ScaleFactorCampaignRecoversTheSimulatorsTruth) {
     EXPECT_NEAR(fit["nonlinearity_ppm"].get<double>(), expected->nonlinearity_ppm, 20.0);
     ASSERT_TRUE(fit["repeatability_ppm"].is_number());
     EXPECT_LT(fit["repeatability_ppm"].get<double>(), 5.0);
-    std::printf("plateau %.3f °C: K %.9f (truth %.9f, %+.2f ppm), asymmetry %.2f ppm (truth %.2f), "
-                "nonlinearity %.2f ppm (truth %.2f), fs %.2f ppm (truth %.2f), repeatability "
-                "%.2f ppm\n",
-                t_c, k, expected->k, (k / expected->k - 1.0) * 1e6,
-                fit["asymmetry_ppm"].get<double>(), *expected->asymmetry_ppm,
-                fit["nonlinearity_ppm"].get<double>(), expected->nonlinearity_ppm,
-                fit["nonlinearity_fs_ppm"].get<double>(), expected->nonlinearity_fs_ppm,
-                fit["repeatability_ppm"].get<double>());
+    std::printf(
+        "plateau %.3f °C: K %.9f (truth %.9f, %+.2f ppm), asymmetry %.2f ppm (truth %.2f), "
+        "nonlinearity %.2f ppm (truth %.2f), fs %.2f ppm (truth %.2f), repeatability "
+        "%.2f ppm\n",
+        t_c, k, expected->k, (k / expected->k - 1.0) * 1e6, fit["asymmetry_ppm"].get<double>(),
+        *expected->asymmetry_ppm, fit["nonlinearity_ppm"].get<double>(), expected->nonlinearity_ppm,
+        fit["nonlinearity_fs_ppm"].get<double>(), expected->nonlinearity_fs_ppm,
+        fit["repeatability_ppm"].get<double>());
   }
   const json& over_t = result["temperature_fit"];
   const double truth_ppm_per_c =
@@ -378,8 +377,8 @@ TEST_F(TurntableTest, AbortWhileSpinningEndsAtRestWithTheChamberSafe) {
   write(dir_ / "schedule.toml", kSpin);
   start_sim();
   start_daemon();
-  ASSERT_TRUE(wait_json("/api/v1/status", [](const json& s) { return spinning_at(s, 100.0); },
-                        120s))
+  ASSERT_TRUE(wait_json(
+      "/api/v1/status", [](const json& s) { return spinning_at(s, 100.0); }, 120s))
       << diag();
   auto r = call("POST", "/api/v1/control/abort", R"({"reason":"spinning abort"})");
   ASSERT_TRUE(r && r->status == 200) << (r ? r->body : "");
@@ -407,8 +406,8 @@ TEST_F(TurntableTest, ATableFaultIsAnInterlockAndItsGraceAbortsTheRun) {
   write(dir_ / "schedule.toml", kSpin);
   start_sim();
   start_daemon();
-  ASSERT_TRUE(wait_json("/api/v1/status", [](const json& s) { return spinning_at(s, 100.0); },
-                        120s))
+  ASSERT_TRUE(wait_json(
+      "/api/v1/status", [](const json& s) { return spinning_at(s, 100.0); }, 120s))
       << diag();
   ASSERT_TRUE(sim_ctl("table fault"));
   ASSERT_TRUE(wait_json("/api/v1/status", [](const json& s) {
@@ -417,8 +416,8 @@ TEST_F(TurntableTest, ATableFaultIsAnInterlockAndItsGraceAbortsTheRun) {
     }
     return false;
   })) << diag();
-  ASSERT_TRUE(wait_json("/api/v1/runs/1", [](const json& run) { return run["state"] == "failed"; },
-                        120s))
+  ASSERT_TRUE(wait_json(
+      "/api/v1/runs/1", [](const json& run) { return run["state"] == "failed"; }, 120s))
       << diag();
   // The faulted axis coasted to rest; the chamber went to its safe set point.
   ASSERT_TRUE(wait_json("/api/v1/status", [](const json& s) {

@@ -88,6 +88,10 @@ class SimFixture : public ::testing::Test {
     auto options = read_simulator_options(config_, overrides);
     ASSERT_TRUE(options.ok()) << options.error().message;
     options_ = *options;
+    // The demo station has a rate table; these tests serve one only when
+    // they ask for it (config_.table and options_.serve_table).
+    config_.table.reset();
+    options_.serve_table = false;
     options_.gyro_link = dir_ + "/gyro-pty";  // per test: tests may run in parallel
     options_.control_socket = dir_ + "/sim.sock";
   }
