@@ -5,9 +5,11 @@
 // while the table spins.
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <sys/wait.h>
 
 #include <cmath>
 #include <csignal>
+#include <cstdlib>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <string>
@@ -17,6 +19,7 @@
 #include "gyrotherm/core/units.h"
 #include "gyrotherm/drivers/rate_tables.h"
 #include "integration/station_fixture.h"
+#include "test_files.h"
 
 namespace gyrotherm {
 namespace {
@@ -243,6 +246,52 @@ TEST_F(TurntableTest, AeroDriverAgainstTheSimulatorsPty) {
       },
       10s))
       << s.rate_dps;
+}
+
+// Commissioning: `gyrotherm table` against the simulated controller, with
+// the station's [table] limits.
+TEST_F(TurntableTest, TheTableCommandSpinsStopsAndRefusesBeyondTheLimits) {
+  start_sim();
+  const std::string cfg = (dir_ / "station.toml").string();
+  struct Run {
+    int code;
+    std::string out;
+  };
+  auto cli = [&](std::vector<std::string> args) {
+    std::string cmd = bin("gyrotherm");
+    for (const auto& a : args) cmd += " '" + a + "'";
+    cmd += " >" + (dir_ / "cli.out").string() + " 2>&1";
+    const int st = std::system(cmd.c_str());
+    return Run{WIFEXITED(st) ? WEXITSTATUS(st) : -1, testing::read_text(dir_ / "cli.out")};
+  };
+  Run r = cli({"table", "rate", "20", "--config", cfg});
+  ASSERT_EQ(r.code, 0) << r.out;
+  json status;
+  ASSERT_TRUE(wait_until(
+      [&] {
+        r = cli({"table", "status", "--config", cfg, "--json"});
+        status = json::parse(r.out, nullptr, false);
+        return r.code == 0 && status.is_object() && status["rate_dps"].is_number() &&
+               std::abs(status["rate_dps"].get<double>() - 20.0) < 0.1;
+      },
+      20s))
+      << r.out;
+  EXPECT_EQ(status["mode"], "rate") << r.out;
+  EXPECT_EQ(status["interlock"], "closed") << r.out;
+  r = cli({"table", "rate", "600", "--config", cfg});
+  EXPECT_NE(r.code, 0) << r.out;
+  EXPECT_THAT(r.out, ::testing::HasSubstr("500")) << "names the station's limit: " << r.out;
+  r = cli({"table", "stop", "--config", cfg});
+  ASSERT_EQ(r.code, 0) << r.out;
+  ASSERT_TRUE(wait_until(
+      [&] {
+        r = cli({"table", "status", "--config", cfg, "--json"});
+        status = json::parse(r.out, nullptr, false);
+        return r.code == 0 && status.is_object() && status["rate_dps"].is_number() &&
+               std::abs(status["rate_dps"].get<double>()) < 0.01;
+      },
+      20s))
+      << r.out;
 }
 
 TEST_F(TurntableTest, ScaleFactorCampaignRecoversTheSimulatorsTruth) {
