@@ -66,6 +66,7 @@ class FakeControl : public StationControl {
   }
   Reply run_fits(int64_t) override { return Reply::ok(nlohmann::json::array()); }
   Reply run_allan(int64_t) override { return Reply::ok(nlohmann::json::array()); }
+  Reply run_scale_factor(int64_t) override { return Reply::ok(nlohmann::json::object()); }
   Reply fit(int64_t id) override { return Reply::ok({{"id", id}}); }
   Reply exports() override { return Reply::ok(nlohmann::json::array()); }
 };
