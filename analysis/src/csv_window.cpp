@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <system_error>
 
 namespace gyrotherm::analysis {
@@ -252,29 +253,60 @@ Result<std::string> read_whole_file(const std::string& path) {
   return text;
 }
 
+// Skips a UTF-8 byte-order mark and blank lines: the header row goes into
+// `line`. False when the text has none.
+bool read_header_line(std::string_view& text, std::optional<LineReader>& lines,
+                      std::string_view* line) {
+  static constexpr std::string_view kBom = "\xEF\xBB\xBF";
+  if (text.substr(0, kBom.size()) == kBom) text.remove_prefix(kBom.size());
+  lines.emplace(text);
+  while (lines->next(line)) {
+    if (!is_blank(*line)) return true;
+  }
+  return false;
+}
+
+// One data row split by the header's column roles: `on_field(role, raw)` for
+// each column that is not ignored. A quoted row or one whose field count
+// differs from the header's is an error naming the line. Whether every field
+// of the row was taken.
+template <class OnField>
+bool parse_row(std::string_view line, std::size_t line_no, const std::vector<int>& roles,
+               ErrorList& errors, OnField&& on_field) {
+  if (std::memchr(line.data(), '"', line.size()) != nullptr) {
+    errors.add(line_no, "quoted fields are not supported (found '\"')");
+    return false;
+  }
+  const std::size_t n_columns = roles.size();
+  std::size_t n_fields = 1;
+  for (char c : line) n_fields += c == ',';
+  if (n_fields != n_columns) {
+    errors.add(line_no, "{} value (row has {} fields, header has {})",
+               n_fields < n_columns ? "missing" : "extra", n_fields, n_columns);
+    return false;
+  }
+  bool row_ok = true;
+  std::size_t start = 0;
+  for (std::size_t c = 0; c < n_columns; ++c) {
+    const std::size_t comma = c + 1 < n_columns ? line.find(',', start) : line.size();
+    if (roles[c] != kIgnored) row_ok &= on_field(roles[c], line.substr(start, comma - start));
+    start = comma + 1;
+  }
+  return row_ok;
+}
+
 }  // namespace
 
 Result<CsvWindow> parse_csv_window(std::string_view text, const std::string& source_name) {
-  static constexpr std::string_view kBom = "\xEF\xBB\xBF";
-  if (text.substr(0, kBom.size()) == kBom) text.remove_prefix(kBom.size());
-
-  LineReader lines(text);
+  std::optional<LineReader> lines;
   std::string_view line;
-  bool have_header = false;
-  while (lines.next(&line)) {
-    if (!is_blank(line)) {
-      have_header = true;
-      break;
-    }
-  }
-  if (!have_header) {
+  if (!read_header_line(text, lines, &line)) {
     return Error::Permanent(fmt::format(
         "{}: no header row (expected a header naming t_s, rate_dph, top_c, side_c)", source_name));
   }
-  const std::size_t header_line = lines.number();
+  const std::size_t header_line = lines->number();
   Result<std::vector<int>> roles = parse_header(line, header_line, source_name);
   if (!roles.ok()) return roles.error();
-  const std::size_t n_columns = roles->size();
 
   CsvWindow w;
   w.source = source_name;
@@ -287,33 +319,15 @@ Result<CsvWindow> parse_csv_window(std::string_view text, const std::string& sou
   ErrorList errors(source_name);
   double last_t_s = std::numeric_limits<double>::quiet_NaN();
   std::size_t last_t_line = 0;
-  while (lines.next(&line)) {
+  while (lines->next(&line)) {
     if (is_blank(line)) continue;
-    const std::size_t line_no = lines.number();
-    if (std::memchr(line.data(), '"', line.size()) != nullptr) {
-      errors.add(line_no, "quoted fields are not supported (found '\"')");
-      continue;
-    }
-    std::size_t n_fields = 1;
-    for (char c : line) n_fields += c == ',';
-    if (n_fields != n_columns) {
-      errors.add(line_no, "{} value (row has {} fields, header has {})",
-                 n_fields < n_columns ? "missing" : "extra", n_fields, n_columns);
-      continue;
-    }
+    const std::size_t line_no = lines->number();
     std::array<double, kRequired.size()> values{};
-    bool row_ok = true;
-    std::size_t start = 0;
-    for (std::size_t c = 0; c < n_columns; ++c) {
-      const std::size_t comma = c + 1 < n_columns ? line.find(',', start) : line.size();
-      const int role = (*roles)[c];
-      if (role != kIgnored) {
-        const std::string_view raw = line.substr(start, comma - start);
-        row_ok &= parse_value(raw, line_no, kRequired[role], &errors, &values[role]);
-      }
-      start = comma + 1;
+    if (!parse_row(line, line_no, *roles, errors, [&](int role, std::string_view raw) {
+          return parse_value(raw, line_no, kRequired[role], &errors, &values[role]);
+        })) {
+      continue;
     }
-    if (!row_ok) continue;
     const double t = values[0];
     if (last_t_line != 0 && !(t > last_t_s)) {
       errors.add(line_no,
@@ -367,29 +381,18 @@ Result<AnalysisSeries> csv_analysis_series(const CsvWindow& window, double bin_s
 
 Result<CsvColumns> parse_csv_columns(std::string_view text, const std::string& source_name,
                                      std::span<const CsvColumn> columns) {
-  static constexpr std::string_view kBom = "\xEF\xBB\xBF";
-  if (text.substr(0, kBom.size()) == kBom) text.remove_prefix(kBom.size());
-
-  LineReader lines(text);
+  std::optional<LineReader> lines;
   std::string_view line;
-  bool have_header = false;
-  while (lines.next(&line)) {
-    if (!is_blank(line)) {
-      have_header = true;
-      break;
-    }
-  }
-  if (!have_header) {
+  if (!read_header_line(text, lines, &line)) {
     std::string names;
     for (const CsvColumn& c : columns)
       names += fmt::format("{}{}", names.empty() ? "" : ", ", c.name);
     return Error::Permanent(
         fmt::format("{}: no header row (expected a header naming {})", source_name, names));
   }
-  const std::size_t header_line = lines.number();
+  const std::size_t header_line = lines->number();
   Result<std::vector<int>> roles = parse_column_header(line, header_line, source_name, columns);
   if (!roles.ok()) return roles.error();
-  const std::size_t n_columns = roles->size();
 
   CsvColumns out;
   out.source = source_name;
@@ -401,32 +404,14 @@ Result<CsvColumns> parse_csv_columns(std::string_view text, const std::string& s
 
   ErrorList errors(source_name);
   std::vector<double> values(columns.size());
-  while (lines.next(&line)) {
+  while (lines->next(&line)) {
     if (is_blank(line)) continue;
-    const std::size_t line_no = lines.number();
-    if (std::memchr(line.data(), '"', line.size()) != nullptr) {
-      errors.add(line_no, "quoted fields are not supported (found '\"')");
-      continue;
-    }
-    std::size_t n_fields = 1;
-    for (char c : line) n_fields += c == ',';
-    if (n_fields != n_columns) {
-      errors.add(line_no, "{} value (row has {} fields, header has {})",
-                 n_fields < n_columns ? "missing" : "extra", n_fields, n_columns);
-      continue;
-    }
-    bool row_ok = true;
-    std::size_t start = 0;
-    for (std::size_t c = 0; c < n_columns; ++c) {
-      const std::size_t comma = c + 1 < n_columns ? line.find(',', start) : line.size();
-      const int role = (*roles)[c];
-      if (role != kIgnored) {
-        const auto r = static_cast<std::size_t>(role);
-        row_ok &= parse_value(line.substr(start, comma - start), line_no, columns[r].name, &errors,
-                              &values[r]);
-      }
-      start = comma + 1;
-    }
+    const std::size_t line_no = lines->number();
+    const bool row_ok =
+        parse_row(line, line_no, *roles, errors, [&](int role, std::string_view raw) {
+          const auto r = static_cast<std::size_t>(role);
+          return parse_value(raw, line_no, columns[r].name, &errors, &values[r]);
+        });
     if (!row_ok || !errors.empty()) continue;  // no data will be returned
     out.line.push_back(line_no);
     for (std::size_t r = 0; r < columns.size(); ++r) {
