@@ -330,6 +330,16 @@ CREATE TABLE scale_factor_temperature_fits(
 );
 )sql";
 
+// v8: devices under test, run metadata, results per DUT and axis.
+constexpr const char* kSchemaV8 = R"sql(
+SELECT 1;  -- (contract placeholder: the records migration goes here)
+)sql";
+
+// v9: chunked sample storage.
+constexpr const char* kSchemaV9 = R"sql(
+SELECT 1;  -- (contract placeholder: the chunked samples migration goes here)
+)sql";
+
 constexpr Migration kMigrations[] = {
     {1, "initial schema", kSchemaV1},
     {2, "queue, crash resume, acquisition windows", kSchemaV2},
@@ -338,6 +348,8 @@ constexpr Migration kMigrations[] = {
     {5, "calibration exports", kSchemaV5},
     {6, "runs.config_json is JSON, old TOML in runs.config_toml", kSchemaV6},
     {7, "rate table samples and segments, scale-factor points and fits", kSchemaV7},
+    {8, "devices under test, run metadata, results per DUT and axis", kSchemaV8},
+    {9, "chunked sample storage", kSchemaV9},
 };
 
 static_assert(sizeof(kMigrations) / sizeof(kMigrations[0]) == kSchemaVersion,

@@ -108,7 +108,8 @@ Result<std::optional<double>> Database::last_gyro_sample_t_s(int64_t run_id) {
 
 Result<QueueEntry> Database::queue_add(const std::string& schedule_name,
                                        const std::string& source_path, const std::string& toml_text,
-                                       bool ignore_failures) {
+                                       bool ignore_failures,
+                                       const RunMetadata& /*metadata: schema v8*/) {
   Transaction tx(db_, path_);
   if (Status s = tx.begin_immediate(); !s) return s.error();
   const std::string now = utc_now();

@@ -510,3 +510,8 @@ SampleWriterStats SampleWriter::stats() const {
 }
 
 }  // namespace gyrotherm::storage
+
+namespace gyrotherm::storage {
+// Contract placeholder, replaced by the chunked writer (schema v9).
+void SampleWriter::push_frames(const RunDutRecord&, std::span<const DutFrame>) {}
+}  // namespace gyrotherm::storage

@@ -228,6 +228,8 @@ class FullDiskSink final : public storage::SampleSink {
     for (auto& [run_id, g] : held_gyro_) writer_->push_gyro(run_id, std::span(&g, 1));
     for (auto& [run_id, t] : held_temperatures_) writer_->push_temperature(run_id, t);
     for (auto& [run_id, t] : held_table_) writer_->push_table(run_id, t);
+    for (auto& [dut, f] : held_frames_) writer_->push_frames(dut, std::span(&f, 1));
+    held_frames_.clear();
     held_gyro_.clear();
     held_temperatures_.clear();
     held_table_.clear();
@@ -248,6 +250,11 @@ class FullDiskSink final : public storage::SampleSink {
     if (!full_) return writer_->push_table(run_id, sample);
     held_table_.emplace_back(run_id, sample);
   }
+  void push_frames(const storage::RunDutRecord& dut, std::span<const DutFrame> frames) override {
+    std::lock_guard lock(mu_);
+    if (!full_) return writer_->push_frames(dut, frames);
+    for (const auto& f : frames) held_frames_.emplace_back(dut, f);
+  }
   Status flush() override {
     {
       std::lock_guard lock(mu_);
@@ -262,7 +269,8 @@ class FullDiskSink final : public storage::SampleSink {
     if (full_) {
       s.consecutive_failures = s.commit_failures = ++failures_;
       s.last_error = kFull;
-      s.pending += held_gyro_.size() + held_temperatures_.size() + held_table_.size();
+      s.pending += held_gyro_.size() + held_temperatures_.size() + held_table_.size() +
+                   held_frames_.size();
     }
     return s;
   }
@@ -276,6 +284,7 @@ class FullDiskSink final : public storage::SampleSink {
   std::vector<std::pair<int64_t, GyroSample>> held_gyro_;
   std::vector<std::pair<int64_t, TemperatureSample>> held_temperatures_;
   std::vector<std::pair<int64_t, TableSample>> held_table_;
+  std::vector<std::pair<storage::RunDutRecord, DutFrame>> held_frames_;
 };
 
 // A minimal station config for the rig: 1 s control ticks, no wall-time

@@ -16,6 +16,7 @@
 #include <optional>
 #include <span>
 #include <string>
+#include <vector>
 
 #include "gyrotherm/core/result.h"
 #include "gyrotherm/core/samples.h"
@@ -99,6 +100,22 @@ class GyroSource {
  public:
   using Sink = std::function<void(std::span<const GyroSample>)>;
   virtual ~GyroSource() = default;
+  // Starts delivering: `sink` is called with each batch, on the source's
+  // thread (or the caller's, for a fake); it must not block for long.
+  virtual void start(Sink sink) = 0;
+  virtual void stop() = 0;  // idempotent; no batch after it returns
+  virtual GyroReaderHealth health() const = 0;
+};
+
+// One device under test's frames (every channel), timestamped in station
+// seconds, in batches. Replaces GyroSource for the station (a DUT per
+// [[dut]] entry); health() counts frames as `samples`.
+class DutSource {
+ public:
+  using Sink = std::function<void(std::span<const DutFrame>)>;
+  virtual ~DutSource() = default;
+  // The channels of every frame, in raw[] order; fixed for the source's life.
+  virtual const std::vector<ChannelSpec>& channels() const = 0;
   // Starts delivering: `sink` is called with each batch, on the source's
   // thread (or the caller's, for a fake); it must not block for long.
   virtual void start(Sink sink) = 0;

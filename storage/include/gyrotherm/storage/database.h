@@ -11,6 +11,8 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
+#include <span>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -25,12 +27,23 @@ struct sqlite3;
 
 namespace gyrotherm::storage {
 
-inline constexpr int kSchemaVersion = 7;
+// v8: DUTs, run metadata, results per DUT and axis (records).
+// v9: chunked sample storage (sample_chunks, channel_rollup).
+inline constexpr int kSchemaVersion = 9;
 
 // Rollup blocks of the gyro rate (table gyro_rollup): block length of each
 // level, station seconds. A sample at t_s is in block floor(t_s / length).
 inline constexpr double kRollupBlockS[] = {0.1, 1.0, 10.0, 100.0, 1000.0};
 inline constexpr int kRollupLevels = 5;
+
+// Who ran a run and why, and which gyros were in it (schema v8). Set when
+// queued, kept on the run, editable afterwards (each edit is an event).
+struct RunMetadata {
+  std::string operator_name;  // column runs.operator
+  std::string comment;
+  std::vector<std::string> tags;         // free tags, stored as a JSON array
+  std::vector<std::string> dut_serials;  // as declared when queued; the run's DUTs are run_duts
+};
 
 struct RunRecord {
   int64_t id = 0;
@@ -55,6 +68,47 @@ struct RunRecord {
   // was taken (Unix seconds); empty / nullopt until the first checkpoint.
   std::string resume_json;
   std::optional<double> checkpoint_wall_unix_s;
+  RunMetadata metadata;  // schema v8
+};
+
+// A device under test, as the station has known it (table duts): one row
+// per serial number, whatever runs it was in. serial "" is the unnamed gyro
+// of runs recorded before DUTs had serials.
+struct DutRecord {
+  int64_t id = 0;
+  std::string serial;
+  std::string model;
+  std::string first_seen_utc;  // "" = now
+};
+
+// One channel of one DUT in one run (table channels). Samples are stored
+// per channel; see sample_chunks (docs/storage.md).
+struct ChannelRecord {
+  int64_t id = 0;
+  int64_t run_id = 0;
+  int64_t dut_id = 0;
+  int index = 0;  // position in the DUT's frames (DutFrame::raw)
+  ChannelSpec spec;
+};
+
+// A DUT in a run (table run_duts) with its channels.
+struct RunDutRecord {
+  int64_t run_id = 0;
+  int position = 0;  // order in the run's [[dut]] list, from 0
+  DutRecord dut;
+  std::string config_json;  // the [[dut]] entry the run used (JSON object)
+  std::string primary_axis;  // e.g. "z"
+  std::vector<std::string> axes;  // analysed rate axes
+  double rate_hz = 0;        // nominal output rate
+  uint32_t seq_modulo = 0;   // 0: the frames carry no counter
+  std::vector<ChannelRecord> channels;  // by index
+};
+
+// Which rate series of a run: a DUT (by serial; "" with dut_id 0 = the run's
+// first DUT) and its axis ("" = that DUT's primary axis).
+struct StreamKey {
+  std::string dut_serial;
+  std::string axis;
 };
 
 struct SegmentRecord {
@@ -100,6 +154,7 @@ struct SegmentRecord {
 // One entry of the persistent run queue, with its schedule.
 struct QueueEntry {
   int64_t id = 0;
+  RunMetadata metadata;  // schema v8: given to the run it starts
   int64_t schedule_id = 0;
   int position = 0;   // among queued entries, 0 = next; -1 once taken
   std::string state;  // queued, running, completed, failed, interrupted, removed
@@ -126,6 +181,10 @@ struct EventRecord {
 struct SegmentStatsRecord {
   int64_t segment_id = 0;
   int64_t run_id = 0;
+  // Schema v8: the DUT and axis (one row per segment, DUT and axis). ""
+  // when written means the run's first DUT and its primary axis.
+  std::string dut_serial;
+  std::string axis;
   int segment_index = 0;
   double setpoint_c = 0;
   int64_t n = 0;
@@ -145,6 +204,8 @@ struct SegmentStatsRecord {
 // A stored drift-model fit (paper eq. 1) with what it was computed from.
 struct FitRecord {
   int64_t id = 0;
+  std::string dut_serial;  // schema v8; "" = the runs' first DUT
+  std::string axis;        // schema v8; "" = its primary axis
   std::vector<int64_t> run_ids;  // the runs whose data were fitted
   std::string model;             // e.g. "T4+R1+G1"
   std::string form;              // paper, centered
@@ -163,6 +224,8 @@ struct FitRecord {
 struct AllanRecord {
   int64_t id = 0;
   int64_t run_id = 0;
+  std::string dut_serial;  // schema v8, as SegmentStatsRecord
+  std::string axis;
   int64_t segment_id = 0;           // the soak's segment (0: not tied to a segment)
   int segment_index = 0;            // 0-based step index
   double t_from_s = 0, t_to_s = 0;  // samples used, station s since run start
@@ -207,6 +270,8 @@ struct ExportRecord {
 struct ScaleFactorPointRecord {
   int64_t id = 0;                // set when read
   int64_t run_id = 0;            // 0: the run store_scale_factor() is given
+  std::string dut_serial;        // schema v8, as SegmentStatsRecord
+  std::string axis;
   int64_t segment_id = 0;        // the rate point's segment (0: not tied to one)
   int sf_sequence = 0;           // segments.sf_sequence
   int repetition = 0;            // segments.sf_repetition
@@ -223,6 +288,8 @@ struct ScaleFactorPointRecord {
 // scale_factor_fits; docs/analysis.md defines the figures).
 struct ScaleFactorFitRecord {
   int64_t run_id = 0;  // 0: the run store_scale_factor() is given
+  std::string dut_serial;  // schema v8, as SegmentStatsRecord
+  std::string axis;
   int sf_sequence = 0;
   double temperature_c = 0;  // mean temperature of the sequence's points
   double k = 0;              // scale factor, (°/s) / (°/s)
@@ -241,6 +308,8 @@ struct ScaleFactorFitRecord {
 // coefficients are JSON arrays of numbers, lowest power first; bias in °/s.
 struct ScaleFactorTemperatureFitRecord {
   int64_t run_id = 0;  // 0: the run store_scale_factor() is given
+  std::string dut_serial;  // schema v8, as SegmentStatsRecord
+  std::string axis;
   int order = 0;       // polynomial degree
   double t_centre_c = 0;
   std::string k_coeffs_json{};     // e.g. "[1.0000123, 2.1e-6]"; "" stores "[]"
@@ -268,6 +337,9 @@ struct TableWindowMeans {
 // of bucket_s station seconds; bucket_s == 0 when the samples are returned as recorded (no more
 // than max_points of them).
 struct DecimatedSamples {
+  std::string dut_serial;  // the series the gyro points are of
+  std::string channel;     // e.g. gyro_z
+  std::string unit;        // of the gyro points (deg/h for rate channels)
   double from_s = 0, to_s = 0;
   double bucket_s = 0;
   bool from_rollup = false;  // gyro points come from gyro_rollup blocks
@@ -291,6 +363,22 @@ struct DecimatedSamples {
     std::vector<double> demand_rate_dps;                    // last demanded rate
     std::vector<std::string> demand_mode, mode, interlock;  // last
   } table;
+};
+
+// Everything one gyro has been through (dut_history): its runs, their
+// segments, and its results per axis.
+struct DutHistory {
+  DutRecord dut;
+  struct Run {
+    RunRecord run;  // config_json and resume_json left empty
+    RunDutRecord in_run;
+    std::vector<SegmentRecord> segments;
+    std::vector<SegmentStatsRecord> stats;   // this DUT's rows, every axis
+    std::vector<AllanRecord> allan;          // this DUT's
+    std::vector<ScaleFactorFitRecord> scale_factor;  // this DUT's
+  };
+  std::vector<Run> runs;  // by run id
+  std::vector<FitRecord> fits;  // this DUT's drift fits, newest first
 };
 
 class Database {
@@ -322,6 +410,26 @@ class Database {
   Result<std::vector<RunRecord>> runs();
   Result<RunRecord> run(int64_t run_id);
 
+  // Run metadata (schema v8). set_run_metadata replaces it and adds an
+  // event (kind "metadata") naming who changed what (`changed_by`: a token
+  // label or "cli"); the event's message lists old -> new per field.
+  Status set_run_metadata(int64_t run_id, const RunMetadata& metadata,
+                          std::string_view changed_by);
+
+  // DUTs (schema v8). add_run_dut registers the DUT (by serial: created on
+  // first sight, model updated when given) in the run with its channels, in
+  // one transaction; returns the record with every id set. Twice for the
+  // same (run, serial): returns the existing record (crash resume).
+  Result<RunDutRecord> add_run_dut(int64_t run_id, const RunDutRecord& dut);
+  Result<std::vector<RunDutRecord>> run_duts(int64_t run_id);  // by position
+  Result<std::vector<DutRecord>> duts();                        // by serial
+  Result<std::optional<DutRecord>> dut(std::string_view serial);
+  Result<DutHistory> dut_history(std::string_view serial);  // error when unknown (named)
+  // The run's DUT and axis `key` names, resolved ("" -> first DUT, primary
+  // axis); error naming the serial or axis when the run has no such.
+  Result<std::pair<RunDutRecord, std::string>> resolve_stream(int64_t run_id,
+                                                              const StreamKey& key);
+
   // Stores the sequencer snapshot for crash resume.
   Status set_run_checkpoint(int64_t run_id, std::string_view resume_json, double wall_unix_s);
   // Latest station time with a committed sample of the run (gyro,
@@ -336,7 +444,8 @@ class Database {
   // The queue. Positions of queued entries are kept 0..n-1 in run order.
   // add: stores the schedule text and appends the entry.
   Result<QueueEntry> queue_add(const std::string& schedule_name, const std::string& source_path,
-                               const std::string& toml_text, bool ignore_failures);
+                               const std::string& toml_text, bool ignore_failures,
+                               const RunMetadata& metadata = {});
   // The running entry (if any) first, then queued entries by position.
   Result<std::vector<QueueEntry>> queue_entries();
   Result<std::optional<QueueEntry>> queue_entry(int64_t id);
@@ -377,11 +486,27 @@ class Database {
 
   // Samples in [t_from_s, t_to_s) of a run, ordered by time (t_s relative to
   // run start). For analysis windows; not for whole 10-M-sample runs.
+  // The first form: the run's first DUT, its primary axis.
   Result<std::vector<GyroSample>> gyro_samples(int64_t run_id, double t_from_s, double t_to_s);
+  // One DUT's rate axis: rate_dph from the axis's channel; status, temp_c
+  // from the DUT's status and temperature channels when it has them; seq
+  // from the chunk's counter.
+  Result<std::vector<GyroSample>> gyro_samples(int64_t run_id, const StreamKey& key,
+                                               double t_from_s, double t_to_s);
+  // Streams one channel's samples in [t_from_s, t_to_s) in time order, in
+  // blocks (one chunk at a time: memory independent of the span): `block`
+  // gets times (run s) and physical values (raw * scale; NaN where
+  // invalid) of equal length. Returning false stops the scan.
+  Status for_each_channel_block(
+      int64_t channel_id, double t_from_s, double t_to_s,
+      const std::function<bool(std::span<const double> t_s, std::span<const double> value,
+                               std::span<const uint32_t> seq)>& block);
+  // Samples of a channel (every DUT channel; committed).
+  Result<int64_t> count_channel_samples(int64_t channel_id);
   Result<std::vector<TemperatureSample>> temperature_samples(int64_t run_id, double t_from_s,
                                                              double t_to_s);
   Result<std::vector<TableSample>> table_samples(int64_t run_id, double t_from_s, double t_to_s);
-  Result<int64_t> count_gyro_samples(int64_t run_id);
+  Result<int64_t> count_gyro_samples(int64_t run_id);  // frames of the run's first DUT
   // The table's mean rate and circular mean position over `windows`
   // ((from_s, to_s) station s, each half-open like table_samples): what a
   // segment's table_mean_* columns hold. Overlapping windows count a sample
@@ -393,6 +518,12 @@ class Database {
   // made of whole rollup blocks (so [from_s, to_s] widens to block edges)
   // unless the raw rows in range are few. to_s nullopt: the last sample.
   Result<DecimatedSamples> decimated_samples(int64_t run_id, double from_s,
+                                             std::optional<double> to_s, int max_points);
+  // The same for one DUT's channel (`channel` "" = the DUT's primary rate
+  // axis channel; any numeric channel may be asked for): the gyro points
+  // are that channel's, in its unit.
+  Result<DecimatedSamples> decimated_samples(int64_t run_id, const StreamKey& dut,
+                                             const std::string& channel, double from_s,
                                              std::optional<double> to_s, int max_points);
 
   // Fits.

@@ -26,6 +26,7 @@
 
 #include "gyrotherm/core/result.h"
 #include "gyrotherm/core/samples.h"
+#include "gyrotherm/storage/database.h"
 
 namespace gyrotherm::storage {
 
@@ -35,7 +36,9 @@ struct SampleWriterOptions {
 };
 
 struct SampleWriterStats {
-  uint64_t gyro_rows = 0;         // committed
+  uint64_t gyro_rows = 0;         // committed frames (every DUT; push_gyro and push_frames)
+  uint64_t channel_samples = 0;   // committed channel values (frames x channels)
+  uint64_t chunks = 0;            // sample_chunks rows written or extended
   uint64_t temperature_rows = 0;  // committed
   uint64_t table_rows = 0;        // committed (rate table)
   uint64_t commits = 0;
@@ -60,6 +63,9 @@ class SampleSink {
   virtual void push_gyro(int64_t run_id, std::span<const GyroSample> samples) = 0;
   virtual void push_temperature(int64_t run_id, const TemperatureSample& sample) = 0;
   virtual void push_table(int64_t run_id, const TableSample& sample) = 0;
+  // One DUT's frames (t_s relative to the run's start) into its channels'
+  // chunks; `dut` is what Database::add_run_dut returned for the run.
+  virtual void push_frames(const RunDutRecord& dut, std::span<const DutFrame> frames) = 0;
   // Blocks until everything pushed before the call is committed (or the
   // commit failed): the commit's status.
   virtual Status flush() = 0;
@@ -84,6 +90,10 @@ class SampleWriter final : public SampleSink {
   void push_gyro(int64_t run_id, std::span<const GyroSample> samples) override;
   void push_temperature(int64_t run_id, const TemperatureSample& sample) override;
   void push_table(int64_t run_id, const TableSample& sample) override;
+  // push_gyro stores into the run's first DUT (created as serial "" with
+  // channels rate/status/temp_c when the run has none) so older callers and
+  // tests keep working.
+  void push_frames(const RunDutRecord& dut, std::span<const DutFrame> frames) override;
 
   // Blocks until everything pushed before the call is committed (or the
   // commit failed). Returns the commit's status; on failure the rows stay

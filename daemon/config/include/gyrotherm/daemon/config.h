@@ -15,6 +15,7 @@
 
 #include "gyrotherm/analysis/table1.h"
 #include "gyrotherm/core/result.h"
+#include "gyrotherm/drivers/dut_link.h"
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/drivers/modbus_device.h"
 #include "gyrotherm/drivers/rate_table.h"
@@ -94,6 +95,34 @@ struct GyroSection {
   std::string protocol = "kvh1750";
   drivers::GyroFormat format;
   double silent_timeout_s = 5.0;  // station s without a sample = stream lost
+};
+
+// [[dut]]: one device under test (docs/configuration.md). A config with
+// the older single [gyro] section (and no [[dut]]) reads as one DUT whose
+// serial is [gyro] serial ("" when not given) and whose axes are the one
+// [gyro] axis. StationConfig::duts is what the station uses; `gyro` is kept
+// filled from duts[0] for code that shows "the gyro".
+struct DutProbes {
+  // Optional probes on this DUT's shell, read from the [probes] module
+  // (same endpoint and register layout as top/side, these channels).
+  int top_channel = 0;
+  int side_channel = 0;
+};
+struct DutSection {
+  std::string serial;  // the DUT's serial number; unique among [[dut]]
+  std::string model;   // e.g. "KVH 1750"
+  drivers::DutLink link;
+  // The rate axes analysed (Table I, Allan, fits), "x"/"y"/"z" among the
+  // protocol's rate channels; default: every rate channel it carries.
+  std::vector<std::string> axes;
+  // Each analysed axis's direction, for the Earth-rate removal: up, down,
+  // horizontal. Default "up" for the primary axis, "horizontal" for others.
+  std::vector<std::pair<std::string, analysis::AxisOrientation>> orientation;
+  std::string primary_axis;  // shown first (status, dashboard); default the last of axes
+  // The axis along the rate table's spin axis (scale factor); default primary_axis.
+  std::string table_axis;
+  double silent_timeout_s = 5.0;  // station s without a frame = stream lost
+  std::optional<DutProbes> probes;
 };
 
 // [table]: the rate table. Absent from station.toml: the station has no
@@ -196,7 +225,8 @@ struct StationConfig {
   StationSection station;
   ChamberSection chamber;
   ProbesSection probes;
-  GyroSection gyro;
+  GyroSection gyro;         // duts[0] in the older form (see DutSection)
+  std::vector<DutSection> duts;  // at least one
   std::optional<TableSection> table;
   StorageSection storage;
   ApiSection api;
@@ -245,6 +275,10 @@ struct SimEndpoints {
   // the AERO grammar on a pty.
   int table_port = 0;
   std::string table_device{};
+  // Every simulated DUT's pty, by the DUT's serial number, in [[dut]]
+  // order (gyro_device is the first's). Written as `dut_devices = [{serial =
+  // "...", device = "..."}, ...]`.
+  std::vector<std::pair<std::string, std::string>> dut_devices{};
 };
 // "" when a daemon at `daemon_time_scale` may run against the simulator
 // that wrote `ep`, else why not (the two clocks would disagree: the
@@ -253,7 +287,8 @@ std::string sim_time_scale_mismatch(const SimEndpoints& ep, double daemon_time_s
                                     const std::string& endpoints_file);
 Result<SimEndpoints> read_sim_endpoints(const std::string& path);
 Status write_sim_endpoints(const std::string& path, const SimEndpoints& endpoints);
-// Applies endpoints to the chamber, probes and gyro sections.
+// Applies endpoints to the chamber, probes, table and every DUT's line (by
+// serial; a DUT the simulator does not serve is an error at start-up).
 void apply_sim_endpoints(StationConfig& config, const SimEndpoints& endpoints);
 
 }  // namespace gyrotherm::daemon

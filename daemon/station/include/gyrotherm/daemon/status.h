@@ -24,6 +24,37 @@ struct TableStatus {
   drivers::DeviceHealth health;
 };
 
+// One device under test, live.
+struct DutStatus {
+  std::string serial;
+  std::string model;
+  std::string primary_axis;
+  // Mean of the last full station second per rate axis, deg/h ("x", "y",
+  // "z" as the DUT carries them); nullopt before the first full second.
+  std::vector<std::pair<std::string, std::optional<double>>> rates_dph;
+  std::optional<double> temp_c;  // the DUT's internal temperature, last frame
+  double samples_per_s = 0;      // frames per station second
+  drivers::GyroReaderHealth health;
+};
+
+// Where the run and the queue are (docs/api.md "Progress"). A settling step
+// has no fixed length: its fraction and the ETAs are then nullopt and the
+// gate's progress is given instead.
+struct Progress {
+  std::optional<double> step_elapsed_s;    // station s in the current step
+  std::optional<double> step_planned_s;    // its fixed length (ramps, acquisition, dwell)
+  std::optional<double> step_fraction;     // 0..1; nullopt while settling
+  std::string phase;                       // ramping, settling, acquiring, spinning_up, ...
+  // Settling: how long the stability gate has held and how long it must.
+  std::optional<double> gate_held_s;
+  std::optional<double> gate_needed_s;
+  double run_remaining_fixed_s = 0;  // the run's remaining fixed-length time, station s
+  int run_settles_remaining = 0;     // settles ahead whose length is unknown
+  std::optional<double> run_eta_s;   // station s to the run's end; nullopt when a settle remains
+  double queue_fixed_s = 0;          // fixed-length time of the queued entries, station s
+  int queue_settles = 0;
+};
+
 struct StatusSnapshot {
   std::string station_name;
   std::string state = "idle";  // idle, or the current run's state
@@ -48,6 +79,12 @@ struct StatusSnapshot {
   drivers::DeviceHealth probes;
   drivers::GyroReaderHealth gyro;
   std::optional<TableStatus> table;  // nullopt: the station has no table
+  std::vector<DutStatus> duts;       // every [[dut]], in config order
+  Progress progress;
+  // The current run's metadata (operator, comment, tags, DUT serials).
+  std::string run_operator;
+  std::string run_comment;
+  std::vector<std::string> run_tags;
   storage::SampleWriterStats storage;
   std::string last_event;
   bool paused = false;
