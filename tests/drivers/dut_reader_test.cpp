@@ -1,0 +1,268 @@
+// make_dut_source(): the DutReader through a real pseudo-terminal, for each
+// protocol. Conditions are awaited with deadlines; the station clock is a
+// ManualClock, so timestamps are exact.
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdlib>
+#include <functional>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "gyrotherm/core/clock.h"
+#include "gyrotherm/drivers/ascii_line.h"
+#include "gyrotherm/drivers/dut_link.h"
+#include "gyrotherm/drivers/kvh1750.h"
+#include "gyrotherm/drivers/pty.h"
+#include "test_time.h"
+
+namespace gyrotherm::drivers {
+namespace {
+
+using namespace std::chrono_literals;
+
+bool wait_for(const std::function<bool()>& cond, std::chrono::milliseconds limit = 5000ms) {
+  return testing::wait_for_condition(cond, limit);
+}
+
+Pty open_pty() {
+  auto pty = Pty::open(/*nonblocking_master=*/true);
+  if (!pty.ok()) {
+    ADD_FAILURE() << pty.error().message;
+    std::abort();
+  }
+  return std::move(pty).value();
+}
+
+void send(Pty& pty, std::string_view text) {
+  const Status s =
+      pty.write_master(std::span(reinterpret_cast<const uint8_t*>(text.data()), text.size()));
+  ASSERT_TRUE(s.ok()) << s.error().message;
+}
+
+class Collector {
+ public:
+  DutSource::Sink sink() {
+    return [this](std::span<const DutFrame> batch) {
+      std::lock_guard lock(mu_);
+      frames_.insert(frames_.end(), batch.begin(), batch.end());
+    };
+  }
+  std::size_t size() const {
+    std::lock_guard lock(mu_);
+    return frames_.size();
+  }
+  std::vector<DutFrame> frames() const {
+    std::lock_guard lock(mu_);
+    return frames_;
+  }
+
+ private:
+  mutable std::mutex mu_;
+  std::vector<DutFrame> frames_;
+};
+
+AsciiColumn col(std::string name, ChannelKind kind, std::string unit, std::string axis = "") {
+  return AsciiColumn{std::move(name), kind, std::move(unit), std::move(axis)};
+}
+
+TEST(DutReader, Kvh1750FramesWithEveryChannel) {
+  Pty pty = open_pty();
+  ManualClock clock(100.0);
+  DutLink link;
+  link.serial.device = pty.slave_path();
+  link.unit = AngleUnit::kDeg;
+  link.rate_hz = 10.0;
+  auto source = make_dut_source(link, clock);
+  ASSERT_TRUE(source.ok()) << source.error().message;
+  DutSource& dut = **source;
+  ASSERT_EQ(dut.channels().size(), 8u);
+  EXPECT_EQ(dut.channels()[2].name, "gyro_z");
+  EXPECT_DOUBLE_EQ(dut.channels()[2].scale, 3600.0);  // deg/s -> deg/h
+  Collector got;
+  dut.start(got.sink());
+  ASSERT_TRUE(wait_for([&] { return dut.health().connected; }));
+
+  // Counter 0..4, then 6 (5 lost), then a frame with gyro Y and accel Z invalid.
+  std::string bytes;
+  for (uint8_t s : {0, 1, 2, 3, 4, 6, 7}) {
+    GyroFrame f;
+    f.gyro = {0.01f * s, -0.5f, 0.25f};
+    f.accel = {0.0f, 0.0f, -1.0f};
+    f.status = s == 7 ? 0x35 : 0x77;
+    f.seq = s;
+    f.temp_c = 30;
+    const auto b = encode_kvh1750(f);
+    bytes.append(reinterpret_cast<const char*>(b.data()), b.size());
+  }
+  bytes += "\xFE\x81noise";  // skipped bytes, not a frame
+  send(pty, bytes);
+  ASSERT_TRUE(wait_for([&] { return got.size() >= 7 && dut.health().parser.bytes_skipped >= 7; }));
+
+  const auto f = got.frames();
+  ASSERT_EQ(f.size(), 7u);
+  const std::vector<double> t{100.0, 100.1, 100.2, 100.3, 100.4, 100.6, 100.7};
+  for (std::size_t i = 0; i < f.size(); ++i) {
+    EXPECT_NEAR(f[i].t_s, t[i], 1e-9) << i;
+    EXPECT_EQ(f[i].raw[7], 30.0);
+  }
+  EXPECT_EQ(f[5].seq, 6u);
+  EXPECT_EQ(f[5].raw[0], static_cast<double>(0.06f));
+  EXPECT_EQ(f[5].raw[5], -1.0);
+  EXPECT_TRUE(std::isnan(f[6].raw[1]));  // gyro Y invalid
+  EXPECT_TRUE(std::isnan(f[6].raw[5]));  // accel Z invalid
+  EXPECT_EQ(f[6].raw[2], 0.25);
+  EXPECT_EQ(f[6].raw[6], 0x35);
+
+  const auto h = dut.health();
+  EXPECT_EQ(h.samples, 7u);
+  EXPECT_EQ(h.invalid_samples, 1u);
+  EXPECT_EQ(h.parser.frames_ok, 7u);
+  EXPECT_EQ(h.parser.sequence_gaps, 1u);
+  EXPECT_EQ(h.parser.frames_missed, 1u);
+  EXPECT_EQ(h.parser.bytes_skipped, 7u);
+  EXPECT_NEAR(h.last_sample_station_s, 100.7, 1e-9);
+  dut.stop();
+  dut.stop();  // idempotent
+}
+
+TEST(DutReader, AsciiLinesWithACounter) {
+  Pty pty = open_pty();
+  ManualClock clock(50.0);
+  DutLink link;
+  link.serial.device = pty.slave_path();
+  link.protocol = "ascii";
+  link.rate_hz = 100.0;
+  AsciiLineOptions& o = link.ascii;
+  o.prefix = "$GYR,";
+  o.columns = {col("seq", ChannelKind::kOther, ""), col("gyro_z", ChannelKind::kRate, "deg/s", "z"),
+               col("status", ChannelKind::kStatus, "")};
+  o.seq_column = 0;
+  o.seq_modulo = 100;
+  o.checksum = "crc16";
+  o.valid_bits = {{"z", 1}};
+  auto source = make_dut_source(link, clock);
+  ASSERT_TRUE(source.ok()) << source.error().message;
+  DutSource& dut = **source;
+  ASSERT_EQ(dut.channels().size(), 2u);
+  Collector got;
+  dut.start(got.sink());
+  ASSERT_TRUE(wait_for([&] { return dut.health().connected; }));
+
+  // Counter 97..99, 0 (wrap), then 3 (1, 2 lost); status 0 on the last: NaN.
+  std::string text;
+  const std::vector<uint32_t> seqs{97, 98, 99, 0, 3};
+  for (uint32_t s : seqs) {
+    const std::vector<double> v{0.5 + s, s == 3 ? 0.0 : 1.0};
+    text += encode_ascii_line(o, v, s);
+  }
+  text += "$GYR,4,1,1*0000\r\n";  // bad CRC
+  send(pty, text);
+  ASSERT_TRUE(wait_for([&] { return got.size() >= 5 && dut.health().parser.crc_failures >= 1; }));
+  const auto f = got.frames();
+  ASSERT_EQ(f.size(), 5u);
+  const std::vector<double> t{50.0, 50.01, 50.02, 50.03, 50.06};
+  for (std::size_t i = 0; i < f.size(); ++i) {
+    EXPECT_NEAR(f[i].t_s, t[i], 1e-9) << i;
+    EXPECT_EQ(f[i].seq, seqs[i]);
+  }
+  EXPECT_EQ(f[0].raw[0], 97.5);
+  EXPECT_TRUE(std::isnan(f[4].raw[0]));
+  const auto h = dut.health();
+  EXPECT_EQ(h.samples, 5u);
+  EXPECT_EQ(h.invalid_samples, 1u);
+  EXPECT_EQ(h.parser.sequence_gaps, 1u);
+  EXPECT_EQ(h.parser.frames_missed, 2u);
+  EXPECT_NE(h.parser.last_reject.find("checksum *0000"), std::string::npos) << h.parser.last_reject;
+  dut.stop();
+}
+
+// Without a counter each line takes the next slot; a stall is found from the
+// station clock (the read that empties the line after a silence re-anchors).
+TEST(DutReader, AsciiLinesWithoutACounterUseTheClockRule) {
+  Pty pty = open_pty();
+  ManualClock clock(10.0);
+  DutLink link;
+  link.serial.device = pty.slave_path();
+  link.protocol = "ascii";
+  link.rate_hz = 10.0;
+  link.ascii.delimiter = "whitespace";
+  link.ascii.columns = {col("rate", ChannelKind::kRate, "deg/h", "z"),
+                        col("temp_c", ChannelKind::kTemperature, "degC")};
+  auto source = make_dut_source(link, clock);
+  ASSERT_TRUE(source.ok()) << source.error().message;
+  DutSource& dut = **source;
+  Collector got;
+  dut.start(got.sink());
+  ASSERT_TRUE(wait_for([&] { return dut.health().connected; }));
+
+  send(pty, "1.0 20\n2.0 20\r\n3.0 20\r");
+  ASSERT_TRUE(wait_for([&] { return got.size() >= 3; }));
+  clock.set(100.0);
+  std::this_thread::sleep_for(200ms);  // a silence on the line: the stimulus, not a wait
+  send(pty, "4.0 21\n");
+  ASSERT_TRUE(wait_for([&] { return got.size() >= 4; }));
+  const auto f = got.frames();
+  ASSERT_EQ(f.size(), 4u);
+  EXPECT_NEAR(f[0].t_s, 10.0, 1e-9);
+  EXPECT_NEAR(f[1].t_s, 10.1, 1e-9);
+  EXPECT_NEAR(f[2].t_s, 10.2, 1e-9);
+  EXPECT_NEAR(f[3].t_s, 100.0, 1e-9);
+  EXPECT_EQ(f[3].raw[0], 4.0);
+  EXPECT_EQ(f[3].raw[1], 21.0);
+  EXPECT_EQ(f[3].seq, 0u);
+  EXPECT_EQ(dut.health().parser.sequence_gaps, 0u);
+  dut.stop();
+}
+
+TEST(DutReader, HangUpIsSurvivedAndTheMissingDeviceNamed) {
+  ManualClock clock(0.0);
+  DutLink link;
+  link.serial.device = "/dev/gyrotherm-no-such-dut";
+  link.protocol = "ascii";
+  link.ascii.columns = {col("rate", ChannelKind::kRate, "deg/h", "z")};
+  auto source = make_dut_source(link, clock);
+  ASSERT_TRUE(source.ok());
+  Collector got;
+  (*source)->start(got.sink());
+  ASSERT_TRUE(wait_for([&] { return !(*source)->health().last_error.empty(); }));
+  EXPECT_NE((*source)->health().last_error.find("/dev/gyrotherm-no-such-dut"), std::string::npos);
+  const auto t0 = std::chrono::steady_clock::now();
+  (*source)->stop();
+  EXPECT_LT(std::chrono::steady_clock::now() - t0, testing::scaled(1s));
+
+  Pty pty = open_pty();
+  link.serial.device = pty.slave_path();
+  auto second = make_dut_source(link, clock);
+  ASSERT_TRUE(second.ok());
+  (*second)->start(got.sink());
+  ASSERT_TRUE(wait_for([&] { return (*second)->health().connected; }));
+  send(pty, "1\n");
+  ASSERT_TRUE(wait_for([&] { return got.size() >= 1; }));
+  pty.close_master();
+  ASSERT_TRUE(wait_for([&] {
+    const auto h = (*second)->health();
+    return !h.connected && h.read_errors >= 1;
+  }));
+  (*second)->stop();
+}
+
+TEST(DutReader, BadLinksAreRefusedByName) {
+  ManualClock clock;
+  DutLink link;
+  link.protocol = "ascii";  // no columns
+  auto s = make_dut_source(link, clock);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find("ascii columns: none given"), std::string::npos);
+  link.protocol = "kvh1750";
+  link.rate_hz = 0;
+  s = make_dut_source(link, clock);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().message.find("rate_hz"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace gyrotherm::drivers
