@@ -1,5 +1,7 @@
 // dut_channels(): the channel list of each protocol; the ASCII options'
 // validation and the line encoder.
+#include "gyrotherm/drivers/dut_link.h"
+
 #include <fmt/format.h>
 
 #include <array>
@@ -10,7 +12,6 @@
 
 #include "gyrotherm/core/units.h"
 #include "gyrotherm/drivers/ascii_line.h"
-#include "gyrotherm/drivers/dut_link.h"
 
 namespace gyrotherm::drivers {
 namespace {
@@ -83,7 +84,8 @@ std::string_view expected_units(ChannelKind kind) {
 }
 
 bool is_channel_column(const AsciiLineOptions& o, std::size_t i) {
-  return o.columns[i].name != "-" && !(o.seq_column && static_cast<std::size_t>(*o.seq_column) == i);
+  return o.columns[i].name != "-" &&
+         !(o.seq_column && static_cast<std::size_t>(*o.seq_column) == i);
 }
 
 Result<std::vector<ChannelSpec>> ascii_channels(const AsciiLineOptions& o, double rate_hz) {
@@ -134,13 +136,14 @@ Status validate_ascii_options(const AsciiLineOptions& o) {
   const std::string& d = o.delimiter;
   if (d != "whitespace") {
     if (d.size() != 1) {
-      return Error::Permanent(fmt::format(
-          "ascii delimiter '{}': must be one character or \"whitespace\"", d));
+      return Error::Permanent(
+          fmt::format("ascii delimiter '{}': must be one character or \"whitespace\"", d));
     }
     const char ch = d[0];
-    const bool bad = ch == '\r' || ch == '\n' || ch == '*' || ch == '.' || ch == '+' ||
-                     ch == '-' || (ch >= '0' && ch <= '9') || (ch >= 'a' && ch <= 'z') ||
-                     (ch >= 'A' && ch <= 'Z') || (static_cast<unsigned char>(ch) < 0x20 && ch != '\t');
+    const bool bad = ch == '\r' || ch == '\n' || ch == '*' || ch == '.' || ch == '+' || ch == '-' ||
+                     (ch >= '0' && ch <= '9') || (ch >= 'a' && ch <= 'z') ||
+                     (ch >= 'A' && ch <= 'Z') ||
+                     (static_cast<unsigned char>(ch) < 0x20 && ch != '\t');
     if (bad) {
       return Error::Permanent(fmt::format(
           "ascii delimiter '{}': cannot separate numbers (not a letter, digit, '.', '+', '-', "
@@ -187,9 +190,9 @@ Status validate_ascii_options(const AsciiLineOptions& o) {
       return Error::Permanent(fmt::format("{}: name repeated", label));
     }
     if (!column_scale(c.kind, c.unit, 1.0)) {
-      return Error::Permanent(fmt::format("{}: unit '{}' is not a unit for a {} column (expected {})",
-                                          label, c.unit, to_string(c.kind),
-                                          expected_units(c.kind)));
+      return Error::Permanent(
+          fmt::format("{}: unit '{}' is not a unit for a {} column (expected {})", label, c.unit,
+                      to_string(c.kind), expected_units(c.kind)));
     }
     if (c.kind == ChannelKind::kRate || c.kind == ChannelKind::kAccel) {
       if (!valid_axis(c.axis)) {
@@ -197,13 +200,13 @@ Status validate_ascii_options(const AsciiLineOptions& o) {
                                             c.axis, to_string(c.kind)));
       }
       if (!axes.insert({c.kind, c.axis}).second) {
-        return Error::Permanent(fmt::format("{}: a second {} column for axis {}", label,
-                                            to_string(c.kind), c.axis));
+        return Error::Permanent(
+            fmt::format("{}: a second {} column for axis {}", label, to_string(c.kind), c.axis));
       }
       if (c.kind == ChannelKind::kRate) rate_axes.insert(c.axis);
     } else if (!c.axis.empty()) {
-      return Error::Permanent(fmt::format("{}: axis '{}' given, but only rate and accel columns have one",
-                                          label, c.axis));
+      return Error::Permanent(fmt::format(
+          "{}: axis '{}' given, but only rate and accel columns have one", label, c.axis));
     }
     if (c.kind == ChannelKind::kStatus) ++status_columns;
     ++channels;
@@ -260,8 +263,8 @@ std::string encode_ascii_line(const AsciiLineOptions& o, std::span<const double>
   if (values.size() == named && named != channels) {
     with_seq_entry = true;
   } else if (values.size() != channels) {
-    throw std::invalid_argument(fmt::format(
-        "encode_ascii_line: {} values for {} channels", values.size(), channels));
+    throw std::invalid_argument(
+        fmt::format("encode_ascii_line: {} values for {} channels", values.size(), channels));
   }
   const std::string delim = o.delimiter == "whitespace" ? std::string(" ") : o.delimiter;
   std::string line = o.prefix;

@@ -68,7 +68,8 @@ bool DutReader::wait_unless_stopped(std::chrono::milliseconds wall) {
 
 void DutReader::run() {
   if (config_error_.empty() && (!(rate_hz_ > 0) || !std::isfinite(rate_hz_))) {
-    config_error_ = fmt::format("DUT reader on {}: rate {} Hz (must be > 0)", serial_.device, rate_hz_);
+    config_error_ =
+        fmt::format("DUT reader on {}: rate {} Hz (must be > 0)", serial_.device, rate_hz_);
   }
   if (!config_error_.empty()) {
     std::lock_guard lock(mu_);

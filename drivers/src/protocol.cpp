@@ -41,7 +41,8 @@ void split_fields(std::string_view s, char delim, std::vector<std::string_view>&
   std::size_t start = 0;
   while (true) {
     const std::size_t end = s.find(delim, start);
-    const std::string_view field = s.substr(start, end == std::string_view::npos ? end : end - start);
+    const std::string_view field =
+        s.substr(start, end == std::string_view::npos ? end : end - start);
     out.push_back(is_blank(delim) ? field : trim(field));
     if (end == std::string_view::npos) break;
     start = end + 1;
@@ -122,8 +123,8 @@ void GyroFrameProtocol::feed(std::span<const uint8_t> bytes, std::vector<DutFram
 
 // ------------------------------------------------------------ AsciiLineProtocol
 
-Result<std::unique_ptr<AsciiLineProtocol>> AsciiLineProtocol::create(const AsciiLineOptions& options,
-                                                                     double rate_hz) {
+Result<std::unique_ptr<AsciiLineProtocol>> AsciiLineProtocol::create(
+    const AsciiLineOptions& options, double rate_hz) {
   DutLink link;
   link.protocol = "ascii";
   link.rate_hz = rate_hz;
@@ -257,8 +258,9 @@ void AsciiLineProtocol::line_done(std::vector<DutFrame>& out) {
     if (c.kind == ChannelKind::kStatus) {
       const auto v = parse_unsigned(f, true);
       if (!v) {
-        reject(n, fmt::format("line {}: column {} '{}': {} is not a status word (decimal or 0x hex)",
-                              quoted(line), i, c.name, quoted(f)));
+        reject(n,
+               fmt::format("line {}: column {} '{}': {} is not a status word (decimal or 0x hex)",
+                           quoted(line), i, c.name, quoted(f)));
         return;
       }
       frame.raw[static_cast<std::size_t>(ch)] = *v;
@@ -303,8 +305,8 @@ Result<std::unique_ptr<DutProtocol>> make_dut_protocol(const DutLink& link) {
   auto channels = dut_channels(link);
   if (!channels.ok()) return channels.error();
   if (link.protocol == "kvh1750") {
-    return std::unique_ptr<DutProtocol>(new GyroFrameProtocol(std::make_unique<Kvh1750Parser>(),
-                                                              std::move(channels).value()));
+    return std::unique_ptr<DutProtocol>(
+        new GyroFrameProtocol(std::make_unique<Kvh1750Parser>(), std::move(channels).value()));
   }
   auto ascii = AsciiLineProtocol::create(link.ascii, link.rate_hz);
   if (!ascii.ok()) return ascii.error();

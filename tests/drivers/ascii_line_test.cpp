@@ -8,6 +8,8 @@
 //   "$GYR,0,0.01,9.80665,25.5,4"    NMEA 4D  CRC16 9273
 //   "$GYR,1,-0.02,9.8,26,0x0"       NMEA 33  CRC16 D8A0
 //   "$GYR,3,1e-3,-9.80665,27,0x07"  NMEA 54  CRC16 91B2
+#include "gyrotherm/drivers/ascii_line.h"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -15,7 +17,6 @@
 #include <string>
 #include <vector>
 
-#include "gyrotherm/drivers/ascii_line.h"
 #include "gyrotherm/drivers/kvh1750.h"
 #include "gyrotherm/drivers/protocol.h"
 
@@ -70,7 +71,8 @@ void expect_same_frames(const std::vector<DutFrame>& a, const std::vector<DutFra
   }
 }
 
-void expect_same_counters(const ParserCounters& a, const ParserCounters& b, const std::string& where) {
+void expect_same_counters(const ParserCounters& a, const ParserCounters& b,
+                          const std::string& where) {
   EXPECT_EQ(a.frames_ok, b.frames_ok) << where;
   EXPECT_EQ(a.crc_failures, b.crc_failures) << where;
   EXPECT_EQ(a.bytes_skipped, b.bytes_skipped) << where;
@@ -188,7 +190,8 @@ TEST(AsciiLine, WhitespaceDelimiterSkippedColumnsAndNoCounter) {
   AsciiLineOptions o;
   o.delimiter = "whitespace";
   o.columns = {col("-", ChannelKind::kOther, ""), col("gx", ChannelKind::kRate, "rad", "x"),
-               col("gy", ChannelKind::kRate, "deg/h", "y"), col("t", ChannelKind::kTemperature, "degC")};
+               col("gy", ChannelKind::kRate, "deg/h", "y"),
+               col("t", ChannelKind::kTemperature, "degC")};
   auto p = make(o, 200.0);
   ASSERT_TRUE(p);
   EXPECT_EQ(p->seq_modulo(), 0u);
@@ -223,7 +226,7 @@ TEST(AsciiLine, CounterWrapsAtItsModuloOrAt2To32) {
   EXPECT_EQ(feed(*p, "254,1\n255,1\n0,1\n3,1\n").size(), 4u);
   EXPECT_EQ(p->counters().sequence_gaps, 1u);
   EXPECT_EQ(p->counters().frames_missed, 2u);  // 1 and 2
-  p->reset();  // a new stream: its first counter is no gap
+  p->reset();                                  // a new stream: its first counter is no gap
   EXPECT_EQ(feed(*p, "100,1\n").size(), 1u);
   EXPECT_EQ(p->counters().sequence_gaps, 1u);
 
@@ -250,7 +253,7 @@ TEST(AsciiLine, SplitAtEveryByteBoundaryGivesTheSameResult) {
       "$GYR,1,-0.02,9.8,26,0x0*34\r"  // bad checksum
       "$GYR,3,1e-3,-9.80665,27,0x07*54\r\n"
       "$GYR,3,1e-3,";
-  stream += std::string(5000, 'A');  // too long: dropped to its end
+  stream += std::string(5000, 'A');                           // too long: dropped to its end
   stream += "\n$GYR,0,0.01,9.80665,25.5,4*4D\n$GYR,1,-0.02";  // partial tail
 
   auto whole = make(o);
@@ -353,6 +356,38 @@ TEST(Kvh1750Protocol, ChannelsWithInvalidBitsAsNaN) {
   EXPECT_EQ(p.counters().sequence_gaps, 0u);  // 127 -> 0 wraps
   // 1e-4 rad/s in deg/h: 1e-4 * 180/pi * 3600 = 20.6264806 (float32 input)
   EXPECT_NEAR(p.channels()[0].scale * f.raw[0], 20.6264806, 1e-5);
+}
+
+}  // namespace
+}  // namespace gyrotherm::drivers
+
+namespace gyrotherm::drivers {
+namespace {
+
+// docs/devices.md's example line and options. CRC computed with Python:
+// binascii.crc_hqx(b"$GYR,17,0.00421,-0.0012,9.80712,24.75,0x07", 0xFFFF) == 0x5498
+TEST(AsciiLine, TheDocumentedExampleParses) {
+  AsciiLineOptions o;
+  o.prefix = "$GYR,";
+  o.checksum = "crc16";
+  o.seq_column = 0;
+  o.seq_modulo = 10000;
+  o.columns = {col("seq", ChannelKind::kOther, ""),
+               col("gyro_x", ChannelKind::kRate, "deg/s", "x"),
+               col("gyro_y", ChannelKind::kRate, "deg/s", "y"),
+               col("accel_z", ChannelKind::kAccel, "m/s^2", "z"),
+               col("temp_c", ChannelKind::kTemperature, "degC"),
+               col("status", ChannelKind::kStatus, "")};
+  o.valid_bits = {{"x", 1}, {"y", 2}};
+  auto p = make(o, 200.0);
+  ASSERT_TRUE(p);
+  const auto f = feed(*p, "$GYR,17,0.00421,-0.0012,9.80712,24.75,0x07*5498\r\n");
+  ASSERT_EQ(f.size(), 1u) << p->counters().last_reject;
+  EXPECT_EQ(f[0].seq, 17u);
+  EXPECT_EQ(f[0].raw[0], 0.00421);
+  EXPECT_EQ(f[0].raw[1], -0.0012);
+  EXPECT_EQ(f[0].raw[4], 7.0);
+  EXPECT_NEAR(p->channels()[0].scale * f[0].raw[0], 15.156, 1e-12);  // 0.00421 deg/s in deg/h
 }
 
 }  // namespace

@@ -19,8 +19,7 @@ AsciiColumn col(std::string name, ChannelKind kind, std::string unit, std::strin
 AsciiLineOptions gyr_options() {
   AsciiLineOptions o;
   o.prefix = "$GYR,";
-  o.columns = {col("seq", ChannelKind::kOther, ""),
-               col("gyro_z", ChannelKind::kRate, "deg/s", "z"),
+  o.columns = {col("seq", ChannelKind::kOther, ""), col("gyro_z", ChannelKind::kRate, "deg/s", "z"),
                col("accel_z", ChannelKind::kAccel, "m/s^2", "z"),
                col("temp_c", ChannelKind::kTemperature, "degC"),
                col("status", ChannelKind::kStatus, "")};
@@ -85,9 +84,10 @@ TEST(DutChannels, AsciiColumnsWithUnitScales) {
   // Per-sample angles become rates at rate_hz; mg to g.
   AsciiLineOptions o;
   o.delimiter = "whitespace";
-  o.columns = {col("gx", ChannelKind::kRate, "rad", "x"), col("-", ChannelKind::kOther, ""),
-               col("gy", ChannelKind::kRate, "deg", "y"), col("gz", ChannelKind::kRate, "rad/s", "z"),
-               col("ax", ChannelKind::kAccel, "mg", "x"), col("v", ChannelKind::kOther, "V")};
+  o.columns = {
+      col("gx", ChannelKind::kRate, "rad", "x"), col("-", ChannelKind::kOther, ""),
+      col("gy", ChannelKind::kRate, "deg", "y"), col("gz", ChannelKind::kRate, "rad/s", "z"),
+      col("ax", ChannelKind::kAccel, "mg", "x"), col("v", ChannelKind::kOther, "V")};
   ch = dut_channels(ascii_link(o));
   ASSERT_TRUE(ch.ok()) << ch.error().message;
   ASSERT_EQ(ch->size(), 5u);
@@ -119,12 +119,19 @@ TEST(DutChannels, AsciiErrorsNameTheColumn) {
       {[](auto& o) { o.checksum = "crc32"; }, "ascii checksum 'crc32'"},
       {[](auto& o) { o.seq_column = 9; }, "ascii seq_column 9"},
       {[](auto& o) { o.seq_column.reset(); }, "ascii seq_modulo 256"},
-      {[](auto& o) { o.valid_bits = {{"x", 1}}; }, "ascii valid_bits: axis 'x'"},
-      {[](auto& o) { o.valid_bits = {{"z", 0}}; }, "mask 0"},
+      {[](auto& o) {
+         o.valid_bits = {{"x", 1}};
+       },
+       "ascii valid_bits: axis 'x'"},
+      {[](auto& o) {
+         o.valid_bits = {{"z", 0}};
+       },
+       "mask 0"},
       {[](auto& o) { o.prefix = "$A*"; }, "ascii prefix"},
       {[](auto& o) {
          o.columns.clear();
-         for (int i = 0; i < 17; ++i) o.columns.push_back(col("c" + std::to_string(i), ChannelKind::kOther, ""));
+         for (int i = 0; i < 17; ++i)
+           o.columns.push_back(col("c" + std::to_string(i), ChannelKind::kOther, ""));
          o.seq_column.reset();
          o.seq_modulo = 0;
        },
