@@ -408,7 +408,8 @@ columns = [
   EXPECT_THAT(m, HasSubstr("s.toml:16: dut[0].ascii.seq_modulo: 1 is out of range"));
   EXPECT_THAT(m, HasSubstr("s.toml:17: dut[0].ascii.valid_bits.x: 0 is not a bit mask"));
   EXPECT_THAT(m, HasSubstr("s.toml:17: dut[0].ascii.valid_bits.w: unknown key"));
-  EXPECT_THAT(m, HasSubstr("s.toml:17: dut[0].ascii.valid_bits: needs a column of kind status"));
+  EXPECT_THAT(m, HasSubstr("s.toml:17: dut[0].ascii.valid_bits: needs one column of kind "
+                           "status (the word the bits are in); columns has 0"));
   EXPECT_THAT(m, HasSubstr("s.toml:20: dut[0].ascii.columns[1].name: missing (required string)"));
   EXPECT_THAT(m, HasSubstr("s.toml:21: dut[0].ascii.columns[2].kind: \"spin\" is not one of: "
                            "rate, accel, temperature, status, other"));
@@ -435,6 +436,30 @@ columns = [
               HasSubstr("s.toml:13: dut[0].ascii.seq_column: \"r\" is a rate column"));
   EXPECT_THAT(errors_of(head + rate + "delimiter = \"5\"\n"),
               HasSubstr("s.toml:13: dut[0].ascii.delimiter: \"5\" is not a delimiter"));
+  EXPECT_THAT(errors_of(head + rate + "prefix = \"$G*\"\n"),
+              HasSubstr("s.toml:13: dut[0].ascii.prefix: must not hold a line end or *"));
+  EXPECT_THAT(errors_of(head + rate + "valid_bits = { y = 2 }\n"),
+              AllOf(HasSubstr("s.toml:13: dut[0].ascii.valid_bits.y: no rate column has axis y"),
+                    HasSubstr("s.toml:13: dut[0].ascii.valid_bits: needs one column of kind "
+                              "status")));
+  // Names: a word each, once; one rate column per axis.
+  const std::string names = errors_of(head + R"(columns = [
+  { name = "rate z", kind = "rate", unit = "deg/h", axis = "z" },
+  { name = "r", kind = "rate", unit = "deg/h", axis = "z" },
+  { name = "r", kind = "other" },
+  { name = "r2", kind = "rate", unit = "deg/h", axis = "z" },
+]
+)");
+  EXPECT_THAT(names, HasSubstr("s.toml:13: dut[0].ascii.columns[0].name: \"rate z\": a channel "
+                               "name is letters, digits and _"));
+  EXPECT_THAT(names, HasSubstr("s.toml:15: dut[0].ascii.columns[2].name: \"r\" is also "
+                               "columns[1]'s name"));
+  EXPECT_THAT(names, HasSubstr("s.toml:16: dut[0].ascii.columns[3].axis: columns[1] is already "
+                               "the rate column of axis z"));
+  // A status column has no unit.
+  EXPECT_THAT(errors_of(head + "columns = [{ name = \"r\", kind = \"rate\", unit = \"deg/h\", "
+                               "axis = \"z\" }, { name = \"s\", kind = \"status\", unit = \"V\" }]\n"),
+              HasSubstr("s.toml:12: dut[0].ascii.columns[1].unit: "));
   // Whitespace-delimited, a crc16, a 32-bit counter, a tab.
   auto ok = parse(head + rate + "delimiter = \"whitespace\"\nchecksum = \"crc16\"\n" +
                   "seq_column = \"n\"\nseq_modulo = 4294967296\n");
@@ -448,20 +473,20 @@ columns = [
   EXPECT_EQ(tab->duts[0].link.ascii.delimiter, "\t");
 }
 
-// Columns the protocol refuses as a whole (two of one name): the error is
-// the protocol's, at [dut.ascii].
+// What the protocol refuses of the line as a whole (more channels than a
+// frame holds): its message, at [dut.ascii].
 TEST(DutConfig, ProtocolRefusalsOfTheWholeLineNameTheAsciiTable) {
+  std::string columns = "{ name = \"r\", kind = \"rate\", unit = \"deg/h\", axis = \"z\" }";
+  for (std::size_t i = 1; i <= kMaxChannels; ++i) columns += fmt::format(", {{ name = \"c{}\" }}", i);
   const std::string m = errors_of(R"([[dut]]
 serial = "TS-7"
 device = "/dev/ttyUSB1"
 protocol = "ascii"
 [dut.ascii]
-columns = [
-  { name = "r", kind = "rate", unit = "deg/h", axis = "z" },
-  { name = "r", kind = "rate", unit = "deg/h", axis = "y" },
-]
-)");
-  EXPECT_THAT(m, HasSubstr("s.toml:11: dut[0].ascii: "));
+columns = [)" + columns + "]\n");
+  EXPECT_THAT(m, HasSubstr(fmt::format("s.toml:11: dut[0].ascii: ascii columns: {} channels, at "
+                                       "most {}",
+                                       kMaxChannels + 1, kMaxChannels)));
 }
 
 TEST(DutConfig, EntriesThatAreNotTables) {

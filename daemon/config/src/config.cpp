@@ -373,10 +373,24 @@ void read_ascii_columns(TableReader& a, drivers::AsciiLineOptions& o) {
     const std::size_t before = error_count(errors);
     drivers::AsciiColumn column;
     if (auto name = c.required_string("name")) {
-      if (name->empty())
+      const bool word = !name->empty() && std::all_of(name->begin(), name->end(), [](char ch) {
+        return std::isalnum(static_cast<unsigned char>(ch)) || ch == '_';
+      });
+      const auto same = [&](const drivers::AsciiColumn& other) { return other.name == *name; };
+      if (name->empty()) {
         c.error("name", "must not be empty (\"-\" skips the column)");
-      else
+      } else if (*name != "-" && !word) {
+        c.error("name", fmt::format("\"{}\": a channel name is letters, digits and _ (\"-\" "
+                                    "skips the column)",
+                                    *name));
+      } else if (*name != "-" && std::any_of(o.columns.begin(), o.columns.end(), same)) {
+        c.error("name",
+                fmt::format("\"{}\" is also columns[{}]'s name", *name,
+                            std::find_if(o.columns.begin(), o.columns.end(), same) -
+                                o.columns.begin()));
+      } else {
         column.name = *name;
+      }
     }
     if (auto kind = c.choice("kind", {"rate", "accel", "temperature", "status", "other"}, "other"))
       column.kind = *channel_kind_from_string(*kind);
@@ -387,6 +401,15 @@ void read_ascii_columns(TableReader& a, drivers::AsciiLineOptions& o) {
       c.error("axis", fmt::format("missing (required for kind {})", to_string(column.kind)));
     } else if (!has_axis && !column.axis.empty()) {
       c.error("axis", "only rate and accel columns have an axis");
+    } else if (has_axis && column.name != "-") {
+      for (std::size_t j = 0; j < o.columns.size(); ++j) {
+        const drivers::AsciiColumn& other = o.columns[j];
+        if (other.name != "-" && other.kind == column.kind && other.axis == column.axis) {
+          c.error("axis", fmt::format("columns[{}] is already the {} column of axis {}", j,
+                                      to_string(column.kind), column.axis));
+          break;
+        }
+      }
     }
     c.finish();
     // The unit, on its own: a link of this one column makes the protocol
@@ -425,6 +448,8 @@ void read_dut_ascii(TableReader a, drivers::AsciiLineOptions& o) {
   if (auto p = a.string("prefix")) {
     if (p->size() > 64)
       a.error("prefix", "at most 64 characters");
+    else if (p->find_first_of("\r\n*") != std::string::npos)
+      a.error("prefix", "must not hold a line end or * (the checksum's mark)");
     else
       o.prefix = *p;
   }
@@ -461,19 +486,28 @@ void read_dut_ascii(TableReader a, drivers::AsciiLineOptions& o) {
   if (auto bits = a.table("valid_bits")) {
     for (const char* axis : {"x", "y", "z"}) {
       if (auto mask = bits->integer(axis)) {
+        const bool rate_column =
+            std::any_of(o.columns.begin(), o.columns.end(), [&](const drivers::AsciiColumn& c) {
+              return c.name != "-" && c.kind == ChannelKind::kRate && c.axis == axis;
+            });
         if (*mask < 1 || *mask > 0xFFFFFFFFLL)
           bits->error(axis, fmt::format("{} is not a bit mask (1..0xFFFFFFFF)", *mask));
+        else if (!rate_column && !o.columns.empty())
+          bits->error(axis, fmt::format("no rate column has axis {}", axis));
         else
           o.valid_bits.emplace_back(axis, static_cast<uint32_t>(*mask));
       }
     }
     bits->finish();
-    const bool has_status =
-        std::any_of(o.columns.begin(), o.columns.end(), [](const drivers::AsciiColumn& c) {
+    const auto status_columns =
+        std::count_if(o.columns.begin(), o.columns.end(), [](const drivers::AsciiColumn& c) {
           return c.kind == ChannelKind::kStatus && c.name != "-";
         });
-    if (!has_status && !o.columns.empty())
-      a.error("valid_bits", "needs a column of kind status (the word the bits are in)");
+    if (status_columns != 1 && !o.columns.empty()) {
+      a.error("valid_bits", fmt::format("needs one column of kind status (the word the bits are "
+                                        "in); columns has {}",
+                                        status_columns));
+    }
   }
   a.finish();
 }
