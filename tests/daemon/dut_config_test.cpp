@@ -490,10 +490,21 @@ columns = [)" + columns + "]\n");
 }
 
 TEST(DutConfig, EntriesThatAreNotTables) {
-  EXPECT_THAT(errors_of("dut = 5\n"), HasSubstr("s.toml:7: dut: expected an array, got integer"));
-  EXPECT_THAT(errors_of("dut = []\n"), HasSubstr("s.toml:7: dut: must list at least one DUT"));
-  EXPECT_THAT(errors_of("dut = [1]\n"),
-              HasSubstr("s.toml:7: dut[0]: expected a table ([[dut]]), got integer"));
+  // `dut = ...` on line 1, before the sections.
+  const auto first_line = [](const std::string& line) {
+    auto cfg = parse_station_config(line + "\n" + kStation, "s.toml");
+    EXPECT_FALSE(cfg.ok()) << line;
+    return cfg.ok() ? std::string() : cfg.error().message;
+  };
+  EXPECT_THAT(first_line("dut = 5"), HasSubstr("s.toml:1: dut: expected an array, got integer"));
+  EXPECT_THAT(first_line("dut = []"), HasSubstr("s.toml:1: dut: must list at least one DUT"));
+  EXPECT_THAT(first_line("dut = [1]"),
+              HasSubstr("s.toml:1: dut[0]: expected a table ([[dut]]), got integer"));
+  // The inline form of [[dut]] reads the same.
+  auto inline_form = parse_station_config(
+      "dut = [{serial = \"A1\", device = \"/dev/ttyUSB0\"}]\n" + std::string(kStation), "s.toml");
+  ASSERT_TRUE(inline_form.ok()) << inline_form.error().message;
+  EXPECT_EQ(inline_form->duts[0].serial, "A1");
 }
 
 // ---------------------------------------------------------------- the older [gyro]
@@ -608,8 +619,8 @@ TEST_F(DutEndpoints, RoundTripAndApplyBySerial) {
   ASSERT_TRUE(write_sim_endpoints(path_, ep).ok());
   const std::string text = testing::read_text(path_);
   EXPECT_THAT(text, HasSubstr("dut_devices = ["));
-  EXPECT_THAT(text, HasSubstr("{ device = \"/dev/pts/8\", serial = \"TS-7\" }"));
-  EXPECT_THAT(text, HasSubstr("gyro_device = \"/dev/pts/8\"")) << "the first, for older daemons";
+  EXPECT_THAT(text, HasSubstr("{ device = '/dev/pts/8', serial = 'TS-7' }"));
+  EXPECT_THAT(text, HasSubstr("gyro_device = '/dev/pts/8'")) << "the first, for older daemons";
   auto back = read_sim_endpoints(path_);
   ASSERT_TRUE(back.ok()) << back.error().message;
   EXPECT_EQ(back->dut_devices, ep.dut_devices);

@@ -404,7 +404,9 @@ void read_ascii_columns(TableReader& a, drivers::AsciiLineOptions& o) {
     } else if (has_axis && column.name != "-") {
       for (std::size_t j = 0; j < o.columns.size(); ++j) {
         const drivers::AsciiColumn& other = o.columns[j];
-        if (other.name != "-" && other.kind == column.kind && other.axis == column.axis) {
+        // (A column whose name was refused is left out: its error is enough.)
+        if (!other.name.empty() && other.name != "-" && other.kind == column.kind &&
+            other.axis == column.axis) {
           c.error("axis", fmt::format("columns[{}] is already the {} column of axis {}", j,
                                       to_string(column.kind), column.axis));
           break;
