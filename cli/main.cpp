@@ -36,8 +36,7 @@ using cli::fail;
 
 // ---------------------------------------------------------------- decode
 // The summary of a decoded capture, on stderr: text, or one JSON object.
-void print_decode_summary(const std::string& source, const drivers::ParserCounters& c,
-                          bool json) {
+void print_decode_summary(const std::string& source, const drivers::ParserCounters& c, bool json) {
   if (json) {
     // The summary as one JSON object on stderr; the frames stay CSV on stdout.
     std::cerr << nlohmann::json({{"file", source},
@@ -62,7 +61,8 @@ void print_decode_summary(const std::string& source, const drivers::ParserCounte
 
 // Calls `feed` with each block of the capture at `path` ("" or "-":
 // standard input). False when it cannot be opened.
-bool read_capture(const std::string& path, const std::function<void(std::span<const uint8_t>)>& feed) {
+bool read_capture(const std::string& path,
+                  const std::function<void(std::span<const uint8_t>)>& feed) {
   std::ifstream file;
   std::istream* in = &std::cin;
   if (!path.empty() && path != "-") {
@@ -115,8 +115,8 @@ int decode_dut(const std::string& protocol, const std::string& config_path,
   if (!dut) {
     std::vector<std::string> serials;
     for (const auto& d : cfg->duts) serials.push_back(fmt::format("\"{}\"", d.serial));
-    return fail(fmt::format("{}: no [[dut]] with serial \"{}\" (serials: {})", config_path,
-                            serial, fmt::join(serials, ", ")),
+    return fail(fmt::format("{}: no [[dut]] with serial \"{}\" (serials: {})", config_path, serial,
+                            fmt::join(serials, ", ")),
                 2);
   }
   if (dut->link.protocol != protocol) {
@@ -153,12 +153,13 @@ int decode_dut(const std::string& protocol, const std::string& config_path,
   return 0;
 }
 
-int cmd_decode(const std::string& protocol, const std::string& path,
-               const std::string& config_path, const std::string& serial, bool json) {
+int cmd_decode(const std::string& protocol, const std::string& path, const std::string& config_path,
+               const std::string& serial, bool json) {
   if (protocol == "ascii" && (config_path.empty() || serial.empty())) {
-    return fail("--protocol ascii needs --config FILE and --dut SERIAL: the line's layout is in "
-                "that [[dut]]'s [dut.ascii]",
-                2);
+    return fail(
+        "--protocol ascii needs --config FILE and --dut SERIAL: the line's layout is in "
+        "that [[dut]]'s [dut.ascii]",
+        2);
   }
   if (!config_path.empty() || !serial.empty()) {
     if (config_path.empty() || serial.empty())
@@ -394,7 +395,8 @@ int cmd_devices(const std::string& config_path, bool json) {
       for (std::size_t i = 0; i < channels.size(); ++i) {
         const ChannelSpec& ch = channels[i];
         const nlohmann::json value = physical_json(ch, f.raw[i]);
-        if (ch.kind == ChannelKind::kRate && ch.axis == dut.primary_axis) gyro_json["rate_dph"] = value;
+        if (ch.kind == ChannelKind::kRate && ch.axis == dut.primary_axis)
+          gyro_json["rate_dph"] = value;
         if (ch.kind == ChannelKind::kStatus) gyro_json["status"] = value;
         if (ch.kind == ChannelKind::kTemperature) gyro_json["temp_c"] = value;
       }

@@ -164,9 +164,10 @@ TEST(DutConfig, EveryKeyIsRead) {
 }
 
 TEST(DutConfig, DefaultsOfAKvh1750) {
-  auto cfg = parse("[[dut]]\nserial = \"A1\"\ndevice = \"/dev/ttyUSB0\"\n"
-                   "[[dut]]\nserial = \"A2\"\ndevice = \"/dev/ttyUSB1\"\nsilent_timeout_s = 9\n",
-                   "[interlocks]\n");
+  auto cfg = parse(
+      "[[dut]]\nserial = \"A1\"\ndevice = \"/dev/ttyUSB0\"\n"
+      "[[dut]]\nserial = \"A2\"\ndevice = \"/dev/ttyUSB1\"\nsilent_timeout_s = 9\n",
+      "[interlocks]\n");
   ASSERT_TRUE(cfg.ok()) << cfg.error().message;
   const DutSection& d = cfg->duts[0];
   EXPECT_EQ(d.model, "");
@@ -215,8 +216,9 @@ TEST(DutConfig, SerialIsRequiredUniqueAndPrintable) {
   EXPECT_THAT(errors_of("[[dut]]\nserial = \"\"\ndevice = \"/dev/ttyUSB0\"\n"),
               HasSubstr("s.toml:8: dut[0].serial: must be 1 to 64 characters"));
   for (const char* bad : {"17/0042", "a,b", "tab\\there", "quo\\\"te", "back\\\\slash"}) {
-    EXPECT_THAT(errors_of(fmt::format("[[dut]]\nserial = \"{}\"\ndevice = \"/dev/ttyUSB0\"\n", bad)),
-                HasSubstr("s.toml:8: dut[0].serial: may hold printable ASCII characters"))
+    EXPECT_THAT(
+        errors_of(fmt::format("[[dut]]\nserial = \"{}\"\ndevice = \"/dev/ttyUSB0\"\n", bad)),
+        HasSubstr("s.toml:8: dut[0].serial: may hold printable ASCII characters"))
         << bad;
   }
   EXPECT_THAT(errors_of("[[dut]]\nserial = \" A1\"\ndevice = \"/dev/ttyUSB0\"\n"),
@@ -293,15 +295,15 @@ device = "/dev/ttyUSB0"
 )";
   EXPECT_THAT(errors_of(kvh + "axes = [\"z\", \"w\", \"z\", 3]\n"),
               AllOf(HasSubstr("s.toml:10: dut[0].axes[1]: must be \"x\", \"y\" or \"z\""),
-                             HasSubstr("s.toml:10: dut[0].axes[2]: \"z\" is listed twice"),
-                             HasSubstr("s.toml:10: dut[0].axes[3]: must be")));
+                    HasSubstr("s.toml:10: dut[0].axes[2]: \"z\" is listed twice"),
+                    HasSubstr("s.toml:10: dut[0].axes[3]: must be")));
   EXPECT_THAT(errors_of(kvh + "axes = []\n"),
               HasSubstr("s.toml:10: dut[0].axes: must list at least one axis"));
   EXPECT_THAT(errors_of(kvh + "axes = \"z\"\n"),
               HasSubstr("s.toml:10: dut[0].axes: expected an array, got string"));
   EXPECT_THAT(errors_of(kvh + "axes = [\"z\"]\nprimary_axis = \"x\"\ntable_axis = \"q\"\n"),
               AllOf(HasSubstr("s.toml:11: dut[0].primary_axis: \"x\" is not among axes (z)"),
-                             HasSubstr("s.toml:12: dut[0].table_axis: \"q\" is not one of: x, y, z")));
+                    HasSubstr("s.toml:12: dut[0].table_axis: \"q\" is not one of: x, y, z")));
   // An ASCII line with rate columns x and y only: z is not a rate channel.
   const std::string ascii = R"([[dut]]
 serial = "TS-7"
@@ -350,14 +352,14 @@ TEST(DutConfig, ProbesAreChannelsOfTheProbesModule) {
   const std::string dut = "[[dut]]\nserial = \"A1\"\ndevice = \"/dev/ttyUSB0\"\n";
   EXPECT_THAT(errors_of(dut + "probes = { top_channel = 300, side_channel = -1 }\n"),
               AllOf(HasSubstr("s.toml:10: dut[0].probes.top_channel: 300 is not a "
-                                       "channel (0..255)"),
-                             HasSubstr("s.toml:10: dut[0].probes.side_channel: -1 is not a channel")));
+                              "channel (0..255)"),
+                    HasSubstr("s.toml:10: dut[0].probes.side_channel: -1 is not a channel")));
   EXPECT_THAT(errors_of(dut + "probes = { top_channel = 4 }\n"),
               HasSubstr("s.toml:10: dut[0].probes.side_channel: missing (required integer)"));
   EXPECT_THAT(errors_of(dut + "probes = { top_channel = 4, side_channel = 4, front = 5 }\n"),
               AllOf(HasSubstr("s.toml:10: dut[0].probes.side_channel: top_channel and "
-                                       "side_channel are the same channel"),
-                             HasSubstr("s.toml:10: dut[0].probes.front: unknown key")));
+                              "side_channel are the same channel"),
+                    HasSubstr("s.toml:10: dut[0].probes.front: unknown key")));
   // With [probes.registers] there are no channel numbers to give.
   auto custom = parse_station_config(R"([station]
 [chamber]
@@ -428,8 +430,9 @@ columns = [
               HasSubstr("s.toml:11: dut[0].ascii.columns: missing (required"));
   EXPECT_THAT(errors_of(head + "columns = []\n"),
               HasSubstr("s.toml:12: dut[0].ascii.columns: must list at least one column"));
-  const std::string rate = "columns = [{ name = \"r\", kind = \"rate\", unit = \"deg/h\", axis = "
-                           "\"z\" }, { name = \"n\" }]\n";
+  const std::string rate =
+      "columns = [{ name = \"r\", kind = \"rate\", unit = \"deg/h\", axis = "
+      "\"z\" }, { name = \"n\" }]\n";
   EXPECT_THAT(errors_of(head + rate + "seq_modulo = 256\n"),
               HasSubstr("s.toml:13: dut[0].ascii.seq_modulo: needs seq_column"));
   EXPECT_THAT(errors_of(head + rate + "seq_column = \"r\"\n"),
@@ -457,9 +460,10 @@ columns = [
   EXPECT_THAT(names, HasSubstr("s.toml:16: dut[0].ascii.columns[3].axis: columns[1] is already "
                                "the rate column of axis z"));
   // A status column has no unit.
-  EXPECT_THAT(errors_of(head + "columns = [{ name = \"r\", kind = \"rate\", unit = \"deg/h\", "
-                               "axis = \"z\" }, { name = \"s\", kind = \"status\", unit = \"V\" }]\n"),
-              HasSubstr("s.toml:12: dut[0].ascii.columns[1].unit: "));
+  EXPECT_THAT(
+      errors_of(head + "columns = [{ name = \"r\", kind = \"rate\", unit = \"deg/h\", "
+                       "axis = \"z\" }, { name = \"s\", kind = \"status\", unit = \"V\" }]\n"),
+      HasSubstr("s.toml:12: dut[0].ascii.columns[1].unit: "));
   // Whitespace-delimited, a crc16, a 32-bit counter, a tab.
   auto ok = parse(head + rate + "delimiter = \"whitespace\"\nchecksum = \"crc16\"\n" +
                   "seq_column = \"n\"\nseq_modulo = 4294967296\n");
@@ -477,7 +481,8 @@ columns = [
 // frame holds): its message, at [dut.ascii].
 TEST(DutConfig, ProtocolRefusalsOfTheWholeLineNameTheAsciiTable) {
   std::string columns = "{ name = \"r\", kind = \"rate\", unit = \"deg/h\", axis = \"z\" }";
-  for (std::size_t i = 1; i <= kMaxChannels; ++i) columns += fmt::format(", {{ name = \"c{}\" }}", i);
+  for (std::size_t i = 1; i <= kMaxChannels; ++i)
+    columns += fmt::format(", {{ name = \"c{}\" }}", i);
   const std::string m = errors_of(R"([[dut]]
 serial = "TS-7"
 device = "/dev/ttyUSB1"
@@ -554,8 +559,7 @@ silent_timeout_s = 3
   EXPECT_EQ(unnamed->duts[0].serial, "");
   EXPECT_EQ(unnamed->duts[0].model, "");
   EXPECT_THAT(unnamed->duts[0].axes, ElementsAre("z"));
-  EXPECT_THAT(unnamed->duts[0].orientation,
-              ElementsAre(Pair("z", analysis::AxisOrientation::kUp)));
+  EXPECT_THAT(unnamed->duts[0].orientation, ElementsAre(Pair("z", analysis::AxisOrientation::kUp)));
 
   EXPECT_THAT(errors_of("[gyro]\nserial = \"a/b\"\ndevice = \"/dev/ttyUSB0\"\n"),
               HasSubstr("s.toml:8: gyro.serial: may hold printable ASCII"));

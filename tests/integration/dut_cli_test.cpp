@@ -124,8 +124,8 @@ TEST_F(DutCliTest, DecodeAnAsciiCaptureByItsDut) {
     uint32_t seq = 0;
     double rx = 0, ry = 0, temp = 0, status = 0;
     char rx_text[64] = {};
-    ASSERT_EQ(std::sscanf(line.c_str(), "%u,%63[^,],%lf,%lf,%lf", &seq, rx_text, &ry, &temp, &status),
-              5)
+    ASSERT_EQ(
+        std::sscanf(line.c_str(), "%u,%63[^,],%lf,%lf,%lf", &seq, rx_text, &ry, &temp, &status), 5)
         << line;
     const uint32_t n = (seq + 2) % 65536;  // seq 65534 is frame 0
     const auto want = test_set_values(n);
@@ -144,9 +144,8 @@ TEST_F(DutCliTest, DecodeAnAsciiCaptureByItsDut) {
   EXPECT_THAT(r.err, HasSubstr("5 valid frames, 1 CRC failures"));
 
   // From standard input, with the summary as JSON.
-  const Run piped = cli({"decode", "--protocol", "ascii", "--config", config, "--dut", "TS-7",
-                         "--json"},
-                        path);
+  const Run piped =
+      cli({"decode", "--protocol", "ascii", "--config", config, "--dut", "TS-7", "--json"}, path);
   ASSERT_EQ(piped.code, 0) << piped.err;
   EXPECT_EQ(piped.out, r.out);
   const auto summary = nlohmann::json::parse(piped.err);
@@ -161,10 +160,12 @@ TEST_F(DutCliTest, DecodeRefusalsNameWhatIsMissing) {
   const Run bare = cli({"decode", "--protocol", "ascii", path});
   EXPECT_EQ(bare.code, 2);
   EXPECT_THAT(bare.err, HasSubstr("--protocol ascii needs --config FILE and --dut SERIAL"));
-  const Run unknown = cli({"decode", "--protocol", "ascii", "--config", config, "--dut", "TS-8", path});
+  const Run unknown =
+      cli({"decode", "--protocol", "ascii", "--config", config, "--dut", "TS-8", path});
   EXPECT_EQ(unknown.code, 2);
   EXPECT_THAT(unknown.err, HasSubstr("no [[dut]] with serial \"TS-8\" (serials: \"TS-7\")"));
-  const Run wrong = cli({"decode", "--protocol", "kvh1750", "--config", config, "--dut", "TS-7", path});
+  const Run wrong =
+      cli({"decode", "--protocol", "kvh1750", "--config", config, "--dut", "TS-7", path});
   EXPECT_EQ(wrong.code, 2);
   EXPECT_THAT(wrong.err, HasSubstr("DUT \"TS-7\" speaks ascii, not kvh1750"));
 }
@@ -174,15 +175,15 @@ TEST_F(DutCliTest, DevicesReadsEveryDut) {
   auto kvh_pty = drivers::Pty::open(true);
   auto ascii_pty = drivers::Pty::open(true);
   ASSERT_TRUE(kvh_pty.ok() && ascii_pty.ok());
-  const std::string config = write_config(fmt::format(R"([[dut]]
+  const std::string config = write_config(
+      fmt::format(R"([[dut]]
 serial = "17-0042"
 model = "KVH 1750"
 device = "{}"
 rate_hz = 1000
 axes = ["x", "z"]
 {})",
-                                                      kvh_pty->slave_path(),
-                                                      fmt::format(kTestSet, ascii_pty->slave_path())));
+                  kvh_pty->slave_path(), fmt::format(kTestSet, ascii_pty->slave_path())));
   const drivers::AsciiLineOptions options = test_set_options(config);
   drivers::GyroFrame frame;
   frame.gyro = {1.0e-5f, -2.0e-5f, 3.9e-5f};  // rad/s
@@ -197,8 +198,7 @@ axes = ["x", "z"]
       (void)kvh_pty->write_master(bytes, 50);
       const std::string line = drivers::encode_ascii_line(options, test_set_values(0), n);
       (void)ascii_pty->write_master(
-          std::span<const uint8_t>(reinterpret_cast<const uint8_t*>(line.data()), line.size()),
-          50);
+          std::span<const uint8_t>(reinterpret_cast<const uint8_t*>(line.data()), line.size()), 50);
       std::this_thread::sleep_for(std::chrono::milliseconds(5));
     }
   });
@@ -246,8 +246,8 @@ axes = ["x", "z"]
   EXPECT_THAT(text.out, HasSubstr(fmt::format("  gyro_z           {:.3f} deg/h  (primary axis)",
                                               double(3.9e-5f) * kRadToDph)));
   EXPECT_THAT(text.out, HasSubstr("  status           0x77"));
-  EXPECT_THAT(text.out,
-              HasSubstr("dut      TS-7 (rate test set) on " + ascii_pty->slave_path() + " (ascii)"));
+  EXPECT_THAT(text.out, HasSubstr("dut      TS-7 (rate test set) on " + ascii_pty->slave_path() +
+                                  " (ascii)"));
   EXPECT_THAT(text.out, HasSubstr("  rate_x           15.120 deg/h"));
 }
 

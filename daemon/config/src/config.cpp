@@ -364,9 +364,9 @@ void read_ascii_columns(TableReader& a, drivers::AsciiLineOptions& o) {
     const std::string path = a.key_path(fmt::format("columns[{}]", i));
     const toml::table* table = node.as_table();
     if (!table) {
-      errors.add(node_line(node, a.line_of("columns")), path,
-                 fmt::format("expected a table {{name, kind, unit, axis}}, got {}",
-                             toml_type_name(node)));
+      errors.add(
+          node_line(node, a.line_of("columns")), path,
+          fmt::format("expected a table {{name, kind, unit, axis}}, got {}", toml_type_name(node)));
       continue;
     }
     TableReader c(*table, path, errors);
@@ -384,10 +384,9 @@ void read_ascii_columns(TableReader& a, drivers::AsciiLineOptions& o) {
                                     "skips the column)",
                                     *name));
       } else if (*name != "-" && std::any_of(o.columns.begin(), o.columns.end(), same)) {
-        c.error("name",
-                fmt::format("\"{}\" is also columns[{}]'s name", *name,
-                            std::find_if(o.columns.begin(), o.columns.end(), same) -
-                                o.columns.begin()));
+        c.error("name", fmt::format("\"{}\" is also columns[{}]'s name", *name,
+                                    std::find_if(o.columns.begin(), o.columns.end(), same) -
+                                        o.columns.begin()));
       } else {
         column.name = *name;
       }
@@ -533,7 +532,8 @@ std::optional<DutProbes> read_dut_probes(TableReader p, const ProbesSection& sta
               "per-DUT probes are channels of the [probes] profile; [probes.registers] names "
               "only the top and side registers (give [probes] a profile)");
       ok = false;
-    } else if (auto spec = drivers::probe_channel_spec(station_probes.profile, static_cast<int>(*v));
+    } else if (auto spec =
+                   drivers::probe_channel_spec(station_probes.profile, static_cast<int>(*v));
                !spec) {
       p.error(key, spec.error().message);
       ok = false;
@@ -633,8 +633,8 @@ std::optional<DutSection> read_dut(TableReader& t, const StationSection& station
       t.error("protocol", c.error().message);
   }
 
-  const std::vector<std::string> available = channels ? rate_axes(*channels)
-                                                      : std::vector<std::string>{};
+  const std::vector<std::string> available =
+      channels ? rate_axes(*channels) : std::vector<std::string>{};
   const std::string available_text =
       available.empty() ? std::string("none") : fmt::format("{}", fmt::join(available, ", "));
   if (channels && available.empty()) {
@@ -651,8 +651,8 @@ std::optional<DutSection> read_dut(TableReader& t, const StationSection& station
         errors.add(line, path, "must be \"x\", \"y\" or \"z\"");
       } else if (std::find(d.axes.begin(), d.axes.end(), *axis) != d.axes.end()) {
         errors.add(line, path, fmt::format("\"{}\" is listed twice", *axis));
-      } else if (channels && std::find(available.begin(), available.end(), *axis) ==
-                                 available.end()) {
+      } else if (channels &&
+                 std::find(available.begin(), available.end(), *axis) == available.end()) {
         errors.add(line, path,
                    fmt::format("\"{}\" is not among this DUT's rate channels (axes {})", *axis,
                                available_text));
@@ -704,8 +704,8 @@ std::optional<DutSection> read_dut(TableReader& t, const StationSection& station
     o->finish();
   }
   for (const auto& axis : d.axes) {
-    const auto it = std::find_if(given.begin(), given.end(),
-                                 [&](const auto& g) { return g.first == axis; });
+    const auto it =
+        std::find_if(given.begin(), given.end(), [&](const auto& g) { return g.first == axis; });
     if (it != given.end())
       d.orientation.push_back(*it);
     else
@@ -1201,8 +1201,9 @@ Result<SimEndpoints> read_sim_endpoints(const std::string& path) {
       const std::string path = fmt::format("dut_devices[{}]", i);
       const toml::table* entry = node.as_table();
       if (!entry) {
-        errors.add(node_line(node, t.line_of("dut_devices")), path,
-                   fmt::format("expected a table {{serial, device}}, got {}", toml_type_name(node)));
+        errors.add(
+            node_line(node, t.line_of("dut_devices")), path,
+            fmt::format("expected a table {{serial, device}}, got {}", toml_type_name(node)));
         continue;
       }
       TableReader e(*entry, path, errors);

@@ -241,7 +241,7 @@ struct StationConfig {
   StationSection station;
   ChamberSection chamber;
   ProbesSection probes;
-  GyroSection gyro;         // duts[0] in the older form (see DutSection)
+  GyroSection gyro;              // duts[0] in the older form (see DutSection)
   std::vector<DutSection> duts;  // at least one
   std::optional<TableSection> table;
   StorageSection storage;
