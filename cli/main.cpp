@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <functional>
 #include <iostream>
 #include <nlohmann/json.hpp>
 #include <optional>
@@ -21,6 +22,7 @@
 #include "gyrotherm/drivers/frame_parser.h"
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/drivers/modbus_devices.h"
+#include "gyrotherm/drivers/protocol.h"
 #include "gyrotherm/drivers/rate_tables.h"
 #include "gyrotherm/drivers/serial_port.h"
 #include "gyrotherm/schedules/schedule.h"
@@ -33,29 +35,11 @@ using namespace gyrotherm;
 using cli::fail;
 
 // ---------------------------------------------------------------- decode
-int cmd_decode(const std::string& protocol, const std::string& path, bool json) {
-  auto parser = drivers::make_frame_parser(protocol);
-  if (!parser) return fail(parser.error().message, 2);
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return fail(fmt::format("{}: cannot open", path), 2);
-  std::printf("seq,status,gyro_x,gyro_y,gyro_z,accel_x,accel_y,accel_z,temp_c\n");
-  std::vector<uint8_t> buf(1 << 16);
-  std::vector<drivers::GyroFrame> frames;
-  while (in) {
-    in.read(reinterpret_cast<char*>(buf.data()), static_cast<std::streamsize>(buf.size()));
-    const auto n = static_cast<std::size_t>(in.gcount());
-    if (n == 0) break;
-    frames.clear();
-    (*parser)->feed(std::span<const uint8_t>(buf.data(), n), frames);
-    for (const auto& f : frames) {
-      std::printf("%u,%u,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%d\n", f.seq, f.status, f.gyro[0], f.gyro[1],
-                  f.gyro[2], f.accel[0], f.accel[1], f.accel[2], f.temp_c);
-    }
-  }
-  const auto& c = (*parser)->counters();
+// The summary of a decoded capture, on stderr: text, or one JSON object.
+void print_decode_summary(const std::string& source, const drivers::ParserCounters& c, bool json) {
   if (json) {
     // The summary as one JSON object on stderr; the frames stay CSV on stdout.
-    std::cerr << nlohmann::json({{"file", path},
+    std::cerr << nlohmann::json({{"file", source},
                                  {"frames_ok", c.frames_ok},
                                  {"crc_failures", c.crc_failures},
                                  {"bytes_skipped", c.bytes_skipped},
@@ -63,17 +47,126 @@ int cmd_decode(const std::string& protocol, const std::string& path, bool json) 
                                  {"frames_missed", c.frames_missed}})
                      .dump()
               << "\n";
-    return 0;
+    return;
   }
   std::fprintf(stderr,
                "%s: %llu valid frames, %llu CRC failures, %llu bytes skipped, %llu sequence gaps "
                "(%llu frames missed)\n",
-               path.c_str(), static_cast<unsigned long long>(c.frames_ok),
+               source.c_str(), static_cast<unsigned long long>(c.frames_ok),
                static_cast<unsigned long long>(c.crc_failures),
                static_cast<unsigned long long>(c.bytes_skipped),
                static_cast<unsigned long long>(c.sequence_gaps),
                static_cast<unsigned long long>(c.frames_missed));
+}
+
+// Calls `feed` with each block of the capture at `path` ("" or "-":
+// standard input). False when it cannot be opened.
+bool read_capture(const std::string& path,
+                  const std::function<void(std::span<const uint8_t>)>& feed) {
+  std::ifstream file;
+  std::istream* in = &std::cin;
+  if (!path.empty() && path != "-") {
+    file.open(path, std::ios::binary);
+    if (!file) return false;
+    in = &file;
+  }
+  std::vector<uint8_t> buf(1 << 16);
+  while (*in) {
+    in->read(reinterpret_cast<char*>(buf.data()), static_cast<std::streamsize>(buf.size()));
+    const auto n = static_cast<std::size_t>(in->gcount());
+    if (n == 0) break;
+    feed(std::span<const uint8_t>(buf.data(), n));
+  }
+  return true;
+}
+
+// A KVH 1750 capture: the frames' values as sent.
+int decode_kvh1750(const std::string& path, bool json) {
+  auto parser = drivers::make_frame_parser("kvh1750");
+  if (!parser) return fail(parser.error().message, 2);
+  std::vector<drivers::GyroFrame> frames;
+  bool header = false;
+  const bool opened = read_capture(path, [&](std::span<const uint8_t> bytes) {
+    if (!header) {
+      std::printf("seq,status,gyro_x,gyro_y,gyro_z,accel_x,accel_y,accel_z,temp_c\n");
+      header = true;
+    }
+    frames.clear();
+    (*parser)->feed(bytes, frames);
+    for (const auto& f : frames) {
+      std::printf("%u,%u,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%d\n", f.seq, f.status, f.gyro[0], f.gyro[1],
+                  f.gyro[2], f.accel[0], f.accel[1], f.accel[2], f.temp_c);
+    }
+  });
+  if (!opened) return fail(fmt::format("{}: cannot open", path), 2);
+  if (!header) std::printf("seq,status,gyro_x,gyro_y,gyro_z,accel_x,accel_y,accel_z,temp_c\n");
+  print_decode_summary(path.empty() ? "-" : path, (*parser)->counters(), json);
   return 0;
+}
+
+// A capture of the [[dut]] `serial` of `config_path`, decoded by its
+// protocol: the sequence counter, then every channel's value as sent
+// (shortest digits that read back exactly; nan: flagged invalid).
+int decode_dut(const std::string& protocol, const std::string& config_path,
+               const std::string& serial, const std::string& path, bool json) {
+  auto cfg = daemon::load_station_config(config_path);
+  if (!cfg) return fail("bad station config:\n" + cfg.error().message, 2);
+  const daemon::DutSection* dut = daemon::find_dut(cfg->duts, serial);
+  if (!dut) {
+    std::vector<std::string> serials;
+    for (const auto& d : cfg->duts) serials.push_back(fmt::format("\"{}\"", d.serial));
+    return fail(fmt::format("{}: no [[dut]] with serial \"{}\" (serials: {})", config_path, serial,
+                            fmt::join(serials, ", ")),
+                2);
+  }
+  if (dut->link.protocol != protocol) {
+    return fail(fmt::format("{}: DUT \"{}\" speaks {}, not {}", config_path, serial,
+                            dut->link.protocol, protocol),
+                2);
+  }
+  auto decoder = drivers::make_dut_protocol(dut->link);
+  if (!decoder) return fail(decoder.error().message, 2);
+  drivers::DutProtocol& p = **decoder;
+  const std::vector<ChannelSpec>& channels = p.channels();
+  std::string header = "seq";
+  for (const auto& c : channels) header += "," + c.name;
+  std::vector<DutFrame> frames;
+  bool started = false;
+  const bool opened = read_capture(path, [&](std::span<const uint8_t> bytes) {
+    if (!started) {
+      std::printf("%s\n", header.c_str());
+      started = true;
+    }
+    frames.clear();
+    p.feed(bytes, frames);
+    for (const auto& f : frames) {
+      std::string line = fmt::format("{}", f.seq);
+      for (std::size_t i = 0; i < channels.size(); ++i) {
+        line += std::isnan(f.raw[i]) ? std::string(",nan") : fmt::format(",{}", f.raw[i]);
+      }
+      std::printf("%s\n", line.c_str());
+    }
+  });
+  if (!opened) return fail(fmt::format("{}: cannot open", path), 2);
+  if (!started) std::printf("%s\n", header.c_str());
+  print_decode_summary(path.empty() ? "-" : path, p.counters(), json);
+  return 0;
+}
+
+int cmd_decode(const std::string& protocol, const std::string& path, const std::string& config_path,
+               const std::string& serial, bool json) {
+  if (protocol == "ascii" && (config_path.empty() || serial.empty())) {
+    return fail(
+        "--protocol ascii needs --config FILE and --dut SERIAL: the line's layout is in "
+        "that [[dut]]'s [dut.ascii]",
+        2);
+  }
+  if (!config_path.empty() || !serial.empty()) {
+    if (config_path.empty() || serial.empty())
+      return fail("--config and --dut go together (the [[dut]] whose capture this is)", 2);
+    return decode_dut(protocol, config_path, serial, path, json);
+  }
+  return decode_kvh1750(path, json);
 }
 
 // ---------------------------------------------------------------- station config helpers
@@ -146,12 +239,79 @@ Result<double> chamber_c(const Result<double>& read, drivers::TemperatureUnit un
   return drivers::to_celsius(*read, unit);
 }
 
+// One DUT's reading for `gyrotherm devices`: its line, its protocol and the
+// frames heard.
+struct DutReading {
+  const daemon::DutSection* dut = nullptr;
+  std::optional<drivers::SerialPort> port;
+  std::unique_ptr<drivers::DutProtocol> protocol;
+  std::vector<DutFrame> frames;
+  std::string error;  // the line could not be opened, or the protocol not made
+};
+
+std::string dut_name(const daemon::DutSection& dut) {
+  std::string name = dut.serial.empty() ? std::string("(no serial)") : dut.serial;
+  if (!dut.model.empty()) name += fmt::format(" ({})", dut.model);
+  return name;
+}
+
+// A channel's physical value as shown: status words in hex.
+std::string channel_text(const ChannelSpec& c, double raw) {
+  if (std::isnan(raw)) return "invalid";
+  if (c.kind == ChannelKind::kStatus) return fmt::format("0x{:02x}", static_cast<uint64_t>(raw));
+  const double v = raw * c.scale;
+  const int decimals = c.kind == ChannelKind::kAccel ? 5 : (c.kind == ChannelKind::kRate ? 3 : 2);
+  return c.unit.empty() ? fmt::format("{:.{}f}", v, decimals)
+                        : fmt::format("{:.{}f} {}", v, decimals, c.unit);
+}
+
+// A channel's physical value in JSON: null when flagged invalid, status
+// words as integers.
+nlohmann::json physical_json(const ChannelSpec& c, double raw) {
+  if (std::isnan(raw)) return nullptr;
+  if (c.kind == ChannelKind::kStatus) return static_cast<uint64_t>(raw);
+  return raw * c.scale;
+}
+
 int cmd_devices(const std::string& config_path, bool json) {
   auto cfg = load_config_for_tools(config_path);
   if (!cfg) return fail(cfg.error().message, 2);
-  std::optional<drivers::SerialPort> port;
-  std::string gyro_error;
-  if (auto refused = refuse_if_station_owned(*cfg, port, gyro_error)) return *refused;
+  if (const std::string& file = cfg->simulator.endpoints_file; !file.empty()) {
+    // load_config_for_tools read it already: it is there.
+    if (auto ep = daemon::read_sim_endpoints(file)) {
+      if (const std::string why = daemon::sim_dut_devices_mismatch(*cfg, *ep, file); !why.empty())
+        return fail(why, 2);
+    }
+  }
+  // The first DUT's line is taken (and held) with the station check; the
+  // others here, each refused as a sign of a daemon when another process
+  // holds it.
+  std::vector<DutReading> readings(cfg->duts.size());
+  if (auto refused = refuse_if_station_owned(*cfg, readings[0].port, readings[0].error))
+    return *refused;
+  for (std::size_t i = 0; i < cfg->duts.size(); ++i) {
+    DutReading& r = readings[i];
+    r.dut = &cfg->duts[i];
+    if (i > 0) {
+      auto port = drivers::SerialPort::open(r.dut->link.serial);
+      if (port) {
+        r.port.emplace(std::move(*port));
+      } else if (drivers::serial_line_in_use(port.error())) {
+        return fail(fmt::format("{}; a daemon seems to run this station (on another database?): "
+                                "stop it before commissioning",
+                                port.error().message),
+                    2);
+      } else {
+        r.error = port.error().message;
+      }
+    }
+    if (auto p = drivers::make_dut_protocol(r.dut->link)) {
+      r.protocol = std::move(*p);
+    } else {
+      r.error = p.error().message;
+      r.port.reset();
+    }
+  }
   drivers::ModbusChamber chamber(cfg->chamber.endpoint, cfg->chamber.map);
   drivers::ModbusProbes probes(cfg->probes.endpoint, cfg->probes.top, cfg->probes.side);
   const auto unit = chamber_unit(chamber);
@@ -160,42 +320,88 @@ int cmd_devices(const std::string& config_path, bool json) {
   const auto top = probes.top_c();
   const auto side = probes.side_c();
 
-  // Gyro: listen for up to two seconds (wall).
-  std::string gyro_text;
-  nlohmann::json gyro_json;
-  bool gyro_ok = false;
-  if (!port) {
-    gyro_text = "ERROR: " + gyro_error;
-    gyro_json = {{"error", gyro_error}};
-  } else {
-    auto parser = drivers::make_frame_parser(cfg->gyro.protocol);
-    std::vector<uint8_t> buf(4096);
-    std::vector<drivers::GyroFrame> frames;
-    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(2);
-    while (std::chrono::steady_clock::now() < deadline && frames.size() < 20) {
-      auto n = port->read(buf, std::chrono::milliseconds(100));
-      if (!n) break;
-      (*parser)->feed(std::span<const uint8_t>(buf.data(), *n), frames);
+  // Every DUT's line for up to two seconds (wall), in turns, until each has
+  // given 20 frames.
+  std::vector<uint8_t> buf(4096);
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(2);
+  const auto listening = [&] {
+    return std::any_of(readings.begin(), readings.end(),
+                       [](const DutReading& r) { return r.port && r.frames.size() < 20; });
+  };
+  while (std::chrono::steady_clock::now() < deadline && listening()) {
+    for (DutReading& r : readings) {
+      if (!r.port || r.frames.size() >= 20) continue;
+      auto n = r.port->read(buf, std::chrono::milliseconds(20));
+      if (!n) {
+        r.error = n.error().message;
+        r.port.reset();
+        continue;
+      }
+      r.protocol->feed(std::span<const uint8_t>(buf.data(), *n), r.frames);
     }
-    const auto& c = (*parser)->counters();
-    if (frames.empty()) {
-      gyro_text = fmt::format("no valid frame in 2 s ({} CRC failures, {} bytes skipped)",
-                              c.crc_failures, c.bytes_skipped);
-      gyro_json = {{"error", gyro_text}};
-    } else {
-      const auto& f = frames.back();
-      const double rate = drivers::to_rate_dph(
-          f.gyro[static_cast<std::size_t>(cfg->gyro.format.axis)], cfg->gyro.format);
-      gyro_text = fmt::format(
-          "{:.3f} °/h (axis {}), seq {}, status 0x{:02x}, {} °C; {} frames, {} "
-          "CRC failures",
-          rate, static_cast<char>('x' + cfg->gyro.format.axis), f.seq, f.status, f.temp_c,
-          c.frames_ok, c.crc_failures);
-      gyro_ok = true;
-      gyro_json = {{"rate_dph", rate},         {"seq", f.seq},
-                   {"status", f.status},       {"temp_c", f.temp_c},
-                   {"frames_ok", c.frames_ok}, {"crc_failures", c.crc_failures}};
+  }
+
+  bool duts_ok = true;
+  nlohmann::json duts_json = nlohmann::json::array();
+  nlohmann::json gyro_json;  // the first DUT's primary axis, as before [[dut]]
+  std::string duts_text;
+  for (const DutReading& r : readings) {
+    const daemon::DutSection& dut = *r.dut;
+    nlohmann::json j = {{"serial", dut.serial},
+                        {"model", dut.model},
+                        {"device", dut.link.serial.device},
+                        {"protocol", dut.link.protocol},
+                        {"primary_axis", dut.primary_axis}};
+    duts_text += fmt::format("dut      {} on {} ({})\n", dut_name(dut), dut.link.serial.device,
+                             dut.link.protocol);
+    std::string error = r.error;
+    if (error.empty() && r.frames.empty()) {
+      const auto& c = r.protocol->counters();
+      error = fmt::format("no valid frame in 2 s ({} CRC failures, {} bytes skipped)",
+                          c.crc_failures, c.bytes_skipped);
     }
+    if (!error.empty()) {
+      duts_ok = false;
+      j["error"] = error;
+      duts_text += fmt::format("  {}\n", error);
+      if (&r == &readings.front()) gyro_json = {{"error", error}};
+      duts_json.push_back(std::move(j));
+      continue;
+    }
+    const auto& c = r.protocol->counters();
+    const DutFrame& f = r.frames.back();
+    const std::vector<ChannelSpec>& channels = r.protocol->channels();
+    nlohmann::json channels_json = nlohmann::json::array();
+    for (std::size_t i = 0; i < channels.size(); ++i) {
+      const ChannelSpec& ch = channels[i];
+      channels_json.push_back({{"name", ch.name},
+                               {"unit", ch.unit},
+                               {"kind", std::string(to_string(ch.kind))},
+                               {"axis", ch.axis},
+                               {"value", physical_json(ch, f.raw[i])}});
+      const bool primary = ch.kind == ChannelKind::kRate && ch.axis == dut.primary_axis;
+      duts_text += fmt::format("  {:<16} {}{}\n", ch.name, channel_text(ch, f.raw[i]),
+                               primary ? "  (primary axis)" : "");
+    }
+    duts_text += fmt::format("  seq {}; {} frames, {} CRC failures, {} bytes skipped\n", f.seq,
+                             c.frames_ok, c.crc_failures, c.bytes_skipped);
+    j["channels"] = std::move(channels_json);
+    j["seq"] = f.seq;
+    j["frames_ok"] = c.frames_ok;
+    j["crc_failures"] = c.crc_failures;
+    j["bytes_skipped"] = c.bytes_skipped;
+    if (&r == &readings.front()) {
+      gyro_json = {{"seq", f.seq}, {"frames_ok", c.frames_ok}, {"crc_failures", c.crc_failures}};
+      for (std::size_t i = 0; i < channels.size(); ++i) {
+        const ChannelSpec& ch = channels[i];
+        const nlohmann::json value = physical_json(ch, f.raw[i]);
+        if (ch.kind == ChannelKind::kRate && ch.axis == dut.primary_axis)
+          gyro_json["rate_dph"] = value;
+        if (ch.kind == ChannelKind::kStatus) gyro_json["status"] = value;
+        if (ch.kind == ChannelKind::kTemperature) gyro_json["temp_c"] = value;
+      }
+    }
+    duts_json.push_back(std::move(j));
   }
   if (json) {
     auto v = [](const Result<double>& r) {
@@ -208,8 +414,9 @@ int cmd_devices(const std::string& config_path, bool json) {
           {"setpoint_c", v(sp)}}},
         {"probes",
          {{"endpoint", cfg->probes.endpoint.describe()}, {"top_c", v(top)}, {"side_c", v(side)}}},
-        {"gyro", gyro_json}};
-    out["gyro"]["device"] = cfg->gyro.serial.device;
+        {"duts", std::move(duts_json)},
+        {"gyro", std::move(gyro_json)}};
+    out["gyro"]["device"] = cfg->duts.front().link.serial.device;
     std::cout << out.dump(2) << "\n";
   } else {
     std::cout << fmt::format("chamber  {}\n  air temperature  {}\n  set point        {}\n",
@@ -218,9 +425,9 @@ int cmd_devices(const std::string& config_path, bool json) {
     std::cout << fmt::format("probes   {}\n  top              {}\n  side             {}\n",
                              cfg->probes.endpoint.describe(), reading(top, "°C"),
                              reading(side, "°C"));
-    std::cout << fmt::format("gyro     {}\n  {}\n", cfg->gyro.serial.device, gyro_text);
+    std::cout << duts_text;
   }
-  return (pv && sp && top && side && gyro_ok) ? 0 : 1;
+  return (pv && sp && top && side && duts_ok) ? 0 : 1;
 }
 
 int cmd_chamber_setpoint(const std::string& config_path, double setpoint_c) {
@@ -391,9 +598,13 @@ int main(int argc, char** argv) {
   app.add_flag("--json", json, "machine-readable output");
 
   auto* decode = app.add_subcommand("decode", "decode a raw serial capture to CSV");
-  std::string protocol = "kvh1750", capture;
-  decode->add_option("--protocol", protocol, "frame protocol")->check(CLI::IsMember({"kvh1750"}));
-  decode->add_option("file", capture, "capture file")->required();
+  std::string protocol = "kvh1750", capture, decode_config, decode_dut;
+  decode->add_option("--protocol", protocol, "frame protocol")
+      ->check(CLI::IsMember({"kvh1750", "ascii"}));
+  decode->add_option("--config", decode_config,
+                     "station config whose [[dut]] --dut made the capture (required for ascii)");
+  decode->add_option("--dut", decode_dut, "the DUT's serial number (with --config)");
+  decode->add_option("file", capture, "capture file (default, or -: standard input)");
   decode->add_flag("--json", json);
 
   auto* devices = app.add_subcommand("devices", "one live reading of every device");
@@ -449,7 +660,7 @@ int main(int argc, char** argv) {
     return code == 0 ? 0 : 2;  // --help is not an error; usage errors exit 2
   }
   try {
-    if (*decode) return cmd_decode(protocol, capture, json);
+    if (*decode) return cmd_decode(protocol, capture, decode_config, decode_dut, json);
     if (*devices) return cmd_devices(config_path, json);
     if (*set_point) return cmd_chamber_setpoint(config_path, setpoint_c);
     if (*check) return cmd_schedule_check(config_path, schedule_path, json);
