@@ -3,31 +3,29 @@
 #include <fmt/format.h>
 
 #include <algorithm>
-#include <array>
 #include <cmath>
 #include <vector>
 
 #include "gyrotherm/core/units.h"
+#include "gyrotherm/drivers/dut_reader.h"
 #include "gyrotherm/drivers/kvh1750.h"
+#include "gyrotherm/drivers/protocol.h"
 
 namespace gyrotherm::drivers {
-namespace {
 
-constexpr std::chrono::milliseconds kMinBackoff{100};
-constexpr std::chrono::milliseconds kMaxBackoff{5000};
-constexpr std::chrono::milliseconds kReadTimeout{50};
+SampleClock::SampleClock(double rate_hz, double tolerance_s, uint64_t seq_modulo)
+    : period_s_(1.0 / rate_hz), tolerance_s_(tolerance_s), seq_modulo_(seq_modulo) {}
 
-}  // namespace
-
-SampleClock::SampleClock(double rate_hz, double tolerance_s)
-    : period_s_(1.0 / rate_hz), tolerance_s_(tolerance_s) {}
-
-double SampleClock::stamp(int seq, double now_s) {
-  seq %= kKvh1750SeqModulo;
+double SampleClock::stamp(uint64_t seq, double now_s) {
+  if (seq_modulo_ != 0) seq %= seq_modulo_;
   if (anchored_) {
-    // Counter steps (1 + frames missed); the KVH 1750 counter wraps at 128.
-    const int step = (seq - last_seq_ + kKvh1750SeqModulo) % kKvh1750SeqModulo;
-    n_ += static_cast<uint64_t>(step == 0 ? kKvh1750SeqModulo : step);
+    if (seq_modulo_ == 0) {
+      ++n_;  // no counter: the next slot
+    } else {
+      // Counter steps (1 + frames missed); a repeated counter is a whole wrap.
+      const uint64_t step = (seq + seq_modulo_ - last_seq_) % seq_modulo_;
+      n_ += step == 0 ? seq_modulo_ : step;
+    }
   }
   last_seq_ = seq;
   double t_s = anchor_s_ + static_cast<double>(n_) * period_s_;
@@ -62,151 +60,83 @@ double to_rate_dph(float value, const GyroFormat& format) {
   return units::dps_to_dph(v);
 }
 
+namespace {
+
+std::string format_error(const GyroFormat& format, const FrameParser* parser) {
+  if (parser == nullptr) return "gyro reader has no frame parser";
+  if (format.axis < 0 || format.axis > 2 || !(format.rate_hz > 0)) {
+    return fmt::format("invalid gyro format: axis {} (expected 0..2), rate {} Hz (must be > 0)",
+                       format.axis, format.rate_hz);
+  }
+  return {};
+}
+
+std::unique_ptr<DutProtocol> frame_protocol(const GyroFormat& format,
+                                            std::unique_ptr<FrameParser> parser) {
+  DutLink link;
+  link.unit = format.unit;
+  link.kind = format.kind;
+  link.rate_hz = format.rate_hz > 0 ? format.rate_hz : 1.0;
+  auto channels = dut_channels(link);  // kvh1750: cannot fail with rate_hz > 0
+  if (parser == nullptr) parser = std::make_unique<Kvh1750Parser>();  // never read: format_error
+  return std::make_unique<GyroFrameProtocol>(std::move(parser), std::move(channels).value());
+}
+
+}  // namespace
+
 GyroReader::GyroReader(SerialOptions serial, GyroFormat format, std::unique_ptr<FrameParser> parser,
                        const Clock& clock, Sink sink)
-    : serial_(std::move(serial)),
-      format_(format),
-      parser_(std::move(parser)),
-      clock_(clock),
-      sink_(std::move(sink)) {}
+    : format_(format), sink_(std::move(sink)) {
+  std::string error = format_error(format, parser.get());
+  reader_ = std::make_unique<DutReader>(
+      std::move(serial), format.rate_hz > 0 ? format.rate_hz : 1.0,
+      frame_protocol(format, std::move(parser)), clock,
+      [this](std::span<const DutFrame> frames) { on_frames(frames); }, std::move(error));
+}
 
 GyroReader::~GyroReader() { stop(); }
 
-void GyroReader::start() {
-  if (thread_.joinable()) return;
-  {
-    std::lock_guard lock(mu_);
-    stop_ = false;
-  }
-  thread_ = std::thread([this] { run(); });
-}
+void GyroReader::start() { reader_->start(); }
 
-void GyroReader::stop() {
-  {
-    std::lock_guard lock(mu_);
-    stop_ = true;
-  }
-  stop_cv_.notify_all();
-  if (thread_.joinable()) thread_.join();
-}
+void GyroReader::stop() { reader_->stop(); }
 
 GyroReaderHealth GyroReader::health() const {
+  GyroReaderHealth h = reader_->health();
   std::lock_guard lock(mu_);
-  return health_;
+  h.samples = samples_;
+  h.invalid_samples = invalid_samples_;
+  h.last_sample_station_s = last_sample_station_s_;
+  return h;
 }
 
-bool GyroReader::wait_unless_stopped(std::chrono::milliseconds wall) {
-  std::unique_lock lock(mu_);
-  stop_cv_.wait_for(lock, wall, [this] { return stop_.load(); });
-  return !stop_;
-}
-
-void GyroReader::run() {
-  if (format_.axis < 0 || format_.axis > 2 || !(format_.rate_hz > 0) || parser_ == nullptr) {
-    std::lock_guard lock(mu_);
-    health_.last_error =
-        parser_ == nullptr
-            ? std::string("gyro reader has no frame parser")
-            : fmt::format("invalid gyro format: axis {} (expected 0..2), rate {} Hz (must be > 0)",
-                          format_.axis, format_.rate_hz);
-    return;
-  }
-  // How far the sample clock may drift from the station clock before it is
-  // re-anchored: 2 s, or one wall second at high time scales (where a
-  // descheduled reader or simulator is late by many station seconds).
-  const double tolerance_s = std::max(2.0, 1.0 * clock_.time_scale());
-  const auto valid_bit = static_cast<uint8_t>(1u << format_.axis);
-
-  std::array<uint8_t, 4096> buf{};
-  std::vector<GyroFrame> frames;
-  std::vector<GyroSample> samples;
-  auto backoff = kMinBackoff;
-  bool opened_before = false;
-
-  while (!stop_) {
-    auto port = SerialPort::open(serial_);
-    if (!port.ok()) {
-      {
-        std::lock_guard lock(mu_);
-        health_.connected = false;
-        health_.last_error = port.error().message;
-      }
-      if (!wait_unless_stopped(backoff)) break;
-      backoff = std::min(backoff * 2, kMaxBackoff);
+void GyroReader::on_frames(std::span<const DutFrame> frames) {
+  const auto axis = static_cast<std::size_t>(format_.axis);
+  const auto valid_bit = static_cast<uint8_t>(1u << axis);
+  batch_.clear();
+  uint64_t invalid = 0;
+  for (const DutFrame& f : frames) {
+    const auto status = static_cast<uint8_t>(f.raw[6]);
+    // The status bit, not NaN: a value the gyro sent as NaN with its bit set
+    // is passed on as it was before the DUT machinery.
+    if (!(status & valid_bit)) {
+      ++invalid;
       continue;
     }
-    parser_->reset();
-    {
-      std::lock_guard lock(mu_);
-      health_.connected = true;
-      if (opened_before) ++health_.reopens;
-      health_.parser = parser_->counters();
-    }
-    opened_before = true;
-
-    SampleClock sample_clock(format_.rate_hz, tolerance_s);
-
-    while (!stop_) {
-      auto got = port->read(buf, kReadTimeout);
-      if (!got.ok()) {
-        std::lock_guard lock(mu_);
-        health_.connected = false;
-        ++health_.read_errors;
-        health_.last_error = got.error().message;
-        break;
-      }
-      if (*got == 0) continue;
-      // Nothing left on the line: this read's last frame arrived just now.
-      const bool drained = port->pending_bytes() == 0;
-      backoff = kMinBackoff;  // the port delivers data: a later hang-up starts afresh
-
-      frames.clear();
-      samples.clear();
-      parser_->feed(std::span<const uint8_t>(buf.data(), *got), frames);
-      uint64_t invalid = 0;
-      const double now_s = clock_.now_s();
-      for (std::size_t i = 0; i < frames.size(); ++i) {
-        const GyroFrame& f = frames[i];
-        const double t_s = sample_clock.stamp(f.seq, now_s);
-        if (!(f.status & valid_bit)) {
-          ++invalid;
-          continue;
-        }
-        GyroSample s;
-        s.t_s = t_s;
-        s.rate_dph = to_rate_dph(f.gyro[static_cast<std::size_t>(format_.axis)], format_);
-        s.seq = f.seq;
-        s.status = f.status;
-        s.temp_c = f.temp_c;
-        samples.push_back(s);
-      }
-      if (drained) {
-        if (const double shift_s = sample_clock.realign(now_s); shift_s > 0) {
-          for (auto& s : samples) s.t_s += shift_s;
-        }
-      }
-      {
-        std::lock_guard lock(mu_);
-        health_.samples += samples.size();
-        health_.invalid_samples += invalid;
-        health_.parser = parser_->counters();
-        if (!samples.empty()) health_.last_sample_station_s = samples.back().t_s;
-      }
-      if (!samples.empty() && sink_) {
-        try {
-          sink_(samples);
-        } catch (const std::exception& e) {
-          std::lock_guard lock(mu_);
-          health_.last_error = fmt::format("gyro sample sink failed: {}", e.what());
-        }
-      }
-    }
-    if (stop_) break;
-    if (!wait_unless_stopped(backoff)) break;
-    backoff = std::min(backoff * 2, kMaxBackoff);
+    GyroSample s;
+    s.t_s = f.t_s;
+    s.rate_dph = to_rate_dph(static_cast<float>(f.raw[axis]), format_);
+    s.seq = static_cast<uint8_t>(f.seq);
+    s.status = status;
+    s.temp_c = static_cast<int16_t>(f.raw[7]);
+    batch_.push_back(s);
   }
-  std::lock_guard lock(mu_);
-  health_.connected = false;
+  {
+    std::lock_guard lock(mu_);
+    samples_ += batch_.size();
+    invalid_samples_ += invalid;
+    if (!batch_.empty()) last_sample_station_s_ = batch_.back().t_s;
+  }
+  if (!batch_.empty() && sink_) sink_(batch_);
 }
 
 SerialGyro::SerialGyro(SerialOptions serial, GyroFormat format, std::unique_ptr<FrameParser> parser,

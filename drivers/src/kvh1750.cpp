@@ -90,6 +90,7 @@ void Kvh1750Parser::feed(std::span<const uint8_t> bytes, std::vector<GyroFrame>&
     if (crc32_mpeg2(std::span(frame, kCrcOffset)) != get_u32_be(frame + kCrcOffset)) {
       ++counters_.crc_failures;
       ++counters_.bytes_skipped;
+      if (counters_.last_reject.empty()) counters_.last_reject = "frame CRC-32 mismatch";
       ++pos;
       continue;
     }

@@ -286,7 +286,8 @@ TEST(Config, MissingSectionsAndSyntaxErrors) {
   auto cfg = parse_station_config("[station]\n", "a.toml");
   ASSERT_FALSE(cfg.ok());
   EXPECT_THAT(cfg.error().message, HasSubstr("chamber: missing section"));
-  EXPECT_THAT(cfg.error().message, HasSubstr("gyro.device: missing"));
+  // Neither [[dut]] nor the older [gyro]: no device under test.
+  EXPECT_THAT(cfg.error().message, HasSubstr("a.toml: dut: missing: give each device under test"));
   auto syntax = parse_station_config("[station\nname = 1\n", "b.toml");
   ASSERT_FALSE(syntax.ok());
   EXPECT_THAT(syntax.error().message, HasSubstr("b.toml:1: TOML syntax error"));

@@ -10,6 +10,7 @@
 #include <cstdint>
 #include <memory>
 #include <span>
+#include <string>
 #include <string_view>
 #include <vector>
 
@@ -32,6 +33,9 @@ struct ParserCounters {
   uint64_t bytes_skipped = 0;  // bytes discarded while searching for a valid frame
   uint64_t sequence_gaps = 0;  // times the counter did not follow the previous frame's
   uint64_t frames_missed = 0;  // frames missing according to the counter jumps
+  // Why the last discarded input was discarded ("" if none): a CRC mismatch,
+  // or for text lines the field or checksum at fault.
+  std::string last_reject;
 };
 
 class FrameParser {

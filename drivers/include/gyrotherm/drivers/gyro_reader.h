@@ -1,5 +1,7 @@
-// GyroReader: serial line -> frame parser -> timestamped samples, on its own
-// thread.
+// GyroReader: serial line -> frame parser -> timestamped samples of one
+// axis, on its own thread. It is a DutReader (dut_reader.h) over the
+// FrameParser's frames, reduced to the configured axis; the rules below
+// (SampleClock, reopening) are the DutReader's.
 //
 // Timestamps come from the gyro's own sample clock: t = anchor + n / rate_hz,
 // where n counts frames since the anchor including frames missed according to
@@ -7,7 +9,7 @@
 // It is re-taken, with tolerance max(2 s, 1 wall s x time_scale): forward,
 // when the last frame of a read that emptied the line (so it arrived just
 // now) lags the clock by more than that: the stream stalled, or more frames
-// were lost than the counter can count (it wraps at 128). The whole read moves
+// were lost than the counter can count (the KVH 1750's wraps at 128). The whole read moves
 // with it. A read that leaves bytes on the line is a backlog, late by design:
 // however long the reader was descheduled or stopped, its frames keep their
 // counter's slots and never re-anchor forward. And back to the clock when the
@@ -19,14 +21,13 @@
 // stops the thread.
 #pragma once
 
-#include <atomic>
-#include <condition_variable>
+#include <cstdint>
 #include <functional>
 #include <memory>
 #include <mutex>
 #include <span>
 #include <string>
-#include <thread>
+#include <vector>
 
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/core/samples.h"
@@ -35,6 +36,8 @@
 #include "gyrotherm/drivers/serial_port.h"
 
 namespace gyrotherm::drivers {
+
+class DutReader;  // dut_reader.h
 
 enum class AngleUnit { kRad, kDeg };
 enum class OutputKind { kRate, kDeltaAngle };  // rate: unit/s; delta: unit per sample
@@ -53,10 +56,12 @@ double to_rate_dph(float value, const GyroFormat& format);
 // of the port). Pure: tests feed it counters and clock readings.
 class SampleClock {
  public:
-  SampleClock(double rate_hz, double tolerance_s);
+  // `seq_modulo`: what the frames' counter wraps at (128 for the KVH 1750);
+  // 0: frames carry no counter, each takes the next slot.
+  SampleClock(double rate_hz, double tolerance_s, uint64_t seq_modulo = 128);
   // `seq`: the frame's counter; `now_s`: the station clock when the frame was
   // read. Returns the frame's station time.
-  double stamp(int seq, double now_s);
+  double stamp(uint64_t seq, double now_s);
   // After the frames of a read that emptied the line were stamped: when the
   // last one lags `now_s` by more than the tolerance, the anchor moves
   // forward so that it is stamped `now_s`. Returns how far (s, 0 if not): the
@@ -67,10 +72,11 @@ class SampleClock {
  private:
   double period_s_;
   double tolerance_s_;
+  uint64_t seq_modulo_;
   bool anchored_ = false;
   double anchor_s_ = 0;
   uint64_t n_ = 0;
-  int last_seq_ = 0;
+  uint64_t last_seq_ = 0;
   double last_t_s_ = 0;
 };
 
@@ -89,20 +95,18 @@ class GyroReader {
   GyroReaderHealth health() const;
 
  private:
-  void run();
-  // Waits `wall` or until stop(); returns false when stopping.
-  bool wait_unless_stopped(std::chrono::milliseconds wall);
+  // The DutReader's frames -> samples of the configured axis.
+  void on_frames(std::span<const DutFrame> frames);
 
-  SerialOptions serial_;
   GyroFormat format_;
-  std::unique_ptr<FrameParser> parser_;
-  const Clock& clock_;
   Sink sink_;
-  std::atomic<bool> stop_{false};
-  std::thread thread_;
   mutable std::mutex mu_;
-  std::condition_variable stop_cv_;  // wakes the backoff wait on stop()
-  GyroReaderHealth health_;
+  uint64_t samples_ = 0;
+  uint64_t invalid_samples_ = 0;
+  double last_sample_station_s_ = -1;
+  std::vector<GyroSample> batch_;  // reused, reader thread only
+  // Behind a pointer: dut_reader.h includes this header (via dut_link.h).
+  std::unique_ptr<DutReader> reader_;
 };
 
 // The GyroSource of a gyro on a serial line: a GyroReader whose batches go

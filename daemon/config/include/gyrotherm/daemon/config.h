@@ -7,6 +7,7 @@
 // values documented in config/station.toml.
 #pragma once
 
+#include <cstddef>
 #include <memory>
 #include <optional>
 #include <string>
@@ -91,6 +92,10 @@ struct ProbesSection {
 };
 
 struct GyroSection {
+  // [gyro] serial and model (optional): the DUT's identity when the older
+  // form is used; "" = the unnamed gyro.
+  std::string serial_number;
+  std::string model;
   drivers::SerialOptions serial;
   std::string protocol = "kvh1750";
   drivers::GyroFormat format;
@@ -124,6 +129,17 @@ struct DutSection {
   double silent_timeout_s = 5.0;  // station s without a frame = stream lost
   std::optional<DutProbes> probes;
 };
+
+// At most this many [[dut]] (the station reads each on its own thread and
+// serial line).
+inline constexpr std::size_t kMaxDuts = 8;
+
+// The [[dut]] whose serial is `serial`; nullptr when none is.
+const DutSection* find_dut(const std::vector<DutSection>& duts, std::string_view serial);
+// The direction `dut` gives `axis` (DutSection::orientation); nullopt when
+// the axis is not analysed.
+std::optional<analysis::AxisOrientation> axis_orientation(const DutSection& dut,
+                                                          std::string_view axis);
 
 // [table]: the rate table. Absent from station.toml: the station has no
 // table (schedules that ask for a rate are refused; static steps need none).
@@ -290,5 +306,11 @@ Status write_sim_endpoints(const std::string& path, const SimEndpoints& endpoint
 // Applies endpoints to the chamber, probes, table and every DUT's line (by
 // serial; a DUT the simulator does not serve is an error at start-up).
 void apply_sim_endpoints(StationConfig& config, const SimEndpoints& endpoints);
+// "" when the simulator that wrote `ep` serves every DUT of `config`, else
+// which it does not serve (the daemon refuses to start: its line would be
+// missing). An older simulator's file (no dut_devices) serves one gyro, on
+// gyro_device: enough for a config with one DUT, whatever its serial.
+std::string sim_dut_devices_mismatch(const StationConfig& config, const SimEndpoints& ep,
+                                     const std::string& endpoints_file);
 
 }  // namespace gyrotherm::daemon

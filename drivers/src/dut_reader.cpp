@@ -1,0 +1,180 @@
+#include "gyrotherm/drivers/dut_reader.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <vector>
+
+#include "gyrotherm/drivers/dut_link.h"
+#include "gyrotherm/drivers/gyro_reader.h"
+
+namespace gyrotherm::drivers {
+namespace {
+
+constexpr std::chrono::milliseconds kMinBackoff{100};
+constexpr std::chrono::milliseconds kMaxBackoff{5000};
+constexpr std::chrono::milliseconds kReadTimeout{50};
+
+bool has_nan(const DutFrame& f, std::size_t channels) {
+  for (std::size_t i = 0; i < channels && i < kMaxChannels; ++i) {
+    if (std::isnan(f.raw[i])) return true;
+  }
+  return false;
+}
+
+}  // namespace
+
+DutReader::DutReader(SerialOptions serial, double rate_hz, std::unique_ptr<DutProtocol> protocol,
+                     const Clock& clock, Sink sink, std::string config_error)
+    : serial_(std::move(serial)),
+      rate_hz_(rate_hz),
+      protocol_(std::move(protocol)),
+      clock_(clock),
+      sink_(std::move(sink)),
+      config_error_(std::move(config_error)) {}
+
+DutReader::~DutReader() { stop(); }
+
+void DutReader::start() {
+  if (thread_.joinable()) return;
+  {
+    std::lock_guard lock(mu_);
+    stop_ = false;
+  }
+  thread_ = std::thread([this] { run(); });
+}
+
+void DutReader::stop() {
+  {
+    std::lock_guard lock(mu_);
+    stop_ = true;
+  }
+  stop_cv_.notify_all();
+  if (thread_.joinable()) thread_.join();
+}
+
+GyroReaderHealth DutReader::health() const {
+  std::lock_guard lock(mu_);
+  return health_;
+}
+
+bool DutReader::wait_unless_stopped(std::chrono::milliseconds wall) {
+  std::unique_lock lock(mu_);
+  stop_cv_.wait_for(lock, wall, [this] { return stop_.load(); });
+  return !stop_;
+}
+
+void DutReader::run() {
+  if (config_error_.empty() && (!(rate_hz_ > 0) || !std::isfinite(rate_hz_))) {
+    config_error_ = fmt::format("DUT reader on {}: rate {} Hz (must be > 0)", serial_.device, rate_hz_);
+  }
+  if (!config_error_.empty()) {
+    std::lock_guard lock(mu_);
+    health_.last_error = config_error_;
+    return;
+  }
+  // How far the sample clock may drift from the station clock before it is
+  // re-anchored: 2 s, or one wall second at high time scales (where a
+  // descheduled reader or simulator is late by many station seconds).
+  const double tolerance_s = std::max(2.0, 1.0 * clock_.time_scale());
+  const std::size_t channels = protocol_->channels().size();
+
+  std::array<uint8_t, 4096> buf{};
+  std::vector<DutFrame> frames;
+  auto backoff = kMinBackoff;
+  bool opened_before = false;
+
+  while (!stop_) {
+    auto port = SerialPort::open(serial_);
+    if (!port.ok()) {
+      {
+        std::lock_guard lock(mu_);
+        health_.connected = false;
+        health_.last_error = port.error().message;
+      }
+      if (!wait_unless_stopped(backoff)) break;
+      backoff = std::min(backoff * 2, kMaxBackoff);
+      continue;
+    }
+    protocol_->reset();
+    {
+      std::lock_guard lock(mu_);
+      health_.connected = true;
+      if (opened_before) ++health_.reopens;
+      health_.parser = protocol_->counters();
+    }
+    opened_before = true;
+
+    SampleClock sample_clock(rate_hz_, tolerance_s, protocol_->seq_modulo());
+
+    while (!stop_) {
+      auto got = port->read(buf, kReadTimeout);
+      if (!got.ok()) {
+        std::lock_guard lock(mu_);
+        health_.connected = false;
+        ++health_.read_errors;
+        health_.last_error = got.error().message;
+        break;
+      }
+      if (*got == 0) continue;
+      // Nothing left on the line: this read's last frame arrived just now.
+      const bool drained = port->pending_bytes() == 0;
+      backoff = kMinBackoff;  // the port delivers data: a later hang-up starts afresh
+
+      frames.clear();
+      protocol_->feed(std::span<const uint8_t>(buf.data(), *got), frames);
+      const double now_s = clock_.now_s();
+      uint64_t invalid = 0;
+      for (DutFrame& f : frames) {
+        f.t_s = sample_clock.stamp(f.seq, now_s);
+        if (has_nan(f, channels)) ++invalid;
+      }
+      if (drained) {
+        if (const double shift_s = sample_clock.realign(now_s); shift_s > 0) {
+          for (auto& f : frames) f.t_s += shift_s;
+        }
+      }
+      {
+        std::lock_guard lock(mu_);
+        health_.samples += frames.size();
+        health_.invalid_samples += invalid;
+        health_.parser = protocol_->counters();
+        if (!frames.empty()) health_.last_sample_station_s = frames.back().t_s;
+      }
+      if (!frames.empty() && sink_) {
+        try {
+          sink_(frames);
+        } catch (const std::exception& e) {
+          std::lock_guard lock(mu_);
+          health_.last_error = fmt::format("frame sink failed: {}", e.what());
+        }
+      }
+    }
+    if (stop_) break;
+    if (!wait_unless_stopped(backoff)) break;
+    backoff = std::min(backoff * 2, kMaxBackoff);
+  }
+  std::lock_guard lock(mu_);
+  health_.connected = false;
+}
+
+SerialDut::SerialDut(SerialOptions serial, double rate_hz, std::unique_ptr<DutProtocol> protocol,
+                     const Clock& clock)
+    : reader_(std::move(serial), rate_hz, std::move(protocol), clock,
+              [this](std::span<const DutFrame> frames) { sink_(frames); }) {}
+
+void SerialDut::start(Sink sink) {
+  sink_ = std::move(sink);
+  reader_.start();
+}
+
+Result<std::unique_ptr<DutSource>> make_dut_source(const DutLink& link, const Clock& clock) {
+  auto protocol = make_dut_protocol(link);
+  if (!protocol.ok()) return protocol.error();
+  return std::unique_ptr<DutSource>(
+      new SerialDut(link.serial, link.rate_hz, std::move(protocol).value(), clock));
+}
+
+}  // namespace gyrotherm::drivers
