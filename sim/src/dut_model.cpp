@@ -64,6 +64,8 @@ std::vector<daemon::DutSection> simulated_duts(const daemon::StationConfig& conf
   if (!config.duts.empty()) return config.duts;
   // [gyro] as one unnamed DUT, as the config reads it (config.h).
   daemon::DutSection dut;
+  dut.serial = config.gyro.serial_number;
+  dut.model = config.gyro.model;
   dut.link.serial = config.gyro.serial;
   dut.link.protocol = config.gyro.protocol;
   dut.link.unit = config.gyro.format.unit;
