@@ -67,8 +67,7 @@ std::optional<Error> expect_count(const Words& words, std::size_t n, std::string
 // words[i] as a number in [lo, hi]; `what` describes the value for a
 // missing one.
 Result<double> number_at(const Words& words, std::size_t i, std::string_view name,
-                         std::string_view what, double lo, double hi,
-                         std::size_t words_after = 0) {
+                         std::string_view what, double lo, double hi, std::size_t words_after = 0) {
   if (words.size() <= i) return bad(fmt::format("'{}' needs a value: {}", name, what));
   const std::string_view w = words[i];
   double v = 0;
@@ -164,8 +163,9 @@ Result<ControlCommand> parse_gyro(const Words& w) {
     const Kind kind = sub == "corrupt" ? Kind::kFramesCorrupt : Kind::kFramesDrop;
     // Two words after the subcommand: the serial, then P.
     const bool with_serial = w.size() > 3;
-    auto v = number_at(w, with_serial ? 3 : 2, with_serial ? fmt::format("{} {}", name, w[2]) : name,
-                       "P (probability, 0..1)", 0, 1);
+    auto v =
+        number_at(w, with_serial ? 3 : 2, with_serial ? fmt::format("{} {}", name, w[2]) : name,
+                  "P (probability, 0..1)", 0, 1);
     if (!v.ok()) return v.error();
     ControlCommand c{kind, *v, ProbeRole::kTop};
     if (with_serial) {
@@ -175,8 +175,9 @@ Result<ControlCommand> parse_gyro(const Words& w) {
     return c;
   }
   if (sub.empty()) {
-    return bad("'gyro' needs one of: close, reopen, hold, release [SN], corrupt [SN] P, "
-               "drop [SN] P");
+    return bad(
+        "'gyro' needs one of: close, reopen, hold, release [SN], corrupt [SN] P, "
+        "drop [SN] P");
   }
   return bad(fmt::format(
       "unknown 'gyro' subcommand {}; expected close, reopen, hold, release, corrupt or drop",
@@ -496,9 +497,10 @@ std::string execute_control_command(Simulator& sim, const ControlCommand& c) {
         const auto found = sim.find_dut(c.dut);
         if (!found) {
           std::string serials;
-          for (const auto& s : sim.dut_serials()) serials += (serials.empty() ? "'" : ", '") + s + "'";
-          return fmt::format("error no DUT with serial {}; the simulator serves {}", sim::quoted(c.dut),
-                             serials);
+          for (const auto& s : sim.dut_serials())
+            serials += (serials.empty() ? "'" : ", '") + s + "'";
+          return fmt::format("error no DUT with serial {}; the simulator serves {}",
+                             sim::quoted(c.dut), serials);
         }
         dut = *found;
       }

@@ -57,7 +57,8 @@ analysis::AxisOrientation axis_orientation(const daemon::DutSection& dut, int ax
   for (const auto& [name, o] : dut.orientation) {
     if (axis_index(name) == axis) return o;
   }
-  return axis == primary_axis_index(dut) ? station_orientation : analysis::AxisOrientation::kHorizontal;
+  return axis == primary_axis_index(dut) ? station_orientation
+                                         : analysis::AxisOrientation::kHorizontal;
 }
 
 std::vector<daemon::DutSection> simulated_duts(const daemon::StationConfig& config) {
@@ -71,7 +72,8 @@ std::vector<daemon::DutSection> simulated_duts(const daemon::StationConfig& conf
   dut.link.unit = config.gyro.format.unit;
   dut.link.kind = config.gyro.format.kind;
   dut.link.rate_hz = config.gyro.format.rate_hz;
-  const std::string axis = kAxisNames[static_cast<std::size_t>(std::clamp(config.gyro.format.axis, 0, 2))];
+  const std::string axis =
+      kAxisNames[static_cast<std::size_t>(std::clamp(config.gyro.format.axis, 0, 2))];
   dut.axes = {axis};
   dut.orientation = {{axis, config.station.orientation}};
   dut.primary_axis = axis;
@@ -86,7 +88,8 @@ DutShell::DutShell(const ThermalParams& plant, const DutCaseParams& own, double 
                    uint64_t seed)
     : params_(plant), own_(own.own()), probe_offset_c_(probe_offset_c), rng_(seed) {
   if (own.case_tau_s) params_.case_tau_s = *own.case_tau_s;
-  if (own.gradient_c_per_c_per_min) params_.gradient_c_per_c_per_min = *own.gradient_c_per_c_per_min;
+  if (own.gradient_c_per_c_per_min)
+    params_.gradient_c_per_c_per_min = *own.gradient_c_per_c_per_min;
   if (own.gradient_offset_c) params_.gradient_offset_c = *own.gradient_offset_c;
   if (own.gradient_tau_s) params_.gradient_tau_s = *own.gradient_tau_s;
   truth_.ramped_setpoint_c = truth_.air_c = truth_.case_c = params_.initial_temp_c;
@@ -130,17 +133,16 @@ double DutShell::read_probe(double true_c) {
 // ------------------------------------------------------------------ DutModel
 
 Result<DutModel> DutModel::create(const daemon::DutSection& dut, int position,
-                                  const DutSimParams& params,
-                                  const daemon::StationSection& station,
+                                  const DutSimParams& params, const daemon::StationSection& station,
                                   const std::optional<TableMount>& table,
                                   const ScaleFactorParams& scale_factor,
                                   const std::array<uint64_t, 3>& axis_seeds, uint64_t accel_seed) {
-  const std::string who = dut.serial.empty() ? std::string("the gyro")
-                                             : fmt::format("DUT '{}'", dut.serial);
+  const std::string who =
+      dut.serial.empty() ? std::string("the gyro") : fmt::format("DUT '{}'", dut.serial);
   const int primary = primary_axis_index(dut);
   if (primary < 0) {
-    return Error::Permanent(fmt::format("{}: primary_axis '{}' is not x, y or z", who,
-                                        dut.primary_axis));
+    return Error::Permanent(
+        fmt::format("{}: primary_axis '{}' is not x, y or z", who, dut.primary_axis));
   }
   int table_axis = primary;
   if (!dut.table_axis.empty()) {
@@ -163,8 +165,8 @@ Result<DutModel> DutModel::create(const daemon::DutSection& dut, int position,
       return Error::Permanent(fmt::format("{}: {}", who, s.error().message));
     }
   } else if (dut.link.protocol != "kvh1750") {
-    return Error::Permanent(fmt::format(
-        "{}: protocol '{}' cannot be simulated (kvh1750 or ascii)", who, dut.link.protocol));
+    return Error::Permanent(fmt::format("{}: protocol '{}' cannot be simulated (kvh1750 or ascii)",
+                                        who, dut.link.protocol));
   }
   std::vector<GyroModel> axes;
   std::array<AxisSetup, 3> setup;

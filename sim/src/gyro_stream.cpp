@@ -82,9 +82,7 @@ void GyroStream::close() {
   pty_.reset();
 }
 
-void GyroStream::write_frames(std::span<const uint8_t> bytes) {
-  write_frames(bytes, {});
-}
+void GyroStream::write_frames(std::span<const uint8_t> bytes) { write_frames(bytes, {}); }
 
 void GyroStream::write_frames(std::span<const uint8_t> bytes,
                               std::span<const std::size_t> frame_sizes) {
@@ -108,7 +106,8 @@ void GyroStream::write_frames(std::span<const uint8_t> bytes,
     take = std::min(frames, room / frame_size_);
     take_bytes = take * frame_size_;
   } else {
-    while (take < frames && take_bytes + frame_sizes[take] <= room) take_bytes += frame_sizes[take++];
+    while (take < frames && take_bytes + frame_sizes[take] <= room)
+      take_bytes += frame_sizes[take++];
   }
   if (pending_offset_ > 0 && pending_offset_ == pending_.size()) {
     pending_.clear();

@@ -149,11 +149,12 @@ void read_duts(TableReader& simulator, const std::vector<daemon::DutSection>& du
   };
   auto add = [&](TableReader& r, std::string serial, TableReader& parent, std::string_view key) {
     if (!known(serial)) {
-      parent.error(key, fmt::format("no [[dut]] with serial '{}' (the station's DUTs: {})",
-                                    serial, serial_list()));
+      parent.error(key, fmt::format("no [[dut]] with serial '{}' (the station's DUTs: {})", serial,
+                                    serial_list()));
       return;
     }
-    if (std::any_of(out.begin(), out.end(), [&](const DutOverrides& o) { return o.serial == serial; })) {
+    if (std::any_of(out.begin(), out.end(),
+                    [&](const DutOverrides& o) { return o.serial == serial; })) {
       parent.error(key, fmt::format("DUT '{}' is given twice", serial));
       return;
     }

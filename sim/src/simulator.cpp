@@ -155,8 +155,8 @@ Result<std::unique_ptr<Simulator>> Simulator::create(const daemon::StationConfig
     if (const int primary = primary_axis_index(dut); p == 0 && primary >= 0) {
       axis_seeds[static_cast<std::size_t>(primary)] = derive_seed(honest.seed, 2);
     }
-    auto model = DutModel::create(dut, position, params, config.station, mount,
-                                  honest.scale_factor, axis_seeds, derive_seed(honest.seed, base + 3));
+    auto model = DutModel::create(dut, position, params, config.station, mount, honest.scale_factor,
+                                  axis_seeds, derive_seed(honest.seed, base + 3));
     if (!model.ok()) {
       return Error::Permanent(fmt::format("{}: {}", config.source_path, model.error().message));
     }
@@ -170,9 +170,10 @@ Result<std::unique_ptr<Simulator>> Simulator::create(const daemon::StationConfig
                                    pending_frames_limit(honest, dut.link.rate_hz));
     d->fault_rng.seed(p == 0 ? derive_seed(honest.seed, 3) : derive_seed(honest.seed, 2000 + p));
     if (!honest.gyro_link.empty()) {
-      d->link = p == 0 ? honest.gyro_link
-                       : fmt::format("{}-{}", honest.gyro_link,
-                                     dut.serial.empty() ? std::to_string(p + 1) : file_safe(dut.serial));
+      d->link =
+          p == 0 ? honest.gyro_link
+                 : fmt::format("{}-{}", honest.gyro_link,
+                               dut.serial.empty() ? std::to_string(p + 1) : file_safe(dut.serial));
     }
     if (dut.probes) {
       auto top = dut_probe_spec(config.probes, dut.probes->top_channel);
@@ -199,7 +200,8 @@ Result<std::unique_ptr<Simulator>> Simulator::create(const daemon::StationConfig
     }
     sims.push_back(std::move(d));
   }
-  return std::unique_ptr<Simulator>(new Simulator(config, std::move(honest), clock, std::move(sims)));
+  return std::unique_ptr<Simulator>(
+      new Simulator(config, std::move(honest), clock, std::move(sims)));
 }
 
 Simulator::Simulator(daemon::StationConfig config, SimulatorOptions options, const Clock* clock,
@@ -221,12 +223,13 @@ Simulator::Simulator(daemon::StationConfig config, SimulatorOptions options, con
   step_s_ = std::min(step_s_, kMaxStepS);
   // Today's keys: the first DUT's primary axis; then every DUT.
   const Dut& first = *duts_.front();
-  nlohmann::json truth =
-      nlohmann::json::parse(first.model.axis_model(first.model.primary_axis()).truth_json(options_.seed));
+  nlohmann::json truth = nlohmann::json::parse(
+      first.model.axis_model(first.model.primary_axis()).truth_json(options_.seed));
   truth["duts"] = nlohmann::json::array();
   const std::vector<double> temps = static_temps_c(config_.station);
   truth["static_temps_c"] = temps;
-  for (const auto& d : duts_) truth["duts"].push_back(d->model.truth(d->shell, temps, table_served));
+  for (const auto& d : duts_)
+    truth["duts"].push_back(d->model.truth(d->shell, temps, table_served));
   truth_json_ = truth.dump(2) + "\n";
   status_.setpoint_c = options_.thermal.initial_temp_c;
   status_.truth = plant_.truth();
@@ -445,8 +448,8 @@ Status Simulator::point_gyro_link_locked(std::size_t i) {
   fs::create_symlink(stream.slave_path(), tmp, ec);
   if (!ec) fs::rename(tmp, link, ec);  // atomic: readers never see no link
   if (ec) {
-    return Error::Permanent(fmt::format("cannot point {} at {}: {}", link.string(),
-                                        stream.slave_path(), ec.message()));
+    return Error::Permanent(
+        fmt::format("cannot point {} at {}: {}", link.string(), stream.slave_path(), ec.message()));
   }
   return Status::Ok();
 }
@@ -813,8 +816,8 @@ void Simulator::hold_pty(bool held, std::size_t dut) {
 
 Status Simulator::reopen_pty(std::size_t dut) {
   if (dut >= duts_.size()) {
-    return Error::Permanent(fmt::format("no DUT number {} (the simulator has {})", dut + 1,
-                                        duts_.size()));
+    return Error::Permanent(
+        fmt::format("no DUT number {} (the simulator has {})", dut + 1, duts_.size()));
   }
   std::lock_guard life(life_mu_);
   {

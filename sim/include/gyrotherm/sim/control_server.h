@@ -29,9 +29,9 @@ namespace gyrotherm::sim {
 
 struct ControlCommand {
   enum class Kind {
-    kModbusDown,       // modbus down
-    kModbusUp,         // modbus up
-    kModbusDelay,      // modbus delay WALL_S         value = wall seconds
+    kModbusDown,   // modbus down
+    kModbusUp,     // modbus up
+    kModbusDelay,  // modbus delay WALL_S         value = wall seconds
     // The gyro-line commands take an optional serial: `pty close [SN]`,
     // `frames corrupt P [SN]`, or as `gyro close [SN]`, `gyro corrupt [SN] P`.
     kPtyClose,         // pty close

@@ -21,12 +21,11 @@
 
 #include <array>
 #include <cstdint>
+#include <nlohmann/json_fwd.hpp>
 #include <optional>
 #include <random>
 #include <string>
 #include <vector>
-
-#include <nlohmann/json_fwd.hpp>
 
 #include "gyrotherm/analysis/table1.h"
 #include "gyrotherm/core/result.h"
@@ -67,8 +66,8 @@ struct DutCaseParams {
 // order of precedence, the last winning).
 struct DutSimParams {
   std::string serial;
-  std::array<GyroParams, 3> axes;  // x, y, z
-  std::array<bool, 3> bias_given{};  // bias_dph set for this DUT or axis (no default offset)
+  std::array<GyroParams, 3> axes;           // x, y, z
+  std::array<bool, 3> bias_given{};         // bias_dph set for this DUT or axis (no default offset)
   std::array<double, 3> bias_offset_dph{};  // the default offset added (0 when given)
   double accel_noise_g = 1e-4;
   double internal_temp_offset_c = 0.0;  // internal temperature − shell temperature
@@ -152,9 +151,9 @@ class DutModel {
                        bool table_served) const;
 
  private:
-  DutModel(daemon::DutSection dut, int position, DutSimParams params,
-           std::vector<GyroModel> axes, std::array<AxisSetup, 3> setup, int primary,
-           std::vector<ChannelSpec> channels, uint64_t accel_seed);
+  DutModel(daemon::DutSection dut, int position, DutSimParams params, std::vector<GyroModel> axes,
+           std::array<AxisSetup, 3> setup, int primary, std::vector<ChannelSpec> channels,
+           uint64_t accel_seed);
 
   daemon::DutSection dut_;
   int position_;

@@ -65,7 +65,7 @@ struct GyroOverrides {
 // One DUT's [simulator.dut.SN] (or [[simulator.dut]] with serial = SN).
 struct DutOverrides {
   std::string serial;
-  GyroOverrides all;                 // every axis
+  GyroOverrides all;                  // every axis
   std::array<GyroOverrides, 3> axis;  // [simulator.dut.SN.x], .y, .z
   std::optional<double> accel_noise_g;
   std::optional<double> internal_temp_offset_c;

@@ -121,8 +121,8 @@ struct SimulatorFaults {
 // One DUT as the status shows it.
 struct DutSimStatus {
   std::string serial;
-  std::string device;          // what the endpoints name (its link, or the pty)
-  ThermalTruth shell;          // its case (the plant's unless it has its own)
+  std::string device;                           // what the endpoints name (its link, or the pty)
+  ThermalTruth shell;                           // its case (the plant's unless it has its own)
   std::optional<ProbeReadings> probe_readings;  // its own probes' registers, if served
   std::array<double, 3> last_rates_dph{};       // last sample per axis x, y, z, noise included
   uint64_t frames_generated = 0;
