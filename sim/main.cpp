@@ -107,7 +107,8 @@ int main(int argc, char** argv) {
 
   CLI::App app{
       "gyrotherm-sim: simulated thermal test station. Serves the chamber controller and the "
-      "probe module over Modbus TCP on 127.0.0.1 and streams KVH 1750 gyro frames on a pty; "
+      "probe module over Modbus TCP on 127.0.0.1 and streams each device under test's frames "
+      "(KVH 1750 or ASCII lines) on its own pty; "
       "with a rate table, serves it over ACL (TCP) and the AERO grammar (a second pty)."};
   app.footer(
       "Fault injection while it runs: gyrotherm-sim ctl --socket PATH COMMAND... "
@@ -205,6 +206,9 @@ int main(int argc, char** argv) {
   const auto ep = s.endpoints();
   fmt::print("modbus {}:{}\n", ep.modbus_host, ep.modbus_port);
   fmt::print("gyro {}\n", ep.gyro_device);
+  if (ep.dut_devices.size() > 1) {
+    for (const auto& [serial, device] : ep.dut_devices) fmt::print("dut {} {}\n", serial, device);
+  }
   if (ep.table_port != 0) fmt::print("table acl {}:{}\n", ep.modbus_host, ep.table_port);
   if (!ep.table_device.empty()) fmt::print("table aero {}\n", ep.table_device);
   if (!s.truth_file().empty()) fmt::print("truth {}\n", s.truth_file());

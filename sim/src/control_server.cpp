@@ -67,7 +67,7 @@ std::optional<Error> expect_count(const Words& words, std::size_t n, std::string
 // words[i] as a number in [lo, hi]; `what` describes the value for a
 // missing one.
 Result<double> number_at(const Words& words, std::size_t i, std::string_view name,
-                         std::string_view what, double lo, double hi) {
+                         std::string_view what, double lo, double hi, std::size_t words_after = 0) {
   if (words.size() <= i) return bad(fmt::format("'{}' needs a value: {}", name, what));
   const std::string_view w = words[i];
   double v = 0;
@@ -78,7 +78,7 @@ Result<double> number_at(const Words& words, std::size_t i, std::string_view nam
   if (v < lo || v > hi) {
     return bad(fmt::format("'{}': {} is outside [{}, {}]", name, w, lo, hi));
   }
-  if (auto e = expect_count(words, i + 1, fmt::format("{} {}", name, w))) return *e;
+  if (auto e = expect_count(words, i + 1 + words_after, fmt::format("{} {}", name, w))) return *e;
   return v;
 }
 
@@ -106,30 +106,82 @@ Result<ControlCommand> parse_modbus(const Words& w) {
                          quoted(sub)));
 }
 
+// words[i], when there, is the DUT's serial and the last word.
+Result<ControlCommand> for_dut(Result<ControlCommand> c, const Words& w, std::size_t i,
+                               std::string_view name) {
+  if (!c.ok() || w.size() <= i) return c;
+  if (auto e = expect_count(w, i + 1, fmt::format("{} {}", name, w[i]))) return *e;
+  c->dut = std::string(w[i]);
+  c->dut_given = true;
+  return c;
+}
+
+std::optional<Kind> line_kind(std::string_view sub) {
+  if (sub == "close") return Kind::kPtyClose;
+  if (sub == "reopen") return Kind::kPtyReopen;
+  if (sub == "hold") return Kind::kPtyHold;
+  if (sub == "release") return Kind::kPtyRelease;
+  return std::nullopt;
+}
+
+// pty close|reopen|hold|release [SN]
 Result<ControlCommand> parse_pty(const Words& w) {
   const std::string_view sub = w.size() > 1 ? w[1] : "";
-  if (sub == "close") return simple(w, 2, "pty close", Kind::kPtyClose);
-  if (sub == "reopen") return simple(w, 2, "pty reopen", Kind::kPtyReopen);
-  if (sub == "hold") return simple(w, 2, "pty hold", Kind::kPtyHold);
-  if (sub == "release") return simple(w, 2, "pty release", Kind::kPtyRelease);
+  if (auto kind = line_kind(sub)) {
+    const std::string name = fmt::format("pty {}", sub);
+    return for_dut(ControlCommand{*kind, 0, ProbeRole::kTop}, w, 2, name);
+  }
   if (sub.empty()) return bad("'pty' needs one of: close, reopen, hold, release");
   return bad(fmt::format("unknown 'pty' subcommand {}; expected close, reopen, hold or release",
                          quoted(sub)));
 }
 
+// frames corrupt|drop P [SN]
 Result<ControlCommand> parse_frames(const Words& w) {
   const std::string_view sub = w.size() > 1 ? w[1] : "";
-  if (sub == "corrupt") {
-    return with_value(number_at(w, 2, "frames corrupt", "P (probability, 0..1)", 0, 1),
-                      Kind::kFramesCorrupt);
-  }
-  if (sub == "drop") {
-    return with_value(number_at(w, 2, "frames drop", "P (probability, 0..1)", 0, 1),
-                      Kind::kFramesDrop);
+  if (sub == "corrupt" || sub == "drop") {
+    const std::string name = fmt::format("frames {}", sub);
+    const Kind kind = sub == "corrupt" ? Kind::kFramesCorrupt : Kind::kFramesDrop;
+    auto v = number_at(w, 2, name, "P (probability, 0..1)", 0, 1, /*words_after=*/1);
+    if (!v.ok()) return v.error();
+    return for_dut(ControlCommand{kind, *v, ProbeRole::kTop}, w, 3,
+                   fmt::format("{} {}", name, w[2]));
   }
   if (sub.empty()) return bad("'frames' needs one of: corrupt P, drop P");
   return bad(
       fmt::format("unknown 'frames' subcommand {}; expected corrupt P or drop P", quoted(sub)));
+}
+
+// gyro close|reopen|hold|release [SN]; gyro corrupt|drop [SN] P
+Result<ControlCommand> parse_gyro(const Words& w) {
+  const std::string_view sub = w.size() > 1 ? w[1] : "";
+  if (auto kind = line_kind(sub)) {
+    return for_dut(ControlCommand{*kind, 0, ProbeRole::kTop}, w, 2, fmt::format("gyro {}", sub));
+  }
+  if (sub == "corrupt" || sub == "drop") {
+    const std::string name = fmt::format("gyro {}", sub);
+    const Kind kind = sub == "corrupt" ? Kind::kFramesCorrupt : Kind::kFramesDrop;
+    // Two words after the subcommand: the serial, then P.
+    const bool with_serial = w.size() > 3;
+    auto v =
+        number_at(w, with_serial ? 3 : 2, with_serial ? fmt::format("{} {}", name, w[2]) : name,
+                  "P (probability, 0..1)", 0, 1);
+    if (!v.ok()) return v.error();
+    ControlCommand c{kind, *v, ProbeRole::kTop};
+    if (with_serial) {
+      c.dut = std::string(w[2]);
+      c.dut_given = true;
+    }
+    return c;
+  }
+  if (sub.empty()) {
+    return bad(
+        "'gyro' needs one of: close, reopen, hold, release [SN], corrupt [SN] P, "
+        "drop [SN] P");
+  }
+  return bad(fmt::format(
+      "unknown 'gyro' subcommand {}; expected close, reopen, hold, release, corrupt or drop",
+      quoted(sub)));
 }
 
 Result<ControlCommand> parse_probe(const Words& w) {
@@ -273,6 +325,10 @@ const std::vector<ControlCommandHelp>& control_commands() {
       {"pty release", "send the held frames as one backlog, then stream again"},
       {"frames corrupt P", "alter one byte after the CRC of each frame with probability P"},
       {"frames drop P", "skip each frame with probability P (the reader sees a sequence gap)"},
+      {"gyro close|reopen|hold|release [SN]",
+       "as pty ..., for the DUT with serial SN (default the first; pty ... SN works too)"},
+      {"gyro corrupt|drop [SN] P",
+       "as frames ..., for the DUT with serial SN (default the first; frames ... P SN too)"},
       {"probe stall top|side", "freeze the probe's register at its last value"},
       {"probe release top|side", "let a stalled probe read again"},
       {"chamber alarm on|off", "raise or clear the chamber controller's alarm register"},
@@ -302,6 +358,7 @@ Result<ControlCommand> parse_control_command(std::string_view line) {
   if (first == "modbus") return parse_modbus(w);
   if (first == "pty") return parse_pty(w);
   if (first == "frames") return parse_frames(w);
+  if (first == "gyro") return parse_gyro(w);
   if (first == "probe") return parse_probe(w);
   if (first == "chamber") return parse_chamber(w);
   if (first == "table") return parse_table(w);
@@ -375,6 +432,51 @@ std::string status_json(const SimulatorStatus& s) {
           {"unknown_unit_requests", mb.unknown_unit_requests},
           {"refused_connections", mb.refused_connections}}}}},
   };
+  nlohmann::ordered_json duts = nlohmann::ordered_json::array();
+  for (const DutSimStatus& d : s.duts) {
+    nlohmann::ordered_json active = nlohmann::ordered_json::array();
+    if (s.running && !d.pty_open) active.push_back("pty_closed");
+    if (d.pty_held) active.push_back("pty_held");
+    if (d.frame_corruption_rate > 0) active.push_back("frames_corrupt");
+    if (d.frame_drop_rate > 0) active.push_back("frames_drop");
+    nlohmann::ordered_json rates;
+    for (std::size_t i = 0; i < 3; ++i) rates[kAxisNames[i]] = d.last_rates_dph[i];
+    const GyroStreamStats& ds = d.stream;
+    nlohmann::ordered_json e = {
+        {"serial", d.serial},
+        {"device", d.device},
+        {"case_c", d.shell.case_c},
+        {"case_rate_c_per_s", d.shell.case_rate_c_per_s},
+        {"gradient_c", d.shell.gradient_c},
+        {"top_c", d.shell.top_c},
+        {"side_c", d.shell.side_c},
+        {"readings", d.probe_readings ? nlohmann::ordered_json{{"top_c", d.probe_readings->top_c},
+                                                               {"side_c", d.probe_readings->side_c}}
+                                      : nlohmann::ordered_json(nullptr)},
+        {"last_rates_dph", rates},
+        {"faults_active", active},
+        {"faults",
+         {{"pty_open", d.pty_open},
+          {"pty_held", d.pty_held},
+          {"frame_corruption_rate", d.frame_corruption_rate},
+          {"frame_drop_rate", d.frame_drop_rate}}},
+        {"counters",
+         {{"frames_generated", d.frames_generated},
+          {"frames_fault_dropped", d.frames_fault_dropped},
+          {"frames_fault_corrupted", d.frames_fault_corrupted},
+          {"stream",
+           {{"frames_queued", ds.frames_queued},
+            {"frames_dropped_full", ds.frames_dropped_full},
+            {"frames_dropped_closed", ds.frames_dropped_closed},
+            {"frames_dropped_no_reader", ds.frames_dropped_no_reader},
+            {"readers", ds.readers},
+            {"bytes_written", ds.bytes_written},
+            {"write_errors", ds.write_errors},
+            {"pending_bytes", ds.pending_bytes}}}}},
+    };
+    duts.push_back(std::move(e));
+  }
+  j["duts"] = std::move(duts);
   if (s.table.served) j["table"] = table_json(s.table);
   return j.dump();
 }
@@ -382,6 +484,30 @@ std::string status_json(const SimulatorStatus& s) {
 std::string table_status_json(const TableStatus& table) { return table_json(table).dump(); }
 
 std::string execute_control_command(Simulator& sim, const ControlCommand& c) {
+  // The DUT of a gyro-line command.
+  std::size_t dut = 0;
+  switch (c.kind) {
+    case Kind::kPtyClose:
+    case Kind::kPtyHold:
+    case Kind::kPtyRelease:
+    case Kind::kPtyReopen:
+    case Kind::kFramesCorrupt:
+    case Kind::kFramesDrop:
+      if (c.dut_given) {
+        const auto found = sim.find_dut(c.dut);
+        if (!found) {
+          std::string serials;
+          for (const auto& s : sim.dut_serials())
+            serials += (serials.empty() ? "'" : ", '") + s + "'";
+          return fmt::format("error no DUT with serial {}; the simulator serves {}",
+                             sim::quoted(c.dut), serials);
+        }
+        dut = *found;
+      }
+      break;
+    default:
+      break;
+  }
   switch (c.kind) {
     case Kind::kModbusDown:
       sim.set_modbus_down(true);
@@ -393,23 +519,29 @@ std::string execute_control_command(Simulator& sim, const ControlCommand& c) {
       sim.set_modbus_reply_delay_s(c.value);
       return "ok";
     case Kind::kPtyClose:
-      sim.close_pty();
+      sim.close_pty(dut);
       return "ok";
     case Kind::kPtyHold:
     case Kind::kPtyRelease:
-      sim.hold_pty(c.kind == Kind::kPtyHold);
+      sim.hold_pty(c.kind == Kind::kPtyHold, dut);
       return "ok";
     case Kind::kPtyReopen: {
-      if (Status s = sim.reopen_pty(); !s.ok()) {
+      if (Status s = sim.reopen_pty(dut); !s.ok()) {
         return "error cannot reopen the pty: " + s.error().message;
       }
-      return ok_json({{"gyro_device", sim.endpoints().gyro_device}});
+      const auto ep = sim.endpoints();
+      nlohmann::ordered_json j = {{"gyro_device", ep.gyro_device}};
+      if (dut < ep.dut_devices.size()) {
+        j["serial"] = ep.dut_devices[dut].first;
+        j["device"] = ep.dut_devices[dut].second;
+      }
+      return ok_json(j);
     }
     case Kind::kFramesCorrupt:
-      sim.set_frame_corruption_rate(c.value);
+      sim.set_frame_corruption_rate(c.value, dut);
       return "ok";
     case Kind::kFramesDrop:
-      sim.set_frame_drop_rate(c.value);
+      sim.set_frame_drop_rate(c.value, dut);
       return "ok";
     case Kind::kProbeStall:
     case Kind::kProbeRelease:

@@ -82,8 +82,11 @@ void GyroStream::close() {
   pty_.reset();
 }
 
-void GyroStream::write_frames(std::span<const uint8_t> bytes) {
-  const std::size_t frames = bytes.size() / frame_size_;
+void GyroStream::write_frames(std::span<const uint8_t> bytes) { write_frames(bytes, {}); }
+
+void GyroStream::write_frames(std::span<const uint8_t> bytes,
+                              std::span<const std::size_t> frame_sizes) {
+  const std::size_t frames = frame_sizes.empty() ? bytes.size() / frame_size_ : frame_sizes.size();
   if (!pty_) {
     stats_.frames_dropped_closed += frames;
     return;
@@ -97,13 +100,21 @@ void GyroStream::write_frames(std::span<const uint8_t> bytes) {
   flush();
   const std::size_t queued = pending_.size() - pending_offset_;
   const std::size_t room = pending_limit_bytes_ > queued ? pending_limit_bytes_ - queued : 0;
-  const std::size_t take = std::min(frames, room / frame_size_);
+  std::size_t take = 0;
+  std::size_t take_bytes = 0;
+  if (frame_sizes.empty()) {
+    take = std::min(frames, room / frame_size_);
+    take_bytes = take * frame_size_;
+  } else {
+    while (take < frames && take_bytes + frame_sizes[take] <= room)
+      take_bytes += frame_sizes[take++];
+  }
   if (pending_offset_ > 0 && pending_offset_ == pending_.size()) {
     pending_.clear();
     pending_offset_ = 0;
   }
   pending_.insert(pending_.end(), bytes.begin(),
-                  bytes.begin() + static_cast<std::ptrdiff_t>(take * frame_size_));
+                  bytes.begin() + static_cast<std::ptrdiff_t>(take_bytes));
   stats_.frames_queued += take;
   stats_.frames_dropped_full += frames - take;
   flush();

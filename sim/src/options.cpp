@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <cmath>
 
 #include "gyrotherm/core/time_scale.h"
@@ -61,6 +62,142 @@ void read_gyro(TableReader t, GyroParams& p) {
   t.finish();
 }
 
+// A number that may be absent: nullopt then (and when it is bad, reported).
+std::optional<double> optional_in(TableReader& t, std::string_view key, double lo, double hi) {
+  const auto v = t.number(key);
+  if (!v) return std::nullopt;
+  if (*v < lo || *v > hi) {
+    t.error(key, fmt::format("{} is out of range: must be in [{}, {}]", *v, lo, hi));
+    return std::nullopt;
+  }
+  return v;
+}
+
+std::optional<std::vector<double>> optional_coeffs(TableReader& t, std::string_view key) {
+  if (!t.raw().contains(key)) return std::nullopt;
+  std::vector<double> values;
+  bool bad = false;
+  if (const toml::array* a = t.array(key)) {
+    for (const auto& node : *a) {
+      if (auto i = node.value_exact<int64_t>()) {
+        values.push_back(static_cast<double>(*i));
+      } else if (auto d = node.value_exact<double>(); d && std::isfinite(*d)) {
+        values.push_back(*d);
+      } else {
+        bad = true;
+      }
+    }
+  } else {
+    return std::nullopt;  // wrong type, reported
+  }
+  if (bad) {
+    t.error(key, "must be an array of finite numbers");
+    return std::nullopt;
+  }
+  if (values.size() > 8) {
+    t.error(key, fmt::format("has {} entries (at most 8: orders 1..8)", values.size()));
+    return std::nullopt;
+  }
+  return values;
+}
+
+// The GyroParams keys of a [simulator.dut.SN] (or .x) table; the caller
+// finishes the table.
+void read_gyro_overrides(TableReader& t, GyroOverrides& g) {
+  g.bias_dph = optional_in(t, "bias_dph", -1e5, 1e5);
+  g.temp_coeffs = optional_coeffs(t, "temp_coeffs");
+  g.rate_coeffs = optional_coeffs(t, "rate_coeffs");
+  g.gradient_coeffs = optional_coeffs(t, "gradient_coeffs");
+  g.white_noise_dph = optional_in(t, "white_noise_dph", 0, 1e5);
+  g.bias_instability_dph = optional_in(t, "bias_instability_dph", 0, 1e5);
+  g.bias_instability_tau_s = optional_in(t, "bias_instability_tau_s", 1e-3, 1e8);
+  g.rate_random_walk_dph_per_sqrt_h = optional_in(t, "rate_random_walk_dph_per_sqrt_h", 0, 1e5);
+}
+
+void read_dut_overrides(TableReader& t, DutOverrides& d) {
+  read_gyro_overrides(t, d.all);
+  d.accel_noise_g = optional_in(t, "accel_noise_g", 0, 10);
+  d.internal_temp_offset_c = optional_in(t, "internal_temp_offset_c", -50, 50);
+  d.probe_offset_c = optional_in(t, "probe_offset_c", -50, 50);
+  d.case_params.case_tau_s = optional_in(t, "case_tau_s", 0, 1e6);
+  d.case_params.gradient_c_per_c_per_min = optional_in(t, "gradient_c_per_c_per_min", -100, 100);
+  d.case_params.gradient_offset_c = optional_in(t, "gradient_offset_c", -50, 50);
+  d.case_params.gradient_tau_s = optional_in(t, "gradient_tau_s", 0, 1e6);
+  for (std::size_t i = 0; i < 3; ++i) {
+    if (auto axis = t.table(kAxisNames[i])) {
+      read_gyro_overrides(*axis, d.axis[i]);
+      axis->finish();
+    }
+  }
+}
+
+// [simulator.dut.SN] tables, or [[simulator.dut]] entries with serial; each
+// must name a DUT of the station (the serials of `duts`), once.
+void read_duts(TableReader& simulator, const std::vector<daemon::DutSection>& duts,
+               std::vector<DutOverrides>& out) {
+  const toml::node* node = simulator.raw().get("dut");
+  if (!node) return;
+  simulator.skip("dut");
+  auto known = [&](const std::string& serial) {
+    return std::any_of(duts.begin(), duts.end(),
+                       [&](const daemon::DutSection& d) { return d.serial == serial; });
+  };
+  auto serial_list = [&] {
+    std::string list;
+    for (const auto& d : duts) list += (list.empty() ? "'" : ", '") + d.serial + "'";
+    return list;
+  };
+  auto add = [&](TableReader& r, std::string serial, TableReader& parent, std::string_view key) {
+    if (!known(serial)) {
+      parent.error(key, fmt::format("no [[dut]] with serial '{}' (the station's DUTs: {})", serial,
+                                    serial_list()));
+      return;
+    }
+    if (std::any_of(out.begin(), out.end(),
+                    [&](const DutOverrides& o) { return o.serial == serial; })) {
+      parent.error(key, fmt::format("DUT '{}' is given twice", serial));
+      return;
+    }
+    DutOverrides d;
+    d.serial = std::move(serial);
+    read_dut_overrides(r, d);
+    r.finish();
+    out.push_back(std::move(d));
+  };
+  TomlErrors& errors = simulator.errors();
+  if (const toml::table* tables = node->as_table()) {
+    TableReader parent(*tables, simulator.key_path("dut"), errors);
+    for (const auto& [key, value] : *tables) {
+      const std::string serial(key.str());
+      if (!value.is_table()) {
+        parent.skip(serial);
+        parent.error(serial, "must be a table ([simulator.dut.SERIAL])");
+        continue;
+      }
+      parent.skip(serial);
+      TableReader r(*value.as_table(), parent.key_path(serial), errors);
+      add(r, serial, parent, serial);
+    }
+    return;
+  }
+  if (const toml::array* entries = node->as_array()) {
+    for (std::size_t i = 0; i < entries->size(); ++i) {
+      const toml::table* entry = (*entries)[i].as_table();
+      const std::string path = fmt::format("{}[{}]", simulator.key_path("dut"), i);
+      if (!entry) {
+        errors.add(simulator.line_of("dut"), path, "must be a table ([[simulator.dut]])");
+        continue;
+      }
+      TableReader r(*entry, path, errors);
+      auto serial = r.required_string("serial");
+      if (!serial) continue;
+      add(r, *serial, r, "serial");
+    }
+    return;
+  }
+  simulator.error("dut", "must be tables [simulator.dut.SERIAL] or [[simulator.dut]] entries");
+}
+
 void read_table(TableReader t, TableParams& p) {
   p.max_rate_dps = t.number_in("max_rate_dps", p.max_rate_dps, 1e-3, 1e5);
   p.max_accel_dps2 = t.number_in("max_accel_dps2", p.max_accel_dps2, 1e-3, 1e6);
@@ -84,6 +221,59 @@ void read_scale_factor(TableReader t, ScaleFactorParams& p) {
 }
 
 }  // namespace
+
+void GyroOverrides::apply(GyroParams& p) const {
+  if (bias_dph) p.bias_dph = *bias_dph;
+  if (temp_coeffs) p.temp_coeffs = *temp_coeffs;
+  if (rate_coeffs) p.rate_coeffs = *rate_coeffs;
+  if (gradient_coeffs) p.gradient_coeffs = *gradient_coeffs;
+  if (white_noise_dph) p.white_noise_dph = *white_noise_dph;
+  if (bias_instability_dph) p.bias_instability_dph = *bias_instability_dph;
+  if (bias_instability_tau_s) p.bias_instability_tau_s = *bias_instability_tau_s;
+  if (rate_random_walk_dph_per_sqrt_h) {
+    p.rate_random_walk_dph_per_sqrt_h = *rate_random_walk_dph_per_sqrt_h;
+  }
+}
+
+DutSimParams resolve_dut_params(const SimulatorOptions& options, const daemon::DutSection& dut,
+                                int position) {
+  DutSimParams r;
+  r.serial = dut.serial;
+  r.accel_noise_g = options.gyro.accel_noise_g;
+  // Probes a little apart from the station's pair, and from each other.
+  r.probe_offset_c = 0.05 * (position + 1);
+  const DutOverrides* o = nullptr;
+  for (const auto& d : options.dut_overrides) {
+    if (d.serial == dut.serial) o = &d;
+  }
+  const int primary = primary_axis_index(dut);
+  int k = 1;  // rank among the non-primary axes
+  for (std::size_t i = 0; i < 3; ++i) {
+    GyroParams& p = r.axes[i];
+    p = options.gyro;
+    bool given = false;
+    if (o) {
+      o->all.apply(p);
+      o->axis[i].apply(p);
+      given = o->all.bias_dph || o->axis[i].bias_dph;
+    }
+    r.bias_given[i] = given;
+    if (!given) {
+      const int rank = static_cast<int>(i) == primary ? 0 : k++;
+      r.bias_offset_dph[i] = kDefaultDutBiasStepDph * position + kDefaultAxisBiasStepDph * rank;
+      p.bias_dph += r.bias_offset_dph[i];
+    } else if (static_cast<int>(i) != primary) {
+      ++k;
+    }
+  }
+  if (o) {
+    if (o->accel_noise_g) r.accel_noise_g = *o->accel_noise_g;
+    if (o->internal_temp_offset_c) r.internal_temp_offset_c = *o->internal_temp_offset_c;
+    if (o->probe_offset_c) r.probe_offset_c = *o->probe_offset_c;
+    r.case_params = o->case_params;
+  }
+  return r;
+}
 
 bool SimulatorOptions::IsValid(std::string* error) const {
   if (!thermal.IsValid(error) || !gyro.IsValid(error) || !table.IsValid(error) ||
@@ -157,6 +347,7 @@ Result<SimulatorOptions> read_simulator_options(const daemon::StationConfig& con
     if (auto g = t.table("gyro")) read_gyro(*g, o.gyro);
     if (auto tb = t.table("table")) read_table(*tb, o.table);
     if (auto sf = t.table("scale_factor")) read_scale_factor(*sf, o.scale_factor);
+    read_duts(t, simulated_duts(config), o.dut_overrides);
     if (auto n = t.integer("pending_frames_limit")) {
       if (*n < 0 || *n > 10'000'000)
         t.error("pending_frames_limit", "must be in [0, 10000000]");

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <filesystem>
 #include <limits>
+#include <nlohmann/json.hpp>
 
 #include "gyrotherm/analysis/table1.h"
 #include "gyrotherm/core/files.h"
@@ -28,11 +29,11 @@ constexpr auto kTick = std::chrono::milliseconds(2);
 constexpr auto kTickBudget = std::chrono::milliseconds(50);
 
 // SplitMix64: independent seeds for the plant, the gyro and the faults.
-std::size_t pending_frames_limit(const SimulatorOptions& o) {
+std::size_t pending_frames_limit(const SimulatorOptions& o, double rate_hz) {
   if (o.pending_frames_limit > 0) return o.pending_frames_limit;
   // Five wall seconds of frames: a reader descheduled on a busy machine
   // catches up instead of losing samples (a real UART loses them sooner).
-  const double five_wall_seconds = 5.0 * o.time_scale * o.gyro_format.rate_hz;
+  const double five_wall_seconds = 5.0 * o.time_scale * rate_hz;
   return static_cast<std::size_t>(std::clamp(five_wall_seconds, 256.0, 1e7));
 }
 
@@ -58,6 +59,44 @@ uint64_t derive_seed(uint64_t seed, uint64_t stream) {
   return z ^ (z >> 31);
 }
 
+// A serial as a file-name part: what is not [A-Za-z0-9._-] becomes '_'.
+std::string file_safe(std::string_view serial) {
+  std::string out(serial);
+  for (char& c : out) {
+    const bool ok = (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') ||
+                    c == '.' || c == '_' || c == '-';
+    if (!ok) c = '_';
+  }
+  return out;
+}
+
+// The static soak temperatures the truth lists: every 5 °C over the
+// station's range.
+std::vector<double> static_temps_c(const daemon::StationSection& station) {
+  std::vector<double> temps;
+  for (double t = std::ceil(station.min_temp_c / 5.0) * 5.0; t <= station.max_temp_c + 1e-9;
+       t += 5.0) {
+    temps.push_back(t);
+  }
+  return temps;
+}
+
+// A DUT probe channel's register on the probe module: the profile's channel
+// register; with custom registers, the top register's layout at that address.
+Result<drivers::RegisterSpec> dut_probe_spec(const daemon::ProbesSection& probes, int channel) {
+  if (probes.profile == "custom") {
+    drivers::RegisterSpec spec = probes.top;
+    spec.address = channel;
+    spec.read_only = true;
+    return spec;
+  }
+  return drivers::probe_channel_spec(probes.profile, channel);
+}
+
+bool same_register(const drivers::RegisterSpec& a, const drivers::RegisterSpec& b) {
+  return a.function == b.function && a.address == b.address;
+}
+
 }  // namespace
 
 Result<std::unique_ptr<Simulator>> Simulator::create(const daemon::StationConfig& config,
@@ -80,11 +119,93 @@ Result<std::unique_ptr<Simulator>> Simulator::create(const daemon::StationConfig
         fmt::format("{}: [table] sensitive_axis = '{}' must be along_table or radial",
                     config.source_path, config.table->sensitive_axis));
   }
+  SimulatorOptions honest = honest_probe_quantum(options, config);
+  const std::vector<daemon::DutSection> duts = simulated_duts(config);
+  if (duts.empty()) return Error::Permanent(config.source_path + ": no DUT to simulate");
+  std::optional<TableMount> mount;
+  if (honest.serve_table || config.table) {
+    TableMount m;
+    m.latitude_deg = config.station.latitude_deg;
+    m.full_scale_dps = honest.table.max_rate_dps;
+    if (config.table) {
+      m.axis = config.table->sensitive_axis == "radial" ? SensitiveAxis::kRadial
+                                                        : SensitiveAxis::kAlongTable;
+      m.heading_at_zero_deg = config.table->heading_at_zero_deg;
+    }
+    mount = m;
+  }
+  std::vector<std::unique_ptr<Dut>> sims;
+  std::vector<drivers::RegisterSpec> probe_registers = {config.probes.top, config.probes.side};
+  for (std::size_t p = 0; p < duts.size(); ++p) {
+    daemon::DutSection dut = duts[p];
+    // --rate-hz (options.gyro_format) is the first DUT's rate.
+    if (p == 0) dut.link.rate_hz = honest.gyro_format.rate_hz;
+    const int position = static_cast<int>(p);
+    const DutSimParams params = resolve_dut_params(honest, dut, position);
+    for (std::size_t i = 0; i < 3; ++i) {
+      if (std::string why; !params.axes[i].IsValid(&why)) {
+        return Error::Permanent(fmt::format("{}: [simulator.dut.{}.{}]: {}", config.source_path,
+                                            dut.serial, kAxisNames[i], why));
+      }
+    }
+    const uint64_t base = 16 + 4 * p;
+    std::array<uint64_t, 3> axis_seeds{};
+    for (std::size_t i = 0; i < 3; ++i) axis_seeds[i] = derive_seed(honest.seed, base + i);
+    // The first DUT's primary axis draws from the stream the single gyro had.
+    if (const int primary = primary_axis_index(dut); p == 0 && primary >= 0) {
+      axis_seeds[static_cast<std::size_t>(primary)] = derive_seed(honest.seed, 2);
+    }
+    auto model = DutModel::create(dut, position, params, config.station, mount, honest.scale_factor,
+                                  axis_seeds, derive_seed(honest.seed, base + 3));
+    if (!model.ok()) {
+      return Error::Permanent(fmt::format("{}: {}", config.source_path, model.error().message));
+    }
+    DutShell shell(honest.thermal, params.case_params, params.probe_offset_c,
+                   derive_seed(honest.seed, 1000 + p));
+    // The nominal frame size, for the stream's counters: one frame encoded by a copy.
+    std::vector<uint8_t> sample;
+    DutModel copy = *model;
+    (void)copy.next_frame(shell.truth(), {}, sample);
+    auto d = std::make_unique<Dut>(std::move(model).value(), std::move(shell), sample.size(),
+                                   pending_frames_limit(honest, dut.link.rate_hz));
+    d->fault_rng.seed(p == 0 ? derive_seed(honest.seed, 3) : derive_seed(honest.seed, 2000 + p));
+    if (!honest.gyro_link.empty()) {
+      d->link =
+          p == 0 ? honest.gyro_link
+                 : fmt::format("{}-{}", honest.gyro_link,
+                               dut.serial.empty() ? std::to_string(p + 1) : file_safe(dut.serial));
+    }
+    if (dut.probes) {
+      auto top = dut_probe_spec(config.probes, dut.probes->top_channel);
+      auto side = dut_probe_spec(config.probes, dut.probes->side_channel);
+      if (!top.ok() || !side.ok()) {
+        return Error::Permanent(fmt::format("{}: DUT '{}' probes: {}", config.source_path,
+                                            dut.serial,
+                                            (!top.ok() ? top.error() : side.error()).message));
+      }
+      // A channel some other probe already uses is that probe: it is not
+      // served twice (the station's pair wins, then earlier DUTs).
+      auto unused = [&](const drivers::RegisterSpec& r) {
+        return std::none_of(probe_registers.begin(), probe_registers.end(),
+                            [&](const drivers::RegisterSpec& x) { return same_register(x, r); });
+      };
+      if (unused(*top)) {
+        d->probe_top = *top;
+        probe_registers.push_back(*top);
+      }
+      if (unused(*side)) {
+        d->probe_side = *side;
+        probe_registers.push_back(*side);
+      }
+    }
+    sims.push_back(std::move(d));
+  }
   return std::unique_ptr<Simulator>(
-      new Simulator(config, honest_probe_quantum(options, config), clock));
+      new Simulator(config, std::move(honest), clock, std::move(sims)));
 }
 
-Simulator::Simulator(daemon::StationConfig config, SimulatorOptions options, const Clock* clock)
+Simulator::Simulator(daemon::StationConfig config, SimulatorOptions options, const Clock* clock,
+                     std::vector<std::unique_ptr<Dut>> duts)
     : config_(std::move(config)),
       options_(std::move(options)),
       own_clock_(clock ? nullptr : std::make_unique<ScaledClock>(options_.time_scale)),
@@ -92,28 +213,24 @@ Simulator::Simulator(daemon::StationConfig config, SimulatorOptions options, con
       chamber_unit_(config_.chamber.endpoint.unit_id),
       probes_unit_(config_.probes.endpoint.unit_id),
       plant_(options_.thermal, derive_seed(options_.seed, 1)),
-      gyro_(options_.gyro, options_.gyro_format,
-            analysis::earth_rate_component_dph(config_.station.latitude_deg,
-                                               config_.station.orientation),
-            derive_seed(options_.seed, 2)),
-      fault_rng_(derive_seed(options_.seed, 3)),
+      duts_(std::move(duts)),
       setpoint_c_(options_.thermal.initial_temp_c),
-      forced_chamber_c_(std::numeric_limits<double>::quiet_NaN()),
-      stream_(drivers::kKvh1750FrameSize, pending_frames_limit(options_)) {
+      forced_chamber_c_(std::numeric_limits<double>::quiet_NaN()) {
   chamber_units_.store(options_.chamber_units);
-  if (options_.serve_table || config_.table) {
-    table_.emplace(options_.table, derive_seed(options_.seed, 4));
-    TableMount mount;
-    mount.latitude_deg = config_.station.latitude_deg;
-    mount.full_scale_dps = options_.table.max_rate_dps;
-    if (config_.table) {
-      mount.axis = config_.table->sensitive_axis == "radial" ? SensitiveAxis::kRadial
-                                                             : SensitiveAxis::kAlongTable;
-      mount.heading_at_zero_deg = config_.table->heading_at_zero_deg;
-    }
-    gyro_.enable_table(options_.scale_factor, mount);
-  }
-  truth_json_ = gyro_.truth_json(options_.seed);
+  const bool table_served = options_.serve_table || config_.table.has_value();
+  if (table_served) table_.emplace(options_.table, derive_seed(options_.seed, 4));
+  for (const auto& d : duts_) step_s_ = std::min(step_s_, d->model.sample_period_s());
+  step_s_ = std::min(step_s_, kMaxStepS);
+  // Today's keys: the first DUT's primary axis; then every DUT.
+  const Dut& first = *duts_.front();
+  nlohmann::json truth = nlohmann::json::parse(
+      first.model.axis_model(first.model.primary_axis()).truth_json(options_.seed));
+  truth["duts"] = nlohmann::json::array();
+  const std::vector<double> temps = static_temps_c(config_.station);
+  truth["static_temps_c"] = temps;
+  for (const auto& d : duts_)
+    truth["duts"].push_back(d->model.truth(d->shell, temps, table_served));
+  truth_json_ = truth.dump(2) + "\n";
   status_.setpoint_c = options_.thermal.initial_temp_c;
   status_.truth = plant_.truth();
   status_.readings = plant_.readings();
@@ -161,8 +278,13 @@ Status Simulator::start() {
     if (same(map.ramp_rate)) return std::isfinite(value) && value >= 0;
     return true;
   };
-  server_options.devices = {
-      chamber, ModbusServer::Device{probes_unit_, {config_.probes.top, config_.probes.side}, {}}};
+  ModbusServer::Device probes{probes_unit_, {config_.probes.top, config_.probes.side}, {}};
+  for (const auto& d : duts_) {
+    for (const auto* r : {&d->probe_top, &d->probe_side}) {
+      if (*r) probes.registers.push_back(**r);
+    }
+  }
+  server_options.devices = {chamber, probes};
   server_options.on_write = [this](int unit_id) { on_modbus_write(unit_id); };
   auto server = ModbusServer::start(std::move(server_options));
   if (!server.ok()) return server.error();
@@ -195,13 +317,15 @@ Status Simulator::start() {
     aero_server_.reset();
     release_modbus_server();
     std::lock_guard lock(stream_mu_);
-    stream_.close();
+    for (auto& d : duts_) d->stream.close();
     return e;
   };
   {
     std::lock_guard lock(stream_mu_);
-    if (Status s = stream_.open(); !s.ok()) return fail(s.error());
-    if (Status s = point_gyro_link_locked(); !s.ok()) return fail(s.error());
+    for (std::size_t i = 0; i < duts_.size(); ++i) {
+      if (Status s = duts_[i]->stream.open(); !s.ok()) return fail(s.error());
+      if (Status s = point_gyro_link_locked(i); !s.ok()) return fail(s.error());
+    }
   }
   if (table_) {
     TableServer::Options table_options;
@@ -288,14 +412,16 @@ void Simulator::stop() {
   aero_server_.reset();
   {
     std::lock_guard lock(stream_mu_);
-    stream_.close();
+    for (auto& d : duts_) d->stream.close();
   }
   std::error_code ec;
   if (wrote_endpoints_) {
     std::filesystem::remove(options_.endpoints_file, ec);
     wrote_endpoints_ = false;
   }
-  if (!options_.gyro_link.empty()) std::filesystem::remove(options_.gyro_link, ec);
+  for (const auto& d : duts_) {
+    if (!d->link.empty()) std::filesystem::remove(d->link, ec);
+  }
   std::lock_guard lock(sim_mu_);
   status_.running = false;
 }
@@ -309,19 +435,21 @@ void Simulator::release_modbus_server() {
   server_.reset();
 }
 
-Status Simulator::point_gyro_link_locked() {
-  if (options_.gyro_link.empty()) return Status::Ok();
+Status Simulator::point_gyro_link_locked(std::size_t i) {
+  const Dut& d = *duts_[i];
+  if (d.link.empty()) return Status::Ok();
   namespace fs = std::filesystem;
-  const fs::path link(options_.gyro_link);
+  const GyroStream& stream = d.stream;
+  const fs::path link(d.link);
   const fs::path tmp = link.string() + ".tmp";
   std::error_code ec;
   if (link.has_parent_path()) fs::create_directories(link.parent_path(), ec);
   fs::remove(tmp, ec);
-  fs::create_symlink(stream_.slave_path(), tmp, ec);
+  fs::create_symlink(stream.slave_path(), tmp, ec);
   if (!ec) fs::rename(tmp, link, ec);  // atomic: readers never see no link
   if (ec) {
-    return Error::Permanent(fmt::format("cannot point {} at {}: {}", link.string(),
-                                        stream_.slave_path(), ec.message()));
+    return Error::Permanent(
+        fmt::format("cannot point {} at {}: {}", link.string(), stream.slave_path(), ec.message()));
   }
   return Status::Ok();
 }
@@ -336,7 +464,10 @@ daemon::SimEndpoints Simulator::endpoints() const {
   ep.modbus_port = modbus_port_.load();
   {
     std::lock_guard lock(stream_mu_);
-    ep.gyro_device = options_.gyro_link.empty() ? stream_.slave_path() : options_.gyro_link;
+    ep.gyro_device = device_locked(0);
+    for (std::size_t i = 0; i < duts_.size(); ++i) {
+      ep.dut_devices.emplace_back(duts_[i]->model.dut().serial, device_locked(i));
+    }
   }
   ep.pid = static_cast<long>(::getpid());
   ep.control_socket = options_.control_socket;
@@ -346,6 +477,24 @@ daemon::SimEndpoints Simulator::endpoints() const {
   return ep;
 }
 
+std::string Simulator::device_locked(std::size_t i) const {
+  const Dut& d = *duts_[i];
+  return d.link.empty() ? d.stream.slave_path() : d.link;
+}
+
+std::vector<std::string> Simulator::dut_serials() const {
+  std::vector<std::string> serials;
+  for (const auto& d : duts_) serials.push_back(d->model.dut().serial);
+  return serials;
+}
+
+std::optional<std::size_t> Simulator::find_dut(std::string_view serial) const {
+  for (std::size_t i = 0; i < duts_.size(); ++i) {
+    if (duts_[i]->model.dut().serial == serial) return i;
+  }
+  return std::nullopt;
+}
+
 SimulatorStatus Simulator::status() const {
   std::lock_guard life(life_mu_);
   SimulatorStatus s;
@@ -353,10 +502,37 @@ SimulatorStatus Simulator::status() const {
     std::lock_guard lock(sim_mu_);
     s = status_;
   }
+  s.duts.resize(duts_.size());
+  {
+    std::lock_guard lock(sim_mu_);
+    for (std::size_t i = 0; i < duts_.size(); ++i) {
+      const Dut& d = *duts_[i];
+      DutSimStatus& ds = s.duts[i];
+      ds.serial = d.model.dut().serial;
+      ds.shell = d.shell.truth();
+      if (d.probe_top || d.probe_side) ds.probe_readings = d.shell.readings();
+      ds.last_rates_dph = d.model.last().rate_dph;
+      ds.frames_generated = d.frames_generated;
+      ds.frames_fault_dropped = d.frames_fault_dropped;
+      ds.frames_fault_corrupted = d.frames_fault_corrupted;
+    }
+  }
   {
     std::lock_guard lock(stream_mu_);
-    s.stream = stream_.stats();
+    for (std::size_t i = 0; i < duts_.size(); ++i) {
+      const Dut& d = *duts_[i];
+      DutSimStatus& ds = s.duts[i];
+      ds.device = device_locked(i);
+      ds.stream = d.stream.stats();
+      ds.pty_open = d.stream.is_open();
+      ds.pty_held = d.stream.held();
+    }
   }
+  for (std::size_t i = 0; i < duts_.size(); ++i) {
+    s.duts[i].frame_corruption_rate = duts_[i]->corruption_rate.load();
+    s.duts[i].frame_drop_rate = duts_[i]->drop_rate.load();
+  }
+  s.stream = s.duts[0].stream;
   s.setpoint_c = setpoint_c_.load();
   s.ramp_limit_c_per_min = ramp_limit_c_per_min_.load();
   SimulatorFaults& f = s.faults;
@@ -365,13 +541,10 @@ SimulatorStatus Simulator::status() const {
     f.modbus_down = server_->down();
     f.modbus_reply_delay_s = server_->reply_delay_s();
   }
-  {
-    std::lock_guard lock(stream_mu_);
-    f.pty_open = stream_.is_open();
-    f.pty_held = stream_.held();
-  }
-  f.frame_corruption_rate = corruption_rate_.load();
-  f.frame_drop_rate = drop_rate_.load();
+  f.pty_open = s.duts[0].pty_open;
+  f.pty_held = s.duts[0].pty_held;
+  f.frame_corruption_rate = s.duts[0].frame_corruption_rate;
+  f.frame_drop_rate = s.duts[0].frame_drop_rate;
   f.top_stalled = stalled_[0].load();
   f.side_stalled = stalled_[1].load();
   f.chamber_alarm = chamber_alarm_.load();
@@ -404,29 +577,32 @@ SimulatorStatus Simulator::status() const {
 }
 
 void Simulator::run() {
-  std::vector<uint8_t> batch;
   std::unique_lock lock(wake_mu_);
   while (!stopping_) {
     lock.unlock();
-    advance_to(clock_->now_s() - t0_s_, batch);
+    advance_to(clock_->now_s() - t0_s_);
     publish_registers();
     {
       std::lock_guard stream_lock(stream_mu_);
-      stream_.write_frames(batch);
+      for (auto& d : duts_) {
+        if (d->model.ascii()) {
+          d->stream.write_frames(d->batch, d->batch_sizes);
+        } else {
+          d->stream.write_frames(d->batch);
+        }
+        d->batch.clear();
+        d->batch_sizes.clear();
+      }
     }
-    batch.clear();
     lock.lock();
     wake_cv_.wait_for(lock, kTick, [this] { return stopping_; });
   }
 }
 
-void Simulator::advance_to(double target_s, std::vector<uint8_t>& batch) {
+void Simulator::advance_to(double target_s) {
   std::lock_guard lock(sim_mu_);
-  const double period_s = gyro_.sample_period_s();
-  const double step_s = std::min(kMaxStepS, period_s);
+  const double step_s = step_s_;
   const double setpoint_c = setpoint_c_.load();
-  const double corruption = corruption_rate_.load();
-  const double drop = drop_rate_.load();
   std::uniform_real_distribution<double> uniform(0.0, 1.0);
   plant_.set_ramp_limit_c_per_min(ramp_limit_c_per_min_.load());
   if (const double forced = forced_chamber_c_.load(); std::isnan(forced)) {
@@ -434,6 +610,12 @@ void Simulator::advance_to(double target_s, std::vector<uint8_t>& batch) {
   } else {
     plant_.force_air_c(forced);
   }
+  struct Faults {
+    double corruption, drop;
+  };
+  std::vector<Faults> faults;
+  faults.reserve(duts_.size());
+  for (const auto& d : duts_) faults.push_back({d->corruption_rate.load(), d->drop_rate.load()});
 
   const auto budget_end = std::chrono::steady_clock::now() + kTickBudget;
   int64_t done = 0;
@@ -447,22 +629,39 @@ void Simulator::advance_to(double target_s, std::vector<uint8_t>& batch) {
     }
     ++steps_;
     const double t_s = static_cast<double>(steps_) * step_s;
-    while (static_cast<double>(next_frame_) * period_s <= t_s + 1e-9) {
-      ++next_frame_;
-      ++status_.frames_generated;
-      const drivers::GyroFrame frame = gyro_.next_frame(plant_.truth(), table_input);
-      if (drop > 0 && uniform(fault_rng_) < drop) {
-        ++status_.frames_fault_dropped;
-        continue;
+    for (std::size_t i = 0; i < duts_.size(); ++i) {
+      Dut& d = *duts_[i];
+      d.shell.step(step_s, plant_.truth());
+      const double period_s = d.model.sample_period_s();
+      const bool ascii = d.model.ascii();
+      while (static_cast<double>(d.next_frame) * period_s <= t_s + 1e-9) {
+        ++d.next_frame;
+        ++d.frames_generated;
+        const std::size_t begin = d.batch.size();
+        (void)d.model.next_frame(d.shell.truth(), table_input, d.batch);
+        if (faults[i].drop > 0 && uniform(d.fault_rng) < faults[i].drop) {
+          d.batch.resize(begin);  // its sequence number is used: the reader sees a gap
+          ++d.frames_fault_dropped;
+          continue;
+        }
+        const std::size_t size = d.batch.size() - begin;
+        if (faults[i].corruption > 0 && uniform(d.fault_rng) < faults[i].corruption) {
+          uint8_t* frame = d.batch.data() + begin;
+          if (ascii) {
+            // A character no field, delimiter or checksum can hold, before
+            // the line's terminator: the line no longer parses.
+            const std::size_t body = size > 2 ? size - 2 : 1;
+            const std::size_t index = d.fault_rng() % body;
+            frame[index] = frame[index] == '~' ? '^' : '~';
+          } else {
+            // One byte after the header changes; CRC-32 catches every such error.
+            const std::size_t index = 4 + d.fault_rng() % (size - 4);
+            frame[index] ^= static_cast<uint8_t>(1 + d.fault_rng() % 255);
+          }
+          ++d.frames_fault_corrupted;
+        }
+        if (ascii) d.batch_sizes.push_back(size);
       }
-      auto bytes = drivers::encode_kvh1750(frame);
-      if (corruption > 0 && uniform(fault_rng_) < corruption) {
-        // One byte after the header changes; CRC-32 catches every such error.
-        const std::size_t index = 4 + fault_rng_() % (bytes.size() - 4);
-        bytes[index] ^= static_cast<uint8_t>(1 + fault_rng_() % 255);
-        ++status_.frames_fault_corrupted;
-      }
-      batch.insert(batch.end(), bytes.begin(), bytes.end());
     }
     if ((++done & 255) == 0 && std::chrono::steady_clock::now() > budget_end) break;
   }
@@ -471,16 +670,28 @@ void Simulator::advance_to(double target_s, std::vector<uint8_t>& batch) {
   status_.truth = plant_.truth();
   if (!stalled_[0].load()) status_.readings.top_c = plant_.readings().top_c;
   if (!stalled_[1].load()) status_.readings.side_c = plant_.readings().side_c;
-  status_.last_rate_dph = gyro_.last_rate_dph();
+  const Dut& first = *duts_.front();
+  status_.last_rate_dph =
+      first.model.last().rate_dph[static_cast<std::size_t>(first.model.primary_axis())];
+  status_.frames_generated = first.frames_generated;
+  status_.frames_fault_dropped = first.frames_fault_dropped;
+  status_.frames_fault_corrupted = first.frames_fault_corrupted;
 }
 
 void Simulator::publish_registers() {
   double air_c, top_c, side_c;
+  std::vector<ProbeReadings> dut_readings;
   {
     std::lock_guard lock(sim_mu_);
     air_c = status_.truth.air_c;
     top_c = status_.readings.top_c;
     side_c = status_.readings.side_c;
+    for (const auto& d : duts_) dut_readings.push_back(d->shell.readings());
+  }
+  for (std::size_t i = 0; i < duts_.size(); ++i) {
+    const Dut& d = *duts_[i];
+    if (d.probe_top) (void)server_->set(probes_unit_, *d.probe_top, dut_readings[i].top_c);
+    if (d.probe_side) (void)server_->set(probes_unit_, *d.probe_side, dut_readings[i].side_c);
   }
   // A value that does not fit its register (e.g. int16 x 0.1 beyond 3276.7)
   // leaves the register as it was.
@@ -569,12 +780,14 @@ void Simulator::set_chamber_units(drivers::TemperatureUnit unit) {
   (void)server_->set(chamber_unit_, map.process_value, drivers::from_celsius(air_c, unit));
 }
 
-void Simulator::set_frame_corruption_rate(double p) {
-  corruption_rate_.store(std::clamp(std::isfinite(p) ? p : 0.0, 0.0, 1.0));
+void Simulator::set_frame_corruption_rate(double p, std::size_t dut) {
+  if (dut >= duts_.size()) return;
+  duts_[dut]->corruption_rate.store(std::clamp(std::isfinite(p) ? p : 0.0, 0.0, 1.0));
 }
 
-void Simulator::set_frame_drop_rate(double p) {
-  drop_rate_.store(std::clamp(std::isfinite(p) ? p : 0.0, 0.0, 1.0));
+void Simulator::set_frame_drop_rate(double p, std::size_t dut) {
+  if (dut >= duts_.size()) return;
+  duts_[dut]->drop_rate.store(std::clamp(std::isfinite(p) ? p : 0.0, 0.0, 1.0));
 }
 
 void Simulator::set_modbus_down(bool down) {
@@ -587,23 +800,30 @@ void Simulator::set_modbus_reply_delay_s(double wall_s) {
   if (server_) server_->set_reply_delay_s(wall_s);
 }
 
-void Simulator::close_pty() {
+void Simulator::close_pty(std::size_t dut) {
+  if (dut >= duts_.size()) return;
   std::lock_guard lock(stream_mu_);
-  stream_.close();
+  duts_[dut]->stream.close();
 }
 
-void Simulator::hold_pty(bool held) {
+void Simulator::hold_pty(bool held, std::size_t dut) {
+  if (dut >= duts_.size()) return;
   std::lock_guard lock(stream_mu_);
-  stream_.set_held(held);
-  if (!held) stream_.flush();
+  GyroStream& stream = duts_[dut]->stream;
+  stream.set_held(held);
+  if (!held) stream.flush();
 }
 
-Status Simulator::reopen_pty() {
+Status Simulator::reopen_pty(std::size_t dut) {
+  if (dut >= duts_.size()) {
+    return Error::Permanent(
+        fmt::format("no DUT number {} (the simulator has {})", dut + 1, duts_.size()));
+  }
   std::lock_guard life(life_mu_);
   {
     std::lock_guard lock(stream_mu_);
-    if (Status s = stream_.open(); !s.ok()) return s;
-    if (Status s = point_gyro_link_locked(); !s.ok()) return s;
+    if (Status s = duts_[dut]->stream.open(); !s.ok()) return s;
+    if (Status s = point_gyro_link_locked(dut); !s.ok()) return s;
   }
   if (wrote_endpoints_) return write_endpoints_file();
   return Status::Ok();

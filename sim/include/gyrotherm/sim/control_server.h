@@ -29,9 +29,11 @@ namespace gyrotherm::sim {
 
 struct ControlCommand {
   enum class Kind {
-    kModbusDown,       // modbus down
-    kModbusUp,         // modbus up
-    kModbusDelay,      // modbus delay WALL_S         value = wall seconds
+    kModbusDown,   // modbus down
+    kModbusUp,     // modbus up
+    kModbusDelay,  // modbus delay WALL_S         value = wall seconds
+    // The gyro-line commands take an optional serial: `pty close [SN]`,
+    // `frames corrupt P [SN]`, or as `gyro close [SN]`, `gyro corrupt [SN] P`.
     kPtyClose,         // pty close
     kPtyReopen,        // pty reopen
     kPtyHold,          // pty hold
@@ -58,6 +60,10 @@ struct ControlCommand {
   Kind kind = Kind::kHelp;
   double value = 0;
   ProbeRole probe = ProbeRole::kTop;
+  // The DUT a gyro-line command (pty ..., frames ..., gyro ...) is for, by
+  // serial; not given: the first DUT.
+  std::string dut{};
+  bool dut_given = false;
 };
 
 // Ranges the parser accepts.

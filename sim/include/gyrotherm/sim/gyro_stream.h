@@ -14,6 +14,10 @@
 // flushed, so a reader that opens the line late gets current frames, not
 // minutes-old ones from the kernel's buffer. If the watch cannot be set up,
 // frames are always written. Not thread-safe.
+//
+// Frames of varying length (ASCII lines) are written with their sizes; the
+// counters of frames dropped from the pending buffer (reader gone, pty
+// closed) then count bytes / `frame_size`, the nominal size.
 #pragma once
 
 #include <cstddef>
@@ -56,6 +60,9 @@ class GyroStream {
 
   // Queues `bytes` (a whole number of frames) and writes what the pty takes.
   void write_frames(std::span<const uint8_t> bytes);
+  // The same for frames of the given sizes (their sum is bytes.size()); a
+  // full buffer drops whole frames.
+  void write_frames(std::span<const uint8_t> bytes, std::span<const std::size_t> frame_sizes);
   // Writes pending bytes, as far as the pty takes them (none while held).
   void flush();
   // Held: frames queue here (up to the pending limit, like a reader that

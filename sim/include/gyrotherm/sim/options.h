@@ -18,6 +18,12 @@
 //   [simulator.gyro]     -> GyroParams (gyro_model.h), same key names
 //   [simulator.table]    -> TableParams (rate_table_model.h), same key names
 //   [simulator.scale_factor] -> ScaleFactorParams (gyro_model.h), same key names
+//   [simulator.dut.SN]   -> DutOverrides (or [[simulator.dut]] with serial = "SN"):
+//                           GyroParams keys for every axis of DUT SN, accel_noise_g,
+//                           internal_temp_offset_c, probe_offset_c, case_tau_s,
+//                           gradient_c_per_c_per_min, gradient_offset_c,
+//                           gradient_tau_s; per axis [simulator.dut.SN.x] (.y, .z)
+//                           with GyroParams keys
 //
 // The table is served when the station config has a [table] section or
 // with `--table` (serve_table).
@@ -25,19 +31,47 @@
 // The gyro output format (unit, rate/delta, axis, rate_hz) comes from [gyro].
 #pragma once
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "gyrotherm/core/result.h"
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/drivers/gyro_reader.h"
+#include "gyrotherm/sim/dut_model.h"
 #include "gyrotherm/sim/gyro_model.h"
 #include "gyrotherm/sim/rate_table_model.h"
 #include "gyrotherm/sim/thermal_plant.h"
 
 namespace gyrotherm::sim {
+
+// What a [simulator.dut.SN] table (or its per-axis table .x, .y, .z) sets of
+// GyroParams: unset keys keep the value from the level above.
+struct GyroOverrides {
+  std::optional<double> bias_dph;
+  std::optional<std::vector<double>> temp_coeffs;
+  std::optional<std::vector<double>> rate_coeffs;
+  std::optional<std::vector<double>> gradient_coeffs;
+  std::optional<double> white_noise_dph;
+  std::optional<double> bias_instability_dph;
+  std::optional<double> bias_instability_tau_s;
+  std::optional<double> rate_random_walk_dph_per_sqrt_h;
+  void apply(GyroParams& p) const;
+};
+
+// One DUT's [simulator.dut.SN] (or [[simulator.dut]] with serial = SN).
+struct DutOverrides {
+  std::string serial;
+  GyroOverrides all;                  // every axis
+  std::array<GyroOverrides, 3> axis;  // [simulator.dut.SN.x], .y, .z
+  std::optional<double> accel_noise_g;
+  std::optional<double> internal_temp_offset_c;
+  std::optional<double> probe_offset_c;
+  DutCaseParams case_params;
+};
 
 // sizeof(sockaddr_un::sun_path) - 1 on Linux.
 inline constexpr std::size_t kMaxControlSocketPath = 107;
@@ -62,7 +96,10 @@ struct SimulatorOptions {
   double time_scale = 1.0;  // station seconds per wall second
   ThermalParams thermal;
   GyroParams gyro;
-  drivers::GyroFormat gyro_format;  // from [gyro]
+  drivers::GyroFormat gyro_format;  // from [gyro]; its rate_hz is the first DUT's
+  // Per-DUT overrides, by serial ([simulator.dut.SN]); DUTs without one get
+  // [simulator.gyro] with the default bias offsets (dut_model.h).
+  std::vector<DutOverrides> dut_overrides;
   // Frames kept while the pty's reader is slow ([simulator]
   // pending_frames_limit); beyond that new frames are dropped (and counted).
   // 0 = five wall seconds of frames, at least 256.
@@ -88,6 +125,14 @@ struct SimulatorOverrides {
   std::optional<int> table_port;
   bool serve_table = false;  // --table
 };
+
+// The parameters of `dut` (at `position` in the station's DUT list):
+// options.gyro, then its overrides (if any) for every axis, then per axis;
+// an axis whose bias_dph no level above [simulator.gyro] set gets the
+// default offset (position × 1 °/h + 0.25 °/h × k, k = 0 for the primary
+// axis, 1 and 2 for the others in x, y, z order).
+DutSimParams resolve_dut_params(const SimulatorOptions& options, const daemon::DutSection& dut,
+                                int position);
 
 // Reads config.simulator_table strictly (unknown keys and out-of-range values
 // are errors "file:line: simulator.key: ..."), takes the gyro format from

@@ -44,11 +44,19 @@
 // table's true rate and position through its scale factor
 // (GyroModel::enable_table).
 //
+// Devices under test (dut_model.h; docs/simulator.md "Several DUTs"): every
+// [[dut]] of the config (simulated_duts()) gets its own pty, model, shell and
+// faults; the first is "the gyro" of the older interface (gyro_link, the
+// endpoints' gyro_device, last_rate_dph, the fault hooks' default). A DUT
+// with probes (DutSection::probes) has its top and side channels served on
+// the probe module, reading its own shell plus probe_offset_c.
+//
 // Fault hooks are plain methods, safe to call from any thread while running.
 // With options.control_socket set, start() also opens a ControlServer
 // (control_server.h) that calls them on command.
 #pragma once
 
+#include <array>
 #include <atomic>
 #include <condition_variable>
 #include <cstdint>
@@ -57,11 +65,14 @@
 #include <optional>
 #include <random>
 #include <string>
+#include <string_view>
 #include <thread>
+#include <vector>
 
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/core/result.h"
 #include "gyrotherm/daemon/config.h"
+#include "gyrotherm/sim/dut_model.h"
 #include "gyrotherm/sim/gyro_model.h"
 #include "gyrotherm/sim/gyro_stream.h"
 #include "gyrotherm/sim/modbus_server.h"
@@ -107,6 +118,23 @@ struct SimulatorFaults {
   drivers::TemperatureUnit chamber_units = drivers::TemperatureUnit::kCelsius;
 };
 
+// One DUT as the status shows it.
+struct DutSimStatus {
+  std::string serial;
+  std::string device;                           // what the endpoints name (its link, or the pty)
+  ThermalTruth shell;                           // its case (the plant's unless it has its own)
+  std::optional<ProbeReadings> probe_readings;  // its own probes' registers, if served
+  std::array<double, 3> last_rates_dph{};       // last sample per axis x, y, z, noise included
+  uint64_t frames_generated = 0;
+  uint64_t frames_fault_dropped = 0;
+  uint64_t frames_fault_corrupted = 0;
+  GyroStreamStats stream;
+  bool pty_open = false;
+  bool pty_held = false;
+  double frame_corruption_rate = 0;
+  double frame_drop_rate = 0;
+};
+
 struct SimulatorStatus {
   bool running = false;
   double t_s = 0;         // station seconds simulated since start()
@@ -127,6 +155,7 @@ struct SimulatorStatus {
   uint64_t setpoint_writes_rejected = 0;
   SimulatorFaults faults;
   TableStatus table;
+  std::vector<DutSimStatus> duts;  // in [[dut]] order; the fields above are duts[0]'s
 };
 
 class Simulator {
@@ -159,26 +188,34 @@ class Simulator {
   SimulatorStatus status() const;
   const SimulatorOptions& options() const { return options_; }
 
+  // The DUTs, in [[dut]] order (at least one).
+  std::size_t dut_count() const { return duts_.size(); }
+  std::vector<std::string> dut_serials() const;
+  // The index of the DUT with `serial`; nullopt when none has it.
+  std::optional<std::size_t> find_dut(std::string_view serial) const;
+
   // --- Fault injection and test hooks ---
+  // The gyro-line hooks take the DUT's index (default the first); an index
+  // beyond dut_count() is ignored (reopen_pty: an error).
   // Moves the requested set point as a Modbus write would (register too).
   void set_setpoint_c(double setpoint_c);
   // Probability (0..1) that a frame gets one byte altered after its CRC.
-  void set_frame_corruption_rate(double p);
+  void set_frame_corruption_rate(double p, std::size_t dut = 0);
   // Probability (0..1) that a frame is not sent (its sequence number is used,
   // so the reader sees a gap).
-  void set_frame_drop_rate(double p);
+  void set_frame_drop_rate(double p, std::size_t dut = 0);
   // Modbus link down: connections closed and refused until set false.
   void set_modbus_down(bool down);
   // Every Modbus answer comes `wall_s` wall seconds late (0 = none).
   void set_modbus_reply_delay_s(double wall_s);
   // Hang-up of the gyro line; frames due while closed are dropped.
-  void close_pty();
+  void close_pty(std::size_t dut = 0);
   // Opens a new pty (a new path: endpoints() and the endpoints file follow).
-  Status reopen_pty();
+  Status reopen_pty(std::size_t dut = 0);
   // Holds the gyro frames back (true): they queue in the simulator, up to
   // its pending limit, and the line stays quiet; released (false), they go
   // out as one backlog, as from a reader that was descheduled.
-  void hold_pty(bool held);
+  void hold_pty(bool held, std::size_t dut = 0);
   // A stalled probe's register keeps its last value.
   void stall_probe(ProbeRole role, bool stalled);
   // Raises (true) or clears the chamber alarm. Without an alarm register in
@@ -210,17 +247,40 @@ class Simulator {
   AclReply table_acl(std::string_view line);
 
  private:
-  Simulator(daemon::StationConfig config, SimulatorOptions options, const Clock* clock);
+  // One DUT's moving parts.
+  struct Dut {
+    Dut(DutModel m, DutShell sh, std::size_t nominal_frame_bytes, std::size_t pending_limit)
+        : model(std::move(m)), shell(std::move(sh)), stream(nominal_frame_bytes, pending_limit) {}
+    DutModel model;  // these four guarded by sim_mu_
+    DutShell shell;
+    uint64_t next_frame = 1;
+    std::mt19937_64 fault_rng;
+    uint64_t frames_generated = 0;
+    uint64_t frames_fault_dropped = 0;
+    uint64_t frames_fault_corrupted = 0;
+    std::atomic<double> corruption_rate{0.0};
+    std::atomic<double> drop_rate{0.0};
+    GyroStream stream;  // guarded by stream_mu_
+    std::string link;   // its symlink ("" = none: the endpoints name the pty)
+    std::optional<drivers::RegisterSpec> probe_top, probe_side;  // served on the probe module
+    // Frames of one tick, waiting for the stream (simulation thread only).
+    std::vector<uint8_t> batch;
+    std::vector<std::size_t> batch_sizes;
+  };
+
+  Simulator(daemon::StationConfig config, SimulatorOptions options, const Clock* clock,
+            std::vector<std::unique_ptr<Dut>> duts);
   void run();
-  void advance_to(double target_s, std::vector<uint8_t>& batch);
+  void advance_to(double target_s);
   void publish_registers();
   void on_modbus_write(int unit_id);
   // Stops the Modbus server's thread (no on_modbus_write() after it), then
   // destroys the server.
   void release_modbus_server();
   Status write_endpoints_file();
-  // Points options_.gyro_link (if set) at the current pty. Needs stream_mu_.
-  Status point_gyro_link_locked();
+  // Points DUT `i`'s link (if any) at its current pty. Needs stream_mu_.
+  Status point_gyro_link_locked(std::size_t i);
+  std::string device_locked(std::size_t i) const;  // needs stream_mu_
 
   daemon::StationConfig config_;
   SimulatorOptions options_;
@@ -234,19 +294,16 @@ class Simulator {
   // while it advances one tick).
   mutable std::mutex sim_mu_;
   ThermalPlant plant_;
-  GyroModel gyro_;
-  std::mt19937_64 fault_rng_;
+  std::vector<std::unique_ptr<Dut>> duts_;  // fixed after construction
+  double step_s_ = 0.1;
   double t0_s_ = 0;
   int64_t steps_ = 0;
-  uint64_t next_frame_ = 1;
   SimulatorStatus status_;
   std::optional<RateTableModel> table_;  // guarded by sim_mu_
   AclControllerState acl_state_;         // guarded by sim_mu_
 
   std::atomic<double> setpoint_c_;
   std::atomic<double> ramp_limit_c_per_min_{0.0};  // <= 0: the plant's own limit
-  std::atomic<double> corruption_rate_{0.0};
-  std::atomic<double> drop_rate_{0.0};
   std::atomic<bool> stalled_[2] = {false, false};
   std::atomic<bool> chamber_alarm_{false};
   std::mutex alarm_mu_;  // orders the alarm register's writes with its changes
@@ -256,8 +313,7 @@ class Simulator {
   std::mutex units_mu_;
   std::atomic<double> forced_chamber_c_;  // NaN = not forced
 
-  mutable std::mutex stream_mu_;
-  GyroStream stream_;
+  mutable std::mutex stream_mu_;  // every Dut::stream
 
   mutable std::mutex life_mu_;  // start/stop against the hooks that reach server_
   std::unique_ptr<ModbusServer> server_;
