@@ -43,7 +43,7 @@ std::optional<std::string> probe_disagreement(const Readings& r, const Interlock
 }
 
 namespace {
-std::optional<std::string> silent(double silent_s, double timeout_s, const char* what) {
+std::optional<std::string> silent(double silent_s, double timeout_s, std::string_view what) {
   if (silent_s > timeout_s) {
     return fmt::format("{} silent for {:.0f} s (timeout {:g} s)", what, silent_s, timeout_s);
   }
@@ -60,7 +60,7 @@ std::optional<std::string> probes_silent(const Readings& r, const InterlockOptio
 }
 
 std::optional<std::string> gyro_lost(const Readings& r, const InterlockOptions& o, bool) {
-  return silent(r.gyro_silent_s, o.gyro_timeout_s, "gyro stream");
+  return silent(r.gyro_silent_s, o.gyro_timeout_s, r.gyro_stream);
 }
 
 std::optional<std::string> chamber_alarm(const Readings& r, const InterlockOptions&, bool) {

@@ -128,6 +128,30 @@ std::string Metrics::scrape(const StatusSnapshot& s, const ServerFigures& server
   f.counter("gyrotherm_gyro_bytes_skipped_total", "Serial bytes skipped while resynchronising",
             static_cast<double>(g.parser.bytes_skipped));
 
+  // Every DUT, labelled by serial (and axis for rates): the gyro_* families
+  // above are the first DUT's primary axis, kept for older dashboards.
+  for (const DutStatus& d : s.duts) {
+    const std::string serial = d.serial.empty() ? "(no serial)" : d.serial;
+    for (const auto& [axis, rate] : d.rates_dph) {
+      f.gauge("gyrotherm_dut_rate_dph",
+              "DUT rate per axis, mean of the last full station second, deg/h", rate,
+              {{"serial", serial}, {"axis", axis}});
+    }
+    f.gauge("gyrotherm_dut_temperature_celsius", "DUT internal temperature, last frame, degC",
+            d.temp_c, {{"serial", serial}});
+    f.gauge("gyrotherm_dut_frames_per_second", "DUT frames per station second", d.samples_per_s,
+            {{"serial", serial}});
+    f.gauge("gyrotherm_dut_connected", "1 while the DUT's serial line is open",
+            d.health.connected ? 1.0 : 0.0, {{"serial", serial}});
+    f.counter("gyrotherm_dut_frames_total", "DUT frames ingested",
+              static_cast<double>(d.health.samples), {{"serial", serial}});
+    f.counter("gyrotherm_dut_integrity_failures_total",
+              "DUT frames or lines rejected by their CRC or checksum",
+              static_cast<double>(d.health.parser.crc_failures), {{"serial", serial}});
+    f.counter("gyrotherm_dut_frames_missed_total", "DUT frames missing from the sequence",
+              static_cast<double>(d.health.parser.frames_missed), {{"serial", serial}});
+  }
+
   for (const auto& [name, h] : {std::pair{"chamber", &s.chamber}, std::pair{"probes", &s.probes}}) {
     f.gauge("gyrotherm_modbus_connected", "1 while the Modbus device is connected",
             h->connected ? 1.0 : 0.0, {{"device", name}});

@@ -10,7 +10,9 @@
 #include <sstream>
 
 #include "gyrotherm/daemon/run_analysis.h"
+#include "gyrotherm/drivers/dut_link.h"
 #include "gyrotherm/drivers/gyro_reader.h"
+#include "gyrotherm/drivers/kvh1750.h"
 #include "gyrotherm/drivers/modbus_devices.h"
 #include "gyrotherm/drivers/rate_tables.h"
 
@@ -46,12 +48,49 @@ Reply run_lookup_failure(const Error& e, int64_t id) {
   return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no run {}", id));
 }
 
+// How a DUT is named in messages: its serial, or its position when unnamed.
+std::string dut_name(const DutSection& dut) {
+  return dut.serial.empty() ? std::string("(no serial)") : dut.serial;
+}
+
+// A single GyroSource (the station tests' fake gyro) as the first DUT:
+// channels rate (its axis), status and temp_c.
+class GyroAsDut final : public drivers::DutSource {
+ public:
+  GyroAsDut(std::unique_ptr<drivers::GyroSource> gyro, const std::string& axis)
+      : gyro_(std::move(gyro)) {
+    channels_ = {{"rate", "deg/h", ChannelKind::kRate, axis.empty() ? "z" : axis, 1.0},
+                 {"status", "", ChannelKind::kStatus, "", 1.0},
+                 {"temp_c", "degC", ChannelKind::kTemperature, "", 1.0}};
+  }
+  const std::vector<ChannelSpec>& channels() const override { return channels_; }
+  void start(Sink sink) override {
+    gyro_->start([sink = std::move(sink)](std::span<const GyroSample> samples) {
+      thread_local std::vector<DutFrame> frames;
+      frames.resize(samples.size());
+      for (std::size_t i = 0; i < samples.size(); ++i) {
+        frames[i] = DutFrame{};
+        frames[i].t_s = samples[i].t_s;
+        frames[i].seq = samples[i].seq;
+        frames[i].raw[0] = samples[i].rate_dph;
+        frames[i].raw[1] = samples[i].status;
+        frames[i].raw[2] = samples[i].temp_c;
+      }
+      sink(frames);
+    });
+  }
+  void stop() override { gyro_->stop(); }
+  drivers::GyroReaderHealth health() const override { return gyro_->health(); }
+
+ private:
+  std::unique_ptr<drivers::GyroSource> gyro_;
+  std::vector<ChannelSpec> channels_;
+};
+
 }  // namespace
 
 Result<StationDevices> devices_from_config(const StationConfig& config, const Clock& clock,
                                            const StationHooks& hooks) {
-  auto parser = drivers::make_frame_parser(config.gyro.protocol);
-  if (!parser) return parser.error();
   auto chamber =
       std::make_unique<drivers::ModbusChamber>(config.chamber.endpoint, config.chamber.map);
   auto probes = std::make_unique<drivers::ModbusProbes>(config.probes.endpoint, config.probes.top,
@@ -63,8 +102,23 @@ Result<StationDevices> devices_from_config(const StationConfig& config, const Cl
   StationDevices devices;
   devices.chamber = std::move(chamber);
   devices.probes = std::move(probes);
-  devices.gyro = std::make_unique<drivers::SerialGyro>(config.gyro.serial, config.gyro.format,
-                                                       std::move(*parser), clock);
+  for (const DutSection& dut : config.duts) {
+    auto source = drivers::make_dut_source(dut.link, clock);
+    if (!source) {
+      return Error::Permanent(fmt::format("DUT {}: {}", dut_name(dut), source.error().message));
+    }
+    devices.duts.push_back(std::move(*source));
+    std::unique_ptr<drivers::ShellProbes> own;
+    if (dut.probes) {
+      drivers::RegisterSpec top = config.probes.top, side = config.probes.side;
+      top.address = config.probes.top.address + static_cast<uint16_t>(
+                                                    dut.probes->top_channel - config.probes.top_channel);
+      side.address = config.probes.side.address +
+                     static_cast<uint16_t>(dut.probes->side_channel - config.probes.side_channel);
+      own = std::make_unique<drivers::ModbusProbes>(config.probes.endpoint, top, side);
+    }
+    devices.dut_probes.push_back(std::move(own));
+  }
   if (config.table) {
     const drivers::TableLimits declared{config.table->max_rate_dps, config.table->max_accel_dps2,
                                         std::nullopt};
@@ -78,8 +132,17 @@ Result<StationDevices> devices_from_config(const StationConfig& config, const Cl
 Result<std::unique_ptr<Station>> Station::create(StationConfig config, StationDevices devices,
                                                  StationClocks clocks, StationHooks hooks,
                                                  std::unique_ptr<storage::SampleSink> samples) {
-  if (!devices.chamber || !devices.probes || !devices.gyro) {
+  if (!devices.chamber || !devices.probes || (devices.duts.empty() && !devices.gyro)) {
     return Error::Permanent("station: a chamber, a probe module and a gyro source are needed");
+  }
+  if (config.duts.empty()) return Error::Permanent("station: the config names no DUT");
+  if (devices.duts.empty()) {
+    devices.duts.push_back(std::make_unique<GyroAsDut>(std::move(devices.gyro),
+                                                       config.duts.front().primary_axis));
+  }
+  if (devices.duts.size() != config.duts.size()) {
+    return Error::Permanent(fmt::format("station: {} DUT sources for {} [[dut]] entries",
+                                        devices.duts.size(), config.duts.size()));
   }
   if (config.table.has_value() != (devices.table != nullptr)) {
     return Error::Permanent(config.table
@@ -116,9 +179,32 @@ Station::Station(StationConfig config, StationDevices devices, StationClocks clo
       writer_(std::move(writer)),
       chamber_(std::move(devices.chamber)),
       probes_(std::move(devices.probes)),
-      gyro_(std::move(devices.gyro)),
       table_device_(std::move(devices.table)),
       started_wall_s_(wall_.monotonic_s()) {
+  for (std::size_t i = 0; i < devices.duts.size(); ++i) {
+    auto live = std::make_unique<DutLive>();
+    live->index = i;
+    live->cfg = &config_.duts[i];
+    live->source = std::move(devices.duts[i]);
+    if (i < devices.dut_probes.size()) live->probes = std::move(devices.dut_probes[i]);
+    const auto& channels = live->source->channels();
+    for (std::size_t c = 0; c < channels.size(); ++c) {
+      if (channels[c].kind == ChannelKind::kRate && !channels[c].axis.empty()) {
+        live->rate_channels.push_back(c);
+      }
+      if (channels[c].kind == ChannelKind::kTemperature && live->temp_channel < 0) {
+        live->temp_channel = static_cast<int>(c);
+      }
+      if (channels[c].axis == live->cfg->primary_axis && channels[c].kind == ChannelKind::kRate) {
+        live->primary_channel = static_cast<int>(c);
+      }
+    }
+    live->window_sum.assign(live->rate_channels.size(), 0.0);
+    live->window_n.assign(live->rate_channels.size(), 0);
+    live->rates_dph.assign(live->rate_channels.size(), std::nullopt);
+    duts_.push_back(std::move(live));
+  }
+  for (const auto& d : duts_) publish_dut_status(*d);
   if (table_device_) table_ = std::make_unique<TableControl>(*table_device_, *config_.table);
   AnalysisWorker::Callbacks callbacks;
   callbacks.await_gyro = [this](int64_t run_id, double until_s) {
@@ -215,9 +301,17 @@ void Station::start(ControlLoop loop) {
   }
   const double now_s = clock_.now_s();
   chamber_ok_s_ = probes_ok_s_ = storage_ok_s_ = now_s;
-  gyro_last_s_.store(now_s);
   chamber_ok_wall_s_ = probes_ok_wall_s_ = storage_ok_wall_s_ = wall_.monotonic_s();
-  gyro_last_wall_s_.store(chamber_ok_wall_s_);
+  for (auto& d : duts_) {
+    d->last_s.store(now_s);
+    d->last_wall_s.store(chamber_ok_wall_s_);
+    if (d->probes) {
+      if (auto st = d->probes->connect(); !st) {
+        spdlog::warn("DUT {} probes: {} (will keep retrying)", dut_name(*d->cfg),
+                     st.error().message);
+      }
+    }
+  }
   {
     std::lock_guard lock(run_mu_);
     if (auto hold = db_.meta(kHoldKey); hold && *hold) {
@@ -229,7 +323,10 @@ void Station::start(ControlLoop loop) {
     resume_interrupted_run();
     submit_missing_analyses();
   }
-  gyro_->start([this](std::span<const GyroSample> s) { on_gyro_samples(s); });
+  for (auto& d : duts_) {
+    DutLive* live = d.get();
+    live->source->start([this, live](std::span<const DutFrame> f) { on_dut_frames(*live, f); });
+  }
   if (loop == ControlLoop::kOwnThread) control_thread_ = std::thread([this] { control_loop(); });
   start_nightly_export();
 }
@@ -301,7 +398,7 @@ void Station::stop(const std::string& reason) {
   }
   make_table_safe_now();
   write_setpoint(config_.station.safe_setpoint_c, true);
-  gyro_->stop();
+  for (auto& d : duts_) d->source->stop();
   if (nightly_) nightly_->stop();
   analysis_->stop();
   writer_->stop();
@@ -380,8 +477,17 @@ schedules::Readings Station::read_devices(double now_s) {
   };
   r.chamber_silent_s = silent(chamber_ok_s_, chamber_ok_wall_s_);
   r.probes_silent_s = silent(probes_ok_s_, probes_ok_wall_s_);
-  r.gyro_silent_s = silent(gyro_last_s_.load(), gyro_last_wall_s_.load());
-  r.gyro_heard = gyro_heard_.load();
+  // The most silent DUT speaks for the gyro_lost interlock (whose timeout is
+  // the smallest of the DUTs' silent_timeout_s).
+  r.gyro_heard = true;
+  for (const auto& d : duts_) {
+    const double silent_s = silent(d->last_s.load(), d->last_wall_s.load());
+    if (silent_s > r.gyro_silent_s) {
+      r.gyro_silent_s = silent_s;
+      if (duts_.size() > 1) r.gyro_stream = fmt::format("DUT {} stream", dut_name(*d->cfg));
+    }
+    r.gyro_heard = r.gyro_heard && d->heard.load();
+  }
   if (table_) table_->read(now_s, wall_s, min_wall_s, r);
   const storage::SampleWriterStats ws = writer_->stats();
   r.storage_committed = ws.commits > 0;
@@ -400,6 +506,7 @@ schedules::Readings Station::read_devices(double now_s) {
 void Station::tick() {
   const double now_s = clock_.now_s();
   const schedules::Readings r = read_devices(now_s);
+  read_dut_probes(now_s);
   std::optional<double> shell_c;
   if (r.top_c && r.side_c) {
     shell_c = (*r.top_c + *r.side_c) / 2.0;
@@ -664,12 +771,16 @@ void Station::start_next_run(double now_s) {
   const int64_t run_id = **id;
   queue_length_.fetch_sub(1);
   busy_.store(true);
+  register_run_duts(run_id);
   run_clock_.publish(run_id, now_s);
   entry_ = entry;
   {
     std::lock_guard lock(mu_);
     snapshot_.run_id = run_id;
     snapshot_.schedule_name = entry.schedule_name;
+    snapshot_.run_operator = entry.metadata.operator_name;
+    snapshot_.run_comment = entry.metadata.comment;
+    snapshot_.run_tags = entry.metadata.tags;
   }
 
   // Checked again: the station config may have changed since it was queued.
@@ -788,11 +899,15 @@ void Station::resume_interrupted_run() {
   }
   entry_ = **entry;
   busy_.store(true);
+  register_run_duts(run.id);
   run_clock_.publish(run.id, clock_.now_s() - t_resume_s);
   {
     std::lock_guard lock(mu_);
     snapshot_.run_id = run.id;
     snapshot_.schedule_name = run.schedule_name;
+    snapshot_.run_operator = run.metadata.operator_name;
+    snapshot_.run_comment = run.metadata.comment;
+    snapshot_.run_tags = run.metadata.tags;
   }
   const std::string reason = fmt::format(
       "daemon restarted: run resumes at step {} of {} after {:.1f} min of station time down "
@@ -867,6 +982,9 @@ void Station::end_run() {
   {
     std::lock_guard lock(mu_);
     snapshot_.run_id.reset();
+    snapshot_.run_operator.clear();
+    snapshot_.run_comment.clear();
+    snapshot_.run_tags.clear();
     snapshot_.step_index.reset();
     snapshot_.step_label.clear();
     snapshot_.state = "idle";
@@ -878,51 +996,201 @@ void Station::end_run() {
 
 // ---------------------------------------------------------------- gyro, status, events
 
-void Station::on_gyro_samples(std::span<const GyroSample> samples) {
-  gyro_last_s_.store(clock_.now_s());
-  gyro_last_wall_s_.store(wall_.monotonic_s());
-  gyro_heard_.store(true);
+void Station::on_dut_frames(DutLive& dut, std::span<const DutFrame> frames) {
+  dut.last_s.store(clock_.now_s());
+  dut.last_wall_s.store(wall_.monotonic_s());
+  dut.heard.store(true);
   // One read of the pair: the batch is timed from the start of the run it
   // is stored under, and handed to the writer before that run can end.
   run_clock_.with_samples_run([&](const RunClock::Value& run) {
-    if (run.run_id == 0) return;
-    thread_local std::vector<GyroSample> rel;
-    rel.assign(samples.begin(), samples.end());
-    for (auto& s : rel) s.t_s -= run.t0_s;
-    writer_->push_gyro(run.run_id, rel);
-    if (rel.empty()) return;
+    if (run.run_id == 0 || frames.empty()) return;
+    std::shared_ptr<const storage::RunDutRecord> layout;
+    {
+      std::lock_guard lock(dut.layout_mu);
+      layout = dut.layout;
+    }
+    // Registered before the run's clock was published; a mismatch means the
+    // registration failed (logged there): the frames cannot be stored.
+    if (!layout || layout->run_id != run.run_id) return;
+    thread_local std::vector<DutFrame> rel;
+    rel.assign(frames.begin(), frames.end());
+    for (auto& f : rel) f.t_s -= run.t0_s;
+    writer_->push_frames(*layout, rel);
     {
       std::lock_guard handed(handed_mu_);
-      handed_run_id_ = run.run_id;
-      handed_until_s_ = rel.back().t_s;
+      dut.handed_run_id = run.run_id;
+      dut.handed_until_s = rel.back().t_s;
     }
     handed_cv_.notify_all();
   });
+  const auto& channels = dut.source->channels();
   std::lock_guard lock(mu_);
-  for (const auto& s : samples) {
-    if (gyro_window_start_s_ < 0 || s.t_s < gyro_window_start_s_) {
-      gyro_window_start_s_ = std::floor(s.t_s);
-      gyro_window_sum_ = 0;
-      gyro_window_n_ = 0;
+  for (const auto& f : frames) {
+    if (dut.window_start_s < 0 || f.t_s < dut.window_start_s) {
+      dut.window_start_s = std::floor(f.t_s);
+      std::fill(dut.window_sum.begin(), dut.window_sum.end(), 0.0);
+      std::fill(dut.window_n.begin(), dut.window_n.end(), 0);
+      dut.window_frames = 0;
     }
-    if (s.t_s >= gyro_window_start_s_ + 1.0) {
-      if (gyro_window_n_ > 0) {
-        snapshot_.gyro_rate_dph = gyro_window_sum_ / static_cast<double>(gyro_window_n_);
-        snapshot_.gyro_samples_per_s = static_cast<double>(gyro_window_n_);
+    if (f.t_s >= dut.window_start_s + 1.0) {
+      if (dut.window_frames > 0) {
+        for (std::size_t a = 0; a < dut.rate_channels.size(); ++a) {
+          dut.rates_dph[a] = dut.window_n[a] > 0 ? std::optional(dut.window_sum[a] /
+                                                                 static_cast<double>(dut.window_n[a]))
+                                                 : std::nullopt;
+        }
+        dut.samples_per_s = static_cast<double>(dut.window_frames);
       }
-      gyro_window_start_s_ = std::floor(s.t_s);
-      gyro_window_sum_ = 0;
-      gyro_window_n_ = 0;
+      dut.window_start_s = std::floor(f.t_s);
+      std::fill(dut.window_sum.begin(), dut.window_sum.end(), 0.0);
+      std::fill(dut.window_n.begin(), dut.window_n.end(), 0);
+      dut.window_frames = 0;
     }
-    gyro_window_sum_ += s.rate_dph;
-    ++gyro_window_n_;
+    for (std::size_t a = 0; a < dut.rate_channels.size(); ++a) {
+      const std::size_t c = dut.rate_channels[a];
+      const double v = f.raw[c] * channels[c].scale;
+      if (!std::isfinite(v)) continue;
+      dut.window_sum[a] += v;
+      ++dut.window_n[a];
+    }
+    ++dut.window_frames;
+    if (dut.temp_channel >= 0) {
+      const double t = f.raw[static_cast<std::size_t>(dut.temp_channel)] *
+                       channels[static_cast<std::size_t>(dut.temp_channel)].scale;
+      if (std::isfinite(t)) dut.temp_c = t;
+    }
+  }
+  publish_dut_status(dut);
+}
+
+// DUT `dut`'s live figures into the snapshot (mu_ held).
+void Station::publish_dut_status(const DutLive& dut) {
+  if (snapshot_.duts.size() != duts_.size()) snapshot_.duts.resize(duts_.size());
+  DutStatus& st = snapshot_.duts[dut.index];
+  st.serial = dut.cfg->serial;
+  st.model = dut.cfg->model;
+  st.primary_axis = dut.cfg->primary_axis;
+  const auto& channels = dut.source->channels();
+  st.rates_dph.clear();
+  for (std::size_t a = 0; a < dut.rate_channels.size(); ++a) {
+    st.rates_dph.emplace_back(channels[dut.rate_channels[a]].axis, dut.rates_dph[a]);
+  }
+  st.temp_c = dut.temp_c;
+  st.samples_per_s = dut.samples_per_s;
+  if (dut.index == 0) {
+    // The first DUT's primary axis is "the gyro" of the older status fields.
+    for (std::size_t a = 0; a < dut.rate_channels.size(); ++a) {
+      if (static_cast<int>(dut.rate_channels[a]) == dut.primary_channel) {
+        snapshot_.gyro_rate_dph = dut.rates_dph[a];
+      }
+    }
+    snapshot_.gyro_samples_per_s = dut.samples_per_s;
+  }
+}
+
+// The [[dut]] entry as stored with the run (run_duts.config_json).
+nlohmann::json dut_config_json(const DutSection& dut) {
+  nlohmann::json orientation = nlohmann::json::object();
+  for (const auto& [axis, o] : dut.orientation) orientation[axis] = analysis::to_string(o);
+  nlohmann::json j = {{"serial", dut.serial},
+                      {"model", dut.model},
+                      {"protocol", dut.link.protocol},
+                      {"rate_hz", dut.link.rate_hz},
+                      {"axes", dut.axes},
+                      {"orientation", orientation},
+                      {"primary_axis", dut.primary_axis},
+                      {"table_axis", dut.table_axis},
+                      {"silent_timeout_s", dut.silent_timeout_s}};
+  if (dut.probes) {
+    j["probes"] = {{"top_channel", dut.probes->top_channel},
+                   {"side_channel", dut.probes->side_channel}};
+  }
+  return j;
+}
+
+void Station::register_run_duts(int64_t run_id) {
+  for (auto& d : duts_) {
+    const DutSection& cfg = *d->cfg;
+    storage::RunDutRecord rec;
+    rec.run_id = run_id;
+    rec.position = static_cast<int>(d->index);
+    rec.dut.serial = cfg.serial;
+    rec.dut.model = cfg.model;
+    rec.config_json = dut_config_json(cfg).dump();
+    rec.primary_axis = cfg.primary_axis;
+    rec.axes = cfg.axes;
+    rec.rate_hz = cfg.link.rate_hz;
+    rec.seq_modulo = cfg.link.protocol == "kvh1750"
+                         ? drivers::kKvh1750SeqModulo
+                         : (cfg.link.ascii.seq_column ? cfg.link.ascii.seq_modulo : 0);
+    const auto& channels = d->source->channels();
+    for (std::size_t c = 0; c < channels.size(); ++c) {
+      rec.channels.push_back({0, run_id, 0, static_cast<int>(c), channels[c]});
+    }
+    if (d->probes) {
+      const int n = static_cast<int>(channels.size());
+      rec.channels.push_back(
+          {0, run_id, 0, n, {"probe_top_c", "degC", ChannelKind::kTemperature, "", 1.0}});
+      rec.channels.push_back(
+          {0, run_id, 0, n + 1, {"probe_side_c", "degC", ChannelKind::kTemperature, "", 1.0}});
+    }
+    auto added = db_.add_run_dut(run_id, rec);
+    std::lock_guard lock(d->layout_mu);
+    if (!added) {
+      // Its frames cannot be stored under this run (on_dut_frames drops
+      // them): said in the run's events.
+      d->layout.reset();
+      d->probe_layout.reset();
+      add_event("error", "", "",
+                fmt::format("DUT {}: not registered in run {} ({}); its samples are not recorded",
+                            dut_name(cfg), run_id, added.error().message));
+      continue;
+    }
+    auto frames = std::make_shared<storage::RunDutRecord>(*added);
+    auto probes = std::make_shared<storage::RunDutRecord>(*added);
+    const std::size_t n = channels.size();
+    frames->channels.resize(std::min(n, frames->channels.size()));
+    probes->channels.erase(probes->channels.begin(),
+                           probes->channels.begin() +
+                               static_cast<std::ptrdiff_t>(std::min(n, probes->channels.size())));
+    d->layout = std::move(frames);
+    d->probe_layout = d->probes ? std::shared_ptr<const storage::RunDutRecord>(std::move(probes))
+                                : nullptr;
+  }
+}
+
+// Each DUT's own probes, once a control tick, into its probe channels (the
+// frame's raw[] at those channels' indices).
+void Station::read_dut_probes(double now_s) {
+  for (auto& d : duts_) {
+    if (!d->probes) continue;
+    auto top = d->probes->top_c();
+    auto side = top ? d->probes->side_c() : Result<double>(top.error());
+    if (!top || !side) continue;
+    std::shared_ptr<const storage::RunDutRecord> layout;
+    {
+      std::lock_guard lock(d->layout_mu);
+      layout = d->probe_layout;
+    }
+    const RunClock::Value run = run_clock_.load();
+    if (!layout || run.run_id == 0 || layout->run_id != run.run_id || layout->channels.size() < 2) {
+      continue;
+    }
+    DutFrame f;
+    f.t_s = now_s - run.t0_s;
+    f.raw[static_cast<std::size_t>(layout->channels[0].index)] = *top;
+    f.raw[static_cast<std::size_t>(layout->channels[1].index)] = *side;
+    writer_->push_frames(*layout, std::span(&f, 1));
   }
 }
 
 bool Station::await_gyro(int64_t run_id, double until_s, std::chrono::milliseconds max_wait) {
   std::unique_lock lock(handed_mu_);
-  return handed_cv_.wait_for(
-      lock, max_wait, [&] { return handed_run_id_ == run_id && handed_until_s_ >= until_s; });
+  return handed_cv_.wait_for(lock, max_wait, [&] {
+    return std::all_of(duts_.begin(), duts_.end(), [&](const auto& d) {
+      return d->handed_run_id == run_id && d->handed_until_s >= until_s;
+    });
+  });
 }
 
 StatusSnapshot Station::status() const {
@@ -934,7 +1202,10 @@ StatusSnapshot Station::status() const {
   s.uptime_s = wall_.monotonic_s() - started_wall_s_;
   s.chamber = chamber_->health();
   s.probes = probes_->health();
-  s.gyro = gyro_->health();
+  s.gyro = duts_.front()->source->health();
+  for (std::size_t i = 0; i < duts_.size() && i < s.duts.size(); ++i) {
+    s.duts[i].health = duts_[i]->source->health();
+  }
   s.storage = writer_->stats();
   return s;
 }

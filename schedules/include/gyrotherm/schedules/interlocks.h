@@ -54,7 +54,8 @@ struct Readings {
   std::optional<double> side_c;
   double chamber_silent_s = 0;
   double probes_silent_s = 0;
-  double gyro_silent_s = 0;
+  double gyro_silent_s = 0;  // the most silent DUT's
+  std::string gyro_stream = "gyro stream";  // which: "DUT 17-0042 stream" with several
   bool chamber_alarm = false;
   // Station seconds the sample writer's commits have been failing (0 while
   // they succeed), with the last error and the samples held in memory.

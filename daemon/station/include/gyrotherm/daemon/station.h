@@ -73,14 +73,20 @@ struct StationHooks {
 struct StationDevices {
   std::unique_ptr<drivers::Chamber> chamber;
   std::unique_ptr<drivers::ShellProbes> probes;
+  // One source per [[dut]], in config order.
+  std::vector<std::unique_ptr<drivers::DutSource>> duts;
+  // Tests: a single gyro source stands for the config's first DUT (its
+  // primary axis, status and temperature) when `duts` is empty.
   std::unique_ptr<drivers::GyroSource> gyro;
+  // Per-DUT shell probes, by DUT index ([[dut]] probes); missing = none.
+  std::vector<std::unique_ptr<drivers::ShellProbes>> dut_probes;
   // The rate table; nullptr when the config has no [table].
   std::unique_ptr<drivers::RateTable> table;
 };
 
 // The devices a station config names: its chamber and probe module over
-// Modbus, its gyro on the serial line (timestamped on `clock`) and, with a
-// [table], its rate table. Request
+// Modbus, each DUT on its serial line (timestamped on `clock`), the DUTs'
+// own probes and, with a [table], its rate table. Request
 // latencies go to hooks.observe_modbus. Permanent error for an unknown gyro
 // protocol (the config loader has checked it).
 Result<StationDevices> devices_from_config(const StationConfig& config, const Clock& clock,
@@ -190,8 +196,44 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // time, for it to come to rest and open its interlock: at shutdown, when
   // no control loop is left to finish the safe state.
   void make_table_safe_now();
-  void on_gyro_samples(std::span<const GyroSample> samples);
-  // Waits, up to `max_wait` (wall), until gyro samples of `run_id` up to
+  // One DUT: its source, its own probes, what the status shows of it, and
+  // its registration in the current run.
+  struct DutLive {
+    std::size_t index = 0;
+    const DutSection* cfg = nullptr;  // config_.duts[index]
+    std::unique_ptr<drivers::DutSource> source;
+    std::unique_ptr<drivers::ShellProbes> probes;  // nullptr: none of its own
+    std::vector<std::size_t> rate_channels;        // raw[] indices of its rate axes
+    int primary_channel = -1, temp_channel = -1;
+    std::atomic<double> last_s{0};  // station time of the last frame
+    std::atomic<double> last_wall_s{0};
+    // A frame has arrived since start(): only then can a gyro_lost trip
+    // restored from a checkpoint clear.
+    std::atomic<bool> heard{false};
+    // The DUT in the current run (Database::add_run_dut), set by the control
+    // thread before the run's clock is published; the frames' channels, and
+    // apart the channels of its own probes (probe_top_c, probe_side_c).
+    std::mutex layout_mu;
+    std::shared_ptr<const storage::RunDutRecord> layout, probe_layout;
+    // handed_mu_:
+    int64_t handed_run_id = 0;
+    double handed_until_s = 0;
+    // mu_: the status figures, means over whole station seconds.
+    double window_start_s = -1;
+    std::vector<double> window_sum;
+    std::vector<int64_t> window_n;
+    int64_t window_frames = 0;
+    std::vector<std::optional<double>> rates_dph;
+    std::optional<double> temp_c;
+    double samples_per_s = 0;
+  };
+  void on_dut_frames(DutLive& dut, std::span<const DutFrame> frames);
+  void publish_dut_status(const DutLive& dut);
+  // Registers every DUT in run `run_id` (run_duts, channels): before the
+  // run's clock is published, so no frame comes under a run without its DUTs.
+  void register_run_duts(int64_t run_id);
+  void read_dut_probes(double now_s);
+  // Waits, up to `max_wait` (wall), until every DUT's frames of `run_id` up to
   // `until_s` (run seconds) have been handed to the writer. False on timeout.
   bool await_gyro(int64_t run_id, double until_s, std::chrono::milliseconds max_wait);
   void add_event(const std::string& kind, const std::string& from, const std::string& to,
@@ -228,7 +270,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
   std::unique_ptr<NightlyExporter> nightly_;  // [export] nightly
   std::unique_ptr<drivers::Chamber> chamber_;
   std::unique_ptr<drivers::ShellProbes> probes_;
-  std::unique_ptr<drivers::GyroSource> gyro_;
+  std::vector<std::unique_ptr<DutLive>> duts_;  // by [[dut]] index
   std::unique_ptr<drivers::RateTable> table_device_;
   std::unique_ptr<TableControl> table_;  // nullptr: no table
   const double started_wall_s_;          // wall_.monotonic_s() at create()
@@ -279,31 +321,21 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // Station time a device stopped answering (its gap, in the event log).
   std::optional<double> chamber_lost_s_, probes_lost_s_;
   analysis::StabilityWindow shell_rate_window_{60.0};
-  std::atomic<double> gyro_last_s_{0};  // station time of the last gyro sample
-  std::atomic<double> gyro_last_wall_s_{0};
-  // A gyro sample has arrived since start(): only then can a gyro_lost trip
-  // restored from a checkpoint clear.
-  std::atomic<bool> gyro_heard_{false};
   std::atomic<int> queue_length_{0};
   std::atomic<bool> queue_held_{false};
   std::atomic<uint64_t> heartbeat_{0};
 
   // Shared with the gyro reader thread.
   RunClock run_clock_;
-  // The run of the last gyro batch handed to the writer and the run time of
-  // its last sample (await_gyro).
+  // Each DUT's last batch handed to the writer: run and run time of its
+  // last frame (DutLive::handed_*, under handed_mu_; await_gyro).
   std::mutex handed_mu_;
   std::condition_variable handed_cv_;
-  int64_t handed_run_id_ = 0;
-  double handed_until_s_ = 0;
   // A plan has been taken from pending_ and its run is not over.
   std::atomic<bool> busy_{false};
 
   mutable std::mutex mu_;  // guards the fields below
   StatusSnapshot snapshot_;
-  double gyro_window_start_s_ = -1;
-  double gyro_window_sum_ = 0;
-  int64_t gyro_window_n_ = 0;
   std::condition_variable wake_;
   bool stopping_ = false;
   std::thread control_thread_;
