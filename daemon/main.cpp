@@ -96,6 +96,10 @@ int main(int argc, char** argv) {
       return 2;
     }
     gd::apply_sim_endpoints(*config, *ep);
+    if (const std::string why = gd::sim_dut_devices_mismatch(*config, *ep, file); !why.empty()) {
+      std::cerr << "gyrothermd: " << why << "\n";
+      return 2;
+    }
     spdlog::info("simulated station: modbus {}:{}, gyro {}", ep->modbus_host, ep->modbus_port,
                  ep->gyro_device);
   }
