@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "migrations.h"
+#include "test_files.h"
 #include "test_util.h"
 
 namespace gyrotherm::storage {
@@ -475,49 +476,63 @@ TEST(ResultsPerDut, MigratesASchema7DatabaseKeepingItsResults) {
 
 // ------------------------------------------------------------ DUT history
 
-TEST(DutHistory, EverythingOneGyroWentThroughAcrossRuns) {
-  TempDir dir;
-  Database db = open_ok(dir.file("station.db"));
+// Three runs: 17-0042 in runs 1 and 2 (position 0 with primary axis z,
+// then position 1 with x), 17-0043 in all three; Table I rows for x and z,
+// Allan and scale-factor fits for the primary axis, a drift fit per DUT.
+struct HistoryFixture {
+  int64_t run1 = 0, run2 = 0, run3 = 0, fit_0042 = 0;
+};
+
+HistoryFixture fill_history(Database& db) {
+  HistoryFixture f;
   RunRecord r1 = a_run("week 1");
   r1.metadata.operator_name = "ana";
   r1.resume_json = R"({"step":3})";
-  const int64_t run1 = *db.create_run(r1);
-  const int64_t run2 = *db.create_run(a_run("week 2"));
-  const int64_t run3 = *db.create_run(a_run("other gyros only"));
-  ASSERT_TRUE(db.add_run_dut(run1, a_dut("17-0042", 0)).ok());
-  ASSERT_TRUE(db.add_run_dut(run1, a_dut("17-0043", 1)).ok());
-  ASSERT_TRUE(db.add_run_dut(run2, a_dut("17-0043", 0)).ok());
-  ASSERT_TRUE(db.add_run_dut(run2, a_dut("17-0042", 1, "x")).ok());
-  ASSERT_TRUE(db.add_run_dut(run3, a_dut("17-0043", 0)).ok());
-  for (int64_t run : {run1, run2, run3}) {
+  f.run1 = *db.create_run(r1);
+  f.run2 = *db.create_run(a_run("week 2"));
+  f.run3 = *db.create_run(a_run("other gyros only"));
+  EXPECT_TRUE(db.add_run_dut(f.run1, a_dut("17-0042", 0)).ok());
+  EXPECT_TRUE(db.add_run_dut(f.run1, a_dut("17-0043", 1)).ok());
+  EXPECT_TRUE(db.add_run_dut(f.run2, a_dut("17-0043", 0)).ok());
+  EXPECT_TRUE(db.add_run_dut(f.run2, a_dut("17-0042", 1, "x")).ok());
+  EXPECT_TRUE(db.add_run_dut(f.run3, a_dut("17-0043", 0)).ok());
+  for (int64_t run : {f.run1, f.run2, f.run3}) {
     for (int i = 0; i < 2; ++i) {
       const int64_t seg = a_segment(db, run, i);
       for (const char* serial : {"17-0042", "17-0043"}) {
-        if (run == run3 && std::string(serial) == "17-0042") continue;
+        if (run == f.run3 && std::string(serial) == "17-0042") continue;
         for (const char* axis : {"x", "z"}) {
-          ASSERT_TRUE(db.put_segment_stats(stats(run, seg, i, serial, axis, run * 10 + i)).ok());
+          EXPECT_TRUE(db.put_segment_stats(stats(run, seg, i, serial, axis, run * 10 + i)).ok());
         }
-        ASSERT_TRUE(db.put_allan(allan_row(run, i, serial, "", 0.01)).ok());
+        EXPECT_TRUE(db.put_allan(allan_row(run, i, serial, "", 0.01)).ok());
       }
     }
     for (const char* serial : {"17-0042", "17-0043"}) {
-      if (run == run3 && std::string(serial) == "17-0042") continue;
-      ASSERT_TRUE(db.store_scale_factor(run, StreamKey{serial, ""}, {}, {sf_fit(1, 1.0 + run)},
+      if (run == f.run3 && std::string(serial) == "17-0042") continue;
+      EXPECT_TRUE(db.store_scale_factor(run, StreamKey{serial, ""}, {}, {sf_fit(1, 1.0 + run)},
                                         std::nullopt)
                       .ok());
     }
   }
   FitRecord fit;
-  fit.run_ids = {run1, run2};
+  fit.run_ids = {f.run1, f.run2};
   fit.model = "T1";
   fit.form = "paper";
   fit.coefficients_json = "{}";
   fit.standard_errors_json = "{}";
   fit.dut_serial = "17-0042";
-  const int64_t mine = *db.add_fit(fit);
+  f.fit_0042 = *db.add_fit(fit);
   fit.dut_serial = "17-0043";
-  ASSERT_TRUE(db.add_fit(fit).ok());
+  EXPECT_TRUE(db.add_fit(fit).ok());
+  return f;
+}
 
+TEST(DutHistory, EverythingOneGyroWentThroughAcrossRuns) {
+  TempDir dir;
+  Database db = open_ok(dir.file("station.db"));
+  const HistoryFixture fx = fill_history(db);
+  ASSERT_FALSE(::testing::Test::HasFailure());
+  const int64_t run1 = fx.run1, run2 = fx.run2, mine = fx.fit_0042;
   auto h = db.dut_history("17-0042");
   ASSERT_TRUE(h.ok()) << h.error().message;
   EXPECT_EQ(h->dut.serial, "17-0042");
@@ -561,6 +576,66 @@ TEST(DutHistory, EverythingOneGyroWentThroughAcrossRuns) {
   ASSERT_FALSE(unknown.ok());
   EXPECT_NE(unknown.error().message.find("no DUT with serial '99-0001'"), std::string::npos)
       << unknown.error().message;
+}
+
+// The sqlite3 statements of docs/storage.md about DUTs, run against the
+// history fixture: they parse, and answer what dut_history answers.
+TEST(DutHistory, DocumentedQueriesRun) {
+  const std::string doc =
+      gyrotherm::testing::read_text(std::string(GYROTHERM_SOURCE_DIR) + "/docs/storage.md");
+  std::vector<std::string> statements;
+  for (std::size_t at = 0; (at = doc.find("```sql\n", at)) != std::string::npos;) {
+    at += 7;
+    const std::size_t end = doc.find("```", at);
+    ASSERT_NE(end, std::string::npos);
+    const std::string block = doc.substr(at, end - at);
+    at = end + 3;
+    if (block.find("'17-0042'") == std::string::npos &&
+        block.find("FROM run_duts rd JOIN duts d") == std::string::npos) {
+      continue;
+    }
+    for (std::size_t from = 0, semi; (semi = block.find(';', from)) != std::string::npos;
+         from = semi + 1) {
+      statements.push_back(block.substr(from, semi + 1 - from));
+    }
+  }
+  ASSERT_EQ(statements.size(), 6u) << "the documented DUT queries changed: update this test";
+
+  TempDir dir;
+  Database db = open_ok(dir.file("station.db"));
+  const HistoryFixture fx = fill_history(db);
+  ASSERT_FALSE(::testing::Test::HasFailure());
+  std::vector<std::size_t> rows;
+  for (const std::string& sql : statements) {
+    SCOPED_TRACE(sql);
+    sqlite3_stmt* st = nullptr;
+    ASSERT_EQ(sqlite3_prepare_v2(db.handle(), sql.c_str(), -1, &st, nullptr), SQLITE_OK)
+        << sqlite3_errmsg(db.handle());
+    std::size_t n = 0;
+    int rc;
+    while ((rc = sqlite3_step(st)) == SQLITE_ROW) {
+      if (&sql == &statements[0]) {
+        // run, ..., table1_rows (column 9), allan_rows, sf_fits
+        EXPECT_EQ(sqlite3_column_int64(st, 0), n == 0 ? fx.run1 : fx.run2);
+        EXPECT_EQ(sqlite3_column_int64(st, 9), 4);
+        EXPECT_EQ(sqlite3_column_int64(st, 10), 2);
+        EXPECT_EQ(sqlite3_column_int64(st, 11), 1);
+      }
+      ++n;
+    }
+    EXPECT_EQ(rc, SQLITE_DONE) << sqlite3_errmsg(db.handle());
+    sqlite3_finalize(st);
+    rows.push_back(n);
+  }
+  auto h = *db.dut_history("17-0042");
+  std::size_t stats = 0, allan = 0, sf = 0;
+  for (const auto& r : h.runs) {
+    stats += r.stats.size();
+    allan += r.allan.size();
+    sf += r.scale_factor.size();
+  }
+  EXPECT_EQ(rows, (std::vector<std::size_t>{h.runs.size(), stats, allan, sf, h.fits.size(),
+                                            3}));  // the last run: 17-0043, 3 channels
 }
 
 }  // namespace
