@@ -101,8 +101,7 @@ TEST(TableStorage, MigratesASchema6DatabaseWithItsData) {
     sqlite3_close(raw);
   }
   Database db = open_ok(path);
-  EXPECT_EQ(*db.schema_version(), 7);
-  EXPECT_EQ(kSchemaVersion, 7);
+  EXPECT_EQ(*db.schema_version(), kSchemaVersion);
   EXPECT_TRUE(integrity_ok(db));
 
   auto runs = db.runs();
@@ -664,6 +663,8 @@ TEST(TableStorage, DocumentedQueriesRun) {
         block.find("table_samples") == std::string::npos) {
       continue;
     }
+    // The DUT history queries (v8) have their own test (records_v8_test).
+    if (block.find("'17-0042'") != std::string::npos) continue;
     for (std::size_t from = 0, semi; (semi = block.find(';', from)) != std::string::npos;
          from = semi + 1) {
       statements.push_back(block.substr(from, semi + 1 - from));
