@@ -146,5 +146,30 @@ TEST(DashboardPage, RateTableCardFollowsTheStatus) {
   if (!::testing::Test::HasFailure()) fs::remove(log);
 }
 
+// The DUT cards, the history plot's DUT and channel chooser and the progress
+// bars against statuses the browser test feeds the page itself
+// (tests/browser/dashboard_duts.mjs; no daemon): three DUTs, the samples
+// route asked for the chosen DUT and channel, the stability gate's bar while
+// settling, then the step's bar and the run's ETA.
+TEST(DashboardPage, DutCardsChannelChooserAndProgress) {
+  const fs::path source_dir = GYROTHERM_SOURCE_DIR;
+  const testing::BrowserTools tools = testing::browser_tools(source_dir.string());
+  if (!tools.missing.empty()) GTEST_FAIL() << tools.missing;
+  const fs::path png = fs::weakly_canonical(fs::path(GYROTHERM_DASHBOARD_PNG))
+                           .replace_filename("dashboard-duts.png");
+  fs::remove(png);
+  const fs::path log =
+      fs::temp_directory_path() / fmt::format("gyrotherm-dashboard-duts-{}.log", ::getpid());
+  testing::ChildProcess browser(
+      {tools.node, (source_dir / "tests/browser/dashboard_duts.mjs").string(), "--screenshot",
+       png.string(), "--timeout-s", "30"},
+      log.string());
+  const auto code = browser.wait(std::chrono::seconds(90));
+  ASSERT_TRUE(code.has_value()) << "the browser test did not finish in 90 s\n" << browser.log();
+  EXPECT_EQ(*code, 0) << browser.log();
+  EXPECT_TRUE(fs::exists(png)) << "no screenshot at " << png << "\n" << browser.log();
+  if (!::testing::Test::HasFailure()) fs::remove(log);
+}
+
 }  // namespace
 }  // namespace gyrotherm
