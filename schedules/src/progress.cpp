@@ -99,8 +99,8 @@ std::string format_duration(double s) {
 
 std::string format_planned(const PlannedDuration& d) {
   if (d.settles == 0) return format_duration(d.fixed_s);
-  return fmt::format("{} (+ {} settle{} of unknown length)", format_duration(d.fixed_s),
-                     d.settles, d.settles == 1 ? "" : "s");
+  return fmt::format("{} (+ {} settle{} of unknown length)", format_duration(d.fixed_s), d.settles,
+                     d.settles == 1 ? "" : "s");
 }
 
 RunProgress run_progress(const Plan& plan, const SequencerSnapshot& snap,
@@ -128,8 +128,8 @@ RunProgress run_progress(const Plan& plan, const SequencerSnapshot& snap,
   const double rate_before_dps = index > 0 ? step_table_rate_dps(plan.steps[index - 1]) : 0.0;
   const double acquired_s =
       snap.times.acquired_s() + (snap.window_open_s ? snap.t_s - *snap.window_open_s : 0.0);
-  bool settling = false;      // a settle of unknown length is under way
-  double step_left_s = 0;     // the current step's remaining fixed time
+  bool settling = false;   // a settle of unknown length is under way
+  double step_left_s = 0;  // the current step's remaining fixed time
   switch (step.kind) {
     case StepKind::kSoak: {
       p.step_planned_s = step.acquire_s;
@@ -207,9 +207,9 @@ PlannedDuration QueueDurations::update(const std::vector<Entry>& entries,
     if (it == cache_.end()) {
       ++parses_;
       auto plan = parse_schedule(e.toml_text, std::string(e.source), limits);
-      it = cache_
-               .emplace(e.id, plan ? planned_duration(*plan, start_setpoint_c) : PlannedDuration{})
-               .first;
+      it =
+          cache_.emplace(e.id, plan ? planned_duration(*plan, start_setpoint_c) : PlannedDuration{})
+              .first;
     }
     total += it->second;
   }

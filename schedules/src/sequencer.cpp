@@ -96,8 +96,7 @@ std::optional<GateProgress> Sequencer::gate_progress(double t_s) const {
   }
   const PlanStep& step = plan_.steps[index_];
   if (step.kind == StepKind::kSoak) {
-    const double held_s =
-        in_tolerance_since_s_ ? std::max(0.0, t_s - *in_tolerance_since_s_) : 0.0;
+    const double held_s = in_tolerance_since_s_ ? std::max(0.0, t_s - *in_tolerance_since_s_) : 0.0;
     return GateProgress{std::min(held_s, step.stability_window_s), step.stability_window_s,
                         step_active_s_};
   }

@@ -79,8 +79,8 @@ struct RunProgress {
   std::optional<double> gate_held_s;
   std::optional<double> gate_needed_s;
   double run_remaining_fixed_s = 0;
-  int run_settles_remaining = 0;         // the current settle included
-  std::optional<double> run_eta_s;       // only when no settle remains
+  int run_settles_remaining = 0;    // the current settle included
+  std::optional<double> run_eta_s;  // only when no settle remains
   double queue_fixed_s = 0;
   int queue_settles = 0;
 };
