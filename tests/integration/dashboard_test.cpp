@@ -88,6 +88,20 @@ TEST_F(DashboardTest, LiveInHeadlessChromium) {
       std::chrono::seconds(60)))
       << "last status: " << last.dump() << "\ndaemon log:\n"
       << daemon_->log();
+  // The station's progress: the last soak acquires 600 min and no settle is
+  // left, so the run has an ETA, the acquisition's rest; the queue is empty.
+  const json& progress = last["progress"];
+  EXPECT_EQ(progress["phase"], "acquiring") << progress.dump();
+  EXPECT_DOUBLE_EQ(progress["step_planned_s"].get<double>(), 36000.0);
+  EXPECT_EQ(progress["run_settles_remaining"], 0);
+  EXPECT_TRUE(progress["gate_held_s"].is_null());
+  ASSERT_TRUE(progress["run_eta_s"].is_number()) << progress.dump();
+  EXPECT_GT(progress["run_eta_s"].get<double>(), 0.0);
+  EXPECT_NEAR(progress["run_eta_s"].get<double>() + progress["step_elapsed_s"].get<double>(),
+              36000.0, 1e-6);
+  EXPECT_NEAR(progress["step_fraction"].get<double>(),
+              progress["step_elapsed_s"].get<double>() / 36000.0, 1e-12);
+  EXPECT_DOUBLE_EQ(progress["queue_fixed_s"].get<double>(), 0.0);
 
   const auto page = call("GET", "/");
   ASSERT_TRUE(page && page->status == 200)
