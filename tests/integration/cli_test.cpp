@@ -314,7 +314,7 @@ TEST_F(CliTest, ScheduleCheckCountsOneStep) {
   const std::string station = std::string(GYROTHERM_SOURCE_DIR) + "/config/station.toml";
   const Run r = cli({"schedule", "check", one, "--config", station});
   EXPECT_EQ(r.code, 0) << r.err;
-  EXPECT_EQ(r.out, "one: ok, 1 step\n  step 1: hold 20 °C\n");
+  EXPECT_EQ(r.out, "one: ok, 1 step\n  step 1: hold 20 °C\nplanned duration: 5 min\n");
 }
 
 // gyrothermd's usage errors exit 2, as a bad config does (a bad option
