@@ -20,6 +20,7 @@
 #include "gyrotherm/core/toml_errors.h"
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/daemon/control.h"
+#include "gyrotherm/schedules/progress.h"
 #include "gyrotherm/storage/database.h"
 #include "output.h"
 
@@ -399,6 +400,62 @@ std::string format_utc(const json& utc) {
   return s.empty() ? kDash : s;
 }
 
+namespace {
+
+// "2 h 10 min + 2 settles" (a time that excludes settles of unknown length).
+std::string fixed_and_settles(const json& fixed_s, const json& settles) {
+  std::string out = schedules::format_duration(number(fixed_s).value_or(0));
+  const int n = static_cast<int>(number(settles).value_or(0));
+  if (n > 0) out += fmt::format(" + {} settle{}", n, n == 1 ? "" : "s");
+  return out;
+}
+
+// The progress line (docs/schedules.md, "Planned duration and progress"):
+// "acquiring 42% · run ends in 2 h 10 min", "settling, gate 4 min of 10 min ·
+// run ≥ 2 h 10 min + 2 settles". Empty without a progress object.
+std::string format_progress(const json& p) {
+  if (!p.is_object()) return "";
+  std::string step = text(field(p, "phase"));
+  const auto fraction = number(field(p, "step_fraction"));
+  const auto held = number(field(p, "gate_held_s"));
+  const auto needed = number(field(p, "gate_needed_s"));
+  if (fraction) step += fmt::format(" {:.0f}%", std::floor(*fraction * 100));
+  if (held && needed) {
+    step += fmt::format(", gate {} of {}", schedules::format_duration(*held),
+                        schedules::format_duration(*needed));
+  }
+  if (const auto eta = number(field(p, "run_eta_s"))) {
+    return fmt::format("{} · run ends in {}", step, schedules::format_duration(*eta));
+  }
+  return fmt::format(
+      "{} · run ≥ {}", step,
+      fixed_and_settles(field(p, "run_remaining_fixed_s"), field(p, "run_settles_remaining")));
+}
+
+// One DUT of status.duts: "17-0042  KVH 1750  x +8.012  y −0.002  z 0.010 °/h
+// (primary z)  41.2 °C  1000 samples/s  connected".
+std::string format_dut(const json& d) {
+  std::string rates;
+  const json& r = field(d, "rates_dph");
+  if (r.is_object()) {
+    for (const auto& [axis, v] : r.items()) {
+      rates += fmt::format("{}{} {}", rates.empty() ? "" : "  ", axis, fixed(v, 3));
+    }
+  }
+  const json& health = field(d, "health");
+  std::string link = truthy(field(health, "connected")) ? "connected" : "DISCONNECTED";
+  if (const json& err = field(health, "last_error");
+      !truthy(field(health, "connected")) && err.is_string() && !err.get<std::string>().empty()) {
+    link += " (" + err.get<std::string>() + ")";
+  }
+  return fmt::format("{}  {}  {} °/h (primary {})  {}  {} samples/s  {}", text(field(d, "serial")),
+                     text(field(d, "model")), rates.empty() ? std::string(kDash) : rates,
+                     text(field(d, "primary_axis")), fixed(field(d, "temp_c"), 1, "°C"),
+                     fixed(field(d, "samples_per_s"), 0), link);
+}
+
+}  // namespace
+
 std::string format_status(const json& j) {
   std::string out;
   const auto& station = first_of(j, {"station", "station_name"});
@@ -422,6 +479,27 @@ std::string format_status(const json& j) {
         fmt::format("{}/{}  {}",
                     index ? std::to_string(static_cast<int64_t>(*index) + 1) : std::string(kDash),
                     text(pick("step_count", "count")), text(pick("step_label", "label"))));
+    if (const std::string progress = format_progress(field(j, "progress")); !progress.empty()) {
+      out += labelled("progress", progress);
+    }
+    const json& meta = field(j, "run_metadata");
+    std::vector<std::string> parts;
+    for (const char* key : {"operator", "comment"}) {
+      const json& v = field(meta, key);
+      if (v.is_string() && !v.get<std::string>().empty()) {
+        parts.push_back(fmt::format("{} {}", key, v.get<std::string>()));
+      }
+    }
+    if (const json& tags = field(meta, "tags"); tags.is_array() && !tags.empty()) {
+      std::string list;
+      for (const auto& t : tags) list += (list.empty() ? "" : ", ") + text(t);
+      parts.push_back("tags " + list);
+    }
+    if (!parts.empty()) {
+      std::string line;
+      for (const auto& p : parts) line += (line.empty() ? "" : " · ") + p;
+      out += labelled("metadata", line);
+    }
   }
   out += labelled("set point", fixed(field(j, "setpoint_c"), 2, "°C"));
   out += labelled("chamber", fixed(field(j, "chamber_c"), 2, "°C"));
@@ -432,6 +510,13 @@ std::string format_status(const json& j) {
   out +=
       labelled("gyro", fmt::format("{}  ({} samples/s)", fixed(field(j, "gyro_rate_dph"), 3, "°/h"),
                                    fixed(field(j, "gyro_samples_per_s"), 0)));
+  if (const json& duts = field(j, "duts"); duts.is_array()) {
+    bool first = true;
+    for (const auto& d : duts) {
+      out += labelled(first ? "duts" : "", format_dut(d));
+      first = false;
+    }
+  }
 
   const json& interlocks = field(j, "interlocks");
   if (!interlocks.is_array() || interlocks.empty()) {
@@ -449,6 +534,10 @@ std::string format_status(const json& j) {
   }
 
   std::string queue = fmt::format("{} waiting", text(field(j, "queue_length")));
+  if (const json& p = field(j, "progress");
+      number(field(j, "queue_length")).value_or(0) > 0 && p.is_object()) {
+    queue += ", ≥ " + fixed_and_settles(field(p, "queue_fixed_s"), field(p, "queue_settles"));
+  }
   if (truthy(field(j, "queue_held"))) {
     const json& reason = field(j, "queue_hold_reason");
     queue += reason.is_string() && !reason.get<std::string>().empty()

@@ -25,6 +25,7 @@
 #include "gyrotherm/drivers/protocol.h"
 #include "gyrotherm/drivers/rate_tables.h"
 #include "gyrotherm/drivers/serial_port.h"
+#include "gyrotherm/schedules/progress.h"
 #include "gyrotherm/schedules/schedule.h"
 #include "output.h"
 
@@ -556,9 +557,17 @@ int cmd_table(const std::string& config_path, const std::string& action, double 
 
 int cmd_schedule_check(const std::string& config_path, const std::string& schedule_path,
                        bool json) {
-  auto cfg = daemon::load_station_config(config_path);
-  if (!cfg) return fail("bad station config:\n" + cfg.error().message, 2);
-  auto plan = schedules::load_schedule(schedule_path, daemon::station_limits(*cfg));
+  // Without a station config: the default limits (no rate table) and a run
+  // starting from the default safe set point.
+  schedules::StationLimits limits;
+  double start_setpoint_c = daemon::StationSection{}.safe_setpoint_c;
+  if (!config_path.empty()) {
+    auto cfg = daemon::load_station_config(config_path);
+    if (!cfg) return fail("bad station config:\n" + cfg.error().message, 2);
+    limits = daemon::station_limits(*cfg);
+    start_setpoint_c = cfg->station.safe_setpoint_c;
+  }
+  auto plan = schedules::load_schedule(schedule_path, limits);
   if (!plan) {
     if (json) {
       // The report ends with "... and N more errors" when it was cut.
@@ -576,16 +585,28 @@ int cmd_schedule_check(const std::string& config_path, const std::string& schedu
     }
     return fail("schedule refused:\n" + plan.error().message, 1);
   }
+  // A queued run starts where the previous one left the chamber: the safe
+  // set point (docs/schedules.md, "Planned duration and progress").
+  const schedules::PlannedDuration planned = schedules::planned_duration(*plan, start_setpoint_c);
   if (json) {
     nlohmann::json steps = nlohmann::json::array();
     for (const auto& s : plan->steps) steps.push_back(s.label);
-    std::cout << nlohmann::json({{"ok", true}, {"name", plan->name}, {"steps", steps}}).dump(2)
+    std::cout << nlohmann::json({{"ok", true},
+                                 {"name", plan->name},
+                                 {"steps", steps},
+                                 {"planned",
+                                  {{"fixed_s", planned.fixed_s},
+                                   {"settles", planned.settles},
+                                   {"start_setpoint_c", start_setpoint_c},
+                                   {"text", schedules::format_planned(planned)}}}})
+                     .dump(2)
               << "\n";
     return 0;
   }
   std::cout << fmt::format("{}: ok, {} step{}\n", plan->name, plan->steps.size(),
                            plan->steps.size() == 1 ? "" : "s");
   for (const auto& s : plan->steps) std::cout << "  " << s.label << "\n";
+  std::cout << fmt::format("planned duration: {}\n", schedules::format_planned(planned));
   return 0;
 }
 
@@ -638,7 +659,8 @@ int main(int argc, char** argv) {
   auto* check = schedule->add_subcommand("check", "validate a schedule against a station");
   std::string schedule_path;
   check->add_option("file", schedule_path, "schedule file")->required();
-  check->add_option("--config", config_path, "station config")->required();
+  check->add_option("--config", config_path,
+                    "station config (limits, table, safe set point); default limits without");
   check->add_flag("--json", json);
 
   // status, queue add|list|remove|move, pause, resume, abort, stop, runs, run

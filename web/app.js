@@ -5,6 +5,12 @@
 // the last hour of station time, so memory stays bounded however long the
 // page stays open. Plain JS, no build step; uPlot is the global `uPlot`.
 //
+// Devices under test: one card per entry of status.duts. The gyro plot shows
+// one DUT's channel, chosen in a select filled from GET /api/v1/runs/{id}
+// ("duts" → channels; default: the first DUT's primary axis); its history
+// comes from the samples route with ?dut=SN&channel=C, its live points from
+// the status (the DUT's rate of that axis, or its internal temperature).
+//
 // A station with [api] read_access = "token" answers 401: the page then asks
 // for a token, keeps it in sessionStorage (this tab only), sends it as
 // "Authorization: Bearer" on every request, and reads the stream with
@@ -47,6 +53,44 @@
   function fmtCount(v) {
     return v == null || !Number.isFinite(v) ? '—' : Math.round(v).toLocaleString('en-US');
   }
+
+  // Seconds as the two largest units, rounded to the smaller (as the CLI and
+  // `schedule check` print them): "5 h 20 min", "2 d 3 h", "12 min 30 s".
+  function fmtDuration(s) {
+    if (s == null || !Number.isFinite(s) || s < 0) s = 0;
+    if (s >= 86400) {
+      const hours = Math.round(s / 3600);
+      const d = Math.floor(hours / 24);
+      const h = hours % 24;
+      return h ? `${d} d ${h} h` : `${d} d`;
+    }
+    if (s >= 3600) {
+      const mins = Math.round(s / 60);
+      const h = Math.floor(mins / 60);
+      const m = mins % 60;
+      if (h >= 24) return '1 d';
+      return m ? `${h} h ${m} min` : `${h} h`;
+    }
+    if (s >= 60) {
+      const secs = Math.round(s);
+      const m = Math.floor(secs / 60);
+      const sec = secs % 60;
+      if (m >= 60) return '1 h';
+      return sec ? `${m} min ${sec} s` : `${m} min`;
+    }
+    const secs = Math.round(s);
+    return secs >= 60 ? '1 min' : `${secs} s`;
+  }
+
+  // "2 h 10 min + 2 settles": fixed time plus settles of unknown length.
+  function fmtFixed(fixedS, settles) {
+    const n = settles || 0;
+    return fmtDuration(fixedS) + (n > 0 ? ` + ${n} settle${n === 1 ? '' : 's'}` : '');
+  }
+
+  // The unit of a channel as the page shows it.
+  const UNITS = { 'deg/h': '°/h', degC: '°C', 'deg/s': '°/s' };
+  const fmtUnit = (u) => (u in UNITS ? UNITS[u] : u || '');
 
   function setText(id, text) {
     const el = $(id);
@@ -236,20 +280,109 @@
     const from = Math.max(0, tRunS - WINDOW_S);
     const to = Math.max(from, tRunS);
     try {
+      const ch = chosenChannel();
+      // The unnamed gyro (serial "") is the run's first DUT: the default.
+      const which = ch ? (ch.serial ? `&dut=${encodeURIComponent(ch.serial)}` : '') +
+        `&channel=${encodeURIComponent(ch.name)}` : '';
       const s = await getJson(`/api/v1/runs/${runId}/samples?from=${from.toFixed(3)}` +
-        `&to=${to.toFixed(3)}&max_points=${HISTORY_POINTS}`);
+        `&to=${to.toFixed(3)}&max_points=${HISTORY_POINTS}${which}`);
       if (request !== historyRequest || plotKey !== runId) return;  // superseded
+      if (ch !== chosenChannel()) return;  // another channel was chosen meanwhile
       const tp = s.temperature || {};
       temperature.setHistory([tp.t_s || [], tp.setpoint_c || [], tp.chamber_c || [],
         tp.top_c || [], tp.side_c || []]);
+      // The chosen channel's buckets (in its unit, under the route's "gyro").
       const g = s.gyro || {};
-      gyro.setHistory([g.t_s || [], g.mean_dph || [], g.min_dph || [], g.max_dph || []]);
+      gyro.setHistory([g.t_s || [], g.mean_dph || g.mean || [], g.min_dph || g.min || [],
+        g.max_dph || g.max || []]);
       redraw();
     } catch (err) {
       if (!(err instanceof Unauthorized)) {
         console.error('history of run', runId, 'not loaded:', err.message);
       }
     }
+  }
+
+  // --------------------------------------------------------------- channels
+  // The channels the gyro plot can show: every channel of every DUT of the
+  // plotted run, from GET /api/v1/runs/{id}; chosen = index into it.
+  let channels = [];
+  let chosen = -1;
+  let channelsRequest = 0;
+
+  function chosenChannel() {
+    return chosen >= 0 && chosen < channels.length ? channels[chosen] : null;
+  }
+
+  function showChannel() {
+    const ch = chosenChannel();
+    const dut = ch ? (ch.serial || 'gyro') : '';
+    setText('gyro-plot-title', ch ? `${dut} · ${ch.name}` : 'Gyro rate');
+    setText('gyro-plot-unit', ch ? fmtUnit(ch.unit) : '°/h');
+  }
+
+  // Fills the chooser from the run's DUTs; keeps the choice when the run's
+  // channels still hold it (same serial and channel), else takes the first
+  // DUT's primary axis.
+  function setChannels(duts) {
+    const previous = chosenChannel();
+    channels = [];
+    (duts || []).forEach((d, di) => {
+      for (const c of d.channels || []) {
+        channels.push({ serial: d.serial || '', model: d.model || '', name: c.name,
+          unit: c.unit || '', kind: c.kind || '', axis: c.axis || '',
+          primary: di === 0 && c.kind === 'rate' && c.axis === d.primary_axis });
+      }
+    });
+    chosen = previous ? channels.findIndex((c) => c.serial === previous.serial &&
+      c.name === previous.name) : -1;
+    if (chosen < 0) chosen = channels.findIndex((c) => c.primary);
+    if (chosen < 0) chosen = channels.findIndex((c) => c.kind === 'rate');
+    const select = $('gyro-channel');
+    select.replaceChildren(...channels.map((c, i) => {
+      const o = document.createElement('option');
+      o.value = String(i);
+      o.textContent = `${c.serial || 'gyro'} · ${c.name}${c.unit ? ` (${fmtUnit(c.unit)})` : ''}`;
+      return o;
+    }));
+    select.hidden = channels.length === 0;
+    if (chosen >= 0) select.value = String(chosen);
+    showChannel();
+  }
+
+  $('gyro-channel').addEventListener('change', (e) => {
+    chosen = Number(e.target.value);
+    showChannel();
+    gyro.reset();
+    redraw();
+    if (plotKey != null && lastStatus) loadHistory(plotKey, lastStatus.t_run_s);
+  });
+
+  // The run's DUTs and channels, then its history on the chosen channel.
+  async function loadRun(runId, tRunS) {
+    const request = ++channelsRequest;
+    try {
+      const run = await getJson(`/api/v1/runs/${runId}`);
+      if (request !== channelsRequest || plotKey !== runId) return;  // superseded
+      setChannels(run.duts);
+    } catch (err) {
+      if (err instanceof Unauthorized) return;
+      console.error('run', runId, 'not loaded:', err.message);
+      setChannels([]);
+    }
+    loadHistory(runId, tRunS);
+  }
+
+  // The chosen channel's live value in a status: the DUT's rate of that axis
+  // or its internal temperature; the station's gyro rate without a choice.
+  function liveValue(s) {
+    const ch = chosenChannel();
+    if (!ch) return s.gyro_rate_dph;
+    const d = (s.duts || []).find((x) => (x.serial || '') === ch.serial);
+    if (!d) return null;
+    if (ch.kind === 'rate' && d.rates_dph && ch.axis in d.rates_dph) return d.rates_dph[ch.axis];
+    if (ch.kind === 'temperature') return d.temp_c;
+    return null;
   }
 
   // ----------------------------------------------------------------- events
@@ -353,6 +486,109 @@
     setText('table-fault', t.fault || (up ? '' : h.last_error || ''));
   }
 
+  // The step's progress bar, or the stability gate's while a soak settles
+  // (no fraction then: settling has no fixed length), and the run's and the
+  // queue's time left.
+  function renderProgress(p, running, queueLength) {
+    $('progress').hidden = !p || (!running && !(queueLength > 0));
+    if (!p) return;
+    setText('progress-phase', running ? (p.phase || '').replace('_', ' ') : 'queue');
+    const fraction = p.step_fraction;
+    const hasFraction = running && fraction != null && Number.isFinite(fraction);
+    $('step-bar').hidden = !running;
+    $('step-fill').style.width = hasFraction ? `${(100 * fraction).toFixed(1)}%` : '0%';
+    $('step-bar').setAttribute('aria-valuenow', hasFraction ? Math.floor(100 * fraction) : 0);
+    setText('step-progress', !running ? '—' : hasFraction
+      ? `step ${Math.floor(100 * fraction)}% · ${fmtDuration(p.step_elapsed_s)} of ` +
+        `${fmtDuration(p.step_planned_s)}`
+      : `settling for ${fmtDuration(p.step_elapsed_s)}, then ${fmtDuration(p.step_planned_s)}`);
+    const gate = running && p.gate_held_s != null && p.gate_needed_s > 0;
+    $('gate-bar').hidden = !gate;
+    if (gate) {
+      const g = Math.min(1, p.gate_held_s / p.gate_needed_s);
+      $('gate-fill').style.width = `${(100 * g).toFixed(1)}%`;
+      $('gate-bar').setAttribute('aria-valuenow', Math.floor(100 * g));
+      setText('gate-progress', `${p.phase === 'spinning_up' ? 'at rate' : 'stability gate'} ` +
+        `${fmtClock(p.gate_held_s)} of ${fmtClock(p.gate_needed_s)}`);
+    }
+    setText('run-eta', !running ? 'no run'
+      : p.run_eta_s != null ? `run ends in ${fmtDuration(p.run_eta_s)}`
+        : `run ≥ ${fmtFixed(p.run_remaining_fixed_s, p.run_settles_remaining)}`);
+    setText('queue-eta', queueLength > 0
+      ? `queue ≥ ${fmtFixed(p.queue_fixed_s, p.queue_settles)}` : 'queue empty');
+  }
+
+  // One card per DUT: serial, model, live rate per axis, internal
+  // temperature, samples/s, link health. The first DUT's primary axis is
+  // highlighted (it is the station's gyro rate).
+  function dutCard(d, first) {
+    const card = document.createElement('div');
+    card.className = 'panel card dut' + (first ? ' first' : '');
+    card.dataset.serial = d.serial || '';
+    const h = d.health || {};
+    const h3 = document.createElement('h3');
+    const dot = document.createElement('span');
+    dot.className = 'dot';
+    const bad = h.crc_failures > 0 || h.sequence_gaps > 0 || h.frames_missed > 0;
+    dot.dataset.ok = !h.connected ? 'bad' : bad ? 'warn' : 'ok';
+    const serial = document.createElement('span');
+    serial.className = 'serial';
+    serial.textContent = d.serial || '(no serial)';
+    const model = document.createElement('span');
+    model.className = 'muted model';
+    model.textContent = d.model || '';
+    h3.append(dot, serial, model);
+    const rates = document.createElement('dl');
+    rates.className = 'rates';
+    for (const [axis, v] of Object.entries(d.rates_dph || {})) {
+      const dt = document.createElement('dt');
+      dt.textContent = axis;
+      const dd = document.createElement('dd');
+      dd.className = 'mono rate';
+      dd.dataset.axis = axis;
+      dd.textContent = fmtNum(v, 3);
+      const u = document.createElement('span');
+      u.className = 'u';
+      u.textContent = '°/h';
+      if (first && axis === d.primary_axis) {
+        dt.classList.add('primary');
+        dd.classList.add('primary');
+      }
+      rates.append(dt, dd, u);
+    }
+    const kv = document.createElement('dl');
+    kv.className = 'kv';
+    const rows = [
+      ['Internal temp', d.temp_c == null ? '—' : `${fmtNum(d.temp_c, 1)} °C`, 'temp', ''],
+      ['Samples/s', fmtNum(d.samples_per_s, 0), 'sps', ''],
+      ['Link', h.connected ? 'connected' : 'DISCONNECTED', 'link', h.connected ? '' : 'bad'],
+      ['CRC failures', fmtCount(h.crc_failures), 'crc', h.crc_failures > 0 ? 'warn' : ''],
+      ['Sequence gaps', fmtCount(h.sequence_gaps), 'gaps', h.sequence_gaps > 0 ? 'warn' : ''],
+    ];
+    for (const [label, value, key, level] of rows) {
+      const dt = document.createElement('dt');
+      dt.textContent = label;
+      const dd = document.createElement('dd');
+      dd.className = 'mono';
+      dd.dataset.key = key;
+      if (level) dd.classList.add(level);
+      dd.textContent = value;
+      kv.append(dt, dd);
+    }
+    const err = document.createElement('p');
+    err.className = 'err';
+    err.textContent = h.last_error || '';
+    card.append(h3, rates, kv, err);
+    return card;
+  }
+
+  function renderDuts(duts) {
+    const section = $('duts');
+    const list = Array.isArray(duts) ? duts : [];
+    section.hidden = list.length === 0;
+    section.replaceChildren(...list.map((d, i) => dutCard(d, i === 0)));
+  }
+
   function renderStatus(s) {
     const dev = s.devices || {};
     const running = s.run_id != null;
@@ -381,6 +617,8 @@
     $('queue-held').hidden = !s.queue_held;
     setText('hold-reason', s.queue_held ? (s.queue_hold_reason || 'held') : '—');
     setText('last-event', s.last_event || '—');
+    renderProgress(s.progress, running, s.queue_length);
+    renderDuts(s.duts);
 
     const interlocks = s.interlocks || [];
     setText('interlocks', interlocks.length
@@ -443,18 +681,23 @@
       temperature.reset();
       gyro.reset();
       if (running) {
-        loadHistory(s.run_id, s.t_run_s);
+        loadRun(s.run_id, s.t_run_s);
         loadEvents(s.run_id);
+      } else {
+        setChannels([]);
       }
     }
     const t = running ? s.t_run_s : s.t_station_s;
     if (t == null || !Number.isFinite(t)) return;
     temperature.push([t, s.setpoint_c, s.chamber_c, s.top_c, s.side_c]);
-    gyro.push([t, s.gyro_rate_dph, null, null]);
+    gyro.push([t, liveValue(s), null, null]);
     redraw();
   }
 
+  let lastStatus = null;
+
   function applyStatus(s) {
+    lastStatus = s;
     lastStatusAt = Date.now();
     renderStatus(s);
     plotStatus(s);
@@ -628,6 +871,7 @@
   window.dashboard = {
     temperaturePlot,
     gyroPlot,
+    channel: () => chosenChannel(),
     livePoints: () => Math.min(temperature.livePoints(), gyro.livePoints()),
   };
 

@@ -89,6 +89,25 @@ void Sequencer::update_state(double t_s, const std::string& reason) {
   observer_.on_state(from, to, t_s, reason);
 }
 
+std::optional<GateProgress> Sequencer::gate_progress(double t_s) const {
+  if (end_ || state_ == RunState::kQueued || index_ >= plan_.steps.size() ||
+      activity_ != RunState::kSettling) {
+    return std::nullopt;
+  }
+  const PlanStep& step = plan_.steps[index_];
+  if (step.kind == StepKind::kSoak) {
+    const double held_s = in_tolerance_since_s_ ? std::max(0.0, t_s - *in_tolerance_since_s_) : 0.0;
+    return GateProgress{std::min(held_s, step.stability_window_s), step.stability_window_s,
+                        step_active_s_};
+  }
+  if (step.kind == StepKind::kRate) {
+    const double held_s = at_rate_since_s_ ? std::max(0.0, t_s - *at_rate_since_s_) : 0.0;
+    return GateProgress{std::min(held_s, options_.at_rate_hold_s), options_.at_rate_hold_s,
+                        spin_up_s_};
+  }
+  return std::nullopt;
+}
+
 std::vector<InterlockCondition> Sequencer::tripped() const {
   std::vector<InterlockCondition> out;
   for (int k = 0; k < kInterlockKindCount; ++k) {
@@ -116,6 +135,7 @@ void Sequencer::begin_step(std::size_t index, double t_s) {
   step_active_s_ = 0;
   const PlanStep& step = plan_.steps[index];
   ramp_from_c_ = setpoint_c_;
+  in_tolerance_since_s_.reset();
   observer_.on_step_started(index, step, t_s);
   switch (step.kind) {
     case StepKind::kSoak:
@@ -273,6 +293,7 @@ void Sequencer::on_unheld(double t_s, const Readings& readings) {
   step_active_s_ = 0;
   shell_window_.clear();
   chamber_window_.clear();
+  in_tolerance_since_s_.reset();
   activity_ = RunState::kSettling;
   observer_.on_step_changed(index_, step, times_);
   update_state(t_s, fmt::format("{}: temperature out of ± {:g} °C ({}); the soak settles again and "
@@ -361,6 +382,16 @@ void Sequencer::tick_soak(double t_s, const Readings& readings) {
   if (readings.chamber_c) chamber_window_.push(t_s, *readings.chamber_c);
 
   if (activity_ == RunState::kSettling) {
+    // The gate's progress: a tick without readings neither breaks nor extends it.
+    if (readings.chamber_c && last_shell_c_ && readings.top_c && readings.side_c) {
+      const bool within = std::abs(*readings.chamber_c - step.setpoint_c) <= step.tolerance_c &&
+                          std::abs(*last_shell_c_ - step.setpoint_c) <= step.tolerance_c;
+      if (!within) {
+        in_tolerance_since_s_.reset();
+      } else if (!in_tolerance_since_s_) {
+        in_tolerance_since_s_ = t_s;
+      }
+    }
     const bool gate = shell_window_.full() && chamber_window_.full() &&
                       std::abs(shell_window_.slope_per_s() * 60.0) < step.stability_c_per_min &&
                       std::abs(shell_window_.mean() - step.setpoint_c) <= step.tolerance_c &&
@@ -575,6 +606,7 @@ void Sequencer::restore(const SequencerSnapshot& s, double t_s, double data_unti
   const PlanStep& step = plan_.steps[index_];
   shell_window_ = analysis::StabilityWindow(step.stability_window_s);
   chamber_window_ = analysis::StabilityWindow(step.stability_window_s);
+  in_tolerance_since_s_.reset();
   if (step.kind == StepKind::kRate) {
     // A rate point in progress starts over: it spins up again and dwells
     // its whole turns (a partial window is never stored).

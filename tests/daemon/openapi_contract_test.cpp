@@ -198,6 +198,38 @@ StatusSnapshot busy_station() {
       drivers::TableMode::kRate, "Rate", drivers::TableInterlock::kClosed, 100.0004, 123.4, ""};
   table.demand = {schedules::TableDemandMode::kRate, std::nullopt, 100.0};
   s.table = table;
+  // Three DUTs: one with all axes and its temperature, one before its first
+  // full second (nulls), the unnamed gyro with one axis.
+  DutStatus imu;
+  imu.serial = "17-0042";
+  imu.model = "KVH 1750";
+  imu.primary_axis = "z";
+  imu.rates_dph = {{"x", 1.5}, {"y", -2.25}, {"z", 7.95}};
+  imu.temp_c = 41.2;
+  imu.samples_per_s = 1000;
+  imu.health.connected = true;
+  DutStatus starting = imu;
+  starting.serial = "17-0043";
+  starting.rates_dph = {{"x", std::nullopt}, {"y", std::nullopt}, {"z", std::nullopt}};
+  starting.temp_c = std::nullopt;
+  starting.samples_per_s = 0;
+  DutStatus unnamed;
+  unnamed.primary_axis = "z";
+  unnamed.rates_dph = {{"z", 8.0}};
+  s.duts = {imu, starting, unnamed};
+  // Settling: the gate's progress, no fraction, no ETA.
+  s.progress.phase = "settling";
+  s.progress.step_elapsed_s = 420;
+  s.progress.step_planned_s = 6000;
+  s.progress.gate_held_s = 240;
+  s.progress.gate_needed_s = 600;
+  s.progress.run_remaining_fixed_s = 90000;
+  s.progress.run_settles_remaining = 29;
+  s.progress.queue_fixed_s = 43200;
+  s.progress.queue_settles = 8;
+  s.run_operator = "ana";
+  s.run_comment = "lot 7, cold start";
+  s.run_tags = {"cold", "lot-7"};
   return s;
 }
 

@@ -143,7 +143,28 @@ json status_answer() {
           {"time_scale", 1000.0},
           {"t_station_s", 3800.5},
           {"t_run_s", 3700.0},
-          {"last_event", "paused: operator"}};
+          {"last_event", "paused: operator"},
+          {"progress",
+           {{"phase", "acquiring"},
+            {"step_elapsed_s", 2550.0},
+            {"step_planned_s", 6000.0},
+            {"step_fraction", 0.425},
+            {"gate_held_s", nullptr},
+            {"gate_needed_s", nullptr},
+            {"run_remaining_fixed_s", 7800.0},
+            {"run_settles_remaining", 2},
+            {"run_eta_s", nullptr},
+            {"queue_fixed_s", 43200.0},
+            {"queue_settles", 8}}},
+          {"run_metadata", {{"operator", "ana"}, {"comment", ""}, {"tags", {"cold", "lot-7"}}}},
+          {"duts",
+           {{{"serial", "17-0042"},
+             {"model", "KVH 1750"},
+             {"primary_axis", "z"},
+             {"rates_dph", {{"x", 8.0123}, {"y", -0.0021}, {"z", nullptr}}},
+             {"temp_c", 41.23},
+             {"samples_per_s", 1000.0},
+             {"health", {{"connected", true}, {"last_error", ""}}}}}}};
 }
 
 json run_answer() {
@@ -694,7 +715,25 @@ TEST(CliFormat, StatusSummary) {
   EXPECT_THAT(text,
               HasSubstr("interlocks  probe_disagreement: top and side differ by 2.4 °C (since "
                         "1:02:05)\n"));
-  EXPECT_THAT(text, HasSubstr("queue       2 waiting, held: stop requested\n"));
+  EXPECT_THAT(text, HasSubstr("queue       2 waiting, ≥ 12 h + 8 settles, held: stop requested\n"));
+  EXPECT_THAT(text, HasSubstr("progress    acquiring 42% · run ≥ 2 h 10 min + 2 settles\n"));
+  EXPECT_THAT(text, HasSubstr("metadata    operator ana · tags cold, lot-7\n"));
+  EXPECT_THAT(text, HasSubstr("duts        17-0042  KVH 1750  x 8.012  y -0.002  z — °/h (primary "
+                              "z)  41.2 °C  1000 samples/s  connected\n"));
+  // Settling: the gate's progress and no ETA; the last settle done: an ETA.
+  json settling = status_answer();
+  settling["progress"]["phase"] = "settling";
+  settling["progress"]["step_fraction"] = nullptr;
+  settling["progress"]["gate_held_s"] = 240.0;
+  settling["progress"]["gate_needed_s"] = 600.0;
+  EXPECT_THAT(cli::format_status(settling),
+              HasSubstr("progress    settling, gate 4 min of 10 min · run ≥ 2 h 10 min + 2 "
+                        "settles\n"));
+  json last = status_answer();
+  last["progress"]["run_settles_remaining"] = 0;
+  last["progress"]["run_eta_s"] = 3000.0;
+  EXPECT_THAT(cli::format_status(last),
+              HasSubstr("progress    acquiring 42% · run ends in 50 min\n"));
   EXPECT_THAT(text, HasSubstr("time        station 1:03:20, run 1:01:40, time scale 1000×\n"));
 
   json without_since = status_answer();

@@ -242,6 +242,15 @@ TEST_F(CliTest, ScheduleCheckListsEveryError) {
                       "--config", station});
   EXPECT_EQ(ok.code, 0) << ok.err;
   EXPECT_THAT(ok.out, HasSubstr("32 steps"));
+  // 4 × 1012 min of acquisition = 2 d 19 h 28 min; 32 soaks settle.
+  EXPECT_THAT(ok.out, HasSubstr("planned duration: 2 d 19 h (+ 32 settles of unknown length)\n"));
+  // Without --config: the default limits; --json gives the figures.
+  const Run json = cli({"--json", "schedule", "check",
+                        std::string(GYROTHERM_SOURCE_DIR) + "/config/schedules/paper-table1.toml"});
+  ASSERT_EQ(json.code, 0) << json.err;
+  const auto j = nlohmann::json::parse(json.out);
+  EXPECT_DOUBLE_EQ(j["planned"]["fixed_s"].get<double>(), 4048 * 60.0);
+  EXPECT_EQ(j["planned"]["settles"], 32);
 }
 
 // What is not a schedule file ends at once with an error naming it:
@@ -305,7 +314,7 @@ TEST_F(CliTest, ScheduleCheckCountsOneStep) {
   const std::string station = std::string(GYROTHERM_SOURCE_DIR) + "/config/station.toml";
   const Run r = cli({"schedule", "check", one, "--config", station});
   EXPECT_EQ(r.code, 0) << r.err;
-  EXPECT_EQ(r.out, "one: ok, 1 step\n  step 1: hold 20 °C\n");
+  EXPECT_EQ(r.out, "one: ok, 1 step\n  step 1: hold 20 °C\nplanned duration: 5 min\n");
 }
 
 // gyrothermd's usage errors exit 2, as a bad config does (a bad option

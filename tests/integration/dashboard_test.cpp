@@ -88,6 +88,20 @@ TEST_F(DashboardTest, LiveInHeadlessChromium) {
       std::chrono::seconds(60)))
       << "last status: " << last.dump() << "\ndaemon log:\n"
       << daemon_->log();
+  // The station's progress: the last soak acquires 600 min and no settle is
+  // left, so the run has an ETA, the acquisition's rest; the queue is empty.
+  const json& progress = last["progress"];
+  EXPECT_EQ(progress["phase"], "acquiring") << progress.dump();
+  EXPECT_DOUBLE_EQ(progress["step_planned_s"].get<double>(), 36000.0);
+  EXPECT_EQ(progress["run_settles_remaining"], 0);
+  EXPECT_TRUE(progress["gate_held_s"].is_null());
+  ASSERT_TRUE(progress["run_eta_s"].is_number()) << progress.dump();
+  EXPECT_GT(progress["run_eta_s"].get<double>(), 0.0);
+  EXPECT_NEAR(progress["run_eta_s"].get<double>() + progress["step_elapsed_s"].get<double>(),
+              36000.0, 1e-6);
+  EXPECT_NEAR(progress["step_fraction"].get<double>(),
+              progress["step_elapsed_s"].get<double>() / 36000.0, 1e-12);
+  EXPECT_DOUBLE_EQ(progress["queue_fixed_s"].get<double>(), 0.0);
 
   const auto page = call("GET", "/");
   ASSERT_TRUE(page && page->status == 200)
@@ -137,6 +151,31 @@ TEST(DashboardPage, RateTableCardFollowsTheStatus) {
       fs::temp_directory_path() / fmt::format("gyrotherm-dashboard-table-{}.log", ::getpid());
   testing::ChildProcess browser(
       {tools.node, (source_dir / "tests/browser/dashboard_table.mjs").string(), "--screenshot",
+       png.string(), "--timeout-s", "30"},
+      log.string());
+  const auto code = browser.wait(std::chrono::seconds(90));
+  ASSERT_TRUE(code.has_value()) << "the browser test did not finish in 90 s\n" << browser.log();
+  EXPECT_EQ(*code, 0) << browser.log();
+  EXPECT_TRUE(fs::exists(png)) << "no screenshot at " << png << "\n" << browser.log();
+  if (!::testing::Test::HasFailure()) fs::remove(log);
+}
+
+// The DUT cards, the history plot's DUT and channel chooser and the progress
+// bars against statuses the browser test feeds the page itself
+// (tests/browser/dashboard_duts.mjs; no daemon): three DUTs, the samples
+// route asked for the chosen DUT and channel, the stability gate's bar while
+// settling, then the step's bar and the run's ETA.
+TEST(DashboardPage, DutCardsChannelChooserAndProgress) {
+  const fs::path source_dir = GYROTHERM_SOURCE_DIR;
+  const testing::BrowserTools tools = testing::browser_tools(source_dir.string());
+  if (!tools.missing.empty()) GTEST_FAIL() << tools.missing;
+  const fs::path png = fs::weakly_canonical(fs::path(GYROTHERM_DASHBOARD_PNG))
+                           .replace_filename("dashboard-duts.png");
+  fs::remove(png);
+  const fs::path log =
+      fs::temp_directory_path() / fmt::format("gyrotherm-dashboard-duts-{}.log", ::getpid());
+  testing::ChildProcess browser(
+      {tools.node, (source_dir / "tests/browser/dashboard_duts.mjs").string(), "--screenshot",
        png.string(), "--timeout-s", "30"},
       log.string());
   const auto code = browser.wait(std::chrono::seconds(90));

@@ -567,9 +567,11 @@ void Station::tick() {
     checkpoint(false);
   }
 
+  const Progress run_progress = progress(t_run_s);
   {
     std::lock_guard lock(mu_);
     StatusSnapshot& s = snapshot_;
+    s.progress = run_progress;
     s.t_station_s = now_s;
     s.t_run_s = t_run_s;
     s.chamber_c = r.chamber_c;
@@ -603,6 +605,35 @@ void Station::tick() {
     snapshot_.table = table_->status();
   }
   if (sequencer_ && sequencer_->finished()) end_run();
+}
+
+Progress Station::progress(double t_run_s) {
+  constexpr double kQueueScanWallS = 5;
+  const int queued = queue_length_.load();
+  if (queued != queue_scanned_length_ || wall_.monotonic_s() >= queue_scan_due_wall_s_) {
+    queue_scanned_length_ = queued;
+    queue_scan_due_wall_s_ = wall_.monotonic_s() + kQueueScanWallS;
+    if (auto entries = db_.queue_entries()) {
+      std::vector<schedules::QueueDurations::Entry> waiting;
+      for (const auto& e : *entries) {
+        if (e.state == "queued") {
+          waiting.push_back(
+              {e.id, e.toml_text, e.source_path.empty() ? e.schedule_name : e.source_path});
+        }
+      }
+      // Each queued run starts where the one before left the chamber.
+      queue_planned_ = queue_durations_.update(waiting, station_limits(config_),
+                                               config_.station.safe_setpoint_c);
+    }
+  }
+  if (!sequencer_) {
+    schedules::RunProgress idle;
+    idle.queue_fixed_s = queue_planned_.fixed_s;
+    idle.queue_settles = queue_planned_.settles;
+    return to_progress(idle);
+  }
+  return to_progress(schedules::run_progress(sequencer_->plan(), sequencer_->snapshot(t_run_s),
+                                             sequencer_->gate_progress(t_run_s), queue_planned_));
 }
 
 schedules::TableDemand Station::table_demand() const {

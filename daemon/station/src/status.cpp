@@ -20,6 +20,44 @@ nlohmann::json to_json(const drivers::DeviceHealth& h) {
           {"last_latency_ms", h.last_latency_ms}};
 }
 
+// A gyro reader's health: today's "gyro" device object, and each DUT's "health".
+nlohmann::json to_json(const drivers::GyroReaderHealth& g) {
+  return {{"connected", g.connected},
+          {"samples", g.samples},
+          {"frames_ok", g.parser.frames_ok},
+          {"crc_failures", g.parser.crc_failures},
+          {"bytes_skipped", g.parser.bytes_skipped},
+          {"sequence_gaps", g.parser.sequence_gaps},
+          {"frames_missed", g.parser.frames_missed},
+          {"invalid_samples", g.invalid_samples},
+          {"reopens", g.reopens},
+          {"read_errors", g.read_errors},
+          {"last_error", g.last_error}};
+}
+
+nlohmann::json to_json(const DutStatus& d) {
+  nlohmann::json rates = nlohmann::json::object();
+  for (const auto& [axis, rate] : d.rates_dph) rates[axis] = opt(rate);
+  return {
+      {"serial", d.serial},         {"model", d.model},        {"primary_axis", d.primary_axis},
+      {"rates_dph", rates},         {"temp_c", opt(d.temp_c)}, {"samples_per_s", d.samples_per_s},
+      {"health", to_json(d.health)}};
+}
+
+nlohmann::json to_json(const Progress& p) {
+  return {{"phase", p.phase},
+          {"step_elapsed_s", opt(p.step_elapsed_s)},
+          {"step_planned_s", opt(p.step_planned_s)},
+          {"step_fraction", opt(p.step_fraction)},
+          {"gate_held_s", opt(p.gate_held_s)},
+          {"gate_needed_s", opt(p.gate_needed_s)},
+          {"run_remaining_fixed_s", p.run_remaining_fixed_s},
+          {"run_settles_remaining", p.run_settles_remaining},
+          {"run_eta_s", opt(p.run_eta_s)},
+          {"queue_fixed_s", p.queue_fixed_s},
+          {"queue_settles", p.queue_settles}};
+}
+
 // null when the station has no table.
 nlohmann::json table_json(const std::optional<TableStatus>& t) {
   if (!t) return nullptr;
@@ -49,11 +87,12 @@ nlohmann::json table_json(const std::optional<TableStatus>& t) {
 }  // namespace
 
 nlohmann::json to_json(const StatusSnapshot& s) {
-  const auto& g = s.gyro;
   nlohmann::json interlocks = nlohmann::json::array();
   for (const auto& i : s.interlocks)
     interlocks.push_back({{"kind", i.kind}, {"message", i.message}});
-  return {
+  nlohmann::json duts = nlohmann::json::array();
+  for (const auto& d : s.duts) duts.push_back(to_json(d));
+  nlohmann::json j = {
       {"station", s.station_name},
       {"state", s.state},
       {"run_id", opt(s.run_id)},
@@ -78,21 +117,12 @@ nlohmann::json to_json(const StatusSnapshot& s) {
       {"queue_held", s.queue_held},
       {"queue_hold_reason", s.queue_hold_reason},
       {"table", table_json(s.table)},
+      {"duts", duts},
+      {"progress", to_json(s.progress)},
       {"devices",
        {{"chamber", to_json(s.chamber)},
         {"probes", to_json(s.probes)},
-        {"gyro",
-         {{"connected", g.connected},
-          {"samples", g.samples},
-          {"frames_ok", g.parser.frames_ok},
-          {"crc_failures", g.parser.crc_failures},
-          {"bytes_skipped", g.parser.bytes_skipped},
-          {"sequence_gaps", g.parser.sequence_gaps},
-          {"frames_missed", g.parser.frames_missed},
-          {"invalid_samples", g.invalid_samples},
-          {"reopens", g.reopens},
-          {"read_errors", g.read_errors},
-          {"last_error", g.last_error}}},
+        {"gyro", to_json(s.gyro)},
         {"table", s.table ? to_json(s.table->health) : nlohmann::json(nullptr)}}},
       {"storage",
        {{"gyro_rows", s.storage.gyro_rows},
@@ -107,6 +137,28 @@ nlohmann::json to_json(const StatusSnapshot& s) {
         {"max_commit_ms", s.storage.max_commit_ms},
         {"last_error", s.storage.last_error}}},
   };
+  // While a run runs: who runs it and why (set with `queue add`).
+  if (s.run_id) {
+    j["run_metadata"] = {
+        {"operator", s.run_operator}, {"comment", s.run_comment}, {"tags", s.run_tags}};
+  }
+  return j;
+}
+
+Progress to_progress(const schedules::RunProgress& p) {
+  Progress out;
+  out.phase = p.phase;
+  out.step_elapsed_s = p.step_elapsed_s;
+  out.step_planned_s = p.step_planned_s;
+  out.step_fraction = p.step_fraction;
+  out.gate_held_s = p.gate_held_s;
+  out.gate_needed_s = p.gate_needed_s;
+  out.run_remaining_fixed_s = p.run_remaining_fixed_s;
+  out.run_settles_remaining = p.run_settles_remaining;
+  out.run_eta_s = p.run_eta_s;
+  out.queue_fixed_s = p.queue_fixed_s;
+  out.queue_settles = p.queue_settles;
+  return out;
 }
 
 }  // namespace gyrotherm::daemon

@@ -98,6 +98,19 @@ struct StepTimes {
   double acquired_s() const;  // sum of the closed windows
 };
 
+// What the current step waits on before it acquires (docs/schedules.md,
+// "Progress"). A soak's stability gate: held_s is how long chamber and shell
+// have stayed within tolerance of the set point without a break, at most the
+// stability window (needed_s); the gate also wants the shell's slope below
+// its limit, so a soak may settle on with held_s == needed_s. A rate point's
+// spin-up: held_s is how long the measured rate has been within tolerance,
+// needed_s is at_rate_hold_s. waited_s: unheld station s spent waiting so far.
+struct GateProgress {
+  double held_s = 0;
+  double needed_s = 0;
+  double waited_s = 0;
+};
+
 class SequencerObserver {
  public:
   virtual ~SequencerObserver() = default;
@@ -200,6 +213,9 @@ class Sequencer {
   const StepTimes& step_times() const { return times_; }
   // Tripped interlocks with their messages.
   std::vector<InterlockCondition> tripped() const;
+  // The gate the current step waits on at t_s; nullopt when it waits on none
+  // (ramps, holds, acquiring, no run).
+  std::optional<GateProgress> gate_progress(double t_s) const;
 
  private:
   bool held() const;
@@ -247,6 +263,9 @@ class Sequencer {
   analysis::StabilityWindow shell_window_{600.0};
   analysis::StabilityWindow chamber_window_{600.0};
   std::optional<double> last_shell_c_;
+  // Soak settling: since when chamber and shell have been within tolerance
+  // (the gate's progress; reset with the stability windows).
+  std::optional<double> in_tolerance_since_s_;
   // Rate point: unheld station s of the current spin-up, since when the
   // measured rate has been within tolerance, the last measured rate.
   double spin_up_s_ = 0;

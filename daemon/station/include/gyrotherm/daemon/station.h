@@ -50,6 +50,7 @@
 #include "gyrotherm/daemon/status.h"
 #include "gyrotherm/daemon/table_control.h"
 #include "gyrotherm/drivers/devices.h"
+#include "gyrotherm/schedules/progress.h"
 #include "gyrotherm/schedules/sequencer.h"
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
@@ -321,6 +322,14 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // Station time a device stopped answering (its gap, in the event log).
   std::optional<double> chamber_lost_s_, probes_lost_s_;
   analysis::StabilityWindow shell_rate_window_{60.0};
+  // The queued entries' planned durations for the status's progress: read
+  // again when their count changed, otherwise every few wall seconds.
+  schedules::QueueDurations queue_durations_;
+  schedules::PlannedDuration queue_planned_;
+  int queue_scanned_length_ = -1;
+  double queue_scan_due_wall_s_ = 0;
+  // The run's and the queue's progress now (docs/schedules.md).
+  Progress progress(double t_run_s);
   std::atomic<int> queue_length_{0};
   std::atomic<bool> queue_held_{false};
   std::atomic<uint64_t> heartbeat_{0};

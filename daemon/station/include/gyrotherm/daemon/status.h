@@ -10,6 +10,7 @@
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/drivers/modbus_device.h"
 #include "gyrotherm/drivers/rate_table.h"
+#include "gyrotherm/schedules/progress.h"
 #include "gyrotherm/schedules/schedule.h"
 #include "gyrotherm/storage/sample_writer.h"
 
@@ -99,5 +100,7 @@ struct StatusSnapshot {
 };
 
 nlohmann::json to_json(const StatusSnapshot& s);
+// The status's progress from the schedules' pure computation (progress.h).
+Progress to_progress(const schedules::RunProgress& p);
 
 }  // namespace gyrotherm::daemon

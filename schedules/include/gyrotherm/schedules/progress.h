@@ -1,0 +1,116 @@
+// Planned durations and the progress of a run and of the queue
+// (docs/schedules.md, "Planned duration and progress").
+//
+// A plan's time has two parts. The fixed-length part is known before the
+// run: ramps (|target − where the previous step left the set point| / rate),
+// soak acquisitions, holds, and rate points (their dwell plus a spin-up
+// estimated as |rate − the previous step's table rate| / the table's
+// acceleration). Settling is not: a soak waits for its stability gate as
+// long as the chamber needs. So a duration is "fixed time + N settles of
+// unknown length", and an ETA exists only when no settle remains.
+//
+// Pure functions of the plan and the sequencer's snapshot, so they are tested
+// with hand-computed figures; the station calls them each tick.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "gyrotherm/schedules/schedule.h"
+#include "gyrotherm/schedules/sequencer.h"
+
+namespace gyrotherm::schedules {
+
+// Fixed-length station seconds and the number of settles of unknown length.
+struct PlannedDuration {
+  double fixed_s = 0;
+  int settles = 0;
+
+  PlannedDuration& operator+=(const PlannedDuration& o) {
+    fixed_s += o.fixed_s;
+    settles += o.settles;
+    return *this;
+  }
+};
+
+// The table's rate demand a step leaves behind (0 unless it spins the table).
+double step_table_rate_dps(const PlanStep& step);
+
+// The fixed-length station seconds of one step entered with the set point at
+// from_setpoint_c and the table demand at from_rate_dps: a soak's acquisition
+// (its settle is not counted), a ramp's |target − from| / rate, a hold's
+// duration, a rate point's spin-up (|rate − from_rate| / accel; none without
+// an acceleration) plus its dwell.
+double step_fixed_s(const PlanStep& step, double from_setpoint_c, double from_rate_dps,
+                    double table_accel_dps2);
+
+// Whether a step has a settle of unknown length (a soak's stability gate).
+bool step_settles(const PlanStep& step);
+
+// The whole plan, started with the chamber at start_setpoint_c (a queued run
+// starts where the previous one left the chamber: the safe set point) and the
+// table at rest.
+PlannedDuration planned_duration(const Plan& plan, double start_setpoint_c);
+
+// The steps after step `index` (the set point and table rate being those
+// step `index` leaves).
+PlannedDuration planned_duration_after(const Plan& plan, std::size_t index);
+
+// "5 h 20 min", "2 d 3 h", "12 min 30 s", "45 s": the two largest units,
+// rounded to the smaller one.
+std::string format_duration(double s);
+// "5 h 20 min (+ 4 settles of unknown length)"; without settles just the time.
+std::string format_planned(const PlannedDuration& d);
+
+// Where a run and the queue are; the fields of daemon::Progress (see
+// gyrotherm/daemon/status.h and docs/api.md, "Progress").
+struct RunProgress {
+  // ramping, settling, acquiring, holding, spinning_up; idle without a run;
+  // aborting, completed, failed, interrupted once the steps are over.
+  std::string phase = "idle";
+  std::optional<double> step_elapsed_s;
+  std::optional<double> step_planned_s;
+  std::optional<double> step_fraction;  // nullopt while a soak settles
+  std::optional<double> gate_held_s;
+  std::optional<double> gate_needed_s;
+  double run_remaining_fixed_s = 0;
+  int run_settles_remaining = 0;    // the current settle included
+  std::optional<double> run_eta_s;  // only when no settle remains
+  double queue_fixed_s = 0;
+  int queue_settles = 0;
+};
+
+// The progress of the run the sequencer's `snapshot` describes (taken at
+// snapshot.t_s), with `gate` its gate_progress() at that time and `queue`
+// the planned duration of the queued entries.
+RunProgress run_progress(const Plan& plan, const SequencerSnapshot& snapshot,
+                         const std::optional<GateProgress>& gate, const PlannedDuration& queue);
+
+// The queued entries' planned durations, each entry's schedule text parsed
+// once (cached by entry id). An entry whose text does not parse (station
+// limits changed since it was queued) counts nothing: its run will fail at
+// start.
+class QueueDurations {
+ public:
+  struct Entry {
+    int64_t id = 0;
+    std::string_view toml_text;
+    std::string_view source;
+  };
+  // The sum over `entries`, each started at start_setpoint_c; entries no
+  // longer given are forgotten.
+  PlannedDuration update(const std::vector<Entry>& entries, const StationLimits& limits,
+                         double start_setpoint_c);
+  std::size_t parsed() const { return parses_; }  // schedule texts parsed so far
+
+ private:
+  std::map<int64_t, PlannedDuration> cache_;
+  std::size_t parses_ = 0;
+};
+
+}  // namespace gyrotherm::schedules
