@@ -293,9 +293,13 @@ std::string encode_ascii_line(const AsciiLineOptions& o, std::span<const double>
   if (o.checksum == "nmea") {
     std::string_view body(line);
     if (!body.empty() && body.front() == '$') body.remove_prefix(1);
-    line += "*" + hex_upper(nmea_xor(body), 2);
+    const std::string sum = hex_upper(nmea_xor(body), 2);
+    line.push_back('*');
+    line.append(sum);
   } else if (o.checksum == "crc16") {
-    line += "*" + hex_upper(crc16_ccitt_false(line), 4);
+    const std::string sum = hex_upper(crc16_ccitt_false(line), 4);
+    line.push_back('*');
+    line.append(sum);
   }
   line += "\r\n";
   return line;
