@@ -1,0 +1,260 @@
+// Several devices under test through a real campaign: gyrotherm-sim serves
+// three DUTs (two KVH 1750 on their own ptys, one ASCII test set), each with
+// its own truth; gyrothermd records every channel of every DUT into chunked
+// storage and analyses each DUT and axis. Checked against the simulator's
+// truth file, through REST and the CLI, with the run's metadata.
+#include <fmt/format.h>
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <fstream>
+#include <map>
+#include <regex>
+#include <sstream>
+
+#include "station_fixture.h"
+
+namespace gyrotherm::testing {
+namespace {
+
+// The three DUTs replace the fixture's [gyro]. Biases are far enough apart
+// (≥ 0.6 °/h) that a row stored under the wrong DUT or axis cannot pass.
+constexpr const char* kDuts = R"([[dut]]
+serial = "17-0042"
+model = "KVH 1750"
+protocol = "kvh1750"
+unit = "rad"
+output = "rate"
+rate_hz = 10.0
+silent_timeout_s = 60.0
+orientation = { z = "up", x = "horizontal", y = "horizontal" }
+primary_axis = "z"
+
+[[dut]]
+serial = "17-0043"
+model = "KVH 1750"
+protocol = "kvh1750"
+unit = "deg"
+output = "delta"
+rate_hz = 10.0
+silent_timeout_s = 60.0
+axes = ["x", "z"]
+orientation = { z = "down", x = "horizontal" }
+primary_axis = "z"
+
+[[dut]]
+serial = "TS-7"
+model = "rate test set"
+protocol = "ascii"
+rate_hz = 10.0
+silent_timeout_s = 60.0
+orientation = { y = "up", x = "horizontal" }
+primary_axis = "y"
+[dut.ascii]
+delimiter = ","
+prefix = "$GYR,"
+checksum = "nmea"
+seq_column = "n"
+seq_modulo = 65536
+columns = [
+  { name = "n" },
+  { name = "rate_x", kind = "rate", unit = "deg/s", axis = "x" },
+  { name = "rate_y", kind = "rate", unit = "deg/s", axis = "y" },
+  { name = "temp_c", kind = "temperature", unit = "degC" },
+  { name = "status", kind = "status" },
+]
+valid_bits = { x = 1, y = 2 }
+)";
+
+constexpr const char* kDutTruth = R"(
+[simulator.dut.17-0042.x]
+bias_dph = 1.2
+[simulator.dut.17-0042.y]
+bias_dph = -0.9
+[simulator.dut.17-0043]
+bias_dph = 2.5
+[simulator.dut.17-0043.x]
+bias_dph = 3.4
+[simulator.dut.TS-7]
+bias_dph = -1.8
+[simulator.dut.TS-7.x]
+bias_dph = -3.0
+)";
+
+class DutsTest : public StationTest {
+ protected:
+  void SetUp() override {
+    StationTest::SetUp();
+    std::string text = station_config(dir_, api_port_);
+    const auto from = text.find("[gyro]");
+    const auto to = text.find("[storage]");
+    ASSERT_NE(from, std::string::npos);
+    ASSERT_NE(to, std::string::npos);
+    text.replace(from, to - from, std::string(kDuts) + "\n");
+    write(dir_ / "station.toml", text + kDutTruth);
+    write(dir_ / "schedule.toml", soak_schedule("two DUT soaks", 25.0, 6));
+  }
+
+  // The truth's Table I bias (Earth rate removed) of a DUT axis at temp_c,
+  // interpolated between its static points (every 5 °C).
+  static double truth_bias_dph(const nlohmann::json& truth, const std::string& serial,
+                               const std::string& axis, double temp_c) {
+    for (const auto& d : truth["duts"]) {
+      if (d["serial"] != serial) continue;
+      const auto& pts = d["axes"][axis]["static"];
+      for (std::size_t i = 0; i + 1 < pts.size(); ++i) {
+        const double t0 = pts[i]["temp_c"], t1 = pts[i + 1]["temp_c"];
+        if (temp_c < t0 || temp_c > t1) continue;
+        const double b0 = pts[i]["bias_earth_removed_dph"], b1 = pts[i + 1]["bias_earth_removed_dph"];
+        return b0 + (b1 - b0) * (temp_c - t0) / (t1 - t0);
+      }
+    }
+    ADD_FAILURE() << "no truth for " << serial << " " << axis << " at " << temp_c;
+    return NAN;
+  }
+
+  std::string run_cli(const std::vector<std::string>& args, int* code = nullptr) {
+    std::vector<std::string> argv{bin("gyrotherm")};
+    argv.insert(argv.end(), args.begin(), args.end());
+    const fs::path out = dir_ / "cli.out";
+    ChildProcess cli(argv, out.string());
+    const auto rc = cli.wait(std::chrono::seconds(30));
+    if (code) *code = rc ? *rc : -1;
+    std::ifstream in(out);
+    std::stringstream ss;
+    ss << in.rdbuf();
+    return ss.str();
+  }
+};
+
+TEST_F(DutsTest, ThreeDutsThroughACampaignEachRecoversItsOwnTruth) {
+  start_sim();
+  start_daemon({}, /*with_schedule=*/false);
+  ASSERT_TRUE(wait_until([&] { return status().has_value(); }, std::chrono::seconds(30)))
+      << daemon_->log();
+
+  // Queued with its metadata over REST.
+  const std::string schedule_text = [&] {
+    std::ifstream in(dir_ / "schedule.toml");
+    std::stringstream ss;
+    ss << in.rdbuf();
+    return ss.str();
+  }();
+  nlohmann::json add = {{"toml", schedule_text},
+                        {"operator", "ana"},
+                        {"comment", "three IMUs, first soak"},
+                        {"tags", {"qualification", "lot-7"}}};
+  auto added = call("POST", "/api/v1/queue", add.dump());
+  ASSERT_TRUE(added.has_value());
+  ASSERT_EQ(added->status, 201) << added->body;
+
+  // Live: every DUT has a card's worth of status, rates per axis.
+  std::optional<nlohmann::json> live;
+  ASSERT_TRUE(wait_until(
+      [&] {
+        live = status();
+        if (!live || live->value("state", "") != "acquiring") return false;
+        const auto& duts = (*live)["duts"];
+        if (!duts.is_array() || duts.size() != 3) return false;
+        for (const auto& d : duts) {
+          for (const auto& [axis, v] : d["rates_dph"].items()) {
+            if (v.is_null()) return false;
+          }
+        }
+        return true;
+      },
+      std::chrono::seconds(90)))
+      << (live ? live->dump(2) : "no status") << daemon_->log();
+  EXPECT_EQ((*live)["duts"][0]["serial"], "17-0042");
+  EXPECT_EQ((*live)["duts"][2]["serial"], "TS-7");
+  EXPECT_EQ((*live)["run_metadata"]["operator"], "ana");
+  EXPECT_NEAR((*live)["duts"][0]["samples_per_s"].get<double>(), kRateHz, 1.0);
+
+  // The run completes and is analysed.
+  ASSERT_TRUE(wait_until(
+      [&] {
+        auto events = get_json("/api/v1/runs/1/events");
+        if (!events.is_array()) return false;
+        for (const auto& e : events) {
+          if (e.value("kind", "") == "analysis") return true;
+        }
+        return false;
+      },
+      std::chrono::seconds(180)))
+      << daemon_->log();
+
+  std::ifstream truth_in(dir_ / "truth.json");
+  const nlohmann::json truth = nlohmann::json::parse(truth_in);
+
+  auto db = storage::Database::open_read_only((dir_ / "station.db").string());
+  ASSERT_TRUE(db.ok()) << db.error().message;
+  auto run_duts = db->run_duts(1);
+  ASSERT_TRUE(run_duts.ok()) << run_duts.error().message;
+  ASSERT_EQ(run_duts->size(), 3u);
+  EXPECT_EQ((*run_duts)[0].channels.size(), 8u) << "KVH 1750: 3 gyro, 3 accel, status, temp";
+
+  // Every channel of every DUT was recorded at the DUT's rate.
+  auto segments = db->segments(1);
+  ASSERT_TRUE(segments.ok());
+  const double run_s = *segments->back().t_end_s;
+  for (const auto& d : *run_duts) {
+    for (const auto& c : d.channels) {
+      auto n = db->count_channel_samples(c.id);
+      ASSERT_TRUE(n.ok()) << n.error().message;
+      EXPECT_GT(static_cast<double>(*n), 0.97 * run_s * kRateHz) << d.dut.serial << " " << c.spec.name;
+    }
+  }
+
+  // Table I per DUT and axis, each against its own truth (Earth rate
+  // removed per the axis's orientation).
+  auto stats = db->segment_stats(1);
+  ASSERT_TRUE(stats.ok());
+  const std::map<std::string, std::vector<std::string>> analysed = {
+      {"17-0042", {"x", "y", "z"}}, {"17-0043", {"x", "z"}}, {"TS-7", {"x", "y"}}};
+  std::size_t rows = 0;
+  for (const auto& [serial, axes] : analysed) {
+    for (const auto& axis : axes) {
+      SCOPED_TRACE(serial + " " + axis);
+      const auto it = std::find_if(stats->begin(), stats->end(), [&](const auto& r) {
+        return r.dut_serial == serial && r.axis == axis;
+      });
+      ASSERT_NE(it, stats->end());
+      ++rows;
+      EXPECT_EQ(it->n, 360);
+      // 360 one-second means of 1 °/h noise: σ ≈ 0.053 °/h.
+      EXPECT_NEAR(it->bias_mean_earth_removed_dph,
+                  truth_bias_dph(truth, serial, axis, it->temp_mean_c), 0.25);
+    }
+  }
+  EXPECT_EQ(stats->size(), rows) << "one row per soak, DUT and analysed axis";
+
+  // The raw samples out, exactly: a rate channel of the ASCII DUT as CSV.
+  int code = 0;
+  const std::string csv = run_cli({"samples", "--db", (dir_ / "station.db").string(), "--run",
+                                   "1", "--dut", "TS-7", "--channel", "rate_y", "--from", "10",
+                                   "--to", "20"},
+                                  &code);
+  ASSERT_EQ(code, 0) << csv;
+  EXPECT_THAT(csv, ::testing::StartsWith("t_s,rate_y (deg/h)")) << csv.substr(0, 200);
+  EXPECT_NEAR(std::count(csv.begin(), csv.end(), '\n'), 1 + 10 * kRateHz, 2);
+
+  // Metadata edited afterwards leaves an audit event; the DUT's history has the run.
+  auto patched = call("PATCH", "/api/v1/runs/1", R"({"comment": "three IMUs, reviewed"})");
+  ASSERT_TRUE(patched.has_value());
+  EXPECT_EQ(patched->status, 200) << patched->body;
+  auto run = get_json("/api/v1/runs/1");
+  EXPECT_EQ(run["metadata"]["comment"], "three IMUs, reviewed");
+  EXPECT_EQ(run["metadata"]["operator"], "ana");
+  auto events = get_json("/api/v1/runs/1/events");
+  EXPECT_TRUE(std::any_of(events.begin(), events.end(), [](const auto& e) {
+    return e.value("kind", "") == "metadata" &&
+           e.value("message", "").find("reviewed") != std::string::npos;
+  })) << events.dump(2);
+  auto history = get_json("/api/v1/duts/17-0043");
+  ASSERT_TRUE(history.is_object()) << history.dump();
+  EXPECT_EQ(history["runs"].size(), 1u) << history.dump(2).substr(0, 2000);
+}
+
+}  // namespace
+}  // namespace gyrotherm::testing
