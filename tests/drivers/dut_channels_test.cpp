@@ -1,4 +1,5 @@
 // dut_channels() for each protocol and the ASCII line encoder.
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -131,7 +132,7 @@ TEST(DutChannels, AsciiErrorsNameTheColumn) {
       {[](auto& o) {
          o.columns.clear();
          for (int i = 0; i < 17; ++i)
-           o.columns.push_back(col("c" + std::to_string(i), ChannelKind::kOther, ""));
+           o.columns.push_back(col(fmt::format("c{}", i), ChannelKind::kOther, ""));
          o.seq_column.reset();
          o.seq_modulo = 0;
        },
