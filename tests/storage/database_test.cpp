@@ -1,4 +1,5 @@
 #include "gyrotherm/storage/database.h"
+#include "gyrotherm/storage/sample_writer.h"
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
@@ -45,7 +46,7 @@ TEST(Database, OpenCreatesTheCurrentSchemaInWalMode) {
   auto version = db.schema_version();
   ASSERT_TRUE(version.ok()) << version.error().message;
   EXPECT_EQ(*version, kSchemaVersion);
-  EXPECT_EQ(kSchemaVersion, 7);
+  EXPECT_EQ(kSchemaVersion, 9);
   EXPECT_EQ(query_text(db.handle(), "PRAGMA journal_mode"), "wal");
   EXPECT_EQ(query_int(db.handle(), "PRAGMA synchronous"), 1);  // NORMAL
   EXPECT_EQ(query_int(db.handle(), "PRAGMA foreign_keys"), 1);
@@ -68,12 +69,10 @@ TEST(Database, OpenCreatesTheCurrentSchemaInWalMode) {
                                           "schedules",
                                           "queue",
                                           "segments",
-                                          "gyro_samples",
                                           "temperature_samples",
                                           "events",
                                           "segment_stats",
                                           "acquisition_windows",
-                                          "gyro_rollup",
                                           "fits",
                                           "fit_runs",
                                           "allan",
@@ -82,7 +81,12 @@ TEST(Database, OpenCreatesTheCurrentSchemaInWalMode) {
                                           "table_samples",
                                           "scale_factor_points",
                                           "scale_factor_fits",
-                                          "scale_factor_temperature_fits"};
+                                          "scale_factor_temperature_fits",
+                                          "duts",
+                                          "run_duts",
+                                          "channels",
+                                          "sample_chunks",
+                                          "channel_rollup"};
   EXPECT_EQ(tables, expected);
 }
 
@@ -131,19 +135,19 @@ TEST(Database, NewerSchemaIsRefusedWithAClearMessage) {
   const std::string path = dir.file("station.db");
   {
     Database db = open_ok(path);
-    ASSERT_TRUE(db.exec("UPDATE meta SET value='8' WHERE key='schema_version'").ok());
+    ASSERT_TRUE(db.exec("UPDATE meta SET value='10' WHERE key='schema_version'").ok());
   }
   auto db = Database::open(path);
   ASSERT_FALSE(db.ok());
   EXPECT_FALSE(db.error().transient);
   EXPECT_NE(db.error().message.find(path), std::string::npos) << db.error().message;
-  EXPECT_NE(db.error().message.find("schema version 8, newer than this build's 7"),
+  EXPECT_NE(db.error().message.find("schema version 10, newer than this build's 9"),
             std::string::npos)
       << db.error().message;
 
   auto ro = Database::open_read_only(path);
   ASSERT_FALSE(ro.ok());
-  EXPECT_NE(ro.error().message.find("schema version 8"), std::string::npos) << ro.error().message;
+  EXPECT_NE(ro.error().message.find("schema version 10"), std::string::npos) << ro.error().message;
 }
 
 TEST(Database, RefusesAnotherApplicationsDatabase) {
@@ -697,10 +701,13 @@ TEST(Database, CheckpointAndLastSample) {
                   .ok());
   EXPECT_EQ(*db.last_sample_t_s(run_id), 12.5);
   EXPECT_FALSE(db.last_gyro_sample_t_s(run_id)->has_value()) << "temperatures are not gyro data";
-  ASSERT_TRUE(db.exec(fmt::format("INSERT INTO gyro_samples(run_id, t_s, seq, status) "
-                                  "VALUES({0}, 13.25, 1, 119);",
-                                  run_id))
-                  .ok());
+  {
+    auto writer = SampleWriter::start(db.path());
+    ASSERT_TRUE(writer.ok()) << writer.error().message;
+    const GyroSample g{.t_s = 13.25, .rate_dph = 1.5, .seq = 1, .status = 119, .temp_c = 20};
+    (*writer)->push_gyro(run_id, std::span(&g, 1));
+    ASSERT_TRUE((*writer)->flush().ok());
+  }
   EXPECT_EQ(*db.last_sample_t_s(run_id), 13.25);
   EXPECT_EQ(*db.last_gyro_sample_t_s(run_id), 13.25);
   // The control loop's temperatures run ahead of a lagging gyro stream.
