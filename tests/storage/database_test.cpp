@@ -135,19 +135,24 @@ TEST(Database, NewerSchemaIsRefusedWithAClearMessage) {
   const std::string path = dir.file("station.db");
   {
     Database db = open_ok(path);
-    ASSERT_TRUE(db.exec("UPDATE meta SET value='10' WHERE key='schema_version'").ok());
+    ASSERT_TRUE(db.exec(fmt::format("UPDATE meta SET value='{}' WHERE key='schema_version'",
+                                    kSchemaVersion + 1))
+                    .ok());
   }
   auto db = Database::open(path);
   ASSERT_FALSE(db.ok());
   EXPECT_FALSE(db.error().transient);
   EXPECT_NE(db.error().message.find(path), std::string::npos) << db.error().message;
-  EXPECT_NE(db.error().message.find("schema version 10, newer than this build's 9"),
+  EXPECT_NE(db.error().message.find(fmt::format("schema version {}, newer than this build's {}",
+                                                kSchemaVersion + 1, kSchemaVersion)),
             std::string::npos)
       << db.error().message;
 
   auto ro = Database::open_read_only(path);
   ASSERT_FALSE(ro.ok());
-  EXPECT_NE(ro.error().message.find("schema version 10"), std::string::npos) << ro.error().message;
+  EXPECT_NE(ro.error().message.find(fmt::format("schema version {}", kSchemaVersion + 1)),
+            std::string::npos)
+      << ro.error().message;
 }
 
 TEST(Database, RefusesAnotherApplicationsDatabase) {
