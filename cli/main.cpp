@@ -15,6 +15,7 @@
 #include <sstream>
 
 #include "analysis.h"
+#include "samples.h"
 #include "control.h"
 #include "export.h"
 #include "gyrotherm/daemon/config.h"
@@ -663,6 +664,16 @@ int main(int argc, char** argv) {
                     "station config (limits, table, safe set point); default limits without");
   check->add_flag("--json", json);
 
+  auto* samples = app.add_subcommand("samples", "a run's exact samples as CSV (docs/storage.md)");
+  gyrotherm::cli::SamplesArgs samples_args;
+  double samples_from_s = 0, samples_to_s = 0;
+  samples->add_option("--db", samples_args.db_path, "station database")->required();
+  samples->add_option("--run", samples_args.run_id, "run id")->required();
+  samples->add_option("--dut", samples_args.dut_serial, "DUT serial (default: the run's first)");
+  samples->add_option("--channel", samples_args.channel, "one channel (default: all)");
+  auto* samples_from = samples->add_option("--from", samples_from_s, "from, station s (inclusive)");
+  auto* samples_to = samples->add_option("--to", samples_to_s, "to, station s (exclusive)");
+
   // status, queue add|list|remove|move, pause, resume, abort, stop, runs, run
   gyrotherm::cli::ControlCommands control(app);
   // stats, allan, fit, compare, start-model
@@ -686,6 +697,11 @@ int main(int argc, char** argv) {
     if (*devices) return cmd_devices(config_path, json);
     if (*set_point) return cmd_chamber_setpoint(config_path, setpoint_c);
     if (*check) return cmd_schedule_check(config_path, schedule_path, json);
+    if (*samples) {
+      if (*samples_from) samples_args.from_s = samples_from_s;
+      if (*samples_to) samples_args.to_s = samples_to_s;
+      return gyrotherm::cli::cmd_samples(samples_args, std::cout);
+    }
     if (*table) {
       const char* action = *table_status     ? "status"
                            : *table_rate     ? "rate"

@@ -452,10 +452,11 @@ TEST(Allan, MigratesASchema3DatabaseKeepingItsRows) {
     return query_int(db.handle(), std::string("SELECT count(*) FROM ") + table);
   };
   for (const char* table :
-       {"runs", "segments", "acquisition_windows", "events", "segment_stats", "gyro_samples",
-        "gyro_rollup", "temperature_samples", "fits", "fit_runs"}) {
+       {"runs", "segments", "acquisition_windows", "events", "segment_stats",
+        "temperature_samples", "fits", "fit_runs"}) {
     EXPECT_EQ(count(table), 1) << table;
   }
+  EXPECT_EQ(*db.count_gyro_samples(1), 1);  // moved into chunks (v9)
   EXPECT_EQ(count("allan"), 0);
   EXPECT_EQ(count("exports"), 0);
   EXPECT_EQ(count("export_runs"), 0);
