@@ -659,7 +659,17 @@ Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
   auto stats = db.segment_stats(run_id);
   if (!stats) return stats.error();
   for (auto& row : *stats) {
-    if (result_of_stream(row.dut_serial, row.axis, stream)) r.table1.push_back(std::move(row));
+    if (!result_of_stream(row.dut_serial, row.axis, stream)) continue;
+    // A row stored before DUTs (axis "") and one of a later analysis naming
+    // the axis are the same soak: the named one is kept.
+    auto same = std::find_if(r.table1.begin(), r.table1.end(), [&](const auto& o) {
+      return o.segment_id == row.segment_id;
+    });
+    if (same == r.table1.end()) {
+      r.table1.push_back(std::move(row));
+    } else if (same->axis.empty()) {
+      *same = std::move(row);
+    }
   }
   if (r.table1.empty() && !soaks->empty()) {
     r.table1_stored = false;
@@ -678,8 +688,14 @@ Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
   auto allan = db.allan(run_id);
   if (!allan) return allan.error();
   for (auto& a : *allan) {
-    if (a.taus == taus && result_of_stream(a.dut_serial, a.axis, stream)) {
+    if (a.taus != taus || !result_of_stream(a.dut_serial, a.axis, stream)) continue;
+    auto same = std::find_if(r.allan.begin(), r.allan.end(), [&](const auto& o) {
+      return o.segment_index == a.segment_index;
+    });
+    if (same == r.allan.end()) {
       r.allan.push_back(std::move(a));
+    } else if (same->axis.empty()) {
+      *same = std::move(a);
     }
   }
   if (r.allan.empty() && !soaks->empty()) {
