@@ -258,8 +258,8 @@ TEST_F(DutAnalysisTest, ExportHasFilesPerDutAxisAndHeadersNameTheGyro) {
   EXPECT_NE(json.find("\"gyro_serial\": \"SN-A\""), std::string::npos);
   EXPECT_NE(json.find("\"operator\": \"alice\""), std::string::npos);
   const std::string report = read_file(root / run_dir / "report-SN-A-z.html");
-  for (const char* text : {"SN SN-A (KVH 1750), axis z", "alice", "two IMUs, first campaign",
-                           "qual, lot-7"}) {
+  for (const char* text :
+       {"SN SN-A (KVH 1750), axis z", "alice", "two IMUs, first campaign", "qual, lot-7"}) {
     EXPECT_NE(report.find(text), std::string::npos) << text;
   }
   const std::string index = read_file(root / "index.html");

@@ -487,7 +487,8 @@ Result<std::optional<ReportScaleFactor>> collect_scale_factor(storage::Database&
   if (!points) return points.error();
   auto temperature = scale_factor_temperature_fit_of(db, run_id, stream);
   if (!temperature) return temperature.error();
-  std::erase_if(*fits, [&](const auto& f) { return !result_of_stream(f.dut_serial, f.axis, stream); });
+  std::erase_if(*fits,
+                [&](const auto& f) { return !result_of_stream(f.dut_serial, f.axis, stream); });
   std::erase_if(*points,
                 [&](const auto& p) { return !result_of_stream(p.dut_serial, p.axis, stream); });
   if (fits->empty() && points->empty() && !temperature->has_value()) {
@@ -662,9 +663,8 @@ Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
     if (!result_of_stream(row.dut_serial, row.axis, stream)) continue;
     // A row stored before DUTs (axis "") and one of a later analysis naming
     // the axis are the same soak: the named one is kept.
-    auto same = std::find_if(r.table1.begin(), r.table1.end(), [&](const auto& o) {
-      return o.segment_id == row.segment_id;
-    });
+    auto same = std::find_if(r.table1.begin(), r.table1.end(),
+                             [&](const auto& o) { return o.segment_id == row.segment_id; });
     if (same == r.table1.end()) {
       r.table1.push_back(std::move(row));
     } else if (same->axis.empty()) {
@@ -689,9 +689,8 @@ Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
   if (!allan) return allan.error();
   for (auto& a : *allan) {
     if (a.taus != taus || !result_of_stream(a.dut_serial, a.axis, stream)) continue;
-    auto same = std::find_if(r.allan.begin(), r.allan.end(), [&](const auto& o) {
-      return o.segment_index == a.segment_index;
-    });
+    auto same = std::find_if(r.allan.begin(), r.allan.end(),
+                             [&](const auto& o) { return o.segment_index == a.segment_index; });
     if (same == r.allan.end()) {
       r.allan.push_back(std::move(a));
     } else if (same->axis.empty()) {
@@ -864,7 +863,8 @@ std::vector<CampaignReport> collect_campaign_reports(std::vector<RunReport> runs
     const std::pair<std::string, std::string> key{r.stream.dut_serial, r.stream.axis};
     auto it = std::find_if(keys.begin(), keys.end(), [&](const auto& k) {
       return k.first == key.first &&
-             (k.second == key.second || (key.first.empty() && (k.second.empty() || key.second.empty())));
+             (k.second == key.second ||
+              (key.first.empty() && (k.second.empty() || key.second.empty())));
     });
     if (it == keys.end()) {
       keys.push_back(key);

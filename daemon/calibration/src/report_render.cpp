@@ -444,9 +444,10 @@ std::string sf_temperature_html(const ReportScaleFactor& sf, const std::string& 
   }
   h += "</tbody></table>\n<p class=\"note\">The temperature coefficients are dK/dT / K and "
        "dB/dT at T̄ (k₁ / k₀ × 10⁶ and b₁). Coefficients for the gyro's computer: " +
-       fmt::format("<a href=\"scale-factor{0}.json\">scale-factor{0}.json</a>, <a "
-                   "href=\"scale-factor{0}.h\">scale-factor{0}.h</a> (C99).</p>\n",
-                   escape(sfx));
+       fmt::format(
+           "<a href=\"scale-factor{0}.json\">scale-factor{0}.json</a>, <a "
+           "href=\"scale-factor{0}.h\">scale-factor{0}.h</a> (C99).</p>\n",
+           escape(sfx));
   return h;
 }
 
@@ -594,8 +595,8 @@ std::string sf_campaign_html(const CampaignReport& c) {
         "<td><a href=\"run-{:04}/report{}.html#scale-factor\">run-{:04}</a></td></tr>\n",
         r.run.id, sf.fits.size(), t.order, num_cell(t.t_centre_c, 2),
         num_cell(sf.k_coeffs.empty() ? std::nan("") : sf.k_coeffs.front(), 9),
-        num_cell(t.k_ppm_per_c, 3), num_cell(t.bias_dph_per_c, 4), r.run.id,
-        escape(r.file_suffix), r.run.id);
+        num_cell(t.k_ppm_per_c, 3), num_cell(t.bias_dph_per_c, 4), r.run.id, escape(r.file_suffix),
+        r.run.id);
   }
   std::string h = sf_fits_html(runs, true);
   if (!coefficients.empty()) {
@@ -719,12 +720,11 @@ std::string tags_text(const std::vector<std::string>& tags) {
 // Who ran the run, why, which DUT: the top of a run's page.
 void add_metadata_provenance(Page& page, const RunReport& r) {
   const storage::RunMetadata& m = r.run.metadata;
-  page.provenance.insert(
-      page.provenance.begin() + std::min<std::size_t>(2, page.provenance.size()),
-      {{"DUT", escape(dut_label(r.stream))},
-       {"Operator", escape(m.operator_name.empty() ? kDash : m.operator_name)},
-       {"Comment", escape(m.comment.empty() ? kDash : m.comment)},
-       {"Tags", escape(tags_text(m.tags))}});
+  page.provenance.insert(page.provenance.begin() + std::min<std::size_t>(2, page.provenance.size()),
+                         {{"DUT", escape(dut_label(r.stream))},
+                          {"Operator", escape(m.operator_name.empty() ? kDash : m.operator_name)},
+                          {"Comment", escape(m.comment.empty() ? kDash : m.comment)},
+                          {"Tags", escape(tags_text(m.tags))}});
 }
 
 std::string figures_html(const std::vector<Plot>& plots, bool campaign) {
@@ -1067,11 +1067,10 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
                    escape(r.run.ended_utc.empty() ? kDash : r.run.ended_utc))},
       {"Mounting",
        r.stream.orientation
-           ? fmt::format("latitude {:g}°, axis {} {}; Earth rate removed {:.4f} °/h",
-                         r.run.latitude_deg, escape(r.stream.axis),
-                         analysis::to_string(*r.stream.orientation),
-                         analysis::earth_rate_component_dph(r.run.latitude_deg,
-                                                            *r.stream.orientation))
+           ? fmt::format(
+                 "latitude {:g}°, axis {} {}; Earth rate removed {:.4f} °/h", r.run.latitude_deg,
+                 escape(r.stream.axis), analysis::to_string(*r.stream.orientation),
+                 analysis::earth_rate_component_dph(r.run.latitude_deg, *r.stream.orientation))
            : fmt::format("latitude {:g}°, axis {}; Earth rate removed {:.4f} °/h",
                          r.run.latitude_deg, escape(r.run.orientation), s.table1.earth_rate_dph)},
       {"Analysis",
@@ -1116,8 +1115,7 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
 
   std::string fits;
   for (const auto& rf : r.fits) {
-    const std::string stem =
-        fmt::format("drift-fit-{}{}", analysis::to_string(rf.fit.form), sfx);
+    const std::string stem = fmt::format("drift-fit-{}{}", analysis::to_string(rf.fit.form), sfx);
     fits += fit_html(rf, stem);
     auto info = export_info(r.station_name, rf, when);
     add_stream_info(info, r);
@@ -1284,9 +1282,9 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
     const std::string stem = "drift-fit" + sfx;
     add_section(page, "fit", "Drift model fitted on all runs", fit_html(*c.joint_fit, stem));
     files.push_back({stem + ".json", analysis::drift_fit_json(c.joint_fit->fit, info)});
-    files.push_back({stem + ".h", analysis::drift_fit_c_header(
-                                      c.joint_fit->fit, info,
-                                      "gyrotherm_drift" + c_identifier_part(sfx))});
+    files.push_back(
+        {stem + ".h", analysis::drift_fit_c_header(c.joint_fit->fit, info,
+                                                   "gyrotherm_drift" + c_identifier_part(sfx))});
     listed.emplace_back(stem + ".json", "joint fit coefficients (JSON)");
     listed.emplace_back(stem + ".h", "joint fit coefficients (C99 header)");
   } else {
@@ -1327,9 +1325,9 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
     info.l0_window_s = m.l0_window_s;
     add_campaign_info(info, c);
     files.push_back({name("start-model", "json"), analysis::start_model_json(m, info)});
-    files.push_back({name("start-model", "h"),
-                     analysis::start_model_c_header(m, info,
-                                                    "gyrotherm_start" + c_identifier_part(sfx))});
+    files.push_back(
+        {name("start-model", "h"),
+         analysis::start_model_c_header(m, info, "gyrotherm_start" + c_identifier_part(sfx))});
     listed.emplace_back(name("start-model", "json"), "start-temperature model (JSON)");
     listed.emplace_back(name("start-model", "h"), "start-temperature model (C99 header)");
   } else {
@@ -1363,8 +1361,8 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
   }
   add_section(page, "files", "Files", files_html(listed));
   page.plots = c.plots;
-  files.push_back({sfx.empty() ? std::string("index.html") : name("summary", "html"),
-                   render_page(page, when)});
+  files.push_back(
+      {sfx.empty() ? std::string("index.html") : name("summary", "html"), render_page(page, when)});
   return files;
 }
 
@@ -1378,8 +1376,8 @@ ReportFile render_run_index(const std::vector<RunReport>& reports, const ReportO
   page.provenance = {
       {"Station",
        escape(reports.front().station_name.empty() ? kDash : reports.front().station_name)},
-      {"Run", fmt::format("{} — schedule “{}”, {}", run.id, escape(run.schedule_name),
-                          escape(run.state))},
+      {"Run",
+       fmt::format("{} — schedule “{}”, {}", run.id, escape(run.schedule_name), escape(run.state))},
       {"Operator", escape(m.operator_name.empty() ? kDash : m.operator_name)},
       {"Comment", escape(m.comment.empty() ? kDash : m.comment)},
       {"Tags", escape(tags_text(m.tags))},
@@ -1421,13 +1419,13 @@ ReportFile render_summary_index(const std::vector<CampaignReport>& groups,
   for (const auto& g : groups) {
     for (const auto& r : g.runs) run_ids.insert(r.run.id);
   }
-  page.title = fmt::format("Calibration summary — {} run{}, {} DUT ax{}", run_ids.size(),
-                           run_ids.size() == 1 ? "" : "s", groups.size(),
-                           groups.size() == 1 ? "is" : "es");
+  page.title =
+      fmt::format("Calibration summary — {} run{}, {} DUT ax{}", run_ids.size(),
+                  run_ids.size() == 1 ? "" : "s", groups.size(), groups.size() == 1 ? "is" : "es");
   page.provenance = {
-      {"Station", escape(groups.empty() || groups.front().station_name.empty()
-                             ? kDash
-                             : groups.front().station_name)},
+      {"Station",
+       escape(groups.empty() || groups.front().station_name.empty() ? kDash
+                                                                    : groups.front().station_name)},
       {"Export", escape(options.export_label.empty() ? "on demand" : options.export_label)},
       {"Generated", escape(when)},
   };
@@ -1520,7 +1518,8 @@ std::vector<ReportFile> render_export_files(const std::vector<std::vector<RunRep
     files.insert(files.end(), std::make_move_iterator(campaign_files.begin()),
                  std::make_move_iterator(campaign_files.end()));
     for (const auto& p : c.problems) {
-      problems.push_back(c.file_suffix.empty() ? p : fmt::format("{}: {}", c.file_suffix.substr(1), p));
+      problems.push_back(c.file_suffix.empty() ? p
+                                               : fmt::format("{}: {}", c.file_suffix.substr(1), p));
     }
   }
   if (groups.size() > 1 || (groups.size() == 1 && !groups.front().file_suffix.empty())) {

@@ -8,8 +8,8 @@
 #include <cctype>
 #include <cmath>
 #include <limits>
-#include <span>
 #include <nlohmann/json.hpp>
+#include <span>
 
 #include "gyrotherm/analysis/scale_factor.h"
 #include "gyrotherm/core/clock.h"
@@ -520,8 +520,7 @@ Result<std::vector<AnalysedAxis>> analysed_axes(storage::Database& db, int64_t r
     }
     const StoredDutConfig cfg = read_dut_config(d.config_json, primary);
     const std::string table_axis = cfg.table_axis.empty() ? primary : cfg.table_axis;
-    if (!table_axis.empty() &&
-        std::find(axes.begin(), axes.end(), table_axis) == axes.end()) {
+    if (!table_axis.empty() && std::find(axes.begin(), axes.end(), table_axis) == axes.end()) {
       axes.push_back(table_axis);  // the scale factor needs it analysed
     }
     for (const std::string& a : axes) {
@@ -678,9 +677,8 @@ Result<std::vector<std::pair<double, double>>> spinning_spans(storage::Database&
   std::vector<std::pair<double, double>> out;
   for (const auto& seg : *segments) {
     if (seg.table_mode != "rate") continue;
-    out.emplace_back(seg.t_start_s,
-                     seg.t_end_s ? *seg.t_end_s + kSpinDownMarginS
-                                 : std::numeric_limits<double>::infinity());
+    out.emplace_back(seg.t_start_s, seg.t_end_s ? *seg.t_end_s + kSpinDownMarginS
+                                                : std::numeric_limits<double>::infinity());
   }
   return out;
 }
@@ -860,8 +858,8 @@ Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow&
   auto adev = analysis::allan_deviation(samples->t_s, samples->rate_dph, {.taus = taus});
   if (!adev) {
     return Error::Permanent(fmt::format("{} window [{:.1f}, {:.1f}) s: Allan deviation: {}",
-                                        soak_name(soak, axis), samples->t_from_s,
-                                        samples->t_to_s, adev.error().message));
+                                        soak_name(soak, axis), samples->t_from_s, samples->t_to_s,
+                                        adev.error().message));
   }
   storage::AllanRecord rec;
   rec.run_id = soak.run_id;
