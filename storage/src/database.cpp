@@ -102,6 +102,11 @@ Status migrate(sqlite3* db, const std::string& path, const WallClock& wall) {
     if (Status s = internal::exec(db, path, m.sql); !s) {
       return Error{fmt::format("{} [{}]", s.error().message, what), s.error().transient};
     }
+    if (m.data_step) {
+      if (Status s = m.data_step(db, path, utc_iso(wall)); !s) {
+        return Error{fmt::format("{} [{}]", s.error().message, what), s.error().transient};
+      }
+    }
     auto st = Stmt::prepare(db, path,
                             "INSERT INTO meta(key, value) VALUES('schema_version', ?) "
                             "ON CONFLICT(key) DO UPDATE SET value = excluded.value");
@@ -550,32 +555,6 @@ Result<std::vector<SegmentStatsRecord>> Database::segment_stats(std::optional<in
   return out;
 }
 
-Result<std::vector<GyroSample>> Database::gyro_samples(int64_t run_id, double t_from_s,
-                                                       double t_to_s) {
-  auto st = Stmt::prepare(db_, path_,
-                          "SELECT t_s, rate_dph, seq, status, temp_c FROM gyro_samples "
-                          "WHERE run_id = ? AND t_s >= ? AND t_s < ? ORDER BY t_s");
-  if (!st) return st.error();
-  st->bind(1, run_id);
-  st->bind(2, t_from_s);
-  st->bind(3, t_to_s);
-  std::vector<GyroSample> out;
-  int rc;
-  while ((rc = st->step()) == SQLITE_ROW) {
-    GyroSample g;
-    g.t_s = st->column_double(0);
-    g.rate_dph = st->column_double(1);
-    g.seq = static_cast<uint8_t>(st->column_int64(2));
-    g.status = static_cast<uint8_t>(st->column_int64(3));
-    g.temp_c = static_cast<int16_t>(st->column_int64(4));
-    out.push_back(g);
-  }
-  if (rc != SQLITE_DONE) {
-    return sqlite_error(db_, path_, fmt::format("reading gyro samples of run {}", run_id));
-  }
-  return out;
-}
-
 Result<std::vector<TemperatureSample>> Database::temperature_samples(int64_t run_id,
                                                                      double t_from_s,
                                                                      double t_to_s) {
@@ -602,16 +581,6 @@ Result<std::vector<TemperatureSample>> Database::temperature_samples(int64_t run
     return sqlite_error(db_, path_, fmt::format("reading temperature samples of run {}", run_id));
   }
   return out;
-}
-
-Result<int64_t> Database::count_gyro_samples(int64_t run_id) {
-  auto st = Stmt::prepare(db_, path_, "SELECT count(*) FROM gyro_samples WHERE run_id = ?");
-  if (!st) return st.error();
-  st->bind(1, run_id);
-  if (st->step() != SQLITE_ROW) {
-    return sqlite_error(db_, path_, fmt::format("counting gyro samples of run {}", run_id));
-  }
-  return st->column_int64(0);
 }
 
 namespace {

@@ -1,5 +1,6 @@
 #include "migrations.h"
 
+#include "chunks.h"
 #include "gyrotherm/storage/database.h"
 
 namespace gyrotherm::storage::internal {
@@ -480,9 +481,55 @@ CREATE INDEX scale_factor_temperature_fits_by_dut
   ON scale_factor_temperature_fits(dut_serial, run_id);
 )sql";
 
-// v9: chunked sample storage.
+// v9: chunked sample storage (docs/storage.md "sample_chunks"). Samples of
+// every DUT channel are stored per channel in chunks of up to 4096 samples
+// on a regular clock (implicit time stamps), values as sent in the
+// narrowest exact encoding. The data step (chunks.cpp) moves each run's
+// gyro_samples into chunks of the unnamed gyro (serial '') and drops
+// gyro_samples and gyro_rollup.
 constexpr const char* kSchemaV9 = R"sql(
-SELECT 1;  -- (contract placeholder: the chunked samples migration goes here)
+-- The DUT registry is v8's (records); IF NOT EXISTS keeps v9 independent
+-- of its exact form while both are developed (the same DDL).
+CREATE TABLE IF NOT EXISTS duts(id INTEGER PRIMARY KEY, serial TEXT NOT NULL UNIQUE,
+  model TEXT NOT NULL DEFAULT '', first_seen_utc TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS run_duts(run_id INTEGER NOT NULL REFERENCES runs(id),
+  dut_id INTEGER NOT NULL REFERENCES duts(id), position INTEGER NOT NULL,
+  primary_axis TEXT NOT NULL, axes_json TEXT NOT NULL DEFAULT '[]', rate_hz REAL,
+  seq_modulo INTEGER NOT NULL DEFAULT 0, config_json TEXT NOT NULL DEFAULT '{}',
+  PRIMARY KEY(run_id, dut_id));
+CREATE TABLE IF NOT EXISTS channels(id INTEGER PRIMARY KEY, run_id INTEGER NOT NULL,
+  dut_id INTEGER NOT NULL, idx INTEGER NOT NULL, name TEXT NOT NULL, unit TEXT NOT NULL,
+  kind TEXT NOT NULL, axis TEXT NOT NULL DEFAULT '', scale REAL NOT NULL,
+  UNIQUE(run_id, dut_id, name));
+
+CREATE TABLE sample_chunks(
+  id INTEGER PRIMARY KEY,
+  channel_id INTEGER NOT NULL,  -- channels.id (not enforced, for insert speed)
+  t0_s REAL NOT NULL,           -- first sample, station s since run start
+  period_s REAL NOT NULL,       -- sample i is at t0_s + i * period_s, station s (0 when n = 1)
+  n INTEGER NOT NULL,           -- samples in the chunk
+  seq0 INTEGER NOT NULL,        -- frame counter of the first sample; sample i: (seq0 + i) mod run_duts.seq_modulo (0 when the frames carry none)
+  encoding TEXT NOT NULL,       -- how data holds the raw values as sent: u8, i8, u16, i16, u32, i32, f32, f64 (little-endian)
+  vn INTEGER NOT NULL,          -- samples with a finite value
+  vmin REAL,                    -- smallest physical value (raw * channels.scale) of those; NULL when vn = 0
+  vmax REAL,                    -- largest
+  vsum REAL,                    -- sum (mean = vsum / vn)
+  data BLOB NOT NULL            -- n values of the encoding; NaN = flagged invalid
+);
+CREATE INDEX sample_chunks_by_channel ON sample_chunks(channel_id, t0_s);
+
+CREATE TABLE channel_rollup(
+  channel_id INTEGER NOT NULL,  -- channels.id
+  level INTEGER NOT NULL,       -- block length 0.1 * 10^level s: 1, 10, 100, 1000 s (levels 1..4)
+  block INTEGER NOT NULL,       -- floor(t_s / block length)
+  n INTEGER NOT NULL,           -- samples in the block
+  t_sum_s REAL NOT NULL,        -- sum of their t_s (mean time = t_sum_s / n)
+  v_n INTEGER NOT NULL,         -- samples with a finite value
+  v_sum REAL,                   -- sum of the physical values (mean = v_sum / v_n)
+  v_min REAL,
+  v_max REAL,
+  PRIMARY KEY(channel_id, level, block)
+) WITHOUT ROWID;
 )sql";
 
 constexpr Migration kMigrations[] = {
@@ -494,7 +541,7 @@ constexpr Migration kMigrations[] = {
     {6, "runs.config_json is JSON, old TOML in runs.config_toml", kSchemaV6},
     {7, "rate table samples and segments, scale-factor points and fits", kSchemaV7},
     {8, "devices under test, run metadata, results per DUT and axis", kSchemaV8},
-    {9, "chunked sample storage", kSchemaV9},
+    {9, "chunked sample storage", kSchemaV9, migrate_gyro_samples_to_chunks},
 };
 
 static_assert(sizeof(kMigrations) / sizeof(kMigrations[0]) == kSchemaVersion,

@@ -4,12 +4,13 @@
 // Temperatures and the rate table (about one reading a control tick) are
 // bucketed from their rows.
 //
-// Decimation reads the gyro_rollup blocks written with the samples, so the
-// cost depends on max_points, not on the run's length: with w the bucket
-// width asked for, the coarsest level whose block fits in w is read (at most
-// 10 blocks per bucket, since levels are a decade apart) and buckets are made
-// of whole blocks, which keeps min, max and mean exact. Only a range with few
-// raw rows is bucketed from the samples themselves.
+// Decimation reads the channel_rollup blocks written with the chunks, so
+// the cost depends on max_points, not on the run's length: with w the
+// bucket width asked for, the coarsest level whose block fits in w is read
+// (at most 10 blocks per bucket, since levels are a decade apart) and
+// buckets are made of whole blocks, which keeps min, max and mean exact.
+// Only a range with few raw samples is bucketed from the samples
+// themselves (decoded from their chunks).
 #include <fmt/format.h>
 #include <sqlite3.h>
 
@@ -18,6 +19,7 @@
 
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/storage/database.h"
+#include "chunks.h"
 #include "sqlite_util.h"
 
 namespace gyrotherm::storage {
@@ -29,8 +31,8 @@ using internal::Transaction;
 namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-// Raw rows a decimated read may scan before it turns to the rollup.
-constexpr int64_t kRawRowBudget = 100'000;
+// Raw samples a decimated read may decode before it turns to the rollup.
+constexpr int64_t kRawRowBudget = 1'000'000;  // ~250 chunks, a few ms to decode
 // Most rollup rows summed to bound the raw rows in range.
 constexpr int64_t kCountBlocks = 1000;
 
@@ -57,9 +59,35 @@ int read_gyro_buckets(Stmt& st, DecimatedSamples::Gyro& g) {
 
 Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, double from_s,
                                                      std::optional<double> to_s, int max_points) {
+  return decimated_samples(run_id, StreamKey{}, "", from_s, to_s, max_points);
+}
+
+Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, const StreamKey& dut,
+                                                     const std::string& channel, double from_s,
+                                                     std::optional<double> to_s, int max_points) {
   DecimatedSamples out;
   if (max_points < 1) {
     return Error::Permanent(fmt::format("decimated samples: max_points {} < 1", max_points));
+  }
+  auto stream = internal::resolve_channels(db_, path_, run_id, dut.dut_serial, dut.axis);
+  if (!stream) return stream.error();
+  int64_t channel_id = 0;  // 0: the run has no DUT (no gyro points)
+  if (*stream) {
+    const internal::StreamChannels& sc = **stream;
+    const internal::ChannelInfo* ch = channel.empty() ? &sc.channels[sc.rate] : nullptr;
+    std::vector<std::string> names;
+    for (const internal::ChannelInfo& c : sc.channels) {
+      if (!ch && c.name == channel) ch = &c;
+      names.push_back(c.name);
+    }
+    if (!ch) {
+      return Error::Permanent(fmt::format("DUT '{}' of run {} has no channel '{}' (its channels: {})",
+                                          sc.serial, run_id, channel, fmt::join(names, ", ")));
+    }
+    out.dut_serial = sc.serial;
+    out.channel = ch->name;
+    out.unit = ch->unit;
+    channel_id = ch->id;
   }
   if (!to_s) {
     auto last = last_sample_t_s(run_id);
@@ -74,46 +102,49 @@ Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, double from
   const double range_s = *to_s - from_s;
   const double want_s = range_s / max_points;
   const std::string what = fmt::format("reading samples of run {}", run_id);
+  constexpr int kFirst = internal::kChannelRollupFirstLevel;
+  constexpr int kTop = internal::kChannelRollupLastLevel;
+  const auto& block_len_s = internal::kChannelRollupBlockS;
 
-  // Upper bound of the raw rows in range, from the finest rollup level that
-  // spans it in at most kCountBlocks blocks: a short zoom into a long run is
-  // counted in 0.1 s blocks, not 1000 s ones, so it can still be read raw.
-  constexpr int kTop = kRollupLevels - 1;
+  // Upper bound of the raw samples in range, from the finest rollup level
+  // that spans it in at most kCountBlocks blocks: a short zoom into a long
+  // run is counted in 1 s blocks, not 1000 s ones, so it can still be read
+  // raw.
   int count_level = kTop;
-  for (int l = 0; l < kTop; ++l) {
-    if (std::floor(*to_s / kRollupBlockS[l]) - std::floor(from_s / kRollupBlockS[l]) <
-        kCountBlocks) {
+  for (int l = kFirst; l < kTop; ++l) {
+    if (std::floor(*to_s / block_len_s[l]) - std::floor(from_s / block_len_s[l]) < kCountBlocks) {
       count_level = l;
       break;
     }
   }
   auto count = Stmt::prepare(db_, path_,
-                             "SELECT coalesce(sum(n), 0) FROM gyro_rollup WHERE run_id = ? AND "
-                             "level = ? AND block BETWEEN ? AND ?");
+                             "SELECT coalesce(sum(n), 0) FROM channel_rollup WHERE channel_id = ? "
+                             "AND level = ? AND block BETWEEN ? AND ?");
   if (!count) return count.error();
-  count->bind(1, run_id);
+  count->bind(1, channel_id);
   count->bind(2, count_level);
-  count->bind(3, static_cast<int64_t>(std::floor(from_s / kRollupBlockS[count_level])));
-  count->bind(4, static_cast<int64_t>(std::floor(*to_s / kRollupBlockS[count_level])));
+  count->bind(3, static_cast<int64_t>(std::floor(from_s / block_len_s[count_level])));
+  count->bind(4, static_cast<int64_t>(std::floor(*to_s / block_len_s[count_level])));
   if (count->step() != SQLITE_ROW) return sqlite_error(db_, path_, what);
   const int64_t raw_rows = count->column_int64(0);
 
   int level = -1;  // -1: raw samples
   if (raw_rows > max_points) {
-    for (int l = kTop; l >= 0; --l) {
-      if (kRollupBlockS[l] <= want_s) {
+    for (int l = kTop; l >= kFirst; --l) {
+      if (block_len_s[l] <= want_s) {
         level = l;
         break;
       }
     }
-    // Buckets narrower than the finest block: raw rows if few enough, else
-    // the finest blocks (fewer points than asked for).
-    if (level < 0 && raw_rows > kRawRowBudget) level = 0;
+    // Buckets narrower than the finest block: raw samples (decoded from
+    // their chunks) if few enough, else the finest blocks (fewer points
+    // than asked for).
+    if (level < 0 && raw_rows > kRawRowBudget) level = kFirst;
   }
 
   auto& g = out.gyro;
   if (level >= 0) {
-    const double block_s = kRollupBlockS[level];
+    const double block_s = block_len_s[level];
     const int64_t first = static_cast<int64_t>(std::floor(from_s / block_s));
     const int64_t last = static_cast<int64_t>(std::floor(*to_s / block_s));
     const int64_t per_bucket =
@@ -124,11 +155,11 @@ Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, double from
     out.to_s = static_cast<double>(last + 1) * block_s;
     auto st = Stmt::prepare(
         db_, path_,
-        "SELECT min((block - ?3) / ?5, ?6) AS b, sum(n), sum(t_sum_s), sum(rate_n), "
-        "sum(rate_sum_dph), min(rate_min_dph), max(rate_max_dph) FROM gyro_rollup "
-        "WHERE run_id = ?1 AND level = ?2 AND block BETWEEN ?3 AND ?4 GROUP BY b ORDER BY b");
+        "SELECT min((block - ?3) / ?5, ?6) AS b, sum(n), sum(t_sum_s), sum(v_n), "
+        "sum(v_sum), min(v_min), max(v_max) FROM channel_rollup "
+        "WHERE channel_id = ?1 AND level = ?2 AND block BETWEEN ?3 AND ?4 GROUP BY b ORDER BY b");
     if (!st) return st.error();
-    st->bind(1, run_id);
+    st->bind(1, channel_id);
     st->bind(2, level);
     st->bind(3, first);
     st->bind(4, last);
@@ -137,40 +168,53 @@ Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, double from
     // max_points buckets: those go into the last bucket, as in the raw case.
     st->bind(6, static_cast<int64_t>(max_points - 1));
     if (read_gyro_buckets(*st, g) != SQLITE_DONE) return sqlite_error(db_, path_, what);
-  } else if (raw_rows <= max_points) {
-    // Few enough: the samples as recorded.
-    auto st = Stmt::prepare(db_, path_,
-                            "SELECT t_s, rate_dph FROM gyro_samples WHERE run_id = ? AND t_s >= ? "
-                            "AND t_s <= ? ORDER BY t_s LIMIT ?");
-    if (!st) return st.error();
-    st->bind(1, run_id);
-    st->bind(2, from_s);
-    st->bind(3, *to_s);
-    st->bind(4, static_cast<int64_t>(max_points));
-    int rc;
-    while ((rc = st->step()) == SQLITE_ROW) {
-      const double rate = st->column_double(1);
-      g.t_s.push_back(st->column_double(0));
-      g.n.push_back(1);
-      g.mean_dph.push_back(rate);
-      g.min_dph.push_back(rate);
-      g.max_dph.push_back(rate);
+  } else if (channel_id != 0) {
+    // Few enough: the samples as recorded; else exact buckets of want_s
+    // from the decoded samples. [from_s, to_s] is closed.
+    const double end_s = std::nextafter(*to_s, std::numeric_limits<double>::infinity());
+    const bool as_recorded = raw_rows <= max_points;
+    if (!as_recorded) out.bucket_s = want_s;
+    struct Bucket {
+      int64_t n = 0, v_n = 0;
+      double t_sum_s = 0, v_sum = 0, v_min = 0, v_max = 0;
+    };
+    std::vector<Bucket> buckets(as_recorded ? 0 : static_cast<std::size_t>(max_points));
+    Status s = for_each_channel_block(
+        channel_id, from_s, end_s,
+        [&](std::span<const double> t, std::span<const double> v, std::span<const uint32_t>) {
+          for (std::size_t i = 0; i < t.size(); ++i) {
+            if (as_recorded) {
+              if (g.t_s.size() >= static_cast<std::size_t>(max_points)) return false;
+              g.t_s.push_back(t[i]);
+              g.n.push_back(1);
+              g.mean_dph.push_back(v[i]);
+              g.min_dph.push_back(v[i]);
+              g.max_dph.push_back(v[i]);
+              continue;
+            }
+            const auto k = std::min<int64_t>(static_cast<int64_t>((t[i] - from_s) / want_s),
+                                             max_points - 1);
+            Bucket& b = buckets[static_cast<std::size_t>(k)];
+            ++b.n;
+            b.t_sum_s += t[i];
+            if (std::isfinite(v[i])) {
+              b.v_min = b.v_n == 0 ? v[i] : std::min(b.v_min, v[i]);
+              b.v_max = b.v_n == 0 ? v[i] : std::max(b.v_max, v[i]);
+              ++b.v_n;
+              b.v_sum += v[i];
+            }
+          }
+          return true;
+        });
+    if (!s) return s.error();
+    for (const Bucket& b : buckets) {
+      if (b.n == 0) continue;
+      g.t_s.push_back(b.t_sum_s / static_cast<double>(b.n));
+      g.n.push_back(b.n);
+      g.mean_dph.push_back(mean_or_nan(b.v_sum, b.v_n));
+      g.min_dph.push_back(b.v_n > 0 ? b.v_min : kNaN);
+      g.max_dph.push_back(b.v_n > 0 ? b.v_max : kNaN);
     }
-    if (rc != SQLITE_DONE) return sqlite_error(db_, path_, what);
-  } else {
-    out.bucket_s = want_s;
-    auto st = Stmt::prepare(
-        db_, path_,
-        "SELECT min(CAST((t_s - ?2) / ?4 AS INTEGER), ?5) AS b, count(*), sum(t_s), "
-        "count(rate_dph), sum(rate_dph), min(rate_dph), max(rate_dph) FROM gyro_samples "
-        "WHERE run_id = ?1 AND t_s >= ?2 AND t_s <= ?3 GROUP BY b ORDER BY b");
-    if (!st) return st.error();
-    st->bind(1, run_id);
-    st->bind(2, from_s);
-    st->bind(3, *to_s);
-    st->bind(4, want_s);
-    st->bind(5, static_cast<int64_t>(max_points - 1));
-    if (read_gyro_buckets(*st, g) != SQLITE_DONE) return sqlite_error(db_, path_, what);
   }
 
   // Temperatures (about one a second): bucketed from the rows, on the same

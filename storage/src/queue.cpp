@@ -77,35 +77,6 @@ Status Database::set_run_checkpoint(int64_t run_id, std::string_view resume_json
   return expect_done(*st, db_, path_, fmt::format("checkpointing run {}", run_id));
 }
 
-Result<std::optional<double>> Database::last_sample_t_s(int64_t run_id) {
-  auto st = Stmt::prepare(db_, path_,
-                          "SELECT (SELECT max(t_s) FROM gyro_samples WHERE run_id = ?1), "
-                          "(SELECT max(t_s) FROM temperature_samples WHERE run_id = ?1), "
-                          "(SELECT max(t_s) FROM table_samples WHERE run_id = ?1)");
-  if (!st) return st.error();
-  st->bind(1, run_id);
-  if (st->step() != SQLITE_ROW) {
-    return sqlite_error(db_, path_, fmt::format("reading the last sample of run {}", run_id));
-  }
-  // The largest of whichever exist (SQLite's scalar max() would be NULL when
-  // any one is).
-  std::optional<double> last;
-  for (int c : {0, 1, 2}) {
-    if (auto v = st->column_optional_double(c)) last = std::max(last.value_or(*v), *v);
-  }
-  return last;
-}
-
-Result<std::optional<double>> Database::last_gyro_sample_t_s(int64_t run_id) {
-  auto st = Stmt::prepare(db_, path_, "SELECT max(t_s) FROM gyro_samples WHERE run_id = ?1");
-  if (!st) return st.error();
-  st->bind(1, run_id);
-  if (st->step() != SQLITE_ROW) {
-    return sqlite_error(db_, path_, fmt::format("reading the last gyro sample of run {}", run_id));
-  }
-  return st->column_optional_double(0);
-}
-
 Result<QueueEntry> Database::queue_add(const std::string& schedule_name,
                                        const std::string& source_path, const std::string& toml_text,
                                        bool ignore_failures,

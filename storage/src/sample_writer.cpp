@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <exception>
 #include <limits>
@@ -10,6 +11,7 @@
 #include <optional>
 #include <system_error>
 
+#include "chunks.h"
 #include "gyrotherm/storage/database.h"
 #include "sqlite_util.h"
 
@@ -20,9 +22,13 @@ using internal::Stmt;
 
 namespace {
 
-struct GyroRow {
+// A frame waiting for its commit: of `dut` (as push_frames was given it),
+// or, when dut is nullptr, a push_gyro sample of the run's first DUT (raw:
+// rate_dph, status, temp_c).
+struct FrameRow {
   int64_t run_id;
-  GyroSample s;
+  const RunDutRecord* dut;
+  DutFrame f;
 };
 
 struct TempRow {
@@ -90,8 +96,8 @@ struct SampleWriter::Impl {
   std::string path;
   SampleWriterOptions options;
   std::function<void(double)> on_commit;
-  Stmt begin, commit, rollback, insert_gyro, insert_temp, insert_table, upsert_rollup;
-  Pending<GyroRow> batch_gyro;
+  Stmt begin, commit, rollback, insert_temp, insert_table;
+  Pending<FrameRow> batch_gyro;
   Pending<TempRow> batch_temps;
   Pending<TableRow> batch_table;
 
@@ -99,7 +105,7 @@ struct SampleWriter::Impl {
   std::condition_variable wake;  // to the writer: flush or stop requested
   std::condition_variable done;  // to flushers: a batch finished
   // Guarded by mu.
-  Pending<GyroRow> gyro;
+  Pending<FrameRow> gyro;
   Pending<TempRow> temps;
   Pending<TableRow> table;
   std::size_t inflight = 0;  // rows of the batch being committed
@@ -123,24 +129,29 @@ struct SampleWriter::Impl {
   struct Outcome {
     Status status;
     uint64_t duplicates = 0;
+    uint64_t channel_samples = 0;
+    uint64_t chunks = 0;
   };
   Outcome commit_batch();
 
-  // The batch's contribution to gyro_rollup, per (run, level, block).
-  struct RollupKey {
-    int64_t run_id;
-    int level;
-    int64_t block;
-    auto operator<=>(const RollupKey&) const = default;
+  // The chunks of each DUT of each run written to (writer thread); dropped
+  // after a failed commit (the next commit starts new chunks after what is
+  // stored).
+  struct Stream {
+    std::unique_ptr<internal::ChunkBuilder> builder;
+    // push_gyro into this DUT: where rate, status and temp_c go (-1: none).
+    int rate_idx = -1, status_idx = -1, temp_idx = -1;
+    double rate_scale = 1;
+    bool touched = false;
   };
-  struct RollupBlock {
-    int64_t n = 0, rate_n = 0;
-    double t_sum_s = 0, rate_sum_dph = 0;
-    double rate_min_dph = std::numeric_limits<double>::infinity();
-    double rate_max_dph = -std::numeric_limits<double>::infinity();
-  };
-  std::map<RollupKey, RollupBlock> rollups;
-  void add_to_rollups(const GyroRow& r);
+  std::map<std::pair<int64_t, int64_t>, Stream> streams;  // by (run, dut id)
+  std::map<int64_t, int64_t> first_dut;                   // run -> its first DUT's id
+  // The DUT records push_frames was given (guarded by mu; never erased, so
+  // FrameRow can point at them).
+  std::map<std::pair<int64_t, int64_t>, std::unique_ptr<RunDutRecord>> known_duts;
+  uint64_t chunks_before = 0;
+  Result<Stream*> stream_for(const FrameRow& r);
+  Result<int64_t> first_dut_of(int64_t run_id);
   Outcome fail_batch(std::string_view what);
 };
 
@@ -153,9 +164,6 @@ Status SampleWriter::Impl::prepare() {
       {&begin, "BEGIN IMMEDIATE"},
       {&commit, "COMMIT"},
       {&rollback, "ROLLBACK"},
-      {&insert_gyro,
-       "INSERT OR IGNORE INTO gyro_samples(run_id, t_s, seq, rate_dph, status, temp_c) "
-       "VALUES(?, ?, ?, ?, ?, ?)"},
       {&insert_temp,
        "INSERT OR IGNORE INTO temperature_samples(run_id, t_s, setpoint_c, chamber_c, top_c, "
        "side_c) VALUES(?, ?, ?, ?, ?, ?)"},
@@ -163,13 +171,6 @@ Status SampleWriter::Impl::prepare() {
        "INSERT OR IGNORE INTO table_samples(run_id, t_s, demand_mode, demand_rate_dps, "
        "demand_position_deg, rate_dps, position_deg, mode, interlock) "
        "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?)"},
-      {&upsert_rollup,
-       "INSERT INTO gyro_rollup(run_id, level, block, n, t_sum_s, rate_n, rate_sum_dph, "
-       "rate_min_dph, rate_max_dph) VALUES(?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9) "
-       "ON CONFLICT(run_id, level, block) DO UPDATE SET n = n + ?4, t_sum_s = t_sum_s + ?5, "
-       "rate_n = rate_n + ?6, rate_sum_dph = coalesce(rate_sum_dph + ?7, rate_sum_dph, ?7), "
-       "rate_min_dph = coalesce(min(rate_min_dph, ?8), rate_min_dph, ?8), "
-       "rate_max_dph = coalesce(max(rate_max_dph, ?9), rate_max_dph, ?9)"},
   };
   for (const auto& s : statements) {
     auto st = Stmt::prepare(h, path, s.sql, /*persistent=*/true);
@@ -179,34 +180,123 @@ Status SampleWriter::Impl::prepare() {
   return Status::Ok();
 }
 
+Result<int64_t> SampleWriter::Impl::first_dut_of(int64_t run_id) {
+  if (auto it = first_dut.find(run_id); it != first_dut.end()) return it->second;
+  sqlite3* h = db.handle();
+  auto st = Stmt::prepare(h, path,
+                          "SELECT dut_id FROM run_duts WHERE run_id = ? ORDER BY position LIMIT 1");
+  if (!st) return st.error();
+  st->bind(1, run_id);
+  const int rc = st->step();
+  int64_t dut_id = 0;
+  if (rc == SQLITE_ROW) {
+    dut_id = st->column_int64(0);
+  } else if (rc == SQLITE_DONE) {
+    // A run without DUT (older callers): the unnamed gyro, as the v9
+    // migration registers it, on the run's configured axis.
+    auto axis = Stmt::prepare(
+        h, path,
+        "SELECT CASE WHEN json_valid(config_json) AND json_extract(config_json, '$.gyro.axis') "
+        "IN ('x', 'y', 'z') THEN json_extract(config_json, '$.gyro.axis') ELSE 'z' END "
+        "FROM runs WHERE id = ?");
+    if (!axis) return axis.error();
+    axis->bind(1, run_id);
+    const std::string a = axis->step() == SQLITE_ROW ? axis->column_text(0) : "z";
+    auto id = internal::register_unnamed_gyro(h, path, run_id, a, db.utc_now());
+    if (!id) return id.error();
+    dut_id = *id;
+  } else {
+    return sqlite_error(h, path, fmt::format("reading the DUTs of run {}", run_id));
+  }
+  first_dut[run_id] = dut_id;
+  return dut_id;
+}
+
+Result<SampleWriter::Impl::Stream*> SampleWriter::Impl::stream_for(const FrameRow& r) {
+  int64_t dut_id = 0;
+  if (r.dut) {
+    dut_id = r.dut->dut.id;
+  } else {
+    auto id = first_dut_of(r.run_id);
+    if (!id) return id.error();
+    dut_id = *id;
+  }
+  auto [it, inserted] = streams.try_emplace({r.run_id, dut_id});
+  Stream& s = it->second;
+  if (!inserted) return &s;
+  sqlite3* h = db.handle();
+  std::vector<internal::ChannelInfo> channels;
+  double rate_hz = 0;
+  uint32_t seq_modulo = 0;
+  std::string primary_axis;
+  if (r.dut) {
+    for (const ChannelRecord& c : r.dut->channels) {
+      channels.push_back({.id = c.id,
+                          .index = c.index,
+                          .name = c.spec.name,
+                          .unit = c.spec.unit,
+                          .axis = c.spec.axis,
+                          .kind = c.spec.kind,
+                          .scale = c.spec.scale});
+    }
+    rate_hz = r.dut->rate_hz;
+    seq_modulo = r.dut->seq_modulo;
+    primary_axis = r.dut->primary_axis;
+  } else {
+    auto chans = internal::read_channels(h, path, r.run_id, dut_id);
+    if (!chans) return chans.error();
+    channels = std::move(*chans);
+    auto st = Stmt::prepare(h, path,
+                            "SELECT coalesce(rate_hz, 0), seq_modulo, primary_axis FROM run_duts "
+                            "WHERE run_id = ? AND dut_id = ?");
+    if (!st) return st.error();
+    st->bind(1, r.run_id);
+    st->bind(2, dut_id);
+    if (st->step() != SQLITE_ROW) {
+      return sqlite_error(h, path, fmt::format("reading DUT {} of run {}", dut_id, r.run_id));
+    }
+    rate_hz = st->column_double(0);
+    seq_modulo = static_cast<uint32_t>(st->column_int64(1));
+    primary_axis = st->column_text(2);
+  }
+  for (const internal::ChannelInfo& c : channels) {
+    if (c.kind == ChannelKind::kRate && s.rate_idx < 0 &&
+        (c.axis == primary_axis || primary_axis.empty())) {
+      s.rate_idx = c.index;
+      s.rate_scale = c.scale != 0 ? c.scale : 1;
+    }
+    if (c.kind == ChannelKind::kStatus && s.status_idx < 0) s.status_idx = c.index;
+    if (c.kind == ChannelKind::kTemperature && s.temp_idx < 0) s.temp_idx = c.index;
+  }
+  // Where the stored samples end: the last chunk of each channel.
+  auto last = Stmt::prepare(h, path,
+                            "SELECT max((SELECT t0_s + (n - 1) * period_s FROM sample_chunks k "
+                            "WHERE k.channel_id = c.id ORDER BY t0_s DESC LIMIT 1)) "
+                            "FROM channels c WHERE c.run_id = ? AND c.dut_id = ?");
+  if (!last) return last.error();
+  last->bind(1, r.run_id);
+  last->bind(2, dut_id);
+  if (last->step() != SQLITE_ROW) {
+    return sqlite_error(h, path, fmt::format("reading the last samples of run {}", r.run_id));
+  }
+  s.builder = std::make_unique<internal::ChunkBuilder>(std::move(channels), rate_hz, seq_modulo);
+  s.builder->set_last_stored_t_s(last->column_optional_double(0));
+  return &s;
+}
+
 SampleWriter::Impl::Outcome SampleWriter::Impl::fail_batch(std::string_view what) {
   Error e = sqlite_error(db.handle(), path, what);
   begin.reset();
-  insert_gyro.reset();
   insert_temp.reset();
   insert_table.reset();
-  upsert_rollup.reset();
+  streams.clear();
+  first_dut.clear();
   commit.reset();
   if (!sqlite3_get_autocommit(db.handle())) {
     rollback.step();
     rollback.reset();
   }
   return {Status(std::move(e)), 0};
-}
-
-void SampleWriter::Impl::add_to_rollups(const GyroRow& r) {
-  for (int level = 0; level < kRollupLevels; ++level) {
-    const auto block = static_cast<int64_t>(std::floor(r.s.t_s / kRollupBlockS[level]));
-    RollupBlock& b = rollups[RollupKey{r.run_id, level, block}];
-    ++b.n;
-    b.t_sum_s += r.s.t_s;
-    if (std::isfinite(r.s.rate_dph)) {
-      ++b.rate_n;
-      b.rate_sum_dph += r.s.rate_dph;
-      b.rate_min_dph = std::min(b.rate_min_dph, r.s.rate_dph);
-      b.rate_max_dph = std::max(b.rate_max_dph, r.s.rate_dph);
-    }
-  }
 }
 
 SampleWriter::Impl::Outcome SampleWriter::Impl::commit_batch() {
@@ -220,39 +310,76 @@ SampleWriter::Impl::Outcome SampleWriter::Impl::commit_batch() {
   if (begin.step() != SQLITE_DONE) return fail_batch(what);
   begin.reset();
   uint64_t duplicates = 0;
-  rollups.clear();
-  for (std::size_t i = batch_gyro.head; i < batch_gyro.rows.size(); ++i) {
-    const GyroRow& r = batch_gyro.rows[i];
-    insert_gyro.bind(1, r.run_id);
-    insert_gyro.bind(2, r.s.t_s);
-    insert_gyro.bind(3, static_cast<int>(r.s.seq));
-    insert_gyro.bind(4, r.s.rate_dph);
-    insert_gyro.bind(5, static_cast<int>(r.s.status));
-    insert_gyro.bind(6, static_cast<int>(r.s.temp_c));
-    if (insert_gyro.step() != SQLITE_DONE) return fail_batch(what);
-    insert_gyro.reset();
-    if (sqlite3_changes(h) == 0) {
-      ++duplicates;
-    } else {
-      add_to_rollups(r);
+  uint64_t channel_samples = 0;
+  // Frames go into their DUT's chunks in time order. Producers push each
+  // DUT's frames in order; should two producers interleave one DUT, the
+  // batch is sorted (stable) per DUT first.
+  {
+    auto& rows = batch_gyro.rows;
+    const auto first = rows.begin() + static_cast<std::ptrdiff_t>(batch_gyro.head);
+    auto key = [](const FrameRow& r) {
+      return std::pair{r.run_id, r.dut ? r.dut->dut.id : int64_t{-1}};
+    };
+    std::vector<std::pair<std::pair<int64_t, int64_t>, double>> last;  // few DUTs
+    bool sorted = true;
+    for (auto it = first; it != rows.end() && sorted; ++it) {
+      const auto k = key(*it);
+      auto l = std::find_if(last.begin(), last.end(), [&](const auto& e) { return e.first == k; });
+      if (l == last.end()) {
+        last.emplace_back(k, it->f.t_s);
+      } else if (it->f.t_s < l->second) {
+        sorted = false;
+      } else {
+        l->second = it->f.t_s;
+      }
+    }
+    if (!sorted) {
+      std::stable_sort(first, rows.end(), [&](const FrameRow& a, const FrameRow& b) {
+        return std::pair{key(a), a.f.t_s} < std::pair{key(b), b.f.t_s};
+      });
     }
   }
-  for (const auto& [key, b] : rollups) {
-    upsert_rollup.bind(1, key.run_id);
-    upsert_rollup.bind(2, key.level);
-    upsert_rollup.bind(3, key.block);
-    upsert_rollup.bind(4, b.n);
-    upsert_rollup.bind(5, b.t_sum_s);
-    upsert_rollup.bind(6, b.rate_n);
-    if (b.rate_n > 0) {
-      upsert_rollup.bind(7, b.rate_sum_dph);
-      upsert_rollup.bind(8, b.rate_min_dph);
-      upsert_rollup.bind(9, b.rate_max_dph);
-    } else {
-      for (int c : {7, 8, 9}) upsert_rollup.bind_null(c);
+  Stream* stream = nullptr;
+  std::pair<int64_t, const RunDutRecord*> stream_key{0, nullptr};
+  std::array<double, kMaxChannels> raw{};
+  for (std::size_t i = batch_gyro.head; i < batch_gyro.rows.size(); ++i) {
+    const FrameRow& r = batch_gyro.rows[i];
+    if (!stream || stream_key != std::pair{r.run_id, r.dut}) {
+      auto s = stream_for(r);
+      if (!s) {
+        Outcome out = fail_batch(what);
+        out.status = Status(s.error());
+        return out;
+      }
+      stream = *s;
+      stream_key = {r.run_id, r.dut};
+      stream->touched = true;
     }
-    if (upsert_rollup.step() != SQLITE_DONE) return fail_batch(what);
-    upsert_rollup.reset();
+    const double* values = r.f.raw.data();
+    if (!r.dut) {
+      raw.fill(std::numeric_limits<double>::quiet_NaN());
+      if (stream->rate_idx >= 0) raw[stream->rate_idx] = r.f.raw[0] / stream->rate_scale;
+      if (stream->status_idx >= 0) raw[stream->status_idx] = r.f.raw[1];
+      if (stream->temp_idx >= 0) raw[stream->temp_idx] = r.f.raw[2];
+      values = raw.data();
+    }
+    if (stream->builder->add(r.f.t_s, r.f.seq, values)) {
+      channel_samples += stream->builder->channels().size();
+    } else {
+      ++duplicates;
+    }
+  }
+  uint64_t chunks = 0;
+  for (auto& [key, st] : streams) {
+    if (!st.touched) continue;
+    const uint64_t before = st.builder->chunks_written();
+    if (Status s = st.builder->flush(h, path); !s) {
+      Outcome out = fail_batch(what);
+      out.status = s;
+      return out;
+    }
+    chunks += st.builder->chunks_written() - before;
+    st.touched = false;
   }
   for (std::size_t i = batch_temps.head; i < batch_temps.rows.size(); ++i) {
     const TempRow& r = batch_temps.rows[i];
@@ -284,7 +411,7 @@ SampleWriter::Impl::Outcome SampleWriter::Impl::commit_batch() {
   }
   if (commit.step() != SQLITE_DONE) return fail_batch(what);
   commit.reset();
-  return {Status::Ok(), duplicates};
+  return {Status::Ok(), duplicates, channel_samples, chunks};
 }
 
 void SampleWriter::Impl::trim_locked() {
@@ -339,6 +466,8 @@ void SampleWriter::Impl::loop() {
         stats.temperature_rows += n_temps;
         stats.table_rows += n_table;
         stats.duplicates += out.duplicates;
+        stats.channel_samples += out.channel_samples;
+        stats.chunks += out.chunks;
         ++stats.commits;
         stats.last_commit_ms = elapsed_ms;
         stats.max_commit_ms = std::max(stats.max_commit_ms, elapsed_ms);
@@ -408,6 +537,10 @@ Result<std::unique_ptr<SampleWriter>> SampleWriter::start(
   }
   auto db = Database::open(db_path);
   if (!db) return db.error();
+  // Samples are not tied to their run by a foreign key (insert speed, and
+  // samples pushed for a run id without row stay as before); the unnamed
+  // gyro's registration follows suit.
+  if (Status s = db->exec("PRAGMA foreign_keys=OFF"); !s) return s.error();
   auto impl = std::make_unique<Impl>(std::move(*db), options);
   impl->on_commit = std::move(on_commit);
   if (Status s = impl->prepare(); !s) return s.error();
@@ -441,7 +574,37 @@ void SampleWriter::push_gyro(int64_t run_id, std::span<const GyroSample> samples
       ++m.stats.rejected;
       continue;
     }
-    m.gyro.rows.push_back(GyroRow{run_id, s});
+    FrameRow& r = m.gyro.rows.emplace_back(FrameRow{run_id, nullptr, {}});
+    r.f.t_s = s.t_s;
+    r.f.seq = s.seq;
+    r.f.raw[0] = s.rate_dph;
+    r.f.raw[1] = s.status;
+    r.f.raw[2] = s.temp_c;
+  }
+  m.trim_locked();
+}
+
+void SampleWriter::push_frames(const RunDutRecord& dut, std::span<const DutFrame> frames) {
+  Impl& m = *impl_;
+  std::lock_guard lk(m.mu);
+  // Only a DUT registered in its run (add_run_dut: ids set) has chunks to go to.
+  const bool registered =
+      dut.dut.id > 0 && !dut.channels.empty() && dut.channels.size() <= kMaxChannels &&
+      std::all_of(dut.channels.begin(), dut.channels.end(), [](const ChannelRecord& c) {
+        return c.id > 0 && c.index >= 0 && c.index < static_cast<int>(kMaxChannels);
+      });
+  if (!m.accepting || !registered) {
+    m.stats.rejected += frames.size();
+    return;
+  }
+  auto& known = m.known_duts[{dut.run_id, dut.dut.id}];
+  if (!known) known = std::make_unique<RunDutRecord>(dut);
+  for (const DutFrame& f : frames) {
+    if (!std::isfinite(f.t_s)) {
+      ++m.stats.rejected;
+      continue;
+    }
+    m.gyro.rows.push_back(FrameRow{dut.run_id, known.get(), f});
   }
   m.trim_locked();
 }
@@ -511,7 +674,3 @@ SampleWriterStats SampleWriter::stats() const {
 
 }  // namespace gyrotherm::storage
 
-namespace gyrotherm::storage {
-// Contract placeholder, replaced by the chunked writer (schema v9).
-void SampleWriter::push_frames(const RunDutRecord&, std::span<const DutFrame>) {}
-}  // namespace gyrotherm::storage

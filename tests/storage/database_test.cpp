@@ -1,4 +1,5 @@
 #include "gyrotherm/storage/database.h"
+#include "gyrotherm/storage/sample_writer.h"
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
@@ -68,12 +69,10 @@ TEST(Database, OpenCreatesTheCurrentSchemaInWalMode) {
                                           "schedules",
                                           "queue",
                                           "segments",
-                                          "gyro_samples",
                                           "temperature_samples",
                                           "events",
                                           "segment_stats",
                                           "acquisition_windows",
-                                          "gyro_rollup",
                                           "fits",
                                           "fit_runs",
                                           "allan",
@@ -85,7 +84,9 @@ TEST(Database, OpenCreatesTheCurrentSchemaInWalMode) {
                                           "scale_factor_temperature_fits",
                                           "duts",
                                           "run_duts",
-                                          "channels"};
+                                          "channels",
+                                          "sample_chunks",
+                                          "channel_rollup"};
   EXPECT_EQ(tables, expected);
 }
 
@@ -705,10 +706,13 @@ TEST(Database, CheckpointAndLastSample) {
                   .ok());
   EXPECT_EQ(*db.last_sample_t_s(run_id), 12.5);
   EXPECT_FALSE(db.last_gyro_sample_t_s(run_id)->has_value()) << "temperatures are not gyro data";
-  ASSERT_TRUE(db.exec(fmt::format("INSERT INTO gyro_samples(run_id, t_s, seq, status) "
-                                  "VALUES({0}, 13.25, 1, 119);",
-                                  run_id))
-                  .ok());
+  {
+    auto writer = SampleWriter::start(db.path());
+    ASSERT_TRUE(writer.ok()) << writer.error().message;
+    const GyroSample g{.t_s = 13.25, .rate_dph = 1.5, .seq = 1, .status = 119, .temp_c = 20};
+    (*writer)->push_gyro(run_id, std::span(&g, 1));
+    ASSERT_TRUE((*writer)->flush().ok());
+  }
   EXPECT_EQ(*db.last_sample_t_s(run_id), 13.25);
   EXPECT_EQ(*db.last_gyro_sample_t_s(run_id), 13.25);
   // The control loop's temperatures run ahead of a lagging gyro stream.

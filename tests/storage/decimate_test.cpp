@@ -80,15 +80,22 @@ double column_or_nan(sqlite3_stmt* st, int c) {
   return sqlite3_column_type(st, c) == SQLITE_NULL ? kNaN : sqlite3_column_double(st, c);
 }
 
+// Every run's primary-axis samples, read back from their chunks.
 std::vector<RawGyro> read_raw_gyro(sqlite3* db) {
   std::vector<RawGyro> out;
+  auto reader = Database::open_read_only(sqlite3_db_filename(db, "main"));
+  EXPECT_TRUE(reader.ok()) << reader.error().message;
+  if (!reader) return out;
   sqlite3_stmt* st = nullptr;
-  EXPECT_EQ(sqlite3_prepare_v2(db, "SELECT run_id, t_s, rate_dph FROM gyro_samples ORDER BY 1, 2",
-                               -1, &st, nullptr),
+  EXPECT_EQ(sqlite3_prepare_v2(db, "SELECT DISTINCT run_id FROM run_duts ORDER BY 1", -1, &st,
+                               nullptr),
             SQLITE_OK);
   while (sqlite3_step(st) == SQLITE_ROW) {
-    out.push_back(
-        {sqlite3_column_int64(st, 0), sqlite3_column_double(st, 1), column_or_nan(st, 2)});
+    const int64_t run_id = sqlite3_column_int64(st, 0);
+    auto samples = reader->gyro_samples(run_id, -1e300, 1e300);
+    EXPECT_TRUE(samples.ok()) << samples.error().message;
+    if (!samples) continue;
+    for (const GyroSample& g : *samples) out.push_back({run_id, g.t_s, g.rate_dph});
   }
   sqlite3_finalize(st);
   return out;
@@ -138,8 +145,9 @@ std::map<BlockKey, Block> read_rollup(sqlite3* db) {
   std::map<BlockKey, Block> out;
   sqlite3_stmt* st = nullptr;
   EXPECT_EQ(sqlite3_prepare_v2(db,
-                               "SELECT run_id, level, block, n, t_sum_s, rate_n, rate_sum_dph, "
-                               "rate_min_dph, rate_max_dph FROM gyro_rollup",
+                               "SELECT c.run_id, level, block, n, t_sum_s, v_n, v_sum, v_min, "
+                               "v_max FROM channel_rollup r JOIN channels c ON c.id = r.channel_id "
+                               "WHERE c.kind = 'rate'",
                                -1, &st, nullptr),
             SQLITE_OK);
   while (sqlite3_step(st) == SQLITE_ROW) {
@@ -159,7 +167,8 @@ std::map<BlockKey, Block> read_rollup(sqlite3* db) {
 std::map<BlockKey, Block> brute_rollup(const std::vector<RawGyro>& rows) {
   std::map<BlockKey, Block> out;
   for (const RawGyro& r : rows) {
-    for (int level = 0; level < kRollupLevels; ++level) {
+    // channel_rollup keeps levels 1..4 (1 ... 1000 s).
+    for (int level = 1; level < kRollupLevels; ++level) {
       const auto block = static_cast<int64_t>(std::floor(r.t_s / kRollupBlockS[level]));
       Block& b = out[{r.run_id, level, block}];
       ++b.n;
@@ -212,7 +221,7 @@ std::string block_mismatch(const Block& got, const Block& want) {
   return out;
 }
 
-// gyro_rollup == the brute force over gyro_samples, block by block.
+// channel_rollup == the brute force over the stored samples, block by block.
 void expect_rollup_matches_samples(sqlite3* db) {
   const auto stored = read_rollup(db);
   const auto expected = brute_rollup(read_raw_gyro(db));
@@ -288,15 +297,16 @@ TEST(Rollup, WriterKeepsItEqualToTheSamples) {
   EXPECT_EQ(writer->stats().dropped, 0u);
 
   Database db = open_ok(path);
-  EXPECT_EQ(query_int(db.handle(), "SELECT count(*) FROM gyro_samples"),
+  EXPECT_EQ(*db.count_gyro_samples(1) + *db.count_gyro_samples(2) + *db.count_gyro_samples(3),
             static_cast<long long>(run1.size() + run2.size() + run3.size() + 2));
-  EXPECT_EQ(query_int(db.handle(), "SELECT max(rate_max_dph) < 1e5 FROM gyro_rollup"), 1);
+  EXPECT_EQ(query_int(db.handle(), "SELECT max(v_max) < 1e5 FROM channel_rollup"), 1);
   expect_rollup_matches_samples(db.handle());
   // The NaN-only stretch left NULL rate columns in the rollup.
   EXPECT_EQ(query_int(db.handle(),
-                      "SELECT count(*) FROM gyro_rollup WHERE run_id = 1 AND level = 1 AND "
-                      "block IN (5, 6) AND rate_n = 0 AND rate_sum_dph IS NULL AND "
-                      "rate_min_dph IS NULL AND rate_max_dph IS NULL"),
+                      "SELECT count(*) FROM channel_rollup r JOIN channels c ON c.id = "
+                      "r.channel_id WHERE c.run_id = 1 AND c.name = 'rate' AND level = 1 AND "
+                      "block IN (5, 6) AND v_n = 0 AND v_sum IS NULL AND "
+                      "v_min IS NULL AND v_max IS NULL"),
             2);
 }
 
@@ -324,7 +334,10 @@ TEST(Rollup, MigrationBackfillsASchema2Database) {
     const std::string sql =
         std::string("CREATE TABLE meta(key TEXT PRIMARY KEY, value TEXT NOT NULL);") +
         internal::migrations()[0].sql + internal::migrations()[1].sql +
-        "INSERT INTO meta VALUES('schema_version', '2');";
+        "INSERT INTO meta VALUES('schema_version', '2');"
+        "INSERT INTO runs(id, schedule_name, state, started_utc) VALUES"
+        "(1, 'a', 'completed', '2026-01-01T00:00:00.000Z'), "
+        "(2, 'b', 'completed', '2026-01-02T00:00:00.000Z');";
     ASSERT_EQ(sqlite3_exec(raw, sql.c_str(), nullptr, nullptr, nullptr), SQLITE_OK)
         << sqlite3_errmsg(raw);
     ASSERT_EQ(sqlite3_exec(raw, "BEGIN", nullptr, nullptr, nullptr), SQLITE_OK);
@@ -352,23 +365,25 @@ TEST(Rollup, MigrationBackfillsASchema2Database) {
   {
     Database db = open_ok(path);
     EXPECT_EQ(*db.schema_version(), kSchemaVersion);
-    EXPECT_EQ(query_int(db.handle(), "SELECT count(*) FROM gyro_samples"),
+    EXPECT_EQ(*db.count_gyro_samples(1) + *db.count_gyro_samples(2),
               static_cast<long long>(rows.size()));
     expect_rollup_matches_samples(db.handle());
-    // Spot check of the floor on negative edges: -0.3 s is in 0.1 s block -3.
+    // Spot check of the floor on negative edges: [-1, 0) s is 1 s block -1.
     EXPECT_EQ(query_int(db.handle(),
-                        "SELECT n FROM gyro_rollup WHERE run_id = 1 AND level = 0 AND block = -3"),
-              1);
+                        "SELECT n FROM channel_rollup r JOIN channels c ON c.id = r.channel_id "
+                        "WHERE c.run_id = 1 AND c.name = 'rate' AND level = 1 AND block = -1"),
+              5);
   }
-  // The writer then adds to the migrated blocks (and ignores duplicates).
+  // The writer then adds to the migrated blocks (and ignores duplicates: at
+  // or before the last stored sample, 12 345.6789 s).
   auto writer = start_flushing(path);
   std::vector<GyroSample> more;
-  for (int i = 5000; i < 6000; ++i) more.push_back(gyro(t_at(20.0, i), 1.5));
-  more.push_back(gyro(-0.3, 99.0));     // duplicate of a migrated row
-  more.push_back(gyro(-0.2999, 99.0));  // new, same block as -0.3
+  more.push_back(gyro(12'345.678'9, 99.0));  // duplicate of a migrated row
+  for (int i = 0; i < 1000; ++i) more.push_back(gyro(t_at(12'345.0, i), 1.5));  // 348 before it
+  for (int i = 0; i < 1000; ++i) more.push_back(gyro(t_at(12'346.0, i), 1.5));
   write_in_commits(*writer, 1, more, {333});
   writer->stop();
-  EXPECT_EQ(writer->stats().duplicates, 1u);
+  EXPECT_EQ(writer->stats().duplicates, 1u + 679u);
   Database db = open_ok(path);
   expect_rollup_matches_samples(db.handle());
 }
@@ -687,23 +702,24 @@ std::vector<RawGyro>* Decimate::rows_ = nullptr;
 std::map<int64_t, std::vector<RawTemp>>* Decimate::temps_ = nullptr;
 
 TEST_F(Decimate, WholeRunFromTheRollup) {
-  // 0.26 s asked for: 0.1 s blocks, 3 a bucket.
-  auto d = check(1, 0, std::nullopt, 500, Path::kRollup);
+  // 0.26 s asked for, finer than the finest block (1 s) over 130 k samples
+  // (within the raw budget): exact buckets from the decoded chunks.
+  auto d = check(1, 0, std::nullopt, 500, Path::kRawBuckets);
   EXPECT_GT(d.gyro.t_s.size(), 400u);
-  EXPECT_DOUBLE_EQ(d.bucket_s, 0.3);
   // 3.25 s asked for: 1 s blocks, 4 a bucket.
   d = check(1, 0, std::nullopt, 40, Path::kRollup);
   EXPECT_DOUBLE_EQ(d.bucket_s, 4.0);
   check(1, 0, std::nullopt, 1, Path::kRollup);
-  check(2, -50, std::nullopt, 300, Path::kRollup);
+  check(2, -50, std::nullopt, 300, Path::kRawBuckets);  // 0.67 s < the finest block
   check(2, -50, 150, 7, Path::kRollup);
 }
 
 TEST_F(Decimate, FinerThanTheFinestBlockOverManyRowsUsesTheFinestBlocks) {
-  // 13 ms asked for over 130 k rows (> the raw-row budget): 0.1 s blocks.
-  auto d = check(1, 0, 130, 10'000, Path::kRollup);
-  EXPECT_DOUBLE_EQ(d.bucket_s, 0.1);
-  EXPECT_EQ(d.gyro.t_s.size(), 1300u);
+  // 13 ms asked for over 130 k samples: within the raw budget (1 M samples
+  // decoded), so exact buckets of 13 ms; beyond it the 1 s blocks.
+  auto d = check(1, 0, 130, 10'000, Path::kRawBuckets);
+  EXPECT_DOUBLE_EQ(d.bucket_s, 0.013);
+  EXPECT_GT(d.gyro.t_s.size(), 9'000u);
 }
 
 TEST_F(Decimate, RangeNotOnBlockEdgesStaysWithinMaxPoints) {
@@ -712,7 +728,7 @@ TEST_F(Decimate, RangeNotOnBlockEdgesStaysWithinMaxPoints) {
   EXPECT_EQ(d.gyro.t_s.size(), 10u);
   EXPECT_EQ(d.bucket_s, 1.0);
   EXPECT_EQ(d.gyro.n.back(), 2000);  // blocks 9 and 10: 9 ... 11 s
-  check(1, 0.99, 10.01, 10, Path::kRollup);
+  check(1, 0.99, 10.01, 10, Path::kRawBuckets);  // 0.902 s < the finest block
   check(1, 0.05, 100.05, 100, Path::kRollup);
   check(1, 3.05, 123.95, 12, Path::kRollup);
   check(2, -49.95, 49.95, 99, Path::kRollup);
@@ -732,9 +748,9 @@ TEST_F(Decimate, ShortZoomsReadRawRows) {
 }
 
 TEST_F(Decimate, BucketsWithoutARateAreNaNNotZero) {
-  // 0.1 s blocks, 5 a bucket from 55 s: four buckets in [60, 62) have no rate.
-  auto d = check(1, 55, 69.95, 30, Path::kRollup);
-  EXPECT_DOUBLE_EQ(d.bucket_s, 0.5);
+  // 1 s blocks from 50 s: two buckets in [60, 62) have no rate.
+  auto d = check(1, 50, 70, 20, Path::kRollup);
+  EXPECT_DOUBLE_EQ(d.bucket_s, 1.0);
   int nan_buckets = 0;
   for (std::size_t i = 0; i < d.gyro.t_s.size(); ++i) {
     if (d.gyro.t_s[i] >= 60 && d.gyro.t_s[i] < 62) {
@@ -745,10 +761,10 @@ TEST_F(Decimate, BucketsWithoutARateAreNaNNotZero) {
       ++nan_buckets;
     }
   }
-  EXPECT_EQ(nan_buckets, 4);
+  EXPECT_EQ(nan_buckets, 2);
   check(1, 60.05, 60.95, 50, Path::kRawBuckets);
   check(1, 60.05, 60.15, 1000, Path::kAsRecorded);
-  for (auto [mp, path] : {std::pair{10, Path::kRollup}, std::pair{100, Path::kRollup},
+  for (auto [mp, path] : {std::pair{10, Path::kRollup}, std::pair{100, Path::kRawBuckets},
                           std::pair{10'000, Path::kAsRecorded}}) {
     d = check(4, 0, std::nullopt, mp, path);
     ASSERT_FALSE(d.gyro.mean_dph.empty());

@@ -1,0 +1,236 @@
+// Chunked sample storage (schema v9, docs/storage.md "sample_chunks"): the
+// value codec, the sample clock that decides where a chunk ends, and the
+// builder the sample writer and the v9 migration share.
+//
+// A chunk holds up to kChunkCapacity consecutive samples of one channel on a
+// regular clock: sample i is at t0_s + i * period_s with counter
+// (seq0 + i) mod seq_modulo. Values are the raw values as sent, stored
+// exactly in the narrowest encoding that holds every one of them.
+#pragma once
+
+#include <sqlite3.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <functional>
+#include <limits>
+#include <optional>
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "gyrotherm/core/result.h"
+#include "gyrotherm/core/samples.h"
+
+namespace gyrotherm::storage::internal {
+
+// At most this many samples per chunk: 4 s at 1 kHz; a 16 KiB BLOB of f32.
+inline constexpr int64_t kChunkCapacity = 4096;
+
+// channel_rollup levels: block length 0.1 * 10^level s (the numbering of
+// the older gyro_rollup); level 0 (0.1 s) is not kept, the chunks
+// themselves are the finest summaries.
+inline constexpr int kChannelRollupFirstLevel = 1;
+inline constexpr int kChannelRollupLastLevel = 4;
+inline constexpr double kChannelRollupBlockS[] = {0.1, 1.0, 10.0, 100.0, 1000.0};
+
+enum class Encoding : uint8_t { kU8, kI8, kU16, kI16, kU32, kI32, kF32, kF64 };
+std::string_view to_string(Encoding e);  // u8, i8, u16, i16, u32, i32, f32, f64
+std::optional<Encoding> encoding_from_string(std::string_view s);
+std::size_t encoded_size(Encoding e);  // bytes per value
+
+// What a channel's values so far need, kept as values arrive; encoding()
+// is the narrowest encoding that stores every one of them exactly
+// (integers in the smallest integer type, else f32 when each value
+// round-trips through float, else f64; NaN needs a float type).
+class EncodingNeed {
+ public:
+  void add(double raw) {
+    if (integral_ && raw == static_cast<double>(static_cast<int64_t>(raw)) &&
+        !(raw == 0 && std::signbit(raw)) && raw >= -2147483648.0 && raw <= 4294967295.0) {
+      if (raw < min_) min_ = raw;
+      if (raw > max_) max_ = raw;
+    } else {
+      integral_ = false;
+    }
+    if (f32_ && !(static_cast<double>(static_cast<float>(raw)) == raw || std::isnan(raw))) {
+      f32_ = false;
+    }
+  }
+  Encoding encoding() const;
+
+ private:
+  bool integral_ = true;
+  bool f32_ = true;
+  double min_ = 0, max_ = 0;
+};
+
+// Appends `raw` encoded (little-endian) to `out`. Values must fit (see
+// EncodingNeed).
+void encode(Encoding e, std::span<const double> raw, std::string& out);
+// Decodes n values; false when the BLOB's size is not n values.
+bool decode(Encoding e, const void* data, std::size_t bytes, std::size_t n, double* out);
+
+// The clock of an open chunk: does a sample at t_s with counter seq follow
+// the chunk's samples?
+struct ChunkClock {
+  double t0_s = 0;
+  double period_s = 0;  // 0 while n < 2
+  int64_t n = 0;
+  uint32_t seq0 = 0;
+
+  double t_last_s() const { return t0_s + static_cast<double>(n - 1) * period_s; }
+  // nominal_period_s: 1 / rate_hz (0 = unknown), bounds the second sample's
+  // step; seq_modulo 0: the frames carry no counter (seq not checked).
+  bool continues(double t_s, uint32_t seq, double nominal_period_s, uint32_t seq_modulo) const;
+  // Takes the sample (continues() held, or n == 0).
+  void add(double t_s, uint32_t seq);
+};
+
+// A channel of a DUT in a run, as the writer, the readers and the
+// migration need it.
+struct ChannelInfo {
+  int64_t id = 0;
+  int index = 0;
+  std::string name, unit, axis;
+  ChannelKind kind = ChannelKind::kOther;
+  double scale = 1.0;
+};
+
+// Per-channel rollup accumulator of one block.
+struct RollupAcc {
+  int64_t n = 0, v_n = 0;
+  double t_sum_s = 0, v_sum = 0;
+  double v_min = std::numeric_limits<double>::infinity();
+  double v_max = -std::numeric_limits<double>::infinity();
+  void add(double t_s, double v) {
+    ++n;
+    t_sum_s += t_s;
+    if (std::isfinite(v)) {
+      ++v_n;
+      v_sum += v;
+      v_min = std::min(v_min, v);
+      v_max = std::max(v_max, v);
+    }
+  }
+  void merge(const RollupAcc& o) {
+    n += o.n;
+    v_n += o.v_n;
+    t_sum_s += o.t_sum_s;
+    v_sum += o.v_sum;
+    v_min = std::min(v_min, o.v_min);
+    v_max = std::max(v_max, o.v_max);
+  }
+};
+
+// Builds the chunks of one DUT's channels from its frames, in time order,
+// and writes them (and their rollups) with prepared statements on `db`.
+// Open chunks are kept in memory and written (inserted, then updated in
+// place) at each flush(), so a chunk's length does not depend on how often
+// the caller commits. Not thread-safe; the caller owns the transaction.
+class ChunkBuilder {
+ public:
+  ChunkBuilder(std::vector<ChannelInfo> channels, double rate_hz, uint32_t seq_modulo);
+
+  // Where the stored samples end (restart: the last stored time of the
+  // DUT's channels; samples at or before it are duplicates).
+  void set_last_stored_t_s(std::optional<double> t_s) { last_t_s_ = t_s; }
+  std::optional<double> last_t_s() const { return last_t_s_; }
+
+  // Adds one frame (raw values by channel index). False: a duplicate (t_s
+  // not after the last sample), ignored.
+  bool add(double t_s, uint32_t seq, const double* raw);
+
+  // Writes every chunk changed since the last flush, and the rollups of the
+  // samples added since, on `db` (inside the caller's transaction).
+  Status flush(sqlite3* db, const std::string& path);
+
+  uint64_t chunks_written() const { return chunks_written_; }
+  const std::vector<ChannelInfo>& channels() const { return channels_; }
+
+ private:
+  struct OpenChannel {
+    int64_t row_id = 0;  // 0: not yet inserted
+    std::vector<double> raw;
+    EncodingNeed need;
+    int64_t v_n = 0;
+    double v_sum = 0, v_min = 0, v_max = 0;
+  };
+  void close_open();
+  void roll_block();
+
+  std::vector<ChannelInfo> channels_;
+  double nominal_period_s_ = 0;
+  uint32_t seq_modulo_ = 0;
+  std::optional<double> last_t_s_;
+  ChunkClock clock_;
+  bool dirty_ = false;
+  std::vector<OpenChannel> open_;
+  // Chunks closed since the last flush, waiting to be written.
+  struct Closed {
+    ChunkClock clock;
+    std::vector<OpenChannel> channels;
+  };
+  std::vector<Closed> closed_;
+  // Rollups: the current 1-s block per channel, and finished blocks of
+  // every level waiting for flush().
+  int64_t block_ = 0;
+  bool in_block_ = false;
+  std::vector<RollupAcc> block_acc_;
+  struct Pending {
+    int64_t channel_id;
+    int level;
+    int64_t block;
+    RollupAcc acc;
+  };
+  std::vector<Pending> rollups_;
+  uint64_t chunks_written_ = 0;
+  std::string blob_;
+};
+
+// One stored chunk as read (the BLOB is valid during the callback only).
+struct ChunkView {
+  ChunkClock clock;
+  Encoding encoding = Encoding::kF64;
+  const void* data = nullptr;
+  std::size_t bytes = 0;
+};
+// Reads every chunk of one channel that may hold samples in [t_from_s,
+// t_to_s), in time order. Returning false from `chunk` stops.
+Status for_each_chunk(sqlite3* db, const std::string& path, int64_t channel_id, double t_from_s,
+                      double t_to_s, const std::function<bool(const ChunkView&)>& chunk);
+
+// A run's DUT and rate axis resolved to its channels (readers).
+struct StreamChannels {
+  int64_t dut_id = 0;
+  std::string serial;
+  std::string axis;  // the rate axis asked for ("" -> the DUT's primary axis)
+  uint32_t seq_modulo = 0;
+  std::vector<ChannelInfo> channels;
+  int rate = -1, status = -1, temperature = -1;  // positions in channels; -1: none
+};
+// serial "" = the run's first DUT. nullopt: the run has no DUT at all (and
+// so no samples). Errors name the run, serial or axis that is unknown.
+Result<std::optional<StreamChannels>> resolve_channels(sqlite3* db, const std::string& path,
+                                                       int64_t run_id, const std::string& serial,
+                                                       const std::string& axis);
+
+// The channels of a run's DUT, by index.
+Result<std::vector<ChannelInfo>> read_channels(sqlite3* db, const std::string& path,
+                                               int64_t run_id, int64_t dut_id);
+
+// Registers the unnamed gyro (serial "") in a run, as the v9 migration and
+// push_gyro on a run without DUT do: channels rate (deg/h, axis `axis`),
+// status, temp_c, seq_modulo 128 (the KVH 1750's counter). Returns its
+// dut id. Idempotent.
+Result<int64_t> register_unnamed_gyro(sqlite3* db, const std::string& path, int64_t run_id,
+                                      const std::string& axis, const std::string& now_utc);
+
+// The v9 data step: every run's gyro_samples into chunks of the unnamed
+// gyro, then gyro_samples and gyro_rollup dropped.
+Status migrate_gyro_samples_to_chunks(sqlite3* db, const std::string& path,
+                                      const std::string& now_utc);
+
+}  // namespace gyrotherm::storage::internal
