@@ -67,15 +67,16 @@ class DutAnalysisTest : public testing::TempDirTest {
     run.state = "acquiring";
     run.latitude_deg = kLatitudeDeg;
     run.orientation = "up";
-    run.config_json = R"({"station": {"name": "bench-2"}})";
+    // A model the two soaks' temperatures can determine.
+    run.config_json = R"({"station": {"name": "bench-2"}, "analysis": {"model": "T1"}})";
     auto id = db->create_run(run);
     EXPECT_TRUE(id.ok()) << id.error().message;
-    storage::RunMetadata meta;
-    meta.operator_name = "alice";
-    meta.comment = "two IMUs, first campaign";
-    meta.tags = {"qual", "lot-7"};
-    meta.dut_serials = {"SN-A", "SN-B"};
-    EXPECT_TRUE(db->set_run_metadata(*id, meta, "test").ok());
+    // The run's metadata as queued (schema v8 columns of runs).
+    EXPECT_TRUE(db->exec(fmt::format("UPDATE runs SET operator = 'alice', comment = 'two IMUs, "
+                                     "first campaign', tags_json = '[\"qual\",\"lot-7\"]', "
+                                     "dut_serials_json = '[\"SN-A\",\"SN-B\"]' WHERE id = {}",
+                                     *id))
+                    .ok());
 
     storage::RunDutRecord a;
     a.run_id = *id;
@@ -170,7 +171,7 @@ TEST_F(DutAnalysisTest, EachDutAxisRecoversItsOwnBiasWithItsOwnEarthRate) {
   EXPECT_EQ((*axes)[2].axis, "x");
 
   daemon::AnalysisSettings settings;
-  settings.table1.ma_window = 101;
+  settings.model = {.t_order = 1, .r_order = 0, .g_order = 0};
   auto summary = daemon::analyse_run(*db, run_id, settings);
   ASSERT_TRUE(summary.ok()) << summary.error().message;
   EXPECT_EQ(summary->streams, 3);
@@ -225,7 +226,11 @@ TEST_F(DutAnalysisTest, ExportHasFilesPerDutAxisAndHeadersNameTheGyro) {
   const int64_t run_id = make_run();
   auto db = storage::Database::open(db_path());
   ASSERT_TRUE(db.ok());
-  ASSERT_TRUE(daemon::analyse_run(*db, run_id, daemon::AnalysisSettings{}).ok());
+  daemon::AnalysisSettings settings;
+  settings.model = {.t_order = 1, .r_order = 0, .g_order = 0};
+  auto summary = daemon::analyse_run(*db, run_id, settings);
+  ASSERT_TRUE(summary.ok());
+  EXPECT_EQ(summary->fit_ids.size(), 6u) << fmt::format("{}", fmt::join(summary->problems, "\n"));
   daemon::ExportRequest request;
   request.run_ids = {run_id};
   request.directory = (dir_ / "export").string();

@@ -444,7 +444,7 @@ std::string file_suffix(const AnalysedAxis& axis, bool only_stream) {
   std::string serial = axis.dut_serial.empty() ? "unnamed" : axis.dut_serial;
   for (char& c : serial) {
     const auto u = static_cast<unsigned char>(c);
-    if (!std::isalnum(u) && c != '.' && c != '_') c = '_';
+    if (!std::isalnum(u) && c != '.' && c != '_' && c != '-') c = '_';
   }
   return fmt::format("-{}-{}", serial, axis.axis.empty() ? "primary" : axis.axis);
 }

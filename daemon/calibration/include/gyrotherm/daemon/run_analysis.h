@@ -131,7 +131,7 @@ Result<AnalysedAxis> first_axis(storage::Database& db, int64_t run_id);
 // A short, file-name-safe tag of a stream: "" when the run's only stream is
 // the unnamed gyro's primary axis (the files keep today's names), else
 // "-<serial>-<axis>" (serial "" -> "unnamed"; characters other than
-// [A-Za-z0-9._] become '_').
+// [A-Za-z0-9._-] become '_').
 std::string file_suffix(const AnalysedAxis& axis, bool only_stream);
 
 // A completed soak of a run and its acquisition windows.
