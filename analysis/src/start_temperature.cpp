@@ -113,14 +113,35 @@ std::string c_comment_text(std::string_view s) {
   return out;
 }
 
+}  // namespace
+
+std::string export_metadata_c(const ExportInfo& info) {
+  if (info.gyro_model.empty() && info.axis.empty() && info.operator_name.empty() &&
+      info.comment.empty() && info.tags.empty()) {
+    return "";
+  }
+  std::string tags;
+  for (const auto& t : info.tags) tags += (tags.empty() ? "" : ", ") + t;
+  const auto or_dash = [](const std::string& s) { return s.empty() ? std::string("-") : s; };
+  return fmt::format(" * Model: {}; axis: {}; operator: {}; tags: {}\n * Comment: {}\n",
+                     c_comment_text(or_dash(info.gyro_model)), c_comment_text(or_dash(info.axis)),
+                     c_comment_text(or_dash(info.operator_name)), c_comment_text(or_dash(tags)),
+                     c_comment_text(or_dash(info.comment)));
+}
+
+namespace {
+
 std::string provenance_c(const ExportInfo& info) {
   std::string runs;
   for (int64_t id : info.run_ids) runs += (runs.empty() ? "" : ", ") + std::to_string(id);
-  return fmt::format(" * Station: {}; gyro: {}; runs: {}; computed: {}\n",
-                     c_comment_text(info.station.empty() ? "(unnamed)" : info.station),
-                     c_comment_text(info.gyro_serial.empty() ? "(no serial)" : info.gyro_serial),
-                     runs.empty() ? "(none)" : runs,
-                     c_comment_text(info.computed_utc.empty() ? "(unknown)" : info.computed_utc));
+  std::string out =
+      fmt::format(" * Station: {}; gyro: {}; runs: {}; computed: {}\n",
+                  c_comment_text(info.station.empty() ? "(unnamed)" : info.station),
+                  c_comment_text(info.gyro_serial.empty() ? "(no serial)" : info.gyro_serial),
+                  runs.empty() ? "(none)" : runs,
+                  c_comment_text(info.computed_utc.empty() ? "(unknown)" : info.computed_utc));
+  out += export_metadata_c(info);
+  return out;
 }
 
 // The include guard of a header: the prefix, the kind of header and the form,
@@ -154,6 +175,11 @@ std::string variables_c(double derivative_window_s, double l0_window_s, DriftMod
 void add_info(nlohmann::ordered_json& j, const ExportInfo& info) {
   j["station"] = info.station;
   j["gyro_serial"] = info.gyro_serial;
+  j["gyro_model"] = info.gyro_model;
+  j["axis"] = info.axis;
+  j["operator"] = info.operator_name;
+  j["comment"] = info.comment;
+  j["tags"] = info.tags;
   j["runs"] = info.run_ids;
   j["computed_utc"] = info.computed_utc;
 }

@@ -20,13 +20,25 @@ Result<storage::SegmentStatsRecord> compute_table1(storage::Database& db, const 
   soak.t_to_s = job.t_to_s;
   soak.windows = job.windows;
   if (soak.windows.empty()) soak.windows.emplace_back(job.t_from_s, job.t_to_s);
-  auto rec = soak_table1(db, soak, options);
-  if (!rec) return rec;
-  if (auto st = db.put_segment_stats(*rec); !st) {
-    return Error::Transient(fmt::format("run {} segment {}: {}", job.run_id, job.segment_index + 1,
-                                        st.error().message));
+  auto axes = analysed_axes(db, job.run_id);
+  if (!axes) return axes.error();
+  // Every DUT axis of the run; the first's row (the first DUT's primary
+  // axis) is returned. Another axis that cannot be computed is logged; the
+  // run's analysis at its end lists it among its problems.
+  std::optional<Result<storage::SegmentStatsRecord>> first;
+  for (const AnalysedAxis& axis : *axes) {
+    auto rec = soak_table1(db, soak, options, axis);
+    if (rec) {
+      if (auto st = db.put_segment_stats(*rec); !st) {
+        return Error::Transient(fmt::format("run {} segment {}: {}", job.run_id,
+                                            job.segment_index + 1, st.error().message));
+      }
+    } else if (first) {
+      spdlog::warn("Table I: {}", rec.error().message);
+    }
+    if (!first) first = std::move(rec);
   }
-  return rec;
+  return std::move(*first);
 }
 
 AnalysisWorker::AnalysisWorker(std::string db_path, storage::SampleSink& writer,

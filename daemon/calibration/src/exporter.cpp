@@ -148,22 +148,14 @@ Result<ExportOutcome> complete_export(storage::Database& db, int64_t id,
   ReportOptions options = request.report;
   if (options.generated_utc.empty()) options.generated_utc = wall_time_utc_iso();
   if (options.database_path.empty()) options.database_path = db.path();
-  std::vector<RunReport> runs;
-  std::vector<ReportFile> files;
+  // Every DUT axis of every run: a report each, a summary per DUT axis.
+  std::vector<std::vector<RunReport>> runs;
   for (int64_t run_id : request.run_ids) {
-    auto r = collect_run_report(db, run_id, options);
+    auto r = collect_run_reports(db, run_id, options);
     if (!r) return fail(Error::Permanent(fmt::format("run {}: {}", run_id, r.error().message)));
-    auto run_files = render_run_files(*r, options);
-    files.insert(files.end(), std::make_move_iterator(run_files.begin()),
-                 std::make_move_iterator(run_files.end()));
-    r->plots.clear();  // rendered; the campaign draws its own
     runs.push_back(std::move(*r));
   }
-  const CampaignReport campaign = collect_campaign_report(std::move(runs), options);
-  auto campaign_files = render_campaign_files(campaign, options);
-  files.insert(files.end(), std::make_move_iterator(campaign_files.begin()),
-               std::make_move_iterator(campaign_files.end()));
-  out.problems = campaign.problems;
+  const std::vector<ReportFile> files = render_export_files(runs, options, out.problems);
 
   if (Status st = write_files(request.directory, files); !st) return fail(st.error());
   for (const auto& f : files) out.files.push_back(f.path);

@@ -3,6 +3,7 @@
 #include "gyrotherm/daemon/report.h"
 
 #include <fmt/format.h>
+#include <sqlite3.h>
 
 #include <algorithm>
 #include <cmath>
@@ -279,6 +280,7 @@ void collect_fits(storage::Database& db, RunReport& r) {
   if (auto fits = db.fits(r.run.id)) {
     for (const auto& rec : *fits) {
       if (rec.model != model || rec.run_ids != std::vector<int64_t>{r.run.id}) continue;
+      if (!result_of_stream(rec.dut_serial, rec.axis, r.stream)) continue;
       if (stored.count(rec.form)) continue;  // newest first: keep the first
       auto f = report_fit_of_record(rec);
       if (!f) {
@@ -415,15 +417,80 @@ PlotSeries polynomial_curve(const std::vector<double>& coeffs, double t_centre_c
 
 }  // namespace
 
+Result<std::optional<storage::ScaleFactorTemperatureFitRecord>> scale_factor_temperature_fit_of(
+    storage::Database& db, int64_t run_id, const AnalysedAxis& stream) {
+  using Record = storage::ScaleFactorTemperatureFitRecord;
+  // The API gives one K(T) fit per run; a run with several DUTs has one per
+  // DUT's table axis (schema v8 keys the table by run, DUT and axis), read
+  // here from the table itself.
+  sqlite3_stmt* stmt = nullptr;
+  const char* sql =
+      "SELECT dut_serial, axis, poly_order, t_centre_c, k_coeffs_json, bias_coeffs_json, "
+      "k_ppm_per_c, bias_dph_per_c, created_utc FROM scale_factor_temperature_fits "
+      "WHERE run_id = ?";
+  if (sqlite3_prepare_v2(db.handle(), sql, -1, &stmt, nullptr) != SQLITE_OK) {
+    sqlite3_finalize(stmt);  // a database without the v8 columns: the one fit of the run
+    auto one = db.scale_factor_temperature_fit(run_id);
+    if (!one) return one.error();
+    if (*one && !result_of_stream((*one)->dut_serial, (*one)->axis, stream)) {
+      return std::optional<Record>();
+    }
+    return one;
+  }
+  sqlite3_bind_int64(stmt, 1, run_id);
+  std::optional<Record> found;
+  const auto text = [stmt](int col) {
+    const auto* t = sqlite3_column_text(stmt, col);
+    return t ? std::string(reinterpret_cast<const char*>(t)) : std::string();
+  };
+  const auto real = [stmt](int col) {
+    return sqlite3_column_type(stmt, col) == SQLITE_NULL ? kNaN : sqlite3_column_double(stmt, col);
+  };
+  int rc;
+  while ((rc = sqlite3_step(stmt)) == SQLITE_ROW) {
+    Record r;
+    r.run_id = run_id;
+    r.dut_serial = text(0);
+    r.axis = text(1);
+    if (!result_of_stream(r.dut_serial, r.axis, stream)) continue;
+    r.order = sqlite3_column_int(stmt, 2);
+    r.t_centre_c = real(3);
+    r.k_coeffs_json = text(4);
+    r.bias_coeffs_json = text(5);
+    r.k_ppm_per_c = real(6);
+    r.bias_dph_per_c = real(7);
+    r.created_utc = text(8);
+    found = std::move(r);
+    break;
+  }
+  const std::string message = sqlite3_errmsg(db.handle());
+  sqlite3_finalize(stmt);
+  if (rc != SQLITE_ROW && rc != SQLITE_DONE) {
+    return Error::Transient(fmt::format(
+        "{}: reading the scale-factor temperature fits of run {}: {}", db.path(), run_id, message));
+  }
+  return found;
+}
+
 Result<std::optional<ReportScaleFactor>> collect_scale_factor(storage::Database& db, int64_t run_id,
                                                               std::vector<std::string>& problems) {
+  return collect_scale_factor(db, run_id, problems, AnalysedAxis{});
+}
+
+Result<std::optional<ReportScaleFactor>> collect_scale_factor(storage::Database& db, int64_t run_id,
+                                                              std::vector<std::string>& problems,
+                                                              const AnalysedAxis& stream) {
   ReportScaleFactor sf;
   auto fits = db.scale_factor_fits(run_id);
   if (!fits) return fits.error();
   auto points = db.scale_factor_points(run_id);
   if (!points) return points.error();
-  auto temperature = db.scale_factor_temperature_fit(run_id);
+  auto temperature = scale_factor_temperature_fit_of(db, run_id, stream);
   if (!temperature) return temperature.error();
+  std::erase_if(*fits,
+                [&](const auto& f) { return !result_of_stream(f.dut_serial, f.axis, stream); });
+  std::erase_if(*points,
+                [&](const auto& p) { return !result_of_stream(p.dut_serial, p.axis, stream); });
   if (fits->empty() && points->empty() && !temperature->has_value()) {
     return std::optional<ReportScaleFactor>();
   }
@@ -540,12 +607,43 @@ std::vector<Plot> scale_factor_plots(const ReportScaleFactor& sf) {
   return plots;
 }
 
+bool result_of_stream(const std::string& dut_serial, const std::string& axis,
+                      const AnalysedAxis& stream) {
+  const bool dut = dut_serial.empty() ? stream.dut_position == 0 || stream.dut_serial.empty()
+                                      : dut_serial == stream.dut_serial;
+  const bool of_axis = axis.empty() ? stream.primary : axis == stream.axis;
+  return dut && of_axis;
+}
+
 Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
                                      const ReportOptions& options) {
+  auto axes = analysed_axes(db, run_id);
+  if (!axes) return axes.error();
+  return collect_run_report(db, run_id, options, axes->front(), axes->size() == 1);
+}
+
+Result<std::vector<RunReport>> collect_run_reports(storage::Database& db, int64_t run_id,
+                                                   const ReportOptions& options) {
+  auto axes = analysed_axes(db, run_id);
+  if (!axes) return axes.error();
+  std::vector<RunReport> out;
+  for (const AnalysedAxis& axis : *axes) {
+    auto r = collect_run_report(db, run_id, options, axis, axes->size() == 1);
+    if (!r) return r.error();
+    out.push_back(std::move(*r));
+  }
+  return out;
+}
+
+Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
+                                     const ReportOptions& options, const AnalysedAxis& stream,
+                                     bool only_stream) {
   RunReport r;
   auto run = db.run(run_id);
   if (!run) return run.error();
   r.run = std::move(*run);
+  r.stream = stream;
+  r.file_suffix = file_suffix(stream, only_stream);
   if (auto settings = analysis_settings_of_run(r.run)) {
     r.settings = std::move(*settings);
   } else {
@@ -561,11 +659,22 @@ Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
   // Table I: as stored after the run; computed only if the daemon never did.
   auto stats = db.segment_stats(run_id);
   if (!stats) return stats.error();
-  r.table1 = std::move(*stats);
+  for (auto& row : *stats) {
+    if (!result_of_stream(row.dut_serial, row.axis, stream)) continue;
+    // A row stored before DUTs (axis "") and one of a later analysis naming
+    // the axis are the same soak: the named one is kept.
+    auto same = std::find_if(r.table1.begin(), r.table1.end(),
+                             [&](const auto& o) { return o.segment_id == row.segment_id; });
+    if (same == r.table1.end()) {
+      r.table1.push_back(std::move(row));
+    } else if (same->axis.empty()) {
+      *same = std::move(row);
+    }
+  }
   if (r.table1.empty() && !soaks->empty()) {
     r.table1_stored = false;
     for (const auto& soak : *soaks) {
-      if (auto row = soak_table1(db, soak, r.settings.table1)) {
+      if (auto row = soak_table1(db, soak, r.settings.table1, stream)) {
         r.table1.push_back(std::move(*row));
       } else {
         r.problems.push_back(fmt::format("Table I, {}: {}",
@@ -579,12 +688,19 @@ Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
   auto allan = db.allan(run_id);
   if (!allan) return allan.error();
   for (auto& a : *allan) {
-    if (a.taus == taus) r.allan.push_back(std::move(a));
+    if (a.taus != taus || !result_of_stream(a.dut_serial, a.axis, stream)) continue;
+    auto same = std::find_if(r.allan.begin(), r.allan.end(),
+                             [&](const auto& o) { return o.segment_index == a.segment_index; });
+    if (same == r.allan.end()) {
+      r.allan.push_back(std::move(a));
+    } else if (same->axis.empty()) {
+      *same = std::move(a);
+    }
   }
   if (r.allan.empty() && !soaks->empty()) {
     r.allan_stored = false;
     for (const auto& soak : *soaks) {
-      if (auto a = soak_allan(db, soak, r.settings.allan_taus)) {
+      if (auto a = soak_allan(db, soak, r.settings.allan_taus, stream)) {
         r.allan.push_back(std::move(*a));
       } else {
         r.problems.push_back(fmt::format("Allan deviation, {}: {}",
@@ -594,7 +710,7 @@ Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
     }
   }
 
-  if (auto series = run_series(db, run_id, r.settings.table1.bin_s)) {
+  if (auto series = run_series(db, run_id, r.settings.table1.bin_s, stream)) {
     r.series = std::move(*series);
   } else {
     r.problems.push_back(
@@ -640,7 +756,7 @@ Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
   }
   if (!allan_records.empty()) r.plots.push_back(allan_plot(allan_records));
 
-  auto sf = collect_scale_factor(db, run_id, r.problems);
+  auto sf = collect_scale_factor(db, run_id, r.problems, stream);
   if (!sf) return sf.error();
   r.scale_factor = std::move(*sf);
   if (r.scale_factor) {
@@ -657,6 +773,10 @@ CampaignReport collect_campaign_report(std::vector<RunReport> runs, const Report
   if (c.runs.empty()) return c;
   const std::size_t max_points = static_cast<std::size_t>(std::max(100, options.max_plot_points));
   c.station_name = c.runs.front().station_name;
+  c.dut_serial = c.runs.front().stream.dut_serial;
+  c.dut_model = c.runs.front().stream.dut_model;
+  c.axis = c.runs.front().stream.axis;
+  c.file_suffix = c.runs.front().file_suffix;
   const AnalysisSettings& settings = c.runs.front().settings;
 
   std::vector<analysis::AnalysisSeries> series;
@@ -731,6 +851,41 @@ CampaignReport collect_campaign_report(std::vector<RunReport> runs, const Report
     for (const auto& p : r.problems) c.problems.push_back(fmt::format("run {}: {}", r.run.id, p));
   }
   return c;
+}
+
+std::vector<CampaignReport> collect_campaign_reports(std::vector<RunReport> runs,
+                                                     const ReportOptions& options) {
+  // Grouped by DUT serial and axis: a run without DUT records (axis "")
+  // is its gyro's primary axis, grouped with the unnamed gyro's.
+  std::vector<std::pair<std::string, std::string>> keys;
+  std::vector<std::vector<RunReport>> groups;
+  for (auto& r : runs) {
+    const std::pair<std::string, std::string> key{r.stream.dut_serial, r.stream.axis};
+    auto it = std::find_if(keys.begin(), keys.end(), [&](const auto& k) {
+      return k.first == key.first &&
+             (k.second == key.second ||
+              (key.first.empty() && (k.second.empty() || key.second.empty())));
+    });
+    if (it == keys.end()) {
+      keys.push_back(key);
+      groups.emplace_back();
+      it = keys.end() - 1;
+    }
+    groups[static_cast<std::size_t>(it - keys.begin())].push_back(std::move(r));
+  }
+  std::vector<CampaignReport> out;
+  for (auto& g : groups) out.push_back(collect_campaign_report(std::move(g), options));
+  // One unnamed gyro: the summary keeps today's names. Several DUT axes:
+  // each summary has its own, index.html is the summary across DUTs.
+  const bool one_unnamed = out.size() == 1 && out.front().dut_serial.empty();
+  for (auto& c : out) {
+    if (one_unnamed) {
+      c.file_suffix.clear();
+    } else if (!c.runs.empty()) {
+      c.file_suffix = file_suffix(c.runs.front().stream, false);
+    }
+  }
+  return out;
 }
 
 }  // namespace gyrotherm::daemon

@@ -422,7 +422,7 @@ std::string sf_fits_html(const std::vector<const ReportScaleFactor*>& runs, bool
 }
 
 // K(T) and B(T): the coefficients and the temperature coefficients.
-std::string sf_temperature_html(const ReportScaleFactor& sf) {
+std::string sf_temperature_html(const ReportScaleFactor& sf, const std::string& sfx) {
   const auto& t = *sf.temperature_fit;
   std::string h = fmt::format(
       "<h3>K and bias over temperature</h3>\n<p>Polynomials of order {} in T − {:.3f} °C "
@@ -443,9 +443,11 @@ std::string sf_temperature_html(const ReportScaleFactor& sf) {
                     sci_cell(j < sf.bias_coeffs_dph.size() ? sf.bias_coeffs_dph[j] : std::nan("")));
   }
   h += "</tbody></table>\n<p class=\"note\">The temperature coefficients are dK/dT / K and "
-       "dB/dT at T̄ (k₁ / k₀ × 10⁶ and b₁). Coefficients for the gyro's computer: <a "
-       "href=\"scale-factor.json\">scale-factor.json</a>, <a "
-       "href=\"scale-factor.h\">scale-factor.h</a> (C99).</p>\n";
+       "dB/dT at T̄ (k₁ / k₀ × 10⁶ and b₁). Coefficients for the gyro's computer: " +
+       fmt::format(
+           "<a href=\"scale-factor{0}.json\">scale-factor{0}.json</a>, <a "
+           "href=\"scale-factor{0}.h\">scale-factor{0}.h</a> (C99).</p>\n",
+           escape(sfx));
   return h;
 }
 
@@ -464,7 +466,7 @@ double residual_ppm(const storage::ScaleFactorPointRecord& p,
 }
 
 // Each sequence's rate points with their residuals from its line.
-std::string sf_points_html(const ReportScaleFactor& sf) {
+std::string sf_points_html(const ReportScaleFactor& sf, const std::string& sfx) {
   std::string h;
   std::set<int> sequences;
   for (const auto& p : sf.points) sequences.insert(p.sf_sequence);
@@ -491,8 +493,10 @@ std::string sf_points_html(const ReportScaleFactor& sf) {
   if (!h.empty()) {
     h += "<p class=\"note\">Residual: output − (K · rate + bias) with the demanded rate and the "
          "sequence's line; in ppm relative to K · rate (none at zero rate). The measured rate is "
-         "the table's mean over the acquisition. <a href=\"scale-factor-points.csv\">"
-         "scale-factor-points.csv</a> has every value to 17 significant digits.</p>\n";
+         "the table's mean over the acquisition. " +
+         fmt::format("<a href=\"scale-factor-points{0}.csv\">scale-factor-points{0}.csv</a>",
+                     escape(sfx)) +
+         " has every value to 17 significant digits.</p>\n";
   }
   return h;
 }
@@ -505,6 +509,15 @@ std::string c_identifier(const std::string& prefix) {
     if (!std::isalnum(static_cast<unsigned char>(c)) && c != '_') c = '_';
   }
   if (std::isdigit(static_cast<unsigned char>(out.front()))) out.insert(out.begin(), '_');
+  return out;
+}
+
+// A file suffix ("-17-0042-z") as part of a C identifier ("_17_0042_z").
+std::string c_identifier_part(const std::string& sfx) {
+  std::string out = sfx;
+  for (char& c : out) {
+    if (!std::isalnum(static_cast<unsigned char>(c)) && c != '_') c = '_';
+  }
   return out;
 }
 
@@ -543,13 +556,14 @@ std::string c_horner(const std::string& array, std::size_t n, const std::string&
 
 // A run's "Scale factor" section: the sequences, K(T) and B(T), the
 // figures, the rate points.
-std::string sf_section_html(const ReportScaleFactor& sf, const std::vector<Plot>& plots) {
+std::string sf_section_html(const ReportScaleFactor& sf, const std::vector<Plot>& plots,
+                            const std::string& sfx) {
   std::string h = sf.fits.empty()
                       ? std::string(
                             "<p class=\"problem\">Rate points are stored but no line was "
                             "fitted to them.</p>\n")
                       : sf_fits_html({&sf}, false);
-  if (sf.temperature_fit) h += sf_temperature_html(sf);
+  if (sf.temperature_fit) h += sf_temperature_html(sf, sfx);
   if (const auto* p = find_plot(plots, "chart-sf-k-temperature")) {
     h += chart(*p,
                "K of each sequence relative to K at the centre temperature, in ppm, with the "
@@ -561,7 +575,7 @@ std::string sf_section_html(const ReportScaleFactor& sf, const std::vector<Plot>
   if (const auto* p = find_plot(plots, "chart-sf-nonlinearity")) {
     h += chart(*p, "Nonlinearity of each sequence, relative to K · rate and to full scale.");
   }
-  h += sf_points_html(sf);
+  h += sf_points_html(sf, sfx);
   return h;
 }
 
@@ -578,10 +592,11 @@ std::string sf_campaign_html(const CampaignReport& c) {
     const auto& t = *sf.temperature_fit;
     coefficients += fmt::format(
         "<tr><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td>{}{}{}{}"
-        "<td><a href=\"run-{:04}/report.html#scale-factor\">run-{:04}</a></td></tr>\n",
+        "<td><a href=\"run-{:04}/report{}.html#scale-factor\">run-{:04}</a></td></tr>\n",
         r.run.id, sf.fits.size(), t.order, num_cell(t.t_centre_c, 2),
         num_cell(sf.k_coeffs.empty() ? std::nan("") : sf.k_coeffs.front(), 9),
-        num_cell(t.k_ppm_per_c, 3), num_cell(t.bias_dph_per_c, 4), r.run.id, r.run.id);
+        num_cell(t.k_ppm_per_c, 3), num_cell(t.bias_dph_per_c, 4), r.run.id, escape(r.file_suffix),
+        r.run.id);
   }
   std::string h = sf_fits_html(runs, true);
   if (!coefficients.empty()) {
@@ -659,6 +674,57 @@ analysis::ExportInfo export_info(const std::string& station, const ReportFit& f,
   info.computed_utc = computed_utc;
   info.l0_window_s = f.l0_window_s;
   return info;
+}
+
+// The gyro (serial, model, axis) and the run's metadata, for the exports.
+void add_stream_info(analysis::ExportInfo& info, const RunReport& r) {
+  info.gyro_serial = r.stream.dut_serial;
+  info.gyro_model = r.stream.dut_model;
+  info.axis = r.stream.axis;
+  info.operator_name = r.run.metadata.operator_name;
+  info.comment = r.run.metadata.comment;
+  info.tags = r.run.metadata.tags;
+}
+
+// The runs' metadata joined (distinct values, in run order), for an export
+// of several runs of one DUT axis.
+void add_campaign_info(analysis::ExportInfo& info, const CampaignReport& c) {
+  info.gyro_serial = c.dut_serial;
+  info.gyro_model = c.dut_model;
+  info.axis = c.axis;
+  std::vector<std::string> operators, comments;
+  const auto add = [](std::vector<std::string>& to, const std::string& v) {
+    if (!v.empty() && std::find(to.begin(), to.end(), v) == to.end()) to.push_back(v);
+  };
+  for (const auto& r : c.runs) {
+    add(operators, r.run.metadata.operator_name);
+    add(comments, r.run.metadata.comment);
+    for (const auto& t : r.run.metadata.tags) add(info.tags, t);
+  }
+  info.operator_name = fmt::format("{}", fmt::join(operators, ", "));
+  info.comment = fmt::format("{}", fmt::join(comments, "; "));
+}
+
+// "SN 17-0042 (KVH 1750), axis z": the DUT a report is of.
+std::string dut_label(const AnalysedAxis& a) {
+  std::string h = a.dut_serial.empty() ? std::string("(no serial)") : "SN " + a.dut_serial;
+  if (!a.dut_model.empty()) h += " (" + a.dut_model + ")";
+  if (!a.axis.empty()) h += ", axis " + a.axis;
+  return h;
+}
+
+std::string tags_text(const std::vector<std::string>& tags) {
+  return tags.empty() ? std::string(kDash) : fmt::format("{}", fmt::join(tags, ", "));
+}
+
+// Who ran the run, why, which DUT: the top of a run's page.
+void add_metadata_provenance(Page& page, const RunReport& r) {
+  const storage::RunMetadata& m = r.run.metadata;
+  page.provenance.insert(page.provenance.begin() + std::min<std::size_t>(2, page.provenance.size()),
+                         {{"DUT", escape(dut_label(r.stream))},
+                          {"Operator", escape(m.operator_name.empty() ? kDash : m.operator_name)},
+                          {"Comment", escape(m.comment.empty() ? kDash : m.comment)},
+                          {"Tags", escape(tags_text(m.tags))}});
 }
 
 std::string figures_html(const std::vector<Plot>& plots, bool campaign) {
@@ -859,6 +925,11 @@ std::string scale_factor_json(const ReportScaleFactor& sf, const analysis::Expor
   j["sequences"] = sequences;
   j["station"] = info.station;
   j["gyro_serial"] = info.gyro_serial;
+  j["gyro_model"] = info.gyro_model;
+  j["axis"] = info.axis;
+  j["operator"] = info.operator_name;
+  j["comment"] = info.comment;
+  j["tags"] = info.tags;
   j["runs"] = info.run_ids;
   j["computed_utc"] = info.computed_utc;
   return j.dump(2);
@@ -876,6 +947,7 @@ std::string scale_factor_c_header(const ReportScaleFactor& sf, const analysis::E
       "/* {}.h: scale factor and bias of a fiber-optic gyro over temperature, from rate-table\n"
       " * sequences. Generated by gyrotherm; do not edit.\n"
       " * Station: {}; gyro: {}; runs: {}; computed: {}\n"
+      "{}"
       " *\n"
       " * output_dps = K(T) * rate_dps + bias_dph(T) / 3600, where\n"
       " *   rate_dps   = the rate about the sensitive axis, deg/s\n"
@@ -888,7 +960,8 @@ std::string scale_factor_c_header(const ReportScaleFactor& sf, const analysis::E
       p, c_comment_text(info.station.empty() ? "(unnamed)" : info.station),
       c_comment_text(info.gyro_serial.empty() ? "(no serial)" : info.gyro_serial),
       runs.empty() ? "(none)" : runs,
-      c_comment_text(info.computed_utc.empty() ? "(unknown)" : info.computed_utc));
+      c_comment_text(info.computed_utc.empty() ? "(unknown)" : info.computed_utc),
+      analysis::export_metadata_c(info));
   out += fmt::format("#ifndef {0}\n#define {0}\n\n", guard);
   if (sf.temperature_fit && !sf.k_coeffs.empty()) {
     const auto& t = *sf.temperature_fit;
@@ -977,11 +1050,13 @@ std::string plots_json(const std::vector<Plot>& plots) {
 
 std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions& options) {
   const std::string dir = fmt::format("run-{:04}/", r.run.id);
+  const std::string& sfx = r.file_suffix;  // "" for the unnamed gyro's one axis
   const std::string when = generated(options);
   std::vector<ReportFile> files;
   std::vector<std::pair<std::string, std::string>> listed;
   Page page;
   page.title = fmt::format("Calibration report — run {} ({})", r.run.id, r.run.schedule_name);
+  if (!sfx.empty()) page.title += " — " + dut_label(r.stream);
   const AnalysisSettings& s = r.settings;
   page.provenance = {
       {"Station", escape(r.station_name.empty() ? kDash : r.station_name)},
@@ -991,8 +1066,13 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
        fmt::format("{} / {}", escape(r.run.started_utc),
                    escape(r.run.ended_utc.empty() ? kDash : r.run.ended_utc))},
       {"Mounting",
-       fmt::format("latitude {:g}°, axis {}; Earth rate removed {:.4f} °/h", r.run.latitude_deg,
-                   escape(r.run.orientation), s.table1.earth_rate_dph)},
+       r.stream.orientation
+           ? fmt::format(
+                 "latitude {:g}°, axis {} {}; Earth rate removed {:.4f} °/h", r.run.latitude_deg,
+                 escape(r.stream.axis), analysis::to_string(*r.stream.orientation),
+                 analysis::earth_rate_component_dph(r.run.latitude_deg, *r.stream.orientation))
+           : fmt::format("latitude {:g}°, axis {}; Earth rate removed {:.4f} °/h",
+                         r.run.latitude_deg, escape(r.run.orientation), s.table1.earth_rate_dph)},
       {"Analysis",
        fmt::format("{:g} s bins, {}-point moving average, model {}, derivative window {:g} s, L0 "
                    "window {:g} s, Allan τ {}",
@@ -1010,19 +1090,23 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
   if (!options.database_path.empty()) {
     page.provenance.emplace_back("Database", escape(options.database_path));
   }
+  add_metadata_provenance(page, r);
+  const auto name = [&sfx](std::string_view stem, std::string_view ext) {
+    return fmt::format("{}{}.{}", stem, sfx, ext);
+  };
 
   std::vector<const storage::SegmentStatsRecord*> rows;
   for (const auto& row : r.table1) rows.push_back(&row);
   add_section(page, "table1", "Table I — zero bias at each set point", table1_html(rows, false));
-  files.push_back({dir + "table1.csv", table1_csv(r.table1)});
-  listed.emplace_back("table1.csv", "Table I rows");
+  files.push_back({dir + name("table1", "csv"), table1_csv(r.table1)});
+  listed.emplace_back(name("table1", "csv"), "Table I rows");
   // A schedule that repeats set points: the paper's grouped form too.
   if (auto groups = analysis::table1_by_setpoint(table1_soaks(rows))) {
     if (has_repetitions(*groups)) {
       add_section(page, "table1-by-setpoint", "Table I — by set point",
                   table1_groups_html(*groups));
-      files.push_back({dir + "table1-by-setpoint.csv", table1_groups_csv(*groups)});
-      listed.emplace_back("table1-by-setpoint.csv", "Table I by set point");
+      files.push_back({dir + name("table1-by-setpoint", "csv"), table1_groups_csv(*groups)});
+      listed.emplace_back(name("table1-by-setpoint", "csv"), "Table I by set point");
     }
   } else {
     add_section(page, "table1-by-setpoint", "Table I — by set point",
@@ -1031,15 +1115,18 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
 
   std::string fits;
   for (const auto& rf : r.fits) {
-    const std::string stem = fmt::format("drift-fit-{}", analysis::to_string(rf.fit.form));
+    const std::string stem = fmt::format("drift-fit-{}{}", analysis::to_string(rf.fit.form), sfx);
     fits += fit_html(rf, stem);
-    const auto info = export_info(r.station_name, rf, when);
+    auto info = export_info(r.station_name, rf, when);
+    add_stream_info(info, r);
     files.push_back({dir + stem + ".json", analysis::drift_fit_json(rf.fit, info)});
-    // Names (and guard) per form: the gyro's build can include both headers.
-    files.push_back(
-        {dir + stem + ".h",
-         analysis::drift_fit_c_header(
-             rf.fit, info, fmt::format("gyrotherm_drift_{}", analysis::to_string(rf.fit.form)))});
+    // Names (and guard) per form, DUT and axis: the gyro's build can include
+    // every header.
+    files.push_back({dir + stem + ".h",
+                     analysis::drift_fit_c_header(
+                         rf.fit, info,
+                         fmt::format("gyrotherm_drift_{}{}", analysis::to_string(rf.fit.form),
+                                     c_identifier_part(sfx)))});
     listed.emplace_back(stem + ".json", "coefficients (JSON)");
     listed.emplace_back(stem + ".h", "coefficients (C99 header)");
   }
@@ -1049,8 +1136,8 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
   if (r.comparison) {
     add_section(page, "comparison", "Tables II–IV — compensation by model and order",
                 comparison_html(*r.comparison));
-    files.push_back({dir + "comparison.csv", comparison_csv(*r.comparison)});
-    listed.emplace_back("comparison.csv", "Tables II–IV grid");
+    files.push_back({dir + name("comparison", "csv"), comparison_csv(*r.comparison)});
+    listed.emplace_back(name("comparison", "csv"), "Tables II–IV grid");
   } else {
     add_section(
         page, "comparison", "Tables II–IV — compensation by model and order",
@@ -1066,45 +1153,56 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
     allan_body += chart(*p, "Allan deviation of each soak, log-log, with its 1σ bounds.");
   }
   add_section(page, "allan", "Allan deviation", allan_body);
-  files.push_back({dir + "allan.csv", allan_csv(r.allan)});
-  files.push_back({dir + "allan-curves.csv", allan_curves_csv(allan)});
-  listed.emplace_back("allan.csv", "Allan noise terms per soak");
-  listed.emplace_back("allan-curves.csv", "Allan deviation curves with bounds");
+  files.push_back({dir + name("allan", "csv"), allan_csv(r.allan)});
+  files.push_back({dir + name("allan-curves", "csv"), allan_curves_csv(allan)});
+  listed.emplace_back(name("allan", "csv"), "Allan noise terms per soak");
+  listed.emplace_back(name("allan-curves", "csv"), "Allan deviation curves with bounds");
 
   if (r.scale_factor) {
     const ReportScaleFactor& sf = *r.scale_factor;
-    add_section(page, "scale-factor", "Scale factor", sf_section_html(sf, r.plots));
-    files.push_back({dir + "scale-factor.csv", scale_factor_csv({&sf})});
-    files.push_back({dir + "scale-factor-points.csv", scale_factor_points_csv(sf)});
-    listed.emplace_back("scale-factor.csv", "scale factor of each sequence");
-    listed.emplace_back("scale-factor-points.csv", "rate points with their residuals");
+    add_section(page, "scale-factor", "Scale factor", sf_section_html(sf, r.plots, sfx));
+    files.push_back({dir + name("scale-factor", "csv"), scale_factor_csv({&sf})});
+    files.push_back({dir + name("scale-factor-points", "csv"), scale_factor_points_csv(sf)});
+    listed.emplace_back(name("scale-factor", "csv"), "scale factor of each sequence");
+    listed.emplace_back(name("scale-factor-points", "csv"), "rate points with their residuals");
     if (!sf.fits.empty()) {
       analysis::ExportInfo info;
       info.station = r.station_name;
       info.run_ids = {r.run.id};
       info.computed_utc = when;
-      files.push_back({dir + "scale-factor.json", scale_factor_json(sf, info)});
-      files.push_back({dir + "scale-factor.h", scale_factor_c_header(sf, info)});
-      listed.emplace_back("scale-factor.json", "scale factor over temperature (JSON)");
-      listed.emplace_back("scale-factor.h", "scale factor over temperature (C99 header)");
+      add_stream_info(info, r);
+      files.push_back({dir + name("scale-factor", "json"), scale_factor_json(sf, info)});
+      files.push_back({dir + name("scale-factor", "h"),
+                       scale_factor_c_header(sf, info, "gyrotherm_sf" + c_identifier_part(sfx))});
+      listed.emplace_back(name("scale-factor", "json"), "scale factor over temperature (JSON)");
+      listed.emplace_back(name("scale-factor", "h"), "scale factor over temperature (C99 header)");
     }
   }
 
   if (!r.problems.empty()) add_section(page, "problems", "Problems", problems_html(r.problems));
   add_section(page, "files", "Files", files_html(listed));
   page.plots = r.plots;
-  files.push_back({dir + "report.html", render_page(page, when)});
+  files.push_back({dir + name("report", "html"), render_page(page, when)});
   return files;
 }
 
 std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
                                               const ReportOptions& options) {
   const std::string when = generated(options);
+  const std::string& sfx = c.file_suffix;
+  const auto name = [&sfx](std::string_view stem, std::string_view ext) {
+    return fmt::format("{}{}.{}", stem, sfx, ext);
+  };
   std::vector<ReportFile> files;
   std::vector<std::pair<std::string, std::string>> listed;
   Page page;
   page.title =
       fmt::format("Calibration summary — {} run{}", c.runs.size(), c.runs.size() == 1 ? "" : "s");
+  AnalysedAxis group;
+  group.dut_serial = c.dut_serial;
+  group.dut_model = c.dut_model;
+  group.axis = c.axis;
+  if (!sfx.empty()) page.title += " — " + dut_label(group);
   page.provenance = {
       {"Station", escape(c.station_name.empty() ? kDash : c.station_name)},
       {"Export", escape(options.export_label.empty() ? "on demand" : options.export_label)},
@@ -1113,24 +1211,27 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
   if (!options.database_path.empty()) {
     page.provenance.emplace_back("Database", escape(options.database_path));
   }
+  page.provenance.insert(page.provenance.begin() + 1, {"DUT", escape(dut_label(group))});
 
   std::string runs =
       "<table class=\"numbers\">\n<thead><tr><th>run</th><th>schedule</th><th>started "
-      "(UTC)</th><th>ended (UTC)</th><th>start temperature (°C)</th><th>soaks</th>"
-      "<th>report</th></tr></thead>\n<tbody>\n";
+      "(UTC)</th><th>ended (UTC)</th><th>operator</th><th>tags</th><th>start temperature "
+      "(°C)</th><th>soaks</th><th>report</th></tr></thead>\n<tbody>\n";
   for (std::size_t i = 0; i < c.runs.size(); ++i) {
     const auto& r = c.runs[i];
     std::optional<double> t0;
     if (r.series) {
       if (auto t = analysis::start_temperature_c(*r.series)) t0 = *t;
     }
+    const std::string link = fmt::format("run-{:04}/report{}.html", r.run.id, r.file_suffix);
     runs += fmt::format(
-        "<tr{}><td class=\"num\">{}</td><td>{}</td><td>{}</td><td>{}</td>{}<td "
-        "class=\"num\">{}</td><td><a href=\"run-{:04}/report.html\">run-{:04}/report.html</a>"
-        "</td></tr>\n",
+        "<tr{}><td class=\"num\">{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>"
+        "{}<td class=\"num\">{}</td><td><a href=\"{}\">{}</a></td></tr>\n",
         r.problems.empty() ? "" : " class=\"warn\"", r.run.id, escape(r.run.schedule_name),
-        escape(r.run.started_utc), escape(r.run.ended_utc), num_cell(t0, 2), r.table1.size(),
-        r.run.id, r.run.id);
+        escape(r.run.started_utc), escape(r.run.ended_utc),
+        escape(r.run.metadata.operator_name.empty() ? kDash : r.run.metadata.operator_name),
+        escape(tags_text(r.run.metadata.tags)), num_cell(t0, 2), r.table1.size(), escape(link),
+        escape(link));
   }
   runs += "</tbody></table>\n";
   add_section(page, "runs", "Runs", runs);
@@ -1150,8 +1251,8 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
     }
   }
   add_section(page, "table1", "Table I — every run", table1_html(rows, true));
-  files.push_back({"table1.csv", table1_csv(all_rows)});
-  listed.emplace_back("table1.csv", "Table I rows of every run");
+  files.push_back({name("table1", "csv"), table1_csv(all_rows)});
+  listed.emplace_back(name("table1", "csv"), "Table I rows of every run");
   if (!rows.empty()) {
     auto groups = analysis::table1_by_setpoint(table1_soaks(rows));
     add_section(page, "table1-by-setpoint", "Table I — by set point, all runs",
@@ -1159,15 +1260,16 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
                     ? table1_groups_html(*groups)
                     : fmt::format("<p class=\"problem\">{}</p>\n", escape(groups.error().message)));
     if (groups) {
-      files.push_back({"table1-by-setpoint.csv", table1_groups_csv(*groups)});
-      listed.emplace_back("table1-by-setpoint.csv", "Table I by set point, all runs");
+      files.push_back({name("table1-by-setpoint", "csv"), table1_groups_csv(*groups)});
+      listed.emplace_back(name("table1-by-setpoint", "csv"), "Table I by set point, all runs");
     }
   }
 
   if (c.comparison) {
     add_section(page, "comparison", "Tables II–IV — all runs", comparison_html(*c.comparison));
-    files.push_back({"comparison.csv", comparison_csv(*c.comparison)});
-    listed.emplace_back("comparison.csv", "Tables II–IV grid, in-sample and leave-one-run-out");
+    files.push_back({name("comparison", "csv"), comparison_csv(*c.comparison)});
+    listed.emplace_back(name("comparison", "csv"),
+                        "Tables II–IV grid, in-sample and leave-one-run-out");
   } else {
     add_section(
         page, "comparison", "Tables II–IV — all runs",
@@ -1175,12 +1277,16 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
   }
 
   if (c.joint_fit) {
-    const auto info = export_info(c.station_name, *c.joint_fit, when);
-    add_section(page, "fit", "Drift model fitted on all runs", fit_html(*c.joint_fit, "drift-fit"));
-    files.push_back({"drift-fit.json", analysis::drift_fit_json(c.joint_fit->fit, info)});
-    files.push_back({"drift-fit.h", analysis::drift_fit_c_header(c.joint_fit->fit, info)});
-    listed.emplace_back("drift-fit.json", "joint fit coefficients (JSON)");
-    listed.emplace_back("drift-fit.h", "joint fit coefficients (C99 header)");
+    auto info = export_info(c.station_name, *c.joint_fit, when);
+    add_campaign_info(info, c);
+    const std::string stem = "drift-fit" + sfx;
+    add_section(page, "fit", "Drift model fitted on all runs", fit_html(*c.joint_fit, stem));
+    files.push_back({stem + ".json", analysis::drift_fit_json(c.joint_fit->fit, info)});
+    files.push_back(
+        {stem + ".h", analysis::drift_fit_c_header(c.joint_fit->fit, info,
+                                                   "gyrotherm_drift" + c_identifier_part(sfx))});
+    listed.emplace_back(stem + ".json", "joint fit coefficients (JSON)");
+    listed.emplace_back(stem + ".h", "joint fit coefficients (C99 header)");
   } else {
     add_section(
         page, "fit", "Drift model fitted on all runs",
@@ -1207,18 +1313,23 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
       const auto rs = m.cubic_residual_std.find(name);
       h += sci_cell(rs == m.cubic_residual_std.end() ? std::nan("") : rs->second) + "</tr>\n";
     }
-    h += "</tbody></table>\n<p class=\"note\"><a href=\"start-model.json\">start-model.json</a>, "
-         "<a href=\"start-model.h\">start-model.h</a> (C99).</p>\n";
+    h += fmt::format(
+        "</tbody></table>\n<p class=\"note\"><a href=\"start-model{0}.json\">start-model{0}.json"
+        "</a>, <a href=\"start-model{0}.h\">start-model{0}.h</a> (C99).</p>\n",
+        escape(sfx));
     add_section(page, "start-model", "Start-temperature model (eq. 3)", h);
     analysis::ExportInfo info;
     info.station = c.station_name;
     for (const auto& r : c.runs) info.run_ids.push_back(r.run.id);
     info.computed_utc = when;
     info.l0_window_s = m.l0_window_s;
-    files.push_back({"start-model.json", analysis::start_model_json(m, info)});
-    files.push_back({"start-model.h", analysis::start_model_c_header(m, info)});
-    listed.emplace_back("start-model.json", "start-temperature model (JSON)");
-    listed.emplace_back("start-model.h", "start-temperature model (C99 header)");
+    add_campaign_info(info, c);
+    files.push_back({name("start-model", "json"), analysis::start_model_json(m, info)});
+    files.push_back(
+        {name("start-model", "h"),
+         analysis::start_model_c_header(m, info, "gyrotherm_start" + c_identifier_part(sfx))});
+    listed.emplace_back(name("start-model", "json"), "start-temperature model (JSON)");
+    listed.emplace_back(name("start-model", "h"), "start-temperature model (C99 header)");
   } else {
     add_section(page, "start-model", "Start-temperature model (eq. 3)",
                 fmt::format("<p class=\"note\">Not fitted: {}.</p>\n", escape(c.start_model_note)));
@@ -1230,8 +1341,8 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
     allan_body += chart(*p, "Allan deviation of every soak, log-log, with 1σ bounds.");
   }
   add_section(page, "allan", "Allan deviation", allan_body);
-  files.push_back({"allan.csv", allan_csv(all_allan)});
-  listed.emplace_back("allan.csv", "Allan noise terms of every soak");
+  files.push_back({name("allan", "csv"), allan_csv(all_allan)});
+  listed.emplace_back(name("allan", "csv"), "Allan noise terms of every soak");
 
   std::vector<const ReportScaleFactor*> sf_runs;
   for (const auto& r : c.runs) {
@@ -1239,18 +1350,181 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
   }
   if (!sf_runs.empty()) {
     add_section(page, "scale-factor", "Scale factor — every run", sf_campaign_html(c));
-    files.push_back({"scale-factor.csv", scale_factor_csv(sf_runs)});
-    listed.emplace_back("scale-factor.csv", "scale factor of each sequence of every run");
+    files.push_back({name("scale-factor", "csv"), scale_factor_csv(sf_runs)});
+    listed.emplace_back(name("scale-factor", "csv"), "scale factor of each sequence of every run");
   }
 
   if (!c.problems.empty()) add_section(page, "problems", "Problems", problems_html(c.problems));
   for (const auto& r : c.runs) {
-    listed.emplace_back(fmt::format("run-{:04}/report.html", r.run.id),
+    listed.emplace_back(fmt::format("run-{:04}/report{}.html", r.run.id, r.file_suffix),
                         fmt::format("report of run {}", r.run.id));
   }
   add_section(page, "files", "Files", files_html(listed));
   page.plots = c.plots;
-  files.push_back({"index.html", render_page(page, when)});
+  files.push_back(
+      {sfx.empty() ? std::string("index.html") : name("summary", "html"), render_page(page, when)});
+  return files;
+}
+
+ReportFile render_run_index(const std::vector<RunReport>& reports, const ReportOptions& options) {
+  const std::string when = generated(options);
+  Page page;
+  if (reports.empty()) return {"", ""};
+  const storage::RunRecord& run = reports.front().run;
+  const storage::RunMetadata& m = run.metadata;
+  page.title = fmt::format("Calibration report — run {} ({})", run.id, run.schedule_name);
+  page.provenance = {
+      {"Station",
+       escape(reports.front().station_name.empty() ? kDash : reports.front().station_name)},
+      {"Run",
+       fmt::format("{} — schedule “{}”, {}", run.id, escape(run.schedule_name), escape(run.state))},
+      {"Operator", escape(m.operator_name.empty() ? kDash : m.operator_name)},
+      {"Comment", escape(m.comment.empty() ? kDash : m.comment)},
+      {"Tags", escape(tags_text(m.tags))},
+      {"Started / ended (UTC)", fmt::format("{} / {}", escape(run.started_utc),
+                                            escape(run.ended_utc.empty() ? kDash : run.ended_utc))},
+      {"Generated",
+       escape(when) +
+           (options.export_label.empty() ? std::string() : " — " + escape(options.export_label))},
+  };
+  std::string h =
+      "<table class=\"numbers\" id=\"duts\">\n<thead><tr><th>DUT</th><th>model</th><th>axis</th>"
+      "<th>orientation</th><th>Table I rows</th><th>Allan</th><th>fits</th><th>scale-factor "
+      "sequences</th><th>report</th></tr></thead>\n<tbody>\n";
+  for (const auto& r : reports) {
+    const std::string link = fmt::format("report{}.html", r.file_suffix);
+    h += fmt::format(
+        "<tr{}><td>{}</td><td>{}</td><td>{}{}</td><td>{}</td><td class=\"num\">{}</td><td "
+        "class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td><a "
+        "href=\"{}\">{}</a></td></tr>\n",
+        r.problems.empty() ? "" : " class=\"warn\"",
+        escape(r.stream.dut_serial.empty() ? "(no serial)" : r.stream.dut_serial),
+        escape(r.stream.dut_model.empty() ? kDash : r.stream.dut_model), escape(r.stream.axis),
+        r.stream.primary ? " (primary)" : "",
+        r.stream.orientation ? analysis::to_string(*r.stream.orientation)
+                             : std::string_view(run.orientation),
+        r.table1.size(), r.allan.size(), r.fits.size(),
+        r.scale_factor ? r.scale_factor->fits.size() : 0, escape(link), escape(link));
+  }
+  h += "</tbody></table>\n";
+  add_section(page, "duts", "Devices under test", h);
+  return {fmt::format("run-{:04}/report.html", run.id), render_page(page, when)};
+}
+
+ReportFile render_summary_index(const std::vector<CampaignReport>& groups,
+                                const ReportOptions& options) {
+  const std::string when = generated(options);
+  Page page;
+  std::set<int64_t> run_ids;
+  for (const auto& g : groups) {
+    for (const auto& r : g.runs) run_ids.insert(r.run.id);
+  }
+  page.title =
+      fmt::format("Calibration summary — {} run{}, {} DUT ax{}", run_ids.size(),
+                  run_ids.size() == 1 ? "" : "s", groups.size(), groups.size() == 1 ? "is" : "es");
+  page.provenance = {
+      {"Station",
+       escape(groups.empty() || groups.front().station_name.empty() ? kDash
+                                                                    : groups.front().station_name)},
+      {"Export", escape(options.export_label.empty() ? "on demand" : options.export_label)},
+      {"Generated", escape(when)},
+  };
+  if (!options.database_path.empty()) {
+    page.provenance.emplace_back("Database", escape(options.database_path));
+  }
+  // The runs, once each, with their metadata and DUT axes.
+  std::map<int64_t, std::pair<const RunReport*, std::vector<const RunReport*>>> runs;
+  for (const auto& g : groups) {
+    for (const auto& r : g.runs) {
+      auto& e = runs[r.run.id];
+      if (e.first == nullptr) e.first = &r;
+      e.second.push_back(&r);
+    }
+  }
+  std::string h =
+      "<table class=\"numbers\" id=\"runs\">\n<thead><tr><th>run</th><th>schedule</th><th>started "
+      "(UTC)</th><th>operator</th><th>comment</th><th>tags</th><th>reports</th></tr></thead>\n"
+      "<tbody>\n";
+  for (const auto& [id, e] : runs) {
+    const storage::RunRecord& run = e.first->run;
+    std::string links;
+    for (const auto* r : e.second) {
+      const std::string link = fmt::format("run-{:04}/report{}.html", id, r->file_suffix);
+      links += fmt::format("{}<a href=\"{}\">{}</a>", links.empty() ? "" : ", ", escape(link),
+                           escape(dut_label(r->stream)));
+    }
+    h += fmt::format(
+        "<tr><td class=\"num\">{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>"
+        "<td>{}</td></tr>\n",
+        id, escape(run.schedule_name), escape(run.started_utc),
+        escape(run.metadata.operator_name.empty() ? kDash : run.metadata.operator_name),
+        escape(run.metadata.comment.empty() ? kDash : run.metadata.comment),
+        escape(tags_text(run.metadata.tags)), links);
+  }
+  h += "</tbody></table>\n";
+  add_section(page, "runs", "Runs", h);
+  std::string d =
+      "<table class=\"numbers\" id=\"dut-axes\">\n<thead><tr><th>DUT</th><th>runs</th><th>Table "
+      "I rows</th><th>joint fit</th><th>summary</th></tr></thead>\n<tbody>\n";
+  std::vector<std::string> problems;
+  for (const auto& g : groups) {
+    AnalysedAxis a;
+    a.dut_serial = g.dut_serial;
+    a.dut_model = g.dut_model;
+    a.axis = g.axis;
+    std::size_t rows = 0;
+    for (const auto& r : g.runs) rows += r.table1.size();
+    const std::string link = fmt::format("summary{}.html", g.file_suffix);
+    d += fmt::format(
+        "<tr{}><td>{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td>{}</td><td><a "
+        "href=\"{}\">{}</a></td></tr>\n",
+        g.problems.empty() ? "" : " class=\"warn\"", escape(dut_label(a)), g.runs.size(), rows,
+        g.joint_fit ? fmt::format("{} (residual std {:.4f} °/h)",
+                                  escape(analysis::to_string(g.joint_fit->fit.spec)),
+                                  g.joint_fit->fit.residual_std_dph)
+                    : escape(g.joint_fit_error),
+        escape(link), escape(link));
+    for (const auto& p : g.problems) problems.push_back(dut_label(a) + ": " + p);
+  }
+  d += "</tbody></table>\n";
+  add_section(page, "duts", "Devices under test", d);
+  if (!problems.empty()) add_section(page, "problems", "Problems", problems_html(problems));
+  return {"index.html", render_page(page, when)};
+}
+
+std::vector<ReportFile> render_export_files(const std::vector<std::vector<RunReport>>& runs,
+                                            const ReportOptions& options,
+                                            std::vector<std::string>& problems) {
+  std::vector<ReportFile> files;
+  std::vector<RunReport> all;
+  for (const auto& streams : runs) {
+    for (const auto& r : streams) {
+      auto run_files = render_run_files(r, options);
+      files.insert(files.end(), std::make_move_iterator(run_files.begin()),
+                   std::make_move_iterator(run_files.end()));
+    }
+    if (streams.size() > 1 || (streams.size() == 1 && !streams.front().file_suffix.empty())) {
+      files.push_back(render_run_index(streams, options));
+    }
+    for (const auto& r : streams) {
+      RunReport copy = r;
+      copy.plots.clear();  // rendered; the campaign draws its own
+      all.push_back(std::move(copy));
+    }
+  }
+  const std::vector<CampaignReport> groups = collect_campaign_reports(std::move(all), options);
+  for (const auto& c : groups) {
+    auto campaign_files = render_campaign_files(c, options);
+    files.insert(files.end(), std::make_move_iterator(campaign_files.begin()),
+                 std::make_move_iterator(campaign_files.end()));
+    for (const auto& p : c.problems) {
+      problems.push_back(c.file_suffix.empty() ? p
+                                               : fmt::format("{}: {}", c.file_suffix.substr(1), p));
+    }
+  }
+  if (groups.size() > 1 || (groups.size() == 1 && !groups.front().file_suffix.empty())) {
+    files.push_back(render_summary_index(groups, options));
+  }
   return files;
 }
 

@@ -5,8 +5,11 @@
 #include <toml++/toml.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
+#include <limits>
 #include <nlohmann/json.hpp>
+#include <span>
 
 #include "gyrotherm/analysis/scale_factor.h"
 #include "gyrotherm/core/clock.h"
@@ -38,29 +41,6 @@ void append(analysis::AnalysisSeries& dst, const analysis::AnalysisSeries& src) 
                       std::pair{&dst.top_c, &src.top_c}, std::pair{&dst.side_c, &src.side_c}}) {
     d->insert(d->end(), s->begin(), s->end());
   }
-}
-
-// First and last gyro sample time of a run; nullopt when it has none.
-Result<std::optional<std::pair<double, double>>> gyro_span(storage::Database& db, int64_t run_id) {
-  sqlite3_stmt* stmt = nullptr;
-  const char* sql = "SELECT min(t_s), max(t_s) FROM gyro_samples WHERE run_id = ?";
-  if (sqlite3_prepare_v2(db.handle(), sql, -1, &stmt, nullptr) != SQLITE_OK) {
-    return Error::Transient(fmt::format("{}: reading the sample span of run {}: {}", db.path(),
-                                        run_id, sqlite3_errmsg(db.handle())));
-  }
-  sqlite3_bind_int64(stmt, 1, run_id);
-  std::optional<std::pair<double, double>> span;
-  const int rc = sqlite3_step(stmt);
-  if (rc == SQLITE_ROW && sqlite3_column_type(stmt, 0) != SQLITE_NULL) {
-    span.emplace(sqlite3_column_double(stmt, 0), sqlite3_column_double(stmt, 1));
-  }
-  const std::string message = sqlite3_errmsg(db.handle());
-  sqlite3_finalize(stmt);
-  if (rc != SQLITE_ROW && rc != SQLITE_DONE) {
-    return Error::Transient(
-        fmt::format("{}: reading the sample span of run {}: {}", db.path(), run_id, message));
-  }
-  return span;
 }
 
 std::string soak_name(const SoakWindow& soak) {
@@ -282,6 +262,8 @@ nlohmann::json run_config_json(const StationConfig& config) {
              {"sensitive_axis", t->sensitive_axis},
              {"heading_at_zero_deg", t->heading_at_zero_deg}};
   }
+  json duts = json::array();
+  for (const DutSection& dut : config.duts) duts.push_back(dut_config_json(dut));
   const ApiSection& api = config.api;
   return json{
       {"source_path", config.source_path},
@@ -341,7 +323,53 @@ nlohmann::json run_config_json(const StationConfig& config) {
         {"min_silent_wall_s", config.control.min_silent_wall_s}}},
       {"interlocks", std::move(interlocks)},
       {"simulator", {{"endpoints_file", config.simulator.endpoints_file}}},
+      {"duts", std::move(duts)},
   };
+}
+
+nlohmann::json dut_config_json(const DutSection& dut) {
+  using json = nlohmann::json;
+  const drivers::DutLink& link = dut.link;
+  json orientation = json::object();
+  for (const auto& [axis, o] : dut.orientation) orientation[axis] = analysis::to_string(o);
+  json ascii = nullptr;
+  if (link.protocol == "ascii") {
+    const drivers::AsciiLineOptions& a = link.ascii;
+    json columns = json::array();
+    for (const auto& c : a.columns) {
+      columns.push_back(
+          {{"name", c.name}, {"kind", to_string(c.kind)}, {"unit", c.unit}, {"axis", c.axis}});
+    }
+    json valid_bits = json::object();
+    for (const auto& [axis, mask] : a.valid_bits) valid_bits[axis] = mask;
+    ascii = {{"delimiter", a.delimiter},
+             {"columns", std::move(columns)},
+             {"seq_column", a.seq_column ? json(*a.seq_column) : json()},
+             {"seq_modulo", a.seq_modulo},
+             {"checksum", a.checksum},
+             {"prefix", a.prefix},
+             {"valid_bits", std::move(valid_bits)}};
+  }
+  json probes = nullptr;
+  if (dut.probes) {
+    probes = {{"top_channel", dut.probes->top_channel}, {"side_channel", dut.probes->side_channel}};
+  }
+  return json{{"serial", dut.serial},
+              {"model", dut.model},
+              {"protocol", link.protocol},
+              {"device", link.serial.device},
+              {"baud", link.serial.baud},
+              {"parity", name_of(link.serial.parity)},
+              {"unit", link.unit == drivers::AngleUnit::kDeg ? "deg" : "rad"},
+              {"output", link.kind == drivers::OutputKind::kDeltaAngle ? "delta" : "rate"},
+              {"rate_hz", link.rate_hz},
+              {"axes", dut.axes},
+              {"primary_axis", dut.primary_axis},
+              {"table_axis", dut.table_axis.empty() ? dut.primary_axis : dut.table_axis},
+              {"orientation", std::move(orientation)},
+              {"silent_timeout_s", dut.silent_timeout_s},
+              {"probes", std::move(probes)},
+              {"ascii", std::move(ascii)}};
 }
 
 Result<AnalysisSettings> analysis_settings_of_run(const storage::RunRecord& run) {
@@ -405,6 +433,158 @@ Result<std::vector<SoakWindow>> soak_windows(storage::Database& db, int64_t run_
   return out;
 }
 
+std::string AnalysedAxis::name() const {
+  if (dut_serial.empty() && axis.empty()) return "the gyro";
+  return fmt::format("{} {}", dut_serial.empty() ? "the unnamed gyro" : "SN " + dut_serial,
+                     axis.empty() ? "(primary axis)" : axis);
+}
+
+std::string file_suffix(const AnalysedAxis& axis, bool only_stream) {
+  if (only_stream && axis.dut_serial.empty()) return "";
+  std::string serial = axis.dut_serial.empty() ? "unnamed" : axis.dut_serial;
+  for (char& c : serial) {
+    const auto u = static_cast<unsigned char>(c);
+    if (!std::isalnum(u) && c != '.' && c != '_' && c != '-') c = '_';
+  }
+  return fmt::format("-{}-{}", serial, axis.axis.empty() ? "primary" : axis.axis);
+}
+
+namespace {
+
+// What the analysis reads from a DUT's stored [[dut]] (dut_config_json):
+// the orientation of each axis, the table axis, own probes. Read leniently
+// (a missing or malformed key is not stored); an orientation that is
+// stored but not up/down/horizontal is an error.
+struct StoredDutConfig {
+  std::vector<std::pair<std::string, std::string>> orientation;  // axis -> as stored
+  std::string table_axis;
+  bool probes = false;
+};
+
+StoredDutConfig read_dut_config(const std::string& text, const std::string& primary_axis) {
+  using json = nlohmann::json;
+  StoredDutConfig c;
+  const json j = json::parse(text.empty() ? std::string("{}") : text, nullptr, false);
+  if (!j.is_object()) return c;
+  if (j.contains("orientation")) {
+    const json& o = j["orientation"];
+    if (o.is_string()) {  // one direction: the primary axis's
+      c.orientation.emplace_back(primary_axis, o.get<std::string>());
+    } else if (o.is_object()) {
+      for (const auto& [axis, v] : o.items()) {
+        if (v.is_string()) c.orientation.emplace_back(axis, v.get<std::string>());
+      }
+    } else if (o.is_array()) {  // [["z", "up"], ...]
+      for (const auto& e : o) {
+        if (e.is_array() && e.size() == 2 && e[0].is_string() && e[1].is_string()) {
+          c.orientation.emplace_back(e[0].get<std::string>(), e[1].get<std::string>());
+        }
+      }
+    }
+  }
+  if (j.contains("table_axis") && j["table_axis"].is_string()) {
+    c.table_axis = j["table_axis"].get<std::string>();
+  }
+  c.probes = j.contains("probes") && j["probes"].is_object();
+  return c;
+}
+
+}  // namespace
+
+Result<std::vector<AnalysedAxis>> analysed_axes(storage::Database& db, int64_t run_id) {
+  auto run = db.run(run_id);
+  if (!run) return run.error();
+  auto duts = db.run_duts(run_id);
+  if (!duts) return duts.error();
+  std::vector<AnalysedAxis> out;
+  if (duts->empty()) {
+    out.emplace_back();  // the run's gyro as the first-DUT API reads it
+    return out;
+  }
+  for (const storage::RunDutRecord& d : *duts) {
+    const std::string who = fmt::format("run {} DUT {}", run_id,
+                                        d.dut.serial.empty() ? "(unnamed)" : "SN " + d.dut.serial);
+    std::string primary = d.primary_axis;
+    std::vector<std::string> axes;
+    if (!primary.empty()) axes.push_back(primary);
+    for (const auto& a : d.axes) {
+      if (std::find(axes.begin(), axes.end(), a) == axes.end()) axes.push_back(a);
+    }
+    if (axes.empty()) {  // no axis recorded: its rate channels
+      for (const auto& ch : d.channels) {
+        if (ch.spec.kind == ChannelKind::kRate) axes.push_back(ch.spec.axis);
+      }
+      if (!axes.empty()) primary = axes.back();
+      std::stable_partition(axes.begin(), axes.end(),
+                            [&](const std::string& a) { return a == primary; });
+    }
+    const StoredDutConfig cfg = read_dut_config(d.config_json, primary);
+    const std::string table_axis = cfg.table_axis.empty() ? primary : cfg.table_axis;
+    if (!table_axis.empty() && std::find(axes.begin(), axes.end(), table_axis) == axes.end()) {
+      axes.push_back(table_axis);  // the scale factor needs it analysed
+    }
+    for (const std::string& a : axes) {
+      AnalysedAxis s;
+      s.dut_serial = d.dut.serial;
+      s.dut_model = d.dut.model;
+      s.axis = a;
+      s.dut_position = d.position;
+      s.primary = a == primary;
+      s.table_axis = a == table_axis;
+      s.own_probes = cfg.probes;
+      for (const auto& ch : d.channels) {
+        if (ch.spec.kind == ChannelKind::kRate && ch.spec.axis == a) s.channel_id = ch.id;
+      }
+      if (s.channel_id == 0) {
+        return Error::Permanent(
+            fmt::format("{}: axis \"{}\" has no rate channel recorded", who, a));
+      }
+      for (const auto& [axis, value] : cfg.orientation) {
+        if (axis != a) continue;
+        auto o = analysis::parse_orientation(value);
+        if (!o) {
+          return Error::Permanent(fmt::format("{}: stored orientation of axis {} \"{}\": {}", who,
+                                              a, value, o.error().message));
+        }
+        s.orientation = *o;
+      }
+      // Not stored: the primary axis sits as the run says (the station's
+      // orientation); another axis is horizontal ([[dut]] orientation).
+      if (!s.orientation && !s.primary) s.orientation = analysis::AxisOrientation::kHorizontal;
+      out.push_back(std::move(s));
+    }
+  }
+  return out;
+}
+
+Result<AnalysedAxis> first_axis(storage::Database& db, int64_t run_id) {
+  auto axes = analysed_axes(db, run_id);
+  if (!axes) return axes.error();
+  return axes->front();
+}
+
+namespace {
+
+std::string soak_name(const SoakWindow& soak, const AnalysedAxis& axis) {
+  if (axis.dut_serial.empty() && axis.axis.empty()) return soak_name(soak);
+  return fmt::format("{} ({})", soak_name(soak), axis.name());
+}
+
+// One stream's samples in [from_s, to_s): the first-DUT API for a run
+// without DUT records, the DUT's axis otherwise.
+Result<std::vector<GyroSample>> stream_samples(storage::Database& db, int64_t run_id,
+                                               const AnalysedAxis& axis, double from_s,
+                                               double to_s) {
+  auto gyro = axis.channel_id == 0 ? db.gyro_samples(run_id, from_s, to_s)
+                                   : db.gyro_samples(run_id, axis.key(), from_s, to_s);
+  if (!gyro) return gyro.error();
+  // A value the frame flagged invalid is NaN: not a sample.
+  std::erase_if(*gyro, [](const GyroSample& g) { return !std::isfinite(g.rate_dph); });
+  return gyro;
+}
+
+}  // namespace
+
 // The temperature rows of [from_s, to_s) that carry both shell probes. A row
 // without them is a recorded gap (the probe module did not answer that tick),
 // not a reading: the analysis bins the gyro against the rows around it.
@@ -418,16 +598,33 @@ Result<std::vector<TemperatureSample>> shell_readings(storage::Database& db, int
   return temps;
 }
 
+Result<std::vector<TemperatureSample>> dut_shell_readings(storage::Database& db, int64_t run_id,
+                                                          const AnalysedAxis& axis, double from_s,
+                                                          double to_s) {
+  // DUT_OWN_PROBES_HOOK: axis.own_probes says the DUT has its own probes;
+  // until their readings are stored per DUT, the station's top/side are the
+  // shell temperatures of every DUT.
+  (void)axis;
+  return shell_readings(db, run_id, from_s, to_s);
+}
+
 Result<analysis::AnalysisSeries> soak_series(storage::Database& db, const SoakWindow& soak,
                                              double bin_s) {
-  const std::string where = soak_name(soak);
+  auto axis = first_axis(db, soak.run_id);
+  if (!axis) return axis.error();
+  return soak_series(db, soak, bin_s, *axis);
+}
+
+Result<analysis::AnalysisSeries> soak_series(storage::Database& db, const SoakWindow& soak,
+                                             double bin_s, const AnalysedAxis& axis) {
+  const std::string where = soak_name(soak, axis);
   analysis::AnalysisSeries joined;
   joined.bin_s = bin_s;
   for (const auto& [from_s, to_s] : soak.windows) {
-    auto gyro = db.gyro_samples(soak.run_id, from_s, to_s);
+    auto gyro = stream_samples(db, soak.run_id, axis, from_s, to_s);
     if (!gyro) return Error::Transient(fmt::format("{}: {}", where, gyro.error().message));
     if (gyro->empty() && soak.windows.size() > 1) continue;  // a window shorter than a sample
-    auto temps = shell_readings(db, soak.run_id, from_s, to_s);
+    auto temps = dut_shell_readings(db, soak.run_id, axis, from_s, to_s);
     if (!temps) return Error::Transient(fmt::format("{}: {}", where, temps.error().message));
     auto part = analysis::make_analysis_series(*gyro, *temps, bin_s);
     if (!part) {
@@ -440,14 +637,23 @@ Result<analysis::AnalysisSeries> soak_series(storage::Database& db, const SoakWi
 }
 
 Result<RecordedSamples> soak_recorded_samples(storage::Database& db, const SoakWindow& soak) {
+  auto axis = first_axis(db, soak.run_id);
+  if (!axis) return axis.error();
+  return soak_recorded_samples(db, soak, *axis);
+}
+
+Result<RecordedSamples> soak_recorded_samples(storage::Database& db, const SoakWindow& soak,
+                                              const AnalysedAxis& axis) {
   if (soak.windows.empty()) {
-    return Error::Permanent(fmt::format("{}: no acquisition window", soak_name(soak)));
+    return Error::Permanent(fmt::format("{}: no acquisition window", soak_name(soak, axis)));
   }
   const auto longest = std::max_element(
       soak.windows.begin(), soak.windows.end(),
       [](const auto& a, const auto& b) { return a.second - a.first < b.second - b.first; });
-  auto gyro = db.gyro_samples(soak.run_id, longest->first, longest->second);
-  if (!gyro) return Error::Transient(fmt::format("{}: {}", soak_name(soak), gyro.error().message));
+  auto gyro = stream_samples(db, soak.run_id, axis, longest->first, longest->second);
+  if (!gyro) {
+    return Error::Transient(fmt::format("{}: {}", soak_name(soak, axis), gyro.error().message));
+  }
   RecordedSamples out;
   out.t_from_s = longest->first;
   out.t_to_s = longest->second;
@@ -462,94 +668,164 @@ Result<RecordedSamples> soak_recorded_samples(storage::Database& db, const SoakW
 
 namespace {
 // The stretches of a run when the table spun (steps demanding a rate, and a
-// spin-down margin after each): the drift model is of the gyro at rest.
-Result<std::vector<std::pair<double, double>>> spinning_spans(storage::Database& db, int64_t run_id,
-                                                              double last_s) {
+// spin-down margin after each): the drift model is of the gyro at rest. A
+// step not ended yet spins to the end of the run.
+Result<std::vector<std::pair<double, double>>> spinning_spans(storage::Database& db,
+                                                              int64_t run_id) {
   auto segments = db.segments(run_id);
   if (!segments) return segments.error();
   std::vector<std::pair<double, double>> out;
   for (const auto& seg : *segments) {
     if (seg.table_mode != "rate") continue;
-    out.emplace_back(seg.t_start_s, seg.t_end_s.value_or(last_s) + kSpinDownMarginS);
+    out.emplace_back(seg.t_start_s, seg.t_end_s ? *seg.t_end_s + kSpinDownMarginS
+                                                : std::numeric_limits<double>::infinity());
   }
   return out;
 }
 }  // namespace
 
 Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_id, double bin_s) {
-  auto span = gyro_span(db, run_id);
-  if (!span) return span.error();
-  if (!*span) return Error::Permanent(fmt::format("run {}: no gyro samples recorded", run_id));
-  const auto [first_s, last_s] = **span;
-  auto spinning = spinning_spans(db, run_id, last_s);
+  auto axis = first_axis(db, run_id);
+  if (!axis) return axis.error();
+  return run_series(db, run_id, bin_s, *axis);
+}
+
+Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_id, double bin_s,
+                                            const AnalysedAxis& axis) {
+  const std::string who = axis.dut_serial.empty() && axis.axis.empty()
+                              ? fmt::format("run {}", run_id)
+                              : fmt::format("run {} ({})", run_id, axis.name());
+  if (axis.channel_id == 0) {
+    return Error::Permanent(fmt::format("{}: no gyro samples recorded", who));
+  }
+  auto spinning = spinning_spans(db, run_id);
   if (!spinning) return spinning.error();
   analysis::AnalysisSeries joined;
   joined.bin_s = bin_s;
-  // Chunks start on the run's first sample so the bins of consecutive chunks
-  // line up with the bins of one pass over the whole run.
+  // One pass over the channel, a storage block at a time, binned a stretch
+  // of chunk_s at a time: the stretches start on the stream's first sample,
+  // so the bins of consecutive stretches line up with the bins of one pass
+  // over the whole run (and the series is what it was when the analysis
+  // read the run in stretches of chunk_s through gyro_samples).
   const double chunk_s = std::max(kRunChunkS, std::ceil(kRunChunkS / bin_s) * bin_s);
-  for (double from_s = first_s; from_s <= last_s; from_s += chunk_s) {
-    const double to_s =
-        from_s + chunk_s > last_s ? std::nextafter(last_s, INFINITY) : from_s + chunk_s;
-    auto gyro = db.gyro_samples(run_id, from_s, to_s);
-    if (!gyro) return gyro.error();
-    std::erase_if(*gyro, [&](const GyroSample& g) {
+  std::vector<GyroSample> chunk;
+  bool started = false;
+  double chunk_from_s = 0, last_s = 0;
+  std::optional<Error> failure;
+  const auto flush = [&](double from_s, double to_s) -> Status {
+    std::erase_if(chunk, [&](const GyroSample& g) {
       return std::any_of(spinning->begin(), spinning->end(),
                          [&](const auto& w) { return g.t_s >= w.first && g.t_s < w.second; });
     });
-    if (gyro->empty()) continue;
-    auto temps = shell_readings(db, run_id, from_s, to_s);
+    if (chunk.empty()) return Status::Ok();
+    auto temps = dut_shell_readings(db, run_id, axis, from_s, to_s);
     if (!temps) return temps.error();
-    if (temps->empty()) continue;  // no temperature in this stretch: nothing to fit it with
-    auto part = analysis::make_analysis_series(*gyro, *temps, bin_s);
-    if (!part) {
-      return Error::Permanent(
-          fmt::format("run {} [{:.1f}, {:.1f}) s: {}", run_id, from_s, to_s, part.error().message));
+    if (!temps->empty()) {  // no temperature in this stretch: nothing to fit it with
+      auto part = analysis::make_analysis_series(chunk, *temps, bin_s);
+      if (!part) {
+        return Error::Permanent(
+            fmt::format("{} [{:.1f}, {:.1f}) s: {}", who, from_s, to_s, part.error().message));
+      }
+      append(joined, *part);
     }
-    append(joined, *part);
-  }
+    chunk.clear();
+    return Status::Ok();
+  };
+  Status scanned = db.for_each_channel_block(
+      axis.channel_id, std::numeric_limits<double>::lowest(), std::numeric_limits<double>::max(),
+      [&](std::span<const double> t_s, std::span<const double> value,
+          std::span<const uint32_t> seq) {
+        for (std::size_t i = 0; i < t_s.size(); ++i) {
+          if (!std::isfinite(value[i])) continue;  // flagged invalid
+          if (!started) {
+            started = true;
+            chunk_from_s = t_s[i];
+          }
+          while (t_s[i] >= chunk_from_s + chunk_s) {
+            if (Status st = flush(chunk_from_s, chunk_from_s + chunk_s); !st) {
+              failure = st.error();
+              return false;
+            }
+            chunk_from_s += chunk_s;
+          }
+          GyroSample g;
+          g.t_s = t_s[i];
+          g.rate_dph = value[i];
+          g.seq = static_cast<uint8_t>(i < seq.size() ? seq[i] : 0);
+          chunk.push_back(g);
+          last_s = t_s[i];
+        }
+        return true;
+      });
+  if (!scanned) return scanned.error();
+  if (failure) return *failure;
+  if (!started) return Error::Permanent(fmt::format("{}: no gyro samples recorded", who));
+  if (Status st = flush(chunk_from_s, std::nextafter(last_s, INFINITY)); !st) return st.error();
   if (joined.t_s.empty()) {
     return Error::Permanent(
-        fmt::format("run {}: no stretch of gyro samples with temperatures recorded", run_id));
+        fmt::format("{}: no stretch of gyro samples with temperatures recorded", who));
   }
   return joined;
 }
 
+namespace {
+
 Result<double> soak_earth_rate_dph(storage::Database& db, const SoakWindow& soak,
-                                   double default_dph) {
+                                   const AnalysedAxis& axis, double default_dph) {
   auto run = db.run(soak.run_id);
   if (!run) return run.error();
+  const double axis_dph =
+      axis.orientation ? analysis::earth_rate_component_dph(run->latitude_deg, *axis.orientation)
+                       : default_dph;
   const RunConfig cfg = read_run_config(*run);
-  if (!cfg.table_present || cfg.table_sensitive_axis.value_or("along_table") != "radial") {
-    return default_dph;
+  // The table's rule is for the axis along the table's spin axis; the
+  // DUT's other axes keep their own orientation.
+  if (!axis.table_axis || !cfg.table_present ||
+      cfg.table_sensitive_axis.value_or("along_table") != "radial") {
+    return axis_dph;
   }
   auto means = db.mean_table_over_windows(soak.run_id, soak.windows);
-  if (!means)
-    return Error::Transient(fmt::format("{}: {}", soak_name(soak), means.error().message));
+  if (!means) {
+    return Error::Transient(fmt::format("{}: {}", soak_name(soak, axis), means.error().message));
+  }
   if (!means->position_deg) {
     return Error::Permanent(fmt::format(
         "{}: no table position recorded over the soak: the Earth-rate projection of a radial "
         "sensitive axis is unknown",
-        soak_name(soak)));
+        soak_name(soak, axis)));
   }
   return analysis::earth_rate_projection_dph(run->latitude_deg, analysis::SensitiveAxis::kRadial,
                                              cfg.table_heading_at_zero_deg.value_or(0.0),
                                              *means->position_deg);
 }
 
+}  // namespace
+
 Result<storage::SegmentStatsRecord> soak_table1(storage::Database& db, const SoakWindow& soak,
                                                 const analysis::Table1Options& table1_options) {
+  auto axis = first_axis(db, soak.run_id);
+  if (!axis) return axis.error();
+  return soak_table1(db, soak, table1_options, *axis);
+}
+
+Result<storage::SegmentStatsRecord> soak_table1(storage::Database& db, const SoakWindow& soak,
+                                                const analysis::Table1Options& table1_options,
+                                                const AnalysedAxis& axis) {
   analysis::Table1Options options = table1_options;
-  auto earth = soak_earth_rate_dph(db, soak, options.earth_rate_dph);
+  auto earth = soak_earth_rate_dph(db, soak, axis, options.earth_rate_dph);
   if (!earth) return earth.error();
   options.earth_rate_dph = *earth;
-  auto series = soak_series(db, soak, options.bin_s);
+  auto series = soak_series(db, soak, options.bin_s, axis);
   if (!series) return series.error();
   auto row = analysis::table1_row(*series, options);
-  if (!row) return Error::Permanent(fmt::format("{}: {}", soak_name(soak), row.error().message));
+  if (!row) {
+    return Error::Permanent(fmt::format("{}: {}", soak_name(soak, axis), row.error().message));
+  }
   storage::SegmentStatsRecord rec;
   rec.segment_id = soak.segment_id;
   rec.run_id = soak.run_id;
+  rec.dut_serial = axis.dut_serial;
+  rec.axis = axis.axis;
   rec.segment_index = soak.segment_index;
   rec.setpoint_c = soak.setpoint_c;
   rec.n = static_cast<int64_t>(row->n);
@@ -570,16 +846,25 @@ Result<storage::SegmentStatsRecord> soak_table1(storage::Database& db, const Soa
 
 Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow& soak,
                                         analysis::TauSet taus) {
-  auto samples = soak_recorded_samples(db, soak);
+  auto axis = first_axis(db, soak.run_id);
+  if (!axis) return axis.error();
+  return soak_allan(db, soak, taus, *axis);
+}
+
+Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow& soak,
+                                        analysis::TauSet taus, const AnalysedAxis& axis) {
+  auto samples = soak_recorded_samples(db, soak, axis);
   if (!samples) return samples.error();
   auto adev = analysis::allan_deviation(samples->t_s, samples->rate_dph, {.taus = taus});
   if (!adev) {
     return Error::Permanent(fmt::format("{} window [{:.1f}, {:.1f}) s: Allan deviation: {}",
-                                        soak_name(soak), samples->t_from_s, samples->t_to_s,
+                                        soak_name(soak, axis), samples->t_from_s, samples->t_to_s,
                                         adev.error().message));
   }
   storage::AllanRecord rec;
   rec.run_id = soak.run_id;
+  rec.dut_serial = axis.dut_serial;
+  rec.axis = axis.axis;
   rec.segment_id = soak.segment_id;
   rec.segment_index = soak.segment_index;
   rec.t_from_s = samples->t_from_s;
@@ -596,14 +881,18 @@ Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow&
   rec.bias_instability_tau_s = adev->bias_instability_tau_s;
   rec.rate_random_walk_dphprh = adev->rate_random_walk_dphprh;
   rec.bias_instability_method = adev->bias_instability_method;
-  rec.inputs_json = nlohmann::json{{"run_id", soak.run_id},
-                                   {"segment", soak.segment_index + 1},
-                                   {"taus", rec.taus},
-                                   {"samples", "as recorded"},
-                                   {"window", {samples->t_from_s, samples->t_to_s}},
-                                   {"windows", windows_json(soak.windows)},
-                                   {"window_rule", "the longest acquisition window"}}
-                        .dump();
+  nlohmann::json inputs = {{"run_id", soak.run_id},
+                           {"segment", soak.segment_index + 1},
+                           {"taus", rec.taus},
+                           {"samples", "as recorded"},
+                           {"window", {samples->t_from_s, samples->t_to_s}},
+                           {"windows", windows_json(soak.windows)},
+                           {"window_rule", "the longest acquisition window"}};
+  if (!axis.dut_serial.empty() || !axis.axis.empty()) {
+    inputs["dut_serial"] = axis.dut_serial;
+    inputs["axis"] = axis.axis;
+  }
+  rec.inputs_json = inputs.dump();
   rec.computed_utc = db.utc_now();
   return rec;
 }
@@ -643,27 +932,35 @@ Result<RunAnalysisSummary> analyse_run(storage::Database& db, int64_t run_id,
                                        const AnalysisSettings& settings) {
   auto soaks = soak_windows(db, run_id);
   if (!soaks) return soaks.error();
+  auto axes = analysed_axes(db, run_id);
   RunAnalysisSummary summary;
   const auto problem = [&summary](const Error& e) -> Status {
     if (e.transient) return e;  // a database failure: the caller retries or reports
     summary.problems.push_back(e.message);
     return Status::Ok();
   };
-  for (const SoakWindow& soak : *soaks) {
-    if (auto row = soak_table1(db, soak, settings.table1)) {
-      if (auto st = db.put_segment_stats(*row); !st) return st.error();
-      ++summary.table1_rows;
-    } else if (Status st = problem(row.error()); !st.ok()) {
-      return st.error();
-    }
-    if (auto adev = soak_allan(db, soak, settings.allan_taus)) {
-      if (auto id = db.put_allan(*adev); id) {
-        ++summary.allan_records;
-      } else if (Status st = problem(id.error()); !st.ok()) {
+  if (!axes) {
+    if (Status st = problem(axes.error()); !st.ok()) return st.error();
+    return summary;
+  }
+  summary.streams = static_cast<int>(axes->size());
+  for (const AnalysedAxis& axis : *axes) {
+    for (const SoakWindow& soak : *soaks) {
+      if (auto row = soak_table1(db, soak, settings.table1, axis)) {
+        if (auto st = db.put_segment_stats(*row); !st) return st.error();
+        ++summary.table1_rows;
+      } else if (Status st = problem(row.error()); !st.ok()) {
         return st.error();
       }
-    } else if (Status st = problem(adev.error()); !st.ok()) {
-      return st.error();
+      if (auto adev = soak_allan(db, soak, settings.allan_taus, axis)) {
+        if (auto id = db.put_allan(*adev); id) {
+          ++summary.allan_records;
+        } else if (Status st = problem(id.error()); !st.ok()) {
+          return st.error();
+        }
+      } else if (Status st = problem(adev.error()); !st.ok()) {
+        return st.error();
+      }
     }
   }
   if (auto sf = analyse_scale_factor(db, run_id)) {
@@ -673,22 +970,36 @@ Result<RunAnalysisSummary> analyse_run(storage::Database& db, int64_t run_id,
   } else if (Status st = problem(sf.error()); !st.ok()) {
     return st.error();
   }
-  auto series = run_series(db, run_id, settings.table1.bin_s);
-  if (!series) {
-    if (Status st = problem(series.error()); !st.ok()) return st.error();
-    return summary;
-  }
-  for (analysis::DriftModelForm form : settings.forms) {
-    auto fit = analysis::fit_drift_model(*series, settings.model, form, settings.fit);
-    if (!fit) {
-      summary.problems.push_back(fmt::format("run {}: fit {} ({} form): {}", run_id,
-                                             analysis::to_string(settings.model),
-                                             analysis::to_string(form), fit.error().message));
+  for (const AnalysedAxis& axis : *axes) {
+    auto series = run_series(db, run_id, settings.table1.bin_s, axis);
+    if (!series) {
+      if (Status st = problem(series.error()); !st.ok()) return st.error();
       continue;
     }
-    auto id = db.add_fit(fit_record(*fit, {run_id}, settings.fit, settings.table1.bin_s));
-    if (!id) return id.error();
-    summary.fit_ids.push_back(*id);
+    const std::string who = axis.dut_serial.empty() && axis.axis.empty()
+                                ? fmt::format("run {}", run_id)
+                                : fmt::format("run {} ({})", run_id, axis.name());
+    for (analysis::DriftModelForm form : settings.forms) {
+      auto fit = analysis::fit_drift_model(*series, settings.model, form, settings.fit);
+      if (!fit) {
+        summary.problems.push_back(fmt::format("{}: fit {} ({} form): {}", who,
+                                               analysis::to_string(settings.model),
+                                               analysis::to_string(form), fit.error().message));
+        continue;
+      }
+      storage::FitRecord rec = fit_record(*fit, {run_id}, settings.fit, settings.table1.bin_s);
+      rec.dut_serial = axis.dut_serial;
+      rec.axis = axis.axis;
+      if (!axis.dut_serial.empty() || !axis.axis.empty()) {
+        nlohmann::json inputs = nlohmann::json::parse(rec.inputs_json);
+        inputs["dut_serial"] = axis.dut_serial;
+        inputs["axis"] = axis.axis;
+        rec.inputs_json = inputs.dump();
+      }
+      auto id = db.add_fit(rec);
+      if (!id) return id.error();
+      summary.fit_ids.push_back(*id);
+    }
   }
   return summary;
 }

@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 
 #include "gyrotherm/analysis/scale_factor.h"
+#include "gyrotherm/daemon/run_analysis.h"
 
 namespace gyrotherm::daemon {
 namespace {
@@ -21,9 +22,9 @@ std::string coefficients_json(const std::vector<double>& c) { return nlohmann::j
 using MaybePoint = std::optional<storage::ScaleFactorPointRecord>;
 
 Result<MaybePoint> rate_point(storage::Database& db, const storage::SegmentRecord& seg,
-                              std::string& problem) {
-  const std::string where =
-      fmt::format("run {} segment {} ({})", seg.run_id, seg.index + 1, seg.label);
+                              const AnalysedAxis& axis, std::string& problem) {
+  std::string where = fmt::format("run {} segment {} ({})", seg.run_id, seg.index + 1, seg.label);
+  if (!axis.dut_serial.empty() || !axis.axis.empty()) where += ", " + axis.name();
   if (!seg.table_rate_dps || *seg.table_rate_dps == 0) {
     problem = where + ": no demanded rate stored";
     return MaybePoint{};
@@ -34,12 +35,16 @@ Result<MaybePoint> rate_point(storage::Database& db, const storage::SegmentRecor
   double temp_sum_c = 0;
   int64_t temp_n = 0;
   for (const auto& [from_s, to_s] : seg.windows) {
-    auto gyro = db.gyro_samples(seg.run_id, from_s, to_s);
+    auto gyro = axis.channel_id == 0 ? db.gyro_samples(seg.run_id, from_s, to_s)
+                                     : db.gyro_samples(seg.run_id, axis.key(), from_s, to_s);
     if (!gyro) return gyro.error();
-    for (const auto& g : *gyro) sum_dph += g.rate_dph;
-    n += static_cast<int64_t>(gyro->size());
+    for (const auto& g : *gyro) {
+      if (!std::isfinite(g.rate_dph)) continue;  // flagged invalid
+      sum_dph += g.rate_dph;
+      ++n;
+    }
     duration_s += to_s - from_s;
-    auto temps = db.temperature_samples(seg.run_id, from_s, to_s);
+    auto temps = dut_shell_readings(db, seg.run_id, axis, from_s, to_s);
     if (!temps) return temps.error();
     for (const auto& t : *temps) {
       if (std::isnan(t.top_c) || std::isnan(t.side_c)) continue;
@@ -55,6 +60,8 @@ Result<MaybePoint> rate_point(storage::Database& db, const storage::SegmentRecor
   if (!table) return table.error();
   storage::ScaleFactorPointRecord p;
   p.run_id = seg.run_id;
+  p.dut_serial = axis.dut_serial;
+  p.axis = axis.axis;
   p.segment_id = seg.id;
   p.sf_sequence = seg.sf_sequence;
   p.repetition = seg.sf_repetition;
@@ -82,29 +89,19 @@ Result<MaybePoint> rate_point(storage::Database& db, const storage::SegmentRecor
   return MaybePoint{p};
 }
 
-}  // namespace
-
-Result<ScaleFactorSummary> analyse_scale_factor(storage::Database& db, int64_t run_id) {
-  auto segments = db.segments(run_id);
-  if (!segments) return segments.error();
-  ScaleFactorSummary summary;
-  // Each step with a table demand gets the table's measured means over its
-  // windows (segments.table_mean_*), once.
-  for (auto seg : *segments) {
-    if (seg.table_mode == "none" || seg.windows.empty() || seg.table_mean_rate_dps) continue;
-    auto means = db.mean_table_over_windows(run_id, seg.windows);
-    if (!means) return means.error();
-    if (!means->rate_dps) continue;
-    seg.table_mean_rate_dps = means->rate_dps;
-    seg.table_mean_position_deg = means->position_deg;
-    if (auto st = db.update_segment(seg); !st) return st.error();
-  }
+// One DUT's table axis: its points, lines and K(T), stored.
+Status analyse_axis(storage::Database& db, int64_t run_id,
+                    const std::vector<storage::SegmentRecord>& segments, const AnalysedAxis& axis,
+                    ScaleFactorSummary& summary) {
+  const std::string who = axis.dut_serial.empty() && axis.axis.empty()
+                              ? fmt::format("run {}", run_id)
+                              : fmt::format("run {} ({})", run_id, axis.name());
   std::vector<storage::ScaleFactorPointRecord> points;
   std::map<int, std::vector<const storage::ScaleFactorPointRecord*>> by_sequence;
-  for (const auto& seg : *segments) {
+  for (const auto& seg : segments) {
     if (seg.kind != "rate" || seg.state != "completed" || seg.windows.empty()) continue;
     std::string problem;
-    auto p = rate_point(db, seg, problem);
+    auto p = rate_point(db, seg, axis, problem);
     if (!p) return p.error();
     if (!*p) {
       summary.problems.push_back(problem);
@@ -112,8 +109,8 @@ Result<ScaleFactorSummary> analyse_scale_factor(storage::Database& db, int64_t r
     }
     points.push_back(**p);
   }
-  if (points.empty()) return summary;
-  summary.points = static_cast<int>(points.size());
+  if (points.empty()) return Status::Ok();
+  summary.points += static_cast<int>(points.size());
   for (const auto& p : points) by_sequence[p.sf_sequence].push_back(&p);
 
   std::vector<storage::ScaleFactorFitRecord> fits;
@@ -132,12 +129,14 @@ Result<ScaleFactorSummary> analyse_scale_factor(storage::Database& db, int64_t r
     }
     auto fit = analysis::fit_scale_factor(input);
     if (!fit) {
-      summary.problems.push_back(fmt::format("run {} scale-factor sequence {}: {}", run_id,
-                                             sequence, fit.error().message));
+      summary.problems.push_back(
+          fmt::format("{} scale-factor sequence {}: {}", who, sequence, fit.error().message));
       continue;
     }
     storage::ScaleFactorFitRecord rec;
     rec.run_id = run_id;
+    rec.dut_serial = axis.dut_serial;
+    rec.axis = axis.axis;
     rec.sf_sequence = sequence;
     rec.temperature_c = fit->temperature_mean_c;
     rec.k = fit->k;
@@ -151,7 +150,7 @@ Result<ScaleFactorSummary> analyse_scale_factor(storage::Database& db, int64_t r
     fits.push_back(rec);
     plateaus.push_back({fit->temperature_mean_c, fit->k, fit->bias_dph});
   }
-  summary.sequences = static_cast<int>(fits.size());
+  summary.sequences += static_cast<int>(fits.size());
 
   std::optional<storage::ScaleFactorTemperatureFitRecord> over_t;
   if (plateaus.size() >= 2) {
@@ -160,6 +159,8 @@ Result<ScaleFactorSummary> analyse_scale_factor(storage::Database& db, int64_t r
     if (tf) {
       storage::ScaleFactorTemperatureFitRecord rec;
       rec.run_id = run_id;
+      rec.dut_serial = axis.dut_serial;
+      rec.axis = axis.axis;
       rec.order = tf->order;
       rec.t_centre_c = tf->temperature_mean_c;
       rec.k_coeffs_json = coefficients_json(tf->k_coefficients);
@@ -172,10 +173,40 @@ Result<ScaleFactorSummary> analyse_scale_factor(storage::Database& db, int64_t r
       summary.temperature_fit = true;
     } else {
       summary.problems.push_back(
-          fmt::format("run {}: scale factor over temperature: {}", run_id, tf.error().message));
+          fmt::format("{}: scale factor over temperature: {}", who, tf.error().message));
     }
   }
-  if (auto st = db.store_scale_factor(run_id, points, fits, over_t); !st) return st.error();
+  return db.store_scale_factor(run_id, points, fits, over_t);
+}
+
+}  // namespace
+
+Result<ScaleFactorSummary> analyse_scale_factor(storage::Database& db, int64_t run_id) {
+  auto segments = db.segments(run_id);
+  if (!segments) return segments.error();
+  ScaleFactorSummary summary;
+  // Each step with a table demand gets the table's measured means over its
+  // windows (segments.table_mean_*), once.
+  for (auto& seg : *segments) {
+    if (seg.table_mode == "none" || seg.windows.empty() || seg.table_mean_rate_dps) continue;
+    auto means = db.mean_table_over_windows(run_id, seg.windows);
+    if (!means) return means.error();
+    if (!means->rate_dps) continue;
+    seg.table_mean_rate_dps = means->rate_dps;
+    seg.table_mean_position_deg = means->position_deg;
+    if (auto st = db.update_segment(seg); !st) return st.error();
+  }
+  const bool has_rate_points = std::any_of(segments->begin(), segments->end(), [](const auto& s) {
+    return s.kind == "rate" && s.state == "completed" && !s.windows.empty();
+  });
+  if (!has_rate_points) return summary;
+  auto axes = analysed_axes(db, run_id);
+  if (!axes) return axes.error();
+  // Each DUT's axis along the table's spin axis.
+  for (const AnalysedAxis& axis : *axes) {
+    if (!axis.table_axis) continue;
+    if (Status st = analyse_axis(db, run_id, *segments, axis, summary); !st) return st.error();
+  }
   return summary;
 }
 

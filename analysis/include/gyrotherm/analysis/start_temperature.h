@@ -93,11 +93,23 @@ struct ExportInfo {
   // The L0 window the fit used (DriftFitOptions::l0_window_s; DriftFit does
   // not carry it). The start-model export uses the model's own.
   double l0_window_s = 120.0;
+  // The gyro and the run (schema v8): its model, the axis the numbers are
+  // of ("" = the gyro's one axis), who ran it, why, and its tags. In the
+  // JSON always; in the C header's provenance when any is set.
+  std::string gyro_model = {};
+  std::string axis = {};
+  std::string operator_name = {};
+  std::string comment = {};
+  std::vector<std::string> tags = {};
 };
 // JSON object: {"model": "T4+R1+G1", "form": "paper", "units": {...},
 // "coefficients": {"T1": ..}, "std_errors": {..}, "l0_window_s",
 // "derivative_window_s", "residual_std_dph", "r_squared", "n", "runs", ...}.
 std::string drift_fit_json(const DriftFit& fit, const ExportInfo& info);
+// The C comment lines naming the gyro's model, axis, operator, tags and
+// comment (" * Model: ...\n * Comment: ...\n"); "" when none is set, so a
+// header of a run without metadata reads as before.
+std::string export_metadata_c(const ExportInfo& info);
 // C99 header: include guard, a comment with provenance and units, one
 // `static const double` per coefficient and a `static inline double`
 // function evaluating the model's temperature terms from (T °C, dT/dt °C/s,

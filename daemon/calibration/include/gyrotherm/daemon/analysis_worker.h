@@ -45,8 +45,9 @@ struct RunJob {
   int64_t run_id = 0;
 };
 
-// Reads the window from `db`, computes the Table I row, stores it and
-// returns it. Errors name the run and segment.
+// Reads the window from `db`, computes the Table I row of every DUT axis of
+// the run (analysed_axes), stores them and returns the first (the first
+// DUT's primary axis). Errors name the run and segment (and the DUT).
 Result<storage::SegmentStatsRecord> compute_table1(storage::Database& db, const Table1Job& job,
                                                    const analysis::Table1Options& options);
 

@@ -83,8 +83,16 @@ struct ReportFit {
   double l0_window_s = 120.0;
 };
 
+// One report is of one DUT axis of a run (schema v8; run_analysis.h
+// AnalysedAxis): its Table I, Allan, fits, Tables II-IV and scale factor.
+// A run without DUT records has one, of its gyro (serial "", axis "").
 struct RunReport {
-  storage::RunRecord run;
+  storage::RunRecord run;  // with its metadata (operator, comment, tags)
+  AnalysedAxis stream;     // the DUT (serial, model) and axis
+  // Appended to every file name of this report: "" for a run whose only
+  // stream is the unnamed gyro (today's names), else "-<serial>-<axis>"
+  // (file_suffix()).
+  std::string file_suffix;
   AnalysisSettings settings;
   std::string station_name;
   std::vector<storage::SegmentStatsRecord> table1;
@@ -104,12 +112,27 @@ struct RunReport {
 
 // Reads run `run_id` and builds its report. Errors: an unknown run, a run
 // without samples, database failures; an analysis that fails is a problem
-// listed in the report, not an error.
+// listed in the report, not an error. The first form: the run's first DUT,
+// primary axis (with the suffix it has among the run's streams).
 Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
                                      const ReportOptions& options);
+Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
+                                     const ReportOptions& options, const AnalysedAxis& stream,
+                                     bool only_stream);
+// One report per DUT and analysed axis, in analysed_axes() order.
+Result<std::vector<RunReport>> collect_run_reports(storage::Database& db, int64_t run_id,
+                                                   const ReportOptions& options);
+// Whether a stored result row of (dut_serial, axis) belongs to `stream`:
+// serial "" means the run's first DUT, axis "" that DUT's primary axis.
+bool result_of_stream(const std::string& dut_serial, const std::string& axis,
+                      const AnalysedAxis& stream);
 
 struct CampaignReport {
-  std::vector<RunReport> runs;  // in id order
+  std::vector<RunReport> runs;  // in id order; one DUT axis (same serial and axis)
+  // The DUT axis (from the first run) and the suffix of the summary's file
+  // names: "" when the export is of one unnamed gyro (today's names).
+  std::string dut_serial, dut_model, axis;
+  std::string file_suffix;
   std::string station_name;
   std::optional<ReportFit> joint_fit;  // the configured model on all runs (>= 2 runs)
   std::string joint_fit_error;
@@ -125,6 +148,12 @@ struct CampaignReport {
 // their series; the settings are the first run's. Analyses that fail are
 // listed in `problems` or their *_error / note.
 CampaignReport collect_campaign_report(std::vector<RunReport> runs, const ReportOptions& options);
+// The nightly summary across DUTs: the runs' reports grouped by DUT serial
+// and axis, a CampaignReport per group (in order of first appearance). One
+// group of the unnamed gyro keeps file_suffix ""; otherwise every group
+// has its "-<serial>-<axis>".
+std::vector<CampaignReport> collect_campaign_reports(std::vector<RunReport> runs,
+                                                     const ReportOptions& options);
 
 // A file of an export: its path relative to the export directory, and text.
 struct ReportFile {
@@ -141,8 +170,24 @@ std::vector<ReportFile> render_run_files(const RunReport& report, const ReportOp
 // report), table1.csv (every run), allan.csv, comparison.csv, drift-fit.json/.h
 // (joint fit), start-model.json/.h (when there is a model), scale-factor.csv
 // (every run's sequences, when a run has any).
+// With a file_suffix: summary<suffix>.html instead of index.html, every
+// other name with the suffix too.
 std::vector<ReportFile> render_campaign_files(const CampaignReport& report,
                                               const ReportOptions& options);
+// A run with several DUT axes: run-<id>/report.html, the run's metadata and
+// DUTs with a link to each DUT axis's report.
+ReportFile render_run_index(const std::vector<RunReport>& reports, const ReportOptions& options);
+// The summary across DUTs (index.html) when an export has several groups:
+// the runs with their operator, DUTs and tags, and a link to each group's
+// summary and each run's reports.
+ReportFile render_summary_index(const std::vector<CampaignReport>& groups,
+                                const ReportOptions& options);
+// Every file of an export of these runs (what write_export writes): each
+// run's reports (and its index with several DUT axes), the summary per
+// DUT axis and, with several, the index across DUTs.
+std::vector<ReportFile> render_export_files(const std::vector<std::vector<RunReport>>& runs,
+                                            const ReportOptions& options,
+                                            std::vector<std::string>& problems);
 
 // Pieces, exposed for tests.
 // Fig. 4 (terms kT) / Fig. 6 (kTGR): the output over the run and the output
@@ -166,8 +211,15 @@ Result<ReportFit> report_fit_of_record(const storage::FitRecord& record);
 // Scale factor. A run's stored rows (nullopt when it has none); a database
 // error is an error, a temperature fit whose JSON does not parse a line in
 // `problems`.
+// The first form: the run's first DUT, primary axis.
 Result<std::optional<ReportScaleFactor>> collect_scale_factor(storage::Database& db, int64_t run_id,
                                                               std::vector<std::string>& problems);
+Result<std::optional<ReportScaleFactor>> collect_scale_factor(storage::Database& db, int64_t run_id,
+                                                              std::vector<std::string>& problems,
+                                                              const AnalysedAxis& stream);
+// The K(T) fit of one DUT axis of a run (nullopt: none stored for it).
+Result<std::optional<storage::ScaleFactorTemperatureFitRecord>> scale_factor_temperature_fit_of(
+    storage::Database& db, int64_t run_id, const AnalysedAxis& stream);
 // A rate point's residual from its sequence's line, output − (K·Ω + B), °/s,
 // with Ω the demanded rate (as docs/storage.md's query of the points).
 double scale_factor_residual_dps(const storage::ScaleFactorPointRecord& point,

@@ -13,6 +13,12 @@
 //   centred forms.
 // Every stored result carries its inputs (runs, windows, model, options) as
 // JSON so it can be reproduced.
+//
+// Per DUT and axis (schema v8): each of the above is computed for every DUT
+// of the run (run_duts) and every axis it analyses (analysed_axes), and the
+// records carry the DUT's serial and the axis. A run without DUT records
+// (stored before schema v8, or a database not migrated) has one stream: its
+// gyro, serial "" and axis "" (the first DUT's primary axis).
 #pragma once
 
 #include <cstdint>
@@ -31,6 +37,7 @@
 namespace gyrotherm::daemon {
 
 struct StationConfig;
+struct DutSection;
 
 // The [analysis] settings of a station (or the CLI's options).
 struct AnalysisSettings {
@@ -53,7 +60,15 @@ AnalysisSettings analysis_settings(const StationConfig& config);
 // as a JSON object laid out like the TOML file ({"station": {"name": ...},
 // "analysis": {"ma_window": 101, ...}, ...}); API tokens are replaced by
 // "<redacted>" (the lists keep their length).
+// The DUTs are under "duts", one object per [[dut]] as dut_config_json().
 nlohmann::json run_config_json(const StationConfig& config);
+// One [[dut]] as stored (runs.config_json "duts", run_duts.config_json):
+// {"serial", "model", "protocol", "device", "baud", "parity", "unit",
+// "output", "rate_hz", "axes": [..], "primary_axis", "table_axis",
+// "orientation": {"z": "up", "x": "horizontal", ...} (every analysed axis),
+// "silent_timeout_s", "probes": {"top_channel", "side_channel"} | null,
+// "ascii": {...} | null}. What analysed_axes() reads back.
+nlohmann::json dut_config_json(const DutSection& dut);
 
 // What a run's stored station config says under [analysis] and [station]
 // name: runs.config_json (JSON), or for runs stored before schema v6
@@ -80,6 +95,45 @@ RunConfig read_run_config(const storage::RunRecord& run);
 // parse (model, taus, orientation) is an error naming the run and the value.
 Result<AnalysisSettings> analysis_settings_of_run(const storage::RunRecord& run);
 
+// One rate series of a run the analysis runs on: a DUT and one of its
+// analysed axes.
+struct AnalysedAxis {
+  std::string dut_serial;  // "" = the unnamed gyro
+  std::string dut_model;
+  std::string axis;  // "x", "y", "z"; "" = the primary axis of a run without DUT records
+  int dut_position = 0;
+  bool primary = true;  // the DUT's primary axis
+  // The axis's direction for the Earth-rate removal, from the DUT's stored
+  // config (run_duts.config_json "orientation"); nullopt: not stored, the
+  // run's orientation applies (Table1Options::earth_rate_dph as given).
+  std::optional<analysis::AxisOrientation> orientation;
+  // The axis along the rate table's spin axis (the DUT's table_axis; the
+  // primary axis when not stored): the scale factor, and the table's
+  // radial/along-table rule of Table I, are for this axis.
+  bool table_axis = true;
+  // Index of the rate channel (channels.id); 0 for a run without DUT
+  // records (read through the first-DUT API).
+  int64_t channel_id = 0;
+  // The DUT's shell probes, when its config has them ([[dut]] probes):
+  // see dut_shell_readings().
+  bool own_probes = false;
+  storage::StreamKey key() const { return {dut_serial, axis}; }
+  // "SN 17-0042 z" / "the gyro": how messages and reports name it.
+  std::string name() const;
+};
+// The run's DUTs (by position) and their analysed axes (primary axis
+// first, then the others in x, y, z order); one stream {"" , ""} for a run
+// without DUT records. Errors: unknown run, database errors, a stored
+// orientation that does not parse (names the DUT and axis).
+Result<std::vector<AnalysedAxis>> analysed_axes(storage::Database& db, int64_t run_id);
+// The stream an old-style call means: the run's first DUT, primary axis.
+Result<AnalysedAxis> first_axis(storage::Database& db, int64_t run_id);
+// A short, file-name-safe tag of a stream: "" when the run's only stream is
+// the unnamed gyro's primary axis (the files keep today's names), else
+// "-<serial>-<axis>" (serial "" -> "unnamed"; characters other than
+// [A-Za-z0-9._-] become '_').
+std::string file_suffix(const AnalysedAxis& axis, bool only_stream);
+
 // A completed soak of a run and its acquisition windows.
 struct SoakWindow {
   int64_t run_id = 0;
@@ -96,6 +150,17 @@ Result<std::vector<SoakWindow>> soak_windows(storage::Database& db, int64_t run_
 // The soak's analysis series: each window binned on its own (bin_s), joined.
 Result<analysis::AnalysisSeries> soak_series(storage::Database& db, const SoakWindow& soak,
                                              double bin_s);
+Result<analysis::AnalysisSeries> soak_series(storage::Database& db, const SoakWindow& soak,
+                                             double bin_s, const AnalysedAxis& axis);
+
+// The shell temperatures a DUT's series is binned against, in [from_s,
+// to_s), rows with both probes only. Hook for DUTs with their own probes
+// ([[dut]] probes): today every DUT uses the station's top/side probes
+// (the rows of the temperatures table); when a DUT's own probe readings
+// are stored, this is where they are read instead.
+Result<std::vector<TemperatureSample>> dut_shell_readings(storage::Database& db, int64_t run_id,
+                                                          const AnalysedAxis& axis, double from_s,
+                                                          double to_s);
 
 // The gyro samples as recorded of the soak's longest window (for Allan).
 struct RecordedSamples {
@@ -103,17 +168,37 @@ struct RecordedSamples {
   std::vector<double> t_s, rate_dph;
 };
 Result<RecordedSamples> soak_recorded_samples(storage::Database& db, const SoakWindow& soak);
+Result<RecordedSamples> soak_recorded_samples(storage::Database& db, const SoakWindow& soak,
+                                              const AnalysedAxis& axis);
 
-// The whole run's analysis series, read in chunks of station time so memory
-// stays bounded by the chunk, not the run. Errors: a run without samples
-// (names it), database errors, those of make_analysis_series.
+// The whole run's analysis series of one stream, streamed: the rate
+// channel is read a storage block at a time (Database::
+// for_each_channel_block) and binned 600 s of station time at a time, so
+// memory is bounded by one such stretch (at 1 kHz: 6e5 samples, ~15 MB)
+// plus the 1 s series itself (32 bytes a bin: 9 MB for 80 h), whatever the
+// run's length. Errors: a run without samples (names it), database errors,
+// those of make_analysis_series. The first form: the run's first DUT,
+// primary axis.
 Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_id, double bin_s);
+Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_id, double bin_s,
+                                            const AnalysedAxis& axis);
 
 // Compute and return (not stored).
+// The first forms: the run's first DUT, primary axis (options.earth_rate_dph
+// unless its stored config gives the axis an orientation). Per axis: the
+// Earth rate of the axis's orientation at the run's latitude (given
+// options.earth_rate_dph when the orientation is not stored); for the
+// DUT's table axis on a table with a radial sensitive axis, the projection
+// of the table's recorded position (as before DUTs).
 Result<storage::SegmentStatsRecord> soak_table1(storage::Database& db, const SoakWindow& soak,
                                                 const analysis::Table1Options& options);
+Result<storage::SegmentStatsRecord> soak_table1(storage::Database& db, const SoakWindow& soak,
+                                                const analysis::Table1Options& options,
+                                                const AnalysedAxis& axis);
 Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow& soak,
                                         analysis::TauSet taus);
+Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow& soak,
+                                        analysis::TauSet taus, const AnalysedAxis& axis);
 // A fit as a record ready for Database::add_fit (inputs_json filled in).
 storage::FitRecord fit_record(const analysis::DriftFit& fit, const std::vector<int64_t>& run_ids,
                               const analysis::DriftFitOptions& options, double bin_s);
@@ -124,6 +209,7 @@ storage::FitRecord fit_record(const analysis::DriftFit& fit, const std::vector<i
 // the whole: it is listed in `problems` (one line each, naming the part) and
 // the rest is still stored. Errors: database failures only.
 struct RunAnalysisSummary {
+  int streams = 0;  // DUT axes analysed
   int table1_rows = 0;
   int allan_records = 0;
   std::vector<int64_t> fit_ids;

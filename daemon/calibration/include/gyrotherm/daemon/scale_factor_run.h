@@ -26,8 +26,10 @@ struct ScaleFactorSummary {
 // rates (the controller holds the demand; the measured mean, stored beside
 // it, is a check: a point whose mean is off the demand by more than
 // kMaxRateErrorPpm is left out and named); K(T) and B(T) of order 1 with
-// two or three temperatures, 2 with four or more. Stores everything,
-// replacing the run's earlier results. A run without rate points: nothing
+// two or three temperatures, 2 with four or more. Per DUT: on each DUT's
+// table axis ([[dut]] table_axis, default its primary axis), the records
+// carrying its serial and axis; one store_scale_factor() per DUT. Stores
+// everything, replacing the run's earlier results. A run without rate points: nothing
 // stored, a summary with no points.
 Result<ScaleFactorSummary> analyse_scale_factor(storage::Database& db, int64_t run_id);
 
