@@ -1119,26 +1119,6 @@ void Station::publish_dut_status(const DutLive& dut) {
   }
 }
 
-// The [[dut]] entry as stored with the run (run_duts.config_json).
-nlohmann::json dut_config_json(const DutSection& dut) {
-  nlohmann::json orientation = nlohmann::json::object();
-  for (const auto& [axis, o] : dut.orientation) orientation[axis] = analysis::to_string(o);
-  nlohmann::json j = {{"serial", dut.serial},
-                      {"model", dut.model},
-                      {"protocol", dut.link.protocol},
-                      {"rate_hz", dut.link.rate_hz},
-                      {"axes", dut.axes},
-                      {"orientation", orientation},
-                      {"primary_axis", dut.primary_axis},
-                      {"table_axis", dut.table_axis},
-                      {"silent_timeout_s", dut.silent_timeout_s}};
-  if (dut.probes) {
-    j["probes"] = {{"top_channel", dut.probes->top_channel},
-                   {"side_channel", dut.probes->side_channel}};
-  }
-  return j;
-}
-
 void Station::register_run_duts(int64_t run_id) {
   for (auto& d : duts_) {
     const DutSection& cfg = *d->cfg;
@@ -1147,7 +1127,7 @@ void Station::register_run_duts(int64_t run_id) {
     rec.position = static_cast<int>(d->index);
     rec.dut.serial = cfg.serial;
     rec.dut.model = cfg.model;
-    rec.config_json = dut_config_json(cfg).dump();
+    rec.config_json = dut_config_json(cfg).dump();  // what the run analysis reads
     rec.primary_axis = cfg.primary_axis;
     rec.axes = cfg.axes;
     rec.rate_hz = cfg.link.rate_hz;
