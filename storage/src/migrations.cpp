@@ -331,8 +331,153 @@ CREATE TABLE scale_factor_temperature_fits(
 )sql";
 
 // v8: devices under test, run metadata, results per DUT and axis.
+// duts is the station's registry of gyros by serial number; run_duts says
+// which DUTs a run had (and how each was configured), channels what each of
+// their frames carried. Every result table gains the DUT's serial and the
+// axis; rows stored before v8 keep '' in both (the unnamed gyro of the run,
+// its primary axis). Tables whose key must now include the DUT and axis
+// (segment_stats, scale_factor_fits, scale_factor_temperature_fits) are
+// rebuilt with their rows; the others gain columns and a wider unique index.
 constexpr const char* kSchemaV8 = R"sql(
-SELECT 1;  -- (contract placeholder: the records migration goes here)
+CREATE TABLE duts(
+  id INTEGER PRIMARY KEY,
+  serial TEXT NOT NULL UNIQUE,      -- serial number as configured; '' = the unnamed gyro of older runs
+  model TEXT NOT NULL DEFAULT '',   -- e.g. 'KVH 1750'
+  first_seen_utc TEXT NOT NULL      -- ISO-8601 UTC wall time of the first run it was in
+);
+
+CREATE TABLE run_duts(
+  run_id INTEGER NOT NULL REFERENCES runs(id),
+  dut_id INTEGER NOT NULL REFERENCES duts(id),
+  position INTEGER NOT NULL,        -- order in the run's [[dut]] list, from 0 (0 = the run's first DUT)
+  primary_axis TEXT NOT NULL,       -- the sensitive axis (Earth-rate removal, old single-axis paths)
+  axes_json TEXT NOT NULL DEFAULT '[]',  -- JSON array of the analysed rate axes, e.g. ["x","y","z"]
+  rate_hz REAL,                     -- nominal output rate, Hz; NULL: unknown
+  seq_modulo INTEGER NOT NULL DEFAULT 0,  -- the frames' sequence counter wraps at this; 0: no counter
+  config_json TEXT NOT NULL DEFAULT '{}', -- the [[dut]] entry the run used, JSON
+  PRIMARY KEY(run_id, dut_id)
+);
+CREATE INDEX run_duts_by_dut ON run_duts(dut_id, run_id);
+
+CREATE TABLE channels(
+  id INTEGER PRIMARY KEY,
+  run_id INTEGER NOT NULL,          -- runs.id
+  dut_id INTEGER NOT NULL,          -- duts.id
+  idx INTEGER NOT NULL,             -- position in the DUT's frames, from 0
+  name TEXT NOT NULL,               -- gyro_x, accel_z, status, temp_c, rate, ...
+  unit TEXT NOT NULL,               -- physical unit: deg/h, g, degC, '' for status
+  kind TEXT NOT NULL,               -- rate, accel, temperature, status, other
+  axis TEXT NOT NULL DEFAULT '',    -- x, y, z for rate and accel channels; '' otherwise
+  scale REAL NOT NULL,              -- physical = raw * scale
+  UNIQUE(run_id, dut_id, name)
+);
+
+ALTER TABLE runs ADD COLUMN operator TEXT NOT NULL DEFAULT '';   -- who ran it
+ALTER TABLE runs ADD COLUMN comment TEXT NOT NULL DEFAULT '';
+ALTER TABLE runs ADD COLUMN tags_json TEXT NOT NULL DEFAULT '[]';         -- JSON array of free tags
+ALTER TABLE runs ADD COLUMN dut_serials_json TEXT NOT NULL DEFAULT '[]';  -- JSON array of the DUT serials declared when queued
+ALTER TABLE queue ADD COLUMN operator TEXT NOT NULL DEFAULT '';  -- given to the run the entry starts
+ALTER TABLE queue ADD COLUMN comment TEXT NOT NULL DEFAULT '';
+ALTER TABLE queue ADD COLUMN tags_json TEXT NOT NULL DEFAULT '[]';
+ALTER TABLE queue ADD COLUMN dut_serials_json TEXT NOT NULL DEFAULT '[]';
+
+CREATE TABLE segment_stats_v8(
+  segment_id INTEGER NOT NULL REFERENCES segments(id),
+  run_id INTEGER NOT NULL REFERENCES runs(id),
+  dut_serial TEXT NOT NULL DEFAULT '',  -- duts.serial; '' = the unnamed gyro
+  axis TEXT NOT NULL DEFAULT '',        -- x, y, z; '' = the DUT's primary axis (rows before v8)
+  segment_index INTEGER NOT NULL,   -- segments.idx
+  setpoint_c REAL,                  -- degC
+  n INTEGER NOT NULL,               -- points of the analysis series
+  duration_s REAL,                  -- station s
+  temp_mean_c REAL,                 -- mean of (top + side)/2, degC
+  bias_mean_dph REAL,               -- zero-bias mean, deg/h
+  bias_std_dph REAL,                -- zero-bias sample std (ddof 1), deg/h
+  bias_std_ma_dph REAL,             -- std after the ma_window-point moving average, deg/h
+  bias_mean_earth_removed_dph REAL, -- bias_mean_dph - earth_rate_dph, deg/h
+  bin_s REAL,                       -- analysis bin, s
+  ma_window INTEGER,                -- moving-average window, points
+  earth_rate_dph REAL,              -- Earth-rate component removed, deg/h
+  t_from_s REAL,                    -- window start, station s since run start
+  t_to_s REAL,                      -- window end, station s since run start
+  computed_utc TEXT NOT NULL,       -- ISO-8601 UTC wall time
+  PRIMARY KEY(segment_id, dut_serial, axis)
+);
+INSERT INTO segment_stats_v8(segment_id, run_id, segment_index, setpoint_c, n, duration_s,
+  temp_mean_c, bias_mean_dph, bias_std_dph, bias_std_ma_dph, bias_mean_earth_removed_dph, bin_s,
+  ma_window, earth_rate_dph, t_from_s, t_to_s, computed_utc)
+SELECT segment_id, run_id, segment_index, setpoint_c, n, duration_s, temp_mean_c, bias_mean_dph,
+  bias_std_dph, bias_std_ma_dph, bias_mean_earth_removed_dph, bin_s, ma_window, earth_rate_dph,
+  t_from_s, t_to_s, computed_utc FROM segment_stats;
+DROP TABLE segment_stats;
+ALTER TABLE segment_stats_v8 RENAME TO segment_stats;
+CREATE INDEX segment_stats_by_run ON segment_stats(run_id, segment_index);
+CREATE INDEX segment_stats_by_dut ON segment_stats(dut_serial, run_id);
+
+ALTER TABLE allan ADD COLUMN dut_serial TEXT NOT NULL DEFAULT '';  -- duts.serial; '' = the unnamed gyro
+ALTER TABLE allan ADD COLUMN axis TEXT NOT NULL DEFAULT '';        -- '' = the DUT's primary axis
+DROP INDEX allan_by_run;
+CREATE UNIQUE INDEX allan_by_run ON allan(run_id, segment_index, taus, dut_serial, axis);
+CREATE INDEX allan_by_dut ON allan(dut_serial, run_id);
+
+ALTER TABLE fits ADD COLUMN dut_serial TEXT NOT NULL DEFAULT '';  -- duts.serial; '' = the unnamed gyro
+ALTER TABLE fits ADD COLUMN axis TEXT NOT NULL DEFAULT '';        -- '' = the DUT's primary axis
+CREATE INDEX fits_by_dut ON fits(dut_serial, id);
+
+ALTER TABLE scale_factor_points ADD COLUMN dut_serial TEXT NOT NULL DEFAULT '';  -- duts.serial
+ALTER TABLE scale_factor_points ADD COLUMN axis TEXT NOT NULL DEFAULT '';        -- '' = primary axis
+DROP INDEX scale_factor_points_by_run;
+CREATE INDEX scale_factor_points_by_run
+  ON scale_factor_points(run_id, dut_serial, axis, sf_sequence, repetition);
+CREATE INDEX scale_factor_points_by_dut ON scale_factor_points(dut_serial, run_id);
+
+CREATE TABLE scale_factor_fits_v8(
+  run_id INTEGER NOT NULL REFERENCES runs(id),
+  sf_sequence INTEGER NOT NULL,     -- the sequence fitted (its points in scale_factor_points)
+  dut_serial TEXT NOT NULL DEFAULT '',  -- duts.serial; '' = the unnamed gyro
+  axis TEXT NOT NULL DEFAULT '',        -- x, y, z; '' = the DUT's primary axis (rows before v8)
+  temperature_c REAL,               -- mean temperature of its points, degC
+  k REAL,                           -- scale factor K of output = K * rate + bias, (deg/s)/(deg/s)
+  k_se REAL,                        -- standard error of K
+  bias_dps REAL,                    -- bias B0 of the fit, deg/s
+  nonlinearity_ppm REAL,            -- largest deviation of a point from the line relative to K, ppm
+  nonlinearity_fs_ppm REAL,         -- the same relative to the full-scale output, ppm
+  asymmetry_ppm REAL,               -- (K+ - K-) / mean K, ppm; NULL with one direction only
+  repeatability_ppm REAL,           -- spread of K over the repetitions, ppm; NULL with fewer than 2
+  n_points INTEGER NOT NULL,        -- points fitted
+  created_utc TEXT NOT NULL,        -- ISO-8601 UTC wall time
+  PRIMARY KEY(run_id, sf_sequence, dut_serial, axis)
+) WITHOUT ROWID;
+INSERT INTO scale_factor_fits_v8(run_id, sf_sequence, temperature_c, k, k_se, bias_dps,
+  nonlinearity_ppm, nonlinearity_fs_ppm, asymmetry_ppm, repeatability_ppm, n_points, created_utc)
+SELECT run_id, sf_sequence, temperature_c, k, k_se, bias_dps, nonlinearity_ppm,
+  nonlinearity_fs_ppm, asymmetry_ppm, repeatability_ppm, n_points, created_utc
+FROM scale_factor_fits;
+DROP TABLE scale_factor_fits;
+ALTER TABLE scale_factor_fits_v8 RENAME TO scale_factor_fits;
+CREATE INDEX scale_factor_fits_by_dut ON scale_factor_fits(dut_serial, run_id);
+
+CREATE TABLE scale_factor_temperature_fits_v8(
+  run_id INTEGER NOT NULL REFERENCES runs(id),
+  dut_serial TEXT NOT NULL DEFAULT '',  -- duts.serial; '' = the unnamed gyro
+  axis TEXT NOT NULL DEFAULT '',        -- x, y, z; '' = the DUT's primary axis (rows before v8)
+  poly_order INTEGER NOT NULL,      -- degree of the polynomials in (T - t_centre_c)
+  t_centre_c REAL,                  -- temperature the polynomials are centred on, degC
+  k_coeffs_json TEXT NOT NULL,      -- [k0, k1, ...]: K(T) = sum k_i (T - t_centre_c)^i
+  bias_coeffs_json TEXT NOT NULL,   -- [b0, b1, ...]: bias(T) = sum b_i (T - t_centre_c)^i, deg/s
+  k_ppm_per_c REAL,                 -- dK/dT at t_centre_c relative to K, ppm/degC
+  bias_dph_per_c REAL,              -- dbias/dT at t_centre_c, (deg/h)/degC
+  created_utc TEXT NOT NULL,        -- ISO-8601 UTC wall time
+  PRIMARY KEY(run_id, dut_serial, axis)
+) WITHOUT ROWID;
+INSERT INTO scale_factor_temperature_fits_v8(run_id, poly_order, t_centre_c, k_coeffs_json,
+  bias_coeffs_json, k_ppm_per_c, bias_dph_per_c, created_utc)
+SELECT run_id, poly_order, t_centre_c, k_coeffs_json, bias_coeffs_json, k_ppm_per_c,
+  bias_dph_per_c, created_utc FROM scale_factor_temperature_fits;
+DROP TABLE scale_factor_temperature_fits;
+ALTER TABLE scale_factor_temperature_fits_v8 RENAME TO scale_factor_temperature_fits;
+CREATE INDEX scale_factor_temperature_fits_by_dut
+  ON scale_factor_temperature_fits(dut_serial, run_id);
 )sql";
 
 // v9: chunked sample storage.

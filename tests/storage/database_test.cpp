@@ -45,7 +45,7 @@ TEST(Database, OpenCreatesTheCurrentSchemaInWalMode) {
   auto version = db.schema_version();
   ASSERT_TRUE(version.ok()) << version.error().message;
   EXPECT_EQ(*version, kSchemaVersion);
-  EXPECT_EQ(kSchemaVersion, 7);
+  EXPECT_EQ(kSchemaVersion, 9);
   EXPECT_EQ(query_text(db.handle(), "PRAGMA journal_mode"), "wal");
   EXPECT_EQ(query_int(db.handle(), "PRAGMA synchronous"), 1);  // NORMAL
   EXPECT_EQ(query_int(db.handle(), "PRAGMA foreign_keys"), 1);
@@ -82,7 +82,10 @@ TEST(Database, OpenCreatesTheCurrentSchemaInWalMode) {
                                           "table_samples",
                                           "scale_factor_points",
                                           "scale_factor_fits",
-                                          "scale_factor_temperature_fits"};
+                                          "scale_factor_temperature_fits",
+                                          "duts",
+                                          "run_duts",
+                                          "channels"};
   EXPECT_EQ(tables, expected);
 }
 
@@ -131,19 +134,24 @@ TEST(Database, NewerSchemaIsRefusedWithAClearMessage) {
   const std::string path = dir.file("station.db");
   {
     Database db = open_ok(path);
-    ASSERT_TRUE(db.exec("UPDATE meta SET value='8' WHERE key='schema_version'").ok());
+    ASSERT_TRUE(db.exec(fmt::format("UPDATE meta SET value='{}' WHERE key='schema_version'",
+                                    kSchemaVersion + 1))
+                    .ok());
   }
   auto db = Database::open(path);
   ASSERT_FALSE(db.ok());
   EXPECT_FALSE(db.error().transient);
   EXPECT_NE(db.error().message.find(path), std::string::npos) << db.error().message;
-  EXPECT_NE(db.error().message.find("schema version 8, newer than this build's 7"),
+  EXPECT_NE(db.error().message.find(fmt::format("schema version {}, newer than this build's {}",
+                                                kSchemaVersion + 1, kSchemaVersion)),
             std::string::npos)
       << db.error().message;
 
   auto ro = Database::open_read_only(path);
   ASSERT_FALSE(ro.ok());
-  EXPECT_NE(ro.error().message.find("schema version 8"), std::string::npos) << ro.error().message;
+  EXPECT_NE(ro.error().message.find(fmt::format("schema version {}", kSchemaVersion + 1)),
+            std::string::npos)
+      << ro.error().message;
 }
 
 TEST(Database, RefusesAnotherApplicationsDatabase) {

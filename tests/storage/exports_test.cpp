@@ -2,6 +2,7 @@
 // `export_runs`): round trips, one export per nightly slot, a run in at most
 // one live nightly export, the runs still to export, finish_export's errors,
 // all-or-nothing begin_export, and the migration of a v4 file.
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 #include <sqlite3.h>
 
@@ -513,7 +514,8 @@ TEST(Exports, MigratesASchema4DatabaseKeepingItsRows) {
   {
     auto ro = Database::open_read_only(path);
     ASSERT_FALSE(ro.ok());
-    EXPECT_NE(ro.error().message.find("schema version 4, older than this build's 7"),
+    EXPECT_NE(ro.error().message.find(
+                  fmt::format("schema version 4, older than this build's {}", kSchemaVersion)),
               std::string::npos)
         << ro.error().message;
   }
