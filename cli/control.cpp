@@ -74,6 +74,14 @@ std::string fixed(const json& v, int decimals, std::string_view unit = "") {
 
 bool truthy(const json& v) { return v.is_boolean() && v.get<bool>(); }
 
+// "a, b, c"; "—" for none.
+std::string listed(const json& items) {
+  if (!items.is_array() || items.empty()) return kDash;
+  std::string out;
+  for (const auto& i : items) out += (out.empty() ? "" : ", ") + text(i);
+  return out;
+}
+
 // ---------------------------------------------------------------- tables
 
 // "label       value" lines of a summary.
@@ -539,6 +547,14 @@ std::string format_status(const json& j) {
   if (!field(j, "run_id").is_null()) {
     out += labelled("run", fmt::format("{}  {}", text(field(j, "run_id")),
                                        text(first_of(j, {"schedule_name", "schedule"}))));
+    // Who runs it (docs/api.md "Run metadata"), when the daemon says.
+    if (const json& m = field(j, "run_metadata"); m.is_object()) {
+      std::string who = text(field(m, "operator"));
+      if (field(m, "tags").is_array() && !field(m, "tags").empty()) {
+        who += fmt::format("  (tags: {})", listed(field(m, "tags")));
+      }
+      out += labelled("operator", who);
+    }
     // Flat per docs/api.md, or nested as {"step": {"index", "count", "label"}}.
     const json& step = field(j, "step");
     auto pick = [&](const char* flat, const char* nested) -> const json& {
@@ -748,14 +764,6 @@ std::string format_run(const json& run, const json& events) {
 }
 
 namespace {
-
-// "a, b, c"; "—" for none.
-std::string listed(const json& items) {
-  if (!items.is_array() || items.empty()) return kDash;
-  std::string out;
-  for (const auto& i : items) out += (out.empty() ? "" : ", ") + text(i);
-  return out;
-}
 
 // One DUT in a run: "17-0042  KVH 1750, axes x y z (primary z), 1000 Hz, 8 channels".
 std::string dut_line(const json& d) {

@@ -902,6 +902,13 @@ TEST_F(CliControlTest, MetadataAndDutCommandsSendTheirRequests) {
   EXPECT_EQ(json::parse(j.out), history_answer());
 }
 
+TEST(CliFormat, StatusNamesWhoRunsTheRun) {
+  json status = status_answer();
+  EXPECT_THAT(cli::format_status(status), Not(HasSubstr("\noperator ")));
+  status["run_metadata"] = {{"operator", "Ana Müller"}, {"comment", ""}, {"tags", {"c7", "w1"}}};
+  EXPECT_THAT(cli::format_status(status), HasSubstr("operator    Ana Müller  (tags: c7, w1)\n"));
+}
+
 TEST(CliFormat, DutHistoryIsATablePerRunWithBiasPerAxis) {
   const std::string text = cli::format_dut_history(history_answer());
   EXPECT_THAT(text, HasSubstr("DUT 17-0042  KVH 1750\nfirst seen  2026-11-20 05:38:43 UTC\n"
