@@ -10,6 +10,7 @@
 #include <thread>
 #include <utility>
 
+#include "duts_internal.h"
 #include "gyrotherm/core/clock.h"
 #include "migrations.h"
 #include "sqlite_util.h"
@@ -120,9 +121,10 @@ Status migrate(sqlite3* db, const std::string& path, const WallClock& wall) {
 
 constexpr const char* kRunColumns =
     "id, schedule_name, state, started_utc, ended_utc, time_scale, latitude_deg, orientation, "
-    "config_json, queue_id, schedule_id, resume_json, checkpoint_wall_unix_s, config_toml";
+    "config_json, queue_id, schedule_id, resume_json, checkpoint_wall_unix_s, config_toml, "
+    "operator, comment, tags_json, dut_serials_json";
 
-RunRecord read_run(const Stmt& st) {
+Result<RunRecord> read_run(const Stmt& st, const std::string& path) {
   RunRecord r;
   r.id = st.column_int64(0);
   r.schedule_name = st.column_text(1);
@@ -138,6 +140,9 @@ RunRecord read_run(const Stmt& st) {
   r.resume_json = st.column_text(11);
   r.checkpoint_wall_unix_s = st.column_optional_double(12);
   r.config_toml = st.column_text(13);
+  auto metadata = internal::read_metadata(st, 14, fmt::format("storage: {}: run {}", path, r.id));
+  if (!metadata) return metadata.error();
+  r.metadata = std::move(*metadata);
   return r;
 }
 
@@ -207,7 +212,7 @@ constexpr int kSegmentBoundColumns = 22;  // bind_segment's parameters
 constexpr const char* kStatsColumns =
     "segment_id, run_id, segment_index, setpoint_c, n, duration_s, temp_mean_c, bias_mean_dph, "
     "bias_std_dph, bias_std_ma_dph, bias_mean_earth_removed_dph, bin_s, ma_window, "
-    "earth_rate_dph, t_from_s, t_to_s, computed_utc";
+    "earth_rate_dph, t_from_s, t_to_s, computed_utc, dut_serial, axis";
 
 }  // namespace
 
@@ -297,10 +302,15 @@ std::string Database::utc_now() const { return utc_iso(*wall_); }
 Result<int> Database::schema_version() { return read_schema_version(db_, path_); }
 
 Result<int64_t> Database::create_run(const RunRecord& run) {
+  if (Status s = internal::check_metadata(run.metadata, path_, "creating a run"); !s) {
+    return s.error();
+  }
   auto st = Stmt::prepare(db_, path_,
                           "INSERT INTO runs(schedule_name, state, started_utc, ended_utc, "
                           "time_scale, latitude_deg, orientation, config_json, queue_id, "
-                          "schedule_id, config_toml) VALUES(?, ?, ?, NULL, ?, ?, ?, ?, ?, ?, ?)");
+                          "schedule_id, config_toml, operator, comment, tags_json, "
+                          "dut_serials_json) VALUES(?, ?, ?, NULL, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
+                          "?)");
   if (!st) return st.error();
   st->bind(1, std::string_view(run.schedule_name));
   st->bind(2, std::string_view(run.state));
@@ -312,6 +322,7 @@ Result<int64_t> Database::create_run(const RunRecord& run) {
   st->bind(8, run.queue_id);
   st->bind(9, run.schedule_id);
   st->bind_text_or_null(10, run.config_toml);
+  internal::bind_metadata(*st, 11, run.metadata);
   if (Status s = expect_done(*st, db_, path_, "creating a run"); !s) return s.error();
   return static_cast<int64_t>(sqlite3_last_insert_rowid(db_));
 }
@@ -339,7 +350,11 @@ Result<std::vector<RunRecord>> Database::runs() {
   if (!st) return st.error();
   std::vector<RunRecord> out;
   int rc;
-  while ((rc = st->step()) == SQLITE_ROW) out.push_back(read_run(*st));
+  while ((rc = st->step()) == SQLITE_ROW) {
+    auto run = read_run(*st, path_);
+    if (!run) return run.error();
+    out.push_back(std::move(*run));
+  }
   if (rc != SQLITE_DONE) return sqlite_error(db_, path_, "reading runs");
   return out;
 }
@@ -349,7 +364,7 @@ Result<RunRecord> Database::run(int64_t run_id) {
   if (!st) return st.error();
   st->bind(1, run_id);
   const int rc = st->step();
-  if (rc == SQLITE_ROW) return read_run(*st);
+  if (rc == SQLITE_ROW) return read_run(*st, path_);
   if (rc == SQLITE_DONE) {
     return Error::Permanent(fmt::format("storage: {}: no run with id {}", path_, run_id));
   }
@@ -488,10 +503,14 @@ Result<std::vector<EventRecord>> Database::events(int64_t run_id) {
 }
 
 Status Database::put_segment_stats(const SegmentStatsRecord& s) {
-  auto st = Stmt::prepare(db_, path_,
-                          fmt::format("INSERT OR REPLACE INTO segment_stats({}) "
-                                      "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                                      kStatsColumns));
+  const std::string what = fmt::format("storing statistics of segment {}", s.segment_id);
+  auto key = internal::result_key(db_, path_, s.run_id, s.dut_serial, s.axis, what);
+  if (!key) return key.error();
+  auto st =
+      Stmt::prepare(db_, path_,
+                    fmt::format("INSERT OR REPLACE INTO segment_stats({}) "
+                                "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                                kStatsColumns));
   if (!st) return st.error();
   int i = 1;
   st->bind(i++, s.segment_id);
@@ -511,15 +530,32 @@ Status Database::put_segment_stats(const SegmentStatsRecord& s) {
   st->bind(i++, s.t_from_s);
   st->bind(i++, s.t_to_s);
   st->bind(i++, std::string_view(utc_or_now(s.computed_utc)));
-  return expect_done(*st, db_, path_,
-                     fmt::format("storing statistics of segment {}", s.segment_id));
+  st->bind(i++, std::string_view(key->serial));
+  st->bind(i++, std::string_view(key->axis));
+  internal::WriteScope tx(db_, path_, "put_segment_stats");
+  if (Status s = tx.begin(); !s) return s;
+  if (Status s = expect_done(*st, db_, path_, what); !s) return s;
+  if (key->primary && !key->axis.empty()) {
+    // The row stored before v8 for this DUT (axis '' = its primary axis)
+    // is this series: the new row replaces it.
+    auto legacy = Stmt::prepare(db_, path_,
+                                "DELETE FROM segment_stats WHERE segment_id = ? AND "
+                                "dut_serial = ? AND axis = ''");
+    if (!legacy) return legacy.error();
+    legacy->bind(1, s.segment_id);
+    legacy->bind(2, std::string_view(key->serial));
+    if (Status e = expect_done(*legacy, db_, path_, what); !e) return e;
+  }
+  return tx.commit();
 }
 
 Result<std::vector<SegmentStatsRecord>> Database::segment_stats(std::optional<int64_t> run_id) {
-  auto st = Stmt::prepare(db_, path_,
-                          fmt::format("SELECT {} FROM segment_stats WHERE ?1 IS NULL OR "
-                                      "run_id = ?1 ORDER BY run_id, segment_index, segment_id",
-                                      kStatsColumns));
+  const std::string columns = internal::qualified(kStatsColumns, "s");
+  auto st = Stmt::prepare(
+      db_, path_,
+      fmt::format("SELECT {} FROM segment_stats s {} WHERE ?1 IS NULL OR s.run_id = ?1 "
+                  "ORDER BY s.run_id, s.segment_index, s.segment_id, {}, s.dut_serial, s.axis",
+                  columns, internal::dut_position_join("s"), internal::kDutPositionOrder));
   if (!st) return st.error();
   st->bind(1, run_id);
   std::vector<SegmentStatsRecord> out;
@@ -544,6 +580,8 @@ Result<std::vector<SegmentStatsRecord>> Database::segment_stats(std::optional<in
     r.t_from_s = st->column_double(c++);
     r.t_to_s = st->column_double(c++);
     r.computed_utc = st->column_text(c++);
+    r.dut_serial = st->column_text(c++);
+    r.axis = st->column_text(c++);
     out.push_back(std::move(r));
   }
   if (rc != SQLITE_DONE) return sqlite_error(db_, path_, "reading segment statistics");
@@ -619,7 +657,8 @@ namespace {
 constexpr const char* kAllanColumns =
     "id, run_id, segment_id, segment_index, t_from_s, t_to_s, taus, tau0_s, n_samples, "
     "curve_json, angle_random_walk_dprh, bias_instability_dph, bias_instability_tau_s, "
-    "rate_random_walk_dphprh, bias_instability_method, inputs_json, computed_utc";
+    "rate_random_walk_dphprh, bias_instability_method, inputs_json, computed_utc, dut_serial, "
+    "axis";
 
 // The curve's arrays, in the order of curve_json.
 struct AllanCurveField {
@@ -632,8 +671,12 @@ constexpr AllanCurveField kAllanCurve[] = {{"tau_s", &AllanRecord::tau_s},
                                            {"adev_hi_dph", &AllanRecord::adev_hi_dph}};
 
 std::string allan_label(const AllanRecord& a) {
-  return fmt::format("Allan deviation of run {} step {} (taus '{}')", a.run_id, a.segment_index,
-                     a.taus);
+  if (a.dut_serial.empty() && a.axis.empty()) {
+    return fmt::format("Allan deviation of run {} step {} (taus '{}')", a.run_id, a.segment_index,
+                       a.taus);
+  }
+  return fmt::format("Allan deviation of run {} step {} DUT '{}' axis '{}' (taus '{}')", a.run_id,
+                     a.segment_index, a.dut_serial, a.axis, a.taus);
 }
 
 // The curve as JSON, or an error naming the field (and index) that cannot be
@@ -730,13 +773,17 @@ Result<int64_t> Database::put_allan(const AllanRecord& a) {
     return Error::Permanent(fmt::format("storage: {}: storing {}: inputs_json is not valid JSON",
                                         path_, allan_label(a)));
   }
+  auto key = internal::result_key(db_, path_, a.run_id, a.dut_serial, a.axis,
+                                  fmt::format("storing {}", allan_label(a)));
+  if (!key) return key.error();
   // An upsert keeps the row's id when a recomputation replaces it.
   auto st = Stmt::prepare(
       db_, path_,
       "INSERT INTO allan(run_id, segment_id, segment_index, t_from_s, t_to_s, taus, tau0_s, "
       "n_samples, curve_json, angle_random_walk_dprh, bias_instability_dph, "
       "bias_instability_tau_s, rate_random_walk_dphprh, bias_instability_method, inputs_json, "
-      "computed_utc) VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) "
+      "computed_utc, dut_serial, axis) VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
+      "?) "
       "ON CONFLICT(run_id, segment_index, taus, dut_serial, axis) DO UPDATE SET segment_id = "
       "excluded.segment_id, "
       "t_from_s = excluded.t_from_s, t_to_s = excluded.t_to_s, tau0_s = excluded.tau0_s, "
@@ -770,18 +817,38 @@ Result<int64_t> Database::put_allan(const AllanRecord& a) {
   st->bind(i++, std::string_view(a.bias_instability_method));
   st->bind(i++, std::string_view(inputs));
   st->bind(i++, std::string_view(utc_or_now(a.computed_utc)));
+  st->bind(i++, std::string_view(key->serial));
+  st->bind(i++, std::string_view(key->axis));
   const std::string what = fmt::format("storing {}", allan_label(a));
+  internal::WriteScope tx(db_, path_, "put_allan");
+  if (Status s = tx.begin(); !s) return s.error();
   if (st->step() != SQLITE_ROW) return sqlite_error(db_, path_, what);
   const int64_t id = st->column_int64(0);
   if (Status s = expect_done(*st, db_, path_, what); !s) return s.error();
+  if (key->primary && !key->axis.empty()) {
+    // The row stored before v8 for this DUT (axis '' = its primary axis)
+    // is this series: the new row replaces it.
+    auto legacy = Stmt::prepare(db_, path_,
+                                "DELETE FROM allan WHERE run_id = ? AND segment_index = ? AND "
+                                "taus = ? AND dut_serial = ? AND axis = ''");
+    if (!legacy) return legacy.error();
+    legacy->bind(1, a.run_id);
+    legacy->bind(2, a.segment_index);
+    legacy->bind(3, std::string_view(a.taus));
+    legacy->bind(4, std::string_view(key->serial));
+    if (Status s = expect_done(*legacy, db_, path_, what); !s) return s.error();
+  }
+  if (Status s = tx.commit(); !s) return s.error();
   return id;
 }
 
 Result<std::vector<AllanRecord>> Database::allan(int64_t run_id) {
-  auto st = Stmt::prepare(db_, path_,
-                          fmt::format("SELECT {} FROM allan WHERE run_id = ? "
-                                      "ORDER BY segment_index, taus",
-                                      kAllanColumns));
+  auto st =
+      Stmt::prepare(db_, path_,
+                    fmt::format("SELECT {} FROM allan a {} WHERE a.run_id = ? "
+                                "ORDER BY a.segment_index, {}, a.dut_serial, a.axis, a.taus",
+                                internal::qualified(kAllanColumns, "a"),
+                                internal::dut_position_join("a"), internal::kDutPositionOrder));
   if (!st) return st.error();
   st->bind(1, run_id);
   std::vector<AllanRecord> out;
@@ -806,6 +873,8 @@ Result<std::vector<AllanRecord>> Database::allan(int64_t run_id) {
     r.bias_instability_method = st->column_text(c++);
     r.inputs_json = st->column_text(c++);
     r.computed_utc = st->column_text(c++);
+    r.dut_serial = st->column_text(c++);
+    r.axis = st->column_text(c++);
     if (Status s = read_allan_curve(r, curve, path_); !s) return s.error();
     out.push_back(std::move(r));
   }

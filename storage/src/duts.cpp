@@ -86,50 +86,53 @@ Result<std::optional<std::pair<std::string, std::string>>> first_dut_of_run(sqli
   return Out(std::make_pair(st->column_text(0), st->column_text(1)));
 }
 
-Result<std::pair<std::string, std::string>> result_key(sqlite3* db, const std::string& path,
-                                                       int64_t run_id, const std::string& serial,
-                                                       const std::string& axis,
-                                                       std::string_view what) {
-  if (!serial.empty() && !axis.empty()) {
-    // Named: the serial must be one of the run's DUTs when it has any (a
-    // typo would otherwise file results under a gyro that was not there).
-    auto st = Stmt::prepare(db, path,
-                            "SELECT (SELECT count(*) FROM run_duts WHERE run_id = ?1), "
-                            "(SELECT count(*) FROM run_duts rd JOIN duts d ON d.id = rd.dut_id "
-                            "WHERE rd.run_id = ?1 AND d.serial = ?2)");
-    if (!st) return st.error();
-    st->bind(1, run_id);
-    st->bind(2, std::string_view(serial));
-    if (st->step() != SQLITE_ROW) return sqlite_error(db, path, what);
-    if (st->column_int64(0) > 0 && st->column_int64(1) == 0) {
+Result<ResultKey> result_key(sqlite3* db, const std::string& path, int64_t run_id,
+                             const std::string& serial, const std::string& axis,
+                             std::string_view what) {
+  auto st = Stmt::prepare(db, path,
+                          "SELECT d.serial, rd.primary_axis FROM run_duts rd JOIN duts d ON "
+                          "d.id = rd.dut_id WHERE rd.run_id = ? ORDER BY rd.position");
+  if (!st) return st.error();
+  st->bind(1, run_id);
+  std::vector<std::pair<std::string, std::string>> duts;  // serial, primary axis
+  int rc;
+  while ((rc = st->step()) == SQLITE_ROW) duts.emplace_back(st->column_text(0), st->column_text(1));
+  if (rc != SQLITE_DONE) return sqlite_error(db, path, what);
+  // A run without DUTs (results of an older run, tests) stores what it is
+  // given: "" is the unnamed gyro; its primary axis is not known.
+  if (duts.empty()) return ResultKey{serial, axis, axis.empty()};
+  auto it = duts.begin();
+  if (!serial.empty()) {
+    it = std::find_if(duts.begin(), duts.end(), [&](const auto& d) { return d.first == serial; });
+    // A typo would otherwise file results under a gyro that was not there.
+    if (it == duts.end()) {
       return Error::Permanent(fmt::format("storage: {}: {}: run {} has no DUT with serial '{}'",
                                           path, what, run_id, serial));
     }
-    return std::make_pair(serial, axis);
   }
-  auto first = first_dut_of_run(db, path, run_id);
-  if (!first) return first.error();
-  if (serial.empty()) {
-    // "" = the run's first DUT; a run without DUTs keeps '' (the unnamed
-    // gyro) and its axis as given.
-    if (!*first) return std::make_pair(std::string(), axis);
-    return std::make_pair((*first)->first, axis.empty() ? (*first)->second : axis);
+  const std::string& resolved_axis = axis.empty() ? it->second : axis;
+  return ResultKey{it->first, resolved_axis, resolved_axis == it->second};
+}
+
+std::string dut_position_join(std::string_view alias) {
+  return fmt::format(
+      " LEFT JOIN duts rd_d ON rd_d.serial = {0}.dut_serial LEFT JOIN run_duts rd_rd ON "
+      "rd_rd.run_id = {0}.run_id AND rd_rd.dut_id = rd_d.id ",
+      alias);
+}
+
+std::string qualified(std::string_view columns, std::string_view alias) {
+  std::string out;
+  std::size_t from = 0;
+  while (from <= columns.size()) {
+    std::size_t comma = columns.find(',', from);
+    if (comma == std::string_view::npos) comma = columns.size();
+    std::string_view c = columns.substr(from, comma - from);
+    while (!c.empty() && c.front() == ' ') c.remove_prefix(1);
+    out += fmt::format("{}{}.{}", out.empty() ? "" : ", ", alias, c);
+    from = comma + 1;
   }
-  // A serial without axis: that DUT's primary axis.
-  auto st = Stmt::prepare(db, path,
-                          "SELECT rd.primary_axis FROM run_duts rd JOIN duts d ON "
-                          "d.id = rd.dut_id WHERE rd.run_id = ? AND d.serial = ?");
-  if (!st) return st.error();
-  st->bind(1, run_id);
-  st->bind(2, std::string_view(serial));
-  const int rc = st->step();
-  if (rc == SQLITE_ROW) return std::make_pair(serial, st->column_text(0));
-  if (rc != SQLITE_DONE) return sqlite_error(db, path, what);
-  if (*first) {
-    return Error::Permanent(fmt::format("storage: {}: {}: run {} has no DUT with serial '{}'", path,
-                                        what, run_id, serial));
-  }
-  return std::make_pair(serial, std::string());
+  return out;
 }
 
 }  // namespace internal
@@ -434,6 +437,69 @@ Result<std::pair<RunDutRecord, std::string>> Database::resolve_stream(int64_t ru
   }
   std::string axis = key.axis;
   return std::make_pair(std::move(*it), std::move(axis));
+}
+
+Result<DutHistory> Database::dut_history(std::string_view serial) {
+  auto known = dut(serial);
+  if (!known) return known.error();
+  if (!*known) {
+    return Error::Permanent(fmt::format("storage: {}: no DUT with serial '{}'", path_, serial));
+  }
+  DutHistory h;
+  h.dut = **known;
+  // Its runs through run_duts_by_dut; each run's rows through the run's
+  // indexes (a run holds a few DUTs: filtering its rows here reads little).
+  auto st = Stmt::prepare(db_, path_,
+                          std::string(kRunDutSelect) + "WHERE rd.dut_id = ? ORDER BY rd.run_id");
+  if (!st) return st.error();
+  st->bind(1, h.dut.id);
+  std::vector<RunDutRecord> in_runs;
+  int rc;
+  while ((rc = st->step()) == SQLITE_ROW) {
+    auto rec = read_run_dut(*st, path_);
+    if (!rec) return rec.error();
+    in_runs.push_back(std::move(*rec));
+  }
+  if (rc != SQLITE_DONE) {
+    return sqlite_error(db_, path_, fmt::format("reading the runs of DUT '{}'", serial));
+  }
+  if (Status s = read_channels(db_, path_, in_runs); !s) return s.error();
+
+  const auto mine = [&](const std::string& row_serial) { return row_serial == h.dut.serial; };
+  for (RunDutRecord& in_run : in_runs) {
+    DutHistory::Run r;
+    const int64_t run_id = in_run.run_id;
+    auto rec = run(run_id);
+    if (!rec) return rec.error();
+    r.run = std::move(*rec);
+    r.run.config_json.clear();
+    r.run.config_toml.clear();
+    r.run.resume_json.clear();
+    auto segs = segments(run_id);
+    if (!segs) return segs.error();
+    r.segments = std::move(*segs);
+    auto stats = segment_stats(run_id);
+    if (!stats) return stats.error();
+    for (auto& row : *stats) {
+      if (mine(row.dut_serial)) r.stats.push_back(std::move(row));
+    }
+    auto allan_rows = allan(run_id);
+    if (!allan_rows) return allan_rows.error();
+    for (auto& row : *allan_rows) {
+      if (mine(row.dut_serial)) r.allan.push_back(std::move(row));
+    }
+    auto sf = scale_factor_fits(run_id);
+    if (!sf) return sf.error();
+    for (auto& row : *sf) {
+      if (mine(row.dut_serial)) r.scale_factor.push_back(std::move(row));
+    }
+    r.in_run = std::move(in_run);
+    h.runs.push_back(std::move(r));
+  }
+  auto fits = internal::fits_of_dut(db_, path_, h.dut.serial);
+  if (!fits) return fits.error();
+  h.fits = std::move(*fits);
+  return h;
 }
 
 }  // namespace gyrotherm::storage

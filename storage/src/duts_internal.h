@@ -13,6 +13,8 @@
 #include <vector>
 
 #include "gyrotherm/core/result.h"
+#include "gyrotherm/storage/database.h"
+#include "sqlite_util.h"
 
 namespace gyrotherm::storage::internal {
 
@@ -43,6 +45,15 @@ std::string strings_json(const std::vector<std::string>& values);
 Result<std::vector<std::string>> strings_from_json(const std::string& text,
                                                    const std::string& where);
 
+// Run metadata in the columns operator, comment, tags_json,
+// dut_serials_json (runs and queue), from parameter / column `first` on.
+// check_metadata refuses what cannot be stored (an empty tag or serial),
+// naming the field; read_metadata names `where` (e.g. "storage: F: run 3")
+// when a JSON column is not an array of strings.
+Status check_metadata(const RunMetadata& md, const std::string& path, std::string_view what);
+void bind_metadata(Stmt& st, int first, const RunMetadata& md);
+Result<RunMetadata> read_metadata(const Stmt& st, int first, const std::string& where);
+
 // The serial and primary axis of the run's first DUT (position order);
 // nullopt when the run has none.
 Result<std::optional<std::pair<std::string, std::string>>> first_dut_of_run(sqlite3* db,
@@ -53,10 +64,32 @@ Result<std::optional<std::pair<std::string, std::string>>> first_dut_of_run(sqli
 // is the run's first DUT (its serial) and axis "" that DUT's primary axis,
 // when the run has DUTs; a run without DUTs stores what it is given (""
 // = the unnamed gyro). A serial the run's DUTs do not include is refused
-// (naming it) when the run has DUTs. `what` prefixes errors.
-Result<std::pair<std::string, std::string>> result_key(sqlite3* db, const std::string& path,
-                                                       int64_t run_id, const std::string& serial,
-                                                       const std::string& axis,
-                                                       std::string_view what);
+// (naming it) when the run has DUTs. `what` prefixes errors. `primary`:
+// the axis is the DUT's primary axis (for a run without DUTs: the axis is
+// ""), so rows stored before v8 (axis '') of that DUT are the same series.
+struct ResultKey {
+  std::string serial;
+  std::string axis;
+  bool primary = true;
+};
+Result<ResultKey> result_key(sqlite3* db, const std::string& path, int64_t run_id,
+                             const std::string& serial, const std::string& axis,
+                             std::string_view what);
+
+// The order of result rows of a run: by the DUT's position in the run
+// (rows of a serial the run did not register, such as the unnamed gyro of
+// rows stored before v8, count as position 0), then serial, then axis.
+// dut_position_join(alias) joins the result table (aliased `alias`, with
+// run_id and dut_serial columns) to its DUT's run_duts row (alias rd_rd);
+// kDutPositionOrder is the ORDER BY term.
+std::string dut_position_join(std::string_view alias);
+inline constexpr const char* kDutPositionOrder = "coalesce(rd_rd.position, 0)";
+
+// The drift fits filed under a DUT (fits.dut_serial), newest first.
+Result<std::vector<FitRecord>> fits_of_dut(sqlite3* db, const std::string& path,
+                                           const std::string& serial);
+
+// "a, b" -> "x.a, x.b".
+std::string qualified(std::string_view columns, std::string_view alias);
 
 }  // namespace gyrotherm::storage::internal

@@ -16,6 +16,7 @@
 #include <cmath>
 #include <limits>
 
+#include "duts_internal.h"
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/storage/database.h"
 #include "sqlite_util.h"
@@ -237,17 +238,27 @@ namespace {
 
 constexpr const char* kFitColumns =
     "id, model, form, n, coefficients_json, standard_errors_json, residual_std_dph, r_squared, "
-    "inputs_json, computed_utc";
+    "inputs_json, computed_utc, dut_serial, axis";
 
 }  // namespace
 
 Result<int64_t> Database::add_fit(const FitRecord& fit) {
   Transaction tx(db_, path_);
   if (Status s = tx.begin_immediate(); !s) return s.error();
+  // The DUT and axis as of the first run fitted ("" = its first DUT and
+  // that DUT's primary axis); a fit of no run keeps what it is given.
+  internal::ResultKey key{fit.dut_serial, fit.axis};
+  if (!fit.run_ids.empty()) {
+    auto resolved = internal::result_key(db_, path_, fit.run_ids.front(), fit.dut_serial, fit.axis,
+                                         "storing a fit");
+    if (!resolved) return resolved.error();
+    key = std::move(*resolved);
+  }
   auto st = Stmt::prepare(db_, path_,
                           "INSERT INTO fits(model, form, n, coefficients_json, "
                           "standard_errors_json, residual_std_dph, r_squared, inputs_json, "
-                          "computed_utc) VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?)");
+                          "computed_utc, dut_serial, axis) VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
+                          "?)");
   if (!st) return st.error();
   st->bind(1, fit.model);
   st->bind(2, fit.form);
@@ -258,6 +269,8 @@ Result<int64_t> Database::add_fit(const FitRecord& fit) {
   st->bind(7, fit.r_squared);
   st->bind(8, fit.inputs_json.empty() ? std::string_view("{}") : fit.inputs_json);
   st->bind(9, utc_or_now(fit.computed_utc));
+  st->bind(10, std::string_view(key.serial));
+  st->bind(11, std::string_view(key.axis));
   if (st->step() != SQLITE_DONE) return sqlite_error(db_, path_, "storing a fit");
   const int64_t id = sqlite3_last_insert_rowid(db_);
   auto link =
@@ -291,6 +304,8 @@ Result<std::vector<FitRecord>> read_fits(sqlite3* db, const std::string& path, S
     f.r_squared = st.column_double(c++);
     f.inputs_json = st.column_text(c++);
     f.computed_utc = st.column_text(c++);
+    f.dut_serial = st.column_text(c++);
+    f.axis = st.column_text(c++);
     out.push_back(std::move(f));
   }
   if (rc != SQLITE_DONE) return sqlite_error(db, path, "reading fits");
@@ -307,6 +322,20 @@ Result<std::vector<FitRecord>> read_fits(sqlite3* db, const std::string& path, S
 }
 
 }  // namespace
+
+namespace internal {
+
+Result<std::vector<FitRecord>> fits_of_dut(sqlite3* db, const std::string& path,
+                                           const std::string& serial) {
+  auto st = Stmt::prepare(
+      db, path,
+      fmt::format("SELECT {} FROM fits WHERE dut_serial = ? ORDER BY id DESC", kFitColumns));
+  if (!st) return st.error();
+  st->bind(1, std::string_view(serial));
+  return read_fits(db, path, *st);
+}
+
+}  // namespace internal
 
 Result<std::vector<FitRecord>> Database::fits(int64_t run_id) {
   auto st = Stmt::prepare(db_, path_,

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 
+#include "duts_internal.h"
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/storage/database.h"
 #include "sqlite_util.h"
@@ -22,9 +23,10 @@ namespace {
 
 constexpr const char* kQueueSelect =
     "SELECT q.id, q.schedule_id, q.position, q.state, q.added_utc, q.ignore_failures, q.run_id, "
-    "s.name, s.source_path, s.toml_text FROM queue q JOIN schedules s ON s.id = q.schedule_id ";
+    "s.name, s.source_path, s.toml_text, q.operator, q.comment, q.tags_json, q.dut_serials_json "
+    "FROM queue q JOIN schedules s ON s.id = q.schedule_id ";
 
-QueueEntry read_entry(const Stmt& st) {
+Result<QueueEntry> read_entry(const Stmt& st, const std::string& path) {
   QueueEntry e;
   e.id = st.column_int64(0);
   e.schedule_id = st.column_int64(1);
@@ -36,6 +38,10 @@ QueueEntry read_entry(const Stmt& st) {
   e.schedule_name = st.column_text(7);
   e.source_path = st.column_text(8);
   e.toml_text = st.column_text(9);
+  auto metadata =
+      internal::read_metadata(st, 10, fmt::format("storage: {}: queue entry {}", path, e.id));
+  if (!metadata) return metadata.error();
+  e.metadata = std::move(*metadata);
   return e;
 }
 
@@ -108,8 +114,10 @@ Result<std::optional<double>> Database::last_gyro_sample_t_s(int64_t run_id) {
 
 Result<QueueEntry> Database::queue_add(const std::string& schedule_name,
                                        const std::string& source_path, const std::string& toml_text,
-                                       bool ignore_failures,
-                                       const RunMetadata& /*metadata: schema v8*/) {
+                                       bool ignore_failures, const RunMetadata& metadata) {
+  if (Status s = internal::check_metadata(metadata, path_, "adding to the queue"); !s) {
+    return s.error();
+  }
   Transaction tx(db_, path_);
   if (Status s = tx.begin_immediate(); !s) return s.error();
   const std::string now = utc_now();
@@ -125,13 +133,15 @@ Result<QueueEntry> Database::queue_add(const std::string& schedule_name,
   const int64_t schedule_id = sqlite3_last_insert_rowid(db_);
   auto ins = Stmt::prepare(
       db_, path_,
-      "INSERT INTO queue(schedule_id, position, state, added_utc, ignore_failures) "
+      "INSERT INTO queue(schedule_id, position, state, added_utc, ignore_failures, operator, "
+      "comment, tags_json, dut_serials_json) "
       "VALUES(?, (SELECT coalesce(max(position) + 1, 0) FROM queue WHERE state = 'queued'), "
-      "'queued', ?, ?)");
+      "'queued', ?, ?, ?, ?, ?, ?)");
   if (!ins) return ins.error();
   ins->bind(1, schedule_id);
   ins->bind(2, std::string_view(now));
   ins->bind(3, ignore_failures ? 1 : 0);
+  internal::bind_metadata(*ins, 4, metadata);
   if (Status s = expect_done(*ins, db_, path_, "adding to the queue"); !s) return s.error();
   const int64_t id = sqlite3_last_insert_rowid(db_);
   if (Status s = tx.commit(); !s) return s.error();
@@ -148,7 +158,11 @@ Result<std::vector<QueueEntry>> Database::queue_entries() {
   if (!st) return st.error();
   std::vector<QueueEntry> out;
   int rc;
-  while ((rc = st->step()) == SQLITE_ROW) out.push_back(read_entry(*st));
+  while ((rc = st->step()) == SQLITE_ROW) {
+    auto entry = read_entry(*st, path_);
+    if (!entry) return entry.error();
+    out.push_back(std::move(*entry));
+  }
   if (rc != SQLITE_DONE) return sqlite_error(db_, path_, "reading the queue");
   return out;
 }
@@ -158,7 +172,11 @@ Result<std::optional<QueueEntry>> Database::queue_entry(int64_t id) {
   if (!st) return st.error();
   st->bind(1, id);
   const int rc = st->step();
-  if (rc == SQLITE_ROW) return std::optional<QueueEntry>(read_entry(*st));
+  if (rc == SQLITE_ROW) {
+    auto entry = read_entry(*st, path_);
+    if (!entry) return entry.error();
+    return std::optional<QueueEntry>(std::move(*entry));
+  }
   if (rc == SQLITE_DONE) return std::optional<QueueEntry>();
   return sqlite_error(db_, path_, fmt::format("reading queue entry {}", id));
 }
@@ -222,7 +240,8 @@ Result<std::optional<int64_t>> Database::queue_start_run(int64_t id, const RunRe
   if (Status s = tx.begin_immediate(); !s) return s.error();
   auto claim = Stmt::prepare(db_, path_,
                              "UPDATE queue SET state = 'running', position = -1 "
-                             "WHERE id = ? AND state = 'queued' RETURNING schedule_id");
+                             "WHERE id = ? AND state = 'queued' RETURNING schedule_id, "
+                             "operator, comment, tags_json, dut_serials_json");
   if (!claim) return claim.error();
   claim->bind(1, id);
   int rc = claim->step();
@@ -231,6 +250,15 @@ Result<std::optional<int64_t>> Database::queue_start_run(int64_t id, const RunRe
   RunRecord rec = run;
   rec.queue_id = id;
   rec.schedule_id = claim->column_int64(0);
+  // The entry's metadata goes to the run; a field the entry left empty
+  // takes the caller's.
+  auto queued =
+      internal::read_metadata(*claim, 1, fmt::format("storage: {}: queue entry {}", path_, id));
+  if (!queued) return queued.error();
+  if (!queued->operator_name.empty()) rec.metadata.operator_name = queued->operator_name;
+  if (!queued->comment.empty()) rec.metadata.comment = queued->comment;
+  if (!queued->tags.empty()) rec.metadata.tags = queued->tags;
+  if (!queued->dut_serials.empty()) rec.metadata.dut_serials = queued->dut_serials;
   if (Status s = expect_done(*claim, db_, path_, fmt::format("taking queue entry {}", id)); !s) {
     return s.error();
   }

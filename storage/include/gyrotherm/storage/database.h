@@ -479,9 +479,14 @@ class Database {
   Result<int64_t> add_event(const EventRecord& event);
   Result<std::vector<EventRecord>> events(int64_t run_id);
 
-  // Table I rows.
-  Status put_segment_stats(const SegmentStatsRecord& stats);  // insert or replace by segment
-  // All rows (run_id nullopt) or one run's, ordered by run, segment index.
+  // Table I rows. put_segment_stats inserts or replaces by (segment, DUT,
+  // axis); dut_serial/axis "" are resolved when the run has DUTs (the first
+  // DUT, its primary axis; docs/storage.md "Results per DUT and axis"); a
+  // serial not in the run is refused. Storing a DUT's primary axis replaces
+  // that DUT's row of the segment stored before v8 (axis '').
+  Status put_segment_stats(const SegmentStatsRecord& stats);
+  // All rows (run_id nullopt) or one run's, ordered by run, segment index,
+  // DUT position in the run, serial, axis.
   Result<std::vector<SegmentStatsRecord>> segment_stats(std::optional<int64_t> run_id);
 
   // Samples in [t_from_s, t_to_s) of a run, ordered by time (t_s relative to
@@ -527,30 +532,53 @@ class Database {
                                              std::optional<double> to_s, int max_points);
 
   // Fits.
+  // The DUT and axis are resolved against the first of run_ids, as
+  // put_segment_stats does.
   Result<int64_t> add_fit(const FitRecord& fit);
   // A run's fits (every fit that used it), newest first.
   Result<std::vector<FitRecord>> fits(int64_t run_id);
   Result<std::optional<FitRecord>> fit(int64_t fit_id);
 
   // Allan deviation. put_allan inserts, or replaces the row of the same
-  // (run_id, segment_index, taus); returns the row id.
+  // (run_id, segment_index, taus, dut_serial, axis), DUT and axis resolved
+  // as put_segment_stats does; returns the row id.
   Result<int64_t> put_allan(const AllanRecord& allan);
-  // A run's Allan records, by segment_index then taus.
+  // A run's Allan records, by segment_index, DUT position, serial, axis,
+  // taus.
   Result<std::vector<AllanRecord>> allan(int64_t run_id);
 
-  // Scale factor (schema v7). store_scale_factor replaces the run's points,
+  // Scale factor (schema v7). store_scale_factor replaces the points,
   // fits and temperature fit (none stored when `temperature_fit` is nullopt)
-  // in one transaction: after a failure the previous rows are intact.
+  // of one DUT and axis of the run (schema v8) in one transaction: after a
+  // failure the previous rows are intact; other DUTs' and axes' rows stay.
+  // The DUT and axis are the ones the records name (dut_serial/axis; every
+  // record naming one must name the same, else refused naming both); when
+  // none names one, the run's first DUT and its primary axis.
   // Records with run_id 0 take `run_id`; another run_id is refused (named).
   // Rows are stamped created_utc from the wall clock when theirs is "".
   Status store_scale_factor(int64_t run_id, const std::vector<ScaleFactorPointRecord>& points,
                             const std::vector<ScaleFactorFitRecord>& fits,
                             const std::optional<ScaleFactorTemperatureFitRecord>& temperature_fit);
-  // By sf_sequence, repetition, demanded rate.
+  // The same for the DUT and axis `stream` names (resolved like results:
+  // "" = the run's first DUT, its primary axis). Records with dut_serial
+  // or axis "" take the stream's; a record naming another is refused.
+  Status store_scale_factor(int64_t run_id, const StreamKey& stream,
+                            const std::vector<ScaleFactorPointRecord>& points,
+                            const std::vector<ScaleFactorFitRecord>& fits,
+                            const std::optional<ScaleFactorTemperatureFitRecord>& temperature_fit);
+  // Every DUT and axis of the run: by DUT position, serial, axis, then
+  // sf_sequence, repetition, demanded rate.
   Result<std::vector<ScaleFactorPointRecord>> scale_factor_points(int64_t run_id);
-  // By sf_sequence.
+  // Every DUT and axis: by DUT position, serial, axis, then sf_sequence.
   Result<std::vector<ScaleFactorFitRecord>> scale_factor_fits(int64_t run_id);
+  // The run's first DUT, primary axis (as before v8: the run's one fit).
   Result<std::optional<ScaleFactorTemperatureFitRecord>> scale_factor_temperature_fit(
+      int64_t run_id);
+  // One DUT and axis ("" as in store_scale_factor).
+  Result<std::optional<ScaleFactorTemperatureFitRecord>> scale_factor_temperature_fit(
+      int64_t run_id, const StreamKey& stream);
+  // Every DUT and axis of the run, by DUT position, serial, axis.
+  Result<std::vector<ScaleFactorTemperatureFitRecord>> scale_factor_temperature_fits(
       int64_t run_id);
 
   // Exports. begin_export inserts the record in state "writing" with its
