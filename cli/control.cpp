@@ -797,23 +797,24 @@ std::string row_axis(const json& row, const json& dut) {
                                                                     : std::string("rate");
 }
 
+// A comment for a labelled line: its later lines indented under the first;
+// "—" for none.
+std::string comment_text(const json& comment) {
+  if (!comment.is_string() || comment.get<std::string>().empty()) return kDash;
+  std::string c = comment.get<std::string>();
+  for (auto pos = c.find('\n'); pos != std::string::npos; pos = c.find('\n', pos + 1)) {
+    c.insert(pos + 1, std::string(12, ' '));
+  }
+  return c;
+}
+
 }  // namespace
 
 std::string format_run_metadata(const json& run) {
   const json& m = field(run, "metadata");
   std::string out;
   out += labelled("operator", text(field(m, "operator")));
-  const json& comment = field(m, "comment");
-  if (comment.is_string() && !comment.get<std::string>().empty()) {
-    // A comment may span lines: the later ones are indented under the first.
-    std::string c = comment.get<std::string>();
-    for (auto pos = c.find('\n'); pos != std::string::npos; pos = c.find('\n', pos + 1)) {
-      c.insert(pos + 1, std::string(12, ' '));
-    }
-    out += labelled("comment", c);
-  } else {
-    out += labelled("comment", kDash);
-  }
+  out += labelled("comment", comment_text(field(m, "comment")));
   out += labelled("tags", listed(field(m, "tags")));
   const json& duts = field(run, "duts");
   if (duts.is_array() && !duts.empty()) {
@@ -860,7 +861,7 @@ std::string format_dut_history(const json& h) {
     const json& m = field(r, "metadata");
     out += labelled("operator", text(field(m, "operator")));
     if (field(m, "comment").is_string() && !field(m, "comment").get<std::string>().empty()) {
-      out += labelled("comment", text(field(m, "comment")));
+      out += labelled("comment", comment_text(field(m, "comment")));
     }
     if (field(m, "tags").is_array() && !field(m, "tags").empty()) {
       out += labelled("tags", listed(field(m, "tags")));
@@ -869,13 +870,14 @@ std::string format_dut_history(const json& h) {
 
     // Table I per segment, one bias and σ column pair per axis (in the
     // DUT's axis order, then any other axis the rows name).
-    const json& stats = field(r, "stats");
+    // Copies that outlive the loops below (rows are pointed at).
+    const json stats = field(r, "stats").is_array() ? field(r, "stats") : json::array();
     std::vector<std::string> axes;
     for (const auto& a : field(dut, "axes").is_array() ? field(dut, "axes") : json::array()) {
       if (a.is_string()) axes.push_back(a.get<std::string>());
     }
     std::vector<std::string> used;
-    for (const auto& row : stats.is_array() ? stats : json::array()) {
+    for (const auto& row : stats) {
       const std::string axis = row_axis(row, dut);
       if (std::find(used.begin(), used.end(), axis) == used.end()) used.push_back(axis);
     }
@@ -906,7 +908,7 @@ std::string format_dut_history(const json& h) {
                                       text(field(s, "kind")), fixed(field(s, "setpoint_c"), 2), ""};
       for (const auto& a : columns) {
         const json* hit = nullptr;
-        for (const auto& st : stats.is_array() ? stats : json::array()) {
+        for (const auto& st : stats) {
           if (field(st, "segment_index") == index && row_axis(st, dut) == a) hit = &st;
         }
         if (hit && temp == kDash) temp = fixed(field(*hit, "temp_mean_c"), 2);

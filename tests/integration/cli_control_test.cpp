@@ -913,9 +913,10 @@ TEST(CliFormat, DutHistoryIsATablePerRunWithBiasPerAxis) {
   const std::string text = cli::format_dut_history(history_answer());
   EXPECT_THAT(text, HasSubstr("DUT 17-0042  KVH 1750\nfirst seen  2026-11-20 05:38:43 UTC\n"
                               "runs        1\n"));
-  EXPECT_THAT(text, HasSubstr("\nrun 12  demo  completed  started 2026-11-21 05:38:43 UTC\n"
-                              "operator    Ana Müller\n"));
-  EXPECT_THAT(text, HasSubstr("tags        campaign-7\n"));
+  EXPECT_THAT(text,
+              HasSubstr("\nrun 12  demo  completed  started 2026-11-21 05:38:43 UTC\n"
+                        "operator    Ana Müller\ncomment     after the\n            re-splice\n"
+                        "tags        campaign-7\n"));
   // One bias and σ pair per axis, in the DUT's axis order; the ramp has none.
   EXPECT_THAT(text, ContainsRegex("#  kind  set °C  T mean °C  x bias °/h  x σ °/h  z bias °/h  "
                                   "z σ °/h  state\n"));
