@@ -4,6 +4,7 @@
 
 #include <CLI/CLI.hpp>
 #include <algorithm>
+#include <cctype>
 #include <charconv>
 #include <cmath>
 #include <filesystem>
@@ -73,6 +74,14 @@ std::string fixed(const json& v, int decimals, std::string_view unit = "") {
 }
 
 bool truthy(const json& v) { return v.is_boolean() && v.get<bool>(); }
+
+// "a, b, c"; "—" for none.
+std::string listed(const json& items) {
+  if (!items.is_array() || items.empty()) return kDash;
+  std::string out;
+  for (const auto& i : items) out += (out.empty() ? "" : ", ") + text(i);
+  return out;
+}
 
 // ---------------------------------------------------------------- tables
 
@@ -153,12 +162,17 @@ int exchange(const DaemonOptions& o, const Request& r,
   return finish(o, std::get<Answer>(a), format);
 }
 
-int cmd_queue_add(const DaemonOptions& o, const std::string& path, bool ignore_failures) {
+int cmd_queue_add(const DaemonOptions& o, const std::string& path, bool ignore_failures,
+                  const QueueMetadata& metadata) {
   // Bounded, and only a regular file: /dev/zero is refused, not read forever.
   auto text = read_bounded_file(path, kMaxTomlFileBytes);
   if (!text) return fail(text.error().message, 2);
-  const json body = {
-      {"schedule_toml", *text}, {"source", path}, {"ignore_failures", ignore_failures}};
+  json body = {{"schedule_toml", *text}, {"source", path}, {"ignore_failures", ignore_failures}};
+  // Only what was given: the daemon's defaults (every configured DUT) stay.
+  if (!metadata.operator_name.empty()) body["operator"] = metadata.operator_name;
+  if (!metadata.comment.empty()) body["comment"] = metadata.comment;
+  if (!metadata.tags.empty()) body["tags"] = metadata.tags;
+  if (!metadata.duts.empty()) body["duts"] = metadata.duts;
   const int code = exchange(o, {"POST", "/api/v1/queue", body.dump()}, format_queued);
   if (code != 0 || o.json) return code;
   // Queued onto a held queue, the entry waits: say so and what releases it.
@@ -233,19 +247,14 @@ int offline_runs(const std::string& db_path, bool as_json) {
 int offline_run(const std::string& db_path, int64_t id, bool as_json) {
   auto db = storage::Database::open_read_only(db_path);
   if (!db) return fail(db.error().message, 2);
-  auto run = db->run(id);
+  auto run = daemon::run_detail_json(*db, id);
   if (!run) {
     return fail(run.error().transient ? run.error().message
                                       : fmt::format("no run {} in {}", id, db_path));
   }
-  auto segments = db->segments(id);
-  if (!segments) return fail(segments.error().message);
   auto events = db->events(id);
   if (!events) return fail(events.error().message);
-  json run_json = daemon::to_json(*run);
-  json list = json::array();
-  for (const auto& s : *segments) list.push_back(daemon::to_json(s));
-  run_json["segments"] = std::move(list);
+  json run_json = std::move(*run);
   json events_json = json::array();
   for (const auto& e : *events) events_json.push_back(daemon::to_json(e));
   if (as_json) {
@@ -254,6 +263,76 @@ int offline_run(const std::string& db_path, int64_t id, bool as_json) {
     return 0;
   }
   std::cout << format_run(run_json, events_json);
+  return 0;
+}
+
+// "a, b,c" -> {"a", "b", "c"}: items trimmed, empty ones dropped (so "" is
+// the empty list).
+std::vector<std::string> split_list(const std::string& text) {
+  std::vector<std::string> out;
+  std::size_t start = 0;
+  while (start <= text.size()) {
+    std::size_t end = text.find(',', start);
+    if (end == std::string::npos) end = text.size();
+    std::string item = text.substr(start, end - start);
+    const auto first = item.find_first_not_of(" \t");
+    const auto last = item.find_last_not_of(" \t");
+    if (first != std::string::npos) out.push_back(item.substr(first, last - first + 1));
+    start = end + 1;
+  }
+  return out;
+}
+
+// `edit-run`: PATCH /api/v1/runs/{id} with the fields given.
+int cmd_edit_run(const DaemonOptions& o, int64_t id, const json& body) {
+  if (body.empty()) {
+    return fail("edit-run: give at least one of --operator, --comment, --tags, --duts", 2);
+  }
+  return exchange(o, {"PATCH", fmt::format("/api/v1/runs/{}", id), body.dump()},
+                  [id](const json& run) {
+                    return fmt::format(
+                               "run {}: metadata saved (an event of kind metadata "
+                               "records the change)\n",
+                               id) +
+                           format_run_metadata(run);
+                  });
+}
+
+// "/api/v1/duts/SERIAL" with the serial percent-encoded (a serial may hold
+// spaces or slashes).
+std::string dut_path(const std::string& serial) {
+  std::string out = "/api/v1/duts/";
+  for (unsigned char c : serial) {
+    if (std::isalnum(c) || c == '-' || c == '_' || c == '.' || c == '~') {
+      out += static_cast<char>(c);
+    } else {
+      out += fmt::format("%{:02X}", c);
+    }
+  }
+  return out;
+}
+
+// `dut SERIAL` and `duts` on a database file, answering as the daemon would.
+int offline_dut(const std::string& db_path, const std::string& serial, bool as_json) {
+  auto db = storage::Database::open_read_only(db_path);
+  if (!db) return fail(db.error().message, 2);
+  auto history = daemon::dut_history_json(*db, serial);
+  if (!history) {
+    return fail(history.error().transient
+                    ? history.error().message
+                    : fmt::format("{} in {} (gyrotherm duts --db {} lists them)",
+                                  history.error().message, db_path, db_path));
+  }
+  std::cout << (as_json ? history->dump(2) + "\n" : format_dut_history(*history));
+  return 0;
+}
+
+int offline_duts(const std::string& db_path, bool as_json) {
+  auto db = storage::Database::open_read_only(db_path);
+  if (!db) return fail(db.error().message, 2);
+  auto duts = daemon::duts_json(*db);
+  if (!duts) return fail(duts.error().message);
+  std::cout << (as_json ? duts->dump(2) + "\n" : format_duts(*duts));
   return 0;
 }
 
@@ -291,6 +370,17 @@ struct ControlCommands::Parsed {
   std::vector<std::pair<std::string, CLI::App*>> actions;
   CLI::App* runs = nullptr;
   CLI::App* run = nullptr;
+  CLI::App* edit_run = nullptr;
+  CLI::App* dut = nullptr;
+  CLI::App* duts = nullptr;
+  QueueMetadata metadata;  // queue add
+  // edit-run: given or not (an empty value clears the field).
+  CLI::Option* edit_operator = nullptr;
+  CLI::Option* edit_comment = nullptr;
+  CLI::Option* edit_tags = nullptr;
+  CLI::Option* edit_duts = nullptr;
+  std::string tags_list, duts_list;
+  std::string serial;
   std::string schedule_path;
   std::string db_path, config_path;  // runs, run: read this database, not the daemon
   bool ignore_failures = false;
@@ -319,6 +409,16 @@ ControlCommands::ControlCommands(CLI::App& app) : parsed_(std::make_unique<Parse
   p.queue_add->add_option("file", p.schedule_path, "schedule file (TOML)")->required();
   p.queue_add->add_flag("--ignore-failures", p.ignore_failures,
                         "keep the queue going when this run fails");
+  p.queue_add->add_option("--operator", p.metadata.operator_name,
+                          "who runs it (kept with the run)");
+  p.queue_add->add_option("--comment", p.metadata.comment, "why, or anything to remember");
+  p.queue_add->add_option("--tag", p.metadata.tags, "a free tag (repeat for more)")
+      ->allow_extra_args(false);
+  p.queue_add
+      ->add_option("--dut", p.metadata.duts,
+                   "serial of a [[dut]] to record (repeat for more; default: every configured "
+                   "DUT)")
+      ->allow_extra_args(false);
   p.queue_list = common(queue->add_subcommand("list", "the running and waiting entries"));
   p.queue_remove = common(queue->add_subcommand("remove", "remove a waiting entry"));
   const CLI::Validator entry_id = whole_number(1, "a queue entry id (1, 2, …)");
@@ -344,7 +444,26 @@ ControlCommands::ControlCommands(CLI::App& app) : parsed_(std::make_unique<Parse
   p.runs = common(app.add_subcommand("runs", "runs recorded by the daemon, newest first"));
   p.run = common(app.add_subcommand("run", "one run: its segments and events"));
   p.run->add_option("id", p.id, "run id")->required()->check(whole_number(1, "a run id (1, 2, …)"));
-  for (CLI::App* cmd : {p.runs, p.run}) {
+  p.edit_run = common(app.add_subcommand(
+      "edit-run", "change a run's operator, comment, tags or DUT serials (recorded as an event)"));
+  p.edit_run->add_option("id", p.id, "run id")
+      ->required()
+      ->check(whole_number(1, "a run id (1, 2, …)"));
+  p.edit_operator =
+      p.edit_run->add_option("--operator", p.metadata.operator_name, "who ran it (\"\" clears it)");
+  p.edit_comment = p.edit_run->add_option("--comment", p.metadata.comment, "the comment");
+  p.edit_tags = p.edit_run->add_option(
+      "--tags", p.tags_list, "the tags, comma-separated (replace the run's; \"\" = none)");
+  p.edit_duts = p.edit_run->add_option("--duts", p.duts_list,
+                                       "the DUT serials, comma-separated (replace the run's)");
+
+  p.dut = common(app.add_subcommand(
+      "dut",
+      "everything one DUT has been through: its runs, segments, Table I, scale factor, fits"));
+  p.dut->add_option("serial", p.serial, "the DUT's serial number")->required();
+  p.duts = common(app.add_subcommand("duts", "every DUT the station has recorded"));
+
+  for (CLI::App* cmd : {p.runs, p.run, p.dut, p.duts}) {
     auto* db = cmd->add_option("--db", p.db_path, "read this database file instead of the daemon");
     auto* config = cmd->add_option("--config", p.config_path,
                                    "read the database of this station config ([storage] db)");
@@ -359,7 +478,7 @@ std::optional<int> ControlCommands::run(bool json_flag) {
   DaemonOptions o = p.options;
   o.json = o.json || json_flag;
   if (*p.status) return exchange(o, {"GET", "/api/v1/status", ""}, format_status);
-  if (*p.queue_add) return cmd_queue_add(o, p.schedule_path, p.ignore_failures);
+  if (*p.queue_add) return cmd_queue_add(o, p.schedule_path, p.ignore_failures, p.metadata);
   if (*p.queue_list) return exchange(o, {"GET", "/api/v1/queue", ""}, format_queue);
   if (*p.queue_remove) {
     return exchange(o, {"DELETE", fmt::format("/api/v1/queue/{}", p.id), ""}, [](const json& j) {
@@ -380,6 +499,23 @@ std::optional<int> ControlCommands::run(bool json_flag) {
       return *p.runs ? offline_runs(db->path, o.json) : offline_run(db->path, p.id, o.json);
     if (*p.runs) return exchange(o, {"GET", "/api/v1/runs", ""}, format_runs);
     return cmd_run(o, p.id);
+  }
+  if (*p.edit_run) {
+    json body = json::object();
+    if (p.edit_operator->count() > 0) body["operator"] = p.metadata.operator_name;
+    if (p.edit_comment->count() > 0) body["comment"] = p.metadata.comment;
+    if (p.edit_tags->count() > 0) body["tags"] = split_list(p.tags_list);
+    if (p.edit_duts->count() > 0) body["duts"] = split_list(p.duts_list);
+    return cmd_edit_run(o, p.id, body);
+  }
+  if (*p.dut || *p.duts) {
+    auto db = choose_database(p.db_path, p.config_path);
+    if (!db) return fail(db.error().message, 2);
+    if (db->given) {
+      return *p.dut ? offline_dut(db->path, p.serial, o.json) : offline_duts(db->path, o.json);
+    }
+    if (*p.duts) return exchange(o, {"GET", "/api/v1/duts", ""}, format_duts);
+    return exchange(o, {"GET", dut_path(p.serial), ""}, format_dut_history);
   }
   return std::nullopt;
 }
@@ -468,6 +604,14 @@ std::string format_status(const json& j) {
   if (!field(j, "run_id").is_null()) {
     out += labelled("run", fmt::format("{}  {}", text(field(j, "run_id")),
                                        text(first_of(j, {"schedule_name", "schedule"}))));
+    // Who runs it (docs/api.md "Run metadata"), when the daemon says.
+    if (const json& m = field(j, "run_metadata"); m.is_object()) {
+      std::string who = text(field(m, "operator"));
+      if (field(m, "tags").is_array() && !field(m, "tags").empty()) {
+        who += fmt::format("  (tags: {})", listed(field(m, "tags")));
+      }
+      out += labelled("operator", who);
+    }
     // Flat per docs/api.md, or nested as {"step": {"index", "count", "label"}}.
     const json& step = field(j, "step");
     auto pick = [&](const char* flat, const char* nested) -> const json& {
@@ -649,6 +793,7 @@ std::string format_run(const json& run, const json& events) {
                                : format_utc(field(run, "ended_utc")) + " UTC");
   out += labelled("queue entry", text(field(run, "queue_id")));
   out += labelled("time scale", text(field(run, "time_scale")) + "×");
+  out += format_run_metadata(run);
 
   out += "\nsegments (times: station h:mm:ss since the run started)\n";
   const json& segments = field(run, "segments");
@@ -704,6 +849,203 @@ std::string format_run(const json& run, const json& events) {
   }
   out += table({"time", "kind", "from → to", "message"},
                {Align::kRight, Align::kLeft, Align::kLeft, Align::kLeft}, rows);
+  return out;
+}
+
+namespace {
+
+// One DUT in a run: "17-0042  KVH 1750, axes x y z (primary z), 1000 Hz, 8 channels".
+std::string dut_line(const json& d) {
+  std::string axes;
+  for (const auto& a : field(d, "axes").is_array() ? field(d, "axes") : json::array()) {
+    axes += (axes.empty() ? "" : " ") + text(a);
+  }
+  std::string line =
+      field(d, "serial").is_string() && !field(d, "serial").get<std::string>().empty()
+          ? field(d, "serial").get<std::string>()
+          : std::string("(no serial)");
+  if (!field(d, "model").is_null() && text(field(d, "model")) != kDash) {
+    line += "  " + text(field(d, "model"));
+  }
+  if (!axes.empty())
+    line += fmt::format(", axes {} (primary {})", axes, text(field(d, "primary_axis")));
+  if (number(field(d, "rate_hz"))) line += fmt::format(", {:g} Hz", *number(field(d, "rate_hz")));
+  if (field(d, "channels").is_array()) {
+    const auto n = field(d, "channels").size();
+    line += fmt::format(", {} channel{}", n, n == 1 ? "" : "s");
+  }
+  return line;
+}
+
+// The axis a result row is of: its own, else the DUT's primary axis.
+std::string row_axis(const json& row, const json& dut) {
+  const json& axis = field(row, "axis");
+  if (axis.is_string() && !axis.get<std::string>().empty()) return axis.get<std::string>();
+  const json& primary = field(dut, "primary_axis");
+  return primary.is_string() && !primary.get<std::string>().empty() ? primary.get<std::string>()
+                                                                    : std::string("rate");
+}
+
+// A comment for a labelled line: its later lines indented under the first;
+// "—" for none.
+std::string comment_text(const json& comment) {
+  if (!comment.is_string() || comment.get<std::string>().empty()) return kDash;
+  std::string c = comment.get<std::string>();
+  for (auto pos = c.find('\n'); pos != std::string::npos; pos = c.find('\n', pos + 1)) {
+    c.insert(pos + 1, std::string(12, ' '));
+  }
+  return c;
+}
+
+}  // namespace
+
+std::string format_run_metadata(const json& run) {
+  const json& m = field(run, "metadata");
+  std::string out;
+  out += labelled("operator", text(field(m, "operator")));
+  out += labelled("comment", comment_text(field(m, "comment")));
+  out += labelled("tags", listed(field(m, "tags")));
+  const json& duts = field(run, "duts");
+  if (duts.is_array() && !duts.empty()) {
+    bool first = true;
+    for (const auto& d : duts) {
+      out += labelled(first ? "DUTs" : "", dut_line(d));
+      first = false;
+    }
+  } else {
+    // Not started yet, or recorded before DUTs: the serials asked for.
+    out += labelled("DUTs", listed(field(m, "duts")));
+  }
+  return out;
+}
+
+std::string format_duts(const json& duts) {
+  if (!duts.is_array() || duts.empty()) return "no DUTs recorded\n";
+  std::vector<std::vector<std::string>> rows;
+  for (const auto& d : duts) {
+    const json& serial = field(d, "serial");
+    rows.push_back(
+        {serial.is_string() && serial.get<std::string>().empty() ? std::string("(no serial)")
+                                                                 : text(serial),
+         text(field(d, "model")), format_utc(field(d, "first_seen_utc")), text(field(d, "runs"))});
+  }
+  return table({"serial", "model", "first seen (UTC)", "runs"},
+               {Align::kLeft, Align::kLeft, Align::kLeft, Align::kRight}, rows);
+}
+
+std::string format_dut_history(const json& h) {
+  const json& serial = field(h, "serial");
+  std::string out = fmt::format(
+      "DUT {}  {}\n",
+      serial.is_string() && serial.get<std::string>().empty() ? "(no serial)" : text(serial),
+      text(field(h, "model")));
+  out += labelled("first seen", format_utc(field(h, "first_seen_utc")) + " UTC");
+  const json& runs = field(h, "runs");
+  out += labelled("runs", runs.is_array() ? std::to_string(runs.size()) : kDash);
+  for (const auto& r : runs.is_array() ? runs : json::array()) {
+    const json& dut = field(r, "dut");
+    out += fmt::format("\nrun {}  {}  {}  started {} UTC\n", text(field(r, "id")),
+                       text(field(r, "schedule_name")), text(field(r, "state")),
+                       format_utc(field(r, "started_utc")));
+    const json& m = field(r, "metadata");
+    out += labelled("operator", text(field(m, "operator")));
+    if (field(m, "comment").is_string() && !field(m, "comment").get<std::string>().empty()) {
+      out += labelled("comment", comment_text(field(m, "comment")));
+    }
+    if (field(m, "tags").is_array() && !field(m, "tags").empty()) {
+      out += labelled("tags", listed(field(m, "tags")));
+    }
+    if (dut.is_object()) out += labelled("as", dut_line(dut));
+
+    // Table I per segment, one bias and σ column pair per axis (in the
+    // DUT's axis order, then any other axis the rows name).
+    // Copies that outlive the loops below (rows are pointed at).
+    const json stats = field(r, "stats").is_array() ? field(r, "stats") : json::array();
+    std::vector<std::string> axes;
+    for (const auto& a : field(dut, "axes").is_array() ? field(dut, "axes") : json::array()) {
+      if (a.is_string()) axes.push_back(a.get<std::string>());
+    }
+    std::vector<std::string> used;
+    for (const auto& row : stats) {
+      const std::string axis = row_axis(row, dut);
+      if (std::find(used.begin(), used.end(), axis) == used.end()) used.push_back(axis);
+    }
+    std::vector<std::string> columns;
+    for (const auto& a : axes) {
+      if (std::find(used.begin(), used.end(), a) != used.end()) columns.push_back(a);
+    }
+    for (const auto& a : used) {
+      if (std::find(columns.begin(), columns.end(), a) == columns.end()) columns.push_back(a);
+    }
+    std::vector<std::string> header = {"#", "kind", "set °C", "T mean °C"};
+    std::vector<Align> align = {Align::kRight, Align::kLeft, Align::kRight, Align::kRight};
+    for (const auto& a : columns) {
+      header.push_back(a + " bias °/h");
+      header.push_back(a + " σ °/h");
+      align.push_back(Align::kRight);
+      align.push_back(Align::kRight);
+    }
+    header.push_back("state");
+    align.push_back(Align::kLeft);
+    std::vector<std::vector<std::string>> rows;
+    const json& segments = field(r, "segments");
+    for (const auto& s : segments.is_array() ? segments : json::array()) {
+      const json& index = field(s, "index");
+      const auto i = number(index);
+      std::string temp = kDash;
+      std::vector<std::string> row = {i ? std::to_string(static_cast<int64_t>(*i) + 1) : kDash,
+                                      text(field(s, "kind")), fixed(field(s, "setpoint_c"), 2), ""};
+      for (const auto& a : columns) {
+        const json* hit = nullptr;
+        for (const auto& st : stats) {
+          if (field(st, "segment_index") == index && row_axis(st, dut) == a) hit = &st;
+        }
+        if (hit && temp == kDash) temp = fixed(field(*hit, "temp_mean_c"), 2);
+        row.push_back(hit ? fixed(field(*hit, "bias_mean_dph"), 4) : kDash);
+        row.push_back(hit ? fixed(field(*hit, "bias_std_dph"), 4) : kDash);
+      }
+      row[3] = temp;
+      row.push_back(text(field(s, "state")));
+      rows.push_back(std::move(row));
+    }
+    if (rows.empty()) {
+      out += "  no segments\n";
+    } else {
+      out += table(header, align, rows, "  ");
+    }
+
+    const json& sf = field(r, "scale_factor");
+    if (sf.is_array() && !sf.empty()) {
+      std::vector<std::vector<std::string>> sf_rows;
+      for (const auto& f : sf) {
+        sf_rows.push_back(
+            {text(field(f, "sf_sequence")), row_axis(f, dut), fixed(field(f, "temperature_c"), 2),
+             fixed(field(f, "k"), 7), fixed(field(f, "nonlinearity_ppm"), 1),
+             fixed(field(f, "asymmetry_ppm"), 1), fixed(field(f, "repeatability_ppm"), 1),
+             fixed(field(f, "bias_dph"), 3)});
+      }
+      out += "  scale factor\n";
+      out += table({"seq", "axis", "T °C", "K", "nonlin ppm", "asym ppm", "repeat ppm", "bias °/h"},
+                   {Align::kRight, Align::kLeft, Align::kRight, Align::kRight, Align::kRight,
+                    Align::kRight, Align::kRight, Align::kRight},
+                   sf_rows, "  ");
+    }
+  }
+  const json& fits = field(h, "fits");
+  if (fits.is_array() && !fits.empty()) {
+    std::vector<std::vector<std::string>> rows;
+    for (const auto& f : fits) {
+      rows.push_back({text(field(f, "id")), text(field(f, "axis")), text(field(f, "model")),
+                      text(field(f, "form")), listed(field(f, "run_ids")),
+                      fixed(field(f, "residual_std_dph"), 4), fixed(field(f, "r_squared"), 4),
+                      format_utc(field(f, "computed_utc"))});
+    }
+    out += "\ndrift fits\n";
+    out += table({"id", "axis", "model", "form", "runs", "residual °/h", "R²", "computed (UTC)"},
+                 {Align::kRight, Align::kLeft, Align::kLeft, Align::kLeft, Align::kLeft,
+                  Align::kRight, Align::kRight, Align::kLeft},
+                 rows);
+  }
   return out;
 }
 

@@ -1,8 +1,10 @@
 // Daemon control from the command line: `status`, `queue add|list|remove|move`,
-// `pause`, `resume`, `abort`, `stop`, `runs`, `run ID` as thin clients of the
-// REST API (docs/api.md), plus the pure formatters (daemon JSON in, text out)
-// behind their human output. `runs` and `run ID` read a database file
-// instead when given one (--db FILE, or --config FILE and its [storage] db).
+// `pause`, `resume`, `abort`, `stop`, `runs`, `run ID`, `edit-run ID`,
+// `duts`, `dut SERIAL` as thin clients of the REST API (docs/api.md), plus
+// the pure formatters (daemon JSON in, text out) behind their human output.
+// `runs`, `run ID`, `duts` and `dut SERIAL` read a database file instead
+// when given one (--db FILE, or --config FILE and its [storage] db), opened
+// read-only, with the daemon's own JSON (docs/cli.md).
 //
 // Exit codes: 0 done; 1 the daemon could not be reached, refused the token or
 // answered 4xx/5xx (its `error` and `errors` go to stderr); 2 usage (bad URL,
@@ -32,6 +34,14 @@ struct DaemonOptions {
   std::string url = kDefaultDaemonUrl;  // --url, else env GYROTHERM_URL
   std::string token;                    // --token, else env GYROTHERM_TOKEN
   bool json = false;                    // print the daemon's JSON answer as is
+};
+
+// `queue add --operator --comment --tag... --dut...`: sent only when given.
+struct QueueMetadata {
+  std::string operator_name;
+  std::string comment;
+  std::vector<std::string> tags;
+  std::vector<std::string> duts;
 };
 
 // Registers the daemon-control subcommands on `app`; after parsing, run()
@@ -77,8 +87,17 @@ std::string format_queue(const nlohmann::json& queue);
 std::string format_queued(const nlohmann::json& entry);
 // GET /api/v1/runs → a table, newest first as given.
 std::string format_runs(const nlohmann::json& runs);
-// GET /api/v1/runs/{id} and /events → the run, its segments, its events.
+// GET /api/v1/runs/{id} and /events → the run, its metadata and DUTs, its
+// segments, its events.
 std::string format_run(const nlohmann::json& run, const nlohmann::json& events);
+// The metadata and DUT lines of a run (GET /api/v1/runs/{id}, PATCH answer).
+std::string format_run_metadata(const nlohmann::json& run);
+// GET /api/v1/duts → a table (serial, model, first seen, runs).
+std::string format_duts(const nlohmann::json& duts);
+// GET /api/v1/duts/{serial} → the DUT, then a table per run: its segments
+// with set point, mean temperature and Table I bias and σ per axis; the
+// scale factor per sequence and axis; then the DUT's drift fits.
+std::string format_dut_history(const nlohmann::json& history);
 
 // What to tell the user about a non-2xx answer: the daemon's `error`, then
 // each of `errors` on its own line; the token, if any, is blanked out.

@@ -69,6 +69,23 @@ class FakeControl : public StationControl {
   Reply run_scale_factor(int64_t) override { return Reply::ok(nlohmann::json::object()); }
   Reply fit(int64_t id) override { return Reply::ok({{"id", id}}); }
   Reply exports() override { return Reply::ok(nlohmann::json::array()); }
+  Reply enqueue(const QueueRequest& q) override {
+    if (q.metadata.dut_serials.size() > 1) {
+      return Reply::refused(Refusal::Kind::kBadRequest, "field 'duts': no DUT with serial 'x'");
+    }
+    return queue_add(q.toml_text, q.source, q.ignore_failures);
+  }
+  Reply run_with_duts(int64_t id) override { return run(id); }
+  Reply edit_run(int64_t id, const MetadataEdit&, const std::string&) override { return run(id); }
+  Reply run_stats_filtered(int64_t id, const StatsQuery&) override { return run_stats(id); }
+  Reply run_channel_samples(int64_t id, const SamplesQuery& q) override {
+    if (!q.channel.empty()) return Reply::refused(Refusal::Kind::kNotFound, "no channel");
+    return run_samples(id, q);
+  }
+  Reply duts() override { return Reply::ok(nlohmann::json::array()); }
+  Reply dut_history(const std::string& serial) override {
+    return Reply::refused(Refusal::Kind::kNotFound, "no DUT with serial '" + serial + "'");
+  }
 };
 
 const WebAssets* web_assets() {

@@ -177,6 +177,16 @@ def http_seeds():
         "chunked": "POST /api/v1/control/stop HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer " + TOKEN
                    + "\r\nTransfer-Encoding: chunked\r\n\r\n4\r\n{\"re\r\n0\r\n\r\n",
         "stream": http("GET", "/api/v1/stream", auth=False),
+        "queue-add-metadata": http("POST", "/api/v1/queue",
+                                   '{"schedule_toml":"x","operator":"ana","comment":"a\\nb",'
+                                   '"tags":["week-1","\\u00e9"],"duts":["17-0042"]}'),
+        "run-edit": http("PATCH", "/api/v1/runs/12", '{"operator":"bo","tags":[],"duts":["a","b"]}'),
+        "run-edit-empty": http("PATCH", "/api/v1/runs/12", '{}'),
+        "duts": http("GET", "/api/v1/duts", auth=False),
+        "dut": http("GET", "/api/v1/duts/SN%2017-0042", auth=False),
+        "run-stats-filter": http("GET", "/api/v1/runs/12/stats?dut=17-0042&axis=z", auth=False),
+        "samples-channel": http("GET", "/api/v1/runs/4/samples?dut=17-0042&channel=accel_x",
+                                auth=False),
     }
     for name, text in seeds.items():
         write("http", name, text)

@@ -107,6 +107,70 @@ class FakeControl : public StationControl {
     calls.push_back("exports");
     return Reply::ok(nlohmann::json::array());
   }
+  static std::string listed(const std::vector<std::string>& items) {
+    return fmt::format("[{}]", fmt::join(items, "|"));
+  }
+  Reply enqueue(const QueueRequest& q) override {
+    const auto& m = q.metadata;
+    for (const auto& serial : m.dut_serials) {
+      if (serial == "nope") {
+        return Reply::refused(Refusal::Kind::kBadRequest,
+                              "field 'duts': no DUT with serial 'nope' (configured [[dut]] "
+                              "serials: '17-0042')");
+      }
+    }
+    calls.push_back(fmt::format("enqueue {} {} {} op={} comment={} tags={} duts={}", q.toml_text,
+                                q.source, q.ignore_failures, m.operator_name, m.comment,
+                                listed(m.tags), listed(m.dut_serials)));
+    if (q.toml_text == "bad") {
+      return Reply::refused(Refusal::Kind::kInvalid, "schedule refused, nothing queued",
+                            {"s.toml:3: step.setpoint_c: 70 °C is above 60 °C"});
+    }
+    return Reply::ok({{"id", 1}});
+  }
+  Reply run_with_duts(int64_t id) override {
+    calls.push_back(fmt::format("run {}", id));
+    return Reply::ok({{"id", id}, {"duts", nlohmann::json::array()}});
+  }
+  Reply edit_run(int64_t id, const MetadataEdit& e, const std::string& changed_by) override {
+    calls.push_back(fmt::format("edit_run {} op={} comment={} tags={} duts={} by {}", id,
+                                e.operator_name.value_or("(same)"), e.comment.value_or("(same)"),
+                                e.tags ? listed(*e.tags) : "(same)",
+                                e.dut_serials ? listed(*e.dut_serials) : "(same)", changed_by));
+    if (id == 8) return Reply::refused(Refusal::Kind::kNotFound, "no run 8");
+    return Reply::ok({{"id", id}});
+  }
+  Reply run_stats_filtered(int64_t id, const StatsQuery& q) override {
+    calls.push_back(fmt::format("stats {} dut={} axis={}", id, q.dut, q.axis));
+    if (q.dut == "17-0099") {
+      return Reply::refused(Refusal::Kind::kNotFound,
+                            "run 12 has no DUT '17-0099' (its DUTs: '17-0042')");
+    }
+    return Reply::ok(nlohmann::json::array());
+  }
+  Reply run_channel_samples(int64_t id, const SamplesQuery& q) override {
+    calls.push_back(fmt::format("samples {} {} {} {}{}", id, q.from_s,
+                                q.to_s ? fmt::format("{}", *q.to_s) : "last", q.max_points,
+                                q.dut.empty() && q.channel.empty()
+                                    ? std::string()
+                                    : fmt::format(" dut={} channel={}", q.dut, q.channel)));
+    if (q.channel == "nope") {
+      return Reply::refused(Refusal::Kind::kNotFound,
+                            "DUT '17-0042' of run 4 has no channel 'nope' (its channels: ...)");
+    }
+    return Reply::ok({{"run_id", id}});
+  }
+  Reply duts() override {
+    calls.push_back("duts");
+    return Reply::ok(nlohmann::json::array());
+  }
+  Reply dut_history(const std::string& serial) override {
+    calls.push_back("dut " + serial);
+    if (serial == "17-0043") {
+      return Reply::refused(Refusal::Kind::kNotFound, "no DUT with serial '17-0043'");
+    }
+    return Reply::ok({{"serial", serial}});
+  }
 };
 
 ApiContext fake_context(StationControl* control = nullptr) {
@@ -209,7 +273,7 @@ TEST(Api, MutationsNeedAValidBearerToken) {
       {http::verb::post, "/api/v1/queue"},          {http::verb::delete_, "/api/v1/queue/3"},
       {http::verb::post, "/api/v1/queue/3/move"},   {http::verb::post, "/api/v1/control/pause"},
       {http::verb::post, "/api/v1/control/resume"}, {http::verb::post, "/api/v1/control/abort"},
-      {http::verb::post, "/api/v1/control/stop"}};
+      {http::verb::post, "/api/v1/control/stop"},   {http::verb::patch, "/api/v1/runs/3"}};
   for (const auto& [verb, target] : mutations) {
     for (const std::string& auth : {std::string(""), std::string("Bearer wrong-token-0123456789ab"),
                                     std::string("Basic ") + kToken, std::string("Bearer ")}) {
@@ -276,9 +340,10 @@ TEST(Api, RoutesReachTheStationWithTheirArguments) {
   EXPECT_EQ(call(http::verb::get, "/api/v1/runs/12/events").result(), http::status::ok);
   EXPECT_EQ(call(http::verb::get, "/api/v1/runs/12/stats").result(), http::status::ok);
   EXPECT_EQ(control.calls,
-            (std::vector<std::string>{"queue_add x a.toml true", "queue_remove 3", "queue_move 3 0",
-                                      "control abort leak", "control stop ", "runs", "run 12",
-                                      "events 12", "stats 12"}));
+            (std::vector<std::string>{"enqueue x a.toml true op= comment= tags=[] duts=[]",
+                                      "queue_remove 3", "queue_move 3 0", "control abort leak",
+                                      "control stop ", "runs", "run 12", "events 12",
+                                      "stats 12 dut= axis="}));
 }
 
 TEST(Api, SamplesQueryReachesTheStationDecodedWithDefaults) {
@@ -420,25 +485,18 @@ const std::vector<std::pair<http::verb, std::string>>& mutations() {
       {http::verb::post, "/api/v1/queue"},          {http::verb::delete_, "/api/v1/queue/3"},
       {http::verb::post, "/api/v1/queue/3/move"},   {http::verb::post, "/api/v1/control/pause"},
       {http::verb::post, "/api/v1/control/resume"}, {http::verb::post, "/api/v1/control/abort"},
-      {http::verb::post, "/api/v1/control/stop"}};
+      {http::verb::post, "/api/v1/control/stop"},   {http::verb::patch, "/api/v1/runs/3"}};
   return list;
 }
 
 // Every GET route that carries station data (all of /api/v1 and /metrics).
 const std::vector<std::string>& data_reads() {
-  static const std::vector<std::string> list = {"/api/v1/status",
-                                                "/api/v1/queue",
-                                                "/api/v1/runs",
-                                                "/api/v1/runs/4",
-                                                "/api/v1/runs/4/events",
-                                                "/api/v1/runs/4/stats",
-                                                "/api/v1/runs/4/fits",
-                                                "/api/v1/runs/4/allan",
-                                                "/api/v1/runs/4/samples?max_points=10",
-                                                "/api/v1/fits/4",
-                                                "/api/v1/exports",
-                                                "/api/v1/openapi.json",
-                                                "/metrics"};
+  static const std::vector<std::string> list = {
+      "/api/v1/status",       "/api/v1/queue",         "/api/v1/runs",
+      "/api/v1/runs/4",       "/api/v1/runs/4/events", "/api/v1/runs/4/stats",
+      "/api/v1/runs/4/fits",  "/api/v1/runs/4/allan",  "/api/v1/runs/4/samples?max_points=10",
+      "/api/v1/fits/4",       "/api/v1/exports",       "/api/v1/duts",
+      "/api/v1/duts/17-0042", "/api/v1/openapi.json",  "/metrics"};
   return list;
 }
 
@@ -769,6 +827,179 @@ TEST(HttpServer, TheClientSendsHost) {
   EXPECT_EQ(res->status, 200);
   std::lock_guard lock(mu);
   EXPECT_EQ(host, fmt::format("127.0.0.1:{}", (*server)->port()));
+}
+
+// ---------------------------------------------------------------- run metadata and DUTs
+
+TEST(Api, QueueMetadataReachesTheStation) {
+  FakeControl control;
+  const ApiContext ctx = fake_context(&control);
+  const auto res = handle_api_request(
+      request(http::verb::post, "/api/v1/queue",
+              R"({"schedule_toml":"x","operator":"Ana Müller","comment":"re-spliced\nfibre",)"
+              R"("tags":["campaign-7","week 1"],"duts":["17-0042","17-0050"]})"),
+      ctx);
+  EXPECT_EQ(res.result(), http::status::created) << res.body();
+  ASSERT_EQ(control.calls.size(), 1u);
+  EXPECT_EQ(control.calls[0],
+            "enqueue x  false op=Ana Müller comment=re-spliced\nfibre tags=[campaign-7|week 1] "
+            "duts=[17-0042|17-0050]");
+  // A serial the station has not configured: 400 naming it, nothing queued.
+  const auto unknown = handle_api_request(
+      request(http::verb::post, "/api/v1/queue", R"({"schedule_toml":"x","duts":["nope"]})"), ctx);
+  EXPECT_EQ(unknown.result(), http::status::bad_request);
+  EXPECT_NE(unknown.body().find("no DUT with serial 'nope'"), std::string::npos) << unknown.body();
+  EXPECT_NE(unknown.body().find("field 'duts'"), std::string::npos) << unknown.body();
+}
+
+// The `error` of an error response ("" when there is none).
+std::string error_of(const HttpResponse& res) {
+  const auto j = nlohmann::json::parse(res.body(), nullptr, false);
+  return j.is_object() && j.contains("error") && j["error"].is_string()
+             ? j["error"].get<std::string>()
+             : std::string();
+}
+
+// The limits of control.h, on both routes that take metadata; nothing
+// reaches the station.
+TEST(Api, MetadataFieldsAre400NamingTheFieldAndTheItem) {
+  FakeControl control;
+  const ApiContext ctx = fake_context(&control);
+  const auto quoted = [](const std::string& s) { return nlohmann::json(s).dump(); };
+  const auto list = [](std::size_t n, std::size_t chars) {
+    nlohmann::json a = nlohmann::json::array();
+    for (std::size_t i = 0; i < n; ++i) a.push_back(fmt::format("{:0>{}}", i, chars));
+    return a.dump();
+  };
+  struct Case {
+    std::string fields;  // JSON members, without braces
+    std::string message;
+  };
+  const std::vector<Case> cases = {
+      {R"("operator":5)", "field 'operator' must be a string"},
+      {R"("operator":)" + quoted(std::string(129, 'a')),
+       "field 'operator' is 129 characters long (at most 128)"},
+      {R"("operator":"two\nlines")", "field 'operator' contains the control character U+000A"},
+      {R"("comment":)" + quoted(std::string(4097, 'c')),
+       "field 'comment' is 4097 characters long (at most 4096)"},
+      {R"("comment":"bell\u0007")", "field 'comment' contains the control character U+0007"},
+      {R"("tags":"a,b")", "field 'tags' must be an array of tags"},
+      {R"("tags":)" + list(33, 2), "field 'tags' has 33 tags (strings) (at most 32)"},
+      {R"("tags":)" + list(1, 65), "field 'tags'[0] is 65 characters long (at most 64)"},
+      {R"("tags":["ok",7])", "field 'tags'[1] must be a string"},
+      {R"("tags":["a","b","a"])", "field 'tags'[2]: \"a\" is listed twice"},
+      {R"("tags":[""])", "field 'tags'[0] is empty"},
+      {R"("duts":["17-0042",3])", "field 'duts'[1] must be a string"},
+      {R"("duts":)" + list(17, 3), "field 'duts' has 17 DUT serials (strings) (at most 16)"},
+      {R"("duts":[)" + quoted(std::string(65, 's')) + "]",
+       "field 'duts'[0] is 65 characters long (at most 64)"},
+      {R"("operators":"ana")", "unknown field 'operators'"},
+  };
+  for (const Case& c : cases) {
+    const auto post = handle_api_request(
+        request(http::verb::post, "/api/v1/queue", R"({"schedule_toml":"x",)" + c.fields + "}"),
+        ctx);
+    EXPECT_EQ(post.result(), http::status::bad_request) << c.fields;
+    EXPECT_NE(error_of(post).find(c.message), std::string::npos)
+        << c.fields << " -> " << post.body();
+    const auto patch =
+        handle_api_request(request(http::verb::patch, "/api/v1/runs/3", "{" + c.fields + "}"), ctx);
+    EXPECT_EQ(patch.result(), http::status::bad_request) << c.fields;
+    EXPECT_NE(error_of(patch).find(c.message), std::string::npos)
+        << c.fields << " -> " << patch.body();
+  }
+  EXPECT_TRUE(control.calls.empty());
+  // At the limits, counted in characters (é is two bytes): accepted.
+  std::string e128;
+  for (int i = 0; i < 128; ++i) e128 += "é";
+  const auto limits = handle_api_request(
+      request(http::verb::post, "/api/v1/queue",
+              R"({"schedule_toml":"x","operator":)" + quoted(e128) + R"(,"tags":)" + list(32, 64) +
+                  R"(,"comment":"tab\there\nand a new line"})"),
+      ctx);
+  EXPECT_EQ(limits.result(), http::status::created) << limits.body();
+}
+
+TEST(Api, RunMetadataEditNeedsTheControlTokenAndAField) {
+  FakeControl control;
+  const ApiContext ctx = two_role_context(&control);
+  const std::string body = R"({"operator":"bo","tags":["a"],"duts":[]})";
+  EXPECT_EQ(
+      handle_api_request(request(http::verb::patch, "/api/v1/runs/3", body, ""), ctx).result(),
+      http::status::unauthorized);
+  EXPECT_EQ(handle_api_request(
+                request(http::verb::patch, "/api/v1/runs/3", body, bearer(kReadToken)), ctx)
+                .result(),
+            http::status::forbidden);
+  EXPECT_TRUE(control.calls.empty());
+  const auto empty = handle_api_request(request(http::verb::patch, "/api/v1/runs/3", "{}"), ctx);
+  EXPECT_EQ(empty.result(), http::status::bad_request);
+  EXPECT_NE(empty.body().find("nothing to change"), std::string::npos) << empty.body();
+  EXPECT_TRUE(control.calls.empty());
+
+  EXPECT_EQ(handle_api_request(request(http::verb::patch, "/api/v1/runs/3", body), ctx).result(),
+            http::status::ok);
+  EXPECT_EQ(
+      handle_api_request(request(http::verb::patch, "/api/v1/runs/8", R"({"comment":""})"), ctx)
+          .result(),
+      http::status::not_found);
+  EXPECT_EQ(control.calls, (std::vector<std::string>{
+                               "edit_run 3 op=bo comment=(same) tags=[a] duts=[] by api",
+                               "edit_run 8 op=(same) comment= tags=(same) duts=(same) by api"}));
+  EXPECT_EQ(handle_api_request(request(http::verb::put, "/api/v1/runs/3", body), ctx).result(),
+            http::status::method_not_allowed);
+}
+
+TEST(Api, DutRoutesDecodeTheSerialAndName404s) {
+  FakeControl control;
+  const ApiContext ctx = fake_context(&control);
+  EXPECT_EQ(handle_api_request(get("/api/v1/duts"), ctx).result(), http::status::ok);
+  EXPECT_EQ(handle_api_request(get("/api/v1/duts/17-0042"), ctx).result(), http::status::ok);
+  EXPECT_EQ(handle_api_request(get("/api/v1/duts/SN%2017%2F42"), ctx).result(), http::status::ok);
+  EXPECT_EQ(handle_api_request(get("/api/v1/duts/a+b"), ctx).result(), http::status::ok);
+  const auto unknown = handle_api_request(get("/api/v1/duts/17-0043"), ctx);
+  EXPECT_EQ(unknown.result(), http::status::not_found);
+  EXPECT_NE(unknown.body().find("no DUT with serial '17-0043'"), std::string::npos);
+  EXPECT_EQ(control.calls, (std::vector<std::string>{"duts", "dut 17-0042", "dut SN 17/42",
+                                                     "dut a+b", "dut 17-0043"}));
+  control.calls.clear();
+  for (const std::string target :
+       {"/api/v1/duts/" + std::string(65, 's'), std::string("/api/v1/duts/%zz")}) {
+    EXPECT_EQ(handle_api_request(get(target), ctx).result(), http::status::not_found) << target;
+  }
+  EXPECT_TRUE(control.calls.empty());
+}
+
+TEST(Api, StatsAndSamplesTakeTheDutAndItsAxisOrChannel) {
+  FakeControl control;
+  const ApiContext ctx = fake_context(&control);
+  EXPECT_EQ(handle_api_request(get("/api/v1/runs/12/stats?dut=17-0042&axis=z"), ctx).result(),
+            http::status::ok);
+  EXPECT_EQ(handle_api_request(get("/api/v1/runs/12/stats?axis=x"), ctx).result(),
+            http::status::ok);
+  const auto no_dut = handle_api_request(get("/api/v1/runs/12/stats?dut=17-0099"), ctx);
+  EXPECT_EQ(no_dut.result(), http::status::not_found);
+  EXPECT_NE(no_dut.body().find("no DUT '17-0099'"), std::string::npos) << no_dut.body();
+  EXPECT_EQ(handle_api_request(
+                get("/api/v1/runs/4/samples?dut=SN%2017&channel=accel_x&max_points=10"), ctx)
+                .result(),
+            http::status::ok);
+  const auto no_channel = handle_api_request(get("/api/v1/runs/4/samples?channel=nope"), ctx);
+  EXPECT_EQ(no_channel.result(), http::status::not_found);
+  EXPECT_NE(no_channel.body().find("no channel 'nope'"), std::string::npos);
+  EXPECT_EQ(control.calls,
+            (std::vector<std::string>{"stats 12 dut=17-0042 axis=z", "stats 12 dut= axis=x",
+                                      "stats 12 dut=17-0099 axis=",
+                                      "samples 4 0 last 10 dut=SN 17 "
+                                      "channel=accel_x",
+                                      "samples 4 0 last 2000 dut= channel=nope"}));
+  control.calls.clear();
+  const auto bad = handle_api_request(get("/api/v1/runs/12/stats?axes=z"), ctx);
+  EXPECT_EQ(bad.result(), http::status::bad_request);
+  EXPECT_NE(bad.body().find("unknown query parameter 'axes' (expected: dut, axis)"),
+            std::string::npos)
+      << bad.body();
+  EXPECT_TRUE(control.calls.empty());
 }
 
 }  // namespace

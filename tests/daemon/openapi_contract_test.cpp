@@ -414,6 +414,111 @@ class ContractControl : public StationControl {
                       {"fits", json::array({to_json(f)})},
                       {"temperature_fit", to_json(t)}});
   }
+  static storage::RunDutRecord run_dut() {
+    storage::RunDutRecord d;
+    d.run_id = 1;
+    d.position = 0;
+    d.dut.id = 1;
+    d.dut.serial = "17-0042";
+    d.dut.model = "KVH 1750";
+    d.dut.first_seen_utc = "2026-11-20T05:38:43.120Z";
+    d.primary_axis = "z";
+    d.axes = {"x", "y", "z"};
+    d.rate_hz = 1000;
+    const std::pair<const char*, ChannelKind> channels[] = {{"gyro_z", ChannelKind::kRate},
+                                                            {"accel_z", ChannelKind::kAccel},
+                                                            {"status", ChannelKind::kStatus},
+                                                            {"temp_c", ChannelKind::kTemperature}};
+    for (const auto& [name, kind] : channels) {
+      storage::ChannelRecord c;
+      c.index = static_cast<int>(d.channels.size());
+      c.spec.name = name;
+      c.spec.kind = kind;
+      c.spec.unit = kind == ChannelKind::kRate          ? "deg/h"
+                    : kind == ChannelKind::kAccel       ? "g"
+                    : kind == ChannelKind::kTemperature ? "degC"
+                                                        : "";
+      c.spec.axis = kind == ChannelKind::kRate || kind == ChannelKind::kAccel ? "z" : "";
+      d.channels.push_back(c);
+    }
+    d.rate_hz = 0;  // unknown: null must match the schema too
+    return d;
+  }
+  Reply enqueue(const QueueRequest&) override {
+    auto e = queue_entry(3, "queued");
+    e.metadata.operator_name = "ana";
+    e.metadata.tags = {"campaign-7"};
+    e.metadata.dut_serials = {"17-0042"};
+    return Reply::ok(to_json(e, 4));
+  }
+  Reply run_with_duts(int64_t id) override {
+    Reply r = run(id);
+    r.body["metadata"] = to_json(storage::RunMetadata{"ana", "line 1\nline 2", {"a"}, {}});
+    r.body["duts"] = json::array({to_json(run_dut())});
+    return r;
+  }
+  Reply edit_run(int64_t id, const MetadataEdit&, const std::string&) override {
+    return run_with_duts(id);
+  }
+  Reply run_stats_filtered(int64_t id, const StatsQuery&) override {
+    Reply r = run_stats(id);
+    r.body[0]["dut_serial"] = "17-0042";
+    r.body[0]["axis"] = "z";
+    return r;
+  }
+  Reply run_channel_samples(int64_t id, const SamplesQuery& query) override {
+    Reply r = run_samples(id, query);
+    r.body["dut"] = "17-0042";
+    r.body["channel"] = "gyro_z";
+    r.body["unit"] = "deg/h";
+    return r;
+  }
+  Reply duts() override {
+    storage::DutRecord d = run_dut().dut;
+    storage::DutRecord unnamed;
+    unnamed.id = 2;
+    unnamed.first_seen_utc = "2026-01-02T03:04:05.000Z";
+    return Reply::ok(json::array({to_json(unnamed, 3), to_json(d, 1)}));
+  }
+  Reply dut_history(const std::string&) override {
+    storage::DutHistory h;
+    h.dut = run_dut().dut;
+    storage::DutHistory::Run r;
+    r.run = run_record(1);
+    r.run.metadata.operator_name = "ana";
+    r.in_run = run_dut();
+    storage::SegmentRecord s;
+    s.kind = "soak";
+    s.label = "step 1: soak 20 °C";
+    s.setpoint_c = 20;
+    s.state = "completed";
+    r.segments = {s};
+    storage::SegmentStatsRecord row;
+    row.segment_id = 1;
+    row.run_id = 1;
+    row.dut_serial = "17-0042";
+    row.axis = "x";
+    row.n = 7200;
+    r.stats = {row};
+    storage::AllanRecord a;
+    a.run_id = 1;
+    a.dut_serial = "17-0042";
+    a.axis = "x";
+    a.taus = "octave";
+    r.allan = {a};
+    storage::ScaleFactorFitRecord f;
+    f.dut_serial = "17-0042";
+    f.axis = "z";
+    f.sf_sequence = 1;
+    f.k = 1.00015;
+    r.scale_factor = {f};
+    h.runs = {r};
+    auto fit = fit_record(5);
+    fit.dut_serial = "17-0042";
+    fit.axis = "z";
+    h.fits = {fit};
+    return Reply::ok(to_json(h));
+  }
   Reply exports() override {
     storage::ExportRecord done;
     done.id = 2;
@@ -583,7 +688,8 @@ TEST(OpenApi, OperationsAreCompleteAndMutationsNeedTheToken) {
       // Mutations require the bearer token; reads of station data (all of
       // /api/v1 and /metrics) take one optionally ({}: none, in open mode);
       // liveness and the dashboard's files none.
-      const bool mutation = std::string(m) == "post" || std::string(m) == "delete";
+      const bool mutation =
+          std::string(m) == "post" || std::string(m) == "patch" || std::string(m) == "delete";
       const bool data_read = !mutation && (path.rfind("/api/v1/", 0) == 0 || path == "/metrics");
       const json security = op.value("security", doc.value("security", json::array()));
       if (mutation) {
@@ -698,7 +804,7 @@ TEST(OpenApi, RefusedMutationsAnswerTheDocumentedErrors) {
   ApiContext no_tokens = ctx;
   no_tokens.tokens.clear();
   for (const auto& [path, item] : document().at("paths").items()) {
-    for (const char* m : {"post", "delete"}) {
+    for (const char* m : {"post", "patch", "delete"}) {
       if (!item.contains(m)) continue;
       const json& op = item.at(m);
       for (const std::string& target : fill_path(path, operation_parameters(item, op))) {
@@ -756,7 +862,7 @@ TEST(OpenApi, ReadTokensTokenModeAndThrottlingAnswerTheDocumentedErrors) {
   };
   int checked = 0;
   for (const auto& [path, item] : document().at("paths").items()) {
-    for (const char* m : {"get", "post", "delete"}) {
+    for (const char* m : {"get", "post", "patch", "delete"}) {
       if (!item.contains(m)) continue;
       const json& op = item.at(m);
       if (!op.contains("security")) continue;  // open to all

@@ -19,10 +19,12 @@
 #include <nlohmann/json.hpp>
 
 #include "control.h"
+#include "gyrotherm/daemon/control.h"
 #include "gyrotherm/daemon/http_message.h"
 #include "gyrotherm/daemon/http_server.h"
 #include "gyrotherm/storage/database.h"
 #include "process.h"
+#include "station_fixture.h"
 #include "temp_dir_test.h"
 #include "test_files.h"
 
@@ -217,59 +219,65 @@ json events_answer() {
 
 // ---------------------------------------------------------------- the binary
 
+struct CliRun {
+  int code = -1;
+  std::string out, err;
+};
+
+// Runs gyrotherm with `args` in an environment without GYROTHERM_* except
+// `env`; waits up to 20 s. Every run is checked for the token leaking.
+CliRun run_gyrotherm(const fs::path& dir, std::vector<std::string> args,
+                     std::vector<std::string> env = {}) {
+  const std::string out_path = (dir / "out.txt").string();
+  const std::string err_path = (dir / "err.txt").string();
+  posix_spawn_file_actions_t actions;
+  posix_spawn_file_actions_init(&actions);
+  posix_spawn_file_actions_addopen(&actions, 0, "/dev/null", O_RDONLY, 0);
+  posix_spawn_file_actions_addopen(&actions, 1, out_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC,
+                                   0644);
+  posix_spawn_file_actions_addopen(&actions, 2, err_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC,
+                                   0644);
+  args.insert(args.begin(), std::string(GYROTHERM_BIN_DIR) + "/gyrotherm");
+  std::vector<char*> argv;
+  for (auto& a : args) argv.push_back(a.data());
+  argv.push_back(nullptr);
+  for (char** e = environ; *e; ++e) {
+    if (std::string_view(*e).rfind("GYROTHERM_", 0) != 0) env.emplace_back(*e);
+  }
+  std::vector<char*> envp;
+  for (auto& e : env) envp.push_back(e.data());
+  envp.push_back(nullptr);
+  pid_t pid = -1;
+  const int rc = posix_spawn(&pid, argv[0], &actions, nullptr, argv.data(), envp.data());
+  posix_spawn_file_actions_destroy(&actions);
+  CliRun r;
+  if (rc != 0) {
+    ADD_FAILURE() << "posix_spawn " << argv[0] << ": " << rc;
+    return r;
+  }
+  int status = 0;
+  const bool exited = testing::wait_until([&] { return ::waitpid(pid, &status, WNOHANG) == pid; },
+                                          std::chrono::seconds(20));
+  if (!exited) {
+    ::kill(pid, SIGKILL);
+    ::waitpid(pid, &status, 0);
+    ADD_FAILURE() << "gyrotherm did not finish within 20 s";
+  }
+  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  r.out = testing::read_text(out_path);
+  r.err = testing::read_text(err_path);
+  EXPECT_THAT(r.out, Not(HasSubstr(kToken)));
+  EXPECT_THAT(r.err, Not(HasSubstr(kToken)));
+  return r;
+}
+
 class CliControlTest : public testing::TempDirTest {
  protected:
   CliControlTest() : TempDirTest("gyrotherm-cli-control") {}
 
-  struct Run {
-    int code = -1;
-    std::string out, err;
-  };
-
-  // Runs gyrotherm with `args` in an environment without GYROTHERM_* except
-  // `env`; waits up to 20 s. Every run is checked for the token leaking.
+  using Run = CliRun;
   Run cli(std::vector<std::string> args, std::vector<std::string> env = {}) {
-    const std::string out_path = (dir_ / "out.txt").string();
-    const std::string err_path = (dir_ / "err.txt").string();
-    posix_spawn_file_actions_t actions;
-    posix_spawn_file_actions_init(&actions);
-    posix_spawn_file_actions_addopen(&actions, 0, "/dev/null", O_RDONLY, 0);
-    posix_spawn_file_actions_addopen(&actions, 1, out_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC,
-                                     0644);
-    posix_spawn_file_actions_addopen(&actions, 2, err_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC,
-                                     0644);
-    args.insert(args.begin(), std::string(GYROTHERM_BIN_DIR) + "/gyrotherm");
-    std::vector<char*> argv;
-    for (auto& a : args) argv.push_back(a.data());
-    argv.push_back(nullptr);
-    for (char** e = environ; *e; ++e) {
-      if (std::string_view(*e).rfind("GYROTHERM_", 0) != 0) env.emplace_back(*e);
-    }
-    std::vector<char*> envp;
-    for (auto& e : env) envp.push_back(e.data());
-    envp.push_back(nullptr);
-    pid_t pid = -1;
-    const int rc = posix_spawn(&pid, argv[0], &actions, nullptr, argv.data(), envp.data());
-    posix_spawn_file_actions_destroy(&actions);
-    Run r;
-    if (rc != 0) {
-      ADD_FAILURE() << "posix_spawn " << argv[0] << ": " << rc;
-      return r;
-    }
-    int status = 0;
-    const bool exited = testing::wait_until([&] { return ::waitpid(pid, &status, WNOHANG) == pid; },
-                                            std::chrono::seconds(20));
-    if (!exited) {
-      ::kill(pid, SIGKILL);
-      ::waitpid(pid, &status, 0);
-      ADD_FAILURE() << "gyrotherm did not finish within 20 s";
-    }
-    r.code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-    r.out = testing::read_text(out_path);
-    r.err = testing::read_text(err_path);
-    EXPECT_THAT(r.out, Not(HasSubstr(kToken)));
-    EXPECT_THAT(r.err, Not(HasSubstr(kToken)));
-    return r;
+    return run_gyrotherm(dir_, std::move(args), std::move(env));
   }
 
   // --url and --token of the fake daemon, after `args`.
@@ -772,6 +780,434 @@ TEST(CliFormat, HttpErrors) {
   EXPECT_EQ(cli::format_http_error(500, "", false), "the daemon answered HTTP 500");
   EXPECT_EQ(cli::format_http_error(400, R"({"error": "token abc123 is odd"})", true, "abc123"),
             "token *** is odd");
+}
+
+// ---------------------------------------------------------------- run metadata and DUT history
+
+json metadata_answer(const std::string& op, json tags) {
+  return {
+      {"operator", op}, {"comment", "after the\nre-splice"}, {"tags", tags}, {"duts", {"17-0042"}}};
+}
+
+json run_dut_answer() {
+  return {{"serial", "17-0042"},
+          {"model", "KVH 1750"},
+          {"position", 0},
+          {"primary_axis", "z"},
+          {"axes", {"x", "z"}},
+          {"rate_hz", 1000},
+          {"channels",
+           {{{"name", "gyro_x"}, {"unit", "deg/h"}, {"kind", "rate"}, {"axis", "x"}},
+            {{"name", "gyro_z"}, {"unit", "deg/h"}, {"kind", "rate"}, {"axis", "z"}}}}};
+}
+
+json history_answer() {
+  json run = run_answer();
+  run["metadata"] = metadata_answer("Ana Müller", {"campaign-7"});
+  run["dut"] = run_dut_answer();
+  json ramp = run["segments"][0];
+  ramp["index"] = 1;
+  ramp["kind"] = "ramp";
+  ramp["setpoint_c"] = 40.0;
+  run["segments"].push_back(ramp);
+  auto row = [](const char* axis, double bias, double std) {
+    return json{{"segment_index", 0},     {"dut_serial", "17-0042"}, {"axis", axis},
+                {"temp_mean_c", 20.0213}, {"bias_mean_dph", bias},   {"bias_std_dph", std}};
+  };
+  run["stats"] = {row("x", 1.20314, 0.01172), row("z", 7.95123, 0.01191)};
+  run["allan"] = json::array();
+  run["scale_factor"] = {{{"dut_serial", "17-0042"},
+                          {"axis", "z"},
+                          {"sf_sequence", 1},
+                          {"temperature_c", 20.1},
+                          {"k", 1.00015},
+                          {"nonlinearity_ppm", 41.0},
+                          {"asymmetry_ppm", 30.2},
+                          {"repeatability_ppm", nullptr},
+                          {"bias_dph", 7.56}}};
+  return {{"serial", "17-0042"},
+          {"model", "KVH 1750"},
+          {"first_seen_utc", "2026-11-20T05:38:43.120Z"},
+          {"runs", {run}},
+          {"fits",
+           {{{"id", 4},
+             {"dut_serial", "17-0042"},
+             {"axis", "z"},
+             {"run_ids", {12}},
+             {"model", "T2+R1+G1"},
+             {"form", "centered"},
+             {"residual_std_dph", 0.0301},
+             {"r_squared", 0.9812},
+             {"computed_utc", "2026-11-21T08:00:00.000Z"}}}}};
+}
+
+TEST_F(CliControlTest, MetadataAndDutCommandsSendTheirRequests) {
+  FakeDaemon d;
+  d.answer("POST", "/api/v1/queue", 201, entry(8, 1, "demo", 3, false));
+  d.answer("GET", "/api/v1/queue", 200, queue_answer());
+  json edited = run_answer();
+  edited["metadata"] = metadata_answer("Bo Lind", {"a", "b"});
+  edited["duts"] = {run_dut_answer()};
+  d.answer("PATCH", "/api/v1/runs/12", 200, edited);
+  d.answer("GET", "/api/v1/runs/12", 200, edited);
+  d.answer("GET", "/api/v1/runs/12/events", 200, events_answer());
+  d.answer(
+      "GET", "/api/v1/duts", 200,
+      {{{"serial", ""}, {"model", ""}, {"first_seen_utc", "2026-01-02T03:04:05.000Z"}, {"runs", 3}},
+       {{"serial", "17-0042"},
+        {"model", "KVH 1750"},
+        {"first_seen_utc", "2026-11-20T05:38:43.120Z"},
+        {"runs", 1}}});
+  d.answer("GET", "/api/v1/duts/SN%2017%2F42", 200, history_answer());
+  d.answer(
+      "GET", "/api/v1/duts/17-0043", 404,
+      {{"error", "no DUT with serial '17-0043' (GET /api/v1/duts lists them)"}, {"status", 404}});
+  const std::string schedule = (dir_ / "demo.toml").string();
+  std::ofstream(schedule) << "name = \"demo\"\n";
+
+  struct Case {
+    std::vector<std::string> args;
+    std::string method, target;
+    json body;         // null: no body
+    std::string says;  // in the human output
+  };
+  const std::vector<Case> cases = {
+      {{"queue", "add", schedule, "--operator", "Ana Müller", "--tag", "campaign-7", "--comment",
+        "after the re-splice", "--tag", "week 1", "--dut", "17-0042", "--dut", "17-0050"},
+       "POST",
+       "/api/v1/queue",
+       {{"schedule_toml", "name = \"demo\"\n"},
+        {"source", schedule},
+        {"ignore_failures", false},
+        {"operator", "Ana Müller"},
+        {"comment", "after the re-splice"},
+        {"tags", {"campaign-7", "week 1"}},
+        {"duts", {"17-0042", "17-0050"}}},
+       "queued entry 8"},
+      {{"edit-run", "12", "--operator", "Bo Lind", "--tags", "a, b,", "--duts", ""},
+       "PATCH",
+       "/api/v1/runs/12",
+       {{"operator", "Bo Lind"}, {"tags", {"a", "b"}}, {"duts", json::array()}},
+       "run 12: metadata saved"},
+      {{"edit-run", "12", "--comment", ""},
+       "PATCH",
+       "/api/v1/runs/12",
+       {{"comment", ""}},
+       "operator    Bo Lind\ncomment     after the\n            re-splice\ntags        a, b\n"},
+      {{"duts"}, "GET", "/api/v1/duts", nullptr, "(no serial)"},
+      {{"dut", "SN 17/42"}, "GET", "/api/v1/duts/SN%2017%2F42", nullptr, "DUT 17-0042  KVH 1750"},
+  };
+  for (const auto& c : cases) {
+    SCOPED_TRACE(fmt::format("{}", fmt::join(c.args, " ")));
+    d.forget();
+    const Run r = cli(to(d, c.args));
+    EXPECT_EQ(r.code, 0) << r.err;
+    EXPECT_THAT(r.out, HasSubstr(c.says));
+    const auto seen = d.seen();
+    ASSERT_GE(seen.size(), 1u);
+    EXPECT_EQ(seen[0].method, c.method);
+    EXPECT_EQ(seen[0].target, c.target);
+    EXPECT_EQ(seen[0].authorization, std::string("Bearer ") + kToken);
+    if (c.body.is_null()) {
+      EXPECT_EQ(seen[0].body, "");
+    } else {
+      EXPECT_EQ(json::parse(seen[0].body), c.body);
+    }
+  }
+
+  // `run ID` shows the metadata and the DUTs.
+  const Run run = cli(to(d, {"run", "12"}));
+  ASSERT_EQ(run.code, 0) << run.err;
+  EXPECT_THAT(run.out, HasSubstr("operator    Bo Lind\n"));
+  EXPECT_THAT(run.out, HasSubstr("tags        a, b\n"));
+  EXPECT_THAT(
+      run.out,
+      HasSubstr("DUTs        17-0042  KVH 1750, axes x z (primary z), 1000 Hz, 2 channels\n"));
+
+  // Nothing to change: usage, no request.
+  d.forget();
+  const Run nothing = cli(to(d, {"edit-run", "12"}));
+  EXPECT_EQ(nothing.code, 2);
+  EXPECT_THAT(nothing.err, HasSubstr("give at least one of --operator, --comment, --tags, --duts"));
+  EXPECT_TRUE(d.seen().empty());
+
+  // An unknown serial: the daemon's message, exit 1.
+  const Run unknown = cli(to(d, {"dut", "17-0043"}));
+  EXPECT_EQ(unknown.code, 1);
+  EXPECT_THAT(unknown.err, HasSubstr("no DUT with serial '17-0043'"));
+  // --json: the daemon's answer as is.
+  const Run j = cli(to(d, {"dut", "SN 17/42", "--json"}));
+  ASSERT_EQ(j.code, 0) << j.err;
+  EXPECT_EQ(json::parse(j.out), history_answer());
+}
+
+TEST(CliFormat, StatusNamesWhoRunsTheRun) {
+  json status = status_answer();
+  EXPECT_THAT(cli::format_status(status), Not(HasSubstr("\noperator ")));
+  status["run_metadata"] = {{"operator", "Ana Müller"}, {"comment", ""}, {"tags", {"c7", "w1"}}};
+  EXPECT_THAT(cli::format_status(status), HasSubstr("operator    Ana Müller  (tags: c7, w1)\n"));
+}
+
+TEST(CliFormat, DutHistoryIsATablePerRunWithBiasPerAxis) {
+  const std::string text = cli::format_dut_history(history_answer());
+  EXPECT_THAT(text, HasSubstr("DUT 17-0042  KVH 1750\nfirst seen  2026-11-20 05:38:43 UTC\n"
+                              "runs        1\n"));
+  EXPECT_THAT(text,
+              HasSubstr("\nrun 12  demo  completed  started 2026-11-21 05:38:43 UTC\n"
+                        "operator    Ana Müller\ncomment     after the\n            re-splice\n"
+                        "tags        campaign-7\n"));
+  // One bias and σ pair per axis, in the DUT's axis order; the ramp has none.
+  EXPECT_THAT(text, ContainsRegex("#  kind  set °C  T mean °C  x bias °/h  x σ °/h  z bias °/h  "
+                                  "z σ °/h  state\n"));
+  EXPECT_THAT(text, ContainsRegex("1  soak   20.00      20.02      1.2031   0.0117      7.9512 "
+                                  "  0.0119  completed\n"));
+  EXPECT_THAT(text, ContainsRegex("2  ramp   40.00          —           —        —           —  "
+                                  "      —  completed\n"));
+  EXPECT_THAT(text, HasSubstr("scale factor\n"));
+  EXPECT_THAT(text, ContainsRegex("1  z     20.10  1.0001500        41.0      30.2           —  "
+                                  "   7.560\n"));
+  EXPECT_THAT(text, HasSubstr("drift fits\n"));
+  EXPECT_THAT(text, ContainsRegex("4  z     T2\\+R1\\+G1  centered  12          0.0301  0.9812"));
+  // Whatever is missing or mistyped prints as "—", never throws.
+  EXPECT_THAT(cli::format_dut_history({{"runs", {{{"stats", 5}}}}}), HasSubstr("no segments"));
+  EXPECT_EQ(cli::format_duts(json::array()), "no DUTs recorded\n");
+}
+
+// A database with two runs of DUT 17-0042 (one with 17-0050 too), as the
+// records are stored: `dut` and `duts` read it without a daemon.
+TEST_F(CliControlTest, DutAndDutsReadTheDatabaseFileOffline) {
+  const std::string db_path = (dir_ / "station.db").string();
+  std::vector<int64_t> run_ids;
+  {
+    auto db = storage::Database::open(db_path);
+    ASSERT_TRUE(db.ok()) << db.error().message;
+    for (int i = 0; i < 2; ++i) {
+      storage::RunRecord run;
+      run.schedule_name = i == 0 ? "monday" : "tuesday";
+      run.state = "completed";
+      run.started_utc = fmt::format("2026-11-2{}T05:38:43.120Z", i + 1);
+      auto id = db->create_run(run);
+      ASSERT_TRUE(id.ok()) << id.error().message;
+      run_ids.push_back(*id);
+      for (const char* serial : {"17-0042", "17-0050"}) {
+        if (i == 1 && std::string(serial) == "17-0050") continue;
+        storage::RunDutRecord d;
+        d.position = std::string(serial) == "17-0042" ? 0 : 1;
+        d.dut.serial = serial;
+        d.dut.model = "KVH 1750";
+        d.primary_axis = "z";
+        d.axes = {"x", "z"};
+        d.rate_hz = 1000;
+        for (const char* axis : {"x", "z"}) {
+          storage::ChannelRecord c;
+          c.index = static_cast<int>(d.channels.size());
+          c.spec = {fmt::format("gyro_{}", axis), "deg/h", ChannelKind::kRate, axis, 1.0};
+          d.channels.push_back(c);
+        }
+        auto added = db->add_run_dut(*id, d);
+        ASSERT_TRUE(added.ok()) << added.error().message;
+      }
+      storage::SegmentRecord seg;
+      seg.run_id = *id;
+      seg.index = 0;
+      seg.kind = "soak";
+      seg.label = "soak 20 °C";
+      seg.setpoint_c = 20;
+      seg.state = "completed";
+      auto seg_id = db->create_segment(seg);
+      ASSERT_TRUE(seg_id.ok()) << seg_id.error().message;
+      for (const char* serial : {"17-0042", "17-0050"}) {
+        if (i == 1 && std::string(serial) == "17-0050") continue;
+        for (const auto& [axis, bias] : {std::pair<const char*, double>{"x", 1.25 + i},
+                                         std::pair<const char*, double>{"z", 7.75 + i}}) {
+          storage::SegmentStatsRecord st;
+          st.segment_id = *seg_id;
+          st.run_id = *id;
+          st.dut_serial = serial;
+          st.axis = axis;
+          st.segment_index = 0;
+          st.setpoint_c = 20;
+          st.n = 600;
+          st.temp_mean_c = 20.5;
+          st.bias_mean_dph = std::string(serial) == "17-0042" ? bias : -bias;
+          st.bias_std_dph = 0.125;
+          ASSERT_TRUE(db->put_segment_stats(st).ok());
+        }
+      }
+      storage::RunMetadata m;
+      m.operator_name = i == 0 ? "Ana Müller" : "Bo Lind";
+      m.tags = {"campaign-7"};
+      m.dut_serials = {"17-0042"};
+      ASSERT_TRUE(db->set_run_metadata(*id, m, "cli").ok());
+    }
+  }
+  const std::string url = dead_url();  // nothing listens: the file is read
+
+  const Run duts = cli({"duts", "--db", db_path, "--url", url});
+  ASSERT_EQ(duts.code, 0) << duts.err;
+  EXPECT_THAT(duts.out, ContainsRegex("17-0042 +KVH 1750 +[0-9-]+ [0-9:]+ +2\n"));
+  EXPECT_THAT(duts.out, ContainsRegex("17-0050 +KVH 1750 +[0-9-]+ [0-9:]+ +1\n"));
+
+  const Run history = cli({"dut", "17-0042", "--db", db_path, "--url", url});
+  ASSERT_EQ(history.code, 0) << history.err;
+  EXPECT_THAT(history.out, HasSubstr("DUT 17-0042  KVH 1750\n"));
+  EXPECT_THAT(history.out, HasSubstr("runs        2\n"));
+  EXPECT_THAT(history.out, HasSubstr("run 1  monday  completed"));
+  EXPECT_THAT(history.out, HasSubstr("operator    Ana Müller\n"));
+  EXPECT_THAT(history.out, HasSubstr("run 2  tuesday  completed"));
+  EXPECT_THAT(history.out, HasSubstr("operator    Bo Lind\n"));
+  // This DUT's biases only (17-0050's are negative), per axis.
+  EXPECT_THAT(history.out, ContainsRegex("1  soak   20.00      20.50      1.2500   0.1250      "
+                                         "7.7500   0.1250  completed\n"));
+  EXPECT_THAT(history.out, ContainsRegex("1  soak   20.00      20.50      2.2500   0.1250      "
+                                         "8.7500   0.1250  completed\n"));
+  EXPECT_THAT(history.out, Not(HasSubstr("-1.2500")));
+
+  const Run j = cli({"dut", "17-0050", "--json", "--db", db_path, "--url", url});
+  ASSERT_EQ(j.code, 0) << j.err;
+  const json h = json::parse(j.out);
+  EXPECT_EQ(h["serial"], "17-0050");
+  ASSERT_EQ(h["runs"].size(), 1u) << "17-0050 was in the first run only";
+  EXPECT_EQ(h["runs"][0]["id"], run_ids[0]);
+  EXPECT_EQ(h["runs"][0]["dut"]["position"], 1);
+  EXPECT_EQ(h["runs"][0]["metadata"]["operator"], "Ana Müller");
+  ASSERT_EQ(h["runs"][0]["stats"].size(), 2u);
+  for (const auto& row : h["runs"][0]["stats"]) {
+    EXPECT_EQ(row["dut_serial"], "17-0050");
+    EXPECT_LT(row["bias_mean_dph"].get<double>(), 0);
+  }
+  // The same JSON as the daemon would answer.
+  {
+    auto db = storage::Database::open_read_only(db_path);
+    ASSERT_TRUE(db.ok()) << db.error().message;
+    auto expected = daemon::dut_history_json(*db, "17-0050");
+    ASSERT_TRUE(expected.ok()) << expected.error().message;
+    EXPECT_EQ(h, *expected);
+  }
+
+  const Run missing = cli({"dut", "17-0043", "--db", db_path, "--url", url});
+  EXPECT_EQ(missing.code, 1);
+  EXPECT_THAT(missing.err, HasSubstr("no DUT with serial '17-0043'"));
+  EXPECT_THAT(missing.err, HasSubstr(db_path));
+  const Run nofile = cli({"dut", "17-0042", "--db", (dir_ / "none.db").string()});
+  EXPECT_EQ(nofile.code, 2);
+  EXPECT_THAT(nofile.err, HasSubstr("none.db"));
+}
+
+// The real daemon (and simulator): metadata given with `queue add` reaches
+// the run, `edit-run` changes it with an audit event, `run ID`, `duts` and
+// `dut` show it, from the daemon and from its database file.
+class CliStationTest : public testing::StationTest {
+ protected:
+  CliRun cli(std::vector<std::string> args) {
+    args.insert(args.end(), {"--url", url("")});
+    const CliRun r =
+        run_gyrotherm(dir_, std::move(args), {std::string("GYROTHERM_TOKEN=") + kToken});
+    EXPECT_THAT(r.out + r.err, Not(HasSubstr(kToken)));
+    return r;
+  }
+  std::optional<json> cli_json(std::vector<std::string> args) {
+    args.push_back("--json");
+    const CliRun r = cli(std::move(args));
+    if (r.code != 0) {
+      ADD_FAILURE() << r.err;
+      return std::nullopt;
+    }
+    return json::parse(r.out, nullptr, false);
+  }
+};
+
+TEST_F(CliStationTest, MetadataRoundTripQueueRunEditEventHistory) {
+  start_sim();
+  start_daemon({}, /*with_schedule=*/false);
+  ASSERT_TRUE(testing::wait_until([&] { return status().has_value(); }, std::chrono::seconds(30)))
+      << daemon_->log();
+
+  // A serial the station has not configured: refused, nothing queued.
+  const CliRun refused =
+      cli({"queue", "add", (dir_ / "schedule.toml").string(), "--dut", "17-9999"});
+  EXPECT_EQ(refused.code, 1);
+  EXPECT_THAT(refused.err, HasSubstr("no DUT with serial '17-9999'"));
+  EXPECT_THAT(refused.err, HasSubstr("duts"));
+  const auto queue = get_json("/api/v1/queue");
+  ASSERT_TRUE(queue.is_object());
+  EXPECT_TRUE(queue["entries"].empty() && queue["current"].is_null()) << queue.dump();
+
+  const CliRun added =
+      cli({"queue", "add", (dir_ / "schedule.toml").string(), "--operator", "Ana Müller",
+           "--comment", "round trip", "--tag", "campaign-7", "--tag", "week-1"});
+  ASSERT_EQ(added.code, 0) << added.err;
+  int64_t run_id = 0;
+  ASSERT_TRUE(testing::wait_until(
+      [&] {
+        const auto s = status();
+        if (!s || !(*s)["run_id"].is_number_integer()) return false;
+        run_id = (*s)["run_id"].get<int64_t>();
+        return true;
+      },
+      std::chrono::seconds(60)))
+      << daemon_->log();
+  const std::string id = std::to_string(run_id);
+
+  auto run = cli_json({"run", id});
+  ASSERT_TRUE(run && run->is_object());
+  EXPECT_EQ((*run)["metadata"]["operator"], "Ana Müller");
+  EXPECT_EQ((*run)["metadata"]["comment"], "round trip");
+  EXPECT_EQ((*run)["metadata"]["tags"], json({"campaign-7", "week-1"}));
+  ASSERT_EQ((*run)["duts"].size(), 1u) << "[gyro] is the station's one DUT";
+  const std::string serial = (*run)["duts"][0]["serial"].get<std::string>();
+  const CliRun shown = cli({"run", id});
+  EXPECT_THAT(shown.out, HasSubstr("operator    Ana Müller\n"));
+  EXPECT_THAT(shown.out, HasSubstr("tags        campaign-7, week-1\n"));
+
+  const CliRun edited =
+      cli({"edit-run", id, "--operator", "Bo Lind", "--tags", "repeat", "--comment", ""});
+  ASSERT_EQ(edited.code, 0) << edited.err;
+  EXPECT_THAT(edited.out, HasSubstr("operator    Bo Lind\n"));
+  run = cli_json({"run", id});
+  ASSERT_TRUE(run && run->is_object());
+  EXPECT_EQ((*run)["metadata"]["operator"], "Bo Lind");
+  EXPECT_EQ((*run)["metadata"]["comment"], "");
+  EXPECT_EQ((*run)["metadata"]["tags"], json({"repeat"}));
+  // The audit event: kind metadata, who, old -> new.
+  int metadata_events = 0;
+  for (const auto& e : (*run)["events"]) {
+    if (e["kind"] != "metadata") continue;
+    ++metadata_events;
+    const std::string message = e["message"].get<std::string>();
+    EXPECT_THAT(message, HasSubstr("Ana Müller"));
+    EXPECT_THAT(message, HasSubstr("Bo Lind"));
+    EXPECT_THAT(message, HasSubstr("api"));
+  }
+  EXPECT_EQ(metadata_events, 1) << run->dump(2);
+  // Without the token: refused, unchanged.
+  const CliRun no_token =
+      run_gyrotherm(dir_, {"edit-run", id, "--operator", "Eve", "--url", url("")}, {});
+  EXPECT_EQ(no_token.code, 1);
+  EXPECT_EQ(get_json("/api/v1/runs/" + id)["metadata"]["operator"], "Bo Lind");
+
+  // The DUT's history, from the daemon and from the database file (the
+  // daemon still writing it).
+  const auto duts = cli_json({"duts"});
+  ASSERT_TRUE(duts && duts->is_array());
+  bool listed = false;
+  for (const auto& d : *duts) listed |= d["serial"] == serial && d["runs"].get<int64_t>() >= 1;
+  EXPECT_TRUE(listed) << duts->dump();
+  const std::string db = (dir_ / "station.db").string();
+  const auto offline = cli_json({"dut", serial, "--db", db});
+  ASSERT_TRUE(offline && offline->is_object());
+  ASSERT_FALSE((*offline)["runs"].empty());
+  EXPECT_EQ((*offline)["runs"].back()["id"], run_id);
+  EXPECT_EQ((*offline)["runs"].back()["metadata"]["operator"], "Bo Lind");
+  if (!serial.empty()) {  // the REST route names a DUT by a non-empty serial
+    // The run goes on meanwhile: compare what does not change.
+    const auto online = cli_json({"dut", serial});
+    ASSERT_TRUE(online && online->is_object());
+    EXPECT_EQ((*online)["runs"].back()["id"], run_id);
+    EXPECT_EQ((*online)["runs"].back()["metadata"], (*offline)["runs"].back()["metadata"]);
+  }
+  const CliRun offline_run = cli({"run", id, "--db", db});
+  EXPECT_THAT(offline_run.out, HasSubstr("operator    Bo Lind\n"));
 }
 
 }  // namespace

@@ -45,6 +45,9 @@ HttpResponse reply_response(const HttpRequest& req, const Reply& reply,
     case Refusal::Kind::kUnavailable:
       status = http::status::service_unavailable;
       break;
+    case Refusal::Kind::kBadRequest:
+      status = http::status::bad_request;
+      break;
   }
   nlohmann::json body = {{"error", r.message}, {"status", static_cast<int>(status)}};
   if (!r.details.empty()) body["errors"] = r.details;
@@ -100,6 +103,106 @@ std::optional<T> field(Body& b, const HttpRequest& req, const char* key, const c
     return std::nullopt;
   }
   return v.get<T>();
+}
+
+// Characters (UTF-8 code points) of `s`; the JSON parser has checked it is
+// valid UTF-8.
+std::size_t utf8_chars(std::string_view s) {
+  return static_cast<std::size_t>(std::count_if(
+      s.begin(), s.end(), [](char c) { return (static_cast<unsigned char>(c) & 0xC0) != 0x80; }));
+}
+
+// The first control character of `s` (tab and newline allowed when
+// `multiline`), or nullopt.
+std::optional<unsigned> control_character(std::string_view s, bool multiline) {
+  for (char ch : s) {
+    const auto c = static_cast<unsigned char>(ch);
+    if (multiline && (c == '\n' || c == '\t')) continue;
+    if (c < 0x20 || c == 0x7F) return c;
+  }
+  return std::nullopt;
+}
+
+// A string of at most `max_chars` characters without control characters,
+// or a 400 naming `where`.
+std::optional<std::string> bounded_text(Body& b, const HttpRequest& req, const nlohmann::json& v,
+                                        const std::string& where, std::size_t max_chars,
+                                        bool multiline) {
+  if (b.error) return std::nullopt;
+  if (!v.is_string()) {
+    b.error = error_response(req, http::status::bad_request,
+                             fmt::format("field {} must be a string", where));
+    return std::nullopt;
+  }
+  std::string text = v.get<std::string>();
+  if (const std::size_t n = utf8_chars(text); n > max_chars) {
+    b.error = error_response(
+        req, http::status::bad_request,
+        fmt::format("field {} is {} characters long (at most {})", where, n, max_chars));
+    return std::nullopt;
+  }
+  if (auto c = control_character(text, multiline)) {
+    b.error = error_response(req, http::status::bad_request,
+                             fmt::format("field {} contains the control character U+{:04X}{}",
+                                         where, *c, multiline ? "" : " (one line only)"));
+    return std::nullopt;
+  }
+  return text;
+}
+
+// An array of at most `max_items` distinct, non-empty strings of at most
+// `max_chars` characters each, or a 400 naming the field and the element.
+std::optional<std::vector<std::string>> bounded_list(Body& b, const HttpRequest& req,
+                                                     const char* key, std::size_t max_items,
+                                                     std::size_t max_chars, const char* what) {
+  if (b.error || !b.json.contains(key)) return std::nullopt;
+  const auto& v = b.json[key];
+  if (!v.is_array()) {
+    b.error = error_response(req, http::status::bad_request,
+                             fmt::format("field '{}' must be an array of {}", key, what));
+    return std::nullopt;
+  }
+  if (v.size() > max_items) {
+    b.error = error_response(
+        req, http::status::bad_request,
+        fmt::format("field '{}' has {} {} (at most {})", key, v.size(), what, max_items));
+    return std::nullopt;
+  }
+  std::vector<std::string> out;
+  for (std::size_t i = 0; i < v.size(); ++i) {
+    const std::string where = fmt::format("'{}'[{}]", key, i);
+    auto item = bounded_text(b, req, v[i], where, max_chars, false);
+    if (!item) return std::nullopt;
+    if (item->empty()) {
+      b.error =
+          error_response(req, http::status::bad_request, fmt::format("field {} is empty", where));
+      return std::nullopt;
+    }
+    if (std::find(out.begin(), out.end(), *item) != out.end()) {
+      b.error = error_response(req, http::status::bad_request,
+                               fmt::format("field {}: \"{}\" is listed twice", where, *item));
+      return std::nullopt;
+    }
+    out.push_back(std::move(*item));
+  }
+  return out;
+}
+
+// The run metadata fields of a body (POST /queue, PATCH /runs/{id}): each
+// optional, checked against the limits of control.h.
+MetadataEdit metadata_fields(Body& b, const HttpRequest& req) {
+  MetadataEdit m;
+  if (b.error) return m;
+  if (b.json.contains("operator")) {
+    m.operator_name =
+        bounded_text(b, req, b.json["operator"], "'operator'", kMaxOperatorChars, false);
+  }
+  if (b.json.contains("comment")) {
+    m.comment = bounded_text(b, req, b.json["comment"], "'comment'", kMaxCommentChars, true);
+  }
+  m.tags = bounded_list(b, req, "tags", kMaxTags, kMaxTagChars, "tags (strings)");
+  m.dut_serials = bounded_list(b, req, "duts", kMaxDuts, kMaxSerialChars, "DUT serials (strings)");
+  return m;
 }
 
 HttpResponse method_not_allowed(const HttpRequest& req, std::string_view allowed) {
@@ -159,11 +262,12 @@ HttpResponse no_station(const HttpRequest& req) {
   return error_response(req, http::status::service_unavailable, "no station attached");
 }
 
-// Percent-decodes a query component; nullopt when malformed.
-std::optional<std::string> url_decode(std::string_view s) {
+// Percent-decodes a query component ('+' is a space) or, with
+// `plus_is_space` false, a path segment; nullopt when malformed.
+std::optional<std::string> url_decode(std::string_view s, bool plus_is_space = true) {
   std::string out;
   for (std::size_t i = 0; i < s.size(); ++i) {
-    if (s[i] == '+') {
+    if (s[i] == '+' && plus_is_space) {
       out += ' ';
     } else if (s[i] == '%') {
       if (i + 2 >= s.size()) return std::nullopt;
@@ -308,18 +412,26 @@ constexpr Route kRoutes[] = {
      }},
     {http::verb::post, "/api/v1/queue", Access::kControl, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
-       Body body = parse_body(req, {"schedule_toml", "source", "ignore_failures"});
+       Body body = parse_body(req, {"schedule_toml", "source", "ignore_failures", "operator",
+                                    "comment", "tags", "duts"});
        auto toml = field<std::string>(body, req, "schedule_toml", "a string (the schedule file)");
        auto source = field<std::string>(body, req, "source", "a string");
        auto ignore = field<bool>(body, req, "ignore_failures", "true or false");
+       const MetadataEdit metadata = metadata_fields(body, req);
        if (body.error) return *body.error;
        if (!toml) {
          return error_response(req, http::status::bad_request,
                                "field 'schedule_toml' is required (the schedule file's text)");
        }
-       return reply_response(
-           req, ctx.control->queue_add(*toml, source.value_or(""), ignore.value_or(false)),
-           http::status::created);
+       QueueRequest q;
+       q.toml_text = std::move(*toml);
+       q.source = source.value_or("");
+       q.ignore_failures = ignore.value_or(false);
+       q.metadata.operator_name = metadata.operator_name.value_or("");
+       q.metadata.comment = metadata.comment.value_or("");
+       q.metadata.tags = metadata.tags.value_or(std::vector<std::string>{});
+       q.metadata.dut_serials = metadata.dut_serials.value_or(std::vector<std::string>{});
+       return reply_response(req, ctx.control->enqueue(q), http::status::created);
      }},
     {http::verb::delete_, "/api/v1/queue/{id}", Access::kControl, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
@@ -352,7 +464,21 @@ constexpr Route kRoutes[] = {
      }},
     {http::verb::get, "/api/v1/runs/{id}", Access::kRead, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
-       return reply_response(req, ctx.control->run(*parse_id(p[0])));
+       return reply_response(req, ctx.control->run_with_duts(*parse_id(p[0])));
+     }},
+    {http::verb::patch, "/api/v1/runs/{id}", Access::kControl, true,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
+       Body body = parse_body(req, {"operator", "comment", "tags", "duts"});
+       const MetadataEdit edit = metadata_fields(body, req);
+       if (body.error) return *body.error;
+       if (!edit.operator_name && !edit.comment && !edit.tags && !edit.dut_serials) {
+         return error_response(req, http::status::bad_request,
+                               "nothing to change: give one or more of operator, comment, tags, "
+                               "duts");
+       }
+       // Tokens carry no names: the audit event says the change came over
+       // the API.
+       return reply_response(req, ctx.control->edit_run(*parse_id(p[0]), edit, "api"));
      }},
     {http::verb::get, "/api/v1/runs/{id}/events", Access::kRead, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
@@ -360,7 +486,12 @@ constexpr Route kRoutes[] = {
      }},
     {http::verb::get, "/api/v1/runs/{id}/stats", Access::kRead, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
-       return reply_response(req, ctx.control->run_stats(*parse_id(p[0])));
+       const Query q = parse_query(req, {"dut", "axis"});
+       if (q.error) return *q.error;
+       StatsQuery sq;
+       if (const std::string* dut = q.find("dut")) sq.dut = *dut;
+       if (const std::string* axis = q.find("axis")) sq.axis = *axis;
+       return reply_response(req, ctx.control->run_stats_filtered(*parse_id(p[0]), sq));
      }},
     {http::verb::get, "/api/v1/runs/{id}/fits", Access::kRead, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
@@ -380,7 +511,7 @@ constexpr Route kRoutes[] = {
      }},
     {http::verb::get, "/api/v1/runs/{id}/samples", Access::kRead, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
-       const Query q = parse_query(req, {"from", "to", "max_points"});
+       const Query q = parse_query(req, {"from", "to", "max_points", "dut", "channel"});
        if (q.error) return *q.error;
        std::optional<HttpResponse> error;
        constexpr double kMaxS = 1e9;
@@ -394,13 +525,24 @@ constexpr Route kRoutes[] = {
          }
          sq.max_points = static_cast<int>(*m);
        }
+       if (const std::string* dut = q.find("dut")) sq.dut = *dut;
+       if (const std::string* channel = q.find("channel")) sq.channel = *channel;
        if (error) return *error;
        if (sq.to_s && *sq.to_s < sq.from_s) {
          return error_response(
              req, http::status::bad_request,
              fmt::format("query parameters: from ({}) is after to ({})", sq.from_s, *sq.to_s));
        }
-       return reply_response(req, ctx.control->run_samples(*parse_id(p[0]), sq));
+       return reply_response(req, ctx.control->run_channel_samples(*parse_id(p[0]), sq));
+     }},
+    {http::verb::get, "/api/v1/duts", Access::kRead, true,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
+       return reply_response(req, ctx.control->duts());
+     }},
+    {http::verb::get, "/api/v1/duts/{serial}", Access::kRead, true,
+     [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
+       // check_params has decoded and bounded it.
+       return reply_response(req, ctx.control->dut_history(*url_decode(p[0], false)));
      }},
     {http::verb::get, "/api/v1/fits/{id}", Access::kRead, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
@@ -446,6 +588,15 @@ std::optional<HttpResponse> check_params(const HttpRequest& req, std::string_vie
     if (name == "id" && !parse_id(value)) {
       return error_response(req, http::status::not_found,
                             fmt::format("ids are positive integers, not '{}'", value));
+    }
+    if (name == "serial") {
+      const auto serial = url_decode(value, false);
+      if (!serial || serial->empty() || utf8_chars(*serial) > kMaxSerialChars) {
+        return error_response(req, http::status::not_found,
+                              fmt::format("'{}' is not a DUT serial (percent-encoded, 1 to {} "
+                                          "characters)",
+                                          value.substr(0, 2 * kMaxSerialChars), kMaxSerialChars));
+      }
     }
     if (name == "action" && value != "pause" && value != "resume" && value != "abort" &&
         value != "stop") {

@@ -1,5 +1,8 @@
 // JSON forms of the stored records, as docs/api.md describes them.
+#include <fmt/format.h>
+
 #include <cmath>
+#include <map>
 
 #include "gyrotherm/daemon/control.h"
 
@@ -41,7 +44,8 @@ nlohmann::json to_json(const storage::QueueEntry& e, int step_count) {
           {"ignore_failures", e.ignore_failures},
           {"added_utc", e.added_utc},
           {"state", e.state},
-          {"run_id", opt(e.run_id)}};
+          {"run_id", opt(e.run_id)},
+          {"metadata", to_json(e.metadata)}};
 }
 
 nlohmann::json to_json(const storage::RunRecord& r) {
@@ -51,7 +55,8 @@ nlohmann::json to_json(const storage::RunRecord& r) {
           {"started_utc", r.started_utc},
           {"ended_utc", text_or_null(r.ended_utc)},
           {"queue_id", opt(r.queue_id)},
-          {"time_scale", num(r.time_scale)}};
+          {"time_scale", num(r.time_scale)},
+          {"metadata", to_json(r.metadata)}};
 }
 
 nlohmann::json to_json(const storage::SegmentRecord& s) {
@@ -83,7 +88,9 @@ nlohmann::json to_json(const storage::SegmentRecord& s) {
 }
 
 nlohmann::json to_json(const storage::ScaleFactorPointRecord& p) {
-  return {{"segment_id", p.segment_id},
+  return {{"dut_serial", p.dut_serial},
+          {"axis", p.axis},
+          {"segment_id", p.segment_id},
           {"sf_sequence", p.sf_sequence},
           {"repetition", p.repetition},
           {"rate_dps", num(p.rate_dps)},
@@ -96,7 +103,9 @@ nlohmann::json to_json(const storage::ScaleFactorPointRecord& p) {
 }
 
 nlohmann::json to_json(const storage::ScaleFactorFitRecord& f) {
-  return {{"sf_sequence", f.sf_sequence},
+  return {{"dut_serial", f.dut_serial},
+          {"axis", f.axis},
+          {"sf_sequence", f.sf_sequence},
           {"temperature_c", num(f.temperature_c)},
           {"k", num(f.k)},
           {"k_se", num(f.k_se)},
@@ -115,7 +124,9 @@ nlohmann::json to_json(const storage::ScaleFactorTemperatureFitRecord& t) {
     auto j = nlohmann::json::parse(text.empty() ? "[]" : text, nullptr, false);
     return j.is_array() ? j : nlohmann::json::array();
   };
-  return {{"order", t.order},
+  return {{"dut_serial", t.dut_serial},
+          {"axis", t.axis},
+          {"order", t.order},
           {"t_centre_c", num(t.t_centre_c)},
           {"k_coefficients", array(t.k_coeffs_json)},
           {"bias_coefficients_dps", array(t.bias_coeffs_json)},
@@ -137,6 +148,8 @@ nlohmann::json to_json(const storage::EventRecord& e) {
 nlohmann::json to_json(const storage::SegmentStatsRecord& s) {
   return {{"segment_id", s.segment_id},
           {"run_id", s.run_id},
+          {"dut_serial", s.dut_serial},
+          {"axis", s.axis},
           {"segment_index", s.segment_index},
           {"setpoint_c", num(s.setpoint_c)},
           {"n", s.n},
@@ -156,6 +169,8 @@ nlohmann::json to_json(const storage::SegmentStatsRecord& s) {
 
 nlohmann::json to_json(const storage::FitRecord& f) {
   return {{"id", f.id},
+          {"dut_serial", f.dut_serial},
+          {"axis", f.axis},
           {"run_ids", f.run_ids},
           {"model", f.model},
           {"form", f.form},
@@ -194,6 +209,8 @@ nlohmann::json to_json(const storage::AllanRecord& a) {
   };
   return {{"id", a.id},
           {"run_id", a.run_id},
+          {"dut_serial", a.dut_serial},
+          {"axis", a.axis},
           {"segment", a.segment_index + 1},
           {"t_from_s", num(a.t_from_s)},
           {"t_to_s", num(a.t_to_s)},
@@ -233,7 +250,10 @@ nlohmann::json table_series(const storage::DecimatedSamples::Table& t) {
 nlohmann::json to_json(const storage::DecimatedSamples& d) {
   const auto& g = d.gyro;
   const auto& t = d.temperature;
-  return {{"from_s", num(d.from_s)},
+  return {{"dut", d.dut_serial},
+          {"channel", d.channel},
+          {"unit", d.unit},
+          {"from_s", num(d.from_s)},
           {"to_s", num(d.to_s)},
           {"bucket_s", num(d.bucket_s)},
           {"source", d.from_rollup ? "rollup" : "raw"},
@@ -250,6 +270,105 @@ nlohmann::json to_json(const storage::DecimatedSamples& d) {
             {"top_c", numbers(t.top_c)},
             {"side_c", numbers(t.side_c)}}},
           {"table", table_series(d.table)}};
+}
+
+// ---------------------------------------------------------------- run metadata and DUTs
+
+nlohmann::json to_json(const storage::RunMetadata& m) {
+  return {{"operator", m.operator_name},
+          {"comment", m.comment},
+          {"tags", m.tags},
+          {"duts", m.dut_serials}};
+}
+
+nlohmann::json to_json(const storage::RunDutRecord& d) {
+  nlohmann::json channels = nlohmann::json::array();
+  for (const auto& c : d.channels) {
+    channels.push_back({{"name", c.spec.name},
+                        {"unit", c.spec.unit},
+                        {"kind", std::string(to_string(c.spec.kind))},
+                        {"axis", c.spec.axis}});
+  }
+  return {{"serial", d.dut.serial},
+          {"model", d.dut.model},
+          {"position", d.position},
+          {"primary_axis", d.primary_axis},
+          {"axes", d.axes},
+          {"rate_hz", d.rate_hz > 0 ? num(d.rate_hz) : nlohmann::json(nullptr)},
+          {"channels", std::move(channels)}};
+}
+
+nlohmann::json to_json(const storage::DutRecord& d, int64_t run_count) {
+  return {{"serial", d.serial},
+          {"model", d.model},
+          {"first_seen_utc", d.first_seen_utc},
+          {"runs", run_count}};
+}
+
+nlohmann::json to_json(const storage::DutHistory& h) {
+  const auto array_of = [](const auto& records) {
+    nlohmann::json out = nlohmann::json::array();
+    for (const auto& r : records) out.push_back(to_json(r));
+    return out;
+  };
+  nlohmann::json runs = nlohmann::json::array();
+  for (const auto& r : h.runs) {
+    nlohmann::json run = to_json(r.run);
+    run["dut"] = to_json(r.in_run);
+    run["segments"] = array_of(r.segments);
+    run["stats"] = array_of(r.stats);
+    run["allan"] = array_of(r.allan);
+    run["scale_factor"] = array_of(r.scale_factor);
+    runs.push_back(std::move(run));
+  }
+  nlohmann::json out = to_json(h.dut, static_cast<int64_t>(h.runs.size()));
+  out["runs"] = std::move(runs);
+  out["fits"] = array_of(h.fits);
+  return out;
+}
+
+Result<nlohmann::json> run_detail_json(storage::Database& db, int64_t run_id) {
+  auto run = db.run(run_id);
+  if (!run) return run.error();
+  auto segments = db.segments(run_id);
+  if (!segments) return segments.error();
+  auto duts = db.run_duts(run_id);
+  if (!duts) return duts.error();
+  nlohmann::json j = to_json(*run);
+  j["segments"] = nlohmann::json::array();
+  for (const auto& s : *segments) j["segments"].push_back(to_json(s));
+  j["duts"] = nlohmann::json::array();
+  for (const auto& d : *duts) j["duts"].push_back(to_json(d));
+  return j;
+}
+
+Result<nlohmann::json> duts_json(storage::Database& db) {
+  auto duts = db.duts();
+  if (!duts) return duts.error();
+  auto runs = db.runs();
+  if (!runs) return runs.error();
+  // Runs per DUT id: one small query per run (run_duts), none per DUT.
+  std::map<int64_t, int64_t> run_count;
+  for (const auto& r : *runs) {
+    auto in_run = db.run_duts(r.id);
+    if (!in_run) return in_run.error();
+    for (const auto& d : *in_run) ++run_count[d.dut.id];
+  }
+  nlohmann::json out = nlohmann::json::array();
+  for (const auto& d : *duts) {
+    const auto it = run_count.find(d.id);
+    out.push_back(to_json(d, it == run_count.end() ? 0 : it->second));
+  }
+  return out;
+}
+
+Result<nlohmann::json> dut_history_json(storage::Database& db, const std::string& serial) {
+  auto dut = db.dut(serial);
+  if (!dut) return dut.error();
+  if (!*dut) return Error::Permanent(fmt::format("no DUT with serial '{}'", serial));
+  auto history = db.dut_history(serial);
+  if (!history) return history.error();
+  return to_json(*history);
 }
 
 }  // namespace gyrotherm::daemon

@@ -1680,4 +1680,203 @@ Reply Station::run_samples(int64_t id, const SamplesQuery& query) {
   return Reply::ok(std::move(j));
 }
 
+// ---------------------------------------------------------------- run metadata and DUT history
+//
+// The StationControl routes of schema v8 (docs/api.md "Run metadata", "DUT
+// history"): small functions over the HTTP thread's connection, each under
+// api_mu_, kept apart from the control loop.
+
+namespace {
+
+std::string joined(const std::vector<std::string>& items) {
+  std::string out;
+  for (const auto& i : items) out += fmt::format("{}'{}'", out.empty() ? "" : ", ", i);
+  return out.empty() ? std::string("none") : out;
+}
+
+// The first of `given` that is not in `known`, refused naming `field`.
+std::optional<Reply> unknown_serial(const std::vector<std::string>& given,
+                                    const std::vector<std::string>& known, std::string_view field,
+                                    std::string_view known_what) {
+  for (const auto& serial : given) {
+    if (std::find(known.begin(), known.end(), serial) == known.end()) {
+      return Reply::refused(Refusal::Kind::kBadRequest,
+                            fmt::format("field '{}': no DUT with serial '{}' ({}: {})", field,
+                                        serial, known_what, joined(known)));
+    }
+  }
+  return std::nullopt;
+}
+
+std::vector<std::string> configured_serials(const StationConfig& config) {
+  std::vector<std::string> out;
+  for (const auto& d : config.duts) out.push_back(d.serial);
+  return out;
+}
+
+// The run's DUT named `serial` ("" = its first), or a 404 naming it.
+Result<const storage::RunDutRecord*> find_run_dut(const std::vector<storage::RunDutRecord>& duts,
+                                                  int64_t run_id, const std::string& serial) {
+  std::vector<std::string> serials;
+  for (const auto& d : duts) {
+    if (serial.empty() || d.dut.serial == serial) return &d;
+    serials.push_back(d.dut.serial);
+  }
+  return Error::Permanent(serial.empty() ? fmt::format("run {} recorded no DUT", run_id)
+                                         : fmt::format("run {} has no DUT '{}' (its DUTs: {})",
+                                                       run_id, serial, joined(serials)));
+}
+
+}  // namespace
+
+Reply Station::enqueue(const QueueRequest& request) {
+  if (auto bad = unknown_serial(request.metadata.dut_serials, configured_serials(config_), "duts",
+                                "configured [[dut]] serials")) {
+    return *bad;
+  }
+  const std::string name = request.source.empty() ? std::string("schedule") : request.source;
+  auto plan = schedules::parse_schedule(request.toml_text, name, station_limits(config_));
+  if (!plan) {
+    return Reply::refused(Refusal::Kind::kInvalid, "schedule refused, nothing queued",
+                          split_lines(plan.error().message));
+  }
+  Result<storage::QueueEntry> entry = Error::Permanent("not added");
+  {
+    std::lock_guard lock(api_mu_);
+    entry = api_db_.queue_add(plan->name, request.source, request.toml_text,
+                              request.ignore_failures, request.metadata);
+    if (!entry) return db_failure(entry.error());
+    queue_length_.fetch_add(1);
+  }
+  spdlog::info("queued {} ({} steps) as entry {}{}", plan->name, plan->steps.size(), entry->id,
+               request.metadata.operator_name.empty()
+                   ? std::string()
+                   : fmt::format(" by {}", request.metadata.operator_name));
+  wake_.notify_all();
+  return Reply::ok(to_json(*entry, static_cast<int>(plan->steps.size())));
+}
+
+Reply Station::run_with_duts(int64_t id) {
+  std::lock_guard lock(api_mu_);
+  auto run = run_detail_json(api_db_, id);
+  if (!run) return run_lookup_failure(run.error(), id);
+  return Reply::ok(std::move(*run));
+}
+
+Reply Station::edit_run(int64_t id, const MetadataEdit& edit, const std::string& changed_by) {
+  std::lock_guard lock(api_mu_);
+  auto run = api_db_.run(id);
+  if (!run) return run_lookup_failure(run.error(), id);
+  storage::RunMetadata metadata = run->metadata;
+  if (edit.dut_serials) {
+    // Serials configured now or recorded in any run: a run's gyros may have
+    // left the station's config since.
+    std::vector<std::string> known = configured_serials(config_);
+    auto registered = api_db_.duts();
+    if (!registered) return db_failure(registered.error());
+    for (const auto& d : *registered) {
+      if (std::find(known.begin(), known.end(), d.serial) == known.end()) known.push_back(d.serial);
+    }
+    if (auto bad =
+            unknown_serial(*edit.dut_serials, known, "duts", "configured or recorded serials")) {
+      return *bad;
+    }
+    metadata.dut_serials = *edit.dut_serials;
+  }
+  if (edit.operator_name) metadata.operator_name = *edit.operator_name;
+  if (edit.comment) metadata.comment = *edit.comment;
+  if (edit.tags) metadata.tags = *edit.tags;
+  if (auto st = api_db_.set_run_metadata(id, metadata, changed_by); !st) {
+    return run_lookup_failure(st.error(), id);
+  }
+  spdlog::info("run {}: metadata changed by {}", id, changed_by);
+  auto detail = run_detail_json(api_db_, id);
+  if (!detail) return db_failure(detail.error());
+  return Reply::ok(std::move(*detail));
+}
+
+Reply Station::run_stats_filtered(int64_t id, const StatsQuery& query) {
+  std::lock_guard lock(api_mu_);
+  if (auto run = api_db_.run(id); !run) return run_lookup_failure(run.error(), id);
+  auto duts = api_db_.run_duts(id);
+  if (!duts) return db_failure(duts.error());
+  if (!query.dut.empty()) {
+    if (auto d = find_run_dut(*duts, id, query.dut); !d) {
+      return Reply::refused(Refusal::Kind::kNotFound, d.error().message);
+    }
+  }
+  auto rows = api_db_.segment_stats(id);
+  if (!rows) return db_failure(rows.error());
+  nlohmann::json out = nlohmann::json::array();
+  for (auto row : *rows) {
+    // Rows stored with "" are the run's first DUT and its primary axis.
+    if (!duts->empty()) {
+      if (row.dut_serial.empty()) row.dut_serial = duts->front().dut.serial;
+      if (row.axis.empty()) {
+        if (auto d = find_run_dut(*duts, id, row.dut_serial); d) row.axis = (*d)->primary_axis;
+      }
+    }
+    if (!query.dut.empty() && row.dut_serial != query.dut) continue;
+    if (!query.axis.empty() && row.axis != query.axis) continue;
+    out.push_back(to_json(row));
+  }
+  return Reply::ok(std::move(out));
+}
+
+Reply Station::run_channel_samples(int64_t id, const SamplesQuery& query) {
+  std::lock_guard lock(api_mu_);
+  if (auto run = api_db_.run(id); !run) return run_lookup_failure(run.error(), id);
+  Result<storage::DecimatedSamples> samples = Error::Permanent("not read");
+  if (query.dut.empty() && query.channel.empty()) {
+    // The run's first DUT, its primary axis (also a run with no DUT yet).
+    samples = api_db_.decimated_samples(id, query.from_s, query.to_s, query.max_points);
+  } else {
+    auto duts = api_db_.run_duts(id);
+    if (!duts) return db_failure(duts.error());
+    auto dut = find_run_dut(*duts, id, query.dut);
+    if (!dut) return Reply::refused(Refusal::Kind::kNotFound, dut.error().message);
+    if (!query.channel.empty()) {
+      std::vector<std::string> names;
+      for (const auto& c : (*dut)->channels) names.push_back(c.spec.name);
+      if (std::find(names.begin(), names.end(), query.channel) == names.end()) {
+        return Reply::refused(
+            Refusal::Kind::kNotFound,
+            fmt::format("DUT '{}' of run {} has no channel '{}' (its channels: {})",
+                        (*dut)->dut.serial, id, query.channel, joined(names)));
+      }
+    }
+    samples = api_db_.decimated_samples(id, storage::StreamKey{(*dut)->dut.serial, ""},
+                                        query.channel, query.from_s, query.to_s, query.max_points);
+  }
+  if (!samples) {
+    if (samples.error().transient) return db_failure(samples.error());
+    return Reply::refused(Refusal::Kind::kInvalid, samples.error().message);
+  }
+  nlohmann::json j = to_json(*samples);
+  j["run_id"] = id;
+  j["max_points"] = query.max_points;
+  return Reply::ok(std::move(j));
+}
+
+Reply Station::duts() {
+  std::lock_guard lock(api_mu_);
+  auto out = duts_json(api_db_);
+  if (!out) return db_failure(out.error());
+  return Reply::ok(std::move(*out));
+}
+
+Reply Station::dut_history(const std::string& serial) {
+  std::lock_guard lock(api_mu_);
+  auto dut = api_db_.dut(serial);
+  if (!dut) return db_failure(dut.error());
+  if (!*dut) {
+    return Reply::refused(
+        Refusal::Kind::kNotFound,
+        fmt::format("no DUT with serial '{}' (GET /api/v1/duts lists them)", serial));
+  }
+  auto history = dut_history_json(api_db_, serial);
+  if (!history) return db_failure(history.error());
+  return Reply::ok(std::move(*history));
+}
+
 }  // namespace gyrotherm::daemon

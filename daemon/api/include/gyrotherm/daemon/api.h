@@ -7,7 +7,7 @@
 // document and the dashboard's files. GET /api/v1/stream is answered by the
 // HTTP server's EventStream (http_server.h).
 //
-// Access (docs/api.md, "Access"): every POST and DELETE needs
+// Access (docs/api.md, "Access"): every POST, PATCH and DELETE needs
 // "Authorization: Bearer TOKEN" with a control token ([api] tokens): missing
 // or unknown -> 401 with WWW-Authenticate, a read token ([api] read_tokens)
 // -> 403, no control token configured -> 403; nothing reaches the station.

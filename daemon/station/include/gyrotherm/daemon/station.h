@@ -162,6 +162,14 @@ class Station final : public StationControl, private schedules::SequencerObserve
   Reply run_scale_factor(int64_t id) override;
   Reply fit(int64_t id) override;
   Reply exports() override;
+  // Run metadata and DUT history (the end of station.cpp).
+  Reply enqueue(const QueueRequest& request) override;
+  Reply run_with_duts(int64_t id) override;
+  Reply edit_run(int64_t id, const MetadataEdit& edit, const std::string& changed_by) override;
+  Reply run_stats_filtered(int64_t id, const StatsQuery& query) override;
+  Reply run_channel_samples(int64_t id, const SamplesQuery& query) override;
+  Reply duts() override;
+  Reply dut_history(const std::string& serial) override;
 
  private:
   Station(StationConfig config, StationDevices devices, StationClocks clocks, StationHooks hooks,
