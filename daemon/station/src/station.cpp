@@ -1453,22 +1453,7 @@ Reply Station::queue_list() {
 
 Reply Station::queue_add(const std::string& toml_text, const std::string& source,
                          bool ignore_failures) {
-  const std::string name = source.empty() ? std::string("schedule") : source;
-  auto plan = schedules::parse_schedule(toml_text, name, station_limits(config_));
-  if (!plan) {
-    return Reply::refused(Refusal::Kind::kInvalid, "schedule refused, nothing queued",
-                          split_lines(plan.error().message));
-  }
-  Result<storage::QueueEntry> entry = Error::Permanent("not added");
-  {
-    std::lock_guard lock(api_mu_);
-    entry = api_db_.queue_add(plan->name, source, toml_text, ignore_failures);
-    if (!entry) return db_failure(entry.error());
-    queue_length_.fetch_add(1);
-  }
-  spdlog::info("queued {} ({} steps) as entry {}", plan->name, plan->steps.size(), entry->id);
-  wake_.notify_all();
-  return Reply::ok(to_json(*entry, static_cast<int>(plan->steps.size())));
+  return enqueue(QueueRequest{toml_text, source, ignore_failures, {}});
 }
 
 std::optional<Reply> Station::unless_queued(int64_t id, std::string_view when_running) {
@@ -1788,6 +1773,14 @@ Reply Station::edit_run(int64_t id, const MetadataEdit& edit, const std::string&
   if (edit.tags) metadata.tags = *edit.tags;
   if (auto st = api_db_.set_run_metadata(id, metadata, changed_by); !st) {
     return run_lookup_failure(st.error(), id);
+  }
+  {
+    std::lock_guard status_lock(mu_);
+    if (snapshot_.run_id == id) {  // the running run: the status shows the edit at once
+      snapshot_.run_operator = metadata.operator_name;
+      snapshot_.run_comment = metadata.comment;
+      snapshot_.run_tags = metadata.tags;
+    }
   }
   spdlog::info("run {}: metadata changed by {}", id, changed_by);
   auto detail = run_detail_json(api_db_, id);
