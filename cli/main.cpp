@@ -14,7 +14,6 @@
 #include <sstream>
 
 #include "analysis.h"
-#include "samples.h"
 #include "control.h"
 #include "export.h"
 #include "gyrotherm/daemon/config.h"
@@ -26,6 +25,7 @@
 #include "gyrotherm/drivers/serial_port.h"
 #include "gyrotherm/schedules/schedule.h"
 #include "output.h"
+#include "samples.h"
 
 namespace {
 

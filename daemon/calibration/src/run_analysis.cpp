@@ -43,7 +43,13 @@ void append(analysis::AnalysisSeries& dst, const analysis::AnalysisSeries& src) 
 // First and last gyro sample time of a run; nullopt when it has none.
 Result<std::optional<std::pair<double, double>>> gyro_span(storage::Database& db, int64_t run_id) {
   sqlite3_stmt* stmt = nullptr;
-  const char* sql = "SELECT min(t_s), max(t_s) FROM gyro_samples WHERE run_id = ?";
+  // The run's first DUT's primary axis, from its chunks (schema v9,
+  // docs/storage.md): first sample and the end of the last chunk.
+  const char* sql =
+      "SELECT min(k.t0_s), max(k.t0_s + (k.n - 1) * k.period_s) FROM sample_chunks k "
+      "WHERE k.channel_id = (SELECT c.id FROM channels c JOIN run_duts r ON r.run_id = c.run_id "
+      "AND r.dut_id = c.dut_id WHERE c.run_id = ?1 AND c.kind = 'rate' AND c.axis = "
+      "r.primary_axis ORDER BY r.position LIMIT 1)";
   if (sqlite3_prepare_v2(db.handle(), sql, -1, &stmt, nullptr) != SQLITE_OK) {
     return Error::Transient(fmt::format("{}: reading the sample span of run {}: {}", db.path(),
                                         run_id, sqlite3_errmsg(db.handle())));
