@@ -15,7 +15,6 @@
 #include <sstream>
 
 #include "analysis.h"
-#include "samples.h"
 #include "control.h"
 #include "export.h"
 #include "gyrotherm/daemon/config.h"
@@ -29,6 +28,7 @@
 #include "gyrotherm/schedules/progress.h"
 #include "gyrotherm/schedules/schedule.h"
 #include "output.h"
+#include "samples.h"
 
 namespace {
 

@@ -36,8 +36,8 @@ int cmd_samples(const SamplesArgs& args, std::ostream& out) {
   auto duts = db->run_duts(args.run_id);
   if (!duts) return fail(duts.error().message);
   if (duts->empty()) {
-    return fail(fmt::format("samples: {}: run {} has no DUT (no samples)", args.db_path,
-                            args.run_id));
+    return fail(
+        fmt::format("samples: {}: run {} has no DUT (no samples)", args.db_path, args.run_id));
   }
   const storage::RunDutRecord* dut = nullptr;
   std::vector<std::string> serials;
@@ -56,15 +56,16 @@ int cmd_samples(const SamplesArgs& args, std::ostream& out) {
     names.push_back(c.spec.name);
   }
   if (channels.empty()) {
-    return fail(fmt::format("samples: {}: DUT '{}' of run {} has no channel '{}' (its channels: {})",
-                            args.db_path, dut->dut.serial, args.run_id, args.channel,
-                            fmt::join(names, ", ")));
+    return fail(fmt::format(
+        "samples: {}: DUT '{}' of run {} has no channel '{}' (its channels: {})", args.db_path,
+        dut->dut.serial, args.run_id, args.channel, fmt::join(names, ", ")));
   }
 
   std::string line = "t_s";
   for (const storage::ChannelRecord* c : channels) {
     line += ',';
-    line += c->spec.unit.empty() ? c->spec.name : fmt::format("{} ({})", c->spec.name, c->spec.unit);
+    line +=
+        c->spec.unit.empty() ? c->spec.name : fmt::format("{} ({})", c->spec.name, c->spec.unit);
   }
   out << line << '\n';
 

@@ -20,8 +20,9 @@ constexpr struct {
   Encoding e;
   const char* name;
   std::size_t size;
-} kEncodings[] = {{Encoding::kU8, "u8", 1},   {Encoding::kI8, "i8", 1},   {Encoding::kU16, "u16", 2},
-                  {Encoding::kI16, "i16", 2}, {Encoding::kU32, "u32", 4}, {Encoding::kI32, "i32", 4},
+} kEncodings[] = {{Encoding::kU8, "u8", 1},   {Encoding::kI8, "i8", 1},
+                  {Encoding::kU16, "u16", 2}, {Encoding::kI16, "i16", 2},
+                  {Encoding::kU32, "u32", 4}, {Encoding::kI32, "i32", 4},
                   {Encoding::kF32, "f32", 4}, {Encoding::kF64, "f64", 8}};
 
 template <class T>
@@ -95,28 +96,52 @@ Encoding EncodingNeed::encoding() const {
 
 void encode(Encoding e, std::span<const double> raw, std::string& out) {
   switch (e) {
-    case Encoding::kU8: return put_all<uint8_t>(raw, out);
-    case Encoding::kI8: return put_all<int8_t>(raw, out);
-    case Encoding::kU16: return put_all<uint16_t>(raw, out);
-    case Encoding::kI16: return put_all<int16_t>(raw, out);
-    case Encoding::kU32: return put_all<uint32_t>(raw, out);
-    case Encoding::kI32: return put_all<int32_t>(raw, out);
-    case Encoding::kF32: return put_all<float>(raw, out);
-    case Encoding::kF64: return put_all<double>(raw, out);
+    case Encoding::kU8:
+      return put_all<uint8_t>(raw, out);
+    case Encoding::kI8:
+      return put_all<int8_t>(raw, out);
+    case Encoding::kU16:
+      return put_all<uint16_t>(raw, out);
+    case Encoding::kI16:
+      return put_all<int16_t>(raw, out);
+    case Encoding::kU32:
+      return put_all<uint32_t>(raw, out);
+    case Encoding::kI32:
+      return put_all<int32_t>(raw, out);
+    case Encoding::kF32:
+      return put_all<float>(raw, out);
+    case Encoding::kF64:
+      return put_all<double>(raw, out);
   }
 }
 
 bool decode(Encoding e, const void* data, std::size_t bytes, std::size_t n, double* out) {
   if (bytes != n * encoded_size(e)) return false;
   switch (e) {
-    case Encoding::kU8: get_all<uint8_t>(data, n, out); break;
-    case Encoding::kI8: get_all<int8_t>(data, n, out); break;
-    case Encoding::kU16: get_all<uint16_t>(data, n, out); break;
-    case Encoding::kI16: get_all<int16_t>(data, n, out); break;
-    case Encoding::kU32: get_all<uint32_t>(data, n, out); break;
-    case Encoding::kI32: get_all<int32_t>(data, n, out); break;
-    case Encoding::kF32: get_all<float>(data, n, out); break;
-    case Encoding::kF64: get_all<double>(data, n, out); break;
+    case Encoding::kU8:
+      get_all<uint8_t>(data, n, out);
+      break;
+    case Encoding::kI8:
+      get_all<int8_t>(data, n, out);
+      break;
+    case Encoding::kU16:
+      get_all<uint16_t>(data, n, out);
+      break;
+    case Encoding::kI16:
+      get_all<int16_t>(data, n, out);
+      break;
+    case Encoding::kU32:
+      get_all<uint32_t>(data, n, out);
+      break;
+    case Encoding::kI32:
+      get_all<int32_t>(data, n, out);
+      break;
+    case Encoding::kF32:
+      get_all<float>(data, n, out);
+      break;
+    case Encoding::kF64:
+      get_all<double>(data, n, out);
+      break;
   }
   return true;
 }
@@ -176,8 +201,7 @@ bool ChunkBuilder::add(double t_s, uint32_t seq, const double* raw) {
     const double tolerance_s = std::max(1e-9, 8 * ulp(t_s));
     if (t_s <= *last_t_s_ + tolerance_s) return false;
   }
-  if (clock_.n >= kChunkCapacity ||
-      !clock_.continues(t_s, seq, nominal_period_s_, seq_modulo_)) {
+  if (clock_.n >= kChunkCapacity || !clock_.continues(t_s, seq, nominal_period_s_, seq_modulo_)) {
     close_open();
   }
   clock_.add(t_s, seq);
@@ -267,8 +291,7 @@ Status ChunkBuilder::flush(sqlite3* db, const std::string& path) {
       } else {
         for (int i : {8, 9, 10}) st.bind_null(i);
       }
-      sqlite3_bind_blob(st.get(), 11, blob_.data(), static_cast<int>(blob_.size()),
-                        SQLITE_STATIC);
+      sqlite3_bind_blob(st.get(), 11, blob_.data(), static_cast<int>(blob_.size()), SQLITE_STATIC);
       if (o.row_id != 0) st.bind(12, o.row_id);
       if (st.step() != SQLITE_DONE) {
         st.reset();
@@ -360,8 +383,9 @@ Status for_each_chunk(sqlite3* db, const std::string& path, int64_t channel_id, 
     const std::string enc = st->column_text(4);
     const auto e = encoding_from_string(enc);
     if (!e) {
-      return Error::Permanent(fmt::format(
-          "storage: {}: sample_chunks of channel {}: unknown encoding '{}'", path, channel_id, enc));
+      return Error::Permanent(
+          fmt::format("storage: {}: sample_chunks of channel {}: unknown encoding '{}'", path,
+                      channel_id, enc));
     }
     v.encoding = *e;
     v.data = sqlite3_column_blob(st->get(), 5);
@@ -380,8 +404,8 @@ Status for_each_chunk(sqlite3* db, const std::string& path, int64_t channel_id, 
   return Status::Ok();
 }
 
-Result<std::vector<ChannelInfo>> read_channels(sqlite3* db, const std::string& path,
-                                               int64_t run_id, int64_t dut_id) {
+Result<std::vector<ChannelInfo>> read_channels(sqlite3* db, const std::string& path, int64_t run_id,
+                                               int64_t dut_id) {
   auto st = Stmt::prepare(db, path,
                           "SELECT id, idx, name, unit, kind, axis, scale FROM channels "
                           "WHERE run_id = ? AND dut_id = ? ORDER BY idx");
@@ -400,9 +424,9 @@ Result<std::vector<ChannelInfo>> read_channels(sqlite3* db, const std::string& p
     c.axis = st->column_text(5);
     c.scale = st->column_double(6);
     if (c.index < 0 || c.index >= static_cast<int>(kMaxChannels)) {
-      return Error::Permanent(fmt::format(
-          "storage: {}: channels row {} ('{}'): idx {} outside 0..{}", path, c.id, c.name,
-          c.index, kMaxChannels - 1));
+      return Error::Permanent(
+          fmt::format("storage: {}: channels row {} ('{}'): idx {} outside 0..{}", path, c.id,
+                      c.name, c.index, kMaxChannels - 1));
     }
     out.push_back(std::move(c));
   }
@@ -462,7 +486,8 @@ Status migrate_gyro_samples_to_chunks(sqlite3* db, const std::string& path,
   if (!runs) return runs.error();
   std::vector<std::pair<int64_t, std::string>> todo;
   int rc;
-  while ((rc = runs->step()) == SQLITE_ROW) todo.emplace_back(runs->column_int64(0), runs->column_text(1));
+  while ((rc = runs->step()) == SQLITE_ROW)
+    todo.emplace_back(runs->column_int64(0), runs->column_text(1));
   if (rc != SQLITE_DONE) return sqlite_error(db, path, "listing the runs with gyro samples");
 
   auto rows = Stmt::prepare(db, path,
@@ -482,8 +507,7 @@ Status migrate_gyro_samples_to_chunks(sqlite3* db, const std::string& path,
       raw[0] = rows->column_double(2);
       raw[1] = rows->column_double(3);
       raw[2] = rows->column_double(4);
-      builder.add(rows->column_double(0), static_cast<uint32_t>(rows->column_int64(1)),
-                  raw.data());
+      builder.add(rows->column_double(0), static_cast<uint32_t>(rows->column_int64(1)), raw.data());
       if (++since_flush == 100'000) {  // bounded memory whatever the run's length
         if (Status s = builder.flush(db, path); !s) return s;
         since_flush = 0;

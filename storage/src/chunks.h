@@ -218,8 +218,8 @@ Result<std::optional<StreamChannels>> resolve_channels(sqlite3* db, const std::s
                                                        const std::string& axis);
 
 // The channels of a run's DUT, by index.
-Result<std::vector<ChannelInfo>> read_channels(sqlite3* db, const std::string& path,
-                                               int64_t run_id, int64_t dut_id);
+Result<std::vector<ChannelInfo>> read_channels(sqlite3* db, const std::string& path, int64_t run_id,
+                                               int64_t dut_id);
 
 // Registers the unnamed gyro (serial "") in a run, as the v9 migration and
 // push_gyro on a run without DUT do: channels rate (deg/h, axis `axis`),

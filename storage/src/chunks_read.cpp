@@ -47,9 +47,9 @@ Result<std::optional<StreamChannels>> resolve_channels(sqlite3* db, const std::s
   }
   if (!found) {
     if (serials.empty() && serial.empty()) return std::optional<StreamChannels>();
-    return Error::Permanent(fmt::format("run {} has no DUT with serial '{}' (its DUTs: {})", run_id,
-                                        serial,
-                                        serials.empty() ? "none" : fmt::format("{}", fmt::join(serials, ", "))));
+    return Error::Permanent(
+        fmt::format("run {} has no DUT with serial '{}' (its DUTs: {})", run_id, serial,
+                    serials.empty() ? "none" : fmt::format("{}", fmt::join(serials, ", "))));
   }
   auto channels = read_channels(db, path, run_id, found->dut_id);
   if (!channels) return channels.error();
@@ -68,10 +68,11 @@ Result<std::optional<StreamChannels>> resolve_channels(sqlite3* db, const std::s
     }
   }
   if (found->rate < 0) {
-    return Error::Permanent(fmt::format("DUT '{}' of run {} has no rate channel for axis '{}' "
-                                        "(its rate axes: {})",
-                                        found->serial, run_id, found->axis,
-                                        axes.empty() ? "none" : fmt::format("{}", fmt::join(axes, ", "))));
+    return Error::Permanent(
+        fmt::format("DUT '{}' of run {} has no rate channel for axis '{}' "
+                    "(its rate axes: {})",
+                    found->serial, run_id, found->axis,
+                    axes.empty() ? "none" : fmt::format("{}", fmt::join(axes, ", "))));
   }
   return found;
 }
@@ -82,10 +83,11 @@ Status Database::for_each_channel_block(
     int64_t channel_id, double t_from_s, double t_to_s,
     const std::function<bool(std::span<const double> t_s, std::span<const double> value,
                              std::span<const uint32_t> seq)>& block) {
-  auto meta = Stmt::prepare(db_, path_,
-                            "SELECT c.scale, coalesce(rd.seq_modulo, 0) FROM channels c "
-                            "LEFT JOIN run_duts rd ON rd.run_id = c.run_id AND rd.dut_id = c.dut_id "
-                            "WHERE c.id = ?");
+  auto meta =
+      Stmt::prepare(db_, path_,
+                    "SELECT c.scale, coalesce(rd.seq_modulo, 0) FROM channels c "
+                    "LEFT JOIN run_duts rd ON rd.run_id = c.run_id AND rd.dut_id = c.dut_id "
+                    "WHERE c.id = ?");
   if (!meta) return meta.error();
   meta->bind(1, channel_id);
   const int rc = meta->step();
@@ -185,15 +187,17 @@ Result<std::vector<GyroSample>> Database::gyro_samples(int64_t run_id, const Str
           return j < out.size();
         });
   };
-  if (Status st = fill(sc.status, [](GyroSample& g, double v) {
-        g.status = std::isfinite(v) ? static_cast<uint8_t>(v) : 0;
-      });
+  if (Status st = fill(sc.status,
+                       [](GyroSample& g, double v) {
+                         g.status = std::isfinite(v) ? static_cast<uint8_t>(v) : 0;
+                       });
       !st) {
     return st.error();
   }
-  if (Status st = fill(sc.temperature, [](GyroSample& g, double v) {
-        g.temp_c = std::isfinite(v) ? static_cast<int16_t>(std::lround(v)) : 0;
-      });
+  if (Status st = fill(sc.temperature,
+                       [](GyroSample& g, double v) {
+                         g.temp_c = std::isfinite(v) ? static_cast<int16_t>(std::lround(v)) : 0;
+                       });
       !st) {
     return st.error();
   }
@@ -210,11 +214,12 @@ constexpr const char* kLastChunkSql =
 }  // namespace
 
 Result<std::optional<double>> Database::last_sample_t_s(int64_t run_id) {
-  auto st = Stmt::prepare(db_, path_,
-                          fmt::format("SELECT {}, "
-                                      "(SELECT max(t_s) FROM temperature_samples WHERE run_id = ?1), "
-                                      "(SELECT max(t_s) FROM table_samples WHERE run_id = ?1)",
-                                      kLastChunkSql));
+  auto st =
+      Stmt::prepare(db_, path_,
+                    fmt::format("SELECT {}, "
+                                "(SELECT max(t_s) FROM temperature_samples WHERE run_id = ?1), "
+                                "(SELECT max(t_s) FROM table_samples WHERE run_id = ?1)",
+                                kLastChunkSql));
   if (!st) return st.error();
   st->bind(1, run_id);
   if (st->step() != SQLITE_ROW) {

@@ -17,10 +17,10 @@
 #include <cmath>
 #include <limits>
 
+#include "chunks.h"
 #include "duts_internal.h"
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/storage/database.h"
-#include "chunks.h"
 #include "sqlite_util.h"
 
 namespace gyrotherm::storage {
@@ -82,8 +82,9 @@ Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, const Strea
       names.push_back(c.name);
     }
     if (!ch) {
-      return Error::Permanent(fmt::format("DUT '{}' of run {} has no channel '{}' (its channels: {})",
-                                          sc.serial, run_id, channel, fmt::join(names, ", ")));
+      return Error::Permanent(
+          fmt::format("DUT '{}' of run {} has no channel '{}' (its channels: {})", sc.serial,
+                      run_id, channel, fmt::join(names, ", ")));
     }
     out.dut_serial = sc.serial;
     out.channel = ch->name;
@@ -193,8 +194,8 @@ Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, const Strea
               g.max_dph.push_back(v[i]);
               continue;
             }
-            const auto k = std::min<int64_t>(static_cast<int64_t>((t[i] - from_s) / want_s),
-                                             max_points - 1);
+            const auto k =
+                std::min<int64_t>(static_cast<int64_t>((t[i] - from_s) / want_s), max_points - 1);
             Bucket& b = buckets[static_cast<std::size_t>(k)];
             ++b.n;
             b.t_sum_s += t[i];

@@ -673,4 +673,3 @@ SampleWriterStats SampleWriter::stats() const {
 }
 
 }  // namespace gyrotherm::storage
-

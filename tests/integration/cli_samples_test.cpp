@@ -138,7 +138,8 @@ TEST_F(CliSamples, EveryChannelExactlyWithUnitsInTheHeader) {
         EXPECT_EQ(row[c + 1], "") << i << " " << c;
       } else {
         // Shortest round-trip digits: the text reads back as the same double.
-        ASSERT_EQ(std::strtod(row[c + 1].c_str(), nullptr), want) << i << " " << c << " " << row[c + 1];
+        ASSERT_EQ(std::strtod(row[c + 1].c_str(), nullptr), want)
+            << i << " " << c << " " << row[c + 1];
       }
     }
   }

@@ -14,6 +14,7 @@
 #include <regex>
 #include <sstream>
 
+#include "gyrotherm/storage/database.h"
 #include "station_fixture.h"
 
 namespace gyrotherm::testing {
@@ -175,28 +176,20 @@ TEST_F(MonitoringTest, DecimatedSamplesAgreeWithTheDatabase) {
       EXPECT_GT(g["t_s"][i].get<double>(), g["t_s"][i - 1].get<double>());
     }
   }
-  // The same count from the file, over the range the answer covers.
-  sqlite3* db = nullptr;
-  ASSERT_EQ(sqlite3_open_v2((dir_ / "station.db").c_str(), &db, SQLITE_OPEN_READONLY, nullptr),
-            SQLITE_OK);
-  sqlite3_stmt* st = nullptr;
-  ASSERT_EQ(sqlite3_prepare_v2(db,
-                               "SELECT count(*), avg(rate_dph) FROM gyro_samples WHERE run_id = ? "
-                               "AND t_s >= ? AND t_s < ?",
-                               -1, &st, nullptr),
-            SQLITE_OK);
-  sqlite3_bind_int64(st, 1, run_id);
-  sqlite3_bind_double(st, 2, j["from_s"].get<double>());
-  sqlite3_bind_double(st, 3, j["to_s"].get<double>());
-  ASSERT_EQ(sqlite3_step(st), SQLITE_ROW);
-  EXPECT_EQ(n_sum, sqlite3_column_int64(st, 0));
+  // The same count from the file (its chunks), over the range the answer covers.
+  auto file = storage::Database::open_read_only((dir_ / "station.db").string());
+  ASSERT_TRUE(file.ok()) << file.error().message;
+  auto raw = file->gyro_samples(run_id, j["from_s"].get<double>(), j["to_s"].get<double>());
+  ASSERT_TRUE(raw.ok()) << raw.error().message;
+  EXPECT_EQ(n_sum, static_cast<int64_t>(raw->size()));
+  double raw_sum = 0;
+  for (const GyroSample& r : *raw) raw_sum += r.rate_dph;
   double weighted = 0;
   for (std::size_t i = 0; i < g["t_s"].size(); ++i) {
     weighted += g["mean_dph"][i].get<double>() * g["n"][i].get<double>();
   }
-  EXPECT_NEAR(weighted / static_cast<double>(n_sum), sqlite3_column_double(st, 1), 1e-9);
-  sqlite3_finalize(st);
-  sqlite3_close(db);
+  EXPECT_NEAR(weighted / static_cast<double>(n_sum), raw_sum / static_cast<double>(raw->size()),
+              1e-9);
   EXPECT_FALSE(j["temperature"]["t_s"].empty());
 
   // Bad parameters name themselves.

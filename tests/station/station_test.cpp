@@ -7,9 +7,11 @@
 
 #include <atomic>
 #include <chrono>
+#include <limits>
 #include <set>
 #include <thread>
 
+#include "gyrotherm/storage/database.h"
 #include "station/station_rig.h"
 #include "test_time.h"
 
@@ -269,22 +271,14 @@ TEST_F(StationUnitTest, StorageFailingSuspendsTheRunAndLosesNoSample) {
   ASSERT_TRUE(rig.step_until([&] { return !rig.station->status().run_id; }, 3600));
   EXPECT_EQ(rig.reply(rig.station->run(run_id)).at("state"), "completed");
   EXPECT_TRUE(rig.has_event(run_id, "interlock", "storage_failing"));
-  // Every 10 Hz sample of the full spell is in the file.
-  sqlite3* db = nullptr;
-  ASSERT_EQ(sqlite3_open(rig.db_path().c_str(), &db), SQLITE_OK);
-  sqlite3_stmt* st = nullptr;
-  ASSERT_EQ(sqlite3_prepare_v2(db,
-                               "SELECT COUNT(*) FROM gyro_samples WHERE run_id = ? AND t_s > ? "
-                               "AND t_s <= ?",
-                               -1, &st, nullptr),
-            SQLITE_OK);
-  sqlite3_bind_int64(st, 1, run_id);
-  sqlite3_bind_double(st, 2, full_from_s);
-  sqlite3_bind_double(st, 3, full_to_s);
-  ASSERT_EQ(sqlite3_step(st), SQLITE_ROW);
-  const int64_t stored = sqlite3_column_int64(st, 0);
-  sqlite3_finalize(st);
-  sqlite3_close(db);
+  // Every 10 Hz sample of the full spell is in the file (its chunks).
+  auto file = storage::Database::open_read_only(rig.db_path());
+  ASSERT_TRUE(file.ok()) << file.error().message;
+  const double inf = std::numeric_limits<double>::infinity();
+  auto spell =
+      file->gyro_samples(run_id, std::nextafter(full_from_s, inf), std::nextafter(full_to_s, inf));
+  ASSERT_TRUE(spell.ok()) << spell.error().message;
+  const auto stored = static_cast<int64_t>(spell->size());
   EXPECT_NEAR(static_cast<double>(stored), (full_to_s - full_from_s) * 10.0, 1.0);
 }
 

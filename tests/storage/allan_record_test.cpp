@@ -451,9 +451,8 @@ TEST(Allan, MigratesASchema3DatabaseKeepingItsRows) {
   const auto count = [&](const char* table) {
     return query_int(db.handle(), std::string("SELECT count(*) FROM ") + table);
   };
-  for (const char* table :
-       {"runs", "segments", "acquisition_windows", "events", "segment_stats",
-        "temperature_samples", "fits", "fit_runs"}) {
+  for (const char* table : {"runs", "segments", "acquisition_windows", "events", "segment_stats",
+                            "temperature_samples", "fits", "fit_runs"}) {
     EXPECT_EQ(count(table), 1) << table;
   }
   EXPECT_EQ(*db.count_gyro_samples(1), 1);  // moved into chunks (v9)

@@ -1,6 +1,8 @@
 // Chunked sample storage (schema v9): the value codec, chunk boundaries
 // (gaps, lost frames, the cap), push_frames of a multi-channel DUT, a
 // restarted writer, and the v9 migration of a schema-5 database with data.
+#include "chunks.h"
+
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 #include <sqlite3.h>
@@ -11,7 +13,6 @@
 #include <string>
 #include <vector>
 
-#include "chunks.h"
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
 #include "migrations.h"
@@ -48,8 +49,11 @@ TEST(ChunkCodec, NarrowestExactEncoding) {
   EXPECT_EQ(encoding_of({0.1}), Encoding::kF64);
   EXPECT_EQ(encoding_of({5e9}), Encoding::kF32);  // integral, beyond u32, a float
   // Round trips are exact, NaN included.
-  for (std::vector<double> v : {std::vector<double>{0, 119, 255}, {-3, 21, 127}, {-129, 1, 32767},
-                                {0.5, static_cast<double>(1.1f), kNaN, -0.0}, {0.1, 1e300, kNaN}}) {
+  for (std::vector<double> v : {std::vector<double>{0, 119, 255},
+                                {-3, 21, 127},
+                                {-129, 1, 32767},
+                                {0.5, static_cast<double>(1.1f), kNaN, -0.0},
+                                {0.1, 1e300, kNaN}}) {
     const Encoding e = encoding_of(v);
     std::string blob;
     internal::encode(e, v, blob);
@@ -124,11 +128,12 @@ RunDutRecord register_kvh(Database& db, int64_t run_id, const std::string& seria
                                {"temp_c", "degC", ChannelKind::kTemperature, "", 1}};
   int idx = 0;
   for (const ChannelSpec& s : specs) {
-    EXPECT_TRUE(db.exec(fmt::format("INSERT INTO channels(run_id, dut_id, idx, name, unit, kind, "
-                                    "axis, scale) VALUES({}, {}, {}, '{}', '{}', '{}', '{}', {:.17g})",
-                                    run_id, r.dut.id, idx, s.name, s.unit, to_string(s.kind),
-                                    s.axis, s.scale))
-                    .ok());
+    EXPECT_TRUE(
+        db.exec(fmt::format("INSERT INTO channels(run_id, dut_id, idx, name, unit, kind, "
+                            "axis, scale) VALUES({}, {}, {}, '{}', '{}', '{}', '{}', {:.17g})",
+                            run_id, r.dut.id, idx, s.name, s.unit, to_string(s.kind), s.axis,
+                            s.scale))
+            .ok());
     r.channels.push_back({sqlite3_last_insert_rowid(db.handle()), run_id, r.dut.id, idx, s});
     ++idx;
   }
@@ -161,7 +166,8 @@ TEST(ChunkedWriter, KvhFramesStoredExactlyInTheNarrowestEncodings) {
   frames.erase(frames.begin() + 3000);  // a lost frame: the counter skips
   auto writer = testing::start_ok(path, {.commit_interval = 20ms});
   for (std::size_t i = 0; i < frames.size(); i += 97) {
-    writer->push_frames(dut, std::span(frames).subspan(i, std::min<std::size_t>(97, frames.size() - i)));
+    writer->push_frames(dut,
+                        std::span(frames).subspan(i, std::min<std::size_t>(97, frames.size() - i)));
   }
   ASSERT_TRUE(writer->flush().ok());
   writer->stop();
@@ -171,40 +177,44 @@ TEST(ChunkedWriter, KvhFramesStoredExactlyInTheNarrowestEncodings) {
   Database db = open_ok(path);
   // Chunks: [0, 3000), [3001, 6000), [6000, 10000) capped at 4096.
   const int64_t gyro_z = dut.channels[2].id;
-  EXPECT_EQ(query_text(db.handle(), fmt::format("SELECT group_concat(n) FROM (SELECT n FROM "
-                                                "sample_chunks WHERE channel_id = {} ORDER BY t0_s)",
-                                                gyro_z)),
-            "3000,2999,4000");
-  EXPECT_EQ(query_text(db.handle(), "SELECT group_concat(DISTINCT encoding) FROM sample_chunks c "
-                                    "JOIN channels h ON h.id = c.channel_id WHERE h.kind != 'status' "
-                                    "AND h.kind != 'temperature'"),
+  EXPECT_EQ(
+      query_text(db.handle(), fmt::format("SELECT group_concat(n) FROM (SELECT n FROM "
+                                          "sample_chunks WHERE channel_id = {} ORDER BY t0_s)",
+                                          gyro_z)),
+      "3000,2999,4000");
+  EXPECT_EQ(query_text(db.handle(),
+                       "SELECT group_concat(DISTINCT encoding) FROM sample_chunks c "
+                       "JOIN channels h ON h.id = c.channel_id WHERE h.kind != 'status' "
+                       "AND h.kind != 'temperature'"),
             "f32");
-  EXPECT_EQ(query_text(db.handle(), "SELECT group_concat(DISTINCT encoding) FROM sample_chunks c "
-                                    "JOIN channels h ON h.id = c.channel_id WHERE h.name = 'status'"),
+  EXPECT_EQ(query_text(db.handle(),
+                       "SELECT group_concat(DISTINCT encoding) FROM sample_chunks c "
+                       "JOIN channels h ON h.id = c.channel_id WHERE h.name = 'status'"),
             "u8");
-  EXPECT_EQ(query_text(db.handle(), "SELECT group_concat(DISTINCT encoding) FROM sample_chunks c "
-                                    "JOIN channels h ON h.id = c.channel_id WHERE h.name = 'temp_c'"),
+  EXPECT_EQ(query_text(db.handle(),
+                       "SELECT group_concat(DISTINCT encoding) FROM sample_chunks c "
+                       "JOIN channels h ON h.id = c.channel_id WHERE h.name = 'temp_c'"),
             "u8");
   // Every channel back exactly: physical = raw * scale, NaN kept.
   for (const ChannelRecord& ch : dut.channels) {
     std::size_t k = 0;
-    ASSERT_TRUE(db.for_each_channel_block(
-                      ch.id, -1e9, 1e9,
-                      [&](std::span<const double> t, std::span<const double> v,
-                          std::span<const uint32_t> seq) {
-                        for (std::size_t i = 0; i < t.size(); ++i, ++k) {
-                          const DutFrame& f = frames[k];
-                          EXPECT_NEAR(t[i], f.t_s, 1e-9);
-                          EXPECT_EQ(seq[i], f.seq);
-                          const double want = f.raw[ch.index] * ch.spec.scale;
-                          if (std::isnan(want)) {
-                            EXPECT_TRUE(std::isnan(v[i])) << ch.spec.name << " " << k;
-                          } else {
-                            EXPECT_EQ(v[i], want) << ch.spec.name << " " << k;
-                          }
-                        }
-                        return true;
-                      })
+    ASSERT_TRUE(db.for_each_channel_block(ch.id, -1e9, 1e9,
+                                          [&](std::span<const double> t, std::span<const double> v,
+                                              std::span<const uint32_t> seq) {
+                                            for (std::size_t i = 0; i < t.size(); ++i, ++k) {
+                                              const DutFrame& f = frames[k];
+                                              EXPECT_NEAR(t[i], f.t_s, 1e-9);
+                                              EXPECT_EQ(seq[i], f.seq);
+                                              const double want = f.raw[ch.index] * ch.spec.scale;
+                                              if (std::isnan(want)) {
+                                                EXPECT_TRUE(std::isnan(v[i]))
+                                                    << ch.spec.name << " " << k;
+                                              } else {
+                                                EXPECT_EQ(v[i], want) << ch.spec.name << " " << k;
+                                              }
+                                            }
+                                            return true;
+                                          })
                     .ok());
     EXPECT_EQ(k, frames.size()) << ch.spec.name;
     EXPECT_EQ(*db.count_channel_samples(ch.id), static_cast<int64_t>(frames.size()));
@@ -258,10 +268,11 @@ TEST(ChunkedWriter, RestartedWriterStartsNewChunksAndIgnoresDuplicates) {
   ASSERT_TRUE(w->flush().ok());
   EXPECT_EQ(w->stats().duplicates, 100u);
   Database db = open_ok(path);
-  EXPECT_EQ(query_text(db.handle(), fmt::format("SELECT group_concat(n) FROM (SELECT n FROM "
-                                                "sample_chunks WHERE channel_id = {} ORDER BY t0_s)",
-                                                dut.channels[0].id)),
-            "1500,1500")
+  EXPECT_EQ(
+      query_text(db.handle(), fmt::format("SELECT group_concat(n) FROM (SELECT n FROM "
+                                          "sample_chunks WHERE channel_id = {} ORDER BY t0_s)",
+                                          dut.channels[0].id)),
+      "1500,1500")
       << "extended in place across commits, a new chunk after the restart";
   EXPECT_EQ(*db.count_channel_samples(dut.channels[7].id), 3000);
 }
@@ -285,8 +296,8 @@ TEST(ChunkMigration, Schema5DatabaseKeepsEverySample) {
   // Run 1: 1 kHz late in a long run, with a gap, a lost frame and NULL rates.
   double t = 250'000.0004;
   for (int i = 0; i < 20'000; ++i) {
-    if (i == 7000) t += 2.5;          // a gap
-    if (i == 12'000) t += 0.001;      // a lost frame (seq continues below: skip)
+    if (i == 7000) t += 2.5;      // a gap
+    if (i == 12'000) t += 0.001;  // a lost frame (seq continues below: skip)
     const int seq = (i + (i >= 12'000 ? 1 : 0)) % 128;
     rows.push_back({1, t, seq, i % 501 == 0 ? kNaN : 7.9 + noise(rng), 0x77, 20 + i / 7000});
     t += 0.001;
@@ -302,10 +313,11 @@ TEST(ChunkMigration, Schema5DatabaseKeepsEverySample) {
     ASSERT_EQ(sqlite3_open(path.c_str(), &raw), SQLITE_OK);
     std::string sql = "CREATE TABLE meta(key TEXT PRIMARY KEY, value TEXT NOT NULL);";
     for (int v = 0; v < 5; ++v) sql += internal::migrations()[v].sql;
-    sql += "INSERT INTO meta VALUES('schema_version', '5');"
-           "INSERT INTO runs(id, schedule_name, state, started_utc, config_json) VALUES"
-           "(1, 'a', 'completed', 'x', '{\"gyro\":{\"axis\":\"x\"}}'), "
-           "(2, 'b', 'completed', 'y', NULL);";
+    sql +=
+        "INSERT INTO meta VALUES('schema_version', '5');"
+        "INSERT INTO runs(id, schedule_name, state, started_utc, config_json) VALUES"
+        "(1, 'a', 'completed', 'x', '{\"gyro\":{\"axis\":\"x\"}}'), "
+        "(2, 'b', 'completed', 'y', NULL);";
     ASSERT_EQ(sqlite3_exec(raw, sql.c_str(), nullptr, nullptr, nullptr), SQLITE_OK)
         << sqlite3_errmsg(raw);
     ASSERT_EQ(sqlite3_exec(raw, "BEGIN", nullptr, nullptr, nullptr), SQLITE_OK);
@@ -333,11 +345,13 @@ TEST(ChunkMigration, Schema5DatabaseKeepsEverySample) {
   }
   Database db = open_ok(path);
   EXPECT_EQ(*db.schema_version(), kSchemaVersion);
-  EXPECT_EQ(query_int(db.handle(), "SELECT count(*) FROM sqlite_master WHERE name IN "
-                                   "('gyro_samples', 'gyro_rollup')"),
+  EXPECT_EQ(query_int(db.handle(),
+                      "SELECT count(*) FROM sqlite_master WHERE name IN "
+                      "('gyro_samples', 'gyro_rollup')"),
             0);
-  EXPECT_EQ(query_text(db.handle(), "SELECT group_concat(serial || ':' || primary_axis) FROM "
-                                    "run_duts r JOIN duts d ON d.id = r.dut_id"),
+  EXPECT_EQ(query_text(db.handle(),
+                       "SELECT group_concat(serial || ':' || primary_axis) FROM "
+                       "run_duts r JOIN duts d ON d.id = r.dut_id"),
             ":x,:z");
   for (int64_t run : {1, 2}) {
     auto got = db.gyro_samples(run, -1e12, 1e12);
@@ -361,8 +375,9 @@ TEST(ChunkMigration, Schema5DatabaseKeepsEverySample) {
     }
   }
   // Run 1 in few chunks: broken at the gap and the lost frame, capped at 4096.
-  EXPECT_EQ(query_int(db.handle(), "SELECT count(*) FROM sample_chunks c JOIN channels h ON "
-                                   "h.id = c.channel_id WHERE h.run_id = 1 AND h.name = 'rate'"),
+  EXPECT_EQ(query_int(db.handle(),
+                      "SELECT count(*) FROM sample_chunks c JOIN channels h ON "
+                      "h.id = c.channel_id WHERE h.run_id = 1 AND h.name = 'rate'"),
             2 + 2 + 2);
   EXPECT_TRUE(testing::integrity_ok(db));
 }

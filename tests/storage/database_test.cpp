@@ -1,5 +1,4 @@
 #include "gyrotherm/storage/database.h"
-#include "gyrotherm/storage/sample_writer.h"
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
@@ -14,6 +13,7 @@
 #include <set>
 #include <thread>
 
+#include "gyrotherm/storage/sample_writer.h"
 #include "migrations.h"
 #include "test_util.h"
 

@@ -87,9 +87,9 @@ std::vector<RawGyro> read_raw_gyro(sqlite3* db) {
   EXPECT_TRUE(reader.ok()) << reader.error().message;
   if (!reader) return out;
   sqlite3_stmt* st = nullptr;
-  EXPECT_EQ(sqlite3_prepare_v2(db, "SELECT DISTINCT run_id FROM run_duts ORDER BY 1", -1, &st,
-                               nullptr),
-            SQLITE_OK);
+  EXPECT_EQ(
+      sqlite3_prepare_v2(db, "SELECT DISTINCT run_id FROM run_duts ORDER BY 1", -1, &st, nullptr),
+      SQLITE_OK);
   while (sqlite3_step(st) == SQLITE_ROW) {
     const int64_t run_id = sqlite3_column_int64(st, 0);
     auto samples = reader->gyro_samples(run_id, -1e300, 1e300);
@@ -727,7 +727,7 @@ TEST_F(Decimate, RangeNotOnBlockEdgesStaysWithinMaxPoints) {
   auto d = check(1, 0.5, 10.5, 10, Path::kRollup);
   EXPECT_EQ(d.gyro.t_s.size(), 10u);
   EXPECT_EQ(d.bucket_s, 1.0);
-  EXPECT_EQ(d.gyro.n.back(), 2000);  // blocks 9 and 10: 9 ... 11 s
+  EXPECT_EQ(d.gyro.n.back(), 2000);              // blocks 9 and 10: 9 ... 11 s
   check(1, 0.99, 10.01, 10, Path::kRawBuckets);  // 0.902 s < the finest block
   check(1, 0.05, 100.05, 100, Path::kRollup);
   check(1, 3.05, 123.95, 12, Path::kRollup);

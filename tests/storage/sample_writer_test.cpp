@@ -157,8 +157,9 @@ TEST(SampleWriter, NanValuesRoundTripAsNull) {
   EXPECT_TRUE(std::isnan((*temps)[0].side_c));
   EXPECT_EQ((*temps)[0].top_c, t.top_c);
   // Stored as NaN in a float chunk.
-  EXPECT_EQ(query_text(db->handle(), "SELECT substr(encoding, 1, 1) FROM sample_chunks c JOIN "
-                                     "channels h ON h.id = c.channel_id WHERE h.name = 'rate'"),
+  EXPECT_EQ(query_text(db->handle(),
+                       "SELECT substr(encoding, 1, 1) FROM sample_chunks c JOIN "
+                       "channels h ON h.id = c.channel_id WHERE h.name = 'rate'"),
             "f");
 }
 
