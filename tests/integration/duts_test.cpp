@@ -42,6 +42,7 @@ silent_timeout_s = 60.0
 axes = ["x", "z"]
 orientation = { z = "down", x = "horizontal" }
 primary_axis = "z"
+probes = { top_channel = 2, side_channel = 3 }
 
 [[dut]]
 serial = "TS-7"
@@ -228,6 +229,16 @@ TEST_F(DutsTest, ThreeDutsThroughACampaignEachRecoversItsOwnTruth) {
     }
   }
   EXPECT_EQ(stats->size(), rows) << "one row per soak, DUT and analysed axis";
+
+  // 17-0043's own probes (the simulator's read its shell + 0.1 °C) give its
+  // rows their temperature; the others use the station's probes.
+  auto temp_of = [&](const std::string& serial) {
+    const auto it = std::find_if(stats->begin(), stats->end(),
+                                 [&](const auto& r) { return r.dut_serial == serial; });
+    return it == stats->end() ? NAN : it->temp_mean_c;
+  };
+  EXPECT_NEAR(temp_of("17-0043") - temp_of("17-0042"), 0.1, 0.05);
+  EXPECT_DOUBLE_EQ(temp_of("TS-7"), temp_of("17-0042"));
 
   // The raw samples out, exactly: a rate channel of the ASCII DUT as CSV.
   int code = 0;

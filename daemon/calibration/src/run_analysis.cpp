@@ -601,11 +601,46 @@ Result<std::vector<TemperatureSample>> shell_readings(storage::Database& db, int
 Result<std::vector<TemperatureSample>> dut_shell_readings(storage::Database& db, int64_t run_id,
                                                           const AnalysedAxis& axis, double from_s,
                                                           double to_s) {
-  // DUT_OWN_PROBES_HOOK: axis.own_probes says the DUT has its own probes;
-  // until their readings are stored per DUT, the station's top/side are the
-  // shell temperatures of every DUT.
-  (void)axis;
-  return shell_readings(db, run_id, from_s, to_s);
+  auto station = shell_readings(db, run_id, from_s, to_s);
+  if (!station || !axis.own_probes) return station;
+  // The DUT's own probes: its channels probe_top_c and probe_side_c, read
+  // each control tick beside the station's (the station stores both at the
+  // same station time). The station's set point and chamber stay.
+  auto duts = db.run_duts(run_id);
+  if (!duts) return duts.error();
+  int64_t top_id = 0, side_id = 0;
+  for (const auto& d : *duts) {
+    if (d.dut.serial != axis.dut_serial) continue;
+    for (const auto& c : d.channels) {
+      if (c.spec.name == "probe_top_c") top_id = c.id;
+      if (c.spec.name == "probe_side_c") side_id = c.id;
+    }
+  }
+  if (top_id == 0 || side_id == 0) return station;  // configured, never recorded: the station's
+  std::vector<std::pair<double, double>> top, side;
+  auto collect = [&](int64_t channel_id, std::vector<std::pair<double, double>>& out) {
+    return db.for_each_channel_block(
+        channel_id, from_s, to_s,
+        [&](std::span<const double> t_s, std::span<const double> v, std::span<const uint32_t>) {
+          for (std::size_t i = 0; i < t_s.size(); ++i) out.emplace_back(t_s[i], v[i]);
+          return true;
+        });
+  };
+  if (auto st = collect(top_id, top); !st) return st.error();
+  if (auto st = collect(side_id, side); !st) return st.error();
+  std::vector<TemperatureSample> out;
+  std::size_t j = 0, k = 0;
+  for (const auto& [t_s, top_c] : top) {
+    while (k < side.size() && side[k].first < t_s - 1e-6) ++k;
+    if (k == side.size() || std::fabs(side[k].first - t_s) > 1e-6) continue;
+    while (j + 1 < station->size() && (*station)[j + 1].t_s <= t_s + 1e-6) ++j;
+    TemperatureSample s = station->empty() ? TemperatureSample{} : (*station)[j];
+    s.t_s = t_s;
+    s.top_c = top_c;
+    s.side_c = side[k].second;
+    out.push_back(s);
+  }
+  return out;
 }
 
 Result<analysis::AnalysisSeries> soak_series(storage::Database& db, const SoakWindow& soak,
