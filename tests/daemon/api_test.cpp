@@ -963,7 +963,7 @@ TEST(Api, DutRoutesDecodeTheSerialAndName404s) {
   EXPECT_EQ(control.calls, (std::vector<std::string>{"duts", "dut 17-0042", "dut SN 17/42",
                                                      "dut a+b", "dut 17-0043"}));
   control.calls.clear();
-  for (const std::string target :
+  for (const std::string& target :
        {"/api/v1/duts/" + std::string(65, 's'), std::string("/api/v1/duts/%zz")}) {
     EXPECT_EQ(handle_api_request(get(target), ctx).result(), http::status::not_found) << target;
   }
