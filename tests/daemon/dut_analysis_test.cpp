@@ -240,7 +240,7 @@ TEST_F(DutAnalysisTest, ExportHasFilesPerDutAxisAndHeadersNameTheGyro) {
   const fs::path root = dir_ / "export";
   const std::string run_dir = fmt::format("run-{:04}", run_id);
   for (const char* sfx : {"-SN-A-z", "-SN-B-z", "-SN-B-x"}) {
-    for (const std::string name :
+    for (const std::string& name :
          {fmt::format("report{}.html", sfx), fmt::format("table1{}.csv", sfx),
           fmt::format("allan{}.csv", sfx), fmt::format("drift-fit-centered{}.json", sfx),
           fmt::format("drift-fit-centered{}.h", sfx), fmt::format("drift-fit-paper{}.h", sfx)}) {
