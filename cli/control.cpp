@@ -626,23 +626,10 @@ std::string format_status(const json& j) {
     if (const std::string progress = format_progress(field(j, "progress")); !progress.empty()) {
       out += labelled("progress", progress);
     }
-    const json& meta = field(j, "run_metadata");
-    std::vector<std::string> parts;
-    for (const char* key : {"operator", "comment"}) {
-      const json& v = field(meta, key);
-      if (v.is_string() && !v.get<std::string>().empty()) {
-        parts.push_back(fmt::format("{} {}", key, v.get<std::string>()));
-      }
-    }
-    if (const json& tags = field(meta, "tags"); tags.is_array() && !tags.empty()) {
-      std::string list;
-      for (const auto& t : tags) list += (list.empty() ? "" : ", ") + text(t);
-      parts.push_back("tags " + list);
-    }
-    if (!parts.empty()) {
-      std::string line;
-      for (const auto& p : parts) line += (line.empty() ? "" : " · ") + p;
-      out += labelled("metadata", line);
+    // The run's comment (its operator and tags are on the "operator" line).
+    if (const json& c = field(field(j, "run_metadata"), "comment");
+        c.is_string() && !c.get<std::string>().empty()) {
+      out += labelled("comment", c.get<std::string>());
     }
   }
   out += labelled("set point", fixed(field(j, "setpoint_c"), 2, "°C"));

@@ -101,7 +101,7 @@ TEST_F(DashboardTest, LiveInHeadlessChromium) {
               36000.0, 1e-6);
   EXPECT_NEAR(progress["step_fraction"].get<double>(),
               progress["step_elapsed_s"].get<double>() / 36000.0, 1e-12);
-  EXPECT_DOUBLE_EQ(progress["queue_fixed_s"].get<double>(), 0.0);
+  EXPECT_DOUBLE_EQ(progress["queue_fixed_s"].get<double>(), 0.0) << last.dump();
 
   const auto page = call("GET", "/");
   ASSERT_TRUE(page && page->status == 200)

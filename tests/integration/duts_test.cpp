@@ -142,7 +142,7 @@ TEST_F(DutsTest, ThreeDutsThroughACampaignEachRecoversItsOwnTruth) {
     ss << in.rdbuf();
     return ss.str();
   }();
-  nlohmann::json add = {{"toml", schedule_text},
+  nlohmann::json add = {{"schedule_toml", schedule_text},
                         {"operator", "ana"},
                         {"comment", "three IMUs, first soak"},
                         {"tags", {"qualification", "lot-7"}}};

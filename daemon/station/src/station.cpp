@@ -801,6 +801,7 @@ void Station::start_next_run(double now_s) {
   if (!*id) return;  // removed (or moved on) since it was read; the next tick looks again
   const int64_t run_id = **id;
   queue_length_.fetch_sub(1);
+  queue_scanned_length_ = -1;  // the queue's planned time: without this entry, at the next tick
   busy_.store(true);
   register_run_duts(run_id);
   run_clock_.publish(run_id, now_s);
