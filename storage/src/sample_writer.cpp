@@ -8,6 +8,7 @@
 #include <exception>
 #include <limits>
 #include <map>
+#include <tuple>
 #include <optional>
 #include <system_error>
 
@@ -144,11 +145,14 @@ struct SampleWriter::Impl {
     double rate_scale = 1;
     bool touched = false;
   };
-  std::map<std::pair<int64_t, int64_t>, Stream> streams;  // by (run, dut id)
+  // By (run, DUT id, first channel id): a DUT's frames, and apart the
+  // channels it pushes at another rate (its own probes), are two streams.
+  std::map<std::tuple<int64_t, int64_t, int64_t>, Stream> streams;
   std::map<int64_t, int64_t> first_dut;                   // run -> its first DUT's id
   // The DUT records push_frames was given (guarded by mu; never erased, so
   // FrameRow can point at them).
-  std::map<std::pair<int64_t, int64_t>, std::unique_ptr<RunDutRecord>> known_duts;
+  // By (run, DUT id, first channel id), as streams.
+  std::map<std::tuple<int64_t, int64_t, int64_t>, std::unique_ptr<RunDutRecord>> known_duts;
   uint64_t chunks_before = 0;
   Result<Stream*> stream_for(const FrameRow& r);
   Result<int64_t> first_dut_of(int64_t run_id);
@@ -221,7 +225,8 @@ Result<SampleWriter::Impl::Stream*> SampleWriter::Impl::stream_for(const FrameRo
     if (!id) return id.error();
     dut_id = *id;
   }
-  auto [it, inserted] = streams.try_emplace({r.run_id, dut_id});
+  const int64_t first_channel = r.dut && !r.dut->channels.empty() ? r.dut->channels[0].id : 0;
+  auto [it, inserted] = streams.try_emplace({r.run_id, dut_id, first_channel});
   Stream& s = it->second;
   if (!inserted) return &s;
   sqlite3* h = db.handle();
@@ -268,11 +273,17 @@ Result<SampleWriter::Impl::Stream*> SampleWriter::Impl::stream_for(const FrameRo
     if (c.kind == ChannelKind::kStatus && s.status_idx < 0) s.status_idx = c.index;
     if (c.kind == ChannelKind::kTemperature && s.temp_idx < 0) s.temp_idx = c.index;
   }
-  // Where the stored samples end: the last chunk of each channel.
+  // Where the stored samples end: the last chunk of each of the stream's
+  // channels.
+  std::string ids;
+  for (const internal::ChannelInfo& c : channels) {
+    ids += fmt::format("{}{}", ids.empty() ? "" : ",", c.id);
+  }
   auto last = Stmt::prepare(h, path,
                             "SELECT max((SELECT t0_s + (n - 1) * period_s FROM sample_chunks k "
                             "WHERE k.channel_id = c.id ORDER BY t0_s DESC LIMIT 1)) "
-                            "FROM channels c WHERE c.run_id = ? AND c.dut_id = ?");
+                            "FROM channels c WHERE c.run_id = ? AND c.dut_id = ? AND c.id IN (" +
+                                ids + ")");
   if (!last) return last.error();
   last->bind(1, r.run_id);
   last->bind(2, dut_id);
@@ -597,7 +608,7 @@ void SampleWriter::push_frames(const RunDutRecord& dut, std::span<const DutFrame
     m.stats.rejected += frames.size();
     return;
   }
-  auto& known = m.known_duts[{dut.run_id, dut.dut.id}];
+  auto& known = m.known_duts[{dut.run_id, dut.dut.id, dut.channels.front().id}];
   if (!known) known = std::make_unique<RunDutRecord>(dut);
   for (const DutFrame& f : frames) {
     if (!std::isfinite(f.t_s)) {

@@ -203,7 +203,9 @@ TEST_F(DutsTest, ThreeDutsThroughACampaignEachRecoversItsOwnTruth) {
     for (const auto& c : d.channels) {
       auto n = db->count_channel_samples(c.id);
       ASSERT_TRUE(n.ok()) << n.error().message;
-      EXPECT_GT(static_cast<double>(*n), 0.97 * run_s * kRateHz) << d.dut.serial << " " << c.spec.name;
+      // Its own probes are read once a control tick (1 s), the rest at the DUT's rate.
+      const double rate_hz = c.spec.name.rfind("probe_", 0) == 0 ? 1.0 : kRateHz;
+      EXPECT_GT(static_cast<double>(*n), 0.97 * run_s * rate_hz) << d.dut.serial << " " << c.spec.name;
     }
   }
 
@@ -220,7 +222,7 @@ TEST_F(DutsTest, ThreeDutsThroughACampaignEachRecoversItsOwnTruth) {
       const auto it = std::find_if(stats->begin(), stats->end(), [&](const auto& r) {
         return r.dut_serial == serial && r.axis == axis;
       });
-      ASSERT_NE(it, stats->end());
+      ASSERT_NE(it, stats->end()) << db->events(1)->back().message;
       ++rows;
       EXPECT_EQ(it->n, 360);
       // 360 one-second means of 1 °/h noise: σ ≈ 0.053 °/h.
@@ -238,7 +240,8 @@ TEST_F(DutsTest, ThreeDutsThroughACampaignEachRecoversItsOwnTruth) {
     return it == stats->end() ? NAN : it->temp_mean_c;
   };
   EXPECT_NEAR(temp_of("17-0043") - temp_of("17-0042"), 0.1, 0.05);
-  EXPECT_DOUBLE_EQ(temp_of("TS-7"), temp_of("17-0042"));
+  // (averaged over each DUT's own 1-s bins: a few mK apart)
+  EXPECT_NEAR(temp_of("TS-7"), temp_of("17-0042"), 0.01);
 
   // The raw samples out, exactly: a rate channel of the ASCII DUT as CSV.
   int code = 0;

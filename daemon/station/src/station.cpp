@@ -1162,6 +1162,8 @@ void Station::register_run_duts(int64_t run_id) {
     auto probes = std::make_shared<storage::RunDutRecord>(*added);
     const std::size_t n = channels.size();
     frames->channels.resize(std::min(n, frames->channels.size()));
+    probes->rate_hz = 1.0 / config_.control.tick_s;  // read once a control tick
+    probes->seq_modulo = 0;
     probes->channels.erase(probes->channels.begin(),
                            probes->channels.begin() +
                                static_cast<std::ptrdiff_t>(std::min(n, probes->channels.size())));
@@ -1178,7 +1180,20 @@ void Station::read_dut_probes(double now_s) {
     if (!d->probes) continue;
     auto top = d->probes->top_c();
     auto side = top ? d->probes->side_c() : Result<double>(top.error());
-    if (!top || !side) continue;
+    if (!top || !side) {
+      if (!d->probes_failing) {
+        d->probes_failing = true;
+        add_event("device", "", "",
+                  fmt::format("DUT {} probes: no answer ({}); its own shell temperatures are "
+                              "missing from now",
+                              dut_name(*d->cfg), (!top ? top.error() : side.error()).message));
+      }
+      continue;
+    }
+    if (d->probes_failing) {
+      d->probes_failing = false;
+      add_event("device", "", "", fmt::format("DUT {} probes: answer again", dut_name(*d->cfg)));
+    }
     std::shared_ptr<const storage::RunDutRecord> layout;
     {
       std::lock_guard lock(d->layout_mu);

@@ -212,6 +212,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
     const DutSection* cfg = nullptr;  // config_.duts[index]
     std::unique_ptr<drivers::DutSource> source;
     std::unique_ptr<drivers::ShellProbes> probes;  // nullptr: none of its own
+    bool probes_failing = false;                   // control thread: said in the events
     std::vector<std::size_t> rate_channels;        // raw[] indices of its rate axes
     int primary_channel = -1, temp_channel = -1;
     std::atomic<double> last_s{0};  // station time of the last frame
