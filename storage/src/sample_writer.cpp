@@ -8,9 +8,9 @@
 #include <exception>
 #include <limits>
 #include <map>
-#include <tuple>
 #include <optional>
 #include <system_error>
+#include <tuple>
 
 #include "chunks.h"
 #include "gyrotherm/storage/database.h"
@@ -148,7 +148,7 @@ struct SampleWriter::Impl {
   // By (run, DUT id, first channel id): a DUT's frames, and apart the
   // channels it pushes at another rate (its own probes), are two streams.
   std::map<std::tuple<int64_t, int64_t, int64_t>, Stream> streams;
-  std::map<int64_t, int64_t> first_dut;                   // run -> its first DUT's id
+  std::map<int64_t, int64_t> first_dut;  // run -> its first DUT's id
   // The DUT records push_frames was given (guarded by mu; never erased, so
   // FrameRow can point at them).
   // By (run, DUT id, first channel id), as streams.

@@ -107,7 +107,8 @@ class DutsTest : public StationTest {
       for (std::size_t i = 0; i + 1 < pts.size(); ++i) {
         const double t0 = pts[i]["temp_c"], t1 = pts[i + 1]["temp_c"];
         if (temp_c < t0 || temp_c > t1) continue;
-        const double b0 = pts[i]["bias_earth_removed_dph"], b1 = pts[i + 1]["bias_earth_removed_dph"];
+        const double b0 = pts[i]["bias_earth_removed_dph"],
+                     b1 = pts[i + 1]["bias_earth_removed_dph"];
         return b0 + (b1 - b0) * (temp_c - t0) / (t1 - t0);
       }
     }
@@ -205,7 +206,8 @@ TEST_F(DutsTest, ThreeDutsThroughACampaignEachRecoversItsOwnTruth) {
       ASSERT_TRUE(n.ok()) << n.error().message;
       // Its own probes are read once a control tick (1 s), the rest at the DUT's rate.
       const double rate_hz = c.spec.name.rfind("probe_", 0) == 0 ? 1.0 : kRateHz;
-      EXPECT_GT(static_cast<double>(*n), 0.97 * run_s * rate_hz) << d.dut.serial << " " << c.spec.name;
+      EXPECT_GT(static_cast<double>(*n), 0.97 * run_s * rate_hz)
+          << d.dut.serial << " " << c.spec.name;
     }
   }
 
@@ -245,10 +247,10 @@ TEST_F(DutsTest, ThreeDutsThroughACampaignEachRecoversItsOwnTruth) {
 
   // The raw samples out, exactly: a rate channel of the ASCII DUT as CSV.
   int code = 0;
-  const std::string csv = run_cli({"samples", "--db", (dir_ / "station.db").string(), "--run",
-                                   "1", "--dut", "TS-7", "--channel", "rate_y", "--from", "10",
-                                   "--to", "20"},
-                                  &code);
+  const std::string csv =
+      run_cli({"samples", "--db", (dir_ / "station.db").string(), "--run", "1", "--dut", "TS-7",
+               "--channel", "rate_y", "--from", "10", "--to", "20"},
+              &code);
   ASSERT_EQ(code, 0) << csv;
   EXPECT_THAT(csv, ::testing::StartsWith("t_s,rate_y (deg/h)")) << csv.substr(0, 200);
   EXPECT_NEAR(std::count(csv.begin(), csv.end(), '\n'), 1 + 10 * kRateHz, 2);

@@ -269,8 +269,8 @@ class FullDiskSink final : public storage::SampleSink {
     if (full_) {
       s.consecutive_failures = s.commit_failures = ++failures_;
       s.last_error = kFull;
-      s.pending += held_gyro_.size() + held_temperatures_.size() + held_table_.size() +
-                   held_frames_.size();
+      s.pending +=
+          held_gyro_.size() + held_temperatures_.size() + held_table_.size() + held_frames_.size();
     }
     return s;
   }

@@ -201,7 +201,8 @@ MetadataEdit metadata_fields(Body& b, const HttpRequest& req) {
     m.comment = bounded_text(b, req, b.json["comment"], "'comment'", kMaxCommentChars, true);
   }
   m.tags = bounded_list(b, req, "tags", kMaxTags, kMaxTagChars, "tags (strings)");
-  m.dut_serials = bounded_list(b, req, "duts", kMaxDutSerials, kMaxSerialChars, "DUT serials (strings)");
+  m.dut_serials =
+      bounded_list(b, req, "duts", kMaxDutSerials, kMaxSerialChars, "DUT serials (strings)");
   return m;
 }
 

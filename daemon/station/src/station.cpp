@@ -111,8 +111,8 @@ Result<StationDevices> devices_from_config(const StationConfig& config, const Cl
     std::unique_ptr<drivers::ShellProbes> own;
     if (dut.probes) {
       drivers::RegisterSpec top = config.probes.top, side = config.probes.side;
-      top.address = config.probes.top.address + static_cast<uint16_t>(
-                                                    dut.probes->top_channel - config.probes.top_channel);
+      top.address = config.probes.top.address +
+                    static_cast<uint16_t>(dut.probes->top_channel - config.probes.top_channel);
       side.address = config.probes.side.address +
                      static_cast<uint16_t>(dut.probes->side_channel - config.probes.side_channel);
       own = std::make_unique<drivers::ModbusProbes>(config.probes.endpoint, top, side);
@@ -137,8 +137,8 @@ Result<std::unique_ptr<Station>> Station::create(StationConfig config, StationDe
   }
   if (config.duts.empty()) return Error::Permanent("station: the config names no DUT");
   if (devices.duts.empty()) {
-    devices.duts.push_back(std::make_unique<GyroAsDut>(std::move(devices.gyro),
-                                                       config.duts.front().primary_axis));
+    devices.duts.push_back(
+        std::make_unique<GyroAsDut>(std::move(devices.gyro), config.duts.front().primary_axis));
   }
   if (devices.duts.size() != config.duts.size()) {
     return Error::Permanent(fmt::format("station: {} DUT sources for {} [[dut]] entries",
@@ -1067,9 +1067,10 @@ void Station::on_dut_frames(DutLive& dut, std::span<const DutFrame> frames) {
     if (f.t_s >= dut.window_start_s + 1.0) {
       if (dut.window_frames > 0) {
         for (std::size_t a = 0; a < dut.rate_channels.size(); ++a) {
-          dut.rates_dph[a] = dut.window_n[a] > 0 ? std::optional(dut.window_sum[a] /
-                                                                 static_cast<double>(dut.window_n[a]))
-                                                 : std::nullopt;
+          dut.rates_dph[a] =
+              dut.window_n[a] > 0
+                  ? std::optional(dut.window_sum[a] / static_cast<double>(dut.window_n[a]))
+                  : std::nullopt;
         }
         dut.samples_per_s = static_cast<double>(dut.window_frames);
       }
@@ -1168,8 +1169,8 @@ void Station::register_run_duts(int64_t run_id) {
                            probes->channels.begin() +
                                static_cast<std::ptrdiff_t>(std::min(n, probes->channels.size())));
     d->layout = std::move(frames);
-    d->probe_layout = d->probes ? std::shared_ptr<const storage::RunDutRecord>(std::move(probes))
-                                : nullptr;
+    d->probe_layout =
+        d->probes ? std::shared_ptr<const storage::RunDutRecord>(std::move(probes)) : nullptr;
   }
 }
 

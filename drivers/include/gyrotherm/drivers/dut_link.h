@@ -59,7 +59,7 @@ struct DutLink {
   std::string protocol = "kvh1750";  // kvh1750, ascii
   AngleUnit unit = AngleUnit::kRad;  // kvh1750: the gyro's angle unit
   OutputKind kind = OutputKind::kRate;
-  double rate_hz = 10.0;  // the device's output rate (station time)
+  double rate_hz = 10.0;   // the device's output rate (station time)
   AsciiLineOptions ascii;  // protocol "ascii" only
 };
 

@@ -54,7 +54,7 @@ struct Readings {
   std::optional<double> side_c;
   double chamber_silent_s = 0;
   double probes_silent_s = 0;
-  double gyro_silent_s = 0;  // the most silent DUT's
+  double gyro_silent_s = 0;                 // the most silent DUT's
   std::string gyro_stream = "gyro stream";  // which: "DUT 17-0042 stream" with several
   bool chamber_alarm = false;
   // Station seconds the sample writer's commits have been failing (0 while

@@ -12,8 +12,8 @@
 
 #include <cstdint>
 #include <functional>
-#include <span>
 #include <optional>
+#include <span>
 #include <string>
 #include <string_view>
 #include <utility>
@@ -96,11 +96,11 @@ struct RunDutRecord {
   int64_t run_id = 0;
   int position = 0;  // order in the run's [[dut]] list, from 0
   DutRecord dut;
-  std::string config_json;  // the [[dut]] entry the run used (JSON object)
-  std::string primary_axis;  // e.g. "z"
-  std::vector<std::string> axes;  // analysed rate axes
-  double rate_hz = 0;        // nominal output rate
-  uint32_t seq_modulo = 0;   // 0: the frames carry no counter
+  std::string config_json;              // the [[dut]] entry the run used (JSON object)
+  std::string primary_axis;             // e.g. "z"
+  std::vector<std::string> axes;        // analysed rate axes
+  double rate_hz = 0;                   // nominal output rate
+  uint32_t seq_modulo = 0;              // 0: the frames carry no counter
   std::vector<ChannelRecord> channels;  // by index
 };
 
@@ -204,8 +204,8 @@ struct SegmentStatsRecord {
 // A stored drift-model fit (paper eq. 1) with what it was computed from.
 struct FitRecord {
   int64_t id = 0;
-  std::string dut_serial;  // schema v8; "" = the runs' first DUT
-  std::string axis;        // schema v8; "" = its primary axis
+  std::string dut_serial;        // schema v8; "" = the runs' first DUT
+  std::string axis;              // schema v8; "" = its primary axis
   std::vector<int64_t> run_ids;  // the runs whose data were fitted
   std::string model;             // e.g. "T4+R1+G1"
   std::string form;              // paper, centered
@@ -268,9 +268,9 @@ struct ExportRecord {
 // the point's acquisition windows. Rates in °/s (the gyro output converted
 // from °/h). NaN is stored as NULL and read back as NaN.
 struct ScaleFactorPointRecord {
-  int64_t id = 0;                // set when read
-  int64_t run_id = 0;            // 0: the run store_scale_factor() is given
-  std::string dut_serial;        // schema v8, as SegmentStatsRecord
+  int64_t id = 0;          // set when read
+  int64_t run_id = 0;      // 0: the run store_scale_factor() is given
+  std::string dut_serial;  // schema v8, as SegmentStatsRecord
   std::string axis;
   int64_t segment_id = 0;        // the rate point's segment (0: not tied to one)
   int sf_sequence = 0;           // segments.sf_sequence
@@ -287,7 +287,7 @@ struct ScaleFactorPointRecord {
 // The fit output = K * rate + bias of one scale-factor sequence (table
 // scale_factor_fits; docs/analysis.md defines the figures).
 struct ScaleFactorFitRecord {
-  int64_t run_id = 0;  // 0: the run store_scale_factor() is given
+  int64_t run_id = 0;      // 0: the run store_scale_factor() is given
   std::string dut_serial;  // schema v8, as SegmentStatsRecord
   std::string axis;
   int sf_sequence = 0;
@@ -307,10 +307,10 @@ struct ScaleFactorFitRecord {
 // scale_factor_temperature_fits, column poly_order for `order`). The
 // coefficients are JSON arrays of numbers, lowest power first; bias in °/s.
 struct ScaleFactorTemperatureFitRecord {
-  int64_t run_id = 0;  // 0: the run store_scale_factor() is given
+  int64_t run_id = 0;      // 0: the run store_scale_factor() is given
   std::string dut_serial;  // schema v8, as SegmentStatsRecord
   std::string axis;
-  int order = 0;       // polynomial degree
+  int order = 0;  // polynomial degree
   double t_centre_c = 0;
   std::string k_coeffs_json{};     // e.g. "[1.0000123, 2.1e-6]"; "" stores "[]"
   std::string bias_coeffs_json{};  // °/s; "" stores "[]"
@@ -373,11 +373,11 @@ struct DutHistory {
     RunRecord run;  // config_json and resume_json left empty
     RunDutRecord in_run;
     std::vector<SegmentRecord> segments;
-    std::vector<SegmentStatsRecord> stats;   // this DUT's rows, every axis
-    std::vector<AllanRecord> allan;          // this DUT's
+    std::vector<SegmentStatsRecord> stats;           // this DUT's rows, every axis
+    std::vector<AllanRecord> allan;                  // this DUT's
     std::vector<ScaleFactorFitRecord> scale_factor;  // this DUT's
   };
-  std::vector<Run> runs;  // by run id
+  std::vector<Run> runs;        // by run id
   std::vector<FitRecord> fits;  // this DUT's drift fits, newest first
 };
 
@@ -413,8 +413,7 @@ class Database {
   // Run metadata (schema v8). set_run_metadata replaces it and adds an
   // event (kind "metadata") naming who changed what (`changed_by`: a token
   // label or "cli"); the event's message lists old -> new per field.
-  Status set_run_metadata(int64_t run_id, const RunMetadata& metadata,
-                          std::string_view changed_by);
+  Status set_run_metadata(int64_t run_id, const RunMetadata& metadata, std::string_view changed_by);
 
   // DUTs (schema v8). add_run_dut registers the DUT (by serial: created on
   // first sight, model updated when given) in the run with its channels, in
@@ -422,13 +421,12 @@ class Database {
   // same (run, serial): returns the existing record (crash resume).
   Result<RunDutRecord> add_run_dut(int64_t run_id, const RunDutRecord& dut);
   Result<std::vector<RunDutRecord>> run_duts(int64_t run_id);  // by position
-  Result<std::vector<DutRecord>> duts();                        // by serial
+  Result<std::vector<DutRecord>> duts();                       // by serial
   Result<std::optional<DutRecord>> dut(std::string_view serial);
   Result<DutHistory> dut_history(std::string_view serial);  // error when unknown (named)
   // The run's DUT and axis `key` names, resolved ("" -> first DUT, primary
   // axis); error naming the serial or axis when the run has no such.
-  Result<std::pair<RunDutRecord, std::string>> resolve_stream(int64_t run_id,
-                                                              const StreamKey& key);
+  Result<std::pair<RunDutRecord, std::string>> resolve_stream(int64_t run_id, const StreamKey& key);
 
   // Stores the sequencer snapshot for crash resume.
   Status set_run_checkpoint(int64_t run_id, std::string_view resume_json, double wall_unix_s);

@@ -58,7 +58,8 @@ inline constexpr std::size_t kMaxOperatorChars = 128;
 inline constexpr std::size_t kMaxCommentChars = 4096;
 inline constexpr std::size_t kMaxTags = 32;
 inline constexpr std::size_t kMaxTagChars = 64;
-inline constexpr std::size_t kMaxDutSerials = 16;  // in a request ([[dut]] allows 8; recorded ones may be more)
+inline constexpr std::size_t kMaxDutSerials =
+    16;  // in a request ([[dut]] allows 8; recorded ones may be more)
 inline constexpr std::size_t kMaxSerialChars = 64;
 
 // POST /queue: a schedule and the metadata its run will carry. The API has

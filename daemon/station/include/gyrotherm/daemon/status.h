@@ -42,10 +42,10 @@ struct DutStatus {
 // has no fixed length: its fraction and the ETAs are then nullopt and the
 // gate's progress is given instead.
 struct Progress {
-  std::optional<double> step_elapsed_s;    // station s in the current step
-  std::optional<double> step_planned_s;    // its fixed length (ramps, acquisition, dwell)
-  std::optional<double> step_fraction;     // 0..1; nullopt while settling
-  std::string phase;                       // ramping, settling, acquiring, spinning_up, ...
+  std::optional<double> step_elapsed_s;  // station s in the current step
+  std::optional<double> step_planned_s;  // its fixed length (ramps, acquisition, dwell)
+  std::optional<double> step_fraction;   // 0..1; nullopt while settling
+  std::string phase;                     // ramping, settling, acquiring, spinning_up, ...
   // Settling: how long the stability gate has held and how long it must.
   std::optional<double> gate_held_s;
   std::optional<double> gate_needed_s;
