@@ -1669,17 +1669,7 @@ Reply Station::exports() {
 }
 
 Reply Station::run_samples(int64_t id, const SamplesQuery& query) {
-  std::lock_guard lock(api_mu_);
-  if (auto run = api_db_.run(id); !run) return run_lookup_failure(run.error(), id);
-  auto samples = api_db_.decimated_samples(id, query.from_s, query.to_s, query.max_points);
-  if (!samples) {
-    if (samples.error().transient) return db_failure(samples.error());
-    return Reply::refused(Refusal::Kind::kInvalid, samples.error().message);
-  }
-  nlohmann::json j = to_json(*samples);
-  j["run_id"] = id;
-  j["max_points"] = query.max_points;
-  return Reply::ok(std::move(j));
+  return run_channel_samples(id, query);  // no dut/channel: the first DUT's primary axis
 }
 
 // ---------------------------------------------------------------- run metadata and DUT history
