@@ -218,8 +218,9 @@ TEST_F(DutsTest, ThreeDutsThroughACampaignEachRecoversItsOwnTruth) {
   const std::map<std::string, std::vector<std::string>> analysed = {
       {"17-0042", {"x", "y", "z"}}, {"17-0043", {"x", "z"}}, {"TS-7", {"x", "y"}}};
   std::size_t rows = 0;
-  for (const auto& [serial, axes] : analysed) {
-    for (const auto& axis : axes) {
+  for (const auto& entry : analysed) {
+    const std::string& serial = entry.first;  // (clang 14: no structured binding in a lambda)
+    for (const auto& axis : entry.second) {
       SCOPED_TRACE(serial + " " + axis);
       const auto it = std::find_if(stats->begin(), stats->end(), [&](const auto& r) {
         return r.dut_serial == serial && r.axis == axis;
