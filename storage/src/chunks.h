@@ -48,15 +48,19 @@ std::size_t encoded_size(Encoding e);  // bytes per value
 class EncodingNeed {
  public:
   void add(double raw) {
-    if (integral_ && raw == static_cast<double>(static_cast<int64_t>(raw)) &&
-        !(raw == 0 && std::signbit(raw)) && raw >= -2147483648.0 && raw <= 4294967295.0) {
+    // Range first: a cast of NaN or of a value beyond the target type is
+    // undefined behaviour.
+    const bool int_range = raw >= -2147483648.0 && raw <= 4294967295.0;  // false for NaN
+    if (integral_ && int_range && raw == std::trunc(raw) && !(raw == 0 && std::signbit(raw))) {
       if (raw < min_) min_ = raw;
       if (raw > max_) max_ = raw;
     } else {
       integral_ = false;
     }
-    if (f32_ && !(static_cast<double>(static_cast<float>(raw)) == raw || std::isnan(raw))) {
-      f32_ = false;
+    if (f32_ && !std::isnan(raw)) {
+      const bool float_range =
+          std::isinf(raw) || std::fabs(raw) <= static_cast<double>(std::numeric_limits<float>::max());
+      if (!float_range || static_cast<double>(static_cast<float>(raw)) != raw) f32_ = false;
     }
   }
   Encoding encoding() const;

@@ -847,7 +847,7 @@ TEST_F(CliControlTest, MetadataAndDutCommandsSendTheirRequests) {
   d.answer("GET", "/api/v1/queue", 200, queue_answer());
   json edited = run_answer();
   edited["metadata"] = metadata_answer("Bo Lind", {"a", "b"});
-  edited["duts"] = {run_dut_answer()};
+  edited["duts"] = json::array({run_dut_answer()});
   d.answer("PATCH", "/api/v1/runs/12", 200, edited);
   d.answer("GET", "/api/v1/runs/12", 200, edited);
   d.answer("GET", "/api/v1/runs/12/events", 200, events_answer());
