@@ -159,6 +159,17 @@ TEST_F(MonitoringTest, DecimatedSamplesAgreeWithTheDatabase) {
       60s))
       << daemon_->log();
   const auto run_id = (*status())["run_id"].get<int64_t>();
+  // The samples of [0, 300] committed (the status's clock runs ahead of
+  // the writer's commits, far ahead on a slow build): then both reads see them.
+  ASSERT_TRUE(wait_until(
+      [&] {
+        auto db = storage::Database::open_read_only((dir_ / "station.db").string());
+        if (!db.ok()) return false;
+        auto last = db->last_gyro_sample_t_s(run_id);
+        return last.ok() && last->has_value() && **last > 300.5;
+      },
+      60s))
+      << daemon_->log();
   const std::string base = fmt::format("/api/v1/runs/{}/samples", run_id);
   const auto j = get_json(base + "?from=0&to=300&max_points=100");
   ASSERT_TRUE(j.is_object());
