@@ -59,7 +59,8 @@ class EncodingNeed {
     }
     if (f32_ && !std::isnan(raw)) {
       const bool float_range =
-          std::isinf(raw) || std::fabs(raw) <= static_cast<double>(std::numeric_limits<float>::max());
+          std::isinf(raw) ||
+          std::fabs(raw) <= static_cast<double>(std::numeric_limits<float>::max());
       if (!float_range || static_cast<double>(static_cast<float>(raw)) != raw) f32_ = false;
     }
   }
