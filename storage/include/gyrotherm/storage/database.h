@@ -29,7 +29,8 @@ namespace gyrotherm::storage {
 
 // v8: DUTs, run metadata, results per DUT and axis (records).
 // v9: chunked sample storage (sample_chunks, channel_rollup).
-inline constexpr int kSchemaVersion = 9;
+// v10: run UUIDs and the lab outbox (runs.uuid, outbox; docs/lab.md).
+inline constexpr int kSchemaVersion = 9;  // 10 once the v10 migration lands (issue 19 contract)
 
 // Rollup blocks of the gyro rate (table gyro_rollup): block length of each
 // level, station seconds. A sample at t_s is in block floor(t_s / length).
@@ -69,6 +70,10 @@ struct RunRecord {
   std::string resume_json;
   std::optional<double> checkpoint_wall_unix_s;
   RunMetadata metadata;  // schema v8
+  // Schema v10: the run's identity across the lab (RFC 4122 text form,
+  // lower case), set by create_run when "" (random, version 4); runs
+  // stored before v10 got one in the migration.
+  std::string uuid;
 };
 
 // A device under test, as the station has known it (table duts): one row
@@ -381,6 +386,34 @@ struct DutHistory {
   std::vector<FitRecord> fits;  // this DUT's drift fits, newest first
 };
 
+// The lab outbox (schema v10, docs/lab.md "Outbox"). Once a station is
+// bound to a lab (lab_bind), every insert, update and delete of a relayed
+// table (runs, segments, acquisition_windows, events, segment_stats,
+// allan, fits, fit_runs, exports, export_runs, scale_factor_points,
+// scale_factor_fits, scale_factor_temperature_fits, duts, run_duts,
+// channels) adds one outbox row, written by triggers in the same
+// transaction as the change itself: a result committed is a result queued
+// for the lab. Raw samples are not relayed.
+struct OutboxRecord {
+  int64_t seq = 0;   // outbox order (AUTOINCREMENT: never reused)
+  std::string kind;  // the relayed table's record kind: run, segment, table1, allan, ...
+  std::string
+      run_uuid;  // the run's uuid; kNilUuid for station-level rows (duts, events outside runs)
+  std::string local_id;         // the row's key in its table as text, e.g. "12" or "12/17-0042/x"
+  bool deleted = false;         // a tombstone: the row was deleted (payload holds its key columns)
+  std::string payload_json;     // the row as a JSON object of its columns ({} for tombstones)
+  double committed_unix_s = 0;  // wall time (system clock) the change was written, Unix s
+};
+
+inline constexpr std::string_view kNilUuid = "00000000-0000-0000-0000-000000000000";
+
+struct OutboxStats {
+  int64_t pending = 0;                  // rows not yet acknowledged
+  int64_t pending_bytes = 0;            // sum of their payload sizes
+  std::optional<double> oldest_unix_s;  // committed_unix_s of the oldest pending row
+  int64_t last_acked_seq = 0;           // highest seq acknowledged so far (0: none)
+};
+
 class Database {
  public:
   // Opens or creates `path`, sets WAL and busy_timeout, migrates to
@@ -597,6 +630,23 @@ class Database {
   // Completed runs (state 'completed') in no nightly export that is writing
   // or done, ascending.
   Result<std::vector<int64_t>> runs_not_exported();
+
+  // The lab (schema v10). lab_station_id: the station id the database is
+  // bound to (meta 'lab_station_id'), nullopt when never bound. lab_bind
+  // binds it (first time: in one transaction, sets the id and queues every
+  // existing row of the relayed tables in the outbox, so the lab gets the
+  // station's history) or checks it (same id: nothing changes; another id:
+  // permanent error naming both: a database belongs to one station).
+  Result<std::optional<std::string>> lab_station_id();
+  Status lab_bind(std::string_view station_id);
+  // Up to `limit` pending outbox rows with seq > after_seq, in seq order,
+  // their payloads totalling at most about max_bytes (at least one row).
+  Result<std::vector<OutboxRecord>> outbox_batch(int64_t after_seq, int limit,
+                                                 int64_t max_bytes = 4 << 20);
+  // Acknowledges (deletes) every pending row with seq <= up_to_seq; called
+  // only after the lab database committed them.
+  Status outbox_ack(int64_t up_to_seq);
+  Result<OutboxStats> outbox_stats();
 
   // PRAGMA integrity_check (quick: PRAGMA quick_check, which skips the
   // index contents): its rows, exactly {"ok"} when the file is sound, one

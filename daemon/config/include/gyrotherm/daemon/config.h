@@ -224,6 +224,36 @@ struct ControlSection {
   double min_silent_wall_s = 1.0;
 };
 
+// [lab] (docs/lab.md): the station's place in the lab. Absent: a lone
+// station (no outbox, no relay), exactly as before. station_id binds the
+// database to the station (checked at start-up: one database, one id).
+// The PostgreSQL connection string never sits in this file (runs store a
+// copy of the config): it is read from url_file (a file holding a libpq
+// URI or conninfo, one line; relative to the config file) or from the
+// environment variable url_env. TLS: sslmode and the certificate files are
+// passed to libpq.
+struct LabSection {
+  std::string station_id;  // required: [A-Za-z0-9][A-Za-z0-9._-]{0,63}
+  bool relay = false;      // true: gyrothermd sends the outbox to the lab database
+  std::string url_file;    // exactly one of url_file, url_env when relay is true
+  std::string url_env;
+  std::string
+      sslmode;  // "" (libpq's default), disable, allow, prefer, require, verify-ca, verify-full
+  std::string sslrootcert;  // paths, relative to the config file; "" = libpq's default
+  std::string sslcert;
+  std::string sslkey;
+  int batch_records = 500;          // 1..100000
+  int64_t batch_bytes = 4 << 20;    // 1 KiB..256 MiB
+  double poll_s = 1.0;              // wall s, 0.01..3600
+  double retry_min_s = 1.0;         // wall s, > 0
+  double retry_max_s = 300.0;       // wall s, >= retry_min_s
+  double connect_timeout_s = 10.0;  // wall s, > 0
+};
+
+// The lab connection string of `lab`: url_file's text or url_env's value,
+// with the TLS keys appended; error naming the file, variable or key.
+Result<std::string> lab_conninfo(const LabSection& lab);
+
 // Simulation hook: where gyrotherm-sim writes the endpoints it opened. When
 // set, the daemon waits for this file at start-up and takes the chamber and
 // probe host/port and the gyro device from it. The rest of [simulator] is
@@ -250,6 +280,7 @@ struct StationConfig {
   AnalysisSection analysis;
   ControlSection control;
   SimulatorSection simulator;
+  std::optional<LabSection> lab;  // nullopt: no [lab]
   // Raw [simulator], for gyrotherm-sim. Keeps source lines only in the
   // StationConfig that load_station_config() returned (toml++ copies drop them).
   OptionalTomlTable simulator_table;

@@ -67,6 +67,9 @@ struct StationHooks {
   // Live events for /api/v1/stream: "state", "event", "stats" with their
   // JSON. Called from the control and analysis threads; must not block.
   std::function<void(std::string_view event, const nlohmann::json& data)> publish;
+  // The lab relay's state for the status (docs/lab.md); unset or nullopt:
+  // the station has no [lab]. Called by status(); thread-safe, must not block.
+  std::function<std::optional<lab::RelayStatus>()> lab_status;
 };
 
 // The station's devices, owned by the station. devices_from_config() builds
@@ -137,6 +140,10 @@ class Station final : public StationControl, private schedules::SequencerObserve
   void make_sequencer(schedules::Plan plan);
 
   StatusSnapshot status() const;
+  // An event from another part of the daemon (the lab relay: kind "lab"):
+  // thread-safe, never blocks; recorded (events table, stream) by the
+  // control loop at its next tick, under the run in progress if any.
+  void post_event(const std::string& kind, const std::string& message);
   // True when no run is active and nothing will start by itself (the queue
   // is empty or held).
   bool idle() const;

@@ -10,6 +10,7 @@
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/drivers/modbus_device.h"
 #include "gyrotherm/drivers/rate_table.h"
+#include "gyrotherm/lab/relay_status.h"
 #include "gyrotherm/schedules/progress.h"
 #include "gyrotherm/schedules/schedule.h"
 #include "gyrotherm/storage/sample_writer.h"
@@ -97,6 +98,12 @@ struct StatusSnapshot {
   int queue_length = 0;               // entries waiting
   bool queue_held = false;
   std::string queue_hold_reason;
+  // [lab] (docs/lab.md): the relay's state; nullopt when the station has
+  // no [lab]. Filled in by StationHooks::lab_status at each snapshot.
+  std::optional<lab::RelayStatus> lab;
+  // Free bytes on the file system of the station database (statvfs, for
+  // the "disk filling" alert); nullopt when it cannot be read.
+  std::optional<int64_t> storage_free_bytes;
 };
 
 nlohmann::json to_json(const StatusSnapshot& s);

@@ -1,0 +1,72 @@
+// The relay (docs/lab.md "Relay"): gyrothermd's thread that moves the
+// station's outbox to the lab database.
+//
+// It reads pending outbox rows in seq order on its own SQLite connection,
+// writes them to PostgreSQL in one transaction per batch (push_batch:
+// idempotent upserts), and only then acknowledges them locally: a crash
+// between the two replays the batch, which the lab recognises
+// (redelivered), so delivery is at least once and the lab holds each
+// record exactly once. Connection loss or a down server: exponential
+// backoff (retry_min_s doubling to retry_max_s, wall time), then resume
+// where the outbox stands. Memory is bounded by one batch (batch_records,
+// batch_bytes). A refusal stops sending (state "refused") and is retried
+// at retry_max_s in case the lab's registration is fixed.
+#pragma once
+
+#include <condition_variable>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+
+#include "gyrotherm/core/clock.h"
+#include "gyrotherm/core/result.h"
+#include "gyrotherm/lab/relay_status.h"
+
+namespace gyrotherm::lab {
+
+struct RelayOptions {
+  std::string station_id;
+  std::string db_path;    // the station's SQLite file (bound to station_id before start)
+  std::string conninfo;   // libpq conninfo/URI, may hold a password (never logged)
+  int batch_records = 500;
+  int64_t batch_bytes = 4 << 20;
+  double poll_s = 1.0;         // wall s between outbox polls when idle (nudge() wakes it early)
+  double retry_min_s = 1.0;    // backoff after a failure, doubling...
+  double retry_max_s = 300.0;  // ...up to this
+  double connect_timeout_s = 10.0;
+  // State changes worth an event (connected, lost, refused, resumed):
+  // (kind "lab", message). Called from the relay thread.
+  std::function<void(const std::string& message)> on_event;
+};
+
+class Relay {
+ public:
+  // Checks the options (not the server: an unreachable lab is a backoff,
+  // not a start-up failure). The database must be bound (lab_bind) to
+  // options.station_id.
+  static Result<std::unique_ptr<Relay>> create(RelayOptions options);
+  ~Relay();  // stop()
+  void start();
+  // Stops after the batch in flight (it is committed or rolled back
+  // centrally, acknowledged locally only when committed).
+  void stop();
+  // Wakes the thread now (a result was committed).
+  void nudge();
+  RelayStatus status() const;
+
+ private:
+  explicit Relay(RelayOptions options);
+  void run();
+
+  RelayOptions options_;
+  mutable std::mutex mutex_;
+  std::condition_variable wake_;
+  bool stop_requested_ = false;
+  bool nudged_ = false;
+  RelayStatus status_;
+  std::thread thread_;
+};
+
+}  // namespace gyrotherm::lab

@@ -1,0 +1,1 @@
+// TODO(contract): see include/gyrotherm/lab/*.h
