@@ -27,6 +27,7 @@
 #include "gyrotherm/drivers/serial_port.h"
 #include "gyrotherm/schedules/progress.h"
 #include "gyrotherm/schedules/schedule.h"
+#include "lab.h"
 #include "output.h"
 #include "samples.h"
 
@@ -680,16 +681,20 @@ int main(int argc, char** argv) {
   gyrotherm::cli::AnalysisCommands analysis(app);
   // export
   gyrotherm::cli::ExportCommand export_command(app);
+  // lab stations|runs|run|dut|summary|migrate|add-station|add-reader
+  gyrotherm::cli::LabCommands lab_commands(app);
 
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    // CLI11 echoes unexpected arguments, which may hold a token.
+    // CLI11 echoes unexpected arguments, which may hold a token or a lab
+    // URL's password.
     std::ostringstream out, err;
     const int code = app.exit(e, out, err);
     const std::vector<std::string> args(argv + 1, argv + argc);
     std::cout << out.str();
-    std::cerr << gyrotherm::cli::redact_tokens(err.str(), args);
+    std::cerr << gyrotherm::cli::redact_lab_passwords(
+        gyrotherm::cli::redact_tokens(err.str(), args), args);
     return code == 0 ? 0 : 2;  // --help is not an error; usage errors exit 2
   }
   try {
@@ -712,6 +717,7 @@ int main(int argc, char** argv) {
     if (auto code = control.run(json)) return *code;
     if (auto code = analysis.run(json)) return *code;
     if (auto code = export_command.run(json)) return *code;
+    if (auto code = lab_commands.run(json)) return *code;
   } catch (const std::exception& e) {
     return fail(e.what());
   }
