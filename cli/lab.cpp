@@ -664,11 +664,13 @@ std::optional<int> LabCommands::run(bool json_flag) {
   };
 
   auto pg = lab::PgConnection::connect(*url, kConnectTimeoutS);
+  // The library's message names the server (host, port, database, user)
+  // and never the password.
+  // A connection string libpq cannot parse is the user's to fix (exit 2);
+  // a server that cannot be reached or refuses the login is 1.
   if (!pg) {
-    return fail(redact_lab_passwords(fmt::format("cannot connect to the lab database {}: {}",
-                                                 lab::redact_conninfo(*url), pg.error().message),
-                                     url_args),
-                kExitFailed, kWho);
+    return fail(redact_lab_passwords(pg.error().message, url_args),
+                pg.error().transient ? kExitFailed : kExitUsage, kWho);
   }
 
   if (*p.stations) {
