@@ -85,6 +85,11 @@ std::string cell(std::string_view text) {
                       : fmt::format("<td>{}</td>", esc(text));
 }
 
+// A UTC time cell ("2026-11-21 05:38:43"), kept on one line.
+std::string time_cell(std::string_view iso) {
+  return iso.empty() ? cell(iso) : fmt::format("<td class=\"time\">{}</td>", esc(utc(iso)));
+}
+
 // A number cell with `decimals` (negative: 6 significant digits); "—"
 // when missing or not finite.
 std::string num(const json& v, int decimals, double factor = 1) {
@@ -286,7 +291,7 @@ std::string table1_html(const std::vector<json>& rows) {
   for (const auto& r : rows) {
     const auto step = number(member(r, "segment_index"));
     h += "<tr>" + num(member(r, "setpoint_c"), 2) + cell(run_ref(r)) +
-         cell(utc(str(r, "run_started_utc"))) +
+         time_cell(str(r, "run_started_utc")) +
          cell(step ? std::to_string(static_cast<int64_t>(*step) + 1) : "") +
          num(member(r, "temp_mean_c"), 2) + num(member(r, "n"), 0) +
          num(member(r, "bias_mean_dph"), 4) + num(member(r, "bias_std_dph"), 4) +
@@ -322,7 +327,7 @@ std::string fits_html(const std::vector<json>& rows) {
          num(member(f, "n"), 0) + "<td class=\"coefficients\">" +
          coefficients(member(f, "coefficients"), member(f, "standard_errors")) + "</td>" +
          num(member(f, "residual_std_dph"), 4) + num(member(f, "r_squared"), 4) +
-         cell(utc(str(f, "computed_utc"))) + "</tr>\n";
+         time_cell(str(f, "computed_utc")) + "</tr>\n";
   }
   return h + "</tbody></table>\n";
 }
@@ -382,6 +387,7 @@ th, td { border: 1px solid #ddd; padding: 0.2em 0.5em; vertical-align: top; }
 th { background: #f3f3f3; text-align: left; }
 td.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
 td.missing { color: #999; }
+td.time, td.uuid { white-space: nowrap; } td.uuid { font-family: monospace; font-size: 0.9em; }
 td.coefficients { font-family: monospace; white-space: nowrap; }
 dl.provenance { display: grid; grid-template-columns: max-content auto; gap: 0.2em 1em; }
 dl.provenance dt { font-weight: bold; }
@@ -481,8 +487,8 @@ Result<std::string> lab_summary_html(PgConnection& pg, const LabSummaryOptions& 
          "<tbody>\n";
     for (const auto& s : *stations) {
       h += "<tr>" + cell(s.station_id) + cell(s.db_role) + cell(s.description) +
-           cell(utc(s.registered_utc)) +
-           cell(s.last_batch_utc ? utc(*s.last_batch_utc) : std::string("never")) +
+           time_cell(s.registered_utc) +
+           (s.last_batch_utc ? time_cell(*s.last_batch_utc) : cell("never")) +
            num(json(s.last_seq), 0) + num(json(s.records), 0) + num(json(s.runs), 0) + "</tr>\n";
     }
     h += "</tbody></table>\n";
@@ -500,7 +506,7 @@ Result<std::string> lab_summary_html(PgConnection& pg, const LabSummaryOptions& 
     for (const auto& r : *runs) {
       h += "<tr>" + cell(r.station_id) + num(json(r.local_run_id), 0) + "<td class=\"uuid\">" +
            esc(r.run_uuid) + "</td>" + cell(r.schedule_name) + cell(r.state) +
-           cell(utc(r.started_utc)) + cell(utc(r.ended_utc)) + cell(r.operator_name) +
+           time_cell(r.started_utc) + time_cell(r.ended_utc) + cell(r.operator_name) +
            cell(joined(r.dut_serials)) + cell(joined(r.tags)) + cell(r.comment) + "</tr>\n";
     }
     h += "</tbody></table>\n";
