@@ -366,7 +366,7 @@ Result<std::string> lab_run_json(PgConnection& pg, const std::string& run) {
                            params);
   if (!run_row) return run_row.error();
   if (run_row->empty()) return Error::Permanent(fmt::format("no run {} in the lab", run));
-  json out = {{"run", run_row->front()}};
+  json out = json::object({{"run", run_row->front()}});
   for (const Section& s : run_sections()) {
     auto rows = json_rows(pg, s.view,
                           fmt::format("SELECT {} FROM {} t WHERE t.station_id = $1 AND "

@@ -2,7 +2,7 @@
 // the CLI's (tests/integration/lab_cli_test.cpp): outbox records built as
 // the stations' SQLite triggers write them (docs/lab.md "Outbox": a JSON
 // object of every column of the row, `*_json` columns embedded as JSON;
-// keys and kinds of the brief's table), pushed with push_batch as each
+// keys and kinds of docs/lab.md), pushed with push_batch as each
 // station's own role.
 //
 // Station "lab-a" (role lab_a_relay):
@@ -75,7 +75,8 @@ class StationOutbox {
          {"time_scale", 1.0},
          {"latitude_deg", 48.1},
          {"orientation", "up"},
-         {"config_json", {{"station", {{"name", "bench"}}}}},
+         {"config_json",
+          nlohmann::json::object({{"station", nlohmann::json::object({{"name", "bench"}})}})},
          {"queue_id", id},
          {"schedule_id", id},
          {"operator", operator_name},
@@ -101,7 +102,7 @@ class StationOutbox {
          {"axes_json", nlohmann::json::array({"x", "y", "z"})},
          {"rate_hz", 1000.0},
          {"seq_modulo", 128},
-         {"config_json", {{"serial", "configured"}}}});
+         {"config_json", nlohmann::json::object({{"serial", "configured"}})}});
   }
   void segment(int64_t id, int64_t run_id, const std::string& uuid, int64_t idx,
                const std::string& kind, double setpoint_c) {
@@ -207,7 +208,7 @@ inline StationOutbox station_a_outbox() {
        {"bias_instability_tau_s", 120.0},
        {"rate_random_walk_dphprh", nullptr},
        {"bias_instability_method", "minimum / 0.664"},
-       {"inputs_json", {{"bin_s", 0.001}}},
+       {"inputs_json", json::object({{"bin_s", 0.001}})},
        {"computed_utc", "2026-11-20T12:00:00.000Z"},
        {"dut_serial", "17-0042"},
        {"axis", "z"}});
@@ -220,7 +221,7 @@ inline StationOutbox station_a_outbox() {
          {"standard_errors_json", {{"T1", 0.0004}, {"R1", 0.02}}},
          {"residual_std_dph", 0.0089},
          {"r_squared", 0.987},
-         {"inputs_json", {{"bin_s", 1.0}}},
+         {"inputs_json", json::object({{"bin_s", 1.0}})},
          {"computed_utc", "2026-11-20T12:30:00.000Z"},
          {"dut_serial", "17-0042"},
          {"axis", "z"}});
