@@ -1,4 +1,4 @@
-// A private PostgreSQL cluster for tests (docs/testing.md "PostgreSQL").
+// A private PostgreSQL cluster for tests of the lab database.
 //
 // PgCluster runs Debian's postgresql-15 binaries (initdb, pg_ctl; the
 // directory is /usr/lib/postgresql/15/bin, or GYROTHERM_PG_BINDIR) on a
