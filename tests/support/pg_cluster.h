@@ -1,4 +1,4 @@
-// A private PostgreSQL cluster for tests (docs/testing.md "PostgreSQL").
+// A private PostgreSQL cluster for tests of the lab database.
 //
 // PgCluster runs Debian's postgresql-15 binaries (initdb, pg_ctl; the
 // directory is /usr/lib/postgresql/15/bin, or GYROTHERM_PG_BINDIR) on a
@@ -31,6 +31,8 @@
 
 #include <atomic>
 #include <cctype>
+#include <cerrno>
+#include <csignal>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -56,13 +58,13 @@ inline std::filesystem::path postgres_bindir() {
 
 // Skips (or, with GYROTHERM_REQUIRE_POSTGRES=1, fails) the current test
 // with `why`; for SetUp and test bodies.
-#define GYROTHERM_PG_SKIP_OR_FAIL(why)                                          \
-  do {                                                                          \
-    if (::gyrotherm::testing::postgres_required()) {                            \
+#define GYROTHERM_PG_SKIP_OR_FAIL(why)                                           \
+  do {                                                                           \
+    if (::gyrotherm::testing::postgres_required()) {                             \
       FAIL() << (why) << " (GYROTHERM_REQUIRE_POSTGRES=1: PostgreSQL required)"; \
-    } else {                                                                    \
-      GTEST_SKIP() << (why);                                                    \
-    }                                                                           \
+    } else {                                                                     \
+      GTEST_SKIP() << (why);                                                     \
+    }                                                                            \
   } while (0)
 
 class PgCluster {
@@ -91,8 +93,10 @@ class PgCluster {
   PgCluster& operator=(const PgCluster&) = delete;
 
   ~PgCluster() {
-    if (running_) run_as_server({(bin_ / "pg_ctl").string(), "-D", data_.string(), "-m",
-                                 "immediate", "-w", "stop"});
+    if (running_) {
+      run_as_server(
+          {(bin_ / "pg_ctl").string(), "-D", data_.string(), "-m", "immediate", "-w", "stop"});
+    }
     std::error_code ec;
     std::filesystem::remove_all(dir_, ec);
   }
@@ -107,10 +111,10 @@ class PgCluster {
   }
   // Starts it again on the same port; returns when it accepts connections.
   bool start() {
-    const bool ok = run_as_server({(bin_ / "pg_ctl").string(), "-D", data_.string(), "-l",
-                                   (dir_ / "server.log").string(), "-w", "-t",
-                                   std::to_string(static_cast<int>(60 * time_factor())),
-                                   "start"}) == 0;
+    const bool ok =
+        run_as_server({(bin_ / "pg_ctl").string(), "-D", data_.string(), "-l",
+                       (dir_ / "server.log").string(), "-w", "-t",
+                       std::to_string(static_cast<int>(60 * time_factor())), "start"}) == 0;
     if (ok) running_ = true;
     return ok;
   }
@@ -123,8 +127,8 @@ class PgCluster {
   // A libpq conninfo for `user` on `dbname` over TCP (no password: trust).
   std::string conninfo(const std::string& user = kAdmin,
                        const std::string& dbname = "postgres") const {
-    return "host=127.0.0.1 port=" + std::to_string(port_) + " dbname=" + dbname +
-           " user=" + user + " connect_timeout=10";
+    return "host=127.0.0.1 port=" + std::to_string(port_) + " dbname=" + dbname + " user=" + user +
+           " connect_timeout=10";
   }
 
   // Runs `sql` as the superuser on `dbname`; "" when it worked, else the
@@ -209,10 +213,31 @@ class PgCluster {
     return ss.str();
   }
 
+  // Clusters of test processes that died without their destructor (a
+  // timeout's kill, a crash) would run on: stopped and removed here. A
+  // directory without owner.pid is still being set up by a live process.
+  void reap_orphans(const std::filesystem::path& base) const {
+    std::error_code ec;
+    for (const auto& entry : std::filesystem::directory_iterator(base, ec)) {
+      const std::string name = entry.path().filename().string();
+      if (name.rfind("gyrotherm-pg-", 0) != 0 || entry.path() == dir_) continue;
+      std::ifstream in(entry.path() / "owner.pid");
+      long pid = 0;
+      if (!(in >> pid) || pid <= 0) continue;
+      if (::kill(static_cast<pid_t>(pid), 0) == 0 || errno != ESRCH) continue;
+      std::string cmd = as_root() ? "runuser -u nobody -- " : "";
+      cmd += shell_quote((bin_ / "pg_ctl").string()) + " -D " +
+             shell_quote((entry.path() / "data").string()) +
+             " -m immediate -w stop >/dev/null 2>&1 </dev/null";
+      if (std::system(cmd.c_str()) == -1) continue;
+      std::filesystem::remove_all(entry.path(), ec);
+    }
+  }
+
   bool init(std::string* why) {
     // As root, TMPDIR may be a directory `nobody` cannot enter: /tmp is.
-    const auto base = as_root() ? std::filesystem::path("/tmp")
-                                : std::filesystem::temp_directory_path();
+    const auto base =
+        as_root() ? std::filesystem::path("/tmp") : std::filesystem::temp_directory_path();
     std::string templ = (base / "gyrotherm-pg-XXXXXX").string();
     if (!::mkdtemp(templ.data())) {
       *why = "cannot create a temp directory under " + base.string();
@@ -220,6 +245,8 @@ class PgCluster {
     }
     dir_ = templ;
     data_ = dir_ / "data";
+    std::ofstream(dir_ / "owner.pid") << ::getpid() << "\n";
+    reap_orphans(base);
     if (as_root()) {
       const passwd* nobody = ::getpwnam("nobody");
       if (!nobody || ::chown(dir_.c_str(), nobody->pw_uid, nobody->pw_gid) != 0) {
