@@ -309,7 +309,17 @@ std::string format_lab_runs(const std::vector<lab::LabRun>& runs) {
 
 namespace {
 
-// The Allan noise terms of result rows; `run_of`: the run column ("" = none).
+// "station-3/12, station-3/14" of a station's run ids.
+std::string run_refs(const std::string& station, const json& ids) {
+  if (!ids.is_array() || ids.empty()) return kDash;
+  std::string out;
+  for (const auto& id : ids)
+    out += fmt::format("{}{}/{}", out.empty() ? "" : ", ", station, text(id));
+  return out;
+}
+
+// The Allan noise terms of result rows, with a run column (the rows'
+// "run") and a DUT column when asked.
 std::string allan_table(const json& rows, bool with_run, bool with_dut) {
   std::vector<std::vector<std::string>> out;
   for (const auto& a : rows) {
@@ -407,6 +417,8 @@ std::string format_lab_run(const json& j) {
   }
 
   if (const json& fits = field(j, "fits"); fits.is_array() && !fits.empty()) {
+    // A fit's runs are its station's: named STATION/ID like this one.
+    const std::string station = text(field(run, "station_id"));
     std::vector<std::vector<std::string>> rows;
     for (const auto& f : fits) {
       std::string coefficients;
@@ -418,8 +430,8 @@ std::string format_lab_run(const json& j) {
       }
       rows.push_back({text(field(f, "fit_local_id")), serial_text(field(f, "dut_serial")),
                       axis_text(f), text(field(f, "model")), text(field(f, "form")),
-                      listed(field(f, "run_ids")), fixed(field(f, "residual_std_dph"), 4),
-                      fixed(field(f, "r_squared"), 4),
+                      run_refs(station, field(f, "run_ids")),
+                      fixed(field(f, "residual_std_dph"), 4), fixed(field(f, "r_squared"), 4),
                       coefficients.empty() ? std::string(kDash) : coefficients});
     }
     out += "\ndrift fits\n";

@@ -209,7 +209,9 @@ std::vector<Section> run_sections() {
       {"scale_factor_fits", "lab.scale_factor_fits", "t.dut_serial, t.axis, t.sf_sequence"},
       {"scale_factor_temperature_fits", "lab.scale_factor_temperature_fits",
        "t.dut_serial, t.axis"},
-      {"events", "lab.events", "t.t_s, " + numeric_order("t.local_id")},
+      // In the order the station recorded them (its event ids), as
+      // `gyrotherm run` lists them.
+      {"events", "lab.events", numeric_order("t.local_id")},
   };
 }
 
