@@ -707,8 +707,13 @@ std::optional<int> LabCommands::run(bool json_flag) {
     return 0;
   }
   if (*p.runs) {
-    auto runs = lab::lab_runs(*pg, p.filter);
+    // One run more than asked for tells whether the list was cut.
+    lab::LabRunFilter filter = p.filter;
+    if (filter.limit > 0) ++filter.limit;
+    auto runs = lab::lab_runs(*pg, filter);
     if (!runs) return fail_with(runs.error());
+    const bool cut = p.filter.limit > 0 && runs->size() > static_cast<std::size_t>(p.filter.limit);
+    if (cut) runs->resize(static_cast<std::size_t>(p.filter.limit));
     if (as_json) {
       json out = json::array();
       for (const auto& r : *runs) {
@@ -727,6 +732,10 @@ std::optional<int> LabCommands::run(bool json_flag) {
       std::cout << out.dump(2) << "\n";
     } else {
       std::cout << format_lab_runs(*runs);
+      if (cut) {
+        std::cout << fmt::format("(the newest {}: --limit N or --since DATE for others)\n",
+                                 p.filter.limit);
+      }
     }
     return 0;
   }

@@ -159,6 +159,14 @@ TEST_F(LabCliTest, ReadsAcrossStations) {
   r = lab({"runs", "--since", "2026-11-21", "--json"});
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_EQ(json::parse(r.out).size(), 2u);
+  r = lab({"runs", "--limit", "2"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_THAT(r.out, Not(HasSubstr(testing::kUuidA1)));
+  EXPECT_THAT(r.out, HasSubstr("(the newest 2: --limit N or --since DATE for others)"));
+  r = lab({"runs", "--limit", "3"});  // all there are: not cut
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_THAT(r.out, HasSubstr(testing::kUuidA1));
+  EXPECT_THAT(r.out, Not(HasSubstr("the newest")));
   r = lab({"runs", "--limit", "1", "--json"});
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_EQ(json::parse(r.out).size(), 1u);
