@@ -193,6 +193,9 @@ TEST_F(StationTest, ShortScheduleEndToEnd) {
 // start-up, naming the first's pid, also when its config reaches the file
 // through a symlink, and the first's run goes on untouched.
 TEST_F(StationTest, SecondDaemonOnTheSameDatabaseIsRefusedAndTheRunGoesOn) {
+  // A soak long enough (2 h of station time, 36 s of wall time) to outlast
+  // both refusals (each waits up to 5 s for the lock).
+  write(dir_ / "schedule.toml", testing::soak_schedule("long", 23.0, 120));
   start_sim();
   start_daemon();
   std::optional<nlohmann::json> live;
