@@ -92,9 +92,8 @@ struct LabStation {
     fs::create_directories(dir);
     api_port = testing::free_tcp_port();
     std::ofstream(dir / "lab-url") << lab_conninfo << "\n";
-    std::ofstream(dir / "station.toml")
-        << testing::station_config(dir, api_port)
-        << fmt::format(R"(
+    std::ofstream(dir / "station.toml") << testing::station_config(dir, api_port)
+                                        << fmt::format(R"(
 [lab]
 station_id = "{}"
 relay = true
@@ -104,7 +103,7 @@ retry_min_s = 0.1
 retry_max_s = 0.5
 connect_timeout_s = 5
 )",
-                       claimed_id);
+                                                       claimed_id);
     std::ofstream(dir / "campaign.toml") << kCampaign;
   }
 
@@ -278,9 +277,10 @@ TEST_F(LabTest, ThreeStationsThroughAnOutageAndAKillArriveExactlyOnce) {
   ASSERT_TRUE(admin_->exec("BEGIN; LOCK TABLE lab.records IN EXCLUSIVE MODE").ok());
   ASSERT_TRUE(wait_until(
       [&] {
-        return central_int("SELECT count(*) FROM pg_stat_activity WHERE usename = $1 AND "
-                           "wait_event_type = 'Lock'",
-                           {std::string("gyrotherm_st02")}) > 0;
+        return central_int(
+                   "SELECT count(*) FROM pg_stat_activity WHERE usename = $1 AND "
+                   "wait_event_type = 'Lock'",
+                   {std::string("gyrotherm_st02")}) > 0;
       },
       std::chrono::seconds(60)))
       << "st02's relay never started a batch while the lab was locked\n"
