@@ -146,7 +146,9 @@ int main(int argc, char** argv) {
   gd::EventStreamOptions stream_options;
   stream_options.queue_bytes = static_cast<std::size_t>(config->api.stream_queue_bytes);
   stream_options.max_clients = config->api.max_stream_clients;
-  stream_options.status_json = [&station_ptr] { return gd::to_json(station_ptr->status()).dump(); };
+  stream_options.status_json = [&station_ptr] {
+    return gd::json_text(gd::to_json(station_ptr->status()));
+  };
   gd::EventStream stream(stream_options);
   gd::StationHooks hooks;
   hooks.observe_modbus = [&metrics](std::string_view device, double seconds) {
@@ -154,7 +156,7 @@ int main(int argc, char** argv) {
   };
   hooks.observe_commit = [&metrics](double seconds) { metrics.observe_commit(seconds); };
   hooks.publish = [&stream](std::string_view event, const nlohmann::json& data) {
-    stream.publish(event, data.dump());
+    stream.publish(event, gd::json_text(data));
   };
   auto devices = gd::devices_from_config(*config, clock, hooks);
   if (!devices) {

@@ -968,6 +968,20 @@ TEST(Api, DutRoutesDecodeTheSerialAndName404s) {
     EXPECT_EQ(handle_api_request(get(target), ctx).result(), http::status::not_found) << target;
   }
   EXPECT_TRUE(control.calls.empty());
+
+  // A serial that is not UTF-8 (found by the http fuzz target: the reply
+  // quoting it threw from the JSON writer and ended the process): answered
+  // in valid JSON, the bad byte shown as U+FFFD.
+  const auto bad = handle_api_request(get("/api/v1/duts/SN%201\x92"
+                                          "7-0042"),
+                                      ctx);
+  EXPECT_EQ(bad.result(), http::status::ok);
+  const auto body = nlohmann::json::parse(bad.body(), nullptr, false);
+  ASSERT_FALSE(body.is_discarded()) << bad.body();
+  EXPECT_EQ(body.value("serial", ""),
+            "SN 1\xEF\xBF\xBD"
+            "7-0042")
+      << bad.body();
 }
 
 TEST(Api, StatsAndSamplesTakeTheDutAndItsAxisOrChannel) {

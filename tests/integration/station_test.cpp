@@ -9,6 +9,8 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <nlohmann/json.hpp>
 
 #include "gyrotherm/cli/http_client.h"
@@ -186,6 +188,76 @@ TEST_F(StationTest, ShortScheduleEndToEnd) {
 // The configuration stored with a run is the one in force: the file edited
 // on disk after the daemon started changes neither what is stored nor what
 // the analysis uses; the CLI and reports read the same settings back.
+// Two daemons must never share one database: the second would mark the
+// first's run interrupted and write its chamber. The second refuses at
+// start-up, naming the first's pid, also when its config reaches the file
+// through a symlink, and the first's run goes on untouched.
+TEST_F(StationTest, SecondDaemonOnTheSameDatabaseIsRefusedAndTheRunGoesOn) {
+  // A soak long enough (2 h of station time, 36 s of wall time) to outlast
+  // both refusals (each waits up to 5 s for the lock).
+  write(dir_ / "schedule.toml", testing::soak_schedule("long", 23.0, 120));
+  start_sim();
+  start_daemon();
+  std::optional<nlohmann::json> live;
+  ASSERT_TRUE(wait_until(
+      [&] {
+        live = status();
+        return live && live->value("state", "") == "acquiring";
+      },
+      std::chrono::seconds(60)))
+      << daemon_->log();
+
+  // The same config (same database), another API port; then a config
+  // naming the database through a symlink in another directory.
+  const fs::path link_dir = dir_ / "elsewhere";
+  fs::create_directories(link_dir);
+  fs::create_symlink(dir_ / "station.db", link_dir / "alias.db");
+  std::string text;
+  {
+    std::ifstream in(dir_ / "station.toml");
+    text.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  }
+  const auto with = [&](const std::string& from, const std::string& to) {
+    std::string t = text;
+    t.replace(t.find(from), from.size(), to);
+    return t;
+  };
+  const std::string port_line = fmt::format("port = {}", api_port_);
+  const std::string other_port = fmt::format("port = {}", testing::free_tcp_port());
+  write(dir_ / "second.toml", with(port_line, other_port));
+  std::string aliased = with(port_line, other_port);
+  const std::string db_line = fmt::format("db = \"{}/station.db\"", dir_.string());
+  aliased.replace(aliased.find(db_line), db_line.size(),
+                  fmt::format("db = \"{}\"", (link_dir / "alias.db").string()));
+  write(dir_ / "aliased.toml", aliased);
+
+  for (const char* config : {"second.toml", "aliased.toml"}) {
+    ChildProcess second({bin("gyrothermd"), "--config", (dir_ / config).string(), "--time-scale",
+                         fmt::format("{}", time_scale_)},
+                        (dir_ / "second.log").string());
+    const auto code = second.wait(std::chrono::seconds(30));
+    ASSERT_TRUE(code.has_value()) << config << ": the second daemon kept running";
+    EXPECT_EQ(*code, 1) << second.log();
+    EXPECT_THAT(second.log(), HasSubstr("run by another gyrothermd"));
+    EXPECT_THAT(second.log(), HasSubstr(fmt::format("pid {}", daemon_->pid())));
+  }
+
+  // The first daemon still runs its run, and the run was never interrupted.
+  ASSERT_TRUE(daemon_->running()) << daemon_->log();
+  const double t_before = status()->value("t_run_s", 0.0);
+  ASSERT_TRUE(wait_until([&] { return status() && status()->value("t_run_s", 0.0) > t_before + 5; },
+                         std::chrono::seconds(30)));
+  auto now = status();
+  ASSERT_TRUE(now);
+  EXPECT_EQ((*now)["run_id"], 1);
+  EXPECT_NE(now->value("state", ""), "interrupted");
+  auto db = storage::Database::open_read_only((dir_ / "station.db").string());
+  ASSERT_TRUE(db.ok()) << db.error().message;
+  auto events = db->events(1);
+  ASSERT_TRUE(events.ok());
+  for (const auto& e : *events) EXPECT_NE(e.to_state, "interrupted") << e.message;
+}
+
 TEST_F(StationTest, StoredConfigIsTheOneInForceNotTheFileOnDisk) {
   const fs::path config = dir_ / "station.toml";
   auto edit = [&](const std::string& from, const std::string& to) {

@@ -18,6 +18,7 @@
 
 #include "gyrotherm/drivers/kvh1750.h"
 #include "sim_test_util.h"
+#include "test_time.h"
 
 namespace gyrotherm::sim {
 namespace {
@@ -330,6 +331,13 @@ TEST_F(SimulatorTest, ManualClockStepsExactly) {
 }
 
 TEST_F(SimulatorTest, KeepsUpAtTimeScale1000With10Hz) {
+  // A speed check of the optimised build: under the sanitizers (which set
+  // GYROTHERM_TEST_TIME_FACTOR) the pty reader alone falls behind 10 000
+  // frames per wall second on a busy machine, whatever the simulator does.
+  if (gyrotherm::testing::time_factor() > 1) {
+    GTEST_SKIP() << "speed check: not meaningful in a sanitized build (time factor "
+                 << gyrotherm::testing::time_factor() << ")";
+  }
   options_.time_scale = 1000;  // 10 000 frames per wall second
   ASSERT_NO_FATAL_FAILURE(start());
   PtyReader reader(sim_->endpoints().gyro_device);

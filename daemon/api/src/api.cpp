@@ -29,7 +29,7 @@ std::optional<int64_t> parse_id(std::string_view s) {
 
 HttpResponse reply_response(const HttpRequest& req, const Reply& reply,
                             http::status ok_status = http::status::ok) {
-  if (!reply.refusal) return json_response(req, ok_status, reply.body.dump());
+  if (!reply.refusal) return json_response(req, ok_status, json_text(reply.body));
   const Refusal& r = *reply.refusal;
   http::status status = http::status::unprocessable_entity;
   switch (r.kind) {
@@ -51,7 +51,7 @@ HttpResponse reply_response(const HttpRequest& req, const Reply& reply,
   }
   nlohmann::json body = {{"error", r.message}, {"status", static_cast<int>(status)}};
   if (!r.details.empty()) body["errors"] = r.details;
-  return json_response(req, status, body.dump());
+  return json_response(req, status, json_text(body));
 }
 
 // The request body as a JSON object with only `allowed` fields, or a 400.
@@ -399,7 +399,7 @@ constexpr Route kRoutes[] = {
      }},
     {http::verb::get, "/api/v1/status", Access::kRead, false,
      [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
-       return json_response(req, http::status::ok, to_json(ctx.status()).dump());
+       return json_response(req, http::status::ok, json_text(to_json(ctx.status())));
      }},
     // Served by the HTTP server's event stream; reached here only when none
     // is attached.

@@ -37,12 +37,14 @@ HttpResponse json_response(const HttpRequest& req, http::status status, std::str
   return res;
 }
 
+std::string json_text(const nlohmann::json& j) {
+  return j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
+}
+
 HttpResponse error_response(const HttpRequest& req, http::status status, std::string_view message) {
-  nlohmann::json j = {{"error", message}, {"status", static_cast<int>(status)}};
-  // Messages quote the request (its target, a query value): bytes that are
-  // not UTF-8 become U+FFFD instead of throwing.
+  // Messages quote the request (its target, a query value): json_text.
   return json_response(req, status,
-                       j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace));
+                       json_text({{"error", message}, {"status", static_cast<int>(status)}}));
 }
 
 std::optional<std::string> host_problem(const HttpRequest& req) {

@@ -44,7 +44,14 @@ Status write_all(int fd, const std::string& text) {
 
 }  // namespace
 
-std::string station_lock_path(const std::string& db_path) { return db_path + ".lock"; }
+std::string station_lock_path(const std::string& db_path) {
+  // The database's real path: two configs naming one file through a
+  // symlink, "..", or a relative path from another directory must meet at
+  // one lock (a second daemon on the file would interrupt the first's run).
+  std::error_code ec;
+  const std::filesystem::path real = std::filesystem::weakly_canonical(db_path, ec);
+  return (ec || real.empty() ? db_path : real.string()) + ".lock";
+}
 
 Result<StationLock> StationLock::acquire(const std::string& db_path, double wait_s) {
   const std::string path = station_lock_path(db_path);

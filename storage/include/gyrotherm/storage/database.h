@@ -388,7 +388,7 @@ struct DutHistory {
 
 // The lab outbox (schema v10, docs/lab.md "Outbox"). Once a station is
 // bound to a lab (lab_bind), every insert, update and delete of a relayed
-// table (runs, segments, acquisition_windows, events, segment_stats,
+// table (runs, segments, events, segment_stats,
 // allan, fits, fit_runs, exports, export_runs, scale_factor_points,
 // scale_factor_fits, scale_factor_temperature_fits, duts, run_duts,
 // channels) adds one outbox row, written by triggers in the same

@@ -24,6 +24,7 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <nlohmann/json_fwd.hpp>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -162,6 +163,10 @@ class HttpServer {
 std::optional<std::string> host_problem(const HttpRequest& req);
 
 // Helpers for handlers.
+// `j` as compact JSON text; bytes in its strings that are not UTF-8 (a
+// serial or path segment quoted from the request) become U+FFFD instead of
+// throwing: what every reply, status and stream event is written with.
+std::string json_text(const nlohmann::json& j);
 HttpResponse json_response(const HttpRequest& req, boost::beast::http::status status,
                            std::string body);
 HttpResponse error_response(const HttpRequest& req, boost::beast::http::status status,

@@ -17,7 +17,9 @@
 
 namespace gyrotherm::daemon {
 
-std::string station_lock_path(const std::string& db_path);  // "<db_path>.lock"
+// "<db_path>.lock", db_path resolved (symlinks, "..", relative): one lock
+// per database file whatever path names it.
+std::string station_lock_path(const std::string& db_path);
 
 class StationLock {
  public:
