@@ -171,8 +171,8 @@ int main(int argc, char** argv) {
   auto pg = testing::PgCluster::create(&why, &missing, /*durable=*/true);
   if (!pg) die("PostgreSQL: " + why);
   if (const auto e = pg->create_database("lab"); !e.empty()) die(e);
-  auto admin = ok(lab::PgConnection::connect(pg->conninfo(testing::PgCluster::kAdmin, "lab")),
-                  "connect");
+  auto admin =
+      ok(lab::PgConnection::connect(pg->conninfo(testing::PgCluster::kAdmin, "lab")), "connect");
   ok(lab::migrate_central(admin), "migrate");
 
   // 1. Local commit rate.
@@ -255,14 +255,13 @@ int main(int argc, char** argv) {
     redelivered += st.redelivered_total;
     r->stop();
   }
-  auto lag = ok(admin.exec(
-                    "SELECT count(*), "
-                    "percentile_cont(0.5) WITHIN GROUP (ORDER BY lag_s), "
-                    "percentile_cont(0.95) WITHIN GROUP (ORDER BY lag_s), "
-                    "percentile_cont(0.99) WITHIN GROUP (ORDER BY lag_s), max(lag_s) "
-                    "FROM (SELECT extract(epoch FROM r.central_committed_at - "
-                    "r.station_committed_at) AS lag_s FROM lab.records r JOIN bench_mark m "
-                    "USING (station_id) WHERE r.outbox_seq > m.seq) x"),
+  auto lag = ok(admin.exec("SELECT count(*), "
+                           "percentile_cont(0.5) WITHIN GROUP (ORDER BY lag_s), "
+                           "percentile_cont(0.95) WITHIN GROUP (ORDER BY lag_s), "
+                           "percentile_cont(0.99) WITHIN GROUP (ORDER BY lag_s), max(lag_s) "
+                           "FROM (SELECT extract(epoch FROM r.central_committed_at - "
+                           "r.station_committed_at) AS lag_s FROM lab.records r JOIN bench_mark m "
+                           "USING (station_id) WHERE r.outbox_seq > m.seq) x"),
                 "lag");
   const auto cell = [&](int c) { return std::stod(lag.rows.at(0).at(c).value_or("nan")); };
 
@@ -282,9 +281,10 @@ int main(int argc, char** argv) {
       "| steady load: %d stations x %.1f results/s (%.0f records/s), %.0f s, poll_s %.2f | %lld "
       "records |\n",
       stations, rate, 2 * rate * stations, run_s, poll_s, static_cast<long long>(written.load()));
-  std::printf("| lag local commit -> central transaction, p50 / p95 / p99 / max (s) | %.3f / %.3f / "
-              "%.3f / %.3f (%.0f records) |\n",
-              cell(1), cell(2), cell(3), cell(4), cell(0));
+  std::printf(
+      "| lag local commit -> central transaction, p50 / p95 / p99 / max (s) | %.3f / %.3f / "
+      "%.3f / %.3f (%.0f records) |\n",
+      cell(1), cell(2), cell(3), cell(4), cell(0));
   std::printf("| lag local commit -> central commit, largest the relays saw (s) | %.3f |\n",
               relay_max_lag_s);
   std::printf("| records redelivered | %llu |\n", static_cast<unsigned long long>(redelivered));
