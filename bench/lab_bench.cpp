@@ -142,8 +142,8 @@ std::string arg_string(int argc, char** argv, const char* name, std::string fall
   return fallback;
 }
 
-std::unique_ptr<lab::Relay> make_relay(const testing::PgCluster& pg, const StationFile& s,
-                                       double poll_s) {
+std::unique_ptr<lab::Relay> make_relay(const gyrotherm::testing::PgCluster& pg,
+                                       const StationFile& s, double poll_s) {
   lab::RelayOptions o;
   o.station_id = s.id;
   o.db_path = s.path;
@@ -168,11 +168,12 @@ int main(int argc, char** argv) {
 
   std::string why;
   bool missing = false;
-  auto pg = testing::PgCluster::create(&why, &missing, /*durable=*/true);
+  auto pg = gyrotherm::testing::PgCluster::create(&why, &missing, /*durable=*/true);
   if (!pg) die("PostgreSQL: " + why);
   if (const auto e = pg->create_database("lab"); !e.empty()) die(e);
   auto admin =
-      ok(lab::PgConnection::connect(pg->conninfo(testing::PgCluster::kAdmin, "lab")), "connect");
+      ok(lab::PgConnection::connect(pg->conninfo(gyrotherm::testing::PgCluster::kAdmin, "lab")),
+         "connect");
   ok(lab::migrate_central(admin), "migrate");
 
   // 1. Local commit rate.

@@ -73,7 +73,9 @@ class PgCluster {
 
   // Creates and starts a cluster. nullptr on failure, with *why (and
   // *missing = true when the binaries are not installed).
-  static std::unique_ptr<PgCluster> create(std::string* why, bool* missing) {
+  // `durable`: fsync and synchronous_commit on, as a lab runs it (for the
+  // benchmark's commit figures); tests run without (faster).
+  static std::unique_ptr<PgCluster> create(std::string* why, bool* missing, bool durable = false) {
     *missing = false;
     const auto bin = postgres_bindir();
     for (const char* tool : {"initdb", "pg_ctl", "postgres"}) {
@@ -85,6 +87,7 @@ class PgCluster {
       }
     }
     std::unique_ptr<PgCluster> cluster(new PgCluster(bin));
+    cluster->durable_ = durable;
     if (!cluster->init(why)) return nullptr;
     return cluster;
   }
@@ -269,7 +272,7 @@ class PgCluster {
              << "listen_addresses = '127.0.0.1'\n"
              << "port = " << port_ << "\n"
              << "unix_socket_directories = '" << dir_.string() << "'\n"
-             << "fsync = off\nsynchronous_commit = off\nfull_page_writes = off\n"
+             << (durable_ ? "" : "fsync = off\nsynchronous_commit = off\nfull_page_writes = off\n")
              << "shared_buffers = 16MB\nmax_connections = 40\n";
         if (!conf) {
           *why = "cannot write " + (data_ / "postgresql.conf").string();
@@ -284,6 +287,7 @@ class PgCluster {
   }
 
   std::filesystem::path bin_;
+  bool durable_ = false;
   std::filesystem::path dir_;
   std::filesystem::path data_;
   int port_ = 0;
