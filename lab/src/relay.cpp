@@ -226,20 +226,19 @@ void Relay::run() {
       s.retry_in_s = wait_s;
     });
     if (announced != state) {
+      const std::string retrying = fmt::format("retrying {} to {} apart", describe_s(o.retry_min_s),
+                                               describe_s(o.retry_max_s));
       if (refused) {
-        event(fmt::format("lab: {} refused the records of station {}: {}; retried every {}",
-                          server_of(o.conninfo), o.station_id, e.message,
-                          describe_s(o.retry_max_s)));
+        event(
+            fmt::format("lab: the lab database refused station {}'s records: {}; retried every {}",
+                        o.station_id, e.message, describe_s(o.retry_max_s)));
       } else if (local) {
-        event(fmt::format("lab: relay stalled on the station database: {}; retrying", e.message));
+        event(
+            fmt::format("lab: relay stalled on the station database: {}; {}", e.message, retrying));
       } else if (announced == "connected") {
-        event(fmt::format("lab: connection to {} lost: {}; retrying, {} to {} apart",
-                          server_of(o.conninfo), e.message, describe_s(o.retry_min_s),
-                          describe_s(o.retry_max_s)));
+        event(fmt::format("lab: connection to the lab database lost: {}; {}", e.message, retrying));
       } else {
-        event(fmt::format("lab: cannot reach {}: {}; retrying, {} to {} apart",
-                          server_of(o.conninfo), e.message, describe_s(o.retry_min_s),
-                          describe_s(o.retry_max_s)));
+        event(fmt::format("lab: cannot reach the lab database: {}; {}", e.message, retrying));
       }
       announced = state;
     }

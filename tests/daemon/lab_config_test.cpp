@@ -247,8 +247,7 @@ TEST_F(LabConfig, ConninfoErrorsNameTheFileOrVariableNeverTheText) {
   conninfo = lab_conninfo(l);
   ASSERT_FALSE(conninfo.ok());
   EXPECT_THAT(conninfo.error().message, HasSubstr("GYROTHERM_LAB_CONFIG_TEST_URL is empty"));
-  ::setenv(l.url_env.c_str(), fmt::format("postgresql://st07:{}@lab-db/lab", kPassword).c_str(),
-           1);
+  ::setenv(l.url_env.c_str(), fmt::format("postgresql://st07:{}@lab-db/lab", kPassword).c_str(), 1);
   conninfo = lab_conninfo(l);
   ASSERT_TRUE(conninfo.ok()) << conninfo.error().message;
   EXPECT_EQ(*conninfo, fmt::format("postgresql://st07:{}@lab-db/lab", kPassword));
@@ -271,7 +270,8 @@ TEST_F(LabConfig, TheStoredConfigNamesTheFileOrVariableOnly) {
   ::setenv("GYROTHERM_LAB_CONFIG_TEST_URL2",
            fmt::format("postgresql://st07:{}@lab-db/lab", kPassword).c_str(), 1);
   cfg = load(
-      "[lab]\nstation_id = \"st-07\"\nrelay = true\nurl_env = \"GYROTHERM_LAB_CONFIG_TEST_URL2\"\n");
+      "[lab]\nstation_id = \"st-07\"\nrelay = true\nurl_env = "
+      "\"GYROTHERM_LAB_CONFIG_TEST_URL2\"\n");
   ASSERT_TRUE(cfg.ok()) << cfg.error().message;
   stored = run_config_json(*cfg);
   EXPECT_EQ(stored["lab"]["url_env"], "GYROTHERM_LAB_CONFIG_TEST_URL2");

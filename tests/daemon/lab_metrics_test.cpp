@@ -69,8 +69,7 @@ TEST(LabMetrics, LabSeriesOnlyWithALab) {
   s.lab = r;
   const std::string text = metrics.scrape(s, {});
   for (const char* state : {"disabled", "connecting", "backoff", "refused", "stopped"}) {
-    EXPECT_EQ(sample(text, std::string("gyrotherm_lab_relay_state{state=\"") + state + "\"}"),
-              0.0)
+    EXPECT_EQ(sample(text, std::string("gyrotherm_lab_relay_state{state=\"") + state + "\"}"), 0.0)
         << state;
   }
   EXPECT_EQ(sample(text, "gyrotherm_lab_relay_state{state=\"connected\"}"), 1.0);
