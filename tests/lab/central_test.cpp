@@ -1,0 +1,1 @@
+// central tests: see below
