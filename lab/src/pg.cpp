@@ -49,9 +49,21 @@ std::string without_quoted(std::string_view message) {
   return std::regex_replace(std::string(message), quoted, "\"...\"");
 }
 
-std::string trim(std::string s) {
-  while (!s.empty() && (s.back() == '\n' || s.back() == ' ' || s.back() == '\r')) s.pop_back();
-  return s;
+// libpq's messages span lines ("FATAL: ...\nserver closed the connection
+// unexpectedly\n\tThis probably means..."): one line for logs and events,
+// runs of white space as one space.
+std::string trim(std::string_view s) {
+  std::string out;
+  for (char c : s) {
+    const bool space = c == '\n' || c == '\r' || c == '\t' || c == ' ';
+    if (space) {
+      if (!out.empty() && out.back() != ' ') out += ' ';
+    } else {
+      out += c;
+    }
+  }
+  while (!out.empty() && out.back() == ' ') out.pop_back();
+  return out;
 }
 
 // Replaces every occurrence of each secret in `message` (a server or libpq
@@ -159,6 +171,10 @@ Result<PgConnection> PgConnection::connect(const std::string& conninfo, double c
     PQfinish(conn);
     return Error::Transient(fmt::format("cannot connect to the lab database {}: {}", where, why));
   }
+  // The server's notices (a role already a member, a schema that exists)
+  // would go to stderr, the daemon's journal: they say nothing to act on.
+  PQsetNoticeProcessor(
+      conn, [](void*, const char*) {}, nullptr);
   return PgConnection(conn);
 }
 
@@ -243,7 +259,7 @@ Result<PgRows> finish(pg_conn* conn, PGresult* raw, std::string& sqlstate,
   }
   const bool lost = PQstatus(conn) != CONNECTION_OK;
   const bool transient = lost || transient_sqlstate(sqlstate);
-  std::string text = fmt::format("lab database {}: {}{}", where, message,
+  std::string text = fmt::format("lab database {}: {}{}", where, trim(message),
                                  sqlstate.empty() ? "" : fmt::format(" (SQLSTATE {})", sqlstate));
   if (lost) text += " (connection lost)";
   return transient ? Error::Transient(std::move(text)) : Error::Permanent(std::move(text));

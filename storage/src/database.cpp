@@ -3,6 +3,9 @@
 #include <fmt/format.h>
 #include <sqlite3.h>
 
+#include <boost/uuid/uuid.hpp>
+#include <boost/uuid/uuid_generators.hpp>
+#include <boost/uuid/uuid_io.hpp>
 #include <charconv>
 #include <chrono>
 #include <cmath>
@@ -127,7 +130,7 @@ Status migrate(sqlite3* db, const std::string& path, const WallClock& wall) {
 constexpr const char* kRunColumns =
     "id, schedule_name, state, started_utc, ended_utc, time_scale, latitude_deg, orientation, "
     "config_json, queue_id, schedule_id, resume_json, checkpoint_wall_unix_s, config_toml, "
-    "operator, comment, tags_json, dut_serials_json";
+    "operator, comment, tags_json, dut_serials_json, uuid";
 
 Result<RunRecord> read_run(const Stmt& st, const std::string& path) {
   RunRecord r;
@@ -148,7 +151,32 @@ Result<RunRecord> read_run(const Stmt& st, const std::string& path) {
   auto metadata = internal::read_metadata(st, 14, fmt::format("storage: {}: run {}", path, r.id));
   if (!metadata) return metadata.error();
   r.metadata = std::move(*metadata);
+  r.uuid = st.column_text(18);
   return r;
+}
+
+// A random (version 4) UUID in the RFC 4122 text form, lower case.
+Result<std::string> random_uuid(const std::string& path) {
+  try {
+    boost::uuids::random_generator generate;  // the kernel's entropy (getrandom)
+    return boost::uuids::to_string(generate());
+  } catch (const std::exception& e) {
+    return Error::Transient(fmt::format("storage: {}: making a run uuid: {}", path, e.what()));
+  }
+}
+
+// xxxxxxxx-xxxx-xxxx-xxxx-xxxxxxxxxxxx, lower-case hex digits.
+bool is_uuid_text(std::string_view s) {
+  if (s.size() != 36) return false;
+  for (std::size_t i = 0; i < s.size(); ++i) {
+    const char c = s[i];
+    if (i == 8 || i == 13 || i == 18 || i == 23) {
+      if (c != '-') return false;
+    } else if (!((c >= '0' && c <= '9') || (c >= 'a' && c <= 'f'))) {
+      return false;
+    }
+  }
+  return true;
 }
 
 constexpr const char* kSegmentColumns =
@@ -310,12 +338,23 @@ Result<int64_t> Database::create_run(const RunRecord& run) {
   if (Status s = internal::check_metadata(run.metadata, path_, "creating a run"); !s) {
     return s.error();
   }
+  std::string uuid = run.uuid;
+  if (uuid.empty()) {
+    auto made = random_uuid(path_);
+    if (!made) return made.error();
+    uuid = std::move(*made);
+  } else if (!is_uuid_text(uuid)) {
+    return Error::Permanent(
+        fmt::format("storage: {}: creating a run: uuid '{}' is not a UUID in lower-case text "
+                    "form (xxxxxxxx-xxxx-xxxx-xxxx-xxxxxxxxxxxx)",
+                    path_, uuid));
+  }
   auto st = Stmt::prepare(db_, path_,
                           "INSERT INTO runs(schedule_name, state, started_utc, ended_utc, "
                           "time_scale, latitude_deg, orientation, config_json, queue_id, "
                           "schedule_id, config_toml, operator, comment, tags_json, "
-                          "dut_serials_json) VALUES(?, ?, ?, NULL, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
-                          "?)");
+                          "dut_serials_json, uuid) VALUES(?, ?, ?, NULL, ?, ?, ?, ?, ?, ?, ?, ?, "
+                          "?, ?, ?, ?)");
   if (!st) return st.error();
   st->bind(1, std::string_view(run.schedule_name));
   st->bind(2, std::string_view(run.state));
@@ -328,6 +367,7 @@ Result<int64_t> Database::create_run(const RunRecord& run) {
   st->bind(9, run.schedule_id);
   st->bind_text_or_null(10, run.config_toml);
   internal::bind_metadata(*st, 11, run.metadata);
+  st->bind(15, std::string_view(uuid));
   if (Status s = expect_done(*st, db_, path_, "creating a run"); !s) return s.error();
   return static_cast<int64_t>(sqlite3_last_insert_rowid(db_));
 }

@@ -518,6 +518,43 @@ CREATE TABLE channel_rollup(
 ) WITHOUT ROWID;
 )sql";
 
+// v10: the lab (docs/storage.md "Lab outbox"). Each run gets an identity
+// that holds across the lab's stations: a random (version 4) UUID in lower
+// case, set by create_run; runs stored before v10 get one here, made of
+// randomblob() in the RFC 4122 text form. A run inserted without one
+// (plain SQL, an older tool) gets one from the trigger, so every run has
+// one. The outbox holds the changes of the relayed tables once the
+// database is bound to a lab station (lab_bind); its triggers are
+// generated from the tables' columns by the data step
+// (install_lab_triggers, outbox.cpp), which every later migration that
+// changes a relayed table runs again.
+constexpr const char* kSchemaV10 = R"sql(
+ALTER TABLE runs ADD COLUMN uuid TEXT;  -- the run's identity across the lab: RFC 4122 UUID, lower case (version 4, random)
+UPDATE runs SET uuid = lower(hex(randomblob(4))) || '-' || lower(hex(randomblob(2))) || '-4' ||
+  substr(lower(hex(randomblob(2))), 2) || '-' || substr('89ab', 1 + (random() & 3), 1) ||
+  substr(lower(hex(randomblob(2))), 2) || '-' || lower(hex(randomblob(6)));
+CREATE UNIQUE INDEX runs_by_uuid ON runs(uuid);
+CREATE TRIGGER runs_uuid_on_insert AFTER INSERT ON runs WHEN NEW.uuid IS NULL
+BEGIN
+  UPDATE runs SET uuid = lower(hex(randomblob(4))) || '-' || lower(hex(randomblob(2))) || '-4' ||
+    substr(lower(hex(randomblob(2))), 2) || '-' || substr('89ab', 1 + (random() & 3), 1) ||
+    substr(lower(hex(randomblob(2))), 2) || '-' || lower(hex(randomblob(6)))
+  WHERE id = NEW.id;
+END;
+
+-- Changes of the relayed tables waiting for the lab, in commit order: the
+-- relay sends them and deletes them once the lab committed them.
+CREATE TABLE outbox(
+  seq INTEGER PRIMARY KEY AUTOINCREMENT,  -- order of the changes; never reused (also after acknowledgement)
+  kind TEXT NOT NULL,               -- record kind: run, segment, event, table1, allan, fit, fit_run, export, export_run, sf_point, sf_fit, sf_temperature_fit, dut, run_dut, channel
+  run_uuid TEXT NOT NULL,           -- runs.uuid of the row's run; 00000000-0000-0000-0000-000000000000 when none
+  local_id TEXT NOT NULL,           -- the row's key in its table, key columns joined by '/', e.g. '12/SN-0042/x'
+  deleted INTEGER NOT NULL DEFAULT 0,  -- 1: the row was deleted (a tombstone; payload '{}')
+  payload TEXT NOT NULL,            -- the row as a JSON object of its columns
+  committed_unix_s REAL NOT NULL    -- wall time of the change (system clock), Unix s
+);
+)sql";
+
 constexpr Migration kMigrations[] = {
     {1, "initial schema", kSchemaV1},
     {2, "queue, crash resume, acquisition windows", kSchemaV2},
@@ -528,6 +565,7 @@ constexpr Migration kMigrations[] = {
     {7, "rate table samples and segments, scale-factor points and fits", kSchemaV7},
     {8, "devices under test, run metadata, results per DUT and axis", kSchemaV8},
     {9, "chunked sample storage", kSchemaV9, migrate_gyro_samples_to_chunks},
+    {10, "run UUIDs, lab outbox", kSchemaV10, install_lab_triggers_step},
 };
 
 static_assert(sizeof(kMigrations) / sizeof(kMigrations[0]) == kSchemaVersion,

@@ -24,4 +24,13 @@ struct Migration {
 
 std::span<const Migration> migrations();
 
+// The lab outbox's triggers (outbox.cpp, docs/storage.md "Lab outbox"):
+// drops every trigger named lab_outbox_* and creates, for each relayed
+// table, AFTER INSERT / UPDATE / DELETE triggers generated from its
+// current columns (PRAGMA table_info). Run by the v10 migration and again
+// by any later migration that changes a relayed table's columns, in the
+// migration's transaction. The second form is the migration data step.
+Status install_lab_triggers(sqlite3* db, const std::string& path);
+Status install_lab_triggers_step(sqlite3* db, const std::string& path, const std::string& now_utc);
+
 }  // namespace gyrotherm::storage::internal

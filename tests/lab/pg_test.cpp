@@ -1,11 +1,12 @@
 // PgConnection against a private PostgreSQL cluster: rows as text, NULLs,
 // parameters, errors classified transient (server gone) or permanent
 // (server refuses), SQLSTATEs kept, and no password in any message.
+#include "gyrotherm/lab/pg.h"
+
 #include <gtest/gtest.h>
 
 #include <string>
 
-#include "gyrotherm/lab/pg.h"
 #include "support/pg_cluster.h"
 
 namespace gyrotherm::lab {
@@ -20,8 +21,9 @@ TEST_F(PgTest, RowsComeBackAsTextWithNullsAsNullopt) {
   auto pg = PgConnection::connect(conninfo());
   ASSERT_TRUE(pg.ok()) << pg.error().message;
   EXPECT_TRUE(pg->ok());
-  auto rows = pg->exec("SELECT 1 AS one, NULL::text AS nothing, 'a b' AS text UNION ALL "
-                       "SELECT 2, 'x', ''");
+  auto rows = pg->exec(
+      "SELECT 1 AS one, NULL::text AS nothing, 'a b' AS text UNION ALL "
+      "SELECT 2, 'x', ''");
   ASSERT_TRUE(rows.ok()) << rows.error().message;
   EXPECT_EQ(rows->columns, (std::vector<std::string>{"one", "nothing", "text"}));
   ASSERT_EQ(rows->rows.size(), 2u);
@@ -56,8 +58,9 @@ TEST_F(PgTest, ServerRefusalsArePermanentWithTheirSqlstate) {
   EXPECT_NE(bad.error().message.find(std::to_string(cluster().port())), std::string::npos)
       << "the message names the server: " << bad.error().message;
 
-  auto fk = pg->exec("CREATE TABLE p(id int PRIMARY KEY); CREATE TABLE c(p int REFERENCES p);"
-                     "INSERT INTO c VALUES (1)");
+  auto fk = pg->exec(
+      "CREATE TABLE p(id int PRIMARY KEY); CREATE TABLE c(p int REFERENCES p);"
+      "INSERT INTO c VALUES (1)");
   ASSERT_FALSE(fk.ok());
   EXPECT_FALSE(fk.error().transient);
   EXPECT_EQ(pg->last_sqlstate(), "23503");

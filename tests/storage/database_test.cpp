@@ -46,7 +46,7 @@ TEST(Database, OpenCreatesTheCurrentSchemaInWalMode) {
   auto version = db.schema_version();
   ASSERT_TRUE(version.ok()) << version.error().message;
   EXPECT_EQ(*version, kSchemaVersion);
-  EXPECT_EQ(kSchemaVersion, 9);
+  EXPECT_EQ(kSchemaVersion, 10);
   EXPECT_EQ(query_text(db.handle(), "PRAGMA journal_mode"), "wal");
   EXPECT_EQ(query_int(db.handle(), "PRAGMA synchronous"), 1);  // NORMAL
   EXPECT_EQ(query_int(db.handle(), "PRAGMA foreign_keys"), 1);
@@ -86,7 +86,9 @@ TEST(Database, OpenCreatesTheCurrentSchemaInWalMode) {
                                           "run_duts",
                                           "channels",
                                           "sample_chunks",
-                                          "channel_rollup"};
+                                          "channel_rollup",
+                                          "outbox",
+                                          "sqlite_sequence"};
   EXPECT_EQ(tables, expected);
 }
 

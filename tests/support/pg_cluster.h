@@ -56,13 +56,13 @@ inline std::filesystem::path postgres_bindir() {
 
 // Skips (or, with GYROTHERM_REQUIRE_POSTGRES=1, fails) the current test
 // with `why`; for SetUp and test bodies.
-#define GYROTHERM_PG_SKIP_OR_FAIL(why)                                          \
-  do {                                                                          \
-    if (::gyrotherm::testing::postgres_required()) {                            \
+#define GYROTHERM_PG_SKIP_OR_FAIL(why)                                           \
+  do {                                                                           \
+    if (::gyrotherm::testing::postgres_required()) {                             \
       FAIL() << (why) << " (GYROTHERM_REQUIRE_POSTGRES=1: PostgreSQL required)"; \
-    } else {                                                                    \
-      GTEST_SKIP() << (why);                                                    \
-    }                                                                           \
+    } else {                                                                     \
+      GTEST_SKIP() << (why);                                                     \
+    }                                                                            \
   } while (0)
 
 class PgCluster {
@@ -91,8 +91,10 @@ class PgCluster {
   PgCluster& operator=(const PgCluster&) = delete;
 
   ~PgCluster() {
-    if (running_) run_as_server({(bin_ / "pg_ctl").string(), "-D", data_.string(), "-m",
-                                 "immediate", "-w", "stop"});
+    if (running_) {
+      run_as_server(
+          {(bin_ / "pg_ctl").string(), "-D", data_.string(), "-m", "immediate", "-w", "stop"});
+    }
     std::error_code ec;
     std::filesystem::remove_all(dir_, ec);
   }
@@ -107,10 +109,10 @@ class PgCluster {
   }
   // Starts it again on the same port; returns when it accepts connections.
   bool start() {
-    const bool ok = run_as_server({(bin_ / "pg_ctl").string(), "-D", data_.string(), "-l",
-                                   (dir_ / "server.log").string(), "-w", "-t",
-                                   std::to_string(static_cast<int>(60 * time_factor())),
-                                   "start"}) == 0;
+    const bool ok =
+        run_as_server({(bin_ / "pg_ctl").string(), "-D", data_.string(), "-l",
+                       (dir_ / "server.log").string(), "-w", "-t",
+                       std::to_string(static_cast<int>(60 * time_factor())), "start"}) == 0;
     if (ok) running_ = true;
     return ok;
   }
@@ -123,8 +125,8 @@ class PgCluster {
   // A libpq conninfo for `user` on `dbname` over TCP (no password: trust).
   std::string conninfo(const std::string& user = kAdmin,
                        const std::string& dbname = "postgres") const {
-    return "host=127.0.0.1 port=" + std::to_string(port_) + " dbname=" + dbname +
-           " user=" + user + " connect_timeout=10";
+    return "host=127.0.0.1 port=" + std::to_string(port_) + " dbname=" + dbname + " user=" + user +
+           " connect_timeout=10";
   }
 
   // Runs `sql` as the superuser on `dbname`; "" when it worked, else the
@@ -211,8 +213,8 @@ class PgCluster {
 
   bool init(std::string* why) {
     // As root, TMPDIR may be a directory `nobody` cannot enter: /tmp is.
-    const auto base = as_root() ? std::filesystem::path("/tmp")
-                                : std::filesystem::temp_directory_path();
+    const auto base =
+        as_root() ? std::filesystem::path("/tmp") : std::filesystem::temp_directory_path();
     std::string templ = (base / "gyrotherm-pg-XXXXXX").string();
     if (!::mkdtemp(templ.data())) {
       *why = "cannot create a temp directory under " + base.string();

@@ -30,7 +30,7 @@ namespace gyrotherm::storage {
 // v8: DUTs, run metadata, results per DUT and axis (records).
 // v9: chunked sample storage (sample_chunks, channel_rollup).
 // v10: run UUIDs and the lab outbox (runs.uuid, outbox; docs/lab.md).
-inline constexpr int kSchemaVersion = 9;  // 10 once the v10 migration lands (issue 19 contract)
+inline constexpr int kSchemaVersion = 10;
 
 // Rollup blocks of the gyro rate (table gyro_rollup): block length of each
 // level, station seconds. A sample at t_s is in block floor(t_s / length).
@@ -388,10 +388,10 @@ struct DutHistory {
 
 // The lab outbox (schema v10, docs/lab.md "Outbox"). Once a station is
 // bound to a lab (lab_bind), every insert, update and delete of a relayed
-// table (runs, segments, acquisition_windows, events, segment_stats,
-// allan, fits, fit_runs, exports, export_runs, scale_factor_points,
-// scale_factor_fits, scale_factor_temperature_fits, duts, run_duts,
-// channels) adds one outbox row, written by triggers in the same
+// table (runs, segments, events, segment_stats, allan, fits, fit_runs,
+// exports, export_runs, scale_factor_points, scale_factor_fits,
+// scale_factor_temperature_fits, duts, run_duts, channels) adds one outbox
+// row, written by triggers in the same
 // transaction as the change itself: a result committed is a result queued
 // for the lab. Raw samples are not relayed.
 struct OutboxRecord {
@@ -400,7 +400,7 @@ struct OutboxRecord {
   std::string
       run_uuid;  // the run's uuid; kNilUuid for station-level rows (duts, events outside runs)
   std::string local_id;         // the row's key in its table as text, e.g. "12" or "12/17-0042/x"
-  bool deleted = false;         // a tombstone: the row was deleted (payload holds its key columns)
+  bool deleted = false;         // a tombstone: the row was deleted (payload {})
   std::string payload_json;     // the row as a JSON object of its columns ({} for tombstones)
   double committed_unix_s = 0;  // wall time (system clock) the change was written, Unix s
 };
