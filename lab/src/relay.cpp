@@ -34,6 +34,7 @@
 namespace gyrotherm::lab {
 namespace {
 
+using namespace std::chrono_literals;
 using steady = std::chrono::steady_clock;
 
 double unix_now_s() { return system_wall_clock().unix_now_s(); }
@@ -73,6 +74,7 @@ bool valid_station_id(const std::string& id) {
 }
 
 std::string describe_s(double s) {
+  if (s < 10) return fmt::format("{:.2g} s", s);
   if (s < 120) return fmt::format("{:.0f} s", s);
   if (s < 7200) return fmt::format("{:.0f} min", s / 60);
   return fmt::format("{:.1f} h", s / 3600);
@@ -179,26 +181,11 @@ void Relay::run() {
   const auto event = [&](const std::string& message) {
     if (o.on_event) o.on_event(message);
   };
-  // Waits `s` wall seconds, or less when stop() (or, `nudgeable`, nudge())
-  // is called; false when stopping. retry_in_s counts down meanwhile.
-  const auto wait = [&](double s, bool nudgeable, bool backoff) {
-    const auto until = steady::now() + seconds(s);
-    std::unique_lock lock(mutex_);
-    for (;;) {
-      if (stop_requested_) return false;
-      if (nudgeable && nudged_) break;
-      const auto now = steady::now();
-      if (now >= until) break;
-      if (backoff) status_.retry_in_s = std::chrono::duration<double>(until - now).count();
-      // Slices of at most 1 s keep retry_in_s current.
-      wake_.wait_until(lock, std::min(until, now + std::chrono::seconds(1)));
-    }
-    nudged_ = false;
-    status_.retry_in_s.reset();
-    return !stop_requested_;
-  };
+  // The outbox's figures (pending, bytes, oldest age), read again at most
+  // once a wall second.
   const auto refresh_stats = [&] {
     auto stats = db->outbox_stats();
+    stats_due = steady::now() + std::chrono::seconds(1);
     if (!stats) return false;
     if (after_seq < 0) after_seq = stats->last_acked_seq;
     const double now = unix_now_s();
@@ -208,8 +195,35 @@ void Relay::run() {
       s.oldest_pending_age_s.reset();
       if (stats->oldest_unix_s) s.oldest_pending_age_s = std::max(0.0, now - *stats->oldest_unix_s);
     });
-    stats_due = steady::now() + std::chrono::seconds(1);
     return true;
+  };
+  // Waits `s` wall seconds, or less when stop() (or, `nudgeable`, nudge())
+  // is called; false when stopping. Meanwhile retry_in_s counts down and
+  // the outbox's figures stay current (a lab down for hours is when the
+  // pending count matters).
+  const auto wait = [&](double s, bool nudgeable, bool backoff) {
+    const auto until = steady::now() + seconds(s);
+    for (;;) {
+      {
+        std::unique_lock lock(mutex_);
+        const auto done = [&] {
+          return stop_requested_ || (nudgeable && nudged_) || steady::now() >= until;
+        };
+        if (!done()) {
+          if (backoff) {
+            status_.retry_in_s = std::chrono::duration<double>(until - steady::now()).count();
+          }
+          const auto now = steady::now();
+          wake_.wait_until(lock, std::min(until, db ? std::max(stats_due, now + 10ms) : now + 1s));
+        }
+        if (done()) {
+          nudged_ = false;
+          status_.retry_in_s.reset();
+          return !stop_requested_;
+        }
+      }
+      if (db && steady::now() >= stats_due) refresh_stats();
+    }
   };
   // A failed attempt: backoff (transient: retry_min_s doubling up to
   // retry_max_s) or refused (permanent: retry_max_s), one event per change.
@@ -248,20 +262,19 @@ void Relay::run() {
     return wait(wait_s, false, true);
   };
   // A round that reached the lab (a batch committed, or nothing to send).
-  const auto succeeded = [&] {
+  // `waiting`: the records pending when the round began.
+  const auto succeeded = [&](int64_t waiting) {
     delay_s = o.retry_min_s;
     if (announced != "connected") {
-      int64_t pending = 0;
-      update([&](RelayStatus& s) { pending = s.pending; });
       const std::string server = pg ? pg->server() : server_of(o.conninfo);
       if (outage_since) {
         event(fmt::format(
-            "lab: relaying to {} again after {}; {} records pending", server,
+            "lab: relaying to {} again after {}; {} records were waiting", server,
             describe_s(std::chrono::duration<double>(steady::now() - *outage_since).count()),
-            pending));
+            waiting));
       } else {
-        event(fmt::format("lab: connected to {} as station {}; {} records pending", server,
-                          o.station_id, pending));
+        event(fmt::format("lab: connected to {} (station {}); {} records to send", server,
+                          o.station_id, waiting));
       }
       announced = "connected";
     }
@@ -320,13 +333,16 @@ void Relay::run() {
       // Nothing to send proves nothing about the lab: a connection that
       // broke while idle shows at the next batch. A refusal stays a
       // refusal until a batch goes through.
-      if (announced != "refused") succeeded();
+      if (announced != "refused") succeeded(0);
       if (!wait(o.poll_s, true, false)) break;
       continue;
     }
     const double oldest_unix_s = batch->front().committed_unix_s;
+    int64_t waiting = 0;
     update([&](RelayStatus& s) {
       s.oldest_pending_age_s = std::max(0.0, unix_now_s() - oldest_unix_s);
+      s.pending = std::max<int64_t>(s.pending, static_cast<int64_t>(batch->size()));
+      waiting = s.pending;
     });
     auto pushed = push_batch(*pg, o.station_id, *batch);
     if (!pushed) {
@@ -364,7 +380,7 @@ void Relay::run() {
       s.pending = std::max<int64_t>(0, s.pending - count);
       s.pending_bytes = std::max<int64_t>(0, s.pending_bytes - bytes);
     });
-    succeeded();
+    succeeded(waiting);
   }
   update([](RelayStatus& s) {
     s.state = "stopped";
