@@ -25,6 +25,7 @@
 #include <cmath>
 #include <optional>
 #include <regex>
+#include <string_view>
 #include <utility>
 
 #include "gyrotherm/lab/central.h"
@@ -68,9 +69,32 @@ std::string server_of(const std::string& conninfo) {
   return out;
 }
 
+// libpq's multi-line messages as one line.
+std::string one_line(std::string_view s) {
+  std::string out;
+  for (const char c : s) {
+    if (c == '\n' || c == '\r' || c == '\t' || c == ' ') {
+      if (!out.empty() && out.back() != ' ') out += ' ';
+    } else {
+      out += c;
+    }
+  }
+  while (!out.empty() && out.back() == ' ') out.pop_back();
+  return out;
+}
+
 bool valid_station_id(const std::string& id) {
   static const std::regex kId("[A-Za-z0-9][A-Za-z0-9._-]{0,63}");
   return std::regex_match(id, kId);
+}
+
+// "1 record", "12 records".
+std::string records(int64_t n) { return fmt::format("{} record{}", n, n == 1 ? "" : "s"); }
+
+// A message inside a sentence: without its final full stop.
+std::string clause(std::string s) {
+  while (!s.empty() && (s.back() == '.' || s.back() == ' ')) s.pop_back();
+  return s;
 }
 
 std::string describe_s(double s) {
@@ -245,14 +269,16 @@ void Relay::run() {
       if (refused) {
         event(
             fmt::format("lab: the lab database refused station {}'s records: {}; retried every {}",
-                        o.station_id, e.message, describe_s(o.retry_max_s)));
+                        o.station_id, clause(e.message), describe_s(o.retry_max_s)));
       } else if (local) {
-        event(
-            fmt::format("lab: relay stalled on the station database: {}; {}", e.message, retrying));
+        event(fmt::format("lab: relay stalled on the station database: {}; {}", clause(e.message),
+                          retrying));
       } else if (announced == "connected") {
-        event(fmt::format("lab: connection to the lab database lost: {}; {}", e.message, retrying));
+        event(fmt::format("lab: connection to the lab database lost: {}; {}", clause(e.message),
+                          retrying));
       } else {
-        event(fmt::format("lab: cannot reach the lab database: {}; {}", e.message, retrying));
+        event(
+            fmt::format("lab: cannot reach the lab database: {}; {}", clause(e.message), retrying));
       }
       announced = state;
     }
@@ -269,12 +295,12 @@ void Relay::run() {
       const std::string server = pg ? pg->server() : server_of(o.conninfo);
       if (outage_since) {
         event(fmt::format(
-            "lab: relaying to {} again after {}; {} records were waiting", server,
+            "lab: relaying to {} again after {}; {} waiting", server,
             describe_s(std::chrono::duration<double>(steady::now() - *outage_since).count()),
-            waiting));
+            records(waiting)));
       } else {
-        event(fmt::format("lab: connected to {} (station {}); {} records to send", server,
-                          o.station_id, waiting));
+        event(fmt::format("lab: connected to {} (station {}); {} to send", server, o.station_id,
+                          records(waiting)));
       }
       announced = "connected";
     }
@@ -330,9 +356,20 @@ void Relay::run() {
         if (!fail(Error::Transient("reading the outbox's figures failed"), true)) break;
         continue;
       }
-      // Nothing to send proves nothing about the lab: a connection that
-      // broke while idle shows at the next batch. A refusal stays a
-      // refusal until a batch goes through.
+      // Idle: a server that shut down or restarted has said so on the
+      // socket (read without a round trip), so the status and the events
+      // follow an outage even when nothing is to be sent. A link that died
+      // silently shows at the next batch (or the keepalives). A refusal
+      // stays a refusal until a batch goes through.
+      if (PQconsumeInput(pg->handle()) == 0 || !pg->ok()) {
+        if (!fail(
+                Error::Transient(fmt::format("lab database {}: connection lost while idle: {}",
+                                             pg->server(), one_line(PQerrorMessage(pg->handle())))),
+                false)) {
+          break;
+        }
+        continue;
+      }
       if (announced != "refused") succeeded(0);
       if (!wait(o.poll_s, true, false)) break;
       continue;

@@ -286,6 +286,10 @@ TEST_F(RelayTest, AnOutageBacksOffSaysSoOnceAndCatchesUp) {
   const uint64_t errors_before = relay_->status().errors_total;
 
   ASSERT_TRUE(cluster().stop());
+  // Idle, the relay still notices (the server said goodbye on the socket).
+  ASSERT_TRUE(wait_for_condition([&] { return relay_->status().state == "backoff"; }, 10s))
+      << describe();
+  EXPECT_THAT(relay_->status().last_error, HasSubstr("connection lost while idle"));
   {
     storage::Database db = open_db();
     const int64_t run = add_run(db, 50);
