@@ -249,9 +249,11 @@ Status add_reader(PgConnection& pg, const std::string& db_role) {
   return tx.commit();
 }
 
+// The counts are over the batch's distinct keys (upserted + redelivered +
+// stale = keys); relay_progress.records counts every record received.
 Result<PushResult> push_batch(PgConnection& pg, const std::string& station_id,
                               std::span<const storage::OutboxRecord> batch) {
-  if (batch.empty()) return PushResult{};
+  if (batch.empty()) return PushResult{};  // nothing to say, not even progress
   int64_t last_seq = 0;
   for (const auto& r : batch) last_seq = std::max(last_seq, r.seq);
   const std::string rows = batch_json(batch).dump();

@@ -86,7 +86,8 @@ COMMENT ON COLUMN lab.records.outbox_seq IS 'the station''s outbox seq of the ve
 COMMENT ON COLUMN lab.records.deleted IS 'a tombstone: the row was deleted on the station';
 COMMENT ON COLUMN lab.records.station_committed_at IS 'when the station committed this version (its wall clock)';
 COMMENT ON COLUMN lab.records.central_committed_at IS 'when the lab committed this version (transaction time; kept on redelivery)';
-COMMENT ON COLUMN lab.records.redeliveries IS 'times a version already held arrived again (at-least-once replays)';
+COMMENT ON COLUMN lab.records.redeliveries IS
+  'times a version already held arrived again (at-least-once replays), over every version of the key';
 -- Reads by run (lab run), by kind across stations (joins of the views), by DUT.
 CREATE INDEX records_by_run ON lab.records(run_uuid, kind);
 CREATE INDEX records_by_kind ON lab.records(kind, station_id, local_id);

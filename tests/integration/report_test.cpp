@@ -868,6 +868,7 @@ TEST_F(ReportTest, ExportSinceSelectsRunsByTheirEndTime) {
       run.queue_id.reset();
       run.schedule_id.reset();
       run.resume_json.clear();
+      run.uuid.clear();  // a new run: create_run gives it its own (schema v10)
       auto id = db->create_run(run);
       ASSERT_TRUE(id.ok()) << id.error().message;
       ASSERT_TRUE(db->set_run_state(*id, state, true).ok());

@@ -62,7 +62,7 @@ json run_payload(int64_t id, const std::string& uuid, const std::string& comment
           {"time_scale", 1.0},
           {"latitude_deg", 52.1},
           {"orientation", "up"},
-          {"config_json", {{"station", {{"name", "st-a"}}}}},
+          {"config_json", json::object({{"station", json::object({{"name", "st-a"}})}})},
           {"queue_id", 3},
           {"schedule_id", 2},
           {"operator", "ana"},
@@ -785,7 +785,7 @@ TEST_F(CentralTest, ViewsReadRealisticPayloads) {
        {"bias_instability_tau_s", 120.0},
        {"rate_random_walk_dphprh", nullptr},
        {"bias_instability_method", "minimum / 0.664"},
-       {"inputs_json", {{"bin_s", 1.0}}},
+       {"inputs_json", json::object({{"bin_s", 1.0}})},
        {"computed_utc", "2026-03-02T06:11:00Z"},
        {"dut_serial", "17-0042"},
        {"axis", "z"}});
@@ -798,7 +798,7 @@ TEST_F(CentralTest, ViewsReadRealisticPayloads) {
        {"standard_errors_json", {{"T1", 0.001}, {"G1", 0.0002}}},
        {"residual_std_dph", 0.03},
        {"r_squared", 0.987},
-       {"inputs_json", {{"windows", json::array()}}},
+       {"inputs_json", json::object({{"windows", json::array()}})},
        {"computed_utc", "2026-03-02T07:00:00Z"},
        {"dut_serial", "17-0042"},
        {"axis", "z"}});

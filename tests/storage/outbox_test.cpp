@@ -15,6 +15,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <map>
 #include <nlohmann/json.hpp>
@@ -1237,6 +1238,84 @@ TEST(Outbox, SeveralConnectionsWriteWhileTheRelayReads) {
   EXPECT_EQ(stats_after->last_acked_seq, received.back().seq);
   EXPECT_EQ(query_int(db.handle(), "SELECT seq FROM sqlite_sequence WHERE name = 'outbox'"),
             received.back().seq);
+}
+
+// ------------------------------------------------------------ documented queries
+
+// The sqlite3 statements of docs/storage.md that read the outbox, run
+// against a bound database with history: they parse, and answer what the
+// API answers.
+TEST(Outbox, DocumentedQueriesRun) {
+  std::string doc;
+  {
+    std::FILE* f =
+        std::fopen((std::string(GYROTHERM_SOURCE_DIR) + "/docs/storage.md").c_str(), "rb");
+    ASSERT_NE(f, nullptr);
+    char buf[4096];
+    std::size_t n;
+    while ((n = std::fread(buf, 1, sizeof buf, f)) > 0) doc.append(buf, n);
+    std::fclose(f);
+  }
+  std::vector<std::string> statements;
+  for (std::size_t at = 0; (at = doc.find("```sql\n", at)) != std::string::npos;) {
+    at += 7;
+    const std::size_t end = doc.find("```", at);
+    ASSERT_NE(end, std::string::npos);
+    const std::string block = doc.substr(at, end - at);
+    at = end + 3;
+    if (block.find("FROM outbox") == std::string::npos) continue;
+    for (std::size_t from = 0, semi; (semi = block.find(';', from)) != std::string::npos;
+         from = semi + 1) {
+      statements.push_back(block.substr(from, semi + 1 - from));
+    }
+  }
+  ASSERT_EQ(statements.size(), 4u) << "the documented outbox queries changed: update this test";
+
+  TempDir dir;
+  Database db = open_ok(dir.file("station.db"));
+  write_history(db);
+  ASSERT_TRUE(db.lab_bind("lab-3").ok());
+  const auto first = db.outbox_batch(0, 5);
+  ASSERT_TRUE(db.outbox_ack(first->back().seq).ok());
+  const OutboxStats stats = *db.outbox_stats();
+  std::vector<std::vector<std::vector<std::string>>> results;
+  for (const std::string& sql : statements) {
+    SCOPED_TRACE(sql);
+    sqlite3_stmt* st = nullptr;
+    ASSERT_EQ(sqlite3_prepare_v2(db.handle(), sql.c_str(), -1, &st, nullptr), SQLITE_OK)
+        << sqlite3_errmsg(db.handle());
+    std::vector<std::vector<std::string>> rows;
+    int rc;
+    while ((rc = sqlite3_step(st)) == SQLITE_ROW) {
+      std::vector<std::string> row;
+      for (int c = 0; c < sqlite3_column_count(st); ++c) {
+        const auto* t = sqlite3_column_text(st, c);
+        row.emplace_back(t != nullptr ? reinterpret_cast<const char*>(t) : "");
+      }
+      rows.push_back(std::move(row));
+    }
+    EXPECT_EQ(rc, SQLITE_DONE) << sqlite3_errmsg(db.handle());
+    sqlite3_finalize(st);
+    results.push_back(std::move(rows));
+  }
+  EXPECT_EQ(results[0], (std::vector<std::vector<std::string>>{
+                            {"lab_last_acked_seq", std::to_string(first->back().seq)},
+                            {"lab_station_id", "lab-3"}}));
+  ASSERT_EQ(results[1].size(), 1u);
+  EXPECT_EQ(results[1][0][0], std::to_string(stats.pending));
+  EXPECT_EQ(results[1][0][1], std::to_string(stats.pending_bytes));
+  const double age = std::stod(results[1][0][2]);
+  EXPECT_GE(age, -1.0);
+  EXPECT_LT(age, 600.0);
+  int64_t by_kind = 0;
+  for (const auto& row : results[2]) by_kind += std::stoll(row[1]);
+  EXPECT_EQ(by_kind, stats.pending);
+  ASSERT_EQ(results[3].size(), 10u);
+  for (const auto& row : results[3]) {
+    if (row[1] == "table1" || row[1] == "run" || row[1] == "segment") {
+      EXPECT_FALSE(row[4].empty()) << row[1] << " " << row[2] << ": its run";
+    }
+  }
 }
 
 // ------------------------------------------------------------ migration

@@ -1,4 +1,4 @@
-// A private PostgreSQL cluster for tests (docs/testing.md "PostgreSQL").
+// A private PostgreSQL cluster for tests of the lab database.
 //
 // PgCluster runs Debian's postgresql-15 binaries (initdb, pg_ctl; the
 // directory is /usr/lib/postgresql/15/bin, or GYROTHERM_PG_BINDIR) on a
@@ -31,6 +31,8 @@
 
 #include <atomic>
 #include <cctype>
+#include <cerrno>
+#include <csignal>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -211,6 +213,27 @@ class PgCluster {
     return ss.str();
   }
 
+  // Clusters of test processes that died without their destructor (a
+  // timeout's kill, a crash) would run on: stopped and removed here. A
+  // directory without owner.pid is still being set up by a live process.
+  void reap_orphans(const std::filesystem::path& base) const {
+    std::error_code ec;
+    for (const auto& entry : std::filesystem::directory_iterator(base, ec)) {
+      const std::string name = entry.path().filename().string();
+      if (name.rfind("gyrotherm-pg-", 0) != 0 || entry.path() == dir_) continue;
+      std::ifstream in(entry.path() / "owner.pid");
+      long pid = 0;
+      if (!(in >> pid) || pid <= 0) continue;
+      if (::kill(static_cast<pid_t>(pid), 0) == 0 || errno != ESRCH) continue;
+      std::string cmd = as_root() ? "runuser -u nobody -- " : "";
+      cmd += shell_quote((bin_ / "pg_ctl").string()) + " -D " +
+             shell_quote((entry.path() / "data").string()) +
+             " -m immediate -w stop >/dev/null 2>&1 </dev/null";
+      if (std::system(cmd.c_str()) == -1) continue;
+      std::filesystem::remove_all(entry.path(), ec);
+    }
+  }
+
   bool init(std::string* why) {
     // As root, TMPDIR may be a directory `nobody` cannot enter: /tmp is.
     const auto base =
@@ -222,6 +245,8 @@ class PgCluster {
     }
     dir_ = templ;
     data_ = dir_ / "data";
+    std::ofstream(dir_ / "owner.pid") << ::getpid() << "\n";
+    reap_orphans(base);
     if (as_root()) {
       const passwd* nobody = ::getpwnam("nobody");
       if (!nobody || ::chown(dir_.c_str(), nobody->pw_uid, nobody->pw_gid) != 0) {
