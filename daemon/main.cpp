@@ -9,6 +9,7 @@
 
 #include <CLI/CLI.hpp>
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cstdlib>
 #include <filesystem>
@@ -30,7 +31,9 @@
 #include "gyrotherm/daemon/station.h"
 #include "gyrotherm/daemon/station_lock.h"
 #include "gyrotherm/daemon/web_assets.h"
+#include "gyrotherm/lab/relay.h"
 #include "gyrotherm/schedules/schedule.h"
+#include "gyrotherm/storage/database.h"
 
 namespace gd = gyrotherm::daemon;
 
@@ -121,6 +124,67 @@ int main(int argc, char** argv) {
     schedule_text = std::move(*text);
   }
 
+  // [lab] (docs/lab.md): the database is bound to the station id before
+  // anything writes to it, so every result from now on is queued in its
+  // outbox (the first binding queues the history). One database, one id.
+  // The relay's events go to the station's event log once it exists (the
+  // relay starts after the station).
+  std::atomic<gd::Station*> relay_events_to{nullptr};
+  std::unique_ptr<gyrotherm::lab::Relay> relay;
+  if (const auto& lab = config->lab) {
+    const std::string& db = config->storage.db_path;
+    auto database = gyrotherm::storage::Database::open(db);
+    if (!database) {
+      std::cerr << "gyrothermd: " << database.error().message << "\n";
+      return 1;
+    }
+    auto bound = database->lab_station_id();
+    if (!bound) {
+      std::cerr << "gyrothermd: " << bound.error().message << "\n";
+      return 1;
+    }
+    if (*bound && **bound != lab->station_id) {
+      std::cerr << fmt::format(
+          "gyrothermd: [lab] station_id is \"{}\" but database {} belongs to lab station "
+          "\"{}\" (a database belongs to one station: fix station_id, or give this station "
+          "its own database)\n",
+          lab->station_id, db, **bound);
+      return 2;
+    }
+    if (auto st = database->lab_bind(lab->station_id); !st) {
+      std::cerr << "gyrothermd: [lab] binding database " << db << " to station " << lab->station_id
+                << ": " << st.error().message << "\n";
+      return st.error().transient ? 1 : 2;
+    }
+    gyrotherm::lab::RelayOptions options;
+    options.station_id = lab->station_id;
+    options.db_path = db;
+    if (lab->relay) {
+      auto conninfo = gd::lab_conninfo(*lab);
+      if (!conninfo) {
+        std::cerr << "gyrothermd: " << conninfo.error().message << "\n";
+        return 2;
+      }
+      options.conninfo = std::move(*conninfo);
+    }  // else "": the relay only counts the outbox (state "disabled")
+    options.batch_records = lab->batch_records;
+    options.batch_bytes = lab->batch_bytes;
+    options.poll_s = lab->poll_s;
+    options.retry_min_s = lab->retry_min_s;
+    options.retry_max_s = lab->retry_max_s;
+    options.connect_timeout_s = lab->connect_timeout_s;
+    options.on_event = [&relay_events_to](const std::string& message) {
+      spdlog::info("{}", message);
+      if (gd::Station* s = relay_events_to.load()) s->post_event("lab", message);
+    };
+    auto created = gyrotherm::lab::Relay::create(std::move(options));
+    if (!created) {
+      std::cerr << "gyrothermd: " << created.error().message << "\n";
+      return 2;
+    }
+    relay = std::move(*created);
+  }
+
   // Signals are taken by sigwait() below, never by the worker threads.
   sigset_t signals;
   sigemptyset(&signals);
@@ -155,9 +219,14 @@ int main(int argc, char** argv) {
     metrics.observe_modbus(device, seconds);
   };
   hooks.observe_commit = [&metrics](double seconds) { metrics.observe_commit(seconds); };
-  hooks.publish = [&stream](std::string_view event, const nlohmann::json& data) {
+  hooks.publish = [&stream, r = relay.get()](std::string_view event, const nlohmann::json& data) {
     stream.publish(event, gd::json_text(data));
+    // Something was committed that the lab relays: send it now, not at the next poll.
+    if (r && event != "status") r->nudge();
   };
+  if (relay) {
+    hooks.lab_status = [r = relay.get()] { return std::optional(r->status()); };
+  }
   auto devices = gd::devices_from_config(*config, clock, hooks);
   if (!devices) {
     std::cerr << "gyrothermd: " << devices.error().message << "\n";
@@ -224,6 +293,11 @@ int main(int argc, char** argv) {
   }
   server_ptr = http->get();
   (*station)->start();
+  if (relay) {
+    // Set before start(): the relay thread reads it.
+    relay_events_to = station_ptr;
+    relay->start();
+  }
   (*http)->start();
   station_lock->note_api(fmt::format("http://{}:{}", config->api.bind, (*http)->port()));
   spdlog::info(
@@ -291,6 +365,9 @@ int main(int argc, char** argv) {
   spdlog::info("gyrothermd: stopping ({})", reason);
   sd_notifyf(0, "STOPPING=1\nSTATUS=stopping (%s)", reason.c_str());
   (*http)->stop();
+  // The relay first: the batch in flight commits (or rolls back) centrally
+  // and its events reach the station while its control loop still runs.
+  if (relay) relay->stop();
   (*station)->stop("daemon stopped: " + reason);
   return 0;
 }

@@ -1,1 +1,435 @@
-// TODO(contract): see include/gyrotherm/lab/*.h
+// The relay's thread (relay.h; docs/lab.md "Relay").
+//
+// One round: read the next batch of the outbox (after the last seq this
+// thread acknowledged), push it to the lab in one transaction, and only
+// once the lab committed it acknowledge it locally. Nothing else is held in
+// memory: the batch in flight and a few counters.
+//
+// States and events. The status shows the state of the moment; events (the
+// station's event log, kind "lab") are said only when the state worth
+// telling changes: connected, lost (or never reached) with the reason,
+// refused with the reason, back after N s. A retry that fails the same way
+// says nothing more (a lab down for a weekend is one event, not thousands).
+//
+// The outbox's figures (pending, bytes, oldest age) are read by this
+// thread about once a second (less often when the read is slow), and
+// between reads adjusted by what it acknowledged: status() only copies
+// them, so the HTTP thread never reads the outbox.
+//
+// Disabled mode (RelayOptions::conninfo empty, [lab] relay = false): the
+// thread never connects; it only keeps the outbox's figures current, so
+// the status and metrics show how much is queued.
+#include "gyrotherm/lab/relay.h"
+
+#include <fmt/format.h>
+#include <libpq-fe.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <optional>
+#include <regex>
+#include <string_view>
+#include <utility>
+
+#include "gyrotherm/lab/central.h"
+#include "gyrotherm/lab/pg.h"
+#include "gyrotherm/storage/database.h"
+
+namespace gyrotherm::lab {
+namespace {
+
+using namespace std::chrono_literals;
+using steady = std::chrono::steady_clock;
+
+double unix_now_s() { return system_wall_clock().unix_now_s(); }
+
+std::chrono::steady_clock::duration seconds(double s) {
+  return std::chrono::duration_cast<steady::duration>(std::chrono::duration<double>(s));
+}
+
+// "host:port/db as user" from a conninfo or URI, before any connection
+// (PgConnection::server() says it once connected). Never the password.
+std::string server_of(const std::string& conninfo) {
+  char* error = nullptr;
+  PQconninfoOption* options = PQconninfoParse(conninfo.c_str(), &error);
+  if (error) PQfreemem(error);
+  if (!options) return "(unparsable connection string)";
+  std::string host, hostaddr, port, db, user;
+  for (PQconninfoOption* o = options; o->keyword; ++o) {
+    if (!o->val) continue;
+    const std::string_view key = o->keyword;
+    if (key == "host") host = o->val;
+    if (key == "hostaddr") hostaddr = o->val;
+    if (key == "port") port = o->val;
+    if (key == "dbname") db = o->val;
+    if (key == "user") user = o->val;
+  }
+  PQconninfoFree(options);
+  if (host.empty()) host = hostaddr.empty() ? "localhost" : hostaddr;
+  if (port.empty()) port = "5432";
+  std::string out = fmt::format("{}:{}/{}", host, port, db.empty() ? user : db);
+  if (!user.empty()) out += " as " + user;
+  return out;
+}
+
+// libpq's multi-line messages as one line.
+std::string one_line(std::string_view s) {
+  std::string out;
+  for (const char c : s) {
+    if (c == '\n' || c == '\r' || c == '\t' || c == ' ') {
+      if (!out.empty() && out.back() != ' ') out += ' ';
+    } else {
+      out += c;
+    }
+  }
+  while (!out.empty() && out.back() == ' ') out.pop_back();
+  return out;
+}
+
+bool valid_station_id(const std::string& id) {
+  static const std::regex kId("[A-Za-z0-9][A-Za-z0-9._-]{0,63}");
+  return std::regex_match(id, kId);
+}
+
+// "1 record", "12 records".
+std::string records(int64_t n) { return fmt::format("{} record{}", n, n == 1 ? "" : "s"); }
+
+// A message inside a sentence: without its final full stop.
+std::string clause(std::string s) {
+  while (!s.empty() && (s.back() == '.' || s.back() == ' ')) s.pop_back();
+  return s;
+}
+
+std::string describe_s(double s) {
+  if (s < 10) return fmt::format("{:.2g} s", s);
+  if (s < 120) return fmt::format("{:.0f} s", s);
+  if (s < 7200) return fmt::format("{:.0f} min", s / 60);
+  return fmt::format("{:.1f} h", s / 3600);
+}
+
+}  // namespace
+
+Relay::Relay(RelayOptions options) : options_(std::move(options)) {}
+
+Result<std::unique_ptr<Relay>> Relay::create(RelayOptions options) {
+  const auto bad = [](const std::string& what) { return Error::Permanent("lab relay: " + what); };
+  if (!valid_station_id(options.station_id)) {
+    return bad(fmt::format("station id \"{}\" is not [A-Za-z0-9][A-Za-z0-9._-]{{0,63}}",
+                           options.station_id));
+  }
+  if (options.db_path.empty()) return bad("no database path");
+  if (options.batch_records < 1) return bad("batch_records must be at least 1");
+  if (options.batch_bytes < 1) return bad("batch_bytes must be at least 1");
+  if (!(options.poll_s > 0)) return bad("poll_s must be positive");
+  if (!(options.retry_min_s > 0)) return bad("retry_min_s must be positive");
+  if (!(options.retry_max_s >= options.retry_min_s))
+    return bad("retry_max_s must be at least retry_min_s");
+  if (!(options.connect_timeout_s > 0)) return bad("connect_timeout_s must be positive");
+
+  // The binding is checked here, once: the thread trusts it.
+  auto db = storage::Database::open(options.db_path);
+  if (!db) return db.error();
+  auto bound = db->lab_station_id();
+  if (!bound) return bound.error();
+  if (!*bound) {
+    return bad(
+        fmt::format("database {} is not bound to a lab station (lab_bind first)", options.db_path));
+  }
+  if (**bound != options.station_id) {
+    return bad(fmt::format("database {} belongs to lab station \"{}\", not \"{}\"", options.db_path,
+                           **bound, options.station_id));
+  }
+  auto stats = db->outbox_stats();
+  if (!stats) return stats.error();
+
+  std::unique_ptr<Relay> relay(new Relay(std::move(options)));
+  RelayStatus& s = relay->status_;
+  s.station_id = relay->options_.station_id;
+  const bool disabled = relay->options_.conninfo.empty();
+  s.server = disabled ? "" : server_of(relay->options_.conninfo);
+  s.state = disabled ? "disabled" : "connecting";
+  s.pending = stats->pending;
+  s.pending_bytes = stats->pending_bytes;
+  if (stats->oldest_unix_s)
+    s.oldest_pending_age_s = std::max(0.0, unix_now_s() - *stats->oldest_unix_s);
+  return relay;
+}
+
+Relay::~Relay() { stop(); }
+
+void Relay::start() {
+  std::lock_guard lock(mutex_);
+  if (thread_.joinable() || stop_requested_) return;
+  thread_ = std::thread([this] { run(); });
+}
+
+void Relay::stop() {
+  {
+    std::lock_guard lock(mutex_);
+    stop_requested_ = true;
+  }
+  wake_.notify_all();
+  if (thread_.joinable()) thread_.join();
+  std::lock_guard lock(mutex_);
+  status_.state = "stopped";
+  status_.retry_in_s.reset();
+}
+
+void Relay::nudge() {
+  {
+    std::lock_guard lock(mutex_);
+    nudged_ = true;
+  }
+  wake_.notify_all();
+}
+
+RelayStatus Relay::status() const {
+  std::lock_guard lock(mutex_);
+  return status_;
+}
+
+void Relay::run() {
+  const RelayOptions& o = options_;
+  const bool disabled = o.conninfo.empty();
+  std::optional<storage::Database> db;
+  std::optional<PgConnection> pg;
+  int64_t after_seq = -1;  // the last seq acknowledged (-1: read it from the outbox first)
+  double delay_s = o.retry_min_s;
+  // What the events last said: "" (nothing yet), "connected", "backoff",
+  // "refused"; and since when (steady) the relay has not been sending.
+  std::string announced;
+  std::optional<steady::time_point> outage_since;
+  steady::time_point stats_due{};
+
+  const auto update = [&](auto&& fn) {
+    std::lock_guard lock(mutex_);
+    fn(status_);
+  };
+  const auto event = [&](const std::string& message) {
+    if (o.on_event) o.on_event(message);
+  };
+  // The outbox's figures (pending, bytes, oldest age), read again at most
+  // once a wall second, and less often when reading them takes long (a
+  // large outbox, e.g. a station that queues without relaying): the reads
+  // take at most 2 % of the time.
+  const auto refresh_stats = [&] {
+    const auto started = steady::now();
+    auto stats = db->outbox_stats();
+    stats_due = steady::now() + std::max<steady::duration>(1s, 50 * (steady::now() - started));
+    if (!stats) return false;
+    if (after_seq < 0) after_seq = stats->last_acked_seq;
+    const double now = unix_now_s();
+    update([&](RelayStatus& s) {
+      s.pending = stats->pending;
+      s.pending_bytes = stats->pending_bytes;
+      s.oldest_pending_age_s.reset();
+      if (stats->oldest_unix_s) s.oldest_pending_age_s = std::max(0.0, now - *stats->oldest_unix_s);
+    });
+    return true;
+  };
+  // Waits `s` wall seconds, or less when stop() (or, `nudgeable`, nudge())
+  // is called; false when stopping. Meanwhile retry_in_s counts down and
+  // the outbox's figures stay current (a lab down for hours is when the
+  // pending count matters).
+  const auto wait = [&](double s, bool nudgeable, bool backoff) {
+    const auto until = steady::now() + seconds(s);
+    for (;;) {
+      {
+        std::unique_lock lock(mutex_);
+        const auto done = [&] {
+          return stop_requested_ || (nudgeable && nudged_) || steady::now() >= until;
+        };
+        if (!done()) {
+          if (backoff) {
+            status_.retry_in_s = std::chrono::duration<double>(until - steady::now()).count();
+          }
+          const auto now = steady::now();
+          wake_.wait_until(lock, std::min(until, db ? std::max(stats_due, now + 10ms) : now + 1s));
+        }
+        if (done()) {
+          nudged_ = false;
+          status_.retry_in_s.reset();
+          return !stop_requested_;
+        }
+      }
+      if (db && steady::now() >= stats_due) refresh_stats();
+    }
+  };
+  // A failed attempt: backoff (transient: retry_min_s doubling up to
+  // retry_max_s) or refused (permanent: retry_max_s), one event per change.
+  const auto fail = [&](const Error& e, bool local) {
+    const bool refused = !e.transient && !local;
+    const std::string state = refused ? "refused" : disabled ? "disabled" : "backoff";
+    const double wait_s = refused ? o.retry_max_s : delay_s;
+    if (!refused) delay_s = std::min(o.retry_max_s, delay_s * 2);
+    if (!outage_since) outage_since = steady::now();
+    update([&](RelayStatus& s) {
+      ++s.errors_total;
+      s.last_error = e.message;
+      s.state = state;
+      s.retry_in_s = wait_s;
+    });
+    if (announced != state) {
+      const std::string retrying = fmt::format("retrying {} to {} apart", describe_s(o.retry_min_s),
+                                               describe_s(o.retry_max_s));
+      if (refused) {
+        event(
+            fmt::format("lab: the lab database refused station {}'s records: {}; retried every {}",
+                        o.station_id, clause(e.message), describe_s(o.retry_max_s)));
+      } else if (local) {
+        event(fmt::format("lab: relay stalled on the station database: {}; {}", clause(e.message),
+                          retrying));
+      } else if (announced == "connected") {
+        event(fmt::format("lab: connection to the lab database lost: {}; {}", clause(e.message),
+                          retrying));
+      } else {
+        event(
+            fmt::format("lab: cannot reach the lab database: {}; {}", clause(e.message), retrying));
+      }
+      announced = state;
+    }
+    // A lost connection is reopened; a refusal's is kept when still usable.
+    if (pg && (!refused || !pg->ok())) pg.reset();
+    if (local) db.reset();
+    return wait(wait_s, false, true);
+  };
+  // A round that reached the lab (a batch committed, or nothing to send).
+  // `waiting`: the records pending when the round began.
+  const auto succeeded = [&](int64_t waiting) {
+    delay_s = o.retry_min_s;
+    if (announced != "connected") {
+      const std::string server = pg ? pg->server() : server_of(o.conninfo);
+      if (outage_since) {
+        event(fmt::format(
+            "lab: relaying to {} again after {}; {} waiting", server,
+            describe_s(std::chrono::duration<double>(steady::now() - *outage_since).count()),
+            records(waiting)));
+      } else {
+        event(fmt::format("lab: connected to {} (station {}); {} to send", server, o.station_id,
+                          records(waiting)));
+      }
+      announced = "connected";
+    }
+    outage_since.reset();
+    update([&](RelayStatus& s) {
+      s.state = "connected";
+      s.last_error.clear();
+      s.retry_in_s.reset();
+    });
+  };
+
+  for (;;) {
+    {
+      std::lock_guard lock(mutex_);
+      if (stop_requested_) break;
+    }
+    if (!db) {
+      auto d = storage::Database::open(o.db_path);
+      if (!d) {
+        if (!fail(d.error(), true)) break;
+        continue;
+      }
+      db.emplace(std::move(*d));
+      after_seq = -1;
+    }
+    if (after_seq < 0 || steady::now() >= stats_due) {
+      if (!refresh_stats()) {
+        if (!fail(Error::Transient("reading the outbox's figures failed"), true)) break;
+        continue;
+      }
+    }
+    if (disabled) {
+      if (!wait(o.poll_s, true, false)) break;
+      continue;
+    }
+    if (!pg) {
+      if (announced != "refused") update([](RelayStatus& s) { s.state = "connecting"; });
+      auto c = PgConnection::connect(o.conninfo, o.connect_timeout_s);
+      if (!c) {
+        if (!fail(c.error(), false)) break;
+        continue;
+      }
+      pg.emplace(std::move(*c));
+      update([&](RelayStatus& s) { s.server = pg->server(); });
+    }
+    auto batch = db->outbox_batch(after_seq, o.batch_records, o.batch_bytes);
+    if (!batch) {
+      if (!fail(batch.error(), true)) break;
+      continue;
+    }
+    if (batch->empty()) {
+      if (!refresh_stats()) {
+        if (!fail(Error::Transient("reading the outbox's figures failed"), true)) break;
+        continue;
+      }
+      // Idle: a server that shut down or restarted has said so on the
+      // socket (read without a round trip), so the status and the events
+      // follow an outage even when nothing is to be sent. A link that died
+      // silently shows at the next batch (or the keepalives). A refusal
+      // stays a refusal until a batch goes through.
+      if (PQconsumeInput(pg->handle()) == 0 || !pg->ok()) {
+        if (!fail(
+                Error::Transient(fmt::format("lab database {}: connection lost while idle: {}",
+                                             pg->server(), one_line(PQerrorMessage(pg->handle())))),
+                false)) {
+          break;
+        }
+        continue;
+      }
+      if (announced != "refused") succeeded(0);
+      if (!wait(o.poll_s, true, false)) break;
+      continue;
+    }
+    const double oldest_unix_s = batch->front().committed_unix_s;
+    int64_t waiting = 0;
+    update([&](RelayStatus& s) {
+      s.oldest_pending_age_s = std::max(0.0, unix_now_s() - oldest_unix_s);
+      s.pending = std::max<int64_t>(s.pending, static_cast<int64_t>(batch->size()));
+      waiting = s.pending;
+    });
+    auto pushed = push_batch(*pg, o.station_id, *batch);
+    if (!pushed) {
+      if (!fail(pushed.error(), false)) break;
+      continue;
+    }
+    // Committed centrally: the lag is measured now, then acknowledged.
+    const double now_unix = unix_now_s();
+    double newest_unix_s = oldest_unix_s;
+    int64_t bytes = 0;
+    for (const auto& r : *batch) {
+      newest_unix_s = std::max(newest_unix_s, r.committed_unix_s);
+      bytes += static_cast<int64_t>(r.payload_json.size());
+    }
+    const double lag_s = std::max(0.0, now_unix - newest_unix_s);
+    const int64_t last_seq = batch->back().seq;
+    const auto count = static_cast<int64_t>(batch->size());
+    update([&](RelayStatus& s) {
+      ++s.batches_total;
+      s.sent_total += static_cast<uint64_t>(count);
+      s.redelivered_total += static_cast<uint64_t>(pushed->redelivered);
+      s.last_lag_s = lag_s;
+      s.max_lag_s = std::max(lag_s, s.max_lag_s.value_or(0.0));
+      s.last_sent_utc = utc_iso(now_unix);
+    });
+    batch->clear();
+    batch->shrink_to_fit();
+    if (auto acked = db->outbox_ack(last_seq); !acked) {
+      // The lab has the batch; it is sent again (counted redelivered).
+      if (!fail(acked.error(), true)) break;
+      continue;
+    }
+    after_seq = last_seq;
+    update([&](RelayStatus& s) {
+      s.pending = std::max<int64_t>(0, s.pending - count);
+      s.pending_bytes = std::max<int64_t>(0, s.pending_bytes - bytes);
+    });
+    succeeded(waiting);
+  }
+  update([](RelayStatus& s) {
+    s.state = "stopped";
+    s.retry_in_s.reset();
+  });
+}
+
+}  // namespace gyrotherm::lab

@@ -230,6 +230,25 @@ StatusSnapshot busy_station() {
   s.run_operator = "ana";
   s.run_comment = "lot 7, cold start";
   s.run_tags = {"cold", "lot-7"};
+  s.storage_free_bytes = int64_t{12} << 30;
+  s.storage_size_bytes = int64_t{200} << 30;
+  // A lab relay that lost the lab a while ago: every field, some null.
+  lab::RelayStatus relay;
+  relay.station_id = "st-07";
+  relay.server = "lab-db:5432/lab as st07";
+  relay.state = "backoff";
+  relay.pending = 120;
+  relay.pending_bytes = 48000;
+  relay.oldest_pending_age_s = 95.5;
+  relay.sent_total = 10500;
+  relay.batches_total = 30;
+  relay.redelivered_total = 12;
+  relay.errors_total = 4;
+  relay.max_lag_s = 1.25;
+  relay.last_error = "could not connect to server: Connection refused";
+  relay.retry_in_s = 16;
+  relay.last_sent_utc = "2026-11-21T09:10:00.000Z";
+  s.lab = relay;
   return s;
 }
 

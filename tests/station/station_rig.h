@@ -328,6 +328,7 @@ class StationRig {
       std::lock_guard lock(published_mu_);
       published_.push_back(std::string(event) + " " + data.dump());
     };
+    hooks.lab_status = lab_status;
     storage::SampleWriterOptions wopt;
     wopt.commit_interval = std::chrono::milliseconds(20);
     auto writer = storage::SampleWriter::start(cfg->storage.db_path, wopt);
@@ -411,6 +412,8 @@ class StationRig {
 
   std::shared_ptr<FakePlant> plant = std::make_shared<FakePlant>();
   FakeTable table;  // the station's when the config has a [table]
+  // StationHooks::lab_status of the station open() creates (unset: no [lab]).
+  std::function<std::optional<lab::RelayStatus>()> lab_status;
   ManualClock clock{1000.0, 1.0};
   ManualWallClock wall{1.8e9};
   std::unique_ptr<daemon::Station> station;

@@ -412,5 +412,104 @@ duration_min = 0.05
   EXPECT_TRUE(queue.at("entries").empty()) << queue.dump();
 }
 
+// Station::post_event (the lab relay's events): from any thread, recorded
+// in order by the control loop at its next tick, under the run in progress
+// if any, published on the stream; bounded (the oldest dropped, said).
+TEST_F(StationUnitTest, PostedEventsAreRecordedByTheControlLoop) {
+  StationRig rig(dir_);
+  rig.open();
+  const auto lab_events = [&](bool outside_runs) {
+    sqlite3* db = nullptr;
+    EXPECT_EQ(sqlite3_open_v2(rig.db_path().c_str(), &db, SQLITE_OPEN_READONLY, nullptr),
+              SQLITE_OK);
+    sqlite3_stmt* st = nullptr;
+    const std::string sql = std::string("SELECT message FROM events WHERE kind = 'lab' AND ") +
+                            (outside_runs ? "run_id IS NULL" : "run_id IS NOT NULL") +
+                            " ORDER BY id";
+    EXPECT_EQ(sqlite3_prepare_v2(db, sql.c_str(), -1, &st, nullptr), SQLITE_OK);
+    std::vector<std::string> out;
+    while (sqlite3_step(st) == SQLITE_ROW) {
+      out.emplace_back(reinterpret_cast<const char*>(sqlite3_column_text(st, 0)));
+    }
+    sqlite3_finalize(st);
+    sqlite3_close(db);
+    return out;
+  };
+  std::thread poster([&] {
+    for (int i = 0; i < 20; ++i) rig.station->post_event("lab", fmt::format("lab: message {}", i));
+  });
+  poster.join();
+  EXPECT_TRUE(lab_events(true).empty()) << "recorded before the control loop ticked";
+  rig.step();
+  const auto idle = lab_events(true);
+  ASSERT_EQ(idle.size(), 20u);
+  for (int i = 0; i < 20; ++i) EXPECT_EQ(idle[i], fmt::format("lab: message {}", i));
+  EXPECT_EQ(rig.station->status().last_event, "lab: message 19");
+  bool published = false;
+  for (const auto& p : rig.published()) published |= p.find("lab: message 7") != std::string::npos;
+  EXPECT_TRUE(published);
+
+  rig.queue(kLongSoak);
+  const int64_t run_id = until_acquiring(rig);
+  ASSERT_NE(run_id, 0);
+  rig.station->post_event("lab", "lab: during the run");
+  rig.step();
+  EXPECT_TRUE(rig.has_event(run_id, "lab", "lab: during the run"));
+
+  // More than the queue holds between two ticks: the oldest go, and an
+  // event says how many.
+  for (int i = 0; i < 1005; ++i) rig.station->post_event("lab", fmt::format("lab: flood {}", i));
+  rig.step();
+  const auto flood = lab_events(false);
+  ASSERT_EQ(flood.size(), 1001u);
+  EXPECT_EQ(flood[1], "lab: flood 5");
+  EXPECT_EQ(flood.back(), "lab: flood 1004");
+  EXPECT_TRUE(rig.has_event(run_id, "error", "5 posted events dropped"));
+}
+
+// The status's lab object comes from StationHooks::lab_status (none: null),
+// the free bytes of the database's file system from statvfs.
+TEST_F(StationUnitTest, StatusShowsTheRelayAndTheFreeSpace) {
+  {
+    StationRig rig(dir_);
+    rig.open();
+    const daemon::StatusSnapshot s = rig.station->status();
+    EXPECT_FALSE(s.lab.has_value());
+    ASSERT_TRUE(s.storage_free_bytes.has_value());
+    ASSERT_TRUE(s.storage_size_bytes.has_value());
+    EXPECT_GT(*s.storage_free_bytes, 0);
+    EXPECT_GE(*s.storage_size_bytes, *s.storage_free_bytes);
+    const nlohmann::json j = daemon::to_json(s);
+    EXPECT_TRUE(j.at("lab").is_null());
+    EXPECT_EQ(j.at("storage").at("free_bytes"), *s.storage_free_bytes);
+  }
+  StationRig rig(dir_);
+  std::atomic<int> calls{0};
+  rig.lab_status = [&calls] {
+    ++calls;
+    lab::RelayStatus r;
+    r.station_id = "st-07";
+    r.server = "lab-db:5432/lab as st07";
+    r.state = "backoff";
+    r.pending = 42;
+    r.errors_total = 3;
+    r.retry_in_s = 8;
+    r.last_error = "connection refused";
+    return std::optional(r);
+  };
+  rig.open();
+  const daemon::StatusSnapshot s = rig.station->status();
+  ASSERT_TRUE(s.lab.has_value());
+  EXPECT_GE(calls.load(), 1);
+  const nlohmann::json j = daemon::to_json(s).at("lab");
+  EXPECT_EQ(j.at("station_id"), "st-07");
+  EXPECT_EQ(j.at("state"), "backoff");
+  EXPECT_EQ(j.at("pending"), 42);
+  EXPECT_EQ(j.at("errors_total"), 3);
+  EXPECT_EQ(j.at("retry_in_s"), 8.0);
+  EXPECT_TRUE(j.at("last_lag_s").is_null());
+  EXPECT_EQ(j.at("last_error"), "connection refused");
+}
+
 }  // namespace
 }  // namespace gyrotherm::testing

@@ -98,6 +98,8 @@ std::string Metrics::scrape(const StatusSnapshot& s, const ServerFigures& server
     f.gauge("gyrotherm_state", "1 for the station's current state, 0 for the others",
             state == s.state ? 1.0 : 0.0, {{"state", std::string(state)}});
   }
+  f.gauge("gyrotherm_interlocks_tripped", "Interlocks tripped now",
+          static_cast<double>(s.interlocks.size()));
   f.gauge("gyrotherm_queue_length", "Queue entries waiting", s.queue_length);
   f.gauge("gyrotherm_queue_held", "1 while the queue is held (stop, abort, failed run)",
           s.queue_held ? 1.0 : 0.0);
@@ -202,6 +204,42 @@ std::string Metrics::scrape(const StatusSnapshot& s, const ServerFigures& server
             static_cast<double>(st.dropped));
   f.gauge("gyrotherm_db_pending_samples", "Samples waiting for the next commit",
           static_cast<double>(st.pending));
+  const auto bytes = [](const std::optional<int64_t>& v) {
+    return v ? std::optional<double>(static_cast<double>(*v)) : std::nullopt;
+  };
+  f.gauge("gyrotherm_storage_free_bytes",
+          "Bytes available to the daemon on the database's file system (statvfs)",
+          bytes(s.storage_free_bytes));
+  f.gauge("gyrotherm_storage_size_bytes", "Size of the database's file system, bytes (statvfs)",
+          bytes(s.storage_size_bytes));
+
+  if (const auto& lab = s.lab) {
+    // Present only on a station with a [lab] (docs/lab.md).
+    for (std::string_view state : kLabRelayStates) {
+      f.gauge("gyrotherm_lab_relay_state", "1 for the lab relay's current state, 0 for the others",
+              state == lab->state ? 1.0 : 0.0, {{"state", std::string(state)}});
+    }
+    f.gauge("gyrotherm_lab_outbox_pending_records",
+            "Outbox records not yet acknowledged by the lab", static_cast<double>(lab->pending));
+    f.gauge("gyrotherm_lab_outbox_pending_bytes", "Payload bytes of the pending outbox records",
+            static_cast<double>(lab->pending_bytes));
+    f.gauge("gyrotherm_lab_outbox_oldest_age_seconds",
+            "Wall seconds since the oldest pending outbox record was committed (0 when none)",
+            lab->oldest_pending_age_s.value_or(0.0));
+    f.counter("gyrotherm_lab_relay_sent_records_total",
+              "Outbox records the lab committed (since the daemon started)",
+              static_cast<double>(lab->sent_total));
+    f.counter("gyrotherm_lab_relay_batches_total", "Batches the lab committed",
+              static_cast<double>(lab->batches_total));
+    f.counter("gyrotherm_lab_relay_redelivered_records_total",
+              "Records the lab already had (replays after a crash or a lost connection)",
+              static_cast<double>(lab->redelivered_total));
+    f.counter("gyrotherm_lab_relay_errors_total", "Failed relay attempts (connect or batch)",
+              static_cast<double>(lab->errors_total));
+    f.gauge("gyrotherm_lab_relay_lag_seconds",
+            "Last batch: wall seconds from the newest record's local commit to the lab's commit",
+            lab->last_lag_s);
+  }
 
   f.counter("gyrotherm_http_requests_total", "HTTP requests read",
             static_cast<double>(server.http_requests));

@@ -264,6 +264,25 @@ nlohmann::json run_config_json(const StationConfig& config) {
   }
   json duts = json::array();
   for (const DutSection& dut : config.duts) duts.push_back(dut_config_json(dut));
+  // [lab]: where the connection string is (a file's path, a variable's
+  // name), never the string itself.
+  json lab = nullptr;
+  if (const auto& l = config.lab) {
+    lab = {{"station_id", l->station_id},
+           {"relay", l->relay},
+           {"url_file", l->url_file},
+           {"url_env", l->url_env},
+           {"sslmode", l->sslmode},
+           {"sslrootcert", l->sslrootcert},
+           {"sslcert", l->sslcert},
+           {"sslkey", l->sslkey},
+           {"batch_records", l->batch_records},
+           {"batch_bytes", l->batch_bytes},
+           {"poll_s", l->poll_s},
+           {"retry_min_s", l->retry_min_s},
+           {"retry_max_s", l->retry_max_s},
+           {"connect_timeout_s", l->connect_timeout_s}};
+  }
   const ApiSection& api = config.api;
   return json{
       {"source_path", config.source_path},
@@ -324,6 +343,7 @@ nlohmann::json run_config_json(const StationConfig& config) {
       {"interlocks", std::move(interlocks)},
       {"simulator", {{"endpoints_file", config.simulator.endpoints_file}}},
       {"duts", std::move(duts)},
+      {"lab", std::move(lab)},
   };
 }
 

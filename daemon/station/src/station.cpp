@@ -2,9 +2,11 @@
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
+#include <sys/statvfs.h>
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <limits>
 #include <nlohmann/json.hpp>
 #include <sstream>
@@ -519,6 +521,7 @@ void Station::tick() {
     if (stopping_) return;
   }
   record_unrecorded();
+  record_posted_events();
   note_link(*chamber_, chamber_ok_, chamber_lost_s_, now_s);
   note_link(*probes_, probes_ok_, probes_lost_s_, now_s);
   if (!sequencer_) start_next_run(now_s);
@@ -1235,7 +1238,41 @@ StatusSnapshot Station::status() const {
     s.duts[i].health = duts_[i]->source->health();
   }
   s.storage = writer_->stats();
+  // The database's file system (a statvfs: microseconds, no disk access).
+  std::filesystem::path dir = std::filesystem::path(config_.storage.db_path).parent_path();
+  if (dir.empty()) dir = ".";
+  if (struct statvfs fs{}; statvfs(dir.c_str(), &fs) == 0) {
+    s.storage_free_bytes = static_cast<int64_t>(fs.f_bavail) * static_cast<int64_t>(fs.f_frsize);
+    s.storage_size_bytes = static_cast<int64_t>(fs.f_blocks) * static_cast<int64_t>(fs.f_frsize);
+  }
+  if (hooks_.lab_status) s.lab = hooks_.lab_status();
   return s;
+}
+
+void Station::post_event(const std::string& kind, const std::string& message) {
+  std::lock_guard lock(posted_mu_);
+  if (posted_events_.size() >= kMaxPostedEvents) {
+    posted_events_.pop_front();
+    ++posted_events_dropped_;
+  }
+  posted_events_.emplace_back(kind, message);
+}
+
+// Control thread (run_mu_): the events post_event() queued, in order.
+void Station::record_posted_events() {
+  std::deque<std::pair<std::string, std::string>> events;
+  uint64_t dropped = 0;
+  {
+    std::lock_guard lock(posted_mu_);
+    events.swap(posted_events_);
+    std::swap(dropped, posted_events_dropped_);
+  }
+  if (dropped > 0) {
+    add_event("error", "", "",
+              fmt::format("{} posted events dropped (more than {} waited for the control loop)",
+                          dropped, kMaxPostedEvents));
+  }
+  for (const auto& [kind, message] : events) add_event(kind, "", "", message);
 }
 
 // A device's gap in the event log: when it stopped answering and how long

@@ -84,6 +84,26 @@ nlohmann::json table_json(const std::optional<TableStatus>& t) {
   return j;
 }
 
+// null when the station has no [lab]; the relay's state otherwise.
+nlohmann::json lab_json(const std::optional<lab::RelayStatus>& l) {
+  if (!l) return nullptr;
+  return {{"station_id", l->station_id},
+          {"server", l->server},
+          {"state", l->state},
+          {"pending", l->pending},
+          {"pending_bytes", l->pending_bytes},
+          {"oldest_pending_age_s", opt(l->oldest_pending_age_s)},
+          {"sent_total", l->sent_total},
+          {"batches_total", l->batches_total},
+          {"redelivered_total", l->redelivered_total},
+          {"errors_total", l->errors_total},
+          {"last_lag_s", opt(l->last_lag_s)},
+          {"max_lag_s", opt(l->max_lag_s)},
+          {"last_error", l->last_error},
+          {"retry_in_s", opt(l->retry_in_s)},
+          {"last_sent_utc", l->last_sent_utc}};
+}
+
 }  // namespace
 
 nlohmann::json to_json(const StatusSnapshot& s) {
@@ -135,7 +155,10 @@ nlohmann::json to_json(const StatusSnapshot& s) {
         {"pending", s.storage.pending},
         {"last_commit_ms", s.storage.last_commit_ms},
         {"max_commit_ms", s.storage.max_commit_ms},
-        {"last_error", s.storage.last_error}}},
+        {"last_error", s.storage.last_error},
+        {"free_bytes", opt(s.storage_free_bytes)},
+        {"size_bytes", opt(s.storage_size_bytes)}}},
+      {"lab", lab_json(s.lab)},
   };
   // While a run runs: who runs it and why (set with `queue add`).
   if (s.run_id) {

@@ -44,9 +44,10 @@ Status add_reader(PgConnection& pg, const std::string& db_role);
 
 // What a relay batch did centrally.
 struct PushResult {
-  int64_t upserted = 0;     // rows inserted or updated
-  int64_t redelivered = 0;  // rows whose (key, outbox_seq) was already there (at-least-once replays)
-  int64_t stale = 0;        // rows older (outbox_seq) than the one already there: ignored
+  int64_t upserted = 0;  // rows inserted or updated
+  int64_t redelivered =
+      0;              // rows whose (key, outbox_seq) was already there (at-least-once replays)
+  int64_t stale = 0;  // rows older (outbox_seq) than the one already there: ignored
 };
 
 // Why the lab refused a batch for good (the relay stops retrying it).

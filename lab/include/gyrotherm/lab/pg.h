@@ -43,7 +43,7 @@ class PgConnection {
                              const std::vector<std::optional<std::string>>& params);
   // The SQLSTATE of the last failed call ("" when it was not the server's).
   const std::string& last_sqlstate() const { return last_sqlstate_; }
-  bool ok() const;            // the connection is usable
+  bool ok() const;             // the connection is usable
   std::string server() const;  // "host:port/dbname as user", no password
   pg_conn* handle() { return conn_; }
 

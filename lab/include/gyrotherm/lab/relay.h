@@ -28,8 +28,10 @@ namespace gyrotherm::lab {
 
 struct RelayOptions {
   std::string station_id;
-  std::string db_path;    // the station's SQLite file (bound to station_id before start)
-  std::string conninfo;   // libpq conninfo/URI, may hold a password (never logged)
+  std::string db_path;   // the station's SQLite file (bound to station_id before start)
+  std::string conninfo;  // libpq conninfo/URI, may hold a password (never logged)
+                         // "" = disabled ([lab] relay = false): the thread never connects, it
+                         // only reads the outbox's figures every poll_s (state "disabled")
   int batch_records = 500;
   int64_t batch_bytes = 4 << 20;
   double poll_s = 1.0;         // wall s between outbox polls when idle (nudge() wakes it early)

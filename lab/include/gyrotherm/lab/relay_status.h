@@ -16,18 +16,20 @@ struct RelayStatus {
   // good, e.g. the station id belongs to another role: retried at the
   // longest backoff, an event says why); stopped.
   std::string state = "disabled";
-  int64_t pending = 0;        // outbox rows not yet acknowledged
-  int64_t pending_bytes = 0;  // their payload bytes
+  int64_t pending = 0;                         // outbox rows not yet acknowledged
+  int64_t pending_bytes = 0;                   // their payload bytes
   std::optional<double> oldest_pending_age_s;  // wall s since the oldest pending row was committed
-  uint64_t sent_total = 0;         // records acknowledged by the lab
-  uint64_t batches_total = 0;      // batches committed centrally
+  uint64_t sent_total = 0;                     // records acknowledged by the lab
+  uint64_t batches_total = 0;                  // batches committed centrally
   uint64_t redelivered_total = 0;  // records the lab already had (replays after a crash or loss)
   uint64_t errors_total = 0;       // failed attempts (connect or batch)
-  std::optional<double> last_lag_s;   // for the last batch: wall s from local commit to central commit, newest record
-  std::optional<double> max_lag_s;    // largest since start
-  std::string last_error;             // "" when the last attempt succeeded
-  std::optional<double> retry_in_s;   // backoff only
-  std::string last_sent_utc;          // "" = nothing sent since start
+  // For the last batch: wall s from the local commit to the central commit
+  // of its newest record.
+  std::optional<double> last_lag_s;
+  std::optional<double> max_lag_s;   // largest since start
+  std::string last_error;            // "" when the last attempt succeeded
+  std::optional<double> retry_in_s;  // backoff and refused: wall s to the next attempt
+  std::string last_sent_utc;         // "" = nothing sent since start
 };
 
 }  // namespace gyrotherm::lab

@@ -53,4 +53,8 @@ inline constexpr std::string_view kStatesForMetrics[] = {
     "idle",      "queued",   "ramping",   "settling", "acquiring",  "paused",
     "suspended", "aborting", "completed", "failed",   "interrupted"};
 
+// Every state a gyrotherm_lab_relay_state gauge is reported for (lab::RelayStatus::state).
+inline constexpr std::string_view kLabRelayStates[] = {"disabled", "connecting", "connected",
+                                                       "backoff",  "refused",    "stopped"};
+
 }  // namespace gyrotherm::daemon

@@ -359,6 +359,14 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // A plan has been taken from pending_ and its run is not over.
   std::atomic<bool> busy_{false};
 
+  // post_event(): events from other threads (the lab relay), recorded by
+  // the control loop at its next tick. Bounded: the oldest are dropped.
+  static constexpr std::size_t kMaxPostedEvents = 1000;
+  std::mutex posted_mu_;
+  std::deque<std::pair<std::string, std::string>> posted_events_;  // (kind, message)
+  uint64_t posted_events_dropped_ = 0;
+  void record_posted_events();
+
   mutable std::mutex mu_;  // guards the fields below
   StatusSnapshot snapshot_;
   std::condition_variable wake_;

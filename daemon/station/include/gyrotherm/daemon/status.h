@@ -104,6 +104,8 @@ struct StatusSnapshot {
   // Free bytes on the file system of the station database (statvfs, for
   // the "disk filling" alert); nullopt when it cannot be read.
   std::optional<int64_t> storage_free_bytes;
+  // The size of that file system (statvfs: total bytes); nullopt likewise.
+  std::optional<int64_t> storage_size_bytes;
 };
 
 nlohmann::json to_json(const StatusSnapshot& s);
