@@ -153,11 +153,14 @@ WITH input AS (
     AS i(run_uuid uuid, kind text, local_id text, outbox_seq bigint, deleted boolean,
          payload text, committed_unix_s float8)
 ), before AS (
-  SELECT i.outbox_seq AS seq, r.outbox_seq AS held_seq
+  -- One primary-key lookup per record (a correlated subquery): a join let
+  -- the planner scan every record the station has, so a batch's cost grew
+  -- with the station's history (57 -> 116 ms per 500 records over 100 k).
+  SELECT i.outbox_seq AS seq,
+         (SELECT r.outbox_seq FROM lab.records r
+          WHERE r.station_id = $2 AND r.run_uuid = i.run_uuid AND r.kind = i.kind
+            AND r.local_id = i.local_id) AS held_seq
   FROM input i
-  LEFT JOIN lab.records r
-    ON r.station_id = $2 AND r.run_uuid = i.run_uuid AND r.kind = i.kind
-       AND r.local_id = i.local_id
 ), upsert AS (
   INSERT INTO lab.records(station_id, run_uuid, kind, local_id, outbox_seq, deleted, payload,
                           station_committed_at)
