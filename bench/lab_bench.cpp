@@ -13,11 +13,14 @@
 //   2. relay throughput: every station's outbox preloaded with R records,
 //      then all ten relays started at once; records per second until every
 //      outbox is empty (aggregate and per station).
-//   3. lag: the ten stations commit results at a steady rate while their
-//      relays run (poll_s as given); per record, wall time from its local
-//      commit (outbox committed_unix_s) to the central transaction that
-//      stored it (lab.records.central_committed_at, the transaction's start),
-//      quantiles; and the relays' own figure (after the central commit).
+//   3. lag: the ten stations commit results at a steady rate while fresh
+//      relays run, first woken after each commit (as gyrothermd wakes its
+//      relay on every event it publishes), then on their poll (poll_s)
+//      alone; per record, wall time from its local commit (outbox
+//      committed_unix_s) to the central transaction that stored it
+//      (lab.records.central_committed_at, the transaction's start),
+//      quantiles; and the relays' own largest figure (measured after the
+//      central commit). Every record written must be in the lab.
 //
 // Usage: gyrotherm_bench_lab [--stations N] [--preload R] [--rate PER_S]
 //                            [--seconds S] [--poll S] [--dir D]
@@ -154,6 +157,85 @@ std::unique_ptr<lab::Relay> make_relay(const gyrotherm::testing::PgCluster& pg,
   return ok(lab::Relay::create(o), "relay");
 }
 
+struct Steady {
+  int64_t records = 0;
+  double p50_s = 0, p95_s = 0, p99_s = 0, max_s = 0;
+  double relay_max_lag_s = 0;
+  uint64_t redelivered = 0;
+};
+
+// The stations commit `rate` results per second each for `run_s`, their
+// relays running (woken after each commit when `nudge`); the lag of every
+// record of the phase from the lab's rows.
+Steady steady(lab::PgConnection& admin, const gyrotherm::testing::PgCluster& pg,
+              std::vector<StationFile>& files, double rate, double run_s, double poll_s, bool nudge,
+              const std::string& phase) {
+  ok(admin.exec("DROP TABLE IF EXISTS bench_mark; CREATE TABLE bench_mark AS SELECT station_id, "
+                "coalesce(max(outbox_seq), 0) AS seq FROM lab.records GROUP BY station_id"),
+     "mark");
+  std::vector<std::unique_ptr<lab::Relay>> relays;
+  for (auto& f : files) relays.push_back(make_relay(pg, f, poll_s));
+  for (auto& r : relays) r->start();
+  std::atomic<bool> stop{false};
+  std::atomic<int64_t> written{0};
+  std::vector<std::thread> writers;
+  for (std::size_t i = 0; i < files.size(); ++i) {
+    lab::Relay* relay = nudge ? relays[i].get() : nullptr;
+    StationFile* f = &files[i];
+    writers.emplace_back([f, relay, &stop, &written, rate] {
+      auto db = ok(storage::Database::open(f->path), "open");
+      const auto period = std::chrono::duration<double>(1.0 / rate);
+      auto next = BenchClock::now();
+      while (!stop.load()) {
+        commit_result(db, *f);
+        if (relay) relay->nudge();
+        written += 2;
+        next += std::chrono::duration_cast<BenchClock::duration>(period);
+        std::this_thread::sleep_until(next);
+      }
+    });
+  }
+  std::this_thread::sleep_for(std::chrono::duration<double>(run_s));
+  stop = true;
+  for (auto& w : writers) w.join();
+  // Drained when every station's outbox is empty (the relays' own pending
+  // figure is refreshed about once a second: not a drain signal).
+  const auto t_drain = BenchClock::now();
+  std::vector<storage::Database> dbs;
+  for (auto& f : files) dbs.push_back(ok(storage::Database::open(f.path), "open"));
+  for (bool all = false; !all;) {
+    all = true;
+    for (auto& db : dbs) all = all && ok(db.outbox_stats(), "stats").pending == 0;
+    if (seconds_since(t_drain) > 120) die(phase + ": relays did not catch up in 120 s");
+    if (!all) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  Steady out;
+  for (auto& r : relays) {
+    const auto st = r->status();
+    out.relay_max_lag_s = std::max(out.relay_max_lag_s, st.max_lag_s.value_or(0));
+    out.redelivered += st.redelivered_total;
+    r->stop();
+  }
+  auto lag = ok(admin.exec("SELECT count(*), "
+                           "percentile_cont(0.5) WITHIN GROUP (ORDER BY lag_s), "
+                           "percentile_cont(0.95) WITHIN GROUP (ORDER BY lag_s), "
+                           "percentile_cont(0.99) WITHIN GROUP (ORDER BY lag_s), max(lag_s) "
+                           "FROM (SELECT extract(epoch FROM r.central_committed_at - "
+                           "r.station_committed_at) AS lag_s FROM lab.records r JOIN bench_mark m "
+                           "USING (station_id) WHERE r.outbox_seq > m.seq) x"),
+                "lag");
+  const auto cell = [&](int c) { return std::stod(lag.rows.at(0).at(c).value_or("nan")); };
+  out.records = static_cast<int64_t>(cell(0));
+  out.p50_s = cell(1);
+  out.p95_s = cell(2);
+  out.p99_s = cell(3);
+  out.max_s = cell(4);
+  if (out.records != written.load()) {
+    die(fmt::format("{}: {} records written, {} in the lab", phase, written.load(), out.records));
+  }
+  return out;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -218,53 +300,14 @@ int main(int argc, char** argv) {
   const double send_s = *std::max_element(done_s.begin(), done_s.end());
   const double throughput = static_cast<double>(preloaded) / send_s;
 
-  // 3. Lag under a steady load, relays running.
-  ok(admin.exec("CREATE TABLE bench_mark AS SELECT station_id, max(outbox_seq) AS seq FROM "
-                "lab.records GROUP BY station_id"),
-     "mark");
-  std::atomic<bool> stop{false};
-  std::vector<std::thread> writers;
-  std::atomic<int64_t> written{0};
-  for (auto& f : files) {
-    writers.emplace_back([&f, &stop, &written, rate] {
-      auto db = ok(storage::Database::open(f.path), "open");
-      const auto period = std::chrono::duration<double>(1.0 / rate);
-      auto next = BenchClock::now();
-      while (!stop.load()) {
-        commit_result(db, f);
-        written += 2;
-        next += std::chrono::duration_cast<BenchClock::duration>(period);
-        std::this_thread::sleep_until(next);
-      }
-    });
-  }
-  std::this_thread::sleep_for(std::chrono::duration<double>(run_s));
-  stop = true;
-  for (auto& w : writers) w.join();
-  const auto t_drain = BenchClock::now();
-  for (bool all = false; !all;) {
-    all = true;
-    for (auto& r : relays) all = all && r->status().pending == 0;
-    if (seconds_since(t_drain) > 120) die("relays did not catch up in 120 s");
-    if (!all) std::this_thread::sleep_for(std::chrono::milliseconds(10));
-  }
-  double relay_max_lag_s = 0;
-  uint64_t redelivered = 0;
-  for (auto& r : relays) {
-    const auto st = r->status();
-    relay_max_lag_s = std::max(relay_max_lag_s, st.max_lag_s.value_or(0));
-    redelivered += st.redelivered_total;
-    r->stop();
-  }
-  auto lag = ok(admin.exec("SELECT count(*), "
-                           "percentile_cont(0.5) WITHIN GROUP (ORDER BY lag_s), "
-                           "percentile_cont(0.95) WITHIN GROUP (ORDER BY lag_s), "
-                           "percentile_cont(0.99) WITHIN GROUP (ORDER BY lag_s), max(lag_s) "
-                           "FROM (SELECT extract(epoch FROM r.central_committed_at - "
-                           "r.station_committed_at) AS lag_s FROM lab.records r JOIN bench_mark m "
-                           "USING (station_id) WHERE r.outbox_seq > m.seq) x"),
-                "lag");
-  const auto cell = [&](int c) { return std::stod(lag.rows.at(0).at(c).value_or("nan")); };
+  for (auto& r : relays) r->stop();
+  relays.clear();
+
+  // 3. Lag under a steady load: fresh relays (their largest lag is this
+  // phase's), first woken by each commit as gyrothermd wakes its relay on
+  // every event it publishes, then on their poll alone.
+  const Steady nudged = steady(admin, *pg, files, rate, run_s, poll_s, true, "nudged");
+  const Steady polled = steady(admin, *pg, files, rate, run_s, poll_s, false, "polled");
 
   std::printf("gyrotherm lab relay bench: %d stations, PostgreSQL 15 (fsync on), this machine\n",
               stations);
@@ -278,16 +321,20 @@ int main(int argc, char** argv) {
       stations, static_cast<long long>(preloaded), throughput, send_s);
   std::printf("| per station (slowest) | %.0f records/s |\n",
               static_cast<double>(preloaded / stations) / send_s);
-  std::printf(
-      "| steady load: %d stations x %.1f results/s (%.0f records/s), %.0f s, poll_s %.2f | %lld "
-      "records |\n",
-      stations, rate, 2 * rate * stations, run_s, poll_s, static_cast<long long>(written.load()));
-  std::printf(
-      "| lag local commit -> central transaction, p50 / p95 / p99 / max (s) | %.3f / %.3f / "
-      "%.3f / %.3f (%.0f records) |\n",
-      cell(1), cell(2), cell(3), cell(4), cell(0));
-  std::printf("| lag local commit -> central commit, largest the relays saw (s) | %.3f |\n",
-              relay_max_lag_s);
-  std::printf("| records redelivered | %llu |\n", static_cast<unsigned long long>(redelivered));
+  for (const Steady* st : {&nudged, &polled}) {
+    std::printf(
+        "| steady load, relays %s: %d stations x %.1f results/s (%.0f records/s) for %.0f s, "
+        "poll_s %.2f | %lld records |\n",
+        st == &nudged ? "woken by each commit (as gyrothermd)" : "on their poll alone", stations,
+        rate, 2 * rate * stations, run_s, poll_s, static_cast<long long>(st->records));
+    std::printf(
+        "| lag local commit -> central transaction, p50 / p95 / p99 / max (s) | %.3f / %.3f / "
+        "%.3f / %.3f |\n",
+        st->p50_s, st->p95_s, st->p99_s, st->max_s);
+    std::printf("| lag local commit -> central commit, largest the relays saw (s) | %.3f |\n",
+                st->relay_max_lag_s);
+    std::printf("| records redelivered | %llu |\n",
+                static_cast<unsigned long long>(st->redelivered));
+  }
   return 0;
 }
