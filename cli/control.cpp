@@ -676,6 +676,27 @@ std::string format_status(const json& j) {
                  : std::string(", held");
   }
   out += labelled("queue", queue);
+  // [lab] (docs/lab.md): the relay's state, what waits and why.
+  if (const json& lab = field(j, "lab"); lab.is_object()) {
+    std::string line =
+        fmt::format("{}: {}", text(field(lab, "station_id")), text(field(lab, "state")));
+    if (number(field(lab, "retry_in_s"))) {
+      line += fmt::format(" (retry in {})", fixed(field(lab, "retry_in_s"), 1, "s"));
+    }
+    line += fmt::format(", {} pending", text(field(lab, "pending")));
+    if (number(field(lab, "oldest_pending_age_s")).value_or(0) > 0) {
+      line +=
+          fmt::format(" (oldest {} ago)", format_station_time(field(lab, "oldest_pending_age_s")));
+    }
+    line += fmt::format(", {} sent", text(field(lab, "sent_total")));
+    if (number(field(lab, "last_lag_s"))) {
+      line += fmt::format(", lag {}", fixed(field(lab, "last_lag_s"), 3, "s"));
+    }
+    if (const json& e = field(lab, "last_error"); e.is_string() && !e.get<std::string>().empty()) {
+      line += ": " + e.get<std::string>();
+    }
+    out += labelled("lab", line);
+  }
 
   out += labelled(
       "time", fmt::format("station {}, run {}, time scale {}×",

@@ -756,6 +756,17 @@ TEST(CliFormat, StatusSummary) {
   EXPECT_THAT(idle, HasSubstr("chamber     —\n"));
   EXPECT_THAT(idle, HasSubstr("interlocks  none\n"));
   EXPECT_NO_THROW(cli::format_status(json::array()));
+  EXPECT_THAT(idle, Not(HasSubstr("\nlab "))) << "no [lab]: no line";
+
+  // [lab]: the relay's state, what waits and why.
+  json with_lab = {{"state", "idle"}};
+  with_lab["lab"] = {{"station_id", "ST01"},        {"state", "backoff"},
+                     {"retry_in_s", 4.0},           {"pending", 12},
+                     {"oldest_pending_age_s", 330}, {"sent_total", 1234},
+                     {"last_lag_s", nullptr},       {"last_error", "connection refused"}};
+  EXPECT_THAT(cli::format_status(with_lab),
+              HasSubstr("lab         ST01: backoff (retry in 4.0 s), 12 pending (oldest "));
+  EXPECT_THAT(cli::format_status(with_lab), HasSubstr("1234 sent: connection refused\n"));
 }
 
 TEST(CliFormat, RedactTokens) {
