@@ -11,4 +11,12 @@ namespace gyrotherm {
 inline constexpr double kMinTimeScale = 1e-3;
 inline constexpr double kMaxTimeScale = 1e4;
 
+// A daemon that scales wall time on its own (--clock scaled) against a
+// simulator that does the same: two clocks, and reader latency in wall
+// seconds times the scale becomes station seconds of misplaced samples.
+// Measured on a loaded 2-core machine: x10 held, x100 put a scale factor's
+// samples 100 s late. Above this the daemon refuses; the simulator's shared
+// clock (the default) holds at any scale, running slower when it must.
+inline constexpr double kMaxScaledSimTimeScale = 10.0;
+
 }  // namespace gyrotherm
