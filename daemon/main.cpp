@@ -21,6 +21,7 @@
 
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/core/files.h"
+#include "gyrotherm/core/shared_clock.h"
 #include "gyrotherm/core/time_scale.h"
 #include "gyrotherm/core/toml_errors.h"
 #include "gyrotherm/daemon/api.h"
@@ -46,13 +47,25 @@ int main(int argc, char** argv) {
   app.add_option("--config", config_path, "station config (TOML)")->required();
   app.add_option("--db", db_path, "database file (overrides [storage] db)");
   app.add_option("--schedule", schedule_path, "queue this schedule file at start-up");
-  app.add_option("--time-scale", time_scale, "station seconds per wall second (simulation)")
-      ->check(CLI::Range(gyrotherm::kMinTimeScale, gyrotherm::kMaxTimeScale));
+  auto* time_scale_opt =
+      app.add_option("--time-scale", time_scale,
+                     "station seconds per wall second (simulation; on the simulator's clock "
+                     "its own unless given, and at most: a busy machine runs slower)")
+          ->check(CLI::Range(gyrotherm::kMinTimeScale, gyrotherm::kMaxTimeScale));
   app.add_option("--wall-start", wall_start,
                  "simulation: the nightly export's wall clock starts at this ISO-8601 instant "
                  "(e.g. 2026-03-29T00:40:00Z) and runs at --time-scale");
   app.add_flag("--exit-when-done", exit_when_done,
                "exit 0 once the queue is empty and no run is active (scripts, tests)");
+  std::string clock_mode = "auto";
+  app.add_option("--clock", clock_mode,
+                 "station time: 'sim' reads it from the simulator's clock file (one clock for "
+                 "both; the simulator waits for this daemon), 'scaled' scales wall time on its "
+                 "own (up to x" +
+                     fmt::format("{:g}", gyrotherm::kMaxScaledSimTimeScale) +
+                     " against a simulator), 'auto' (default) is 'sim' when the simulator's "
+                     "endpoints name a clock file")
+      ->check(CLI::IsMember({"auto", "sim", "scaled"}));
   app.add_option("--endpoints-wait", endpoints_wait_s,
                  "seconds to wait for the simulator's endpoints file");
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error")
@@ -80,6 +93,12 @@ int main(int argc, char** argv) {
     return 1;
   }
 
+  std::unique_ptr<gyrotherm::SharedClockMap> shared_clock_map;
+  if (clock_mode == "sim" && config->simulator.endpoints_file.empty()) {
+    std::cerr << "gyrothermd: --clock sim needs a simulator: " << config_path
+              << " has no [simulator] endpoints_file\n";
+    return 2;
+  }
   if (!config->simulator.endpoints_file.empty()) {
     const std::string& file = config->simulator.endpoints_file;
     const auto deadline = std::chrono::steady_clock::now() +
@@ -93,6 +112,29 @@ int main(int argc, char** argv) {
                 << " s (is gyrotherm-sim running with the same config?):\n"
                 << ep.error().message << "\n";
       return 1;
+    }
+    if (clock_mode == "sim" && ep->clock_file.empty()) {
+      std::cerr << "gyrothermd: --clock sim, but the simulator's endpoints (" << file
+                << ") name no clock file (a simulator started with --scaled-clock?)\n";
+      return 2;
+    }
+    if (clock_mode != "scaled" && !ep->clock_file.empty()) {
+      auto map = gyrotherm::SharedClockMap::open(ep->clock_file);
+      if (!map) {
+        std::cerr << "gyrothermd: " << map.error().message << "\n";
+        return 1;
+      }
+      // The simulator's scale unless one was given (then they must agree).
+      if (time_scale_opt->count() == 0) time_scale = ep->time_scale > 0 ? ep->time_scale : 1.0;
+      shared_clock_map = std::move(*map);
+    } else if (time_scale > gyrotherm::kMaxScaledSimTimeScale) {
+      std::cerr << "gyrothermd: --time-scale " << time_scale
+                << " with a scaled clock against a simulator: above x"
+                << gyrotherm::kMaxScaledSimTimeScale
+                << " a loaded machine puts samples in the wrong windows (reader latency in wall "
+                   "seconds becomes station seconds); run the simulator with its shared clock "
+                   "(the default) and this daemon with --clock auto\n";
+      return 2;
     }
     if (const std::string why = gd::sim_time_scale_mismatch(*ep, time_scale, file); !why.empty()) {
       std::cerr << "gyrothermd: " << why << "\n";
@@ -192,7 +234,20 @@ int main(int argc, char** argv) {
   sigaddset(&signals, SIGTERM);
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
 
-  gyrotherm::ScaledClock clock(time_scale);
+  // One clock for a simulated station: the simulator's, which it runs no
+  // further than one control tick past this daemon's slowest consumer.
+  std::optional<gyrotherm::ScaledClock> scaled_clock;
+  std::optional<gyrotherm::SharedStationClock> shared_clock;
+  if (shared_clock_map) {
+    const std::string clock_path = shared_clock_map->path();
+    shared_clock.emplace(std::move(shared_clock_map), config->control.tick_s);
+    spdlog::info("station time: the simulator's clock ({}), at most x{:g}", clock_path,
+                 shared_clock->time_scale());
+  } else {
+    scaled_clock.emplace(time_scale);
+  }
+  const gyrotherm::Clock& clock =
+      shared_clock ? static_cast<const gyrotherm::Clock&>(*shared_clock) : *scaled_clock;
   std::optional<gyrotherm::StationWallClock> wall_clock;
   if (!wall_start.empty()) {
     auto start = gyrotherm::parse_utc_iso(wall_start);

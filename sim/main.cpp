@@ -139,6 +139,10 @@ int main(int argc, char** argv) {
       app.add_option("--table-port", table_port,
                      "the rate table's ACL TCP port, 0 = any free ([simulator] table_port)")
           ->check(CLI::Range(0, 65535));
+  bool scaled_clock = false;
+  app.add_flag("--scaled-clock", scaled_clock,
+               "scale wall time alone, without the shared clock file the daemon follows (two "
+               "clocks: a loaded machine misplaces samples above x10; for comparisons only)");
   bool serve_table = false;
   app.add_flag("--table", serve_table,
                "serve a rate table even without a [table] section in the station config");
@@ -158,6 +162,7 @@ int main(int argc, char** argv) {
   if (*rate_opt) overrides.rate_hz = rate_hz;
   if (*table_port_opt) overrides.table_port = table_port;
   overrides.serve_table = serve_table;
+  overrides.scaled_clock = scaled_clock;
 
   auto config = daemon::load_station_config(config_path);
   if (!config.ok()) {
@@ -213,6 +218,7 @@ int main(int argc, char** argv) {
   if (!ep.table_device.empty()) fmt::print("table aero {}\n", ep.table_device);
   if (!s.truth_file().empty()) fmt::print("truth {}\n", s.truth_file());
   if (!ep.control_socket.empty()) fmt::print("control {}\n", ep.control_socket);
+  if (!ep.clock_file.empty()) fmt::print("clock {}\n", ep.clock_file);
   if (!s.endpoints_file().empty()) fmt::print("endpoints {}\n", s.endpoints_file());
   std::fflush(stdout);
 

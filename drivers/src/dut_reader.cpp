@@ -5,8 +5,10 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <vector>
 
+#include "gyrotherm/core/paced_clock.h"
 #include "gyrotherm/drivers/dut_link.h"
 #include "gyrotherm/drivers/gyro_reader.h"
 
@@ -16,6 +18,8 @@ namespace {
 constexpr std::chrono::milliseconds kMinBackoff{100};
 constexpr std::chrono::milliseconds kMaxBackoff{5000};
 constexpr std::chrono::milliseconds kReadTimeout{50};
+constexpr std::size_t kMaxUnanchored = 65536;
+constexpr std::chrono::milliseconds kPublishWait{5};
 
 bool has_nan(const DutFrame& f, std::size_t channels) {
   for (std::size_t i = 0; i < channels && i < kMaxChannels; ++i) {
@@ -76,10 +80,16 @@ void DutReader::run() {
     health_.last_error = config_error_;
     return;
   }
+  // On a simulator's clock (paced) this reader marks how far it has read,
+  // and the simulator never runs more than its lead ahead: the stream is
+  // never more than that behind the clock, and the sample clock anchors
+  // where the line was first emptied.
+  const PacedClock* paced = as_paced(clock_);
   // How far the sample clock may drift from the station clock before it is
-  // re-anchored: 2 s, or one wall second at high time scales (where a
-  // descheduled reader or simulator is late by many station seconds).
-  const double tolerance_s = std::max(2.0, 1.0 * clock_.time_scale());
+  // re-anchored: 2 s; on a scaled clock, one wall second at high time scales
+  // (where a descheduled reader or simulator is late by many station
+  // seconds).
+  const double tolerance_s = paced ? 2.0 : std::max(2.0, 1.0 * clock_.time_scale());
   const std::size_t channels = protocol_->channels().size();
 
   std::array<uint8_t, 4096> buf{};
@@ -109,6 +119,25 @@ void DutReader::run() {
     opened_before = true;
 
     SampleClock sample_clock(rate_hz_, tolerance_s, protocol_->seq_modulo());
+    std::unique_ptr<ClockConsumer> slot;
+    if (paced) slot = paced->consumer("dut " + serial_.device);
+    // Paced: frames read before the line was first emptied wait here, to be
+    // stamped back from the moment it was (at most kMaxUnanchored).
+    std::vector<DutFrame> unanchored;
+    bool settled = paced == nullptr;
+
+    // Paced: everything the simulator made up to a station time is on the
+    // line before it publishes that time; read the clock, then find the line
+    // empty, and all of it has been read.
+    double marked_s = -std::numeric_limits<double>::infinity();
+    const auto mark_if_empty = [&] {
+      if (!slot) return;
+      const double t_s = clock_.now_s();
+      if (port->pending_bytes() == 0 && t_s > marked_s) {
+        slot->consumed(t_s);
+        marked_s = t_s;
+      }
+    };
 
     while (!stop_) {
       auto got = port->read(buf, kReadTimeout);
@@ -119,7 +148,10 @@ void DutReader::run() {
         health_.last_error = got.error().message;
         break;
       }
-      if (*got == 0) continue;
+      if (*got == 0) {
+        mark_if_empty();
+        continue;
+      }
       // Nothing left on the line: this read's last frame arrived just now.
       const bool drained = port->pending_bytes() == 0;
       backoff = kMinBackoff;  // the port delivers data: a later hang-up starts afresh
@@ -132,11 +164,23 @@ void DutReader::run() {
         f.t_s = sample_clock.stamp(f.seq, now_s);
         if (has_nan(f, channels)) ++invalid;
       }
-      if (drained) {
+      if (!settled) {
+        unanchored.insert(unanchored.end(), frames.begin(), frames.end());
+        frames.clear();
+        if (drained || unanchored.size() >= kMaxUnanchored) {
+          if (drained) {
+            const double shift_s = sample_clock.settle(now_s);
+            for (auto& f : unanchored) f.t_s += shift_s;
+          }
+          frames.swap(unanchored);
+          settled = true;
+        }
+      } else if (drained) {
         if (const double shift_s = sample_clock.realign(now_s); shift_s > 0) {
           for (auto& f : frames) f.t_s += shift_s;
         }
       }
+
       {
         std::lock_guard lock(mu_);
         health_.samples += frames.size();
@@ -151,6 +195,13 @@ void DutReader::run() {
           std::lock_guard lock(mu_);
           health_.last_error = fmt::format("frame sink failed: {}", e.what());
         }
+      }
+      if (drained && slot) {
+        // The simulator publishes a time just after it wrote that time's
+        // frames: a reader this quick waits a moment for it rather than a
+        // whole read timeout.
+        if (clock_.now_s() <= marked_s) (void)paced->wait_until(marked_s + 1e-9, kPublishWait);
+        mark_if_empty();
       }
     }
     if (stop_) break;

@@ -51,6 +51,14 @@ double SampleClock::realign(double now_s) {
   return lag_s;
 }
 
+double SampleClock::settle(double now_s) {
+  if (!anchored_) return 0.0;
+  const double shift_s = now_s - last_t_s_;
+  anchor_s_ += shift_s;
+  last_t_s_ = now_s;
+  return shift_s;
+}
+
 void SampleClock::reset() { anchored_ = false; }
 
 double to_rate_dph(float value, const GyroFormat& format) {

@@ -358,6 +358,7 @@ Result<SimulatorOptions> read_simulator_options(const daemon::StationConfig& con
   }
   if (overrides.time_scale) o.time_scale = *overrides.time_scale;
   if (overrides.endpoints_file) o.endpoints_file = *overrides.endpoints_file;
+  if (overrides.scaled_clock) o.shared_clock = false;
   if (overrides.truth_file) o.truth_file = *overrides.truth_file;
   if (overrides.control_socket) o.control_socket = *overrides.control_socket;
   if (overrides.seed) o.seed = *overrides.seed;

@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <limits>
 #include <nlohmann/json.hpp>
+#include <thread>
 
 #include "gyrotherm/analysis/table1.h"
 #include "gyrotherm/core/files.h"
@@ -359,10 +360,16 @@ Status Simulator::start() {
       return fail(Error::Permanent("cannot write the truth file: " + s.error().message));
     }
   }
+  if (options_.shared_clock && own_clock_ && !options_.endpoints_file.empty()) {
+    auto map = SharedClockMap::create(options_.endpoints_file + ".clock", options_.time_scale, 0.0);
+    if (!map.ok()) return fail(map.error());
+    shared_clock_ = std::make_unique<SharedClockOwner>(std::move(map).value());
+  }
   {
     std::lock_guard lock(sim_mu_);
     t0_s_ = clock_->now_s();
     status_.running = true;
+    if (shared_clock_) status_.clock_file = shared_clock_->path();
   }
   {
     std::lock_guard lock(wake_mu_);
@@ -419,6 +426,10 @@ void Simulator::stop() {
     std::filesystem::remove(options_.endpoints_file, ec);
     wrote_endpoints_ = false;
   }
+  if (shared_clock_) {
+    std::filesystem::remove(shared_clock_->path(), ec);
+    shared_clock_.reset();
+  }
   for (const auto& d : duts_) {
     if (!d->link.empty()) std::filesystem::remove(d->link, ec);
   }
@@ -472,6 +483,7 @@ daemon::SimEndpoints Simulator::endpoints() const {
   ep.pid = static_cast<long>(::getpid());
   ep.control_socket = options_.control_socket;
   ep.time_scale = clock_->time_scale();
+  if (shared_clock_) ep.clock_file = shared_clock_->path();
   if (table_server_) ep.table_port = table_server_->port();
   if (aero_server_) ep.table_device = aero_server_->device();
   return ep;
@@ -577,25 +589,104 @@ SimulatorStatus Simulator::status() const {
 }
 
 void Simulator::run() {
+  if (shared_clock_) return run_paced();
   std::unique_lock lock(wake_mu_);
   while (!stopping_) {
     lock.unlock();
     advance_to(clock_->now_s() - t0_s_);
     publish_registers();
-    {
-      std::lock_guard stream_lock(stream_mu_);
-      for (auto& d : duts_) {
-        if (d->model.ascii()) {
-          d->stream.write_frames(d->batch, d->batch_sizes);
-        } else {
-          d->stream.write_frames(d->batch);
-        }
-        d->batch.clear();
-        d->batch_sizes.clear();
-      }
-    }
+    (void)write_batches();
     lock.lock();
     wake_cv_.wait_for(lock, kTick, [this] { return stopping_; });
+  }
+}
+
+bool Simulator::write_batches() {
+  std::lock_guard stream_lock(stream_mu_);
+  bool all_taken = true;
+  for (auto& d : duts_) {
+    if (d->model.ascii()) {
+      d->stream.write_frames(d->batch, d->batch_sizes);
+    } else {
+      d->stream.write_frames(d->batch);
+    }
+    d->batch.clear();
+    d->batch_sizes.clear();
+    if (!d->stream.is_open() || d->stream.held()) continue;
+    d->stream.flush();
+    if (d->stream.stats().pending_bytes > 0 && d->stream.stats().readers != 0) all_taken = false;
+  }
+  return all_taken;
+}
+
+// Station time is this loop's: it advances at most time_scale x wall time,
+// never past what the daemon's consumers allow (their slowest mark plus the
+// lead, SharedClockOwner::limit_s()), and is published only once every open
+// line has taken its frames up to it. A busy machine slows it down; it never
+// runs ahead of the streams or of the daemon. Time the loop did not run is
+// not made up afterwards.
+void Simulator::run_paced() {
+  using steady = std::chrono::steady_clock;
+  const double scale = options_.time_scale;
+  auto wall_prev = steady::now();
+  // A line whose reader takes nothing while the daemon is attached (its
+  // reader is not running) holds the clock this long at most.
+  constexpr auto kLineWaitMax = std::chrono::seconds(2);
+  std::optional<steady::time_point> line_wait_since;
+  double t_s = 0;
+  {
+    std::lock_guard lock(sim_mu_);
+    t_s = status_.t_s;
+  }
+  shared_clock_->publish(t_s);
+  for (;;) {
+    {
+      std::lock_guard lock(wake_mu_);
+      if (stopping_) return;
+    }
+    const auto wall_now = steady::now();
+    const double wall_dt_s = std::chrono::duration<double>(wall_now - wall_prev).count();
+    wall_prev = wall_now;
+
+    // Frames still waiting for a line: nothing new until they are taken.
+    if (!write_batches() && shared_clock_->consumer_attached()) {
+      if (!line_wait_since) line_wait_since = wall_now;
+      if (wall_now - *line_wait_since < kLineWaitMax) {
+        std::lock_guard lock(sim_mu_);
+        status_.clock_line_wait_wall_s += wall_dt_s;
+        std::this_thread::sleep_for(std::chrono::microseconds(500));
+        continue;
+      }
+    } else {
+      line_wait_since.reset();
+    }
+    {
+      std::lock_guard lock(sim_mu_);
+      t_s = status_.t_s;
+    }
+    shared_clock_->publish(t_s);
+
+    const double limit_s = shared_clock_->limit_s();
+    const double target_s = std::min(t_s + std::min(wall_dt_s, 0.25) * scale, limit_s);
+    if (target_s >= t_s + step_s_) {
+      advance_to(target_s);
+      publish_registers();
+      if (write_batches()) {
+        std::lock_guard lock(sim_mu_);
+        t_s = status_.t_s;
+      }
+      shared_clock_->publish(t_s);
+    }
+    if (limit_s <= t_s + step_s_) {
+      // Held: the daemon has not caught up. Woken by its next mark.
+      const auto held_from = steady::now();
+      shared_clock_->wait_for_consumers(std::chrono::milliseconds(20));
+      std::lock_guard lock(sim_mu_);
+      status_.clock_held_wall_s += std::chrono::duration<double>(steady::now() - held_from).count();
+    } else {
+      std::unique_lock lock(wake_mu_);
+      wake_cv_.wait_for(lock, kTick, [this] { return stopping_; });
+    }
   }
 }
 

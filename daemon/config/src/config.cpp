@@ -608,6 +608,7 @@ std::optional<DutSection> read_dut(TableReader& t, const StationSection& station
   }
   link.rate_hz = t.number_in("rate_hz", link.rate_hz, 0.1, 10000.0);
   d.silent_timeout_s = t.number_in("silent_timeout_s", d.silent_timeout_s, 0.1, 86400.0);
+  if (auto r = t.boolean("required")) d.required = *r;
   if (auto p = t.table("probes")) d.probes = read_dut_probes(*p, station_probes);
 
   // The protocol's channels: the axes below must be among its rate channels.
@@ -1421,6 +1422,7 @@ Result<SimEndpoints> read_sim_endpoints(const std::string& path) {
       ep.table_port = static_cast<int>(*p);
   }
   if (auto d = t.string("table_device")) ep.table_device = *d;
+  if (auto c = t.string("clock_file")) ep.clock_file = *c;
   if (auto s = t.number("time_scale")) {
     if (*s > 0)
       ep.time_scale = *s;
@@ -1443,6 +1445,7 @@ Status write_sim_endpoints(const std::string& path, const SimEndpoints& ep) {
                 {"pid", static_cast<int64_t>(ep.pid)}};
   if (!ep.control_socket.empty()) t.insert("control_socket", ep.control_socket);
   if (ep.time_scale > 0) t.insert("time_scale", ep.time_scale);
+  if (!ep.clock_file.empty()) t.insert("clock_file", ep.clock_file);
   if (ep.table_port > 0) t.insert("table_port", ep.table_port);
   if (!ep.table_device.empty()) t.insert("table_device", ep.table_device);
   if (!ep.dut_devices.empty()) {

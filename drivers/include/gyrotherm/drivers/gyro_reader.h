@@ -70,6 +70,11 @@ class SampleClock {
   // forward so that it is stamped `now_s`. Returns how far (s, 0 if not): the
   // caller adds it to that read's stamps.
   double realign(double now_s);
+  // Like realign, in both directions and whatever the tolerance: the last
+  // frame stamped is taken to be at `now_s` (the line was just emptied on a
+  // simulator's clock, where the stream never trails the clock by more than
+  // a step). Returns the shift (s) the caller adds to the stamps so far.
+  double settle(double now_s);
   void reset();  // the next frame anchors on the clock
 
  private:

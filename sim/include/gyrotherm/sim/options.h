@@ -94,6 +94,11 @@ struct SimulatorOptions {
   // Without one it serves °C.
   drivers::TemperatureUnit chamber_units = drivers::TemperatureUnit::kCelsius;
   double time_scale = 1.0;  // station seconds per wall second
+  // With an endpoints file and no injected clock: publish station time in
+  // a shared clock file (`<endpoints_file>.clock`, named in the endpoints)
+  // that gyrothermd reads, and run no further than it keeps up
+  // (core/shared_clock.h). false (--scaled-clock): scale wall time alone.
+  bool shared_clock = true;
   ThermalParams thermal;
   GyroParams gyro;
   drivers::GyroFormat gyro_format;  // from [gyro]; its rate_hz is the first DUT's
@@ -123,7 +128,8 @@ struct SimulatorOverrides {
   std::optional<uint64_t> seed;
   std::optional<double> rate_hz;
   std::optional<int> table_port;
-  bool serve_table = false;  // --table
+  bool serve_table = false;   // --table
+  bool scaled_clock = false;  // --scaled-clock: no shared clock file
 };
 
 // The parameters of `dut` (at `position` in the station's DUT list):

@@ -71,6 +71,7 @@
 
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/core/result.h"
+#include "gyrotherm/core/shared_clock.h"
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/sim/dut_model.h"
 #include "gyrotherm/sim/gyro_model.h"
@@ -137,8 +138,14 @@ struct DutSimStatus {
 
 struct SimulatorStatus {
   bool running = false;
-  double t_s = 0;         // station seconds simulated since start()
-  double lag_s = 0;       // how far the simulation trails the clock (0 when keeping up)
+  double t_s = 0;    // station seconds simulated since start()
+  double lag_s = 0;  // how far the simulation trails the clock (0 when keeping up)
+  // On the shared clock (SimulatorOptions::shared_clock): its file, and the
+  // wall seconds it has waited for the daemon (held) or for a DUT line to
+  // take its frames.
+  std::string clock_file;
+  double clock_held_wall_s = 0;
+  double clock_line_wait_wall_s = 0;
   double setpoint_c = 0;  // requested set point (Modbus or set_setpoint_c)
   // The controller's ramp limit from its ramp registers, as the plant takes
   // it at its next step (0: the plant's own max_ramp_c_per_min).
@@ -271,6 +278,10 @@ class Simulator {
   Simulator(daemon::StationConfig config, SimulatorOptions options, const Clock* clock,
             std::vector<std::unique_ptr<Dut>> duts);
   void run();
+  void run_paced();
+  // Writes every DUT's batch to its line; true when every line that is open
+  // and not held took all of its frames (nothing pending).
+  bool write_batches();
   void advance_to(double target_s);
   void publish_registers();
   void on_modbus_write(int unit_id);
@@ -286,6 +297,10 @@ class Simulator {
   SimulatorOptions options_;
   std::unique_ptr<Clock> own_clock_;
   const Clock* clock_;
+  // The shared clock, when this simulator owns station time (options'
+  // shared_clock with an endpoints file and its own clock); the run loop
+  // then paces itself (run_paced()).
+  std::unique_ptr<SharedClockOwner> shared_clock_;
   std::string truth_json_;
   int chamber_unit_;
   int probes_unit_;

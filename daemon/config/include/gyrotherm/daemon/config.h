@@ -127,6 +127,10 @@ struct DutSection {
   // The axis along the rate table's spin axis (scale factor); default primary_axis.
   std::string table_axis;
   double silent_timeout_s = 5.0;  // station s without a frame = stream lost
+  // A required DUT that goes silent holds the run (gyro_lost); one that is
+  // not is marked lost (an event names it), its acquisition ends, and the
+  // run goes on with the others.
+  bool required = true;
   std::optional<DutProbes> probes;
 };
 
@@ -318,6 +322,9 @@ struct SimEndpoints {
   long pid = 0;
   std::string control_socket;  // fault-injection command socket ("" = none)
   double time_scale = 0;       // 0 = not stated
+  // The simulator's shared station clock (core/shared_clock.h); "" = none
+  // (an older simulator, or one started with --scaled-clock).
+  std::string clock_file{};
   // The rate table the simulator serves (0 / "" = none): ACL over TCP, and
   // the AERO grammar on a pty.
   int table_port = 0;
