@@ -217,6 +217,17 @@ void Sequencer::finish_run(RunState final_state, double t_s, const std::string& 
   update_state(t_s, reason);
 }
 
+void Sequencer::continue_after_finished_step(double t_s) {
+  if (end_ || is_terminal(state_) || index_ >= plan_.steps.size()) return;
+  window_open_s_.reset();
+  times_.windows.clear();
+  if (index_ + 1 < plan_.steps.size()) {
+    begin_step(index_ + 1, t_s);
+  } else {
+    finish_run(RunState::kCompleted, t_s, "schedule completed");
+  }
+}
+
 void Sequencer::advance(double t_s) {
   finish_step(t_s, true);
   if (index_ + 1 < plan_.steps.size()) {
@@ -434,10 +445,24 @@ void Sequencer::tick_soak(double t_s, const Readings& readings) {
     on_unheld(t_s, readings);
     if (activity_ != RunState::kAcquiring) return;
   }
-  const double acquired_s = times_.acquired_s() + (window_open_s_ ? t_s - *window_open_s_ : 0.0);
-  if (acquired_s >= step.acquire_s) {
+  // Credited: the time the DUTs' samples cover when the daemon accounts for
+  // data (a silent line, a stall, lost frames are not credited), else the
+  // clock's.
+  double closed_s = times_.acquired_s();
+  double acquired_s = closed_s + (window_open_s_ ? t_s - *window_open_s_ : 0.0);
+  if (readings.data_covered_s && readings.data_reached_at_s) {
+    closed_s = 0;
+    for (const auto& w : times_.windows) closed_s += readings.data_covered_s(w.from_s, w.to_s);
+    acquired_s = closed_s + (window_open_s_ ? readings.data_covered_s(*window_open_s_, t_s) : 0.0);
+  }
+  if (acquired_s >= step.acquire_s && window_open_s_) {
     // The window ends when the acquisition time is complete (ticks are coarse).
-    const double end_s = *window_open_s_ + (step.acquire_s - times_.acquired_s());
+    double end_s = *window_open_s_ + (step.acquire_s - closed_s);
+    if (readings.data_reached_at_s) {
+      if (auto at = readings.data_reached_at_s(*window_open_s_, step.acquire_s - closed_s)) {
+        end_s = std::min(*at, t_s);
+      }
+    }
     close_window(end_s);
     advance(t_s);
   }

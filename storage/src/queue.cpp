@@ -72,6 +72,13 @@ Status renumber(sqlite3* db, const std::string& path, const std::vector<int64_t>
 
 }  // namespace
 
+Status Database::atomically(const std::function<Status()>& body) {
+  Transaction tx(db_, path_);
+  if (Status s = tx.begin_immediate(); !s) return s;
+  if (Status s = body(); !s) return s;  // rolled back
+  return tx.commit();
+}
+
 Status Database::set_run_checkpoint(int64_t run_id, std::string_view resume_json,
                                     double wall_unix_s) {
   auto st = Stmt::prepare(

@@ -63,20 +63,25 @@ class Stmt {
 // Runs one or more statements without results.
 Status exec(sqlite3* db, const std::string& path, std::string_view sql);
 
-// Rolls back unless commit() succeeded.
+// Rolls back unless commit() succeeded. Inside a transaction already open
+// on the connection (Database::atomically) it is a savepoint of it: its
+// changes commit, or roll back, with the outer one.
 class Transaction {
  public:
   Transaction(sqlite3* db, const std::string& path) : db_(db), path_(path) {}
   ~Transaction() {
-    if (open_) (void)internal::exec(db_, path_, "ROLLBACK");
+    if (!open_) return;
+    (void)internal::exec(
+        db_, path_, nested_ ? "ROLLBACK TO SAVEPOINT inner; RELEASE SAVEPOINT inner" : "ROLLBACK");
   }
   Status begin_immediate() {
-    Status s = internal::exec(db_, path_, "BEGIN IMMEDIATE");
+    nested_ = sqlite3_get_autocommit(db_) == 0;
+    Status s = internal::exec(db_, path_, nested_ ? "SAVEPOINT inner" : "BEGIN IMMEDIATE");
     open_ = s.ok();
     return s;
   }
   Status commit() {
-    Status s = internal::exec(db_, path_, "COMMIT");
+    Status s = internal::exec(db_, path_, nested_ ? "RELEASE SAVEPOINT inner" : "COMMIT");
     if (s.ok()) open_ = false;
     return s;
   }
@@ -85,6 +90,7 @@ class Transaction {
   sqlite3* db_;
   const std::string& path_;
   bool open_ = false;
+  bool nested_ = false;
 };
 
 Status expect_done(Stmt& st, sqlite3* db, const std::string& path, std::string_view what);

@@ -511,5 +511,111 @@ TEST_F(StationUnitTest, StatusShowsTheRelayAndTheFreeSpace) {
   EXPECT_EQ(j.at("last_error"), "connection refused");
 }
 
+// A soak is credited for the time its gyro's samples cover, not for the
+// clock: a few seconds of silence (short of gyro_lost) leave the window open
+// that much longer, and Table I still has the whole acquisition.
+TEST_F(StationUnitTest, ASoakIsCreditedForItsDataNotForTheClock) {
+  StationRig rig(dir_);
+  rig.open();
+  rig.queue(kLongSoak);
+  const int64_t run_id = until_acquiring(rig);
+  ASSERT_NE(run_id, 0);
+  for (int i = 0; i < 100; ++i) rig.step();
+  rig.gyro().muted = true;  // 4 s of frames lost
+  for (int i = 0; i < 4; ++i) rig.step();
+  rig.gyro().muted = false;
+  ASSERT_TRUE(rig.step_until([&] { return !rig.station->status().run_id; }, 3600));
+  const auto stats = wait_for_stats(rig, run_id, 1);
+  ASSERT_EQ(stats.size(), 1u);
+  EXPECT_GE(stats[0].at("n").get<int64_t>(), 599);
+  EXPECT_LE(stats[0].at("n").get<int64_t>(), 601);
+  const auto run = rig.reply(rig.station->run(run_id));
+  const auto& windows = run.at("segments")[0].at("windows");
+  double window_s = 0;
+  for (const auto& w : windows) window_s += w[1].get<double>() - w[0].get<double>();
+  EXPECT_NEAR(window_s, 604.0, 1.01) << run.dump();
+}
+
+// A kill -9 between a soak's end and the checkpoint that says so leaves the
+// soak recorded completed and the checkpoint still in it. The next station
+// goes on with the next step: the soak is not acquired again, its Table I
+// row is not doubled, and no segment is left running.
+TEST_F(StationUnitTest, ACheckpointOlderThanItsStepsEndDoesNotRunTheStepAgain) {
+  constexpr const char* kTwoSoaks = R"(
+name = "two soaks"
+[[step]]
+type = "soak"
+setpoint_c = 23.0
+stability_window_min = 1
+settle_timeout_min = 30
+acquire_min = 2
+[[step]]
+type = "soak"
+setpoint_c = 25.0
+stability_window_min = 1
+settle_timeout_min = 30
+acquire_min = 2
+)";
+  const std::string crashed_db = (dir_ / "crashed.db").string();
+  int64_t run_id = 0;
+  double wall_at_crash = 0;
+  {
+    StationRig rig(dir_);
+    rig.open();
+    rig.queue(kTwoSoaks);
+    run_id = until_acquiring(rig);
+    ASSERT_NE(run_id, 0);
+    for (int i = 0; i < 60; ++i) rig.step();
+    auto db = storage::Database::open_read_only(rig.db_path());
+    ASSERT_TRUE(db.ok());
+    auto run = db->run(run_id);
+    ASSERT_TRUE(run.ok()) << run.error().message;
+    const std::string checkpoint_in_soak1 = run->resume_json;
+    ASSERT_FALSE(checkpoint_in_soak1.empty());
+    // Into the second soak (settling), the first recorded completed.
+    ASSERT_TRUE(
+        rig.step_until([&] { return rig.station->status().step_index.value_or(-1) == 1; }, 600));
+    ASSERT_TRUE(
+        wait_for_condition([&] { return rig.station->status().storage.pending == 0; }, 20s));
+    sqlite3* raw = nullptr;
+    ASSERT_EQ(sqlite3_open(rig.db_path().c_str(), &raw), SQLITE_OK);
+    const std::string sql = "VACUUM INTO '" + crashed_db + "'";
+    ASSERT_EQ(sqlite3_exec(raw, sql.c_str(), nullptr, nullptr, nullptr), SQLITE_OK);
+    sqlite3_close(raw);
+    // What the crash left: the first soak completed, the checkpoint older.
+    ASSERT_EQ(sqlite3_open(crashed_db.c_str(), &raw), SQLITE_OK);
+    sqlite3_stmt* st = nullptr;
+    ASSERT_EQ(
+        sqlite3_prepare_v2(raw, "UPDATE runs SET resume_json = ? WHERE id = ?", -1, &st, nullptr),
+        SQLITE_OK);
+    sqlite3_bind_text(st, 1, checkpoint_in_soak1.c_str(), -1, SQLITE_TRANSIENT);
+    sqlite3_bind_int64(st, 2, run_id);
+    EXPECT_EQ(sqlite3_step(st), SQLITE_DONE);
+    sqlite3_finalize(st);
+    sqlite3_close(raw);
+    wall_at_crash = rig.wall.unix_now_s();
+  }
+
+  StationRig rig(dir_, rig_config_toml(crashed_db));
+  rig.wall.set(wall_at_crash + 5.0);
+  rig.open();
+  ASSERT_EQ(rig.station->status().run_id.value_or(0), run_id);
+  rig.step();
+  EXPECT_EQ(rig.station->status().step_index.value_or(-1), 1)
+      << "the run goes on with the second soak";
+  EXPECT_TRUE(rig.has_event(run_id, "resume", "is not run again"));
+  ASSERT_TRUE(rig.step_until([&] { return !rig.station->status().run_id; }, 3600));
+  EXPECT_EQ(rig.reply(rig.station->run(run_id)).at("state"), "completed");
+  const auto stats = wait_for_stats(rig, run_id, 2);
+  EXPECT_EQ(stats.size(), 2u) << stats.dump(2);
+  const auto run = rig.reply(rig.station->run(run_id));
+  std::set<int> completed_steps;
+  for (const auto& seg : run.at("segments")) {
+    EXPECT_NE(seg.at("state"), "running") << run.dump(2);
+    if (seg.at("state") == "completed") completed_steps.insert(seg.at("index").get<int>());
+  }
+  EXPECT_EQ(completed_steps, (std::set<int>{0, 1})) << run.dump(2);
+}
+
 }  // namespace
 }  // namespace gyrotherm::testing

@@ -11,6 +11,7 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
+#include "gyrotherm/core/paced_clock.h"
 #include "gyrotherm/daemon/run_analysis.h"
 #include "gyrotherm/drivers/dut_link.h"
 #include "gyrotherm/drivers/gyro_reader.h"
@@ -274,6 +275,7 @@ Station::Station(StationConfig config, StationDevices devices, StationClocks clo
       config_.storage.db_path, *writer_, analysis_settings(config_), std::move(callbacks), wall_);
   snapshot_.station_name = config_.station.name;
   snapshot_.time_scale = clock_.time_scale();
+  snapshot_.clock = as_paced(clock_) ? "sim" : "scaled";
 }
 
 Station::~Station() { stop("daemon shutting down"); }
@@ -416,8 +418,30 @@ double Station::run_time_s() const { return clock_.now_s() - run_clock_.load().t
 void Station::control_loop() {
   const double tick_s = config_.control.tick_s;
   const auto min_wall = std::chrono::duration<double>(config_.control.min_tick_wall_s);
+  if (const PacedClock* paced = as_paced(clock_)) return paced_control_loop(*paced);
+  std::optional<std::chrono::steady_clock::time_point> previous_start;
+  double previous_station_s = 0;
   for (;;) {
     const auto wall_start = std::chrono::steady_clock::now();
+    const double station_s = clock_.now_s();
+    if (previous_start) {
+      // A stall: the process was stopped or starved. Station time went on;
+      // soaks are credited only for what the DUTs' samples cover, so that
+      // stretch is not, and the log says so.
+      const double gap_wall_s = std::chrono::duration<double>(wall_start - *previous_start).count();
+      const double period_wall_s = std::max(min_wall.count(), tick_s / clock_.time_scale());
+      if (gap_wall_s > std::max(2.0, 10.0 * period_wall_s)) {
+        const std::string message = fmt::format(
+            "the control loop did not run for {:.1f} s of wall time ({:.0f} s of station time): "
+            "the daemon was stopped or starved; acquisition is credited only where the DUTs' "
+            "samples were stored",
+            gap_wall_s, station_s - previous_station_s);
+        spdlog::warn("{}", message);
+        post_event("stall", message);
+      }
+    }
+    previous_start = wall_start;
+    previous_station_s = station_s;
     try {
       tick();
     } catch (const std::exception& e) {
@@ -431,6 +455,33 @@ void Station::control_loop() {
                          wall_start + std::chrono::duration_cast<std::chrono::nanoseconds>(period),
                          [this] { return stopping_; })) {
       return;
+    }
+  }
+}
+
+// On a simulator's clock the loop ticks once per tick_s of station time,
+// whenever that is reached in wall time, and marks each tick consumed: the
+// simulator never runs more than its lead past the last tick.
+void Station::paced_control_loop(const PacedClock& clock) {
+  const double tick_s = config_.control.tick_s;
+  std::unique_ptr<ClockConsumer> slot = clock.consumer("control loop");
+  if (!slot) spdlog::error("control loop: no slot left on the simulator's clock; it will not wait");
+  for (;;) {
+    const double t_tick_s = clock.now_s();
+    try {
+      tick();
+    } catch (const std::exception& e) {
+      spdlog::error("control loop: {}", e.what());
+    }
+    heartbeat_.fetch_add(1, std::memory_order_relaxed);
+    if (slot) slot->consumed(t_tick_s);
+    for (;;) {
+      {
+        std::lock_guard lock(mu_);
+        if (stopping_) return;
+      }
+      // Short waits: stop() is noticed within one.
+      if (clock.wait_until(t_tick_s + tick_s, std::chrono::milliseconds(20))) break;
     }
   }
 }
@@ -479,16 +530,45 @@ schedules::Readings Station::read_devices(double now_s) {
   };
   r.chamber_silent_s = silent(chamber_ok_s_, chamber_ok_wall_s_);
   r.probes_silent_s = silent(probes_ok_s_, probes_ok_wall_s_);
-  // The most silent DUT speaks for the gyro_lost interlock (whose timeout is
-  // the smallest of the DUTs' silent_timeout_s).
+  // The most silent required DUT speaks for the gyro_lost interlock (whose
+  // timeout is the smallest of the DUTs' silent_timeout_s), and its message
+  // names every required DUT silent past its own timeout. A DUT that is not
+  // required is marked lost instead, and the run goes on without it.
   r.gyro_heard = true;
+  std::vector<std::string> silent_duts;
   for (const auto& d : duts_) {
     const double silent_s = silent(d->last_s.load(), d->last_wall_s.load());
+    if (!d->cfg->required) {
+      const bool lost = silent_s > d->cfg->silent_timeout_s;
+      if (lost != d->lost.exchange(lost)) {
+        const std::string message =
+            lost ? fmt::format(
+                       "DUT {} lost: no frame for {:.1f} s (silent_timeout_s {:g}); it is "
+                       "not required: its acquisition ends here and the run goes on "
+                       "with the other DUTs",
+                       dut_name(*d->cfg), silent_s, d->cfg->silent_timeout_s)
+                 : fmt::format("DUT {} back: frames again; its acquisition goes on",
+                               dut_name(*d->cfg));
+        if (lost) {
+          spdlog::warn("{}", message);
+        } else {
+          spdlog::info("{}", message);
+        }
+        post_event("dut", message);
+      }
+      continue;
+    }
+    if (silent_s > d->cfg->silent_timeout_s) silent_duts.push_back(dut_name(*d->cfg));
     if (silent_s > r.gyro_silent_s) {
       r.gyro_silent_s = silent_s;
       if (duts_.size() > 1) r.gyro_stream = fmt::format("DUT {} stream", dut_name(*d->cfg));
     }
     r.gyro_heard = r.gyro_heard && d->heard.load();
+  }
+  if (silent_duts.size() > 1) {
+    std::string names;
+    for (const auto& n : silent_duts) names += (names.empty() ? "" : ", ") + n;
+    r.gyro_stream = fmt::format("DUT streams {}", names);
   }
   if (table_) table_->read(now_s, wall_s, min_wall_s, r);
   const storage::SampleWriterStats ws = writer_->stats();
@@ -497,6 +577,10 @@ schedules::Readings Station::read_devices(double now_s) {
     storage_ok_s_ = now_s;
     storage_ok_wall_s_ = wall_s;
   }
+  r.data_covered_s = [this](double from_s, double to_s) { return data_covered_s(from_s, to_s); };
+  r.data_reached_at_s = [this](double from_s, double need_s) {
+    return data_reached_at_s(from_s, need_s);
+  };
   r.storage_failing_s = silent(storage_ok_s_, storage_ok_wall_s_);
   if (r.storage_failing_s > 0) {
     r.storage_error = ws.last_error;
@@ -902,9 +986,22 @@ void Station::resume_interrupted_run() {
   auto snap = schedules::snapshot_from_json(j);
   if (!snap) return give_up(snap.error().message);
 
-  // The downtime in station time; never before a committed sample.
+  // The downtime in station time; never before a committed sample. On the
+  // simulator's clock that wrote the checkpoint it is exact; else from wall
+  // time at the time scale.
   const double down_wall_s = std::max(0.0, wall_.unix_now_s() - *run.checkpoint_wall_unix_s);
   double t_resume_s = snap->t_s + down_wall_s * clock_.time_scale();
+  if (const PacedClock* paced = as_paced(clock_);
+      paced && j.contains("clock_epoch") && j.contains("clock_at_checkpoint_s")) {
+    try {
+      if (j.at("clock_epoch").get<uint64_t>() == paced->epoch()) {
+        t_resume_s =
+            snap->t_s + std::max(0.0, clock_.now_s() - j.at("clock_at_checkpoint_s").get<double>());
+      }
+    } catch (const nlohmann::json::exception&) {
+      // An unreadable clock mark: the wall-time estimate stands.
+    }
+  }
   // Acquisition is credited up to the last committed gyro sample only: the
   // samples after it died uncommitted with the daemon, and Table I is made of
   // gyro samples (the temperatures, committed each control tick, can reach
@@ -925,16 +1022,44 @@ void Station::resume_interrupted_run() {
     t_resume_s = std::max(t_resume_s, **last + 1e-3);
   }
   segment_ids_.assign(plan->steps.size(), 0);
+  std::vector<storage::SegmentRecord> segments;
   if (auto segs = db_.segments(run.id)) {
-    for (const auto& seg : *segs) {
+    segments = std::move(*segs);
+    for (const auto& seg : segments) {
       if (seg.index >= 0 && static_cast<std::size_t>(seg.index) < segment_ids_.size()) {
         segment_ids_[static_cast<std::size_t>(seg.index)] = seg.id;
       }
     }
   }
+  // The checkpoint may be older than the step's end: the daemon died after
+  // the step was recorded finished and before the checkpoint said so. That
+  // step is not run again; the run goes on with the next.
+  const bool step_finished_already =
+      snap->step_index < segment_ids_.size() &&
+      std::any_of(segments.begin(), segments.end(), [&](const storage::SegmentRecord& seg) {
+        return seg.id == segment_ids_[snap->step_index] && seg.state == "completed";
+      });
+  // Segments still "running" that are not the step resumed died with the
+  // daemon (e.g. the next step's, started after that checkpoint).
+  for (auto seg : segments) {
+    const bool resumed = !step_finished_already && snap->step_index < segment_ids_.size() &&
+                         seg.id == segment_ids_[snap->step_index];
+    if (seg.state != "running" || resumed) continue;
+    seg.state = "aborted";
+    if (!seg.t_end_s) seg.t_end_s = std::max(seg.t_start_s, snap->t_s);
+    if (auto st = db_.update_segment(seg); !st) {
+      spdlog::error("run {}: segment {} not closed: {}", run.id, seg.id, st.error().message);
+    }
+    if (seg.index >= 0 && static_cast<std::size_t>(seg.index) < segment_ids_.size() &&
+        segment_ids_[static_cast<std::size_t>(seg.index)] == seg.id) {
+      segment_ids_[static_cast<std::size_t>(seg.index)] = 0;
+    }
+  }
   entry_ = **entry;
   busy_.store(true);
   register_run_duts(run.id);
+  // A soak is credited for what each DUT stored: read back from the step's start.
+  seed_coverage(run.id, snap->times.start_s);
   run_clock_.publish(run.id, clock_.now_s() - t_resume_s);
   {
     std::lock_guard lock(mu_);
@@ -954,6 +1079,13 @@ void Station::resume_interrupted_run() {
   add_event("resume", "", "", reason);
   last_written_setpoint_c_.reset();
   sequencer_->restore(*snap, t_resume_s, data_until_s, reason);
+  if (step_finished_already) {
+    add_event("resume", "", "",
+              fmt::format("step {} had ended before the daemon stopped (its last checkpoint was "
+                          "older): it is not run again; the run goes on with the next step",
+                          snap->step_index + 1));
+    sequencer_->continue_after_finished_step(t_resume_s);
+  }
   (void)db_.set_run_state(run.id, to_string(sequencer_->state()), false);
   checkpoint(true);
 }
@@ -961,10 +1093,19 @@ void Station::resume_interrupted_run() {
 void Station::checkpoint(bool force) {
   if (!sequencer_) return;
   const double wall_s = wall_.monotonic_s();
-  const std::string state(to_string(sequencer_->state()));
+  // A new state or a new step is checkpointed at once; the rest once a wall second.
+  const std::string state =
+      fmt::format("{}#{}", to_string(sequencer_->state()), sequencer_->step_index());
   if (!force && state == checkpoint_state_ && wall_s - last_checkpoint_wall_s_ < 1.0) return;
   const double t_run_s = run_time_s();
-  const std::string json = to_json(sequencer_->snapshot(t_run_s)).dump();
+  nlohmann::json snap = to_json(sequencer_->snapshot(t_run_s));
+  if (const PacedClock* paced = as_paced(clock_)) {
+    // A simulator's clock outlives this process: the downtime of a restart
+    // is then read off it exactly, not estimated from wall time.
+    snap["clock_epoch"] = paced->epoch();
+    snap["clock_at_checkpoint_s"] = clock_.now_s();
+  }
+  const std::string json = snap.dump();
   if (auto st = db_.set_run_checkpoint(current_run_id(), json, wall_.unix_now_s()); !st) {
     // Tried again next tick; logged once per failing spell.
     if (!checkpoint_failing_) spdlog::error("run checkpoint not written: {}", st.error().message);
@@ -1052,6 +1193,14 @@ void Station::on_dut_frames(DutLive& dut, std::span<const DutFrame> frames) {
     for (auto& f : rel) f.t_s -= run.t0_s;
     writer_->push_frames(*layout, rel);
     {
+      std::lock_guard lock(dut.coverage_mu);
+      if (!dut.coverage || dut.coverage_run_id != run.run_id) {
+        dut.coverage.emplace(1.0 / dut.cfg->link.rate_hz);
+        dut.coverage_run_id = run.run_id;
+      }
+      for (const auto& f : rel) dut.coverage->add(f.t_s);
+    }
+    {
       std::lock_guard handed(handed_mu_);
       dut.handed_run_id = run.run_id;
       dut.handed_until_s = rel.back().t_s;
@@ -1113,6 +1262,8 @@ void Station::publish_dut_status(const DutLive& dut) {
   }
   st.temp_c = dut.temp_c;
   st.samples_per_s = dut.samples_per_s;
+  st.required = dut.cfg->required;
+  st.lost = dut.lost.load();
   if (dut.index == 0) {
     // The first DUT's primary axis is "the gyro" of the older status fields.
     for (std::size_t a = 0; a < dut.rate_channels.size(); ++a) {
@@ -1445,6 +1596,66 @@ int64_t Station::segment_id(std::size_t index, const schedules::PlanStep& step, 
 void Station::on_step_started(std::size_t index, const schedules::PlanStep& step, double t_s) {
   if (index < segment_ids_.size()) segment_ids_[index] = 0;  // a new execution of the step
   (void)segment_id(index, step, t_s);
+  for (auto& d : duts_) {
+    std::lock_guard lock(d->coverage_mu);
+    if (d->coverage) d->coverage->forget_before(t_s);
+  }
+}
+
+double Station::data_covered_s(double from_s, double to_s) {
+  const int64_t run_id = current_run_id();
+  double least = std::numeric_limits<double>::infinity();
+  for (auto& d : duts_) {
+    if (d->lost.load()) continue;
+    std::lock_guard lock(d->coverage_mu);
+    const double covered =
+        d->coverage && d->coverage_run_id == run_id ? d->coverage->covered_s(from_s, to_s) : 0.0;
+    least = std::min(least, covered);
+  }
+  return std::isinf(least) ? std::max(0.0, to_s - from_s) : least;
+}
+
+std::optional<double> Station::data_reached_at_s(double from_s, double need_s) {
+  const int64_t run_id = current_run_id();
+  double latest = from_s + need_s;  // no DUT: the clock's
+  for (auto& d : duts_) {
+    if (d->lost.load()) continue;
+    std::lock_guard lock(d->coverage_mu);
+    if (!d->coverage || d->coverage_run_id != run_id) return std::nullopt;
+    const auto at = d->coverage->reached_at(from_s, need_s);
+    if (!at) return std::nullopt;
+    latest = std::max(latest, *at);
+  }
+  return latest;
+}
+
+void Station::seed_coverage(int64_t run_id, double from_s) {
+  for (auto& d : duts_) {
+    std::shared_ptr<const storage::RunDutRecord> layout;
+    {
+      std::lock_guard lock(d->layout_mu);
+      layout = d->layout;
+    }
+    schedules::CoverageSpans coverage(1.0 / d->cfg->link.rate_hz);
+    if (layout && layout->run_id == run_id && !layout->channels.empty()) {
+      const Status st = db_.for_each_channel_block(
+          layout->channels.front().id, from_s, std::numeric_limits<double>::infinity(),
+          [&](std::span<const double> t_s, std::span<const double>, std::span<const uint32_t>) {
+            for (double t : t_s) coverage.add(t);
+            return true;
+          });
+      if (!st) {
+        spdlog::error(
+            "run {}: DUT {}: stored samples not read back ({}); its coverage starts "
+            "anew",
+            run_id, dut_name(*d->cfg), st.error().message);
+        coverage = schedules::CoverageSpans(1.0 / d->cfg->link.rate_hz);
+      }
+    }
+    std::lock_guard lock(d->coverage_mu);
+    d->coverage = std::move(coverage);
+    d->coverage_run_id = run_id;
+  }
 }
 
 void Station::on_step_changed(std::size_t index, const schedules::PlanStep& step,
@@ -1460,6 +1671,14 @@ void Station::on_step_finished(std::size_t index, const schedules::PlanStep& ste
   const int64_t run_id = current_run_id();
   const int64_t id = segment_id(index, step, times.start_s);
   if (id == 0) return;
+  // A soak's samples are committed before the step is recorded finished: a
+  // crash after this never leaves a finished soak without its tail.
+  if (completed && step.kind == schedules::StepKind::kSoak) {
+    if (Status st = writer_->flush(); !st) {
+      spdlog::error("run {}: the samples of step {} not committed at its end: {}", run_id,
+                    index + 1, st.error().message);
+    }
+  }
   unrecorded_segments_[id] =
       segment_record(id, run_id, index, step, times, completed ? "completed" : "aborted");
   record_unrecorded();

@@ -38,10 +38,9 @@ nlohmann::json to_json(const drivers::GyroReaderHealth& g) {
 nlohmann::json to_json(const DutStatus& d) {
   nlohmann::json rates = nlohmann::json::object();
   for (const auto& [axis, rate] : d.rates_dph) rates[axis] = opt(rate);
-  return {
-      {"serial", d.serial},         {"model", d.model},        {"primary_axis", d.primary_axis},
-      {"rates_dph", rates},         {"temp_c", opt(d.temp_c)}, {"samples_per_s", d.samples_per_s},
-      {"health", to_json(d.health)}};
+  return {{"serial", d.serial},     {"model", d.model},        {"primary_axis", d.primary_axis},
+          {"rates_dph", rates},     {"temp_c", opt(d.temp_c)}, {"samples_per_s", d.samples_per_s},
+          {"required", d.required}, {"lost", d.lost},          {"health", to_json(d.health)}};
 }
 
 nlohmann::json to_json(const Progress& p) {
@@ -130,6 +129,7 @@ nlohmann::json to_json(const StatusSnapshot& s) {
       {"t_run_s", s.t_run_s},
       {"uptime_s", s.uptime_s},
       {"time_scale", s.time_scale},
+      {"clock", s.clock},
       {"last_event", s.last_event},
       {"paused", s.paused},
       {"interlocks", interlocks},

@@ -24,6 +24,7 @@
 
 #include <array>
 #include <cstddef>
+#include <functional>
 #include <iterator>
 #include <optional>
 #include <string>
@@ -75,6 +76,12 @@ struct Readings {
   bool table_fault = false;                    // interlock in fault
   std::string table_fault_text{};              // what the controller says
   double table_silent_s = 0;
+  // Data accounting of a soak's acquisition (the daemon sets both; unset:
+  // the clock is credited). Run seconds that every required DUT's samples
+  // cover in [from_s, to_s); the earliest end at which every required DUT's
+  // samples cover need_s from from_s (nullopt: not yet). coverage.h.
+  std::function<double(double from_s, double to_s)> data_covered_s{};
+  std::function<std::optional<double>(double from_s, double need_s)> data_reached_at_s{};
 };
 
 struct InterlockOptions;

@@ -183,6 +183,11 @@ class Sequencer {
   void restore(const SequencerSnapshot& snapshot, double t_s, double data_until_s,
                const std::string& reason);
   void tick(double t_s, const Readings& readings);
+  // After restore(): the step of the snapshot had already been recorded
+  // finished (the daemon died between its end and the checkpoint that said
+  // so). Goes on with the next step (or completes the run) without
+  // finishing that step again.
+  void continue_after_finished_step(double t_s);
 
   // Operator commands. Permanent error, nothing changed, when they do not
   // apply (not running, already paused, ...).

@@ -463,6 +463,11 @@ class Database {
 
   // Stores the sequencer snapshot for crash resume.
   Status set_run_checkpoint(int64_t run_id, std::string_view resume_json, double wall_unix_s);
+  // Runs `body` (calls of this Database) in one transaction: all of its
+  // writes commit together, or none when it returns an error (that error is
+  // returned). For what must not be seen half done after a crash: a step's
+  // end, the next step's start and the checkpoint that says so.
+  Status atomically(const std::function<Status()>& body);
   // Latest station time with a committed sample of the run (gyro,
   // temperature or table); nullopt when it has none.
   Result<std::optional<double>> last_sample_t_s(int64_t run_id);

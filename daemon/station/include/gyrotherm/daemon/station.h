@@ -50,10 +50,15 @@
 #include "gyrotherm/daemon/status.h"
 #include "gyrotherm/daemon/table_control.h"
 #include "gyrotherm/drivers/devices.h"
+#include "gyrotherm/schedules/coverage.h"
 #include "gyrotherm/schedules/progress.h"
 #include "gyrotherm/schedules/sequencer.h"
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
+
+namespace gyrotherm {
+class PacedClock;
+}
 
 namespace gyrotherm::daemon {
 
@@ -184,6 +189,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
           std::unique_ptr<storage::SampleSink> writer);
 
   void control_loop();
+  void paced_control_loop(const PacedClock& clock);
   schedules::Readings read_devices(double now_s);
   // Needs run_mu_.
   void resume_interrupted_run();
@@ -227,11 +233,19 @@ class Station final : public StationControl, private schedules::SequencerObserve
     // A frame has arrived since start(): only then can a gyro_lost trip
     // restored from a checkpoint clear.
     std::atomic<bool> heard{false};
+    // Not required and silent past its timeout: left out of the gyro_lost
+    // interlock and of the soaks' data accounting until it speaks again.
+    std::atomic<bool> lost{false};
     // The DUT in the current run (Database::add_run_dut), set by the control
     // thread before the run's clock is published; the frames' channels, and
     // apart the channels of its own probes (probe_top_c, probe_side_c).
     std::mutex layout_mu;
     std::shared_ptr<const storage::RunDutRecord> layout, probe_layout;
+    // coverage_mu: the run seconds its frames handed to the writer cover in
+    // run coverage_run_id (a soak is credited for those, not for the clock).
+    std::mutex coverage_mu;
+    int64_t coverage_run_id = 0;
+    std::optional<schedules::CoverageSpans> coverage;
     // handed_mu_:
     int64_t handed_run_id = 0;
     double handed_until_s = 0;
@@ -245,6 +259,13 @@ class Station final : public StationControl, private schedules::SequencerObserve
     double samples_per_s = 0;
   };
   void on_dut_frames(DutLive& dut, std::span<const DutFrame> frames);
+  // The soak's data accounting (schedules::Readings::data_covered_s and
+  // data_reached_at_s) over the DUTs of the current run; run seconds.
+  double data_covered_s(double from_s, double to_s);
+  std::optional<double> data_reached_at_s(double from_s, double need_s);
+  // After a restart: each DUT's coverage of the run from `from_s` on, read
+  // back from its committed samples.
+  void seed_coverage(int64_t run_id, double from_s);
   void publish_dut_status(const DutLive& dut);
   // Registers every DUT in run `run_id` (run_duts, channels): before the
   // run's clock is published, so no frame comes under a run without its DUTs.

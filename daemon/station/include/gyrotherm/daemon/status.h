@@ -36,6 +36,8 @@ struct DutStatus {
   std::vector<std::pair<std::string, std::optional<double>>> rates_dph;
   std::optional<double> temp_c;  // the DUT's internal temperature, last frame
   double samples_per_s = 0;      // frames per station second
+  bool required = true;          // [[dut]] required
+  bool lost = false;             // not required, silent past its timeout: left out
   drivers::GyroReaderHealth health;
 };
 
@@ -77,6 +79,9 @@ struct StatusSnapshot {
   double t_run_s = 0;
   double uptime_s = 0;  // wall
   double time_scale = 1;
+  // Where station time comes from: "sim" (the simulator's shared clock,
+  // time_scale its ceiling) or "scaled" (wall time x time_scale).
+  std::string clock = "scaled";
   drivers::DeviceHealth chamber;
   drivers::DeviceHealth probes;
   drivers::GyroReaderHealth gyro;
