@@ -215,6 +215,8 @@ int main(int argc, char** argv) {
     options.retry_min_s = lab->retry_min_s;
     options.retry_max_s = lab->retry_max_s;
     options.connect_timeout_s = lab->connect_timeout_s;
+    options.statement_timeout_s = lab->statement_timeout_s;
+    options.lock_timeout_s = lab->lock_timeout_s;
     options.on_event = [&relay_events_to](const std::string& message) {
       spdlog::info("{}", message);
       if (gd::Station* s = relay_events_to.load()) s->post_event("lab", message);
@@ -420,9 +422,12 @@ int main(int argc, char** argv) {
   spdlog::info("gyrothermd: stopping ({})", reason);
   sd_notifyf(0, "STOPPING=1\nSTATUS=stopping (%s)", reason.c_str());
   (*http)->stop();
-  // The relay first: the batch in flight commits (or rolls back) centrally
-  // and its events reach the station while its control loop still runs.
-  if (relay) relay->stop();
+  // The station first: the chamber to its safe set point and the table
+  // stopped, whatever the lab database does. Then the relay: a batch in
+  // flight is cancelled (bounded: docs/operations.md "Stop"); its events go
+  // to the journal only, the station's event log being closed.
   (*station)->stop("daemon stopped: " + reason);
+  relay_events_to = nullptr;
+  if (relay) relay->stop();
   return 0;
 }

@@ -243,6 +243,42 @@ Status add_station(PgConnection& pg, const std::string& station_id, const std::s
   return tx.commit();
 }
 
+Status check_station(PgConnection& pg, const std::string& station_id) {
+  const std::string role = login_role(pg);
+  auto rows =
+      pg.exec_params("SELECT db_role::text FROM lab.stations WHERE station_id = $1", {station_id});
+  if (!rows) {
+    const std::string& state = pg.last_sqlstate();
+    if (state == "42501") {
+      return Error::Permanent(fmt::format(
+          "the lab refused station id '{}' for role '{}': the role may not read lab.stations "
+          "(is it a member of gyrotherm_station? `gyrotherm lab add-station {} --role {}` makes "
+          "it one) ({})",
+          station_id, role, station_id, role, rows.error().message));
+    }
+    if (state == "42P01" || state == "3F000") {
+      return Error::Permanent(fmt::format(
+          "lab database {} has no lab schema: an administrator runs `gyrotherm lab migrate` ({})",
+          pg.server(), rows.error().message));
+    }
+    return rows.error();
+  }
+  if (rows->rows.empty()) {
+    return Error::Permanent(fmt::format(
+        "the lab refused station id '{}' for role '{}': the id is not registered in lab.stations "
+        "(an administrator registers it: `gyrotherm lab add-station {} --role {}`)",
+        station_id, role, station_id, role));
+  }
+  const std::string owner = rows->rows[0][0].value_or("");
+  if (owner != role) {
+    return Error::Permanent(fmt::format(
+        "the lab refused station id '{}' for role '{}': the id is registered to role '{}' (a "
+        "wrong station_id in [lab], or another station's credentials)",
+        station_id, role, owner));
+  }
+  return {};
+}
+
 Status add_reader(PgConnection& pg, const std::string& db_role) {
   if (auto s = check_role_name(db_role); !s.ok()) return s;
   if (auto s = require_schema(pg); !s.ok()) return s;

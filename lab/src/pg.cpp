@@ -2,10 +2,17 @@
 
 #include <fmt/format.h>
 #include <libpq-fe.h>
+#include <poll.h>
+#include <sys/eventfd.h>
+#include <unistd.h>
 
 #include <algorithm>
+#include <cerrno>
+#include <chrono>
+#include <climits>
 #include <cmath>
 #include <memory>
+#include <optional>
 #include <regex>
 #include <utility>
 
@@ -43,10 +50,29 @@ std::string quote_value(std::string_view value) {
 
 // libpq's parse errors quote pieces of the connection string (a whole URI,
 // an option's value); when the string could not be parsed we cannot know
-// where its password is, so every quoted piece goes.
+// where its password is, so every quoted piece goes, except the name of an
+// unknown option (a keyword, never a value: "invalid connection option
+// "sslmod"" is what the technician must see).
 std::string without_quoted(std::string_view message) {
   static const std::regex quoted("\"[^\"]*\"");
-  return std::regex_replace(std::string(message), quoted, "\"...\"");
+  static const std::regex keyword("[A-Za-z_][A-Za-z0-9_]{0,63}");
+  const std::string text(message);
+  std::string out;
+  size_t done = 0;
+  for (auto it = std::sregex_iterator(text.begin(), text.end(), quoted);
+       it != std::sregex_iterator(); ++it) {
+    const auto at = static_cast<size_t>(it->position());
+    const std::string_view before = std::string_view(text).substr(0, at);
+    const std::string inner = it->str().substr(1, it->str().size() - 2);
+    const bool option_name = (before.ends_with("invalid connection option ") ||
+                              before.ends_with("invalid URI query parameter: ")) &&
+                             std::regex_match(inner, keyword);
+    out += text.substr(done, at - done);
+    out += option_name ? it->str() : "\"...\"";
+    done = at + static_cast<size_t>(it->length());
+  }
+  out += text.substr(done);
+  return out;
 }
 
 // libpq's messages span lines ("FATAL: ...\nserver closed the connection
@@ -115,6 +141,56 @@ bool transient_sqlstate(std::string_view s) {
 
 }  // namespace
 
+PgInterrupt::PgInterrupt() : fd_(::eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK)) {}
+
+PgInterrupt::~PgInterrupt() {
+  if (fd_ >= 0) ::close(fd_);
+}
+
+void PgInterrupt::trigger() {
+  triggered_ = true;
+  if (fd_ >= 0) {
+    const uint64_t one = 1;
+    [[maybe_unused]] const auto n = ::write(fd_, &one, sizeof one);
+  }
+}
+
+std::string PgInterrupt::cancel_running() {
+  if (!busy_) return "";
+  std::shared_ptr<pg_cancel> cancel;
+  {
+    std::lock_guard lock(mu_);
+    cancel = cancel_;
+  }
+  if (!cancel) return "no connection to cancel";
+  char why[256] = "";
+  if (PQcancel(cancel.get(), why, sizeof why) == 1) return "";
+  return trim(why);
+}
+
+void PgInterrupt::attach(pg_conn* conn) {
+  std::shared_ptr<pg_cancel> cancel(PQgetCancel(conn), [](pg_cancel* c) { PQfreeCancel(c); });
+  std::lock_guard lock(mu_);
+  attached_ = conn;
+  cancel_ = std::move(cancel);
+}
+
+void PgInterrupt::detach(pg_conn* conn) {
+  std::lock_guard lock(mu_);
+  if (attached_ != conn) return;
+  attached_ = nullptr;
+  cancel_.reset();
+}
+
+std::optional<std::string> conninfo_error(std::string_view conninfo) {
+  char* parse_error = nullptr;
+  OptionsPtr options(PQconninfoParse(std::string(conninfo).c_str(), &parse_error));
+  if (options) return std::nullopt;
+  std::string why = parse_error ? trim(parse_error) : "out of memory";
+  if (parse_error) PQfreemem(parse_error);
+  return fmt::format("the lab database's connection string is malformed: {}", without_quoted(why));
+}
+
 std::string redact_conninfo(std::string_view conninfo) {
   char* err = nullptr;
   OptionsPtr options(PQconninfoParse(std::string(conninfo).c_str(), &err));
@@ -132,14 +208,11 @@ std::string redact_conninfo(std::string_view conninfo) {
 }
 
 Result<PgConnection> PgConnection::connect(const std::string& conninfo, double connect_timeout_s) {
+  if (auto malformed = conninfo_error(conninfo)) return Error::Permanent(*malformed);
   char* parse_error = nullptr;
   OptionsPtr options(PQconninfoParse(conninfo.c_str(), &parse_error));
-  if (!options) {
-    std::string why = parse_error ? trim(parse_error) : "out of memory";
-    if (parse_error) PQfreemem(parse_error);
-    return Error::Permanent(
-        fmt::format("the lab database's connection string is malformed: {}", without_quoted(why)));
-  }
+  if (parse_error) PQfreemem(parse_error);
+  if (!options) return Error::Permanent("the lab database's connection string is malformed");
   std::vector<std::string> secrets;
   for (const auto* o = options.get(); o->keyword; ++o) {
     if (o->val && is_secret(o->keyword)) secrets.emplace_back(o->val);
@@ -175,23 +248,61 @@ Result<PgConnection> PgConnection::connect(const std::string& conninfo, double c
   // would go to stderr, the daemon's journal: they say nothing to act on.
   PQsetNoticeProcessor(
       conn, [](void*, const char*) {}, nullptr);
-  return PgConnection(conn);
+  // Calls send and wait themselves (call()): sending never blocks either.
+  PQsetnonblocking(conn, 1);
+  PgConnection out(conn);
+  out.where_ = out.server();
+  return out;
 }
 
 PgConnection::PgConnection(PgConnection&& other) noexcept
-    : conn_(std::exchange(other.conn_, nullptr)), last_sqlstate_(std::move(other.last_sqlstate_)) {}
+    : conn_(std::exchange(other.conn_, nullptr)),
+      last_sqlstate_(std::move(other.last_sqlstate_)),
+      where_(std::move(other.where_)),
+      answer_timeout_s_(other.answer_timeout_s_),
+      answer_grace_s_(other.answer_grace_s_),
+      interrupt_(std::move(other.interrupt_)) {}
 
 PgConnection& PgConnection::operator=(PgConnection&& other) noexcept {
   if (this != &other) {
-    if (conn_) PQfinish(conn_);
+    abandon();
     conn_ = std::exchange(other.conn_, nullptr);
     last_sqlstate_ = std::move(other.last_sqlstate_);
+    where_ = std::move(other.where_);
+    answer_timeout_s_ = other.answer_timeout_s_;
+    answer_grace_s_ = other.answer_grace_s_;
+    interrupt_ = std::move(other.interrupt_);
   }
   return *this;
 }
 
-PgConnection::~PgConnection() {
-  if (conn_) PQfinish(conn_);
+PgConnection::~PgConnection() { abandon(); }
+
+void PgConnection::abandon() {
+  if (!conn_) return;
+  if (interrupt_) interrupt_->detach(conn_);
+  PQfinish(conn_);
+  conn_ = nullptr;
+}
+
+void PgConnection::set_interrupt(std::shared_ptr<PgInterrupt> interrupt) {
+  if (interrupt_ && conn_) interrupt_->detach(conn_);
+  interrupt_ = std::move(interrupt);
+  if (interrupt_ && conn_) interrupt_->attach(conn_);
+}
+
+Status PgConnection::limit(double statement_timeout_s, double lock_timeout_s,
+                           double answer_grace_s) {
+  const auto ms = [](double s) {
+    if (!std::isfinite(s) || s <= 0) return int64_t{0};
+    return std::clamp<int64_t>(std::llround(s * 1000), 1, INT_MAX);
+  };
+  answer_grace_s_ = std::max(0.0, answer_grace_s);
+  answer_timeout_s_ = ms(statement_timeout_s) > 0 ? statement_timeout_s + answer_grace_s_ : 0;
+  auto set = exec(fmt::format("SET statement_timeout = {}; SET lock_timeout = {}",
+                              ms(statement_timeout_s), ms(lock_timeout_s)));
+  if (!set) return set.error();
+  return {};
 }
 
 bool PgConnection::ok() const { return conn_ && PQstatus(conn_) == CONNECTION_OK; }
@@ -267,27 +378,126 @@ Result<PgRows> finish(pg_conn* conn, PGresult* raw, std::string& sqlstate,
 
 }  // namespace
 
-Result<PgRows> PgConnection::exec(std::string_view sql) {
+// Sends, then waits for the results on the socket and on the interrupt's
+// eventfd at once: until the answer, the client's deadline
+// (answer_timeout_s_), or an interrupt and kCancelGrace_s after it. Past a
+// deadline the connection is given up (closed: the server rolls back what
+// it did not commit). Of several results (statements), the first error or
+// else the last, as PQexec.
+template <class Send>
+Result<PgRows> PgConnection::call(Send&& send) {
   if (!conn_) {
     last_sqlstate_.clear();
-    return Error::Transient("lab database: not connected");
+    return Error::Transient(where_.empty() ? std::string("lab database: not connected")
+                                           : fmt::format("lab database {}: not connected", where_));
   }
-  return finish(conn_, PQexec(conn_, std::string(sql).c_str()), last_sqlstate_, server());
+  const std::string where = server();
+  // busy before the check: a trigger() then either stops the call here or
+  // finds it busy (and cancels it).
+  struct Busy {
+    PgInterrupt* interrupt;
+    explicit Busy(PgInterrupt* i) : interrupt(i) {
+      if (interrupt) interrupt->busy_ = true;
+    }
+    ~Busy() {
+      if (interrupt) interrupt->busy_ = false;
+    }
+  } busy(interrupt_.get());
+  if (interrupt_ && interrupt_->triggered()) {
+    last_sqlstate_.clear();
+    return Error::Transient(fmt::format("lab database {}: not sent: stopping", where));
+  }
+  if (!send(conn_)) return finish(conn_, nullptr, last_sqlstate_, where);
+
+  using clock = std::chrono::steady_clock;
+  const auto after = [](double s) {
+    return clock::now() +
+           std::chrono::duration_cast<clock::duration>(std::chrono::duration<double>(s));
+  };
+  std::optional<clock::time_point> deadline;
+  if (answer_timeout_s_ > 0) deadline = after(answer_timeout_s_);
+  std::optional<clock::time_point> interrupted_until;
+  // Waits until a result can be read without blocking; the reason when
+  // the wait was given up.
+  const auto wait = [&]() -> std::optional<std::string> {
+    for (;;) {
+      const int flushed = PQflush(conn_);  // 0: all sent, 1: more to send, -1: failed
+      if (flushed < 0 || (flushed == 0 && !PQisBusy(conn_))) return std::nullopt;
+      if (!interrupted_until && interrupt_ && interrupt_->triggered()) {
+        interrupted_until = after(kCancelGrace_s);
+      }
+      std::optional<clock::time_point> until = deadline;
+      if (interrupted_until && (!until || *interrupted_until < *until)) until = interrupted_until;
+      int timeout_ms = -1;
+      if (until) {
+        const auto left = std::chrono::ceil<std::chrono::milliseconds>(*until - clock::now());
+        if (left.count() <= 0) {
+          return interrupted_until && *until == *interrupted_until
+                     ? fmt::format("no answer within {:g} s of the stop's cancel request",
+                                   kCancelGrace_s)
+                     : fmt::format("no answer within {:g} s (statement_timeout + {:g} s)",
+                                   answer_timeout_s_, answer_grace_s_);
+        }
+        timeout_ms = static_cast<int>(std::min<int64_t>(left.count(), INT_MAX));
+      }
+      // An interrupt without an eventfd is seen within 100 ms.
+      const bool watch_interrupt = interrupt_ && !interrupted_until;
+      if (watch_interrupt && interrupt_->fd_ < 0 && (timeout_ms < 0 || timeout_ms > 100)) {
+        timeout_ms = 100;
+      }
+      pollfd fds[2] = {
+          {PQsocket(conn_), static_cast<short>(POLLIN | (flushed == 1 ? POLLOUT : 0)), 0},
+          {watch_interrupt ? interrupt_->fd_ : -1, POLLIN, 0}};
+      const int n = ::poll(fds, 2, timeout_ms);
+      if (n < 0 && errno != EINTR) return std::nullopt;  // PQgetResult reports the state
+      if (n > 0 && (fds[0].revents & (POLLIN | POLLERR | POLLHUP)) != 0 &&
+          PQconsumeInput(conn_) == 0) {
+        return std::nullopt;  // the connection failed: PQgetResult says how
+      }
+    }
+  };
+  PGresult* kept = nullptr;
+  for (;;) {
+    if (auto gave_up = wait()) {
+      PQclear(kept);
+      abandon();
+      last_sqlstate_.clear();
+      return Error::Transient(
+          fmt::format("lab database {}: {}; connection closed", where, *gave_up));
+    }
+    PGresult* res = PQgetResult(conn_);
+    if (!res) break;
+    const auto status = PQresultStatus(res);
+    if (kept && PQresultStatus(kept) == PGRES_FATAL_ERROR) {
+      PQclear(res);
+    } else {
+      PQclear(kept);
+      kept = res;
+    }
+    if (status == PGRES_COPY_IN || status == PGRES_COPY_OUT || status == PGRES_COPY_BOTH ||
+        PQstatus(conn_) == CONNECTION_BAD) {
+      break;
+    }
+  }
+  return finish(conn_, kept, last_sqlstate_, where);
+}
+
+Result<PgRows> PgConnection::exec(std::string_view sql) {
+  const std::string text(sql);
+  return call([&](pg_conn* conn) { return PQsendQuery(conn, text.c_str()) == 1; });
 }
 
 Result<PgRows> PgConnection::exec_params(std::string_view sql,
                                          const std::vector<std::optional<std::string>>& params) {
-  if (!conn_) {
-    last_sqlstate_.clear();
-    return Error::Transient("lab database: not connected");
-  }
+  const std::string text(sql);
   std::vector<const char*> values;
   values.reserve(params.size());
   for (const auto& p : params) values.push_back(p ? p->c_str() : nullptr);
-  PGresult* res = PQexecParams(conn_, std::string(sql).c_str(), static_cast<int>(values.size()),
-                               /*paramTypes=*/nullptr, values.data(), /*paramLengths=*/nullptr,
-                               /*paramFormats=*/nullptr, /*resultFormat=*/0);
-  return finish(conn_, res, last_sqlstate_, server());
+  return call([&](pg_conn* conn) {
+    return PQsendQueryParams(conn, text.c_str(), static_cast<int>(values.size()),
+                             /*paramTypes=*/nullptr, values.data(), /*paramLengths=*/nullptr,
+                             /*paramFormats=*/nullptr, /*resultFormat=*/0) == 1;
+  });
 }
 
 }  // namespace gyrotherm::lab

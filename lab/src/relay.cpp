@@ -19,6 +19,11 @@
 // Disabled mode (RelayOptions::conninfo empty, [lab] relay = false): the
 // thread never connects; it only keeps the outbox's figures current, so
 // the status and metrics show how much is queued.
+//
+// Each connection is first limited (statement_timeout, lock_timeout) and
+// checked (the station id registered to its role) before anything is
+// sent: a wrong id is "refused" at once, not "connected" until the first
+// batch. stop() interrupts the call in progress (PgInterrupt).
 #include "gyrotherm/lab/relay.h"
 
 #include <fmt/format.h>
@@ -27,6 +32,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <future>
 #include <optional>
 #include <regex>
 #include <string_view>
@@ -110,7 +116,8 @@ std::string describe_s(double s) {
 
 }  // namespace
 
-Relay::Relay(RelayOptions options) : options_(std::move(options)) {}
+Relay::Relay(RelayOptions options)
+    : options_(std::move(options)), interrupt_(std::make_shared<PgInterrupt>()) {}
 
 Result<std::unique_ptr<Relay>> Relay::create(RelayOptions options) {
   const auto bad = [](const std::string& what) { return Error::Permanent("lab relay: " + what); };
@@ -126,6 +133,11 @@ Result<std::unique_ptr<Relay>> Relay::create(RelayOptions options) {
   if (!(options.retry_max_s >= options.retry_min_s))
     return bad("retry_max_s must be at least retry_min_s");
   if (!(options.connect_timeout_s > 0)) return bad("connect_timeout_s must be positive");
+  if (!(options.statement_timeout_s > 0)) return bad("statement_timeout_s must be positive");
+  if (!(options.lock_timeout_s > 0)) return bad("lock_timeout_s must be positive");
+  if (!options.conninfo.empty()) {
+    if (auto malformed = conninfo_error(options.conninfo)) return bad(*malformed);
+  }
 
   // The binding is checked here, once: the thread trusts it.
   auto db = storage::Database::open(options.db_path);
@@ -170,7 +182,26 @@ void Relay::stop() {
     stop_requested_ = true;
   }
   wake_.notify_all();
+  // The call in progress wakes now and waits kCancelGrace_s at most for the
+  // server's answer to the cancel request. PQcancel opens a connection of
+  // its own without a time limit (to a host gone silent: minutes), so it is
+  // sent from a thread of its own, left to finish alone when it takes long.
+  interrupt_->trigger();
+  std::thread canceller;
+  std::future<std::string> cancelled;
+  if (interrupt_->busy()) {
+    std::packaged_task<std::string()> task([i = interrupt_] { return i->cancel_running(); });
+    cancelled = task.get_future();
+    canceller = std::thread(std::move(task));
+  }
   if (thread_.joinable()) thread_.join();
+  if (canceller.joinable()) {
+    if (cancelled.wait_for(100ms) == std::future_status::ready) {
+      canceller.join();
+    } else {
+      canceller.detach();
+    }
+  }
   std::lock_guard lock(mutex_);
   status_.state = "stopped";
   status_.retry_in_s.reset();
@@ -201,6 +232,10 @@ void Relay::run() {
   std::string announced;
   std::optional<steady::time_point> outage_since;
   steady::time_point stats_due{};
+  bool checked = false;             // this connection is limited and its station id registered
+  bool stale_said = false;          // the stale records of this run of batches have an event
+  bool refused_at_connect = false;  // the last refusal was the check's, not a batch's
+  std::string in_flight;            // "a batch of N records (outbox seq A to B)" while pushed
 
   const auto update = [&](auto&& fn) {
     std::lock_guard lock(mutex_);
@@ -259,6 +294,21 @@ void Relay::run() {
   // A failed attempt: backoff (transient: retry_min_s doubling up to
   // retry_max_s) or refused (permanent: retry_max_s), one event per change.
   const auto fail = [&](const Error& e, bool local) {
+    // Stopping: the call was interrupted. A batch says what became of it;
+    // anything else has nothing to tell.
+    if (interrupt_->triggered()) {
+      if (!in_flight.empty()) {
+        const bool cancelled = pg && pg->last_sqlstate() == "57014";
+        const std::string message = fmt::format(
+            "lab: relay stopped during {}: {}; {}", in_flight, clause(e.message),
+            cancelled ? "the lab rolled it back, it is sent again at the next start"
+                      : "the lab commits it or rolls it back, and the station sends it again at "
+                        "the next start either way (counted redelivered if it was committed)");
+        update([&](RelayStatus& s) { s.last_error = message.substr(5); });
+        event(message);
+      }
+      return false;
+    }
     const bool refused = !e.transient && !local;
     const std::string state = refused ? "refused" : disabled ? "disabled" : "backoff";
     const double wait_s = refused ? o.retry_max_s : delay_s;
@@ -280,6 +330,12 @@ void Relay::run() {
       } else if (local) {
         event(fmt::format("lab: relay stalled on the station database: {}; {}", clause(e.message),
                           retrying));
+      } else if (pg && pg->ok()) {
+        // The server answered and is still there: a lock or statement
+        // timeout, a conflict.
+        event(fmt::format("lab: the lab database did not take {}: {}; {}",
+                          in_flight.empty() ? "the relay's request" : in_flight, clause(e.message),
+                          retrying));
       } else if (announced == "connected") {
         event(fmt::format("lab: connection to the lab database lost: {}; {}", clause(e.message),
                           retrying));
@@ -289,8 +345,10 @@ void Relay::run() {
       }
       announced = state;
     }
-    // A lost connection is reopened; a refusal's is kept when still usable.
+    // A lost connection is reopened; a refusal's is kept when still usable
+    // (and checked again at the next attempt).
     if (pg && (!refused || !pg->ok())) pg.reset();
+    checked = false;
     if (local) db.reset();
     return wait(wait_s, false, true);
   };
@@ -351,7 +409,19 @@ void Relay::run() {
         continue;
       }
       pg.emplace(std::move(*c));
+      pg->set_interrupt(interrupt_);
       update([&](RelayStatus& s) { s.server = pg->server(); });
+      checked = false;
+    }
+    if (!checked) {
+      Status ready = pg->limit(o.statement_timeout_s, o.lock_timeout_s);
+      if (ready.ok()) ready = check_station(*pg, o.station_id);
+      if (!ready.ok()) {
+        refused_at_connect = true;
+        if (!fail(ready.error(), false)) break;
+        continue;
+      }
+      checked = true;
     }
     auto batch = db->outbox_batch(after_seq, o.batch_records, o.batch_bytes);
     if (!batch) {
@@ -366,8 +436,9 @@ void Relay::run() {
       // Idle: a server that shut down or restarted has said so on the
       // socket (read without a round trip), so the status and the events
       // follow an outage even when nothing is to be sent. A link that died
-      // silently shows at the next batch (or the keepalives). A refusal
-      // stays a refusal until a batch goes through.
+      // silently shows at the next batch (or the keepalives). A batch's
+      // refusal stays a refusal until a batch goes through; the check's
+      // ends when the check passes.
       if (PQconsumeInput(pg->handle()) == 0 || !pg->ok()) {
         if (!fail(
                 Error::Transient(fmt::format("lab database {}: connection lost while idle: {}",
@@ -377,7 +448,7 @@ void Relay::run() {
         }
         continue;
       }
-      if (announced != "refused") succeeded(0);
+      if (announced != "refused" || refused_at_connect) succeeded(0);
       if (!wait(o.poll_s, true, false)) break;
       continue;
     }
@@ -388,10 +459,33 @@ void Relay::run() {
       s.pending = std::max<int64_t>(s.pending, static_cast<int64_t>(batch->size()));
       waiting = s.pending;
     });
+    in_flight = fmt::format("a batch of {} (outbox seq {} to {})",
+                            records(static_cast<int64_t>(batch->size())), batch->front().seq,
+                            batch->back().seq);
     auto pushed = push_batch(*pg, o.station_id, *batch);
     if (!pushed) {
+      refused_at_connect = false;
       if (!fail(pushed.error(), false)) break;
+      in_flight.clear();
       continue;
+    }
+    in_flight.clear();
+    // The lab kept newer versions of some records: said once per run of
+    // such batches, counted always.
+    if (pushed->stale > 0) {
+      update([&](RelayStatus& s) { s.stale_total += static_cast<uint64_t>(pushed->stale); });
+      if (!stale_said) {
+        event(fmt::format(
+            "lab: the lab database holds newer versions of {} of the batch of {} (outbox seq {} "
+            "to {}) and kept its own: the station's versions of them are not in the lab. The "
+            "station's database was re-created or restored from a backup (its outbox numbers "
+            "started again); see docs/lab.md \"Records the lab ignores as stale\"",
+            records(pushed->stale), records(static_cast<int64_t>(batch->size())),
+            batch->front().seq, batch->back().seq));
+        stale_said = true;
+      }
+    } else {
+      stale_said = false;
     }
     // Committed centrally: the lag is measured now, then acknowledged.
     const double now_unix = unix_now_s();

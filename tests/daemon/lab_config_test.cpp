@@ -77,33 +77,44 @@ TEST_F(LabConfig, StationIdAloneQueuesWithoutRelaying) {
   EXPECT_DOUBLE_EQ(l.retry_min_s, 1.0);
   EXPECT_DOUBLE_EQ(l.retry_max_s, 300.0);
   EXPECT_DOUBLE_EQ(l.connect_timeout_s, 10.0);
+  EXPECT_DOUBLE_EQ(l.statement_timeout_s, 60.0);
+  EXPECT_DOUBLE_EQ(l.lock_timeout_s, 10.0);
 }
 
 TEST_F(LabConfig, EveryKeyIsRead) {
   write("lab.url", "postgresql://st07@lab-db.example:5433/lab\n");
-  auto cfg = load(R"([lab]
+  std::filesystem::create_directories(dir_ / "certs");
+  write("certs/lab-ca.crt", "CA\n");
+  write("st07.crt", "certificate\n");
+  write("st07.key", "key\n");
+  std::filesystem::permissions(
+      dir_ / "st07.key", std::filesystem::perms::owner_read | std::filesystem::perms::owner_write);
+  auto cfg = load(fmt::format(R"([lab]
 station_id = "st-07"
 relay = true
 url_file = "lab.url"
 sslmode = "verify-full"
 sslrootcert = "certs/lab-ca.crt"
-sslcert = "/etc/gyrotherm/st07.crt"
-sslkey = "/etc/gyrotherm/st07.key"
+sslcert = "{0}/st07.crt"
+sslkey = "{0}/st07.key"
 batch_records = 2000
 batch_bytes = 1048576
 poll_s = 0.5
 retry_min_s = 2
 retry_max_s = 600
 connect_timeout_s = 5
-)");
+statement_timeout_s = 120
+lock_timeout_s = 2.5
+)",
+                              dir_.string()));
   ASSERT_TRUE(cfg.ok()) << cfg.error().message;
   const LabSection& l = *cfg->lab;
   EXPECT_TRUE(l.relay);
   // Relative paths: next to the config file.
   EXPECT_EQ(l.url_file, (dir_ / "lab.url").string());
   EXPECT_EQ(l.sslrootcert, (dir_ / "certs/lab-ca.crt").string());
-  EXPECT_EQ(l.sslcert, "/etc/gyrotherm/st07.crt");
-  EXPECT_EQ(l.sslkey, "/etc/gyrotherm/st07.key");
+  EXPECT_EQ(l.sslcert, (dir_ / "st07.crt").string());
+  EXPECT_EQ(l.sslkey, (dir_ / "st07.key").string());
   EXPECT_EQ(l.sslmode, "verify-full");
   EXPECT_EQ(l.batch_records, 2000);
   EXPECT_EQ(l.batch_bytes, 1048576);
@@ -111,6 +122,66 @@ connect_timeout_s = 5
   EXPECT_DOUBLE_EQ(l.retry_min_s, 2);
   EXPECT_DOUBLE_EQ(l.retry_max_s, 600);
   EXPECT_DOUBLE_EQ(l.connect_timeout_s, 5);
+  EXPECT_DOUBLE_EQ(l.statement_timeout_s, 120);
+  EXPECT_DOUBLE_EQ(l.lock_timeout_s, 2.5);
+}
+
+// With relay = true every TLS file named must exist: libpq would connect
+// without a missing client certificate, silently. The key's mode is
+// checked as libpq checks it; a certificate goes with its key. Errors
+// name the file, the line and the key, and the path as resolved.
+TEST_F(LabConfig, TlsFilesAreCheckedAtLoad) {
+  write("lab.url", "postgresql://st07@lab-db.example/lab\n");
+  write("ca.crt", "CA\n");
+  write("st07.crt", "certificate\n");
+  write("st07.key", "key\n");
+  std::filesystem::permissions(
+      dir_ / "st07.key", std::filesystem::perms::owner_read | std::filesystem::perms::owner_write);
+  const std::string head = "[lab]\nstation_id = \"st-07\"\nrelay = true\nurl_file = \"lab.url\"\n";
+  auto cfg =
+      load(head + "sslrootcert = \"ca.crt\"\nsslcert = \"st07.crt\"\nsslkey = \"st07.key\"\n");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+
+  const std::string toml = (dir_ / "station.toml").string();
+  cfg = load(head +
+             "sslrootcert = \"missing-ca.crt\"\nsslcert = \"/nowhere/st07.crt\"\nsslkey = "
+             "\"st07.key\"\n");
+  ASSERT_FALSE(cfg.ok());
+  EXPECT_THAT(cfg.error().message,
+              HasSubstr(fmt::format("{}:13: lab.sslrootcert: {}: No such file or directory (a "
+                                    "relative path is taken from the config file's directory)",
+                                    toml, (dir_ / "missing-ca.crt").string())));
+  EXPECT_THAT(cfg.error().message,
+              HasSubstr(fmt::format("{}:14: lab.sslcert: /nowhere/st07.crt: No such file or "
+                                    "directory",
+                                    toml)));
+
+  cfg = load(head + "sslcert = \"st07.crt\"\n");
+  ASSERT_FALSE(cfg.ok());
+  EXPECT_THAT(cfg.error().message,
+              HasSubstr(":13: lab.sslcert: a client certificate needs its key: set sslkey too"));
+  cfg = load(head + "sslkey = \"st07.key\"\n");
+  ASSERT_FALSE(cfg.ok());
+  EXPECT_THAT(cfg.error().message,
+              HasSubstr(":13: lab.sslkey: a client key needs its certificate"));
+
+  std::filesystem::permissions(dir_ / "st07.key", std::filesystem::perms::others_read,
+                               std::filesystem::perm_options::add);
+  cfg = load(head + "sslcert = \"st07.crt\"\nsslkey = \"st07.key\"\n");
+  ASSERT_FALSE(cfg.ok());
+  EXPECT_THAT(cfg.error().message,
+              HasSubstr(fmt::format(":14: lab.sslkey: {} has mode 0604: libpq refuses a key "
+                                    "others can read",
+                                    (dir_ / "st07.key").string())));
+
+  cfg = load(head + "sslrootcert = \".\"\n");
+  ASSERT_FALSE(cfg.ok());
+  EXPECT_THAT(cfg.error().message,
+              HasSubstr("lab.sslrootcert: " + dir_.string() + "/. is not a regular file"));
+
+  // relay = false: nothing connects, the files may come later.
+  cfg = load("[lab]\nstation_id = \"st-07\"\nsslcert = \"later.crt\"\nsslkey = \"later.key\"\n");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
 }
 
 TEST_F(LabConfig, ErrorsNameFileLineAndKey) {
@@ -125,6 +196,8 @@ retry_min_s = 60
 retry_max_s = 30
 connect_timeout_s = -1
 colour = "blue"
+statement_timeout_s = 0
+lock_timeout_s = 7200
 )",
                                   "bad.toml");
   ASSERT_FALSE(cfg.ok());
@@ -140,6 +213,8 @@ colour = "blue"
                            "retry_min_s (60)"));
   EXPECT_THAT(m, HasSubstr("bad.toml:18: lab.connect_timeout_s:"));
   EXPECT_THAT(m, HasSubstr("bad.toml:19: lab.colour: unknown key"));
+  EXPECT_THAT(m, HasSubstr("bad.toml:20: lab.statement_timeout_s:"));
+  EXPECT_THAT(m, HasSubstr("bad.toml:21: lab.lock_timeout_s:"));
 
   cfg = parse_station_config(std::string(kBase) + R"([lab]
 relay = false

@@ -1,21 +1,37 @@
 // PgConnection against a private PostgreSQL cluster: rows as text, NULLs,
 // parameters, errors classified transient (server gone) or permanent
-// (server refuses), SQLSTATEs kept, and no password in any message.
+// (server refuses), SQLSTATEs kept, no password in any message; every call
+// bounded (statement and lock timeouts, a server that stops answering) and
+// interruptible from another thread.
 #include "gyrotherm/lab/pg.h"
 
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <signal.h>
 
+#include <chrono>
+#include <future>
 #include <string>
 
 #include "support/pg_cluster.h"
+#include "test_time.h"
 
 namespace gyrotherm::lab {
 namespace {
 
+using namespace std::chrono_literals;
+using ::testing::HasSubstr;
 using testing::PgCluster;
 using testing::PgClusterTest;
+using testing::scaled;
+using testing::wait_for_condition;
 
-class PgTest : public PgClusterTest {};
+class PgTest : public PgClusterTest {
+ protected:
+  static double seconds_since(std::chrono::steady_clock::time_point t0) {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  }
+};
 
 TEST_F(PgTest, RowsComeBackAsTextWithNullsAsNullopt) {
   auto pg = PgConnection::connect(conninfo());
@@ -155,6 +171,116 @@ TEST_F(PgTest, PasswordNeverInMessages) {
   ASSERT_FALSE(down.ok());
   EXPECT_TRUE(down.error().transient);
   EXPECT_EQ(down.error().message.find(secret), std::string::npos) << down.error().message;
+}
+
+TEST_F(PgTest, LimitBoundsStatementsAndLockWaits) {
+  auto pg = PgConnection::connect(conninfo());
+  ASSERT_TRUE(pg.ok()) << pg.error().message;
+  ASSERT_TRUE(pg->limit(0.2, 0.1).ok());
+  auto set =
+      pg->exec("SELECT current_setting('statement_timeout'), current_setting('lock_timeout')");
+  ASSERT_TRUE(set.ok()) << set.error().message;
+  EXPECT_EQ(set->rows[0][0], "200ms");
+  EXPECT_EQ(set->rows[0][1], "100ms");
+
+  auto t0 = std::chrono::steady_clock::now();
+  auto slow = pg->exec("SELECT pg_sleep(30)");
+  ASSERT_FALSE(slow.ok());
+  EXPECT_LT(seconds_since(t0), scaled(5s).count() / 1000.0);
+  EXPECT_TRUE(slow.error().transient);
+  EXPECT_EQ(pg->last_sqlstate(), "57014");
+  EXPECT_THAT(slow.error().message, HasSubstr("statement timeout"));
+
+  auto admin = PgConnection::connect(conninfo());
+  ASSERT_TRUE(admin.ok()) << admin.error().message;
+  ASSERT_TRUE(admin->exec("CREATE TABLE held(x int)").ok());
+  ASSERT_TRUE(admin->exec("BEGIN; LOCK TABLE held").ok());
+  auto waiting = pg->exec("SELECT * FROM held");
+  ASSERT_FALSE(waiting.ok());
+  EXPECT_TRUE(waiting.error().transient);
+  EXPECT_EQ(pg->last_sqlstate(), "55P03");
+  EXPECT_THAT(waiting.error().message, HasSubstr("lock timeout"));
+  EXPECT_TRUE(pg->exec("SELECT 1").ok()) << "still usable";
+}
+
+// A server that takes the statement and never answers (its backend
+// stopped: a VM frozen, a disk hung): the client gives the connection up
+// after statement_timeout + the grace, since the server's own timeout
+// cannot fire.
+TEST_F(PgTest, AServerThatStopsAnsweringIsGivenUp) {
+  auto pg = PgConnection::connect(conninfo());
+  ASSERT_TRUE(pg.ok()) << pg.error().message;
+  auto pid = pg->exec("SELECT pg_backend_pid()");
+  ASSERT_TRUE(pid.ok()) << pid.error().message;
+  const pid_t backend = std::stoi(*pid->rows[0][0]);
+  ASSERT_TRUE(pg->limit(0.3, 0.3, 0.3).ok());
+  ASSERT_EQ(::kill(backend, SIGSTOP), 0);
+  const auto t0 = std::chrono::steady_clock::now();
+  auto lost = pg->exec("SELECT 1");
+  const double waited_s = seconds_since(t0);
+  ::kill(backend, SIGCONT);
+  ASSERT_FALSE(lost.ok());
+  EXPECT_TRUE(lost.error().transient);
+  EXPECT_THAT(lost.error().message, HasSubstr("no answer within 0.6 s"));
+  EXPECT_GE(waited_s, 0.5);
+  EXPECT_LT(waited_s, scaled(3s).count() / 1000.0);
+  EXPECT_FALSE(pg->ok()) << "given up";
+}
+
+// Another thread interrupts a call in progress: it has the server cancel
+// the statement (57014, "user request") and the call returns at once;
+// later calls fail at once, unsent.
+TEST_F(PgTest, AnInterruptCancelsTheCallInProgressFromAnotherThread) {
+  auto pg = PgConnection::connect(conninfo());
+  ASSERT_TRUE(pg.ok()) << pg.error().message;
+  auto interrupt = std::make_shared<PgInterrupt>();
+  pg->set_interrupt(interrupt);
+  EXPECT_EQ(interrupt->cancel_running(), "") << "nothing running: nothing to do";
+  auto call = std::async(std::launch::async, [&] { return pg->exec("SELECT pg_sleep(60)"); });
+  ASSERT_TRUE(wait_for_condition([&] { return interrupt->busy(); }, 5s));
+  // The statement is running on the server before it is cancelled.
+  auto admin = PgConnection::connect(conninfo());
+  ASSERT_TRUE(admin.ok()) << admin.error().message;
+  ASSERT_TRUE(wait_for_condition(
+      [&] {
+        auto n = admin->exec(
+            "SELECT count(*) FROM pg_stat_activity WHERE query = 'SELECT pg_sleep(60)' AND "
+            "state = 'active'");
+        return n.ok() && n->rows[0][0] == "1";
+      },
+      5s, 5ms));
+  const auto t0 = std::chrono::steady_clock::now();
+  interrupt->trigger();
+  EXPECT_EQ(interrupt->cancel_running(), "");
+  ASSERT_EQ(call.wait_for(scaled(3s)), std::future_status::ready);
+  EXPECT_LT(seconds_since(t0), scaled(3s).count() / 1000.0);
+  auto cancelled = call.get();
+  ASSERT_FALSE(cancelled.ok());
+  EXPECT_THAT(cancelled.error().message, HasSubstr("canceling statement due to user request"));
+  EXPECT_EQ(pg->last_sqlstate(), "57014");
+  auto later = pg->exec("SELECT 1");
+  ASSERT_FALSE(later.ok());
+  EXPECT_THAT(later.error().message, HasSubstr("not sent: stopping"));
+}
+
+// libpq's parse errors quote what they choke on; an unknown option's name
+// is shown (it is a keyword, and the fix), values never are.
+TEST_F(PgTest, AnUnknownOptionIsNamedAndValuesAreNot) {
+  const std::string secret = "Sup3r-Secret-pw";
+  auto c = PgConnection::connect("host=127.0.0.1 password=" + secret + " sslmod=verify-full", 2);
+  ASSERT_FALSE(c.ok());
+  EXPECT_FALSE(c.error().transient);
+  EXPECT_THAT(c.error().message, HasSubstr("invalid connection option \"sslmod\""));
+  EXPECT_EQ(c.error().message.find(secret), std::string::npos) << c.error().message;
+  c = PgConnection::connect("postgresql://u:" + secret + "@127.0.0.1/db?sslmod=require", 2);
+  ASSERT_FALSE(c.ok());
+  EXPECT_THAT(c.error().message, HasSubstr("invalid URI query parameter: \"sslmod\""));
+  EXPECT_EQ(c.error().message.find(secret), std::string::npos) << c.error().message;
+  EXPECT_EQ(conninfo_error("host=x port=1"), std::nullopt);
+  // A value is never shown, even where an option's name would be.
+  auto v = conninfo_error("host=x " + secret);
+  ASSERT_TRUE(v.has_value());
+  EXPECT_EQ(v->find(secret), std::string::npos) << *v;
 }
 
 TEST(RedactConninfo, DropsPasswordsKeepsTheRest) {

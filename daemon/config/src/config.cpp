@@ -2,6 +2,7 @@
 
 #include <fcntl.h>
 #include <fmt/format.h>
+#include <sys/stat.h>
 #include <toml++/toml.h>
 #include <unistd.h>
 
@@ -1123,6 +1124,47 @@ bool valid_lab_station_id(std::string_view id) {
   return true;
 }
 
+// [lab]'s TLS files, with relay = true. libpq skips a client certificate
+// whose file is missing and connects without it, silently, and with
+// sslmode = "require" skips a missing CA likewise: each named file must
+// exist (its mode is visible to every user, its content perhaps only to
+// the daemon's: a CLI reading the config as another user must not fail
+// here). The key's mode is checked as libpq checks it at connect, and a
+// certificate goes with its key.
+void check_lab_tls_files(TableReader& t, const LabSection& l) {
+  const auto check = [&](std::string_view key, const std::string& path) {
+    if (path.empty()) return false;
+    struct stat st {};
+    if (::stat(path.c_str(), &st) != 0) {
+      const bool relative = !t.raw()[key].value_or(std::string()).starts_with('/');
+      t.error(key, fmt::format("{}: {}{}", path, std::strerror(errno),
+                               relative ? " (a relative path is taken from the config file's "
+                                          "directory)"
+                                        : ""));
+      return false;
+    }
+    if (!S_ISREG(st.st_mode)) {
+      t.error(key, fmt::format("{} is not a regular file", path));
+      return false;
+    }
+    if (key == "sslkey" && (st.st_uid == 0 ? (st.st_mode & (S_IWGRP | S_IXGRP | S_IRWXO)) != 0
+                                           : (st.st_mode & (S_IRWXG | S_IRWXO)) != 0)) {
+      t.error(key, fmt::format("{} has mode {:04o}: libpq refuses a key others can read (0600 "
+                               "owned by the daemon's user, or 0640 owned by root)",
+                               path, st.st_mode & 07777));
+    }
+    return true;
+  };
+  check("sslrootcert", l.sslrootcert);
+  check("sslcert", l.sslcert);
+  check("sslkey", l.sslkey);
+  if (!l.sslcert.empty() && l.sslkey.empty()) {
+    t.error("sslcert", "a client certificate needs its key: set sslkey too");
+  } else if (l.sslcert.empty() && !l.sslkey.empty()) {
+    t.error("sslkey", "a client key needs its certificate: set sslcert too");
+  }
+}
+
 // [lab] (docs/configuration.md "[lab]", docs/lab.md). Paths are taken
 // relative to the config file's directory (the URL file sits next to it,
 // readable by the daemon only).
@@ -1185,6 +1227,7 @@ void read_lab(TableReader t, LabSection& l, const std::string& source) {
   path("sslrootcert", l.sslrootcert);
   path("sslcert", l.sslcert);
   path("sslkey", l.sslkey);
+  if (l.relay) check_lab_tls_files(t, l);
   if (auto n = t.integer("batch_records")) {
     if (*n < 1 || *n > 100000)
       t.error("batch_records", fmt::format("{} must be in [1, 100000]", *n));
@@ -1207,6 +1250,8 @@ void read_lab(TableReader t, LabSection& l, const std::string& source) {
                         l.retry_min_s));
   }
   l.connect_timeout_s = t.number_in("connect_timeout_s", l.connect_timeout_s, 0.1, 3600.0);
+  l.statement_timeout_s = t.number_in("statement_timeout_s", l.statement_timeout_s, 0.1, 3600.0);
+  l.lock_timeout_s = t.number_in("lock_timeout_s", l.lock_timeout_s, 0.1, 3600.0);
   t.finish();
 }
 

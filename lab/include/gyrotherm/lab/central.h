@@ -42,6 +42,13 @@ Status add_station(PgConnection& pg, const std::string& station_id, const std::s
 // Creates (if missing) login role `db_role` as a member of gyrotherm_reader.
 Status add_reader(PgConnection& pg, const std::string& db_role);
 
+// The relay's check at connect, before it sends anything: `station_id` is
+// registered in lab.stations to the role this connection logged in as. A
+// permanent error says what is wrong (not registered, registered to
+// another role, the role may not read lab.stations, no lab schema); a lost
+// connection is transient.
+Status check_station(PgConnection& pg, const std::string& station_id);
+
 // What a relay batch did centrally.
 struct PushResult {
   int64_t upserted = 0;  // rows inserted or updated

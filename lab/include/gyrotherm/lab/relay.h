@@ -10,7 +10,10 @@
 // backoff (retry_min_s doubling to retry_max_s, wall time), then resume
 // where the outbox stands. Memory is bounded by one batch (batch_records,
 // batch_bytes). A refusal stops sending (state "refused") and is retried
-// at retry_max_s in case the lab's registration is fixed.
+// at retry_max_s in case the lab's registration is fixed; the registration
+// is checked at each connection, before anything is sent. Every
+// PostgreSQL call is bounded (statement_timeout_s, lock_timeout_s) and
+// stop() cancels the one in progress.
 #pragma once
 
 #include <condition_variable>
@@ -26,6 +29,8 @@
 
 namespace gyrotherm::lab {
 
+class PgInterrupt;
+
 struct RelayOptions {
   std::string station_id;
   std::string db_path;   // the station's SQLite file (bound to station_id before start)
@@ -38,6 +43,11 @@ struct RelayOptions {
   double retry_min_s = 1.0;    // backoff after a failure, doubling...
   double retry_max_s = 300.0;  // ...up to this
   double connect_timeout_s = 10.0;
+  // The session's statement_timeout and lock_timeout (wall s, > 0): a batch
+  // that waits longer (a lock held by an administrator's session, a server
+  // that stalls) is cancelled by the server and retried after a backoff.
+  double statement_timeout_s = 60.0;
+  double lock_timeout_s = 10.0;
   // State changes worth an event (connected, lost, refused, resumed):
   // (kind "lab", message). Called from the relay thread.
   std::function<void(const std::string& message)> on_event;
@@ -51,8 +61,12 @@ class Relay {
   static Result<std::unique_ptr<Relay>> create(RelayOptions options);
   ~Relay();  // stop()
   void start();
-  // Stops after the batch in flight (it is committed or rolled back
-  // centrally, acknowledged locally only when committed).
+  // Stops now. A call waiting for the lab database is cancelled (PQcancel,
+  // sent from a thread of its own so that a silent host cannot hold stop()
+  // up) and given up kCancelGrace_s later at most: the batch in flight is
+  // committed or rolled back centrally, acknowledged locally only when
+  // committed, and an event says which. Returns within kCancelGrace_s plus
+  // a little, or within connect_timeout_s during a connection attempt.
   void stop();
   // Wakes the thread now (a result was committed).
   void nudge();
@@ -69,6 +83,7 @@ class Relay {
   bool nudged_ = false;
   RelayStatus status_;
   std::thread thread_;
+  std::shared_ptr<PgInterrupt> interrupt_;  // stop() wakes the call in progress
 };
 
 }  // namespace gyrotherm::lab

@@ -235,7 +235,7 @@ struct ControlSection {
 // copy of the config): it is read from url_file (a file holding a libpq
 // URI or conninfo, one line; relative to the config file) or from the
 // environment variable url_env. TLS: sslmode and the certificate files are
-// passed to libpq.
+// passed to libpq; with relay = true each named file must exist.
 struct LabSection {
   std::string station_id;  // required: [A-Za-z0-9][A-Za-z0-9._-]{0,63}
   bool relay = false;      // true: gyrothermd sends the outbox to the lab database
@@ -252,6 +252,10 @@ struct LabSection {
   double retry_min_s = 1.0;         // wall s, > 0
   double retry_max_s = 300.0;       // wall s, >= retry_min_s
   double connect_timeout_s = 10.0;  // wall s, > 0
+  // The relay's PostgreSQL session: statement_timeout and lock_timeout,
+  // wall s, 0.1..3600.
+  double statement_timeout_s = 60.0;
+  double lock_timeout_s = 10.0;
 };
 
 // The lab connection string of `lab`: url_file's text or url_env's value,
