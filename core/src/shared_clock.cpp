@@ -204,6 +204,9 @@ bool SharedClockOwner::consumer_attached() const { return map_->page().consumer_
 
 double SharedClockOwner::limit_s() {
   SharedClockPage& pg = map_->page();
+  // Taken before the marks are read: a mark made after it wakes
+  // wait_for_consumers() at once.
+  seen_consumer_seq_ = pg.consumer_seq.load(std::memory_order_acquire);
   const int64_t pid = pg.consumer_pid.load();
   if (pid == 0) return std::numeric_limits<double>::infinity();
   if (!pid_alive(pid)) {
@@ -226,8 +229,7 @@ double SharedClockOwner::limit_s() {
 }
 
 void SharedClockOwner::wait_for_consumers(std::chrono::nanoseconds max_wall) const {
-  SharedClockPage& pg = map_->page();
-  futex_wait(pg.consumer_seq, pg.consumer_seq.load(std::memory_order_acquire), max_wall);
+  futex_wait(map_->page().consumer_seq, seen_consumer_seq_, max_wall);
 }
 
 // --- consumer ---

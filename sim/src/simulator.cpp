@@ -668,7 +668,7 @@ void Simulator::run_paced() {
 
     const double limit_s = shared_clock_->limit_s();
     const double target_s = std::min(t_s + std::min(wall_dt_s, 0.25) * scale, limit_s);
-    if (target_s >= t_s + step_s_) {
+    if (target_s >= t_s + step_s_ - 1e-9) {
       advance_to(target_s);
       publish_registers();
       if (write_batches()) {
@@ -677,7 +677,7 @@ void Simulator::run_paced() {
       }
       shared_clock_->publish(t_s);
     }
-    if (limit_s <= t_s + step_s_) {
+    if (limit_s < t_s + step_s_ - 1e-9) {
       // Held: the daemon has not caught up. Woken by its next mark.
       const auto held_from = steady::now();
       shared_clock_->wait_for_consumers(std::chrono::milliseconds(20));
@@ -710,7 +710,9 @@ void Simulator::advance_to(double target_s) {
 
   const auto budget_end = std::chrono::steady_clock::now() + kTickBudget;
   int64_t done = 0;
-  while (static_cast<double>(steps_ + 1) * step_s <= target_s) {
+  // (with a little slack: a target of 298.0 reached in steps of 0.1 is 2980
+  // steps, though 2980 * 0.1 is 298.00000000000006)
+  while (static_cast<double>(steps_ + 1) * step_s <= target_s + 1e-9) {
     plant_.step(step_s, setpoint_c);
     TableInput table_input;
     if (table_) {

@@ -119,6 +119,22 @@ TEST_F(SharedClockTest, OwnerWaitsForAMarkAndWakesOnIt) {
   EXPECT_DOUBLE_EQ(owner->limit_s(), 2.0);
 }
 
+// A mark that lands between limit_s() and the wait is not missed: the
+// owner does not sleep out its timeout (which throttled a campaign to a
+// tick per timeout).
+TEST_F(SharedClockTest, AMarkBetweenTheLimitAndTheWaitWakesTheOwnerAtOnce) {
+  auto owner = make_owner();
+  auto clock = make_consumer(1.0);
+  auto control = clock->consumer("control loop");
+  owner->publish(1.0);
+  EXPECT_DOUBLE_EQ(owner->limit_s(), 1.0);
+  control->consumed(1.0);
+  const auto before = std::chrono::steady_clock::now();
+  owner->wait_for_consumers(std::chrono::seconds(20));
+  EXPECT_LT(std::chrono::steady_clock::now() - before, std::chrono::seconds(10));
+  EXPECT_DOUBLE_EQ(owner->limit_s(), 2.0);
+}
+
 TEST_F(SharedClockTest, AConsumerWhoseProcessDiedIsDetached) {
   auto owner = make_owner();
   owner->publish(7.0);

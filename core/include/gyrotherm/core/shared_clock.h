@@ -93,7 +93,8 @@ class SharedClockOwner {
   // consumer's mark plus its lead. A consumer that attached but has not
   // marked yet holds the clock where it attached.
   double limit_s();
-  // Waits up to `max_wall` for any consumer's mark or attach (futex).
+  // Waits up to `max_wall` for any consumer's mark or attach (futex) since
+  // the last limit_s(): none is missed between the two.
   void wait_for_consumers(std::chrono::nanoseconds max_wall) const;
   bool consumer_attached() const;
 
@@ -101,6 +102,7 @@ class SharedClockOwner {
 
  private:
   std::unique_ptr<SharedClockMap> map_;
+  uint32_t seen_consumer_seq_ = 0;
 };
 
 // The daemon's side: a Clock whose station time is the owner's. Its
