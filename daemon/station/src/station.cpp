@@ -1085,6 +1085,14 @@ void Station::resume_interrupted_run() {
                           "older): it is not run again; the run goes on with the next step",
                           snap->step_index + 1));
     sequencer_->continue_after_finished_step(t_resume_s);
+    // restore() re-announced that step as running: its record stays as it
+    // was written when it ended.
+    for (const auto& seg : segments) {
+      if (seg.index == static_cast<int>(snap->step_index) && seg.state == "completed") {
+        unrecorded_segments_[seg.id] = seg;
+      }
+    }
+    record_unrecorded();
   }
   (void)db_.set_run_state(run.id, to_string(sequencer_->state()), false);
   checkpoint(true);
