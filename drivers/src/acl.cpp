@@ -236,10 +236,10 @@ ParsedMode parse_mode(std::string_view field) {
 Result<TableInterlock> parse_interlock(std::string_view field) {
   const std::string_view f = trim(field);
   if (iequals(f, "Open")) return TableInterlock::kOpen;
-  if (iequals(f, "Closed")) return TableInterlock::kClosed;
+  if (iequals(f, "Close") || iequals(f, "Closed")) return TableInterlock::kClosed;
   if (iequals(f, "Fault")) return TableInterlock::kFault;
   return Error::Permanent(
-      fmt::format("interlock \"{}\" is none of Open, Closed, Fault", printable(f)));
+      fmt::format("interlock \"{}\" is none of Open, Close (Closed), Fault", printable(f)));
 }
 
 Result<TableState> parse_state(std::string_view payload) {

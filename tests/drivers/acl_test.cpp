@@ -169,6 +169,19 @@ TEST(AclValues, ModesShortLongAndUnknown) {
   EXPECT_EQ(synth.text, "Synthesis");
 }
 
+// TM-8004 §4.5.3: the interlock state is `{Close|Open|Fault}`; field
+// firmware answers `Closed`. Both are a closed (servoed) interlock.
+TEST(AclValues, TheManualsCloseAndTheFieldsClosed) {
+  EXPECT_EQ(*parse_interlock("Close"), TableInterlock::kClosed);
+  EXPECT_EQ(*parse_interlock(" close\r\n"), TableInterlock::kClosed);
+  EXPECT_EQ(*parse_interlock("Closed"), TableInterlock::kClosed);
+  auto s = parse_state("R;Close;10;0");
+  ASSERT_TRUE(s.ok()) << s.error().message;
+  EXPECT_EQ(s->interlock, TableInterlock::kClosed);
+  EXPECT_FALSE(parse_interlock("Clos").ok());
+  EXPECT_FALSE(parse_interlock("Closes").ok());
+}
+
 // acutrol3000.py: `if inst.query(":interlock? 1") == "Fault\n"`.
 TEST(AclValues, InterlockWords) {
   EXPECT_EQ(*parse_interlock("Fault\n"), TableInterlock::kFault);

@@ -102,8 +102,10 @@ struct ParsedMode {
 // `P`/`R`/`O` (TM-8004 §4.7) or `Position`/`Rate`/`Off` (field firmware),
 // case-insensitive; anything else is kUnknown, with its text.
 ParsedMode parse_mode(std::string_view field);
-// `Open`, `Closed`, `Fault`, case-insensitive (acutrol3000.py compares the
-// answer of `:interlock? 1` with "Fault\n"); anything else is an error.
+// `Open`, `Close` or `Closed`, `Fault`, case-insensitive: the manual's
+// interlock state is {Close|Open|Fault} (TM-8004 §4.5.3), field firmware
+// answers `Closed`; acutrol3000.py compares the answer of `:interlock? 1`
+// with "Fault\n". Anything else is an error.
 Result<TableInterlock> parse_interlock(std::string_view field);
 
 // The answer to state_query(): four fields.
