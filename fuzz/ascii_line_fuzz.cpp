@@ -32,7 +32,8 @@ bool same(double a, double b) { return (std::isnan(a) && std::isnan(b)) || a == 
 bool same_counters(const ParserCounters& a, const ParserCounters& b) {
   return a.frames_ok == b.frames_ok && a.crc_failures == b.crc_failures &&
          a.bytes_skipped == b.bytes_skipped && a.sequence_gaps == b.sequence_gaps &&
-         a.frames_missed == b.frames_missed && a.last_reject == b.last_reject;
+         a.frames_missed == b.frames_missed && a.sequence_rejects == b.sequence_rejects &&
+         a.last_reject == b.last_reject;
 }
 
 AsciiColumn column_from(FuzzedDataProvider& in, int i) {

@@ -33,7 +33,7 @@ GyroFrame frame_from(FuzzedDataProvider& in) {
 bool same_counters(const ParserCounters& a, const ParserCounters& b) {
   return a.frames_ok == b.frames_ok && a.crc_failures == b.crc_failures &&
          a.bytes_skipped == b.bytes_skipped && a.sequence_gaps == b.sequence_gaps &&
-         a.frames_missed == b.frames_missed;
+         a.frames_missed == b.frames_missed && a.sequence_rejects == b.sequence_rejects;
 }
 
 bool same_frame(const GyroFrame& a, const GyroFrame& b) {
@@ -100,9 +100,11 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   FUZZ_CHECK(c.sequence_gaps <= c.frames_ok);
   FUZZ_CHECK(c.frames_missed >= c.sequence_gaps);
   FUZZ_CHECK(c.frames_missed <= c.sequence_gaps * (kKvh1750SeqModulo - 1));
+  // Unaccounted: a partial frame buffered, and a frame whose counter jumped,
+  // held until the next frame confirms it (sequence_guard.h).
   const uint64_t accounted = c.bytes_skipped + c.frames_ok * kKvh1750FrameSize;
   FUZZ_CHECK(accounted <= stream.size());
-  FUZZ_CHECK(stream.size() - accounted < kKvh1750FrameSize);
+  FUZZ_CHECK(stream.size() - accounted < 2 * kKvh1750FrameSize);
 
   // Frames appear in stream order, each a verbatim, CRC-valid slice of it.
   std::size_t search_from = 0;

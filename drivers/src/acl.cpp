@@ -92,7 +92,9 @@ std::string format_number(double value) {
 
 std::string command_line(std::string_view commands) { return fmt::format("{}\r\n", commands); }
 
+std::string identify() { return "*IDN?"; }
 std::string take_remote() { return ":U:L ON"; }
+std::string release_remote() { return ":U:L OFF"; }
 std::string demand_rate(int axis, double rate_dps) {
   return fmt::format(":D:R {0},{1};:M:R {0}", axis, format_number(rate_dps));
 }
@@ -177,6 +179,91 @@ Result<std::optional<Reply>> ReplyDecoder::next() {
   return garbage("unknown framing");
 }
 
+std::string describe_bytes(std::string_view bytes, std::size_t max) {
+  std::string out = "\"";
+  for (std::size_t i = 0; i < bytes.size() && i < max; ++i) {
+    const auto c = static_cast<unsigned char>(bytes[i]);
+    if (c == '\\' || c == '"')
+      out += fmt::format("\\{}", static_cast<char>(c));
+    else if (c >= 0x20 && c < 0x7f)
+      out += static_cast<char>(c);
+    else
+      out += fmt::format("\\x{:02x}", c);
+  }
+  if (bytes.size() > max) out += "...";
+  return fmt::format("{}\" ({} byte{})", out, bytes.size(), bytes.size() == 1 ? "" : "s");
+}
+
+namespace {
+
+bool is_text_byte(char ch) {
+  const auto c = static_cast<unsigned char>(ch);
+  return (c >= 0x20 && c < 0x7f) || c == '\t';
+}
+
+// Printable text, CR/LF allowed only at its end.
+bool is_reply_text(std::string_view s) {
+  while (!s.empty() && (s.back() == '\r' || s.back() == '\n')) s.remove_suffix(1);
+  return std::all_of(s.begin(), s.end(), is_text_byte);
+}
+
+bool all_digits(std::string_view s) {
+  return std::all_of(s.begin(), s.end(), [](char c) { return c >= '0' && c <= '9'; });
+}
+
+}  // namespace
+
+Result<std::optional<FirstReply>> detect_first_reply(std::string_view bytes) {
+  const std::string_view all = bytes;
+  const std::size_t skipped = std::min(bytes.find_first_not_of("\r\n"), bytes.size());
+  bytes.remove_prefix(skipped);
+  const auto none = [&](std::string_view why) -> Error {
+    return Error::Transient(fmt::format(
+        "the first reply fits no known framing (ascii, binary-le, binary-be, line): {}; "
+        "received {}",
+        why, describe_bytes(all)));
+  };
+  const auto done = [&](ReplyFraming framing, uint32_t code, std::size_t header,
+                        std::size_t length) -> std::optional<FirstReply> {
+    return FirstReply{framing, Reply{code, strip_line_end(bytes.substr(header, length))},
+                      skipped + header + length};
+  };
+  if (bytes.empty()) return std::optional<FirstReply>{};
+  const std::size_t head = std::min<std::size_t>(bytes.size(), 8);
+  if (all_digits(bytes.substr(0, head))) {
+    if (bytes.size() < 8) return std::optional<FirstReply>{};
+    const auto code = static_cast<uint32_t>(std::stoul(std::string(bytes.substr(0, 4))));
+    const auto length = static_cast<std::size_t>(std::stoul(std::string(bytes.substr(4, 4))));
+    if (bytes.size() < 8 + length) return std::optional<FirstReply>{};
+    if (!is_reply_text(bytes.substr(8, length))) {
+      return none(fmt::format("an ascii header for {} bytes, but they are not text", length));
+    }
+    return done(ReplyFraming::kAscii, code, 8, length);
+  }
+  if (is_text_byte(bytes.front())) {
+    const std::size_t lf = bytes.find('\n');
+    const std::string_view line = bytes.substr(0, lf);
+    if (!is_reply_text(line)) return none("text that holds non-printable bytes");
+    if (lf == std::string_view::npos) {
+      if (line.size() > kMaxPayloadBytes) {
+        return none(fmt::format("no line end within {} bytes", kMaxPayloadBytes));
+      }
+      return std::optional<FirstReply>{};
+    }
+    return done(ReplyFraming::kLine, 0, 0, lf + 1);
+  }
+  if (bytes.size() < 8) return std::optional<FirstReply>{};
+  for (const bool le : {true, false}) {
+    const uint32_t length = read_u32(bytes.substr(4, 4), le);
+    if (length == 0 || length > kMaxPayloadBytes) continue;
+    if (bytes.size() < 8 + length) return std::optional<FirstReply>{};
+    if (!is_reply_text(bytes.substr(8, length))) continue;
+    return done(le ? ReplyFraming::kBinaryLe : ReplyFraming::kBinaryBe,
+                read_u32(bytes.substr(0, 4), le), 8, length);
+  }
+  return none("a binary header whose length (either byte order) is no text that follows");
+}
+
 std::vector<std::string_view> split_fields(std::string_view payload) {
   std::vector<std::string_view> fields;
   payload = trim(payload);
@@ -236,10 +323,10 @@ ParsedMode parse_mode(std::string_view field) {
 Result<TableInterlock> parse_interlock(std::string_view field) {
   const std::string_view f = trim(field);
   if (iequals(f, "Open")) return TableInterlock::kOpen;
-  if (iequals(f, "Closed")) return TableInterlock::kClosed;
+  if (iequals(f, "Close") || iequals(f, "Closed")) return TableInterlock::kClosed;
   if (iequals(f, "Fault")) return TableInterlock::kFault;
   return Error::Permanent(
-      fmt::format("interlock \"{}\" is none of Open, Closed, Fault", printable(f)));
+      fmt::format("interlock \"{}\" is none of Open, Close (Closed), Fault", printable(f)));
 }
 
 Result<TableState> parse_state(std::string_view payload) {

@@ -39,6 +39,7 @@ AcutrolTable::AcutrolTable(TableConnection connection, std::string name, const W
   if (!framing) {
     config_error_ = Error::Permanent(fmt::format("{}: {}", name_, framing.error().message));
   } else {
+    framing_ = *framing;
     decoder_ = acl::ReplyDecoder(*framing);
   }
   if (connection_.axis < 1) {
@@ -56,6 +57,10 @@ AcutrolTable::AcutrolTable(TableConnection connection, std::string name, const W
 }
 
 AcutrolTable::~AcutrolTable() {
+  // Closing: the operator panel is not left locked out. Only on a live
+  // connection (no reconnecting here); the station releases it earlier, in
+  // the safe state (release_control()).
+  if (fd_ >= 0 && remote_held_ && !config_error_) (void)exchange(acl::release_remote());
   if (fd_ >= 0) ::close(fd_);
 }
 
@@ -70,10 +75,15 @@ Error AcutrolTable::named(const std::string& command, const Error& e) const {
                e.transient};
 }
 
-void AcutrolTable::drop(const std::string& why) {
+void AcutrolTable::close_socket() {
   if (fd_ >= 0) ::close(fd_);
   fd_ = -1;
   decoder_.reset();
+  remote_on_connection_ = false;
+}
+
+void AcutrolTable::drop(const std::string& why) {
+  close_socket();
   link_->on_link_failure(why);
 }
 
@@ -142,59 +152,117 @@ Status AcutrolTable::ensure_connected(bool ignore_backoff) {
   }
   decoder_.reset();
   link_->on_connected();
-  // Remote control (TM-8004 §4.14.2 Utility:Lockout): the controller's front
-  // panel and other interfaces no longer take motion commands.
-  auto r = exchange(acl::take_remote());
-  if (!r) return r.error();
-  return Status::Ok();
+  return first_contact();
 }
 
-Result<acl::Reply> AcutrolTable::roundtrip(const std::string& command) {
-  const auto t0 = Steady::now();
-  const auto deadline = t0 + std::chrono::duration_cast<Steady::duration>(
-                                 std::chrono::duration<double>(connection_.timeout_s));
-  auto lost = [&](const std::string& why) -> Error {
-    Error e = named(command, Error::Transient(why));
-    drop(e.message);
-    return e;
-  };
+std::optional<std::string> AcutrolTable::send_line(const std::string& command,
+                                                   Steady::time_point deadline) {
   const std::string line = acl::command_line(command);
   std::size_t sent = 0;
   while (sent < line.size()) {
     pollfd p{fd_, POLLOUT, 0};
     const int rc = ::poll(&p, 1, remaining_ms(deadline));
-    if (rc == 0) return lost(fmt::format("could not send within {:g} s", connection_.timeout_s));
+    if (rc == 0) return fmt::format("could not send within {:g} s", connection_.timeout_s);
     if (rc < 0 && errno == EINTR) continue;
     const ssize_t n = ::send(fd_, line.data() + sent, line.size() - sent, MSG_NOSIGNAL);
     if (n < 0) {
       if (errno == EAGAIN || errno == EINTR) continue;
-      return lost(fmt::format("send failed: {}", std::strerror(errno)));
+      return fmt::format("send failed: {}", std::strerror(errno));
     }
     sent += static_cast<std::size_t>(n);
   }
+  return std::nullopt;
+}
+
+std::optional<std::string> AcutrolTable::receive(Steady::time_point deadline, std::string& into) {
   char buf[1024];
   for (;;) {
+    pollfd p{fd_, POLLIN, 0};
+    const int rc = ::poll(&p, 1, remaining_ms(deadline));
+    if (rc == 0) {
+      return into.empty() ? fmt::format("no reply within {:g} s", connection_.timeout_s)
+                          : fmt::format("no complete reply within {:g} s; received {}",
+                                        connection_.timeout_s, acl::describe_bytes(into));
+    }
+    if (rc < 0) {
+      if (errno == EINTR) continue;
+      return fmt::format("poll failed: {}", std::strerror(errno));
+    }
+    const ssize_t n = ::recv(fd_, buf, sizeof buf, 0);
+    if (n == 0) return std::string("connection closed by the controller");
+    if (n < 0) {
+      if (errno == EAGAIN || errno == EINTR) continue;
+      return fmt::format("receive failed: {}", std::strerror(errno));
+    }
+    into.append(buf, static_cast<std::size_t>(n));
+    return std::nullopt;
+  }
+}
+
+Status AcutrolTable::first_contact() {
+  const std::string command = acl::identify();
+  const auto t0 = Steady::now();
+  const auto deadline = t0 + std::chrono::duration_cast<Steady::duration>(
+                                 std::chrono::duration<double>(connection_.timeout_s));
+  auto lost = [&](const std::string& why, bool transient = true) -> Error {
+    Error e = named(command, Error{why, transient});
+    drop(e.message);
+    return e;
+  };
+  if (auto failed = send_line(command, deadline)) return lost(*failed);
+  std::string bytes;
+  for (;;) {
+    auto first = acl::detect_first_reply(bytes);
+    if (!first) return lost(first.error().message);
+    if (*first) {
+      const acl::FirstReply& r = **first;
+      if (r.framing != framing_) {
+        return lost(fmt::format("the controller frames its replies {}, not {} as reply_header "
+                                "says: set [table] reply_header = \"{}\" (first reply {})",
+                                acl::to_string(r.framing), acl::to_string(framing_),
+                                acl::to_string(r.framing),
+                                acl::describe_bytes(std::string_view(bytes).substr(0, r.consumed))),
+                    /*transient=*/false);
+      }
+      identity_ = r.reply.code == 0 ? r.reply.payload : std::string();
+      decoder_.feed(std::string_view(bytes).substr(r.consumed));
+      // The handshake does not reset the backoff: a controller that answers
+      // it and then drops every request is retried ever more slowly.
+      link_->on_success(std::chrono::duration<double, std::milli>(Steady::now() - t0).count(),
+                        /*reset_backoff=*/false);
+      return Status::Ok();
+    }
+    if (auto failed = receive(deadline, bytes)) return lost(*failed);
+  }
+}
+
+Result<acl::Reply> AcutrolTable::roundtrip(const std::string& command,
+                                           bool failure_is_link_failure) {
+  const auto t0 = Steady::now();
+  const auto deadline = t0 + std::chrono::duration_cast<Steady::duration>(
+                                 std::chrono::duration<double>(connection_.timeout_s));
+  auto lost = [&](const std::string& why) -> Error {
+    Error e = named(command, Error::Transient(why));
+    if (failure_is_link_failure) {
+      drop(e.message);
+    } else {
+      close_socket();
+      link_->on_closed();
+    }
+    return e;
+  };
+  if (auto failed = send_line(command, deadline)) return lost(*failed);
+  std::string bytes;
+  for (;;) {
+    decoder_.feed(bytes);
+    bytes.clear();
     auto next = decoder_.next();
     if (!next) return lost(next.error().message);
     if (*next) {
-      link_->on_success(std::chrono::duration<double, std::milli>(Steady::now() - t0).count(),
-                        command != acl::take_remote());
+      link_->on_success(std::chrono::duration<double, std::milli>(Steady::now() - t0).count());
       return std::move(**next);
     }
-    pollfd p{fd_, POLLIN, 0};
-    const int rc = ::poll(&p, 1, remaining_ms(deadline));
-    if (rc == 0) return lost(fmt::format("no reply within {:g} s", connection_.timeout_s));
-    if (rc < 0) {
-      if (errno == EINTR) continue;
-      return lost(fmt::format("poll failed: {}", std::strerror(errno)));
-    }
-    const ssize_t n = ::recv(fd_, buf, sizeof buf, 0);
-    if (n == 0) return lost("connection closed by the controller");
-    if (n < 0) {
-      if (errno == EAGAIN || errno == EINTR) continue;
-      return lost(fmt::format("receive failed: {}", std::strerror(errno)));
-    }
-    decoder_.feed(std::string_view(buf, static_cast<std::size_t>(n)));
+    if (auto failed = receive(deadline, bytes)) return lost(*failed);
   }
 }
 
@@ -202,15 +270,33 @@ Result<std::string> AcutrolTable::exchange(const std::string& command) {
   auto reply = roundtrip(command);
   if (!reply) return reply.error();
   if (reply->code == 0) return std::move(reply->payload);
-  // The controller refused: ask once for the text of its code.
-  std::string text;
+  // The controller refused: ask for the text of its code (TM-8004 §4.9.1),
+  // unless that query went unanswered before (field firmware may lack it).
+  // An unanswered query closes the connection (its reply may still come and
+  // would be taken for the next one's), without counting as a link failure:
+  // the next call reconnects at once. Either way the error names the code.
   const std::string query = acl::error_text_query(reply->code);
-  if (auto t = roundtrip(query); t && t->code == 0 && !t->payload.empty()) {
+  std::string text;
+  if (error_text_unanswered_) {
+    text = " (no text: `:Q:E?` went unanswered before)";
+  } else if (auto t = roundtrip(query, /*failure_is_link_failure=*/false); !t) {
+    error_text_unanswered_ = true;
+    std::string_view why = t.error().message;
+    if (const auto at = why.find(fmt::format("`{}`: ", query)); at != std::string_view::npos) {
+      why.remove_prefix(at + query.size() + 4);
+    }
+    text = fmt::format(" (no text: `{}` went unanswered: {})", query, why);
+  } else if (t->code == 0 && !t->payload.empty()) {
     text = fmt::format(" ({})", t->payload);
   }
   Error e = named(command, Error::Permanent(fmt::format("error code {}{}", reply->code, text)));
   link_->on_refusal(e.message);
   return e;
+}
+
+std::string AcutrolTable::identity() const {
+  std::lock_guard lock(mu_);
+  return identity_;
 }
 
 Status AcutrolTable::connect() {
@@ -284,6 +370,26 @@ Status AcutrolTable::servo_on_locked() {
   return Status::Ok();
 }
 
+Status AcutrolTable::take_remote_locked() {
+  if (remote_on_connection_) return Status::Ok();
+  auto r = exchange(acl::take_remote());
+  if (!r) return r.error();
+  remote_on_connection_ = true;
+  remote_held_ = true;
+  return Status::Ok();
+}
+
+Status AcutrolTable::release_control() {
+  std::lock_guard lock(mu_);
+  if (!remote_held_) return Status::Ok();
+  if (auto st = ensure_connected(false); !st) return st;
+  auto r = exchange(acl::release_remote());
+  if (!r) return r.error();
+  remote_held_ = false;
+  remote_on_connection_ = false;
+  return Status::Ok();
+}
+
 Status AcutrolTable::set_rate(double rate_dps) {
   std::lock_guard lock(mu_);
   const std::string command = acl::demand_rate(connection_.axis, rate_dps);
@@ -304,6 +410,7 @@ Status AcutrolTable::set_rate(double rate_dps) {
     return e;
   }
   if (auto st = ensure_connected(false); !st) return st;
+  if (auto st = take_remote_locked(); !st) return st;
   if (auto st = servo_on_locked(); !st) return st;
   return simple_command(command);
 }
@@ -315,6 +422,7 @@ Status AcutrolTable::set_position(double position_deg) {
     return named(command, Error::Permanent(fmt::format("{} is not a position", position_deg)));
   }
   if (auto st = ensure_connected(false); !st) return st;
+  if (auto st = take_remote_locked(); !st) return st;
   if (auto st = servo_on_locked(); !st) return st;
   return simple_command(command);
 }

@@ -2,7 +2,10 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
+#include <cctype>
 #include <charconv>
+#include <cmath>
 
 #include "gyrotherm/drivers/acl.h"
 
@@ -21,10 +24,36 @@ std::string_view trim(std::string_view s) {
 
 std::string command_line(std::string_view mnemonic, std::optional<double> number) {
   if (!number) return fmt::format("{}\r\n", mnemonic);
-  // The same fixed-point form as ACL arguments; RateSweepGUI.py formats JOG
-  // and MOV with %d, so whether decimals are taken is to be checked
-  // (docs/table.md).
   return fmt::format("{}{}\r\n", mnemonic, acl::format_number(*number));
+}
+
+Result<int64_t> whole_argument(std::string_view mnemonic, double value, std::string_view unit) {
+  constexpr double kLargest = 1e9;  // beyond any rate or angle a table takes
+  const double whole = std::round(value);
+  if (!std::isfinite(value) || std::fabs(value) > kLargest) {
+    return Error::Permanent(
+        fmt::format("{} {} is not a number {} can send", value, unit, mnemonic));
+  }
+  if (std::fabs(value - whole) > 1e-9) {
+    return Error::Permanent(
+        fmt::format("{:g} {} is not a whole number, and {} takes whole numbers (the public driver "
+                    "RateSweepGUI.py sends '{}%d')",
+                    value, unit, mnemonic, mnemonic));
+  }
+  return static_cast<int64_t>(whole);
+}
+
+std::string_view strip_echo(std::string_view reply, std::string_view command) {
+  const auto end = reply.find('\n');
+  const std::string_view first = trim(reply.substr(0, end));
+  const std::string_view c = trim(command);
+  const bool same = first.size() == c.size() &&
+                    std::equal(first.begin(), first.end(), c.begin(), [](char a, char b) {
+                      return std::toupper(static_cast<unsigned char>(a)) ==
+                             std::toupper(static_cast<unsigned char>(b));
+                    });
+  if (!same) return reply;
+  return end == std::string_view::npos ? std::string_view() : reply.substr(end + 1);
 }
 
 Result<std::optional<std::string>> ReplyDecoder::next() {

@@ -120,8 +120,9 @@ Result<std::string> AeroTable::request(const std::string& mnemonic, std::optiona
       return e;
     }
     pending_.reset();
-    if (aero::is_refusal(**late)) {
-      Error e = named(earlier, Error::Permanent(fmt::format("refused: \"{}\"", **late)));
+    const std::string_view late_text = aero::strip_echo(**late, earlier);
+    if (aero::is_refusal(late_text)) {
+      Error e = named(earlier, Error::Permanent(fmt::format("refused: \"{}\"", late_text)));
       link_->on_refusal(e.message);
       return e;
     }
@@ -145,13 +146,14 @@ Result<std::string> AeroTable::request(const std::string& mnemonic, std::optiona
     drop(e.message);
     return e;
   }
-  if (aero::is_refusal(**reply)) {
-    Error e = named(command, Error::Permanent(fmt::format("refused: \"{}\"", **reply)));
+  const std::string text(aero::strip_echo(**reply, command));
+  if (aero::is_refusal(text)) {
+    Error e = named(command, Error::Permanent(fmt::format("refused: \"{}\"", text)));
     link_->on_refusal(e.message);
     return e;
   }
   link_->on_success(std::chrono::duration<double, std::milli>(Steady::now() - t0).count());
-  return std::move(**reply);
+  return text;
 }
 
 Result<TableState> AeroTable::read() {
@@ -208,7 +210,13 @@ Status AeroTable::set_rate(double rate_dps) {
     link_->on_local_error(e.message);
     return e;
   }
-  auto r = request("JOG", rate_dps, /*late_ok=*/true);
+  auto whole = aero::whole_argument("JOG", rate_dps, "°/s");
+  if (!whole) {
+    Error e = named(command, Error::Permanent("refused, not sent: " + whole.error().message));
+    link_->on_local_error(e.message);
+    return e;
+  }
+  auto r = request("JOG", static_cast<double>(*whole), /*late_ok=*/true);
   if (!r) return r.error();
   last_mode_ = TableMode::kRate;
   return Status::Ok();
@@ -216,11 +224,17 @@ Status AeroTable::set_rate(double rate_dps) {
 
 Status AeroTable::set_position(double position_deg) {
   std::lock_guard lock(mu_);
+  const std::string command = command_text("MOV", position_deg);
   if (!std::isfinite(position_deg)) {
-    return named(command_text("MOV", position_deg),
-                 Error::Permanent(fmt::format("{} is not a position", position_deg)));
+    return named(command, Error::Permanent(fmt::format("{} is not a position", position_deg)));
   }
-  auto r = request("MOV", position_deg);
+  auto whole = aero::whole_argument("MOV", position_deg, "°");
+  if (!whole) {
+    Error e = named(command, Error::Permanent("refused, not sent: " + whole.error().message));
+    link_->on_local_error(e.message);
+    return e;
+  }
+  auto r = request("MOV", static_cast<double>(*whole));
   if (!r) return r.error();
   last_mode_ = TableMode::kPosition;
   return Status::Ok();

@@ -94,19 +94,9 @@ void Kvh1750Parser::feed(std::span<const uint8_t> bytes, std::vector<GyroFrame>&
       ++pos;
       continue;
     }
-    GyroFrame f = decode_frame(frame);
-    const int seq = f.seq % kKvh1750SeqModulo;
-    if (last_seq_ >= 0) {
-      const int expected = (last_seq_ + 1) % kKvh1750SeqModulo;
-      if (seq != expected) {
-        ++counters_.sequence_gaps;
-        counters_.frames_missed +=
-            static_cast<uint64_t>((seq - expected + kKvh1750SeqModulo) % kKvh1750SeqModulo);
-      }
-    }
-    last_seq_ = seq;
-    ++counters_.frames_ok;
-    out.push_back(f);
+    const GyroFrame f = decode_frame(frame);
+    guard_.push(
+        f, f.seq % kKvh1750SeqModulo, kKvh1750FrameSize, [] { return "frame"; }, out, counters_);
     pos += kKvh1750FrameSize;
   }
   // Whatever remains is shorter than a frame and starts with (a prefix of) the
@@ -118,7 +108,7 @@ void Kvh1750Parser::feed(std::span<const uint8_t> bytes, std::vector<GyroFrame>&
 void Kvh1750Parser::reset() {
   counters_.bytes_skipped += buf_.size();  // a partial frame is discarded too
   buf_.clear();
-  last_seq_ = -1;
+  guard_.reset(counters_);
 }
 
 Result<std::unique_ptr<FrameParser>> make_frame_parser(std::string_view protocol) {

@@ -139,6 +139,7 @@ AsciiLineProtocol::AsciiLineProtocol(AsciiLineOptions options, std::vector<Chann
     : options_(std::move(options)), channels_(std::move(channels)) {
   if (options_.seq_column) {
     seq_modulo_ = options_.seq_modulo != 0 ? options_.seq_modulo : kCounter32Modulo;
+    guard_.emplace(seq_modulo_);
   }
   // Channels are the columns in order minus "-" and the sequence column
   // (dut_channels()), so the n-th such column fills channel n.
@@ -278,15 +279,10 @@ void AsciiLineProtocol::line_done(std::vector<DutFrame>& out) {
   for (const auto& [ch, mask] : valid_checks_) {
     if ((status & mask) != mask) frame.raw[ch] = kNaN;
   }
-  if (seq_modulo_ != 0) {
-    if (last_seq_ >= 0) {
-      const uint64_t expected = (static_cast<uint64_t>(last_seq_) + 1) % seq_modulo_;
-      if (frame.seq != expected) {
-        ++counters_.sequence_gaps;
-        counters_.frames_missed += (frame.seq + seq_modulo_ - expected) % seq_modulo_;
-      }
-    }
-    last_seq_ = frame.seq;
+  if (guard_) {
+    guard_->push(
+        frame, frame.seq, n, [&] { return "line " + quoted(line); }, out, counters_);
+    return;
   }
   ++counters_.frames_ok;
   out.push_back(frame);
@@ -296,7 +292,7 @@ void AsciiLineProtocol::reset() {
   counters_.bytes_skipped += line_.size();  // a partial line is discarded too
   line_.clear();
   overlong_ = false;
-  last_seq_ = -1;
+  if (guard_) guard_->reset(counters_);
 }
 
 // ------------------------------------------------------------ factory

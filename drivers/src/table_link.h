@@ -48,6 +48,9 @@ class TableLink {
     next_attempt_s_ = clock_.monotonic_s() + backoff_s_;
     backoff_s_ = std::min(backoff_s_ * 2, kMaxBackoffS);
   }
+  // The connection was closed on purpose (to resynchronise after a reply
+  // that may still come): not a failure, the next call reconnects at once.
+  void on_closed() { health_.connected = false; }
   // The controller answered, with a refusal: the link is fine.
   void on_refusal(const std::string& message) {
     ++health_.requests;

@@ -311,7 +311,20 @@ class ScheduleReader {
                                rate_dps, limits_.table->max_rate_dps));
       return false;
     }
+    if (const std::string why = not_whole(rate_dps, "°/s"); !why.empty()) {
+      t.error(key, why);
+      return false;
+    }
     return true;
+  }
+
+  // "" or why the station's table cannot be sent `value` (Table::whole_numbers).
+  std::string not_whole(double value, std::string_view unit) const {
+    if (!limits_.table || !limits_.table->whole_numbers || value == std::round(value)) return {};
+    return fmt::format(
+        "{:g} {} is not a whole number, and the station's table takes whole {} only ([table] "
+        "profile \"aero\": JOG and MOV send whole numbers, docs/table.md)",
+        value, unit, unit);
   }
 
   // `table = { mode = "static", position_deg = P }` or
@@ -330,7 +343,12 @@ class ScheduleReader {
         tt.error("rate_dps", "only mode = \"rate\" takes it (a static table does not turn)");
       }
       out.mode = TableDemandMode::kStatic;
-      if (position.value) out.position_deg = normalise_deg(*position.value);
+      if (position.value) {
+        if (const std::string why = not_whole(*position.value, "°"); !why.empty()) {
+          tt.error("position_deg", why);
+        }
+        out.position_deg = normalise_deg(*position.value);
+      }
     } else if (mode == "rate") {
       if (position.present) {
         tt.error("position_deg",
@@ -445,6 +463,8 @@ class ScheduleReader {
               fmt::format("{:g} °/s is faster than the station's max table rate {:g} °/s ([table] "
                           "max_rate_dps)",
                           *v, limits_.table->max_rate_dps));
+        } else if (const std::string why = not_whole(*v, "°/s"); !why.empty()) {
+          report(why);
         } else if (std::any_of(rates.begin(), rates.end(),
                                [&](const Rate& r) { return r.dps == *v; })) {
           report(fmt::format("{:g} °/s is listed twice", *v));

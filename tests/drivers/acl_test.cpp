@@ -169,6 +169,19 @@ TEST(AclValues, ModesShortLongAndUnknown) {
   EXPECT_EQ(synth.text, "Synthesis");
 }
 
+// TM-8004 §4.5.3: the interlock state is `{Close|Open|Fault}`; field
+// firmware answers `Closed`. Both are a closed (servoed) interlock.
+TEST(AclValues, TheManualsCloseAndTheFieldsClosed) {
+  EXPECT_EQ(*parse_interlock("Close"), TableInterlock::kClosed);
+  EXPECT_EQ(*parse_interlock(" close\r\n"), TableInterlock::kClosed);
+  EXPECT_EQ(*parse_interlock("Closed"), TableInterlock::kClosed);
+  auto s = parse_state("R;Close;10;0");
+  ASSERT_TRUE(s.ok()) << s.error().message;
+  EXPECT_EQ(s->interlock, TableInterlock::kClosed);
+  EXPECT_FALSE(parse_interlock("Clos").ok());
+  EXPECT_FALSE(parse_interlock("Closes").ok());
+}
+
 // acutrol3000.py: `if inst.query(":interlock? 1") == "Fault\n"`.
 TEST(AclValues, InterlockWords) {
   EXPECT_EQ(*parse_interlock("Fault\n"), TableInterlock::kFault);
@@ -293,6 +306,74 @@ TEST(AclFraming, IncompleteFramesWait) {
   r = d.next();
   ASSERT_TRUE(r.ok() && *r);
   EXPECT_EQ((*r)->payload, "1500.0");
+}
+
+// The first reply of a connection (to *IDN?, TM-8004 §3.4's example
+// answer) in each framing, whole and growing byte by byte: undecided
+// (nullopt) until complete, then the framing, the payload and the bytes it
+// took; what follows it is left for the decoder.
+TEST(AclFirstReply, EachFramingIsRecognised) {
+  const std::string idn = "Acutronic R&D USA,Acutrol3000,0,A8800-001-01.000-a";
+  struct Case {
+    ReplyFraming framing;
+    std::string bytes;
+  };
+  const std::vector<Case> cases{
+      {ReplyFraming::kAscii, ascii_frame(0, idn)},
+      {ReplyFraming::kAscii, ascii_frame(0, idn + "\r\n")},  // CR LF counted
+      {ReplyFraming::kBinaryLe, binary_frame(0, idn, true)},
+      {ReplyFraming::kBinaryBe, binary_frame(0, idn, false)},
+      {ReplyFraming::kLine, idn + "\r\n"},
+      {ReplyFraming::kLine, idn + "\n"},
+  };
+  const std::string next = ascii_frame(0, "OK");
+  for (const Case& c : cases) {
+    const std::string where = std::string(to_string(c.framing)) + " " + describe_bytes(c.bytes);
+    for (std::size_t n = 0; n < c.bytes.size(); ++n) {
+      auto partial = detect_first_reply(std::string_view(c.bytes).substr(0, n));
+      ASSERT_TRUE(partial.ok()) << where << " at " << n << ": " << partial.error().message;
+      if (c.framing != ReplyFraming::kLine || n < idn.size()) {
+        EXPECT_FALSE(partial->has_value()) << where << " decided at " << n;
+      }
+    }
+    auto r = detect_first_reply(c.bytes + next);
+    ASSERT_TRUE(r.ok()) << where << ": " << r.error().message;
+    ASSERT_TRUE(r->has_value()) << where;
+    EXPECT_EQ((*r)->framing, c.framing) << where;
+    EXPECT_EQ((*r)->reply.code, 0u) << where;
+    EXPECT_EQ((*r)->reply.payload, idn) << where;
+    EXPECT_EQ((*r)->consumed, c.bytes.size()) << where;
+  }
+  // A CR LF left over before the reply is skipped.
+  auto r = detect_first_reply("\r\n" + ascii_frame(0, idn));
+  ASSERT_TRUE(r.ok() && r->has_value());
+  EXPECT_EQ((*r)->framing, ReplyFraming::kAscii);
+  EXPECT_EQ((*r)->consumed, 2 + 8 + idn.size());
+}
+
+// Bytes that fit no framing are refused, named byte by byte: printable ones
+// as they are, the others escaped.
+TEST(AclFirstReply, AnUnknownFramingNamesWhatWasReceived) {
+  // A 16-bit byte-swapped error word and a 16-bit length, say: no framing
+  // we know.
+  const std::string odd = std::string("\x00\x00\x05\x00", 4) + "ACUTR";
+  auto r = detect_first_reply(odd + std::string("\xff\xfe\x01\x02", 4));
+  ASSERT_FALSE(r.ok());
+  const std::string& m = r.error().message;
+  EXPECT_NE(m.find("fits no known framing"), std::string::npos) << m;
+  EXPECT_NE(m.find(R"("\x00\x00\x05\x00ACUTR\xff\xfe\x01\x02" (13 bytes))"), std::string::npos)
+      << m;
+  // Text with a control byte in it, before any line end.
+  auto t = detect_first_reply(std::string("Acu\x07trol\n"));
+  ASSERT_FALSE(t.ok());
+  EXPECT_NE(t.error().message.find(R"("Acu\x07trol\x0a" (9 bytes))"), std::string::npos)
+      << t.error().message;
+  // An ASCII header whose payload is not text.
+  auto a = detect_first_reply(std::string("00000003\x01\x02\x03", 11));
+  ASSERT_FALSE(a.ok());
+  EXPECT_NE(a.error().message.find("\\x01\\x02\\x03"), std::string::npos) << a.error().message;
+  EXPECT_EQ(describe_bytes(std::string(70, 'x'), 4), R"("xxxx..." (70 bytes))");
+  EXPECT_EQ(describe_bytes("a\"b\\"), R"("a\"b\\" (4 bytes))");
 }
 
 TEST(AclFraming, FramingNames) {

@@ -76,11 +76,11 @@ class FakeController {
     std::lock_guard lock(mu_);
     return commands_;
   }
-  // Commands after the connection handshakes (`:U:L ON`).
+  // Commands after the connections' first contact (`*IDN?`).
   std::vector<std::string> commands_after_handshake() const {
     std::vector<std::string> out;
     for (const auto& c : commands())
-      if (c != ":U:L ON") out.push_back(c);
+      if (c != "*IDN?") out.push_back(c);
     return out;
   }
 
@@ -162,7 +162,7 @@ TableConnection connection_to(const FakeController& fake, double timeout_s = 1.0
   return c;
 }
 
-TEST(AcutrolTable, ReadIsOneChainedExchangeAfterTakingRemoteControl) {
+TEST(AcutrolTable, ReadIsOneChainedExchangeAfterIdentifying) {
   std::string interlock = "Closed";
   FakeController fake([&](const std::string& c) { return healthy(c, &interlock); });
   AcutrolTable table(connection_to(fake), "turntable");
@@ -173,7 +173,8 @@ TEST(AcutrolTable, ReadIsOneChainedExchangeAfterTakingRemoteControl) {
   EXPECT_EQ(s->interlock, TableInterlock::kClosed);
   EXPECT_DOUBLE_EQ(s->rate_dps, 10.0001);
   EXPECT_DOUBLE_EQ(s->position_deg, 123.4);
-  const std::vector<std::string> expected = {":U:L ON", ":M? 1;:I? 1;:R:R? 1;:R:P? 1"};
+  // No remote lockout for reading (`:U:L ON` comes with the first motion).
+  const std::vector<std::string> expected = {"*IDN?", ":M? 1;:I? 1;:R:R? 1;:R:P? 1"};
   EXPECT_EQ(fake.commands(), expected);
   const auto h = table.health();
   EXPECT_TRUE(h.connected);
@@ -188,15 +189,16 @@ TEST(AcutrolTable, SetRateClosesTheInterlockFirstThenDemandsTheRate) {
   AcutrolTable table(connection_to(fake));
   const Status st = table.set_rate(-10.5);
   ASSERT_TRUE(st.ok()) << st.error().message;
-  const std::vector<std::string> expected = {":L:R? R,1;:L:A? R,1;:L:V? R,1", ":I? 1", ":I:C 1",
-                                             ":D:R 1,-10.5;:M:R 1"};
+  const std::vector<std::string> expected = {":L:R? R,1;:L:A? R,1;:L:V? R,1", ":U:L ON", ":I? 1",
+                                             ":I:C 1", ":D:R 1,-10.5;:M:R 1"};
   EXPECT_EQ(fake.commands_after_handshake(), expected);
-  // Interlock now closed, limits cached: only the query and the demand.
+  // Remote held, interlock now closed, limits cached: only the query and
+  // the demand.
   ASSERT_TRUE(table.set_rate(20).ok());
   const auto all = fake.commands_after_handshake();
-  ASSERT_EQ(all.size(), 6u);
-  EXPECT_EQ(all[4], ":I? 1");
-  EXPECT_EQ(all[5], ":D:R 1,20;:M:R 1");
+  ASSERT_EQ(all.size(), 7u);
+  EXPECT_EQ(all[5], ":I? 1");
+  EXPECT_EQ(all[6], ":D:R 1,20;:M:R 1");
 }
 
 TEST(AcutrolTable, RefusesARateBeyondTheLimitsBeforeSending) {
@@ -225,8 +227,8 @@ TEST(AcutrolTable, PositionStopServoOffResetSendTheirCommands) {
   ASSERT_TRUE(table.stop().ok());
   ASSERT_TRUE(table.servo_off().ok());
   ASSERT_TRUE(table.reset_faults().ok());
-  const std::vector<std::string> expected = {":I? 1", ":D:P 1,90.25;:M:P 1", ":M:O 1", ":I:O 1",
-                                             ":I:R"};
+  const std::vector<std::string> expected = {":U:L ON", ":I? 1",  ":D:P 1,90.25;:M:P 1",
+                                             ":M:O 1",  ":I:O 1", ":I:R"};
   EXPECT_EQ(fake.commands_after_handshake(), expected);
 }
 

@@ -10,6 +10,7 @@
 
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <functional>
 #include <mutex>
 #include <optional>
@@ -47,7 +48,34 @@ TEST(AeroCodec, CommandLinesAsRateSweepGuiSendsThem) {
   EXPECT_EQ(aero::command_line("MOV", 90), "MOV90\r\n");
   EXPECT_EQ(aero::command_line("PPO"), "PPO\r\n");
   EXPECT_EQ(aero::command_line("STA"), "STA\r\n");
-  EXPECT_EQ(aero::command_line("JOG", 12.5), "JOG12.5\r\n");  // decimals: to check on hardware
+}
+
+// RateSweepGUI.py sends JOG, MOV (and RMO, VEL, ACL) with %d, HOF, AMP, FRQ
+// with %f: JOG and MOV get whole numbers, anything else is refused, named.
+TEST(AeroCodec, JogAndMovTakeWholeNumbersOnly) {
+  EXPECT_EQ(*aero::whole_argument("JOG", -100.0, "°/s"), -100);
+  EXPECT_EQ(*aero::whole_argument("JOG", 6.9999999999, "°/s"), 7);  // rounding noise
+  EXPECT_EQ(*aero::whole_argument("MOV", 359.0, "°"), 359);
+  auto half = aero::whole_argument("JOG", 7.5, "°/s");
+  ASSERT_FALSE(half.ok());
+  EXPECT_FALSE(half.error().transient);
+  EXPECT_NE(half.error().message.find("7.5 °/s is not a whole number"), std::string::npos)
+      << half.error().message;
+  EXPECT_NE(half.error().message.find("'JOG%d'"), std::string::npos) << half.error().message;
+  EXPECT_FALSE(aero::whole_argument("MOV", 0.001, "°").ok());
+  EXPECT_FALSE(aero::whole_argument("JOG", std::nan(""), "°/s").ok());
+  EXPECT_FALSE(aero::whole_argument("JOG", 1e12, "°/s").ok());
+}
+
+// A controller that echoes its input: the echoed command line, first in
+// the reply, is dropped; any other first line is the answer.
+TEST(AeroCodec, AnEchoIsStripped) {
+  EXPECT_EQ(aero::strip_echo("PVE\n-10.25", "PVE"), "-10.25");
+  EXPECT_EQ(aero::strip_echo("jog12", "JOG12"), "");
+  EXPECT_EQ(aero::strip_echo("MOV90\n?", "MOV90"), "?");
+  EXPECT_EQ(aero::strip_echo("-10.25", "PVE"), "-10.25");
+  EXPECT_EQ(aero::strip_echo("PPO\n1", "PVE"), "PPO\n1");
+  EXPECT_EQ(aero::strip_echo("", "STO"), "");
 }
 
 TEST(AeroCodec, ReplyThenPromptWholeAndSplit) {

@@ -78,6 +78,7 @@ void expect_same_counters(const ParserCounters& a, const ParserCounters& b,
   EXPECT_EQ(a.bytes_skipped, b.bytes_skipped) << where;
   EXPECT_EQ(a.sequence_gaps, b.sequence_gaps) << where;
   EXPECT_EQ(a.frames_missed, b.frames_missed) << where;
+  EXPECT_EQ(a.sequence_rejects, b.sequence_rejects) << where;
   EXPECT_EQ(a.last_reject, b.last_reject) << where;
 }
 
@@ -88,8 +89,9 @@ TEST(AsciiLine, NmeaLinesWithValidBitsAndHexStatus) {
   const auto f = feed(*p,
                       "$GYR,0,0.01,9.80665,25.5,4*4D\r\n"
                       "$GYR,1,-0.02,9.8,26,0x0*33\n"
-                      "$GYR,3,1e-3,-9.80665,27,0x07*54\r");
-  ASSERT_EQ(f.size(), 3u);
+                      "$GYR,3,1e-3,-9.80665,27,0x07*54\r"
+                      "$GYR,4,1e-3,-9.80665,27,0x07*53\r");  // confirms the jump to 3
+  ASSERT_EQ(f.size(), 4u);
   // Raw values as sent: deg/s and m/s^2 (channels' scales make deg/h and g).
   EXPECT_EQ(f[0].seq, 0u);
   EXPECT_EQ(f[0].raw[0], 0.01);
@@ -103,7 +105,7 @@ TEST(AsciiLine, NmeaLinesWithValidBitsAndHexStatus) {
   EXPECT_EQ(f[2].raw[0], 1e-3);
   EXPECT_EQ(f[2].raw[3], 7.0);
   const ParserCounters& c = p->counters();
-  EXPECT_EQ(c.frames_ok, 3u);
+  EXPECT_EQ(c.frames_ok, 4u);
   EXPECT_EQ(c.sequence_gaps, 1u);  // 1 -> 3
   EXPECT_EQ(c.frames_missed, 1u);
   EXPECT_EQ(c.crc_failures, 0u);
@@ -176,9 +178,10 @@ TEST(AsciiLine, MalformedLinesAreCountedWithTheirReason) {
   }
   EXPECT_EQ(p->counters().frames_ok, 0u);
   EXPECT_EQ(p->counters().crc_failures, 0u);
-  // Blanks around fields, a '+' sign, and non-finite numbers (NaN) are fine.
-  const auto f = feed(*p, "$GYR, 7 ,+1.5,\tnan, inf ,0x04\n\n\r\n");
-  ASSERT_EQ(f.size(), 1u);
+  // Blanks around fields, a '+' sign, and non-finite numbers (NaN) are fine
+  // (8 confirms 7, the stream's first).
+  const auto f = feed(*p, "$GYR, 7 ,+1.5,\tnan, inf ,0x04\n\n\r\n$GYR,8,1,2,3,4\n");
+  ASSERT_EQ(f.size(), 2u);
   EXPECT_EQ(f[0].seq, 7u);
   EXPECT_EQ(f[0].raw[0], 1.5);
   EXPECT_TRUE(std::isnan(f[0].raw[1]));
@@ -223,11 +226,11 @@ TEST(AsciiLine, CounterWrapsAtItsModuloOrAt2To32) {
   o.seq_modulo = 256;
   auto p = make(o);
   ASSERT_TRUE(p);
-  EXPECT_EQ(feed(*p, "254,1\n255,1\n0,1\n3,1\n").size(), 4u);
+  EXPECT_EQ(feed(*p, "254,1\n255,1\n0,1\n3,1\n4,1\n").size(), 5u);
   EXPECT_EQ(p->counters().sequence_gaps, 1u);
   EXPECT_EQ(p->counters().frames_missed, 2u);  // 1 and 2
   p->reset();                                  // a new stream: its first counter is no gap
-  EXPECT_EQ(feed(*p, "100,1\n").size(), 1u);
+  EXPECT_EQ(feed(*p, "100,1\n101,1\n").size(), 2u);
   EXPECT_EQ(p->counters().sequence_gaps, 1u);
 
   o.seq_modulo = 0;  // a 32-bit counter
@@ -239,6 +242,109 @@ TEST(AsciiLine, CounterWrapsAtItsModuloOrAt2To32) {
   EXPECT_EQ(f[0].seq, 4294967295u);
   EXPECT_EQ(q->counters().sequence_gaps, 0u);
   EXPECT_NE(q->counters().last_reject.find("not a counter"), std::string::npos);
+}
+
+// A line that passes the 8-bit NMEA checksum by chance (1 in 256) but whose
+// counter contradicts both neighbours is dropped: neither its value (0.5
+// deg/s, 1800 deg/h) is emitted nor its jump counted as missed frames (the
+// repeated counter 1 read as 65535 lost frames before). Checksums by Python.
+TEST(AsciiLine, AForgedLineBetweenGoodOnesIsDroppedNotCountedAsMissed) {
+  AsciiLineOptions o = gyr("nmea");
+  o.seq_modulo = 65536;
+  auto p = make(o);
+  ASSERT_TRUE(p);
+  const std::string forged_repeat = "$GYR,1,0.5,9.8,25,4*66";
+  const std::string forged_wild = "$GYR,40000,0.5,9.8,25,4*63";
+  const auto f = feed(*p,
+                      "$GYR,65534,0.001,9.8,25,4*62\r\n"
+                      "$GYR,65535,0.001,9.8,25,4*63\r\n"
+                      "$GYR,0,0.001,9.8,25,4*63\r\n"
+                      "$GYR,1,0.001,9.8,25,4*62\r\n" +
+                          forged_repeat + "\r\n" + "$GYR,2,0.001,9.8,25,4*61\r\n" + forged_wild +
+                          "\r\n" + "$GYR,3,0.001,9.8,25,4*60\r\n");
+  ASSERT_EQ(f.size(), 6u) << p->counters().last_reject;
+  const std::vector<uint64_t> seqs{65534, 65535, 0, 1, 2, 3};
+  for (std::size_t i = 0; i < f.size(); ++i) {
+    EXPECT_EQ(f[i].seq, seqs[i]) << i;
+    EXPECT_EQ(f[i].raw[0], 0.001) << i;
+  }
+  const ParserCounters& c = p->counters();
+  EXPECT_EQ(c.frames_ok, 6u);
+  EXPECT_EQ(c.sequence_rejects, 2u);
+  EXPECT_EQ(c.sequence_gaps, 0u);
+  EXPECT_EQ(c.frames_missed, 0u);
+  EXPECT_EQ(c.crc_failures, 0u);
+  EXPECT_EQ(c.bytes_skipped, forged_repeat.size() + forged_wild.size());
+  EXPECT_NE(c.last_reject.find(forged_wild), std::string::npos) << c.last_reject;
+  EXPECT_NE(c.last_reject.find("counter 40000 jumps from 2"), std::string::npos) << c.last_reject;
+}
+
+// A real loss: the line after the jump continues from it, so the jump is
+// taken and the skipped counters are counted missed. The jumping line waits
+// for that confirmation; two jumps in a row confirm each other in order.
+TEST(AsciiLine, AJumpConfirmedByTheNextLineCountsTheFramesBetweenAsMissed) {
+  AsciiLineOptions o = gyr("nmea");
+  auto p = make(o);
+  ASSERT_TRUE(p);
+  auto f = feed(*p,
+                "$GYR,1,0.001,9.8,25,4*62\n"
+                "$GYR,2,0.001,9.8,25,4*61\n"
+                "$GYR,9,0.001,9.8,25,4*6A\n");
+  ASSERT_EQ(f.size(), 2u);  // 9 waits for the next line
+  EXPECT_EQ(p->counters().frames_missed, 0u);
+  f = feed(*p, "$GYR,10,0.001,9.8,25,4*52\n");
+  ASSERT_EQ(f.size(), 2u);
+  EXPECT_EQ(f[0].seq, 9u);
+  EXPECT_EQ(f[1].seq, 10u);
+  EXPECT_EQ(p->counters().sequence_gaps, 1u);
+  EXPECT_EQ(p->counters().frames_missed, 6u);  // 3..8
+
+  // 10 -> 15 -> 16 after a gap confirmed by 15 itself: 11..14 lost.
+  f = feed(*p,
+           "$GYR,15,0.001,9.8,25,4*57\n"
+           "$GYR,16,0.001,9.8,25,4*54\n");
+  ASSERT_EQ(f.size(), 2u);
+  EXPECT_EQ(p->counters().sequence_gaps, 2u);
+  EXPECT_EQ(p->counters().frames_missed, 6u + 4u);
+
+  // Two jumps in a row (2 -> 9 -> 15, then 16): both real, in order.
+  auto q = make(o);
+  ASSERT_TRUE(q);
+  f = feed(*q,
+           "$GYR,1,0.001,9.8,25,4*62\n"
+           "$GYR,2,0.001,9.8,25,4*61\n"
+           "$GYR,9,0.001,9.8,25,4*6A\n"
+           "$GYR,15,0.001,9.8,25,4*57\n"
+           "$GYR,16,0.001,9.8,25,4*54\n");
+  ASSERT_EQ(f.size(), 5u);
+  EXPECT_EQ(q->counters().sequence_gaps, 2u);
+  EXPECT_EQ(q->counters().frames_missed, 6u + 5u);
+  EXPECT_EQ(q->counters().sequence_rejects, 0u);
+}
+
+// A jump still waiting for its confirmation when the port is reopened was
+// never confirmed: dropped, and the new stream's first line anchors anew.
+TEST(AsciiLine, AnUnconfirmedJumpIsDroppedAtReopen) {
+  auto p = make(gyr("nmea"));
+  ASSERT_TRUE(p);
+  EXPECT_EQ(feed(*p,
+                 "$GYR,1,0.001,9.8,25,4*62\n"
+                 "$GYR,2,0.001,9.8,25,4*61\n"
+                 "$GYR,9,0.001,9.8,25,4*6A\n")
+                .size(),
+            2u);
+  p->reset();
+  const ParserCounters& c = p->counters();
+  EXPECT_EQ(c.sequence_rejects, 1u);
+  EXPECT_EQ(c.frames_missed, 0u);
+  EXPECT_NE(c.last_reject.find("reopened"), std::string::npos) << c.last_reject;
+  EXPECT_EQ(c.bytes_skipped, std::string("$GYR,9,0.001,9.8,25,4*6A").size());
+  EXPECT_EQ(feed(*p,
+                 "$GYR,15,0.001,9.8,25,4*57\n"
+                 "$GYR,16,0.001,9.8,25,4*54\n")
+                .size(),
+            2u);
+  EXPECT_EQ(c.sequence_gaps, 0u);
 }
 
 // The same stream, with every line end (CR, LF, CRLF), garbage, bad
@@ -253,15 +359,16 @@ TEST(AsciiLine, SplitAtEveryByteBoundaryGivesTheSameResult) {
       "$GYR,1,-0.02,9.8,26,0x0*34\r"  // bad checksum
       "$GYR,3,1e-3,-9.80665,27,0x07*54\r\n"
       "$GYR,3,1e-3,";
-  stream += std::string(5000, 'A');                           // too long: dropped to its end
-  stream += "\n$GYR,0,0.01,9.80665,25.5,4*4D\n$GYR,1,-0.02";  // partial tail
+  stream += std::string(5000, 'A');  // too long: dropped to its end
+  stream += "\n$GYR,0,0.01,9.80665,25.5,4*4D\n$GYR,1,-0.02,9.8,26,0x0*33\n";
+  stream += "$GYR,1,-0.02";  // partial tail
 
   auto whole = make(o);
   ASSERT_TRUE(whole);
   const auto expected = feed(*whole, stream);
-  ASSERT_EQ(expected.size(), 4u);
+  ASSERT_EQ(expected.size(), 5u);
   const ParserCounters& c = whole->counters();
-  EXPECT_EQ(c.frames_ok, 4u);
+  EXPECT_EQ(c.frames_ok, 5u);
   EXPECT_EQ(c.crc_failures, 1u);
   EXPECT_EQ(c.sequence_gaps, 2u);  // 1 -> 3, 3 -> 0
   // garbage (10) + bad line (26) + the long line (12 + 5000)
@@ -381,8 +488,11 @@ TEST(AsciiLine, TheDocumentedExampleParses) {
   o.valid_bits = {{"x", 1}, {"y", 2}};
   auto p = make(o, 200.0);
   ASSERT_TRUE(p);
-  const auto f = feed(*p, "$GYR,17,0.00421,-0.0012,9.80712,24.75,0x07*5498\r\n");
-  ASSERT_EQ(f.size(), 1u) << p->counters().last_reject;
+  // The next line (18, CRC by Python: D076) confirms the stream's first.
+  const auto f = feed(*p,
+                      "$GYR,17,0.00421,-0.0012,9.80712,24.75,0x07*5498\r\n"
+                      "$GYR,18,0.00421,-0.0012,9.80712,24.75,0x07*D076\r\n");
+  ASSERT_EQ(f.size(), 2u) << p->counters().last_reject;
   EXPECT_EQ(f[0].seq, 17u);
   EXPECT_EQ(f[0].raw[0], 0.00421);
   EXPECT_EQ(f[0].raw[1], -0.0012);

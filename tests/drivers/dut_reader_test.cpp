@@ -152,19 +152,20 @@ TEST(DutReader, AsciiLinesWithACounter) {
   dut.start(got.sink());
   ASSERT_TRUE(wait_for([&] { return dut.health().connected; }));
 
-  // Counter 97..99, 0 (wrap), then 3 (1, 2 lost); status 0 on the last: NaN.
+  // Counter 97..99, 0 (wrap), then 3 (1, 2 lost; 4 confirms it); status 0
+  // on 3: NaN.
   std::string text;
-  const std::vector<uint32_t> seqs{97, 98, 99, 0, 3};
+  const std::vector<uint32_t> seqs{97, 98, 99, 0, 3, 4};
   for (uint32_t s : seqs) {
     const std::vector<double> v{0.5 + s, s == 3 ? 0.0 : 1.0};
     text += encode_ascii_line(o, v, s);
   }
-  text += "$GYR,4,1,1*0000\r\n";  // bad CRC
+  text += "$GYR,5,1,1*0000\r\n";  // bad CRC
   send(pty, text);
-  ASSERT_TRUE(wait_for([&] { return got.size() >= 5 && dut.health().parser.crc_failures >= 1; }));
+  ASSERT_TRUE(wait_for([&] { return got.size() >= 6 && dut.health().parser.crc_failures >= 1; }));
   const auto f = got.frames();
-  ASSERT_EQ(f.size(), 5u);
-  const std::vector<double> t{50.0, 50.01, 50.02, 50.03, 50.06};
+  ASSERT_EQ(f.size(), 6u);
+  const std::vector<double> t{50.0, 50.01, 50.02, 50.03, 50.06, 50.07};
   for (std::size_t i = 0; i < f.size(); ++i) {
     EXPECT_NEAR(f[i].t_s, t[i], 1e-9) << i;
     EXPECT_EQ(f[i].seq, seqs[i]);
@@ -172,11 +173,61 @@ TEST(DutReader, AsciiLinesWithACounter) {
   EXPECT_EQ(f[0].raw[0], 97.5);
   EXPECT_TRUE(std::isnan(f[4].raw[0]));
   const auto h = dut.health();
-  EXPECT_EQ(h.samples, 5u);
+  EXPECT_EQ(h.samples, 6u);
   EXPECT_EQ(h.invalid_samples, 1u);
   EXPECT_EQ(h.parser.sequence_gaps, 1u);
   EXPECT_EQ(h.parser.frames_missed, 2u);
   EXPECT_NE(h.parser.last_reject.find("checksum *0000"), std::string::npos) << h.parser.last_reject;
+  dut.stop();
+}
+
+// Through a real pty: a line that passes its checksum but repeats the
+// previous counter (read as 65 535 lost frames before) is dropped with its
+// value; a real loss (13 -> 20, confirmed by 21) keeps its slots and is
+// counted missed.
+TEST(DutReader, ALineWhoseCounterContradictsItsNeighboursIsNotStored) {
+  Pty pty = open_pty();
+  ManualClock clock(50.0);
+  DutLink link;
+  link.serial.device = pty.slave_path();
+  link.protocol = "ascii";
+  link.rate_hz = 100.0;
+  AsciiLineOptions& o = link.ascii;
+  o.prefix = "$GYR,";
+  o.columns = {col("seq", ChannelKind::kOther, ""),
+               col("gyro_z", ChannelKind::kRate, "deg/s", "z")};
+  o.seq_column = 0;
+  o.seq_modulo = 65536;
+  o.checksum = "nmea";
+  auto source = make_dut_source(link, clock);
+  ASSERT_TRUE(source.ok()) << source.error().message;
+  DutSource& dut = **source;
+  Collector got;
+  dut.start(got.sink());
+  ASSERT_TRUE(wait_for([&] { return dut.health().connected; }));
+
+  std::string text;
+  for (uint32_t s : {10, 11}) text += encode_ascii_line(o, std::vector<double>{0.001}, s);
+  text += encode_ascii_line(o, std::vector<double>{0.5}, 11);  // 1800 deg/h, counter repeated
+  for (uint32_t s : {12, 13, 20, 21}) text += encode_ascii_line(o, std::vector<double>{0.001}, s);
+  send(pty, text);
+  ASSERT_TRUE(wait_for([&] { return got.size() >= 6; }));
+  const auto f = got.frames();
+  ASSERT_EQ(f.size(), 6u);
+  const std::vector<uint64_t> seqs{10, 11, 12, 13, 20, 21};
+  const std::vector<double> t{50.0, 50.01, 50.02, 50.03, 50.10, 50.11};
+  for (std::size_t i = 0; i < f.size(); ++i) {
+    EXPECT_EQ(f[i].seq, seqs[i]) << i;
+    EXPECT_NEAR(f[i].t_s, t[i], 1e-9) << i;
+    EXPECT_EQ(f[i].raw[0], 0.001) << i;
+  }
+  const auto h = dut.health();
+  EXPECT_EQ(h.samples, 6u);
+  EXPECT_EQ(h.parser.sequence_rejects, 1u);
+  EXPECT_EQ(h.parser.sequence_gaps, 1u);
+  EXPECT_EQ(h.parser.frames_missed, 6u);  // 14..19
+  EXPECT_NE(h.parser.last_reject.find("counter 11 jumps from 11"), std::string::npos)
+      << h.parser.last_reject;
   dut.stop();
 }
 

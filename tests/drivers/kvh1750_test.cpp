@@ -74,8 +74,10 @@ TEST(Kvh1750, PublishedExampleDecodes) {
   Bytes frame = kPublished;
   for (int shift : {24, 16, 8, 0}) frame.push_back(static_cast<uint8_t>(kPublishedCrc >> shift));
   Kvh1750Parser p;
-  const auto out = feed_all(p, frame);
-  ASSERT_EQ(out.size(), 1u);
+  Bytes stream = frame;
+  append(stream, encode(make_frame(0x3E)));  // the next frame confirms the stream's first
+  const auto out = feed_all(p, stream);
+  ASSERT_EQ(out.size(), 2u);
   const GyroFrame& f = out[0];
   EXPECT_EQ(std::bit_cast<uint32_t>(f.gyro[0]), 0x37A96A6Eu);
   EXPECT_EQ(std::bit_cast<uint32_t>(f.gyro[1]), 0x38586C1Fu);
@@ -87,7 +89,7 @@ TEST(Kvh1750, PublishedExampleDecodes) {
   EXPECT_EQ(f.status, 0x77);
   EXPECT_EQ(f.seq, 0x3D);
   EXPECT_EQ(f.temp_c, 40);
-  EXPECT_EQ(p.counters().frames_ok, 1u);
+  EXPECT_EQ(p.counters().frames_ok, 2u);
   EXPECT_EQ(p.counters().crc_failures, 0u);
   EXPECT_EQ(p.counters().bytes_skipped, 0u);
 
@@ -108,8 +110,10 @@ TEST(Kvh1750, EncodeDecodeRoundTrip) {
   EXPECT_EQ(b[30], 0xFF);  // -21 big-endian
   EXPECT_EQ(b[31], 0xEB);
   Kvh1750Parser p;
-  const auto out = feed_all(p, b);
-  ASSERT_EQ(out.size(), 1u);
+  Bytes stream = b;
+  append(stream, encode(make_frame(0)));  // 127 -> 0 confirms it
+  const auto out = feed_all(p, stream);
+  ASSERT_EQ(out.size(), 2u);
   EXPECT_TRUE(same_frame(out[0], f));
 }
 
@@ -176,24 +180,25 @@ TEST(Kvh1750, BadCrcIsRejectedAndCounted) {
   EXPECT_TRUE(feed_all(p, bad_crc).empty());
   EXPECT_EQ(p.counters().crc_failures, 2u);
 
-  const auto good = feed_all(p, encode(make_frame(5)));
-  ASSERT_EQ(good.size(), 1u);
+  const auto good = feed_all(p, encode_seq({5, 6}));
+  ASSERT_EQ(good.size(), 2u);
   EXPECT_TRUE(same_frame(good[0], make_frame(5)));
 }
 
 TEST(Kvh1750, LostByteCostsOnlyTheFrameItHit) {
-  Bytes f1 = encode(make_frame(1));
-  f1.erase(f1.begin() + 10);
-  Bytes stream = encode(make_frame(0));
-  append(stream, f1);
-  const Bytes f2 = encode(make_frame(2));
+  Bytes f2 = encode(make_frame(2));
+  f2.erase(f2.begin() + 10);
+  Bytes stream = encode_seq({0, 1});
   append(stream, f2);
+  append(stream, encode_seq({3, 4}));  // 4 confirms the jump 1 -> 3
 
   Kvh1750Parser p;
   const auto out = feed_all(p, stream);
-  ASSERT_EQ(out.size(), 2u);
+  ASSERT_EQ(out.size(), 4u);
   EXPECT_TRUE(same_frame(out[0], make_frame(0)));
-  EXPECT_TRUE(same_frame(out[1], make_frame(2)));
+  EXPECT_TRUE(same_frame(out[1], make_frame(1)));
+  EXPECT_TRUE(same_frame(out[2], make_frame(3)));
+  EXPECT_TRUE(same_frame(out[3], make_frame(4)));
   EXPECT_EQ(p.counters().crc_failures, 1u);
   EXPECT_EQ(p.counters().bytes_skipped, 35u);
   EXPECT_EQ(p.counters().sequence_gaps, 1u);
@@ -234,23 +239,84 @@ TEST(Kvh1750, SequenceJumpCountsMissedFrames) {
   EXPECT_EQ(feed_all(p, encode_seq({4, 5, 8, 9})).size(), 4u);
   EXPECT_EQ(p.counters().sequence_gaps, 1u);
   EXPECT_EQ(p.counters().frames_missed, 2u);
-  // Across the wrap: 126 -> 2 misses 127, 0, 1.
-  EXPECT_EQ(feed_all(p, encode_seq({10, 126, 2})).size(), 3u);
+  // Across the wrap: 126 -> 2 misses 127, 0, 1 (2 is confirmed by 3).
+  EXPECT_EQ(feed_all(p, encode_seq({10, 126, 2, 3})).size(), 4u);
   EXPECT_EQ(p.counters().sequence_gaps, 3u);
   EXPECT_EQ(p.counters().frames_missed, 2u + 115u + 3u);
+  EXPECT_EQ(p.counters().sequence_rejects, 0u);
+}
+
+// A frame that passes its CRC but whose counter contradicts both neighbours
+// (a forged or corrupted frame, the CRC matching by chance) is dropped: its
+// value is not emitted, nothing is counted missed. Also across the wrap.
+TEST(Kvh1750, AFrameWhoseCounterContradictsBothNeighboursIsDropped) {
+  Kvh1750Parser p;
+  Bytes stream = encode_seq({10, 11});
+  append(stream, encode(make_frame(99, 0.5f)));  // wild counter and value
+  append(stream, encode_seq({12, 126, 127}));
+  append(stream, encode(make_frame(127, 0.5f)));  // a repeated counter
+  append(stream, encode(make_frame(60, 0.5f)));   // wild again, at the wrap
+  append(stream, encode_seq({0, 1}));
+  const auto out = feed_all(p, stream);
+  const std::vector<uint8_t> seqs{10, 11, 12, 126, 127, 0, 1};
+  ASSERT_EQ(out.size(), seqs.size());
+  for (std::size_t i = 0; i < out.size(); ++i) {
+    EXPECT_EQ(out[i].seq, seqs[i]) << i;
+    EXPECT_EQ(out[i].gyro[2], 1.25e-4f) << i;
+  }
+  const ParserCounters& c = p.counters();
+  EXPECT_EQ(c.sequence_rejects, 3u);
+  EXPECT_EQ(c.sequence_gaps, 1u);    // 12 -> 126, confirmed by 127
+  EXPECT_EQ(c.frames_missed, 113u);  // 13..125
+  EXPECT_EQ(c.bytes_skipped, 3u * 36u);
+  EXPECT_EQ(c.crc_failures, 0u);
+  EXPECT_NE(c.last_reject.find("counter 60 jumps from 127"), std::string::npos) << c.last_reject;
+}
+
+// A real loss across the wrap is counted once the next frame confirms it.
+TEST(Kvh1750, ARealLossAcrossTheWrapIsCountedOnceConfirmed) {
+  Kvh1750Parser p;
+  EXPECT_EQ(feed_all(p, encode_seq({124, 125, 2})).size(), 2u);  // 2 waits
+  EXPECT_EQ(p.counters().frames_missed, 0u);
+  EXPECT_EQ(feed_all(p, encode_seq({3})).size(), 2u);
+  EXPECT_EQ(p.counters().sequence_gaps, 1u);
+  EXPECT_EQ(p.counters().frames_missed, 4u);  // 126, 127, 0, 1
+  EXPECT_EQ(p.counters().sequence_rejects, 0u);
 }
 
 TEST(Kvh1750, ResetForgetsSequenceAndPartialFrame) {
   Kvh1750Parser p;
-  EXPECT_EQ(feed_all(p, encode_seq({50})).size(), 1u);
-  const Bytes partial = encode(make_frame(51));
+  EXPECT_EQ(feed_all(p, encode_seq({50, 51})).size(), 2u);
+  const Bytes partial = encode(make_frame(52));
   std::vector<GyroFrame> out;
   p.feed(std::span(partial.data(), 20), out);
   p.reset();
-  EXPECT_EQ(feed_all(p, encode_seq({7})).size(), 1u);  // not a gap after reset
+  EXPECT_EQ(feed_all(p, encode_seq({7, 8})).size(), 2u);  // not a gap after reset
   EXPECT_EQ(p.counters().sequence_gaps, 0u);
   EXPECT_EQ(p.counters().bytes_skipped, 20u);
-  EXPECT_EQ(p.counters().frames_ok, 2u);
+  EXPECT_EQ(p.counters().frames_ok, 4u);
+}
+
+// The first frame of a stream has no predecessor to be judged by: it counts
+// once the next frame follows it. A bad first frame is dropped; so is a good
+// one when the frame after it was lost (it cannot be told from a bad one).
+TEST(Kvh1750, TheFirstFrameCountsOnceTheNextFollowsIt) {
+  Kvh1750Parser p;
+  EXPECT_TRUE(feed_all(p, encode_seq({40})).empty());
+  EXPECT_EQ(feed_all(p, encode_seq({41})).size(), 2u);
+  EXPECT_EQ(p.counters().sequence_rejects, 0u);
+
+  Kvh1750Parser q;  // a wild first frame, then the real stream
+  Bytes stream = encode(make_frame(99, 0.5f));
+  append(stream, encode_seq({3, 4, 5}));
+  const auto out = feed_all(q, stream);
+  ASSERT_EQ(out.size(), 3u);
+  EXPECT_EQ(out[0].seq, 3u);
+  EXPECT_EQ(q.counters().sequence_rejects, 1u);
+  EXPECT_EQ(q.counters().sequence_gaps, 0u);
+  EXPECT_EQ(q.counters().frames_missed, 0u);
+  EXPECT_NE(q.counters().last_reject.find("counter 99 starts the stream"), std::string::npos)
+      << q.counters().last_reject;
 }
 
 // Random corruption: every emitted frame is one that was sent, in order, and
@@ -274,7 +340,9 @@ TEST(Kvh1750, RandomCorruptionNeverEmitsACorruptFrame) {
     f.seq = static_cast<uint8_t>(i % kKvh1750SeqModulo);
     f.temp_c = static_cast<int16_t>(byte(rng) - 100);
     Bytes b = encode(f);
-    const double r = i == kFrames - 1 ? 1.0 : u01(rng);
+    // The first and last two intact: the first frame counts once the next
+    // follows it, a jump once the next frame confirms it.
+    const double r = i < 2 || i >= kFrames - 2 ? 1.0 : u01(rng);
     if (r < 0.05) {
       b[std::uniform_int_distribution<std::size_t>(0, b.size() - 1)(rng)] ^=
           static_cast<uint8_t>(1 + byte(rng) % 255);
@@ -321,8 +389,8 @@ TEST(Kvh1750, MakeFrameParser) {
   auto p = make_frame_parser("kvh1750");
   ASSERT_TRUE(p.ok());
   std::vector<GyroFrame> out;
-  (*p)->feed(encode_seq({1}), out);
-  EXPECT_EQ(out.size(), 1u);
+  (*p)->feed(encode_seq({1, 2}), out);
+  EXPECT_EQ(out.size(), 2u);
 
   auto bad = make_frame_parser("nmea");
   ASSERT_FALSE(bad.ok());

@@ -106,6 +106,35 @@ TEST(TableDemand, StationWithoutATableRefusesEveryDemandButAcceptsNone) {
   }
 }
 
+// An AERO station (StationLimits::Table::whole_numbers, from [table]
+// profile = "aero"): its driver sends JOG and MOV as whole numbers, so a
+// rate or position that is not one is refused when the schedule is read,
+// not hours later at the table.
+TEST(TableDemand, AStationWhoseTableTakesWholeNumbersRefusesOthersEarly) {
+  const StationLimits aero{-20.0, 60.0, 2.0, StationLimits::Table{500.0, 100.0, true}};
+  for (const char* line : {"table_rate_dps = -100", "table = { mode = \"rate\", rate_dps = 7 }",
+                           "table = { mode = \"static\", position_deg = -90 }"}) {
+    SCOPED_TRACE(line);
+    EXPECT_TRUE(parse(hold_with(line), aero).ok());
+  }
+  auto rate = parse(hold_with("table_rate_dps = 7.5"), aero);
+  ASSERT_FALSE(rate.ok());
+  EXPECT_EQ(rate.error().message,
+            "t.toml:5: step[0].table_rate_dps: 7.5 °/s is not a whole number, and the station's "
+            "table takes whole °/s only ([table] profile \"aero\": JOG and MOV send whole "
+            "numbers, docs/table.md)\n");
+  auto position = parse(hold_with("table = { mode = \"static\", position_deg = 90.25 }"), aero);
+  ASSERT_FALSE(position.ok());
+  EXPECT_THAT(position.error().message,
+              HasSubstr("step[0].table.position_deg: 90.25 ° is not a whole number"));
+  auto sweep =
+      parse("[[step]]\ntype = \"scale_factor\"\nsetpoint_c = 20\nrates_dps = [1, 2.5]\n", aero);
+  ASSERT_FALSE(sweep.ok());
+  EXPECT_THAT(sweep.error().message, HasSubstr("rates_dps[1]: 2.5 °/s is not a whole number"));
+  // Any other station takes them.
+  EXPECT_TRUE(parse(hold_with("table_rate_dps = 7.5")).ok());
+}
+
 // A scale_factor step with `extra` keys at 20 °C.
 std::string sf(const std::string& extra) {
   return "[[step]]\ntype = \"scale_factor\"\nsetpoint_c = 20\n" + extra + "\n";

@@ -1,7 +1,8 @@
 // A fake rate table for the station's unit tests: one axis whose rate moves
 // towards its demand at a fixed acceleration as the rig's clock advances,
 // with a latched fault and a log of the commands it was sent (and, through
-// `on_command`, their order relative to the chamber's set point writes).
+// `on_command`, their order relative to the chamber's set point writes),
+// and the operator panel's lockout as a motion command takes it.
 #pragma once
 
 #include <algorithm>
@@ -25,6 +26,7 @@ class FakeTable final : public drivers::RateTable {
     double demand_rate_dps = 0;
     double demand_position_deg = 0;
     bool silent = false;
+    bool remote = false;  // the panel locked out by a motion command
   };
 
   explicit FakeTable(double accel_dps2 = 100.0) : accel_dps2_(accel_dps2) {}
@@ -86,6 +88,7 @@ class FakeTable final : public drivers::RateTable {
   }
   Status set_rate(double rate_dps) override {
     return command("rate " + std::to_string(rate_dps), [&](State& s) {
+      s.remote = true;
       if (s.interlock == drivers::TableInterlock::kFault) return false;
       s.interlock = drivers::TableInterlock::kClosed;
       s.mode = drivers::TableMode::kRate;
@@ -95,6 +98,7 @@ class FakeTable final : public drivers::RateTable {
   }
   Status set_position(double position_deg) override {
     return command("position " + std::to_string(position_deg), [&](State& s) {
+      s.remote = true;
       if (s.interlock == drivers::TableInterlock::kFault) return false;
       s.interlock = drivers::TableInterlock::kClosed;
       s.mode = drivers::TableMode::kPosition;
@@ -126,6 +130,17 @@ class FakeTable final : public drivers::RateTable {
   }
   Result<drivers::TableLimits> limits() override {
     return drivers::TableLimits{1000.0, accel_dps2_, 1100.0};
+  }
+  // As AcutrolTable: only what a motion command took is handed back.
+  Status release_control() override {
+    {
+      std::lock_guard lock(mu_);
+      if (!s_.remote) return Status::Ok();
+    }
+    return command("release", [](State& s) {
+      s.remote = false;
+      return true;
+    });
   }
 
  private:
@@ -165,6 +180,7 @@ class FakeTableHandle final : public drivers::RateTable {
   Status servo_off() override { return t_.servo_off(); }
   Status reset_faults() override { return t_.reset_faults(); }
   Result<drivers::TableLimits> limits() override { return t_.limits(); }
+  Status release_control() override { return t_.release_control(); }
 
  private:
   FakeTable& t_;

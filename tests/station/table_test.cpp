@@ -122,6 +122,10 @@ TEST_F(StationTableTest, AbortWhileSpinningStopsTheTableBeforeTheChamberGoesSafe
   ASSERT_GE(off, 0) << ::testing::PrintToString(log);
   EXPECT_LT(stop, safe) << ::testing::PrintToString(log);
   EXPECT_LT(stop, off) << ::testing::PrintToString(log);
+  // Then the operator panel is handed back (ACL `:U:L OFF`).
+  const auto released = index_of(log, "table release");
+  EXPECT_GT(released, off) << ::testing::PrintToString(log);
+  EXPECT_FALSE(rig.table.state().remote);
 }
 
 TEST_F(StationTableTest, PauseStopsTheTableAndResumeSpinsItUpAgain) {

@@ -960,7 +960,8 @@ schedules::StationLimits station_limits(const StationConfig& config) {
                                   config.station.max_ramp_c_per_min, std::nullopt};
   if (config.table) {
     limits.table =
-        schedules::StationLimits::Table{config.table->max_rate_dps, config.table->max_accel_dps2};
+        schedules::StationLimits::Table{config.table->max_rate_dps, config.table->max_accel_dps2,
+                                        config.table->connection.profile == "aero"};
   }
   return limits;
 }

@@ -132,6 +132,7 @@ void TableControl::make_safe(double wall_s) {
   if (state_ && state_->interlock == drivers::TableInterlock::kOpen) {
     // Not servoed: nothing spins, nothing to switch off.
     safing_ = false;
+    release_panel();
     return;
   }
   last_send_wall_s_ = wall_s;
@@ -160,6 +161,11 @@ void TableControl::finish_safe_state(double wall_s) {
   safing_ = false;
   stop_sent_ = false;
   sent_.reset();
+  release_panel();
+}
+
+void TableControl::release_panel() {
+  log_failure(table_.release_control(), "handing the operator panel back");
 }
 
 bool TableControl::at_rest() const {

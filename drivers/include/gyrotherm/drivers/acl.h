@@ -48,7 +48,9 @@ std::string format_number(double value);
 std::string command_line(std::string_view commands);
 
 // Short forms (TM-8004 §2.1: `:D:P 3,10.5` = `:Demand:Position 3,10.5`).
-std::string take_remote();                                   // :U:L ON
+std::string identify();                                      // *IDN? (§3.4)
+std::string take_remote();                                   // :U:L ON (§4.14.2)
+std::string release_remote();                                // :U:L OFF
 std::string demand_rate(int axis, double rate_dps);          // :D:R a,r;:M:R a
 std::string demand_position(int axis, double position_deg);  // :D:P a,p;:M:P a
 std::string mode_off(int axis);                              // :M:O a
@@ -88,6 +90,31 @@ class ReplyDecoder {
   std::string buf_;
 };
 
+// The first reply of a connection, to identify() (*IDN?: printable text,
+// at most 72 characters, TM-8004 §3.4), with the framing it came in. The
+// manual says only that replies carry an error code and a message length
+// (TM-8004 §2); a public driver skips 8 bytes (acutrol.py); the release
+// notes speak of a byte-swapped binary error word and of commands without
+// data answering CR/LF (TM-9389, build 1848/1859). So the framing is read
+// off this reply:
+//   ascii      8 decimal digits (code, length), then `length` bytes of text
+//   binary-le  8 bytes not all printable; the 32-bit length at offset 4,
+//   binary-be  read little- or big-endian, is 1..kMaxPayloadBytes; then
+//              that many bytes of text
+//   line       text up to LF, no header
+// Leading CR/LF are skipped. Text: printable ASCII or tab, CR/LF at its end.
+struct FirstReply {
+  ReplyFraming framing = ReplyFraming::kAscii;
+  Reply reply;
+  std::size_t consumed = 0;  // bytes of `bytes` this reply took
+};
+// nullopt while more bytes are needed; an error (naming the bytes received,
+// printable, non-printable ones escaped) when they fit none of the framings.
+Result<std::optional<FirstReply>> detect_first_reply(std::string_view bytes);
+// `bytes` for a message: printable ASCII as is, the rest as \xNN, at most
+// `max` bytes then "...", and the count.
+std::string describe_bytes(std::string_view bytes, std::size_t max = 64);
+
 // The ';'-separated fields of a payload, each without surrounding blanks
 // (a chained query answers one field per query: `P;R;P`, TM-8004 §4.7).
 std::vector<std::string_view> split_fields(std::string_view payload);
@@ -102,8 +129,10 @@ struct ParsedMode {
 // `P`/`R`/`O` (TM-8004 §4.7) or `Position`/`Rate`/`Off` (field firmware),
 // case-insensitive; anything else is kUnknown, with its text.
 ParsedMode parse_mode(std::string_view field);
-// `Open`, `Closed`, `Fault`, case-insensitive (acutrol3000.py compares the
-// answer of `:interlock? 1` with "Fault\n"); anything else is an error.
+// `Open`, `Close` or `Closed`, `Fault`, case-insensitive: the manual's
+// interlock state is {Close|Open|Fault} (TM-8004 §4.5.3), field firmware
+// answers `Closed`; acutrol3000.py compares the answer of `:interlock? 1`
+// with "Fault\n". Anything else is an error.
 Result<TableInterlock> parse_interlock(std::string_view field);
 
 // The answer to state_query(): four fields.

@@ -24,8 +24,23 @@ namespace gyrotherm::drivers::aero {
 inline constexpr std::size_t kMaxLineBytes = 256;
 
 // `mnemonic` followed by `number` when given (fixed point, at most 6
-// decimals, trailing zeros dropped: `JOG-12.5`, `MOV90`), then "\r\n".
+// decimals, trailing zeros dropped: `JOG-12`, `MOV90`), then "\r\n".
 std::string command_line(std::string_view mnemonic, std::optional<double> number = std::nullopt);
+
+// JOG and MOV take whole numbers. The one public driver
+// (actigraph/RateTableSweepGUI, RateSweepGUI.py) formats them with %d
+// (`'JOG%d' % degreesPerSecond`, `'MOV%d' % position`, and RMO, VEL, ACL,
+// ZER alike) while it sends HOF, AMP and FRQ with %f: whether the
+// controller takes decimals after JOG or MOV is nowhere written, and one
+// that truncated them would spoil a scale factor silently. So a value is
+// sent only when it is a whole number (within 1e-9, then rounded): the
+// whole number to send, or an error naming the value and the mnemonic.
+Result<int64_t> whole_argument(std::string_view mnemonic, double value, std::string_view unit);
+
+// The reply without an echo of `command`: a first line equal to the
+// command (blanks and case aside) is what a controller echoing its input
+// sends before the answer, and is dropped.
+std::string_view strip_echo(std::string_view reply, std::string_view command);
 
 // Incremental decoder of the controller's answers. Lines end in CR or LF
 // (empty lines are skipped); a `>` at the start of a line is the prompt that

@@ -5,7 +5,10 @@
 // Operations: read() sends PVE (rate, °/s), PPO (position, °) and STA
 // (status word: 0 is taken as healthy, anything else as a fault whose text
 // is "STA <n>"; the public code does not document its bits). set_rate sends
-// JOG<rate>, set_position MOV<deg>, stop STO. No servo-off command is known:
+// JOG<rate>, set_position MOV<deg>, stop STO. JOG and MOV take whole numbers
+// (aero::whole_argument): a rate or position that is not one is refused
+// before anything is sent, naming it. A controller that echoes each command
+// line before its answer is understood (aero::strip_echo). No servo-off command is known:
 // servo_off() stops the table (and says so once on stderr). No fault reset
 // is known: reset_faults() does nothing and succeeds. limits() is not
 // queryable: it returns the limits given at construction (the station's
@@ -43,8 +46,9 @@ class AeroTable final : public RateTable {
   DeviceHealth health() const override;
 
   Result<TableState> read() override;
-  Status set_rate(double rate_dps) override;          // JOG<rate>; refused beyond limits
-  Status set_position(double position_deg) override;  // MOV<deg>
+  // JOG<rate>; refused beyond limits or when not a whole number.
+  Status set_rate(double rate_dps) override;
+  Status set_position(double position_deg) override;  // MOV<deg>; whole degrees only
   Status stop() override;                             // STO
   Status servo_off() override;                        // STO (no servo-off known)
   Status reset_faults() override;                     // nothing known: ok

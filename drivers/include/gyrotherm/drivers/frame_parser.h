@@ -33,6 +33,9 @@ struct ParserCounters {
   uint64_t bytes_skipped = 0;  // bytes discarded while searching for a valid frame
   uint64_t sequence_gaps = 0;  // times the counter did not follow the previous frame's
   uint64_t frames_missed = 0;  // frames missing according to the counter jumps
+  // Frames dropped because their counter jumped and the next frame did not
+  // confirm the jump (sequence_guard.h); their bytes are in bytes_skipped.
+  uint64_t sequence_rejects = 0;
   // Why the last discarded input was discarded ("" if none): a CRC mismatch,
   // or for text lines the field or checksum at fault.
   std::string last_reject;

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "gyrotherm/drivers/frame_parser.h"
+#include "gyrotherm/drivers/sequence_guard.h"
 
 namespace gyrotherm::drivers {
 
@@ -26,8 +27,9 @@ std::array<uint8_t, kKvh1750FrameSize> encode_kvh1750(const GyroFrame& frame);
 
 // Resynchronising parser. A candidate frame (header match) whose CRC fails
 // advances the search by one byte, not a whole frame, so a lost byte costs at
-// most the frame it hit. Sequence gaps compare each frame's counter with the
-// previous valid frame's (mod 128).
+// most the frame it hit. The counter (mod 128) is judged by SequenceGuard: a
+// frame that jumps is emitted once the next frame confirms the jump, and
+// dropped (sequence_rejects) when it does not.
 class Kvh1750Parser final : public FrameParser {
  public:
   void feed(std::span<const uint8_t> bytes, std::vector<GyroFrame>& out) override;
@@ -37,7 +39,7 @@ class Kvh1750Parser final : public FrameParser {
  private:
   std::vector<uint8_t> buf_;
   ParserCounters counters_;
-  int last_seq_ = -1;
+  SequenceGuard<GyroFrame> guard_{kKvh1750SeqModulo};
 };
 
 }  // namespace gyrotherm::drivers

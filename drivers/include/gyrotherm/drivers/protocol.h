@@ -11,6 +11,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -19,6 +20,7 @@
 #include "gyrotherm/core/samples.h"
 #include "gyrotherm/drivers/dut_link.h"
 #include "gyrotherm/drivers/frame_parser.h"
+#include "gyrotherm/drivers/sequence_guard.h"
 
 namespace gyrotherm::drivers {
 
@@ -76,7 +78,10 @@ DutFrame to_dut_frame(const GyroFrame& frame);
 // crc_failures). A line longer than kAsciiMaxLineBytes is discarded up to
 // its end without being buffered. Fields are trimmed of blanks; a number
 // that is not finite (nan, inf) is NaN. A rate value whose valid bits
-// (valid_bits) are not all set in the status column is NaN.
+// (valid_bits) are not all set in the status column is NaN. With a
+// sequence column, the counter is judged by SequenceGuard: a line whose
+// counter jumps is emitted once the next line confirms the jump, and
+// dropped (sequence_rejects, its bytes skipped) when it does not.
 class AsciiLineProtocol final : public DutProtocol {
  public:
   // Error: the options fail validate_ascii_options (named).
@@ -102,9 +107,9 @@ class AsciiLineProtocol final : public DutProtocol {
   // (channel index, mask) for each valid_bits entry.
   std::vector<std::pair<std::size_t, uint32_t>> valid_checks_;
   std::string line_;
-  bool overlong_ = false;  // discarding the rest of a too-long line
-  int64_t last_seq_ = -1;
-  std::vector<std::string_view> fields_;  // reused between lines
+  bool overlong_ = false;                         // discarding the rest of a too-long line
+  std::optional<SequenceGuard<DutFrame>> guard_;  // with a sequence column
+  std::vector<std::string_view> fields_;          // reused between lines
   ParserCounters counters_;
 };
 

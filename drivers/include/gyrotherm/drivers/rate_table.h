@@ -3,7 +3,7 @@
 // interlock and its limits.
 //
 // The real ones are AcutrolTable (acutrol_table.h: Acutronic ACUTROL3000 /
-// ACT2000 "ACL" over TCP, or RS-232 through a serial-to-TCP bridge) and
+// ACT2000 "ACL" over TCP, to the controller's Ethernet port) and
 // AeroTable (aero_table.h: Ideal Aerosmith AERO-series mnemonics on RS-232);
 // the station's unit tests hand the station a fake. Angles are degrees,
 // rates °/s, accelerations °/s², positive counter-clockwise seen from above
@@ -61,7 +61,8 @@ struct TableLimits {
 // How to reach the controller ([table] in station.toml; docs/table.md).
 struct TableConnection {
   // "acutrol": ACL (TM-8004) over TCP, to the controller (TM-9384C: port
-  // 9878) or to a serial-to-TCP bridge on its RS-232 port (TM-9411).
+  // 9878). (TM-9411's RS-232 interface is the other way round: a box that
+  // takes RS-232 from the host and connects to that port; not used here.)
   // "aero": Ideal Aerosmith mnemonics on a serial line (9600 8N1).
   std::string profile = "acutrol";
   std::string host = "192.168.53.1";  // acutrol
@@ -72,8 +73,9 @@ struct TableConnection {
   // ASCII decimal digits of error code, four of payload length, then the
   // payload. "binary-le" / "binary-be": two 32-bit integers (code, length)
   // then the payload. "line": no header, a reply is a line ending in LF (a
-  // bridge that passes the GPIB-style answers). To be checked on the real
-  // controller: docs/table.md, "Commissioning".
+  // bridge that passes the GPIB-style answers). The first reply of each
+  // connection (`*IDN?`) is checked against it: a controller that frames
+  // otherwise is refused with the framing it uses (docs/table.md).
   std::string reply_header = "ascii";
   std::string device;      // aero: serial device path
   int baud = 9600;         // aero
@@ -100,6 +102,13 @@ class RateTable : public PolledDevice {
   // Clears latched faults (ACL :I:R), so the interlock can close again.
   virtual Status reset_faults() = 0;
   virtual Result<TableLimits> limits() = 0;
+  // Hands the controller back to its operator panel: ACL `:U:L OFF`
+  // (TM-8004 §4.14.2), when set_rate / set_position took remote control
+  // (`:U:L ON`) and it was not handed back since; the next of them takes it
+  // again. The station calls it once the table has reached its safe state
+  // (after servo_off) and at shutdown. Default: no lockout to release
+  // (AERO: none is known).
+  virtual Status release_control() { return Status::Ok(); }
 };
 
 }  // namespace gyrotherm::drivers

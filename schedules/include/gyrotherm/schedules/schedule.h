@@ -94,6 +94,9 @@ struct StationLimits {
   struct Table {
     double max_rate_dps = 500.0;
     double max_accel_dps2 = 100.0;
+    // The controller takes whole °/s and whole degrees only (the AERO
+    // driver sends JOG and MOV as whole numbers: docs/table.md).
+    bool whole_numbers = false;
   };
   std::optional<Table> table{};
 };

@@ -13,7 +13,8 @@
 // Safe state (an abort, the end of a run, a pause, a tripped interlock,
 // the daemon stopping): stop (decelerate at the controller's limits, the
 // axis stays servoed); once the measured rate is below rest_rate_dps the
-// interlock is opened (servo off). The station stops the table before it
+// interlock is opened (servo off), then the operator panel is handed back
+// (RateTable::release_control). The station stops the table before it
 // sends the chamber's safe set point.
 #pragma once
 
@@ -56,6 +57,7 @@ class TableControl {
 
  private:
   bool matches(const schedules::TableDemand& demand) const;
+  void release_panel();  // the safe state is reached
   Status send(const schedules::TableDemand& demand);
   void log_failure(const Status& st, const std::string& what);
 
