@@ -288,9 +288,10 @@ class FullDiskSink final : public storage::SampleSink {
 };
 
 // A minimal station config for the rig: 1 s control ticks, no wall-time
-// floor on device silence (the wall clock is manual).
+// floor on device silence (the wall clock is manual), a safe set point of
+// 21 °C (apart from the plant's 23 °C start, so a test can tell them).
 inline std::string rig_config_toml(const std::string& db_path) {
-  return "[station]\nname = \"bench\"\nlatitude_deg = 31.9\n"
+  return "[station]\nname = \"bench\"\nlatitude_deg = 31.9\nsafe_setpoint_c = 21.0\n"
          "[chamber]\nport = 1502\n[probes]\nport = 1502\n[gyro]\ndevice = \"/dev/null\"\n"
          "rate_hz = 10\n"
          "[storage]\ndb = \"" +

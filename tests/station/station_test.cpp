@@ -117,17 +117,28 @@ TEST_F(StationUnitTest, SoakRampSoakRunCompletesWithItsRecordsAndTableI) {
     EXPECT_NEAR(stats[i].at("bias_mean_dph").get<double>(), 1.5 + 0.01 * (setpoints_c[i] - 23.0),
                 0.01);
   }
-  // The run ended at the safe set point; the wall clock stamped its rows,
-  // Table I's included.
+  // The run ended at the safe set point (the rig's 21 °C: neither the last
+  // soak's 25 °C nor the 23 °C the chamber started at); the wall clock
+  // stamped its rows, Table I's included.
   EXPECT_EQ(stats[0].at("computed_utc").get<std::string>().substr(0, 4), "2027");
-  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 23.0);
+  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 21.0);
   EXPECT_EQ(run.at("started_utc").get<std::string>().substr(0, 4), "2027");
 }
 
 TEST_F(StationUnitTest, PauseHoldsTheSetPointAndStopsTheAcquisitionClock) {
   StationRig rig(dir_);
   rig.open();
-  rig.queue(kLongSoak);
+  // At 24 °C: apart from the chamber's start (23 °C) and the safe set point
+  // (21 °C), so the set point held is the schedule's.
+  rig.queue(R"(
+name = "long soak at 24"
+[[step]]
+type = "soak"
+setpoint_c = 24.0
+stability_window_min = 1
+settle_timeout_min = 30
+acquire_min = 10
+)");
   const int64_t run_id = until_acquiring(rig);
   ASSERT_NE(run_id, 0);
   auto r = rig.station->control("pause", "bench");
@@ -136,7 +147,7 @@ TEST_F(StationUnitTest, PauseHoldsTheSetPointAndStopsTheAcquisitionClock) {
   for (int i = 0; i < 300; ++i) rig.step();
   EXPECT_EQ(rig.state(), "paused");
   EXPECT_TRUE(rig.station->status().paused);
-  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 23.0);
+  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 24.0);
   // Held, re-asserted now and then, never moved.
   EXPECT_LE(rig.plant->state().setpoint_writes - writes_before, 300 / 30 + 1);
   ASSERT_FALSE(rig.station->control("resume", "bench").refusal);
@@ -303,9 +314,10 @@ acquire_min = 2
   rig.step();  // the status's queue fields are those of the tick before
   EXPECT_EQ(rig.reply(rig.station->run(run_id)).at("state"), "failed");
   EXPECT_TRUE(rig.has_event(run_id, "interlock", "settle_timeout"));
-  // A failed run holds the queue; the chamber went to the safe set point.
+  // A failed run holds the queue; the chamber went to the safe set point
+  // (21 °C, not the soak's 23 °C).
   EXPECT_TRUE(rig.station->status().queue_held);
-  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 23.0);
+  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 21.0);
 }
 
 // What a kill -9 leaves: the database as committed at one moment (a copy

@@ -53,11 +53,6 @@ class StationTableTest : public TempDirTest {
         rig.step_until([&] { return std::abs(rig.table.state().rate_dps - rate_dps) < 0.5; }, 3600))
         << "table rate " << rig.table.state().rate_dps << ", state " << rig.state();
   }
-  static std::ptrdiff_t index_of(const std::vector<std::string>& log, const std::string& entry,
-                                 std::ptrdiff_t from = 0) {
-    auto it = std::find(log.begin() + from, log.end(), entry);
-    return it == log.end() ? -1 : it - log.begin();
-  }
 };
 
 TEST_F(StationTableTest, EachStepGetsItsDemandAndEveryTickIsRecorded) {
@@ -101,6 +96,24 @@ TEST_F(StationTableTest, EachStepGetsItsDemandAndEveryTickIsRecorded) {
   EXPECT_EQ(rows.front().demand_mode, "static");
 }
 
+// The safe state's order (docs/testing.md): table stop, the chamber's safe
+// set point (the rig's 21 °C, apart from the schedule's 23 °C), then servo
+// off once at rest.
+void expect_safe_state_order(const std::vector<std::string>& log) {
+  auto index_of = [&](const std::string& entry) {
+    auto it = std::find(log.begin(), log.end(), entry);
+    return it == log.end() ? std::ptrdiff_t{-1} : it - log.begin();
+  };
+  const auto stop = index_of("table stop");
+  const auto safe = index_of("setpoint 21");
+  const auto off = index_of("table servo off");
+  ASSERT_GE(stop, 0) << ::testing::PrintToString(log);
+  ASSERT_GE(safe, 0) << ::testing::PrintToString(log);
+  ASSERT_GE(off, 0) << ::testing::PrintToString(log);
+  EXPECT_LT(stop, safe) << ::testing::PrintToString(log);
+  EXPECT_LT(safe, off) << ::testing::PrintToString(log);
+}
+
 TEST_F(StationTableTest, AbortWhileSpinningStopsTheTableBeforeTheChamberGoesSafe) {
   StationRig rig(dir_, table_config(dir_ / "station.db"));
   rig.open();
@@ -113,15 +126,7 @@ TEST_F(StationTableTest, AbortWhileSpinningStopsTheTableBeforeTheChamberGoesSafe
   ASSERT_TRUE(rig.step_until(
       [&] { return rig.table.state().interlock == drivers::TableInterlock::kOpen; }, 30));
   EXPECT_LT(std::abs(rig.table.state().rate_dps), 0.01);
-  const auto log = rig.plant->state().log;
-  const auto stop = index_of(log, "table stop");
-  const auto safe = index_of(log, "setpoint 23");
-  const auto off = index_of(log, "table servo off");
-  ASSERT_GE(stop, 0) << ::testing::PrintToString(log);
-  ASSERT_GE(safe, 0) << ::testing::PrintToString(log);
-  ASSERT_GE(off, 0) << ::testing::PrintToString(log);
-  EXPECT_LT(stop, safe) << ::testing::PrintToString(log);
-  EXPECT_LT(stop, off) << ::testing::PrintToString(log);
+  expect_safe_state_order(rig.plant->state().log);
 }
 
 TEST_F(StationTableTest, PauseStopsTheTableAndResumeSpinsItUpAgain) {
