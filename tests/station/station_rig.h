@@ -16,6 +16,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <filesystem>
 #include <functional>
 #include <memory>
@@ -84,16 +85,35 @@ class FakePlant {
   State s_;
 };
 
+// Like a ModbusDevice, it holds its lock through each request, health()
+// included; block() makes the next requests wait (a controller that does
+// not answer within the response timeout) until release().
 class FakeChamber final : public drivers::Chamber {
  public:
   explicit FakeChamber(std::shared_ptr<FakePlant> plant) : plant_(std::move(plant)) {}
   const std::string& name() const override { return name_; }
   Status connect() override { return Status::Ok(); }
   drivers::DeviceHealth health() const override {
+    std::lock_guard io(io_mu_);
     std::lock_guard lock(mu_);
     return health_;
   }
+  void block() {
+    std::lock_guard lock(gate_mu_);
+    blocked_ = true;
+  }
+  void release() {
+    {
+      std::lock_guard lock(gate_mu_);
+      blocked_ = false;
+    }
+    gate_cv_.notify_all();
+  }
+  // A request is waiting in block().
+  bool waiting() const { return waiting_.load(); }
+
   Result<drivers::UnitsReading> units() override {
+    auto io = request();
     if (auto e = silent()) return *e;
     const bool f = plant_->state().fahrenheit;
     return drivers::UnitsReading{
@@ -101,16 +121,19 @@ class FakeChamber final : public drivers::Chamber {
         f ? "units register = 30" : "units register = 15", f ? 30.0 : 15.0};
   }
   Result<double> process_value() override {
+    auto io = request();
     if (auto e = silent()) return *e;
     const auto s = plant_->state();
     return s.fahrenheit ? s.air_c * 1.8 + 32 : s.air_c;
   }
   Result<double> setpoint() override {
+    auto io = request();
     if (auto e = silent()) return *e;
     const auto s = plant_->state();
     return s.fahrenheit ? s.setpoint_c * 1.8 + 32 : s.setpoint_c;
   }
   Status write_setpoint(double value) override {
+    auto io = request();
     if (auto e = silent()) return *e;
     plant_->change([&](FakePlant::State& s) {
       s.setpoint_c = s.fahrenheit ? (value - 32) / 1.8 : value;
@@ -121,11 +144,21 @@ class FakeChamber final : public drivers::Chamber {
   }
   bool has_alarm() const override { return true; }
   Result<bool> alarm() override {
+    auto io = request();
     if (auto e = silent()) return *e;
     return plant_->state().chamber_alarm;
   }
 
  private:
+  std::unique_lock<std::mutex> request() {
+    std::unique_lock io(io_mu_);
+    std::unique_lock gate(gate_mu_);
+    waiting_ = blocked_;
+    gate_cv_.wait(gate, [this] { return !blocked_; });
+    waiting_ = false;
+    return io;
+  }
+
   std::optional<Error> silent() {
     std::lock_guard lock(mu_);
     ++health_.requests;
@@ -141,8 +174,13 @@ class FakeChamber final : public drivers::Chamber {
 
   std::shared_ptr<FakePlant> plant_;
   std::string name_ = "chamber";
+  mutable std::mutex io_mu_;  // held through a request
   mutable std::mutex mu_;
   drivers::DeviceHealth health_;
+  std::mutex gate_mu_;
+  std::condition_variable gate_cv_;
+  bool blocked_ = false;
+  std::atomic<bool> waiting_{false};
 };
 
 class FakeProbes final : public drivers::ShellProbes {
@@ -313,7 +351,9 @@ class StationRig {
     auto cfg = daemon::parse_station_config(config_toml_, "rig.toml");
     ASSERT_TRUE(cfg.ok()) << cfg.error().message;
     daemon::StationDevices devices;
-    devices.chamber = std::make_unique<FakeChamber>(plant);
+    auto chamber = std::make_unique<FakeChamber>(plant);
+    chamber_ = chamber.get();
+    devices.chamber = std::move(chamber);
     devices.probes = std::make_unique<FakeProbes>(plant);
     auto gyro = std::make_unique<FakeGyro>(plant, cfg->gyro.format.rate_hz);
     gyro_ = gyro.get();
@@ -359,11 +399,13 @@ class StationRig {
     station.reset();
     gyro_ = nullptr;
     disk_ = nullptr;
+    chamber_ = nullptr;
   }
   ~StationRig() { close(); }
 
   FakeGyro& gyro() { return *gyro_; }
   FullDiskSink& disk() { return *disk_; }
+  FakeChamber& chamber() { return *chamber_; }
 
   // One control tick after `dt_s` station (and wall) seconds.
   void step(double dt_s = 1.0) {
@@ -424,6 +466,7 @@ class StationRig {
   std::string config_toml_;
   FakeGyro* gyro_ = nullptr;
   FullDiskSink* disk_ = nullptr;
+  FakeChamber* chamber_ = nullptr;
   std::mutex published_mu_;
   std::vector<std::string> published_;
 };

@@ -7,7 +7,9 @@
 
 #include <atomic>
 #include <chrono>
+#include <future>
 #include <limits>
+#include <optional>
 #include <set>
 #include <thread>
 
@@ -521,6 +523,29 @@ TEST_F(StationUnitTest, StatusShowsTheRelayAndTheFreeSpace) {
   EXPECT_EQ(j.at("retry_in_s"), 8.0);
   EXPECT_TRUE(j.at("last_lag_s").is_null());
   EXPECT_EQ(j.at("last_error"), "connection refused");
+}
+
+// Item 16: status() reads what the control loop left; it never waits on a
+// device, even one the control loop is blocked on.
+TEST_F(StationUnitTest, StatusDoesNotWaitForAChamberThatDoesNotAnswer) {
+  StationRig rig(dir_);
+  rig.open();
+  rig.step();
+  rig.chamber().block();
+  std::thread control([&] { rig.step(); });
+  const bool blocked = wait_for_condition([&] { return rig.chamber().waiting(); }, 10s);
+  std::future<daemon::StatusSnapshot> status;
+  if (blocked) {
+    status = std::async(std::launch::async, [&] { return rig.station->status(); });
+  }
+  // The chamber stays blocked for as long as this waits: any wait in status()
+  // on the chamber would run into it.
+  const bool answered = blocked && status.wait_for(scaled(5s)) == std::future_status::ready;
+  rig.chamber().release();
+  control.join();
+  ASSERT_TRUE(blocked) << "the control tick never reached the chamber";
+  EXPECT_TRUE(answered) << "status() waited on the chamber";
+  EXPECT_GT(status.get().chamber.requests, 0u) << "the chamber's health is the last tick's";
 }
 
 }  // namespace

@@ -491,6 +491,14 @@ schedules::Readings Station::read_devices(double now_s) {
     r.gyro_heard = r.gyro_heard && d->heard.load();
   }
   if (table_) table_->read(now_s, wall_s, min_wall_s, r);
+  {
+    // For status(), which never waits on a device.
+    drivers::DeviceHealth chamber_health = chamber_->health();
+    drivers::DeviceHealth probes_health = probes_->health();
+    std::lock_guard lock(mu_);
+    snapshot_.chamber = std::move(chamber_health);
+    snapshot_.probes = std::move(probes_health);
+  }
   const storage::SampleWriterStats ws = writer_->stats();
   r.storage_committed = ws.commits > 0;
   if (ws.consecutive_failures == 0) {
@@ -1231,8 +1239,8 @@ StatusSnapshot Station::status() const {
     s = snapshot_;
   }
   s.uptime_s = wall_.monotonic_s() - started_wall_s_;
-  s.chamber = chamber_->health();
-  s.probes = probes_->health();
+  // The chamber's and probes' health are the snapshot's (read_devices()):
+  // their drivers hold their lock through a Modbus request.
   s.gyro = duts_.front()->source->health();
   for (std::size_t i = 0; i < duts_.size() && i < s.duts.size(); ++i) {
     s.duts[i].health = duts_[i]->source->health();
