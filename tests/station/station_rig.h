@@ -355,6 +355,9 @@ class StationRig {
     chamber_ = chamber.get();
     devices.chamber = std::move(chamber);
     devices.probes = std::make_unique<FakeProbes>(plant);
+    if (dut_plant) {
+      devices.dut_probes.push_back(std::make_unique<FakeProbes>(dut_plant));
+    }
     auto gyro = std::make_unique<FakeGyro>(plant, cfg->gyro.format.rate_hz);
     gyro_ = gyro.get();
     devices.gyro = std::move(gyro);
@@ -366,8 +369,11 @@ class StationRig {
     }
     daemon::StationHooks hooks;
     hooks.publish = [this](std::string_view event, const nlohmann::json& data) {
-      std::lock_guard lock(published_mu_);
-      published_.push_back(std::string(event) + " " + data.dump());
+      {
+        std::lock_guard lock(published_mu_);
+        published_.push_back(std::string(event) + " " + data.dump());
+      }
+      if (on_publish) on_publish(event, data);
     };
     hooks.lab_status = lab_status;
     storage::SampleWriterOptions wopt;
@@ -454,7 +460,12 @@ class StationRig {
   const std::string& db_path() const { return db_path_; }
 
   std::shared_ptr<FakePlant> plant = std::make_shared<FakePlant>();
+  // Set before open(): the first DUT gets shell probes of its own over this
+  // plant (its probes_silent silences them).
+  std::shared_ptr<FakePlant> dut_plant;
   FakeTable table;  // the station's when the config has a [table]
+  // Called after each publication is recorded, on the publishing thread.
+  std::function<void(std::string_view event, const nlohmann::json& data)> on_publish;
   // StationHooks::lab_status of the station open() creates (unset: no [lab]).
   std::function<std::optional<lab::RelayStatus>()> lab_status;
   ManualClock clock{1000.0, 1.0};

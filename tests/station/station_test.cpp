@@ -525,6 +525,33 @@ TEST_F(StationUnitTest, StatusShowsTheRelayAndTheFreeSpace) {
   EXPECT_EQ(j.at("last_error"), "connection refused");
 }
 
+// Item 15: the DUT probes' events are recorded under the run lock, as the
+// HTTP thread's are: while the control loop records one, an operator
+// command waits.
+TEST_F(StationUnitTest, DutProbeEventsAreRecordedUnderTheRunLock) {
+  StationRig rig(dir_);
+  rig.dut_plant = std::make_shared<FakePlant>();
+  std::future<daemon::Reply> command;
+  std::optional<bool> command_done_meanwhile;
+  rig.on_publish = [&](std::string_view event, const nlohmann::json& data) {
+    if (event != "event" || command_done_meanwhile) return;
+    if (data.value("message", "").find("probes: no answer") == std::string::npos) return;
+    // On the control thread, inside the recording of the event.
+    command = std::async(std::launch::async, [&] { return rig.station->control("pause", "race"); });
+    command_done_meanwhile = command.wait_for(scaled(1s)) == std::future_status::ready;
+  };
+  rig.open();
+  rig.step();
+  rig.dut_plant->change([](FakePlant::State& s) { s.probes_silent = true; });
+  rig.step();
+  ASSERT_TRUE(command_done_meanwhile.has_value()) << "no probe event published";
+  EXPECT_FALSE(*command_done_meanwhile)
+      << "an operator command ran while the control loop recorded an event";
+  const daemon::Reply reply = command.get();
+  ASSERT_TRUE(reply.refusal.has_value());
+  EXPECT_EQ(reply.refusal->message, "no run in progress to pause");
+}
+
 // Item 16: status() reads what the control loop left; it never waits on a
 // device, even one the control loop is blocked on.
 TEST_F(StationUnitTest, StatusDoesNotWaitForAChamberThatDoesNotAnswer) {

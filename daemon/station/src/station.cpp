@@ -516,7 +516,7 @@ schedules::Readings Station::read_devices(double now_s) {
 void Station::tick() {
   const double now_s = clock_.now_s();
   const schedules::Readings r = read_devices(now_s);
-  read_dut_probes(now_s);
+  const std::vector<std::string> probe_events = read_dut_probes(now_s);
   std::optional<double> shell_c;
   if (r.top_c && r.side_c) {
     shell_c = (*r.top_c + *r.side_c) / 2.0;
@@ -530,6 +530,7 @@ void Station::tick() {
   }
   record_unrecorded();
   record_posted_events();
+  for (const auto& message : probe_events) add_event("device", "", "", message);
   note_link(*chamber_, chamber_ok_, chamber_lost_s_, now_s);
   note_link(*probes_, probes_ok_, probes_lost_s_, now_s);
   if (!sequencer_) start_next_run(now_s);
@@ -1187,7 +1188,8 @@ void Station::register_run_duts(int64_t run_id) {
 
 // Each DUT's own probes, once a control tick, into its probe channels (the
 // frame's raw[] at those channels' indices).
-void Station::read_dut_probes(double now_s) {
+std::vector<std::string> Station::read_dut_probes(double now_s) {
+  std::vector<std::string> events;
   for (auto& d : duts_) {
     if (!d->probes) continue;
     auto top = d->probes->top_c();
@@ -1195,16 +1197,16 @@ void Station::read_dut_probes(double now_s) {
     if (!top || !side) {
       if (!d->probes_failing) {
         d->probes_failing = true;
-        add_event("device", "", "",
-                  fmt::format("DUT {} probes: no answer ({}); its own shell temperatures are "
-                              "missing from now",
-                              dut_name(*d->cfg), (!top ? top.error() : side.error()).message));
+        events.push_back(
+            fmt::format("DUT {} probes: no answer ({}); its own shell temperatures "
+                        "are missing from now",
+                        dut_name(*d->cfg), (!top ? top.error() : side.error()).message));
       }
       continue;
     }
     if (d->probes_failing) {
       d->probes_failing = false;
-      add_event("device", "", "", fmt::format("DUT {} probes: answer again", dut_name(*d->cfg)));
+      events.push_back(fmt::format("DUT {} probes: answer again", dut_name(*d->cfg)));
     }
     std::shared_ptr<const storage::RunDutRecord> layout;
     {
@@ -1221,6 +1223,7 @@ void Station::read_dut_probes(double now_s) {
     f.raw[static_cast<std::size_t>(layout->channels[1].index)] = *side;
     writer_->push_frames(*layout, std::span(&f, 1));
   }
+  return events;
 }
 
 bool Station::await_gyro(int64_t run_id, double until_s, std::chrono::milliseconds max_wait) {

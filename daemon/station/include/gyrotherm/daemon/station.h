@@ -249,7 +249,9 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // Registers every DUT in run `run_id` (run_duts, channels): before the
   // run's clock is published, so no frame comes under a run without its DUTs.
   void register_run_duts(int64_t run_id);
-  void read_dut_probes(double now_s);
+  // Reads them without run_mu_; the events to record (kind "device") are
+  // returned for the caller to add under run_mu_.
+  std::vector<std::string> read_dut_probes(double now_s);
   // Waits, up to `max_wait` (wall), until every DUT's frames of `run_id` up to
   // `until_s` (run seconds) have been handed to the writer. False on timeout.
   bool await_gyro(int64_t run_id, double until_s, std::chrono::milliseconds max_wait);
