@@ -11,6 +11,8 @@
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
+#include <spdlog/sinks/ringbuffer_sink.h>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <atomic>
@@ -55,7 +57,9 @@ class FakePlant {
     bool fahrenheit = false;            // the controller serves °F
     double side_offset_c = 0;           // added to the side probe
     std::optional<double> force_air_c;  // the air stays here whatever the set point
-    int setpoint_writes = 0;
+    bool refuse_setpoint = false;       // answers, but refuses set point writes
+    int setpoint_writes = 0;            // taken
+    int setpoint_write_attempts = 0;    // sent, silent or refused included
     // Set point writes ("setpoint 23") and table commands ("table stop"),
     // in the order they happened.
     std::vector<std::string> log;
@@ -134,7 +138,11 @@ class FakeChamber final : public drivers::Chamber {
   }
   Status write_setpoint(double value) override {
     auto io = request();
+    plant_->change([](FakePlant::State& s) { ++s.setpoint_write_attempts; });
     if (auto e = silent()) return *e;
+    if (plant_->state().refuse_setpoint) {
+      return Error::Transient("chamber: set point write refused (fake: exception 4)");
+    }
     plant_->change([&](FakePlant::State& s) {
       s.setpoint_c = s.fahrenheit ? (value - 32) / 1.8 : value;
       ++s.setpoint_writes;
@@ -323,6 +331,30 @@ class FullDiskSink final : public storage::SampleSink {
   std::vector<std::pair<int64_t, TemperatureSample>> held_temperatures_;
   std::vector<std::pair<int64_t, TableSample>> held_table_;
   std::vector<std::pair<storage::RunDutRecord, DutFrame>> held_frames_;
+};
+
+// What the default logger writes while it lives (the station's log).
+// Create it before the rig opens its station and let it go after the
+// station stopped: the logger's sinks are not changed while threads log.
+class LogCapture {
+ public:
+  LogCapture() : sink_(std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(4096)) {
+    spdlog::default_logger()->sinks().push_back(sink_);
+  }
+  ~LogCapture() {
+    auto& sinks = spdlog::default_logger()->sinks();
+    sinks.erase(std::remove(sinks.begin(), sinks.end(), sink_), sinks.end());
+  }
+  LogCapture(const LogCapture&) = delete;
+  LogCapture& operator=(const LogCapture&) = delete;
+  std::string text() const {
+    std::string out;
+    for (const auto& line : sink_->last_formatted()) out += line;
+    return out;
+  }
+
+ private:
+  std::shared_ptr<spdlog::sinks::ringbuffer_sink_mt> sink_;
 };
 
 // A minimal station config for the rig: 1 s control ticks, no wall-time

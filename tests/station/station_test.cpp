@@ -54,6 +54,31 @@ settle_timeout_min = 30
 acquire_min = 10
 )";
 
+// The messages of the events of `kind` recorded outside any run, in order.
+std::vector<std::string> messages_outside_runs(const std::string& db_path,
+                                               const std::string& kind) {
+  std::vector<std::string> out;
+  sqlite3* db = nullptr;
+  if (sqlite3_open_v2(db_path.c_str(), &db, SQLITE_OPEN_READONLY, nullptr) != SQLITE_OK) {
+    ADD_FAILURE() << "cannot open " << db_path;
+    sqlite3_close(db);
+    return out;
+  }
+  sqlite3_stmt* st = nullptr;
+  const char* sql = "SELECT message FROM events WHERE kind = ?1 AND run_id IS NULL ORDER BY id";
+  if (sqlite3_prepare_v2(db, sql, -1, &st, nullptr) == SQLITE_OK) {
+    sqlite3_bind_text(st, 1, kind.c_str(), -1, SQLITE_TRANSIENT);
+    while (sqlite3_step(st) == SQLITE_ROW) {
+      out.emplace_back(reinterpret_cast<const char*>(sqlite3_column_text(st, 0)));
+    }
+  } else {
+    ADD_FAILURE() << sqlite3_errmsg(db);
+  }
+  sqlite3_finalize(st);
+  sqlite3_close(db);
+  return out;
+}
+
 class StationUnitTest : public TempDirTest {
  protected:
   StationUnitTest() : TempDirTest("gyrotherm-station") {}
@@ -523,6 +548,88 @@ TEST_F(StationUnitTest, StatusShowsTheRelayAndTheFreeSpace) {
   EXPECT_EQ(j.at("retry_in_s"), 8.0);
   EXPECT_TRUE(j.at("last_lag_s").is_null());
   EXPECT_EQ(j.at("last_error"), "connection refused");
+}
+
+// Issue "Safe states that hold", item 1: a run that ends while the chamber
+// does not answer leaves the safe set point owed; idle ticks write it, at
+// most once a tick, until the chamber takes it, and say so.
+TEST_F(StationUnitTest, AChamberSilentAtTheEndOfARunGetsTheSafeSetPointWhenItAnswers) {
+  StationRig rig(dir_);
+  rig.open();
+  rig.queue(R"(
+name = "hold 40"
+[[step]]
+type = "hold"
+setpoint_c = 40.0
+duration_min = 3
+)");
+  ASSERT_TRUE(rig.step_until([&] { return rig.station->status().run_id.has_value(); }, 5));
+  const int64_t run_id = *rig.station->status().run_id;
+  ASSERT_TRUE(rig.step_until([&] { return rig.station->status().t_run_s >= 177; }, 600));
+  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 40.0);
+  rig.plant->change([](FakePlant::State& s) { s.chamber_silent = true; });
+  ASSERT_TRUE(rig.step_until([&] { return !rig.station->status().run_id; }, 20));
+  EXPECT_EQ(rig.reply(rig.station->run(run_id)).at("state"), "completed");
+  for (int i = 0; i < 4; ++i) rig.step();
+  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 40.0) << "the chamber did not answer";
+  EXPECT_TRUE(rig.has_event(run_id, "error", "without the chamber taking the safe set point 21"));
+  // Answering again, but refusing writes a while (a controller in local
+  // mode): one write a tick, no more.
+  rig.plant->change([](FakePlant::State& s) {
+    s.chamber_silent = false;
+    s.refuse_setpoint = true;
+  });
+  const int attempts = rig.plant->state().setpoint_write_attempts;
+  for (int i = 0; i < 4; ++i) rig.step();
+  EXPECT_EQ(rig.plant->state().setpoint_write_attempts - attempts, 4);
+  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 40.0);
+
+  rig.plant->change([](FakePlant::State& s) { s.refuse_setpoint = false; });
+  rig.step();
+  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 21.0) << "written at the first tick it answers";
+  EXPECT_NE(rig.station->status().last_event.find("set point 21 °C taken after"), std::string::npos)
+      << rig.station->status().last_event;
+  // Taken: not written again while idle.
+  const int writes = rig.plant->state().setpoint_writes;
+  for (int i = 0; i < 60; ++i) rig.step();
+  EXPECT_EQ(rig.plant->state().setpoint_writes, writes);
+}
+
+// Item 2: the log and the events say whether the safe set point was written
+// when the daemon stops.
+TEST_F(StationUnitTest, StoppingSaysWhetherTheChamberTookTheSafeSetPoint) {
+  {
+    LogCapture log;
+    {
+      StationRig rig(dir_);
+      rig.open();
+      rig.step();
+      rig.close();
+      EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 21.0);
+    }
+    EXPECT_NE(log.text().find("stopped (rig closed); chamber set point 21 °C written"),
+              std::string::npos)
+        << log.text();
+  }
+  LogCapture log;
+  {
+    StationRig rig(dir_);
+    rig.open();
+    rig.step();
+    rig.plant->change([](FakePlant::State& s) { s.chamber_silent = true; });
+    rig.close();
+    EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 23.0) << "never written";
+  }
+  const std::string text = log.text();
+  EXPECT_EQ(text.find("chamber set point 21 °C written"), std::string::npos) << text;
+  EXPECT_NE(text.find("the chamber did NOT take the safe set point 21 °C (chamber: no answer"),
+            std::string::npos)
+      << text;
+  bool said = false;
+  for (const auto& message : messages_outside_runs((dir_ / "station.db").string(), "error")) {
+    said |= message.find("did not take the safe set point 21 °C") != std::string::npos;
+  }
+  EXPECT_TRUE(said) << "an event of kind error says so";
 }
 
 // Item 15: the DUT probes' events are recorded under the run lock, as the

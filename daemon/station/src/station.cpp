@@ -399,12 +399,34 @@ void Station::stop(const std::string& reason) {
     }
   }
   make_table_safe_now();
-  write_setpoint(config_.station.safe_setpoint_c, true);
+  const double safe_c = config_.station.safe_setpoint_c;
+  Status chamber_safe;
+  {
+    std::lock_guard lock(run_mu_);
+    ++control_ticks_;  // a write of its own, whatever the last tick tried
+    chamber_safe = write_setpoint(safe_c, true);
+    if (!chamber_safe) {
+      add_event("error", "", "",
+                fmt::format("daemon stopping: the chamber did not take the safe set point {:g} °C "
+                            "({}); set it at the controller",
+                            safe_c, chamber_safe.error().message));
+    }
+  }
   for (auto& d : duts_) d->source->stop();
   if (nightly_) nightly_->stop();
   analysis_->stop();
   writer_->stop();
-  spdlog::info("stopped ({}); chamber set point {:g} °C", reason, config_.station.safe_setpoint_c);
+  if (chamber_safe) {
+    spdlog::info("stopped ({}); chamber set point {:g} °C written", reason, safe_c);
+  } else {
+    spdlog::error(
+        "stopped ({}); the chamber did NOT take the safe set point {:g} °C ({}); it holds what it "
+        "had{}: set it at the controller",
+        reason, safe_c, chamber_safe.error().message,
+        last_written_setpoint_c_
+            ? fmt::format(" (last written: {:g} °C)", *last_written_setpoint_c_)
+            : std::string());
+  }
 }
 
 bool Station::idle() const {
@@ -528,6 +550,7 @@ void Station::tick() {
     std::lock_guard lock(mu_);
     if (stopping_) return;
   }
+  ++control_ticks_;
   record_unrecorded();
   record_posted_events();
   for (const auto& message : probe_events) add_event("device", "", "", message);
@@ -541,6 +564,7 @@ void Station::tick() {
        table_->status().state->interlock == drivers::TableInterlock::kClosed)) {
     table_->make_safe(wall_.monotonic_s());
   }
+  if (!sequencer_) keep_idle_safe();
 
   double t_run_s = 0;
   if (sequencer_) {
@@ -548,8 +572,7 @@ void Station::tick() {
     if (sequencer_->state() == RunState::kAborting) {
       // The table stops before the chamber heads for its safe set point.
       if (table_) table_->make_safe(wall_.monotonic_s());
-      write_setpoint(sequencer_->setpoint_c(), true);
-      if (last_written_setpoint_c_) sequencer_->safe_state_reached(t_run_s);
+      if (write_setpoint(sequencer_->setpoint_c(), true)) sequencer_->safe_state_reached(t_run_s);
     } else {
       sequencer_->tick(t_run_s, r);
       if (table_ && !sequencer_->finished()) {
@@ -564,7 +587,7 @@ void Station::tick() {
           }
         }
       }
-      write_setpoint(sequencer_->setpoint_c(), false);
+      (void)write_setpoint(sequencer_->setpoint_c(), false);  // failing: retried next tick
     }
     if (table_) {
       if (auto sample = table_->sample(t_run_s)) writer_->push_table(current_run_id(), *sample);
@@ -711,24 +734,58 @@ bool Station::chamber_units_known() {
   return true;
 }
 
-void Station::write_setpoint(double setpoint_c, bool force) {
+Status Station::write_setpoint(double setpoint_c, bool force) {
+  if (setpoint_attempt_tick_ == control_ticks_ && setpoint_attempt_c_ == setpoint_c) {
+    return setpoint_attempt_status_;  // tried in this tick already
+  }
   ++ticks_since_setpoint_write_;
   const bool changed =
       !last_written_setpoint_c_ || std::abs(*last_written_setpoint_c_ - setpoint_c) > 1e-4;
   // Re-assert the set point now and then: a controller that was power-cycled
   // or changed by hand comes back to the schedule.
-  if (!force && !changed && ticks_since_setpoint_write_ < 30) return;
+  if (!force && !changed && ticks_since_setpoint_write_ < 30) return Status::Ok();
   ticks_since_setpoint_write_ = 0;
+  setpoint_attempt_tick_ = control_ticks_;
+  setpoint_attempt_c_ = setpoint_c;
+  Status st;
   if (!chamber_unit_ && !chamber_units_known()) {
-    last_written_setpoint_c_.reset();  // retry next tick
-    return;
-  }
-  const double value = drivers::from_celsius(setpoint_c, *chamber_unit_);
-  if (auto st = chamber_->write_setpoint(value); st) {
-    last_written_setpoint_c_ = setpoint_c;
+    st = Error::Transient(
+        "chamber: the unit it serves is not known (no answer, or its units register holds "
+        "neither °C nor °F)");
   } else {
-    last_written_setpoint_c_.reset();  // retry next tick
-    if (chamber_ok_) spdlog::warn("{}", st.error().message);
+    st = chamber_->write_setpoint(drivers::from_celsius(setpoint_c, *chamber_unit_));
+  }
+  setpoint_attempt_status_ = st;
+  const double now_s = clock_.now_s();
+  if (st) {
+    last_written_setpoint_c_ = setpoint_c;
+    if (setpoint_failures_ > 0) {
+      const std::string message =
+          fmt::format("chamber: set point {:g} °C taken after {} failed write{} over {:.0f} s",
+                      setpoint_c, setpoint_failures_, setpoint_failures_ == 1 ? "" : "s",
+                      now_s - setpoint_failing_since_s_);
+      spdlog::info("{}", message);
+      add_event("device", "", "", message);
+    }
+    setpoint_failures_ = 0;
+    return st;
+  }
+  last_written_setpoint_c_.reset();  // retry next tick
+  if (setpoint_failures_++ == 0) {
+    setpoint_failing_since_s_ = now_s;
+    const std::string message = fmt::format(
+        "chamber: set point {:g} °C not written ({}); written again every control "
+        "tick until the chamber takes it",
+        setpoint_c, st.error().message);
+    spdlog::warn("{}", message);
+    add_event("device", "", "", message);
+  }
+  return st;
+}
+
+void Station::keep_idle_safe() {
+  if (safe_setpoint_owed_ && write_setpoint(config_.station.safe_setpoint_c, true)) {
+    safe_setpoint_owed_ = false;
   }
 }
 
@@ -991,7 +1048,15 @@ void Station::end_run() {
   const int64_t run_id = current_run_id();
   // The table stops first; its servo goes off once it is at rest (ticks).
   if (table_) table_->make_safe(wall_.monotonic_s());
-  write_setpoint(config_.station.safe_setpoint_c, true);
+  const double safe_c = config_.station.safe_setpoint_c;
+  const Status chamber_safe = write_setpoint(safe_c, true);
+  safe_setpoint_owed_ = !chamber_safe;
+  if (!chamber_safe && run_id != 0) {
+    add_event("error", "", "",
+              fmt::format("run {} ended without the chamber taking the safe set point {:g} °C "
+                          "({}); the station writes it every control tick until it does",
+                          run_id, safe_c, chamber_safe.error().message));
+  }
   // A completed run's last samples may still be on the line (a reader behind
   // on a loaded machine): they are waited for, a bounded time, before no
   // batch is stored under the run any more; the flush then holds all of its

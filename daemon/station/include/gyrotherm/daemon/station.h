@@ -204,7 +204,16 @@ class Station final : public StationControl, private schedules::SequencerObserve
   void count_queue();
   int64_t current_run_id() const { return run_clock_.load().run_id; }
   double run_time_s() const;
-  void write_setpoint(double setpoint_c, bool force);
+  // Sends `setpoint_c` to the chamber when it differs from the last one
+  // written, when `force`, or every 30th call (re-asserted: a controller
+  // changed by hand comes back); never twice in a control tick. Ok when
+  // the chamber took it (now or before), else the write's error (the next
+  // call tries again). A failing spell is logged and an event when it
+  // starts and when a write takes again.
+  Status write_setpoint(double setpoint_c, bool force);
+  // Idle: the safe set point until the chamber takes it
+  // (safe_setpoint_owed_).
+  void keep_idle_safe();
   // The table's demand now: the step's, or at rest while the run is held
   // (paused, an interlock tripped) or aborting.
   schedules::TableDemand table_demand() const;
@@ -307,6 +316,18 @@ class Station final : public StationControl, private schedules::SequencerObserve
   double last_checkpoint_wall_s_ = -1e9;
   std::optional<double> last_written_setpoint_c_;
   int ticks_since_setpoint_write_ = 0;
+  // Control ticks (and the stop) counted, so a set point is written at most
+  // once in each: the value and result of the last attempt.
+  uint64_t control_ticks_ = 0;
+  uint64_t setpoint_attempt_tick_ = 0;
+  double setpoint_attempt_c_ = 0;
+  Status setpoint_attempt_status_;
+  // Failed writes in a row, since when (station time).
+  int setpoint_failures_ = 0;
+  double setpoint_failing_since_s_ = 0;
+  // A run ended and the chamber has not taken the safe set point yet: each
+  // idle tick writes it again.
+  bool safe_setpoint_owed_ = false;
   // What the database refused (disk full): kept and written in order by
   // record_unrecorded() once it takes writes again.
   static constexpr std::size_t kMaxUnrecordedEvents = 10000;
