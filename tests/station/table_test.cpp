@@ -129,6 +129,28 @@ TEST_F(StationTableTest, AbortWhileSpinningStopsTheTableBeforeTheChamberGoesSafe
   expect_safe_state_order(rig.plant->state().log);
 }
 
+// Item 4: a run that completes while spinning ends in the same order.
+TEST_F(StationTableTest, AtTheNormalEndTheTableStopsBeforeTheChamberGoesSafe) {
+  StationRig rig(dir_, table_config(dir_ / "station.db"));
+  rig.open();
+  rig.queue(R"(
+name = "spin 2 min"
+[[step]]
+type = "hold"
+setpoint_c = 23.0
+duration_min = 2
+table_rate_dps = 100.0
+)");
+  until_spinning(rig, 100.0);
+  const int64_t run_id = *rig.station->status().run_id;
+  rig.plant->change([](FakePlant::State& s) { s.log.clear(); });
+  ASSERT_TRUE(rig.step_until([&] { return !rig.station->status().run_id; }, 600));
+  EXPECT_EQ(rig.reply(rig.station->run(run_id)).at("state"), "completed");
+  ASSERT_TRUE(rig.step_until(
+      [&] { return rig.table.state().interlock == drivers::TableInterlock::kOpen; }, 30));
+  expect_safe_state_order(rig.plant->state().log);
+}
+
 TEST_F(StationTableTest, PauseStopsTheTableAndResumeSpinsItUpAgain) {
   StationRig rig(dir_, table_config(dir_ / "station.db"));
   rig.open();

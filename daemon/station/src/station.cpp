@@ -587,6 +587,9 @@ void Station::tick() {
           }
         }
       }
+      // At the run's end the table stops before the chamber heads for its
+      // safe set point (its servo goes off once at rest, ticks later).
+      if (table_ && sequencer_->finished()) table_->make_safe(wall_.monotonic_s());
       (void)write_setpoint(sequencer_->setpoint_c(), false);  // failing: retried next tick
     }
     if (table_) {
