@@ -2,12 +2,17 @@
 // towards its demand at a fixed acceleration as the rig's clock advances,
 // with a latched fault and a log of the commands it was sent (and, through
 // `on_command`, their order relative to the chamber's set point writes).
+// `aero` makes it read as an Aerosmith does through AeroTable: always
+// servoed (STA 0) unless faulted, in the mode last commanded, servo off
+// being a stop; `panel_jog_dps` turns it from its front panel whatever
+// the mode reads.
 #pragma once
 
 #include <algorithm>
 #include <cmath>
 #include <functional>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -25,6 +30,8 @@ class FakeTable final : public drivers::RateTable {
     double demand_rate_dps = 0;
     double demand_position_deg = 0;
     bool silent = false;
+    bool aero = false;
+    std::optional<double> panel_jog_dps;
   };
 
   explicit FakeTable(double accel_dps2 = 100.0) : accel_dps2_(accel_dps2) {}
@@ -36,6 +43,7 @@ class FakeTable final : public drivers::RateTable {
     if (s_.interlock == drivers::TableInterlock::kClosed && s_.mode == drivers::TableMode::kRate) {
       target = s_.demand_rate_dps;
     }
+    if (s_.panel_jog_dps) target = *s_.panel_jog_dps;
     const double step = accel_dps2_ * dt_s;
     const double before = s_.rate_dps;
     s_.rate_dps = before + std::clamp(target - before, -step, step);
@@ -110,7 +118,9 @@ class FakeTable final : public drivers::RateTable {
   }
   Status servo_off() override {
     return command("servo off", [](State& s) {
-      if (s.interlock == drivers::TableInterlock::kClosed) {
+      if (s.aero) {
+        s.mode = drivers::TableMode::kOff;  // AeroTable: STO
+      } else if (s.interlock == drivers::TableInterlock::kClosed) {
         s.interlock = drivers::TableInterlock::kOpen;
       }
       return true;

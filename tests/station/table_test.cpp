@@ -165,6 +165,45 @@ TEST_F(StationTableTest, PauseStopsTheTableAndResumeSpinsItUpAgain) {
   until_spinning(rig, 100.0);
 }
 
+// Item 8: an idle station makes an Aerosmith safe once and then leaves it
+// alone; it always reads as servoed, so "servoed" does not mean "ours".
+TEST_F(StationTableTest, AnIdleAerosmithIsMadeSafeOnceAndLeftAlone) {
+  StationRig rig(dir_, table_config(dir_ / "station.db"));
+  rig.table.change([](FakeTable::State& s) {
+    s.aero = true;
+    s.interlock = drivers::TableInterlock::kClosed;
+  });
+  rig.open();
+  for (int i = 0; i < 60; ++i) rig.step();
+  auto commands = rig.table.commands();
+  EXPECT_EQ(commands, (std::vector<std::string>{"stop", "servo off"}));
+  // A jog from the front panel: not the station's to stop.
+  rig.table.change([](FakeTable::State& s) { s.panel_jog_dps = 10.0; });
+  for (int i = 0; i < 30; ++i) rig.step();
+  EXPECT_NEAR(rig.table.state().rate_dps, 10.0, 1e-9);
+  EXPECT_EQ(rig.table.commands(), commands) << ::testing::PrintToString(rig.table.commands());
+
+  // A run makes it ours again: at its end, safe once more, then left alone.
+  rig.table.change([](FakeTable::State& s) { s.panel_jog_dps.reset(); });
+  rig.queue(R"(
+name = "spin"
+[[step]]
+type = "hold"
+setpoint_c = 23.0
+duration_min = 1
+table_rate_dps = 100.0
+)");
+  ASSERT_TRUE(rig.step_until([&] { return rig.station->status().run_id.has_value(); }, 5));
+  ASSERT_TRUE(rig.step_until([&] { return !rig.station->status().run_id; }, 600));
+  ASSERT_TRUE(rig.step_until([&] { return std::abs(rig.table.state().rate_dps) < 0.01; }, 30));
+  for (int i = 0; i < 5; ++i) rig.step();
+  commands = rig.table.commands();
+  EXPECT_EQ(std::count(commands.begin(), commands.end(), "stop"), 2)
+      << ::testing::PrintToString(commands);
+  for (int i = 0; i < 60; ++i) rig.step();
+  EXPECT_EQ(rig.table.commands(), commands) << ::testing::PrintToString(rig.table.commands());
+}
+
 TEST_F(StationTableTest, AFaultTripsTheTableInterlockAndItsGraceAbortsTheRun) {
   StationRig rig(dir_,
                  table_config(dir_ / "station.db") + "[interlocks]\ntable_fault_grace_min = 1.0\n");

@@ -557,13 +557,6 @@ void Station::tick() {
   note_link(*chamber_, chamber_ok_, chamber_lost_s_, now_s);
   note_link(*probes_, probes_ok_, probes_lost_s_, now_s);
   if (!sequencer_) start_next_run(now_s);
-  // Idle, the table is at rest and not servoed (a daemon that crashed may
-  // have left it spinning).
-  if (!sequencer_ && table_ && !table_->safing() && table_->status().state &&
-      (!table_->at_rest() ||
-       table_->status().state->interlock == drivers::TableInterlock::kClosed)) {
-    table_->make_safe(wall_.monotonic_s());
-  }
   if (!sequencer_) keep_idle_safe();
 
   double t_run_s = 0;
@@ -787,6 +780,9 @@ Status Station::write_setpoint(double setpoint_c, bool force) {
 }
 
 void Station::keep_idle_safe() {
+  if (table_ && !table_->safing() && table_->answering() && table_->owes_safe_state()) {
+    table_->make_safe(wall_.monotonic_s());
+  }
   if (safe_setpoint_owed_ && write_setpoint(config_.station.safe_setpoint_c, true)) {
     safe_setpoint_owed_ = false;
   }

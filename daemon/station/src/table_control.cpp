@@ -19,6 +19,10 @@ bool same_demand(const TableDemand& a, const TableDemand& b) {
   return a.mode == b.mode && a.rate_dps == b.rate_dps && a.position_deg == b.position_deg;
 }
 
+bool moving(const TableDemand& d) {
+  return d.mode == TableDemandMode::kRate || d.position_deg.has_value();
+}
+
 }  // namespace
 
 std::string describe(const TableDemand& demand) {
@@ -122,6 +126,7 @@ void TableControl::drive(const TableDemand& demand, double wall_s) {
   if (st) {
     if (changed) spdlog::info("{}: {}", table_.name(), describe(demand));
     sent_ = demand;
+    if (moving(demand)) safe_reached_ = false;
   }
 }
 
@@ -129,9 +134,10 @@ void TableControl::make_safe(double wall_s) {
   demand_ = TableDemand{TableDemandMode::kStatic, std::nullopt, 0};
   if (safing_ && stop_sent_) return;
   safing_ = true;
-  if (state_ && state_->interlock == drivers::TableInterlock::kOpen) {
+  if (state_ && ok_ && state_->interlock == drivers::TableInterlock::kOpen) {
     // Not servoed: nothing spins, nothing to switch off.
     safing_ = false;
+    safe_reached_ = true;
     return;
   }
   last_send_wall_s_ = wall_s;
@@ -150,7 +156,7 @@ void TableControl::finish_safe_state(double wall_s) {
     if (wall_s - last_send_wall_s_ >= kResendWallS) make_safe(wall_s);
     return;
   }
-  if (!state_ || std::abs(state_->rate_dps) >= config_.rest_rate_dps) return;
+  if (!state_ || !ok_ || std::abs(state_->rate_dps) >= config_.rest_rate_dps) return;
   if (state_->interlock == drivers::TableInterlock::kClosed) {
     const Status st = table_.servo_off();
     log_failure(st, "servo off");
@@ -159,6 +165,7 @@ void TableControl::finish_safe_state(double wall_s) {
   }
   safing_ = false;
   stop_sent_ = false;
+  safe_reached_ = true;
   sent_.reset();
 }
 

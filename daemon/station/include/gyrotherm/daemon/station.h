@@ -211,8 +211,8 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // call tries again). A failing spell is logged and an event when it
   // starts and when a write takes again.
   Status write_setpoint(double setpoint_c, bool force);
-  // Idle: the safe set point until the chamber takes it
-  // (safe_setpoint_owed_).
+  // Idle: the table's safe state once, and the safe set point until the
+  // chamber takes it (safe_setpoint_owed_).
   void keep_idle_safe();
   // The table's demand now: the step's, or at rest while the run is held
   // (paused, an interlock tripped) or aborting.

@@ -14,7 +14,13 @@
 // the daemon stopping): stop (decelerate at the controller's limits, the
 // axis stays servoed); once the measured rate is below rest_rate_dps the
 // interlock is opened (servo off). The station stops the table before it
-// sends the chamber's safe set point.
+// sends the chamber's safe set point, and opens the servo after. An axis
+// that is not servoed (interlock open) is already as safe as the station
+// can make it. Idle, the station makes the table safe once (after a run,
+// or at start-up: a daemon that died may have left it spinning) and then
+// leaves it alone: a jog from the front panel is not the station's to stop
+// (an Aerosmith reads as servoed and in the mode last commanded whatever
+// happens at its panel).
 #pragma once
 
 #include <optional>
@@ -48,6 +54,11 @@ class TableControl {
   // At rest and stopped (or not servoed): the safe state is reached.
   bool at_rest() const;
   bool safing() const { return safing_; }
+  // Whether the safe state is still owed: not reached since the daemon
+  // started, or since the station last set the table moving.
+  bool owes_safe_state() const { return !safe_reached_; }
+  // The last read answered (and one has, ever).
+  bool answering() const { return ok_ && state_.has_value(); }
 
   // The record of this tick's reading (nullopt before any good reading).
   std::optional<TableSample> sample(double t_run_s) const;
@@ -71,6 +82,7 @@ class TableControl {
   bool safing_ = false;
   bool stop_sent_ = false;
   bool failing_ = false;  // a command failed; logged once per spell
+  bool safe_reached_ = false;
 };
 
 // "static at 90.0°", "rate +10 °/s", "none".
