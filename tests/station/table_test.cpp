@@ -204,6 +204,28 @@ table_rate_dps = 100.0
   EXPECT_EQ(rig.table.commands(), commands) << ::testing::PrintToString(rig.table.commands());
 }
 
+// Item 6: at shutdown a table that does not answer is not waited for, and
+// the log says its state is unknown rather than guessing it.
+TEST_F(StationTableTest, StoppingWithATableThatNeverAnsweredDoesNotWaitForIt) {
+  LogCapture log;
+  {
+    StationRig rig(dir_, table_config(dir_ / "station.db"));
+    rig.table.change([](FakeTable::State& s) { s.silent = true; });
+    rig.open();
+    for (int i = 0; i < 3; ++i) rig.step();
+    const auto started = std::chrono::steady_clock::now();
+    rig.close();
+    // The old wait was 30 s of 100 ms polls.
+    EXPECT_LT(std::chrono::steady_clock::now() - started, scaled(10s));
+  }
+  const std::string text = log.text();
+  EXPECT_NE(text.find("table: no answer at shutdown (table: no answer (fake)); its state is "
+                      "unknown (it never answered since the daemon started)"),
+            std::string::npos)
+      << text;
+  EXPECT_EQ(text.find("servo on"), std::string::npos) << text;
+}
+
 TEST_F(StationTableTest, AFaultTripsTheTableInterlockAndItsGraceAbortsTheRun) {
   StationRig rig(dir_,
                  table_config(dir_ / "station.db") + "[interlocks]\ntable_fault_grace_min = 1.0\n");

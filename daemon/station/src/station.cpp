@@ -677,20 +677,53 @@ schedules::TableDemand Station::table_demand() const {
 
 void Station::make_table_safe_now() {
   if (!table_) return;
-  // Real waiting, whatever the clocks: 100 ms polls, 30 s at most.
+  // Real waiting, whatever the clocks: 100 ms polls, 30 s at most for the
+  // table to come to rest, 1 s without an answer.
   constexpr int kPolls = 300;
+  constexpr int kSilentPolls = 10;
   constexpr auto kPoll = std::chrono::milliseconds(100);
+  const double min_silent_wall_s = config_.control.min_silent_wall_s;
   schedules::Readings r;
-  table_->read(clock_.now_s(), wall_.monotonic_s(), config_.control.min_silent_wall_s, r);
+  table_->read(clock_.now_s(), wall_.monotonic_s(), min_silent_wall_s, r);
+  // What the last reading showed, for a message that says no more than it.
+  auto last_seen = [&] {
+    const auto& s = table_->last_state();
+    if (!s) return std::string("it never answered since the daemon started");
+    return fmt::format("last seen at {:+.3f} °/s, mode {}, interlock {}", s->rate_dps,
+                       drivers::to_string(s->mode), drivers::to_string(s->interlock));
+  };
+  if (!table_->answering()) {
+    table_->make_safe(wall_.monotonic_s());  // a stop all the same, if the line takes it
+    spdlog::error(
+        "table: no answer at shutdown ({}); its state is unknown ({}): check the table at its "
+        "controller",
+        table_->last_error(), last_seen());
+    return;
+  }
   table_->make_safe(wall_.monotonic_s());
+  int silent_polls = 0;
   for (int poll = 0;; ++poll) {
     const double wall_s = wall_.monotonic_s();
-    table_->read(clock_.now_s(), wall_s, config_.control.min_silent_wall_s, r);
+    table_->read(clock_.now_s(), wall_s, min_silent_wall_s, r);
+    silent_polls = table_->answering() ? 0 : silent_polls + 1;
+    if (silent_polls == kSilentPolls) {
+      spdlog::error(
+          "table: stopped answering at shutdown ({}); its state is unknown ({}): check the table "
+          "at its controller",
+          table_->last_error(), last_seen());
+      break;
+    }
     table_->finish_safe_state(wall_s);
     if (!table_->safing()) break;
     if (poll == kPolls) {
-      spdlog::error("table: not at rest after {} s; left stopping, servo on",
-                    kPolls * kPoll.count() / 1000);
+      const std::string wait = fmt::format("{} s", kPolls * kPoll.count() / 1000);
+      if (table_->stop_sent()) {
+        spdlog::error("table: not at rest after {} ({}); stop sent, the servo left on", wait,
+                      last_seen());
+      } else {
+        spdlog::error("table: did not take the stop in {} ({}; {}): check the table", wait,
+                      table_->last_error(), last_seen());
+      }
       break;
     }
     std::this_thread::sleep_for(kPoll);

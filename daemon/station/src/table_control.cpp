@@ -63,6 +63,7 @@ void TableControl::read(double now_s, double wall_s, double min_silent_wall_s,
   } else {
     if (ok_) spdlog::warn("{}", state.error().message);
     ok_ = false;
+    last_error_ = state.error().message;
   }
   r.table_silent_s = wall_s - ok_wall_s_ >= min_silent_wall_s ? std::max(0.0, now_s - ok_s_) : 0.0;
 }
@@ -106,6 +107,7 @@ void TableControl::log_failure(const Status& st, const std::string& what) {
   }
   if (!failing_) spdlog::error("{}: {}: {}", table_.name(), what, st.error().message);
   failing_ = true;
+  last_error_ = st.error().message;
 }
 
 void TableControl::drive(const TableDemand& demand, double wall_s) {

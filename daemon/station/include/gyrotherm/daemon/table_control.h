@@ -59,6 +59,11 @@ class TableControl {
   bool owes_safe_state() const { return !safe_reached_; }
   // The last read answered (and one has, ever).
   bool answering() const { return ok_ && state_.has_value(); }
+  // The stop of the safe state in progress was accepted.
+  bool stop_sent() const { return stop_sent_; }
+  const std::optional<drivers::TableState>& last_state() const { return state_; }
+  // The last failed read's or command's error ("" before any).
+  const std::string& last_error() const { return last_error_; }
 
   // The record of this tick's reading (nullopt before any good reading).
   std::optional<TableSample> sample(double t_run_s) const;
@@ -82,6 +87,7 @@ class TableControl {
   bool safing_ = false;
   bool stop_sent_ = false;
   bool failing_ = false;  // a command failed; logged once per spell
+  std::string last_error_;
   bool safe_reached_ = false;
 };
 
