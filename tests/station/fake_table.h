@@ -31,6 +31,7 @@ class FakeTable final : public drivers::RateTable {
     double demand_position_deg = 0;
     bool silent = false;
     bool aero = false;
+    bool sticky_fault = false;  // reset_faults() does not clear it (its cause stays)
     std::optional<double> panel_jog_dps;
   };
 
@@ -128,8 +129,8 @@ class FakeTable final : public drivers::RateTable {
   }
   Status reset_faults() override {
     return command("reset", [](State& s) {
-      if (s.interlock == drivers::TableInterlock::kFault) {
-        s.interlock = drivers::TableInterlock::kOpen;
+      if (s.interlock == drivers::TableInterlock::kFault && !s.sticky_fault) {
+        s.interlock = s.aero ? drivers::TableInterlock::kClosed : drivers::TableInterlock::kOpen;
       }
       return true;
     });

@@ -567,6 +567,7 @@ void Station::tick() {
       if (table_) table_->make_safe(wall_.monotonic_s());
       if (write_setpoint(sequencer_->setpoint_c(), true)) sequencer_->safe_state_reached(t_run_s);
     } else {
+      if (table_) tend_table(t_run_s);
       sequencer_->tick(t_run_s, r);
       if (table_ && !sequencer_->finished()) {
         const schedules::TableDemand demand = table_demand();
@@ -821,6 +822,36 @@ void Station::keep_idle_safe() {
   }
 }
 
+void Station::tend_table(double t_run_s) {
+  if (auto what = table_->take_interruption()) {
+    const bool respin = config_.table->respin_after_fault;
+    add_event("table", "", "",
+              fmt::format("table: {}; {}", *what,
+                          respin ? "the station spins it up again ([table] respin_after_fault); "
+                                   "acquisition waits for the rate"
+                                 : "the run pauses with the table at rest"));
+    sequencer_->table_interrupted(t_run_s, "the table was taken off its demand");
+    if (!respin && !sequencer_->paused()) {
+      (void)sequencer_->pause(
+          t_run_s,
+          fmt::format("table: {}; it stays at rest until `gyrotherm resume` spins it up again "
+                      "([table] respin_after_fault = false)",
+                      *what));
+    }
+  }
+  const auto tripped = sequencer_->tripped();
+  const bool fault_holds =
+      std::any_of(tripped.begin(), tripped.end(), [](const schedules::InterlockCondition& c) {
+        return c.kind == schedules::InterlockKind::kTableFault;
+      });
+  if (fault_holds) {
+    if (auto message = table_->reset_latched_fault(clock_.now_s())) {
+      spdlog::info("{}", *message);
+      add_event("table", "", "", *message);
+    }
+  }
+}
+
 // ---------------------------------------------------------------- queue and runs
 
 void Station::count_queue() {
@@ -928,6 +959,7 @@ void Station::start_next_run(double now_s) {
     return;
   }
   spdlog::info("run {}: {} ({} steps)", run_id, plan->name, plan->steps.size());
+  if (table_) table_->begin_run();
   segment_ids_.assign(plan->steps.size(), 0);
   const double start_sp = last_written_setpoint_c_.value_or(
       snapshot_.chamber_c.value_or(config_.station.safe_setpoint_c));
@@ -1049,6 +1081,7 @@ void Station::resume_interrupted_run() {
       (t_resume_s - snap->t_s) / 60.0, run.state);
   spdlog::info("run {}: {}", run.id, reason);
   make_sequencer(std::move(*plan));
+  if (table_) table_->begin_run();
   add_event("resume", "", "", reason);
   last_written_setpoint_c_.reset();
   sequencer_->restore(*snap, t_resume_s, data_until_s, reason);
@@ -1724,6 +1757,25 @@ Reply Station::control(std::string_view action, const std::string& reason_in) {
     if (hold_reason_) return Reply::refused(Refusal::Kind::kConflict, "the queue is already held");
     hold_queue("stopped by the operator (" + reason + "); resume releases the queue");
     return Reply::ok({{"ok", true}, {"message", "queue held"}});
+  }
+  if (action == "table-reset") {
+    if (!table_device_) {
+      return Reply::refused(Refusal::Kind::kConflict,
+                            "this station has no rate table ([table] in the station config)");
+    }
+    // The driver serialises its requests with the control loop's.
+    if (auto st = table_device_->reset_faults(); !st) {
+      return Reply::refused(Refusal::Kind::kUnavailable,
+                            fmt::format("table fault reset not done: {}", st.error().message));
+    }
+    log_command(fmt::format("table: fault reset by the operator ({})", reason));
+    return Reply::ok(
+        {{"ok", true},
+         {"message",
+          fmt::format("{}: fault reset sent; the table_fault interlock clears at the "
+                      "next reading without a fault{}",
+                      table_device_->name(),
+                      running && sequencer_->paused() ? "; `gyrotherm resume` goes on" : "")}});
   }
   return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no control action '{}'", action));
 }

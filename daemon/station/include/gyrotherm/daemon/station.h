@@ -214,6 +214,10 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // Idle: the table's safe state once, and the safe set point until the
   // chamber takes it (safe_setpoint_owed_).
   void keep_idle_safe();
+  // A run's table, before the sequencer's tick: an interruption holds the
+  // acquisition (and pauses the run unless [table] respin_after_fault); a
+  // latched fault holding the run is reset.
+  void tend_table(double t_run_s);
   // The table's demand now: the step's, or at rest while the run is held
   // (paused, an interlock tripped) or aborting.
   schedules::TableDemand table_demand() const;
