@@ -7,6 +7,7 @@
 #include <cinttypes>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <fstream>
 #include <functional>
 #include <iostream>
@@ -17,6 +18,7 @@
 #include "analysis.h"
 #include "control.h"
 #include "export.h"
+#include "gyrotherm/cli/http_client.h"
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/daemon/station_lock.h"
 #include "gyrotherm/drivers/frame_parser.h"
@@ -467,7 +469,38 @@ std::string table_endpoint(const drivers::TableConnection& c) {
   return fmt::format("acutrol {}:{} axis {} ({} replies)", c.host, c.port, c.axis, c.reply_header);
 }
 
-int cmd_table(const std::string& config_path, const std::string& action, double value, bool json) {
+// `table reset` on a station gyrothermd runs: the daemon resets the fault
+// (POST /api/v1/control/table-reset), so the commissioning commands' rule
+// (stop the daemon first) does not apply to it.
+int table_reset_through_daemon(const daemon::StationOwner& owner, const std::string& reason,
+                               const std::string& token, bool json) {
+  std::string url = owner.api_url;
+  if (url.empty()) {
+    return fail(fmt::format("the station is run by gyrothermd{}, whose station lock names no API "
+                            "address yet; try again once it listens",
+                            owner.pid > 0 ? fmt::format(" (pid {})", owner.pid) : std::string()),
+                1);
+  }
+  while (!url.empty() && url.back() == '/') url.pop_back();
+  const std::string body = reason.empty() ? "" : nlohmann::json({{"reason", reason}}).dump();
+  auto res = cli::http_request("POST", url + "/api/v1/control/table-reset", body, token);
+  if (!res) return fail(fmt::format("gyrothermd runs the station: {}", res.error().message));
+  if (json && !res->body.empty()) std::cout << res->body << (res->body.back() == '\n' ? "" : "\n");
+  if (res->status < 200 || res->status > 299) {
+    return fail(cli::format_http_error(res->status, res->body, !token.empty(), token));
+  }
+  if (!json) {
+    const auto j = nlohmann::json::parse(res->body, nullptr, false);
+    const std::string message = j.is_object() && j.value("message", nlohmann::json()).is_string()
+                                    ? j["message"].get<std::string>()
+                                    : std::string("done");
+    std::cout << fmt::format("through gyrothermd at {}: {}\n", url, message);
+  }
+  return 0;
+}
+
+int cmd_table(const std::string& config_path, const std::string& action, double value, bool json,
+              const std::string& reason = "", const std::string& token = "") {
   if ((action == "rate" || action == "position") && !std::isfinite(value)) {
     return fail(fmt::format("{} is not a {}", value, action), 2);
   }
@@ -484,6 +517,11 @@ int cmd_table(const std::string& config_path, const std::string& action, double 
                             value, section.max_rate_dps, config_path),
                 2);
   }
+  if (action == "reset") {
+    if (const auto owner = daemon::station_owner(cfg->storage.db_path)) {
+      return table_reset_through_daemon(*owner, reason, token, json);
+    }
+  }
   std::optional<drivers::SerialPort> gyro_line;  // held so no daemon starts meanwhile
   std::string gyro_error;
   if (auto refused = refuse_if_station_owned(*cfg, gyro_line, gyro_error)) return *refused;
@@ -499,6 +537,7 @@ int cmd_table(const std::string& config_path, const std::string& action, double 
   if (action == "rate") done = table.set_rate(value);
   if (action == "position") done = table.set_position(value);
   if (action == "stop") done = table.stop();
+  if (action == "reset") done = table.reset_faults();
   if (!done) return fail(fmt::format("{}: {}", where, done.error().message));
 
   const auto state = table.read();
@@ -531,6 +570,7 @@ int cmd_table(const std::string& config_path, const std::string& action, double 
     if (action == "rate") std::cout << fmt::format("table rate demand {:g} °/s sent\n", value);
     if (action == "position") std::cout << fmt::format("table position demand {:g}° sent\n", value);
     if (action == "stop") std::cout << "table stop sent (decelerates to rest, stays servoed)\n";
+    if (action == "reset") std::cout << "table fault reset sent\n";
     std::cout << fmt::format("table    {}\n", where);
     if (state) {
       std::cout << fmt::format(
@@ -651,7 +691,15 @@ int main(int argc, char** argv) {
   auto* table_position = table->add_subcommand("position", "move to and hold a position (°)");
   table_position->add_option("deg", table_value, "position, °")->required();
   auto* table_stop = table->add_subcommand("stop", "decelerate to rest (stays servoed)");
-  for (auto* sub : {table_status, table_rate, table_position, table_stop}) {
+  auto* table_reset = table->add_subcommand(
+      "reset", "clear a latched fault (through gyrothermd when it runs the station)");
+  std::string table_reason;
+  std::string table_token;
+  if (const char* env = std::getenv("GYROTHERM_TOKEN"); env) table_token = env;
+  table_reset->add_option("--reason", table_reason, "text for the event log (through gyrothermd)");
+  table_reset->add_option("--token", table_token,
+                          "API token, when gyrothermd runs the station (env GYROTHERM_TOKEN)");
+  for (auto* sub : {table_status, table_rate, table_position, table_stop, table_reset}) {
     sub->add_option("--config", config_path, "station config")->required();
     sub->add_flag("--json", json);
   }
@@ -711,8 +759,9 @@ int main(int argc, char** argv) {
       const char* action = *table_status     ? "status"
                            : *table_rate     ? "rate"
                            : *table_position ? "position"
+                           : *table_reset    ? "reset"
                                              : "stop";
-      return cmd_table(config_path, action, table_value, json);
+      return cmd_table(config_path, action, table_value, json, table_reason, table_token);
     }
     if (auto code = control.run(json)) return *code;
     if (auto code = analysis.run(json)) return *code;

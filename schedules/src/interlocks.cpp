@@ -81,9 +81,11 @@ std::optional<std::string> storage_failing(const Readings& r, const InterlockOpt
 
 std::optional<std::string> table_fault(const Readings& r, const InterlockOptions&, bool) {
   if (!r.table_present || !r.table_fault) return std::nullopt;
-  return r.table_fault_text.empty()
-             ? std::string("the rate table's interlock is in fault")
-             : fmt::format("the rate table's interlock is in fault: {}", r.table_fault_text);
+  return fmt::format(
+      "the rate table's interlock is in fault{}{}; the station resets it once the table is at "
+      "rest (at most {} times); if the fault stays, clear its cause at the table and run "
+      "`gyrotherm table reset`",
+      r.table_fault_text.empty() ? "" : ": ", r.table_fault_text, kTableFaultResets);
 }
 
 std::optional<std::string> table_silent(const Readings& r, const InterlockOptions& o, bool) {

@@ -66,10 +66,12 @@ Sequencer::Sequencer(Plan plan, SequencerOptions options, SequencerObserver& obs
       observer_(observer),
       setpoint_c_(options.safe_setpoint_c) {}
 
-bool Sequencer::held() const {
+bool Sequencer::hold_active() const {
   if (paused_ || restore_pending_) return true;
   return std::any_of(std::begin(tripped_), std::end(tripped_), [](bool t) { return t; });
 }
+
+bool Sequencer::held() const { return hold_active() || table_spin_up_pending_; }
 
 RunState Sequencer::derived_state() const {
   if (end_) return *end_;
@@ -78,6 +80,7 @@ RunState Sequencer::derived_state() const {
     return RunState::kSuspended;
   }
   if (paused_) return RunState::kPaused;
+  if (table_spin_up_pending_) return RunState::kSettling;
   return activity_;
 }
 
@@ -91,16 +94,16 @@ void Sequencer::update_state(double t_s, const std::string& reason) {
 
 std::optional<GateProgress> Sequencer::gate_progress(double t_s) const {
   if (end_ || state_ == RunState::kQueued || index_ >= plan_.steps.size() ||
-      activity_ != RunState::kSettling) {
+      (activity_ != RunState::kSettling && !table_spin_up_pending_)) {
     return std::nullopt;
   }
   const PlanStep& step = plan_.steps[index_];
-  if (step.kind == StepKind::kSoak) {
+  if (step.kind == StepKind::kSoak && !table_spin_up_pending_) {
     const double held_s = in_tolerance_since_s_ ? std::max(0.0, t_s - *in_tolerance_since_s_) : 0.0;
     return GateProgress{std::min(held_s, step.stability_window_s), step.stability_window_s,
                         step_active_s_};
   }
-  if (step.kind == StepKind::kRate) {
+  if (step.kind == StepKind::kRate || table_spin_up_pending_) {
     const double held_s = at_rate_since_s_ ? std::max(0.0, t_s - *at_rate_since_s_) : 0.0;
     return GateProgress{std::min(held_s, options_.at_rate_hold_s), options_.at_rate_hold_s,
                         spin_up_s_};
@@ -136,6 +139,7 @@ void Sequencer::begin_step(std::size_t index, double t_s) {
   const PlanStep& step = plan_.steps[index];
   ramp_from_c_ = setpoint_c_;
   in_tolerance_since_s_.reset();
+  table_spin_up_pending_ = false;
   observer_.on_step_started(index, step, t_s);
   switch (step.kind) {
     case StepKind::kSoak:
@@ -340,6 +344,17 @@ void Sequencer::tick(double t_s, const Readings& readings) {
   }
 
   const PlanStep& step = plan_.steps[index_];
+  if (step.kind != StepKind::kRate && step.table.mode == TableDemandMode::kRate) {
+    if (hold_active()) {
+      // The daemon stops the table while the run is held: the wait (and its
+      // timeout) starts when the hold ends.
+      table_spin_up_pending_ = true;
+      spin_up_s_ = 0;
+      at_rate_since_s_.reset();
+    } else if (table_spin_up_pending_ && !tick_table_gate(t_s, dt_s, readings)) {
+      return;
+    }
+  }
   if (step.kind == StepKind::kSoak) {
     tick_soak(t_s, readings);
     return;
@@ -530,6 +545,63 @@ void Sequencer::tick_rate(double t_s, double active_dt_s, const Readings& readin
   }
 }
 
+bool Sequencer::tick_table_gate(double t_s, double dt_s, const Readings& readings) {
+  const PlanStep& step = plan_.steps[index_];
+  const double demand_dps = step.table.rate_dps;
+  if (readings.table_rate_dps) last_table_rate_dps_ = readings.table_rate_dps;
+  spin_up_s_ += dt_s;
+  const double tolerance_dps = at_rate_tolerance_dps(demand_dps);
+  const bool at_rate =
+      readings.table_rate_dps && std::abs(*readings.table_rate_dps - demand_dps) <= tolerance_dps;
+  if (!at_rate) {
+    at_rate_since_s_.reset();
+  } else if (!at_rate_since_s_) {
+    at_rate_since_s_ = t_s;
+  }
+  if (at_rate && t_s - *at_rate_since_s_ >= options_.at_rate_hold_s) {
+    // The step goes on at this tick (its window reopens as after any hold).
+    table_spin_up_pending_ = false;
+    at_rate_since_s_.reset();
+    return true;
+  }
+  if (spin_up_s_ > options_.spin_up_timeout_s) {
+    const std::string measured = last_table_rate_dps_
+                                     ? fmt::format("{:+.4f} °/s", *last_table_rate_dps_)
+                                     : std::string("no table reading");
+    abort(t_s, fmt::format("{}: the table did not get back to {:+g} °/s (± {:g} °/s for {:g} s) "
+                           "within {:g} s; last measured {}",
+                           step.label, demand_dps, tolerance_dps, options_.at_rate_hold_s,
+                           options_.spin_up_timeout_s, measured));
+    return false;
+  }
+  update_state(t_s, fmt::format("{}: spinning the table up to {:+g} °/s again; acquisition "
+                                "waits for the rate",
+                                step.label, demand_dps));
+  return true;
+}
+
+void Sequencer::table_interrupted(double t_s, const std::string& reason) {
+  if (end_ || state_ == RunState::kQueued || index_ >= plan_.steps.size()) return;
+  const PlanStep& step = plan_.steps[index_];
+  if (step.table.mode != TableDemandMode::kRate) return;
+  if (step.kind == StepKind::kRate) {
+    close_window(t_s);  // discards a partial dwell
+    restart_spin_up();
+    update_state(t_s, fmt::format("{}: {}; spinning up to {:+g} °/s again, the dwell starts over",
+                                  step.label, reason, step.table.rate_dps));
+    return;
+  }
+  close_window(t_s);
+  was_held_ = true;  // the window reopens as after a hold
+  if (!table_spin_up_pending_) {
+    table_spin_up_pending_ = true;
+    spin_up_s_ = 0;
+    at_rate_since_s_.reset();
+  }
+  update_state(t_s, fmt::format("{}: {}; acquisition waits for the table at {:+g} °/s again",
+                                step.label, reason, step.table.rate_dps));
+}
+
 Status Sequencer::pause(double t_s, const std::string& reason) {
   if (end_ || state_ == RunState::kQueued) return Error::Permanent("no run in progress to pause");
   if (paused_) return Error::Permanent("the run is already paused");
@@ -549,11 +621,17 @@ Status Sequencer::resume(double t_s, const std::string& reason) {
   paused_ = false;
   // The window reopens (or the soak restarts) at the next tick, with readings.
   const PlanStep& step = plan_.steps[index_];
-  update_state(t_s, step.kind == StepKind::kRate
-                        ? fmt::format("resumed ({}); {}: spinning up to {:+g} °/s, the dwell "
-                                      "starts over",
-                                      reason, step.label, step.table.rate_dps)
-                        : fmt::format("resumed ({})", reason));
+  std::string what = fmt::format("resumed ({})", reason);
+  if (step.kind == StepKind::kRate) {
+    what += fmt::format("; {}: spinning up to {:+g} °/s, the dwell starts over", step.label,
+                        step.table.rate_dps);
+  } else if (table_spin_up_pending_ && !hold_active()) {
+    what += fmt::format(
+        "; {}: spinning the table up to {:+g} °/s again; acquisition waits for "
+        "the rate",
+        step.label, step.table.rate_dps);
+  }
+  update_state(t_s, what);
   return Status::Ok();
 }
 

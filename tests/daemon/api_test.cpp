@@ -437,6 +437,23 @@ TEST(Api, RefusalsMapToStatusesWithTheirMessages) {
             http::status::conflict);
 }
 
+// The rate table's fault reset is a control action like pause: routed to
+// the station's control() with its reason (`gyrotherm table reset` on a
+// station the daemon runs).
+TEST(Api, TableResetIsAControlActionOfTheStation) {
+  FakeControl control;
+  const ApiContext ctx = fake_context(&control);
+  const auto res = handle_api_request(
+      request(http::verb::post, "/api/v1/control/table-reset", R"({"reason":"e-stop checked"})"),
+      ctx);
+  EXPECT_EQ(res.result(), http::status::ok) << res.body();
+  EXPECT_EQ(control.calls, (std::vector<std::string>{"control table-reset e-stop checked"}));
+  const auto unknown =
+      handle_api_request(request(http::verb::post, "/api/v1/control/table-rest"), ctx);
+  EXPECT_EQ(unknown.result(), http::status::not_found);
+  EXPECT_NE(unknown.body().find("table-reset"), std::string::npos) << "the actions are listed";
+}
+
 TEST(Api, BadBodiesAre400NamingTheProblem) {
   FakeControl control;
   const ApiContext ctx = fake_context(&control);

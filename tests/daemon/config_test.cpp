@@ -508,6 +508,7 @@ at_rate_hold_s = 2
 spin_up_timeout_s = 60
 rest_rate_dps = 0.02
 silent_timeout_s = 5
+respin_after_fault = true
 sensitive_axis = "radial"
 heading_at_zero_deg = 90
 )",
@@ -529,6 +530,7 @@ heading_at_zero_deg = 90
   EXPECT_DOUBLE_EQ(t.spin_up_timeout_s, 60);
   EXPECT_DOUBLE_EQ(t.rest_rate_dps, 0.02);
   EXPECT_DOUBLE_EQ(t.silent_timeout_s, 5);
+  EXPECT_TRUE(t.respin_after_fault);
   EXPECT_EQ(t.sensitive_axis, "radial");
   EXPECT_DOUBLE_EQ(t.heading_at_zero_deg, 90);
   const auto limits = station_limits(*cfg);
@@ -551,6 +553,7 @@ baud = 19200
   EXPECT_EQ(defaults->table->connection.port, 9878);
   EXPECT_EQ(defaults->table->connection.reply_header, "ascii");
   EXPECT_DOUBLE_EQ(defaults->table->max_rate_dps, 500.0);
+  EXPECT_FALSE(defaults->table->respin_after_fault) << "the lab's default: a person resumes";
 }
 
 TEST(TableConfig, BadValuesNameFileLineAndKey) {

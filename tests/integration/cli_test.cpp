@@ -185,6 +185,9 @@ TEST_F(CliTest, DevicesAndChamberSetpointAgainstTheSimulator) {
   replace("\"demo/sim-truth.json\"", "\"" + (dir_ / "truth.json").string() + "\"");
   replace("\"demo/gyro-pty\"", "\"" + (dir_ / "gyro-pty").string() + "\"");
   replace("\"demo/sim.sock\"", "\"" + (dir_ / "sim.sock").string() + "\"");
+  // A quiet gyro, so one sample tells Earth rate from nothing: 0.1 °/h for a
+  // 1 s average is 0.32 °/h for one 10 Hz sample.
+  replace("white_noise_dph = 1.0", "white_noise_dph = 0.1");
   const std::string cfg_path = (dir_ / "station.toml").string();
   std::ofstream(cfg_path) << cfg;
 
@@ -209,8 +212,12 @@ TEST_F(CliTest, DevicesAndChamberSetpointAgainstTheSimulator) {
   EXPECT_NEAR(j["chamber"]["process_value_c"].get<double>(), 23.0, 3.0);
   EXPECT_NEAR(j["probes"]["top_c"].get<double>(), 23.0, 3.0);
   EXPECT_NEAR(j["probes"]["side_c"].get<double>(), 23.0, 3.0);
-  // Earth rate plus the truth's bias, within a sample's noise (≈ 3 °/h at 10 Hz).
-  EXPECT_NEAR(j["gyro"]["rate_dph"].get<double>(), 8.0, 20.0);
+  // Earth rate on the up axis at 31.9° (7.95 °/h) plus the truth's bias at
+  // about 23 °C (0.05 + 0.004 T − 8e-5 T² + 0.5 · 0.05 °C of gradient ≈
+  // 0.12 °/h): 8.07 °/h, within 1.5 °/h (4.7 σ of one sample; the chamber's
+  // move to 31.5 °C adds under 0.1 °/h of rate term meanwhile). 0, −8 or the
+  // bias without Earth rate are far outside.
+  EXPECT_NEAR(j["gyro"]["rate_dph"].get<double>(), 8.07, 1.5);
   EXPECT_EQ(j["gyro"]["crc_failures"], 0);
 
   // Issue 15 item 17: every refusal of a set point exits 2, "nan" too.

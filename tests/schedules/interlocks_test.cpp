@@ -160,10 +160,16 @@ TEST(InterlockTable, TableRowsTripAndClear) {
   auto c = evaluate_interlocks(fault, o, none);
   ASSERT_EQ(c.size(), 1u);
   EXPECT_EQ(c[0].kind, InterlockKind::kTableFault);
-  EXPECT_EQ(c[0].message, "the rate table's interlock is in fault");
+  EXPECT_EQ(c[0].message,
+            "the rate table's interlock is in fault; the station resets it once the table is at "
+            "rest (at most 3 times); if the fault stays, clear its cause at the table and run "
+            "`gyrotherm table reset`");
   fault.table_fault_text = "axis 1 over-speed";
+  // What the controller says, and what to do.
   EXPECT_EQ(evaluate_interlocks(fault, o, none).at(0).message,
-            "the rate table's interlock is in fault: axis 1 over-speed");
+            "the rate table's interlock is in fault: axis 1 over-speed; the station resets it "
+            "once the table is at rest (at most 3 times); if the fault stays, clear its cause at "
+            "the table and run `gyrotherm table reset`");
   fault.table_present = false;  // a station without a table
   EXPECT_TRUE(evaluate_interlocks(fault, o, none).empty());
   // Cleared (the station reset the latched fault): nothing holds, and a

@@ -351,5 +351,87 @@ TEST(RateSequencer, RestoreRestartsARatePointInProgressWithItsFullDwell) {
   EXPECT_DOUBLE_EQ(times.windows[0].to_s - times.windows[0].from_s, 72.0);
 }
 
+// A soak turning the table (not a rate point) does not wait for the table
+// when it starts, but after a hold (the station stops the table while the
+// run is held) and after the controller took the table off its demand, its
+// acquisition waits until the table has been at rate for at_rate_hold_s.
+TEST(RateSequencer, ASpinningSoakWaitsForTheTableAtRateAfterAHoldOrAnInterruption) {
+  PlanStep soak;
+  soak.kind = StepKind::kSoak;
+  soak.setpoint_c = 30.0;
+  soak.stability_window_s = 60;
+  soak.settle_timeout_s = 1800;
+  soak.acquire_s = 300;
+  soak.table.mode = TableDemandMode::kRate;
+  soak.table.rate_dps = 10;
+  soak.label = "soak 30 °C";
+  Rig rig(make_plan({soak}));
+  rig.start();
+  // The station's rule: the table is brought to rest while the run is held.
+  auto run_until = [&](double until_s) {
+    while (rig.t_s + 1 <= until_s + 1e-9 && !rig.seq.finished()) {
+      rig.t_s += 1;
+      const bool held = rig.seq.paused() || !rig.seq.tripped().empty();
+      rig.table.step(1, held ? TableDemand{} : rig.seq.table_demand());
+      rig.seq.tick(rig.t_s, at(30.0, rig.table));
+    }
+  };
+  run_until(100);
+  ASSERT_EQ(rig.seq.state(), RunState::kAcquiring);
+  ASSERT_TRUE(rig.seq.pause(100.5, "door").ok());
+  run_until(150);
+  EXPECT_LT(std::abs(rig.table.rate_dps), 1e-9);
+  ASSERT_TRUE(rig.seq.resume(150, "closed").ok());
+  run_until(151);
+  EXPECT_EQ(rig.seq.state(), RunState::kSettling);
+  EXPECT_THAT(rig.obs.transitions.back().reason,
+              HasSubstr("spinning the table up to +10 °/s again; acquisition waits"));
+  ASSERT_TRUE(rig.seq.gate_progress(151).has_value());
+  // 5 °/s²: at 10 °/s from 152 s; the window reopens 1 s (at_rate_hold_s) later.
+  run_until(152);
+  EXPECT_FALSE(rig.seq.step_times().windows.empty());
+  EXPECT_EQ(rig.seq.state(), RunState::kSettling);
+  run_until(153);
+  EXPECT_EQ(rig.seq.state(), RunState::kAcquiring);
+
+  run_until(170);
+  rig.seq.table_interrupted(170.5, "the controller faulted the axis");
+  rig.table.rate_dps = 0;  // the axis coasted to rest
+  EXPECT_EQ(rig.seq.state(), RunState::kSettling);
+  EXPECT_THAT(rig.obs.transitions.back().reason,
+              HasSubstr("the controller faulted the axis; acquisition waits for the table at "
+                        "+10 °/s again"));
+  run_until(2000);
+  ASSERT_EQ(rig.seq.state(), RunState::kCompleted);
+  const StepTimes& t = rig.obs.finished.at(0).times;
+  ASSERT_EQ(t.windows.size(), 3u);
+  EXPECT_DOUBLE_EQ(t.windows[0].to_s, 100.5);
+  EXPECT_DOUBLE_EQ(t.windows[1].from_s, 153.0);
+  EXPECT_DOUBLE_EQ(t.windows[1].to_s, 170.5);
+  EXPECT_DOUBLE_EQ(t.windows[2].from_s, 173.0);
+  EXPECT_DOUBLE_EQ(t.acquired_s(), 300.0);
+}
+
+// The wait has the rate points' spin-up timeout.
+TEST(RateSequencer, ASpinningSoakWhoseTableDoesNotComeBackFailsTheRun) {
+  PlanStep hold;
+  hold.kind = StepKind::kHold;
+  hold.setpoint_c = 30.0;
+  hold.hold_s = 600;
+  hold.table.mode = TableDemandMode::kRate;
+  hold.table.rate_dps = 10;
+  hold.label = "hold 30 °C";
+  SequencerOptions options;
+  options.spin_up_timeout_s = 20;
+  Rig rig(make_plan({hold}), options);
+  rig.start();
+  rig.run_until(50);
+  rig.seq.table_interrupted(50.5, "the table left rate +10 °/s");
+  rig.run_until(100, [](Readings& r) { r.table_rate_dps = 0.0; });
+  EXPECT_EQ(rig.seq.state(), RunState::kAborting);
+  EXPECT_THAT(rig.obs.transitions.back().reason,
+              HasSubstr("the table did not get back to +10 °/s"));
+}
+
 }  // namespace
 }  // namespace gyrotherm::schedules

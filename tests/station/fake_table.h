@@ -3,12 +3,17 @@
 // with a latched fault and a log of the commands it was sent (and, through
 // `on_command`, their order relative to the chamber's set point writes),
 // and the operator panel's lockout as a motion command takes it.
+// `aero` makes it read as an Aerosmith does through AeroTable: always
+// servoed (STA 0) unless faulted, in the mode last commanded, servo off
+// being a stop; `panel_jog_dps` turns it from its front panel whatever
+// the mode reads.
 #pragma once
 
 #include <algorithm>
 #include <cmath>
 #include <functional>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -27,6 +32,9 @@ class FakeTable final : public drivers::RateTable {
     double demand_position_deg = 0;
     bool silent = false;
     bool remote = false;  // the panel locked out by a motion command
+    bool aero = false;
+    bool sticky_fault = false;  // reset_faults() does not clear it (its cause stays)
+    std::optional<double> panel_jog_dps;
   };
 
   explicit FakeTable(double accel_dps2 = 100.0) : accel_dps2_(accel_dps2) {}
@@ -38,6 +46,7 @@ class FakeTable final : public drivers::RateTable {
     if (s_.interlock == drivers::TableInterlock::kClosed && s_.mode == drivers::TableMode::kRate) {
       target = s_.demand_rate_dps;
     }
+    if (s_.panel_jog_dps) target = *s_.panel_jog_dps;
     const double step = accel_dps2_ * dt_s;
     const double before = s_.rate_dps;
     s_.rate_dps = before + std::clamp(target - before, -step, step);
@@ -114,7 +123,9 @@ class FakeTable final : public drivers::RateTable {
   }
   Status servo_off() override {
     return command("servo off", [](State& s) {
-      if (s.interlock == drivers::TableInterlock::kClosed) {
+      if (s.aero) {
+        s.mode = drivers::TableMode::kOff;  // AeroTable: STO
+      } else if (s.interlock == drivers::TableInterlock::kClosed) {
         s.interlock = drivers::TableInterlock::kOpen;
       }
       return true;
@@ -122,8 +133,8 @@ class FakeTable final : public drivers::RateTable {
   }
   Status reset_faults() override {
     return command("reset", [](State& s) {
-      if (s.interlock == drivers::TableInterlock::kFault) {
-        s.interlock = drivers::TableInterlock::kOpen;
+      if (s.interlock == drivers::TableInterlock::kFault && !s.sticky_fault) {
+        s.interlock = s.aero ? drivers::TableInterlock::kClosed : drivers::TableInterlock::kOpen;
       }
       return true;
     });

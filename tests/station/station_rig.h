@@ -11,11 +11,14 @@
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
+#include <spdlog/sinks/ringbuffer_sink.h>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <filesystem>
 #include <functional>
 #include <memory>
@@ -54,7 +57,9 @@ class FakePlant {
     bool fahrenheit = false;            // the controller serves °F
     double side_offset_c = 0;           // added to the side probe
     std::optional<double> force_air_c;  // the air stays here whatever the set point
-    int setpoint_writes = 0;
+    bool refuse_setpoint = false;       // answers, but refuses set point writes
+    int setpoint_writes = 0;            // taken
+    int setpoint_write_attempts = 0;    // sent, silent or refused included
     // Set point writes ("setpoint 23") and table commands ("table stop"),
     // in the order they happened.
     std::vector<std::string> log;
@@ -84,16 +89,35 @@ class FakePlant {
   State s_;
 };
 
+// Like a ModbusDevice, it holds its lock through each request, health()
+// included; block() makes the next requests wait (a controller that does
+// not answer within the response timeout) until release().
 class FakeChamber final : public drivers::Chamber {
  public:
   explicit FakeChamber(std::shared_ptr<FakePlant> plant) : plant_(std::move(plant)) {}
   const std::string& name() const override { return name_; }
   Status connect() override { return Status::Ok(); }
   drivers::DeviceHealth health() const override {
+    std::lock_guard io(io_mu_);
     std::lock_guard lock(mu_);
     return health_;
   }
+  void block() {
+    std::lock_guard lock(gate_mu_);
+    blocked_ = true;
+  }
+  void release() {
+    {
+      std::lock_guard lock(gate_mu_);
+      blocked_ = false;
+    }
+    gate_cv_.notify_all();
+  }
+  // A request is waiting in block().
+  bool waiting() const { return waiting_.load(); }
+
   Result<drivers::UnitsReading> units() override {
+    auto io = request();
     if (auto e = silent()) return *e;
     const bool f = plant_->state().fahrenheit;
     return drivers::UnitsReading{
@@ -101,17 +125,24 @@ class FakeChamber final : public drivers::Chamber {
         f ? "units register = 30" : "units register = 15", f ? 30.0 : 15.0};
   }
   Result<double> process_value() override {
+    auto io = request();
     if (auto e = silent()) return *e;
     const auto s = plant_->state();
     return s.fahrenheit ? s.air_c * 1.8 + 32 : s.air_c;
   }
   Result<double> setpoint() override {
+    auto io = request();
     if (auto e = silent()) return *e;
     const auto s = plant_->state();
     return s.fahrenheit ? s.setpoint_c * 1.8 + 32 : s.setpoint_c;
   }
   Status write_setpoint(double value) override {
+    auto io = request();
+    plant_->change([](FakePlant::State& s) { ++s.setpoint_write_attempts; });
     if (auto e = silent()) return *e;
+    if (plant_->state().refuse_setpoint) {
+      return Error::Transient("chamber: set point write refused (fake: exception 4)");
+    }
     plant_->change([&](FakePlant::State& s) {
       s.setpoint_c = s.fahrenheit ? (value - 32) / 1.8 : value;
       ++s.setpoint_writes;
@@ -121,11 +152,21 @@ class FakeChamber final : public drivers::Chamber {
   }
   bool has_alarm() const override { return true; }
   Result<bool> alarm() override {
+    auto io = request();
     if (auto e = silent()) return *e;
     return plant_->state().chamber_alarm;
   }
 
  private:
+  std::unique_lock<std::mutex> request() {
+    std::unique_lock io(io_mu_);
+    std::unique_lock gate(gate_mu_);
+    waiting_ = blocked_;
+    gate_cv_.wait(gate, [this] { return !blocked_; });
+    waiting_ = false;
+    return io;
+  }
+
   std::optional<Error> silent() {
     std::lock_guard lock(mu_);
     ++health_.requests;
@@ -141,8 +182,13 @@ class FakeChamber final : public drivers::Chamber {
 
   std::shared_ptr<FakePlant> plant_;
   std::string name_ = "chamber";
+  mutable std::mutex io_mu_;  // held through a request
   mutable std::mutex mu_;
   drivers::DeviceHealth health_;
+  std::mutex gate_mu_;
+  std::condition_variable gate_cv_;
+  bool blocked_ = false;
+  std::atomic<bool> waiting_{false};
 };
 
 class FakeProbes final : public drivers::ShellProbes {
@@ -287,10 +333,35 @@ class FullDiskSink final : public storage::SampleSink {
   std::vector<std::pair<storage::RunDutRecord, DutFrame>> held_frames_;
 };
 
+// What the default logger writes while it lives (the station's log).
+// Create it before the rig opens its station and let it go after the
+// station stopped: the logger's sinks are not changed while threads log.
+class LogCapture {
+ public:
+  LogCapture() : sink_(std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(4096)) {
+    spdlog::default_logger()->sinks().push_back(sink_);
+  }
+  ~LogCapture() {
+    auto& sinks = spdlog::default_logger()->sinks();
+    sinks.erase(std::remove(sinks.begin(), sinks.end(), sink_), sinks.end());
+  }
+  LogCapture(const LogCapture&) = delete;
+  LogCapture& operator=(const LogCapture&) = delete;
+  std::string text() const {
+    std::string out;
+    for (const auto& line : sink_->last_formatted()) out += line;
+    return out;
+  }
+
+ private:
+  std::shared_ptr<spdlog::sinks::ringbuffer_sink_mt> sink_;
+};
+
 // A minimal station config for the rig: 1 s control ticks, no wall-time
-// floor on device silence (the wall clock is manual).
+// floor on device silence (the wall clock is manual), a safe set point of
+// 21 °C (apart from the plant's 23 °C start, so a test can tell them).
 inline std::string rig_config_toml(const std::string& db_path) {
-  return "[station]\nname = \"bench\"\nlatitude_deg = 31.9\n"
+  return "[station]\nname = \"bench\"\nlatitude_deg = 31.9\nsafe_setpoint_c = 21.0\n"
          "[chamber]\nport = 1502\n[probes]\nport = 1502\n[gyro]\ndevice = \"/dev/null\"\n"
          "rate_hz = 10\n"
          "[storage]\ndb = \"" +
@@ -312,8 +383,13 @@ class StationRig {
     auto cfg = daemon::parse_station_config(config_toml_, "rig.toml");
     ASSERT_TRUE(cfg.ok()) << cfg.error().message;
     daemon::StationDevices devices;
-    devices.chamber = std::make_unique<FakeChamber>(plant);
+    auto chamber = std::make_unique<FakeChamber>(plant);
+    chamber_ = chamber.get();
+    devices.chamber = std::move(chamber);
     devices.probes = std::make_unique<FakeProbes>(plant);
+    if (dut_plant) {
+      devices.dut_probes.push_back(std::make_unique<FakeProbes>(dut_plant));
+    }
     auto gyro = std::make_unique<FakeGyro>(plant, cfg->gyro.format.rate_hz);
     gyro_ = gyro.get();
     devices.gyro = std::move(gyro);
@@ -325,8 +401,11 @@ class StationRig {
     }
     daemon::StationHooks hooks;
     hooks.publish = [this](std::string_view event, const nlohmann::json& data) {
-      std::lock_guard lock(published_mu_);
-      published_.push_back(std::string(event) + " " + data.dump());
+      {
+        std::lock_guard lock(published_mu_);
+        published_.push_back(std::string(event) + " " + data.dump());
+      }
+      if (on_publish) on_publish(event, data);
     };
     hooks.lab_status = lab_status;
     storage::SampleWriterOptions wopt;
@@ -358,11 +437,13 @@ class StationRig {
     station.reset();
     gyro_ = nullptr;
     disk_ = nullptr;
+    chamber_ = nullptr;
   }
   ~StationRig() { close(); }
 
   FakeGyro& gyro() { return *gyro_; }
   FullDiskSink& disk() { return *disk_; }
+  FakeChamber& chamber() { return *chamber_; }
 
   // One control tick after `dt_s` station (and wall) seconds.
   void step(double dt_s = 1.0) {
@@ -411,7 +492,12 @@ class StationRig {
   const std::string& db_path() const { return db_path_; }
 
   std::shared_ptr<FakePlant> plant = std::make_shared<FakePlant>();
+  // Set before open(): the first DUT gets shell probes of its own over this
+  // plant (its probes_silent silences them).
+  std::shared_ptr<FakePlant> dut_plant;
   FakeTable table;  // the station's when the config has a [table]
+  // Called after each publication is recorded, on the publishing thread.
+  std::function<void(std::string_view event, const nlohmann::json& data)> on_publish;
   // StationHooks::lab_status of the station open() creates (unset: no [lab]).
   std::function<std::optional<lab::RelayStatus>()> lab_status;
   ManualClock clock{1000.0, 1.0};
@@ -423,6 +509,7 @@ class StationRig {
   std::string config_toml_;
   FakeGyro* gyro_ = nullptr;
   FullDiskSink* disk_ = nullptr;
+  FakeChamber* chamber_ = nullptr;
   std::mutex published_mu_;
   std::vector<std::string> published_;
 };

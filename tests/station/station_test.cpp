@@ -7,7 +7,9 @@
 
 #include <atomic>
 #include <chrono>
+#include <future>
 #include <limits>
+#include <optional>
 #include <set>
 #include <thread>
 
@@ -51,6 +53,31 @@ stability_window_min = 1
 settle_timeout_min = 30
 acquire_min = 10
 )";
+
+// The messages of the events of `kind` recorded outside any run, in order.
+std::vector<std::string> messages_outside_runs(const std::string& db_path,
+                                               const std::string& kind) {
+  std::vector<std::string> out;
+  sqlite3* db = nullptr;
+  if (sqlite3_open_v2(db_path.c_str(), &db, SQLITE_OPEN_READONLY, nullptr) != SQLITE_OK) {
+    ADD_FAILURE() << "cannot open " << db_path;
+    sqlite3_close(db);
+    return out;
+  }
+  sqlite3_stmt* st = nullptr;
+  const char* sql = "SELECT message FROM events WHERE kind = ?1 AND run_id IS NULL ORDER BY id";
+  if (sqlite3_prepare_v2(db, sql, -1, &st, nullptr) == SQLITE_OK) {
+    sqlite3_bind_text(st, 1, kind.c_str(), -1, SQLITE_TRANSIENT);
+    while (sqlite3_step(st) == SQLITE_ROW) {
+      out.emplace_back(reinterpret_cast<const char*>(sqlite3_column_text(st, 0)));
+    }
+  } else {
+    ADD_FAILURE() << sqlite3_errmsg(db);
+  }
+  sqlite3_finalize(st);
+  sqlite3_close(db);
+  return out;
+}
 
 class StationUnitTest : public TempDirTest {
  protected:
@@ -117,17 +144,28 @@ TEST_F(StationUnitTest, SoakRampSoakRunCompletesWithItsRecordsAndTableI) {
     EXPECT_NEAR(stats[i].at("bias_mean_dph").get<double>(), 1.5 + 0.01 * (setpoints_c[i] - 23.0),
                 0.01);
   }
-  // The run ended at the safe set point; the wall clock stamped its rows,
-  // Table I's included.
+  // The run ended at the safe set point (the rig's 21 °C: neither the last
+  // soak's 25 °C nor the 23 °C the chamber started at); the wall clock
+  // stamped its rows, Table I's included.
   EXPECT_EQ(stats[0].at("computed_utc").get<std::string>().substr(0, 4), "2027");
-  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 23.0);
+  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 21.0);
   EXPECT_EQ(run.at("started_utc").get<std::string>().substr(0, 4), "2027");
 }
 
 TEST_F(StationUnitTest, PauseHoldsTheSetPointAndStopsTheAcquisitionClock) {
   StationRig rig(dir_);
   rig.open();
-  rig.queue(kLongSoak);
+  // At 24 °C: apart from the chamber's start (23 °C) and the safe set point
+  // (21 °C), so the set point held is the schedule's.
+  rig.queue(R"(
+name = "long soak at 24"
+[[step]]
+type = "soak"
+setpoint_c = 24.0
+stability_window_min = 1
+settle_timeout_min = 30
+acquire_min = 10
+)");
   const int64_t run_id = until_acquiring(rig);
   ASSERT_NE(run_id, 0);
   auto r = rig.station->control("pause", "bench");
@@ -136,7 +174,7 @@ TEST_F(StationUnitTest, PauseHoldsTheSetPointAndStopsTheAcquisitionClock) {
   for (int i = 0; i < 300; ++i) rig.step();
   EXPECT_EQ(rig.state(), "paused");
   EXPECT_TRUE(rig.station->status().paused);
-  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 23.0);
+  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 24.0);
   // Held, re-asserted now and then, never moved.
   EXPECT_LE(rig.plant->state().setpoint_writes - writes_before, 300 / 30 + 1);
   ASSERT_FALSE(rig.station->control("resume", "bench").refusal);
@@ -303,9 +341,10 @@ acquire_min = 2
   rig.step();  // the status's queue fields are those of the tick before
   EXPECT_EQ(rig.reply(rig.station->run(run_id)).at("state"), "failed");
   EXPECT_TRUE(rig.has_event(run_id, "interlock", "settle_timeout"));
-  // A failed run holds the queue; the chamber went to the safe set point.
+  // A failed run holds the queue; the chamber went to the safe set point
+  // (21 °C, not the soak's 23 °C).
   EXPECT_TRUE(rig.station->status().queue_held);
-  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 23.0);
+  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 21.0);
 }
 
 // What a kill -9 leaves: the database as committed at one moment (a copy
@@ -615,6 +654,138 @@ acquire_min = 2
     if (seg.at("state") == "completed") completed_steps.insert(seg.at("index").get<int>());
   }
   EXPECT_EQ(completed_steps, (std::set<int>{0, 1})) << run.dump(2);
+}
+
+// Issue "Safe states that hold", item 1: a run that ends while the chamber
+// does not answer leaves the safe set point owed; idle ticks write it, at
+// most once a tick, until the chamber takes it, and say so.
+TEST_F(StationUnitTest, AChamberSilentAtTheEndOfARunGetsTheSafeSetPointWhenItAnswers) {
+  StationRig rig(dir_);
+  rig.open();
+  rig.queue(R"(
+name = "hold 40"
+[[step]]
+type = "hold"
+setpoint_c = 40.0
+duration_min = 3
+)");
+  ASSERT_TRUE(rig.step_until([&] { return rig.station->status().run_id.has_value(); }, 5));
+  const int64_t run_id = *rig.station->status().run_id;
+  ASSERT_TRUE(rig.step_until([&] { return rig.station->status().t_run_s >= 177; }, 600));
+  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 40.0);
+  rig.plant->change([](FakePlant::State& s) { s.chamber_silent = true; });
+  ASSERT_TRUE(rig.step_until([&] { return !rig.station->status().run_id; }, 20));
+  EXPECT_EQ(rig.reply(rig.station->run(run_id)).at("state"), "completed");
+  for (int i = 0; i < 4; ++i) rig.step();
+  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 40.0) << "the chamber did not answer";
+  EXPECT_TRUE(rig.has_event(run_id, "error", "without the chamber taking the safe set point 21"));
+  // Answering again, but refusing writes a while (a controller in local
+  // mode): one write a tick, no more.
+  rig.plant->change([](FakePlant::State& s) {
+    s.chamber_silent = false;
+    s.refuse_setpoint = true;
+  });
+  const int attempts = rig.plant->state().setpoint_write_attempts;
+  for (int i = 0; i < 4; ++i) rig.step();
+  EXPECT_EQ(rig.plant->state().setpoint_write_attempts - attempts, 4);
+  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 40.0);
+
+  rig.plant->change([](FakePlant::State& s) { s.refuse_setpoint = false; });
+  rig.step();
+  EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 21.0) << "written at the first tick it answers";
+  EXPECT_NE(rig.station->status().last_event.find("set point 21 °C taken after"), std::string::npos)
+      << rig.station->status().last_event;
+  // Taken: not written again while idle.
+  const int writes = rig.plant->state().setpoint_writes;
+  for (int i = 0; i < 60; ++i) rig.step();
+  EXPECT_EQ(rig.plant->state().setpoint_writes, writes);
+}
+
+// Item 2: the log and the events say whether the safe set point was written
+// when the daemon stops.
+TEST_F(StationUnitTest, StoppingSaysWhetherTheChamberTookTheSafeSetPoint) {
+  {
+    LogCapture log;
+    {
+      StationRig rig(dir_);
+      rig.open();
+      rig.step();
+      rig.close();
+      EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 21.0);
+    }
+    EXPECT_NE(log.text().find("stopped (rig closed); chamber set point 21 °C written"),
+              std::string::npos)
+        << log.text();
+  }
+  LogCapture log;
+  {
+    StationRig rig(dir_);
+    rig.open();
+    rig.step();
+    rig.plant->change([](FakePlant::State& s) { s.chamber_silent = true; });
+    rig.close();
+    EXPECT_DOUBLE_EQ(rig.plant->state().setpoint_c, 23.0) << "never written";
+  }
+  const std::string text = log.text();
+  EXPECT_EQ(text.find("chamber set point 21 °C written"), std::string::npos) << text;
+  EXPECT_NE(text.find("the chamber did NOT take the safe set point 21 °C (chamber: no answer"),
+            std::string::npos)
+      << text;
+  bool said = false;
+  for (const auto& message : messages_outside_runs((dir_ / "station.db").string(), "error")) {
+    said |= message.find("did not take the safe set point 21 °C") != std::string::npos;
+  }
+  EXPECT_TRUE(said) << "an event of kind error says so";
+}
+
+// Item 15: the DUT probes' events are recorded under the run lock, as the
+// HTTP thread's are: while the control loop records one, an operator
+// command waits.
+TEST_F(StationUnitTest, DutProbeEventsAreRecordedUnderTheRunLock) {
+  StationRig rig(dir_);
+  rig.dut_plant = std::make_shared<FakePlant>();
+  std::future<daemon::Reply> command;
+  std::optional<bool> command_done_meanwhile;
+  rig.on_publish = [&](std::string_view event, const nlohmann::json& data) {
+    if (event != "event" || command_done_meanwhile) return;
+    if (data.value("message", "").find("probes: no answer") == std::string::npos) return;
+    // On the control thread, inside the recording of the event.
+    command = std::async(std::launch::async, [&] { return rig.station->control("pause", "race"); });
+    command_done_meanwhile = command.wait_for(scaled(1s)) == std::future_status::ready;
+  };
+  rig.open();
+  rig.step();
+  rig.dut_plant->change([](FakePlant::State& s) { s.probes_silent = true; });
+  rig.step();
+  ASSERT_TRUE(command_done_meanwhile.has_value()) << "no probe event published";
+  EXPECT_FALSE(*command_done_meanwhile)
+      << "an operator command ran while the control loop recorded an event";
+  const daemon::Reply reply = command.get();
+  ASSERT_TRUE(reply.refusal.has_value());
+  EXPECT_EQ(reply.refusal->message, "no run in progress to pause");
+}
+
+// Item 16: status() reads what the control loop left; it never waits on a
+// device, even one the control loop is blocked on.
+TEST_F(StationUnitTest, StatusDoesNotWaitForAChamberThatDoesNotAnswer) {
+  StationRig rig(dir_);
+  rig.open();
+  rig.step();
+  rig.chamber().block();
+  std::thread control([&] { rig.step(); });
+  const bool blocked = wait_for_condition([&] { return rig.chamber().waiting(); }, 10s);
+  std::future<daemon::StatusSnapshot> status;
+  if (blocked) {
+    status = std::async(std::launch::async, [&] { return rig.station->status(); });
+  }
+  // The chamber stays blocked for as long as this waits: any wait in status()
+  // on the chamber would run into it.
+  const bool answered = blocked && status.wait_for(scaled(5s)) == std::future_status::ready;
+  rig.chamber().release();
+  control.join();
+  ASSERT_TRUE(blocked) << "the control tick never reached the chamber";
+  EXPECT_TRUE(answered) << "status() waited on the chamber";
+  EXPECT_GT(status.get().chamber.requests, 0u) << "the chamber's health is the last tick's";
 }
 
 }  // namespace

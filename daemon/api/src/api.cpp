@@ -600,10 +600,10 @@ std::optional<HttpResponse> check_params(const HttpRequest& req, std::string_vie
       }
     }
     if (name == "action" && value != "pause" && value != "resume" && value != "abort" &&
-        value != "stop") {
+        value != "stop" && value != "table-reset") {
       return error_response(
           req, http::status::not_found,
-          fmt::format("no control action '{}' (pause, resume, abort, stop)", value));
+          fmt::format("no control action '{}' (pause, resume, abort, stop, table-reset)", value));
     }
   }
   return std::nullopt;

@@ -868,6 +868,7 @@ void read_table(TableReader t, TableSection& s, bool simulated) {
   s.spin_up_timeout_s = positive("spin_up_timeout_s", s.spin_up_timeout_s, 86400.0);
   s.rest_rate_dps = positive("rest_rate_dps", s.rest_rate_dps, 1e3);
   s.silent_timeout_s = positive("silent_timeout_s", s.silent_timeout_s, 86400.0);
+  if (auto r = t.boolean("respin_after_fault")) s.respin_after_fault = *r;
   if (auto a = t.choice("sensitive_axis", {"along_table", "radial"}, std::nullopt))
     s.sensitive_axis = *a;
   s.heading_at_zero_deg = t.number_in("heading_at_zero_deg", s.heading_at_zero_deg, -360.0, 360.0);

@@ -401,12 +401,34 @@ void Station::stop(const std::string& reason) {
     }
   }
   make_table_safe_now();
-  write_setpoint(config_.station.safe_setpoint_c, true);
+  const double safe_c = config_.station.safe_setpoint_c;
+  Status chamber_safe;
+  {
+    std::lock_guard lock(run_mu_);
+    ++control_ticks_;  // a write of its own, whatever the last tick tried
+    chamber_safe = write_setpoint(safe_c, true);
+    if (!chamber_safe) {
+      add_event("error", "", "",
+                fmt::format("daemon stopping: the chamber did not take the safe set point {:g} °C "
+                            "({}); set it at the controller",
+                            safe_c, chamber_safe.error().message));
+    }
+  }
   for (auto& d : duts_) d->source->stop();
   if (nightly_) nightly_->stop();
   analysis_->stop();
   writer_->stop();
-  spdlog::info("stopped ({}); chamber set point {:g} °C", reason, config_.station.safe_setpoint_c);
+  if (chamber_safe) {
+    spdlog::info("stopped ({}); chamber set point {:g} °C written", reason, safe_c);
+  } else {
+    spdlog::error(
+        "stopped ({}); the chamber did NOT take the safe set point {:g} °C ({}); it holds what it "
+        "had{}: set it at the controller",
+        reason, safe_c, chamber_safe.error().message,
+        last_written_setpoint_c_
+            ? fmt::format(" (last written: {:g} °C)", *last_written_setpoint_c_)
+            : std::string());
+  }
 }
 
 bool Station::idle() const {
@@ -571,6 +593,14 @@ schedules::Readings Station::read_devices(double now_s) {
     r.gyro_stream = fmt::format("DUT streams {}", names);
   }
   if (table_) table_->read(now_s, wall_s, min_wall_s, r);
+  {
+    // For status(), which never waits on a device.
+    drivers::DeviceHealth chamber_health = chamber_->health();
+    drivers::DeviceHealth probes_health = probes_->health();
+    std::lock_guard lock(mu_);
+    snapshot_.chamber = std::move(chamber_health);
+    snapshot_.probes = std::move(probes_health);
+  }
   const storage::SampleWriterStats ws = writer_->stats();
   r.storage_committed = ws.commits > 0;
   if (ws.consecutive_failures == 0) {
@@ -592,7 +622,7 @@ schedules::Readings Station::read_devices(double now_s) {
 void Station::tick() {
   const double now_s = clock_.now_s();
   const schedules::Readings r = read_devices(now_s);
-  read_dut_probes(now_s);
+  const std::vector<std::string> probe_events = read_dut_probes(now_s);
   std::optional<double> shell_c;
   if (r.top_c && r.side_c) {
     shell_c = (*r.top_c + *r.side_c) / 2.0;
@@ -604,18 +634,14 @@ void Station::tick() {
     std::lock_guard lock(mu_);
     if (stopping_) return;
   }
+  ++control_ticks_;
   record_unrecorded();
   record_posted_events();
+  for (const auto& message : probe_events) add_event("device", "", "", message);
   note_link(*chamber_, chamber_ok_, chamber_lost_s_, now_s);
   note_link(*probes_, probes_ok_, probes_lost_s_, now_s);
   if (!sequencer_) start_next_run(now_s);
-  // Idle, the table is at rest and not servoed (a daemon that crashed may
-  // have left it spinning).
-  if (!sequencer_ && table_ && !table_->safing() && table_->status().state &&
-      (!table_->at_rest() ||
-       table_->status().state->interlock == drivers::TableInterlock::kClosed)) {
-    table_->make_safe(wall_.monotonic_s());
-  }
+  if (!sequencer_) keep_idle_safe();
 
   double t_run_s = 0;
   if (sequencer_) {
@@ -623,9 +649,9 @@ void Station::tick() {
     if (sequencer_->state() == RunState::kAborting) {
       // The table stops before the chamber heads for its safe set point.
       if (table_) table_->make_safe(wall_.monotonic_s());
-      write_setpoint(sequencer_->setpoint_c(), true);
-      if (last_written_setpoint_c_) sequencer_->safe_state_reached(t_run_s);
+      if (write_setpoint(sequencer_->setpoint_c(), true)) sequencer_->safe_state_reached(t_run_s);
     } else {
+      if (table_) tend_table(t_run_s);
       sequencer_->tick(t_run_s, r);
       if (table_ && !sequencer_->finished()) {
         const schedules::TableDemand demand = table_demand();
@@ -639,7 +665,10 @@ void Station::tick() {
           }
         }
       }
-      write_setpoint(sequencer_->setpoint_c(), false);
+      // At the run's end the table stops before the chamber heads for its
+      // safe set point (its servo goes off once at rest, ticks later).
+      if (table_ && sequencer_->finished()) table_->make_safe(wall_.monotonic_s());
+      (void)write_setpoint(sequencer_->setpoint_c(), false);  // failing: retried next tick
     }
     if (table_) {
       if (auto sample = table_->sample(t_run_s)) writer_->push_table(current_run_id(), *sample);
@@ -733,20 +762,53 @@ schedules::TableDemand Station::table_demand() const {
 
 void Station::make_table_safe_now() {
   if (!table_) return;
-  // Real waiting, whatever the clocks: 100 ms polls, 30 s at most.
+  // Real waiting, whatever the clocks: 100 ms polls, 30 s at most for the
+  // table to come to rest, 1 s without an answer.
   constexpr int kPolls = 300;
+  constexpr int kSilentPolls = 10;
   constexpr auto kPoll = std::chrono::milliseconds(100);
+  const double min_silent_wall_s = config_.control.min_silent_wall_s;
   schedules::Readings r;
-  table_->read(clock_.now_s(), wall_.monotonic_s(), config_.control.min_silent_wall_s, r);
+  table_->read(clock_.now_s(), wall_.monotonic_s(), min_silent_wall_s, r);
+  // What the last reading showed, for a message that says no more than it.
+  auto last_seen = [&] {
+    const auto& s = table_->last_state();
+    if (!s) return std::string("it never answered since the daemon started");
+    return fmt::format("last seen at {:+.3f} °/s, mode {}, interlock {}", s->rate_dps,
+                       drivers::to_string(s->mode), drivers::to_string(s->interlock));
+  };
+  if (!table_->answering()) {
+    table_->make_safe(wall_.monotonic_s());  // a stop all the same, if the line takes it
+    spdlog::error(
+        "table: no answer at shutdown ({}); its state is unknown ({}): check the table at its "
+        "controller",
+        table_->last_error(), last_seen());
+    return;
+  }
   table_->make_safe(wall_.monotonic_s());
+  int silent_polls = 0;
   for (int poll = 0;; ++poll) {
     const double wall_s = wall_.monotonic_s();
-    table_->read(clock_.now_s(), wall_s, config_.control.min_silent_wall_s, r);
+    table_->read(clock_.now_s(), wall_s, min_silent_wall_s, r);
+    silent_polls = table_->answering() ? 0 : silent_polls + 1;
+    if (silent_polls == kSilentPolls) {
+      spdlog::error(
+          "table: stopped answering at shutdown ({}); its state is unknown ({}): check the table "
+          "at its controller",
+          table_->last_error(), last_seen());
+      break;
+    }
     table_->finish_safe_state(wall_s);
     if (!table_->safing()) break;
     if (poll == kPolls) {
-      spdlog::error("table: not at rest after {} s; left stopping, servo on",
-                    kPolls * kPoll.count() / 1000);
+      const std::string wait = fmt::format("{} s", kPolls * kPoll.count() / 1000);
+      if (table_->stop_sent()) {
+        spdlog::error("table: not at rest after {} ({}); stop sent, the servo left on", wait,
+                      last_seen());
+      } else {
+        spdlog::error("table: did not take the stop in {} ({}; {}): check the table", wait,
+                      table_->last_error(), last_seen());
+      }
       break;
     }
     std::this_thread::sleep_for(kPoll);
@@ -786,24 +848,91 @@ bool Station::chamber_units_known() {
   return true;
 }
 
-void Station::write_setpoint(double setpoint_c, bool force) {
+Status Station::write_setpoint(double setpoint_c, bool force) {
+  if (setpoint_attempt_tick_ == control_ticks_ && setpoint_attempt_c_ == setpoint_c) {
+    return setpoint_attempt_status_;  // tried in this tick already
+  }
   ++ticks_since_setpoint_write_;
   const bool changed =
       !last_written_setpoint_c_ || std::abs(*last_written_setpoint_c_ - setpoint_c) > 1e-4;
   // Re-assert the set point now and then: a controller that was power-cycled
   // or changed by hand comes back to the schedule.
-  if (!force && !changed && ticks_since_setpoint_write_ < 30) return;
+  if (!force && !changed && ticks_since_setpoint_write_ < 30) return Status::Ok();
   ticks_since_setpoint_write_ = 0;
+  setpoint_attempt_tick_ = control_ticks_;
+  setpoint_attempt_c_ = setpoint_c;
+  Status st;
   if (!chamber_unit_ && !chamber_units_known()) {
-    last_written_setpoint_c_.reset();  // retry next tick
-    return;
-  }
-  const double value = drivers::from_celsius(setpoint_c, *chamber_unit_);
-  if (auto st = chamber_->write_setpoint(value); st) {
-    last_written_setpoint_c_ = setpoint_c;
+    st = Error::Transient(
+        "chamber: the unit it serves is not known (no answer, or its units register holds "
+        "neither °C nor °F)");
   } else {
-    last_written_setpoint_c_.reset();  // retry next tick
-    if (chamber_ok_) spdlog::warn("{}", st.error().message);
+    st = chamber_->write_setpoint(drivers::from_celsius(setpoint_c, *chamber_unit_));
+  }
+  setpoint_attempt_status_ = st;
+  const double now_s = clock_.now_s();
+  if (st) {
+    last_written_setpoint_c_ = setpoint_c;
+    if (setpoint_failures_ > 0) {
+      const std::string message =
+          fmt::format("chamber: set point {:g} °C taken after {} failed write{} over {:.0f} s",
+                      setpoint_c, setpoint_failures_, setpoint_failures_ == 1 ? "" : "s",
+                      now_s - setpoint_failing_since_s_);
+      spdlog::info("{}", message);
+      add_event("device", "", "", message);
+    }
+    setpoint_failures_ = 0;
+    return st;
+  }
+  last_written_setpoint_c_.reset();  // retry next tick
+  if (setpoint_failures_++ == 0) {
+    setpoint_failing_since_s_ = now_s;
+    const std::string message = fmt::format(
+        "chamber: set point {:g} °C not written ({}); written again every control "
+        "tick until the chamber takes it",
+        setpoint_c, st.error().message);
+    spdlog::warn("{}", message);
+    add_event("device", "", "", message);
+  }
+  return st;
+}
+
+void Station::keep_idle_safe() {
+  if (table_ && !table_->safing() && table_->answering() && table_->owes_safe_state()) {
+    table_->make_safe(wall_.monotonic_s());
+  }
+  if (safe_setpoint_owed_ && write_setpoint(config_.station.safe_setpoint_c, true)) {
+    safe_setpoint_owed_ = false;
+  }
+}
+
+void Station::tend_table(double t_run_s) {
+  if (auto what = table_->take_interruption()) {
+    const bool respin = config_.table->respin_after_fault;
+    add_event("table", "", "",
+              fmt::format("table: {}; {}", *what,
+                          respin ? "the station spins it up again ([table] respin_after_fault); "
+                                   "acquisition waits for the rate"
+                                 : "the run pauses with the table at rest"));
+    sequencer_->table_interrupted(t_run_s, "the table was taken off its demand");
+    if (!respin && !sequencer_->paused()) {
+      (void)sequencer_->pause(
+          t_run_s,
+          fmt::format("table: {}; it stays at rest until `gyrotherm resume` spins it up again "
+                      "([table] respin_after_fault = false)",
+                      *what));
+    }
+  }
+  const auto tripped = sequencer_->tripped();
+  const bool fault_holds =
+      std::any_of(tripped.begin(), tripped.end(), [](const schedules::InterlockCondition& c) {
+        return c.kind == schedules::InterlockKind::kTableFault;
+      });
+  if (fault_holds) {
+    if (auto message = table_->reset_latched_fault(clock_.now_s())) {
+      spdlog::info("{}", *message);
+      add_event("table", "", "", *message);
+    }
   }
 }
 
@@ -914,6 +1043,7 @@ void Station::start_next_run(double now_s) {
     return;
   }
   spdlog::info("run {}: {} ({} steps)", run_id, plan->name, plan->steps.size());
+  if (table_) table_->begin_run();
   segment_ids_.assign(plan->steps.size(), 0);
   const double start_sp = last_written_setpoint_c_.value_or(
       snapshot_.chamber_c.value_or(config_.station.safe_setpoint_c));
@@ -1076,6 +1206,7 @@ void Station::resume_interrupted_run() {
       (t_resume_s - snap->t_s) / 60.0, run.state);
   spdlog::info("run {}: {}", run.id, reason);
   make_sequencer(std::move(*plan));
+  if (table_) table_->begin_run();
   add_event("resume", "", "", reason);
   last_written_setpoint_c_.reset();
   sequencer_->restore(*snap, t_resume_s, data_until_s, reason);
@@ -1131,7 +1262,15 @@ void Station::end_run() {
   const int64_t run_id = current_run_id();
   // The table stops first; its servo goes off once it is at rest (ticks).
   if (table_) table_->make_safe(wall_.monotonic_s());
-  write_setpoint(config_.station.safe_setpoint_c, true);
+  const double safe_c = config_.station.safe_setpoint_c;
+  const Status chamber_safe = write_setpoint(safe_c, true);
+  safe_setpoint_owed_ = !chamber_safe;
+  if (!chamber_safe && run_id != 0) {
+    add_event("error", "", "",
+              fmt::format("run {} ended without the chamber taking the safe set point {:g} °C "
+                          "({}); the station writes it every control tick until it does",
+                          run_id, safe_c, chamber_safe.error().message));
+  }
   // A completed run's last samples may still be on the line (a reader behind
   // on a loaded machine): they are waited for, a bounded time, before no
   // batch is stored under the run any more; the flush then holds all of its
@@ -1338,7 +1477,8 @@ void Station::register_run_duts(int64_t run_id) {
 
 // Each DUT's own probes, once a control tick, into its probe channels (the
 // frame's raw[] at those channels' indices).
-void Station::read_dut_probes(double now_s) {
+std::vector<std::string> Station::read_dut_probes(double now_s) {
+  std::vector<std::string> events;
   for (auto& d : duts_) {
     if (!d->probes) continue;
     auto top = d->probes->top_c();
@@ -1346,16 +1486,16 @@ void Station::read_dut_probes(double now_s) {
     if (!top || !side) {
       if (!d->probes_failing) {
         d->probes_failing = true;
-        add_event("device", "", "",
-                  fmt::format("DUT {} probes: no answer ({}); its own shell temperatures are "
-                              "missing from now",
-                              dut_name(*d->cfg), (!top ? top.error() : side.error()).message));
+        events.push_back(
+            fmt::format("DUT {} probes: no answer ({}); its own shell temperatures "
+                        "are missing from now",
+                        dut_name(*d->cfg), (!top ? top.error() : side.error()).message));
       }
       continue;
     }
     if (d->probes_failing) {
       d->probes_failing = false;
-      add_event("device", "", "", fmt::format("DUT {} probes: answer again", dut_name(*d->cfg)));
+      events.push_back(fmt::format("DUT {} probes: answer again", dut_name(*d->cfg)));
     }
     std::shared_ptr<const storage::RunDutRecord> layout;
     {
@@ -1372,6 +1512,7 @@ void Station::read_dut_probes(double now_s) {
     f.raw[static_cast<std::size_t>(layout->channels[1].index)] = *side;
     writer_->push_frames(*layout, std::span(&f, 1));
   }
+  return events;
 }
 
 bool Station::await_gyro(int64_t run_id, double until_s, std::chrono::milliseconds max_wait) {
@@ -1390,8 +1531,8 @@ StatusSnapshot Station::status() const {
     s = snapshot_;
   }
   s.uptime_s = wall_.monotonic_s() - started_wall_s_;
-  s.chamber = chamber_->health();
-  s.probes = probes_->health();
+  // The chamber's and probes' health are the snapshot's (read_devices()):
+  // their drivers hold their lock through a Modbus request.
   s.gyro = duts_.front()->source->health();
   for (std::size_t i = 0; i < duts_.size() && i < s.duts.size(); ++i) {
     s.duts[i].health = duts_[i]->source->health();
@@ -1843,6 +1984,25 @@ Reply Station::control(std::string_view action, const std::string& reason_in) {
     if (hold_reason_) return Reply::refused(Refusal::Kind::kConflict, "the queue is already held");
     hold_queue("stopped by the operator (" + reason + "); resume releases the queue");
     return Reply::ok({{"ok", true}, {"message", "queue held"}});
+  }
+  if (action == "table-reset") {
+    if (!table_device_) {
+      return Reply::refused(Refusal::Kind::kConflict,
+                            "this station has no rate table ([table] in the station config)");
+    }
+    // The driver serialises its requests with the control loop's.
+    if (auto st = table_device_->reset_faults(); !st) {
+      return Reply::refused(Refusal::Kind::kUnavailable,
+                            fmt::format("table fault reset not done: {}", st.error().message));
+    }
+    log_command(fmt::format("table: fault reset by the operator ({})", reason));
+    return Reply::ok(
+        {{"ok", true},
+         {"message",
+          fmt::format("{}: fault reset sent; the table_fault interlock clears at the "
+                      "next reading without a fault{}",
+                      table_device_->name(),
+                      running && sequencer_->paused() ? "; `gyrotherm resume` goes on" : "")}});
   }
   return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no control action '{}'", action));
 }

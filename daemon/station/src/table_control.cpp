@@ -14,9 +14,21 @@ using schedules::TableDemand;
 using schedules::TableDemandMode;
 
 constexpr double kResendWallS = 1.0;  // at most one command per wall second
+// Latched faults: station seconds between two resets.
+constexpr double kFaultResetSpacingS = 10.0;
 
 bool same_demand(const TableDemand& a, const TableDemand& b) {
   return a.mode == b.mode && a.rate_dps == b.rate_dps && a.position_deg == b.position_deg;
+}
+
+bool moving(const TableDemand& d) {
+  return d.mode == TableDemandMode::kRate || d.position_deg.has_value();
+}
+
+// Not servoed: the drive is off (open), or the controller has switched it
+// off (fault).
+bool servo_off(const drivers::TableState& s) {
+  return s.interlock != drivers::TableInterlock::kClosed;
 }
 
 }  // namespace
@@ -52,6 +64,7 @@ void TableControl::read(double now_s, double wall_s, double min_silent_wall_s,
     state_ = *state;
     ok_s_ = now_s;
     ok_wall_s_ = wall_s;
+    watch_demand();
     r.table_rate_dps = state->rate_dps;
     r.table_position_deg = state->position_deg;
     r.table_fault = state->interlock == drivers::TableInterlock::kFault;
@@ -59,8 +72,85 @@ void TableControl::read(double now_s, double wall_s, double min_silent_wall_s,
   } else {
     if (ok_) spdlog::warn("{}", state.error().message);
     ok_ = false;
+    last_error_ = state.error().message;
   }
   r.table_silent_s = wall_s - ok_wall_s_ >= min_silent_wall_s ? std::max(0.0, now_s - ok_s_) : 0.0;
+}
+
+void TableControl::watch_demand() {
+  if (!sent_ || !moving(*sent_) || safing_) {
+    matched_ = at_rate_ = false;
+    return;
+  }
+  const drivers::TableState& s = *state_;
+  std::string what;
+  if (s.interlock == drivers::TableInterlock::kFault) {
+    what = fmt::format("the controller faulted the axis{}{}", s.fault.empty() ? "" : ": ", s.fault);
+  } else if (matches(*sent_)) {
+    matched_ = true;
+    if (sent_->mode != TableDemandMode::kRate) return;
+    // The rate, for a controller whose mode and interlock say nothing (an
+    // Aerosmith): at rate within the at-rate tolerance, off it by ten times
+    // that (1 °/s at least).
+    const double tolerance_dps =
+        std::max(config_.at_rate_tolerance_dps,
+                 config_.at_rate_tolerance_ppm * 1e-6 * std::abs(sent_->rate_dps));
+    const double off_dps = std::abs(s.rate_dps - sent_->rate_dps);
+    if (off_dps <= tolerance_dps) at_rate_ = true;
+    if (!at_rate_ || off_dps <= std::max(1.0, 10 * tolerance_dps)) return;
+    what = fmt::format("the table left {}: it turns at {:+.3f} °/s", describe(*sent_), s.rate_dps);
+  } else if (!matched_) {
+    return;  // not there yet: just commanded
+  } else {
+    what = fmt::format("the table left {}: mode {} ({}), interlock {}, {:+.3f} °/s",
+                       describe(*sent_), drivers::to_string(s.mode), s.mode_text,
+                       drivers::to_string(s.interlock), s.rate_dps);
+  }
+  matched_ = at_rate_ = false;
+  if (!interruption_) {
+    spdlog::warn("{}: {}", table_.name(), what);
+    interruption_ = what;
+  }
+}
+
+std::optional<std::string> TableControl::take_interruption() {
+  std::optional<std::string> out;
+  out.swap(interruption_);
+  return out;
+}
+
+void TableControl::begin_run() {
+  fault_resets_ = 0;
+  last_fault_reset_s_ = -1e9;
+  fault_resets_spent_said_ = false;
+}
+
+std::optional<std::string> TableControl::reset_latched_fault(double now_s) {
+  if (!ok_ || !state_ || state_->interlock != drivers::TableInterlock::kFault) return std::nullopt;
+  // A faulted axis coasts: reset once it is at rest, or the servo could
+  // close on a spinning table.
+  if (std::abs(state_->rate_dps) >= config_.rest_rate_dps) return std::nullopt;
+  const std::string fault = state_->fault.empty() ? std::string("no text") : state_->fault;
+  if (fault_resets_ >= schedules::kTableFaultResets) {
+    if (fault_resets_spent_said_) return std::nullopt;
+    fault_resets_spent_said_ = true;
+    return fmt::format(
+        "{}: the fault stays after {} resets ({}); clear its cause at the table, then run "
+        "`gyrotherm table reset` (the run aborts when table_fault_grace_min runs out)",
+        table_.name(), fault_resets_, fault);
+  }
+  if (now_s - last_fault_reset_s_ < kFaultResetSpacingS) return std::nullopt;
+  last_fault_reset_s_ = now_s;
+  ++fault_resets_;
+  const Status st = table_.reset_faults();
+  if (!st) {
+    return fmt::format("{}: fault reset {} of {} ({}) failed: {}", table_.name(), fault_resets_,
+                       schedules::kTableFaultResets, fault, st.error().message);
+  }
+  return fmt::format(
+      "{}: latched fault reset, {} of {} ({}); the run goes on once a reading "
+      "shows no fault",
+      table_.name(), fault_resets_, schedules::kTableFaultResets, fault);
 }
 
 bool TableControl::matches(const TableDemand& demand) const {
@@ -102,6 +192,7 @@ void TableControl::log_failure(const Status& st, const std::string& what) {
   }
   if (!failing_) spdlog::error("{}: {}: {}", table_.name(), what, st.error().message);
   failing_ = true;
+  last_error_ = st.error().message;
 }
 
 void TableControl::drive(const TableDemand& demand, double wall_s) {
@@ -122,6 +213,8 @@ void TableControl::drive(const TableDemand& demand, double wall_s) {
   if (st) {
     if (changed) spdlog::info("{}: {}", table_.name(), describe(demand));
     sent_ = demand;
+    matched_ = at_rate_ = false;
+    if (moving(demand)) safe_reached_ = false;
   }
 }
 
@@ -129,9 +222,11 @@ void TableControl::make_safe(double wall_s) {
   demand_ = TableDemand{TableDemandMode::kStatic, std::nullopt, 0};
   if (safing_ && stop_sent_) return;
   safing_ = true;
-  if (state_ && state_->interlock == drivers::TableInterlock::kOpen) {
-    // Not servoed: nothing spins, nothing to switch off.
+  if (state_ && ok_ && servo_off(*state_)) {
+    // Not servoed: nothing to stop, nothing to switch off (a faulted axis
+    // coasts; its fault is the table_fault interlock's).
     safing_ = false;
+    safe_reached_ = true;
     release_panel();
     return;
   }
@@ -151,7 +246,7 @@ void TableControl::finish_safe_state(double wall_s) {
     if (wall_s - last_send_wall_s_ >= kResendWallS) make_safe(wall_s);
     return;
   }
-  if (!state_ || std::abs(state_->rate_dps) >= config_.rest_rate_dps) return;
+  if (!state_ || !ok_ || std::abs(state_->rate_dps) >= config_.rest_rate_dps) return;
   if (state_->interlock == drivers::TableInterlock::kClosed) {
     const Status st = table_.servo_off();
     log_failure(st, "servo off");
@@ -160,6 +255,7 @@ void TableControl::finish_safe_state(double wall_s) {
   }
   safing_ = false;
   stop_sent_ = false;
+  safe_reached_ = true;
   sent_.reset();
   release_panel();
 }

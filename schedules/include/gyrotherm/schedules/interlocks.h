@@ -117,6 +117,10 @@ struct InterlockDefinition {
   bool (*can_clear)(const Readings&);
 };
 
+// How many times a run's station resets a latched table fault by itself
+// (table_fault): once the axis is at rest, each an event.
+inline constexpr int kTableFaultResets = 3;
+
 // One row per InterlockKind, in the enum's order.
 inline constexpr InterlockDefinition kInterlockDefinitions[] = {
     {InterlockKind::kOutOfLimits, "out_of_limits", 5, &interlock_checks::out_of_limits,
@@ -138,7 +142,8 @@ inline constexpr InterlockDefinition kInterlockDefinitions[] = {
     {InterlockKind::kStorageFailing, "storage_failing", 60, &interlock_checks::storage_failing,
      [](const Readings& r) { return r.storage_committed; }},
     // A fault is latched by the controller: the station resets it (ACL :I:R)
-    // while the run is held, so a cleared reading shows the cause is gone.
+    // while the run is held, at most kTableFaultResets times a run, so a
+    // cleared reading shows the cause is gone.
     {InterlockKind::kTableFault, "table_fault", 5, &interlock_checks::table_fault,
      [](const Readings& r) { return r.table_rate_dps.has_value(); }},
     {InterlockKind::kTableSilent, "table_silent", 5, &interlock_checks::table_silent,

@@ -43,7 +43,12 @@
 // restarts a rate point in progress the same way.
 // Every step carries a table demand (table_demand()): the daemon commands the
 // table from it when a step starts (on_step_started) and stops the table when
-// the run ends.
+// the run ends. A soak, ramp or hold turning the table does not wait for it
+// when the step starts, but after a hold (the daemon stops the table while
+// the run is held) or when the controller took the table off its demand
+// (table_interrupted()) it does: the step stays held, shown settling, until
+// the table has been at rate for at_rate_hold_s (spin_up_timeout_s of
+// unheld time at most, else the run aborts).
 // After the last step, and on failure or abort, the safe set point is
 // commanded.
 #pragma once
@@ -201,6 +206,11 @@ class Sequencer {
   // Marks the run interrupted (daemon shutting down mid-run); the open
   // window is closed, the step stays open for restore().
   void interrupt(double t_s, const std::string& reason);
+  // The controller took the table off the step's rate (`reason`: a fault, a
+  // reset): the open window closes (a rate point's partial dwell is
+  // discarded) and acquisition waits for the table at rate again. Nothing
+  // for a step that does not turn the table.
+  void table_interrupted(double t_s, const std::string& reason);
 
   SequencerSnapshot snapshot(double t_s) const;
 
@@ -223,7 +233,13 @@ class Sequencer {
   std::optional<GateProgress> gate_progress(double t_s) const;
 
  private:
+  // A pause, a tripped interlock or a pending restore holds the run; held()
+  // also counts the wait for the table after one (table_spin_up_pending_).
+  bool hold_active() const;
   bool held() const;
+  // The wait for the table back at the step's rate; false when it ran out
+  // (the run was aborted).
+  bool tick_table_gate(double t_s, double dt_s, const Readings& readings);
   double at_rate_tolerance_dps(double demand_dps) const {
     return std::max(options_.at_rate_tolerance_dps,
                     options_.at_rate_tolerance_ppm * 1e-6 * std::abs(demand_dps));
@@ -276,6 +292,9 @@ class Sequencer {
   double spin_up_s_ = 0;
   std::optional<double> at_rate_since_s_;
   std::optional<double> last_table_rate_dps_;
+  // A soak, ramp or hold turning the table waits for it at rate again (the
+  // spin-up fields above time it).
+  bool table_spin_up_pending_ = false;
 };
 
 }  // namespace gyrotherm::schedules

@@ -79,6 +79,12 @@ struct ChamberSection {
   std::string profile = "watlow-f4t";  // or "custom" when [chamber.registers] is given
   drivers::ChamberMap map;
   double silent_timeout_s = 10.0;  // station s without a good reading = device silent
+  // After the controller took the axis off the run's demand (a fault, a
+  // reset or a restart of the controller, the servo opened at its panel):
+  // false, the run pauses with the table at rest until the operator resumes
+  // it; true, the station closes the servo and spins the table back up by
+  // itself. Either way acquisition waits for the table at rate again.
+  bool respin_after_fault = false;
 };
 
 struct ProbesSection {
@@ -163,6 +169,12 @@ struct TableSection {
   // At rest: |rate| below this (the safe state then opens the interlock).
   double rest_rate_dps = 0.01;
   double silent_timeout_s = 10.0;  // station s without a good reading = device silent
+  // After the controller took the axis off the run's demand (a fault, a
+  // reset or a restart of the controller, the servo opened at its panel):
+  // false, the run pauses with the table at rest until the operator resumes
+  // it; true, the station closes the servo and spins the table back up by
+  // itself. Either way acquisition waits for the table at rate again.
+  bool respin_after_fault = false;
   // The gyro's sensitive axis, for the Earth-rate projection of a static
   // position: "along_table" (parallel to the table's vertical axis: Ω·sin φ,
   // whatever the position) or "radial" (horizontal, turning with the table:

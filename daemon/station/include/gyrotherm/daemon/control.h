@@ -94,7 +94,8 @@ class StationControl {
                           bool ignore_failures) = 0;
   virtual Reply queue_remove(int64_t id) = 0;
   virtual Reply queue_move(int64_t id, int position) = 0;
-  // action: pause, resume, abort, stop.
+  // action: pause, resume, abort, stop, table-reset (the rate table's
+  // latched fault).
   virtual Reply control(std::string_view action, const std::string& reason) = 0;
   virtual Reply runs() = 0;
   virtual Reply run(int64_t id) = 0;

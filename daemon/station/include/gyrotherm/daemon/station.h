@@ -210,7 +210,20 @@ class Station final : public StationControl, private schedules::SequencerObserve
   void count_queue();
   int64_t current_run_id() const { return run_clock_.load().run_id; }
   double run_time_s() const;
-  void write_setpoint(double setpoint_c, bool force);
+  // Sends `setpoint_c` to the chamber when it differs from the last one
+  // written, when `force`, or every 30th call (re-asserted: a controller
+  // changed by hand comes back); never twice in a control tick. Ok when
+  // the chamber took it (now or before), else the write's error (the next
+  // call tries again). A failing spell is logged and an event when it
+  // starts and when a write takes again.
+  Status write_setpoint(double setpoint_c, bool force);
+  // Idle: the table's safe state once, and the safe set point until the
+  // chamber takes it (safe_setpoint_owed_).
+  void keep_idle_safe();
+  // A run's table, before the sequencer's tick: an interruption holds the
+  // acquisition (and pauses the run unless [table] respin_after_fault); a
+  // latched fault holding the run is reset.
+  void tend_table(double t_run_s);
   // The table's demand now: the step's, or at rest while the run is held
   // (paused, an interlock tripped) or aborting.
   schedules::TableDemand table_demand() const;
@@ -270,7 +283,9 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // Registers every DUT in run `run_id` (run_duts, channels): before the
   // run's clock is published, so no frame comes under a run without its DUTs.
   void register_run_duts(int64_t run_id);
-  void read_dut_probes(double now_s);
+  // Reads them without run_mu_; the events to record (kind "device") are
+  // returned for the caller to add under run_mu_.
+  std::vector<std::string> read_dut_probes(double now_s);
   // Waits, up to `max_wait` (wall), until every DUT's frames of `run_id` up to
   // `until_s` (run seconds) have been handed to the writer. False on timeout.
   bool await_gyro(int64_t run_id, double until_s, std::chrono::milliseconds max_wait);
@@ -326,6 +341,18 @@ class Station final : public StationControl, private schedules::SequencerObserve
   double last_checkpoint_wall_s_ = -1e9;
   std::optional<double> last_written_setpoint_c_;
   int ticks_since_setpoint_write_ = 0;
+  // Control ticks (and the stop) counted, so a set point is written at most
+  // once in each: the value and result of the last attempt.
+  uint64_t control_ticks_ = 0;
+  uint64_t setpoint_attempt_tick_ = 0;
+  double setpoint_attempt_c_ = 0;
+  Status setpoint_attempt_status_;
+  // Failed writes in a row, since when (station time).
+  int setpoint_failures_ = 0;
+  double setpoint_failing_since_s_ = 0;
+  // A run ended and the chamber has not taken the safe set point yet: each
+  // idle tick writes it again.
+  bool safe_setpoint_owed_ = false;
   // What the database refused (disk full): kept and written in order by
   // record_unrecorded() once it takes writes again.
   static constexpr std::size_t kMaxUnrecordedEvents = 10000;
