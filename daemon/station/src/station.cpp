@@ -503,7 +503,9 @@ void Station::paced_control_loop(const PacedClock& clock) {
         if (stopping_) return;
       }
       // Short waits: stop() is noticed within one.
-      if (clock.wait_until(t_tick_s + tick_s, std::chrono::milliseconds(20))) break;
+      // (1 µs short: the simulator's steps reach t + tick_s only within
+      // rounding, and it runs no further before this tick's mark)
+      if (clock.wait_until(t_tick_s + tick_s - 1e-6, std::chrono::milliseconds(20))) break;
     }
   }
 }
