@@ -135,7 +135,9 @@ TEST_F(StationTableTest, AbortWhileSpinningStopsTheTableBeforeTheChamberGoesSafe
   // Then the operator panel is handed back (ACL `:U:L OFF`).
   {
     const auto log = rig.plant->state().log;
-    const auto at = [&](const std::string& entry) { return std::find(log.begin(), log.end(), entry); };
+    const auto at = [&](const std::string& entry) {
+      return std::find(log.begin(), log.end(), entry);
+    };
     ASSERT_NE(at("table release"), log.end()) << ::testing::PrintToString(log);
     EXPECT_GT(at("table release"), at("table servo off")) << ::testing::PrintToString(log);
     EXPECT_FALSE(rig.table.state().remote);
