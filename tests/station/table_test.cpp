@@ -362,6 +362,12 @@ table_rate_dps = 100.0
       << ::testing::PrintToString(commands);
   for (int i = 0; i < 60; ++i) rig.step();
   EXPECT_EQ(rig.table.commands(), commands) << ::testing::PrintToString(rig.table.commands());
+  // Nor does the daemon stopping stop a jog.
+  rig.table.change([](FakeTable::State& s) { s.panel_jog_dps = 10.0; });
+  rig.step();
+  rig.close();
+  EXPECT_EQ(rig.table.commands(), commands) << ::testing::PrintToString(rig.table.commands());
+  EXPECT_NEAR(rig.table.state().rate_dps, 10.0, 1e-9);
 }
 
 // Item 6: at shutdown a table that does not answer is not waited for, and
@@ -386,16 +392,39 @@ TEST_F(StationTableTest, StoppingWithATableThatNeverAnsweredDoesNotWaitForIt) {
   EXPECT_EQ(text.find("servo on"), std::string::npos) << text;
 }
 
+// Item 4 at shutdown: a table still stopping when the daemon stops (here
+// one a dead daemon had left spinning, stopped at the first tick) is
+// stopped, the chamber gets its safe set point, and only then, at rest,
+// does the servo go off.
+TEST_F(StationTableTest, StoppingTheDaemonSendsTheSafeSetPointBeforeTheServoGoesOff) {
+  StationRig rig(dir_, table_config(dir_ / "station.db"));
+  rig.table.change([](FakeTable::State& s) {
+    s.interlock = drivers::TableInterlock::kClosed;
+    s.mode = drivers::TableMode::kRate;
+    s.demand_rate_dps = 100.0;
+    s.rate_dps = 100.0;
+  });
+  rig.open();
+  rig.step();
+  ASSERT_EQ(rig.table.commands(), std::vector<std::string>{"stop"});
+  rig.close();
+  EXPECT_LT(std::abs(rig.table.state().rate_dps), 0.01);
+  EXPECT_EQ(rig.table.state().interlock, drivers::TableInterlock::kOpen);
+  expect_safe_state_order(rig.plant->state().log);
+}
+
 TEST_F(StationTableTest, StoppingTheDaemonLeavesTheTableAtRestAndServoOff) {
   StationRig rig(dir_, table_config(dir_ / "station.db"));
   rig.open();
   rig.queue(kStaticThenSpin);
   until_spinning(rig, 100.0);
+  rig.plant->change([](FakePlant::State& s) { s.log.clear(); });
   // No control loop is left at shutdown: the station waits for the table
   // itself (the rig moves the fake table in wall time meanwhile).
   rig.close();
   EXPECT_LT(std::abs(rig.table.state().rate_dps), 0.01);
   EXPECT_EQ(rig.table.state().interlock, drivers::TableInterlock::kOpen);
+  expect_safe_state_order(rig.plant->state().log);
 }
 
 }  // namespace
