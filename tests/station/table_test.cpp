@@ -292,6 +292,28 @@ TEST_F(StationTableTest, AControllerResetUnderASpinningRunPausesIt) {
   until_spinning(rig, 100.0);
 }
 
+// An interruption seen as a run aborts is the aborted run's: the next run
+// does not pause for it.
+TEST_F(StationTableTest, AnInterruptionDoesNotOutliveItsRun) {
+  StationRig rig(dir_, table_config(dir_ / "station.db"));
+  rig.open();
+  rig.queue(kStaticThenSpin);
+  until_spinning(rig, 100.0);
+  const int64_t first = *rig.station->status().run_id;
+  ASSERT_FALSE(rig.station->control("abort", "bench").refusal);
+  rig.table.fault();  // read by the tick that goes on aborting
+  ASSERT_TRUE(rig.step_until([&] { return !rig.station->status().run_id; }, 60));
+  EXPECT_EQ(rig.reply(rig.station->run(first)).at("state"), "failed");
+  ASSERT_FALSE(rig.station->control("table-reset", "bench").refusal);
+  ASSERT_FALSE(rig.station->control("resume", "bench").refusal);  // the abort held the queue
+  rig.queue(kStaticThenSpin);
+  ASSERT_TRUE(
+      rig.step_until([&] { return rig.station->status().run_id.value_or(first) != first; }, 10));
+  for (int i = 0; i < 5; ++i) rig.step();
+  EXPECT_NE(rig.state(), "paused");
+  EXPECT_FALSE(rig.has_event(*rig.station->status().run_id, "table", "faulted"));
+}
+
 // Item 5: the operator's reset, through the station (REST: POST
 // /api/v1/control/table-reset; `gyrotherm table reset` when the daemon runs).
 TEST_F(StationTableTest, TheOperatorResetsAFaultThroughTheStation) {
