@@ -302,6 +302,28 @@ TEST_F(StationTableTest, AControllerResetUnderASpinningRunPausesIt) {
   until_spinning(rig, 100.0);
 }
 
+// An interruption seen as a run aborts is the aborted run's: the next run
+// does not pause for it.
+TEST_F(StationTableTest, AnInterruptionDoesNotOutliveItsRun) {
+  StationRig rig(dir_, table_config(dir_ / "station.db"));
+  rig.open();
+  rig.queue(kStaticThenSpin);
+  until_spinning(rig, 100.0);
+  const int64_t first = *rig.station->status().run_id;
+  ASSERT_FALSE(rig.station->control("abort", "bench").refusal);
+  rig.table.fault();  // read by the tick that goes on aborting
+  ASSERT_TRUE(rig.step_until([&] { return !rig.station->status().run_id; }, 60));
+  EXPECT_EQ(rig.reply(rig.station->run(first)).at("state"), "failed");
+  ASSERT_FALSE(rig.station->control("table-reset", "bench").refusal);
+  ASSERT_FALSE(rig.station->control("resume", "bench").refusal);  // the abort held the queue
+  rig.queue(kStaticThenSpin);
+  ASSERT_TRUE(
+      rig.step_until([&] { return rig.station->status().run_id.value_or(first) != first; }, 10));
+  for (int i = 0; i < 5; ++i) rig.step();
+  EXPECT_NE(rig.state(), "paused");
+  EXPECT_FALSE(rig.has_event(*rig.station->status().run_id, "table", "faulted"));
+}
+
 // Item 5: the operator's reset, through the station (REST: POST
 // /api/v1/control/table-reset; `gyrotherm table reset` when the daemon runs).
 TEST_F(StationTableTest, TheOperatorResetsAFaultThroughTheStation) {
@@ -372,6 +394,12 @@ table_rate_dps = 100.0
       << ::testing::PrintToString(commands);
   for (int i = 0; i < 60; ++i) rig.step();
   EXPECT_EQ(rig.table.commands(), commands) << ::testing::PrintToString(rig.table.commands());
+  // Nor does the daemon stopping stop a jog.
+  rig.table.change([](FakeTable::State& s) { s.panel_jog_dps = 10.0; });
+  rig.step();
+  rig.close();
+  EXPECT_EQ(rig.table.commands(), commands) << ::testing::PrintToString(rig.table.commands());
+  EXPECT_NEAR(rig.table.state().rate_dps, 10.0, 1e-9);
 }
 
 // Item 6: at shutdown a table that does not answer is not waited for, and
@@ -396,16 +424,39 @@ TEST_F(StationTableTest, StoppingWithATableThatNeverAnsweredDoesNotWaitForIt) {
   EXPECT_EQ(text.find("servo on"), std::string::npos) << text;
 }
 
+// Item 4 at shutdown: a table still stopping when the daemon stops (here
+// one a dead daemon had left spinning, stopped at the first tick) is
+// stopped, the chamber gets its safe set point, and only then, at rest,
+// does the servo go off.
+TEST_F(StationTableTest, StoppingTheDaemonSendsTheSafeSetPointBeforeTheServoGoesOff) {
+  StationRig rig(dir_, table_config(dir_ / "station.db"));
+  rig.table.change([](FakeTable::State& s) {
+    s.interlock = drivers::TableInterlock::kClosed;
+    s.mode = drivers::TableMode::kRate;
+    s.demand_rate_dps = 100.0;
+    s.rate_dps = 100.0;
+  });
+  rig.open();
+  rig.step();
+  ASSERT_EQ(rig.table.commands(), std::vector<std::string>{"stop"});
+  rig.close();
+  EXPECT_LT(std::abs(rig.table.state().rate_dps), 0.01);
+  EXPECT_EQ(rig.table.state().interlock, drivers::TableInterlock::kOpen);
+  expect_safe_state_order(rig.plant->state().log);
+}
+
 TEST_F(StationTableTest, StoppingTheDaemonLeavesTheTableAtRestAndServoOff) {
   StationRig rig(dir_, table_config(dir_ / "station.db"));
   rig.open();
   rig.queue(kStaticThenSpin);
   until_spinning(rig, 100.0);
+  rig.plant->change([](FakePlant::State& s) { s.log.clear(); });
   // No control loop is left at shutdown: the station waits for the table
   // itself (the rig moves the fake table in wall time meanwhile).
   rig.close();
   EXPECT_LT(std::abs(rig.table.state().rate_dps), 0.01);
   EXPECT_EQ(rig.table.state().interlock, drivers::TableInterlock::kOpen);
+  expect_safe_state_order(rig.plant->state().log);
 }
 
 }  // namespace

@@ -400,7 +400,12 @@ void Station::stop(const std::string& reason) {
       end_run();
     }
   }
-  make_table_safe_now();
+  // The table stops before the chamber heads for its safe set point; its
+  // servo goes off once it is at rest (make_table_safe_now(), after). A
+  // table the idle station had made safe is left alone: a jog from its
+  // panel is not the station's to stop.
+  const bool table_owed = table_ && (table_->safing() || table_->owes_safe_state());
+  if (table_owed) table_->make_safe(wall_.monotonic_s());
   const double safe_c = config_.station.safe_setpoint_c;
   Status chamber_safe;
   {
@@ -414,6 +419,7 @@ void Station::stop(const std::string& reason) {
                             safe_c, chamber_safe.error().message));
     }
   }
+  if (table_owed) make_table_safe_now();
   for (auto& d : duts_) d->source->stop();
   if (nightly_) nightly_->stop();
   analysis_->stop();

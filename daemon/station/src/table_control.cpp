@@ -120,6 +120,7 @@ std::optional<std::string> TableControl::take_interruption() {
 }
 
 void TableControl::begin_run() {
+  interruption_.reset();  // one the last run ended without taking
   fault_resets_ = 0;
   last_fault_reset_s_ = -1e9;
   fault_resets_spent_said_ = false;

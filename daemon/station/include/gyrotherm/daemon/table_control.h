@@ -82,7 +82,8 @@ class TableControl {
 
   // What took the table off its demand since the last call, once.
   std::optional<std::string> take_interruption();
-  // A run starts (or resumes): its fault resets are counted afresh.
+  // A run starts (or resumes): its fault resets are counted afresh, and an
+  // interruption the last run ended without taking is dropped.
   void begin_run();
   // Resets a latched fault (see above) when one is due at station time
   // now_s; the event's message when something was done or given up.
