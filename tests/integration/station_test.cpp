@@ -88,8 +88,12 @@ TEST_F(StationTest, ShortScheduleEndToEnd) {
   const double earth_dph = 15.041067 * std::sin(kLatitudeDeg * M_PI / 180.0);
   for (const auto& r : *stats) {
     SCOPED_TRACE(fmt::format("segment {}", r.segment_index + 1));
-    EXPECT_EQ(r.n, 360);
-    EXPECT_DOUBLE_EQ(r.duration_s, 360.0);
+    // 360 one-second bins, one either way: the window ends where the
+    // samples cover the 6 min (soaks are credited for data), which need
+    // not fall on a whole second of the bin grid.
+    EXPECT_GE(r.n, 359);
+    EXPECT_LE(r.n, 361);
+    EXPECT_NEAR(r.duration_s, 360.0, 1.0);
     EXPECT_NEAR(r.temp_mean_c, r.setpoint_c, 0.5);
     // Truth: Earth + 0.05 + 0.004 T (+ small gradient terms when settled).
     const double truth_dph = earth_dph + 0.05 + 0.004 * r.temp_mean_c;
