@@ -59,7 +59,9 @@ done
 
 sim_args=(--config "$out/station.toml" --time-scale "$scale")
 daemon_args=(--config "$out/station.toml" --schedule "$schedule" --time-scale "$scale" --exit-when-done)
-if [ $scaled -eq 1 ]; then
+if [ $scaled -eq 0 ]; then
+  "$bin/gyrothermd" --help 2>/dev/null | grep -q -- --clock && daemon_args+=(--clock sim)
+else
   "$bin/gyrotherm-sim" --help 2>/dev/null | grep -q -- --scaled-clock && sim_args+=(--scaled-clock)
   "$bin/gyrothermd" --help 2>/dev/null | grep -q -- --clock && daemon_args+=(--clock scaled)
 fi

@@ -667,7 +667,21 @@ void Simulator::run_paced() {
     shared_clock_->publish(t_s);
 
     const double limit_s = shared_clock_->limit_s();
-    const double target_s = std::min(t_s + std::min(wall_dt_s, 0.25) * scale, limit_s);
+    // Without a daemon on this clock the simulation keeps up with scaled
+    // wall time, as on its own clock (a daemon on a scaled clock expects
+    // that), from where the last daemon let it go; with one it runs no
+    // further than the daemon allows and never makes up lost time.
+    double target_s;
+    if (std::isinf(limit_s)) {
+      if (!free_running_) {
+        free_offset_s_ = (clock_->now_s() - t0_s_) - t_s;
+        free_running_ = true;
+      }
+      target_s = clock_->now_s() - t0_s_ - free_offset_s_;
+    } else {
+      free_running_ = false;
+      target_s = std::min(t_s + std::min(wall_dt_s, 0.25) * scale, limit_s);
+    }
     if (target_s >= t_s + step_s_ - 1e-9) {
       advance_to(target_s);
       publish_registers();

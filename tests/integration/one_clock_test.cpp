@@ -113,7 +113,7 @@ acquire_min = 10
 )");
   const auto wall_start = std::chrono::steady_clock::now();
   start_sim();
-  start_daemon();
+  start_daemon({"--clock", "sim"});
   ASSERT_TRUE(wait_until([&] { return run_analysed(1); }, 240s)) << daemon_->log();
   const double wall_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
@@ -135,7 +135,7 @@ acquire_min = 10
 TEST_F(OneClockTest, ADaemonStoppedStopsStationTime) {
   write(dir_ / "schedule.toml", soak_schedule("stopped daemon", 25.0, 6));
   start_sim();
-  start_daemon();
+  start_daemon({"--clock", "sim"});
   std::optional<nlohmann::json> live;
   ASSERT_TRUE(wait_until(
       [&] {
@@ -173,7 +173,7 @@ TEST_F(OneClockTest, ADaemonStoppedStopsStationTime) {
 TEST_F(OneClockTest, ASimulatorStoppedStopsTheDaemonsClock) {
   write(dir_ / "schedule.toml", soak_schedule("stopped simulator", 25.0, 6));
   start_sim();
-  start_daemon();
+  start_daemon({"--clock", "sim"});
   std::optional<nlohmann::json> live;
   ASSERT_TRUE(wait_until(
       [&] {
@@ -210,7 +210,7 @@ TEST_F(OneClockTest, ASimulatorStoppedStopsTheDaemonsClock) {
 TEST_F(OneClockTest, AKilledDaemonResumesOnTheSameClockWithEverySecond) {
   write(dir_ / "schedule.toml", soak_schedule("killed daemon", 25.0, 6));
   start_sim();
-  start_daemon();
+  start_daemon({"--clock", "sim"});
   std::optional<nlohmann::json> live;
   ASSERT_TRUE(wait_until(
       [&] {
@@ -238,7 +238,7 @@ TEST_F(OneClockTest, AKilledDaemonResumesOnTheSameClockWithEverySecond) {
         return s && (*s)["t_s"].get<double>() > t_killed_s + 30;
       },
       30s));
-  start_daemon({}, /*with_schedule=*/false);
+  start_daemon({"--clock", "sim"}, /*with_schedule=*/false);
   ASSERT_TRUE(wait_until([&] { return run_analysed(1); }, 180s)) << daemon_->log();
   expect_every_row_right(1, 1, 360);
   auto events = get_json("/api/v1/runs/1/events");

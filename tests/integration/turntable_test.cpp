@@ -444,7 +444,7 @@ TEST_F(TurntableTest, ScaleFactorWithThreeDutsBesideTwoHogsRecoversTheTruth) {
   // (Not in the sanitized builds: they test memory and races, and are slow enough.)
   testing::Hogs hogs(testing::time_factor() > 1 ? 0 : 2, dir_);
   start_sim();
-  start_daemon();
+  start_daemon({"--clock", "sim"});
   ASSERT_TRUE(wait_json(
       "/api/v1/runs/1", [](const json& r) { return r["state"] == "completed"; }, 600s))
       << diag();

@@ -301,6 +301,10 @@ class Simulator {
   // shared_clock with an endpoints file and its own clock); the run loop
   // then paces itself (run_paced()).
   std::unique_ptr<SharedClockOwner> shared_clock_;
+  // run_paced(): free running (no daemon holds the clock) since when, and
+  // how far behind scaled wall time that started.
+  bool free_running_ = false;
+  double free_offset_s_ = 0;
   std::string truth_json_;
   int chamber_unit_;
   int probes_unit_;
