@@ -409,7 +409,9 @@ TEST_F(TurntableTest, TheTableResetCommandGoesThroughTheDaemonThatRunsTheStation
 TEST_F(TurntableTest, ScaleFactorCampaignRecoversTheSimulatorsTruth) {
   write(dir_ / "schedule.toml", kScaleFactorSchedule);
   start_sim();
-  start_daemon();
+  // One clock (--clock sim): with two, a loaded machine put rate windows
+  // over the previous rate's samples (issue 24).
+  start_daemon({"--clock", "sim"});
   ASSERT_TRUE(wait_json(
       "/api/v1/runs/1", [](const json& r) { return r["state"] == "completed"; }, 600s))
       << diag();
