@@ -380,7 +380,14 @@ TEST_F(QueueTest, CrashResumeAfterKill9) {
       resumed_after_the_kill = true;
     }
   }
-  EXPECT_NEAR(acquired_s, kAcquireS, 1e-6) << "the soak acquired its whole time\n" << coverage;
+  // A soak is credited for the data its gyro covers: its windows hold the
+  // time asked for, plus the stretches with no sample (a stream restarting
+  // after the kill, a stall on a loaded machine), within two sample periods.
+  const double missing_s = testing::uncovered_s(*db, 1, w, 1 / testing::kRateHz);
+  EXPECT_GE(acquired_s, kAcquireS - 1e-6) << coverage;
+  EXPECT_NEAR(acquired_s - missing_s, kAcquireS, 2 / testing::kRateHz)
+      << "the soak acquired its whole time (" << missing_s << " s of its windows uncovered)\n"
+      << coverage;
   EXPECT_TRUE(resumed_after_the_kill) << coverage;
   EXPECT_THAT(events, HasSubstr("daemon restarted: run resumes at step 1 of 1"));
   EXPECT_THAT(events, HasSubstr("acquisition goes on"));

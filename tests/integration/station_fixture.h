@@ -50,6 +50,30 @@ inline std::string window_coverage(storage::Database& db, int64_t run_id,
   return out;
 }
 
+// Seconds of the windows no sample covers, each sample standing for one
+// `period_s` after it and one missing sample bridged (how the station
+// credits a soak): the stretches a window is longer than its soak by.
+inline double uncovered_s(storage::Database& db, int64_t run_id,
+                          const std::vector<std::pair<double, double>>& windows, double period_s) {
+  double out = 0;
+  for (const auto& [from_s, to_s] : windows) {
+    auto samples = db.gyro_samples(run_id, from_s, to_s);
+    if (!samples.ok() || samples->empty()) {
+      out += to_s - from_s;
+      continue;
+    }
+    const auto gap = [&](double a_s, double b_s) {
+      return b_s - a_s > 2 * period_s ? b_s - a_s - period_s : 0.0;
+    };
+    out += gap(from_s - period_s, samples->front().t_s);
+    for (std::size_t i = 1; i < samples->size(); ++i) {
+      out += gap((*samples)[i - 1].t_s, (*samples)[i].t_s);
+    }
+    out += gap(samples->back().t_s, to_s);
+  }
+  return out;
+}
+
 inline constexpr double kTimeScale = 200.0;
 inline constexpr double kRateHz = 10.0;
 inline constexpr double kWhiteNoiseDph = 1.0;
