@@ -917,9 +917,20 @@ Status Database::exec(std::string_view sql) { return internal::exec(db_, path_, 
 Status Database::verify_quick() {
   auto st = Stmt::prepare(db_, path_, "PRAGMA quick_check");
   if (!st) return st.error();
+  // A row may hold several problems, one per line, after a heading naming
+  // the schema ("*** in database main ***").
   std::vector<std::string> rows;
   int rc;
-  while ((rc = st->step()) == SQLITE_ROW) rows.push_back(st->column_text(0));
+  while ((rc = st->step()) == SQLITE_ROW) {
+    const std::string text = st->column_text(0);
+    for (std::size_t from = 0; from <= text.size();) {
+      std::size_t to = text.find('\n', from);
+      if (to == std::string::npos) to = text.size();
+      const std::string line = text.substr(from, to - from);
+      if (!line.empty() && !line.starts_with("*** in database")) rows.push_back(line);
+      from = to + 1;
+    }
+  }
   // The check may stop on a page too damaged to go on, after the problems
   // it found so far; other failures (busy, I/O) are no verdict on the file.
   std::string stopped;
