@@ -85,6 +85,10 @@ int main(int argc, char** argv) {
     return 2;
   }
   if (!db_path.empty()) config->storage.db_path = db_path;
+  if (auto dir = gd::check_database_directory(*config, db_path.empty() ? "" : "--db"); !dir) {
+    std::cerr << "gyrothermd: bad config:\n" << dir.error().message << "\n";
+    return 2;
+  }
   // One daemon per station database; the CLI's commissioning commands look
   // at this lock and keep off the devices while it is held.
   auto station_lock = gd::StationLock::acquire(config->storage.db_path);

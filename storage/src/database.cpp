@@ -2,6 +2,8 @@
 
 #include <fmt/format.h>
 #include <sqlite3.h>
+#include <sys/sysmacros.h>
+#include <sys/types.h>
 
 #include <boost/uuid/uuid.hpp>
 #include <boost/uuid/uuid_generators.hpp>
@@ -249,7 +251,16 @@ constexpr const char* kStatsColumns =
 
 }  // namespace
 
-Result<Database> Database::open(const std::string& path, const WallClock& wall) {
+Database::Database(sqlite3* db, std::string path, const WallClock& wall)
+    : db_(db), path_(std::move(path)), wall_(&wall) {
+  const char* file = db_ != nullptr ? sqlite3_db_filename(db_, "main") : nullptr;
+  if (file == nullptr || *file == '\0') return;  // in memory, temporary
+  if (auto id = internal::identity_of(file)) {
+    guard_ = std::make_unique<internal::FileGuard>(internal::FileGuard{file, *id});
+  }
+}
+
+Result<Database> Database::open(const std::string& path, const WallClock& wall, OpenCheck check) {
   sqlite3* raw = nullptr;
   const int rc =
       sqlite3_open_v2(path.c_str(), &raw, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE, nullptr);
@@ -257,6 +268,7 @@ Result<Database> Database::open(const std::string& path, const WallClock& wall) 
   if (rc != SQLITE_OK) return sqlite_error(raw, path, "cannot open");
   sqlite3_extended_result_codes(raw, 1);
   sqlite3_busy_timeout(raw, kBusyTimeoutMs);
+  if (db.guard_) internal::install_file_guard(raw, db.guard_.get());
 
   {
     // Switching a new file to WAL takes an exclusive lock and may answer
@@ -289,6 +301,9 @@ Result<Database> Database::open(const std::string& path, const WallClock& wall) 
       !s) {
     return s.error();
   }
+  if (check == OpenCheck::kQuick) {
+    if (Status s = db.verify_quick(); !s) return s.error();
+  }
   if (Status s = migrate(raw, path, wall); !s) return s.error();
   return db;
 }
@@ -316,7 +331,10 @@ Result<Database> Database::open_read_only(const std::string& path) {
 }
 
 Database::Database(Database&& other) noexcept
-    : db_(std::exchange(other.db_, nullptr)), path_(std::move(other.path_)), wall_(other.wall_) {}
+    : db_(std::exchange(other.db_, nullptr)),
+      path_(std::move(other.path_)),
+      wall_(other.wall_),
+      guard_(std::move(other.guard_)) {}
 
 Database& Database::operator=(Database&& other) noexcept {
   if (this != &other) {
@@ -324,6 +342,7 @@ Database& Database::operator=(Database&& other) noexcept {
     db_ = std::exchange(other.db_, nullptr);
     path_ = std::move(other.path_);
     wall_ = other.wall_;
+    guard_ = std::move(other.guard_);
   }
   return *this;
 }
@@ -894,6 +913,82 @@ Result<std::vector<AllanRecord>> Database::allan(int64_t run_id) {
 }
 
 Status Database::exec(std::string_view sql) { return internal::exec(db_, path_, sql); }
+
+Status Database::verify_quick() {
+  auto st = Stmt::prepare(db_, path_, "PRAGMA quick_check");
+  if (!st) return st.error();
+  // A row may hold several problems, one per line, after a heading naming
+  // the schema ("*** in database main ***").
+  std::vector<std::string> rows;
+  int rc;
+  while ((rc = st->step()) == SQLITE_ROW) {
+    const std::string text = st->column_text(0);
+    for (std::size_t from = 0; from <= text.size();) {
+      std::size_t to = text.find('\n', from);
+      if (to == std::string::npos) to = text.size();
+      const std::string line = text.substr(from, to - from);
+      if (!line.empty() && !line.starts_with("*** in database")) rows.push_back(line);
+      from = to + 1;
+    }
+  }
+  // The check may stop on a page too damaged to go on, after the problems
+  // it found so far; other failures (busy, I/O) are no verdict on the file.
+  std::string stopped;
+  if (rc != SQLITE_DONE) {
+    if ((rc & 0xff) != SQLITE_CORRUPT && (rc & 0xff) != SQLITE_NOTADB) {
+      return sqlite_error(db_, path_, "PRAGMA quick_check");
+    }
+    stopped = sqlite3_errmsg(db_);
+  }
+  if (stopped.empty() && rows == std::vector<std::string>{"ok"}) return Status::Ok();
+  std::erase(rows, "ok");
+  constexpr std::size_t kShown = 5;
+  std::string found;
+  for (std::size_t i = 0; i < rows.size() && i < kShown; ++i) {
+    found += fmt::format("{}{}", i ? "; " : "", rows[i]);
+  }
+  std::string what;
+  if (!rows.empty()) {
+    // quick_check stops at 100 rows.
+    what = fmt::format("found {}{} problem(s){}: {}", rows.size(),
+                       rows.size() >= 100 ? " or more" : "",
+                       rows.size() > kShown ? fmt::format(", the first {}", kShown) : "", found);
+  }
+  if (!stopped.empty()) {
+    what += fmt::format("{}stopped: {}", what.empty() ? "" : "; then it ", stopped);
+  }
+  return Error::Permanent(fmt::format(
+      "storage: {}: the database is damaged: PRAGMA quick_check {}; nothing was written to it. "
+      "Restore it from a backup (docs/operations.md \"Restore\")",
+      path_, what));
+}
+
+std::optional<FileIdentity> Database::file_identity() const {
+  if (!guard_) return std::nullopt;
+  return guard_->id;
+}
+
+Status Database::check_file() const {
+  if (!guard_) return Status::Ok();
+  const std::string change = internal::file_change(*guard_);
+  if (change.empty()) return Status::Ok();
+  const FileIdentity& id = guard_->id;
+  return Error::Permanent(fmt::format(
+      "storage: {}: the database file was {} while open (the open one is device {}:{}, inode {}); "
+      "nothing is written to it any more",
+      path_, change, major(static_cast<dev_t>(id.dev)), minor(static_cast<dev_t>(id.dev)), id.ino));
+}
+
+Status Database::release_wal() {
+  // Not the 5 s busy timeout: another connection reading holds it off, and
+  // the caller tries again later.
+  sqlite3_busy_timeout(db_, 0);
+  const int rc =
+      sqlite3_wal_checkpoint_v2(db_, "main", SQLITE_CHECKPOINT_TRUNCATE, nullptr, nullptr);
+  sqlite3_busy_timeout(db_, kBusyTimeoutMs);
+  if (rc != SQLITE_OK) return sqlite_error(db_, path_, "emptying the write-ahead log");
+  return Status::Ok();
+}
 
 Result<std::vector<std::string>> Database::integrity_check(bool quick) {
   const char* pragma = quick ? "PRAGMA quick_check" : "PRAGMA integrity_check";

@@ -9,6 +9,7 @@
 #include <limits>
 #include <map>
 #include <optional>
+#include <set>
 #include <system_error>
 #include <tuple>
 
@@ -119,6 +120,7 @@ struct SampleWriter::Impl {
   bool accepting = true;
   bool thread_done = false;
   SampleWriterStats stats;
+  std::set<int64_t> closing;  // close_run()'s runs whose state is still held
 
   std::mutex join_mu;
   std::thread thread;
@@ -149,15 +151,44 @@ struct SampleWriter::Impl {
   // channels it pushes at another rate (its own probes), are two streams.
   std::map<std::tuple<int64_t, int64_t, int64_t>, Stream> streams;
   std::map<int64_t, int64_t> first_dut;  // run -> its first DUT's id
-  // The DUT records push_frames was given (guarded by mu; never erased, so
-  // FrameRow can point at them).
+  // The DUT records push_frames was given (guarded by mu; FrameRow points
+  // at them: erased only when no pending row is of their run).
   // By (run, DUT id, first channel id), as streams.
   std::map<std::tuple<int64_t, int64_t, int64_t>, std::unique_ptr<RunDutRecord>> known_duts;
-  uint64_t chunks_before = 0;
   Result<Stream*> stream_for(const FrameRow& r);
   Result<int64_t> first_dut_of(int64_t run_id);
   Outcome fail_batch(std::string_view what);
+  // Writer thread, mu held, after a successful round: forgets the closing
+  // runs nothing of which waits, and counts the runs still held.
+  void release_closed_runs_locked();
 };
+
+void SampleWriter::Impl::release_closed_runs_locked() {
+  const auto waits = [&](int64_t run_id) {
+    const auto of_run = [run_id](const auto& r) { return r.run_id == run_id; };
+    const auto in = [&](const auto& p) {
+      return std::any_of(p.rows.begin() + static_cast<std::ptrdiff_t>(p.head), p.rows.end(),
+                         of_run);
+    };
+    return in(gyro) || in(temps) || in(table);
+  };
+  for (auto it = closing.begin(); it != closing.end();) {
+    const int64_t run_id = *it;
+    if (waits(run_id)) {
+      ++it;
+      continue;
+    }
+    std::erase_if(streams, [&](const auto& kv) { return std::get<0>(kv.first) == run_id; });
+    std::erase_if(known_duts, [&](const auto& kv) { return std::get<0>(kv.first) == run_id; });
+    first_dut.erase(run_id);
+    it = closing.erase(it);
+  }
+  std::set<int64_t> held;
+  for (const auto& kv : streams) held.insert(std::get<0>(kv.first));
+  for (const auto& kv : known_duts) held.insert(std::get<0>(kv.first));
+  for (const auto& kv : first_dut) held.insert(kv.first);
+  stats.runs_held = held.size();
+}
 
 Status SampleWriter::Impl::prepare() {
   sqlite3* h = db.handle();
@@ -486,6 +517,7 @@ void SampleWriter::Impl::loop() {
       batch_gyro.clear();
       batch_temps.clear();
       batch_table.clear();
+      release_closed_runs_locked();
     } else {
       failed_through = batch;
       last_failure = out.status.error();
@@ -528,8 +560,14 @@ void SampleWriter::Impl::run() noexcept {
     } catch (...) {
     }
     std::lock_guard lk(mu);  // loop() released it while unwinding
-    const std::string msg = fmt::format("storage: {}: sample writer stopped: {}", path, what);
+    const std::string msg = fmt::format(
+        "storage: {}: sample writer stopped: {}; nothing more is committed until the daemon is "
+        "restarted",
+        path, what);
     stats.last_error = msg;
+    stats.thread_failed = true;
+    ++stats.commit_failures;
+    ++stats.consecutive_failures;
     last_failure = Error::Permanent(msg);
     failed_through = next_batch;
     accepting = false;
@@ -645,6 +683,7 @@ void SampleWriter::push_table(int64_t run_id, const TableSample& sample) {
 Status SampleWriter::flush() {
   Impl& m = *impl_;
   std::unique_lock lk(m.mu);
+  if (m.stats.thread_failed && m.last_failure) return *m.last_failure;
   const std::size_t buffered = m.gyro.size() + m.temps.size() + m.table.size();
   if (buffered == 0 && m.inflight == 0) return Status::Ok();
   if (m.thread_done) {
@@ -661,6 +700,16 @@ Status SampleWriter::flush() {
   if (m.failed_through >= target && m.last_failure) return *m.last_failure;
   return Error::Permanent(
       fmt::format("storage: {}: sample writer stopped before committing", m.path));
+}
+
+void SampleWriter::close_run(int64_t run_id) {
+  Impl& m = *impl_;
+  {
+    std::lock_guard lk(m.mu);
+    m.closing.insert(run_id);
+    m.flush_requested = true;
+  }
+  m.wake.notify_one();
 }
 
 void SampleWriter::stop() {

@@ -1,12 +1,17 @@
 #include "sqlite_util.h"
 
 #include <fmt/format.h>
+#include <sys/stat.h>
+#include <sys/sysmacros.h>
 
+#include <cerrno>
 #include <cmath>
 #include <limits>
 
 namespace gyrotherm::storage::internal {
 namespace {
+
+int guard_commit(void* arg) { return file_change(*static_cast<FileGuard*>(arg)).empty() ? 0 : 1; }
 
 bool is_transient(int rc) {
   switch (rc & 0xff) {
@@ -27,8 +32,37 @@ Error make_error(int rc, std::string message) {
 
 }  // namespace
 
+std::optional<FileIdentity> identity_of(const std::string& file) {
+  struct stat st {};
+  if (::stat(file.c_str(), &st) != 0) return std::nullopt;
+  return FileIdentity{static_cast<uint64_t>(st.st_dev), static_cast<uint64_t>(st.st_ino)};
+}
+
+std::string file_change(const FileGuard& guard) {
+  const auto now = identity_of(guard.file);
+  if (!now) return errno == ENOENT || errno == ENOTDIR ? "deleted" : "";
+  if (*now == guard.id) return "";
+  return fmt::format("replaced by another file (device {}:{}, inode {})",
+                     major(static_cast<dev_t>(now->dev)), minor(static_cast<dev_t>(now->dev)),
+                     now->ino);
+}
+
+void install_file_guard(sqlite3* db, FileGuard* guard) {
+  sqlite3_commit_hook(db, &guard_commit, guard);
+}
+
 Error sqlite_error(sqlite3* db, const std::string& path, std::string_view what) {
   const int rc = db != nullptr ? sqlite3_extended_errcode(db) : SQLITE_ERROR;
+  if (rc == SQLITE_CONSTRAINT_COMMITHOOK) {
+    // Only the file guard refuses commits.
+    const char* file = sqlite3_db_filename(db, "main");
+    struct stat st {};
+    const bool deleted = file != nullptr && ::stat(file, &st) != 0 && errno == ENOENT;
+    return Error::Permanent(fmt::format(
+        "storage: {}: {}: not committed: the database file was {} after it was opened; nothing "
+        "is written to it any more",
+        path, what, deleted ? "deleted" : "replaced by another file"));
+  }
   const char* msg = db != nullptr ? sqlite3_errmsg(db) : "no connection";
   return make_error(rc, fmt::format("storage: {}: {}: {}", path, what, msg));
 }

@@ -10,11 +10,35 @@
 #include <string_view>
 
 #include "gyrotherm/core/result.h"
+#include "gyrotherm/storage/database.h"
 
 namespace gyrotherm::storage::internal {
 
+// The file a read-write connection opened, as SQLite resolved its name
+// (absolute), with its identity then. Installed as the connection's commit
+// hook (install_file_guard): a transaction commits only while the name still
+// names that file.
+struct FileGuard {
+  std::string file;
+  FileIdentity id;
+};
+
+// The identity of the file `file` names now; nullopt when it cannot be had
+// (errno says why).
+std::optional<FileIdentity> identity_of(const std::string& file);
+// What happened to the file `guard` opened, "" while its name still names
+// it: "deleted", or "replaced by another file (device 8:1, inode 5678)". A
+// stat that fails otherwise than for a missing file (permissions, I/O) does
+// not tell: "".
+std::string file_change(const FileGuard& guard);
+// Makes `db` roll back every write transaction once file_change(*guard) is
+// not "" (the commit fails with SQLITE_CONSTRAINT_COMMITHOOK, which
+// sqlite_error describes). `guard` outlives the connection.
+void install_file_guard(sqlite3* db, FileGuard* guard);
+
 // "storage: <path>: <what>: <sqlite3_errmsg>". Busy/locked/full/I/O errors are
 // transient (another writer, a full or stalled disk); everything else permanent.
+// A commit the file guard refused says that the file was deleted or replaced.
 Error sqlite_error(sqlite3* db, const std::string& path, std::string_view what);
 Error sqlite_error(int rc, const std::string& path, std::string_view what);
 

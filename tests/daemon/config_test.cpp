@@ -6,7 +6,10 @@
 #include <toml++/toml.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <cstring>
 #include <filesystem>
+#include <fstream>
 
 #include "gyrotherm/daemon/run_analysis.h"
 
@@ -294,6 +297,54 @@ TEST(Config, MissingSectionsAndSyntaxErrors) {
   auto nofile = load_station_config("/nonexistent/station.toml");
   ASSERT_FALSE(nofile.ok());
   EXPECT_THAT(nofile.error().message, HasSubstr("/nonexistent/station.toml: cannot open file"));
+}
+
+// [storage] db in a directory that does not exist: an error naming the
+// file, the line, the key and the directory (SQLite would not create it;
+// the daemon would have started an empty station in a new one).
+TEST(Config, DatabaseDirectoryMustExist) {
+  const std::filesystem::path dir =
+      std::filesystem::temp_directory_path() / ("gyrotherm-dbdir-" + std::to_string(::getpid()));
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  const auto with_db = [&](const std::string& db) {
+    const std::string text = std::string(kMinimal) + "[storage]\ndb = \"" + db + "\"\n";
+    auto cfg = parse_station_config(text, "station.toml");
+    EXPECT_TRUE(cfg.ok()) << cfg.error().message;  // parsing itself does not look at the disk
+    return *cfg;
+  };
+  const int db_line =
+      static_cast<int>(std::count(kMinimal, kMinimal + std::strlen(kMinimal), '\n')) + 2;
+
+  const StationConfig missing = with_db((dir / "nope" / "station.db").string());
+  EXPECT_EQ(missing.storage.db_line, db_line);
+  const Status st = check_database_directory(missing);
+  ASSERT_FALSE(st.ok());
+  EXPECT_THAT(st.error().message,
+              HasSubstr(fmt::format("station.toml:{}: storage.db: the database's directory {} "
+                                    "does not exist",
+                                    db_line, (dir / "nope").string())));
+  const Status by_option = check_database_directory(missing, "--db");
+  ASSERT_FALSE(by_option.ok());
+  EXPECT_THAT(by_option.error().message, HasSubstr("--db: the database's directory"));
+
+  { std::ofstream((dir / "file").string()) << "x"; }
+  const Status not_dir = check_database_directory(with_db((dir / "file" / "station.db").string()));
+  ASSERT_FALSE(not_dir.ok());
+  EXPECT_THAT(not_dir.error().message, HasSubstr("is not a directory"));
+
+  const Status relative = check_database_directory(with_db("no-such-dir-here/station.db"));
+  ASSERT_FALSE(relative.ok());
+  EXPECT_THAT(relative.error().message, HasSubstr("a relative path starts from the working"));
+
+  for (const std::string& ok : {(dir / "station.db").string(), std::string("station.db"),
+                                std::string(":memory:"), std::string(""), std::string("./x.db")}) {
+    const Status s = check_database_directory(with_db(ok));
+    EXPECT_TRUE(s.ok()) << ok << ": " << s.error().message;
+  }
+  EXPECT_TRUE(check_database_directory(*parse_station_config(kMinimal, "d.toml")).ok())
+      << "the default, in the working directory";
+  std::filesystem::remove_all(dir);
 }
 
 TEST(Config, ShortTokensAreRefused) {

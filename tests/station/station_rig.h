@@ -308,6 +308,7 @@ class FullDiskSink final : public storage::SampleSink {
     }
     return writer_->flush();
   }
+  void close_run(int64_t run_id) override { writer_->close_run(run_id); }
   void stop() override { writer_->stop(); }
   storage::SampleWriterStats stats() const override {
     std::lock_guard lock(mu_);
@@ -410,7 +411,7 @@ class StationRig {
     hooks.lab_status = lab_status;
     storage::SampleWriterOptions wopt;
     wopt.commit_interval = std::chrono::milliseconds(20);
-    auto writer = storage::SampleWriter::start(cfg->storage.db_path, wopt);
+    auto writer = storage::SampleWriter::start(cfg->storage.db_path, wopt, on_commit);
     ASSERT_TRUE(writer.ok()) << writer.error().message;
     auto sink = std::make_unique<FullDiskSink>(std::move(*writer));
     disk_ = sink.get();
@@ -500,6 +501,9 @@ class StationRig {
   std::function<void(std::string_view event, const nlohmann::json& data)> on_publish;
   // StationHooks::lab_status of the station open() creates (unset: no [lab]).
   std::function<std::optional<lab::RelayStatus>()> lab_status;
+  // Called on the sample writer's thread after each commit (set before
+  // open(); one that throws stops the writer thread).
+  std::function<void(double seconds)> on_commit;
   ManualClock clock{1000.0, 1.0};
   ManualWallClock wall{1.8e9};
   std::unique_ptr<daemon::Station> station;

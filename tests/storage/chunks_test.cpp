@@ -7,6 +7,8 @@
 #include <gtest/gtest.h>
 #include <sqlite3.h>
 
+#include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <limits>
 #include <random>
@@ -16,6 +18,7 @@
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
 #include "migrations.h"
+#include "test_time.h"
 #include "test_util.h"
 
 namespace gyrotherm::storage {
@@ -275,6 +278,47 @@ TEST(ChunkedWriter, RestartedWriterStartsNewChunksAndIgnoresDuplicates) {
       "1500,1500")
       << "extended in place across commits, a new chunk after the restart";
   EXPECT_EQ(*db.count_channel_samples(dut.channels[7].id), 3000);
+}
+
+// Each run's state (its DUTs' open chunks) goes once the run is closed and
+// its samples committed: many runs, bounded state. A closed run's late
+// samples are still stored, in a chunk of their own.
+TEST(ChunkedWriter, ClosedRunsReleaseTheirState) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  constexpr int kRuns = 40;
+  std::vector<RunDutRecord> duts;
+  {
+    Database db = open_ok(path);
+    for (int run = 1; run <= kRuns; ++run) {
+      duts.push_back(register_kvh(db, run, fmt::format("17-{:04}", run)));
+    }
+  }
+  std::vector<DutFrame> frames;
+  for (int i = 0; i < 2000; ++i) frames.push_back(kvh_frame(i, i * 0.001));
+  auto writer = testing::start_ok(path, {.commit_interval = 1h});
+  std::size_t most_held = 0;
+  for (const RunDutRecord& dut : duts) {
+    writer->push_frames(dut, std::span(frames).first(1500));
+    ASSERT_TRUE(writer->flush().ok());
+    most_held = std::max(most_held, writer->stats().runs_held);
+    writer->close_run(dut.run_id);
+  }
+  ASSERT_TRUE(gyrotherm::testing::wait_for_condition([&] { return writer->stats().runs_held == 0; },
+                                                     std::chrono::seconds(5)))
+      << writer->stats().runs_held << " runs still held after " << kRuns << " closed";
+  EXPECT_LE(most_held, 2u);
+
+  writer->push_frames(duts.front(), std::span(frames).subspan(1500));  // late
+  ASSERT_TRUE(writer->flush().ok());
+  writer->stop();
+  Database db = open_ok(path);
+  EXPECT_EQ(
+      query_text(db.handle(), fmt::format("SELECT group_concat(n) FROM (SELECT n FROM "
+                                          "sample_chunks WHERE channel_id = {} ORDER BY t0_s)",
+                                          duts.front().channels[2].id)),
+      "1500,500");
+  EXPECT_EQ(*db.count_channel_samples(duts.back().channels[7].id), 1500);
 }
 
 // A schema-5 database with gyro samples (the old DDL, from the migration

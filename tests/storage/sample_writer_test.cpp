@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <stdexcept>
 #include <thread>
 #include <vector>
 
@@ -327,6 +328,35 @@ TEST(SampleWriter, StopCommitsPendingIsIdempotentAndRejectsLaterPushes) {
   writer->push_gyro(kRun, batch);
   EXPECT_EQ(writer->stats().rejected, 100u);
   EXPECT_TRUE(writer->flush().ok());  // nothing pending
+}
+
+// The writer thread stops on an exception (here its commit callback's): it
+// shows as failing for good, and a flush says so even with nothing pending.
+TEST(SampleWriter, DeadWriterThreadShowsAsFailing) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  auto w = SampleWriter::start(path, {.commit_interval = 1h},
+                               [](double) { throw std::runtime_error("histogram exploded"); });
+  ASSERT_TRUE(w.ok()) << w.error().message;
+  auto& writer = *w;
+  GyroSample g = gyro_sample(0);
+  writer->push_gyro(kRun, std::span(&g, 1));
+  Status s = writer->flush();
+  ASSERT_FALSE(s.ok()) << "the thread died in that round";
+  SampleWriterStats stats = writer->stats();
+  EXPECT_TRUE(stats.thread_failed);
+  EXPECT_GE(stats.consecutive_failures, 1u) << "counts as failing commits";
+  EXPECT_NE(stats.last_error.find("sample writer stopped: histogram exploded"), std::string::npos)
+      << stats.last_error;
+  EXPECT_NE(stats.last_error.find(path), std::string::npos) << stats.last_error;
+
+  g = gyro_sample(1);
+  writer->push_gyro(kRun, std::span(&g, 1));
+  EXPECT_EQ(writer->stats().rejected, 1u);
+  s = writer->flush();
+  ASSERT_FALSE(s.ok()) << "nothing pending, but nothing is committed any more either";
+  EXPECT_NE(s.error().message.find("histogram exploded"), std::string::npos) << s.error().message;
+  EXPECT_TRUE(writer->stats().thread_failed);
 }
 
 TEST(SampleWriter, RejectsBadOptions) {

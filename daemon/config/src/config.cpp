@@ -880,7 +880,10 @@ void read_table(TableReader t, TableSection& s, bool simulated) {
 }
 
 void read_storage(TableReader t, StorageSection& s) {
-  if (auto d = t.string("db")) s.db_path = *d;
+  if (auto d = t.string("db")) {
+    s.db_path = *d;
+    s.db_line = t.line_of("db");
+  }
   s.commit_interval_s = t.number_in("commit_interval_s", s.commit_interval_s, 0.01, 1.0);
   t.finish();
 }
@@ -1326,6 +1329,33 @@ Result<StationConfig> build_config(std::optional<toml::table> root, TomlErrors& 
 }
 
 }  // namespace
+
+Status check_database_directory(const StationConfig& config, std::string_view given_by) {
+  const std::string& db = config.storage.db_path;
+  if (db.empty() || db == ":memory:") return Status::Ok();
+  const std::filesystem::path dir = std::filesystem::path(db).parent_path();
+  if (dir.empty()) return Status::Ok();  // the working directory
+  std::error_code ec;
+  const std::filesystem::file_status st = std::filesystem::status(dir, ec);
+  if (std::filesystem::is_directory(st)) return Status::Ok();
+  std::string where(given_by);
+  if (where.empty()) {
+    where = config.storage.db_line > 0
+                ? fmt::format("{}:{}: storage.db", config.source_path, config.storage.db_line)
+                : fmt::format("{}: storage.db", config.source_path);
+  }
+  std::string what = "does not exist";
+  if (std::filesystem::exists(st)) {
+    what = "is not a directory";
+  } else if (ec && ec != std::errc::no_such_file_or_directory && ec != std::errc::not_a_directory) {
+    what = "cannot be reached: " + ec.message();
+  }
+  return Error::Permanent(fmt::format(
+      "{}: the database's directory {} {}; create it (writable by the daemon's user) or fix the "
+      "path{}",
+      where, dir.string(), what,
+      dir.is_relative() ? " (a relative path starts from the working directory)" : ""));
+}
 
 Result<StationConfig> load_station_config(const std::string& path) {
   TomlErrors errors(path);

@@ -5,6 +5,7 @@
 #include <sys/statvfs.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <limits>
@@ -152,8 +153,15 @@ Result<std::unique_ptr<Station>> Station::create(StationConfig config, StationDe
                                 ? "station: the config has a [table] but no table was given"
                                 : "station: a table was given but the config has no [table]");
   }
-  auto db = storage::Database::open(config.storage.db_path, clocks.wall);
+  // The first connection checks the whole file before anything writes to it
+  // (it reads it all: seconds per GB).
+  const auto check_start = std::chrono::steady_clock::now();
+  auto db =
+      storage::Database::open(config.storage.db_path, clocks.wall, storage::OpenCheck::kQuick);
   if (!db) return db.error();
+  spdlog::info(
+      "database {}: PRAGMA quick_check ok ({:.1f} s)", config.storage.db_path,
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - check_start).count());
   auto api_db = storage::Database::open(config.storage.db_path, clocks.wall);
   if (!api_db) return api_db.error();
   if (!samples) {
@@ -611,7 +619,12 @@ schedules::Readings Station::read_devices(double now_s) {
   }
   const storage::SampleWriterStats ws = writer_->stats();
   r.storage_committed = ws.commits > 0;
-  if (ws.consecutive_failures == 0) {
+  // The database file deleted or replaced under the daemon: storage fails
+  // from then on (a stat; db_ is only read here).
+  if (!storage_file_error_) {
+    if (Status f = db_.check_file(); !f) storage_file_error_ = f.error().message;
+  }
+  if (ws.consecutive_failures == 0 && !ws.thread_failed && !storage_file_error_) {
     storage_ok_s_ = now_s;
     storage_ok_wall_s_ = wall_s;
   }
@@ -621,10 +634,32 @@ schedules::Readings Station::read_devices(double now_s) {
   };
   r.storage_failing_s = silent(storage_ok_s_, storage_ok_wall_s_);
   if (r.storage_failing_s > 0) {
-    r.storage_error = ws.last_error;
+    r.storage_error = storage_file_error_.value_or(ws.last_error);
     r.storage_pending = ws.pending;
   }
   return r;
+}
+
+// Once: the event, and the old file's write-ahead log emptied into it so it
+// is not replayed into whatever file the path names at the next start
+// (retried each tick while another connection holds it off).
+void Station::note_storage_file() {
+  if (!storage_file_error_ || storage_file_released_) return;
+  if (!storage_file_reported_) {
+    storage_file_reported_ = true;
+    const std::string message = fmt::format(
+        "{}. Samples, events and results are no longer stored; the run holds (storage_failing) "
+        "and fails after its grace. Restore the file if it was not meant to go (docs/"
+        "operations.md \"The database file deleted or replaced\"), then restart gyrothermd",
+        *storage_file_error_);
+    spdlog::error("{}", message);
+    add_event("error", "", "", message);
+  }
+  if (Status st = db_.release_wal(); st) {
+    storage_file_released_ = true;
+  } else {
+    spdlog::warn("{} (tried again next tick)", st.error().message);
+  }
 }
 
 void Station::tick() {
@@ -646,9 +681,10 @@ void Station::tick() {
   record_unrecorded();
   record_posted_events();
   for (const auto& message : probe_events) add_event("device", "", "", message);
+  note_storage_file();
   note_link(*chamber_, chamber_ok_, chamber_lost_s_, now_s);
   note_link(*probes_, probes_ok_, probes_lost_s_, now_s);
-  if (!sequencer_) start_next_run(now_s);
+  if (!sequencer_ && !storage_file_error_) start_next_run(now_s);  // no run into a lost file
   if (!sequencer_) keep_idle_safe();
 
   double t_run_s = 0;
@@ -1290,7 +1326,9 @@ void Station::end_run() {
     }
   }
   run_clock_.close_samples();
-  (void)writer_->flush();
+  const Status flushed = writer_->flush();
+  if (!flushed && run_id != 0) note_samples_not_committed(run_id, final_state, flushed.error());
+  if (run_id != 0) writer_->close_run(run_id);
   if (entry_ && final_state != RunState::kInterrupted) {
     if (auto st = db_.queue_finish(entry_->id, to_string(final_state)); !st) {
       spdlog::error("{}", st.error().message);
@@ -1298,7 +1336,9 @@ void Station::end_run() {
     if (final_state == RunState::kFailed) answer_failed_run();
   }
   queue_answered_ = false;
-  if (final_state == RunState::kCompleted && run_id != 0) analysis_->submit(RunJob{run_id});
+  if (final_state == RunState::kCompleted && run_id != 0 && flushed) {
+    analysis_->submit(RunJob{run_id});
+  }
   if (stop_after_current_ && final_state != RunState::kInterrupted) {
     stop_after_current_ = false;
     if (!hold_reason_) {
@@ -1323,6 +1363,24 @@ void Station::end_run() {
     snapshot_.interlocks.clear();
   }
   busy_.store(false);
+}
+
+// The run's last samples could not be committed at its end (the commit's
+// error, or the writer stopped): said in its events, and a completed run is
+// not analysed as if its data were whole. The "analysis" event also keeps a
+// restart from analysing it (submit_missing_analyses).
+void Station::note_samples_not_committed(int64_t run_id, RunState final_state, const Error& e) {
+  const storage::SampleWriterStats ws = writer_->stats();
+  const std::string why = fmt::format(
+      "the final commit of its samples failed ({} samples not stored): {}", ws.pending, e.message);
+  spdlog::error("run {}: {}", run_id, why);
+  add_event("error", "", "", fmt::format("run {}: {}", run_id, why));
+  if (final_state == RunState::kCompleted) {
+    add_event("analysis", "", "",
+              fmt::format("analysis not run: the run's samples are incomplete ({}); analyse it "
+                          "offline once its data are checked (gyrotherm allan, fit)",
+                          why));
+  }
 }
 
 // ---------------------------------------------------------------- gyro, status, events

@@ -12,6 +12,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <span>
 #include <string>
@@ -26,6 +27,10 @@
 struct sqlite3;
 
 namespace gyrotherm::storage {
+
+namespace internal {
+struct FileGuard;
+}
 
 // v8: DUTs, run metadata, results per DUT and axis (records).
 // v9: chunked sample storage (sample_chunks, channel_rollup).
@@ -414,6 +419,22 @@ struct OutboxStats {
   int64_t last_acked_seq = 0;           // highest seq acknowledged so far (0: none)
 };
 
+// The file a connection opened: its device and inode when it was opened.
+struct FileIdentity {
+  uint64_t dev = 0;
+  uint64_t ino = 0;
+  bool operator==(const FileIdentity&) const = default;
+};
+
+// What open() checks before it migrates or writes anything.
+enum class OpenCheck {
+  kNone,
+  // PRAGMA quick_check over the whole file: it reads every page, about 1 s
+  // per GB from the page cache, the disk's read time otherwise
+  // (docs/storage.md). The daemon's start.
+  kQuick,
+};
+
 class Database {
  public:
   // Opens or creates `path`, sets WAL and busy_timeout, migrates to
@@ -421,8 +442,15 @@ class Database {
   // build knows is a permanent error (never downgraded). The UTC times it
   // stamps (a run's start and end, events, statistics, fits, exports, queue
   // entries) come from `wall` (not owned; outlives the connection).
-  static Result<Database> open(const std::string& path,
-                               const WallClock& wall = system_wall_clock());
+  // With OpenCheck::kQuick a file quick_check finds damaged is refused (a
+  // permanent error naming the file and the first problems) before anything
+  // is written to it.
+  //
+  // The connection records the file's identity (device, inode) and commits
+  // nothing once its path names another file or none (check_file()): every
+  // write transaction is then rolled back with an error saying so.
+  static Result<Database> open(const std::string& path, const WallClock& wall = system_wall_clock(),
+                               OpenCheck check = OpenCheck::kNone);
   // Opens an existing database read-only (for the CLI and HTTP readers); no
   // migration. Error if it does not exist or its schema is unknown.
   static Result<Database> open_read_only(const std::string& path);
@@ -658,6 +686,25 @@ class Database {
   // problem per row otherwise. An error when the check could not run (the
   // file is too damaged to read, I/O error).
   Result<std::vector<std::string>> integrity_check(bool quick = false);
+  // Ok when quick_check answers "ok"; else a permanent error naming the file
+  // and its first problems (what OpenCheck::kQuick refuses).
+  Status verify_quick();
+
+  // Whether the path still names the file this connection opened (one
+  // stat(), microseconds). A permanent error naming the path when the file
+  // was deleted, or another was put in its place (renamed over it); such a
+  // connection commits nothing any more. Ok for an in-memory or temporary
+  // database.
+  Status check_file() const;
+  // The file's identity when the connection opened it; nullopt without a
+  // file (":memory:", "").
+  std::optional<FileIdentity> file_identity() const;
+  // Once check_file() failed: moves what the write-ahead log holds into the
+  // file this connection has open (which nobody reads any more) and empties
+  // the log, so the `-wal` beside the path is not replayed into the file
+  // now there (or a new one) when it is next opened. Does not wait for other
+  // connections: busy, it can be tried again later.
+  Status release_wal();
 
   // Direct SQL for statements the API above does not cover (tests, tools).
   // Result rows are discarded: a check that answers in rows (integrity_check,
@@ -670,14 +717,16 @@ class Database {
   std::string utc_now() const;
 
  private:
-  Database(sqlite3* db, std::string path, const WallClock& wall)
-      : db_(db), path_(std::move(path)), wall_(&wall) {}
+  Database(sqlite3* db, std::string path, const WallClock& wall);
   // `utc` itself when it is set, else utc_now().
   std::string utc_or_now(const std::string& utc) const { return utc.empty() ? utc_now() : utc; }
 
   sqlite3* db_ = nullptr;  // owned
   std::string path_;
   const WallClock* wall_;
+  // The file's identity, for the commit hook (heap: stays put when moved);
+  // nullptr without a file.
+  std::unique_ptr<internal::FileGuard> guard_;
 };
 
 }  // namespace gyrotherm::storage

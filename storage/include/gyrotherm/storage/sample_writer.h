@@ -10,7 +10,12 @@
 // gyro samples go first, then table samples, temperatures (one a second)
 // only when nothing else is left to drop. The batch being committed counts as pending.
 // A failing commit is retried on the next interval; the error is kept for
-// the health report.
+// the health report. A writer thread that stops on an exception counts as
+// failing for good (stats().thread_failed).
+//
+// The writer keeps per-run state (each DUT's open chunks, a few hundred KB
+// per run) until the run is closed (close_run) and its samples are
+// committed.
 #pragma once
 
 #include <chrono>
@@ -52,6 +57,10 @@ struct SampleWriterStats {
   double last_commit_ms = 0;          // duration of the last commit, wall ms
   double max_commit_ms = 0;
   std::string last_error;  // of the most recent failed commit; kept after recovery
+  // The writer thread stopped on an exception: nothing is committed any
+  // more (last_error says why; consecutive_failures stays above 0).
+  bool thread_failed = false;
+  std::size_t runs_held = 0;  // runs the writer keeps state for (not yet closed and committed)
 };
 
 // Where the station's samples go: the SampleWriter below, or, in the
@@ -69,6 +78,9 @@ class SampleSink {
   // Blocks until everything pushed before the call is committed (or the
   // commit failed): the commit's status.
   virtual Status flush() = 0;
+  // Nothing more will be pushed for the run: its state is released once its
+  // pending samples are committed (or dropped). Does not wait.
+  virtual void close_run(int64_t run_id) = 0;
   virtual void stop() = 0;  // commits what is pending; idempotent
   virtual SampleWriterStats stats() const = 0;
 };
@@ -98,7 +110,11 @@ class SampleWriter final : public SampleSink {
   // Blocks until everything pushed before the call is committed (or the
   // commit failed). Returns the commit's status; on failure the rows stay
   // pending for the next attempt. After stop(): Ok if nothing is pending.
+  // After the writer thread failed: its error, always.
   Status flush() override;
+  // Released by the writer thread at its next round (stats().runs_held).
+  // Samples of the run pushed later are stored as before, in new chunks.
+  void close_run(int64_t run_id) override;
   // Commits what is pending and stops the thread. Idempotent.
   void stop() override;
 

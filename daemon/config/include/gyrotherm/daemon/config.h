@@ -186,6 +186,7 @@ struct TableSection {
 struct StorageSection {
   std::string db_path = "gyrotherm.db";
   double commit_interval_s = 0.5;  // wall seconds
+  int db_line = 0;                 // of `db` in the config file (0: not given)
 };
 
 struct ApiSection {
@@ -321,6 +322,16 @@ std::optional<std::string> api_exposure_warning(const ApiSection& api);
 // spells with escapes makes it re-serialised without comments; text that no
 // longer parses is replaced by a one-line comment saying so.
 std::string redact_config_secrets(std::string_view toml_text, const ApiSection& api = {});
+
+// Whether the database's directory exists. SQLite creates the file, not its
+// directory; a mistyped or unmounted directory would otherwise give an empty
+// station. The error names "<file>:<line>: storage.db" (or `given_by`, e.g.
+// "--db", when an option replaced the path) and the missing directory.
+// Relative paths are taken from the working directory, as they are opened;
+// ":memory:" and "" (a temporary database) need no directory. gyrothermd
+// checks it at load; the simulator and the CLI, which may read the same file
+// elsewhere, do not.
+Status check_database_directory(const StationConfig& config, std::string_view given_by = {});
 
 // Loads and validates. The error's message lists every problem, one per line.
 Result<StationConfig> load_station_config(const std::string& path);

@@ -201,6 +201,8 @@ class Station final : public StationControl, private schedules::SequencerObserve
   void start_nightly_export();
   void start_next_run(double now_s);
   void end_run();
+  void note_samples_not_committed(int64_t run_id, schedules::RunState final_state, const Error& e);
+  void note_storage_file();
   void checkpoint(bool force);
   void answer_failed_run();
   void hold_queue(const std::string& reason);
@@ -383,6 +385,10 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // Station and wall time of the last moment the sample writer's commits
   // were not failing.
   double storage_ok_s_ = 0, storage_ok_wall_s_ = 0;
+  // The database file deleted or replaced (Database::check_file): what
+  // happened; storage fails until a restart. Reported once; its WAL released.
+  std::optional<std::string> storage_file_error_;
+  bool storage_file_reported_ = false, storage_file_released_ = false;
   // Station time a device stopped answering (its gap, in the event log).
   std::optional<double> chamber_lost_s_, probes_lost_s_;
   analysis::StabilityWindow shell_rate_window_{60.0};
