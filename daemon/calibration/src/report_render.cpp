@@ -489,11 +489,24 @@ std::string sf_points_html(const ReportScaleFactor& sf, const std::string& sfx) 
            num_cell(residual_ppm(p, f), 1) + "</tr>\n";
     }
     h += "</tbody></table>\n";
+    for (const auto& p : sf.points) {
+      if (p.sf_sequence != seq || !p.quality.excluded()) continue;
+      h += fmt::format(
+          "<p class=\"problem\">LEFT OUT: point at {:g} °/s, {:.2f} °C (repetition {}): {}</p>\n",
+          p.rate_dps, p.temperature_c, p.repetition,
+          escape(fmt::format("{}", fmt::join(p.quality.reasons, "; "))));
+    }
   }
   if (!h.empty()) {
+    const double guard_s = sf.points.empty() ? 0.0 : sf.points.front().guard_s;
     h += "<p class=\"note\">Residual: output − (K · rate + bias) with the demanded rate and the "
          "sequence's line; in ppm relative to K · rate (none at zero rate). The measured rate is "
          "the table's mean over the acquisition. " +
+         fmt::format(
+             "Guard band: {:g} s cut from both ends of each acquisition window before the mean "
+             "(then to whole turns from its start where one is left); the duration and turns are "
+             "what was averaged. A point left out is not in its sequence's line. ",
+             guard_s) +
          fmt::format("<a href=\"scale-factor-points{0}.csv\">scale-factor-points{0}.csv</a>",
                      escape(sfx)) +
          " has every value to 17 significant digits.</p>\n";

@@ -25,6 +25,8 @@ constexpr double kRunChunkS = 600.0;
 // After a rate step the table decelerates (500 °/s at 100 °/s²: 5 s): the
 // drift fit leaves this much after each spinning step out too.
 constexpr double kSpinDownMarginS = 10.0;
+// [table] rest_rate_dps of a run that did not store it (its default).
+constexpr double kRestRateDps = 0.01;
 
 nlohmann::json num(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(); }
 
@@ -60,6 +62,9 @@ AnalysisSettings analysis_settings(const StationConfig& config) {
   s.fit.derivative_window_s = config.analysis.derivative_window_s;
   s.fit.l0_window_s = config.analysis.l0_window_s;
   s.compare_smooth_points = static_cast<std::size_t>(config.analysis.compare_smooth_points);
+  s.rate_guard_s = config.analysis.rate_guard_s;
+  s.flatness.n_sigma = config.analysis.rate_flatness_sigma;
+  s.flatness.tolerance_ppm = config.analysis.rate_flatness_ppm;
   return s;
 }
 
@@ -94,6 +99,9 @@ RunConfig read_run_config(const std::string& text) {
       if (a.is_object() && a.contains("allan_taus") && a["allan_taus"].is_string()) {
         c.allan_taus = a["allan_taus"].get<std::string>();
       }
+      c.rate_guard_s = get_num(a, "rate_guard_s");
+      c.rate_flatness_sigma = get_num(a, "rate_flatness_sigma");
+      c.rate_flatness_ppm = get_num(a, "rate_flatness_ppm");
     }
     if (j.contains("station") && j["station"].is_object() && j["station"].contains("name") &&
         j["station"]["name"].is_string()) {
@@ -106,6 +114,7 @@ RunConfig read_run_config(const std::string& text) {
         c.table_sensitive_axis = t["sensitive_axis"].get<std::string>();
       }
       c.table_heading_at_zero_deg = get_num(t, "heading_at_zero_deg");
+      c.table_rest_rate_dps = get_num(t, "rest_rate_dps");
     }
     return c;
   }
@@ -125,6 +134,7 @@ RunConfig read_run_config(const std::string& text) {
       c.table_present = true;
       if (auto a = t["table"]["sensitive_axis"].value<std::string>()) c.table_sensitive_axis = *a;
       c.table_heading_at_zero_deg = number(t["table"]["heading_at_zero_deg"]);
+      c.table_rest_rate_dps = number(t["table"]["rest_rate_dps"]);
     }
   } catch (const toml::parse_error&) {
   }
@@ -335,7 +345,10 @@ nlohmann::json run_config_json(const StationConfig& config) {
         {"model", config.analysis.model},
         {"derivative_window_s", config.analysis.derivative_window_s},
         {"compare_smooth_points", config.analysis.compare_smooth_points},
-        {"allan_taus", config.analysis.allan_taus}}},
+        {"allan_taus", config.analysis.allan_taus},
+        {"rate_guard_s", config.analysis.rate_guard_s},
+        {"rate_flatness_sigma", config.analysis.rate_flatness_sigma},
+        {"rate_flatness_ppm", config.analysis.rate_flatness_ppm}}},
       {"control",
        {{"tick_s", config.control.tick_s},
         {"min_tick_wall_s", config.control.min_tick_wall_s},
@@ -401,6 +414,13 @@ Result<AnalysisSettings> analysis_settings_of_run(const storage::RunRecord& run)
   if (cfg.derivative_window_s) s.fit.derivative_window_s = *cfg.derivative_window_s;
   if (cfg.compare_smooth_points && *cfg.compare_smooth_points >= 1) {
     s.compare_smooth_points = static_cast<std::size_t>(*cfg.compare_smooth_points);
+  }
+  if (cfg.rate_guard_s && *cfg.rate_guard_s >= 0) s.rate_guard_s = *cfg.rate_guard_s;
+  if (cfg.rate_flatness_sigma && *cfg.rate_flatness_sigma > 0) {
+    s.flatness.n_sigma = *cfg.rate_flatness_sigma;
+  }
+  if (cfg.rate_flatness_ppm && *cfg.rate_flatness_ppm >= 0) {
+    s.flatness.tolerance_ppm = *cfg.rate_flatness_ppm;
   }
   const auto bad = [&run](std::string_view what, const std::string& value, const Error& e) {
     return Error::Permanent(
@@ -691,6 +711,19 @@ Result<analysis::AnalysisSeries> soak_series(storage::Database& db, const SoakWi
   return joined;
 }
 
+std::vector<std::pair<double, double>> sorted_windows(std::vector<std::pair<double, double>> w) {
+  std::sort(w.begin(), w.end());
+  std::vector<std::pair<double, double>> out;
+  for (const auto& [from_s, to_s] : w) {
+    if (!out.empty() && from_s <= out.back().second) {
+      out.back().second = std::max(out.back().second, to_s);
+    } else {
+      out.emplace_back(from_s, to_s);
+    }
+  }
+  return out;
+}
+
 Result<RecordedSamples> soak_recorded_samples(storage::Database& db, const SoakWindow& soak) {
   auto axis = first_axis(db, soak.run_id);
   if (!axis) return axis.error();
@@ -722,11 +755,23 @@ Result<RecordedSamples> soak_recorded_samples(storage::Database& db, const SoakW
 }
 
 namespace {
-// The stretches of a run when the table spun (steps demanding a rate, and a
-// spin-down margin after each): the drift model is of the gyro at rest. A
-// step not ended yet spins to the end of the run.
-Result<std::vector<std::pair<double, double>>> spinning_spans(storage::Database& db,
-                                                              int64_t run_id) {
+
+// Table readings read at a time when looking for motion (1 h: 3600 rows at
+// a 1 s control tick).
+constexpr double kTableChunkS = 3600.0;
+// A position change between consecutive readings larger than this is a
+// move (encoder dither of a servo holding position is far below).
+constexpr double kMovedDeg = 0.01;
+
+// The stretches of a run when the table was not at rest: the steps that
+// demanded a rate (to their end + kSpinDownMarginS; a step not ended yet
+// to the end of the run), and by the table's own record each reading that
+// turned faster than `rest_rate_dps` or had moved since the previous one,
+// from the reading before it to the one after, widened by
+// kSpinDownMarginS each side. Merged, in time order. The drift model is
+// of the gyro at rest.
+Result<std::vector<std::pair<double, double>>> spinning_spans(storage::Database& db, int64_t run_id,
+                                                              double rest_rate_dps) {
   auto segments = db.segments(run_id);
   if (!segments) return segments.error();
   std::vector<std::pair<double, double>> out;
@@ -735,8 +780,32 @@ Result<std::vector<std::pair<double, double>>> spinning_spans(storage::Database&
     out.emplace_back(seg.t_start_s, seg.t_end_s ? *seg.t_end_s + kSpinDownMarginS
                                                 : std::numeric_limits<double>::infinity());
   }
-  return out;
+  auto last = db.last_sample_t_s(run_id);
+  if (!last) return last.error();
+  std::optional<TableSample> previous;
+  bool previous_moving = false;
+  for (double from_s = 0; *last && from_s <= **last; from_s += kTableChunkS) {
+    auto readings =
+        db.table_samples(run_id, from_s == 0 ? -kTableChunkS : from_s, from_s + kTableChunkS);
+    if (!readings) return readings.error();
+    for (const TableSample& t : *readings) {
+      bool moving = std::isfinite(t.rate_dps) && std::fabs(t.rate_dps) > rest_rate_dps;
+      if (previous && std::isfinite(t.position_deg) && std::isfinite(previous->position_deg)) {
+        const double d = std::fmod(std::fabs(t.position_deg - previous->position_deg), 360.0);
+        moving = moving || std::min(d, 360.0 - d) > kMovedDeg;
+      }
+      if (moving || previous_moving) {
+        const double from = previous ? previous->t_s : t.t_s;
+        out.emplace_back(from - kSpinDownMarginS, t.t_s + kSpinDownMarginS);
+      }
+      previous = t;
+      previous_moving = moving;
+    }
+  }
+  if (previous_moving) out.emplace_back(previous->t_s, std::numeric_limits<double>::infinity());
+  return sorted_windows(std::move(out));
 }
+
 }  // namespace
 
 Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_id, double bin_s) {
@@ -746,14 +815,17 @@ Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_i
 }
 
 Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_id, double bin_s,
-                                            const AnalysedAxis& axis) {
+                                            const AnalysedAxis& axis, RunSeriesCoverage* coverage) {
   const std::string who = axis.dut_serial.empty() && axis.axis.empty()
                               ? fmt::format("run {}", run_id)
                               : fmt::format("run {} ({})", run_id, axis.name());
   if (axis.channel_id == 0) {
     return Error::Permanent(fmt::format("{}: no gyro samples recorded", who));
   }
-  auto spinning = spinning_spans(db, run_id);
+  auto run = db.run(run_id);
+  if (!run) return run.error();
+  const RunConfig cfg = read_run_config(*run);
+  auto spinning = spinning_spans(db, run_id, cfg.table_rest_rate_dps.value_or(kRestRateDps));
   if (!spinning) return spinning.error();
   analysis::AnalysisSeries joined;
   joined.bin_s = bin_s;
@@ -766,11 +838,12 @@ Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_i
   std::vector<GyroSample> chunk;
   bool started = false;
   double chunk_from_s = 0, last_s = 0;
+  std::size_t spin_at = 0;  // the first span that may still hold a sample (time order)
   std::optional<Error> failure;
   const auto flush = [&](double from_s, double to_s) -> Status {
     std::erase_if(chunk, [&](const GyroSample& g) {
-      return std::any_of(spinning->begin(), spinning->end(),
-                         [&](const auto& w) { return g.t_s >= w.first && g.t_s < w.second; });
+      while (spin_at < spinning->size() && (*spinning)[spin_at].second <= g.t_s) ++spin_at;
+      return spin_at < spinning->size() && g.t_s >= (*spinning)[spin_at].first;
     });
     if (chunk.empty()) return Status::Ok();
     auto temps = dut_shell_readings(db, run_id, axis, from_s, to_s);
@@ -820,6 +893,7 @@ Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_i
     return Error::Permanent(
         fmt::format("{}: no stretch of gyro samples with temperatures recorded", who));
   }
+  if (coverage != nullptr) coverage->excluded = *spinning;
   return joined;
 }
 
@@ -1018,7 +1092,7 @@ Result<RunAnalysisSummary> analyse_run(storage::Database& db, int64_t run_id,
       }
     }
   }
-  if (auto sf = analyse_scale_factor(db, run_id)) {
+  if (auto sf = analyse_scale_factor(db, run_id, settings)) {
     summary.scale_factor_points = sf->points;
     summary.scale_factor_sequences = sf->sequences;
     for (auto& p : sf->problems) summary.problems.push_back(std::move(p));
@@ -1026,7 +1100,8 @@ Result<RunAnalysisSummary> analyse_run(storage::Database& db, int64_t run_id,
     return st.error();
   }
   for (const AnalysedAxis& axis : *axes) {
-    auto series = run_series(db, run_id, settings.table1.bin_s, axis);
+    RunSeriesCoverage coverage;
+    auto series = run_series(db, run_id, settings.table1.bin_s, axis, &coverage);
     if (!series) {
       if (Status st = problem(series.error()); !st.ok()) return st.error();
       continue;
@@ -1045,12 +1120,14 @@ Result<RunAnalysisSummary> analyse_run(storage::Database& db, int64_t run_id,
       storage::FitRecord rec = fit_record(*fit, {run_id}, settings.fit, settings.table1.bin_s);
       rec.dut_serial = axis.dut_serial;
       rec.axis = axis.axis;
+      nlohmann::json inputs = nlohmann::json::parse(rec.inputs_json);
       if (!axis.dut_serial.empty() || !axis.axis.empty()) {
-        nlohmann::json inputs = nlohmann::json::parse(rec.inputs_json);
         inputs["dut_serial"] = axis.dut_serial;
         inputs["axis"] = axis.axis;
-        rec.inputs_json = inputs.dump();
       }
+      inputs["series"] = "whole run at rest, every recorded sample";
+      inputs["excluded_not_at_rest"] = windows_json(coverage.excluded);
+      rec.inputs_json = inputs.dump();
       auto id = db.add_fit(rec);
       if (!id) return id.error();
       summary.fit_ids.push_back(*id);

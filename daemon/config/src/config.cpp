@@ -1080,6 +1080,9 @@ void read_analysis(TableReader t, AnalysisSection& a) {
       a.allan_taus = *taus;
     }
   }
+  a.rate_guard_s = t.number_in("rate_guard_s", a.rate_guard_s, 0.0, 3600.0);
+  a.rate_flatness_sigma = t.number_in("rate_flatness_sigma", a.rate_flatness_sigma, 1.0, 1000.0);
+  a.rate_flatness_ppm = t.number_in("rate_flatness_ppm", a.rate_flatness_ppm, 0.0, 1e6);
   t.finish();
 }
 

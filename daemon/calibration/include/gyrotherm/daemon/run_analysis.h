@@ -30,6 +30,7 @@
 
 #include "gyrotherm/analysis/allan.h"
 #include "gyrotherm/analysis/drift_model.h"
+#include "gyrotherm/analysis/scale_factor.h"
 #include "gyrotherm/analysis/table1.h"
 #include "gyrotherm/core/result.h"
 #include "gyrotherm/storage/database.h"
@@ -50,6 +51,10 @@ struct AnalysisSettings {
                                                  analysis::DriftModelForm::kPaper};
   std::size_t compare_smooth_points = 101;  // Tables II-IV, [analysis] compare_smooth_points
   analysis::DriftFitOptions fit;            // derivative_window_s, l0_window_s
+  // Rate points: [analysis] rate_guard_s, rate_flatness_sigma and
+  // rate_flatness_ppm.
+  double rate_guard_s = 1.0;
+  analysis::RatePointFlatnessOptions flatness;
 };
 // From the config: [analysis] and the Earth rate of [station] latitude and
 // orientation. The model spec was checked when the config was loaded.
@@ -85,6 +90,9 @@ struct RunConfig {
   bool table_present = false;
   std::optional<std::string> table_sensitive_axis;
   std::optional<double> table_heading_at_zero_deg;
+  std::optional<double> table_rest_rate_dps;
+  // [analysis] rate points (schema v11 runs store them).
+  std::optional<double> rate_guard_s, rate_flatness_sigma, rate_flatness_ppm;
 };
 RunConfig read_run_config(const std::string& text);
 RunConfig read_run_config(const storage::RunRecord& run);
@@ -179,9 +187,20 @@ Result<RecordedSamples> soak_recorded_samples(storage::Database& db, const SoakW
 // run's length. Errors: a run without samples (names it), database errors,
 // those of make_analysis_series. The first form: the run's first DUT,
 // primary axis.
+//
+// The series is of the gyro at rest: left out are the steps that demanded
+// a rate (to their end + 10 s) and every stretch where the table was not
+// at rest by its own record (table_samples: |rate| above the run's [table]
+// rest_rate_dps, or the position moving), from the last reading at rest
+// before to the first after, widened by 10 s each side.
+// `coverage`, when given: the stretches left out.
+struct RunSeriesCoverage {
+  std::vector<std::pair<double, double>> excluded;  // merged, in time order
+};
 Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_id, double bin_s);
 Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_id, double bin_s,
-                                            const AnalysedAxis& axis);
+                                            const AnalysedAxis& axis,
+                                            RunSeriesCoverage* coverage = nullptr);
 
 // Compute and return (not stored).
 // The first forms: the run's first DUT, primary axis (options.earth_rate_dph
@@ -199,6 +218,10 @@ Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow&
                                         analysis::TauSet taus);
 Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow& soak,
                                         analysis::TauSet taus, const AnalysedAxis& axis);
+// Windows sorted by start, overlapping ones merged.
+std::vector<std::pair<double, double>> sorted_windows(
+    std::vector<std::pair<double, double>> windows);
+
 // A fit as a record ready for Database::add_fit (inputs_json filled in).
 storage::FitRecord fit_record(const analysis::DriftFit& fit, const std::vector<int64_t>& run_ids,
                               const analysis::DriftFitOptions& options, double bin_s);

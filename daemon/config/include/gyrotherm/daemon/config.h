@@ -213,6 +213,13 @@ struct AnalysisSection {
   int compare_smooth_points = 101;
   double derivative_window_s = 60.0;
   std::string allan_taus = "octave";  // octave, decade, all
+  // Rate points (docs/analysis.md "Rate points"): cut from each end of
+  // each acquisition window before the mean; a point whose samples are not
+  // flat (first and last thirds within rate_flatness_sigma σ of their means
+  // plus rate_flatness_ppm of the rate) is left out of its fit.
+  double rate_guard_s = 1.0;
+  double rate_flatness_sigma = 5.0;
+  double rate_flatness_ppm = 500.0;
 };
 
 struct ControlSection {
