@@ -1,6 +1,10 @@
-// The flatness of a rate point (docs/analysis.md "Rate points"). The
-// numbers are numpy's (tools/reference/quality_reference.py), on the same
-// closed-form data.
+// Result quality (docs/analysis.md "Result quality", "Rate points"):
+// coverage over windows, the rules that flag a result, the series' noise
+// and the flatness of a rate point. The numbers of the noise and the
+// flatness are numpy's (tools/reference/quality_reference.py), on the
+// same closed-form data.
+#include "gyrotherm/analysis/quality.h"
+
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
@@ -13,6 +17,92 @@ namespace gyrotherm::analysis {
 namespace {
 
 using ::testing::HasSubstr;
+
+TEST(Coverage, AWindowWithA30PercentGapCovers70Percent) {
+  // 600 s at 10 Hz, nothing recorded in [200, 380): 180 s of 600.
+  std::vector<double> t_s;
+  for (int i = 0; i < 6000; ++i) {
+    const double t = i / 10.0;
+    if (t < 200.0 || t >= 380.0) t_s.push_back(t);
+  }
+  const Coverage c = coverage_of(t_s, {{0.0, 600.0}}, 10.0);
+  EXPECT_EQ(c.samples, 4200);
+  EXPECT_DOUBLE_EQ(c.expected, 6000.0);
+  ASSERT_TRUE(c.fraction.has_value());
+  EXPECT_NEAR(*c.fraction, 0.7, 1e-12);
+  EXPECT_NEAR(c.longest_gap_s, 380.0 - 199.9, 1e-9);  // last sample before to first after
+  const auto reasons = coverage_reasons(c, QualityRules{});
+  ASSERT_EQ(reasons.size(), 1u);
+  EXPECT_THAT(reasons[0], HasSubstr("coverage 70.0 % (4200 of 6000 samples expected)"));
+  EXPECT_THAT(reasons[0], HasSubstr("under 99 %"));
+  EXPECT_THAT(reasons[0], HasSubstr("longest gap 180 s"));
+}
+
+TEST(Coverage, CountsOnlyInsideTheWindowsAndTheGapsAtTheirEnds) {
+  // Two windows; samples before, between and after them are not counted.
+  // The stream stops 5 s before the second window's end.
+  std::vector<double> t_s;
+  for (int i = 0; i < 400; ++i) t_s.push_back(i * 0.5);  // 0 ... 199.5 s at 2 Hz
+  const Coverage c = coverage_of(t_s, {{10.0, 20.0}, {195.0, 205.0}}, 2.0);
+  EXPECT_EQ(c.samples, 20 + 10);  // [10, 20) and [195, 200)
+  EXPECT_DOUBLE_EQ(c.window_s, 20.0);
+  EXPECT_DOUBLE_EQ(c.expected, 40.0);
+  EXPECT_NEAR(*c.fraction, 0.75, 1e-15);
+  EXPECT_NEAR(c.longest_gap_s, 205.0 - 199.5, 1e-12);
+  // A window without a sample is one gap of its length.
+  const Coverage empty = coverage_of(t_s, {{300.0, 330.0}}, 2.0);
+  EXPECT_EQ(empty.samples, 0);
+  EXPECT_NEAR(empty.longest_gap_s, 30.0, 1e-12);
+  EXPECT_NEAR(*empty.fraction, 0.0, 0.0);
+  // The rate not known: no expectation, nothing flagged for it.
+  const Coverage unknown = coverage_of(t_s, {{10.0, 20.0}}, 0.0);
+  EXPECT_FALSE(unknown.fraction.has_value());
+  EXPECT_TRUE(coverage_reasons(unknown, QualityRules{}).empty());
+}
+
+TEST(Coverage, MedianRateOfAStreamWithGaps) {
+  std::vector<double> t_s;
+  for (int i = 0; i < 100; ++i) t_s.push_back(i * 0.01);
+  for (int i = 0; i < 50; ++i) t_s.push_back(10.0 + i * 0.01);  // a gap of 9 s
+  EXPECT_NEAR(median_rate_hz(t_s), 100.0, 1e-6);
+  EXPECT_EQ(median_rate_hz(std::vector<double>{1.0}), 0.0);
+}
+
+TEST(QualityRules, ScaleFactorLines) {
+  const QualityRules rules;  // K in [0.5, 2], nonlinearity at most 10 000 ppm
+  EXPECT_TRUE(scale_factor_reasons(1.000123, 35.0, rules).empty());
+  auto r = scale_factor_reasons(-0.53, 35.0, rules);
+  ASSERT_EQ(r.size(), 1u);
+  EXPECT_THAT(r[0], HasSubstr("K = -0.53 is not positive"));
+  r = scale_factor_reasons(0.3, 35.0, rules);
+  ASSERT_EQ(r.size(), 1u);
+  EXPECT_THAT(r[0], HasSubstr("K = 0.3 is outside [0.5, 2]"));
+  r = scale_factor_reasons(1.0, 5e7, rules);
+  ASSERT_EQ(r.size(), 1u);
+  EXPECT_THAT(r[0], HasSubstr("nonlinearity 5e+07 ppm is over 10000 ppm"));
+  EXPECT_EQ(scale_factor_reasons(NAN, NAN, rules).size(), 2u);
+}
+
+TEST(QualityRules, SeriesNoiseIsNumpys) {
+  std::vector<double> x;
+  for (int j = 0; j < 500; ++j) {
+    x.push_back(0.5 + 0.001 * j + 0.03 * std::sin(1.7 * j) + 0.01 * std::cos(0.37 * j));
+  }
+  // numpy: 1.4826 * median(|diff - median(diff)|) / sqrt(2)
+  EXPECT_NEAR(series_noise_dph(x), 0.03236684141052598, 1e-13);
+  EXPECT_TRUE(std::isnan(series_noise_dph(std::vector<double>{1.0, 2.0})));
+}
+
+TEST(QualityRules, ResidualFarBeyondTheNoise) {
+  const QualityRules rules;  // 20 times
+  EXPECT_TRUE(residual_reasons(0.5, 0.1, rules).empty());
+  const auto r = residual_reasons(49779.0, 0.1, rules);
+  ASSERT_EQ(r.size(), 1u);
+  EXPECT_THAT(r[0], HasSubstr("residual std 4.978e+04 °/h is 4.98e+05 times"));
+  // Noise-free data: the floor (1e-3 °/h) stands in for the noise.
+  EXPECT_TRUE(residual_reasons(0.01, 0.0, rules).empty());
+  EXPECT_EQ(residual_reasons(0.05, 0.0, rules).size(), 1u);
+}
 
 std::vector<double> point_output(int contaminated, double previous) {
   std::vector<double> y;

@@ -60,7 +60,7 @@ Result<MaybePoint> rate_point(storage::Database& db, const storage::SegmentRecor
                           where, settings.rate_guard_s);
     return MaybePoint{};
   }
-  std::vector<double> output_dps;
+  std::vector<double> output_dps, t_s;
   double duration_s = 0;
   double temp_sum_c = 0;
   int64_t temp_n = 0;
@@ -71,6 +71,7 @@ Result<MaybePoint> rate_point(storage::Database& db, const storage::SegmentRecor
     for (const auto& g : *gyro) {
       if (!std::isfinite(g.rate_dph)) continue;  // flagged invalid
       output_dps.push_back(g.rate_dph / kDphPerDps);
+      t_s.push_back(g.t_s);
     }
     duration_s += to_s - from_s;
     auto temps = dut_shell_readings(db, seg.run_id, axis, from_s, to_s);
@@ -108,6 +109,9 @@ Result<MaybePoint> rate_point(storage::Database& db, const storage::SegmentRecor
     problem = where + ": no shell temperature in its acquisition windows";
     return MaybePoint{};
   }
+  const analysis::Coverage coverage = analysis::coverage_of(
+      t_s, windows, axis.rate_hz > 0 ? axis.rate_hz : analysis::median_rate_hz(t_s));
+  p.quality = result_quality(coverage, analysis::coverage_reasons(coverage, settings.quality));
   std::string excluded;
   if (table->rate_dps) {
     const double error_ppm = std::abs(*table->rate_dps / p.rate_dps - 1.0) * 1e6;
@@ -158,6 +162,11 @@ Status analyse_axis(storage::Database& db, int64_t run_id,
     if (!p) return p.error();
     if (!problem.empty()) summary.problems.push_back(problem);
     if (!*p) continue;
+    if ((*p)->quality.flagged()) {
+      summary.flagged.push_back(fmt::format("{} scale-factor point at {:g} °/s (segment {}): {}",
+                                            who, (*p)->rate_dps, seg.index + 1,
+                                            fmt::join((*p)->quality.reasons, "; ")));
+    }
     points.push_back(**p);
   }
   if (points.empty()) return Status::Ok();
@@ -201,6 +210,32 @@ Status analyse_axis(storage::Database& db, int64_t run_id,
     rec.repeatability_ppm = fit->repeatability_ppm;
     rec.n_points = static_cast<int64_t>(fit->points);
     rec.guard_s = settings.rate_guard_s;
+    // Its points' coverage together: samples and expectation summed, the
+    // longest gap of any.
+    analysis::Coverage coverage;
+    bool expected_known = true;
+    for (const auto* p : members) {
+      coverage.samples += p->quality.samples;
+      coverage.expected += p->quality.expected;
+      coverage.longest_gap_s =
+          std::max(coverage.longest_gap_s, p->quality.longest_gap_s.value_or(0));
+      expected_known = expected_known && p->quality.expected > 0;
+    }
+    if (expected_known && coverage.expected > 0) {
+      coverage.fraction = static_cast<double>(coverage.samples) / coverage.expected;
+    } else {
+      coverage.expected = 0;
+    }
+    std::vector<std::string> reasons = analysis::coverage_reasons(coverage, settings.quality);
+    for (std::string& r :
+         analysis::scale_factor_reasons(fit->k, fit->nonlinearity_ppm, settings.quality)) {
+      reasons.push_back(std::move(r));
+    }
+    rec.quality = result_quality(coverage, std::move(reasons));
+    if (rec.quality.flagged()) {
+      summary.flagged.push_back(fmt::format("{} scale-factor sequence {}: {}", who, sequence,
+                                            fmt::join(rec.quality.reasons, "; ")));
+    }
     fits.push_back(rec);
     plateaus.push_back({fit->temperature_mean_c, fit->k, fit->bias_dph});
   }

@@ -22,6 +22,7 @@ struct ScaleFactorSummary {
   int sequences = 0;  // fitted
   bool temperature_fit = false;
   std::vector<std::string> problems;  // a sequence or point that could not be used, and why
+  std::vector<std::string> flagged;   // a point or line stored flagged, and why
 };
 
 // Fills each table step's measured means (segments.table_mean_*). Each
@@ -35,7 +36,9 @@ struct ScaleFactorSummary {
 // is off the demand by more than kMaxRateErrorPpm or its samples are not
 // flat at the demanded rate (analysis::check_rate_point_flatness with
 // settings.flatness). K(T) and B(T) of order 1 with two or three
-// temperatures, 2 with four or more. Per DUT: on each DUT's table axis ([[dut]] table_axis,
+// temperatures, 2 with four or more. Points and lines carry their
+// coverage and the verdict of settings.quality (docs/analysis.md "Result
+// quality"). Per DUT: on each DUT's table axis ([[dut]] table_axis,
 // default its primary axis), the records carrying its serial and axis;
 // one store_scale_factor() per DUT. Stores everything, replacing the run's
 // earlier results. A run without rate points: nothing stored, a summary

@@ -222,6 +222,16 @@ struct AnalysisSection {
   double rate_flatness_ppm = 500.0;
 };
 
+// [quality]: when a stored result is flagged (docs/analysis.md "Result
+// quality"; analysis::QualityRules).
+struct QualitySection {
+  double min_coverage = 0.99;  // samples stored / expected
+  double k_min = 0.5;          // scale factor K, nominal 1
+  double k_max = 2.0;
+  double max_nonlinearity_ppm = 10000.0;
+  double max_residual_ratio = 20.0;  // drift fit residual std / the series' noise
+};
+
 struct ControlSection {
   double tick_s = 1.0;             // station seconds between control-loop ticks
   double min_tick_wall_s = 0.005;  // never tick faster than this in wall time
@@ -285,6 +295,7 @@ struct StationConfig {
   ApiSection api;
   ExportSection export_;
   AnalysisSection analysis;
+  QualitySection quality;
   ControlSection control;
   SimulatorSection simulator;
   std::optional<LabSection> lab;  // nullopt: no [lab]
