@@ -29,6 +29,7 @@
 #include "gyrotherm/analysis/start_temperature.h"
 #include "gyrotherm/analysis/table1.h"
 #include "gyrotherm/core/files.h"
+#include "gyrotherm/daemon/report.h"
 #include "gyrotherm/daemon/run_analysis.h"
 #include "gyrotherm/storage/database.h"
 #include "output.h"
@@ -177,12 +178,40 @@ struct Args {
   std::optional<double> t0_window_s;
   std::string coefficients_json;
   std::string c_header;
+  bool force = false;  // fit: write the C header of a flagged fit too
   // Scale factor.
   std::string sf_csv;
   int sf_order = 1;
 };
 
 using Parsed = Args;
+
+// ---------------------------------------------------------------- quality
+
+// A result's quality as the REST API gives it (docs/api.md).
+json quality_json(const storage::ResultQuality& q) {
+  const bool assessed = q.verdict != "unassessed";
+  return {{"verdict", q.verdict},
+          {"reasons", q.reasons},
+          {"coverage", q.coverage ? num(*q.coverage) : json(nullptr)},
+          {"coverage_samples", assessed ? json(q.samples) : json(nullptr)},
+          {"coverage_expected", q.expected > 0 ? num(q.expected) : json(nullptr)},
+          {"longest_gap_s", q.longest_gap_s ? num(*q.longest_gap_s) : json(nullptr)}};
+}
+
+// The quality column of the text tables.
+std::string quality_mark(const storage::ResultQuality& q) {
+  if (q.flagged()) return "FLAGGED";
+  if (q.verdict == "unassessed") return kDash;
+  return q.verdict;
+}
+
+// The run's quality rules (its stored [quality]; the defaults when its
+// settings do not parse).
+analysis::QualityRules quality_rules_of(const storage::RunRecord& run) {
+  auto s = daemon::analysis_settings_of_run(run);
+  return s ? s->quality : analysis::QualityRules{};
+}
 
 // ---------------------------------------------------------------- input
 
@@ -343,6 +372,7 @@ Result<analysis::DriftModelSpec> model_spec(const Parsed& p, const RunConfig& cf
 // which in messages. Errors are analysis errors (exit 1).
 struct SeriesSet {
   std::vector<analysis::AnalysisSeries> series;
+  std::vector<analysis::Coverage> coverage;  // each run's (none for CSV files)
   std::vector<std::string> names;
   json inputs;  // {"runs": [..]} or {"csv": [..]}
 };
@@ -351,9 +381,13 @@ Result<SeriesSet> load_series(Input& in, double bin_s) {
   SeriesSet s;
   if (in.db) {
     for (const auto& r : in.db->runs) {
-      auto series = daemon::run_series(in.db->db, r.id, bin_s);
+      auto axis = daemon::first_axis(in.db->db, r.id);
+      if (!axis) return Error::Permanent(fmt::format("run {}: {}", r.id, axis.error().message));
+      daemon::RunSeriesCoverage coverage;
+      auto series = daemon::run_series(in.db->db, r.id, bin_s, *axis, &coverage);
       if (!series) return Error::Permanent(fmt::format("run {}: {}", r.id, series.error().message));
       s.series.push_back(std::move(*series));
+      s.coverage.push_back(coverage.coverage);
       s.names.push_back(fmt::format("run {}", r.id));
     }
     s.inputs = {{"database", in.db->db.path()}, {"runs", in.db->ids()}};
@@ -506,12 +540,23 @@ int cmd_stats(const Parsed& p) {
   // For --by-setpoint: each soak's set point, row and JSON identity.
   std::vector<analysis::Table1Soak> soaks_for_groups;
   std::vector<json> soak_ids;
+  // Database rows carry their quality: a column, and the reasons of each
+  // flagged row after the table.
+  std::vector<std::string> flagged;
   auto add_row = [&](std::vector<std::string> lead, const analysis::Table1Row& r,
-                     const analysis::Table1Options& o) {
+                     const analysis::Table1Options& o,
+                     const storage::ResultQuality* quality = nullptr) {
     for (std::string v : {std::to_string(r.n), fixed(r.duration_s, 0), fixed(r.temp_mean_c, 2),
                           fixed(r.bias_mean_dph, 4), fixed(r.bias_std_dph, 4),
                           fixed(r.bias_std_ma_dph, 4), fixed(r.bias_mean_earth_removed_dph, 4)}) {
       lead.push_back(std::move(v));
+    }
+    if (quality != nullptr) {
+      lead.push_back(quality_mark(*quality));
+      if (quality->flagged()) {
+        flagged.push_back(fmt::format("run {} segment {}: FLAGGED: {}", lead[0], lead[1],
+                                      fmt::join(quality->reasons, "; ")));
+      }
     }
     rows.push_back(std::move(lead));
     footer.insert(
@@ -542,12 +587,13 @@ int cmd_stats(const Parsed& p) {
                   {"t_to_s", num(rec.t_to_s)},
                   {"computed_utc", rec.computed_utc}};
         j.update(stats_json(row, o));
+        j["quality"] = quality_json(rec.quality);
         out.push_back(std::move(j));
         soaks_for_groups.push_back({rec.setpoint_c, row});
         soak_ids.push_back({{"run_id", rec.run_id}, {"segment", rec.segment_index + 1}});
         add_row({std::to_string(rec.run_id), std::to_string(rec.segment_index + 1),
                  fixed(rec.setpoint_c, 2)},
-                row, o);
+                row, o, &rec.quality);
       }
     }
   } else if (in->db) {
@@ -563,8 +609,13 @@ int cmd_stats(const Parsed& p) {
         notes.push_back(
             fmt::format("run {}: no completed soak with an acquisition window", run.id));
       }
+      auto axis = daemon::first_axis(db, run.id);
+      if (!axis) {
+        return fail(fmt::format("run {}: {}", run.id, axis.error().message), kExitAnalysis);
+      }
+      const analysis::QualityRules rules = quality_rules_of(run);
       for (const auto& soak : *soaks) {
-        auto rec = daemon::soak_table1(db, soak, *opts);
+        auto rec = daemon::soak_table1(db, soak, *opts, *axis, rules);
         if (!rec) return fail(rec.error().message, kExitAnalysis);
         const auto row = row_of(*rec);
         json j = {{"run_id", run.id},
@@ -573,12 +624,13 @@ int cmd_stats(const Parsed& p) {
                   {"t_from_s", num(rec->t_from_s)},
                   {"t_to_s", num(rec->t_to_s)}};
         j.update(stats_json(row, *opts));
+        j["quality"] = quality_json(rec->quality);
         out.push_back(std::move(j));
         soaks_for_groups.push_back({soak.setpoint_c, row});
         soak_ids.push_back({{"run_id", run.id}, {"segment", soak.segment_index + 1}});
         add_row({std::to_string(run.id), std::to_string(soak.segment_index + 1),
                  fixed(soak.setpoint_c, 2)},
-                row, *opts);
+                row, *opts, &rec->quality);
       }
     }
   } else {
@@ -615,8 +667,10 @@ int cmd_stats(const Parsed& p) {
   const std::vector<std::string> lead = in->db ? std::vector<std::string>{"run", "seg", "setpt °C"}
                                                : std::vector<std::string>{"file"};
   header.insert(header.begin(), lead.begin(), lead.end());
+  if (in->db) header.push_back("quality");
   std::cout << table(header, rows, in->db ? 0 : 1);
   for (const auto& f : footer) std::cout << "(" << f << ")\n";
+  for (const auto& f : flagged) std::cout << f << "\n";
   for (const auto& j : out) {
     for (const auto& w : j["warnings"]) {
       const std::string who = j.contains("source")
@@ -822,8 +876,13 @@ int cmd_allan(const Parsed& p) {
       if (soaks->empty()) {
         text += fmt::format("run {}: no completed soak with an acquisition window\n", run.id);
       }
+      auto axis = daemon::first_axis(db, run.id);
+      if (!axis) {
+        return fail(fmt::format("run {}: {}", run.id, axis.error().message), kExitAnalysis);
+      }
+      const analysis::QualityRules rules = quality_rules_of(run);
       for (const auto& soak : *soaks) {
-        auto rec = daemon::soak_allan(db, soak, *taus);
+        auto rec = daemon::soak_allan(db, soak, *taus, *axis, rules);
         if (!rec) return fail(rec.error().message, kExitAnalysis);
         const AllanView v = view_of(*rec);
         json j = {{"run_id", run.id},
@@ -832,7 +891,12 @@ int cmd_allan(const Parsed& p) {
                   {"t_from_s", num(rec->t_from_s)},
                   {"t_to_s", num(rec->t_to_s)}};
         j.update(allan_json(v, taus_name));
+        j["quality"] = quality_json(rec->quality);
         out.push_back(std::move(j));
+        if (rec->quality.flagged()) {
+          text += fmt::format("run {} segment {}: FLAGGED: {}\n", run.id, soak.segment_index + 1,
+                              fmt::join(rec->quality.reasons, "; "));
+        }
         summary.push_back({fmt::format("run {} segment {} ({:g} °C)", run.id,
                                        soak.segment_index + 1, soak.setpoint_c),
                            v.noise});
@@ -939,15 +1003,38 @@ int cmd_fit(const Parsed& p) {
                     {"condition_estimate", num(fit->condition_estimate)},
                     {"inputs", inputs}};
 
+  // Its quality: a flagged fit's C header only with --force.
+  const storage::ResultQuality quality = daemon::fit_quality(
+      *fit, set->series, set->coverage,
+      in->db ? quality_rules_of(in->db->runs.front()) : analysis::QualityRules{});
+  json with_quality = out;
+  with_quality["quality"] = quality_json(quality);
   const auto info = export_info(*in, cfg, options->l0_window_s);
+  if (quality.flagged() && !p.c_header.empty() && !p.force) {
+    Parsed json_only = p;
+    json_only.c_header.clear();
+    if (int code =
+            write_exports(json_only, [&] { return analysis::drift_fit_json(*fit, info); }, {});
+        code != 0) {
+      return code;
+    }
+    return fail(
+        fmt::format("--c-header {}: not written: the fit is flagged: {} (--force writes it, "
+                    "marked as forced)",
+                    p.c_header, fmt::join(quality.reasons, "; ")),
+        kExitAnalysis);
+  }
   if (int code = write_exports(
           p, [&] { return analysis::drift_fit_json(*fit, info); },
-          [&] { return analysis::drift_fit_c_header(*fit, info); });
+          [&] {
+            return daemon::forced_header_comment(quality) +
+                   analysis::drift_fit_c_header(*fit, info);
+          });
       code != 0) {
     return code;
   }
   if (p.json) {
-    std::cout << out.dump(2) << "\n";
+    std::cout << with_quality.dump(2) << "\n";
     return 0;
   }
   std::cout << fmt::format("model {}, {}, {}: {} points ({:g} s bins)\n",
@@ -974,8 +1061,17 @@ int cmd_fit(const Parsed& p) {
                            fixed(fit->residual_std_dph, 4), fixed(fit->r_squared, 6),
                            general(fit->condition_estimate));
   if (!warning.empty()) std::cout << "warning: " << warning << "\n";
+  if (quality.coverage) {
+    std::cout << fmt::format("coverage {:.2f} % of the samples expected, longest gap {} s\n",
+                             *quality.coverage * 100.0, general(quality.longest_gap_s.value_or(0)));
+  }
+  if (quality.flagged()) {
+    std::cout << "FLAGGED: " << fmt::format("{}", fmt::join(quality.reasons, "; ")) << "\n";
+  }
   if (!p.coefficients_json.empty()) std::cout << "wrote " << p.coefficients_json << "\n";
-  if (!p.c_header.empty()) std::cout << "wrote " << p.c_header << "\n";
+  if (!p.c_header.empty()) {
+    std::cout << "wrote " << p.c_header << (quality.flagged() ? " (forced: flagged)" : "") << "\n";
+  }
   return 0;
 }
 
@@ -1445,6 +1541,9 @@ AnalysisCommands::AnalysisCommands(CLI::App& app) : parsed_(std::make_unique<Par
   p.fit->add_option("--model", p.model, "e.g. T4+R1+G1 (default: the run's config, else that)");
   fit_opts(p.fit);
   exports(p.fit);
+  p.fit->add_flag("--force", p.force,
+                  "write the C header even when the fit is flagged (docs/analysis.md \"Result "
+                  "quality\"); the header then says so and why");
 
   p.compare =
       input(app.add_subcommand("compare", "the paper's Tables II-IV, in-sample and LORO"), true);

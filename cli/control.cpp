@@ -781,6 +781,27 @@ std::string format_queued(const json& e) {
                      truthy(field(e, "ignore_failures")) ? ", failures ignored" : "");
 }
 
+namespace {
+
+// A result's quality (docs/api.md) as a table column: ok, FLAGGED,
+// excluded, or a dash when not assessed or absent.
+std::string quality_mark(const json& quality) {
+  const json& verdict = field(quality, "verdict");
+  if (!verdict.is_string() || verdict == "unassessed") return kDash;
+  return verdict == "flagged" ? "FLAGGED" : verdict.get<std::string>();
+}
+
+std::string quality_reasons(const json& quality) {
+  std::vector<std::string> out;
+  for (const auto& r :
+       field(quality, "reasons").is_array() ? field(quality, "reasons") : json::array()) {
+    if (r.is_string()) out.push_back(r.get<std::string>());
+  }
+  return fmt::format("{}", fmt::join(out, "; "));
+}
+
+}  // namespace
+
 std::string format_runs(const json& runs) {
   if (!runs.is_array() || runs.empty()) return "no runs\n";
   std::vector<std::vector<std::string>> rows;
@@ -1030,13 +1051,26 @@ std::string format_dut_history(const json& h) {
             {text(field(f, "sf_sequence")), row_axis(f, dut), fixed(field(f, "temperature_c"), 2),
              fixed(field(f, "k"), 7), fixed(field(f, "nonlinearity_ppm"), 1),
              fixed(field(f, "asymmetry_ppm"), 1), fixed(field(f, "repeatability_ppm"), 1),
-             fixed(field(f, "bias_dph"), 3)});
+             fixed(field(f, "bias_dph"), 3), quality_mark(field(f, "quality"))});
       }
       out += "  scale factor\n";
-      out += table({"seq", "axis", "T °C", "K", "nonlin ppm", "asym ppm", "repeat ppm", "bias °/h"},
+      out += table({"seq", "axis", "T °C", "K", "nonlin ppm", "asym ppm", "repeat ppm", "bias °/h",
+                    "quality"},
                    {Align::kRight, Align::kLeft, Align::kRight, Align::kRight, Align::kRight,
-                    Align::kRight, Align::kRight, Align::kRight},
+                    Align::kRight, Align::kRight, Align::kRight, Align::kLeft},
                    sf_rows, "  ");
+      for (const auto& f : sf) {
+        if (quality_mark(field(f, "quality")) != "FLAGGED") continue;
+        out += fmt::format("  sequence {}: FLAGGED: {}\n", text(field(f, "sf_sequence")),
+                           quality_reasons(field(f, "quality")));
+      }
+    }
+    for (const auto& st : stats) {
+      if (quality_mark(field(st, "quality")) != "FLAGGED") continue;
+      const auto i = number(field(st, "segment_index"));
+      out += fmt::format("  segment {} {}: Table I FLAGGED: {}\n",
+                         i ? std::to_string(static_cast<int64_t>(*i) + 1) : kDash,
+                         row_axis(st, dut), quality_reasons(field(st, "quality")));
     }
   }
   const json& fits = field(h, "fits");
@@ -1046,13 +1080,19 @@ std::string format_dut_history(const json& h) {
       rows.push_back({text(field(f, "id")), text(field(f, "axis")), text(field(f, "model")),
                       text(field(f, "form")), listed(field(f, "run_ids")),
                       fixed(field(f, "residual_std_dph"), 4), fixed(field(f, "r_squared"), 4),
-                      format_utc(field(f, "computed_utc"))});
+                      format_utc(field(f, "computed_utc")), quality_mark(field(f, "quality"))});
     }
     out += "\ndrift fits\n";
-    out += table({"id", "axis", "model", "form", "runs", "residual °/h", "R²", "computed (UTC)"},
-                 {Align::kRight, Align::kLeft, Align::kLeft, Align::kLeft, Align::kLeft,
-                  Align::kRight, Align::kRight, Align::kLeft},
-                 rows);
+    out += table(
+        {"id", "axis", "model", "form", "runs", "residual °/h", "R²", "computed (UTC)", "quality"},
+        {Align::kRight, Align::kLeft, Align::kLeft, Align::kLeft, Align::kLeft, Align::kRight,
+         Align::kRight, Align::kLeft, Align::kLeft},
+        rows);
+    for (const auto& f : fits) {
+      if (quality_mark(field(f, "quality")) != "FLAGGED") continue;
+      out += fmt::format("fit {}: FLAGGED: {}\n", text(field(f, "id")),
+                         quality_reasons(field(f, "quality")));
+    }
   }
   return out;
 }

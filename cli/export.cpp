@@ -30,6 +30,7 @@ struct ExportCommand::Parsed {
   std::string db_path, config_path, out_dir;
   std::optional<std::string> since, runs;
   bool json = false;
+  bool force = false;
 };
 
 ExportCommand::ExportCommand(CLI::App& app) : parsed_(std::make_unique<Parsed>()) {
@@ -51,6 +52,10 @@ ExportCommand::ExportCommand(CLI::App& app) : parsed_(std::make_unique<Parsed>()
   auto* runs = p.command->add_option("--runs", p.runs, "these runs, e.g. 3,5-7");
   since->excludes(runs);
   p.command->add_flag("--json", p.json, "machine-readable output");
+  p.command->add_flag(
+      "--force", p.force,
+      "write the C headers of flagged results too (docs/analysis.md \"Result quality\"), each "
+      "marked as forced with the reasons; without it they are left out and listed as problems");
 }
 
 ExportCommand::~ExportCommand() = default;
@@ -131,6 +136,7 @@ std::optional<int> ExportCommand::run(bool json) {
   request.run_ids = ids;
   request.directory = fs::absolute(p.out_dir, ec).lexically_normal().string();
   request.report.export_label = fmt::format("on demand (gyrotherm export), {}", what);
+  request.report.force_flagged = p.force;
   auto out = daemon::write_export(*db, request);
   if (!out) return fail(out.error().message, kExitFailed, kWho);
   if (json) {

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <limits>
 #include <map>
+#include <tuple>
 
 #include "compensated_sum.h"
 #include "gyrotherm/analysis/csv_window.h"
@@ -324,6 +325,58 @@ std::string_view to_string(SensitiveAxis axis) {
       return "radial";
   }
   return "unknown";
+}
+
+RatePointFlatness check_rate_point_flatness(std::span<const double> samples, double demanded_dps,
+                                            const RatePointFlatnessOptions& options,
+                                            bool at_demand) {
+  RatePointFlatness out;
+  std::vector<double> y;
+  for (double v : samples) {
+    if (std::isfinite(v)) y.push_back(v);
+  }
+  if (y.size() < 6) return out;
+  out.checked = true;
+  const std::size_t third = y.size() / 3;
+  // Mean and the variance of the mean.
+  const auto stats = [](std::span<const double> part) {
+    CompensatedSum sum;
+    for (double v : part) sum.add(v);
+    const double mean = sum.value() / static_cast<double>(part.size());
+    CompensatedSum sq;
+    for (double v : part) sq.add((v - mean) * (v - mean));
+    const double var = sq.value() / static_cast<double>(part.size() - 1);
+    return std::pair{mean, var / static_cast<double>(part.size())};
+  };
+  const auto [first, first_var] = stats(std::span<const double>(y).first(third));
+  const auto [last, last_var] = stats(std::span<const double>(y).last(third));
+  out.first_mean = first;
+  out.last_mean = last;
+  const double rate_term = options.tolerance_ppm * 1e-6 * std::fabs(demanded_dps);
+  out.tolerance = options.n_sigma * std::sqrt(first_var + last_var) + rate_term;
+  const double step = std::fabs(first - last);
+  if (!(step <= out.tolerance)) {
+    out.ok = false;
+    out.why = fmt::format(
+        "not flat: the first third of its samples reads {:.7g} °/s, the last third {:.7g} °/s "
+        "({:.3g} °/s apart; tolerance {:.3g} °/s)",
+        first, last, step, out.tolerance);
+    return out;
+  }
+  if (!at_demand) return out;
+  for (const auto& [name, mean, var] :
+       {std::tuple{"first", first, first_var}, std::tuple{"last", last, last_var}}) {
+    const double tolerance = options.n_sigma * std::sqrt(var) + rate_term;
+    if (!(std::fabs(mean - demanded_dps) <= tolerance)) {
+      out.ok = false;
+      out.why = fmt::format(
+          "not at the demanded rate: the {} third reads {:.7g} °/s for a demand of {:g} °/s "
+          "({:.3g} °/s off; tolerance {:.3g} °/s)",
+          name, mean, demanded_dps, std::fabs(mean - demanded_dps), tolerance);
+      return out;
+    }
+  }
+  return out;
 }
 
 double earth_rate_projection_dph(double latitude_deg, SensitiveAxis axis,

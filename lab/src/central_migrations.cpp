@@ -318,6 +318,106 @@ GRANT SELECT, INSERT, UPDATE ON lab.records, lab.relay_progress TO gyrotherm_sta
 GRANT SELECT ON ALL TABLES IN SCHEMA lab TO gyrotherm_reader;
 )sql";
 
+// v2: the quality of every result (the station's schema v11,
+// docs/analysis.md "Result quality"): lab.table1, lab.allan, lab.fits and
+// lab.scale_factor_fits gain coverage, longest_gap_s, quality ('ok',
+// 'flagged', 'excluded'; 'unassessed' for rows relayed before the
+// station's v11) and quality_reasons (a JSON array), appended to their
+// columns.
+constexpr const char* kCentralV2 = R"sql(
+CREATE OR REPLACE VIEW lab.table1 WITH (security_invoker = true) AS
+SELECT t.station_id,
+       NULLIF(t.run_uuid, '00000000-0000-0000-0000-000000000000') AS run_uuid,
+       t.payload->>'dut_serial' AS dut_serial,
+       t.payload->>'axis' AS axis,
+       lab.jsonb_int8(t.payload->'segment_id') AS segment_id,
+       lab.jsonb_int8(t.payload->'segment_index') AS segment_index,
+       lab.jsonb_float8(t.payload->'setpoint_c') AS setpoint_c,
+       lab.jsonb_int8(t.payload->'n') AS n,
+       lab.jsonb_float8(t.payload->'duration_s') AS duration_s,
+       lab.jsonb_float8(t.payload->'temp_mean_c') AS temp_mean_c,
+       lab.jsonb_float8(t.payload->'bias_mean_dph') AS bias_mean_dph,
+       lab.jsonb_float8(t.payload->'bias_std_dph') AS bias_std_dph,
+       lab.jsonb_float8(t.payload->'bias_std_ma_dph') AS bias_std_ma_dph,
+       lab.jsonb_float8(t.payload->'bias_mean_earth_removed_dph') AS bias_mean_earth_removed_dph,
+       lab.jsonb_float8(t.payload->'earth_rate_dph') AS earth_rate_dph,
+       lab.jsonb_int8(t.payload->'ma_window') AS ma_window,
+       t.payload->>'computed_utc' AS computed_utc,
+       lab.jsonb_float8(t.payload->'coverage') AS coverage,
+       lab.jsonb_float8(t.payload->'longest_gap_s') AS longest_gap_s,
+       coalesce(t.payload->>'quality', 'unassessed') AS quality,
+       coalesce(t.payload->'quality_reasons_json', '[]'::jsonb) AS quality_reasons
+FROM lab.records t
+WHERE t.kind = 'table1' AND NOT t.deleted;
+
+CREATE OR REPLACE VIEW lab.allan WITH (security_invoker = true) AS
+SELECT a.station_id,
+       NULLIF(a.run_uuid, '00000000-0000-0000-0000-000000000000') AS run_uuid,
+       lab.jsonb_int8(a.payload->'id') AS local_id,
+       a.payload->>'dut_serial' AS dut_serial,
+       a.payload->>'axis' AS axis,
+       lab.jsonb_int8(a.payload->'segment_index') AS segment_index,
+       a.payload->>'taus' AS taus,
+       lab.jsonb_int8(a.payload->'n_samples') AS n_samples,
+       lab.jsonb_float8(a.payload->'angle_random_walk_dprh') AS angle_random_walk_dprh,
+       lab.jsonb_float8(a.payload->'bias_instability_dph') AS bias_instability_dph,
+       lab.jsonb_float8(a.payload->'bias_instability_tau_s') AS bias_instability_tau_s,
+       lab.jsonb_float8(a.payload->'rate_random_walk_dphprh') AS rate_random_walk_dphprh,
+       a.payload->'curve_json' AS curve,
+       a.payload->>'computed_utc' AS computed_utc,
+       lab.jsonb_float8(a.payload->'coverage') AS coverage,
+       lab.jsonb_float8(a.payload->'longest_gap_s') AS longest_gap_s,
+       coalesce(a.payload->>'quality', 'unassessed') AS quality,
+       coalesce(a.payload->'quality_reasons_json', '[]'::jsonb) AS quality_reasons
+FROM lab.records a
+WHERE a.kind = 'allan' AND NOT a.deleted;
+
+CREATE OR REPLACE VIEW lab.fits WITH (security_invoker = true) AS
+SELECT f.station_id,
+       NULLIF(fr.run_uuid, '00000000-0000-0000-0000-000000000000') AS run_uuid,
+       lab.jsonb_int8(f.payload->'id') AS fit_local_id,
+       f.payload->>'model' AS model,
+       f.payload->>'form' AS form,
+       f.payload->>'dut_serial' AS dut_serial,
+       f.payload->>'axis' AS axis,
+       lab.jsonb_int8(f.payload->'n') AS n,
+       f.payload->'coefficients_json' AS coefficients,
+       f.payload->'standard_errors_json' AS standard_errors,
+       lab.jsonb_float8(f.payload->'residual_std_dph') AS residual_std_dph,
+       lab.jsonb_float8(f.payload->'r_squared') AS r_squared,
+       f.payload->>'computed_utc' AS computed_utc,
+       lab.jsonb_float8(f.payload->'coverage') AS coverage,
+       lab.jsonb_float8(f.payload->'longest_gap_s') AS longest_gap_s,
+       coalesce(f.payload->>'quality', 'unassessed') AS quality,
+       coalesce(f.payload->'quality_reasons_json', '[]'::jsonb) AS quality_reasons
+FROM lab.records f
+JOIN lab.records fr
+  ON fr.station_id = f.station_id AND fr.kind = 'fit_run' AND NOT fr.deleted
+     AND fr.payload->>'fit_id' = f.local_id
+WHERE f.kind = 'fit' AND NOT f.deleted;
+
+CREATE OR REPLACE VIEW lab.scale_factor_fits WITH (security_invoker = true) AS
+SELECT k.station_id,
+       NULLIF(k.run_uuid, '00000000-0000-0000-0000-000000000000') AS run_uuid,
+       k.payload->>'dut_serial' AS dut_serial,
+       k.payload->>'axis' AS axis,
+       lab.jsonb_int8(k.payload->'sf_sequence') AS sf_sequence,
+       lab.jsonb_float8(k.payload->'temperature_c') AS temperature_c,
+       lab.jsonb_float8(k.payload->'k') AS k,
+       lab.jsonb_float8(k.payload->'k_se') AS k_se,
+       lab.jsonb_float8(k.payload->'bias_dps') AS bias_dps,
+       lab.jsonb_float8(k.payload->'nonlinearity_ppm') AS nonlinearity_ppm,
+       lab.jsonb_float8(k.payload->'asymmetry_ppm') AS asymmetry_ppm,
+       lab.jsonb_float8(k.payload->'repeatability_ppm') AS repeatability_ppm,
+       lab.jsonb_int8(k.payload->'n_points') AS n_points,
+       lab.jsonb_float8(k.payload->'coverage') AS coverage,
+       lab.jsonb_float8(k.payload->'longest_gap_s') AS longest_gap_s,
+       coalesce(k.payload->>'quality', 'unassessed') AS quality,
+       coalesce(k.payload->'quality_reasons_json', '[]'::jsonb) AS quality_reasons
+FROM lab.records k
+WHERE k.kind = 'sf_fit' AND NOT k.deleted;
+)sql";
+
 struct CentralMigration {
   int version;
   const char* description;
@@ -326,6 +426,7 @@ struct CentralMigration {
 
 constexpr CentralMigration kCentralMigrations[] = {
     {1, "stations, records, relay progress, roles, row-level security, views", kCentralV1},
+    {2, "result quality in the views of results", kCentralV2},
 };
 
 static_assert(sizeof(kCentralMigrations) / sizeof(kCentralMigrations[0]) == kCentralSchemaVersion,

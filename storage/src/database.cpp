@@ -247,7 +247,8 @@ constexpr int kSegmentBoundColumns = 22;  // bind_segment's parameters
 constexpr const char* kStatsColumns =
     "segment_id, run_id, segment_index, setpoint_c, n, duration_s, temp_mean_c, bias_mean_dph, "
     "bias_std_dph, bias_std_ma_dph, bias_mean_earth_removed_dph, bin_s, ma_window, "
-    "earth_rate_dph, t_from_s, t_to_s, computed_utc, dut_serial, axis";
+    "earth_rate_dph, t_from_s, t_to_s, computed_utc, dut_serial, axis, coverage_samples, "
+    "coverage_expected, coverage, longest_gap_s, quality, quality_reasons_json";
 
 }  // namespace
 
@@ -573,7 +574,8 @@ Status Database::put_segment_stats(const SegmentStatsRecord& s) {
   auto st =
       Stmt::prepare(db_, path_,
                     fmt::format("INSERT OR REPLACE INTO segment_stats({}) "
-                                "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                                "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
+                                "?, ?, ?, ?, ?, ?)",
                                 kStatsColumns));
   if (!st) return st.error();
   int i = 1;
@@ -596,6 +598,7 @@ Status Database::put_segment_stats(const SegmentStatsRecord& s) {
   st->bind(i++, std::string_view(utc_or_now(s.computed_utc)));
   st->bind(i++, std::string_view(key->serial));
   st->bind(i++, std::string_view(key->axis));
+  internal::bind_quality(*st, i, s.quality);
   internal::WriteScope tx(db_, path_, "put_segment_stats");
   if (Status s = tx.begin(); !s) return s;
   if (Status s = expect_done(*st, db_, path_, what); !s) return s;
@@ -646,6 +649,7 @@ Result<std::vector<SegmentStatsRecord>> Database::segment_stats(std::optional<in
     r.computed_utc = st->column_text(c++);
     r.dut_serial = st->column_text(c++);
     r.axis = st->column_text(c++);
+    r.quality = internal::read_quality(*st, c);
     out.push_back(std::move(r));
   }
   if (rc != SQLITE_DONE) return sqlite_error(db_, path_, "reading segment statistics");
@@ -686,7 +690,8 @@ constexpr const char* kAllanColumns =
     "id, run_id, segment_id, segment_index, t_from_s, t_to_s, taus, tau0_s, n_samples, "
     "curve_json, angle_random_walk_dprh, bias_instability_dph, bias_instability_tau_s, "
     "rate_random_walk_dphprh, bias_instability_method, inputs_json, computed_utc, dut_serial, "
-    "axis";
+    "axis, coverage_samples, coverage_expected, coverage, longest_gap_s, quality, "
+    "quality_reasons_json";
 
 // The curve's arrays, in the order of curve_json.
 struct AllanCurveField {
@@ -810,8 +815,9 @@ Result<int64_t> Database::put_allan(const AllanRecord& a) {
       "INSERT INTO allan(run_id, segment_id, segment_index, t_from_s, t_to_s, taus, tau0_s, "
       "n_samples, curve_json, angle_random_walk_dprh, bias_instability_dph, "
       "bias_instability_tau_s, rate_random_walk_dphprh, bias_instability_method, inputs_json, "
-      "computed_utc, dut_serial, axis) VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
-      "?) "
+      "computed_utc, dut_serial, axis, coverage_samples, coverage_expected, coverage, "
+      "longest_gap_s, quality, quality_reasons_json) VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
+      "?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) "
       "ON CONFLICT(run_id, segment_index, taus, dut_serial, axis) DO UPDATE SET segment_id = "
       "excluded.segment_id, "
       "t_from_s = excluded.t_from_s, t_to_s = excluded.t_to_s, tau0_s = excluded.tau0_s, "
@@ -821,7 +827,11 @@ Result<int64_t> Database::put_allan(const AllanRecord& a) {
       "bias_instability_tau_s = excluded.bias_instability_tau_s, "
       "rate_random_walk_dphprh = excluded.rate_random_walk_dphprh, "
       "bias_instability_method = excluded.bias_instability_method, "
-      "inputs_json = excluded.inputs_json, computed_utc = excluded.computed_utc "
+      "inputs_json = excluded.inputs_json, computed_utc = excluded.computed_utc, "
+      "coverage_samples = excluded.coverage_samples, coverage_expected = "
+      "excluded.coverage_expected, coverage = excluded.coverage, longest_gap_s = "
+      "excluded.longest_gap_s, quality = excluded.quality, quality_reasons_json = "
+      "excluded.quality_reasons_json "
       "RETURNING id");
   if (!st) return st.error();
   int i = 1;
@@ -847,6 +857,7 @@ Result<int64_t> Database::put_allan(const AllanRecord& a) {
   st->bind(i++, std::string_view(utc_or_now(a.computed_utc)));
   st->bind(i++, std::string_view(key->serial));
   st->bind(i++, std::string_view(key->axis));
+  internal::bind_quality(*st, i, a.quality);
   const std::string what = fmt::format("storing {}", allan_label(a));
   internal::WriteScope tx(db_, path_, "put_allan");
   if (Status s = tx.begin(); !s) return s.error();
@@ -903,6 +914,7 @@ Result<std::vector<AllanRecord>> Database::allan(int64_t run_id) {
     r.computed_utc = st->column_text(c++);
     r.dut_serial = st->column_text(c++);
     r.axis = st->column_text(c++);
+    r.quality = internal::read_quality(*st, c);
     if (Status s = read_allan_curve(r, curve, path_); !s) return s.error();
     out.push_back(std::move(r));
   }

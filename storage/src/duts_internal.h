@@ -92,4 +92,14 @@ Result<std::vector<FitRecord>> fits_of_dut(sqlite3* db, const std::string& path,
 // "a, b" -> "x.a, x.b".
 std::string qualified(std::string_view columns, std::string_view alias);
 
+// A result's quality (schema v11) in the columns kQualityColumns, from
+// parameter / column `first` on (quality.cpp). Unknown numbers are NULL;
+// reasons that are not a JSON array of strings read as one reason quoting
+// the text.
+inline constexpr const char* kQualityColumns =
+    "coverage_samples, coverage_expected, coverage, longest_gap_s, quality, quality_reasons_json";
+inline constexpr int kQualityColumnCount = 6;
+void bind_quality(Stmt& st, int first, const ResultQuality& q);
+ResultQuality read_quality(const Stmt& st, int first);
+
 }  // namespace gyrotherm::storage::internal

@@ -555,6 +555,58 @@ CREATE TABLE outbox(
 );
 )sql";
 
+// v11: how complete each result's input was and whether it is plausible
+// (docs/analysis.md "Result quality"): coverage (samples stored against
+// those expected over the result's windows), the longest gap and a verdict
+// with its reasons, on every result table; the guard bands cut from the
+// ends of the rate points' windows. Rows stored before v11 read quality
+// 'unassessed'. The tables are relayed: the data step regenerates the
+// lab outbox triggers from their new columns.
+constexpr const char* kSchemaV11 = R"sql(
+ALTER TABLE segment_stats ADD COLUMN coverage_samples INTEGER;  -- samples stored over the result's windows; NULL: not assessed
+ALTER TABLE segment_stats ADD COLUMN coverage_expected REAL;    -- samples expected: window length x the DUT's output rate; NULL: not known
+ALTER TABLE segment_stats ADD COLUMN coverage REAL;             -- coverage_samples / coverage_expected; NULL: not known
+ALTER TABLE segment_stats ADD COLUMN longest_gap_s REAL;        -- longest stretch of a window without a sample, station s; NULL: not known
+ALTER TABLE segment_stats ADD COLUMN quality TEXT NOT NULL DEFAULT 'unassessed'
+  CHECK(quality IN ('ok', 'flagged', 'excluded', 'unassessed'));  -- the verdict ('excluded': a rate point left out of its fit)
+ALTER TABLE segment_stats ADD COLUMN quality_reasons_json TEXT NOT NULL DEFAULT '[]';  -- JSON array of the verdict's reasons
+
+ALTER TABLE allan ADD COLUMN coverage_samples INTEGER;  -- samples stored over the result's windows; NULL: not assessed
+ALTER TABLE allan ADD COLUMN coverage_expected REAL;    -- samples expected: window length x the DUT's output rate; NULL: not known
+ALTER TABLE allan ADD COLUMN coverage REAL;             -- coverage_samples / coverage_expected; NULL: not known
+ALTER TABLE allan ADD COLUMN longest_gap_s REAL;        -- longest stretch of a window without a sample, station s; NULL: not known
+ALTER TABLE allan ADD COLUMN quality TEXT NOT NULL DEFAULT 'unassessed'
+  CHECK(quality IN ('ok', 'flagged', 'excluded', 'unassessed'));  -- the verdict ('excluded': a rate point left out of its fit)
+ALTER TABLE allan ADD COLUMN quality_reasons_json TEXT NOT NULL DEFAULT '[]';  -- JSON array of the verdict's reasons
+
+ALTER TABLE fits ADD COLUMN coverage_samples INTEGER;  -- samples stored over the result's windows; NULL: not assessed
+ALTER TABLE fits ADD COLUMN coverage_expected REAL;    -- samples expected: window length x the DUT's output rate; NULL: not known
+ALTER TABLE fits ADD COLUMN coverage REAL;             -- coverage_samples / coverage_expected; NULL: not known
+ALTER TABLE fits ADD COLUMN longest_gap_s REAL;        -- longest stretch of a window without a sample, station s; NULL: not known
+ALTER TABLE fits ADD COLUMN quality TEXT NOT NULL DEFAULT 'unassessed'
+  CHECK(quality IN ('ok', 'flagged', 'excluded', 'unassessed'));  -- the verdict ('excluded': a rate point left out of its fit)
+ALTER TABLE fits ADD COLUMN quality_reasons_json TEXT NOT NULL DEFAULT '[]';  -- JSON array of the verdict's reasons
+
+ALTER TABLE scale_factor_points ADD COLUMN coverage_samples INTEGER;  -- samples stored over the result's windows; NULL: not assessed
+ALTER TABLE scale_factor_points ADD COLUMN coverage_expected REAL;    -- samples expected: window length x the DUT's output rate; NULL: not known
+ALTER TABLE scale_factor_points ADD COLUMN coverage REAL;             -- coverage_samples / coverage_expected; NULL: not known
+ALTER TABLE scale_factor_points ADD COLUMN longest_gap_s REAL;        -- longest stretch of a window without a sample, station s; NULL: not known
+ALTER TABLE scale_factor_points ADD COLUMN quality TEXT NOT NULL DEFAULT 'unassessed'
+  CHECK(quality IN ('ok', 'flagged', 'excluded', 'unassessed'));  -- the verdict ('excluded': a rate point left out of its fit)
+ALTER TABLE scale_factor_points ADD COLUMN quality_reasons_json TEXT NOT NULL DEFAULT '[]';  -- JSON array of the verdict's reasons
+
+ALTER TABLE scale_factor_fits ADD COLUMN coverage_samples INTEGER;  -- samples stored over the result's windows; NULL: not assessed
+ALTER TABLE scale_factor_fits ADD COLUMN coverage_expected REAL;    -- samples expected: window length x the DUT's output rate; NULL: not known
+ALTER TABLE scale_factor_fits ADD COLUMN coverage REAL;             -- coverage_samples / coverage_expected; NULL: not known
+ALTER TABLE scale_factor_fits ADD COLUMN longest_gap_s REAL;        -- longest stretch of a window without a sample, station s; NULL: not known
+ALTER TABLE scale_factor_fits ADD COLUMN quality TEXT NOT NULL DEFAULT 'unassessed'
+  CHECK(quality IN ('ok', 'flagged', 'excluded', 'unassessed'));  -- the verdict ('excluded': a rate point left out of its fit)
+ALTER TABLE scale_factor_fits ADD COLUMN quality_reasons_json TEXT NOT NULL DEFAULT '[]';  -- JSON array of the verdict's reasons
+
+ALTER TABLE scale_factor_points ADD COLUMN guard_s REAL NOT NULL DEFAULT 0;  -- cut from each end of each window before the mean, station s
+ALTER TABLE scale_factor_fits ADD COLUMN guard_s REAL NOT NULL DEFAULT 0;    -- its points' guard bands, station s
+)sql";
+
 constexpr Migration kMigrations[] = {
     {1, "initial schema", kSchemaV1},
     {2, "queue, crash resume, acquisition windows", kSchemaV2},
@@ -566,6 +618,8 @@ constexpr Migration kMigrations[] = {
     {8, "devices under test, run metadata, results per DUT and axis", kSchemaV8},
     {9, "chunked sample storage", kSchemaV9, migrate_gyro_samples_to_chunks},
     {10, "run UUIDs, lab outbox", kSchemaV10, install_lab_triggers_step},
+    {11, "result coverage and quality, rate-point guard bands", kSchemaV11,
+     install_lab_triggers_step},
 };
 
 static_assert(sizeof(kMigrations) / sizeof(kMigrations[0]) == kSchemaVersion,

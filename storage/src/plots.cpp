@@ -283,7 +283,8 @@ namespace {
 
 constexpr const char* kFitColumns =
     "id, model, form, n, coefficients_json, standard_errors_json, residual_std_dph, r_squared, "
-    "inputs_json, computed_utc, dut_serial, axis";
+    "inputs_json, computed_utc, dut_serial, axis, coverage_samples, coverage_expected, coverage, "
+    "longest_gap_s, quality, quality_reasons_json";
 
 }  // namespace
 
@@ -302,8 +303,9 @@ Result<int64_t> Database::add_fit(const FitRecord& fit) {
   auto st = Stmt::prepare(db_, path_,
                           "INSERT INTO fits(model, form, n, coefficients_json, "
                           "standard_errors_json, residual_std_dph, r_squared, inputs_json, "
-                          "computed_utc, dut_serial, axis) VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
-                          "?)");
+                          "computed_utc, dut_serial, axis, coverage_samples, coverage_expected, "
+                          "coverage, longest_gap_s, quality, quality_reasons_json) VALUES(?, ?, "
+                          "?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
   if (!st) return st.error();
   st->bind(1, fit.model);
   st->bind(2, fit.form);
@@ -316,6 +318,7 @@ Result<int64_t> Database::add_fit(const FitRecord& fit) {
   st->bind(9, utc_or_now(fit.computed_utc));
   st->bind(10, std::string_view(key.serial));
   st->bind(11, std::string_view(key.axis));
+  internal::bind_quality(*st, 12, fit.quality);
   if (st->step() != SQLITE_DONE) return sqlite_error(db_, path_, "storing a fit");
   const int64_t id = sqlite3_last_insert_rowid(db_);
   auto link =
@@ -351,6 +354,7 @@ Result<std::vector<FitRecord>> read_fits(sqlite3* db, const std::string& path, S
     f.computed_utc = st.column_text(c++);
     f.dut_serial = st.column_text(c++);
     f.axis = st.column_text(c++);
+    f.quality = internal::read_quality(st, c);
     out.push_back(std::move(f));
   }
   if (rc != SQLITE_DONE) return sqlite_error(db, path, "reading fits");

@@ -228,8 +228,9 @@ Status Database::store_scale_factor(
   auto ins_point = Stmt::prepare(
       db_, path_,
       "INSERT INTO scale_factor_points(run_id, segment_id, sf_sequence, repetition, rate_dps, "
-      "measured_rate_dps, output_dps, n, temperature_c, duration_s, turns, dut_serial, axis) "
-      "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+      "measured_rate_dps, output_dps, n, temperature_c, duration_s, turns, dut_serial, axis, "
+      "guard_s, coverage_samples, coverage_expected, coverage, longest_gap_s, quality, "
+      "quality_reasons_json) VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
   if (!ins_point) return ins_point.error();
   for (const auto& p : points) {
     Stmt& st = *ins_point;
@@ -252,6 +253,8 @@ Status Database::store_scale_factor(
     st.bind(i++, p.turns);
     st.bind(i++, std::string_view(key->serial));
     st.bind(i++, std::string_view(key->axis));
+    st.bind(i++, p.guard_s);
+    internal::bind_quality(st, i, p.quality);
     const std::string point =
         fmt::format("{}: point of sequence {} repetition {} at {} °/s (segment {})", what,
                     p.sf_sequence, p.repetition, p.rate_dps, p.segment_id);
@@ -262,7 +265,9 @@ Status Database::store_scale_factor(
       db_, path_,
       "INSERT INTO scale_factor_fits(run_id, sf_sequence, temperature_c, k, k_se, bias_dps, "
       "nonlinearity_ppm, nonlinearity_fs_ppm, asymmetry_ppm, repeatability_ppm, n_points, "
-      "created_utc, dut_serial, axis) VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+      "created_utc, dut_serial, axis, guard_s, coverage_samples, coverage_expected, coverage, "
+      "longest_gap_s, quality, quality_reasons_json) VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
+      "?, ?, ?, ?, ?, ?, ?, ?)");
   if (!ins_fit) return ins_fit.error();
   for (const auto& f : fits) {
     Stmt& st = *ins_fit;
@@ -282,6 +287,8 @@ Status Database::store_scale_factor(
     st.bind(i++, std::string_view(utc_or_now(f.created_utc)));
     st.bind(i++, std::string_view(key->serial));
     st.bind(i++, std::string_view(key->axis));
+    st.bind(i++, f.guard_s);
+    internal::bind_quality(st, i, f.quality);
     if (Status s =
             expect_done(st, db_, path_, fmt::format("{}: fit of sequence {}", what, f.sf_sequence));
         !s) {
@@ -319,11 +326,13 @@ namespace {
 
 constexpr const char* kPointColumns =
     "id, run_id, segment_id, sf_sequence, repetition, rate_dps, measured_rate_dps, output_dps, n, "
-    "temperature_c, duration_s, turns, dut_serial, axis";
+    "temperature_c, duration_s, turns, dut_serial, axis, guard_s, coverage_samples, "
+    "coverage_expected, coverage, longest_gap_s, quality, quality_reasons_json";
 constexpr const char* kFitColumns =
     "run_id, sf_sequence, temperature_c, k, k_se, bias_dps, nonlinearity_ppm, "
     "nonlinearity_fs_ppm, asymmetry_ppm, repeatability_ppm, n_points, created_utc, dut_serial, "
-    "axis";
+    "axis, guard_s, coverage_samples, coverage_expected, coverage, longest_gap_s, quality, "
+    "quality_reasons_json";
 constexpr const char* kTemperatureFitColumns =
     "run_id, poly_order, t_centre_c, k_coeffs_json, bias_coeffs_json, k_ppm_per_c, "
     "bias_dph_per_c, created_utc, dut_serial, axis";
@@ -345,6 +354,8 @@ ScaleFactorPointRecord read_point(const Stmt& st) {
   p.turns = st.column_double(c++);
   p.dut_serial = st.column_text(c++);
   p.axis = st.column_text(c++);
+  p.guard_s = st.column_double(c++);
+  p.quality = internal::read_quality(st, c);
   return p;
 }
 
@@ -365,6 +376,8 @@ ScaleFactorFitRecord read_fit(const Stmt& st) {
   f.created_utc = st.column_text(c++);
   f.dut_serial = st.column_text(c++);
   f.axis = st.column_text(c++);
+  f.guard_s = st.column_double(c++);
+  f.quality = internal::read_quality(st, c);
   return f;
 }
 

@@ -154,7 +154,8 @@ TEST_F(ScaleFactorReportTest, StoredRowsRenderTheSectionWithTheirNumbers) {
   for (std::size_t i = 0; i < 3; ++i) {
     SCOPED_TRACE(fmt::format("sequence {}", i + 1));
     const analysis::ScaleFactorFit& f = stored.sequence_fits[i];
-    ASSERT_EQ(rows[i].size(), 10u);
+    ASSERT_EQ(rows[i].size(), 11u);
+    EXPECT_EQ(rows[i][10], "not assessed");  // stored without an assessment
     EXPECT_EQ(rows[i][0], std::to_string(i + 1));
     EXPECT_EQ(rows[i][1], fmt::format("{:.2f}", f.temperature_mean_c));
     EXPECT_EQ(rows[i][2], fmt::format("{:.9f}", f.k));

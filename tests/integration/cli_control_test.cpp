@@ -976,10 +976,24 @@ TEST(CliFormat, DutHistoryIsATablePerRunWithBiasPerAxis) {
   EXPECT_THAT(text, ContainsRegex("2  ramp   40.00          —           —        —           —  "
                                   "      —  completed\n"));
   EXPECT_THAT(text, HasSubstr("scale factor\n"));
+  // A quality column ("—": the answer has none, as from an older daemon).
   EXPECT_THAT(text, ContainsRegex("1  z     20.10  1.0001500        41.0      30.2           —  "
-                                  "   7.560\n"));
+                                  "   7.560  —\n"));
   EXPECT_THAT(text, HasSubstr("drift fits\n"));
   EXPECT_THAT(text, ContainsRegex("4  z     T2\\+R1\\+G1  centered  12          0.0301  0.9812"));
+  // Flagged results: the column says so and a line gives the reasons.
+  json flagged = history_answer();
+  const json bad = {{"verdict", "flagged"},
+                    {"reasons", {"coverage 6.0 % (600 of 10000 samples expected) is under 99 %"}}};
+  flagged["fits"][0]["quality"] = bad;
+  flagged["runs"][0]["scale_factor"][0]["quality"] = bad;
+  flagged["runs"][0]["stats"][1]["quality"] = bad;
+  const std::string marked = cli::format_dut_history(flagged);
+  EXPECT_THAT(marked, ContainsRegex("7.560  FLAGGED\n"));
+  EXPECT_THAT(marked, HasSubstr("  sequence 1: FLAGGED: coverage 6.0 % (600 of 10000"));
+  EXPECT_THAT(marked, HasSubstr("  segment 1 z: Table I FLAGGED: coverage 6.0 %"));
+  EXPECT_THAT(marked, ContainsRegex("0.9812  2026-11-21 08:00:00  FLAGGED\n"));
+  EXPECT_THAT(marked, HasSubstr("fit 4: FLAGGED: coverage 6.0 %"));
   // Whatever is missing or mistyped prints as "—", never throws.
   EXPECT_THAT(cli::format_dut_history({{"runs", {{{"stats", 5}}}}}), HasSubstr("no segments"));
   EXPECT_EQ(cli::format_duts(json::array()), "no DUTs recorded\n");

@@ -182,11 +182,13 @@ void expect_integer(const Csv& csv, std::size_t row, const std::string& column, 
 
 // The CSV's Table I rows are the database's segment_stats, every column.
 void expect_table1(const Csv& csv, const std::vector<storage::SegmentStatsRecord>& stats) {
-  EXPECT_THAT(csv.header,
-              ::testing::ElementsAre(
-                  "run_id", "step", "segment_index", "setpoint_c", "temp_mean_c", "n", "duration_s",
-                  "bias_mean_dph", "bias_mean_earth_removed_dph", "bias_std_dph", "bias_std_ma_dph",
-                  "earth_rate_dph", "bin_s", "ma_window", "t_from_s", "t_to_s", "computed_utc"));
+  EXPECT_THAT(
+      csv.header,
+      ::testing::ElementsAre(
+          "run_id", "step", "segment_index", "setpoint_c", "temp_mean_c", "n", "duration_s",
+          "bias_mean_dph", "bias_mean_earth_removed_dph", "bias_std_dph", "bias_std_ma_dph",
+          "earth_rate_dph", "bin_s", "ma_window", "t_from_s", "t_to_s", "computed_utc", "coverage",
+          "coverage_samples", "coverage_expected", "longest_gap_s", "quality", "quality_reasons"));
   ASSERT_EQ(csv.rows.size(), stats.size());
   for (std::size_t i = 0; i < stats.size(); ++i) {
     const auto& s = stats[i];
@@ -208,6 +210,10 @@ void expect_table1(const Csv& csv, const std::vector<storage::SegmentStatsRecord
     expect_exact(csv, i, "t_from_s", s.t_from_s);
     expect_exact(csv, i, "t_to_s", s.t_to_s);
     EXPECT_EQ(csv.at(i, "computed_utc"), s.computed_utc);
+    expect_exact(csv, i, "coverage", s.quality.coverage);
+    expect_integer(csv, i, "coverage_samples", s.quality.samples);
+    expect_exact(csv, i, "longest_gap_s", s.quality.longest_gap_s);
+    EXPECT_EQ(csv.at(i, "quality"), s.quality.verdict);
   }
 }
 

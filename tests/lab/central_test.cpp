@@ -142,7 +142,7 @@ void expect_counts(const PushResult& r, int64_t upserted, int64_t redelivered, i
 
 // --- migrations ------------------------------------------------------------
 
-TEST_F(CentralTest, MigrateCreatesVersion1AndTwiceIsANoOp) {
+TEST_F(CentralTest, MigrateCreatesTheCurrentVersionAndTwiceIsANoOp) {
   auto pg = connect();
   auto before = central_schema_version(pg);
   ASSERT_TRUE(before.ok()) << before.error().message;
@@ -150,10 +150,11 @@ TEST_F(CentralTest, MigrateCreatesVersion1AndTwiceIsANoOp) {
 
   auto v = migrate_central(pg);
   ASSERT_TRUE(v.ok()) << v.error().message;
-  EXPECT_EQ(*v, 1);
-  EXPECT_EQ(*central_schema_version(pg), 1);
-  EXPECT_EQ(scalar(pg, "SELECT count(*) FROM lab.schema_migrations"), "1");
-  const std::string applied = scalar(pg, "SELECT applied_at FROM lab.schema_migrations");
+  EXPECT_EQ(*v, 2);
+  EXPECT_EQ(kCentralSchemaVersion, 2);
+  EXPECT_EQ(*central_schema_version(pg), 2);
+  EXPECT_EQ(scalar(pg, "SELECT count(*) FROM lab.schema_migrations"), "2");
+  const std::string applied = scalar(pg, "SELECT max(applied_at) FROM lab.schema_migrations");
   EXPECT_EQ(scalar(pg,
                    "SELECT count(*) FROM pg_roles WHERE rolname IN "
                    "('gyrotherm_station', 'gyrotherm_reader') AND NOT rolcanlogin"),
@@ -161,9 +162,9 @@ TEST_F(CentralTest, MigrateCreatesVersion1AndTwiceIsANoOp) {
 
   auto again = migrate_central(pg);
   ASSERT_TRUE(again.ok()) << again.error().message;
-  EXPECT_EQ(*again, 1);
-  EXPECT_EQ(scalar(pg, "SELECT count(*) FROM lab.schema_migrations"), "1");
-  EXPECT_EQ(scalar(pg, "SELECT applied_at FROM lab.schema_migrations"), applied);
+  EXPECT_EQ(*again, 2);
+  EXPECT_EQ(scalar(pg, "SELECT count(*) FROM lab.schema_migrations"), "2");
+  EXPECT_EQ(scalar(pg, "SELECT max(applied_at) FROM lab.schema_migrations"), applied);
 }
 
 TEST_F(CentralTest, NewerSchemaIsRefusedNamingBothVersions) {
@@ -177,9 +178,10 @@ TEST_F(CentralTest, NewerSchemaIsRefusedNamingBothVersions) {
   ASSERT_FALSE(v.ok());
   EXPECT_FALSE(v.error().transient);
   EXPECT_NE(v.error().message.find("version 99"), std::string::npos) << v.error().message;
-  EXPECT_NE(v.error().message.find("version 1 "), std::string::npos) << v.error().message;
-  // Nothing was touched, and the connection is usable (the transaction ended).
-  EXPECT_EQ(scalar(pg, "SELECT count(*) FROM lab.schema_migrations"), "2");
+  EXPECT_NE(v.error().message.find("version 2 "), std::string::npos) << v.error().message;
+  // Nothing was touched, and the connection is usable (the transaction ended):
+  // versions 1, 2 and 99.
+  EXPECT_EQ(scalar(pg, "SELECT count(*) FROM lab.schema_migrations"), "3");
 }
 
 TEST_F(CentralTest, ConcurrentMigrationsBothSucceedOneApplies) {
@@ -207,9 +209,9 @@ TEST_F(CentralTest, ConcurrentMigrationsBothSucceedOneApplies) {
   t2.join();
   ASSERT_TRUE(r1.ok()) << r1.error().message;
   ASSERT_TRUE(r2.ok()) << r2.error().message;
-  EXPECT_EQ(*r1, 1);
-  EXPECT_EQ(*r2, 1);
-  EXPECT_EQ(scalar(watcher, "SELECT count(*) FROM lab.schema_migrations"), "1");
+  EXPECT_EQ(*r1, 2);
+  EXPECT_EQ(*r2, 2);
+  EXPECT_EQ(scalar(watcher, "SELECT count(*) FROM lab.schema_migrations"), "2");
   EXPECT_EQ(scalar(watcher, "SELECT count(*) FROM pg_views WHERE schemaname = 'lab'"), "11");
 }
 
@@ -550,24 +552,17 @@ TEST_F(CentralTest, ViewsHaveTheDocumentedColumnsAndTypes) {
             {"t_end_s", f},
             {"table_mode", t},
             {"table_rate_dps", f}}},
-          {"table1",
-           {{"station_id", t},
-            {"run_uuid", u},
-            {"dut_serial", t},
-            {"axis", t},
-            {"segment_id", i},
-            {"segment_index", i},
-            {"setpoint_c", f},
-            {"n", i},
-            {"duration_s", f},
-            {"temp_mean_c", f},
-            {"bias_mean_dph", f},
-            {"bias_std_dph", f},
-            {"bias_std_ma_dph", f},
-            {"bias_mean_earth_removed_dph", f},
-            {"earth_rate_dph", f},
-            {"ma_window", i},
-            {"computed_utc", t}}},
+          {"table1", {{"station_id", t},      {"run_uuid", u},
+                      {"dut_serial", t},      {"axis", t},
+                      {"segment_id", i},      {"segment_index", i},
+                      {"setpoint_c", f},      {"n", i},
+                      {"duration_s", f},      {"temp_mean_c", f},
+                      {"bias_mean_dph", f},   {"bias_std_dph", f},
+                      {"bias_std_ma_dph", f}, {"bias_mean_earth_removed_dph", f},
+                      {"earth_rate_dph", f},  {"ma_window", i},
+                      {"computed_utc", t},    {"coverage", f},
+                      {"longest_gap_s", f},   {"quality", t},
+                      {"quality_reasons", j}}},
           {"allan",
            {{"station_id", t},
             {"run_uuid", u},
@@ -582,7 +577,11 @@ TEST_F(CentralTest, ViewsHaveTheDocumentedColumnsAndTypes) {
             {"bias_instability_tau_s", f},
             {"rate_random_walk_dphprh", f},
             {"curve", j},
-            {"computed_utc", t}}},
+            {"computed_utc", t},
+            {"coverage", f},
+            {"longest_gap_s", f},
+            {"quality", t},
+            {"quality_reasons", j}}},
           {"fits",
            {{"station_id", t},
             {"run_uuid", u},
@@ -596,7 +595,11 @@ TEST_F(CentralTest, ViewsHaveTheDocumentedColumnsAndTypes) {
             {"standard_errors", j},
             {"residual_std_dph", f},
             {"r_squared", f},
-            {"computed_utc", t}}},
+            {"computed_utc", t},
+            {"coverage", f},
+            {"longest_gap_s", f},
+            {"quality", t},
+            {"quality_reasons", j}}},
           {"scale_factor_fits",
            {{"station_id", t},
             {"run_uuid", u},
@@ -610,7 +613,11 @@ TEST_F(CentralTest, ViewsHaveTheDocumentedColumnsAndTypes) {
             {"nonlinearity_ppm", f},
             {"asymmetry_ppm", f},
             {"repeatability_ppm", f},
-            {"n_points", i}}},
+            {"n_points", i},
+            {"coverage", f},
+            {"longest_gap_s", f},
+            {"quality", t},
+            {"quality_reasons", j}}},
           {"scale_factor_temperature_fits",
            {{"station_id", t},
             {"run_uuid", u},
@@ -833,7 +840,15 @@ TEST_F(CentralTest, ViewsReadRealisticPayloads) {
        {"asymmetry_ppm", nullptr},
        {"repeatability_ppm", 4.2},
        {"n_points", 14},
-       {"created_utc", "2026-03-02T07:05:00Z"}});
+       {"created_utc", "2026-03-02T07:05:00Z"},
+       {"guard_s", 1.0},
+       {"coverage_samples", 600},
+       {"coverage_expected", 10000.0},
+       {"coverage", 0.06},
+       {"longest_gap_s", 540.25},
+       {"quality", "flagged"},
+       {"quality_reasons_json", json::array({"coverage 6.0 % (600 of 10000 samples expected) "
+                                             "is under 99 %"})}});
   add("sf_temperature_fit", kRun1, "7/17-0042/z",
       {{"run_id", 7},
        {"dut_serial", "17-0042"},
@@ -991,6 +1006,18 @@ TEST_F(CentralTest, ViewsReadRealisticPayloads) {
   EXPECT_EQ(sf[0]["asymmetry_ppm"], "<null>");
   EXPECT_EQ(sf[0]["repeatability_ppm"], "4.2");
   EXPECT_EQ(sf[0]["n_points"], "14");
+  // The result's quality (station schema v11; lab schema v2).
+  EXPECT_EQ(sf[0]["quality"], "flagged");
+  EXPECT_EQ(sf[0]["coverage"], "0.06");
+  EXPECT_EQ(sf[0]["longest_gap_s"], "540.25");
+  EXPECT_EQ(sf[0]["quality_reasons"],
+            R"(["coverage 6.0 % (600 of 10000 samples expected) is under 99 %"])");
+  // A row relayed before the station's v11 has none: not assessed.
+  EXPECT_EQ(t1[0]["quality"], "unassessed");
+  EXPECT_EQ(t1[0]["quality_reasons"], "[]");
+  EXPECT_EQ(t1[0]["coverage"], "<null>");
+  EXPECT_EQ(fits[0]["quality"], "unassessed");
+  EXPECT_EQ(allan[0]["quality"], "unassessed");
 
   auto sft = rows(reader, "SELECT * FROM lab.scale_factor_temperature_fits");
   ASSERT_EQ(sft.size(), 1u);

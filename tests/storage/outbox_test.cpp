@@ -1347,7 +1347,7 @@ TEST(OutboxMigration, Schema9DatabaseGetsRunUuidsAndTheOutbox) {
     sqlite3_close(raw);
   }
   Database db = open_ok(path);
-  EXPECT_EQ(*db.schema_version(), 10);
+  EXPECT_EQ(*db.schema_version(), kSchemaVersion);
   EXPECT_TRUE(integrity_ok(db));
   auto runs = db.runs();
   ASSERT_TRUE(runs.ok());
@@ -1411,7 +1411,7 @@ TEST(OutboxMigration, Schema5DatabaseWithResultsBindsWithItsHistory) {
     sqlite3_close(raw);
   }
   Database db = open_ok(path);
-  EXPECT_EQ(*db.schema_version(), 10);
+  EXPECT_EQ(*db.schema_version(), kSchemaVersion);
   EXPECT_TRUE(integrity_ok(db));
   EXPECT_EQ(query_int(db.handle(), "SELECT count(*) FROM pragma_foreign_key_check"), 0);
   const std::string uuid1 = db.run(1)->uuid, uuid2 = db.run(2)->uuid;

@@ -10,7 +10,8 @@
 namespace gyrotherm::daemon {
 
 Result<storage::SegmentStatsRecord> compute_table1(storage::Database& db, const Table1Job& job,
-                                                   const analysis::Table1Options& options) {
+                                                   const analysis::Table1Options& options,
+                                                   const analysis::QualityRules& rules) {
   SoakWindow soak;
   soak.run_id = job.run_id;
   soak.segment_id = job.segment_id;
@@ -27,7 +28,7 @@ Result<storage::SegmentStatsRecord> compute_table1(storage::Database& db, const 
   // run's analysis at its end lists it among its problems.
   std::optional<Result<storage::SegmentStatsRecord>> first;
   for (const AnalysedAxis& axis : *axes) {
-    auto rec = soak_table1(db, soak, options, axis);
+    auto rec = soak_table1(db, soak, options, axis, rules);
     if (rec) {
       if (auto st = db.put_segment_stats(*rec); !st) {
         return Error::Transient(fmt::format("run {} segment {}: {}", job.run_id,
@@ -109,7 +110,7 @@ void AnalysisWorker::run() {
           opened.ok() ? Error::Transient("not computed")
                       : Result<storage::SegmentStatsRecord>(opened.error());
       try {
-        if (db) result = compute_table1(*db, *t1, settings_.table1);
+        if (db) result = compute_table1(*db, *t1, settings_.table1, settings_.quality);
       } catch (const std::exception& e) {
         result = Error::Permanent(fmt::format("run {} segment {}: analysis failed: {}", t1->run_id,
                                               t1->segment_index + 1, e.what()));

@@ -304,11 +304,25 @@ void collect_fits(storage::Database& db, RunReport& r) {
       r.problems.push_back(fmt::format("fit {} ({} form): {}", model, name, fit.error().message));
       continue;
     }
+    storage::ResultQuality quality =
+        fit_quality(*fit, std::span(&*r.series, 1), std::span(&r.series_coverage.coverage, 1),
+                    r.settings.quality);
     r.fits.push_back({.fit = std::move(*fit),
                       .stored_id = 0,
                       .run_ids = {r.run.id},
-                      .l0_window_s = r.settings.fit.l0_window_s});
+                      .l0_window_s = r.settings.fit.l0_window_s,
+                      .quality = std::move(quality)});
   }
+}
+
+// The problem line of a flagged result's header: not written (or written
+// with --force), and why.
+std::string withheld_header(const std::string& file, std::string_view what,
+                            const storage::ResultQuality& q, bool forced) {
+  return fmt::format("{} {}: {} is flagged: {}{}", file,
+                     forced ? "written with --force" : "not written", what,
+                     fmt::join(q.reasons, "; "),
+                     forced ? "" : " (gyrotherm export --force writes it, marked as forced)");
 }
 
 analysis::ComparisonOptions comparison_options(const AnalysisSettings& s, bool cross_validate) {
@@ -328,6 +342,7 @@ Result<ReportFit> report_fit_of_record(const storage::FitRecord& record) {
   ReportFit out;
   out.stored_id = record.id;
   out.run_ids = record.run_ids;
+  out.quality = record.quality;
   analysis::DriftFit& f = out.fit;
   auto spec = analysis::parse_model_spec(record.model);
   if (!spec) return bad(fmt::format("model \"{}\": {}", record.model, spec.error().message));
@@ -674,7 +689,7 @@ Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
   if (r.table1.empty() && !soaks->empty()) {
     r.table1_stored = false;
     for (const auto& soak : *soaks) {
-      if (auto row = soak_table1(db, soak, r.settings.table1, stream)) {
+      if (auto row = soak_table1(db, soak, r.settings.table1, stream, r.settings.quality)) {
         r.table1.push_back(std::move(*row));
       } else {
         r.problems.push_back(fmt::format("Table I, {}: {}",
@@ -700,7 +715,7 @@ Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
   if (r.allan.empty() && !soaks->empty()) {
     r.allan_stored = false;
     for (const auto& soak : *soaks) {
-      if (auto a = soak_allan(db, soak, r.settings.allan_taus, stream)) {
+      if (auto a = soak_allan(db, soak, r.settings.allan_taus, stream, r.settings.quality)) {
         r.allan.push_back(std::move(*a));
       } else {
         r.problems.push_back(fmt::format("Allan deviation, {}: {}",
@@ -710,7 +725,7 @@ Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
     }
   }
 
-  if (auto series = run_series(db, run_id, r.settings.table1.bin_s, stream)) {
+  if (auto series = run_series(db, run_id, r.settings.table1.bin_s, stream, &r.series_coverage)) {
     r.series = std::move(*series);
   } else {
     r.problems.push_back(
@@ -762,6 +777,21 @@ Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
   if (r.scale_factor) {
     for (auto& p : scale_factor_plots(*r.scale_factor)) r.plots.push_back(std::move(p));
   }
+  for (const auto& rf : r.fits) {
+    if (!rf.quality.flagged()) continue;
+    r.problems.push_back(withheld_header(
+        fmt::format("drift-fit-{}{}.h", analysis::to_string(rf.fit.form), r.file_suffix),
+        fmt::format("the {} fit ({} form)", analysis::to_string(rf.fit.spec),
+                    analysis::to_string(rf.fit.form)),
+        rf.quality, options.force_flagged));
+  }
+  if (r.scale_factor && !r.scale_factor->fits.empty()) {
+    const storage::ResultQuality q = scale_factor_header_quality(*r.scale_factor);
+    if (q.flagged()) {
+      r.problems.push_back(withheld_header(fmt::format("scale-factor{}.h", r.file_suffix),
+                                           "the scale factor", q, options.force_flagged));
+    }
+  }
   return r;
 }
 
@@ -780,6 +810,7 @@ CampaignReport collect_campaign_report(std::vector<RunReport> runs, const Report
   const AnalysisSettings& settings = c.runs.front().settings;
 
   std::vector<analysis::AnalysisSeries> series;
+  std::vector<analysis::Coverage> coverage;
   std::vector<int64_t> series_runs;
   std::vector<const analysis::AnalysisSeries*> series_ptrs;
   std::vector<std::pair<std::string, const RunReport*>> table1;
@@ -787,6 +818,7 @@ CampaignReport collect_campaign_report(std::vector<RunReport> runs, const Report
     table1.emplace_back(fmt::format("run {}", r.run.id), &r);
     if (!r.series) continue;
     series.push_back(*r.series);
+    coverage.push_back(r.series_coverage.coverage);
     series_runs.push_back(r.run.id);
   }
   for (const auto& s : series) series_ptrs.push_back(&s);
@@ -805,10 +837,17 @@ CampaignReport collect_campaign_report(std::vector<RunReport> runs, const Report
     auto fit = analysis::fit_drift_model(series, settings.model, analysis::kDefaultDriftModelForm,
                                          settings.fit);
     if (fit) {
+      storage::ResultQuality quality = fit_quality(*fit, series, coverage, settings.quality);
       c.joint_fit = ReportFit{.fit = std::move(*fit),
                               .stored_id = 0,
                               .run_ids = series_runs,
-                              .l0_window_s = settings.fit.l0_window_s};
+                              .l0_window_s = settings.fit.l0_window_s,
+                              .quality = std::move(quality)};
+      if (c.joint_fit->quality.flagged()) {
+        c.problems.push_back(withheld_header(fmt::format("drift-fit{}.h", c.file_suffix),
+                                             "the joint fit", c.joint_fit->quality,
+                                             options.force_flagged));
+      }
     } else {
       c.joint_fit_error = fit.error().message;
     }

@@ -130,6 +130,33 @@ const Plot* find_plot(const std::vector<Plot>& plots, std::string_view id) {
   return nullptr;
 }
 
+// A result's verdict as a table cell: "ok" with its coverage, "FLAGGED:"
+// or "left out:" with the reasons, or "not assessed" (stored before v11).
+std::string quality_cell(const storage::ResultQuality& q) {
+  const std::string reasons = escape(fmt::format("{}", fmt::join(q.reasons, "; ")));
+  const std::string coverage =
+      q.coverage ? fmt::format("coverage {:.2f} %", *q.coverage * 100.0) : "coverage not known";
+  if (q.flagged()) return fmt::format("<td class=\"flagged\">FLAGGED: {}</td>", reasons);
+  if (q.excluded()) return fmt::format("<td class=\"flagged\">left out: {}</td>", reasons);
+  if (q.verdict == "unassessed") {
+    return "<td class=\"missing\" title=\"stored before results were assessed\">not "
+           "assessed</td>";
+  }
+  return fmt::format("<td>ok, {}</td>", coverage);
+}
+
+std::string row_open(const storage::ResultQuality& q, bool warn) {
+  if (q.flagged() || q.excluded()) return "<tr class=\"flagged\">";
+  return warn ? "<tr class=\"warn\">" : "<tr>";
+}
+
+// The visible line under a flagged result; "" when it is not flagged.
+std::string flagged_html(const storage::ResultQuality& q) {
+  if (!q.flagged()) return "";
+  return fmt::format("<p class=\"flagged\">FLAGGED: {}</p>\n",
+                     escape(fmt::format("{}", fmt::join(q.reasons, "; "))));
+}
+
 std::string table1_html(const std::vector<const storage::SegmentStatsRecord*>& rows,
                         bool with_run) {
   if (rows.empty()) return "<p class=\"problem\">No completed soak: no Table I row.</p>\n";
@@ -138,17 +165,25 @@ std::string table1_html(const std::vector<const storage::SegmentStatsRecord*>& r
   h += "<th>step</th><th>set point (°C)</th><th>mean shell temperature (°C)</th><th>points "
        "(bins)</th><th>duration (s)</th><th>mean zero bias (°/h)</th><th>mean, Earth rate "
        "removed (°/h)</th><th>std (°/h)</th><th>std after the moving average (°/h)</th>"
-       "</tr></thead>\n<tbody>\n";
+       "<th>quality</th></tr></thead>\n<tbody>\n";
   for (const auto* r : rows) {
-    h += std::isfinite(r->bias_std_ma_dph) ? "<tr>" : "<tr class=\"warn\">";
+    h += row_open(r->quality, !std::isfinite(r->bias_std_ma_dph));
     if (with_run) h += fmt::format("<td class=\"num\">{}</td>", r->run_id);
     h += fmt::format("<td class=\"num\">{}</td>", step_name(r->segment_index));
     h += num_cell(r->setpoint_c, 1) + num_cell(r->temp_mean_c, 3) +
          fmt::format("<td class=\"num\">{}</td>", r->n) + num_cell(r->duration_s, 0) +
          num_cell(r->bias_mean_dph, 4) + num_cell(r->bias_mean_earth_removed_dph, 4) +
-         num_cell(r->bias_std_dph, 4) + num_cell(r->bias_std_ma_dph, 4) + "</tr>\n";
+         num_cell(r->bias_std_dph, 4) + num_cell(r->bias_std_ma_dph, 4) + quality_cell(r->quality) +
+         "</tr>\n";
   }
   h += "</tbody></table>\n";
+  for (const auto* r : rows) {
+    if (!r->quality.flagged()) continue;
+    h += fmt::format("<p class=\"flagged\">FLAGGED: {}step {}: {}</p>\n",
+                     with_run ? fmt::format("run {} ", r->run_id) : std::string(),
+                     step_name(r->segment_index),
+                     escape(fmt::format("{}", fmt::join(r->quality.reasons, "; "))));
+  }
   const auto* first = rows.front();
   h += fmt::format(
       "<p class=\"note\">Each soak's acquisition is averaged into {:g} s bins (pauses cut out); "
@@ -231,7 +266,9 @@ std::string table1_groups_csv(const std::vector<analysis::Table1SetpointRow>& gr
   return out;
 }
 
-std::string fit_html(const ReportFit& rf, const std::string& file_stem) {
+// `header`: whether its C header is in the export (a flagged fit's is only
+// with --force).
+std::string fit_html(const ReportFit& rf, const std::string& file_stem, bool header = true) {
   const auto& f = rf.fit;
   std::string h = fmt::format(
       "<h3>{} — {}</h3>\n<table class=\"numbers\">\n<thead><tr><th>coefficient</th>"
@@ -246,6 +283,7 @@ std::string fit_html(const ReportFit& rf, const std::string& file_stem) {
                      escape(analysis::coefficient_unit(name)));
   }
   h += "</tbody></table>\n";
+  h += flagged_html(rf.quality);
   if (const std::string warning = analysis::near_zero_warning(f); !warning.empty()) {
     h += fmt::format("<p class=\"problem\">Warning: {}</p>\n", escape(warning));
   }
@@ -256,14 +294,21 @@ std::string fit_html(const ReportFit& rf, const std::string& file_stem) {
     l0 = fmt::format(" L0 (mean of the first {:g} s) = {} °/h.", rf.l0_window_s,
                      fmt::join(parts, ", "));
   }
+  std::string coverage;
+  if (rf.quality.coverage) {
+    coverage = fmt::format(" Coverage {:.2f} % of the samples expected, longest gap {:.3g} s.",
+                           *rf.quality.coverage * 100.0, rf.quality.longest_gap_s.value_or(0));
+  }
   h += fmt::format(
       "<p class=\"note\">{} points; residual std {:.4f} °/h; R² {:.4f}; condition estimate "
-      "{:.3g}; derivative window {:g} s.{} {}. Coefficients for the gyro's computer: <a "
-      "href=\"{}.json\">{}.json</a>, <a href=\"{}.h\">{}.h</a> (C99).</p>\n",
+      "{:.3g}; derivative window {:g} s.{} {}.{} Coefficients for the gyro's computer: <a "
+      "href=\"{}.json\">{}.json</a>{}.</p>\n",
       f.n, f.residual_std_dph, f.r_squared, f.condition_estimate, f.derivative_window_s, l0,
       rf.stored_id > 0 ? fmt::format("Stored by the daemon as fit {}", rf.stored_id)
                        : std::string("Computed for this report"),
-      file_stem, file_stem, file_stem, file_stem);
+      coverage, file_stem, file_stem,
+      header ? fmt::format(", <a href=\"{0}.h\">{0}.h</a> (C99)", file_stem)
+             : fmt::format(" ({}.h not written: the fit is flagged)", file_stem));
   return h;
 }
 
@@ -351,7 +396,7 @@ std::string allan_html(const std::vector<const storage::AllanRecord*>& records, 
   if (with_run) h += "<th>run</th>";
   h += "<th>step</th><th>samples</th><th>τ0 (s)</th><th>angle random walk (°/√h)</th>"
        "<th>bias instability (°/h)</th><th>at τ (s)</th><th>rate random walk (°/h/√h)</th>"
-       "</tr></thead>\n<tbody>\n";
+       "<th>quality</th></tr></thead>\n<tbody>\n";
   bool any_bound = false;
   for (const auto* a : records) {
     const analysis::AllanNoiseTerms terms = noise_terms_of(*a);
@@ -359,16 +404,23 @@ std::string allan_html(const std::vector<const storage::AllanRecord*>& records, 
                           &terms.rate_random_walk_dphprh}) {
       any_bound |= t->kind == analysis::NoiseTermKind::kUpperBound;
     }
-    h += "<tr>";
+    h += row_open(a->quality, false);
     if (with_run) h += fmt::format("<td class=\"num\">{}</td>", a->run_id);
     h += fmt::format("<td class=\"num\">{}</td><td class=\"num\">{}</td>",
                      step_name(a->segment_index), a->n_samples) +
          num_cell(a->tau0_s, 4) + noise_term_cell(terms.angle_random_walk_dprh, 5) +
          noise_term_cell(terms.bias_instability_dph, 5) +
          noise_term_tau_cell(terms.bias_instability_dph) +
-         noise_term_cell(terms.rate_random_walk_dphprh, 5) + "</tr>\n";
+         noise_term_cell(terms.rate_random_walk_dphprh, 5) + quality_cell(a->quality) + "</tr>\n";
   }
   h += "</tbody></table>\n";
+  for (const auto* a : records) {
+    if (!a->quality.flagged()) continue;
+    h += fmt::format("<p class=\"flagged\">FLAGGED: {}step {}: {}</p>\n",
+                     with_run ? fmt::format("run {} ", a->run_id) : std::string(),
+                     step_name(a->segment_index),
+                     escape(fmt::format("{}", fmt::join(a->quality.reasons, "; "))));
+  }
   h += fmt::format(
       "<p class=\"note\">Overlapping Allan deviation of each soak's longest acquisition window, "
       "samples as recorded, {} τ; the band is the 1σ confidence interval (χ²). Bias "
@@ -398,20 +450,28 @@ std::string sf_fits_html(const std::vector<const ReportScaleFactor*>& runs, bool
   h += "<th>sequence</th><th>temperature (°C)</th><th>K</th><th>standard error of K</th>"
        "<th>bias (°/h)</th><th>nonlinearity (ppm of K)</th><th>nonlinearity (ppm of full "
        "scale)</th><th>asymmetry (ppm)</th><th>repeatability (ppm)</th><th>points</th>"
-       "</tr></thead>\n<tbody>\n";
+       "<th>quality</th></tr></thead>\n<tbody>\n";
+  std::string flagged;
   for (const auto* sf : runs) {
     for (const auto& f : sf->fits) {
-      h += "<tr>";
+      h += row_open(f.quality, false);
+      if (f.quality.flagged()) {
+        flagged +=
+            fmt::format("<p class=\"flagged\">FLAGGED: {}sequence {}: {}</p>\n",
+                        with_run ? fmt::format("run {} ", f.run_id) : std::string(), f.sf_sequence,
+                        escape(fmt::format("{}", fmt::join(f.quality.reasons, "; "))));
+      }
       if (with_run) h += fmt::format("<td class=\"num\">{}</td>", f.run_id);
       h += fmt::format("<td class=\"num\">{}</td>", f.sf_sequence) + num_cell(f.temperature_c, 2) +
            num_cell(f.k, 9) + sci_cell(f.k_se) + num_cell(f.bias_dps * 3600.0, 4) +
            num_cell(f.nonlinearity_ppm, 1) + num_cell(f.nonlinearity_fs_ppm, 1) +
            ppm_cell(f.asymmetry_ppm, "one direction only") +
            ppm_cell(f.repeatability_ppm, "fewer than 2 repetitions") +
-           fmt::format("<td class=\"num\">{}</td>", f.n_points) + "</tr>\n";
+           fmt::format("<td class=\"num\">{}</td>", f.n_points) + quality_cell(f.quality) +
+           "</tr>\n";
     }
   }
-  h += "</tbody></table>\n";
+  h += "</tbody></table>\n" + flagged;
   h += "<p class=\"note\">Each sequence's rate points (both directions, every repetition) "
        "fitted by least squares to output = K · rate + bias, rates and output in °/s (the bias "
        "shown in °/h). Nonlinearity: the largest residual relative to K · rate (points at zero "
@@ -422,7 +482,7 @@ std::string sf_fits_html(const std::vector<const ReportScaleFactor*>& runs, bool
 }
 
 // K(T) and B(T): the coefficients and the temperature coefficients.
-std::string sf_temperature_html(const ReportScaleFactor& sf, const std::string& sfx) {
+std::string sf_temperature_html(const ReportScaleFactor& sf, const std::string& sfx, bool header) {
   const auto& t = *sf.temperature_fit;
   std::string h = fmt::format(
       "<h3>K and bias over temperature</h3>\n<p>Polynomials of order {} in T − {:.3f} °C "
@@ -444,10 +504,12 @@ std::string sf_temperature_html(const ReportScaleFactor& sf, const std::string& 
   }
   h += "</tbody></table>\n<p class=\"note\">The temperature coefficients are dK/dT / K and "
        "dB/dT at T̄ (k₁ / k₀ × 10⁶ and b₁). Coefficients for the gyro's computer: " +
-       fmt::format(
-           "<a href=\"scale-factor{0}.json\">scale-factor{0}.json</a>, <a "
-           "href=\"scale-factor{0}.h\">scale-factor{0}.h</a> (C99).</p>\n",
-           escape(sfx));
+       (header ? fmt::format("<a href=\"scale-factor{0}.json\">scale-factor{0}.json</a>, <a "
+                             "href=\"scale-factor{0}.h\">scale-factor{0}.h</a> (C99).</p>\n",
+                             escape(sfx))
+               : fmt::format("<a href=\"scale-factor{0}.json\">scale-factor{0}.json</a> "
+                             "(scale-factor{0}.h not written: a line is flagged).</p>\n",
+                             escape(sfx)));
   return h;
 }
 
@@ -478,22 +540,36 @@ std::string sf_points_html(const ReportScaleFactor& sf, const std::string& sfx) 
         "<table class=\"numbers sf-points\" id=\"sf-points-{}\">\n<thead><tr><th>repetition</th>"
         "<th>rate (°/s)</th><th>measured rate (°/s)</th><th>output (°/s)</th><th>temperature "
         "(°C)</th><th>turns</th><th>duration (s)</th><th>residual (°/h)</th><th>residual (ppm "
-        "of K · rate)</th></tr></thead>\n<tbody>\n",
+        "of K · rate)</th><th>quality</th></tr></thead>\n<tbody>\n",
         seq);
     for (const auto& p : sf.points) {
       if (p.sf_sequence != seq) continue;
-      h += fmt::format("<tr><td class=\"num\">{}</td>", p.repetition) + num_cell(p.rate_dps, 3) +
-           num_cell(p.measured_rate_dps, 6) + num_cell(p.output_dps, 6) +
+      h += row_open(p.quality, false) + fmt::format("<td class=\"num\">{}</td>", p.repetition) +
+           num_cell(p.rate_dps, 3) + num_cell(p.measured_rate_dps, 6) + num_cell(p.output_dps, 6) +
            num_cell(p.temperature_c, 2) + num_cell(p.turns, 2) + num_cell(p.duration_s, 1) +
            num_cell(f ? scale_factor_residual_dps(p, *f) * 3600.0 : std::nan(""), 4) +
-           num_cell(residual_ppm(p, f), 1) + "</tr>\n";
+           num_cell(residual_ppm(p, f), 1) + quality_cell(p.quality) + "</tr>\n";
     }
     h += "</tbody></table>\n";
+    for (const auto& p : sf.points) {
+      if (p.sf_sequence != seq || !(p.quality.flagged() || p.quality.excluded())) continue;
+      h += fmt::format(
+          "<p class=\"flagged\">{}: point at {:g} °/s, {:.2f} °C (repetition {}): "
+          "{}</p>\n",
+          p.quality.excluded() ? "LEFT OUT" : "FLAGGED", p.rate_dps, p.temperature_c, p.repetition,
+          escape(fmt::format("{}", fmt::join(p.quality.reasons, "; "))));
+    }
   }
   if (!h.empty()) {
+    const double guard_s = sf.points.empty() ? 0.0 : sf.points.front().guard_s;
     h += "<p class=\"note\">Residual: output − (K · rate + bias) with the demanded rate and the "
          "sequence's line; in ppm relative to K · rate (none at zero rate). The measured rate is "
          "the table's mean over the acquisition. " +
+         fmt::format(
+             "Guard band: {:g} s cut from both ends of each acquisition window before the mean "
+             "(then to whole turns from its start where one is left); the duration and turns are "
+             "what was averaged. A point left out is not in its sequence's line. ",
+             guard_s) +
          fmt::format("<a href=\"scale-factor-points{0}.csv\">scale-factor-points{0}.csv</a>",
                      escape(sfx)) +
          " has every value to 17 significant digits.</p>\n";
@@ -557,13 +633,13 @@ std::string c_horner(const std::string& array, std::size_t n, const std::string&
 // A run's "Scale factor" section: the sequences, K(T) and B(T), the
 // figures, the rate points.
 std::string sf_section_html(const ReportScaleFactor& sf, const std::vector<Plot>& plots,
-                            const std::string& sfx) {
+                            const std::string& sfx, bool header) {
   std::string h = sf.fits.empty()
                       ? std::string(
                             "<p class=\"problem\">Rate points are stored but no line was "
                             "fitted to them.</p>\n")
                       : sf_fits_html({&sf}, false);
-  if (sf.temperature_fit) h += sf_temperature_html(sf, sfx);
+  if (sf.temperature_fit) h += sf_temperature_html(sf, sfx, header);
   if (const auto* p = find_plot(plots, "chart-sf-k-temperature")) {
     h += chart(*p,
                "K of each sequence relative to K at the centre temperature, in ppm, with the "
@@ -765,18 +841,34 @@ std::string figures_html(const std::vector<Plot>& plots, bool campaign) {
 
 // ------------------------------------------------------------ public pieces
 
+namespace {
+
+// The quality columns of a CSV row: coverage (fraction), coverage_samples,
+// coverage_expected, longest_gap_s, quality, quality_reasons ("; "-joined).
+constexpr const char* kQualityCsvColumns =
+    "coverage,coverage_samples,coverage_expected,longest_gap_s,quality,quality_reasons";
+std::string quality_csv(const storage::ResultQuality& q) {
+  return fmt::format("{},{},{},{},{},{}", exact(q.coverage),
+                     q.verdict == "unassessed" ? std::string() : std::to_string(q.samples),
+                     q.expected > 0 ? exact(q.expected) : std::string(), exact(q.longest_gap_s),
+                     q.verdict, csv_field(fmt::format("{}", fmt::join(q.reasons, "; "))));
+}
+
+}  // namespace
+
 std::string table1_csv(const std::vector<storage::SegmentStatsRecord>& rows) {
   std::string out =
       "run_id,step,segment_index,setpoint_c,temp_mean_c,n,duration_s,bias_mean_dph,"
       "bias_mean_earth_removed_dph,bias_std_dph,bias_std_ma_dph,earth_rate_dph,bin_s,ma_window,"
-      "t_from_s,t_to_s,computed_utc\n";
+      "t_from_s,t_to_s,computed_utc," +
+      std::string(kQualityCsvColumns) + "\n";
   for (const auto& r : rows) {
-    out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", r.run_id,
-                       r.segment_index + 1, r.segment_index, exact(r.setpoint_c),
-                       exact(r.temp_mean_c), r.n, exact(r.duration_s), exact(r.bias_mean_dph),
-                       exact(r.bias_mean_earth_removed_dph), exact(r.bias_std_dph),
-                       exact(r.bias_std_ma_dph), exact(r.earth_rate_dph), exact(r.bin_s),
-                       r.ma_window, exact(r.t_from_s), exact(r.t_to_s), csv_field(r.computed_utc));
+    out += fmt::format(
+        "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", r.run_id, r.segment_index + 1,
+        r.segment_index, exact(r.setpoint_c), exact(r.temp_mean_c), r.n, exact(r.duration_s),
+        exact(r.bias_mean_dph), exact(r.bias_mean_earth_removed_dph), exact(r.bias_std_dph),
+        exact(r.bias_std_ma_dph), exact(r.earth_rate_dph), exact(r.bin_s), r.ma_window,
+        exact(r.t_from_s), exact(r.t_to_s), csv_field(r.computed_utc), quality_csv(r.quality));
   }
   return out;
 }
@@ -787,7 +879,8 @@ std::string allan_csv(const std::vector<storage::AllanRecord>& records) {
       "bias_instability_dph,bias_instability_tau_s,rate_random_walk_dphprh,t_from_s,t_to_s,"
       "angle_random_walk_kind,angle_random_walk_bound_dprh,bias_instability_kind,"
       "bias_instability_bound_dph,bias_instability_bound_tau_s,rate_random_walk_kind,"
-      "rate_random_walk_bound_dphprh\n";
+      "rate_random_walk_bound_dphprh," +
+      std::string(kQualityCsvColumns) + "\n";
   // The value columns are empty unless the term is a value; the *_kind columns
   // say value, upper_bound or unavailable, the *_bound_* columns the bound.
   const auto bound = [](const analysis::NoiseTerm& t) {
@@ -799,7 +892,7 @@ std::string allan_csv(const std::vector<storage::AllanRecord>& records) {
     const auto& bi = terms.bias_instability_dph;
     const auto& rrw = terms.rate_random_walk_dphprh;
     out +=
-        fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", a.run_id,
+        fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", a.run_id,
                     a.segment_index + 1, a.segment_index, csv_field(a.taus), exact(a.tau0_s),
                     a.n_samples, exact(a.angle_random_walk_dprh), exact(a.bias_instability_dph),
                     exact(a.bias_instability_tau_s), exact(a.rate_random_walk_dphprh),
@@ -807,7 +900,7 @@ std::string allan_csv(const std::vector<storage::AllanRecord>& records) {
                     analysis::to_string(bi.kind), bound(bi),
                     bi.kind == analysis::NoiseTermKind::kUpperBound && bi.tau_s ? exact(*bi.tau_s)
                                                                                 : std::string(),
-                    analysis::to_string(rrw.kind), bound(rrw));
+                    analysis::to_string(rrw.kind), bound(rrw), quality_csv(a.quality));
   }
   return out;
 }
@@ -852,14 +945,16 @@ std::string comparison_csv(const analysis::Comparison& c) {
 std::string scale_factor_csv(const std::vector<const ReportScaleFactor*>& runs) {
   std::string out =
       "run_id,sf_sequence,temperature_c,k,k_se,bias_dps,bias_dph,nonlinearity_ppm,"
-      "nonlinearity_fs_ppm,asymmetry_ppm,repeatability_ppm,n_points,created_utc\n";
+      "nonlinearity_fs_ppm,asymmetry_ppm,repeatability_ppm,n_points,created_utc,guard_s," +
+      std::string(kQualityCsvColumns) + "\n";
   for (const auto* sf : runs) {
     for (const auto& f : sf->fits) {
-      out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.run_id, f.sf_sequence,
+      out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.run_id, f.sf_sequence,
                          exact(f.temperature_c), exact(f.k), exact(f.k_se), exact(f.bias_dps),
                          exact(f.bias_dps * 3600.0), exact(f.nonlinearity_ppm),
                          exact(f.nonlinearity_fs_ppm), exact(f.asymmetry_ppm),
-                         exact(f.repeatability_ppm), f.n_points, csv_field(f.created_utc));
+                         exact(f.repeatability_ppm), f.n_points, csv_field(f.created_utc),
+                         exact(f.guard_s), quality_csv(f.quality));
     }
   }
   return out;
@@ -868,14 +963,15 @@ std::string scale_factor_csv(const std::vector<const ReportScaleFactor*>& runs) 
 std::string scale_factor_points_csv(const ReportScaleFactor& sf) {
   std::string out =
       "run_id,sf_sequence,repetition,segment_id,rate_dps,measured_rate_dps,output_dps,n,"
-      "temperature_c,duration_s,turns,residual_dps,residual_ppm\n";
+      "temperature_c,duration_s,turns,residual_dps,residual_ppm,guard_s," +
+      std::string(kQualityCsvColumns) + "\n";
   for (const auto& p : sf.points) {
     const auto* f = sf_fit_of(sf, p.sf_sequence);
-    out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{}\n", p.run_id, p.sf_sequence,
+    out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", p.run_id, p.sf_sequence,
                        p.repetition, p.segment_id, exact(p.rate_dps), exact(p.measured_rate_dps),
                        exact(p.output_dps), p.n, exact(p.temperature_c), exact(p.duration_s),
                        exact(p.turns), f ? exact(scale_factor_residual_dps(p, *f)) : std::string(),
-                       exact(residual_ppm(p, f)));
+                       exact(residual_ppm(p, f)), exact(p.guard_s), quality_csv(p.quality));
   }
   return out;
 }
@@ -933,6 +1029,28 @@ std::string scale_factor_json(const ReportScaleFactor& sf, const analysis::Expor
   j["runs"] = info.run_ids;
   j["computed_utc"] = info.computed_utc;
   return j.dump(2);
+}
+
+storage::ResultQuality scale_factor_header_quality(const ReportScaleFactor& sf) {
+  storage::ResultQuality q;
+  q.verdict = "ok";
+  for (const auto& f : sf.fits) {
+    if (!f.quality.flagged()) continue;
+    q.verdict = "flagged";
+    for (const auto& r : f.quality.reasons) {
+      q.reasons.push_back(fmt::format("sequence {}: {}", f.sf_sequence, r));
+    }
+  }
+  return q;
+}
+
+std::string forced_header_comment(const storage::ResultQuality& quality) {
+  if (!quality.flagged()) return "";
+  std::string out =
+      "/* FORCED: written with --force although gyrotherm flagged this result as implausible:\n";
+  for (const auto& r : quality.reasons) out += " *   " + c_comment_text(r) + "\n";
+  out += " * Check the result before using these coefficients. */\n";
+  return out;
 }
 
 std::string scale_factor_c_header(const ReportScaleFactor& sf, const analysis::ExportInfo& info,
@@ -1116,18 +1234,21 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
   std::string fits;
   for (const auto& rf : r.fits) {
     const std::string stem = fmt::format("drift-fit-{}{}", analysis::to_string(rf.fit.form), sfx);
-    fits += fit_html(rf, stem);
+    fits += fit_html(rf, stem, !rf.quality.flagged() || options.force_flagged);
     auto info = export_info(r.station_name, rf, when);
     add_stream_info(info, r);
     files.push_back({dir + stem + ".json", analysis::drift_fit_json(rf.fit, info)});
+    listed.emplace_back(stem + ".json", "coefficients (JSON)");
+    // A flagged fit's header only with --force (the run's problems say so).
+    if (rf.quality.flagged() && !options.force_flagged) continue;
     // Names (and guard) per form, DUT and axis: the gyro's build can include
     // every header.
     files.push_back({dir + stem + ".h",
-                     analysis::drift_fit_c_header(
-                         rf.fit, info,
-                         fmt::format("gyrotherm_drift_{}{}", analysis::to_string(rf.fit.form),
-                                     c_identifier_part(sfx)))});
-    listed.emplace_back(stem + ".json", "coefficients (JSON)");
+                     forced_header_comment(rf.quality) +
+                         analysis::drift_fit_c_header(
+                             rf.fit, info,
+                             fmt::format("gyrotherm_drift_{}{}", analysis::to_string(rf.fit.form),
+                                         c_identifier_part(sfx)))});
     listed.emplace_back(stem + ".h", "coefficients (C99 header)");
   }
   if (fits.empty()) fits = "<p class=\"problem\">No fit of the drift model.</p>\n";
@@ -1160,7 +1281,10 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
 
   if (r.scale_factor) {
     const ReportScaleFactor& sf = *r.scale_factor;
-    add_section(page, "scale-factor", "Scale factor", sf_section_html(sf, r.plots, sfx));
+    add_section(
+        page, "scale-factor", "Scale factor",
+        sf_section_html(sf, r.plots, sfx,
+                        !scale_factor_header_quality(sf).flagged() || options.force_flagged));
     files.push_back({dir + name("scale-factor", "csv"), scale_factor_csv({&sf})});
     files.push_back({dir + name("scale-factor-points", "csv"), scale_factor_points_csv(sf)});
     listed.emplace_back(name("scale-factor", "csv"), "scale factor of each sequence");
@@ -1172,10 +1296,16 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
       info.computed_utc = when;
       add_stream_info(info, r);
       files.push_back({dir + name("scale-factor", "json"), scale_factor_json(sf, info)});
-      files.push_back({dir + name("scale-factor", "h"),
-                       scale_factor_c_header(sf, info, "gyrotherm_sf" + c_identifier_part(sfx))});
       listed.emplace_back(name("scale-factor", "json"), "scale factor over temperature (JSON)");
-      listed.emplace_back(name("scale-factor", "h"), "scale factor over temperature (C99 header)");
+      const storage::ResultQuality quality = scale_factor_header_quality(sf);
+      if (!quality.flagged() || options.force_flagged) {
+        files.push_back(
+            {dir + name("scale-factor", "h"),
+             forced_header_comment(quality) +
+                 scale_factor_c_header(sf, info, "gyrotherm_sf" + c_identifier_part(sfx))});
+        listed.emplace_back(name("scale-factor", "h"),
+                            "scale factor over temperature (C99 header)");
+      }
     }
   }
 
@@ -1280,13 +1410,18 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
     auto info = export_info(c.station_name, *c.joint_fit, when);
     add_campaign_info(info, c);
     const std::string stem = "drift-fit" + sfx;
-    add_section(page, "fit", "Drift model fitted on all runs", fit_html(*c.joint_fit, stem));
+    add_section(
+        page, "fit", "Drift model fitted on all runs",
+        fit_html(*c.joint_fit, stem, !c.joint_fit->quality.flagged() || options.force_flagged));
     files.push_back({stem + ".json", analysis::drift_fit_json(c.joint_fit->fit, info)});
-    files.push_back(
-        {stem + ".h", analysis::drift_fit_c_header(c.joint_fit->fit, info,
-                                                   "gyrotherm_drift" + c_identifier_part(sfx))});
     listed.emplace_back(stem + ".json", "joint fit coefficients (JSON)");
-    listed.emplace_back(stem + ".h", "joint fit coefficients (C99 header)");
+    if (!c.joint_fit->quality.flagged() || options.force_flagged) {
+      files.push_back({stem + ".h", forced_header_comment(c.joint_fit->quality) +
+                                        analysis::drift_fit_c_header(
+                                            c.joint_fit->fit, info,
+                                            "gyrotherm_drift" + c_identifier_part(sfx))});
+      listed.emplace_back(stem + ".h", "joint fit coefficients (C99 header)");
+    }
   } else {
     add_section(
         page, "fit", "Drift model fitted on all runs",

@@ -25,6 +25,8 @@ constexpr double kRunChunkS = 600.0;
 // After a rate step the table decelerates (500 °/s at 100 °/s²: 5 s): the
 // drift fit leaves this much after each spinning step out too.
 constexpr double kSpinDownMarginS = 10.0;
+// [table] rest_rate_dps of a run that did not store it (its default).
+constexpr double kRestRateDps = 0.01;
 
 nlohmann::json num(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(); }
 
@@ -60,6 +62,14 @@ AnalysisSettings analysis_settings(const StationConfig& config) {
   s.fit.derivative_window_s = config.analysis.derivative_window_s;
   s.fit.l0_window_s = config.analysis.l0_window_s;
   s.compare_smooth_points = static_cast<std::size_t>(config.analysis.compare_smooth_points);
+  s.rate_guard_s = config.analysis.rate_guard_s;
+  s.flatness.n_sigma = config.analysis.rate_flatness_sigma;
+  s.flatness.tolerance_ppm = config.analysis.rate_flatness_ppm;
+  s.quality.min_coverage = config.quality.min_coverage;
+  s.quality.k_min = config.quality.k_min;
+  s.quality.k_max = config.quality.k_max;
+  s.quality.max_nonlinearity_ppm = config.quality.max_nonlinearity_ppm;
+  s.quality.max_residual_ratio = config.quality.max_residual_ratio;
   return s;
 }
 
@@ -94,7 +104,19 @@ RunConfig read_run_config(const std::string& text) {
       if (a.is_object() && a.contains("allan_taus") && a["allan_taus"].is_string()) {
         c.allan_taus = a["allan_taus"].get<std::string>();
       }
+      c.rate_guard_s = get_num(a, "rate_guard_s");
+      c.rate_flatness_sigma = get_num(a, "rate_flatness_sigma");
+      c.rate_flatness_ppm = get_num(a, "rate_flatness_ppm");
     }
+    if (j.contains("quality")) {
+      const json& q = j["quality"];
+      c.min_coverage = get_num(q, "min_coverage");
+      c.k_min = get_num(q, "k_min");
+      c.k_max = get_num(q, "k_max");
+      c.max_nonlinearity_ppm = get_num(q, "max_nonlinearity_ppm");
+      c.max_residual_ratio = get_num(q, "max_residual_ratio");
+    }
+    if (j.contains("gyro")) c.gyro_rate_hz = get_num(j["gyro"], "rate_hz");
     if (j.contains("station") && j["station"].is_object() && j["station"].contains("name") &&
         j["station"]["name"].is_string()) {
       c.station_name = j["station"]["name"].get<std::string>();
@@ -106,6 +128,7 @@ RunConfig read_run_config(const std::string& text) {
         c.table_sensitive_axis = t["sensitive_axis"].get<std::string>();
       }
       c.table_heading_at_zero_deg = get_num(t, "heading_at_zero_deg");
+      c.table_rest_rate_dps = get_num(t, "rest_rate_dps");
     }
     return c;
   }
@@ -125,7 +148,9 @@ RunConfig read_run_config(const std::string& text) {
       c.table_present = true;
       if (auto a = t["table"]["sensitive_axis"].value<std::string>()) c.table_sensitive_axis = *a;
       c.table_heading_at_zero_deg = number(t["table"]["heading_at_zero_deg"]);
+      c.table_rest_rate_dps = number(t["table"]["rest_rate_dps"]);
     }
+    c.gyro_rate_hz = number(t["gyro"]["rate_hz"]);
   } catch (const toml::parse_error&) {
   }
   return c;
@@ -335,7 +360,16 @@ nlohmann::json run_config_json(const StationConfig& config) {
         {"model", config.analysis.model},
         {"derivative_window_s", config.analysis.derivative_window_s},
         {"compare_smooth_points", config.analysis.compare_smooth_points},
-        {"allan_taus", config.analysis.allan_taus}}},
+        {"allan_taus", config.analysis.allan_taus},
+        {"rate_guard_s", config.analysis.rate_guard_s},
+        {"rate_flatness_sigma", config.analysis.rate_flatness_sigma},
+        {"rate_flatness_ppm", config.analysis.rate_flatness_ppm}}},
+      {"quality",
+       {{"min_coverage", config.quality.min_coverage},
+        {"k_min", config.quality.k_min},
+        {"k_max", config.quality.k_max},
+        {"max_nonlinearity_ppm", config.quality.max_nonlinearity_ppm},
+        {"max_residual_ratio", config.quality.max_residual_ratio}}},
       {"control",
        {{"tick_s", config.control.tick_s},
         {"min_tick_wall_s", config.control.min_tick_wall_s},
@@ -402,6 +436,18 @@ Result<AnalysisSettings> analysis_settings_of_run(const storage::RunRecord& run)
   if (cfg.compare_smooth_points && *cfg.compare_smooth_points >= 1) {
     s.compare_smooth_points = static_cast<std::size_t>(*cfg.compare_smooth_points);
   }
+  if (cfg.rate_guard_s && *cfg.rate_guard_s >= 0) s.rate_guard_s = *cfg.rate_guard_s;
+  if (cfg.rate_flatness_sigma && *cfg.rate_flatness_sigma > 0) {
+    s.flatness.n_sigma = *cfg.rate_flatness_sigma;
+  }
+  if (cfg.rate_flatness_ppm && *cfg.rate_flatness_ppm >= 0) {
+    s.flatness.tolerance_ppm = *cfg.rate_flatness_ppm;
+  }
+  if (cfg.min_coverage) s.quality.min_coverage = *cfg.min_coverage;
+  if (cfg.k_min) s.quality.k_min = *cfg.k_min;
+  if (cfg.k_max) s.quality.k_max = *cfg.k_max;
+  if (cfg.max_nonlinearity_ppm) s.quality.max_nonlinearity_ppm = *cfg.max_nonlinearity_ppm;
+  if (cfg.max_residual_ratio) s.quality.max_residual_ratio = *cfg.max_residual_ratio;
   const auto bad = [&run](std::string_view what, const std::string& value, const Error& e) {
     return Error::Permanent(
         fmt::format("run {}: stored {} \"{}\": {}", run.id, what, value, e.message));
@@ -517,8 +563,11 @@ Result<std::vector<AnalysedAxis>> analysed_axes(storage::Database& db, int64_t r
   auto duts = db.run_duts(run_id);
   if (!duts) return duts.error();
   std::vector<AnalysedAxis> out;
+  // The unnamed gyro's rate when its record has none: the run's [gyro].
+  const double gyro_rate_hz = read_run_config(*run).gyro_rate_hz.value_or(0.0);
   if (duts->empty()) {
     out.emplace_back();  // the run's gyro as the first-DUT API reads it
+    out.back().rate_hz = gyro_rate_hz;
     return out;
   }
   for (const storage::RunDutRecord& d : *duts) {
@@ -552,6 +601,7 @@ Result<std::vector<AnalysedAxis>> analysed_axes(storage::Database& db, int64_t r
       s.primary = a == primary;
       s.table_axis = a == table_axis;
       s.own_probes = cfg.probes;
+      s.rate_hz = d.rate_hz > 0 ? d.rate_hz : (d.dut.serial.empty() ? gyro_rate_hz : 0.0);
       for (const auto& ch : d.channels) {
         if (ch.spec.kind == ChannelKind::kRate && ch.spec.axis == a) s.channel_id = ch.id;
       }
@@ -670,14 +720,28 @@ Result<analysis::AnalysisSeries> soak_series(storage::Database& db, const SoakWi
   return soak_series(db, soak, bin_s, *axis);
 }
 
-Result<analysis::AnalysisSeries> soak_series(storage::Database& db, const SoakWindow& soak,
-                                             double bin_s, const AnalysedAxis& axis) {
+namespace {
+
+// soak_series(), counting the samples into `counter` (when given) and
+// setting `median_hz` (when given) to the output rate read off the first
+// window with samples.
+Result<analysis::AnalysisSeries> soak_series_counted(storage::Database& db, const SoakWindow& soak,
+                                                     double bin_s, const AnalysedAxis& axis,
+                                                     analysis::CoverageCounter* counter,
+                                                     double* median_hz) {
   const std::string where = soak_name(soak, axis);
   analysis::AnalysisSeries joined;
   joined.bin_s = bin_s;
   for (const auto& [from_s, to_s] : soak.windows) {
     auto gyro = stream_samples(db, soak.run_id, axis, from_s, to_s);
     if (!gyro) return Error::Transient(fmt::format("{}: {}", where, gyro.error().message));
+    if (counter != nullptr) {
+      std::vector<double> t_s;
+      t_s.reserve(gyro->size());
+      for (const GyroSample& g : *gyro) t_s.push_back(g.t_s);
+      for (double t : t_s) counter->add(t);
+      if (median_hz != nullptr && *median_hz <= 0) *median_hz = analysis::median_rate_hz(t_s);
+    }
     if (gyro->empty() && soak.windows.size() > 1) continue;  // a window shorter than a sample
     auto temps = dut_shell_readings(db, soak.run_id, axis, from_s, to_s);
     if (!temps) return Error::Transient(fmt::format("{}: {}", where, temps.error().message));
@@ -689,6 +753,38 @@ Result<analysis::AnalysisSeries> soak_series(storage::Database& db, const SoakWi
     append(joined, *part);
   }
   return joined;
+}
+
+}  // namespace
+
+storage::ResultQuality result_quality(const analysis::Coverage& c,
+                                      std::vector<std::string> reasons) {
+  storage::ResultQuality q;
+  q.samples = c.samples;
+  q.expected = c.expected;
+  q.coverage = c.fraction;
+  q.longest_gap_s = c.longest_gap_s;
+  q.reasons = std::move(reasons);
+  q.verdict = q.reasons.empty() ? "ok" : "flagged";
+  return q;
+}
+
+std::vector<std::pair<double, double>> sorted_windows(std::vector<std::pair<double, double>> w) {
+  std::sort(w.begin(), w.end());
+  std::vector<std::pair<double, double>> out;
+  for (const auto& [from_s, to_s] : w) {
+    if (!out.empty() && from_s <= out.back().second) {
+      out.back().second = std::max(out.back().second, to_s);
+    } else {
+      out.emplace_back(from_s, to_s);
+    }
+  }
+  return out;
+}
+
+Result<analysis::AnalysisSeries> soak_series(storage::Database& db, const SoakWindow& soak,
+                                             double bin_s, const AnalysedAxis& axis) {
+  return soak_series_counted(db, soak, bin_s, axis, nullptr, nullptr);
 }
 
 Result<RecordedSamples> soak_recorded_samples(storage::Database& db, const SoakWindow& soak) {
@@ -722,11 +818,23 @@ Result<RecordedSamples> soak_recorded_samples(storage::Database& db, const SoakW
 }
 
 namespace {
-// The stretches of a run when the table spun (steps demanding a rate, and a
-// spin-down margin after each): the drift model is of the gyro at rest. A
-// step not ended yet spins to the end of the run.
-Result<std::vector<std::pair<double, double>>> spinning_spans(storage::Database& db,
-                                                              int64_t run_id) {
+
+// Table readings read at a time when looking for motion (1 h: 3600 rows at
+// a 1 s control tick).
+constexpr double kTableChunkS = 3600.0;
+// A position change between consecutive readings larger than this is a
+// move (encoder dither of a servo holding position is far below).
+constexpr double kMovedDeg = 0.01;
+
+// The stretches of a run when the table was not at rest: the steps that
+// demanded a rate (to their end + kSpinDownMarginS; a step not ended yet
+// to the end of the run), and by the table's own record each reading that
+// turned faster than `rest_rate_dps` or had moved since the previous one,
+// from the reading before it to the one after, widened by
+// kSpinDownMarginS each side. Merged, in time order. The drift model is
+// of the gyro at rest.
+Result<std::vector<std::pair<double, double>>> spinning_spans(storage::Database& db, int64_t run_id,
+                                                              double rest_rate_dps) {
   auto segments = db.segments(run_id);
   if (!segments) return segments.error();
   std::vector<std::pair<double, double>> out;
@@ -735,8 +843,47 @@ Result<std::vector<std::pair<double, double>>> spinning_spans(storage::Database&
     out.emplace_back(seg.t_start_s, seg.t_end_s ? *seg.t_end_s + kSpinDownMarginS
                                                 : std::numeric_limits<double>::infinity());
   }
+  auto last = db.last_sample_t_s(run_id);
+  if (!last) return last.error();
+  std::optional<TableSample> previous;
+  bool previous_moving = false;
+  for (double from_s = 0; *last && from_s <= **last; from_s += kTableChunkS) {
+    auto readings =
+        db.table_samples(run_id, from_s == 0 ? -kTableChunkS : from_s, from_s + kTableChunkS);
+    if (!readings) return readings.error();
+    for (const TableSample& t : *readings) {
+      bool moving = std::isfinite(t.rate_dps) && std::fabs(t.rate_dps) > rest_rate_dps;
+      if (previous && std::isfinite(t.position_deg) && std::isfinite(previous->position_deg)) {
+        const double d = std::fmod(std::fabs(t.position_deg - previous->position_deg), 360.0);
+        moving = moving || std::min(d, 360.0 - d) > kMovedDeg;
+      }
+      if (moving || previous_moving) {
+        const double from = previous ? previous->t_s : t.t_s;
+        out.emplace_back(from - kSpinDownMarginS, t.t_s + kSpinDownMarginS);
+      }
+      previous = t;
+      previous_moving = moving;
+    }
+  }
+  if (previous_moving) out.emplace_back(previous->t_s, std::numeric_limits<double>::infinity());
+  return sorted_windows(std::move(out));
+}
+
+// The stretches of [from_s, to_s) outside `excluded` (merged, in order).
+std::vector<std::pair<double, double>> complement(
+    double from_s, double to_s, const std::vector<std::pair<double, double>>& excluded) {
+  std::vector<std::pair<double, double>> out;
+  double at = from_s;
+  for (const auto& [a, b] : excluded) {
+    if (b <= at) continue;
+    if (a >= to_s) break;
+    if (a > at) out.emplace_back(at, a);
+    at = std::max(at, b);
+  }
+  if (at < to_s) out.emplace_back(at, to_s);
   return out;
 }
+
 }  // namespace
 
 Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_id, double bin_s) {
@@ -746,15 +893,36 @@ Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_i
 }
 
 Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_id, double bin_s,
-                                            const AnalysedAxis& axis) {
+                                            const AnalysedAxis& axis, RunSeriesCoverage* coverage) {
   const std::string who = axis.dut_serial.empty() && axis.axis.empty()
                               ? fmt::format("run {}", run_id)
                               : fmt::format("run {} ({})", run_id, axis.name());
   if (axis.channel_id == 0) {
     return Error::Permanent(fmt::format("{}: no gyro samples recorded", who));
   }
-  auto spinning = spinning_spans(db, run_id);
+  auto run = db.run(run_id);
+  if (!run) return run.error();
+  const RunConfig cfg = read_run_config(*run);
+  auto spinning = spinning_spans(db, run_id, cfg.table_rest_rate_dps.value_or(kRestRateDps));
   if (!spinning) return spinning.error();
+  // What the coverage expects: the spans of the run's steps (a step not
+  // ended yet: to the last sample), less the stretches left out.
+  auto segments = db.segments(run_id);
+  if (!segments) return segments.error();
+  auto last = db.last_gyro_sample_t_s(run_id);
+  if (!last) return last.error();
+  std::vector<std::pair<double, double>> steps;
+  for (const auto& seg : *segments) {
+    const double end_s =
+        seg.t_end_s ? *seg.t_end_s : (*last ? std::nextafter(**last, INFINITY) : seg.t_start_s);
+    if (end_s > seg.t_start_s) steps.emplace_back(seg.t_start_s, end_s);
+  }
+  std::vector<std::pair<double, double>> expected;
+  for (const auto& [from_s, to_s] : sorted_windows(std::move(steps))) {
+    for (const auto& w : complement(from_s, to_s, *spinning)) expected.push_back(w);
+  }
+  analysis::CoverageCounter counter(std::move(expected));
+  double median_hz = 0;
   analysis::AnalysisSeries joined;
   joined.bin_s = bin_s;
   // One pass over the channel, a storage block at a time, binned a stretch
@@ -766,12 +934,19 @@ Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_i
   std::vector<GyroSample> chunk;
   bool started = false;
   double chunk_from_s = 0, last_s = 0;
+  std::size_t spin_at = 0;  // the first span that may still hold a sample (time order)
   std::optional<Error> failure;
   const auto flush = [&](double from_s, double to_s) -> Status {
+    if (median_hz <= 0 && chunk.size() >= 2) {
+      std::vector<double> t_s;
+      for (const GyroSample& g : chunk) t_s.push_back(g.t_s);
+      median_hz = analysis::median_rate_hz(t_s);
+    }
     std::erase_if(chunk, [&](const GyroSample& g) {
-      return std::any_of(spinning->begin(), spinning->end(),
-                         [&](const auto& w) { return g.t_s >= w.first && g.t_s < w.second; });
+      while (spin_at < spinning->size() && (*spinning)[spin_at].second <= g.t_s) ++spin_at;
+      return spin_at < spinning->size() && g.t_s >= (*spinning)[spin_at].first;
     });
+    for (const GyroSample& g : chunk) counter.add(g.t_s);
     if (chunk.empty()) return Status::Ok();
     auto temps = dut_shell_readings(db, run_id, axis, from_s, to_s);
     if (!temps) return temps.error();
@@ -820,6 +995,10 @@ Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_i
     return Error::Permanent(
         fmt::format("{}: no stretch of gyro samples with temperatures recorded", who));
   }
+  if (coverage != nullptr) {
+    coverage->excluded = *spinning;
+    coverage->coverage = counter.result(axis.rate_hz > 0 ? axis.rate_hz : median_hz);
+  }
   return joined;
 }
 
@@ -865,12 +1044,15 @@ Result<storage::SegmentStatsRecord> soak_table1(storage::Database& db, const Soa
 
 Result<storage::SegmentStatsRecord> soak_table1(storage::Database& db, const SoakWindow& soak,
                                                 const analysis::Table1Options& table1_options,
-                                                const AnalysedAxis& axis) {
+                                                const AnalysedAxis& axis,
+                                                const analysis::QualityRules& rules) {
   analysis::Table1Options options = table1_options;
   auto earth = soak_earth_rate_dph(db, soak, axis, options.earth_rate_dph);
   if (!earth) return earth.error();
   options.earth_rate_dph = *earth;
-  auto series = soak_series(db, soak, options.bin_s, axis);
+  analysis::CoverageCounter counter(sorted_windows(soak.windows));
+  double median_hz = 0;
+  auto series = soak_series_counted(db, soak, options.bin_s, axis, &counter, &median_hz);
   if (!series) return series.error();
   auto row = analysis::table1_row(*series, options);
   if (!row) {
@@ -896,6 +1078,8 @@ Result<storage::SegmentStatsRecord> soak_table1(storage::Database& db, const Soa
   rec.t_from_s = soak.t_from_s;
   rec.t_to_s = soak.t_to_s;
   rec.computed_utc = db.utc_now();
+  const analysis::Coverage coverage = counter.result(axis.rate_hz > 0 ? axis.rate_hz : median_hz);
+  rec.quality = result_quality(coverage, analysis::coverage_reasons(coverage, rules));
   return rec;
 }
 
@@ -907,7 +1091,8 @@ Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow&
 }
 
 Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow& soak,
-                                        analysis::TauSet taus, const AnalysedAxis& axis) {
+                                        analysis::TauSet taus, const AnalysedAxis& axis,
+                                        const analysis::QualityRules& rules) {
   auto samples = soak_recorded_samples(db, soak, axis);
   if (!samples) return samples.error();
   auto adev = analysis::allan_deviation(samples->t_s, samples->rate_dph, {.taus = taus});
@@ -949,6 +1134,10 @@ Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow&
   }
   rec.inputs_json = inputs.dump();
   rec.computed_utc = db.utc_now();
+  const analysis::Coverage coverage = analysis::coverage_of(
+      samples->t_s, {{samples->t_from_s, samples->t_to_s}},
+      axis.rate_hz > 0 ? axis.rate_hz : analysis::median_rate_hz(samples->t_s));
+  rec.quality = result_quality(coverage, analysis::coverage_reasons(coverage, rules));
   return rec;
 }
 
@@ -983,6 +1172,46 @@ storage::FitRecord fit_record(const analysis::DriftFit& fit, const std::vector<i
   return rec;
 }
 
+storage::ResultQuality fit_quality(const analysis::DriftFit& fit,
+                                   std::span<const analysis::AnalysisSeries> series,
+                                   std::span<const analysis::Coverage> coverage,
+                                   const analysis::QualityRules& rules) {
+  analysis::Coverage total;
+  bool expected_known = !coverage.empty();
+  for (const analysis::Coverage& c : coverage) {
+    total.samples += c.samples;
+    total.window_s += c.window_s;
+    total.expected += c.expected;
+    total.longest_gap_s = std::max(total.longest_gap_s, c.longest_gap_s);
+    expected_known = expected_known && c.expected > 0;
+  }
+  if (expected_known) {
+    total.fraction = static_cast<double>(total.samples) / total.expected;
+  } else {
+    total.expected = 0;
+  }
+  double noise_dph = NAN;
+  for (const analysis::AnalysisSeries& s : series) {
+    const double n = analysis::series_noise_dph(s.rate_dph);
+    if (std::isfinite(n) && !(n <= noise_dph)) noise_dph = n;
+  }
+  std::vector<std::string> reasons = analysis::coverage_reasons(total, rules);
+  for (std::string& r : analysis::residual_reasons(fit.residual_std_dph, noise_dph, rules)) {
+    reasons.push_back(std::move(r));
+  }
+  return result_quality(total, std::move(reasons));
+}
+
+namespace {
+
+// "run 7 segment 3 (SN 17-0042 z) Table I: coverage 70.0 % ...": a
+// flagged result for the analysis event.
+std::string flagged_line(std::string_view what, const storage::ResultQuality& q) {
+  return fmt::format("{}: {}", what, fmt::join(q.reasons, "; "));
+}
+
+}  // namespace
+
 Result<RunAnalysisSummary> analyse_run(storage::Database& db, int64_t run_id,
                                        const AnalysisSettings& settings) {
   auto soaks = soak_windows(db, run_id);
@@ -1001,15 +1230,23 @@ Result<RunAnalysisSummary> analyse_run(storage::Database& db, int64_t run_id,
   summary.streams = static_cast<int>(axes->size());
   for (const AnalysedAxis& axis : *axes) {
     for (const SoakWindow& soak : *soaks) {
-      if (auto row = soak_table1(db, soak, settings.table1, axis)) {
+      if (auto row = soak_table1(db, soak, settings.table1, axis, settings.quality)) {
         if (auto st = db.put_segment_stats(*row); !st) return st.error();
         ++summary.table1_rows;
+        if (row->quality.flagged()) {
+          summary.flagged.push_back(
+              flagged_line(fmt::format("{} Table I", soak_name(soak, axis)), row->quality));
+        }
       } else if (Status st = problem(row.error()); !st.ok()) {
         return st.error();
       }
-      if (auto adev = soak_allan(db, soak, settings.allan_taus, axis)) {
+      if (auto adev = soak_allan(db, soak, settings.allan_taus, axis, settings.quality)) {
         if (auto id = db.put_allan(*adev); id) {
           ++summary.allan_records;
+          if (adev->quality.flagged()) {
+            summary.flagged.push_back(flagged_line(
+                fmt::format("{} Allan deviation", soak_name(soak, axis)), adev->quality));
+          }
         } else if (Status st = problem(id.error()); !st.ok()) {
           return st.error();
         }
@@ -1018,15 +1255,17 @@ Result<RunAnalysisSummary> analyse_run(storage::Database& db, int64_t run_id,
       }
     }
   }
-  if (auto sf = analyse_scale_factor(db, run_id)) {
+  if (auto sf = analyse_scale_factor(db, run_id, settings)) {
     summary.scale_factor_points = sf->points;
     summary.scale_factor_sequences = sf->sequences;
     for (auto& p : sf->problems) summary.problems.push_back(std::move(p));
+    for (auto& f : sf->flagged) summary.flagged.push_back(std::move(f));
   } else if (Status st = problem(sf.error()); !st.ok()) {
     return st.error();
   }
   for (const AnalysedAxis& axis : *axes) {
-    auto series = run_series(db, run_id, settings.table1.bin_s, axis);
+    RunSeriesCoverage coverage;
+    auto series = run_series(db, run_id, settings.table1.bin_s, axis, &coverage);
     if (!series) {
       if (Status st = problem(series.error()); !st.ok()) return st.error();
       continue;
@@ -1045,15 +1284,23 @@ Result<RunAnalysisSummary> analyse_run(storage::Database& db, int64_t run_id,
       storage::FitRecord rec = fit_record(*fit, {run_id}, settings.fit, settings.table1.bin_s);
       rec.dut_serial = axis.dut_serial;
       rec.axis = axis.axis;
+      nlohmann::json inputs = nlohmann::json::parse(rec.inputs_json);
       if (!axis.dut_serial.empty() || !axis.axis.empty()) {
-        nlohmann::json inputs = nlohmann::json::parse(rec.inputs_json);
         inputs["dut_serial"] = axis.dut_serial;
         inputs["axis"] = axis.axis;
-        rec.inputs_json = inputs.dump();
       }
+      inputs["series"] = "whole run at rest, every recorded sample";
+      inputs["excluded_not_at_rest"] = windows_json(coverage.excluded);
+      rec.inputs_json = inputs.dump();
+      rec.quality = fit_quality(*fit, std::span(&*series, 1), std::span(&coverage.coverage, 1),
+                                settings.quality);
       auto id = db.add_fit(rec);
       if (!id) return id.error();
       summary.fit_ids.push_back(*id);
+      if (rec.quality.flagged()) {
+        summary.flagged.push_back(flagged_line(
+            fmt::format("{} fit {} ({} form, #{})", who, rec.model, rec.form, *id), rec.quality));
+      }
     }
   }
   return summary;

@@ -1087,6 +1087,18 @@ void read_analysis(TableReader t, AnalysisSection& a) {
       a.allan_taus = *taus;
     }
   }
+  a.rate_guard_s = t.number_in("rate_guard_s", a.rate_guard_s, 0.0, 3600.0);
+  a.rate_flatness_sigma = t.number_in("rate_flatness_sigma", a.rate_flatness_sigma, 1.0, 1000.0);
+  a.rate_flatness_ppm = t.number_in("rate_flatness_ppm", a.rate_flatness_ppm, 0.0, 1e6);
+  t.finish();
+}
+
+void read_quality(TableReader t, QualitySection& q) {
+  q.min_coverage = t.number_in("min_coverage", q.min_coverage, 0.0, 1.0);
+  q.k_min = t.number_in("k_min", q.k_min, 0.0, 1.0);
+  q.k_max = t.number_in("k_max", q.k_max, 1.0, 1000.0);
+  q.max_nonlinearity_ppm = t.number_in("max_nonlinearity_ppm", q.max_nonlinearity_ppm, 0.0, 1e9);
+  q.max_residual_ratio = t.number_in("max_residual_ratio", q.max_residual_ratio, 1.0, 1e6);
   t.finish();
 }
 
@@ -1305,6 +1317,7 @@ Result<StationConfig> build_config(std::optional<toml::table> root, TomlErrors& 
   section("api", false, [&](TableReader t) { read_api(t, cfg.api); });
   section("export", false, [&](TableReader t) { read_export(t, cfg.export_); });
   section("analysis", false, [&](TableReader t) { read_analysis(t, cfg.analysis); });
+  section("quality", false, [&](TableReader t) { read_quality(t, cfg.quality); });
   section("control", false, [&](TableReader t) { read_control(t, cfg.control); });
   section("interlocks", false, [&](TableReader t) { read_interlocks(t, cfg.interlocks); });
   section("lab", false, [&](TableReader t) { read_lab(t, cfg.lab.emplace(), source); });

@@ -33,6 +33,17 @@ nlohmann::json stored_json(const std::string& text) {
   return j.is_discarded() ? nlohmann::json::object() : j;
 }
 
+// A result's quality (schema v11; docs/api.md "Result quality").
+nlohmann::json quality_json(const storage::ResultQuality& q) {
+  const bool assessed = q.verdict != "unassessed";
+  return {{"verdict", q.verdict},
+          {"reasons", q.reasons},
+          {"coverage", opt(q.coverage)},
+          {"coverage_samples", assessed ? nlohmann::json(q.samples) : nlohmann::json(nullptr)},
+          {"coverage_expected", q.expected > 0 ? num(q.expected) : nlohmann::json(nullptr)},
+          {"longest_gap_s", opt(q.longest_gap_s)}};
+}
+
 }  // namespace
 
 nlohmann::json to_json(const storage::QueueEntry& e, int step_count) {
@@ -99,7 +110,9 @@ nlohmann::json to_json(const storage::ScaleFactorPointRecord& p) {
           {"n", p.n},
           {"temperature_c", num(p.temperature_c)},
           {"duration_s", num(p.duration_s)},
-          {"turns", num(p.turns)}};
+          {"turns", num(p.turns)},
+          {"guard_s", num(p.guard_s)},
+          {"quality", quality_json(p.quality)}};
 }
 
 nlohmann::json to_json(const storage::ScaleFactorFitRecord& f) {
@@ -116,7 +129,9 @@ nlohmann::json to_json(const storage::ScaleFactorFitRecord& f) {
           {"asymmetry_ppm", opt(f.asymmetry_ppm)},
           {"repeatability_ppm", opt(f.repeatability_ppm)},
           {"n_points", f.n_points},
-          {"created_utc", f.created_utc}};
+          {"created_utc", f.created_utc},
+          {"guard_s", num(f.guard_s)},
+          {"quality", quality_json(f.quality)}};
 }
 
 nlohmann::json to_json(const storage::ScaleFactorTemperatureFitRecord& t) {
@@ -164,7 +179,8 @@ nlohmann::json to_json(const storage::SegmentStatsRecord& s) {
           {"earth_rate_dph", num(s.earth_rate_dph)},
           {"t_from_s", num(s.t_from_s)},
           {"t_to_s", num(s.t_to_s)},
-          {"computed_utc", s.computed_utc}};
+          {"computed_utc", s.computed_utc},
+          {"quality", quality_json(s.quality)}};
 }
 
 nlohmann::json to_json(const storage::FitRecord& f) {
@@ -180,7 +196,8 @@ nlohmann::json to_json(const storage::FitRecord& f) {
           {"residual_std_dph", num(f.residual_std_dph)},
           {"r_squared", num(f.r_squared)},
           {"inputs", stored_json(f.inputs_json)},
-          {"computed_utc", f.computed_utc}};
+          {"computed_utc", f.computed_utc},
+          {"quality", quality_json(f.quality)}};
 }
 
 nlohmann::json to_json(const storage::ExportRecord& e) {
@@ -227,7 +244,8 @@ nlohmann::json to_json(const storage::AllanRecord& a) {
           {"bias_instability_method", a.bias_instability_method},
           {"rate_random_walk_dphprh", optional(a.rate_random_walk_dphprh)},
           {"inputs", stored_json(a.inputs_json)},
-          {"computed_utc", a.computed_utc}};
+          {"computed_utc", a.computed_utc},
+          {"quality", quality_json(a.quality)}};
 }
 
 namespace {

@@ -257,6 +257,10 @@ Station::Station(StationConfig config, StationDevices devices, StationClocks clo
       for (std::size_t i = 0; i < r->problems.size(); ++i) {
         ev.message += (i ? "; " : "") + r->problems[i];
       }
+      if (!r->flagged.empty()) ev.message += "; FLAGGED: ";
+      for (std::size_t i = 0; i < r->flagged.size(); ++i) {
+        ev.message += (i ? "; " : "") + r->flagged[i];
+      }
     } else {
       ev.message = "analysis failed: " + r.error().message;
     }
@@ -275,7 +279,8 @@ Station::Station(StationConfig config, StationDevices devices, StationClocks clo
                              {"table1_rows", r->table1_rows},
                              {"allan_records", r->allan_records},
                              {"fit_ids", r->fit_ids},
-                             {"problems", r->problems}});
+                             {"problems", r->problems},
+                             {"flagged", r->flagged}});
       }
     }
   };

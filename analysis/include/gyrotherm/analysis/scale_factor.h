@@ -146,6 +146,31 @@ struct ScaleFactorTemperatureFit {
 Result<ScaleFactorTemperatureFit> fit_scale_factor_over_temperature(
     std::span<const ScaleFactorAtTemperature> plateaus, int order);
 
+// ---- Flatness of a rate point ---------------------------------------------
+
+// Whether a rate point's samples are flat (docs/analysis.md "Rate
+// points"), samples in time order: the means of the first and last thirds
+// (by count) agree within n_sigma · √(s₁²/n₁ + s₃²/n₃) + tolerance_ppm ·
+// 10⁻⁶ · |Ω| (s the thirds' sample std, ddof 1; Ω the demanded rate).
+// With `at_demand` (the table's own rate readings), each third's mean must
+// also be Ω within n_sigma · s/√n + tolerance_ppm · 10⁻⁶ · |Ω|. The gyro's
+// output is checked for flatness only (its K and bias are what the fit
+// finds). Fewer than 6 finite samples: not checked (checked false, ok true).
+struct RatePointFlatnessOptions {
+  double n_sigma = 5.0;
+  double tolerance_ppm = 500.0;
+};
+struct RatePointFlatness {
+  bool checked = false;
+  bool ok = true;
+  double first_mean = 0, last_mean = 0;  // in the samples' unit
+  double tolerance = 0;                  // of first − last
+  std::string why;                       // what failed, with the numbers, when !ok
+};
+RatePointFlatness check_rate_point_flatness(std::span<const double> samples, double demanded_dps,
+                                            const RatePointFlatnessOptions& options,
+                                            bool at_demand = false);
+
 // ---- Earth rate at a static table position ---------------------------------
 
 // How the gyro's sensitive axis is mounted on the table (the [table]

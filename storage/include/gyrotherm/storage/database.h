@@ -35,7 +35,9 @@ struct FileGuard;
 // v8: DUTs, run metadata, results per DUT and axis (records).
 // v9: chunked sample storage (sample_chunks, channel_rollup).
 // v10: run UUIDs and the lab outbox (runs.uuid, outbox; docs/lab.md).
-inline constexpr int kSchemaVersion = 10;
+// v11: coverage and a quality verdict on every result; rate points' guard
+// bands.
+inline constexpr int kSchemaVersion = 11;
 
 // Rollup blocks of the gyro rate (table gyro_rollup): block length of each
 // level, station seconds. A sample at t_s is in block floor(t_s / length).
@@ -187,6 +189,26 @@ struct EventRecord {
   std::string message;  // what a technician reads
 };
 
+// How complete a result's input was and whether the result is plausible
+// (schema v11; docs/analysis.md "Result quality"). Coverage: the samples
+// stored over the result's windows against those expected (window length ×
+// the DUT's output rate); the longest gap: the longest stretch of a window
+// without a sample. verdict "ok" or "flagged", with the reasons; a rate
+// point left out of its sequence's fit is "excluded" (the reasons say
+// why); a result nobody assessed (rows stored before v11, a record left
+// as constructed) is "unassessed". Columns coverage_samples,
+// coverage_expected, coverage, longest_gap_s, quality, quality_reasons_json.
+struct ResultQuality {
+  int64_t samples = 0;
+  double expected = 0;                  // 0: not known (no output rate)
+  std::optional<double> coverage{};     // samples / expected; nullopt: not known
+  std::optional<double> longest_gap_s;  // nullopt: not known
+  std::string verdict = "unassessed";   // ok, flagged, excluded, unassessed
+  std::vector<std::string> reasons{};   // what a technician reads, one each
+  bool flagged() const { return verdict == "flagged"; }
+  bool excluded() const { return verdict == "excluded"; }
+};
+
 // One Table I row (docs/analysis.md) with the inputs it was computed with.
 struct SegmentStatsRecord {
   int64_t segment_id = 0;
@@ -209,6 +231,7 @@ struct SegmentStatsRecord {
   double earth_rate_dph = 0;        // the component that was removed
   double t_from_s = 0, t_to_s = 0;  // window, station s since run start
   std::string computed_utc;         // ISO-8601 UTC; "" = now
+  ResultQuality quality;            // schema v11: over the soak's windows
 };
 
 // A stored drift-model fit (paper eq. 1) with what it was computed from.
@@ -226,6 +249,7 @@ struct FitRecord {
   double r_squared = 0;
   std::string inputs_json;   // JSON object
   std::string computed_utc;  // "" = now (add_fit)
+  ResultQuality quality;     // schema v11: over the stretches fitted
 };
 
 // The Allan deviation of one soak's acquisition (docs/analysis.md) with what it
@@ -250,6 +274,7 @@ struct AllanRecord {
   std::string bias_instability_method = "minimum / 0.664";
   std::string inputs_json;   // JSON object: windows, taus, ...
   std::string computed_utc;  // "" = now (put_allan)
+  ResultQuality quality;     // schema v11: over [t_from_s, t_to_s)
 };
 
 // One calibration export (docs/reports.md; schema v5, tables `exports` and
@@ -292,6 +317,11 @@ struct ScaleFactorPointRecord {
   double temperature_c = 0;      // mean shell temperature (top + side) / 2
   double duration_s = 0;         // acquisition time, station s
   double turns = 0;              // table turns over the acquisition
+  // Schema v11: cut from each end of each acquisition window before the
+  // mean (docs/analysis.md "Rate points"), station s; the quality is over
+  // what is left. verdict "excluded": left out of the sequence's fit.
+  double guard_s = 0;
+  ResultQuality quality;
 };
 
 // The fit output = K * rate + bias of one scale-factor sequence (table
@@ -311,6 +341,8 @@ struct ScaleFactorFitRecord {
   std::optional<double> repeatability_ppm{};  // nullopt: fewer than 2 repetitions
   int64_t n_points = 0;
   std::string created_utc{};  // ISO-8601 UTC; "" = now (store_scale_factor)
+  double guard_s = 0;         // schema v11: the points' guard bands, station s
+  ResultQuality quality{};    // schema v11: over the points fitted
 };
 
 // K(T) and bias(T) of a run as polynomials in (T - t_centre_c) (table

@@ -47,9 +47,11 @@ struct RunJob {
 
 // Reads the window from `db`, computes the Table I row of every DUT axis of
 // the run (analysed_axes), stores them and returns the first (the first
-// DUT's primary axis). Errors name the run and segment (and the DUT).
+// DUT's primary axis), each with its quality under `rules`. Errors name
+// the run and segment (and the DUT).
 Result<storage::SegmentStatsRecord> compute_table1(storage::Database& db, const Table1Job& job,
-                                                   const analysis::Table1Options& options);
+                                                   const analysis::Table1Options& options,
+                                                   const analysis::QualityRules& rules = {});
 
 class AnalysisWorker {
  public:

@@ -34,6 +34,10 @@ struct ReportOptions {
   std::string generated_utc;   // "" = now
   std::string database_path;   // shown in the provenance
   std::string export_label;    // e.g. "nightly export of 2026-11-21 02:00 CET"
+  // Write the C header of a flagged result too (`gyrotherm export
+  // --force`), with a comment saying so and why it is flagged. Without it
+  // the header is not written and the export's problems name it.
+  bool force_flagged = false;
 };
 
 // One plotted series as report.js draws it (daemon/calibration/report/report.js).
@@ -81,6 +85,7 @@ struct ReportFit {
   int64_t stored_id = 0;  // fits.id; 0 = computed for the report
   std::vector<int64_t> run_ids;
   double l0_window_s = 120.0;
+  storage::ResultQuality quality{};  // as stored, or assessed for the report
 };
 
 // One report is of one DUT axis of a run (schema v8; run_analysis.h
@@ -105,6 +110,7 @@ struct RunReport {
   std::vector<Plot> plots;
   std::vector<std::string> problems;               // what could not be computed, one line each
   std::optional<analysis::AnalysisSeries> series;  // the whole run, binned (campaign analyses)
+  RunSeriesCoverage series_coverage;               // of `series` (run_series)
   // nullopt when the run has no scale-factor rows (no rate table, or an
   // older database): no section, no file, nothing said.
   std::optional<ReportScaleFactor> scale_factor;
@@ -237,5 +243,11 @@ std::string scale_factor_points_csv(const ReportScaleFactor& sf);
 std::string scale_factor_json(const ReportScaleFactor& sf, const analysis::ExportInfo& info);
 std::string scale_factor_c_header(const ReportScaleFactor& sf, const analysis::ExportInfo& info,
                                   const std::string& prefix = "gyrotherm_sf");
+// The quality of what the scale-factor header carries: flagged when a
+// sequence's line is, with each such line's reasons ("sequence 2: K = ...").
+storage::ResultQuality scale_factor_header_quality(const ReportScaleFactor& sf);
+// The comment a C header of a flagged result written with --force starts
+// with (what the result is flagged for); "" for a result not flagged.
+std::string forced_header_comment(const storage::ResultQuality& quality);
 
 }  // namespace gyrotherm::daemon

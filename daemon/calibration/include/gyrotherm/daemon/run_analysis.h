@@ -24,12 +24,15 @@
 #include <cstdint>
 #include <nlohmann/json_fwd.hpp>
 #include <optional>
+#include <span>
 #include <string>
 #include <utility>
 #include <vector>
 
 #include "gyrotherm/analysis/allan.h"
 #include "gyrotherm/analysis/drift_model.h"
+#include "gyrotherm/analysis/quality.h"
+#include "gyrotherm/analysis/scale_factor.h"
 #include "gyrotherm/analysis/table1.h"
 #include "gyrotherm/core/result.h"
 #include "gyrotherm/storage/database.h"
@@ -50,6 +53,11 @@ struct AnalysisSettings {
                                                  analysis::DriftModelForm::kPaper};
   std::size_t compare_smooth_points = 101;  // Tables II-IV, [analysis] compare_smooth_points
   analysis::DriftFitOptions fit;            // derivative_window_s, l0_window_s
+  // Rate points: [analysis] rate_guard_s, rate_flatness_sigma and
+  // rate_flatness_ppm.
+  double rate_guard_s = 1.0;
+  analysis::RatePointFlatnessOptions flatness;
+  analysis::QualityRules quality;  // [quality]
 };
 // From the config: [analysis] and the Earth rate of [station] latitude and
 // orientation. The model spec was checked when the config was loaded.
@@ -85,6 +93,12 @@ struct RunConfig {
   bool table_present = false;
   std::optional<std::string> table_sensitive_axis;
   std::optional<double> table_heading_at_zero_deg;
+  std::optional<double> table_rest_rate_dps;
+  // [analysis] rate points and [quality] (schema v11 runs store them).
+  std::optional<double> rate_guard_s, rate_flatness_sigma, rate_flatness_ppm;
+  std::optional<double> min_coverage, k_min, k_max, max_nonlinearity_ppm, max_residual_ratio;
+  // [gyro] rate_hz: the output rate of a run without DUT records.
+  std::optional<double> gyro_rate_hz;
 };
 RunConfig read_run_config(const std::string& text);
 RunConfig read_run_config(const storage::RunRecord& run);
@@ -117,6 +131,10 @@ struct AnalysedAxis {
   // The DUT's shell probes, when its config has them ([[dut]] probes):
   // see dut_shell_readings().
   bool own_probes = false;
+  // Nominal output rate (run_duts.rate_hz; a run without DUT records: its
+  // [gyro] rate_hz), Hz; 0 when not recorded (coverage then takes the
+  // median spacing of the samples).
+  double rate_hz = 0;
   storage::StreamKey key() const { return {dut_serial, axis}; }
   // "SN 17-0042 z" / "the gyro": how messages and reports name it.
   std::string name() const;
@@ -179,11 +197,36 @@ Result<RecordedSamples> soak_recorded_samples(storage::Database& db, const SoakW
 // run's length. Errors: a run without samples (names it), database errors,
 // those of make_analysis_series. The first form: the run's first DUT,
 // primary axis.
+//
+// The series is of the gyro at rest: left out are the steps that demanded
+// a rate (to their end + 10 s) and every stretch where the table was not
+// at rest by its own record (table_samples: |rate| above the run's [table]
+// rest_rate_dps, or the position moving), from the last reading at rest
+// before to the first after, widened by 10 s each side.
+// `coverage`, when given: the stretches left out, and the coverage of the
+// rest of the run's steps (each from its start to its end; a step not ended
+// yet to the last sample).
+struct RunSeriesCoverage {
+  std::vector<std::pair<double, double>> excluded;  // merged, in time order
+  analysis::Coverage coverage;
+};
 Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_id, double bin_s);
 Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_id, double bin_s,
-                                            const AnalysedAxis& axis);
+                                            const AnalysedAxis& axis,
+                                            RunSeriesCoverage* coverage = nullptr);
+// A drift fit's quality: the coverage of its series (several runs' summed,
+// the longest gap of any) and the rules' verdict on it and on the
+// residual against the series' noise (analysis::series_noise_dph of each
+// series, the largest).
+storage::ResultQuality fit_quality(const analysis::DriftFit& fit,
+                                   std::span<const analysis::AnalysisSeries> series,
+                                   std::span<const analysis::Coverage> coverage,
+                                   const analysis::QualityRules& rules);
 
 // Compute and return (not stored).
+// Every record carries its quality (storage::ResultQuality): coverage over
+// its windows against the axis's output rate, and the verdict of `rules`
+// (docs/analysis.md "Result quality").
 // The first forms: the run's first DUT, primary axis (options.earth_rate_dph
 // unless its stored config gives the axis an orientation). Per axis: the
 // Earth rate of the axis's orientation at the run's latitude (given
@@ -194,11 +237,21 @@ Result<storage::SegmentStatsRecord> soak_table1(storage::Database& db, const Soa
                                                 const analysis::Table1Options& options);
 Result<storage::SegmentStatsRecord> soak_table1(storage::Database& db, const SoakWindow& soak,
                                                 const analysis::Table1Options& options,
-                                                const AnalysedAxis& axis);
+                                                const AnalysedAxis& axis,
+                                                const analysis::QualityRules& rules = {});
 Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow& soak,
                                         analysis::TauSet taus);
 Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow& soak,
-                                        analysis::TauSet taus, const AnalysedAxis& axis);
+                                        analysis::TauSet taus, const AnalysedAxis& axis,
+                                        const analysis::QualityRules& rules = {});
+// A result's quality from its coverage and the reasons it is flagged
+// (none: verdict "ok").
+storage::ResultQuality result_quality(const analysis::Coverage& coverage,
+                                      std::vector<std::string> reasons);
+// Windows sorted by start, overlapping ones merged.
+std::vector<std::pair<double, double>> sorted_windows(
+    std::vector<std::pair<double, double>> windows);
+
 // A fit as a record ready for Database::add_fit (inputs_json filled in).
 storage::FitRecord fit_record(const analysis::DriftFit& fit, const std::vector<int64_t>& run_ids,
                               const analysis::DriftFitOptions& options, double bin_s);
@@ -216,6 +269,9 @@ struct RunAnalysisSummary {
   int scale_factor_points = 0;     // rate points stored (0: the run had none)
   int scale_factor_sequences = 0;  // lines fitted
   std::vector<std::string> problems;
+  // Results stored flagged (storage::ResultQuality), one line each naming
+  // the result and its reasons.
+  std::vector<std::string> flagged;
 };
 Result<RunAnalysisSummary> analyse_run(storage::Database& db, int64_t run_id,
                                        const AnalysisSettings& settings);

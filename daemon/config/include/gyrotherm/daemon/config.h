@@ -230,6 +230,23 @@ struct AnalysisSection {
   int compare_smooth_points = 101;
   double derivative_window_s = 60.0;
   std::string allan_taus = "octave";  // octave, decade, all
+  // Rate points (docs/analysis.md "Rate points"): cut from each end of
+  // each acquisition window before the mean; a point whose samples are not
+  // flat (first and last thirds within rate_flatness_sigma σ of their means
+  // plus rate_flatness_ppm of the rate) is left out of its fit.
+  double rate_guard_s = 1.0;
+  double rate_flatness_sigma = 5.0;
+  double rate_flatness_ppm = 500.0;
+};
+
+// [quality]: when a stored result is flagged (docs/analysis.md "Result
+// quality"; analysis::QualityRules).
+struct QualitySection {
+  double min_coverage = 0.99;  // samples stored / expected
+  double k_min = 0.5;          // scale factor K, nominal 1
+  double k_max = 2.0;
+  double max_nonlinearity_ppm = 10000.0;
+  double max_residual_ratio = 20.0;  // drift fit residual std / the series' noise
 };
 
 struct ControlSection {
@@ -299,6 +316,7 @@ struct StationConfig {
   ApiSection api;
   ExportSection export_;
   AnalysisSection analysis;
+  QualitySection quality;
   ControlSection control;
   SimulatorSection simulator;
   std::optional<LabSection> lab;  // nullopt: no [lab]
