@@ -57,14 +57,14 @@ int main(int argc, char** argv) {
                  "(e.g. 2026-03-29T00:40:00Z) and runs at --time-scale");
   app.add_flag("--exit-when-done", exit_when_done,
                "exit 0 once the queue is empty and no run is active (scripts, tests)");
-  std::string clock_mode = "scaled";
+  std::string clock_mode = "auto";
   app.add_option("--clock", clock_mode,
-                 "station time: 'sim' reads it from the simulator's clock file (one clock for "
-                 "both; the simulator waits for this daemon), 'scaled' (default) scales wall "
-                 "time on its own (above x" +
+                 "station time: 'auto' (default) is 'sim' when the simulator's endpoints name "
+                 "a clock file, else 'scaled'; 'sim' reads it from the simulator's clock file "
+                 "(one clock for both; the simulator waits for this daemon); 'scaled' scales "
+                 "wall time on its own (above x" +
                      fmt::format("{:g}", gyrotherm::kMaxScaledSimTimeScale) +
-                     " against a simulator a loaded machine misplaces samples), 'auto' is 'sim' "
-                     "when the simulator's endpoints name a clock file")
+                     " against a simulator a loaded machine misplaces samples)")
       ->check(CLI::IsMember({"auto", "sim", "scaled"}));
   app.add_option("--endpoints-wait", endpoints_wait_s,
                  "seconds to wait for the simulator's endpoints file");

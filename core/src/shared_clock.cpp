@@ -17,6 +17,7 @@
 #include <limits>
 #include <mutex>
 #include <random>
+#include <thread>
 
 namespace gyrotherm {
 
@@ -275,7 +276,29 @@ SharedStationClock::~SharedStationClock() {
 }
 
 double SharedStationClock::now_s() const {
-  return to_s(map_->page().published_ns.load(std::memory_order_acquire));
+  const SharedClockPage& pg = map_->page();
+  const double published_s = to_s(pg.published_ns.load(std::memory_order_acquire));
+  const auto now = std::chrono::steady_clock::now();
+  std::lock_guard lock(orphan_mu_);
+  if (!orphaned_ && now >= next_owner_check_) {
+    // A kill(pid, 0) at most every 100 ms: now_s() is called from every
+    // reader at every sample.
+    next_owner_check_ = now + std::chrono::milliseconds(100);
+    const int64_t pid = pg.owner_pid.load();
+    if (!pid_alive(pid)) {
+      // Read again after the pid: a last publish before it left counts.
+      orphaned_ = Orphaned{to_s(pg.published_ns.load(std::memory_order_acquire)), now};
+    }
+  }
+  if (!orphaned_) return published_s;
+  return orphaned_->t_s +
+         std::chrono::duration<double>(now - orphaned_->at).count() * pg.time_scale;
+}
+
+bool SharedStationClock::orphaned() const {
+  (void)now_s();
+  std::lock_guard lock(orphan_mu_);
+  return orphaned_.has_value();
 }
 
 double SharedStationClock::time_scale() const { return map_->page().time_scale; }
@@ -308,10 +331,22 @@ bool SharedStationClock::wait_until(double t_s, std::chrono::nanoseconds max_wal
   const auto deadline = std::chrono::steady_clock::now() + max_wall;
   for (;;) {
     const uint32_t seen = pg.owner_seq.load(std::memory_order_acquire);
-    if (now_s() >= t_s) return true;
+    const double now_station_s = now_s();
+    if (now_station_s >= t_s) return true;
     const auto left = deadline - std::chrono::steady_clock::now();
     if (left <= std::chrono::nanoseconds::zero()) return false;
-    futex_wait(pg.owner_seq, seen, std::chrono::duration_cast<std::chrono::nanoseconds>(left));
+    // Waits at most 100 ms at a time: an owner that dies publishes nothing
+    // more, and its death is noticed by now_s().
+    auto wait = std::min<std::chrono::nanoseconds>(
+        std::chrono::duration_cast<std::chrono::nanoseconds>(left), std::chrono::milliseconds(100));
+    if (orphaned()) {
+      const double scale = pg.time_scale > 0 ? pg.time_scale : 1.0;
+      wait = std::min(wait, std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                std::chrono::duration<double>((t_s - now_station_s) / scale)));
+      std::this_thread::sleep_for(std::max(wait, std::chrono::nanoseconds(1000)));
+      continue;
+    }
+    futex_wait(pg.owner_seq, seen, wait);
   }
 }
 

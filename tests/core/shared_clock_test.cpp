@@ -157,6 +157,48 @@ TEST_F(SharedClockTest, AConsumerWhoseProcessDiedIsDetached) {
   EXPECT_FALSE(owner->consumer_attached());
 }
 
+// The simulator gone (killed: its pid is gone; or stopped: it leaves the
+// page): the daemon's clock runs on from the last published time at the
+// owner's scale instead of freezing, so the daemon notices its devices gone.
+TEST_F(SharedClockTest, AnOwnerThatDiedLeavesTheClockRunningAtItsScale) {
+  const pid_t child = ::fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    auto map = SharedClockMap::create(path_, 100.0, 0.0);
+    if (!map.ok()) ::_exit(2);
+    auto* owner = new SharedClockOwner(std::move(map).value());
+    owner->publish(50.0);
+    ::_exit(0);  // no destructor: as kill -9
+  }
+  int status = 0;
+  ASSERT_EQ(::waitpid(child, &status, 0), child);
+  ASSERT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+  auto clock = make_consumer(1.0);
+  const double t0_s = clock->now_s();
+  EXPECT_TRUE(clock->orphaned());
+  EXPECT_GE(t0_s, 50.0);
+  EXPECT_LT(t0_s, 50.0 + 100.0 * 5.0) << "scaled from where the owner left it";
+  // 10 station s at 100x: 0.1 wall s.
+  const auto wall0 = std::chrono::steady_clock::now();
+  ASSERT_TRUE(clock->wait_until(t0_s + 10.0, std::chrono::seconds(5)));
+  EXPECT_GE(clock->now_s(), t0_s + 10.0);
+  EXPECT_GE(std::chrono::steady_clock::now() - wall0, std::chrono::milliseconds(99))
+      << "not faster than the owner's scale";
+}
+
+TEST_F(SharedClockTest, AnOwnerThatLeftLeavesTheClockRunning) {
+  auto owner = make_owner(100.0);
+  owner->publish(20.0);
+  auto clock = make_consumer(1.0);
+  EXPECT_FALSE(clock->orphaned());
+  EXPECT_EQ(clock->now_s(), 20.0);
+  EXPECT_FALSE(clock->wait_until(21.0, std::chrono::milliseconds(150)))
+      << "held while the owner lives and publishes nothing";
+  owner.reset();
+  ASSERT_TRUE(clock->wait_until(25.0, std::chrono::seconds(5)));
+  EXPECT_TRUE(clock->orphaned());
+}
+
 TEST_F(SharedClockTest, OpenRefusesWhatIsNotAClockFile) {
   {
     std::ofstream f(path_);

@@ -25,6 +25,7 @@
 #include <cstdint>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <string_view>
 
@@ -121,10 +122,22 @@ class SharedStationClock final : public PacedClock {
   uint64_t epoch() const override;
 
   SharedClockReading reading() const { return read_shared_clock(*map_); }
+  // True once the owner has gone (its pid gone, or it left): from then on
+  // station time runs on from the owner's last time at its scale on this
+  // process's steady clock, so a daemon whose simulator died keeps its
+  // clock (and notices its devices gone) instead of freezing.
+  bool orphaned() const;
 
  private:
   std::unique_ptr<SharedClockMap> map_;
   mutable std::mutex slots_mu_;
+  struct Orphaned {
+    double t_s;                                // the owner's last time
+    std::chrono::steady_clock::time_point at;  // when it was found gone
+  };
+  mutable std::mutex orphan_mu_;  // below
+  mutable std::optional<Orphaned> orphaned_;
+  mutable std::chrono::steady_clock::time_point next_owner_check_{};
 };
 
 }  // namespace gyrotherm
