@@ -63,6 +63,9 @@ class FakePlant {
     // Set point writes ("setpoint 23") and table commands ("table stop"),
     // in the order they happened.
     std::vector<std::string> log;
+    // Each set point write taken, with when (to order it against a table
+    // peer's own log).
+    std::vector<std::pair<double, std::chrono::steady_clock::time_point>> setpoints_at;
   };
 
   void advance(double dt_s) {
@@ -147,6 +150,7 @@ class FakeChamber final : public drivers::Chamber {
       s.setpoint_c = s.fahrenheit ? (value - 32) / 1.8 : value;
       ++s.setpoint_writes;
       s.log.push_back(fmt::format("setpoint {:g}", s.setpoint_c));
+      s.setpoints_at.emplace_back(s.setpoint_c, std::chrono::steady_clock::now());
     });
     return Status::Ok();
   }
@@ -394,7 +398,9 @@ class StationRig {
     auto gyro = std::make_unique<FakeGyro>(plant, cfg->gyro.format.rate_hz);
     gyro_ = gyro.get();
     devices.gyro = std::move(gyro);
-    if (cfg->table) {
+    if (cfg->table && make_table) {
+      devices.table = make_table();
+    } else if (cfg->table) {
       table.on_command = [plant = plant](const std::string& what) {
         plant->change([&](FakePlant::State& s) { s.log.push_back("table " + what); });
       };
@@ -496,7 +502,10 @@ class StationRig {
   // Set before open(): the first DUT gets shell probes of its own over this
   // plant (its probes_silent silences them).
   std::shared_ptr<FakePlant> dut_plant;
-  FakeTable table;  // the station's when the config has a [table]
+  FakeTable table;  // the station's when the config has a [table] (and no make_table)
+  // Set before open(): the station's table instead of the fake (a real
+  // driver against a peer).
+  std::function<std::unique_ptr<drivers::RateTable>()> make_table;
   // Called after each publication is recorded, on the publishing thread.
   std::function<void(std::string_view event, const nlohmann::json& data)> on_publish;
   // StationHooks::lab_status of the station open() creates (unset: no [lab]).

@@ -579,6 +579,67 @@ TEST_F(StationUnitTest, ASoakIsCreditedForItsDataNotForTheClock) {
 // soak recorded completed and the checkpoint still in it. The next station
 // goes on with the next step: the soak is not acquired again, its Table I
 // row is not doubled, and no segment is left running.
+// A step's end, the next step's start and the checkpoint that says so are
+// one transaction: with checkpoints refused (a trigger standing for a crash
+// between the writes), the first soak is not recorded completed either;
+// once they are taken, both are written.
+TEST_F(StationUnitTest, AStepChangeIsWrittenWithItsCheckpointOrNotAtAll) {
+  StationRig rig(dir_);
+  rig.open();
+  rig.queue(R"(
+name = "two soaks"
+[[step]]
+type = "soak"
+setpoint_c = 23.0
+stability_window_min = 1
+settle_timeout_min = 30
+acquire_min = 2
+[[step]]
+type = "soak"
+setpoint_c = 25.0
+stability_window_min = 1
+settle_timeout_min = 30
+acquire_min = 2
+)");
+  const int64_t run_id = until_acquiring(rig);
+  ASSERT_NE(run_id, 0);
+  sqlite3* raw = nullptr;
+  ASSERT_EQ(sqlite3_open(rig.db_path().c_str(), &raw), SQLITE_OK);
+  sqlite3_busy_timeout(raw, 5000);
+  const auto exec = [&](const char* sql) {
+    char* err = nullptr;
+    const int rc = sqlite3_exec(raw, sql, nullptr, nullptr, &err);
+    EXPECT_EQ(rc, SQLITE_OK) << (err ? err : "");
+    sqlite3_free(err);
+  };
+  exec(
+      "CREATE TRIGGER no_checkpoint BEFORE UPDATE OF resume_json ON runs "
+      "BEGIN SELECT RAISE(ABORT, 'checkpoint refused (test)'); END");
+  const auto first_segment_state = [&] {
+    auto db = storage::Database::open_read_only(rig.db_path());
+    EXPECT_TRUE(db.ok());
+    auto segs = db->segments(run_id);
+    EXPECT_TRUE(segs.ok() && !segs->empty());
+    return segs.ok() && !segs->empty() ? segs->front().state : std::string();
+  };
+  ASSERT_TRUE(
+      rig.step_until([&] { return rig.station->status().step_index.value_or(-1) == 1; }, 600));
+  for (int i = 0; i < 5; ++i) rig.step();
+  EXPECT_EQ(first_segment_state(), "running")
+      << "the step's end is not written without its checkpoint";
+  exec("DROP TRIGGER no_checkpoint");
+  sqlite3_close(raw);
+  rig.step();
+  EXPECT_EQ(first_segment_state(), "completed");
+  auto db = storage::Database::open_read_only(rig.db_path());
+  ASSERT_TRUE(db.ok());
+  auto run = db->run(run_id);
+  ASSERT_TRUE(run.ok());
+  const auto cp = nlohmann::json::parse(run->resume_json, nullptr, false);
+  ASSERT_TRUE(cp.is_object()) << run->resume_json;
+  EXPECT_EQ(cp.value("step_index", -1), 1) << run->resume_json;
+}
+
 TEST_F(StationUnitTest, ACheckpointOlderThanItsStepsEndDoesNotRunTheStepAgain) {
   constexpr const char* kTwoSoaks = R"(
 name = "two soaks"

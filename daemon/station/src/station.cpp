@@ -701,7 +701,7 @@ void Station::tick() {
       if (write_setpoint(sequencer_->setpoint_c(), true)) sequencer_->safe_state_reached(t_run_s);
     } else {
       if (table_) tend_table(t_run_s);
-      sequencer_->tick(t_run_s, r);
+      tick_sequencer(t_run_s, r);
       if (table_ && !sequencer_->finished()) {
         const schedules::TableDemand demand = table_demand();
         const bool moves =
@@ -1691,14 +1691,51 @@ void Station::record_unrecorded() {
     run_state_failing_ = false;
     unrecorded_run_state_.reset();
   }
+  if (!defer_segment_records_ && !(segments_with_checkpoint_ && sequencer_)) {
+    (void)record_segments();
+  }
+}
+
+bool Station::record_segments() {
   for (auto it = unrecorded_segments_.begin(); it != unrecorded_segments_.end();) {
     if (auto st = db_.update_segment(it->second); !st) {
       if (!segment_failing_) spdlog::error("segment not written yet: {}", st.error().message);
       segment_failing_ = true;
-      return;
+      return false;
     }
     segment_failing_ = false;
     it = unrecorded_segments_.erase(it);
+  }
+  return true;
+}
+
+void Station::tick_sequencer(double t_run_s, const schedules::Readings& r) {
+  // A soak's end flushes the sample writer (on_step_finished) outside any
+  // transaction of ours; the step's end, the next step's start and the
+  // checkpoint are then written in one: a crash leaves all or none (the
+  // next step's row itself is created at its start, and a resume closes a
+  // stray one).
+  defer_segment_records_ = true;
+  sequencer_->tick(t_run_s, r);
+  defer_segment_records_ = false;
+  if (unrecorded_segments_.empty()) {
+    segments_with_checkpoint_ = false;
+    return;
+  }
+  const auto kept = unrecorded_segments_;
+  const Status st = db_.atomically([&]() -> Status {
+    if (!record_segments()) return Error::Transient("a segment was not written");
+    checkpoint(true);
+    if (checkpoint_failing_) return Error::Transient("the checkpoint was not written");
+    return Status::Ok();
+  });
+  segments_with_checkpoint_ = !st;
+  if (!st) {
+    // Rolled back: tried again, together, next tick.
+    unrecorded_segments_ = kept;
+    checkpoint_state_.clear();
+    if (!segment_failing_) spdlog::error("step change not written yet: {}", st.error().message);
+    segment_failing_ = true;
   }
 }
 

@@ -62,6 +62,7 @@ void TableControl::read(double now_s, double wall_s, double min_silent_wall_s,
     if (!ok_) spdlog::info("{}: readings back", table_.name());
     ok_ = true;
     state_ = *state;
+    moved_since_read_ = false;
     ok_s_ = now_s;
     ok_wall_s_ = wall_s;
     watch_demand();
@@ -215,7 +216,10 @@ void TableControl::drive(const TableDemand& demand, double wall_s) {
     if (changed) spdlog::info("{}: {}", table_.name(), describe(demand));
     sent_ = demand;
     matched_ = at_rate_ = false;
-    if (moving(demand)) safe_reached_ = false;
+    if (moving(demand)) {
+      safe_reached_ = false;
+      moved_since_read_ = true;
+    }
   }
 }
 
@@ -223,7 +227,7 @@ void TableControl::make_safe(double wall_s) {
   demand_ = TableDemand{TableDemandMode::kStatic, std::nullopt, 0};
   if (safing_ && stop_sent_) return;
   safing_ = true;
-  if (state_ && ok_ && servo_off(*state_)) {
+  if (state_ && ok_ && servo_off(*state_) && !moved_since_read_) {
     // Not servoed: nothing to stop, nothing to switch off (a faulted axis
     // coasts; its fault is the table_fault interlock's).
     safing_ = false;
@@ -235,6 +239,7 @@ void TableControl::make_safe(double wall_s) {
   const Status st = table_.stop();
   log_failure(st, "stopping");
   stop_sent_ = st.ok();
+  if (stop_sent_) moved_since_read_ = true;  // at rest only by a reading taken after it
   if (stop_sent_) {
     spdlog::info("{}: stopping (safe state); servo off once at rest", table_.name());
     sent_ = demand_;
@@ -247,7 +252,9 @@ void TableControl::finish_safe_state(double wall_s) {
     if (wall_s - last_send_wall_s_ >= kResendWallS) make_safe(wall_s);
     return;
   }
-  if (!state_ || !ok_ || std::abs(state_->rate_dps) >= config_.rest_rate_dps) return;
+  if (!state_ || !ok_ || moved_since_read_ || std::abs(state_->rate_dps) >= config_.rest_rate_dps) {
+    return;
+  }
   if (state_->interlock == drivers::TableInterlock::kClosed) {
     const Status st = table_.servo_off();
     log_failure(st, "servo off");

@@ -197,6 +197,11 @@ class Station final : public StationControl, private schedules::SequencerObserve
                  double now_s);
   void keep_unrecorded(const storage::EventRecord& ev);
   void record_unrecorded();
+  // Segments only; false while one is left unwritten.
+  bool record_segments();
+  // The sequencer's tick, with the segments it ends and starts written in
+  // one transaction with the checkpoint that says so.
+  void tick_sequencer(double t_run_s, const schedules::Readings& r);
   void submit_missing_analyses();
   void start_nightly_export();
   void start_next_run(double now_s);
@@ -368,6 +373,10 @@ class Station final : public StationControl, private schedules::SequencerObserve
   std::optional<UnrecordedRunState> unrecorded_run_state_;
   std::map<int64_t, storage::SegmentRecord> unrecorded_segments_;  // by segment id
   bool checkpoint_failing_ = false, run_state_failing_ = false, segment_failing_ = false;
+  // Inside tick_sequencer(), and after its transaction failed while the
+  // run goes on: segment records wait for the next one (with a checkpoint).
+  bool defer_segment_records_ = false;
+  bool segments_with_checkpoint_ = false;
 
   // Control-thread only.
   bool chamber_ok_ = true, probes_ok_ = true;

@@ -116,6 +116,10 @@ class TableControl {
   bool failing_ = false;  // a command failed; logged once per spell
   std::string last_error_;
   bool safe_reached_ = false;
+  // A moving demand or a stop was sent after state_ was read: state_ may
+  // still say "at rest, servo off" of an axis now servoed and spinning up,
+  // or "at rest" of one that had not yet stopped.
+  bool moved_since_read_ = false;
   // The table has matched sent_ (a moving demand) since it was sent; at its
   // rate, for a rate demand.
   bool matched_ = false;
