@@ -633,6 +633,10 @@ void Simulator::run_paced() {
   // reader is not running) holds the clock this long at most.
   constexpr auto kLineWaitMax = std::chrono::seconds(2);
   std::optional<steady::time_point> line_wait_since;
+  // Station seconds the loop may still run: scaled wall time accumulates
+  // here across iterations (one iteration's wall time times a low scale is
+  // less than a step), at most a quarter wall second's worth.
+  double credit_s = 0;
   double t_s = 0;
   {
     std::lock_guard lock(sim_mu_);
@@ -680,15 +684,20 @@ void Simulator::run_paced() {
       target_s = clock_->now_s() - t0_s_ - free_offset_s_;
     } else {
       free_running_ = false;
-      target_s = std::min(t_s + std::min(wall_dt_s, 0.25) * scale, limit_s);
+      credit_s = std::min(credit_s + wall_dt_s * scale, 0.25 * scale);
+      target_s = std::min(t_s + credit_s, limit_s);
     }
     if (target_s >= t_s + step_s_ - 1e-9) {
+      const double from_s = t_s;
       advance_to(target_s);
       publish_registers();
-      if (write_batches()) {
+      double advanced_to_s = 0;
+      {
         std::lock_guard lock(sim_mu_);
-        t_s = status_.t_s;
+        advanced_to_s = status_.t_s;
       }
+      credit_s = std::max(0.0, credit_s - (advanced_to_s - from_s));
+      if (write_batches()) t_s = advanced_to_s;
       shared_clock_->publish(t_s);
     }
     if (limit_s < t_s + step_s_ - 1e-9) {

@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "gyrotherm/lab/central.h"
 #include "lab/lab_records.h"
 #include "process.h"
 #include "support/pg_cluster.h"
@@ -82,10 +83,12 @@ class LabCliTest : public testing::PgClusterTest {
 TEST_F(LabCliTest, MigrateThenRegisterStationsAndReaders) {
   Run r = lab({"migrate"});
   ASSERT_EQ(r.code, 0) << r.err;
-  EXPECT_EQ(r.out, "lab schema migrated from version 0 to 1\n");
+  EXPECT_EQ(r.out,
+            fmt::format("lab schema migrated from version 0 to {}\n", lab::kCentralSchemaVersion));
   r = lab({"migrate"});
   ASSERT_EQ(r.code, 0) << r.err;
-  EXPECT_EQ(r.out, "lab schema at version 1 (nothing to do)\n");
+  EXPECT_EQ(r.out,
+            fmt::format("lab schema at version {} (nothing to do)\n", lab::kCentralSchemaVersion));
 
   r = lab({"add-station", "lab-c", "--role", "lab_c_relay", "--description", "bench c, room 2"});
   ASSERT_EQ(r.code, 0) << r.err;
