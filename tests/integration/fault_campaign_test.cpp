@@ -19,9 +19,11 @@
 #include <cstdlib>
 #include <cstring>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <random>
 
 #include "gyrotherm/storage/database.h"
+#include "hogs.h"
 #include "station_fixture.h"
 
 namespace gyrotherm {
@@ -178,6 +180,12 @@ TEST_F(FaultCampaignTest, KillNineAtRandomMoments) {
   // resume), the rest anywhere in the campaign.
   std::bernoulli_distribution in_start_up(0.25);
   std::uniform_real_distribution<double> start_up_s(0.02, 0.4), running_s(0.4, 2.5);
+  // Half of the others right after a step ends (the status shows the next
+  // step): a soak's tail, and the step change with its checkpoint.
+  std::bernoulli_distribution at_step_end(0.5);
+  // On a loaded machine (two `yes`; not in sanitized builds, already slow).
+  std::optional<testing::Hogs> hogs;
+  if (testing::time_factor() <= 1) hogs.emplace(2, dir_);
   // About 350 station seconds go by per kill (time scale 200), 500 per
   // soak and ramp: the kills spread over the whole campaign.
   const int soaks = std::max(2, kills * 2 / 3);
@@ -203,15 +211,25 @@ TEST_F(FaultCampaignTest, KillNineAtRandomMoments) {
     // Poll the status until the random moment; the last answer tells what
     // the daemon had acquired just before the kill.
     const auto started = Clock::now();
-    const double moment_s = in_start_up(rng) ? start_up_s(rng) : running_s(rng);
+    const bool start_up = in_start_up(rng);
+    const double moment_s = start_up ? start_up_s(rng) : running_s(rng);
+    const bool step_end = !start_up && at_step_end(rng);
     json before;
     Clock::time_point before_at{};
-    while (seconds_since(started) < moment_s) {
+    std::optional<int64_t> first_step;
+    while (seconds_since(started) < moment_s ||
+           (step_end && seconds_since(started) < 30 * testing::time_factor())) {
       if (json s = daemon_status(); !s.is_null()) {
         before = s;
         before_at = Clock::now();
+        if (step_end && s["step"]["index"].is_number()) {
+          const int64_t index = s["step"]["index"].get<int64_t>();
+          if (!first_step) first_step = index;
+          if (index != *first_step) break;  // the step changed: kill now
+        }
       }
     }
+    if (step_end) ++states_at_kill["step end"];
     daemon_->signal(SIGKILL);
     const double since_status_s = before.is_null() ? 0.0 : seconds_since(before_at);
     ASSERT_TRUE(daemon_->wait(std::chrono::seconds(10)).has_value());
