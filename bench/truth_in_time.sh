@@ -13,7 +13,9 @@
 #                 the "before" figures the same way
 # --scaled-clock  each process scales wall time alone (the simulator with
 #                 --scaled-clock when it knows it, the daemon with
-#                 --clock scaled when it knows it)
+#                 --clock scaled when it knows it); builds since the one
+#                 clock refuse this above x10, so above it this measures
+#                 an older build's "before" (--bin)
 # --hogs N        N `yes > /dev/null` beside the station (a loaded machine)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -29,7 +31,7 @@ while [ $# -gt 1 ]; do
     *) echo "truth_in_time: unknown argument '$1'" >&2; exit 2 ;;
   esac
 done
-[ $# -eq 1 ] || { sed -n '2,17p' "$0"; exit 2; }
+[ $# -eq 1 ] || { sed -n '2,19p' "$0"; exit 2; }
 schedule=$(realpath "$1")
 bin=$(realpath "$bin")
 out=${out:-$(mktemp -d /tmp/truth-in-time.XXXXXX)}

@@ -62,9 +62,9 @@ int main(int argc, char** argv) {
                  "station time: 'auto' (default) is 'sim' when the simulator's endpoints name "
                  "a clock file, else 'scaled'; 'sim' reads it from the simulator's clock file "
                  "(one clock for both; the simulator waits for this daemon); 'scaled' scales "
-                 "wall time on its own (above x" +
+                 "wall time on its own (refused above x" +
                      fmt::format("{:g}", gyrotherm::kMaxScaledSimTimeScale) +
-                     " against a simulator a loaded machine misplaces samples)")
+                     " against a simulator: a loaded machine misplaces samples)")
       ->check(CLI::IsMember({"auto", "sim", "scaled"}));
   app.add_option("--endpoints-wait", endpoints_wait_s,
                  "seconds to wait for the simulator's endpoints file");
@@ -132,11 +132,15 @@ int main(int argc, char** argv) {
       if (time_scale_opt->count() == 0) time_scale = ep->time_scale > 0 ? ep->time_scale : 1.0;
       shared_clock_map = std::move(*map);
     } else if (time_scale > gyrotherm::kMaxScaledSimTimeScale) {
-      spdlog::warn(
-          "--time-scale {:g} with a scaled clock against a simulator: above x{:g} a loaded "
-          "machine puts samples in the wrong windows (reader latency in wall seconds becomes "
-          "station seconds); --clock sim makes one clock of the simulator's",
-          time_scale, gyrotherm::kMaxScaledSimTimeScale);
+      // Two clocks: refused where a loaded machine makes them wrong.
+      std::cerr << fmt::format(
+          "gyrothermd: --time-scale {:g} with a scaled clock against a simulator is refused: "
+          "above x{:g} a loaded machine puts samples in the wrong windows (reader latency in "
+          "wall seconds becomes station seconds). Run the simulator with its clock (without "
+          "--scaled-clock) and the daemon with --clock auto or sim, or use --time-scale {:g} "
+          "or less\n",
+          time_scale, gyrotherm::kMaxScaledSimTimeScale, gyrotherm::kMaxScaledSimTimeScale);
+      return 2;
     }
     if (const std::string why = gd::sim_time_scale_mismatch(*ep, time_scale, file); !why.empty()) {
       std::cerr << "gyrothermd: " << why << "\n";

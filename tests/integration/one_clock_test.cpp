@@ -247,5 +247,43 @@ TEST_F(OneClockTest, AKilledDaemonResumesOnTheSameClockWithEverySecond) {
   EXPECT_TRUE(resumed) << events.dump(2);
 }
 
+// Two clocks above x10 against a simulator are what a loaded machine makes
+// wrong: the daemon refuses them at start, saying why.
+TEST_F(OneClockTest, AScaledClockAboveX10AgainstASimulatorIsRefused) {
+  start_sim();
+  start_daemon({"--clock", "scaled"});
+  const auto code = daemon_->wait(20s);
+  ASSERT_EQ(code, std::optional<int>(2)) << daemon_->log();
+  EXPECT_THAT(daemon_->log(), ::testing::HasSubstr("is refused"));
+}
+
+// The daemon follows the simulator's clock by default; a simulator killed
+// under it leaves its clock running on at the scale (it does not freeze),
+// so the daemon sees its devices go silent and holds the run.
+TEST_F(OneClockTest, ADaemonOutlivesItsSimulatorWithItsClockRunning) {
+  start_sim();
+  start_daemon();
+  ASSERT_TRUE(wait_until(
+      [&] {
+        const auto st = status();
+        return st && (*st)["clock"] == "sim" && (*st)["t_station_s"].get<double>() > 20;
+      },
+      60s))
+      << daemon_->log();
+  sim_->signal(SIGKILL);
+  ASSERT_TRUE(sim_->wait(10s).has_value());
+  const auto at_kill = status();
+  ASSERT_TRUE(at_kill) << daemon_->log();
+  const double killed_at_s = (*at_kill)["t_station_s"].get<double>();
+  ASSERT_TRUE(wait_until(
+      [&] {
+        const auto st = status();
+        return st && (*st)["t_station_s"].get<double>() > killed_at_s + 100;
+      },
+      60s))
+      << daemon_->log();
+  EXPECT_TRUE(daemon_->running());
+}
+
 }  // namespace
 }  // namespace gyrotherm::testing
