@@ -125,6 +125,44 @@ void DutReader::run() {
     // stamped back from the moment it was (at most kMaxUnanchored).
     std::vector<DutFrame> unanchored;
     bool settled = paced == nullptr;
+    // Scaled clock: the frames of a read that emptied the line lagging the
+    // clock beyond the tolerance wait here for the next read. If that one
+    // lags less, the sender is still working off a backlog (a reader that
+    // was stopped): the frames keep their counter slots. If it lags as much,
+    // or nothing comes within kHoldMax, the line really jumped (frames lost
+    // that the counter cannot tell): they move forward with the clock.
+    // Before, the first piece of a backlog realigned the clock and the rest
+    // came "ahead" of it, squeezed 1 us apart.
+    std::vector<DutFrame> held;
+    double held_lag_s = 0;
+    std::chrono::steady_clock::time_point held_at{};
+    const auto hold_max = std::max<std::chrono::steady_clock::duration>(
+        std::chrono::milliseconds(500),
+        std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+            std::chrono::duration<double>(3.0 / rate_hz_ / std::max(clock_.time_scale(), 1e-3))));
+    const auto deliver = [&](std::vector<DutFrame>& out) {
+      {
+        std::lock_guard lock(mu_);
+        health_.samples += out.size();
+        if (!out.empty()) health_.last_sample_station_s = out.back().t_s;
+      }
+      if (!out.empty() && sink_) {
+        try {
+          sink_(out);
+        } catch (const std::exception& e) {
+          std::lock_guard lock(mu_);
+          health_.last_error = fmt::format("frame sink failed: {}", e.what());
+        }
+      }
+    };
+    // The held frames move with the clock (a jump) and go out.
+    const auto release_as_jump = [&](double now_s, std::vector<DutFrame>& also) {
+      const double shift_s = sample_clock.realign(now_s);
+      for (auto& f : held) f.t_s += shift_s;
+      for (auto& f : also) f.t_s += shift_s;
+      also.insert(also.begin(), held.begin(), held.end());
+      held.clear();
+    };
 
     // Paced: everything the simulator made up to a station time is on the
     // line before it publishes that time; read the clock, then find the line
@@ -149,6 +187,11 @@ void DutReader::run() {
         break;
       }
       if (*got == 0) {
+        if (!held.empty() && std::chrono::steady_clock::now() - held_at >= hold_max) {
+          std::vector<DutFrame> none;
+          release_as_jump(clock_.now_s(), none);
+          deliver(none);
+        }
         mark_if_empty();
         continue;
       }
@@ -175,27 +218,35 @@ void DutReader::run() {
           frames.swap(unanchored);
           settled = true;
         }
-      } else if (drained) {
-        if (const double shift_s = sample_clock.realign(now_s); shift_s > 0) {
-          for (auto& f : frames) f.t_s += shift_s;
+      } else if (paced) {
+        if (drained) {
+          if (const double shift_s = sample_clock.realign(now_s); shift_s > 0) {
+            for (auto& f : frames) f.t_s += shift_s;
+          }
+        }
+      } else {
+        if (!held.empty()) {
+          if (sample_clock.lag_s(now_s) > held_lag_s - 0.5 * tolerance_s) {
+            release_as_jump(now_s, frames);  // not catching up
+          } else {
+            frames.insert(frames.begin(), held.begin(), held.end());  // a backlog
+            held.clear();
+          }
+        }
+        if (drained && sample_clock.lag_s(now_s) > tolerance_s) {
+          held_lag_s = sample_clock.lag_s(now_s);
+          held_at = std::chrono::steady_clock::now();
+          held.insert(held.end(), frames.begin(), frames.end());
+          frames.clear();
         }
       }
 
       {
         std::lock_guard lock(mu_);
-        health_.samples += frames.size();
         health_.invalid_samples += invalid;
         health_.parser = protocol_->counters();
-        if (!frames.empty()) health_.last_sample_station_s = frames.back().t_s;
       }
-      if (!frames.empty() && sink_) {
-        try {
-          sink_(frames);
-        } catch (const std::exception& e) {
-          std::lock_guard lock(mu_);
-          health_.last_error = fmt::format("frame sink failed: {}", e.what());
-        }
-      }
+      deliver(frames);
       if (drained && slot) {
         // The simulator publishes a time just after it wrote that time's
         // frames: a reader this quick waits a moment for it rather than a
@@ -203,6 +254,12 @@ void DutReader::run() {
         if (clock_.now_s() <= marked_s) (void)paced->wait_until(marked_s + 1e-9, kPublishWait);
         mark_if_empty();
       }
+    }
+    // Nothing read is dropped with the line: held frames go out as stamped.
+    if (!held.empty()) {
+      std::vector<DutFrame> rest;
+      rest.swap(held);
+      deliver(rest);
     }
     if (stop_) break;
     if (!wait_unless_stopped(backoff)) break;

@@ -269,6 +269,53 @@ TEST(DutReader, AsciiLinesWithoutACounterUseTheClockRule) {
   dut.stop();
 }
 
+// A reader that was stopped (a daemon stalled, on a scaled clock) comes back
+// to a backlog the sender writes as the line takes it: the first piece
+// empties the line lagging the clock by the whole stall. It is no jump: the
+// next piece lags less. Every frame keeps its counter slot (before, the first
+// piece realigned the clock and the rest came "ahead" of it, squeezed 1 us
+// apart: 9 509 samples in one run).
+TEST(DutReader, ABacklogReadInPiecesKeepsItsCounterSlots) {
+  Pty pty = open_pty();
+  ManualClock clock(100.0);
+  DutLink link;
+  link.serial.device = pty.slave_path();
+  link.protocol = "ascii";
+  link.rate_hz = 10.0;
+  link.ascii.delimiter = "whitespace";
+  link.ascii.columns = {col("seq", ChannelKind::kOther, ""),
+                        col("rate", ChannelKind::kRate, "deg/h", "z")};
+  link.ascii.seq_column = 0;
+  link.ascii.seq_modulo = 128;
+  auto source = make_dut_source(link, clock);
+  ASSERT_TRUE(source.ok()) << source.error().message;
+  DutSource& dut = **source;
+  Collector got;
+  dut.start(got.sink());
+  ASSERT_TRUE(wait_for([&] { return dut.health().connected; }));
+  // (A counter is taken once the next frame confirms it: frame 1 lets 0 out.)
+  send(pty, "0 1.0\n1 1.0\n");
+  ASSERT_TRUE(wait_for([&] { return got.size() >= 1; }));
+  // Stopped 60 s: 600 frames wait; they come in 6 pieces of 100 (the last
+  // one's extra frame confirms frame 600).
+  clock.set(160.0);
+  for (int piece = 0; piece < 6; ++piece) {
+    std::string text;
+    for (int i = 2 + 100 * piece; i <= 100 * (piece + 1) + 1; ++i) {
+      text += std::to_string(i % 128) + " 1.0\n";
+    }
+    send(pty, text);
+    std::this_thread::sleep_for(30ms);  // the sender's pace: the stimulus, not a wait
+  }
+  ASSERT_TRUE(wait_for([&] { return got.size() >= 601; })) << got.size();
+  const auto f = got.frames();
+  ASSERT_GE(f.size(), 601u);
+  for (std::size_t i = 0; i < f.size(); ++i) {
+    ASSERT_NEAR(f[i].t_s, 100.0 + 0.1 * static_cast<double>(i), 1e-6) << i;
+  }
+  dut.stop();
+}
+
 TEST(DutReader, HangUpIsSurvivedAndTheMissingDeviceNamed) {
   ManualClock clock(0.0);
   DutLink link;

@@ -75,6 +75,8 @@ class SampleClock {
   // simulator's clock, where the stream never trails the clock by more than
   // a step). Returns the shift (s) the caller adds to the stamps so far.
   double settle(double now_s);
+  // How far the last frame stamped lags `now_s` (0 before any).
+  double lag_s(double now_s) const { return anchored_ ? now_s - last_t_s_ : 0.0; }
   void reset();  // the next frame anchors on the clock
 
  private:
