@@ -131,8 +131,17 @@ int main(int argc, char** argv) {
       // The simulator's scale unless one was given (then they must agree).
       if (time_scale_opt->count() == 0) time_scale = ep->time_scale > 0 ? ep->time_scale : 1.0;
       shared_clock_map = std::move(*map);
+    } else if (time_scale > gyrotherm::kMaxScaledSimTimeScale && clock_mode != "scaled") {
+      // A simulator without a clock file (started with --scaled-clock, or
+      // an older one, or a test's in-process one): two clocks it asked for.
+      spdlog::warn(
+          "--time-scale {:g} against a simulator without a clock file: two clocks, and above "
+          "x{:g} a loaded machine puts samples in the wrong windows; run the simulator without "
+          "--scaled-clock",
+          time_scale, gyrotherm::kMaxScaledSimTimeScale);
     } else if (time_scale > gyrotherm::kMaxScaledSimTimeScale) {
-      // Two clocks: refused where a loaded machine makes them wrong.
+      // Two clocks asked of the daemon: refused where a loaded machine
+      // makes them wrong.
       std::cerr << fmt::format(
           "gyrothermd: --time-scale {:g} with a scaled clock against a simulator is refused: "
           "above x{:g} a loaded machine puts samples in the wrong windows (reader latency in "

@@ -15,7 +15,8 @@ inline constexpr double kMaxTimeScale = 1e4;
 // simulator that does the same: two clocks, and reader latency in wall
 // seconds times the scale becomes station seconds of misplaced samples.
 // Measured on a loaded 2-core machine: x10 held, x100 put a scale factor's
-// samples 100 s late. Above this the daemon refuses; the simulator's shared
+// samples 100 s late. Above this `--clock scaled` is refused (a
+// simulator without a clock file gets a warning); the simulator's shared
 // clock (--clock sim) holds at any scale, running slower when it must.
 inline constexpr double kMaxScaledSimTimeScale = 10.0;
 
