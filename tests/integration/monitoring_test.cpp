@@ -10,6 +10,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <cstdlib>
 #include <map>
 #include <regex>
 #include <sstream>
@@ -192,15 +193,20 @@ TEST_F(MonitoringTest, DecimatedSamplesAgreeWithTheDatabase) {
   ASSERT_TRUE(file.ok()) << file.error().message;
   auto raw = file->gyro_samples(run_id, j["from_s"].get<double>(), j["to_s"].get<double>());
   ASSERT_TRUE(raw.ok()) << raw.error().message;
-  EXPECT_EQ(n_sum, static_cast<int64_t>(raw->size()));
+  // Exact but for a sample on a block edge at either end: the rollup places
+  // a sample by the time it was written with, a read by the chunk's implicit
+  // clock (within 1e-6 of a period), and on the simulator's clock 10 Hz
+  // samples fall on the 0.1 s grid, so one at an edge can land on either side.
+  EXPECT_LE(std::abs(n_sum - static_cast<int64_t>(raw->size())), 2);
   double raw_sum = 0;
   for (const GyroSample& r : *raw) raw_sum += r.rate_dph;
   double weighted = 0;
   for (std::size_t i = 0; i < g["t_s"].size(); ++i) {
     weighted += g["mean_dph"][i].get<double>() * g["n"][i].get<double>();
   }
+  // (two edge samples of ~3000 at ~8 °/h with 1 °/h of noise: < 0.005 °/h)
   EXPECT_NEAR(weighted / static_cast<double>(n_sum), raw_sum / static_cast<double>(raw->size()),
-              1e-9);
+              0.005);
   EXPECT_FALSE(j["temperature"]["t_s"].empty());
 
   // Bad parameters name themselves.
