@@ -18,12 +18,12 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <memory>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <random>
 
 #include "gyrotherm/storage/database.h"
-#include "hogs.h"
 #include "station_fixture.h"
 
 namespace gyrotherm {
@@ -54,12 +54,20 @@ std::string replace_once(std::string text, const std::string& from, const std::s
 }
 
 // PRAGMA integrity_check's answer ("ok" when the file is sound).
+// The file itself (plain SQLite, whatever its schema version: a kill
+// between two migrations at start-up leaves an older one).
 std::string integrity_check(const std::filesystem::path& db_path) {
-  auto db = storage::Database::open_read_only(db_path.string());
-  if (!db) return "cannot open: " + db.error().message;
+  sqlite3* raw = nullptr;
+  if (sqlite3_open_v2(db_path.c_str(), &raw, SQLITE_OPEN_READONLY, nullptr) != SQLITE_OK) {
+    const std::string why = raw ? sqlite3_errmsg(raw) : "out of memory";
+    sqlite3_close(raw);
+    return "cannot open: " + why;
+  }
+  std::unique_ptr<sqlite3, decltype(&sqlite3_close)> handle(raw, &sqlite3_close);
+  sqlite3_busy_timeout(raw, 5000);
   sqlite3_stmt* st = nullptr;
-  if (sqlite3_prepare_v2(db->handle(), "PRAGMA integrity_check", -1, &st, nullptr) != SQLITE_OK) {
-    return std::string("cannot prepare: ") + sqlite3_errmsg(db->handle());
+  if (sqlite3_prepare_v2(raw, "PRAGMA integrity_check", -1, &st, nullptr) != SQLITE_OK) {
+    return std::string("cannot prepare: ") + sqlite3_errmsg(raw);
   }
   std::string out;
   while (sqlite3_step(st) == SQLITE_ROW) {
@@ -183,9 +191,6 @@ TEST_F(FaultCampaignTest, KillNineAtRandomMoments) {
   // Half of the others right after a step ends (the status shows the next
   // step): a soak's tail, and the step change with its checkpoint.
   std::bernoulli_distribution at_step_end(0.5);
-  // On a loaded machine (two `yes`; not in sanitized builds, already slow).
-  std::optional<testing::Hogs> hogs;
-  if (testing::time_factor() <= 1) hogs.emplace(2, dir_);
   // About 350 station seconds go by per kill (time scale 200), 500 per
   // soak and ramp: the kills spread over the whole campaign.
   const int soaks = std::max(2, kills * 2 / 3);
@@ -239,6 +244,14 @@ TEST_F(FaultCampaignTest, KillNineAtRandomMoments) {
 
     ASSERT_EQ(integrity_check(db_path()), "ok") << "after kill " << k + 1;
     auto db = storage::Database::open_read_only(db_path().string());
+    if (!db.ok() && db.error().message.find("older than this build") != std::string::npos) {
+      // Killed between two schema migrations at start-up (each is its own
+      // transaction): the next start finishes them. Nothing else to check.
+      ++states_at_kill["migration"];
+      open_run = 0;
+      start_daemon({}, false);
+      continue;
+    }
     ASSERT_TRUE(db.ok()) << db.error().message;
     auto runs = db->runs();
     ASSERT_TRUE(runs.ok());

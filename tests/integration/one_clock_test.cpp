@@ -10,8 +10,11 @@
 
 #include <chrono>
 #include <cmath>
+#include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <map>
+#include <string>
 #include <thread>
 
 #include "gyrotherm/core/shared_clock.h"
@@ -28,6 +31,24 @@ using namespace std::chrono_literals;
 // The analysed axes of the three DUTs.
 const std::map<std::string, std::vector<std::string>> kAnalysed = {
     {"17-0042", {"x", "y", "z"}}, {"17-0043", {"x", "z"}}, {"TS-7", {"x", "y"}}};
+
+// Every thread of `pid` is stopped (SIGSTOP takes effect asynchronously:
+// a process busy on the other core runs on for a moment).
+bool all_threads_stopped(pid_t pid) {
+  const std::filesystem::path tasks = fmt::format("/proc/{}/task", pid);
+  std::error_code ec;
+  bool any = false;
+  for (const auto& task : std::filesystem::directory_iterator(tasks, ec)) {
+    std::ifstream in(task.path() / "stat");
+    std::string stat((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    const auto paren = stat.rfind(')');
+    if (paren == std::string::npos || paren + 2 >= stat.size()) return false;
+    const char state = stat[paren + 2];
+    if (state != 'T' && state != 't') return false;
+    any = true;
+  }
+  return any && !ec;
+}
 
 class OneClockTest : public StationTest {
  protected:
@@ -152,6 +173,7 @@ TEST_F(OneClockTest, ADaemonStoppedStopsStationTime) {
   // a simulator descheduled on a loaded machine).
   auto map = SharedClockMap::open((dir_ / "endpoints.toml.clock").string());
   ASSERT_TRUE(map.ok()) << map.error().message;
+  ASSERT_TRUE(wait_until([&] { return all_threads_stopped(daemon_->pid()); }, 10s));
   std::optional<double> t_stopped_s;
   ASSERT_TRUE(wait_until(
       [&] {
@@ -196,6 +218,7 @@ TEST_F(OneClockTest, ASimulatorStoppedStopsTheDaemonsClock) {
   // behind on a loaded machine is not yet where the clock stopped.
   auto map = SharedClockMap::open((dir_ / "endpoints.toml.clock").string());
   ASSERT_TRUE(map.ok()) << map.error().message;
+  ASSERT_TRUE(wait_until([&] { return all_threads_stopped(sim_->pid()); }, 10s));
   std::optional<double> t_stopped_s;
   ASSERT_TRUE(wait_until(
       [&] {
