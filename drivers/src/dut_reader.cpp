@@ -129,7 +129,7 @@ void DutReader::run() {
     // clock beyond the tolerance wait here for the next read. If that one
     // lags less, the sender is still working off a backlog (a reader that
     // was stopped): the frames keep their counter slots. If it lags as much,
-    // or nothing comes within kHoldMax, the line really jumped (frames lost
+    // or nothing comes within hold_max, the line really jumped (frames lost
     // that the counter cannot tell): they move forward with the clock.
     // Before, the first piece of a backlog realigned the clock and the rest
     // came "ahead" of it, squeezed 1 us apart.
