@@ -164,7 +164,7 @@
     ticks: { stroke: 'rgba(148, 163, 184, 0.3)', width: 1, size: 5 },
   };
   const X_INCRS = [1, 2, 5, 10, 15, 30, 60, 120, 300, 600, 900, 1200, 1800, 3600,
-    7200, 10800, 21600, 43200, 86400];
+    7200, 10800, 21600, 43200, 86400, 172800, 345600, 604800];
 
   function valueFmt(digits) {
     return (u, v) => fmtNum(v, digits);
@@ -174,6 +174,31 @@
   function showLatestInLegend(u) {
     const n = u.data[0].length;
     if (n && u.cursor.idx == null) u.setLegend({ idx: n - 1 }, false);
+  }
+
+  // Axis labels are measured in the axes' own font, so the y axis is as wide
+  // as its widest label (a minus sign is never clipped) and the x ticks stand
+  // at least a label's width apart however long the span.
+  const measure = document.createElement('canvas').getContext('2d');
+  measure.font = FONT;
+  function textWidth(s) {
+    return measure.measureText(s).width;
+  }
+
+  // Decimals enough to tell neighbouring ticks apart, no more.
+  function tickValues(u, splits, axisIdx, space, incr) {
+    const digits = incr > 0 ? Math.min(6, Math.max(0, -Math.floor(Math.log10(incr) + 1e-9))) : 0;
+    return splits.map((v) => fmtNum(v, digits));
+  }
+
+  function ySize(u, values) {
+    const widest = values && values.length ? Math.max(...values.map(textWidth)) : 40;
+    return Math.ceil(widest + AXIS.ticks.size + 12);
+  }
+
+  function xSpace(u, axisIdx, min, max) {
+    const widest = Math.max(textWidth(fmtClock(min)), textWidth(fmtClock(max)));
+    return Math.ceil(widest + 24);
   }
 
   function makePlot(el, series, extra) {
@@ -188,9 +213,10 @@
         Object.assign({}, AXIS, {
           incrs: X_INCRS,
           values: (u, splits) => splits.map(fmtClock),
+          space: xSpace,
           size: 40,
         }),
-        Object.assign({}, AXIS, { size: 64 }),
+        Object.assign({}, AXIS, { values: tickValues, size: ySize }),
       ],
       series: [{ label: 'time', value: (u, v) => fmtClock(v) }].concat(series),
       hooks: { setCursor: [showLatestInLegend] },

@@ -141,10 +141,13 @@ const RUN = {
 const CHANNEL_COUNT = 8 + 8 + 2;
 
 // The samples route's answer for one DUT and channel: four buckets whose
-// means tell which channel they are (21-0007 rate: 12.5).
+// means tell which channel they are (21-0007 rate: −36 000.5 °/h, a table
+// turning at −10 °/s, over three days: the axes' widest labels).
+const THIRD_MEAN = -36000.5;
 function samples(dut, channel) {
-  const mean = dut === '21-0007' && channel === 'rate' ? 12.5 : 7.5;
-  const t = [100, 200, 300, 400];
+  const third = dut === '21-0007' && channel === 'rate';
+  const mean = third ? THIRD_MEAN : 7.5;
+  const t = third ? [100, 86400, 172800, 259300] : [100, 200, 300, 400];
   return {
     run_id: 5, dut, channel, unit: 'deg/h',
     temperature: { t_s: t, setpoint_c: t.map(() => 40), chamber_c: t.map(() => 40),
@@ -194,6 +197,45 @@ async function look(page) {
       station: text('t-station'),
     };
   });
+}
+
+// The gyro plot's axes as drawn: each tick label and where it stands,
+// measured in the axes' font by the test itself.
+async function gyroAxes(page) {
+  return page.evaluate((font) => {
+    const u = window.dashboard.gyroPlot;
+    const ctx = document.createElement('canvas').getContext('2d');
+    ctx.font = font;
+    const ticks = (i, scale) => u.axes[i]._splits.map((v, k) => ({
+      value: v, label: u.axes[i]._values[k], width: ctx.measureText(u.axes[i]._values[k]).width,
+      pos: u.valToPos(v, scale) }));
+    return { x: ticks(0, 'x'), y: ticks(1, 'y'), ySize: u.axes[1]._size,
+      yTick: u.axes[1].ticks.size, yGap: u.axes[1].gap };
+  }, '13px "DejaVu Sans", "Segoe UI", system-ui, sans-serif');
+}
+
+// Fails when a y label is wider than its axis (clipped at the page's
+// edge), a negative value lost its minus sign, or two x labels overlap.
+function checkAxes(failures, step, axes) {
+  for (const t of axes.y) {
+    if (t.value < 0 && !t.label.startsWith('−')) {
+      failures.push(`${step}: the y tick at ${t.value} reads "${t.label}", no minus sign`);
+    }
+    if (t.width + axes.yTick + axes.yGap > axes.ySize) {
+      failures.push(`${step}: the y label "${t.label}" (${t.width.toFixed(1)} px) does not fit ` +
+        `its ${axes.ySize} px axis`);
+    }
+  }
+  if (axes.y.length < 2) failures.push(`${step}: ${axes.y.length} y ticks`);
+  if (axes.x.length < 2) failures.push(`${step}: ${axes.x.length} x ticks`);
+  for (let k = 1; k < axes.x.length; k++) {
+    const a = axes.x[k - 1];
+    const b = axes.x[k];
+    if (b.pos - a.pos < (a.width + b.width) / 2 + 4) {
+      failures.push(`${step}: the x labels "${a.label}" and "${b.label}" overlap ` +
+        `(${(b.pos - a.pos).toFixed(1)} px apart)`);
+    }
+  }
 }
 
 async function waitFor(page, ok, deadline) {
@@ -259,7 +301,7 @@ try {
       await streamGate;
       // A long retry: the page must not come back for more while it is looked at.
       const body = `retry: 3600000\n\nevent: status\ndata: ${
-        JSON.stringify(status(1060, ACQUIRING, 12.25))}\n\n`;
+        JSON.stringify(status(259400, ACQUIRING, 12.25))}\n\n`;
       await route.fulfill({ status: 200, contentType: 'text/event-stream', body });
     } else {
       failures.push(`request the test does not serve: ${url.pathname}${url.search}`);
@@ -308,8 +350,8 @@ try {
     failures.push('2: no option "21-0007 · rate (°/h)" in the chooser');
   } else {
     await page.selectOption('#gyro-channel', String(index));
-    seen = await waitFor(page, (s) => samplesAsked.length > asked && s.gyroMeans.includes(12.5),
-      deadline);
+    seen = await waitFor(page,
+      (s) => samplesAsked.length > asked && s.gyroMeans.includes(THIRD_MEAN), deadline);
     if (!seen.ok) failures.push(`2: the chosen channel was not plotted: ${JSON.stringify(seen.last)}`);
     expectEqual(failures, '2', 'samples request', samplesAsked[samplesAsked.length - 1],
       ['21-0007', 'rate']);
@@ -317,6 +359,7 @@ try {
     if (seen.last.gyroMeans.includes(7.5)) {
       failures.push('2: the first channel\'s history is still on the plot');
     }
+    checkAxes(failures, '2 (axes)', await gyroAxes(page));
   }
   await page.screenshot({ path: args.screenshot, fullPage: true });
 
