@@ -48,6 +48,53 @@ class DutsTest : public StationTest {
   }
 };
 
+// `queue add --dut A --dut B` records A and B only: the third DUT has no
+// place in the run, no sample and no Table I row, and the soak is credited
+// for the named DUTs' data (the run ends though the third is never stored).
+TEST_F(DutsTest, QueueAddDutRecordsTheDutsItNamesOnly) {
+  write(dir_ / "short.toml", soak_schedule("two of three DUTs", 25.0, 2, 1));
+  start_sim();
+  start_daemon({}, /*with_schedule=*/false);
+  ASSERT_TRUE(wait_until([&] { return status().has_value(); }, std::chrono::seconds(30)))
+      << daemon_->log();
+  int code = -1;
+  const std::string out = run_cli({"queue", "add", (dir_ / "short.toml").string(), "--dut",
+                                   "17-0042", "--dut", "TS-7", "--url", url(""), "--token", kToken},
+                                  &code);
+  ASSERT_EQ(code, 0) << out;
+
+  ASSERT_TRUE(wait_until(
+      [&] {
+        auto events = get_json("/api/v1/runs/1/events");
+        if (!events.is_array()) return false;
+        return std::any_of(events.begin(), events.end(),
+                           [](const auto& e) { return e.value("kind", "") == "analysis"; });
+      },
+      std::chrono::seconds(180)))
+      << daemon_->log();
+
+  auto db = storage::Database::open_read_only((dir_ / "station.db").string());
+  ASSERT_TRUE(db.ok()) << db.error().message;
+  auto run_duts = db->run_duts(1);
+  ASSERT_TRUE(run_duts.ok()) << run_duts.error().message;
+  std::vector<std::string> serials;
+  for (const auto& d : *run_duts) {
+    serials.push_back(d.dut.serial);
+    for (const auto& c : d.channels) {
+      auto n = db->count_channel_samples(c.id);
+      ASSERT_TRUE(n.ok()) << n.error().message;
+      EXPECT_GT(*n, 0) << d.dut.serial << " " << c.spec.name;
+    }
+  }
+  EXPECT_THAT(serials, ::testing::ElementsAre("17-0042", "TS-7"));
+  auto stats = db->segment_stats(1);
+  ASSERT_TRUE(stats.ok());
+  ASSERT_FALSE(stats->empty());
+  for (const auto& r : *stats) EXPECT_NE(r.dut_serial, "17-0043") << r.axis;
+  auto run = get_json("/api/v1/runs/1");
+  EXPECT_EQ(run["metadata"]["duts"], nlohmann::json::array({"17-0042", "TS-7"})) << run.dump(2);
+}
+
 TEST_F(DutsTest, ThreeDutsThroughACampaignEachRecoversItsOwnTruth) {
   start_sim();
   start_daemon({}, /*with_schedule=*/false);

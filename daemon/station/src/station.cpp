@@ -580,6 +580,7 @@ schedules::Readings Station::read_devices(double now_s) {
   r.gyro_heard = true;
   std::vector<std::string> silent_duts;
   for (const auto& d : duts_) {
+    if (!d->in_run.load()) continue;  // not recorded in this run
     const double silent_s = silent(d->last_s.load(), d->last_wall_s.load());
     if (!d->cfg->required) {
       const bool lost = silent_s > d->cfg->silent_timeout_s;
@@ -1068,7 +1069,7 @@ void Station::start_next_run(double now_s) {
   queue_length_.fetch_sub(1);
   queue_scanned_length_ = -1;  // the queue's planned time: without this entry, at the next tick
   busy_.store(true);
-  register_run_duts(run_id);
+  register_run_duts(run_id, entry.metadata.dut_serials);
   run_clock_.publish(run_id, now_s);
   entry_ = entry;
   {
@@ -1236,7 +1237,7 @@ void Station::resume_interrupted_run() {
   }
   entry_ = **entry;
   busy_.store(true);
-  register_run_duts(run.id);
+  register_run_duts(run.id, entry_->metadata.dut_serials);
   // A soak is credited for what each DUT stored: read back from the step's start.
   seed_coverage(run.id, snap->times.start_s);
   run_clock_.publish(run.id, clock_.now_s() - t_resume_s);
@@ -1493,9 +1494,19 @@ void Station::publish_dut_status(const DutLive& dut) {
   }
 }
 
-void Station::register_run_duts(int64_t run_id) {
+void Station::register_run_duts(int64_t run_id, const std::vector<std::string>& serials) {
   for (auto& d : duts_) {
     const DutSection& cfg = *d->cfg;
+    const bool named =
+        serials.empty() || std::find(serials.begin(), serials.end(), cfg.serial) != serials.end();
+    d->in_run.store(named);
+    if (!named) {
+      // Not asked for: its frames are not stored under this run.
+      std::lock_guard lock(d->layout_mu);
+      d->layout.reset();
+      d->probe_layout.reset();
+      continue;
+    }
     storage::RunDutRecord rec;
     rec.run_id = run_id;
     rec.position = static_cast<int>(d->index);
@@ -1863,7 +1874,7 @@ double Station::data_covered_s(double from_s, double to_s) {
   const int64_t run_id = current_run_id();
   double least = std::numeric_limits<double>::infinity();
   for (auto& d : duts_) {
-    if (d->lost.load()) continue;
+    if (d->lost.load() || !d->in_run.load()) continue;
     std::lock_guard lock(d->coverage_mu);
     const double covered =
         d->coverage && d->coverage_run_id == run_id ? d->coverage->covered_s(from_s, to_s) : 0.0;
@@ -1876,7 +1887,7 @@ std::optional<double> Station::data_reached_at_s(double from_s, double need_s) {
   const int64_t run_id = current_run_id();
   double latest = from_s + need_s;  // no DUT: the clock's
   for (auto& d : duts_) {
-    if (d->lost.load()) continue;
+    if (d->lost.load() || !d->in_run.load()) continue;
     std::lock_guard lock(d->coverage_mu);
     if (!d->coverage || d->coverage_run_id != run_id) return std::nullopt;
     const auto at = d->coverage->reached_at(from_s, need_s);
@@ -2174,12 +2185,18 @@ Reply Station::run_scale_factor(int64_t id) {
   if (!fits) return db_failure(fits.error());
   auto over_t = api_db_.scale_factor_temperature_fit(id);
   if (!over_t) return db_failure(over_t.error());
+  auto every_over_t = api_db_.scale_factor_temperature_fits(id);
+  if (!every_over_t) return db_failure(every_over_t.error());
   nlohmann::json out = {{"points", nlohmann::json::array()},
                         {"fits", nlohmann::json::array()},
-                        {"temperature_fit", nullptr}};
+                        {"temperature_fit", nullptr},
+                        {"temperature_fits", nlohmann::json::array()}};
   for (const auto& p : *points) out["points"].push_back(to_json(p));
   for (const auto& f : *fits) out["fits"].push_back(to_json(f));
+  // temperature_fit: the first DUT's primary axis, as before several DUTs;
+  // temperature_fits: every DUT and axis.
   if (*over_t) out["temperature_fit"] = to_json(**over_t);
+  for (const auto& t : *every_over_t) out["temperature_fits"].push_back(to_json(t));
   return Reply::ok(std::move(out));
 }
 

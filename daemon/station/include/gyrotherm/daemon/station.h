@@ -256,6 +256,10 @@ class Station final : public StationControl, private schedules::SequencerObserve
     // Not required and silent past its timeout: left out of the gyro_lost
     // interlock and of the soaks' data accounting until it speaks again.
     std::atomic<bool> lost{false};
+    // Recorded in the current run: the run's entry named it (`queue add
+    // --dut`) or named none. One that is not is left out of the run's
+    // storage, its soaks' data accounting and the gyro_lost interlock.
+    std::atomic<bool> in_run{true};
     // The DUT in the current run (Database::add_run_dut), set by the control
     // thread before the run's clock is published; the frames' channels, and
     // apart the channels of its own probes (probe_top_c, probe_side_c).
@@ -289,7 +293,8 @@ class Station final : public StationControl, private schedules::SequencerObserve
   void publish_dut_status(const DutLive& dut);
   // Registers every DUT in run `run_id` (run_duts, channels): before the
   // run's clock is published, so no frame comes under a run without its DUTs.
-  void register_run_duts(int64_t run_id);
+  // Registers in the run the DUTs `serials` names (empty: every one).
+  void register_run_duts(int64_t run_id, const std::vector<std::string>& serials);
   // Reads them without run_mu_; the events to record (kind "device") are
   // returned for the caller to add under run_mu_.
   std::vector<std::string> read_dut_probes(double now_s);
