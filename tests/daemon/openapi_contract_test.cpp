@@ -431,7 +431,8 @@ class ContractControl : public StationControl {
     t.created_utc = "2026-11-21T07:38:43.120Z";
     return Reply::ok({{"points", json::array({to_json(p)})},
                       {"fits", json::array({to_json(f)})},
-                      {"temperature_fit", to_json(t)}});
+                      {"temperature_fit", to_json(t)},
+                      {"temperature_fits", json::array({to_json(t)})}});
   }
   static storage::RunDutRecord run_dut() {
     storage::RunDutRecord d;

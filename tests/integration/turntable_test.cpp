@@ -13,6 +13,7 @@
 #include <cstdlib>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <set>
 #include <string>
 #include <tuple>
 #include <utility>
@@ -464,6 +465,18 @@ TEST_F(TurntableTest, ScaleFactorWithThreeDutsBesideTwoHogsRecoversTheTruth) {
   const json result = last_;
   ASSERT_EQ(result["points"].size(), 2u * 2u * 6u) << result.dump();
   expect_recovers_the_truth(result);
+  // K(T) for every DUT axis with rate points, the first DUT's primary axis
+  // (temperature_fit) among them.
+  std::set<std::pair<std::string, std::string>> streams;
+  auto stream = [](const json& r) {
+    return std::make_pair(r["dut_serial"].get<std::string>(), r["axis"].get<std::string>());
+  };
+  for (const json& f : result["fits"]) streams.insert(stream(f));
+  ASSERT_EQ(result["temperature_fits"].size(), streams.size()) << result.dump();
+  for (const json& t : result["temperature_fits"]) {
+    EXPECT_EQ(streams.count(stream(t)), 1u) << t.dump();
+  }
+  EXPECT_EQ(result["temperature_fits"][0], result["temperature_fit"]);
   // Table I: the two static soaks, every DUT's analysed axes.
   const json stats = get_json("/api/v1/runs/1/stats");
   ASSERT_TRUE(stats.is_array()) << diag();
