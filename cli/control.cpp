@@ -529,6 +529,27 @@ std::string format_station_time(const json& t_s) {
   return fmt::format("{}{}:{:02}:{:02}", *t < 0 ? "-" : "", s / 3600, s / 60 % 60, s % 60);
 }
 
+std::string format_events(const json& events, std::string_view indent) {
+  if (!events.is_array() || events.empty()) return fmt::format("{}none\n", indent);
+  std::vector<std::vector<std::string>> rows;
+  for (const auto& e : events) {
+    const json& from = field(e, "from_state");
+    const json& to = field(e, "to_state");
+    const bool has_from = from.is_string() && !from.get<std::string>().empty();
+    const bool has_to = to.is_string() && !to.get<std::string>().empty();
+    std::string transition;
+    if (has_from || has_to) {
+      transition = fmt::format("{} → {}", has_from ? from.get<std::string>() : "",
+                               has_to ? to.get<std::string>() : "");
+    }
+    const json& message = field(e, "message");
+    rows.push_back({format_station_time(field(e, "t_s")), text(field(e, "kind")), transition,
+                    message.is_string() ? message.get<std::string>() : std::string()});
+  }
+  return table({"time", "kind", "from → to", "message"},
+               {Align::kRight, Align::kLeft, Align::kLeft, Align::kLeft}, rows, indent);
+}
+
 std::string format_utc(const json& utc) {
   if (!utc.is_string()) return kDash;
   const auto s = utc.get<std::string>();
@@ -857,27 +878,7 @@ std::string format_run(const json& run, const json& events) {
   }
 
   out += "\nevents\n";
-  if (!events.is_array() || events.empty()) {
-    out += "  none\n";
-    return out;
-  }
-  std::vector<std::vector<std::string>> rows;
-  for (const auto& e : events) {
-    const json& from = field(e, "from_state");
-    const json& to = field(e, "to_state");
-    const bool has_from = from.is_string() && !from.get<std::string>().empty();
-    const bool has_to = to.is_string() && !to.get<std::string>().empty();
-    std::string transition;
-    if (has_from || has_to) {
-      transition = fmt::format("{} → {}", has_from ? from.get<std::string>() : "",
-                               has_to ? to.get<std::string>() : "");
-    }
-    const json& message = field(e, "message");
-    rows.push_back({format_station_time(field(e, "t_s")), text(field(e, "kind")), transition,
-                    message.is_string() ? message.get<std::string>() : std::string()});
-  }
-  out += table({"time", "kind", "from → to", "message"},
-               {Align::kRight, Align::kLeft, Align::kLeft, Align::kLeft}, rows);
+  out += format_events(events);
   return out;
 }
 

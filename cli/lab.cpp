@@ -128,13 +128,6 @@ std::string comment_text(const json& comment) {
   return c;
 }
 
-std::string station_time(const json& t_s) {
-  const auto t = number(t_s);
-  if (!t) return kDash;
-  const auto s = static_cast<int64_t>(std::floor(std::fabs(*t)));
-  return fmt::format("{}{}:{:02}:{:02}", *t < 0 ? "-" : "", s / 3600, s / 60 % 60, s % 60);
-}
-
 // ---------------------------------------------------------------- URLs and passwords
 
 std::string percent_decoded(std::string_view s) {
@@ -387,8 +380,9 @@ std::string format_lab_run(const json& j) {
         table_demand += fmt::format(" {:g} °/s", *rate);
       }
       rows.push_back({step_text(field(s, "idx")), text(field(s, "kind")), text(field(s, "label")),
-                      fixed(field(s, "setpoint_c"), 2), station_time(field(s, "t_start_s")),
-                      station_time(field(s, "t_end_s")), table_demand, text(field(s, "state"))});
+                      fixed(field(s, "setpoint_c"), 2), format_station_time(field(s, "t_start_s")),
+                      format_station_time(field(s, "t_end_s")), table_demand,
+                      text(field(s, "state"))});
     }
     out += table({"#", "kind", "label", "set °C", "start", "end", "table", "state"},
                  {Align::kRight, Align::kLeft, Align::kLeft, Align::kRight, Align::kRight,
@@ -469,25 +463,7 @@ std::string format_lab_run(const json& j) {
   }
 
   out += "\nevents\n";
-  const json& events = field(j, "events");
-  if (!events.is_array() || events.empty()) return out + "  none\n";
-  std::vector<std::vector<std::string>> rows;
-  for (const auto& e : events) {
-    const json& from = field(e, "from_state");
-    const json& to = field(e, "to_state");
-    const bool has_from = from.is_string() && !from.get<std::string>().empty();
-    const bool has_to = to.is_string() && !to.get<std::string>().empty();
-    std::string transition;
-    if (has_from || has_to) {
-      transition = fmt::format("{} → {}", has_from ? from.get<std::string>() : "",
-                               has_to ? to.get<std::string>() : "");
-    }
-    const json& message = field(e, "message");
-    rows.push_back({station_time(field(e, "t_s")), text(field(e, "kind")), transition,
-                    message.is_string() ? message.get<std::string>() : std::string()});
-  }
-  return out + table({"time", "kind", "from → to", "message"},
-                     {Align::kRight, Align::kLeft, Align::kLeft, Align::kLeft}, rows, "  ");
+  return out + format_events(field(j, "events"), "  ");
 }
 
 std::string format_lab_dut(const json& h) {

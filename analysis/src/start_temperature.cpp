@@ -10,6 +10,8 @@
 #include <cmath>
 #include <nlohmann/json.hpp>
 
+#include "gyrotherm/core/text.h"
+
 namespace gyrotherm::analysis {
 namespace {
 
@@ -91,28 +93,6 @@ std::string c_terms_body(const DriftModelSpec& spec, Coef coef) {
   return body;
 }
 
-// Text from the configuration (station name, gyro serial) made safe inside a
-// C block comment: a control character (a newline would start a line that
-// does not continue the comment) becomes a space, and a space is put between
-// the two characters of "*/" (would end the comment), "/*" (-Wcomment) and
-// "??" (a trigraph: "??/" before a newline splices lines under -std=c99).
-std::string c_comment_text(std::string_view s) {
-  std::string out;
-  out.reserve(s.size());
-  for (char c : s) {
-    const auto u = static_cast<unsigned char>(c);
-    if (u < 0x20 || u == 0x7f) c = ' ';
-    if (!out.empty()) {
-      const char prev = out.back();
-      if ((prev == '*' && c == '/') || (prev == '/' && c == '*') || (prev == '?' && c == '?')) {
-        out += ' ';
-      }
-    }
-    out += c;
-  }
-  return out;
-}
-
 }  // namespace
 
 std::string export_metadata_c(const ExportInfo& info) {
@@ -123,10 +103,11 @@ std::string export_metadata_c(const ExportInfo& info) {
   std::string tags;
   for (const auto& t : info.tags) tags += (tags.empty() ? "" : ", ") + t;
   const auto or_dash = [](const std::string& s) { return s.empty() ? std::string("-") : s; };
-  return fmt::format(" * Model: {}; axis: {}; operator: {}; tags: {}\n * Comment: {}\n",
-                     c_comment_text(or_dash(info.gyro_model)), c_comment_text(or_dash(info.axis)),
-                     c_comment_text(or_dash(info.operator_name)), c_comment_text(or_dash(tags)),
-                     c_comment_text(or_dash(info.comment)));
+  return fmt::format(
+      " * Model: {}; axis: {}; operator: {}; tags: {}\n * Comment: {}\n",
+      text::c_comment_text(or_dash(info.gyro_model)), text::c_comment_text(or_dash(info.axis)),
+      text::c_comment_text(or_dash(info.operator_name)), text::c_comment_text(or_dash(tags)),
+      text::c_comment_text(or_dash(info.comment)));
 }
 
 namespace {
@@ -134,12 +115,12 @@ namespace {
 std::string provenance_c(const ExportInfo& info) {
   std::string runs;
   for (int64_t id : info.run_ids) runs += (runs.empty() ? "" : ", ") + std::to_string(id);
-  std::string out =
-      fmt::format(" * Station: {}; gyro: {}; runs: {}; computed: {}\n",
-                  c_comment_text(info.station.empty() ? "(unnamed)" : info.station),
-                  c_comment_text(info.gyro_serial.empty() ? "(no serial)" : info.gyro_serial),
-                  runs.empty() ? "(none)" : runs,
-                  c_comment_text(info.computed_utc.empty() ? "(unknown)" : info.computed_utc));
+  std::string out = fmt::format(
+      " * Station: {}; gyro: {}; runs: {}; computed: {}\n",
+      text::c_comment_text(info.station.empty() ? "(unnamed)" : info.station),
+      text::c_comment_text(info.gyro_serial.empty() ? "(no serial)" : info.gyro_serial),
+      runs.empty() ? "(none)" : runs,
+      text::c_comment_text(info.computed_utc.empty() ? "(unknown)" : info.computed_utc));
   out += export_metadata_c(info);
   return out;
 }

@@ -12,6 +12,7 @@
 #include <set>
 
 #include "gyrotherm/core/clock.h"
+#include "gyrotherm/core/text.h"
 #include "gyrotherm/lab/central.h"
 #include "read_util.h"
 
@@ -24,33 +25,6 @@ using internal::Params;
 using nlohmann::json;
 
 constexpr const char* kDash = "—";
-
-std::string esc(std::string_view s) {
-  std::string out;
-  out.reserve(s.size());
-  for (const char c : s) {
-    switch (c) {
-      case '&':
-        out += "&amp;";
-        break;
-      case '<':
-        out += "&lt;";
-        break;
-      case '>':
-        out += "&gt;";
-        break;
-      case '"':
-        out += "&quot;";
-        break;
-      case '\'':
-        out += "&#39;";
-        break;
-      default:
-        out += c;
-    }
-  }
-  return out;
-}
 
 // ------------------------------------------------------------ row access
 
@@ -82,12 +56,13 @@ std::string utc(std::string_view s) {
 // A text cell, escaped; "—" when empty.
 std::string cell(std::string_view text) {
   return text.empty() ? fmt::format("<td class=\"missing\">{}</td>", kDash)
-                      : fmt::format("<td>{}</td>", esc(text));
+                      : fmt::format("<td>{}</td>", text::html_escape(text));
 }
 
 // A UTC time cell ("2026-11-21 05:38:43"), kept on one line.
 std::string time_cell(std::string_view iso) {
-  return iso.empty() ? cell(iso) : fmt::format("<td class=\"time\">{}</td>", esc(utc(iso)));
+  return iso.empty() ? cell(iso)
+                     : fmt::format("<td class=\"time\">{}</td>", text::html_escape(utc(iso)));
 }
 
 // A number cell with `decimals` (negative: 6 significant digits); "—"
@@ -102,7 +77,7 @@ std::string num(const json& v, int decimals, double factor = 1) {
 
 std::string header(std::initializer_list<const char*> names) {
   std::string h = "<thead><tr>";
-  for (const char* n : names) h += fmt::format("<th>{}</th>", esc(n));
+  for (const char* n : names) h += fmt::format("<th>{}</th>", text::html_escape(n));
   return h + "</tr></thead>\n";
 }
 
@@ -127,7 +102,7 @@ std::string coefficients(const json& values, const json& errors) {
   for (const auto& [name, v] : values.items()) {
     if (!out.empty()) out += "<br>";
     const auto d = number(v);
-    out += esc(name) + " = " + (d ? fmt::format("{:.6g}", *d) : std::string(kDash));
+    out += text::html_escape(name) + " = " + (d ? fmt::format("{:.6g}", *d) : std::string(kDash));
     if (const auto se = number(member(errors, name.c_str()))) out += fmt::format(" ± {:.2g}", *se);
   }
   return out;
@@ -209,7 +184,7 @@ std::string bias_plot(const std::vector<json>& rows, const std::string& title) {
   std::string svg = fmt::format(
       "<figure><svg viewBox=\"0 0 {} {}\" width=\"{}\" "
       "height=\"{}\" role=\"img\"><title>{}</title>\n",
-      kW, kH, kW, kH, esc(title));
+      kW, kH, kW, kH, text::html_escape(title));
   svg += fmt::format(
       "<rect x=\"{:.1f}\" y=\"{:.1f}\" width=\"{:.1f}\" height=\"{:.1f}\" class=\"frame\"/>\n",
       kLeft, kTop, kW - kLeft - kRight, kH - kTop - kBottom);
@@ -243,12 +218,12 @@ std::string bias_plot(const std::vector<json>& rows, const std::string& title) {
       svg += fmt::format(
           "<circle cx=\"{:.1f}\" cy=\"{:.1f}\" r=\"3\" fill=\"{}\"><title>{}: {:.2f} °C, "
           "{:.4f} °/h</title></circle>\n",
-          px(x), py(y), colour, esc(s.label), x, y);
+          px(x), py(y), colour, text::html_escape(s.label), x, y);
     }
     legend += fmt::format(
         "<span class=\"key\"><span class=\"swatch\" style=\"background:{}\">"
         "</span>{}</span> ",
-        colour, esc(s.label));
+        colour, text::html_escape(s.label));
   }
   return svg + "</svg>" + legend + "</figcaption></figure>\n";
 }
@@ -466,12 +441,13 @@ Result<std::string> lab_summary_html(PgConnection& pg, const LabSummaryOptions& 
   h += "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n";
   h += "<title>Lab summary</title>\n<style>" + std::string(kStyle) + "</style>\n</head>\n<body>\n";
   h += "<h1>Lab summary</h1>\n<dl class=\"provenance\">\n";
-  h += fmt::format("<dt>lab database</dt><dd>{} (lab schema version {})</dd>\n", esc(server),
-                   esc(schema_version));
-  h += fmt::format("<dt>generated</dt><dd>{} UTC</dd>\n", esc(utc(generated)));
+  h += fmt::format("<dt>lab database</dt><dd>{} (lab schema version {})</dd>\n",
+                   text::html_escape(server), text::html_escape(schema_version));
+  h += fmt::format("<dt>generated</dt><dd>{} UTC</dd>\n", text::html_escape(utc(generated)));
   h += fmt::format("<dt>runs</dt><dd>{}</dd>\n",
-                   since->empty() ? std::string("every run relayed")
-                                  : fmt::format("started since {} UTC", esc(utc(*since))));
+                   since->empty()
+                       ? std::string("every run relayed")
+                       : fmt::format("started since {} UTC", text::html_escape(utc(*since))));
   h += fmt::format("<dt>contents</dt><dd>{} station{}, {} run{}, {} DUT{}</dd>\n", stations->size(),
                    stations->size() == 1 ? "" : "s", runs->size(), runs->size() == 1 ? "" : "s",
                    duts.size(), duts.size() == 1 ? "" : "s");
@@ -505,7 +481,7 @@ Result<std::string> lab_summary_html(PgConnection& pg, const LabSummaryOptions& 
          "<tbody>\n";
     for (const auto& r : *runs) {
       h += "<tr>" + cell(r.station_id) + num(json(r.local_run_id), 0) + "<td class=\"uuid\">" +
-           esc(r.run_uuid) + "</td>" + cell(r.schedule_name) + cell(r.state) +
+           text::html_escape(r.run_uuid) + "</td>" + cell(r.schedule_name) + cell(r.state) +
            time_cell(r.started_utc) + time_cell(r.ended_utc) + cell(r.operator_name) +
            cell(joined(r.dut_serials)) + cell(joined(r.tags)) + cell(r.comment) + "</tr>\n";
     }
@@ -519,12 +495,12 @@ Result<std::string> lab_summary_html(PgConnection& pg, const LabSummaryOptions& 
   for (const auto& [serial, dut] : duts) {
     ++dut_number;
     const std::string name = serial.empty() ? std::string("(no serial)") : serial;
-    h += fmt::format("<h3 id=\"dut-{}\">DUT {}{}</h3>\n", dut_number, esc(name),
-                     dut.model.empty() ? std::string() : " — " + esc(dut.model));
+    h += fmt::format("<h3 id=\"dut-{}\">DUT {}{}</h3>\n", dut_number, text::html_escape(name),
+                     dut.model.empty() ? std::string() : " — " + text::html_escape(dut.model));
     if (dut.axes.empty()) h += "<p>No results relayed yet.</p>\n";
     for (const auto& [axis, results] : dut.axes) {
       const std::string axis_name = axis.empty() ? std::string("primary axis") : "axis " + axis;
-      h += fmt::format("<h4>{} {}</h4>\n", esc(name), esc(axis_name));
+      h += fmt::format("<h4>{} {}</h4>\n", text::html_escape(name), text::html_escape(axis_name));
       if (!results.table1.empty()) {
         h += "<p>Table I across runs and stations, by set point.</p>\n";
         h += table1_html(results.table1);

@@ -12,6 +12,7 @@
 #include "gyrotherm/analysis/allan.h"
 #include "gyrotherm/analysis/start_temperature.h"
 #include "gyrotherm/core/clock.h"
+#include "gyrotherm/core/text.h"
 #include "gyrotherm/daemon/report.h"
 #include "report_assets.h"
 
@@ -23,33 +24,6 @@ using json = nlohmann::json;
 constexpr const char* kDash = "—";
 
 // ------------------------------------------------------------ text helpers
-
-std::string escape(std::string_view s) {
-  std::string out;
-  out.reserve(s.size());
-  for (char c : s) {
-    switch (c) {
-      case '&':
-        out += "&amp;";
-        break;
-      case '<':
-        out += "&lt;";
-        break;
-      case '>':
-        out += "&gt;";
-        break;
-      case '"':
-        out += "&quot;";
-        break;
-      case '\'':
-        out += "&#39;";
-        break;
-      default:
-        out += c;
-    }
-  }
-  return out;
-}
 
 // 17 significant digits: reads back as the same double; "" for non-finite.
 std::string exact(double v) { return std::isfinite(v) ? fmt::format("{:.17g}", v) : ""; }
@@ -108,7 +82,8 @@ struct Page {
 };
 
 std::string section(const std::string& id, const std::string& title, const std::string& body) {
-  return fmt::format("<section id=\"{}\">\n<h2>{}</h2>\n{}</section>\n", id, escape(title), body);
+  return fmt::format("<section id=\"{}\">\n<h2>{}</h2>\n{}</section>\n", id,
+                     text::html_escape(title), body);
 }
 
 void add_section(Page& page, const std::string& id, const std::string& title,
@@ -120,7 +95,7 @@ void add_section(Page& page, const std::string& id, const std::string& title,
 std::string chart(const Plot& p, const std::string& caption) {
   return fmt::format(
       "<figure><div class=\"chart\" id=\"{}\"></div><figcaption>{}</figcaption></figure>\n",
-      escape(p.id), caption);
+      text::html_escape(p.id), caption);
 }
 
 const Plot* find_plot(const std::vector<Plot>& plots, std::string_view id) {
@@ -133,7 +108,7 @@ const Plot* find_plot(const std::vector<Plot>& plots, std::string_view id) {
 // A result's verdict as a table cell: "ok" with its coverage, "FLAGGED:"
 // or "left out:" with the reasons, or "not assessed" (stored before v11).
 std::string quality_cell(const storage::ResultQuality& q) {
-  const std::string reasons = escape(fmt::format("{}", fmt::join(q.reasons, "; ")));
+  const std::string reasons = text::html_escape(fmt::format("{}", fmt::join(q.reasons, "; ")));
   const std::string coverage =
       q.coverage ? fmt::format("coverage {:.2f} %", *q.coverage * 100.0) : "coverage not known";
   if (q.flagged()) return fmt::format("<td class=\"flagged\">FLAGGED: {}</td>", reasons);
@@ -154,7 +129,7 @@ std::string row_open(const storage::ResultQuality& q, bool warn) {
 std::string flagged_html(const storage::ResultQuality& q) {
   if (!q.flagged()) return "";
   return fmt::format("<p class=\"flagged\">FLAGGED: {}</p>\n",
-                     escape(fmt::format("{}", fmt::join(q.reasons, "; "))));
+                     text::html_escape(fmt::format("{}", fmt::join(q.reasons, "; "))));
 }
 
 std::string table1_html(const std::vector<const storage::SegmentStatsRecord*>& rows,
@@ -182,7 +157,7 @@ std::string table1_html(const std::vector<const storage::SegmentStatsRecord*>& r
     h += fmt::format("<p class=\"flagged\">FLAGGED: {}step {}: {}</p>\n",
                      with_run ? fmt::format("run {} ", r->run_id) : std::string(),
                      step_name(r->segment_index),
-                     escape(fmt::format("{}", fmt::join(r->quality.reasons, "; "))));
+                     text::html_escape(fmt::format("{}", fmt::join(r->quality.reasons, "; "))));
   }
   const auto* first = rows.front();
   h += fmt::format(
@@ -273,19 +248,20 @@ std::string fit_html(const ReportFit& rf, const std::string& file_stem, bool hea
   std::string h = fmt::format(
       "<h3>{} — {}</h3>\n<table class=\"numbers\">\n<thead><tr><th>coefficient</th>"
       "<th>value</th><th>standard error</th><th>unit</th></tr></thead>\n<tbody>\n",
-      escape(analysis::to_string(f.spec)), escape(analysis::form_label(f.form)));
+      text::html_escape(analysis::to_string(f.spec)),
+      text::html_escape(analysis::form_label(f.form)));
   for (const auto& name : analysis::coefficient_names(f.spec, f.form)) {
     const auto c = f.coefficients.find(name);
     const auto e = f.std_errors.find(name);
-    h += fmt::format("<tr><td>{}</td>{}{}<td>{}</td></tr>\n", escape(name),
+    h += fmt::format("<tr><td>{}</td>{}{}<td>{}</td></tr>\n", text::html_escape(name),
                      sci_cell(c == f.coefficients.end() ? std::nan("") : c->second),
                      sci_cell(e == f.std_errors.end() ? std::nan("") : e->second),
-                     escape(analysis::coefficient_unit(name)));
+                     text::html_escape(analysis::coefficient_unit(name)));
   }
   h += "</tbody></table>\n";
   h += flagged_html(rf.quality);
   if (const std::string warning = analysis::near_zero_warning(f); !warning.empty()) {
-    h += fmt::format("<p class=\"problem\">Warning: {}</p>\n", escape(warning));
+    h += fmt::format("<p class=\"problem\">Warning: {}</p>\n", text::html_escape(warning));
   }
   std::string l0;
   if (f.form == analysis::DriftModelForm::kPaper && !f.l0_per_series_dph.empty()) {
@@ -332,7 +308,8 @@ std::string comparison_html(const analysis::Comparison& c) {
       }
       if (found == nullptr || !found->in_sample) {
         const std::string why = found == nullptr ? "not computed" : found->in_sample_error;
-        h += fmt::format("<td class=\"num missing\" title=\"{}\">{}</td>", escape(why), kDash);
+        h += fmt::format("<td class=\"num missing\" title=\"{}\">{}</td>", text::html_escape(why),
+                         kDash);
         continue;
       }
       std::string text = fmt::format("{:.4f}", found->in_sample->std_dph);
@@ -350,7 +327,8 @@ std::string comparison_html(const analysis::Comparison& c) {
       "model ({} form, dT and dT/dt of order {} and {}), {}, fitted on {} run{}{}. A dash: the "
       "fit was not possible (hover for the reason).</p>\n",
       analysis::to_string(c.options.form), c.options.g_order, c.options.r_order,
-      escape(analysis::smoothing_label(c.options.smooth_points)), c.runs, c.runs == 1 ? "" : "s",
+      text::html_escape(analysis::smoothing_label(c.options.smooth_points)), c.runs,
+      c.runs == 1 ? "" : "s",
       loro ? "; in-sample / leave-one-run-out (each run compensated by the fit of the others)"
            : "");
   return h;
@@ -362,15 +340,16 @@ std::string comparison_html(const analysis::Comparison& c) {
 std::string noise_term_cell(const analysis::NoiseTerm& t, int decimals) {
   switch (t.kind) {
     case analysis::NoiseTermKind::kValue:
-      return fmt::format("<td class=\"num\" title=\"{}\">{:.{}f}</td>", escape(t.note), t.value,
-                         decimals);
+      return fmt::format("<td class=\"num\" title=\"{}\">{:.{}f}</td>", text::html_escape(t.note),
+                         t.value, decimals);
     case analysis::NoiseTermKind::kUpperBound:
       return fmt::format("<td class=\"num bound\" title=\"upper bound: {}\">&lt; {:.{}f}</td>",
-                         escape(t.note), t.value, decimals);
+                         text::html_escape(t.note), t.value, decimals);
     case analysis::NoiseTermKind::kUnavailable:
       break;
   }
-  return fmt::format("<td class=\"num missing\" title=\"{}\">{}</td>", escape(t.note), kDash);
+  return fmt::format("<td class=\"num missing\" title=\"{}\">{}</td>", text::html_escape(t.note),
+                     kDash);
 }
 
 // The tau a bias instability was read at: "512", "≥ 1200" (the floor not
@@ -419,7 +398,7 @@ std::string allan_html(const std::vector<const storage::AllanRecord*>& records, 
     h += fmt::format("<p class=\"flagged\">FLAGGED: {}step {}: {}</p>\n",
                      with_run ? fmt::format("run {} ", a->run_id) : std::string(),
                      step_name(a->segment_index),
-                     escape(fmt::format("{}", fmt::join(a->quality.reasons, "; "))));
+                     text::html_escape(fmt::format("{}", fmt::join(a->quality.reasons, "; "))));
   }
   h += fmt::format(
       "<p class=\"note\">Overlapping Allan deviation of each soak's longest acquisition window, "
@@ -459,7 +438,7 @@ std::string sf_fits_html(const std::vector<const ReportScaleFactor*>& runs, bool
         flagged +=
             fmt::format("<p class=\"flagged\">FLAGGED: {}sequence {}: {}</p>\n",
                         with_run ? fmt::format("run {} ", f.run_id) : std::string(), f.sf_sequence,
-                        escape(fmt::format("{}", fmt::join(f.quality.reasons, "; "))));
+                        text::html_escape(fmt::format("{}", fmt::join(f.quality.reasons, "; "))));
       }
       if (with_run) h += fmt::format("<td class=\"num\">{}</td>", f.run_id);
       h += fmt::format("<td class=\"num\">{}</td>", f.sf_sequence) + num_cell(f.temperature_c, 2) +
@@ -506,10 +485,10 @@ std::string sf_temperature_html(const ReportScaleFactor& sf, const std::string& 
        "dB/dT at T̄ (k₁ / k₀ × 10⁶ and b₁). Coefficients for the gyro's computer: " +
        (header ? fmt::format("<a href=\"scale-factor{0}.json\">scale-factor{0}.json</a>, <a "
                              "href=\"scale-factor{0}.h\">scale-factor{0}.h</a> (C99).</p>\n",
-                             escape(sfx))
+                             text::html_escape(sfx))
                : fmt::format("<a href=\"scale-factor{0}.json\">scale-factor{0}.json</a> "
                              "(scale-factor{0}.h not written: a line is flagged).</p>\n",
-                             escape(sfx)));
+                             text::html_escape(sfx)));
   return h;
 }
 
@@ -557,7 +536,7 @@ std::string sf_points_html(const ReportScaleFactor& sf, const std::string& sfx) 
           "<p class=\"flagged\">{}: point at {:g} °/s, {:.2f} °C (repetition {}): "
           "{}</p>\n",
           p.quality.excluded() ? "LEFT OUT" : "FLAGGED", p.rate_dps, p.temperature_c, p.repetition,
-          escape(fmt::format("{}", fmt::join(p.quality.reasons, "; "))));
+          text::html_escape(fmt::format("{}", fmt::join(p.quality.reasons, "; "))));
     }
   }
   if (!h.empty()) {
@@ -571,7 +550,7 @@ std::string sf_points_html(const ReportScaleFactor& sf, const std::string& sfx) 
              "what was averaged. A point left out is not in its sequence's line. ",
              guard_s) +
          fmt::format("<a href=\"scale-factor-points{0}.csv\">scale-factor-points{0}.csv</a>",
-                     escape(sfx)) +
+                     text::html_escape(sfx)) +
          " has every value to 17 significant digits.</p>\n";
   }
   return h;
@@ -593,26 +572,6 @@ std::string c_identifier_part(const std::string& sfx) {
   std::string out = sfx;
   for (char& c : out) {
     if (!std::isalnum(static_cast<unsigned char>(c)) && c != '_') c = '_';
-  }
-  return out;
-}
-
-// Configuration text (station name, serial) made safe inside a C block
-// comment, as the drift-fit headers do (docs/analysis.md, "Coefficient
-// export and the C header"): control characters become spaces, and "*/",
-// "/*" and "??" (a trigraph) are broken by a space.
-std::string c_comment_text(std::string_view s) {
-  std::string out;
-  for (char c : s) {
-    const auto u = static_cast<unsigned char>(c);
-    if (u < 0x20 || u == 0x7f) c = ' ';
-    if (!out.empty()) {
-      const char prev = out.back();
-      if ((prev == '*' && c == '/') || (prev == '/' && c == '*') || (prev == '?' && c == '?')) {
-        out += ' ';
-      }
-    }
-    out += c;
   }
   return out;
 }
@@ -671,8 +630,8 @@ std::string sf_campaign_html(const CampaignReport& c) {
         "<td><a href=\"run-{:04}/report{}.html#scale-factor\">run-{:04}</a></td></tr>\n",
         r.run.id, sf.fits.size(), t.order, num_cell(t.t_centre_c, 2),
         num_cell(sf.k_coeffs.empty() ? std::nan("") : sf.k_coeffs.front(), 9),
-        num_cell(t.k_ppm_per_c, 3), num_cell(t.bias_dph_per_c, 4), r.run.id, escape(r.file_suffix),
-        r.run.id);
+        num_cell(t.k_ppm_per_c, 3), num_cell(t.bias_dph_per_c, 4), r.run.id,
+        text::html_escape(r.file_suffix), r.run.id);
   }
   std::string h = sf_fits_html(runs, true);
   if (!coefficients.empty()) {
@@ -688,15 +647,16 @@ std::string sf_campaign_html(const CampaignReport& c) {
 
 std::string problems_html(const std::vector<std::string>& problems) {
   std::string h;
-  for (const auto& p : problems) h += fmt::format("<p class=\"problem\">{}</p>\n", escape(p));
+  for (const auto& p : problems)
+    h += fmt::format("<p class=\"problem\">{}</p>\n", text::html_escape(p));
   return h;
 }
 
 std::string files_html(const std::vector<std::pair<std::string, std::string>>& files) {
   std::string h = "<ul class=\"files\">\n";
   for (const auto& [path, what] : files) {
-    h += fmt::format("<li><a href=\"{}\">{}</a> — {}</li>\n", escape(path), escape(path),
-                     escape(what));
+    h += fmt::format("<li><a href=\"{}\">{}</a> — {}</li>\n", text::html_escape(path),
+                     text::html_escape(path), text::html_escape(what));
   }
   return h + "</ul>\n";
 }
@@ -708,27 +668,27 @@ std::string render_page(const Page& page, const std::string& generated_utc) {
        "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
        "<meta http-equiv=\"Content-Security-Policy\" content=\"default-src 'none'; script-src "
        "'unsafe-inline'; style-src 'unsafe-inline'; img-src data:\">\n";
-  h += fmt::format("<title>{}</title>\n", escape(page.title));
+  h += fmt::format("<title>{}</title>\n", text::html_escape(page.title));
   h += "<style>\n";
   h += report_assets::uplot_css();
   h += "\n</style>\n<style>\n";
   h += report_assets::report_css();
   h += "\n</style>\n</head>\n<body>\n<header class=\"report-header\">\n";
-  h += fmt::format("<h1>{}</h1>\n<dl class=\"provenance\">\n", escape(page.title));
+  h += fmt::format("<h1>{}</h1>\n<dl class=\"provenance\">\n", text::html_escape(page.title));
   for (const auto& [term, definition] : page.provenance) {
-    h += fmt::format("<dt>{}</dt><dd>{}</dd>\n", escape(term), definition);
+    h += fmt::format("<dt>{}</dt><dd>{}</dd>\n", text::html_escape(term), definition);
   }
   h += "</dl>\n</header>\n<nav class=\"toc\">";
   for (std::size_t i = 0; i < page.sections.size(); ++i) {
     h += fmt::format("<a href=\"#{}\">{}</a>", page.sections[i].first,
-                     escape(page.section_titles[i]));
+                     text::html_escape(page.section_titles[i]));
   }
   h += "</nav>\n<main>\n";
   for (const auto& [id, body] : page.sections) h += body;
   h += fmt::format(
       "</main>\n<footer>Generated by gyrotherm on {}. Plots drawn with uPlot; this file needs "
       "no network.</footer>\n",
-      escape(generated_utc));
+      text::html_escape(generated_utc));
   h += "<script type=\"application/json\" id=\"report-data\">" + plots_json(page.plots) +
        "</script>\n<script>\n";
   h += report_assets::uplot_js();
@@ -796,11 +756,12 @@ std::string tags_text(const std::vector<std::string>& tags) {
 // Who ran the run, why, which DUT: the top of a run's page.
 void add_metadata_provenance(Page& page, const RunReport& r) {
   const storage::RunMetadata& m = r.run.metadata;
-  page.provenance.insert(page.provenance.begin() + std::min<std::size_t>(2, page.provenance.size()),
-                         {{"DUT", escape(dut_label(r.stream))},
-                          {"Operator", escape(m.operator_name.empty() ? kDash : m.operator_name)},
-                          {"Comment", escape(m.comment.empty() ? kDash : m.comment)},
-                          {"Tags", escape(tags_text(m.tags))}});
+  page.provenance.insert(
+      page.provenance.begin() + std::min<std::size_t>(2, page.provenance.size()),
+      {{"DUT", text::html_escape(dut_label(r.stream))},
+       {"Operator", text::html_escape(m.operator_name.empty() ? kDash : m.operator_name)},
+       {"Comment", text::html_escape(m.comment.empty() ? kDash : m.comment)},
+       {"Tags", text::html_escape(tags_text(m.tags))}});
 }
 
 std::string figures_html(const std::vector<Plot>& plots, bool campaign) {
@@ -1048,7 +1009,7 @@ std::string forced_header_comment(const storage::ResultQuality& quality) {
   if (!quality.flagged()) return "";
   std::string out =
       "/* FORCED: written with --force although gyrotherm flagged this result as implausible:\n";
-  for (const auto& r : quality.reasons) out += " *   " + c_comment_text(r) + "\n";
+  for (const auto& r : quality.reasons) out += " *   " + text::c_comment_text(r) + "\n";
   out += " * Check the result before using these coefficients. */\n";
   return out;
 }
@@ -1075,10 +1036,10 @@ std::string scale_factor_c_header(const ReportScaleFactor& sf, const analysis::E
       "t_centre_c)^j.\n"
       " * The table of sequences gives K and the bias measured at each temperature.\n"
       " */\n",
-      p, c_comment_text(info.station.empty() ? "(unnamed)" : info.station),
-      c_comment_text(info.gyro_serial.empty() ? "(no serial)" : info.gyro_serial),
+      p, text::c_comment_text(info.station.empty() ? "(unnamed)" : info.station),
+      text::c_comment_text(info.gyro_serial.empty() ? "(no serial)" : info.gyro_serial),
       runs.empty() ? "(none)" : runs,
-      c_comment_text(info.computed_utc.empty() ? "(unknown)" : info.computed_utc),
+      text::c_comment_text(info.computed_utc.empty() ? "(unknown)" : info.computed_utc),
       analysis::export_metadata_c(info));
   out += fmt::format("#ifndef {0}\n#define {0}\n\n", guard);
   if (sf.temperature_fit && !sf.k_coeffs.empty()) {
@@ -1177,36 +1138,38 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
   if (!sfx.empty()) page.title += " — " + dut_label(r.stream);
   const AnalysisSettings& s = r.settings;
   page.provenance = {
-      {"Station", escape(r.station_name.empty() ? kDash : r.station_name)},
-      {"Run", fmt::format("{} — schedule “{}”, {}", r.run.id, escape(r.run.schedule_name),
-                          escape(r.run.state))},
+      {"Station", text::html_escape(r.station_name.empty() ? kDash : r.station_name)},
+      {"Run", fmt::format("{} — schedule “{}”, {}", r.run.id,
+                          text::html_escape(r.run.schedule_name), text::html_escape(r.run.state))},
       {"Started / ended (UTC)",
-       fmt::format("{} / {}", escape(r.run.started_utc),
-                   escape(r.run.ended_utc.empty() ? kDash : r.run.ended_utc))},
+       fmt::format("{} / {}", text::html_escape(r.run.started_utc),
+                   text::html_escape(r.run.ended_utc.empty() ? kDash : r.run.ended_utc))},
       {"Mounting",
        r.stream.orientation
            ? fmt::format(
                  "latitude {:g}°, axis {} {}; Earth rate removed {:.4f} °/h", r.run.latitude_deg,
-                 escape(r.stream.axis), analysis::to_string(*r.stream.orientation),
+                 text::html_escape(r.stream.axis), analysis::to_string(*r.stream.orientation),
                  analysis::earth_rate_component_dph(r.run.latitude_deg, *r.stream.orientation))
            : fmt::format("latitude {:g}°, axis {}; Earth rate removed {:.4f} °/h",
-                         r.run.latitude_deg, escape(r.run.orientation), s.table1.earth_rate_dph)},
+                         r.run.latitude_deg, text::html_escape(r.run.orientation),
+                         s.table1.earth_rate_dph)},
       {"Analysis",
        fmt::format("{:g} s bins, {}-point moving average, model {}, derivative window {:g} s, L0 "
                    "window {:g} s, Allan τ {}",
-                   s.table1.bin_s, s.table1.ma_window, escape(analysis::to_string(s.model)),
-                   s.fit.derivative_window_s, s.fit.l0_window_s,
-                   analysis::to_string(s.allan_taus))},
+                   s.table1.bin_s, s.table1.ma_window,
+                   text::html_escape(analysis::to_string(s.model)), s.fit.derivative_window_s,
+                   s.fit.l0_window_s, analysis::to_string(s.allan_taus))},
       {"Source",
        fmt::format("Table I {}; Allan deviation {}",
                    r.table1_stored ? "as stored by the daemon" : "computed for this report",
                    r.allan_stored ? "as stored by the daemon" : "computed for this report")},
       {"Generated",
-       escape(when) +
-           (options.export_label.empty() ? std::string() : " — " + escape(options.export_label))},
+       text::html_escape(when) + (options.export_label.empty()
+                                      ? std::string()
+                                      : " — " + text::html_escape(options.export_label))},
   };
   if (!options.database_path.empty()) {
-    page.provenance.emplace_back("Database", escape(options.database_path));
+    page.provenance.emplace_back("Database", text::html_escape(options.database_path));
   }
   add_metadata_provenance(page, r);
   const auto name = [&sfx](std::string_view stem, std::string_view ext) {
@@ -1227,8 +1190,9 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
       listed.emplace_back(name("table1-by-setpoint", "csv"), "Table I by set point");
     }
   } else {
-    add_section(page, "table1-by-setpoint", "Table I — by set point",
-                fmt::format("<p class=\"problem\">{}</p>\n", escape(groups.error().message)));
+    add_section(
+        page, "table1-by-setpoint", "Table I — by set point",
+        fmt::format("<p class=\"problem\">{}</p>\n", text::html_escape(groups.error().message)));
   }
 
   std::string fits;
@@ -1260,9 +1224,9 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
     files.push_back({dir + name("comparison", "csv"), comparison_csv(*r.comparison)});
     listed.emplace_back(name("comparison", "csv"), "Tables II–IV grid");
   } else {
-    add_section(
-        page, "comparison", "Tables II–IV — compensation by model and order",
-        fmt::format("<p class=\"problem\">Not computed: {}</p>\n", escape(r.comparison_error)));
+    add_section(page, "comparison", "Tables II–IV — compensation by model and order",
+                fmt::format("<p class=\"problem\">Not computed: {}</p>\n",
+                            text::html_escape(r.comparison_error)));
   }
 
   add_section(page, "figures", "Figures", figures_html(r.plots, false));
@@ -1334,14 +1298,15 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
   group.axis = c.axis;
   if (!sfx.empty()) page.title += " — " + dut_label(group);
   page.provenance = {
-      {"Station", escape(c.station_name.empty() ? kDash : c.station_name)},
-      {"Export", escape(options.export_label.empty() ? "on demand" : options.export_label)},
-      {"Generated", escape(when)},
+      {"Station", text::html_escape(c.station_name.empty() ? kDash : c.station_name)},
+      {"Export",
+       text::html_escape(options.export_label.empty() ? "on demand" : options.export_label)},
+      {"Generated", text::html_escape(when)},
   };
   if (!options.database_path.empty()) {
-    page.provenance.emplace_back("Database", escape(options.database_path));
+    page.provenance.emplace_back("Database", text::html_escape(options.database_path));
   }
-  page.provenance.insert(page.provenance.begin() + 1, {"DUT", escape(dut_label(group))});
+  page.provenance.insert(page.provenance.begin() + 1, {"DUT", text::html_escape(dut_label(group))});
 
   std::string runs =
       "<table class=\"numbers\">\n<thead><tr><th>run</th><th>schedule</th><th>started "
@@ -1357,11 +1322,13 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
     runs += fmt::format(
         "<tr{}><td class=\"num\">{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>"
         "{}<td class=\"num\">{}</td><td><a href=\"{}\">{}</a></td></tr>\n",
-        r.problems.empty() ? "" : " class=\"warn\"", r.run.id, escape(r.run.schedule_name),
-        escape(r.run.started_utc), escape(r.run.ended_utc),
-        escape(r.run.metadata.operator_name.empty() ? kDash : r.run.metadata.operator_name),
-        escape(tags_text(r.run.metadata.tags)), num_cell(t0, 2), r.table1.size(), escape(link),
-        escape(link));
+        r.problems.empty() ? "" : " class=\"warn\"", r.run.id,
+        text::html_escape(r.run.schedule_name), text::html_escape(r.run.started_utc),
+        text::html_escape(r.run.ended_utc),
+        text::html_escape(r.run.metadata.operator_name.empty() ? kDash
+                                                               : r.run.metadata.operator_name),
+        text::html_escape(tags_text(r.run.metadata.tags)), num_cell(t0, 2), r.table1.size(),
+        text::html_escape(link), text::html_escape(link));
   }
   runs += "</tbody></table>\n";
   add_section(page, "runs", "Runs", runs);
@@ -1386,9 +1353,9 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
   if (!rows.empty()) {
     auto groups = analysis::table1_by_setpoint(table1_soaks(rows));
     add_section(page, "table1-by-setpoint", "Table I — by set point, all runs",
-                groups
-                    ? table1_groups_html(*groups)
-                    : fmt::format("<p class=\"problem\">{}</p>\n", escape(groups.error().message)));
+                groups ? table1_groups_html(*groups)
+                       : fmt::format("<p class=\"problem\">{}</p>\n",
+                                     text::html_escape(groups.error().message)));
     if (groups) {
       files.push_back({name("table1-by-setpoint", "csv"), table1_groups_csv(*groups)});
       listed.emplace_back(name("table1-by-setpoint", "csv"), "Table I by set point, all runs");
@@ -1401,9 +1368,9 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
     listed.emplace_back(name("comparison", "csv"),
                         "Tables II–IV grid, in-sample and leave-one-run-out");
   } else {
-    add_section(
-        page, "comparison", "Tables II–IV — all runs",
-        fmt::format("<p class=\"problem\">Not computed: {}</p>\n", escape(c.comparison_error)));
+    add_section(page, "comparison", "Tables II–IV — all runs",
+                fmt::format("<p class=\"problem\">Not computed: {}</p>\n",
+                            text::html_escape(c.comparison_error)));
   }
 
   if (c.joint_fit) {
@@ -1423,9 +1390,9 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
       listed.emplace_back(stem + ".h", "joint fit coefficients (C99 header)");
     }
   } else {
-    add_section(
-        page, "fit", "Drift model fitted on all runs",
-        fmt::format("<p class=\"note\">No joint fit: {}.</p>\n", escape(c.joint_fit_error)));
+    add_section(page, "fit", "Drift model fitted on all runs",
+                fmt::format("<p class=\"note\">No joint fit: {}.</p>\n",
+                            text::html_escape(c.joint_fit_error)));
   }
 
   if (c.start_model) {
@@ -1433,7 +1400,7 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
     std::string h = fmt::format(
         "<p class=\"note\">Each coefficient of {} ({} form) as a cubic in the start "
         "temperature T0 (eq. 3), from {} runs with T0 = ",
-        escape(analysis::to_string(m.spec)), analysis::to_string(m.form), m.t0_c.size());
+        text::html_escape(analysis::to_string(m.spec)), analysis::to_string(m.form), m.t0_c.size());
     std::vector<std::string> t0s;
     for (double t : m.t0_c) t0s.push_back(fmt::format("{:.2f}", t));
     h += fmt::format("{} °C.</p>\n", fmt::join(t0s, ", "));
@@ -1443,7 +1410,7 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
     for (const auto& name : analysis::coefficient_names(m.spec, m.form)) {
       const auto it = m.cubic.find(name);
       if (it == m.cubic.end()) continue;
-      h += fmt::format("<tr><td>{}</td>", escape(name));
+      h += fmt::format("<tr><td>{}</td>", text::html_escape(name));
       for (double a : it->second) h += sci_cell(a);
       const auto rs = m.cubic_residual_std.find(name);
       h += sci_cell(rs == m.cubic_residual_std.end() ? std::nan("") : rs->second) + "</tr>\n";
@@ -1451,7 +1418,7 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
     h += fmt::format(
         "</tbody></table>\n<p class=\"note\"><a href=\"start-model{0}.json\">start-model{0}.json"
         "</a>, <a href=\"start-model{0}.h\">start-model{0}.h</a> (C99).</p>\n",
-        escape(sfx));
+        text::html_escape(sfx));
     add_section(page, "start-model", "Start-temperature model (eq. 3)", h);
     analysis::ExportInfo info;
     info.station = c.station_name;
@@ -1467,7 +1434,8 @@ std::vector<ReportFile> render_campaign_files(const CampaignReport& c,
     listed.emplace_back(name("start-model", "h"), "start-temperature model (C99 header)");
   } else {
     add_section(page, "start-model", "Start-temperature model (eq. 3)",
-                fmt::format("<p class=\"note\">Not fitted: {}.</p>\n", escape(c.start_model_note)));
+                fmt::format("<p class=\"note\">Not fitted: {}.</p>\n",
+                            text::html_escape(c.start_model_note)));
   }
 
   add_section(page, "figures", "Figures", figures_html(c.plots, true));
@@ -1509,18 +1477,20 @@ ReportFile render_run_index(const std::vector<RunReport>& reports, const ReportO
   const storage::RunMetadata& m = run.metadata;
   page.title = fmt::format("Calibration report — run {} ({})", run.id, run.schedule_name);
   page.provenance = {
-      {"Station",
-       escape(reports.front().station_name.empty() ? kDash : reports.front().station_name)},
-      {"Run",
-       fmt::format("{} — schedule “{}”, {}", run.id, escape(run.schedule_name), escape(run.state))},
-      {"Operator", escape(m.operator_name.empty() ? kDash : m.operator_name)},
-      {"Comment", escape(m.comment.empty() ? kDash : m.comment)},
-      {"Tags", escape(tags_text(m.tags))},
-      {"Started / ended (UTC)", fmt::format("{} / {}", escape(run.started_utc),
-                                            escape(run.ended_utc.empty() ? kDash : run.ended_utc))},
+      {"Station", text::html_escape(
+                      reports.front().station_name.empty() ? kDash : reports.front().station_name)},
+      {"Run", fmt::format("{} — schedule “{}”, {}", run.id, text::html_escape(run.schedule_name),
+                          text::html_escape(run.state))},
+      {"Operator", text::html_escape(m.operator_name.empty() ? kDash : m.operator_name)},
+      {"Comment", text::html_escape(m.comment.empty() ? kDash : m.comment)},
+      {"Tags", text::html_escape(tags_text(m.tags))},
+      {"Started / ended (UTC)",
+       fmt::format("{} / {}", text::html_escape(run.started_utc),
+                   text::html_escape(run.ended_utc.empty() ? kDash : run.ended_utc))},
       {"Generated",
-       escape(when) +
-           (options.export_label.empty() ? std::string() : " — " + escape(options.export_label))},
+       text::html_escape(when) + (options.export_label.empty()
+                                      ? std::string()
+                                      : " — " + text::html_escape(options.export_label))},
   };
   std::string h =
       "<table class=\"numbers\" id=\"duts\">\n<thead><tr><th>DUT</th><th>model</th><th>axis</th>"
@@ -1533,13 +1503,14 @@ ReportFile render_run_index(const std::vector<RunReport>& reports, const ReportO
         "class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td><a "
         "href=\"{}\">{}</a></td></tr>\n",
         r.problems.empty() ? "" : " class=\"warn\"",
-        escape(r.stream.dut_serial.empty() ? "(no serial)" : r.stream.dut_serial),
-        escape(r.stream.dut_model.empty() ? kDash : r.stream.dut_model), escape(r.stream.axis),
-        r.stream.primary ? " (primary)" : "",
+        text::html_escape(r.stream.dut_serial.empty() ? "(no serial)" : r.stream.dut_serial),
+        text::html_escape(r.stream.dut_model.empty() ? kDash : r.stream.dut_model),
+        text::html_escape(r.stream.axis), r.stream.primary ? " (primary)" : "",
         r.stream.orientation ? analysis::to_string(*r.stream.orientation)
                              : std::string_view(run.orientation),
         r.table1.size(), r.allan.size(), r.fits.size(),
-        r.scale_factor ? r.scale_factor->fits.size() : 0, escape(link), escape(link));
+        r.scale_factor ? r.scale_factor->fits.size() : 0, text::html_escape(link),
+        text::html_escape(link));
   }
   h += "</tbody></table>\n";
   add_section(page, "duts", "Devices under test", h);
@@ -1558,14 +1529,15 @@ ReportFile render_summary_index(const std::vector<CampaignReport>& groups,
       fmt::format("Calibration summary — {} run{}, {} DUT ax{}", run_ids.size(),
                   run_ids.size() == 1 ? "" : "s", groups.size(), groups.size() == 1 ? "is" : "es");
   page.provenance = {
-      {"Station",
-       escape(groups.empty() || groups.front().station_name.empty() ? kDash
-                                                                    : groups.front().station_name)},
-      {"Export", escape(options.export_label.empty() ? "on demand" : options.export_label)},
-      {"Generated", escape(when)},
+      {"Station", text::html_escape(groups.empty() || groups.front().station_name.empty()
+                                        ? kDash
+                                        : groups.front().station_name)},
+      {"Export",
+       text::html_escape(options.export_label.empty() ? "on demand" : options.export_label)},
+      {"Generated", text::html_escape(when)},
   };
   if (!options.database_path.empty()) {
-    page.provenance.emplace_back("Database", escape(options.database_path));
+    page.provenance.emplace_back("Database", text::html_escape(options.database_path));
   }
   // The runs, once each, with their metadata and DUT axes.
   std::map<int64_t, std::pair<const RunReport*, std::vector<const RunReport*>>> runs;
@@ -1585,16 +1557,16 @@ ReportFile render_summary_index(const std::vector<CampaignReport>& groups,
     std::string links;
     for (const auto* r : e.second) {
       const std::string link = fmt::format("run-{:04}/report{}.html", id, r->file_suffix);
-      links += fmt::format("{}<a href=\"{}\">{}</a>", links.empty() ? "" : ", ", escape(link),
-                           escape(dut_label(r->stream)));
+      links += fmt::format("{}<a href=\"{}\">{}</a>", links.empty() ? "" : ", ",
+                           text::html_escape(link), text::html_escape(dut_label(r->stream)));
     }
     h += fmt::format(
         "<tr><td class=\"num\">{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>"
         "<td>{}</td></tr>\n",
-        id, escape(run.schedule_name), escape(run.started_utc),
-        escape(run.metadata.operator_name.empty() ? kDash : run.metadata.operator_name),
-        escape(run.metadata.comment.empty() ? kDash : run.metadata.comment),
-        escape(tags_text(run.metadata.tags)), links);
+        id, text::html_escape(run.schedule_name), text::html_escape(run.started_utc),
+        text::html_escape(run.metadata.operator_name.empty() ? kDash : run.metadata.operator_name),
+        text::html_escape(run.metadata.comment.empty() ? kDash : run.metadata.comment),
+        text::html_escape(tags_text(run.metadata.tags)), links);
   }
   h += "</tbody></table>\n";
   add_section(page, "runs", "Runs", h);
@@ -1613,12 +1585,13 @@ ReportFile render_summary_index(const std::vector<CampaignReport>& groups,
     d += fmt::format(
         "<tr{}><td>{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td>{}</td><td><a "
         "href=\"{}\">{}</a></td></tr>\n",
-        g.problems.empty() ? "" : " class=\"warn\"", escape(dut_label(a)), g.runs.size(), rows,
+        g.problems.empty() ? "" : " class=\"warn\"", text::html_escape(dut_label(a)), g.runs.size(),
+        rows,
         g.joint_fit ? fmt::format("{} (residual std {:.4f} °/h)",
-                                  escape(analysis::to_string(g.joint_fit->fit.spec)),
+                                  text::html_escape(analysis::to_string(g.joint_fit->fit.spec)),
                                   g.joint_fit->fit.residual_std_dph)
-                    : escape(g.joint_fit_error),
-        escape(link), escape(link));
+                    : text::html_escape(g.joint_fit_error),
+        text::html_escape(link), text::html_escape(link));
     for (const auto& p : g.problems) problems.push_back(dut_label(a) + ": " + p);
   }
   d += "</tbody></table>\n";
