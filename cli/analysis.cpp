@@ -50,6 +50,7 @@ json num(const std::optional<double>& v) { return v ? num(*v) : json(nullptr); }
 std::string fixed(double v, int decimals) {
   return std::isfinite(v) ? fmt::format("{:.{}f}", v, decimals) : kDash;
 }
+std::string or_dash(const std::string& s) { return s.empty() ? std::string(kDash) : s; }
 std::string sci(double v) { return std::isfinite(v) ? fmt::format("{:.6e}", v) : kDash; }
 std::string general(double v) { return std::isfinite(v) ? fmt::format("{:.6g}", v) : kDash; }
 
@@ -156,8 +157,10 @@ struct Args {
   std::optional<std::string> runs;
   std::vector<std::string> csv;
   bool json = false;
-  bool stored = false;       // stats: the rows the daemon stored, not recomputed
-  bool by_setpoint = false;  // stats: one row per set point (the paper's Table I)
+  std::vector<std::string> duts;  // --dut: the DUTs analysed (none: every DUT)
+  std::vector<std::string> axes;  // --axis: the axes analysed (none: every analysed axis)
+  bool stored = false;            // stats: the rows the daemon stored, not recomputed
+  bool by_setpoint = false;       // stats: one row per set point (the paper's Table I)
 
   // Table I.
   std::optional<double> bin_s;
@@ -243,6 +246,10 @@ Result<Input> open_input(const Parsed& p, RunsNeeded needed) {
   Input in;
   if (!has_db) {
     if (p.run || p.runs) return Error::Permanent("--run and --runs go with --db, not --csv");
+    if (!p.duts.empty() || !p.axes.empty()) {
+      return Error::Permanent(
+          "--dut and --axis go with --db, not --csv (a CSV file is one series)");
+    }
     for (const auto& path : p.csv) {
       auto w = analysis::read_csv_window(path);
       if (!w) return w.error();
@@ -285,6 +292,107 @@ Result<Input> open_input(const Parsed& p, RunsNeeded needed) {
   }
   in.db = std::move(d);
   return in;
+}
+
+// ---------------------------------------------------------------- DUT axes
+
+bool picked(const std::vector<std::string>& picks, const std::string& value) {
+  return picks.empty() || std::find(picks.begin(), picks.end(), value) != picks.end();
+}
+
+bool same_stream(const daemon::AnalysedAxis& a, const daemon::AnalysedAxis& b) {
+  return a.dut_serial == b.dut_serial && a.axis == b.axis;
+}
+
+// "SN 17-0042 z" for the text's block titles.
+std::string stream_title(const daemon::AnalysedAxis& a) { return a.name(); }
+
+// A run's DUT axes as --dut and --axis choose them; by default every
+// analysed axis of every DUT (daemon::analysed_axes order: DUTs by
+// position, the primary axis first).
+Result<std::vector<daemon::AnalysedAxis>> chosen_axes(const Parsed& p, storage::Database& db,
+                                                      int64_t run_id) {
+  auto all = daemon::analysed_axes(db, run_id);
+  if (!all) return Error::Permanent(fmt::format("run {}: {}", run_id, all.error().message));
+  std::vector<daemon::AnalysedAxis> out;
+  for (auto& a : *all) {
+    if (picked(p.duts, a.dut_serial) && picked(p.axes, a.axis)) out.push_back(std::move(a));
+  }
+  return out;
+}
+
+// Every --dut must name a DUT of the runs and every --axis an analysed axis
+// of a chosen DUT; else a usage error saying what the runs hold.
+Status check_choice(const Parsed& p, DbInput& d) {
+  if (p.duts.empty() && p.axes.empty()) return Status::Ok();
+  std::set<std::string> serials, axes;
+  std::vector<std::string> held;
+  for (const auto& run : d.runs) {
+    auto all = daemon::analysed_axes(d.db, run.id);
+    if (!all) return Error::Permanent(fmt::format("run {}: {}", run.id, all.error().message));
+    for (const auto& a : *all) {
+      serials.insert(a.dut_serial);
+      if (picked(p.duts, a.dut_serial)) axes.insert(a.axis);
+      const std::string name = a.dut_serial.empty() ? "the gyro (no serial)" : a.name();
+      if (std::find(held.begin(), held.end(), name) == held.end()) held.push_back(name);
+    }
+  }
+  const std::string runs =
+      fmt::format("run{} {}", d.runs.size() == 1 ? "" : "s", join_ids(d.ids()));
+  for (const auto& dut : p.duts) {
+    if (!serials.count(dut)) {
+      return Error::Permanent(fmt::format("--dut {}: not a DUT of {} (analysed: {})", dut, runs,
+                                          fmt::join(held, ", ")));
+    }
+  }
+  for (const auto& axis : p.axes) {
+    if (!axes.count(axis)) {
+      return Error::Permanent(fmt::format("--axis {}: not an analysed axis of {} (analysed: {})",
+                                          axis, runs, fmt::join(held, ", ")));
+    }
+  }
+  return Status::Ok();
+}
+
+// The DUT axes a command over several runs fits, each over every run: the
+// chosen axes of the first run that every run holds. One some run lacks is
+// left out, with a note, unless --dut or --axis asked for it by name: then
+// it is an error naming the run.
+Result<std::vector<daemon::AnalysedAxis>> common_axes(const Parsed& p, DbInput& d,
+                                                      std::vector<std::string>& notes) {
+  if (auto st = check_choice(p, d); !st) return st.error();
+  std::vector<daemon::AnalysedAxis> out;
+  std::vector<std::vector<daemon::AnalysedAxis>> per_run;
+  for (const auto& run : d.runs) {
+    auto axes = chosen_axes(p, d.db, run.id);
+    if (!axes) return axes.error();
+    per_run.push_back(std::move(*axes));
+  }
+  if (per_run.empty()) return out;
+  for (const auto& a : per_run.front()) {
+    std::vector<int64_t> lacking;
+    for (std::size_t r = 1; r < per_run.size(); ++r) {
+      if (std::none_of(per_run[r].begin(), per_run[r].end(),
+                       [&](const auto& b) { return same_stream(a, b); })) {
+        lacking.push_back(d.runs[r].id);
+      }
+    }
+    if (lacking.empty()) {
+      out.push_back(a);
+    } else if (!p.duts.empty() || !p.axes.empty()) {
+      return Error::Permanent(fmt::format("{}: not in run{} {} (fit over runs that all hold it)",
+                                          a.name(), lacking.size() == 1 ? "" : "s",
+                                          join_ids(lacking)));
+    } else {
+      notes.push_back(fmt::format("{}: left out: not in run{} {}", a.name(),
+                                  lacking.size() == 1 ? "" : "s", join_ids(lacking)));
+    }
+  }
+  if (out.empty()) {
+    return Error::Permanent(
+        fmt::format("no DUT axis is in every one of runs {}", join_ids(d.ids())));
+  }
+  return out;
 }
 
 // Earth rate removed from a window's mean: --earth-rate-dph, else from
@@ -377,12 +485,19 @@ struct SeriesSet {
   json inputs;  // {"runs": [..]} or {"csv": [..]}
 };
 
-Result<SeriesSet> load_series(Input& in, double bin_s) {
+// `stream`: the DUT axis read from each run (its own channel there).
+Result<SeriesSet> load_series(Input& in, double bin_s, const daemon::AnalysedAxis* stream) {
   SeriesSet s;
   if (in.db) {
     for (const auto& r : in.db->runs) {
-      auto axis = daemon::first_axis(in.db->db, r.id);
-      if (!axis) return Error::Permanent(fmt::format("run {}: {}", r.id, axis.error().message));
+      auto axes = daemon::analysed_axes(in.db->db, r.id);
+      if (!axes) return Error::Permanent(fmt::format("run {}: {}", r.id, axes.error().message));
+      const auto axis = std::find_if(axes->begin(), axes->end(), [&](const auto& a) {
+        return stream == nullptr || same_stream(a, *stream);
+      });
+      if (axis == axes->end()) {
+        return Error::Permanent(fmt::format("run {}: no {}", r.id, stream->name()));
+      }
       daemon::RunSeriesCoverage coverage;
       auto series = daemon::run_series(in.db->db, r.id, bin_s, *axis, &coverage);
       if (!series) return Error::Permanent(fmt::format("run {}: {}", r.id, series.error().message));
@@ -417,11 +532,25 @@ Result<double> bin_s_of(const Parsed& p, const RunConfig& cfg) {
 
 // What the coefficient exports say of where they come from; `l0_window_s`:
 // the fit's L0 window.
-analysis::ExportInfo export_info(const Input& in, const RunConfig& cfg, double l0_window_s) {
+analysis::ExportInfo export_info(const Input& in, const RunConfig& cfg, double l0_window_s,
+                                 const daemon::AnalysedAxis* stream) {
   analysis::ExportInfo info;
   info.station = cfg.station_name;
   info.l0_window_s = l0_window_s;
-  if (in.db) info.run_ids = in.db->ids();
+  if (stream != nullptr) {
+    info.gyro_serial = stream->dut_serial;
+    info.gyro_model = stream->dut_model;
+    info.axis = stream->axis;
+  }
+  if (in.db) {
+    info.run_ids = in.db->ids();
+    if (!in.db->runs.empty()) {
+      const storage::RunMetadata& m = in.db->runs.front().metadata;
+      info.operator_name = m.operator_name;
+      info.comment = m.comment;
+      info.tags = m.tags;
+    }
+  }
   info.computed_utc = now_utc_iso();
   return info;
 }
@@ -489,29 +618,67 @@ std::string mean_spread_text(const analysis::MeanSpread& m, int decimals) {
 
 // `gyrotherm stats --by-setpoint`: Table I as the paper prints it, the soaks
 // grouped by their schedule set point (analysis::table1_by_setpoint).
-int print_by_setpoint(const Parsed& p, const std::vector<analysis::Table1Soak>& soaks,
-                      const std::vector<json>& soak_ids, const std::vector<std::string>& notes,
-                      const std::set<std::string>& footer) {
-  auto groups = analysis::table1_by_setpoint(soaks);
-  if (!groups) return fail(groups.error().message, kExitAnalysis);
+// A soak's Table I row, with the DUT axis it is of ({"", ""}: CSV input).
+struct StreamSoak {
+  storage::StreamKey stream;
+  std::string name;  // daemon::AnalysedAxis::name(); "" for CSV input
+  analysis::Table1Soak soak;
+  json id;  // {"run_id", "segment"}
+};
+
+// One group per DUT axis and set point: the DUT axes in the order they
+// first come, each one's set points as table1_by_setpoint groups them.
+int print_by_setpoint(const Parsed& p, const std::vector<StreamSoak>& soaks,
+                      const std::vector<std::string>& notes, const std::set<std::string>& footer) {
+  std::vector<std::string> order;
+  for (const auto& s : soaks) {
+    if (std::find(order.begin(), order.end(), s.name) == order.end()) order.push_back(s.name);
+  }
+  const bool named =
+      order.size() > 1 || (order.size() == 1 && !soaks.front().stream.dut_serial.empty());
   json out = json::array();
   std::vector<std::vector<std::string>> rows;
-  for (const auto& g : *groups) {
-    json members = json::array();
-    for (std::size_t i : g.soaks) members.push_back(soak_ids[i]);
-    out.push_back(
-        {{"setpoint_c", num(g.setpoint_c)},
-         {"repetitions", g.repetitions},
-         {"soaks", members},
-         {"temp_mean_c", mean_spread_json(g.temp_mean_c)},
-         {"bias_mean_dph", mean_spread_json(g.bias_mean_dph)},
-         {"bias_std_dph", mean_spread_json(g.bias_std_dph)},
-         {"bias_std_ma101_dph", mean_spread_json(g.bias_std_ma_dph)},
-         {"bias_mean_earth_removed_dph", mean_spread_json(g.bias_mean_earth_removed_dph)}});
-    rows.push_back({fixed(g.setpoint_c, 2), std::to_string(g.repetitions),
-                    mean_spread_text(g.temp_mean_c, 2), mean_spread_text(g.bias_mean_dph, 4),
-                    mean_spread_text(g.bias_std_dph, 4), mean_spread_text(g.bias_std_ma_dph, 4),
-                    mean_spread_text(g.bias_mean_earth_removed_dph, 4)});
+  for (const auto& name : order) {
+    std::vector<analysis::Table1Soak> group_soaks;
+    std::vector<const StreamSoak*> members_of;
+    for (const auto& s : soaks) {
+      if (s.name != name) continue;
+      group_soaks.push_back(s.soak);
+      members_of.push_back(&s);
+    }
+    auto groups = analysis::table1_by_setpoint(group_soaks);
+    if (!groups) return fail(fmt::format("{}: {}", name, groups.error().message), kExitAnalysis);
+    for (const auto& g : *groups) {
+      json members = json::array();
+      for (std::size_t i : g.soaks) members.push_back(members_of[i]->id);
+      out.push_back(
+          {{"dut_serial", members_of.front()->stream.dut_serial},
+           {"axis", members_of.front()->stream.axis},
+           {"setpoint_c", num(g.setpoint_c)},
+           {"repetitions", g.repetitions},
+           {"soaks", members},
+           {"temp_mean_c", mean_spread_json(g.temp_mean_c)},
+           {"bias_mean_dph", mean_spread_json(g.bias_mean_dph)},
+           {"bias_std_dph", mean_spread_json(g.bias_std_dph)},
+           {"bias_std_ma101_dph", mean_spread_json(g.bias_std_ma_dph)},
+           {"bias_mean_earth_removed_dph", mean_spread_json(g.bias_mean_earth_removed_dph)}});
+      std::vector<std::string> row = {fixed(g.setpoint_c, 2),
+                                      std::to_string(g.repetitions),
+                                      mean_spread_text(g.temp_mean_c, 2),
+                                      mean_spread_text(g.bias_mean_dph, 4),
+                                      mean_spread_text(g.bias_std_dph, 4),
+                                      mean_spread_text(g.bias_std_ma_dph, 4),
+                                      mean_spread_text(g.bias_mean_earth_removed_dph, 4)};
+      if (named) {
+        row.insert(
+            row.begin(),
+            {members_of.front()->stream.dut_serial.empty() ? std::string(kDash)
+                                                           : members_of.front()->stream.dut_serial,
+             members_of.front()->stream.axis.empty() ? std::string(kDash)
+                                                     : members_of.front()->stream.axis});
+      }
+      rows.push_back(std::move(row));
+    }
   }
   if (p.json) {
     std::cout << out.dump(2) << "\n";
@@ -522,8 +689,10 @@ int print_by_setpoint(const Parsed& p, const std::vector<analysis::Table1Soak>& 
     std::cout << "no Table I rows\n";
     return 0;
   }
-  std::cout << table(
-      {"setpt °C", "reps", "temp °C", "bias °/h", "std °/h", "std MA °/h", "bias−Ω °/h"}, rows);
+  std::vector<std::string> header = {"setpt °C", "reps",       "temp °C",   "bias °/h",
+                                     "std °/h",  "std MA °/h", "bias−Ω °/h"};
+  if (named) header.insert(header.begin(), {"DUT", "axis"});
+  std::cout << table(header, rows, named ? 2 : 0);
   std::cout << "(each column: mean ± sample std over the soaks of the set point; soaks grouped by "
                "their schedule set point)\n";
   for (const auto& f : footer) std::cout << "(" << f << ")\n";
@@ -537,9 +706,13 @@ int cmd_stats(const Parsed& p) {
   std::vector<std::vector<std::string>> rows;
   std::vector<std::string> notes;
   std::set<std::string> footer;
-  // For --by-setpoint: each soak's set point, row and JSON identity.
-  std::vector<analysis::Table1Soak> soaks_for_groups;
-  std::vector<json> soak_ids;
+  // For --by-setpoint: each soak's DUT axis, set point, row and JSON identity.
+  std::vector<StreamSoak> soaks_for_groups;
+  // A DUT and axis column when the rows name their DUTs.
+  bool named = false;
+  if (in->db) {
+    if (auto st = check_choice(p, *in->db); !st) return fail(st.error().message, kExitInput);
+  }
   // Database rows carry their quality: a column, and the reasons of each
   // flagged row after the table.
   std::vector<std::string> flagged;
@@ -554,7 +727,8 @@ int cmd_stats(const Parsed& p) {
     if (quality != nullptr) {
       lead.push_back(quality_mark(*quality));
       if (quality->flagged()) {
-        flagged.push_back(fmt::format("run {} segment {}: FLAGGED: {}", lead[0], lead[1],
+        flagged.push_back(fmt::format("run {} segment {}{}: FLAGGED: {}", lead[0], lead[1],
+                                      lead[3] == kDash ? "" : " DUT " + lead[3] + " " + lead[4],
                                       fmt::join(quality->reasons, "; ")));
       }
     }
@@ -575,6 +749,8 @@ int cmd_stats(const Parsed& p) {
       auto stored = in->db->db.segment_stats(run.id);
       if (!stored) return fail(stored.error().message, kExitAnalysis);
       for (const auto& rec : *stored) {
+        if (!picked(p.duts, rec.dut_serial) || !picked(p.axes, rec.axis)) continue;
+        named = named || !rec.dut_serial.empty();
         analysis::Table1Options o;
         o.bin_s = rec.bin_s;
         o.ma_window = static_cast<std::size_t>(std::max(rec.ma_window, 0));
@@ -582,6 +758,8 @@ int cmd_stats(const Parsed& p) {
         const auto row = row_of(rec);
         json j = {{"run_id", rec.run_id},
                   {"segment", rec.segment_index + 1},
+                  {"dut_serial", rec.dut_serial},
+                  {"axis", rec.axis},
                   {"setpoint_c", num(rec.setpoint_c)},
                   {"t_from_s", num(rec.t_from_s)},
                   {"t_to_s", num(rec.t_to_s)},
@@ -589,10 +767,15 @@ int cmd_stats(const Parsed& p) {
         j.update(stats_json(row, o));
         j["quality"] = quality_json(rec.quality);
         out.push_back(std::move(j));
-        soaks_for_groups.push_back({rec.setpoint_c, row});
-        soak_ids.push_back({{"run_id", rec.run_id}, {"segment", rec.segment_index + 1}});
+        daemon::AnalysedAxis named_axis;
+        named_axis.dut_serial = rec.dut_serial;
+        named_axis.axis = rec.axis;
+        soaks_for_groups.push_back({{rec.dut_serial, rec.axis},
+                                    named_axis.name(),
+                                    {rec.setpoint_c, row},
+                                    {{"run_id", rec.run_id}, {"segment", rec.segment_index + 1}}});
         add_row({std::to_string(rec.run_id), std::to_string(rec.segment_index + 1),
-                 fixed(rec.setpoint_c, 2)},
+                 fixed(rec.setpoint_c, 2), or_dash(rec.dut_serial), or_dash(rec.axis)},
                 row, o, &rec.quality);
       }
     }
@@ -609,28 +792,33 @@ int cmd_stats(const Parsed& p) {
         notes.push_back(
             fmt::format("run {}: no completed soak with an acquisition window", run.id));
       }
-      auto axis = daemon::first_axis(db, run.id);
-      if (!axis) {
-        return fail(fmt::format("run {}: {}", run.id, axis.error().message), kExitAnalysis);
-      }
+      auto axes = chosen_axes(p, db, run.id);
+      if (!axes) return fail(axes.error().message, kExitAnalysis);
       const analysis::QualityRules rules = quality_rules_of(run);
       for (const auto& soak : *soaks) {
-        auto rec = daemon::soak_table1(db, soak, *opts, *axis, rules);
-        if (!rec) return fail(rec.error().message, kExitAnalysis);
-        const auto row = row_of(*rec);
-        json j = {{"run_id", run.id},
-                  {"segment", soak.segment_index + 1},
-                  {"setpoint_c", num(soak.setpoint_c)},
-                  {"t_from_s", num(rec->t_from_s)},
-                  {"t_to_s", num(rec->t_to_s)}};
-        j.update(stats_json(row, *opts));
-        j["quality"] = quality_json(rec->quality);
-        out.push_back(std::move(j));
-        soaks_for_groups.push_back({soak.setpoint_c, row});
-        soak_ids.push_back({{"run_id", run.id}, {"segment", soak.segment_index + 1}});
-        add_row({std::to_string(run.id), std::to_string(soak.segment_index + 1),
-                 fixed(soak.setpoint_c, 2)},
-                row, *opts, &rec->quality);
+        for (const auto& axis : *axes) {
+          auto rec = daemon::soak_table1(db, soak, *opts, axis, rules);
+          if (!rec) return fail(rec.error().message, kExitAnalysis);
+          named = named || !axis.dut_serial.empty();
+          const auto row = row_of(*rec);
+          json j = {{"run_id", run.id},
+                    {"segment", soak.segment_index + 1},
+                    {"dut_serial", axis.dut_serial},
+                    {"axis", axis.axis},
+                    {"setpoint_c", num(soak.setpoint_c)},
+                    {"t_from_s", num(rec->t_from_s)},
+                    {"t_to_s", num(rec->t_to_s)}};
+          j.update(stats_json(row, *opts));
+          j["quality"] = quality_json(rec->quality);
+          out.push_back(std::move(j));
+          soaks_for_groups.push_back({axis.key(),
+                                      axis.name(),
+                                      {soak.setpoint_c, row},
+                                      {{"run_id", run.id}, {"segment", soak.segment_index + 1}}});
+          add_row({std::to_string(run.id), std::to_string(soak.segment_index + 1),
+                   fixed(soak.setpoint_c, 2), or_dash(axis.dut_serial), or_dash(axis.axis)},
+                  row, *opts, &rec->quality);
+        }
       }
     }
   } else {
@@ -652,7 +840,7 @@ int cmd_stats(const Parsed& p) {
       add_row({w.source}, *row, *opts);
     }
   }
-  if (p.by_setpoint) return print_by_setpoint(p, soaks_for_groups, soak_ids, notes, footer);
+  if (p.by_setpoint) return print_by_setpoint(p, soaks_for_groups, notes, footer);
   if (p.json) {
     std::cout << out.dump(2) << "\n";
     return 0;
@@ -664,10 +852,16 @@ int cmd_stats(const Parsed& p) {
   }
   std::vector<std::string> header = {"n",       "length s",   "temp °C",   "bias °/h",
                                      "std °/h", "std MA °/h", "bias−Ω °/h"};
-  const std::vector<std::string> lead = in->db ? std::vector<std::string>{"run", "seg", "setpt °C"}
-                                               : std::vector<std::string>{"file"};
+  const std::vector<std::string> lead =
+      in->db ? std::vector<std::string>{"run", "seg", "setpt °C", "DUT", "axis"}
+             : std::vector<std::string>{"file"};
   header.insert(header.begin(), lead.begin(), lead.end());
   if (in->db) header.push_back("quality");
+  if (in->db && !named) {
+    // One unnamed gyro: no DUT and axis columns.
+    header.erase(header.begin() + 3, header.begin() + 5);
+    for (auto& r : rows) r.erase(r.begin() + 3, r.begin() + 5);
+  }
   std::cout << table(header, rows, in->db ? 0 : 1);
   for (const auto& f : footer) std::cout << "(" << f << ")\n";
   for (const auto& f : flagged) std::cout << f << "\n";
@@ -865,6 +1059,7 @@ int cmd_allan(const Parsed& p) {
   std::string text;
   std::vector<AllanSummaryRow> summary;
   if (in->db) {
+    if (auto st = check_choice(p, *in->db); !st) return fail(st.error().message, kExitInput);
     auto& db = in->db->db;
     for (const auto& run : in->db->runs) {
       auto taus = tau_set(read_run_config(run));
@@ -876,34 +1071,38 @@ int cmd_allan(const Parsed& p) {
       if (soaks->empty()) {
         text += fmt::format("run {}: no completed soak with an acquisition window\n", run.id);
       }
-      auto axis = daemon::first_axis(db, run.id);
-      if (!axis) {
-        return fail(fmt::format("run {}: {}", run.id, axis.error().message), kExitAnalysis);
-      }
+      auto axes = chosen_axes(p, db, run.id);
+      if (!axes) return fail(axes.error().message, kExitAnalysis);
       const analysis::QualityRules rules = quality_rules_of(run);
       for (const auto& soak : *soaks) {
-        auto rec = daemon::soak_allan(db, soak, *taus, *axis, rules);
-        if (!rec) return fail(rec.error().message, kExitAnalysis);
-        const AllanView v = view_of(*rec);
-        json j = {{"run_id", run.id},
-                  {"segment", soak.segment_index + 1},
-                  {"setpoint_c", num(soak.setpoint_c)},
-                  {"t_from_s", num(rec->t_from_s)},
-                  {"t_to_s", num(rec->t_to_s)}};
-        j.update(allan_json(v, taus_name));
-        j["quality"] = quality_json(rec->quality);
-        out.push_back(std::move(j));
-        if (rec->quality.flagged()) {
-          text += fmt::format("run {} segment {}: FLAGGED: {}\n", run.id, soak.segment_index + 1,
-                              fmt::join(rec->quality.reasons, "; "));
+        for (const auto& axis : *axes) {
+          auto rec = daemon::soak_allan(db, soak, *taus, axis, rules);
+          if (!rec) return fail(rec.error().message, kExitAnalysis);
+          const AllanView v = view_of(*rec);
+          json j = {{"run_id", run.id},
+                    {"segment", soak.segment_index + 1},
+                    {"dut_serial", axis.dut_serial},
+                    {"axis", axis.axis},
+                    {"setpoint_c", num(soak.setpoint_c)},
+                    {"t_from_s", num(rec->t_from_s)},
+                    {"t_to_s", num(rec->t_to_s)}};
+          j.update(allan_json(v, taus_name));
+          j["quality"] = quality_json(rec->quality);
+          out.push_back(std::move(j));
+          // "run 3 segment 2" (one unnamed gyro), else with its DUT axis.
+          const std::string who =
+              axis.dut_serial.empty()
+                  ? fmt::format("run {} segment {}", run.id, soak.segment_index + 1)
+                  : fmt::format("run {} segment {} {}", run.id, soak.segment_index + 1,
+                                axis.name());
+          if (rec->quality.flagged()) {
+            text += fmt::format("{}: FLAGGED: {}\n", who, fmt::join(rec->quality.reasons, "; "));
+          }
+          summary.push_back({fmt::format("{} ({:g} °C)", who, soak.setpoint_c), v.noise});
+          text += allan_text(fmt::format("{} (soak {:g} °C), samples {}–{} s", who, soak.setpoint_c,
+                                         general(rec->t_from_s), general(rec->t_to_s)),
+                             v, taus_name);
         }
-        summary.push_back({fmt::format("run {} segment {} ({:g} °C)", run.id,
-                                       soak.segment_index + 1, soak.setpoint_c),
-                           v.noise});
-        text += allan_text(fmt::format("run {} segment {} (soak {:g} °C), samples {}–{} s", run.id,
-                                       soak.segment_index + 1, soak.setpoint_c,
-                                       general(rec->t_from_s), general(rec->t_to_s)),
-                           v, taus_name);
       }
     }
   } else {
@@ -927,6 +1126,53 @@ int cmd_allan(const Parsed& p) {
     if (summary.size() > 1) text += "\n" + allan_summary(summary);
     std::cout << (text.empty() ? "no Allan deviation\n" : text);
   }
+  return 0;
+}
+
+// ---------------------------------------------------------------- per DUT axis
+
+// A command over several runs, once per DUT axis (common_axes): `one`
+// prints its text and hands back its JSON object, which gets "dut_serial"
+// and "axis". Text: a title before each block when the runs name their
+// DUTs. JSON: the object for one DUT axis, an array of them for several.
+// The coefficient files are for one DUT axis: with several, --dut and
+// --axis must choose one.
+using PerStream = int (*)(const Parsed&, Input&, const daemon::AnalysedAxis*, json&);
+
+int for_each_stream(const Parsed& p, RunsNeeded needed, PerStream one) {
+  auto in = open_input(p, needed);
+  if (!in) return fail(in.error().message, kExitInput);
+  if (!in->db) {
+    json j;
+    const int code = one(p, *in, nullptr, j);
+    if (code == 0 && p.json) std::cout << j.dump(2) << "\n";
+    return code;
+  }
+  std::vector<std::string> notes;
+  auto streams = common_axes(p, *in->db, notes);
+  if (!streams) return fail(streams.error().message, kExitInput);
+  if (streams->size() > 1 && (!p.c_header.empty() || !p.coefficients_json.empty())) {
+    std::vector<std::string> names;
+    for (const auto& a : *streams) names.push_back(a.name());
+    return fail(fmt::format("--c-header and --coefficients-json are for one DUT axis; the runs "
+                            "have {} ({}): choose one with --dut and --axis",
+                            streams->size(), fmt::join(names, ", ")),
+                kExitInput);
+  }
+  for (const auto& n : notes) (p.json ? std::cerr : std::cout) << n << "\n";
+  json all = json::array();
+  for (std::size_t i = 0; i < streams->size(); ++i) {
+    const auto& a = (*streams)[i];
+    if (!p.json && !a.dut_serial.empty()) {
+      std::cout << (i == 0 ? "" : "\n") << "== " << stream_title(a) << "\n";
+    }
+    json j;
+    if (const int code = one(p, *in, &a, j); code != 0) return code;
+    j["dut_serial"] = a.dut_serial;
+    j["axis"] = a.axis;
+    all.push_back(std::move(j));
+  }
+  if (p.json) std::cout << (all.size() == 1 ? all[0] : all).dump(2) << "\n";
   return 0;
 }
 
@@ -956,9 +1202,8 @@ std::vector<std::string> ordered_keys(const std::map<std::string, V>& m) {
   return keys;
 }
 
-int cmd_fit(const Parsed& p) {
-  auto in = open_input(p, RunsNeeded::kRequired);
-  if (!in) return fail(in.error().message, kExitInput);
+int fit_one(const Parsed& p, Input& input, const daemon::AnalysedAxis* stream, json& json_out) {
+  Input* in = &input;
   const RunConfig cfg = first_run_config(*in);
   auto spec = model_spec(p, cfg);
   if (!spec) return fail(spec.error().message, kExitInput);
@@ -970,11 +1215,12 @@ int cmd_fit(const Parsed& p) {
   if (!bin) return fail(bin.error().message, kExitInput);
   const double bin_s = *bin;
 
-  auto set = load_series(*in, bin_s);
+  auto set = load_series(*in, bin_s, stream);
   if (!set) return fail(set.error().message, kExitAnalysis);
-  const std::string what =
+  std::string what =
       in->db ? fmt::format("run{} {}", in->db->runs.size() == 1 ? "" : "s", join_ids(in->db->ids()))
              : fmt::format("{}", fmt::join(set->names, ", "));
+  if (stream != nullptr && !stream->dut_serial.empty()) what += " (" + stream->name() + ")";
   auto fit = analysis::fit_drift_model(set->series, *spec, *form, *options);
   if (!fit) {
     return fail(fmt::format("fit of {} to {} ({} form): {}", what, analysis::to_string(*spec),
@@ -1009,7 +1255,7 @@ int cmd_fit(const Parsed& p) {
       in->db ? quality_rules_of(in->db->runs.front()) : analysis::QualityRules{});
   json with_quality = out;
   with_quality["quality"] = quality_json(quality);
-  const auto info = export_info(*in, cfg, options->l0_window_s);
+  const auto info = export_info(*in, cfg, options->l0_window_s, stream);
   if (quality.flagged() && !p.c_header.empty() && !p.force) {
     Parsed json_only = p;
     json_only.c_header.clear();
@@ -1033,10 +1279,8 @@ int cmd_fit(const Parsed& p) {
       code != 0) {
     return code;
   }
-  if (p.json) {
-    std::cout << with_quality.dump(2) << "\n";
-    return 0;
-  }
+  json_out = with_quality;
+  if (p.json) return 0;
   std::cout << fmt::format("model {}, {}, {}: {} points ({:g} s bins)\n",
                            analysis::to_string(fit->spec), analysis::form_label(fit->form), what,
                            fit->n, bin_s);
@@ -1075,6 +1319,8 @@ int cmd_fit(const Parsed& p) {
   return 0;
 }
 
+int cmd_fit(const Parsed& p) { return for_each_stream(p, RunsNeeded::kRequired, fit_one); }
+
 // ---------------------------------------------------------------- compare
 
 json compensated_json(const std::optional<analysis::CompensatedStats>& s) {
@@ -1082,9 +1328,8 @@ json compensated_json(const std::optional<analysis::CompensatedStats>& s) {
   return {{"n", s->n}, {"mean_dph", num(s->mean_dph)}, {"std_dph", num(s->std_dph)}};
 }
 
-int cmd_compare(const Parsed& p) {
-  auto in = open_input(p, RunsNeeded::kRequired);
-  if (!in) return fail(in.error().message, kExitInput);
+int compare_one(const Parsed& p, Input& input, const daemon::AnalysedAxis* stream, json& json_out) {
+  Input* in = &input;
   const RunConfig cfg = first_run_config(*in);
   analysis::ComparisonOptions options;
   options.max_order = p.max_order;
@@ -1105,7 +1350,7 @@ int cmd_compare(const Parsed& p) {
   const auto bin = bin_s_of(p, cfg);
   if (!bin) return fail(bin.error().message, kExitInput);
   const double bin_s = *bin;
-  auto set = load_series(*in, bin_s);
+  auto set = load_series(*in, bin_s, stream);
   if (!set) return fail(set.error().message, kExitAnalysis);
   auto cmp = analysis::compare_models(set->series, options);
   if (!cmp) return fail("comparison: " + cmp.error().message, kExitAnalysis);
@@ -1135,10 +1380,8 @@ int cmd_compare(const Parsed& p) {
                     {"none", compensated_json(cmp->none)},
                     {"cells", cells},
                     {"inputs", inputs}};
-  if (p.json) {
-    std::cout << out.dump(2) << "\n";
-    return 0;
-  }
+  json_out = out;
+  if (p.json) return 0;
   std::cout << fmt::format(
       "Compensated gyro output, {} form, {} {} ({:g} s bins), std {}. in-sample: one fit on "
       "all, applied to all (the paper); LORO: each run compensated by a fit on the others.\n",
@@ -1182,11 +1425,13 @@ int cmd_compare(const Parsed& p) {
   return 0;
 }
 
+int cmd_compare(const Parsed& p) { return for_each_stream(p, RunsNeeded::kRequired, compare_one); }
+
 // ---------------------------------------------------------------- start-model
 
-int cmd_start_model(const Parsed& p) {
-  auto in = open_input(p, RunsNeeded::kRequired);
-  if (!in) return fail(in.error().message, kExitInput);
+int start_model_one(const Parsed& p, Input& input, const daemon::AnalysedAxis* stream,
+                    json& json_out) {
+  Input* in = &input;
   const RunConfig cfg = first_run_config(*in);
   analysis::StartTemperatureOptions options;
   if (p.model || cfg.model) {
@@ -1207,7 +1452,7 @@ int cmd_start_model(const Parsed& p) {
   const auto bin = bin_s_of(p, cfg);
   if (!bin) return fail(bin.error().message, kExitInput);
   const double bin_s = *bin;
-  auto set = load_series(*in, bin_s);
+  auto set = load_series(*in, bin_s, stream);
   if (!set) return fail(set.error().message, kExitAnalysis);
   auto model = analysis::fit_start_temperature_model(set->series, options);
   if (!model) return fail(model.error().message, kExitAnalysis);
@@ -1248,17 +1493,15 @@ int cmd_start_model(const Parsed& p) {
                     {"coefficients", coefficient_map(at->fit.coefficients)}};
   }
 
-  const auto info = export_info(*in, cfg, model->l0_window_s);
+  const auto info = export_info(*in, cfg, model->l0_window_s, stream);
   if (int code = write_exports(
           p, [&] { return analysis::start_model_json(*model, info); },
           [&] { return analysis::start_model_c_header(*model, info); });
       code != 0) {
     return code;
   }
-  if (p.json) {
-    std::cout << out.dump(2) << "\n";
-    return 0;
-  }
+  json_out = out;
+  if (p.json) return 0;
   std::cout << fmt::format(
       "start-temperature model (paper eq. 3), {} {} form, from {} {}: each coefficient "
       "a(T0) = A0 + A1·T0 + A2·T0² + A3·T0³\n",
@@ -1290,6 +1533,10 @@ int cmd_start_model(const Parsed& p) {
   if (!p.coefficients_json.empty()) std::cout << "wrote " << p.coefficients_json << "\n";
   if (!p.c_header.empty()) std::cout << "wrote " << p.c_header << "\n";
   return 0;
+}
+
+int cmd_start_model(const Parsed& p) {
+  return for_each_stream(p, RunsNeeded::kRequired, start_model_one);
 }
 
 // ---------------------------------------------------------------- scale-factor
@@ -1505,6 +1752,12 @@ AnalysisCommands::AnalysisCommands(CLI::App& app) : parsed_(std::make_unique<Par
     cmd->add_option("--csv", p.csv,
                     several_csv ? "CSV file(s), one run each" : "CSV file(s), one window each");
     cmd->add_flag("--json", p.json, "JSON output");
+    cmd->add_option("--dut", p.duts,
+                    "serial of a DUT to analyse (repeat for more; default: every DUT of the runs)")
+        ->allow_extra_args(false);
+    cmd->add_option("--axis", p.axes,
+                    "axis to analyse, x, y or z (repeat for more; default: every analysed axis)")
+        ->allow_extra_args(false);
     return cmd;
   };
   auto fit_opts = [&p](CLI::App* cmd) {

@@ -530,7 +530,7 @@ std::string format_station_time(const json& t_s) {
 }
 
 std::string format_events(const json& events, std::string_view indent) {
-  if (!events.is_array() || events.empty()) return fmt::format("{}none\n", indent);
+  if (!events.is_array() || events.empty()) return "  none\n";
   std::vector<std::vector<std::string>> rows;
   for (const auto& e : events) {
     const json& from = field(e, "from_state");

@@ -79,7 +79,7 @@ Result<DatabaseChoice> choose_database(const std::string& db_path, const std::st
 std::string format_station_time(const nlohmann::json& t_s);
 // A run's events (GET /api/v1/runs/{id}/events, or the lab's) as a table of
 // time, kind, state transition and message, every line after `indent`;
-// "<indent>none" when there are none.
+// "  none" when there are none.
 std::string format_events(const nlohmann::json& events, std::string_view indent = "");
 // "2026-11-21T05:38:43.120Z" → "2026-11-21 05:38:43"; "—" for null.
 std::string format_utc(const nlohmann::json& utc);
