@@ -574,6 +574,19 @@ int write_exports(const Parsed& p, const std::function<std::string()>& json_text
 
 // ---------------------------------------------------------------- stats
 
+// A soak result's identity in the JSON of stats and allan: its run, step
+// (1-based), DUT axis, set point and the span of its windows.
+json soak_json(const daemon::SoakWindow& soak, const daemon::AnalysedAxis& axis, double from_s,
+               double to_s) {
+  return {{"run_id", soak.run_id},
+          {"segment", soak.segment_index + 1},
+          {"dut_serial", axis.dut_serial},
+          {"axis", axis.axis},
+          {"setpoint_c", num(soak.setpoint_c)},
+          {"t_from_s", num(from_s)},
+          {"t_to_s", num(to_s)}};
+}
+
 json stats_json(const analysis::Table1Row& row, const analysis::Table1Options& o) {
   json j = {{"n", row.n},
             {"duration_s", num(row.duration_s)},
@@ -801,13 +814,7 @@ int cmd_stats(const Parsed& p) {
           if (!rec) return fail(rec.error().message, kExitAnalysis);
           named = named || !axis.dut_serial.empty();
           const auto row = row_of(*rec);
-          json j = {{"run_id", run.id},
-                    {"segment", soak.segment_index + 1},
-                    {"dut_serial", axis.dut_serial},
-                    {"axis", axis.axis},
-                    {"setpoint_c", num(soak.setpoint_c)},
-                    {"t_from_s", num(rec->t_from_s)},
-                    {"t_to_s", num(rec->t_to_s)}};
+          json j = soak_json(soak, axis, rec->t_from_s, rec->t_to_s);
           j.update(stats_json(row, *opts));
           j["quality"] = quality_json(rec->quality);
           out.push_back(std::move(j));
@@ -1079,13 +1086,7 @@ int cmd_allan(const Parsed& p) {
           auto rec = daemon::soak_allan(db, soak, *taus, axis, rules);
           if (!rec) return fail(rec.error().message, kExitAnalysis);
           const AllanView v = view_of(*rec);
-          json j = {{"run_id", run.id},
-                    {"segment", soak.segment_index + 1},
-                    {"dut_serial", axis.dut_serial},
-                    {"axis", axis.axis},
-                    {"setpoint_c", num(soak.setpoint_c)},
-                    {"t_from_s", num(rec->t_from_s)},
-                    {"t_to_s", num(rec->t_to_s)}};
+          json j = soak_json(soak, axis, rec->t_from_s, rec->t_to_s);
           j.update(allan_json(v, taus_name));
           j["quality"] = quality_json(rec->quality);
           out.push_back(std::move(j));
