@@ -586,6 +586,11 @@ TEST_F(QueueTest, EachInterlockSuspendsAndClearsThroughTheSimulator) {
 
 // A soak that cannot settle in time is suspended, and goes on once it does.
 TEST_F(QueueTest, SettleTimeoutSuspendsUntilTheSoakSettles) {
+  // The suspension and its clearing are tested, not the grace: a grace far
+  // longer than the test, so the wall seconds the test takes to see the
+  // suspension and release the chamber (station minutes at the time scale,
+  // more on a busy machine) cannot abort the run.
+  append_config("[interlocks]\nsettle_timeout_grace_min = 600.0\n");
   write(dir_ / "schedule.toml", R"(name = "slow"
 [[step]]
 type = "soak"
