@@ -539,6 +539,13 @@ TEST_F(QueueTest, CrashResumeKeepsAnInterlocksGrace) {
 // Each interlock through the simulator's fault socket: the run suspends with
 // the interlock named, and goes on by itself once the fault is gone.
 TEST_F(QueueTest, EachInterlockSuspendsAndClearsThroughTheSimulator) {
+  // Suspending and clearing are tested, not the graces (5 min for
+  // out_of_limits is 1.5 wall seconds at x200): graces far longer than the
+  // test, so the time it takes to react on a busy machine aborts nothing.
+  append_config(
+      "[interlocks]\nchamber_alarm_grace_min = 600.0\nchamber_silent_grace_min = 600.0\n"
+      "gyro_lost_grace_min = 600.0\nprobe_disagreement_grace_min = 600.0\n"
+      "out_of_limits_grace_min = 600.0\nsettle_timeout_grace_min = 600.0\n");
   write(dir_ / "schedule.toml", soak_schedule("interlocks", 23, 600));
   start_sim();
   start_daemon();
