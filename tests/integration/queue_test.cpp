@@ -434,6 +434,8 @@ TEST_F(QueueTest, CrashResumeAfterKill9) {
 // and the row lacked the soak's last seconds (n = 95 of 120).
 TEST_F(QueueTest, TableIWaitsForTheLastSecondsOfTheGyroStream) {
   constexpr double kAcquireS = 120;
+  // The hold trips gyro_lost; its grace must outlast the test's reaction.
+  append_config("[interlocks]\ngyro_lost_grace_min = 600.0\n");
   write(dir_ / "schedule.toml", soak_schedule("late", 23, kAcquireS / 60));
   start_sim();
   start_daemon({"--exit-when-done"});
