@@ -185,9 +185,15 @@
     return measure.measureText(s).width;
   }
 
-  // Decimals enough to tell neighbouring ticks apart, no more.
+  // The decimals the tick step itself has (0.25 needs two, 5 none), at most
+  // six: every tick then reads as its value.
   function tickValues(u, splits, axisIdx, space, incr) {
-    const digits = incr > 0 ? Math.min(6, Math.max(0, -Math.floor(Math.log10(incr) + 1e-9))) : 0;
+    let digits = 0;
+    while (digits < 6) {
+      const x = incr * 10 ** digits;
+      if (!(incr > 0) || (Math.round(x) >= 1 && Math.abs(x - Math.round(x)) < 1e-9 * x)) break;
+      digits++;
+    }
     return splits.map((v) => fmtNum(v, digits));
   }
 

@@ -214,10 +214,15 @@ async function gyroAxes(page) {
   }, '13px "DejaVu Sans", "Segoe UI", system-ui, sans-serif');
 }
 
-// Fails when a y label is wider than its axis (clipped at the page's
-// edge), a negative value lost its minus sign, or two x labels overlap.
+// Fails when a y label does not read as its tick's value, is wider than its
+// axis (clipped at the page's edge) or lost a negative value's minus sign,
+// or when two x labels overlap.
 function checkAxes(failures, step, axes) {
   for (const t of axes.y) {
+    const read = Number(t.label.replace('−', '-'));
+    if (Math.abs(read - t.value) > 1e-9 * Math.max(1, Math.abs(t.value))) {
+      failures.push(`${step}: the y tick at ${t.value} reads "${t.label}"`);
+    }
     if (t.value < 0 && !t.label.startsWith('−')) {
       failures.push(`${step}: the y tick at ${t.value} reads "${t.label}", no minus sign`);
     }
