@@ -1356,6 +1356,9 @@ void Station::end_run() {
   sequencer_.reset();
   entry_.reset();
   checkpoint_state_.clear();
+  // No checkpoint transaction comes for this run any more: what it left
+  // unwritten (its steps' last records, then its end) goes now if it can.
+  record_unrecorded();
   {
     std::lock_guard lock(mu_);
     snapshot_.run_id.reset();
@@ -1692,19 +1695,29 @@ void Station::record_unrecorded() {
     unrecorded_events_.pop_front();
     if (unrecorded_events_.empty()) spdlog::info("events kept while the database failed: written");
   }
-  if (unrecorded_run_state_) {
-    const auto& u = *unrecorded_run_state_;
-    if (auto st = db_.set_run_state(u.run_id, u.state, u.terminal); !st) {
-      if (!run_state_failing_) spdlog::error("run state not written yet: {}", st.error().message);
-      run_state_failing_ = true;
-      return;
-    }
-    run_state_failing_ = false;
-    unrecorded_run_state_.reset();
-  }
   if (!defer_segment_records_ && !(segments_with_checkpoint_ && sequencer_)) {
     (void)record_segments();
   }
+  // A run's end is written after its steps' last records (inside a
+  // sequencer tick, with them: tick_sequencer): neither a reader nor a crash
+  // finds a completed run with a step still running.
+  if (unrecorded_run_state_ && unrecorded_run_state_->terminal && !unrecorded_segments_.empty()) {
+    return;
+  }
+  (void)record_run_state();
+}
+
+bool Station::record_run_state() {
+  if (!unrecorded_run_state_) return true;
+  const auto& u = *unrecorded_run_state_;
+  if (auto st = db_.set_run_state(u.run_id, u.state, u.terminal); !st) {
+    if (!run_state_failing_) spdlog::error("run state not written yet: {}", st.error().message);
+    run_state_failing_ = true;
+    return false;
+  }
+  run_state_failing_ = false;
+  unrecorded_run_state_.reset();
+  return true;
 }
 
 bool Station::record_segments() {
@@ -1731,11 +1744,14 @@ void Station::tick_sequencer(double t_run_s, const schedules::Readings& r) {
   defer_segment_records_ = false;
   if (unrecorded_segments_.empty()) {
     segments_with_checkpoint_ = false;
+    record_unrecorded();  // a run's end the tick held back for its steps
     return;
   }
   const auto kept = unrecorded_segments_;
+  const auto kept_run_state = unrecorded_run_state_;
   const Status st = db_.atomically([&]() -> Status {
     if (!record_segments()) return Error::Transient("a segment was not written");
+    if (!record_run_state()) return Error::Transient("the run's state was not written");
     checkpoint(true);
     if (checkpoint_failing_) return Error::Transient("the checkpoint was not written");
     return Status::Ok();
@@ -1744,6 +1760,7 @@ void Station::tick_sequencer(double t_run_s, const schedules::Readings& r) {
   if (!st) {
     // Rolled back: tried again, together, next tick.
     unrecorded_segments_ = kept;
+    unrecorded_run_state_ = kept_run_state;
     checkpoint_state_.clear();
     if (!segment_failing_) spdlog::error("step change not written yet: {}", st.error().message);
     segment_failing_ = true;

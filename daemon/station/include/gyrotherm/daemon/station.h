@@ -199,6 +199,8 @@ class Station final : public StationControl, private schedules::SequencerObserve
   void record_unrecorded();
   // Segments only; false while one is left unwritten.
   bool record_segments();
+  // The run's state kept unwritten, if any; false when it is still unwritten.
+  bool record_run_state();
   // The sequencer's tick, with the segments it ends and starts written in
   // one transaction with the checkpoint that says so.
   void tick_sequencer(double t_run_s, const schedules::Readings& r);
