@@ -14,7 +14,7 @@
 #include <cmath>
 #include <cstring>
 
-#include "table_link.h"
+#include "link_health.h"
 
 namespace gyrotherm::drivers {
 
@@ -34,7 +34,7 @@ AcutrolTable::AcutrolTable(TableConnection connection, std::string name, const W
     : connection_(std::move(connection)),
       name_(std::move(name)),
       decoder_(acl::ReplyFraming::kAscii),
-      link_(std::make_unique<TableLink>(clock)) {
+      health_(std::make_unique<LinkHealth>(clock)) {
   auto framing = acl::parse_reply_framing(connection_.reply_header);
   if (!framing) {
     config_error_ = Error::Permanent(fmt::format("{}: {}", name_, framing.error().message));
@@ -66,7 +66,7 @@ AcutrolTable::~AcutrolTable() {
 
 DeviceHealth AcutrolTable::health() const {
   std::lock_guard lock(mu_);
-  return link_->health();
+  return health_->health();
 }
 
 Error AcutrolTable::named(const std::string& command, const Error& e) const {
@@ -84,7 +84,7 @@ void AcutrolTable::close_socket() {
 
 void AcutrolTable::drop(const std::string& why) {
   close_socket();
-  link_->on_link_failure(why);
+  health_->on_link_failure(why);
 }
 
 Status AcutrolTable::open_socket() {
@@ -140,18 +140,18 @@ Status AcutrolTable::ensure_connected(bool ignore_backoff) {
   if (config_error_) return *config_error_;
   if (fd_ >= 0) return Status::Ok();
   if (!ignore_backoff) {
-    if (const double wait = link_->wait_s(); wait > 0) {
+    if (const double wait = health_->wait_s(); wait > 0) {
       return Error::Transient(
           fmt::format("{}: not connected (last error: {}); next attempt in {:.1f} s", name_,
-                      link_->health().last_error, wait));
+                      health_->health().last_error, wait));
     }
   }
   if (auto st = open_socket(); !st) {
-    link_->on_link_failure(st.error().message);
+    health_->on_link_failure(st.error().message);
     return st;
   }
   decoder_.reset();
-  link_->on_connected();
+  health_->on_connected();
   return first_contact();
 }
 
@@ -228,8 +228,8 @@ Status AcutrolTable::first_contact() {
       decoder_.feed(std::string_view(bytes).substr(r.consumed));
       // The handshake does not reset the backoff: a controller that answers
       // it and then drops every request is retried ever more slowly.
-      link_->on_success(std::chrono::duration<double, std::milli>(Steady::now() - t0).count(),
-                        /*reset_backoff=*/false);
+      health_->on_success(std::chrono::duration<double, std::milli>(Steady::now() - t0).count(),
+                          /*reset_backoff=*/false);
       return Status::Ok();
     }
     if (auto failed = receive(deadline, bytes)) return lost(*failed);
@@ -247,7 +247,7 @@ Result<acl::Reply> AcutrolTable::roundtrip(const std::string& command,
       drop(e.message);
     } else {
       close_socket();
-      link_->on_closed();
+      health_->on_closed();
     }
     return e;
   };
@@ -259,7 +259,7 @@ Result<acl::Reply> AcutrolTable::roundtrip(const std::string& command,
     auto next = decoder_.next();
     if (!next) return lost(next.error().message);
     if (*next) {
-      link_->on_success(std::chrono::duration<double, std::milli>(Steady::now() - t0).count());
+      health_->on_success(std::chrono::duration<double, std::milli>(Steady::now() - t0).count());
       return std::move(**next);
     }
     if (auto failed = receive(deadline, bytes)) return lost(*failed);
@@ -290,7 +290,7 @@ Result<std::string> AcutrolTable::exchange(const std::string& command) {
     text = fmt::format(" ({})", t->payload);
   }
   Error e = named(command, Error::Permanent(fmt::format("error code {}{}", reply->code, text)));
-  link_->on_refusal(e.message);
+  health_->on_refusal(e.message);
   return e;
 }
 
@@ -362,7 +362,7 @@ Status AcutrolTable::servo_on_locked() {
   }
   if (*interlock == TableInterlock::kFault) {
     Error e = named(q, Error::Permanent("the interlock is in fault: reset faults first"));
-    link_->on_local_error(e.message);
+    health_->on_local_error(e.message);
     return e;
   }
   if (*interlock == TableInterlock::kOpen)
@@ -406,7 +406,7 @@ Status AcutrolTable::set_rate(double rate_dps) {
     Error e = named(command, Error::Permanent(fmt::format(
                                  "refused, not sent: |{:g}| °/s is beyond the rate limit {:g} °/s",
                                  rate_dps, limits->max_rate_dps)));
-    link_->on_local_error(e.message);
+    health_->on_local_error(e.message);
     return e;
   }
   if (auto st = ensure_connected(false); !st) return st;

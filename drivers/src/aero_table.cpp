@@ -6,7 +6,7 @@
 #include <cmath>
 #include <cstdio>
 
-#include "table_link.h"
+#include "link_health.h"
 
 namespace gyrotherm::drivers {
 
@@ -27,13 +27,13 @@ AeroTable::AeroTable(TableConnection connection, TableLimits declared, std::stri
     : connection_(std::move(connection)),
       declared_(declared),
       name_(std::move(name)),
-      link_(std::make_unique<TableLink>(clock)) {}
+      health_(std::make_unique<LinkHealth>(clock)) {}
 
 AeroTable::~AeroTable() = default;
 
 DeviceHealth AeroTable::health() const {
   std::lock_guard lock(mu_);
-  return link_->health();
+  return health_->health();
 }
 
 Error AeroTable::named(const std::string& command, const Error& e) const {
@@ -45,7 +45,7 @@ void AeroTable::drop(const std::string& why) {
   port_.reset();
   decoder_.reset();
   pending_.reset();
-  link_->on_link_failure(why);
+  health_->on_link_failure(why);
 }
 
 Status AeroTable::ensure_open(bool ignore_backoff) {
@@ -54,22 +54,22 @@ Status AeroTable::ensure_open(bool ignore_backoff) {
     return Error::Permanent(fmt::format("{}: no serial device given", name_));
   }
   if (!ignore_backoff) {
-    if (const double wait = link_->wait_s(); wait > 0) {
+    if (const double wait = health_->wait_s(); wait > 0) {
       return Error::Transient(
           fmt::format("{}: not connected (last error: {}); next attempt in {:.1f} s", name_,
-                      link_->health().last_error, wait));
+                      health_->health().last_error, wait));
     }
   }
   auto port = SerialPort::open(SerialOptions{connection_.device, connection_.baud, Parity::kNone});
   if (!port) {
     Error e{fmt::format("{}: {}", name_, port.error().message), port.error().transient};
-    if (e.transient) link_->on_link_failure(e.message);
+    if (e.transient) health_->on_link_failure(e.message);
     return e;
   }
   port_.emplace(std::move(*port));
   decoder_.reset();
   pending_.reset();
-  link_->on_connected();
+  health_->on_connected();
   return Status::Ok();
 }
 
@@ -123,7 +123,7 @@ Result<std::string> AeroTable::request(const std::string& mnemonic, std::optiona
     const std::string_view late_text = aero::strip_echo(**late, earlier);
     if (aero::is_refusal(late_text)) {
       Error e = named(earlier, Error::Permanent(fmt::format("refused: \"{}\"", late_text)));
-      link_->on_refusal(e.message);
+      health_->on_refusal(e.message);
       return e;
     }
   }
@@ -149,10 +149,10 @@ Result<std::string> AeroTable::request(const std::string& mnemonic, std::optiona
   const std::string text(aero::strip_echo(**reply, command));
   if (aero::is_refusal(text)) {
     Error e = named(command, Error::Permanent(fmt::format("refused: \"{}\"", text)));
-    link_->on_refusal(e.message);
+    health_->on_refusal(e.message);
     return e;
   }
-  link_->on_success(std::chrono::duration<double, std::milli>(Steady::now() - t0).count());
+  health_->on_success(std::chrono::duration<double, std::milli>(Steady::now() - t0).count());
   return text;
 }
 
@@ -207,13 +207,13 @@ Status AeroTable::set_rate(double rate_dps) {
     Error e = named(command, Error::Permanent(fmt::format(
                                  "refused, not sent: |{:g}| °/s is beyond the rate limit {:g} °/s",
                                  rate_dps, declared_.max_rate_dps)));
-    link_->on_local_error(e.message);
+    health_->on_local_error(e.message);
     return e;
   }
   auto whole = aero::whole_argument("JOG", rate_dps, "°/s");
   if (!whole) {
     Error e = named(command, Error::Permanent("refused, not sent: " + whole.error().message));
-    link_->on_local_error(e.message);
+    health_->on_local_error(e.message);
     return e;
   }
   auto r = request("JOG", static_cast<double>(*whole), /*late_ok=*/true);
@@ -231,7 +231,7 @@ Status AeroTable::set_position(double position_deg) {
   auto whole = aero::whole_argument("MOV", position_deg, "°");
   if (!whole) {
     Error e = named(command, Error::Permanent("refused, not sent: " + whole.error().message));
-    link_->on_local_error(e.message);
+    health_->on_local_error(e.message);
     return e;
   }
   auto r = request("MOV", static_cast<double>(*whole));

@@ -39,7 +39,7 @@
 
 namespace gyrotherm::drivers {
 
-class TableLink;
+class LinkHealth;
 
 class AcutrolTable final : public RateTable {
  public:
@@ -106,7 +106,7 @@ class AcutrolTable final : public RateTable {
   acl::ReplyFraming framing_ = acl::ReplyFraming::kAscii;  // reply_header
   acl::ReplyDecoder decoder_;
   mutable std::mutex mu_;
-  std::unique_ptr<TableLink> link_;
+  std::unique_ptr<LinkHealth> health_;
   int fd_ = -1;
   std::optional<TableLimits> limits_;
   std::string identity_;

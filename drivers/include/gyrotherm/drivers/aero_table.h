@@ -33,7 +33,7 @@
 
 namespace gyrotherm::drivers {
 
-class TableLink;
+class LinkHealth;
 
 class AeroTable final : public RateTable {
  public:
@@ -70,7 +70,7 @@ class AeroTable final : public RateTable {
   TableLimits declared_;
   std::string name_;
   mutable std::mutex mu_;
-  std::unique_ptr<TableLink> link_;
+  std::unique_ptr<LinkHealth> health_;
   std::optional<SerialPort> port_;
   aero::ReplyDecoder decoder_;
   std::optional<std::string> pending_;  // a command whose reply may still come
