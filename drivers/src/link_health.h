@@ -1,6 +1,7 @@
-// What AcutrolTable and AeroTable share about the state of their link: the
-// reconnect backoff and the health counters. Not thread-safe: the tables
-// hold their own mutex around it.
+// What AcutrolTable and AeroTable share about the state of their link (the
+// bytes go through a ByteLink, byte_link.h): the reconnect backoff and the
+// health counters. Not thread-safe: the tables hold their own mutex around
+// it.
 #pragma once
 
 #include <algorithm>
