@@ -185,11 +185,6 @@ Result<std::size_t> SerialLink::read_some(std::string& into, Deadline deadline) 
 
 // ---------------------------------------------------------------- choice
 
-std::string table_transport(const TableConnection& connection) {
-  if (!connection.transport.empty()) return connection.transport;
-  return connection.profile == "aero" ? "serial" : "tcp";
-}
-
 Result<std::unique_ptr<ByteLink>> make_table_link(const TableConnection& connection,
                                                   std::string_view name) {
   const std::string transport = table_transport(connection);

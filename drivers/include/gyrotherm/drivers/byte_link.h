@@ -105,10 +105,6 @@ class SerialLink final : public ByteLink {
   std::optional<SerialPort> port_;
 };
 
-// The transport a [table] connection names: its `transport`, or when that
-// is empty its profile's (acutrol: "tcp", TM-9384C; aero: "serial").
-std::string table_transport(const TableConnection& connection);
-
 // The link `connection` names: TcpLink to host:port, or SerialLink on
 // device at baud, 8N1. A permanent error, naming `name` and the key, when
 // the connection cannot make one (an unknown transport, a port out of

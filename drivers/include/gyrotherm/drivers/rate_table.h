@@ -90,6 +90,10 @@ struct TableConnection {
   double timeout_s = 1.0;  // per request, wall seconds (and to connect)
 };
 
+// The transport `connection` names: its `transport`, or when that is empty
+// its profile's (acutrol: "tcp", TM-9384C; aero: "serial").
+std::string table_transport(const TableConnection& connection);
+
 class RateTable : public PolledDevice {
  public:
   // Reads mode, interlock, rate and position in one exchange where the
