@@ -325,6 +325,78 @@ TEST_F(TurntableTest, AeroDriverAgainstTheSimulatorsPty) {
       << s.rate_dps;
 }
 
+// Each protocol on the other transport ([table] transport): ACL on the
+// simulator's serial line (a real pty) and AERO through its TCP port, the
+// drivers built by make_rate_table from the connection as the daemon's.
+// Over the serial line a hang drops the link and the driver reopens it
+// after the backoff: the reopened line starts clean (docs/table.md,
+// "Transport").
+TEST_F(TurntableTest, EachProtocolOnTheOtherTransportAgainstTheSimulator) {
+  ASSERT_NO_FATAL_FAILURE(start_sim_in_process());
+  const auto ep = in_process_sim_->endpoints();
+  ASSERT_FALSE(ep.table_acl_device.empty());
+  ASSERT_GT(ep.table_aero_port, 0);
+  drivers::TableConnection acl;
+  acl.profile = "acutrol";
+  acl.transport = "serial";
+  acl.device = ep.table_acl_device;
+  acl.timeout_s = 0.5;
+  drivers::TableConnection aero;
+  aero.profile = "aero";
+  aero.transport = "tcp";
+  aero.host = "127.0.0.1";
+  aero.port = ep.table_aero_port;
+  aero.timeout_s = 2.0;
+  for (const drivers::TableConnection& c : {acl, aero}) {
+    SCOPED_TRACE(c.profile + " over " + c.transport);
+    auto made = drivers::make_rate_table(c, {500, 1000, std::nullopt});
+    ASSERT_TRUE(made.ok()) << made.error().message;
+    drivers::RateTable& table = **made;
+    ASSERT_TRUE(table.connect().ok());
+    ASSERT_TRUE(table.set_rate(50.0).ok());
+    drivers::TableState s;
+    ASSERT_TRUE(wait_until(
+        [&] {
+          auto r = table.read();
+          if (r.ok()) s = *r;
+          return r.ok() && std::abs(s.rate_dps - 50.0) < 0.1;
+        },
+        10s))
+        << s.rate_dps << " " << s.fault;
+    EXPECT_EQ(s.mode, drivers::TableMode::kRate);
+    ASSERT_TRUE(table.stop().ok());
+    ASSERT_TRUE(wait_until(
+        [&] {
+          auto r = table.read();
+          if (r.ok()) s = *r;
+          return r.ok() && std::abs(s.rate_dps) < 0.01;
+        },
+        10s))
+        << s.rate_dps;
+  }
+  const sim::TableStatus t = in_process_sim_->status().table;
+  EXPECT_GT(t.acl_serial_requests, 0u);
+  EXPECT_GT(t.aero_tcp_requests, 0u);
+  EXPECT_EQ(t.acl_requests, 0u) << "ACL went over TCP";
+  EXPECT_EQ(t.aero_requests, 0u) << "AERO went over the pty";
+
+  // ACL on the serial line: a hang is a link failure, then a reopening.
+  auto made = drivers::make_rate_table(acl, {500, 1000, std::nullopt});
+  ASSERT_TRUE(made.ok()) << made.error().message;
+  drivers::RateTable& table = **made;
+  ASSERT_TRUE(table.read().ok());
+  in_process_sim_->table_hang(true);
+  auto r = table.read();
+  ASSERT_FALSE(r.ok());
+  EXPECT_TRUE(r.error().transient);
+  EXPECT_THAT(r.error().message,
+              ::testing::HasSubstr(fmt::format("table ({}): ", ep.table_acl_device)));
+  EXPECT_THAT(r.error().message, ::testing::HasSubstr("no reply within 0.5 s"));
+  in_process_sim_->table_hang(false);
+  ASSERT_TRUE(wait_until([&] { return table.read().ok(); }, 10s)) << table.health().last_error;
+  EXPECT_GE(table.health().reconnects, 1u);
+}
+
 // Commissioning: `gyrotherm table` against the simulated controller, with
 // the station's [table] limits.
 TEST_F(TurntableTest, TheTableCommandSpinsStopsAndRefusesBeyondTheLimits) {

@@ -1512,6 +1512,13 @@ Result<SimEndpoints> read_sim_endpoints(const std::string& path) {
       ep.table_port = static_cast<int>(*p);
   }
   if (auto d = t.string("table_device")) ep.table_device = *d;
+  if (auto d = t.string("table_acl_device")) ep.table_acl_device = *d;
+  if (auto p = t.integer("table_aero_port")) {
+    if (*p < 0 || *p > 65535)
+      t.error("table_aero_port", fmt::format("{} is not a TCP port", *p));
+    else
+      ep.table_aero_port = static_cast<int>(*p);
+  }
   if (auto c = t.string("clock_file")) ep.clock_file = *c;
   if (auto s = t.number("time_scale")) {
     if (*s > 0)
@@ -1538,6 +1545,8 @@ Status write_sim_endpoints(const std::string& path, const SimEndpoints& ep) {
   if (!ep.clock_file.empty()) t.insert("clock_file", ep.clock_file);
   if (ep.table_port > 0) t.insert("table_port", ep.table_port);
   if (!ep.table_device.empty()) t.insert("table_device", ep.table_device);
+  if (!ep.table_acl_device.empty()) t.insert("table_acl_device", ep.table_acl_device);
+  if (ep.table_aero_port > 0) t.insert("table_aero_port", ep.table_aero_port);
   if (!ep.dut_devices.empty()) {
     toml::array list;
     for (const auto& [serial, device] : ep.dut_devices) {
@@ -1584,15 +1593,21 @@ void apply_sim_endpoints(StationConfig& config, const SimEndpoints& ep) {
   }
   config.gyro.serial.device =
       config.duts.empty() ? ep.gyro_device : config.duts.front().link.serial.device;
-  // The simulator's table, for a station that has one: ACL on loopback TCP,
-  // the AERO grammar on a pty.
+  // The simulator's table, for a station that has one, by protocol and
+  // transport: ACL on loopback TCP or a pty, the AERO grammar on a pty or
+  // loopback TCP. What an older simulator does not serve stays as
+  // configured.
   if (config.table) {
     drivers::TableConnection& c = config.table->connection;
-    if (c.profile == "acutrol" && ep.table_port > 0) {
-      c.host = "127.0.0.1";
-      c.port = ep.table_port;
-    } else if (c.profile == "aero" && !ep.table_device.empty()) {
-      c.device = ep.table_device;
+    const bool serial = drivers::table_transport(c) == "serial";
+    const bool acl = c.profile == "acutrol";
+    const std::string& device = acl ? ep.table_acl_device : ep.table_device;
+    const int port = acl ? ep.table_port : ep.table_aero_port;
+    if (serial && !device.empty()) {
+      c.device = device;
+    } else if (!serial && port > 0) {
+      c.host = ep.modbus_host;
+      c.port = port;
     }
   }
 }
