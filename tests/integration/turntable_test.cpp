@@ -1,5 +1,7 @@
 // The rate table end to end: the drivers against the simulator's table over
-// real TCP (ACL, each reply framing) and a real pty (AERO); a scale-factor
+// real TCP (ACL, each reply framing) and a real pty (AERO), and each
+// protocol on the other transport (ACL on a pty, AERO over TCP: the daemon
+// and `gyrotherm table` too); a scale-factor
 // campaign at two temperatures through gyrothermd and gyrotherm-sim that
 // recovers the simulator's scale-factor truth; an abort and a table fault
 // while the table spins (the station resets the fault, the run waits for
@@ -451,6 +453,82 @@ TEST_F(TurntableTest, TheTableCommandSpinsStopsAndRefusesBeyondTheLimits) {
   ASSERT_TRUE(status.is_object()) << r.out;
   EXPECT_EQ(status["action"], "reset");
   EXPECT_EQ(status["interlock"], "open") << r.out;
+}
+
+// `gyrotherm table` with AERO through a TCP serial server (the simulator's
+// AERO port: [table] transport = "tcp", host and port from its endpoints).
+TEST_F(TurntableTest, TheTableCommandReachesAnAeroTableThroughATcpSerialServer) {
+  write(dir_ / "station.toml", testing::station_config(dir_, api_port_) + R"(
+[table]
+profile = "aero"
+transport = "tcp"
+max_rate_dps = 500
+max_accel_dps2 = 1000
+)");
+  start_sim();
+  const std::string cfg = (dir_ / "station.toml").string();
+  auto cli = [&](std::vector<std::string> args) {
+    std::string cmd = bin("gyrotherm");
+    for (const auto& a : args) cmd += " '" + a + "'";
+    cmd += " >" + (dir_ / "cli.out").string() + " 2>&1";
+    const int st = std::system(cmd.c_str());
+    return std::pair(WIFEXITED(st) ? WEXITSTATUS(st) : -1, testing::read_text(dir_ / "cli.out"));
+  };
+  auto [code, out] = cli({"table", "rate", "20", "--config", cfg});
+  ASSERT_EQ(code, 0) << out;
+  json status;
+  ASSERT_TRUE(wait_until(
+      [&] {
+        std::tie(code, out) = cli({"table", "status", "--config", cfg, "--json"});
+        status = json::parse(out, nullptr, false);
+        return code == 0 && status.is_object() && status["rate_dps"].is_number() &&
+               std::abs(status["rate_dps"].get<double>() - 20.0) < 0.1;
+      },
+      20s))
+      << out;
+  EXPECT_THAT(status["device"].get<std::string>(), ::testing::StartsWith("aero 127.0.0.1:")) << out;
+  std::tie(code, out) = cli({"table", "stop", "--config", cfg});
+  ASSERT_EQ(code, 0) << out;
+  const json sim = sim_status();
+  ASSERT_TRUE(sim.is_object());
+  EXPECT_GT(sim["table"]["requests"]["aero_tcp"].get<int>(), 0) << sim.dump();
+  EXPECT_EQ(sim["table"]["requests"]["aero"].get<int>(), 0) << sim.dump();
+}
+
+// gyrothermd driving an ACL table on a serial line ([table] transport =
+// "serial", the device from the simulator's endpoints): it spins up for the
+// step and comes to rest, servo off, on an abort; no request goes over TCP.
+TEST_F(TurntableTest, TheDaemonDrivesAnAclTableOnASerialLine) {
+  write(dir_ / "station.toml", testing::station_config(dir_, api_port_) + R"(
+[table]
+profile = "acutrol"
+transport = "serial"
+max_rate_dps = 500
+max_accel_dps2 = 1000
+[simulator.table]
+max_rate_dps = 1000
+max_accel_dps2 = 1000
+)");
+  write(dir_ / "schedule.toml", kSpin);
+  start_sim();
+  start_daemon();
+  ASSERT_TRUE(wait_json(
+      "/api/v1/status", [](const json& s) { return spinning_at(s, 100.0); }, 120s))
+      << diag();
+  auto r = call("POST", "/api/v1/control/abort", R"({"reason":"serial line checked"})");
+  ASSERT_TRUE(r && r->status == 200) << (r ? r->body : "");
+  ASSERT_TRUE(wait_json(
+      "/api/v1/status",
+      [](const json& s) {
+        return s["state"] == "idle" && s["table"]["interlock"] == "open" &&
+               std::abs(s["table"]["rate_dps"].get<double>()) < 0.01;
+      },
+      60s))
+      << diag();
+  const json sim = sim_status();
+  ASSERT_TRUE(sim.is_object());
+  EXPECT_GT(sim["table"]["requests"]["acl_serial"].get<int>(), 0) << sim.dump();
+  EXPECT_EQ(sim["table"]["requests"]["acl"].get<int>(), 0) << sim.dump();
 }
 
 // `gyrotherm table reset` on a station the daemon runs goes through the

@@ -813,20 +813,39 @@ GyroSection gyro_of(const DutSection& d) {
 
 // [table]: the rate table (docs/configuration.md, docs/table.md).
 // `simulated`: [simulator] endpoints_file is set (the simulator then names
-// the AERO device).
+// the table's TCP port or serial device).
 void read_table(TableReader t, TableSection& s, bool simulated) {
   drivers::TableConnection& c = s.connection;
   if (auto p = t.choice("profile", {"acutrol", "aero"}, std::nullopt)) c.profile = *p;
+  // The protocol and the link under it are separate choices; the default
+  // link is each controller's own port (ACUTROL3000: Ethernet, TM-9384C;
+  // AERO: RS-232).
+  const std::string profile_transport = c.profile == "aero" ? "serial" : "tcp";
+  const auto chosen = t.choice("transport", {"tcp", "serial"}, std::nullopt);
+  c.transport = chosen.value_or(profile_transport);
+  const std::string transport_said =
+      chosen ? fmt::format("transport = \"{}\"", c.transport)
+             : fmt::format("transport is \"{}\" (profile {}'s default)", c.transport, c.profile);
+  // A key of the other transport is refused: it would be ignored, and the
+  // station would talk to something other than what the file says.
+  const auto for_transport = [&](std::string_view key, std::string_view transport) {
+    if (c.transport == transport) return true;
+    t.error(key, fmt::format("given, but {}: {} is for transport = \"{}\"", transport_said, key,
+                             transport));
+    return false;
+  };
+  // Each key: a bad value is reported as such, a good one of the other
+  // transport as a contradiction.
   if (auto h = t.string("host")) {
     if (const std::string problem = drivers::tcp_host_problem(*h); !problem.empty())
       t.error("host", problem);
-    else
+    else if (for_transport("host", "tcp"))
       c.host = *h;
   }
   if (auto p = t.integer("port")) {
     if (*p < 1 || *p > 65535)
       t.error("port", fmt::format("{} is not a TCP port (1..65535)", *p));
-    else
+    else if (for_transport("port", "tcp"))
       c.port = static_cast<int>(*p);
   }
   if (auto r = t.choice("reply_header", {"ascii", "binary-le", "binary-be", "line"}, std::nullopt))
@@ -834,13 +853,13 @@ void read_table(TableReader t, TableSection& s, bool simulated) {
   if (auto d = t.string("device")) {
     if (d->empty())
       t.error("device", "must not be empty");
-    else
+    else if (for_transport("device", "serial"))
       c.device = *d;
   }
   if (auto b = t.integer("baud")) {
     if (*b <= 0)
       t.error("baud", "must be positive");
-    else
+    else if (for_transport("baud", "serial"))
       c.baud = static_cast<int>(*b);
   }
   if (auto a = t.integer("axis")) {
@@ -872,9 +891,22 @@ void read_table(TableReader t, TableSection& s, bool simulated) {
   if (auto a = t.choice("sensitive_axis", {"along_table", "radial"}, std::nullopt))
     s.sensitive_axis = *a;
   s.heading_at_zero_deg = t.number_in("heading_at_zero_deg", s.heading_at_zero_deg, -360.0, 360.0);
-  if (c.profile == "aero" && c.device.empty() && !simulated) {
-    t.error("device",
-            "missing (required for profile aero unless [simulator] endpoints_file is set)");
+  // What the link needs and has no default for: the serial device; for a
+  // TCP link to anything but an ACUTROL3000 (whose address TM-9384C gives),
+  // the serial server's host and port. The simulator names its own.
+  if (!simulated && c.transport == "serial" && c.device.empty() && !t.raw().contains("device")) {
+    t.error("device", fmt::format("missing: {} needs the serial device (unless [simulator] "
+                                  "endpoints_file is set)",
+                                  transport_said));
+  }
+  if (!simulated && c.transport == "tcp" && c.profile != "acutrol") {
+    for (const char* key : {"host", "port"}) {
+      if (!t.raw().contains(key)) {
+        t.error(key, fmt::format("missing: {} needs the serial server's {} (profile {} has no "
+                                 "default address; unless [simulator] endpoints_file is set)",
+                                 transport_said, key, c.profile));
+      }
+    }
   }
   t.finish();
 }
