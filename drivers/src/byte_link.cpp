@@ -20,9 +20,10 @@ namespace {
 
 using Steady = std::chrono::steady_clock;
 
+// Rounded up: a wait of this many milliseconds does not end before the
+// deadline (0 only once it has passed).
 int remaining_ms(ByteLink::Deadline deadline) {
-  const auto left =
-      std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Steady::now()).count();
+  const auto left = std::chrono::ceil<std::chrono::milliseconds>(deadline - Steady::now()).count();
   return left < 0 ? 0 : static_cast<int>(left);
 }
 
