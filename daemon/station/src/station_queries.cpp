@@ -34,7 +34,6 @@ Reply run_lookup_failure(const Error& e, int64_t id) {
   return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no run {}", id));
 }
 
-
 std::string joined(const std::vector<std::string>& items) {
   std::string out;
   for (const auto& i : items) out += fmt::format("{}'{}'", out.empty() ? "" : ", ", i);
@@ -237,9 +236,7 @@ Reply StationQueries::exports() {
 // ---------------------------------------------------------------- run metadata and DUT history
 //
 // The StationControl routes of schema v8 (docs/api.md "Run metadata", "DUT
-// history"): small functions over the HTTP thread's connection, each under
-// mu_, kept apart from the control loop.
-
+// history").
 
 Reply StationQueries::enqueue(const QueueRequest& request) {
   if (auto bad = unknown_serial(request.metadata.dut_serials, configured_serials(config_), "duts",
@@ -255,8 +252,8 @@ Reply StationQueries::enqueue(const QueueRequest& request) {
   Result<storage::QueueEntry> entry = Error::Permanent("not added");
   {
     std::lock_guard lock(mu_);
-    entry = db_.queue_add(plan->name, request.source, request.toml_text,
-                              request.ignore_failures, request.metadata);
+    entry = db_.queue_add(plan->name, request.source, request.toml_text, request.ignore_failures,
+                          request.metadata);
     if (!entry) return db_failure(entry.error());
     links_.queue_length.fetch_add(1);
   }
@@ -275,7 +272,8 @@ Reply StationQueries::run_with_duts(int64_t id) {
   return Reply::ok(std::move(*run));
 }
 
-Reply StationQueries::edit_run(int64_t id, const MetadataEdit& edit, const std::string& changed_by) {
+Reply StationQueries::edit_run(int64_t id, const MetadataEdit& edit,
+                               const std::string& changed_by) {
   std::lock_guard lock(mu_);
   auto run = db_.run(id);
   if (!run) return run_lookup_failure(run.error(), id);
@@ -358,8 +356,8 @@ Reply StationQueries::run_channel_samples(int64_t id, const SamplesQuery& query)
                         (*dut)->dut.serial, id, query.channel, joined(names)));
       }
     }
-    samples = db_.decimated_samples(id, storage::StreamKey{(*dut)->dut.serial, ""},
-                                        query.channel, query.from_s, query.to_s, query.max_points);
+    samples = db_.decimated_samples(id, storage::StreamKey{(*dut)->dut.serial, ""}, query.channel,
+                                    query.from_s, query.to_s, query.max_points);
   }
   if (!samples) {
     if (samples.error().transient) return db_failure(samples.error());
