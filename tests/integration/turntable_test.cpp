@@ -474,7 +474,11 @@ max_accel_dps2 = 1000
     const int st = std::system(cmd.c_str());
     return std::pair(WIFEXITED(st) ? WEXITSTATUS(st) : -1, testing::read_text(dir_ / "cli.out"));
   };
-  auto [code, out] = cli({"table", "rate", "20", "--config", cfg});
+  // Plain variables, not a structured binding: the lambda below captures them,
+  // which C++17 (and clang before 16) does not allow for bindings.
+  int code = 0;
+  std::string out;
+  std::tie(code, out) = cli({"table", "rate", "20", "--config", cfg});
   ASSERT_EQ(code, 0) << out;
   json status;
   ASSERT_TRUE(wait_until(
