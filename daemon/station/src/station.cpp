@@ -384,9 +384,15 @@ void Station::start_nightly_export() {
       }
     }
   };
-  nightly_ = std::make_unique<NightlyExporter>(
+  auto nightly = NightlyExporter::create(
       config_.storage.db_path, wall, std::move(options), [this] { analysis_->drain(); },
       std::move(done));
+  if (!nightly) {
+    // The config reader checked each of them: this is a bug, not a setting.
+    spdlog::error("nightly export not started: {}", nightly.error().message);
+    return;
+  }
+  nightly_ = std::move(*nightly);
   spdlog::info("nightly export at {} ({}) into {}; next {}", e.local_time,
                e.time_zone.empty() ? "system time zone" : e.time_zone, e.directory,
                local_time_label(nightly_->next_slot_unix_s(), zone));
