@@ -421,7 +421,7 @@ Result<double> earth_rate_dph(const Parsed& p, const storage::RunRecord* run) {
   return analysis::earth_rate_component_dph(*lat, *o);
 }
 
-// An options struct's IsValid message names its field ("l0_window_s must be
+// An options struct's is_valid message names its field ("l0_window_s must be
 // positive"); the user typed the option (--l0-window-s).
 std::string as_option(std::string message) {
   for (const char* field : {"max_order", "g_order", "r_order", "l0_window_s", "derivative_window_s",
@@ -447,7 +447,7 @@ Result<analysis::Table1Options> table1_options(const Parsed& p, const RunConfig&
   if (!e) return e.error();
   o.earth_rate_dph = *e;
   std::string why;
-  if (!o.IsValid(&why)) return Error::Permanent(as_option(why));
+  if (!o.is_valid(&why)) return Error::Permanent(as_option(why));
   return o;
 }
 
@@ -462,7 +462,7 @@ Result<analysis::DriftFitOptions> fit_options(const Parsed& p, const RunConfig& 
       p.derivative_window_s.value_or(cfg.derivative_window_s.value_or(o.derivative_window_s));
   o.l0_window_s = p.l0_window_s.value_or(cfg.l0_window_s.value_or(o.l0_window_s));
   std::string why;
-  if (!o.IsValid(&why)) return Error::Permanent(as_option(why));
+  if (!o.is_valid(&why)) return Error::Permanent(as_option(why));
   return o;
 }
 
@@ -1347,7 +1347,7 @@ int compare_one(const Parsed& p, Input& input, const daemon::AnalysedAxis* strea
   if (smooth < 1) return fail(fmt::format("--smooth-points {}: must be >= 1", smooth), kExitInput);
   options.smooth_points = static_cast<std::size_t>(smooth);
   std::string why;
-  if (!options.IsValid(&why)) return fail(as_option(why), kExitInput);
+  if (!options.is_valid(&why)) return fail(as_option(why), kExitInput);
   const auto bin = bin_s_of(p, cfg);
   if (!bin) return fail(bin.error().message, kExitInput);
   const double bin_s = *bin;
@@ -1448,7 +1448,7 @@ int start_model_one(const Parsed& p, Input& input, const daemon::AnalysedAxis* s
   options.fit = *fo;
   if (p.t0_window_s) options.t0_window_s = *p.t0_window_s;
   std::string why;
-  if (!options.IsValid(&why)) return fail(as_option(why), kExitInput);
+  if (!options.is_valid(&why)) return fail(as_option(why), kExitInput);
   if (p.t0_c && !std::isfinite(*p.t0_c)) return fail("--t0: must be a finite °C", kExitInput);
   const auto bin = bin_s_of(p, cfg);
   if (!bin) return fail(bin.error().message, kExitInput);

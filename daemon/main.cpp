@@ -320,14 +320,18 @@ int main(int argc, char** argv) {
     spdlog::warn("dashboard not served: {}", web.error().message);
   }
   gd::HttpServer* server_ptr = nullptr;
-  gd::AuthLimiter auth_limiter({.max_failures = config->api.max_auth_failures});
+  auto auth_limiter = gd::AuthLimiter::create({.max_failures = config->api.max_auth_failures});
+  if (!auth_limiter) {
+    std::cerr << "gyrothermd: " << auth_limiter.error().message << "\n";
+    return 1;
+  }
   gd::ApiContext api;
   api.status = [s = station_ptr] { return s->status(); };
   api.control = station_ptr;
   api.tokens = config->api.tokens;
   api.read_tokens = config->api.read_tokens;
   api.reads_need_token = config->api.read_access == "token";
-  api.auth_limiter = &auth_limiter;
+  api.auth_limiter = auth_limiter->get();
   api.web = web ? &*web : nullptr;
   api.metrics = [&] {
     gd::ServerFigures f;

@@ -346,6 +346,20 @@ std::string_view to_string(TauSet set) {
   return "?";
 }
 
+bool AllanOptions::is_valid(std::string* why) const {
+  switch (taus) {
+    case TauSet::kOctave:
+    case TauSet::kDecade:
+    case TauSet::kAll:
+      return true;
+  }
+  if (why) {
+    *why =
+        fmt::format("taus = {} is not a tau set (octave, decade or all)", static_cast<int>(taus));
+  }
+  return false;
+}
+
 std::vector<std::size_t> allan_cluster_sizes(std::size_t n, TauSet set) {
   std::vector<std::size_t> ms;
   switch (set) {
@@ -488,6 +502,9 @@ AllanNoiseTerms allan_noise_terms(std::size_t n_samples, double tau0_s,
 
 Result<AllanResult> allan_deviation(std::span<const double> t_s, std::span<const double> rate_dph,
                                     const AllanOptions& options) {
+  if (std::string why; !options.is_valid(&why)) {
+    return Error::Permanent("allan_deviation: invalid options: " + why);
+  }
   if (t_s.size() != rate_dph.size()) {
     return Error::Permanent(
         fmt::format("allan_deviation: {} times but {} rates", t_s.size(), rate_dph.size()));

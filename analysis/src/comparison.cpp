@@ -186,9 +186,9 @@ std::string_view to_string(TermSet set) {
   return "?";
 }
 
-bool ComparisonOptions::IsValid(std::string* error) const {
-  const auto fail = [error](std::string msg) {
-    if (error) *error = std::move(msg);
+bool ComparisonOptions::is_valid(std::string* why) const {
+  const auto fail = [why](std::string msg) {
+    if (why) *why = std::move(msg);
     return false;
   };
   if (max_order < 1 || max_order > kMaxOrder) {
@@ -203,8 +203,8 @@ bool ComparisonOptions::IsValid(std::string* error) const {
   if (smooth_points < 1 || smooth_points > 100001 || smooth_points % 2 == 0) {
     return fail(fmt::format("smooth_points must be odd, 1..100001 ({})", smooth_points));
   }
-  std::string why;
-  if (!fit.IsValid(&why)) return fail("fit: " + why);
+  std::string sub_why;
+  if (!fit.is_valid(&sub_why)) return fail("fit: " + sub_why);
   return true;
 }
 
@@ -219,7 +219,7 @@ std::string smoothing_label(std::size_t smooth_points) {
 Result<Comparison> compare_models(std::span<const AnalysisSeries> runs,
                                   const ComparisonOptions& options) {
   std::string why;
-  if (!options.IsValid(&why)) return Error::Permanent("compare options: " + why);
+  if (!options.is_valid(&why)) return Error::Permanent("compare options: " + why);
   if (runs.empty()) return Error::Permanent("compare: no runs");
   Pool none(options.smooth_points);
   for (std::size_t r = 0; r < runs.size(); ++r) {

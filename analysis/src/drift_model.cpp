@@ -456,9 +456,9 @@ Result<DriftModelForm> parse_drift_model_form(std::string_view s) {
   return Error::Permanent(fmt::format("drift model form \"{}\": expected paper or centered", s));
 }
 
-bool DriftFitOptions::IsValid(std::string* error) const {
-  const auto fail = [error](std::string msg) {
-    if (error) *error = std::move(msg);
+bool DriftFitOptions::is_valid(std::string* why) const {
+  const auto fail = [why](std::string msg) {
+    if (why) *why = std::move(msg);
     return false;
   };
   if (!(derivative_window_s > 0) || !std::isfinite(derivative_window_s)) {
@@ -967,7 +967,7 @@ std::optional<Factor> gram_factor(const Eigen::MatrixXd& g, std::span<const Anal
 Result<DriftFit> fit_drift_model(std::span<const AnalysisSeries> runs, const DriftModelSpec& spec,
                                  DriftModelForm form, const DriftFitOptions& options) {
   std::string why;
-  if (!options.IsValid(&why)) return Error::Permanent("drift model options: " + why);
+  if (!options.is_valid(&why)) return Error::Permanent("drift model options: " + why);
   if (spec.t_order < 0 || spec.t_order > kMaxOrder || spec.r_order < 0 ||
       spec.r_order > kMaxOrder || spec.g_order < 0 || spec.g_order > kMaxOrder ||
       spec.parameters() == 0) {

@@ -327,10 +327,31 @@ std::string_view to_string(SensitiveAxis axis) {
   return "unknown";
 }
 
+bool RatePointFlatnessOptions::is_valid(std::string* why) const {
+  const auto fail = [why](std::string msg) {
+    if (why) *why = std::move(msg);
+    return false;
+  };
+  // A tolerance of 0 sigma would refuse every noisy point.
+  if (!(n_sigma > 0) || !std::isfinite(n_sigma)) {
+    return fail(fmt::format("n_sigma = {} must be finite and > 0", n_sigma));
+  }
+  if (!(tolerance_ppm >= 0) || !std::isfinite(tolerance_ppm)) {
+    return fail(fmt::format("tolerance_ppm = {} must be finite and >= 0", tolerance_ppm));
+  }
+  return true;
+}
+
 RatePointFlatness check_rate_point_flatness(std::span<const double> samples, double demanded_dps,
                                             const RatePointFlatnessOptions& options,
                                             bool at_demand) {
   RatePointFlatness out;
+  if (std::string why; !options.is_valid(&why)) {
+    out.checked = true;
+    out.ok = false;
+    out.why = "invalid flatness options: " + why;
+    return out;
+  }
   std::vector<double> y;
   for (double v : samples) {
     if (std::isfinite(v)) y.push_back(v);

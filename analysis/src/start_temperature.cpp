@@ -175,9 +175,9 @@ nlohmann::ordered_json units_json() {
 
 }  // namespace
 
-bool StartTemperatureOptions::IsValid(std::string* error) const {
-  const auto fail = [error](std::string msg) {
-    if (error) *error = std::move(msg);
+bool StartTemperatureOptions::is_valid(std::string* why) const {
+  const auto fail = [why](std::string msg) {
+    if (why) *why = std::move(msg);
     return false;
   };
   if (spec.t_order < 0 || spec.t_order > kMaxOrder || spec.r_order < 0 ||
@@ -186,8 +186,8 @@ bool StartTemperatureOptions::IsValid(std::string* error) const {
     return fail(fmt::format("spec T{} R{} G{}: orders must be 0..{}, not all 0", spec.t_order,
                             spec.r_order, spec.g_order, kMaxOrder));
   }
-  std::string why;
-  if (!fit.IsValid(&why)) return fail("fit: " + why);
+  std::string sub_why;
+  if (!fit.is_valid(&sub_why)) return fail("fit: " + sub_why);
   if (!(t0_window_s > 0) || !std::isfinite(t0_window_s)) {
     return fail(fmt::format("t0_window_s must be positive ({})", t0_window_s));
   }
@@ -239,7 +239,7 @@ Result<double> start_temperature_c(const AnalysisSeries& series, double t0_windo
 Result<StartTemperatureModel> fit_start_temperature_model(std::span<const AnalysisSeries> runs,
                                                           const StartTemperatureOptions& options) {
   std::string why;
-  if (!options.IsValid(&why)) return Error::Permanent("start-temperature model options: " + why);
+  if (!options.is_valid(&why)) return Error::Permanent("start-temperature model options: " + why);
   if (runs.empty()) return Error::Permanent("start-temperature model: no runs");
 
   StartTemperatureModel model;

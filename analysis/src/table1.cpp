@@ -221,9 +221,9 @@ double earth_rate_component_dph(double latitude_deg, AxisOrientation orientation
   return kNaN;
 }
 
-bool Table1Options::IsValid(std::string* error) const {
+bool Table1Options::is_valid(std::string* why) const {
   auto fail = [&](std::string msg) {
-    if (error != nullptr) *error = std::move(msg);
+    if (why != nullptr) *why = std::move(msg);
     return false;
   };
   if (!(bin_s > 0) || !std::isfinite(bin_s)) {
@@ -266,7 +266,7 @@ Result<AnalysisSeries> make_analysis_series(std::span<const GyroSample> gyro,
 
 Result<Table1Row> table1_row(const AnalysisSeries& series, const Table1Options& options) {
   std::string why;
-  if (!options.IsValid(&why)) return Error::Permanent("invalid Table I options: " + why);
+  if (!options.is_valid(&why)) return Error::Permanent("invalid Table I options: " + why);
   const std::size_t n = series.rate_dph.size();
   if (series.top_c.size() != n || series.side_c.size() != n) {
     return Error::Permanent(

@@ -119,25 +119,41 @@ std::string describe_s(double s) {
 Relay::Relay(RelayOptions options)
     : options_(std::move(options)), interrupt_(std::make_shared<PgInterrupt>()) {}
 
+bool RelayOptions::is_valid(std::string* why) const {
+  const auto fail = [why](std::string msg) {
+    if (why) *why = std::move(msg);
+    return false;
+  };
+  if (!valid_station_id(station_id)) {
+    return fail(
+        fmt::format("station_id = \"{}\" is not [A-Za-z0-9][A-Za-z0-9._-]{{0,63}}", station_id));
+  }
+  if (db_path.empty()) return fail("db_path is empty (the station's database is needed)");
+  if (batch_records < 1) return fail(fmt::format("batch_records = {} must be >= 1", batch_records));
+  if (batch_bytes < 1) return fail(fmt::format("batch_bytes = {} must be >= 1", batch_bytes));
+  // Wall seconds the relay waits for: 0 would spin, infinity never wake.
+  for (const auto& [name, value] :
+       {std::pair{"poll_s", poll_s}, std::pair{"retry_min_s", retry_min_s},
+        std::pair{"connect_timeout_s", connect_timeout_s},
+        std::pair{"statement_timeout_s", statement_timeout_s},
+        std::pair{"lock_timeout_s", lock_timeout_s}}) {
+    if (!(value > 0) || !std::isfinite(value)) {
+      return fail(fmt::format("{} = {} must be finite and > 0", name, value));
+    }
+  }
+  if (!(retry_max_s >= retry_min_s) || !std::isfinite(retry_max_s)) {
+    return fail(fmt::format("retry_max_s = {} must be finite and >= retry_min_s = {}", retry_max_s,
+                            retry_min_s));
+  }
+  if (!conninfo.empty()) {
+    if (auto malformed = conninfo_error(conninfo)) return fail("conninfo: " + *malformed);
+  }
+  return true;
+}
+
 Result<std::unique_ptr<Relay>> Relay::create(RelayOptions options) {
   const auto bad = [](const std::string& what) { return Error::Permanent("lab relay: " + what); };
-  if (!valid_station_id(options.station_id)) {
-    return bad(fmt::format("station id \"{}\" is not [A-Za-z0-9][A-Za-z0-9._-]{{0,63}}",
-                           options.station_id));
-  }
-  if (options.db_path.empty()) return bad("no database path");
-  if (options.batch_records < 1) return bad("batch_records must be at least 1");
-  if (options.batch_bytes < 1) return bad("batch_bytes must be at least 1");
-  if (!(options.poll_s > 0)) return bad("poll_s must be positive");
-  if (!(options.retry_min_s > 0)) return bad("retry_min_s must be positive");
-  if (!(options.retry_max_s >= options.retry_min_s))
-    return bad("retry_max_s must be at least retry_min_s");
-  if (!(options.connect_timeout_s > 0)) return bad("connect_timeout_s must be positive");
-  if (!(options.statement_timeout_s > 0)) return bad("statement_timeout_s must be positive");
-  if (!(options.lock_timeout_s > 0)) return bad("lock_timeout_s must be positive");
-  if (!options.conninfo.empty()) {
-    if (auto malformed = conninfo_error(options.conninfo)) return bad(*malformed);
-  }
+  if (std::string why; !options.is_valid(&why)) return bad(why);
 
   // The binding is checked here, once: the thread trusts it.
   auto db = storage::Database::open(options.db_path);

@@ -117,6 +117,52 @@ std::optional<InterlockKind> parse_interlock_kind(std::string_view name) {
   return std::nullopt;
 }
 
+bool InterlockOptions::is_valid(std::string* why) const {
+  const auto fail = [why](std::string msg) {
+    if (why) *why = std::move(msg);
+    return false;
+  };
+  for (const auto& [name, value] :
+       {std::pair{"min_temp_c", min_temp_c}, std::pair{"max_temp_c", max_temp_c}}) {
+    if (!std::isfinite(value)) return fail(fmt::format("{} = {} must be finite", name, value));
+  }
+  if (!(min_temp_c < max_temp_c)) {
+    return fail(
+        fmt::format("max_temp_c = {} must be above min_temp_c = {}", max_temp_c, min_temp_c));
+  }
+  // A margin or hysteresis of 0 is a sharp limit; a limit or timeout of 0
+  // would trip at every reading.
+  for (const auto& [name, value] :
+       {std::pair{"limit_margin_c", limit_margin_c}, std::pair{"hysteresis_c", hysteresis_c}}) {
+    if (!(value >= 0) || !std::isfinite(value)) {
+      return fail(fmt::format("{} = {} must be finite and >= 0", name, value));
+    }
+  }
+  for (const auto& [name, value] : {std::pair{"probe_disagreement_c", probe_disagreement_c},
+                                    std::pair{"chamber_timeout_s", chamber_timeout_s},
+                                    std::pair{"probes_timeout_s", probes_timeout_s},
+                                    std::pair{"gyro_timeout_s", gyro_timeout_s},
+                                    std::pair{"storage_timeout_s", storage_timeout_s},
+                                    std::pair{"table_timeout_s", table_timeout_s}}) {
+    if (!(value > 0) || !std::isfinite(value)) {
+      return fail(fmt::format("{} = {} must be finite and > 0", name, value));
+    }
+  }
+  // A tripped disagreement clears below probe_disagreement_c - hysteresis_c:
+  // at or below 0 it never would.
+  if (!(hysteresis_c < probe_disagreement_c)) {
+    return fail(fmt::format("hysteresis_c = {} must be below probe_disagreement_c = {}",
+                            hysteresis_c, probe_disagreement_c));
+  }
+  for (const InterlockDefinition& d : kInterlockDefinitions) {
+    const double grace = grace_for(d.kind);
+    if (!(grace >= 0) || !std::isfinite(grace)) {
+      return fail(fmt::format("grace_s[{}] = {} must be finite and >= 0", d.name, grace));
+    }
+  }
+  return true;
+}
+
 bool readings_can_clear(InterlockKind kind, const Readings& r) {
   const InterlockDefinition* d = definition(kind);
   return d && d->can_clear(r);

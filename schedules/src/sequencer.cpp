@@ -60,6 +60,39 @@ double StepTimes::acquired_s() const {
   return sum;
 }
 
+bool SequencerOptions::is_valid(std::string* why) const {
+  const auto fail = [why](std::string msg) {
+    if (why) *why = std::move(msg);
+    return false;
+  };
+  if (std::string sub_why; !interlocks.is_valid(&sub_why)) return fail("interlocks." + sub_why);
+  // The safe state must not itself trip out_of_limits.
+  if (!(safe_setpoint_c >= interlocks.min_temp_c && safe_setpoint_c <= interlocks.max_temp_c)) {
+    return fail(fmt::format(
+        "safe_setpoint_c = {} must lie within interlocks.min_temp_c = {} … max_temp_c = {}",
+        safe_setpoint_c, interlocks.min_temp_c, interlocks.max_temp_c));
+  }
+  // The tolerance is the larger of the two: a positive dps keeps it above 0.
+  if (!(at_rate_tolerance_dps > 0) || !std::isfinite(at_rate_tolerance_dps)) {
+    return fail(
+        fmt::format("at_rate_tolerance_dps = {} must be finite and > 0", at_rate_tolerance_dps));
+  }
+  if (!(at_rate_tolerance_ppm >= 0) || !std::isfinite(at_rate_tolerance_ppm)) {
+    return fail(
+        fmt::format("at_rate_tolerance_ppm = {} must be finite and >= 0", at_rate_tolerance_ppm));
+  }
+  if (!(at_rate_hold_s >= 0) || !std::isfinite(at_rate_hold_s)) {
+    return fail(fmt::format("at_rate_hold_s = {} must be finite and >= 0", at_rate_hold_s));
+  }
+  // The hold is part of the spin-up: a timeout no longer than it fails
+  // every rate step.
+  if (!(spin_up_timeout_s > at_rate_hold_s) || !std::isfinite(spin_up_timeout_s)) {
+    return fail(fmt::format("spin_up_timeout_s = {} must be finite and above at_rate_hold_s = {}",
+                            spin_up_timeout_s, at_rate_hold_s));
+  }
+  return true;
+}
+
 Sequencer::Sequencer(Plan plan, SequencerOptions options, SequencerObserver& observer)
     : plan_(std::move(plan)),
       options_(options),

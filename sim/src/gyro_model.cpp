@@ -21,21 +21,20 @@ double poly_without_constant(const std::vector<double>& coeffs, double x) {
 
 }  // namespace
 
-bool GyroParams::IsValid(std::string* error) const {
+bool GyroParams::is_valid(std::string* why) const {
   auto bad = [&](const char* name, double v, double lo, double hi) {
     if (std::isfinite(v) && v >= lo && v <= hi) return false;
-    if (error)
-      *error = fmt::format("{} = {} is out of range: must be in [{}, {}]", name, v, lo, hi);
+    if (why) *why = fmt::format("{} = {} is out of range: must be in [{}, {}]", name, v, lo, hi);
     return true;
   };
   auto bad_coeffs = [&](const char* name, const std::vector<double>& c) {
     if (c.size() > 8) {
-      if (error) *error = fmt::format("{} has {} entries (at most 8)", name, c.size());
+      if (why) *why = fmt::format("{} has {} entries (at most 8)", name, c.size());
       return true;
     }
     for (double v : c) {
       if (!std::isfinite(v)) {
-        if (error) *error = fmt::format("{} holds a value that is not finite", name);
+        if (why) *why = fmt::format("{} holds a value that is not finite", name);
         return true;
       }
     }
@@ -51,11 +50,11 @@ bool GyroParams::IsValid(std::string* error) const {
            bad("accel_noise_g", accel_noise_g, 0, 10));
 }
 
-bool ScaleFactorParams::IsValid(std::string* error) const {
+bool ScaleFactorParams::is_valid(std::string* why) const {
   auto bad = [&](const char* name, double v, double lo, double hi) {
     if (std::isfinite(v) && v >= lo && v <= hi) return false;
-    if (error) {
-      *error =
+    if (why) {
+      *why =
           fmt::format("scale_factor {} = {} is out of range: must be in [{}, {}]", name, v, lo, hi);
     }
     return true;

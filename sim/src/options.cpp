@@ -275,13 +275,13 @@ DutSimParams resolve_dut_params(const SimulatorOptions& options, const daemon::D
   return r;
 }
 
-bool SimulatorOptions::IsValid(std::string* error) const {
-  if (!thermal.IsValid(error) || !gyro.IsValid(error) || !table.IsValid(error) ||
-      !scale_factor.IsValid(error)) {
+bool SimulatorOptions::is_valid(std::string* why) const {
+  if (!thermal.is_valid(why) || !gyro.is_valid(why) || !table.is_valid(why) ||
+      !scale_factor.is_valid(why)) {
     return false;
   }
   auto fail = [&](std::string msg) {
-    if (error) *error = std::move(msg);
+    if (why) *why = std::move(msg);
     return false;
   };
   if (modbus_port < 0 || modbus_port > 65535) {
@@ -365,10 +365,10 @@ Result<SimulatorOptions> read_simulator_options(const daemon::StationConfig& con
   if (overrides.rate_hz) o.gyro_format.rate_hz = *overrides.rate_hz;
   if (overrides.table_port) o.table_port = *overrides.table_port;
   o.serve_table = overrides.serve_table || config.table.has_value();
-  // Keys already reported above kept their defaults, so what IsValid() finds
+  // Keys already reported above kept their defaults, so what is_valid() finds
   // now comes from the overrides or from combinations of keys.
   std::string message = errors.joined();
-  if (std::string why; !o.IsValid(&why)) message += fmt::format("simulator options: {}\n", why);
+  if (std::string why; !o.is_valid(&why)) message += fmt::format("simulator options: {}\n", why);
   if (!message.empty()) return Error::Permanent(message);
   return o;
 }

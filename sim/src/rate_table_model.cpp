@@ -35,10 +35,10 @@ double shortest_angle_deg(double from_deg, double to_deg) {
   return d;
 }
 
-bool TableParams::IsValid(std::string* error) const {
+bool TableParams::is_valid(std::string* why) const {
   auto bad = [&](const char* name, double v, double lo, double hi) {
     if (std::isfinite(v) && v >= lo && v <= hi) return false;
-    if (error) *error = fmt::format("table {} = {} must be in [{}, {}]", name, v, lo, hi);
+    if (why) *why = fmt::format("table {} = {} must be in [{}, {}]", name, v, lo, hi);
     return true;
   };
   if (bad("max_rate_dps", max_rate_dps, 1e-3, 1e5) ||
@@ -50,16 +50,16 @@ bool TableParams::IsValid(std::string* error) const {
     return false;
   }
   if (trip_rate_dps <= max_rate_dps) {
-    if (error) {
-      *error = fmt::format("table trip_rate_dps = {} must exceed max_rate_dps = {}", trip_rate_dps,
-                           max_rate_dps);
+    if (why) {
+      *why = fmt::format("table trip_rate_dps = {} must exceed max_rate_dps = {}", trip_rate_dps,
+                         max_rate_dps);
     }
     return false;
   }
   if (reply_header != "ascii" && reply_header != "binary-le" && reply_header != "binary-be" &&
       reply_header != "line") {
-    if (error) {
-      *error =
+    if (why) {
+      *why =
           fmt::format("table reply_header = '{}' must be one of ascii, binary-le, binary-be, line",
                       reply_header);
     }

@@ -103,7 +103,7 @@ bool same_register(const drivers::RegisterSpec& a, const drivers::RegisterSpec& 
 Result<std::unique_ptr<Simulator>> Simulator::create(const daemon::StationConfig& config,
                                                      const SimulatorOptions& options,
                                                      const Clock* clock) {
-  if (std::string why; !options.IsValid(&why)) return Error::Permanent(why);
+  if (std::string why; !options.is_valid(&why)) return Error::Permanent(why);
   if (config.chamber.endpoint.unit_id == config.probes.endpoint.unit_id) {
     return Error::Permanent(fmt::format(
         "{}: chamber and probes share Modbus unit id {}; the simulator serves both on one "
@@ -144,7 +144,7 @@ Result<std::unique_ptr<Simulator>> Simulator::create(const daemon::StationConfig
     const int position = static_cast<int>(p);
     const DutSimParams params = resolve_dut_params(honest, dut, position);
     for (std::size_t i = 0; i < 3; ++i) {
-      if (std::string why; !params.axes[i].IsValid(&why)) {
+      if (std::string why; !params.axes[i].is_valid(&why)) {
         return Error::Permanent(fmt::format("{}: [simulator.dut.{}.{}]: {}", config.source_path,
                                             dut.serial, kAxisNames[i], why));
       }

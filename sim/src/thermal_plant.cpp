@@ -16,11 +16,10 @@ double lag_fraction(double dt_s, double tau_s) {
 
 }  // namespace
 
-bool ThermalParams::IsValid(std::string* error) const {
+bool ThermalParams::is_valid(std::string* why) const {
   auto bad = [&](const char* name, double v, double lo, double hi) {
     if (std::isfinite(v) && v >= lo && v <= hi) return false;
-    if (error)
-      *error = fmt::format("{} = {} is out of range: must be in [{}, {}]", name, v, lo, hi);
+    if (why) *why = fmt::format("{} = {} is out of range: must be in [{}, {}]", name, v, lo, hi);
     return true;
   };
   return !(bad("initial_temp_c", initial_temp_c, -100, 200) ||

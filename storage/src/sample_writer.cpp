@@ -576,13 +576,24 @@ void SampleWriter::Impl::run() noexcept {
   }
 }
 
+bool SampleWriterOptions::is_valid(std::string* why) const {
+  const auto fail = [why](std::string msg) {
+    if (why) *why = std::move(msg);
+    return false;
+  };
+  // 0 would commit in a busy loop; a queue of 0 drops every sample.
+  if (commit_interval <= std::chrono::milliseconds::zero()) {
+    return fail(fmt::format("commit_interval = {} ms must be > 0", commit_interval.count()));
+  }
+  if (max_pending == 0) return fail("max_pending = 0 must be >= 1");
+  return true;
+}
+
 Result<std::unique_ptr<SampleWriter>> SampleWriter::start(
     const std::string& db_path, SampleWriterOptions options,
     std::function<void(double seconds)> on_commit) {
-  if (options.commit_interval <= std::chrono::milliseconds::zero() || options.max_pending == 0) {
-    return Error::Permanent(fmt::format(
-        "storage: {}: sample writer options: commit_interval and max_pending must be > 0",
-        db_path));
+  if (std::string why; !options.is_valid(&why)) {
+    return Error::Permanent(fmt::format("storage: {}: sample writer options: {}", db_path, why));
   }
   auto db = Database::open(db_path);
   if (!db) return db.error();

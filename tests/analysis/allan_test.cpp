@@ -238,6 +238,22 @@ TEST(AllanTaus, ParseAndPrint) {
   EXPECT_NE(bad.error().message.find("octaves"), std::string::npos);
 }
 
+TEST(AllanOptions, Validity) {
+  std::string why;
+  EXPECT_TRUE(AllanOptions{}.is_valid(&why)) << why;
+  for (TauSet s : {TauSet::kOctave, TauSet::kDecade, TauSet::kAll}) {
+    EXPECT_TRUE(AllanOptions{.taus = s}.is_valid(&why)) << to_string(s);
+  }
+  const AllanOptions bad{.taus = static_cast<TauSet>(7)};
+  EXPECT_FALSE(bad.is_valid(&why));
+  EXPECT_NE(why.find("taus = 7"), std::string::npos) << why;
+  EXPECT_FALSE(bad.is_valid(nullptr));
+  const std::vector<double> t{0, 1, 2, 3}, y{1, 2, 3, 4};
+  auto r = allan_deviation(t, y, bad);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("taus = 7"), std::string::npos) << r.error().message;
+}
+
 TEST(AllanTaus, NineSamplesGiveMOneTwoFour) {
   const std::vector<double> t{0, 1, 2, 3, 4, 5, 6, 7, 8};
   const std::vector<double> y{1, 3, 2, 5, 4, 4, 6, 5, 7};

@@ -233,19 +233,19 @@ TEST(Comparison, BadInputIsAnErrorNamingTheRun) {
   ComparisonOptions bad;
   bad.max_order = 5;
   std::string why;
-  EXPECT_FALSE(bad.IsValid(&why));
+  EXPECT_FALSE(bad.is_valid(&why));
   EXPECT_NE(why.find("max_order"), std::string::npos) << why;
   c = compare_models(std::vector<AnalysisSeries>{flat_run(300, 0, 20, 8)}, bad);
   ASSERT_FALSE(c.ok());
   EXPECT_NE(c.error().message.find("max_order"), std::string::npos) << c.error().message;
   bad = {};
   bad.fit.derivative_window_s = -1;
-  EXPECT_FALSE(bad.IsValid(&why));
+  EXPECT_FALSE(bad.is_valid(&why));
   EXPECT_NE(why.find("derivative_window_s"), std::string::npos) << why;
   for (std::size_t points : {0u, 100u, 100003u}) {
     bad = {};
     bad.smooth_points = points;
-    EXPECT_FALSE(bad.IsValid(&why)) << points;
+    EXPECT_FALSE(bad.is_valid(&why)) << points;
     EXPECT_NE(why.find("smooth_points"), std::string::npos) << why;
   }
   // A run shorter than the moving average is named.

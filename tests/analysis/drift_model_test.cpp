@@ -655,14 +655,14 @@ TEST(DriftModel, InvalidOptionsAreAnError) {
   DriftFitOptions options;
   options.block_rows = 0;
   std::string why;
-  EXPECT_FALSE(options.IsValid(&why));
+  EXPECT_FALSE(options.is_valid(&why));
   EXPECT_NE(why.find("block_rows"), std::string::npos);
   auto fit = fit_drift_model(sweep(100), *parse_model_spec("T1"), DriftModelForm::kPaper, options);
   EXPECT_FALSE(fit.ok());
   options = {};
   options.derivative_window_s = 0;
-  EXPECT_FALSE(options.IsValid(&why));
-  EXPECT_TRUE(DriftFitOptions{}.IsValid(&why));
+  EXPECT_FALSE(options.is_valid(&why));
+  EXPECT_TRUE(DriftFitOptions{}.is_valid(&why));
 }
 
 }  // namespace

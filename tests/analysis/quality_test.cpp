@@ -147,5 +147,23 @@ TEST(RatePointFlatness, TheTableMustBeAtTheDemand) {
   EXPECT_TRUE(few.ok);
 }
 
+TEST(RatePointFlatnessOptions, Validity) {
+  std::string why;
+  EXPECT_TRUE(RatePointFlatnessOptions{}.is_valid(&why)) << why;
+  const RatePointFlatnessOptions sharp{.n_sigma = 1, .tolerance_ppm = 0};
+  EXPECT_TRUE(sharp.is_valid(&why)) << why;
+  EXPECT_FALSE(RatePointFlatnessOptions{.n_sigma = 0}.is_valid(&why));
+  EXPECT_THAT(why, HasSubstr("n_sigma = 0 must be"));
+  EXPECT_FALSE(RatePointFlatnessOptions{.n_sigma = NAN}.is_valid(nullptr));
+  EXPECT_FALSE(RatePointFlatnessOptions{.tolerance_ppm = -1}.is_valid(&why));
+  EXPECT_THAT(why, HasSubstr("tolerance_ppm = -1 must be"));
+  // The check says so rather than judging with a negative tolerance.
+  const auto f =
+      check_rate_point_flatness(std::vector<double>(12, 10.0), 10.0, {.tolerance_ppm = -1});
+  EXPECT_TRUE(f.checked);
+  EXPECT_FALSE(f.ok);
+  EXPECT_THAT(f.why, HasSubstr("tolerance_ppm"));
+}
+
 }  // namespace
 }  // namespace gyrotherm::analysis

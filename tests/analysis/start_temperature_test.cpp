@@ -216,7 +216,7 @@ TEST(StartTemperature, FewerThanFourDistinctT0NamesThemAll) {
   EXPECT_FALSE(fit_start_temperature_model(std::span<const AnalysisSeries>(), options).ok());
   options.min_distinct_t0 = 3;
   std::string why;
-  EXPECT_FALSE(options.IsValid(&why));
+  EXPECT_FALSE(options.is_valid(&why));
   EXPECT_NE(why.find("min_distinct_t0"), std::string::npos) << why;
 }
 

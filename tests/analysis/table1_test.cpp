@@ -60,21 +60,21 @@ TEST(EarthRate, PaperLatitude) {
 
 TEST(Table1Options, Validity) {
   std::string why;
-  EXPECT_TRUE(Table1Options{}.IsValid(&why));
+  EXPECT_TRUE(Table1Options{}.is_valid(&why));
   Table1Options o;
   o.bin_s = 0;
-  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_FALSE(o.is_valid(&why));
   EXPECT_NE(why.find("bin_s"), std::string::npos);
   o = {};
   o.bin_s = kNaN;
-  EXPECT_FALSE(o.IsValid(nullptr));
+  EXPECT_FALSE(o.is_valid(nullptr));
   o = {};
   o.ma_window = 1;
-  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_FALSE(o.is_valid(&why));
   EXPECT_NE(why.find("ma_window"), std::string::npos);
   o = {};
   o.earth_rate_dph = kNaN;
-  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_FALSE(o.is_valid(&why));
 }
 
 TEST(AnalysisSeries, TenHertzOverTwentyMinutesGivesExactly1200Bins) {

@@ -10,6 +10,7 @@
 
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <mutex>
@@ -628,7 +629,9 @@ TEST(Api, TokenRoles) {
 
 TEST(AuthLimiter, LocksAPeerOutAfterMaxFailuresWithinTheWindow) {
   ManualClock wall(1000.0);
-  AuthLimiter limiter({.max_failures = 3, .window_s = 60.0}, &wall);
+  auto made = AuthLimiter::create({.max_failures = 3, .window_s = 60.0}, &wall);
+  ASSERT_TRUE(made.ok()) << made.error().message;
+  AuthLimiter& limiter = **made;
   EXPECT_EQ(limiter.retry_after_s("10.0.0.1"), 0);
   // Failures further apart than the window never add up.
   for (int i = 0; i < 5; ++i) {
@@ -652,9 +655,27 @@ TEST(AuthLimiter, LocksAPeerOutAfterMaxFailuresWithinTheWindow) {
   EXPECT_EQ(limiter.retry_after_s("10.0.0.1"), 0);
 }
 
+TEST(AuthLimiterOptions, Validity) {
+  std::string why;
+  EXPECT_TRUE(AuthLimiterOptions{}.is_valid(&why)) << why;
+  EXPECT_FALSE(AuthLimiterOptions{.max_failures = 0}.is_valid(&why));
+  EXPECT_NE(why.find("max_failures = 0 must be >= 1"), std::string::npos) << why;
+  EXPECT_FALSE(AuthLimiterOptions{.window_s = 0}.is_valid(&why));
+  EXPECT_NE(why.find("window_s"), std::string::npos) << why;
+  EXPECT_FALSE(AuthLimiterOptions{.window_s = std::nan("")}.is_valid(nullptr));
+  EXPECT_FALSE(AuthLimiterOptions{.max_peers = 0}.is_valid(&why));
+  EXPECT_NE(why.find("max_peers"), std::string::npos) << why;
+  // create() refuses them with the message.
+  auto made = AuthLimiter::create({.max_peers = 0});
+  ASSERT_FALSE(made.ok());
+  EXPECT_NE(made.error().message.find("max_peers"), std::string::npos) << made.error().message;
+}
+
 TEST(AuthLimiter, ThePeerTableIsBounded) {
   ManualClock wall(0.0);
-  AuthLimiter limiter({.max_failures = 2, .window_s = 60.0, .max_peers = 8}, &wall);
+  auto made = AuthLimiter::create({.max_failures = 2, .window_s = 60.0, .max_peers = 8}, &wall);
+  ASSERT_TRUE(made.ok()) << made.error().message;
+  AuthLimiter& limiter = **made;
   limiter.record_failure("attacker");
   EXPECT_TRUE(limiter.record_failure("attacker"));
   for (int i = 0; i < 100; ++i) {
@@ -667,7 +688,9 @@ TEST(AuthLimiter, ThePeerTableIsBounded) {
 TEST(Api, UnknownTokensAreThrottledPerPeer) {
   FakeControl control;
   ManualClock wall(0.0);
-  AuthLimiter limiter({.max_failures = 3, .window_s = 60.0}, &wall);
+  auto made = AuthLimiter::create({.max_failures = 3, .window_s = 60.0}, &wall);
+  ASSERT_TRUE(made.ok()) << made.error().message;
+  AuthLimiter& limiter = **made;
   ApiContext ctx = two_role_context(&control);
   ctx.auth_limiter = &limiter;
   const auto stop = [&](const std::string& auth, std::string_view peer) {

@@ -882,4 +882,34 @@ TEST(Config, ExportTimeZoneAndNightly) {
   EXPECT_THAT(empty_dir.error().message, HasSubstr("export.directory:"));
 }
 
+// Each key in range, but together not what the sequencer can run with: the
+// error names the file, line and key (SequencerOptions::is_valid).
+TEST(Config, SequencerOptionCombinationsAreRefusedAtTheirKey) {
+  auto cfg = parse_station_config(std::string(kMinimal), "t.toml");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  std::string why;
+  EXPECT_TRUE(sequencer_options(*cfg).is_valid(&why)) << why;
+
+  auto hysteresis = parse_station_config(
+      std::string(kMinimal) + "[interlocks]\nprobe_disagreement_c = 0.5\nhysteresis_c = 0.5\n",
+      "i.toml");
+  ASSERT_FALSE(hysteresis.ok());
+  EXPECT_THAT(hysteresis.error().message,
+              HasSubstr("i.toml:12: interlocks.hysteresis_c: interlocks.hysteresis_c = 0.5 must be "
+                        "below probe_disagreement_c = 0.5"));
+
+  auto spin_up = parse_station_config(
+      std::string(kMinimal) + "[table]\nat_rate_hold_s = 30\nspin_up_timeout_s = 20\n", "s.toml");
+  ASSERT_FALSE(spin_up.ok());
+  EXPECT_THAT(spin_up.error().message,
+              HasSubstr("s.toml:12: table.spin_up_timeout_s: spin_up_timeout_s = 20 must be"));
+  EXPECT_THAT(spin_up.error().message, HasSubstr("above at_rate_hold_s = 30"));
+
+  // The [table]'s silent timeout becomes the table_silent interlock's.
+  auto table =
+      parse_station_config(std::string(kMinimal) + "[table]\nsilent_timeout_s = 4\n", "t.toml");
+  ASSERT_TRUE(table.ok()) << table.error().message;
+  EXPECT_DOUBLE_EQ(sequencer_options(*table).interlocks.table_timeout_s, 4);
+}
+
 }  // namespace gyrotherm::daemon

@@ -12,9 +12,11 @@
 
 #include <atomic>
 #include <chrono>
+#include <functional>
 #include <memory>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "gyrotherm/daemon/http_message.h"
@@ -263,6 +265,68 @@ TEST(EventStreamHttp, ClientsReceiveTicksAndEventsAStalledClientIsDropped) {
   for (int fd : readers) ::close(fd);
   ::close(stalled);
   (*server)->stop();
+}
+
+TEST(EventStreamOptions, Validity) {
+  std::string why;
+  EXPECT_TRUE(EventStreamOptions{}.is_valid(&why)) << why;
+  EventStreamOptions o;
+  o.max_clients = 0;
+  EXPECT_TRUE(o.is_valid(&why)) << "0: no streams; " << why;
+  o = {};
+  o.queue_bytes = 0;
+  EXPECT_FALSE(o.is_valid(&why));
+  EXPECT_NE(why.find("queue_bytes = 0 must be >= 1"), std::string::npos) << why;
+  o = {};
+  o.max_clients = -1;
+  EXPECT_FALSE(o.is_valid(&why));
+  EXPECT_NE(why.find("max_clients"), std::string::npos) << why;
+  o = {};
+  o.tick = 0ms;
+  EXPECT_FALSE(o.is_valid(&why));
+  EXPECT_NE(why.find("tick = 0 ms"), std::string::npos) << why;
+  EXPECT_FALSE(o.is_valid(nullptr));
+}
+
+TEST(HttpServerOptions, Validity) {
+  std::string why;
+  EXPECT_TRUE(HttpServerOptions{}.is_valid(&why)) << why;
+  const std::vector<std::pair<std::function<void(HttpServerOptions&)>, std::string>> bad = {
+      {[](HttpServerOptions& o) { o.bind = "localhost"; }, "bind = \"localhost\""},
+      {[](HttpServerOptions& o) { o.port = 65536; }, "port = 65536"},
+      {[](HttpServerOptions& o) { o.port = -1; }, "port"},
+      {[](HttpServerOptions& o) { o.read_timeout = 0ms; }, "read_timeout = 0 ms must be > 0"},
+      {[](HttpServerOptions& o) { o.write_timeout = -5ms; }, "write_timeout"},
+      {[](HttpServerOptions& o) { o.header_limit = 0; }, "header_limit"},
+      {[](HttpServerOptions& o) { o.body_limit = 0; }, "body_limit"},
+      {[](HttpServerOptions& o) { o.max_connections = 0; }, "max_connections"},
+      {[](HttpServerOptions& o) { o.threads = 0; }, "threads"},
+      {[](HttpServerOptions& o) { o.stream_path = "api/v1/stream"; }, "stream_path"},
+  };
+  for (const auto& [spoil, field] : bad) {
+    HttpServerOptions o;
+    spoil(o);
+    why.clear();
+    EXPECT_FALSE(o.is_valid(&why)) << field;
+    EXPECT_NE(why.find(field), std::string::npos) << field << ": " << why;
+    EXPECT_FALSE(o.is_valid(nullptr)) << field;
+  }
+  // The stream it serves is checked with it; create() refuses either.
+  EventStreamOptions stalled;
+  stalled.tick = 0ms;
+  EventStream stream(stalled);
+  HttpServerOptions o;
+  o.port = 0;
+  o.stream = &stream;
+  EXPECT_FALSE(o.is_valid(&why));
+  EXPECT_NE(why.find("stream.tick"), std::string::npos) << why;
+  auto server = HttpServer::create(o, [](const HttpRequest& req) {
+    return error_response(req, boost::beast::http::status::not_found, "no");
+  });
+  ASSERT_FALSE(server.ok());
+  EXPECT_NE(server.error().message.find("invalid HTTP server options: stream.tick"),
+            std::string::npos)
+      << server.error().message;
 }
 
 }  // namespace

@@ -128,8 +128,9 @@ class ExporterTest : public ::testing::Test {
 
   std::unique_ptr<NightlyExporter> exporter(const WallClock& clock, NightlyOptions o,
                                             NightlyExporter::Done done = {}) {
-    return std::make_unique<NightlyExporter>(db_path_, clock, std::move(o), nullptr,
-                                             std::move(done));
+    auto e = NightlyExporter::create(db_path_, clock, std::move(o), nullptr, std::move(done));
+    EXPECT_TRUE(e.ok()) << e.error().message;
+    return e ? std::move(*e) : nullptr;
   }
 
   // The nightly exports, oldest first.
@@ -517,9 +518,8 @@ TEST_F(ExporterTest, WriteFailureMarksTheExportFailedAndFreesItsRuns) {
   o.directory = (blocker / "reports").string();
   ManualWallClock clock(utc(2026, 11, 20, 12));
   std::vector<Result<ExportOutcome>> done;
-  auto e = std::make_unique<NightlyExporter>(
-      db_path_, clock, o, nullptr,
-      [&](storage::Database&, const Result<ExportOutcome>& r) { done.push_back(r); });
+  auto e = exporter(clock, o,
+                    [&](storage::Database&, const Result<ExportOutcome>& r) { done.push_back(r); });
   EXPECT_FALSE(poll_ok(*e).has_value());
   const int64_t run = complete_run();
 
@@ -568,7 +568,7 @@ TEST_F(ExporterTest, WriteFailureInsideTheTemporaryDirectoryLeavesNothing) {
     limited = false;
   };
   std::vector<Result<ExportOutcome>> done;
-  NightlyExporter e(
+  auto made = NightlyExporter::create(
       db_path_, clock, options({2, 0}, zone),
       [&] {
         if (!arm) return;
@@ -581,6 +581,8 @@ TEST_F(ExporterTest, WriteFailureInsideTheTemporaryDirectoryLeavesNothing) {
         restore();
         done.push_back(r);
       });
+  ASSERT_TRUE(made.ok()) << made.error().message;
+  NightlyExporter& e = **made;
   EXPECT_FALSE(poll_ok(e).has_value());
   const int64_t run = complete_run();
   clock.set(utc(2026, 11, 21, 2));
@@ -858,6 +860,33 @@ TEST_F(ExporterTest, ThreadExportsWhenTheClockReachesTheSlot) {
   ASSERT_TRUE(done[0].ok()) << done[0].error().message;
   EXPECT_EQ(record(done[0]->export_id).run_ids, std::vector<int64_t>{run});
   EXPECT_EQ(nightly_exports().size(), 1u);
+}
+
+TEST(NightlyOptions, Validity) {
+  std::string why;
+  EXPECT_TRUE(NightlyOptions{}.is_valid(&why)) << why;
+  NightlyOptions o;
+  o.at = {24, 0};
+  EXPECT_FALSE(o.is_valid(&why));
+  EXPECT_NE(why.find("at = 24:00 is not a time of day"), std::string::npos) << why;
+  o = {};
+  o.at = {2, 60};
+  EXPECT_FALSE(o.is_valid(nullptr));
+  o = {};
+  o.directory.clear();
+  EXPECT_FALSE(o.is_valid(&why));
+  EXPECT_NE(why.find("directory"), std::string::npos) << why;
+  o = {};
+  o.poll_wall_s = 0;
+  EXPECT_FALSE(o.is_valid(&why));
+  EXPECT_NE(why.find("poll_wall_s = 0 must be"), std::string::npos) << why;
+  // create() refuses them with the message.
+  ManualWallClock clock(0);
+  auto e = NightlyExporter::create("unused.db", clock, o, nullptr, nullptr);
+  ASSERT_FALSE(e.ok());
+  EXPECT_NE(e.error().message.find("invalid nightly export options: poll_wall_s"),
+            std::string::npos)
+      << e.error().message;
 }
 
 }  // namespace

@@ -856,7 +856,9 @@ TEST(OpenApi, ReadTokensTokenModeAndThrottlingAnswerTheDocumentedErrors) {
   ContractControl control;
   const Metrics metrics;
   ManualClock wall;
-  AuthLimiter limiter({.max_failures = 1, .window_s = 60.0}, &wall);
+  auto made = AuthLimiter::create({.max_failures = 1, .window_s = 60.0}, &wall);
+  ASSERT_TRUE(made.ok()) << made.error().message;
+  AuthLimiter& limiter = **made;
   ApiContext ctx = contract_context(&control, nullptr, &metrics);
   ctx.read_tokens = {kReadToken};
   ctx.reads_need_token = true;

@@ -21,11 +21,15 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cmath>
 #include <filesystem>
+#include <functional>
 #include <future>
+#include <limits>
 #include <mutex>
 #include <set>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "gyrotherm/lab/central.h"
@@ -779,6 +783,42 @@ TEST_F(RelayTest, CreateChecksTheOptionsAndTheBinding) {
   EXPECT_EQ(malformed.error().message.find("pw-secret-1"), std::string::npos);
   o = options("st-z", "relay_st_a");
   EXPECT_TRUE(Relay::create(o).ok());
+}
+
+// No server needed: the options alone.
+TEST(RelayOptions, Validity) {
+  RelayOptions o;
+  std::string why;
+  EXPECT_FALSE(o.is_valid(&why)) << "a station id and a database are required";
+  EXPECT_THAT(why, HasSubstr("station_id"));
+  o.station_id = "st-a";
+  EXPECT_FALSE(o.is_valid(&why));
+  EXPECT_THAT(why, HasSubstr("db_path"));
+  o.db_path = "station.db";
+  EXPECT_TRUE(o.is_valid(&why)) << "the other defaults are valid: " << why;
+  const RelayOptions good = o;
+  const std::vector<std::pair<std::function<void(RelayOptions&)>, std::string>> bad = {
+      {[](RelayOptions& r) { r.station_id = "no spaces"; }, "station_id"},
+      {[](RelayOptions& r) { r.batch_records = 0; }, "batch_records = 0 must be >= 1"},
+      {[](RelayOptions& r) { r.batch_bytes = 0; }, "batch_bytes"},
+      {[](RelayOptions& r) { r.poll_s = 0; }, "poll_s"},
+      {[](RelayOptions& r) { r.retry_min_s = -1; }, "retry_min_s"},
+      {[](RelayOptions& r) { r.retry_max_s = r.retry_min_s / 2; }, "retry_max_s"},
+      {[](RelayOptions& r) { r.connect_timeout_s = std::nan(""); }, "connect_timeout_s"},
+      {[](RelayOptions& r) { r.statement_timeout_s = -1; }, "statement_timeout_s"},
+      {[](RelayOptions& r) { r.lock_timeout_s = std::numeric_limits<double>::infinity(); },
+       "lock_timeout_s"},
+      {[](RelayOptions& r) { r.conninfo = "host=lab sslmod=x password=pw-secret-2"; }, "conninfo"},
+  };
+  for (const auto& [spoil, field] : bad) {
+    o = good;
+    spoil(o);
+    why.clear();
+    EXPECT_FALSE(o.is_valid(&why)) << field;
+    EXPECT_THAT(why, HasSubstr(field));
+    EXPECT_EQ(why.find("pw-secret-2"), std::string::npos) << why;
+    EXPECT_FALSE(o.is_valid(nullptr)) << field;
+  }
 }
 
 }  // namespace

@@ -8,12 +8,16 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <functional>
 #include <iterator>
+#include <limits>
 #include <map>
 #include <regex>
 #include <set>
 #include <sstream>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "test_files.h"
 
@@ -195,6 +199,44 @@ TEST(InterlockTable, TableRowsTripAndClear) {
   EXPECT_TRUE(evaluate_interlocks(silent, o, none).empty());
   EXPECT_FALSE(readings_can_clear(InterlockKind::kTableSilent, no_reply));
   EXPECT_TRUE(readings_can_clear(InterlockKind::kTableSilent, kNominal));
+}
+
+TEST(InterlockOptions, Validity) {
+  std::string why;
+  EXPECT_TRUE(InterlockOptions{}.is_valid(&why)) << why;
+  constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+  // Each bad value, the field its message must name.
+  const std::vector<std::pair<std::function<void(InterlockOptions&)>, std::string>> bad = {
+      {[](InterlockOptions& o) { o.min_temp_c = kNaN; }, "min_temp_c"},
+      {[](InterlockOptions& o) { o.max_temp_c = o.min_temp_c; }, "max_temp_c"},
+      {[](InterlockOptions& o) { o.limit_margin_c = -0.1; }, "limit_margin_c"},
+      {[](InterlockOptions& o) { o.hysteresis_c = -0.1; }, "hysteresis_c"},
+      {[](InterlockOptions& o) { o.probe_disagreement_c = 0; }, "probe_disagreement_c"},
+      {[](InterlockOptions& o) { o.hysteresis_c = o.probe_disagreement_c; }, "hysteresis_c"},
+      {[](InterlockOptions& o) { o.chamber_timeout_s = 0; }, "chamber_timeout_s"},
+      {[](InterlockOptions& o) { o.probes_timeout_s = -1; }, "probes_timeout_s"},
+      {[](InterlockOptions& o) { o.gyro_timeout_s = kNaN; }, "gyro_timeout_s"},
+      {[](InterlockOptions& o) { o.storage_timeout_s = 0; }, "storage_timeout_s"},
+      {[](InterlockOptions& o) { o.table_timeout_s = std::numeric_limits<double>::infinity(); },
+       "table_timeout_s"},
+      {[](InterlockOptions& o) { o.grace_s[static_cast<int>(InterlockKind::kGyroLost)] = -1; },
+       "grace_s[gyro_lost]"},
+      {[](InterlockOptions& o) { o.grace_s[kInterlockKindCount - 1] = kNaN; },
+       fmt::format("grace_s[{}]", kInterlockDefinitions[kInterlockKindCount - 1].name)},
+  };
+  for (const auto& [spoil, field] : bad) {
+    InterlockOptions o;
+    spoil(o);
+    why.clear();
+    EXPECT_FALSE(o.is_valid(&why)) << field;
+    EXPECT_NE(why.find(field), std::string::npos) << field << ": " << why;
+    EXPECT_FALSE(o.is_valid(nullptr)) << field;
+  }
+  // 0 is a sharp limit or an immediate abort: both allowed.
+  InterlockOptions sharp;
+  sharp.limit_margin_c = sharp.hysteresis_c = 0;
+  sharp.grace_s.fill(0);
+  EXPECT_TRUE(sharp.is_valid(&why)) << why;
 }
 
 }  // namespace

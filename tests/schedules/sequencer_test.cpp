@@ -6,8 +6,11 @@
 
 #include <chrono>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <nlohmann/json.hpp>
+#include <string>
+#include <utility>
 #include <vector>
 
 namespace gyrotherm::schedules {
@@ -971,6 +974,33 @@ TEST(SequencerTransitions, Table) {
     for (std::size_t i = 1; i < s.obs.transitions.size(); ++i) {
       EXPECT_EQ(s.obs.transitions[i].from, s.obs.transitions[i - 1].to);
     }
+  }
+}
+
+TEST(SequencerOptions, Validity) {
+  std::string why;
+  EXPECT_TRUE(SequencerOptions{}.is_valid(&why)) << why;
+  constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+  const std::vector<std::pair<std::function<void(SequencerOptions&)>, std::string>> bad = {
+      {[](SequencerOptions& o) { o.safe_setpoint_c = kNaN; }, "safe_setpoint_c"},
+      {[](SequencerOptions& o) { o.safe_setpoint_c = o.interlocks.max_temp_c + 1; },
+       "safe_setpoint_c"},
+      {[](SequencerOptions& o) { o.at_rate_tolerance_dps = 0; }, "at_rate_tolerance_dps"},
+      {[](SequencerOptions& o) { o.at_rate_tolerance_ppm = -1; }, "at_rate_tolerance_ppm"},
+      {[](SequencerOptions& o) { o.at_rate_hold_s = -1; }, "at_rate_hold_s = -1 must be"},
+      {[](SequencerOptions& o) { o.spin_up_timeout_s = 0; }, "spin_up_timeout_s"},
+      {[](SequencerOptions& o) { o.spin_up_timeout_s = o.at_rate_hold_s; }, "spin_up_timeout_s"},
+      // The interlocks are checked too, their fields named with the prefix.
+      {[](SequencerOptions& o) { o.interlocks.gyro_timeout_s = 0; }, "interlocks.gyro_timeout_s"},
+      {[](SequencerOptions& o) { o.interlocks.max_temp_c = -30; }, "interlocks.max_temp_c"},
+  };
+  for (const auto& [spoil, field] : bad) {
+    SequencerOptions o;
+    spoil(o);
+    why.clear();
+    EXPECT_FALSE(o.is_valid(&why)) << field;
+    EXPECT_EQ(why.rfind(field, 0), 0u) << "the message starts with " << field << ": " << why;
+    EXPECT_FALSE(o.is_valid(nullptr)) << field;
   }
 }
 

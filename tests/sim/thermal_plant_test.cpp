@@ -24,9 +24,9 @@ ThermalParams quiet_params() {
 TEST(ThermalParams, RejectsOutOfRange) {
   ThermalParams p;
   std::string why;
-  EXPECT_TRUE(p.IsValid(&why)) << why;
+  EXPECT_TRUE(p.is_valid(&why)) << why;
   p.case_tau_s = -1;
-  EXPECT_FALSE(p.IsValid(&why));
+  EXPECT_FALSE(p.is_valid(&why));
   EXPECT_NE(why.find("case_tau_s"), std::string::npos) << why;
 }
 
@@ -100,7 +100,7 @@ TEST(ThermalPlant, GradientLagsItsTargetByGradientTau) {
   ThermalParams bad = p;
   bad.gradient_tau_s = -1;
   std::string why;
-  EXPECT_FALSE(bad.IsValid(&why));
+  EXPECT_FALSE(bad.is_valid(&why));
   EXPECT_NE(why.find("gradient_tau_s"), std::string::npos) << why;
 }
 

@@ -364,6 +364,20 @@ TEST(SampleWriter, RejectsBadOptions) {
   auto w = SampleWriter::start(dir.file("station.db"), {.commit_interval = 0ms});
   ASSERT_FALSE(w.ok());
   EXPECT_NE(w.error().message.find("commit_interval"), std::string::npos);
+  w = SampleWriter::start(dir.file("station.db"), {.max_pending = 0});
+  ASSERT_FALSE(w.ok());
+  EXPECT_NE(w.error().message.find("sample writer options: max_pending"), std::string::npos)
+      << w.error().message;
+}
+
+TEST(SampleWriterOptions, Validity) {
+  std::string why;
+  EXPECT_TRUE(SampleWriterOptions{}.is_valid(&why)) << why;
+  EXPECT_FALSE(SampleWriterOptions{.commit_interval = -1ms}.is_valid(&why));
+  EXPECT_NE(why.find("commit_interval = -1 ms must be > 0"), std::string::npos) << why;
+  EXPECT_FALSE(SampleWriterOptions{.commit_interval = 0ms}.is_valid(nullptr));
+  EXPECT_FALSE(SampleWriterOptions{.max_pending = 0}.is_valid(&why));
+  EXPECT_NE(why.find("max_pending"), std::string::npos) << why;
 }
 
 // A writer process that dies without stop(): committed rows survive and the

@@ -1,15 +1,38 @@
 #include "gyrotherm/daemon/auth_limiter.h"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <cmath>
+#include <utility>
 
 namespace gyrotherm::daemon {
+
+bool AuthLimiterOptions::is_valid(std::string* why) const {
+  const auto fail = [why](std::string msg) {
+    if (why) *why = std::move(msg);
+    return false;
+  };
+  if (max_failures < 1) return fail(fmt::format("max_failures = {} must be >= 1", max_failures));
+  if (!(window_s > 0) || !std::isfinite(window_s)) {
+    return fail(fmt::format("window_s = {} must be finite and > 0", window_s));
+  }
+  // make_room() needs room for the peer it adds.
+  if (max_peers < 1) return fail(fmt::format("max_peers = {} must be >= 1", max_peers));
+  return true;
+}
+
+Result<std::unique_ptr<AuthLimiter>> AuthLimiter::create(AuthLimiterOptions options,
+                                                         const Clock* wall_clock) {
+  if (std::string why; !options.is_valid(&why)) {
+    return Error::Permanent("invalid auth limiter options: " + why);
+  }
+  return std::unique_ptr<AuthLimiter>(new AuthLimiter(options, wall_clock));
+}
 
 AuthLimiter::AuthLimiter(AuthLimiterOptions options, const Clock* wall_clock) : options_(options) {
   if (!wall_clock) own_clock_ = std::make_unique<ScaledClock>(1.0);
   clock_ = wall_clock ? wall_clock : own_clock_.get();
-  options_.max_failures = std::max(1, options_.max_failures);
-  options_.max_peers = std::max<std::size_t>(1, options_.max_peers);
 }
 
 bool AuthLimiter::expired(const Peer& p, double now_s) const {

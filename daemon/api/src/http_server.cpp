@@ -466,17 +466,62 @@ Result<std::unique_ptr<HttpServer>> HttpServer::create(HttpServerOptions options
                 });
 }
 
+bool EventStreamOptions::is_valid(std::string* why) const {
+  const auto fail = [why](std::string msg) {
+    if (why) *why = std::move(msg);
+    return false;
+  };
+  // A queue of 0 bytes drops every client at its first event.
+  if (queue_bytes == 0) return fail("queue_bytes = 0 must be >= 1");
+  if (max_clients < 0) return fail(fmt::format("max_clients = {} must be >= 0", max_clients));
+  if (tick <= std::chrono::milliseconds::zero()) {
+    return fail(fmt::format("tick = {} ms must be > 0", tick.count()));
+  }
+  return true;
+}
+
+bool HttpServerOptions::is_valid(std::string* why) const {
+  const auto fail = [why](std::string msg) {
+    if (why) *why = std::move(msg);
+    return false;
+  };
+  beast::error_code ec;
+  (void)asio::ip::make_address(bind, ec);
+  if (ec) return fail(fmt::format("bind = \"{}\" is not an IP address: {}", bind, ec.message()));
+  if (port < 0 || port > 65535) {
+    return fail(fmt::format("port = {} is not a TCP port (0..65535)", port));
+  }
+  for (const auto& [name, timeout] :
+       {std::pair{"read_timeout", read_timeout}, std::pair{"write_timeout", write_timeout}}) {
+    if (timeout <= std::chrono::milliseconds::zero()) {
+      return fail(fmt::format("{} = {} ms must be > 0", name, timeout.count()));
+    }
+  }
+  if (header_limit == 0) return fail("header_limit = 0 must be >= 1");
+  if (body_limit == 0) return fail("body_limit = 0 must be >= 1");
+  for (const auto& [name, count] :
+       {std::pair{"max_connections", max_connections}, std::pair{"threads", threads}}) {
+    if (count < 1) return fail(fmt::format("{} = {} must be >= 1", name, count));
+  }
+  if (!stream_path.starts_with('/')) {
+    return fail(fmt::format("stream_path = \"{}\" must start with /", stream_path));
+  }
+  if (std::string sub_why; stream && !stream->options().is_valid(&sub_why)) {
+    return fail("stream." + sub_why);
+  }
+  return true;
+}
+
 Result<std::unique_ptr<HttpServer>> HttpServer::create(HttpServerOptions options,
                                                        HttpPeerHandler handler) {
+  if (std::string why; !options.is_valid(&why)) {
+    return Error::Permanent("invalid HTTP server options: " + why);
+  }
   std::unique_ptr<HttpServer> server(new HttpServer());
   server->impl_ = std::make_unique<Impl>(std::move(options), std::move(handler));
   Impl& impl = *server->impl_;
   beast::error_code ec;
-  const auto address = asio::ip::make_address(impl.options.bind, ec);
-  if (ec) {
-    return Error::Permanent(
-        fmt::format("api.bind: \"{}\" is not an IP address: {}", impl.options.bind, ec.message()));
-  }
+  const auto address = asio::ip::make_address(impl.options.bind, ec);  // valid: is_valid
   const tcp::endpoint endpoint{address, static_cast<unsigned short>(impl.options.port)};
   impl.acceptor.open(endpoint.protocol(), ec);
   if (!ec) impl.acceptor.set_option(asio::socket_base::reuse_address(true), ec);
@@ -495,7 +540,7 @@ HttpServer::~HttpServer() { stop(); }
 void HttpServer::start() {
   impl_->do_accept();
   if (impl_->options.stream) impl_->schedule_tick();
-  const int n = std::max(1, impl_->options.threads);
+  const int n = impl_->options.threads;  // >= 1: is_valid
   for (int i = 0; i < n; ++i) {
     threads_.emplace_back([this] {
       for (;;) {

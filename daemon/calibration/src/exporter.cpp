@@ -205,6 +205,33 @@ Result<ExportOutcome> write_export(storage::Database& db, const ExportRequest& g
 
 // ------------------------------------------------------------ NightlyExporter
 
+bool NightlyOptions::is_valid(std::string* why) const {
+  const auto fail = [why](std::string msg) {
+    if (why) *why = std::move(msg);
+    return false;
+  };
+  if (at.hour < 0 || at.hour > 23 || at.minute < 0 || at.minute > 59) {
+    return fail(
+        fmt::format("at = {:02}:{:02} is not a time of day (00:00 … 23:59)", at.hour, at.minute));
+  }
+  if (directory.empty()) return fail("directory is empty (the root the exports go into)");
+  // The thread sleeps poll_wall_s between looks: 0 would spin.
+  if (!(poll_wall_s > 0) || !std::isfinite(poll_wall_s)) {
+    return fail(fmt::format("poll_wall_s = {} must be finite and > 0", poll_wall_s));
+  }
+  return true;
+}
+
+Result<std::unique_ptr<NightlyExporter>> NightlyExporter::create(
+    std::string db_path, const WallClock& clock, NightlyOptions options,
+    std::function<void()> before_export, Done done) {
+  if (std::string why; !options.is_valid(&why)) {
+    return Error::Permanent("invalid nightly export options: " + why);
+  }
+  return std::unique_ptr<NightlyExporter>(new NightlyExporter(
+      std::move(db_path), clock, std::move(options), std::move(before_export), std::move(done)));
+}
+
 NightlyExporter::NightlyExporter(std::string db_path, const WallClock& clock,
                                  NightlyOptions options, std::function<void()> before_export,
                                  Done done)

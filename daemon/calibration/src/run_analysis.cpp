@@ -468,7 +468,7 @@ Result<AnalysisSettings> analysis_settings_of_run(const storage::RunRecord& run)
   if (!o) return bad("orientation", orientation, o.error());
   s.table1.earth_rate_dph = analysis::earth_rate_component_dph(run.latitude_deg, *o);
   std::string why;
-  if (!s.table1.IsValid(&why) || !s.fit.IsValid(&why)) {
+  if (!s.table1.is_valid(&why) || !s.fit.is_valid(&why) || !s.flatness.is_valid(&why)) {
     return Error::Permanent(fmt::format("run {}: stored [analysis]: {}", run.id, why));
   }
   return s;

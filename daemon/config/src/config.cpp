@@ -1002,6 +1002,20 @@ schedules::StationLimits station_limits(const StationConfig& config) {
   return limits;
 }
 
+schedules::SequencerOptions sequencer_options(const StationConfig& config) {
+  schedules::SequencerOptions o;
+  o.safe_setpoint_c = config.station.safe_setpoint_c;
+  o.interlocks = config.interlocks;
+  if (config.table) {
+    o.at_rate_tolerance_dps = config.table->at_rate_tolerance_dps;
+    o.at_rate_tolerance_ppm = config.table->at_rate_tolerance_ppm;
+    o.interlocks.table_timeout_s = config.table->silent_timeout_s;
+    o.at_rate_hold_s = config.table->at_rate_hold_s;
+    o.spin_up_timeout_s = config.table->spin_up_timeout_s;
+  }
+  return o;
+}
+
 std::optional<std::string> api_exposure_warning(const ApiSection& api) {
   boost::system::error_code ec;
   const auto address = boost::asio::ip::make_address(api.bind, ec);
@@ -1304,6 +1318,56 @@ void read_lab(TableReader t, LabSection& l, const std::string& source) {
   t.finish();
 }
 
+// The config key that sets a field of SequencerOptions (as its is_valid
+// names it); "interlocks" for one no key sets.
+std::string config_key_of(std::string_view field, bool dut_form) {
+  static constexpr std::pair<std::string_view, std::string_view> kKeys[] = {
+      {"safe_setpoint_c", "station.safe_setpoint_c"},
+      {"interlocks.min_temp_c", "station.min_temp_c"},
+      {"interlocks.max_temp_c", "station.max_temp_c"},
+      {"interlocks.limit_margin_c", "interlocks.limit_margin_c"},
+      {"interlocks.probe_disagreement_c", "interlocks.probe_disagreement_c"},
+      {"interlocks.hysteresis_c", "interlocks.hysteresis_c"},
+      {"interlocks.chamber_timeout_s", "chamber.silent_timeout_s"},
+      {"interlocks.probes_timeout_s", "probes.silent_timeout_s"},
+      {"interlocks.table_timeout_s", "table.silent_timeout_s"},
+      {"at_rate_tolerance_dps", "table.at_rate_tolerance_dps"},
+      {"at_rate_tolerance_ppm", "table.at_rate_tolerance_ppm"},
+      {"at_rate_hold_s", "table.at_rate_hold_s"},
+      {"spin_up_timeout_s", "table.spin_up_timeout_s"},
+  };
+  for (const auto& [f, key] : kKeys) {
+    if (f == field) return std::string(key);
+  }
+  if (field == "interlocks.gyro_timeout_s") {
+    return dut_form ? "dut.silent_timeout_s" : "gyro.silent_timeout_s";
+  }
+  constexpr std::string_view kGrace = "interlocks.grace_s[";
+  if (field.starts_with(kGrace) && field.ends_with("]")) {
+    const std::string_view kind = field.substr(kGrace.size(), field.size() - kGrace.size() - 1);
+    return fmt::format("interlocks.{}_grace_min", kind);
+  }
+  return "interlocks";
+}
+
+// The line of `key_path` in the file: of the key, else of its section
+// (the first [[dut]] for dut.*), else 0.
+int line_at(const toml::table& root, const std::string& key_path) {
+  const auto line = [](const toml::node* n) {
+    return n ? static_cast<int>(n->source().begin.line) : 0;
+  };
+  const std::string section = key_path.substr(0, key_path.find('.'));
+  const std::string key = key_path.substr(std::min(key_path.size(), section.size() + 1));
+  const toml::node* table = root.get(section);
+  if (const toml::array* list = table ? table->as_array() : nullptr) {
+    table = list->empty() ? nullptr : list->get(0);
+  }
+  const toml::table* t = table ? table->as_table() : nullptr;
+  if (!t) return 0;
+  if (int l = line(t->get(key)); l > 0) return l;
+  return line(t);
+}
+
 Result<StationConfig> build_config(std::optional<toml::table> root, TomlErrors& errors,
                                    const std::string& source) {
   if (!root) return Error::Permanent(errors.joined());
@@ -1370,6 +1434,14 @@ Result<StationConfig> build_config(std::optional<toml::table> root, TomlErrors& 
   cfg.interlocks.gyro_timeout_s = cfg.duts.front().silent_timeout_s;
   for (const auto& dut : cfg.duts)
     cfg.interlocks.gyro_timeout_s = std::min(cfg.interlocks.gyro_timeout_s, dut.silent_timeout_s);
+  // Each key was range-checked above; what is left are combinations (the
+  // hysteresis against the probe limit, the spin-up timeout against the
+  // hold), reported at the key of the field the message starts with.
+  if (std::string why; !sequencer_options(cfg).is_valid(&why)) {
+    const std::string key = config_key_of(why.substr(0, why.find(' ')), has_dut);
+    errors.add(line_at(*root, key), key, why);
+    return Error::Permanent(errors.joined());
+  }
   return cfg;
 }
 

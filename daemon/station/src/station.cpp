@@ -84,6 +84,11 @@ Result<std::unique_ptr<Station>> Station::create(StationConfig config, StationDe
     return Error::Permanent("station: a chamber and a probe module are needed");
   }
   if (config.duts.empty()) return Error::Permanent("station: the config names no DUT");
+  // Checked here, before any run: a run's sequencer is made mid-way through
+  // starting it, where a refusal could only fail the run.
+  if (std::string why; !sequencer_options(config).is_valid(&why)) {
+    return Error::Permanent("station: invalid sequencer options: " + why);
+  }
   if (devices.duts.size() != config.duts.size()) {
     return Error::Permanent(fmt::format("station: {} DUT sources for {} [[dut]] entries",
                                         devices.duts.size(), config.duts.size()));
@@ -243,18 +248,10 @@ Station::Station(StationConfig config, StationDevices devices, StationClocks clo
 Station::~Station() { stop("daemon shutting down"); }
 
 void Station::make_sequencer(schedules::Plan plan) {
-  schedules::SequencerOptions opt;
-  opt.safe_setpoint_c = config_.station.safe_setpoint_c;
-  opt.interlocks = config_.interlocks;
-  if (config_.table) {
-    opt.at_rate_tolerance_dps = config_.table->at_rate_tolerance_dps;
-    opt.at_rate_tolerance_ppm = config_.table->at_rate_tolerance_ppm;
-    opt.interlocks.table_timeout_s = config_.table->silent_timeout_s;
-    opt.at_rate_hold_s = config_.table->at_rate_hold_s;
-    opt.spin_up_timeout_s = config_.table->spin_up_timeout_s;
-  }
-  sequencer_ = std::make_unique<schedules::Sequencer>(
-      std::move(plan), opt, static_cast<schedules::SequencerObserver&>(*this));
+  // Valid: Station::create checked them.
+  sequencer_ =
+      std::make_unique<schedules::Sequencer>(std::move(plan), sequencer_options(config_),
+                                             static_cast<schedules::SequencerObserver&>(*this));
 }
 
 void Station::start(ControlLoop loop) {
@@ -336,9 +333,15 @@ void Station::start_nightly_export() {
       }
     }
   };
-  nightly_ = std::make_unique<NightlyExporter>(
+  auto nightly = NightlyExporter::create(
       config_.storage.db_path, wall, std::move(options), [this] { analysis_->drain(); },
       std::move(done));
+  if (!nightly) {
+    // The config reader checked each of them: this is a bug, not a setting.
+    spdlog::error("nightly export not started: {}", nightly.error().message);
+    return;
+  }
+  nightly_ = std::move(*nightly);
   spdlog::info("nightly export at {} ({}) into {}; next {}", e.local_time,
                e.time_zone.empty() ? "system time zone" : e.time_zone, e.directory,
                local_time_label(nightly_->next_slot_unix_s(), zone));

@@ -81,6 +81,10 @@ double allan_edf_white_fm(std::size_t n_rate_samples, std::size_t m);
 
 struct AllanOptions {
   TauSet taus = TauSet::kOctave;
+
+  // False with a message when taus is none of TauSet's enumerators (a
+  // value cast from a number).
+  bool is_valid(std::string* why) const;
 };
 
 enum class NoiseTermKind {
@@ -149,9 +153,9 @@ struct AllanResult {
   std::string bias_instability_method = "minimum / 0.664";
 };
 
-// Errors (permanent): sizes differ; fewer than 2 samples; a non-finite time
-// or rate (the message names the index); times not strictly increasing (names
-// the index and both times).
+// Errors (permanent): invalid options (the is_valid message); sizes differ; fewer than 2 samples; a
+// non-finite time or rate (the message names the index); times not strictly increasing (names the
+// index and both times).
 Result<AllanResult> allan_deviation(std::span<const double> t_s, std::span<const double> rate_dph,
                                     const AllanOptions& options = {});
 

@@ -49,7 +49,7 @@ struct ComparisonOptions {
   bool cross_validate = true;  // leave-one-run-out when >= 2 runs
 
   // False with a message naming the bad field.
-  bool IsValid(std::string* error) const;
+  bool is_valid(std::string* why) const;
 };
 
 struct CompensatedStats {

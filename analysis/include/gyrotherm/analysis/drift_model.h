@@ -76,7 +76,7 @@ struct DriftFitOptions {
 
   // False with a message when a value is out of range (window <= 0 or not
   // finite, block_rows == 0, rank_tolerance not in [0, 1)).
-  bool IsValid(std::string* error) const;
+  bool is_valid(std::string* why) const;
 };
 
 // Smoothing derivative dy/dt: at point i, the least-squares slope of a straight

@@ -156,9 +156,14 @@ Result<ScaleFactorTemperatureFit> fit_scale_factor_over_temperature(
 // also be Ω within n_sigma · s/√n + tolerance_ppm · 10⁻⁶ · |Ω|. The gyro's
 // output is checked for flatness only (its K and bias are what the fit
 // finds). Fewer than 6 finite samples: not checked (checked false, ok true).
+// Invalid options: checked, not ok, `why` the is_valid message.
 struct RatePointFlatnessOptions {
   double n_sigma = 5.0;
   double tolerance_ppm = 500.0;
+
+  // False with a message naming the field when n_sigma is not positive or
+  // tolerance_ppm is negative (or either is not finite).
+  bool is_valid(std::string* why) const;
 };
 struct RatePointFlatness {
   bool checked = false;

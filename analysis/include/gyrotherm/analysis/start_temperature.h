@@ -38,7 +38,7 @@ struct StartTemperatureOptions {
   double distinct_t0_c = 1.0;
   std::size_t min_distinct_t0 = 4;
 
-  bool IsValid(std::string* error) const;
+  bool is_valid(std::string* why) const;
 };
 
 // T0 of one series (see above). Errors: empty series, non-finite values.

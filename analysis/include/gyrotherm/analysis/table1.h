@@ -83,7 +83,7 @@ struct Table1Options {
   double earth_rate_dph = 0.0;  // removed from the mean for bias_mean_earth_removed_dph
 
   // False with a message when a value is out of range (bin_s <= 0, window < 2).
-  bool IsValid(std::string* error) const;
+  bool is_valid(std::string* why) const;
 };
 
 // Builds the analysis series from the raw window: gyro samples binned as
@@ -127,7 +127,7 @@ struct Table1Row {
   double bias_mean_earth_removed_dph = 0;
 };
 
-// Errors: invalid options (the IsValid message); n < 2; the series' vectors
+// Errors: invalid options (the is_valid message); n < 2; the series' vectors
 // of different lengths; a non-finite value in the series.
 Result<Table1Row> table1_row(const AnalysisSeries& series, const Table1Options& options);
 

@@ -51,13 +51,20 @@ struct RelayOptions {
   // State changes worth an event (connected, lost, refused, resumed):
   // (kind "lab", message). Called from the relay thread.
   std::function<void(const std::string& message)> on_event;
+
+  // False with a message naming the field when a value is out of range: a
+  // station_id that is no lab station id, no db_path, batch_records or
+  // batch_bytes below 1, a poll, backoff or timeout not positive (or not
+  // finite), retry_max_s below retry_min_s, a conninfo libpq cannot parse
+  // (the message names the bad keyword, never a value).
+  bool is_valid(std::string* why) const;
 };
 
 class Relay {
  public:
-  // Checks the options (not the server: an unreachable lab is a backoff,
-  // not a start-up failure). The database must be bound (lab_bind) to
-  // options.station_id.
+  // Checks the options (RelayOptions::is_valid; not the server: an
+  // unreachable lab is a backoff, not a start-up failure). The database must
+  // be bound (lab_bind) to options.station_id.
   static Result<std::unique_ptr<Relay>> create(RelayOptions options);
   ~Relay();  // stop()
   void start();

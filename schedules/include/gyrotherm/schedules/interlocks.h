@@ -202,6 +202,13 @@ struct InterlockOptions {
   std::array<double, kInterlockKindCount> grace_s = interlock_table::default_grace_s();
 
   double grace_for(InterlockKind kind) const { return grace_s[static_cast<int>(kind)]; }
+
+  // False with a message naming the field and its bound when a value is out
+  // of range: min_temp_c not below max_temp_c, a margin or the hysteresis
+  // negative, the probe limit or a device timeout not positive, hysteresis_c
+  // not below probe_disagreement_c (a disagreement would never clear), a
+  // grace negative; any of them not finite.
+  bool is_valid(std::string* why) const;
 };
 
 struct InterlockCondition {

@@ -142,6 +142,14 @@ struct SequencerOptions {
   double at_rate_tolerance_ppm = 1000.0;
   double at_rate_hold_s = 1.0;
   double spin_up_timeout_s = 120.0;
+
+  // False with a message when a value is out of range: the interlocks'
+  // (InterlockOptions::is_valid, prefixed "interlocks."), safe_setpoint_c
+  // outside the station limits, the rate tolerances, hold or spin-up timeout
+  // out of range, or a spin-up timeout no longer than the hold it contains.
+  // The message starts with the field it names (the config reader maps it to
+  // its key).
+  bool is_valid(std::string* why) const;
 };
 
 // A tripped interlock in a snapshot: a restart keeps its grace running from
@@ -171,6 +179,8 @@ Result<SequencerSnapshot> snapshot_from_json(const nlohmann::json& j);
 
 class Sequencer {
  public:
+  // `options` must be valid (SequencerOptions::is_valid): the daemon checks
+  // the station's in its config reader and in Station::create.
   Sequencer(Plan plan, SequencerOptions options, SequencerObserver& observer);
 
   // Starts the first step at t_s. `start_setpoint_c` is where a first ramp

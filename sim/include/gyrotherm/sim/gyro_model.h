@@ -53,7 +53,7 @@ struct GyroParams {
   double accel_noise_g = 1e-4;  // per-sample std of each accelerometer axis
 
   // False with a message naming the first bad field.
-  bool IsValid(std::string* error) const;
+  bool is_valid(std::string* why) const;
 };
 
 // [simulator.scale_factor]: the scale-factor truth (see the formula above).
@@ -64,7 +64,7 @@ struct ScaleFactorParams {
   double asymmetry_ppm = 30.0;     // (K+ − K−) / K̄, ppm
   double nonlinearity_ppm = 40.0;  // quadratic-in-|Ω| deviation at full scale, ppm
 
-  bool IsValid(std::string* error) const;
+  bool is_valid(std::string* why) const;
 };
 
 // How the gyro's sensitive axis sits on the table ([table] sensitive_axis).

@@ -116,7 +116,7 @@ struct SimulatorOptions {
   TableParams table;
   ScaleFactorParams scale_factor;
 
-  bool IsValid(std::string* error) const;
+  bool is_valid(std::string* why) const;
 };
 
 // Command-line overrides (`gyrotherm-sim --time-scale ... --seed ...`).

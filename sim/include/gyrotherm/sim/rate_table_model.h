@@ -46,7 +46,7 @@ struct TableParams {
   std::string reply_header = "ascii";
 
   // False with a message naming the first bad field.
-  bool IsValid(std::string* error) const;
+  bool is_valid(std::string* why) const;
 };
 
 // Why a command was not carried out.

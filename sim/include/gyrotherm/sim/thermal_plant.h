@@ -46,7 +46,7 @@ struct ThermalParams {
   double probe_quantum_c = 0.01;  // reading resolution (0 = none)
 
   // False with a message naming the first bad field.
-  bool IsValid(std::string* error) const;
+  bool is_valid(std::string* why) const;
 };
 
 // The plant's true state after the last step.

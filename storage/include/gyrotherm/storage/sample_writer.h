@@ -38,6 +38,10 @@ namespace gyrotherm::storage {
 struct SampleWriterOptions {
   std::chrono::milliseconds commit_interval{500};  // wall time between commits
   std::size_t max_pending = 4'000'000;             // samples held before dropping
+
+  // False with a message naming the field when commit_interval is not
+  // positive or max_pending is 0.
+  bool is_valid(std::string* why) const;
 };
 
 struct SampleWriterStats {

@@ -24,6 +24,7 @@
 #include <vector>
 
 #include "gyrotherm/core/clock.h"
+#include "gyrotherm/core/result.h"
 
 namespace gyrotherm::daemon {
 
@@ -31,13 +32,19 @@ struct AuthLimiterOptions {
   int max_failures = 10;   // [api] max_auth_failures
   double window_s = 60.0;  // wall seconds
   std::size_t max_peers = 4096;
+
+  // False with a message naming the field when max_failures or max_peers is
+  // below 1 or window_s is not positive and finite.
+  bool is_valid(std::string* why) const;
 };
 
 class AuthLimiter {
  public:
+  // Error (permanent) when the options are not valid (is_valid).
   // `wall_clock` (not owned, outlives the limiter) gives wall seconds;
   // nullptr: a ScaledClock at scale 1 of the limiter's own.
-  explicit AuthLimiter(AuthLimiterOptions options = {}, const Clock* wall_clock = nullptr);
+  static Result<std::unique_ptr<AuthLimiter>> create(AuthLimiterOptions options = {},
+                                                     const Clock* wall_clock = nullptr);
 
   // Whole seconds (rounded up, >= 1) until `peer` may present a token
   // again; 0 when it is not locked out.
@@ -49,6 +56,8 @@ class AuthLimiter {
   std::size_t peers() const;
 
  private:
+  AuthLimiter(AuthLimiterOptions options, const Clock* wall_clock);
+
   struct Peer {
     std::vector<double> failures_s;  // within the window, oldest first
     double locked_until_s = 0;       // 0: not locked

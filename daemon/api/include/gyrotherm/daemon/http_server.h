@@ -80,10 +80,15 @@ struct EventStreamOptions {
   std::chrono::milliseconds tick{1000};  // wall time between status ticks
   // The `status` event's data (JSON), sent on connect and at every tick.
   std::function<std::string()> status_json;
+
+  // False with a message naming the field when queue_bytes is 0,
+  // max_clients is negative (0: no streams) or tick is not positive.
+  bool is_valid(std::string* why) const;
 };
 
 class EventStream {
  public:
+  // The server that serves the stream checks its options (HttpServer::create).
   explicit EventStream(EventStreamOptions options) : options_(std::move(options)) {}
 
   // Thread-safe, never blocks on a client. `data` must be one line (JSON).
@@ -124,6 +129,13 @@ struct HttpServerOptions {
   // Asked before a stream starts: a response refuses the stream (it is sent
   // instead); nullopt or no gate lets it start.
   std::function<std::optional<HttpResponse>(const HttpRequest&, std::string_view peer)> stream_gate;
+
+  // False with a message naming the field when a value is out of range:
+  // bind not an IP address, port not 0..65535, a timeout not positive, a
+  // limit, max_connections or threads below 1, a stream_path not starting
+  // with /, or the stream's options (EventStreamOptions::is_valid, prefixed
+  // "stream.").
+  bool is_valid(std::string* why) const;
 };
 
 struct HttpServerStats {
@@ -135,8 +147,9 @@ struct HttpServerStats {
 
 class HttpServer {
  public:
-  // Binds and listens; error (permanent) when the address is unusable or the
-  // port is taken. Serving starts with start().
+  // Binds and listens; error (permanent) when the options are not valid
+  // (is_valid), the address is unusable or the port is taken. Serving starts
+  // with start().
   static Result<std::unique_ptr<HttpServer>> create(HttpServerOptions options,
                                                     HttpPeerHandler handler);
   static Result<std::unique_ptr<HttpServer>> create(HttpServerOptions options, HttpHandler handler);

@@ -15,6 +15,7 @@
 #include <condition_variable>
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <mutex>
 #include <optional>
 #include <string>
@@ -63,6 +64,11 @@ struct NightlyOptions {
   std::string directory = "reports";  // [export] directory
   ReportOptions report;
   double poll_wall_s = 1.0;  // how often the thread looks at the wall clock
+
+  // False with a message naming the field when `at` is no time of day
+  // (00:00 … 23:59), directory is empty or poll_wall_s is not positive and
+  // finite.
+  bool is_valid(std::string* why) const;
 };
 
 class NightlyExporter {
@@ -72,9 +78,13 @@ class NightlyExporter {
   using Done = std::function<void(storage::Database&, const Result<ExportOutcome>&)>;
   // `before_export` runs before each export (the daemon drains its analysis
   // queue, so a run completed just before the slot has its results stored);
-  // `done` after each (events, SSE). Both may be empty.
-  NightlyExporter(std::string db_path, const WallClock& clock, NightlyOptions options,
-                  std::function<void()> before_export, Done done);
+  // `done` after each (events, SSE). Both may be empty. Error (permanent)
+  // when the options are not valid (is_valid).
+  static Result<std::unique_ptr<NightlyExporter>> create(std::string db_path,
+                                                         const WallClock& clock,
+                                                         NightlyOptions options,
+                                                         std::function<void()> before_export,
+                                                         Done done);
   ~NightlyExporter();  // stops the thread
 
   // One step, on the caller's thread: finishes nightly exports a crash left
@@ -89,6 +99,8 @@ class NightlyExporter {
   void stop();
 
  private:
+  NightlyExporter(std::string db_path, const WallClock& clock, NightlyOptions options,
+                  std::function<void()> before_export, Done done);
   Result<storage::Database*> database();
   Status finish_interrupted(storage::Database& db);
 

@@ -24,6 +24,7 @@
 #include "gyrotherm/drivers/serial_port.h"
 #include "gyrotherm/schedules/interlocks.h"
 #include "gyrotherm/schedules/schedule.h"
+#include "gyrotherm/schedules/sequencer.h"
 
 // toml++ 3's table, declared only: this header is included far more widely
 // than TOML is read, and only the raw [simulator] table below names it.
@@ -328,6 +329,12 @@ struct StationConfig {
 // The limits from [station] that schedules are checked against (min_temp_c,
 // max_temp_c, max_ramp_c_per_min).
 schedules::StationLimits station_limits(const StationConfig& config);
+
+// The sequencer's options from the config: the safe set point, the
+// interlocks and, with a [table], the at-rate gate and the table's silent
+// timeout. load_station_config() refuses a config whose options are not
+// valid (SequencerOptions::is_valid), naming the key.
+schedules::SequencerOptions sequencer_options(const StationConfig& config);
 
 // A warning for the log when the API is exposed beyond this machine with
 // open reads (bind not a loopback address, read_access "open"); nullopt
