@@ -129,6 +129,13 @@ struct DutSection {
   // Each analysed axis's direction, for the Earth-rate removal: up, down,
   // horizontal. Default "up" for the primary axis, "horizontal" for others.
   std::vector<std::pair<std::string, analysis::AxisOrientation>> orientation;
+  // heading_deg = { x = 90.0 }: per horizontal axis, the azimuth its
+  // positive direction points to, degrees clockwise from true north seen
+  // from above (on a rate table: at table position 0; the axis turns with
+  // the table). Its Earth-rate component is Ω·cos φ·cos(heading). A
+  // horizontal axis without one is taken as east–west (component 0), as
+  // before headings existed, and the config's warnings say so.
+  std::vector<std::pair<std::string, double>> heading_deg;
   std::string primary_axis;  // shown first (status, dashboard); default the last of axes
   // The axis along the rate table's spin axis (scale factor); default primary_axis.
   std::string table_axis;
@@ -150,6 +157,8 @@ const DutSection* find_dut(const std::vector<DutSection>& duts, std::string_view
 // the axis is not analysed.
 std::optional<analysis::AxisOrientation> axis_orientation(const DutSection& dut,
                                                           std::string_view axis);
+// The heading `dut` gives `axis` (DutSection::heading_deg); nullopt when none.
+std::optional<double> axis_heading_deg(const DutSection& dut, std::string_view axis);
 
 // [table]: the rate table. Absent from station.toml: the station has no
 // table (schedules that ask for a rate are refused; static steps need none).
@@ -320,6 +329,10 @@ struct StationConfig {
   ControlSection control;
   SimulatorSection simulator;
   std::optional<LabSection> lab;  // nullopt: no [lab]
+  // What loads but is probably not what the station is: "file:line: key:
+  // message", one per entry (a horizontal axis without a heading). The
+  // daemon and the simulator log them at start-up.
+  std::vector<std::string> warnings;
   // Raw [simulator], for gyrotherm-sim. Keeps source lines only in the
   // StationConfig that load_station_config() returned (toml++ copies drop them).
   OptionalTomlTable simulator_table;
