@@ -34,6 +34,10 @@ using test_util::wait_for;
 constexpr double kLatitudeDeg = 31.9;
 // Ω_E · sin φ, written out here rather than taken from the code under test.
 const double kVerticalEarthDph = 15.041067 * std::sin(kLatitudeDeg * M_PI / 180.0);
+// A horizontal axis at heading h (clockwise from north): Ω_E · cos φ · cos h.
+double horizontal_earth_dph(double heading_deg) {
+  return 15.041067 * std::cos(kLatitudeDeg * M_PI / 180.0) * std::cos(heading_deg * M_PI / 180.0);
+}
 
 // Two KVH 1750 (rad/s rate; deg delta angles) and an ASCII test set. A has
 // its own bias per axis and its own probes and case; B takes the defaults
@@ -60,6 +64,7 @@ output = "rate"
 rate_hz = 100
 axes = ["x", "y", "z"]
 orientation = { z = "up", x = "horizontal", y = "horizontal" }
+heading_deg = { x = 30.0, y = 300.0 }
 primary_axis = "z"
 probes = { top_channel = 4, side_channel = 5 }
 [[dut]]
@@ -78,6 +83,7 @@ model = "rate test set"
 protocol = "ascii"
 rate_hz = 50
 orientation = { y = "down" }
+heading_deg = { x = 180.0 }
 primary_axis = "y"
 [dut.ascii]
 delimiter = ","
@@ -117,11 +123,15 @@ bias_dph = 2.0
 bias_dph = 0.7
 )";
 
-// The expected mean of each rate axis, °/h: Earth projection + bias.
+// The expected mean of each rate axis, °/h: Earth projection + bias. B's y
+// and z are horizontal without a heading (not among its axes): east–west, 0.
 const std::map<std::string, std::map<std::string, double>> kExpectedRateDph = {
-    {"A-1", {{"x", 5.0}, {"y", -3.0}, {"z", kVerticalEarthDph + 2.0}}},
+    {"A-1",
+     {{"x", horizontal_earth_dph(30.0) + 5.0},
+      {"y", horizontal_earth_dph(300.0) - 3.0},
+      {"z", kVerticalEarthDph + 2.0}}},
     {"B-2", {{"x", kVerticalEarthDph + 1.0}, {"y", 1.25}, {"z", 1.5}}},
-    {"TS-7", {{"x", 0.7}, {"y", -kVerticalEarthDph + 0.7}}},
+    {"TS-7", {{"x", horizontal_earth_dph(180.0) + 0.7}, {"y", -kVerticalEarthDph + 0.7}}},
 };
 // Gravity per accelerometer (only the KVH carry them).
 const std::map<std::string, std::map<std::string, double>> kExpectedAccelG = {
