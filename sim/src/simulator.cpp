@@ -139,8 +139,9 @@ Result<std::unique_ptr<Simulator>> Simulator::create(const daemon::StationConfig
   std::vector<drivers::RegisterSpec> probe_registers = {config.probes.top, config.probes.side};
   for (std::size_t p = 0; p < duts.size(); ++p) {
     daemon::DutSection dut = duts[p];
-    // --rate-hz (options.gyro_format) is the first DUT's rate.
-    if (p == 0) dut.link.rate_hz = honest.gyro_format.rate_hz;
+    // --rate-hz HZ for every DUT, SERIAL=HZ for one: the rate it is served
+    // at, which its truth and the endpoints name.
+    dut.link.rate_hz = dut_rate_hz(honest, dut);
     const int position = static_cast<int>(p);
     const DutSimParams params = resolve_dut_params(honest, dut, position);
     for (std::size_t i = 0; i < 3; ++i) {
@@ -478,6 +479,8 @@ daemon::SimEndpoints Simulator::endpoints() const {
     ep.gyro_device = device_locked(0);
     for (std::size_t i = 0; i < duts_.size(); ++i) {
       ep.dut_devices.emplace_back(duts_[i]->model.dut().serial, device_locked(i));
+      ep.dut_rates_hz.emplace_back(duts_[i]->model.dut().serial,
+                                   duts_[i]->model.dut().link.rate_hz);
     }
   }
   ep.pid = static_cast<long>(::getpid());

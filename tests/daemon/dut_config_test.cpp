@@ -717,6 +717,47 @@ TEST_F(DutEndpoints, RoundTripAndApplyBySerial) {
   EXPECT_EQ(no_gyro->gyro_device, "/dev/pts/3");
 }
 
+// The rate each DUT is served at (gyrotherm-sim --rate-hz): written in its
+// dut_devices entry, read back, and given to the DUT's link.
+TEST_F(DutEndpoints, RatesRoundTripAndApplyBySerial) {
+  SimEndpoints ep{"127.0.0.1", 40123, "", 4242, "", 0};
+  ep.dut_devices = {{"17-0042", "/dev/pts/7"}, {"TS-7", "/dev/pts/8"}};
+  ep.dut_rates_hz = {{"17-0042", 250.0}, {"TS-7", 20.0}};
+  ASSERT_TRUE(write_sim_endpoints(path_, ep).ok());
+  const std::string text = testing::read_text(path_);
+  EXPECT_THAT(text, HasSubstr("{ device = '/dev/pts/8', rate_hz = 20.0, serial = 'TS-7' }"));
+  auto back = read_sim_endpoints(path_);
+  ASSERT_TRUE(back.ok()) << back.error().message;
+  EXPECT_EQ(back->dut_rates_hz, ep.dut_rates_hz);
+  auto cfg = parse(kTwoDuts);
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  ASSERT_EQ(cfg->duts[0].link.rate_hz, 1000.0);
+  apply_sim_endpoints(*cfg, *back);
+  EXPECT_EQ(cfg->duts[0].link.rate_hz, 250.0);
+  EXPECT_EQ(cfg->duts[1].link.rate_hz, 20.0);
+  EXPECT_EQ(cfg->gyro.format.rate_hz, 250.0) << "the first DUT's";
+
+  // Older simulators state none: the config's rates stay.
+  SimEndpoints old = ep;
+  old.dut_rates_hz.clear();
+  auto kept = parse(kTwoDuts);
+  ASSERT_TRUE(kept.ok());
+  apply_sim_endpoints(*kept, old);
+  EXPECT_EQ(kept->duts[0].link.rate_hz, 1000.0);
+  EXPECT_EQ(kept->duts[1].link.rate_hz, 100.0);
+
+  std::filesystem::create_directories(dir_);
+  {
+    std::ofstream out(path_);
+    out << "modbus_host = \"127.0.0.1\"\nmodbus_port = 1\n"
+           "dut_devices = [{serial = \"A\", device = \"/dev/pts/3\", rate_hz = 0.0}]\n";
+  }
+  auto bad = read_sim_endpoints(path_);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_THAT(bad.error().message,
+              HasSubstr(":3: dut_devices[0].rate_hz: 0 is out of range: must be in [0.1, 10000]"));
+}
+
 TEST_F(DutEndpoints, ADutTheSimulatorDoesNotServeIsNamed) {
   auto cfg = parse(kTwoDuts);
   ASSERT_TRUE(cfg.ok()) << cfg.error().message;

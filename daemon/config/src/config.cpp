@@ -1547,8 +1547,17 @@ Result<SimEndpoints> read_sim_endpoints(const std::string& path) {
       auto serial = e.required_string("serial");  // "" = the unnamed gyro
       auto device = e.required_string("device");
       if (device && device->empty()) e.error("device", "must not be empty");
+      // The rate the DUT is served at (absent from older simulators).
+      double rate_hz = 0;  // 0 = not stated
+      if (auto r = e.number("rate_hz")) {
+        if (*r >= 0.1 && *r <= 10000.0)
+          rate_hz = *r;
+        else
+          e.error("rate_hz", fmt::format("{} is out of range: must be in [0.1, 10000]", *r));
+      }
       e.finish();
       if (serial && device && !device->empty()) ep.dut_devices.emplace_back(*serial, *device);
+      if (serial && rate_hz > 0) ep.dut_rates_hz.emplace_back(*serial, rate_hz);
     }
   }
   if (ep.dut_devices.empty() || t.raw().contains("gyro_device")) {
@@ -1595,6 +1604,9 @@ Status write_sim_endpoints(const std::string& path, const SimEndpoints& ep) {
     toml::array list;
     for (const auto& [serial, device] : ep.dut_devices) {
       toml::table entry{{"serial", serial}, {"device", device}};
+      for (const auto& [s, hz] : ep.dut_rates_hz) {
+        if (s == serial) entry.insert("rate_hz", hz);
+      }
       entry.is_inline(true);
       list.push_back(std::move(entry));
     }
@@ -1635,8 +1647,16 @@ void apply_sim_endpoints(StationConfig& config, const SimEndpoints& ep) {
       }
     }
   }
+  // The rate each DUT is served at (gyrotherm-sim --rate-hz): what its
+  // frames come at, and for a delta-angle output what turns them into rates.
+  for (auto& dut : config.duts) {
+    for (const auto& [serial, hz] : ep.dut_rates_hz) {
+      if (serial == dut.serial) dut.link.rate_hz = hz;
+    }
+  }
   config.gyro.serial.device =
       config.duts.empty() ? ep.gyro_device : config.duts.front().link.serial.device;
+  if (!config.duts.empty()) config.gyro.format.rate_hz = config.duts.front().link.rate_hz;
   // The simulator's table, for a station that has one: ACL on loopback TCP,
   // the AERO grammar on a pty.
   if (config.table) {

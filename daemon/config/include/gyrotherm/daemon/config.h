@@ -372,7 +372,8 @@ Result<StationConfig> parse_station_config(std::string_view toml_text,
 // What gyrotherm-sim writes for the daemon (TOML):
 //   modbus_host = "127.0.0.1"; modbus_port = N; gyro_device = "/dev/pts/N"; pid = N;
 //   control_socket = "PATH" (optional); time_scale = X (station seconds per
-//   wall second the simulator runs at; absent from older simulators)
+//   wall second the simulator runs at; absent from older simulators);
+//   dut_devices = [{serial = "...", device = "...", rate_hz = HZ}, ...]
 struct SimEndpoints {
   std::string modbus_host = "127.0.0.1";
   int modbus_port = 0;
@@ -391,6 +392,11 @@ struct SimEndpoints {
   // order (gyro_device is the first's). Written as `dut_devices = [{serial =
   // "...", device = "..."}, ...]`.
   std::vector<std::pair<std::string, std::string>> dut_devices{};
+  // Each DUT's output rate as served, Hz, by serial (gyrotherm-sim
+  // --rate-hz may differ from the config's rate_hz): `rate_hz` in its
+  // dut_devices entry. Empty from older simulators. apply_sim_endpoints()
+  // gives each DUT its served rate.
+  std::vector<std::pair<std::string, double>> dut_rates_hz{};
 };
 // "" when a daemon at `daemon_time_scale` may run against the simulator
 // that wrote `ep`, else why not (the two clocks would disagree: the
@@ -399,8 +405,9 @@ std::string sim_time_scale_mismatch(const SimEndpoints& ep, double daemon_time_s
                                     const std::string& endpoints_file);
 Result<SimEndpoints> read_sim_endpoints(const std::string& path);
 Status write_sim_endpoints(const std::string& path, const SimEndpoints& endpoints);
-// Applies endpoints to the chamber, probes, table and every DUT's line (by
-// serial; a DUT the simulator does not serve is an error at start-up).
+// Applies endpoints to the chamber, probes, table and every DUT's line and
+// output rate (by serial; a DUT the simulator does not serve is an error at
+// start-up).
 void apply_sim_endpoints(StationConfig& config, const SimEndpoints& endpoints);
 // "" when the simulator that wrote `ep` serves every DUT of `config`, else
 // which it does not serve (the daemon refuses to start: its line would be
