@@ -8,6 +8,7 @@
 #include <signal.h>
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <cstring>
@@ -46,9 +47,11 @@ int run_ctl(int argc, char** argv) {
   app.add_option("--timeout", timeout_s, "seconds to wait for the reply")
       ->check(CLI::Range(0.1, 3600.0));
   app.footer("COMMAND is one of (send 'help' for the list as JSON):\n" + [] {
+    std::size_t width = 0;
+    for (const auto& h : sim::control_commands()) width = std::max(width, std::strlen(h.usage));
     std::string list;
     for (const auto& h : sim::control_commands()) {
-      list += fmt::format("  {:<24} {}\n", h.usage, h.description);
+      list += fmt::format("  {:<{}} {}\n", h.usage, width, h.description);
     }
     return list;
   }());

@@ -170,6 +170,7 @@ Result<std::unique_ptr<Simulator>> Simulator::create(const daemon::StationConfig
     (void)copy.next_frame(shell.truth(), {}, sample);
     auto d = std::make_unique<Dut>(std::move(model).value(), std::move(shell), sample.size(),
                                    pending_frames_limit(honest, dut.link.rate_hz));
+    d->probe_readings = d->shell.readings();
     d->fault_rng.seed(p == 0 ? derive_seed(honest.seed, 3) : derive_seed(honest.seed, 2000 + p));
     if (!honest.gyro_link.empty()) {
       d->link =
@@ -525,7 +526,11 @@ SimulatorStatus Simulator::status() const {
       DutSimStatus& ds = s.duts[i];
       ds.serial = d.model.dut().serial;
       ds.shell = d.shell.truth();
-      if (d.probe_top || d.probe_side) ds.probe_readings = d.shell.readings();
+      if (d.probe_top || d.probe_side) ds.probe_readings = d.probe_readings;
+      ds.has_probe_top = d.probe_top.has_value();
+      ds.has_probe_side = d.probe_side.has_value();
+      ds.probe_top_stalled = d.probe_stalled[0].load();
+      ds.probe_side_stalled = d.probe_stalled[1].load();
       ds.last_rates_dph = d.model.last().rate_dph;
       ds.frames_generated = d.frames_generated;
       ds.frames_fault_dropped = d.frames_fault_dropped;
@@ -751,6 +756,8 @@ void Simulator::advance_to(double target_s) {
     for (std::size_t i = 0; i < duts_.size(); ++i) {
       Dut& d = *duts_[i];
       d.shell.step(step_s, plant_.truth());
+      if (!d.probe_stalled[0].load()) d.probe_readings.top_c = d.shell.readings().top_c;
+      if (!d.probe_stalled[1].load()) d.probe_readings.side_c = d.shell.readings().side_c;
       const double period_s = d.model.sample_period_s();
       const bool ascii = d.model.ascii();
       while (static_cast<double>(d.next_frame) * period_s <= t_s + 1e-9) {
@@ -805,7 +812,7 @@ void Simulator::publish_registers() {
     air_c = status_.truth.air_c;
     top_c = status_.readings.top_c;
     side_c = status_.readings.side_c;
-    for (const auto& d : duts_) dut_readings.push_back(d->shell.readings());
+    for (const auto& d : duts_) dut_readings.push_back(d->probe_readings);
   }
   for (std::size_t i = 0; i < duts_.size(); ++i) {
     const Dut& d = *duts_[i];
@@ -950,6 +957,31 @@ Status Simulator::reopen_pty(std::size_t dut) {
 
 void Simulator::stall_probe(ProbeRole role, bool stalled) {
   stalled_[role == ProbeRole::kTop ? 0 : 1].store(stalled);
+}
+
+Status Simulator::stall_dut_probe(std::size_t dut, ProbeRole role, bool stalled) {
+  if (dut >= duts_.size()) {
+    return Error::Permanent(
+        fmt::format("no DUT number {} (the simulator has {})", dut + 1, duts_.size()));
+  }
+  Dut& d = *duts_[dut];
+  const bool top = role == ProbeRole::kTop;
+  const std::string& serial = d.model.dut().serial;
+  if (!(top ? d.probe_top : d.probe_side)) {
+    const auto& probes = d.model.dut().probes;
+    if (!probes) {
+      return Error::Permanent(fmt::format(
+          "DUT '{}' has no probes of its own (its [[dut]] has no probes = {{ top_channel, "
+          "side_channel }}); 'probe stall {}' without a serial stalls the station's",
+          serial, top ? "top" : "side"));
+    }
+    return Error::Permanent(fmt::format(
+        "the {} probe of DUT '{}' is channel {}, which another probe (the station's or an "
+        "earlier DUT's) serves: stall that one",
+        top ? "top" : "side", serial, top ? probes->top_channel : probes->side_channel));
+  }
+  d.probe_stalled[top ? 0 : 1].store(stalled);
+  return Status::Ok();
 }
 
 void Simulator::set_chamber_alarm(bool raised) {
