@@ -465,8 +465,12 @@ int cmd_chamber_setpoint(const std::string& config_path, double setpoint_c) {
 // Commissioning of the rate table ([table]; docs/table.md): one reading, or
 // one demand, straight to the controller.
 std::string table_endpoint(const drivers::TableConnection& c) {
-  if (c.profile == "aero") return fmt::format("aero {} ({} baud)", c.device, c.baud);
-  return fmt::format("acutrol {}:{} axis {} ({} replies)", c.host, c.port, c.axis, c.reply_header);
+  // The link as [table] transport chose it: either protocol on either.
+  const std::string link = drivers::table_transport(c) == "serial"
+                               ? fmt::format("{} ({} baud)", c.device, c.baud)
+                               : fmt::format("{}:{}", c.host, c.port);
+  if (c.profile == "aero") return fmt::format("aero {}", link);
+  return fmt::format("acutrol {} axis {} ({} replies)", link, c.axis, c.reply_header);
 }
 
 // `table reset` on a station gyrothermd runs: the daemon resets the fault

@@ -238,6 +238,10 @@ int main(int argc, char** argv) {
   }
   if (ep.table_port != 0) fmt::print("table acl {}:{}\n", ep.modbus_host, ep.table_port);
   if (!ep.table_device.empty()) fmt::print("table aero {}\n", ep.table_device);
+  if (!ep.table_acl_device.empty()) fmt::print("table acl-serial {}\n", ep.table_acl_device);
+  if (ep.table_aero_port != 0) {
+    fmt::print("table aero-tcp {}:{}\n", ep.modbus_host, ep.table_aero_port);
+  }
   if (!s.truth_file().empty()) fmt::print("truth {}\n", s.truth_file());
   if (!ep.control_socket.empty()) fmt::print("control {}\n", ep.control_socket);
   if (!ep.clock_file.empty()) fmt::print("clock {}\n", ep.clock_file);

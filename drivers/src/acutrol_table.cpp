@@ -1,40 +1,25 @@
 #include "gyrotherm/drivers/acutrol_table.h"
 
-#include <fcntl.h>
 #include <fmt/format.h>
-#include <netdb.h>
-#include <netinet/in.h>
-#include <netinet/tcp.h>
-#include <poll.h>
-#include <sys/socket.h>
-#include <unistd.h>
 
-#include <cerrno>
 #include <chrono>
 #include <cmath>
-#include <cstring>
 
-#include "table_link.h"
+#include "link_health.h"
 
 namespace gyrotherm::drivers {
-
-namespace {
-
-using Steady = std::chrono::steady_clock;
-
-int remaining_ms(Steady::time_point deadline) {
-  const auto left =
-      std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Steady::now()).count();
-  return left < 0 ? 0 : static_cast<int>(left);
-}
-
-}  // namespace
 
 AcutrolTable::AcutrolTable(TableConnection connection, std::string name, const WallClock& clock)
     : connection_(std::move(connection)),
       name_(std::move(name)),
       decoder_(acl::ReplyFraming::kAscii),
-      link_(std::make_unique<TableLink>(clock)) {
+      health_(std::make_unique<LinkHealth>(clock)) {
+  auto link = make_table_link(connection_, name_);
+  if (!link) {
+    config_error_ = link.error();
+  } else {
+    link_ = std::move(*link);
+  }
   auto framing = acl::parse_reply_framing(connection_.reply_header);
   if (!framing) {
     config_error_ = Error::Permanent(fmt::format("{}: {}", name_, framing.error().message));
@@ -46,10 +31,6 @@ AcutrolTable::AcutrolTable(TableConnection connection, std::string name, const W
     config_error_ =
         Error::Permanent(fmt::format("{}: axis {} (must be ≥ 1)", name_, connection_.axis));
   }
-  if (connection_.port < 1 || connection_.port > 65535) {
-    config_error_ =
-        Error::Permanent(fmt::format("{}: port {} is not a TCP port", name_, connection_.port));
-  }
   if (!(connection_.timeout_s > 0)) {
     config_error_ = Error::Permanent(
         fmt::format("{}: timeout_s {} (must be positive)", name_, connection_.timeout_s));
@@ -60,150 +41,84 @@ AcutrolTable::~AcutrolTable() {
   // Closing: the operator panel is not left locked out. Only on a live
   // connection (no reconnecting here); the station releases it earlier, in
   // the safe state (release_control()).
-  if (fd_ >= 0 && remote_held_ && !config_error_) (void)exchange(acl::release_remote());
-  if (fd_ >= 0) ::close(fd_);
+  if (is_open() && remote_held_ && !config_error_) (void)exchange(acl::release_remote());
+}
+
+bool AcutrolTable::is_open() const { return link_ && link_->is_open(); }
+
+AcutrolTable::Steady::time_point AcutrolTable::deadline() const {
+  return Steady::now() + std::chrono::duration_cast<Steady::duration>(
+                             std::chrono::duration<double>(connection_.timeout_s));
 }
 
 DeviceHealth AcutrolTable::health() const {
   std::lock_guard lock(mu_);
-  return link_->health();
+  return health_->health();
+}
+
+std::string AcutrolTable::where() const {
+  return fmt::format("{} ({})", name_, link_ ? link_->description() : std::string("no link"));
 }
 
 Error AcutrolTable::named(const std::string& command, const Error& e) const {
-  return Error{fmt::format("{} ({}:{}): `{}`: {}", name_, connection_.host, connection_.port,
-                           command, e.message),
-               e.transient};
+  return Error{fmt::format("{}: `{}`: {}", where(), command, e.message), e.transient};
 }
 
-void AcutrolTable::close_socket() {
-  if (fd_ >= 0) ::close(fd_);
-  fd_ = -1;
+void AcutrolTable::close_link() {
+  if (link_) link_->close();
   decoder_.reset();
   remote_on_connection_ = false;
 }
 
 void AcutrolTable::drop(const std::string& why) {
-  close_socket();
-  link_->on_link_failure(why);
-}
-
-Status AcutrolTable::open_socket() {
-  const std::string where = fmt::format("{} ({}:{})", name_, connection_.host, connection_.port);
-  addrinfo hints{};
-  hints.ai_family = AF_UNSPEC;
-  hints.ai_socktype = SOCK_STREAM;
-  addrinfo* found = nullptr;
-  const std::string port = std::to_string(connection_.port);
-  if (int rc = ::getaddrinfo(connection_.host.c_str(), port.c_str(), &hints, &found); rc != 0) {
-    return Error::Transient(fmt::format("{}: cannot resolve host: {}", where, gai_strerror(rc)));
-  }
-  std::string last = "no address";
-  const auto deadline = Steady::now() + std::chrono::duration_cast<Steady::duration>(
-                                            std::chrono::duration<double>(connection_.timeout_s));
-  for (addrinfo* a = found; a != nullptr; a = a->ai_next) {
-    int fd = ::socket(a->ai_family, a->ai_socktype | SOCK_CLOEXEC | SOCK_NONBLOCK, a->ai_protocol);
-    if (fd < 0) {
-      last = std::strerror(errno);
-      continue;
-    }
-    int rc = ::connect(fd, a->ai_addr, a->ai_addrlen);
-    if (rc != 0 && errno == EINPROGRESS) {
-      pollfd p{fd, POLLOUT, 0};
-      rc = ::poll(&p, 1, remaining_ms(deadline));
-      if (rc == 0) {
-        last = fmt::format("no connection within {:g} s", connection_.timeout_s);
-        ::close(fd);
-        continue;
-      }
-      int err = 0;
-      socklen_t len = sizeof err;
-      ::getsockopt(fd, SOL_SOCKET, SO_ERROR, &err, &len);
-      rc = err == 0 ? 0 : -1;
-      errno = err;
-    }
-    if (rc != 0) {
-      last = std::strerror(errno);
-      ::close(fd);
-      continue;
-    }
-    int one = 1;
-    ::setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
-    ::freeaddrinfo(found);
-    fd_ = fd;
-    return Status::Ok();
-  }
-  ::freeaddrinfo(found);
-  return Error::Transient(fmt::format("{}: cannot connect: {}", where, last));
+  close_link();
+  health_->on_link_failure(why);
 }
 
 Status AcutrolTable::ensure_connected(bool ignore_backoff) {
   if (config_error_) return *config_error_;
-  if (fd_ >= 0) return Status::Ok();
+  if (is_open()) return Status::Ok();
   if (!ignore_backoff) {
-    if (const double wait = link_->wait_s(); wait > 0) {
+    if (const double wait = health_->wait_s(); wait > 0) {
       return Error::Transient(
           fmt::format("{}: not connected (last error: {}); next attempt in {:.1f} s", name_,
-                      link_->health().last_error, wait));
+                      health_->health().last_error, wait));
     }
   }
-  if (auto st = open_socket(); !st) {
-    link_->on_link_failure(st.error().message);
-    return st;
+  if (auto st = link_->open(deadline()); !st) {
+    Error e{fmt::format("{}: {}", where(), st.error().message), st.error().transient};
+    // A link that cannot work (no permission, an unsupported baud rate) is
+    // no failure to back off from: every call says so at once.
+    if (e.transient) health_->on_link_failure(e.message);
+    return e;
   }
   decoder_.reset();
-  link_->on_connected();
+  health_->on_connected();
   return first_contact();
 }
 
 std::optional<std::string> AcutrolTable::send_line(const std::string& command,
                                                    Steady::time_point deadline) {
-  const std::string line = acl::command_line(command);
-  std::size_t sent = 0;
-  while (sent < line.size()) {
-    pollfd p{fd_, POLLOUT, 0};
-    const int rc = ::poll(&p, 1, remaining_ms(deadline));
-    if (rc == 0) return fmt::format("could not send within {:g} s", connection_.timeout_s);
-    if (rc < 0 && errno == EINTR) continue;
-    const ssize_t n = ::send(fd_, line.data() + sent, line.size() - sent, MSG_NOSIGNAL);
-    if (n < 0) {
-      if (errno == EAGAIN || errno == EINTR) continue;
-      return fmt::format("send failed: {}", std::strerror(errno));
-    }
-    sent += static_cast<std::size_t>(n);
+  if (auto st = link_->write_all(acl::command_line(command), deadline); !st) {
+    return st.error().message;
   }
   return std::nullopt;
 }
 
 std::optional<std::string> AcutrolTable::receive(Steady::time_point deadline, std::string& into) {
-  char buf[1024];
-  for (;;) {
-    pollfd p{fd_, POLLIN, 0};
-    const int rc = ::poll(&p, 1, remaining_ms(deadline));
-    if (rc == 0) {
-      return into.empty() ? fmt::format("no reply within {:g} s", connection_.timeout_s)
-                          : fmt::format("no complete reply within {:g} s; received {}",
-                                        connection_.timeout_s, acl::describe_bytes(into));
-    }
-    if (rc < 0) {
-      if (errno == EINTR) continue;
-      return fmt::format("poll failed: {}", std::strerror(errno));
-    }
-    const ssize_t n = ::recv(fd_, buf, sizeof buf, 0);
-    if (n == 0) return std::string("connection closed by the controller");
-    if (n < 0) {
-      if (errno == EAGAIN || errno == EINTR) continue;
-      return fmt::format("receive failed: {}", std::strerror(errno));
-    }
-    into.append(buf, static_cast<std::size_t>(n));
-    return std::nullopt;
-  }
+  const std::size_t before = into.size();
+  auto n = link_->read_some(into, deadline);
+  if (!n) return n.error().message;
+  if (*n > 0) return std::nullopt;
+  return before == 0 ? fmt::format("no reply within {:g} s", connection_.timeout_s)
+                     : fmt::format("no complete reply within {:g} s; received {}",
+                                   connection_.timeout_s, acl::describe_bytes(into));
 }
 
 Status AcutrolTable::first_contact() {
   const std::string command = acl::identify();
   const auto t0 = Steady::now();
-  const auto deadline = t0 + std::chrono::duration_cast<Steady::duration>(
-                                 std::chrono::duration<double>(connection_.timeout_s));
+  const auto deadline = this->deadline();
   auto lost = [&](const std::string& why, bool transient = true) -> Error {
     Error e = named(command, Error{why, transient});
     drop(e.message);
@@ -228,8 +143,8 @@ Status AcutrolTable::first_contact() {
       decoder_.feed(std::string_view(bytes).substr(r.consumed));
       // The handshake does not reset the backoff: a controller that answers
       // it and then drops every request is retried ever more slowly.
-      link_->on_success(std::chrono::duration<double, std::milli>(Steady::now() - t0).count(),
-                        /*reset_backoff=*/false);
+      health_->on_success(std::chrono::duration<double, std::milli>(Steady::now() - t0).count(),
+                          /*reset_backoff=*/false);
       return Status::Ok();
     }
     if (auto failed = receive(deadline, bytes)) return lost(*failed);
@@ -239,15 +154,14 @@ Status AcutrolTable::first_contact() {
 Result<acl::Reply> AcutrolTable::roundtrip(const std::string& command,
                                            bool failure_is_link_failure) {
   const auto t0 = Steady::now();
-  const auto deadline = t0 + std::chrono::duration_cast<Steady::duration>(
-                                 std::chrono::duration<double>(connection_.timeout_s));
+  const auto deadline = this->deadline();
   auto lost = [&](const std::string& why) -> Error {
     Error e = named(command, Error::Transient(why));
     if (failure_is_link_failure) {
       drop(e.message);
     } else {
-      close_socket();
-      link_->on_closed();
+      close_link();
+      health_->on_closed();
     }
     return e;
   };
@@ -259,7 +173,7 @@ Result<acl::Reply> AcutrolTable::roundtrip(const std::string& command,
     auto next = decoder_.next();
     if (!next) return lost(next.error().message);
     if (*next) {
-      link_->on_success(std::chrono::duration<double, std::milli>(Steady::now() - t0).count());
+      health_->on_success(std::chrono::duration<double, std::milli>(Steady::now() - t0).count());
       return std::move(**next);
     }
     if (auto failed = receive(deadline, bytes)) return lost(*failed);
@@ -290,7 +204,7 @@ Result<std::string> AcutrolTable::exchange(const std::string& command) {
     text = fmt::format(" ({})", t->payload);
   }
   Error e = named(command, Error::Permanent(fmt::format("error code {}{}", reply->code, text)));
-  link_->on_refusal(e.message);
+  health_->on_refusal(e.message);
   return e;
 }
 
@@ -302,7 +216,7 @@ std::string AcutrolTable::identity() const {
 Status AcutrolTable::connect() {
   std::lock_guard lock(mu_);
   if (config_error_) return *config_error_;
-  if (fd_ >= 0) return Status::Ok();
+  if (is_open()) return Status::Ok();
   return ensure_connected(/*ignore_backoff=*/true);
 }
 
@@ -362,7 +276,7 @@ Status AcutrolTable::servo_on_locked() {
   }
   if (*interlock == TableInterlock::kFault) {
     Error e = named(q, Error::Permanent("the interlock is in fault: reset faults first"));
-    link_->on_local_error(e.message);
+    health_->on_local_error(e.message);
     return e;
   }
   if (*interlock == TableInterlock::kOpen)
@@ -406,7 +320,7 @@ Status AcutrolTable::set_rate(double rate_dps) {
     Error e = named(command, Error::Permanent(fmt::format(
                                  "refused, not sent: |{:g}| °/s is beyond the rate limit {:g} °/s",
                                  rate_dps, limits->max_rate_dps)));
-    link_->on_local_error(e.message);
+    health_->on_local_error(e.message);
     return e;
   }
   if (auto st = ensure_connected(false); !st) return st;

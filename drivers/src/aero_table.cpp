@@ -6,13 +6,11 @@
 #include <cmath>
 #include <cstdio>
 
-#include "table_link.h"
+#include "link_health.h"
 
 namespace gyrotherm::drivers {
 
 namespace {
-
-using Steady = std::chrono::steady_clock;
 
 std::string command_text(const std::string& mnemonic, std::optional<double> number) {
   std::string line = aero::command_line(mnemonic, number);
@@ -27,49 +25,55 @@ AeroTable::AeroTable(TableConnection connection, TableLimits declared, std::stri
     : connection_(std::move(connection)),
       declared_(declared),
       name_(std::move(name)),
-      link_(std::make_unique<TableLink>(clock)) {}
+      health_(std::make_unique<LinkHealth>(clock)) {
+  auto link = make_table_link(connection_, name_);
+  if (!link) {
+    config_error_ = link.error();
+  } else {
+    link_ = std::move(*link);
+  }
+}
 
 AeroTable::~AeroTable() = default;
 
 DeviceHealth AeroTable::health() const {
   std::lock_guard lock(mu_);
-  return link_->health();
+  return health_->health();
+}
+
+std::string AeroTable::where() const {
+  return fmt::format("{} ({})", name_, link_ ? link_->description() : std::string("no link"));
 }
 
 Error AeroTable::named(const std::string& command, const Error& e) const {
-  return Error{fmt::format("{} ({}): `{}`: {}", name_, connection_.device, command, e.message),
-               e.transient};
+  return Error{fmt::format("{}: `{}`: {}", where(), command, e.message), e.transient};
 }
 
 void AeroTable::drop(const std::string& why) {
-  port_.reset();
+  if (link_) link_->close();
   decoder_.reset();
   pending_.reset();
-  link_->on_link_failure(why);
+  health_->on_link_failure(why);
 }
 
 Status AeroTable::ensure_open(bool ignore_backoff) {
-  if (port_) return Status::Ok();
-  if (connection_.device.empty()) {
-    return Error::Permanent(fmt::format("{}: no serial device given", name_));
-  }
+  if (config_error_) return *config_error_;
+  if (link_->is_open()) return Status::Ok();
   if (!ignore_backoff) {
-    if (const double wait = link_->wait_s(); wait > 0) {
+    if (const double wait = health_->wait_s(); wait > 0) {
       return Error::Transient(
           fmt::format("{}: not connected (last error: {}); next attempt in {:.1f} s", name_,
-                      link_->health().last_error, wait));
+                      health_->health().last_error, wait));
     }
   }
-  auto port = SerialPort::open(SerialOptions{connection_.device, connection_.baud, Parity::kNone});
-  if (!port) {
-    Error e{fmt::format("{}: {}", name_, port.error().message), port.error().transient};
-    if (e.transient) link_->on_link_failure(e.message);
+  if (auto st = link_->open(deadline()); !st) {
+    Error e{fmt::format("{}: {}", where(), st.error().message), st.error().transient};
+    if (e.transient) health_->on_link_failure(e.message);
     return e;
   }
-  port_.emplace(std::move(*port));
   decoder_.reset();
   pending_.reset();
-  link_->on_connected();
+  health_->on_connected();
   return Status::Ok();
 }
 
@@ -79,9 +83,8 @@ Status AeroTable::connect() {
 }
 
 Result<std::optional<std::string>> AeroTable::await_reply(const std::string& command) {
-  const auto deadline = Steady::now() + std::chrono::duration_cast<Steady::duration>(
-                                            std::chrono::duration<double>(connection_.timeout_s));
-  uint8_t buf[256];
+  const auto until = deadline();
+  std::string bytes;
   for (;;) {
     auto next = decoder_.next();
     if (!next) {
@@ -90,16 +93,16 @@ Result<std::optional<std::string>> AeroTable::await_reply(const std::string& com
       return e;
     }
     if (*next) return next;
-    const auto left =
-        std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Steady::now());
-    if (left.count() <= 0) return std::optional<std::string>{};
-    auto n = port_->read(buf, left);
+    if (Steady::now() >= until) return std::optional<std::string>{};
+    bytes.clear();
+    auto n = link_->read_some(bytes, until);
     if (!n) {
       Error e = named(command, n.error());
       drop(e.message);
       return e;
     }
-    decoder_.feed(std::string_view(reinterpret_cast<const char*>(buf), *n));
+    if (*n == 0) return std::optional<std::string>{};
+    decoder_.feed(bytes);
   }
 }
 
@@ -123,13 +126,11 @@ Result<std::string> AeroTable::request(const std::string& mnemonic, std::optiona
     const std::string_view late_text = aero::strip_echo(**late, earlier);
     if (aero::is_refusal(late_text)) {
       Error e = named(earlier, Error::Permanent(fmt::format("refused: \"{}\"", late_text)));
-      link_->on_refusal(e.message);
+      health_->on_refusal(e.message);
       return e;
     }
   }
-  const std::string line = aero::command_line(mnemonic, number);
-  if (auto st = port_->write(std::span(reinterpret_cast<const uint8_t*>(line.data()), line.size()));
-      !st) {
+  if (auto st = link_->write_all(aero::command_line(mnemonic, number), deadline()); !st) {
     Error e = named(command, st.error());
     drop(e.message);
     return e;
@@ -149,10 +150,10 @@ Result<std::string> AeroTable::request(const std::string& mnemonic, std::optiona
   const std::string text(aero::strip_echo(**reply, command));
   if (aero::is_refusal(text)) {
     Error e = named(command, Error::Permanent(fmt::format("refused: \"{}\"", text)));
-    link_->on_refusal(e.message);
+    health_->on_refusal(e.message);
     return e;
   }
-  link_->on_success(std::chrono::duration<double, std::milli>(Steady::now() - t0).count());
+  health_->on_success(std::chrono::duration<double, std::milli>(Steady::now() - t0).count());
   return text;
 }
 
@@ -207,13 +208,13 @@ Status AeroTable::set_rate(double rate_dps) {
     Error e = named(command, Error::Permanent(fmt::format(
                                  "refused, not sent: |{:g}| °/s is beyond the rate limit {:g} °/s",
                                  rate_dps, declared_.max_rate_dps)));
-    link_->on_local_error(e.message);
+    health_->on_local_error(e.message);
     return e;
   }
   auto whole = aero::whole_argument("JOG", rate_dps, "°/s");
   if (!whole) {
     Error e = named(command, Error::Permanent("refused, not sent: " + whole.error().message));
-    link_->on_local_error(e.message);
+    health_->on_local_error(e.message);
     return e;
   }
   auto r = request("JOG", static_cast<double>(*whole), /*late_ok=*/true);
@@ -231,7 +232,7 @@ Status AeroTable::set_position(double position_deg) {
   auto whole = aero::whole_argument("MOV", position_deg, "°");
   if (!whole) {
     Error e = named(command, Error::Permanent("refused, not sent: " + whole.error().message));
-    link_->on_local_error(e.message);
+    health_->on_local_error(e.message);
     return e;
   }
   auto r = request("MOV", static_cast<double>(*whole));
@@ -263,6 +264,11 @@ Status AeroTable::servo_off() {
 }
 
 Status AeroTable::reset_faults() { return Status::Ok(); }
+
+AeroTable::Steady::time_point AeroTable::deadline() const {
+  return Steady::now() + std::chrono::duration_cast<Steady::duration>(
+                             std::chrono::duration<double>(connection_.timeout_s));
+}
 
 Result<TableLimits> AeroTable::limits() { return declared_; }
 

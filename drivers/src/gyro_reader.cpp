@@ -147,14 +147,4 @@ void GyroReader::on_frames(std::span<const DutFrame> frames) {
   if (!batch_.empty() && sink_) sink_(batch_);
 }
 
-SerialGyro::SerialGyro(SerialOptions serial, GyroFormat format, std::unique_ptr<FrameParser> parser,
-                       const Clock& clock)
-    : reader_(std::move(serial), format, std::move(parser), clock,
-              [this](std::span<const GyroSample> samples) { sink_(samples); }) {}
-
-void SerialGyro::start(Sink sink) {
-  sink_ = std::move(sink);
-  reader_.start();
-}
-
 }  // namespace gyrotherm::drivers

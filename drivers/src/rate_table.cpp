@@ -28,4 +28,9 @@ std::string_view to_string(TableInterlock state) {
   return "fault";
 }
 
+std::string table_transport(const TableConnection& connection) {
+  if (!connection.transport.empty()) return connection.transport;
+  return connection.profile == "aero" ? "serial" : "tcp";
+}
+
 }  // namespace gyrotherm::drivers

@@ -214,8 +214,9 @@ Result<std::size_t> SerialPort::read(std::span<uint8_t> buf, std::chrono::millis
                                       (pfd.revents & POLLHUP) ? "POLLHUP" : "POLLERR"));
 }
 
-Status SerialPort::write(std::span<const uint8_t> bytes) {
+Status SerialPort::write(std::span<const uint8_t> bytes, std::chrono::milliseconds timeout) {
   if (fd_ < 0) return Error::Permanent("serial port is closed");
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
   std::size_t done = 0;
   while (done < bytes.size()) {
     const ssize_t n = ::write(fd_, bytes.data() + done, bytes.size() - done);
@@ -225,11 +226,13 @@ Status SerialPort::write(std::span<const uint8_t> bytes) {
     }
     if (n < 0 && errno == EINTR) continue;
     if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) {
+      const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+          deadline - std::chrono::steady_clock::now());
       pollfd pfd{fd_, POLLOUT, 0};
-      const int rc = ::poll(&pfd, 1, 1000);
+      const int rc = left.count() > 0 ? ::poll(&pfd, 1, static_cast<int>(left.count())) : 0;
       if (rc == 0) {
-        return Error::Transient(
-            fmt::format("serial device {}: write timed out after 1 s", device_));
+        return Error::Transient(fmt::format("serial device {}: write timed out after {:g} s",
+                                            device_, timeout.count() / 1000.0));
       }
       if (rc > 0 && !(pfd.revents & POLLOUT)) {
         return Error::Transient(fmt::format("serial device {}: hang-up while writing", device_));

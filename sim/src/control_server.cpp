@@ -298,11 +298,15 @@ nlohmann::ordered_json table_json(const TableStatus& t) {
       {"fault", s.fault},
       {"port", t.port},
       {"device", t.device},
+      {"acl_device", t.acl_device},
+      {"aero_port", t.aero_port},
       {"requests",
        {{"acl", t.acl_requests},
         {"acl_unanswered", t.acl_unanswered},
         {"acl_refused_connections", t.acl_refused_connections},
-        {"aero", t.aero_requests}}},
+        {"aero", t.aero_requests},
+        {"acl_serial", t.acl_serial_requests},
+        {"aero_tcp", t.aero_tcp_requests}}},
   };
 }
 

@@ -318,6 +318,8 @@ Status Simulator::start() {
     control_.reset();  // never served: no command can be waiting for life_mu_
     table_server_.reset();
     aero_server_.reset();
+    acl_serial_server_.reset();
+    aero_tcp_server_.reset();
     release_modbus_server();
     std::lock_guard lock(stream_mu_);
     for (auto& d : duts_) d->stream.close();
@@ -346,9 +348,24 @@ Status Simulator::start() {
     });
     if (!aero.ok()) return fail(aero.error());
     aero_server_ = std::move(aero).value();
-    table_server_->set_hung(table_hung_.load());
-    table_server_->set_disconnected(table_disconnected_.load());
-    aero_server_->set_silent(table_hung_.load() || table_disconnected_.load());
+    // Each protocol on the other transport too ([table] transport): ACL on
+    // a pty (TM-9411's RS-232 interface) and AERO over TCP (a serial device
+    // server), the same table behind both.
+    auto acl_serial = AeroServer::start([this](std::string_view line) {
+      return frame_acl_reply(table_acl(line), options_.table.reply_header);
+    });
+    if (!acl_serial.ok()) return fail(acl_serial.error());
+    acl_serial_server_ = std::move(acl_serial).value();
+    TableServer::Options aero_tcp_options;
+    aero_tcp_options.host = options_.modbus_host;
+    aero_tcp_options.handler = [this](std::string_view line) {
+      std::lock_guard lock(sim_mu_);
+      return handle_aero_line(*table_, line);
+    };
+    auto aero_tcp = TableServer::start(std::move(aero_tcp_options));
+    if (!aero_tcp.ok()) return fail(aero_tcp.error());
+    aero_tcp_server_ = std::move(aero_tcp).value();
+    apply_table_link_faults();
   }
   if (!options_.control_socket.empty()) {
     ControlServer::Options control_options;
@@ -419,6 +436,8 @@ void Simulator::stop() {
   release_modbus_server();
   table_server_.reset();  // their threads take sim_mu_ only
   aero_server_.reset();
+  acl_serial_server_.reset();
+  aero_tcp_server_.reset();
   {
     std::lock_guard lock(stream_mu_);
     for (auto& d : duts_) d->stream.close();
@@ -490,6 +509,8 @@ daemon::SimEndpoints Simulator::endpoints() const {
   if (shared_clock_) ep.clock_file = shared_clock_->path();
   if (table_server_) ep.table_port = table_server_->port();
   if (aero_server_) ep.table_device = aero_server_->device();
+  if (acl_serial_server_) ep.table_acl_device = acl_serial_server_->device();
+  if (aero_tcp_server_) ep.table_aero_port = aero_tcp_server_->port();
   return ep;
 }
 
@@ -591,6 +612,14 @@ SimulatorStatus Simulator::status() const {
     if (aero_server_) {
       t.device = aero_server_->device();
       t.aero_requests = aero_server_->requests();
+    }
+    if (acl_serial_server_) {
+      t.acl_device = acl_serial_server_->device();
+      t.acl_serial_requests = acl_serial_server_->requests();
+    }
+    if (aero_tcp_server_) {
+      t.aero_port = aero_tcp_server_->port();
+      t.aero_tcp_requests = aero_tcp_server_->stats().requests;
     }
   }
   return s;
@@ -1021,15 +1050,27 @@ void Simulator::table_fault() {
 void Simulator::table_hang(bool hung) {
   std::lock_guard life(life_mu_);
   table_hung_.store(hung);
-  if (table_server_) table_server_->set_hung(hung);
-  if (aero_server_) aero_server_->set_silent(hung || table_disconnected_.load());
+  apply_table_link_faults();
 }
 
 void Simulator::table_disconnect(bool disconnected) {
   std::lock_guard life(life_mu_);
   table_disconnected_.store(disconnected);
-  if (table_server_) table_server_->set_disconnected(disconnected);
-  if (aero_server_) aero_server_->set_silent(disconnected || table_hung_.load());
+  apply_table_link_faults();
+}
+
+void Simulator::apply_table_link_faults() {
+  const bool hung = table_hung_.load();
+  const bool disconnected = table_disconnected_.load();
+  // A TCP server can refuse its clients; a serial line can only go silent.
+  for (TableServer* tcp : {table_server_.get(), aero_tcp_server_.get()}) {
+    if (!tcp) continue;
+    tcp->set_hung(hung);
+    tcp->set_disconnected(disconnected);
+  }
+  for (AeroServer* line : {aero_server_.get(), acl_serial_server_.get()}) {
+    if (line) line->set_silent(hung || disconnected);
+  }
 }
 
 void Simulator::table_clear() {

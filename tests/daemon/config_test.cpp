@@ -16,6 +16,7 @@
 namespace gyrotherm::daemon {
 namespace {
 
+using ::testing::AllOf;
 using ::testing::HasSubstr;
 using ::testing::Not;
 
@@ -653,6 +654,86 @@ TEST(TableConfig, AeroNeedsADeviceUnlessSimulated) {
   EXPECT_TRUE(sim.ok()) << sim.error().message;
 }
 
+// [table] transport: the link under the protocol. Absent, each profile's
+// own port (acutrol: TCP, aero: serial), so configs from before the key read
+// as they did; either protocol runs on either transport.
+TEST(TableConfig, TransportDefaultsByProfileAndEitherProtocolTakesEither) {
+  const auto table = [](const std::string& body) {
+    return parse_station_config(std::string(kMinimal) + "[table]\n" + body, "t.toml");
+  };
+  auto acutrol = table("");
+  ASSERT_TRUE(acutrol.ok()) << acutrol.error().message;
+  EXPECT_EQ(acutrol->table->connection.transport, "tcp");
+  EXPECT_EQ(acutrol->table->connection.host, "192.168.53.1");
+  auto aero = table("profile = \"aero\"\ndevice = \"/dev/ttyS1\"\n");
+  ASSERT_TRUE(aero.ok()) << aero.error().message;
+  EXPECT_EQ(aero->table->connection.transport, "serial");
+
+  auto acl_serial = table("transport = \"serial\"\ndevice = \"/dev/ttyUSB3\"\nbaud = 19200\n");
+  ASSERT_TRUE(acl_serial.ok()) << acl_serial.error().message;
+  EXPECT_EQ(acl_serial->table->connection.profile, "acutrol");
+  EXPECT_EQ(acl_serial->table->connection.transport, "serial");
+  EXPECT_EQ(acl_serial->table->connection.device, "/dev/ttyUSB3");
+  EXPECT_EQ(acl_serial->table->connection.baud, 19200);
+
+  auto aero_tcp =
+      table("profile = \"aero\"\ntransport = \"tcp\"\nhost = \"10.0.0.9\"\nport = 4001\n");
+  ASSERT_TRUE(aero_tcp.ok()) << aero_tcp.error().message;
+  EXPECT_EQ(aero_tcp->table->connection.transport, "tcp");
+  EXPECT_EQ(aero_tcp->table->connection.host, "10.0.0.9");
+  EXPECT_EQ(aero_tcp->table->connection.port, 4001);
+}
+
+// What the chosen transport needs and is not given: an error naming the
+// file, the key and what is wrong (and whence the transport came).
+TEST(TableConfig, ATransportWithoutItsKeysNamesTheMissingKey) {
+  const auto errors = [](const std::string& body) {
+    auto cfg = parse_station_config(std::string(kMinimal) + "[table]\n" + body, "t.toml");
+    return cfg.ok() ? std::string("(accepted)") : cfg.error().message;
+  };
+  // [table] is line 10.
+  EXPECT_THAT(errors("transport = \"serial\"\n"),
+              HasSubstr("t.toml:10: table.device: missing: transport = \"serial\" needs the "
+                        "serial device"));
+  EXPECT_THAT(errors("profile = \"aero\"\n"),
+              HasSubstr("t.toml:10: table.device: missing: transport is \"serial\" (profile "
+                        "aero's default) needs the serial device"));
+  const std::string aero_tcp = errors("profile = \"aero\"\ntransport = \"tcp\"\n");
+  EXPECT_THAT(aero_tcp, HasSubstr("t.toml:10: table.host: missing: transport = \"tcp\" needs the "
+                                  "serial server's host (profile aero has no default address"));
+  EXPECT_THAT(aero_tcp, HasSubstr("t.toml:10: table.port: missing:"));
+  EXPECT_THAT(errors("profile = \"aero\"\ntransport = \"tcp\"\nhost = \"10.0.0.9\"\n"),
+              AllOf(HasSubstr("table.port: missing"), Not(HasSubstr("table.host"))));
+  EXPECT_THAT(errors("transport = \"usb\"\n"),
+              HasSubstr("t.toml:11: table.transport: \"usb\" is not one of: tcp, serial"));
+  // The simulator names the device or port itself.
+  EXPECT_EQ(errors("profile = \"aero\"\ntransport = \"tcp\"\n"
+                   "[simulator]\nendpoints_file = \"ep.toml\"\n"),
+            "(accepted)");
+  EXPECT_EQ(errors("transport = \"serial\"\n[simulator]\nendpoints_file = \"ep.toml\"\n"),
+            "(accepted)");
+}
+
+// A key of the other transport contradicts the one in force: refused, not
+// ignored (the station would talk to something the file does not say).
+TEST(TableConfig, AKeyOfTheOtherTransportIsAContradiction) {
+  const auto errors = [](const std::string& body) {
+    auto cfg = parse_station_config(std::string(kMinimal) + "[table]\n" + body, "t.toml");
+    return cfg.ok() ? std::string("(accepted)") : cfg.error().message;
+  };
+  EXPECT_THAT(errors("profile = \"aero\"\ndevice = \"/dev/ttyS1\"\nhost = \"10.0.0.9\"\n"),
+              HasSubstr("t.toml:13: table.host: given, but transport is \"serial\" (profile "
+                        "aero's default): host is for transport = \"tcp\""));
+  EXPECT_THAT(errors("transport = \"tcp\"\ndevice = \"/dev/ttyS1\"\n"),
+              HasSubstr("t.toml:12: table.device: given, but transport = \"tcp\": device is for "
+                        "transport = \"serial\""));
+  EXPECT_THAT(errors("baud = 19200\n"),
+              HasSubstr("t.toml:11: table.baud: given, but transport is \"tcp\" (profile "
+                        "acutrol's default): baud is for transport = \"serial\""));
+  EXPECT_THAT(errors("transport = \"serial\"\ndevice = \"/dev/ttyS1\"\nport = 9878\n"),
+              HasSubstr("t.toml:13: table.port: given, but transport = \"serial\""));
+}
+
 TEST(SimEndpoints, TableEndpointsRoundTripAndApply) {
   const auto dir =
       std::filesystem::temp_directory_path() / ("gyrotherm-ep-table-" + std::to_string(::getpid()));
@@ -684,6 +765,38 @@ TEST(SimEndpoints, TableEndpointsRoundTripAndApply) {
   ASSERT_TRUE(aero.ok());
   apply_sim_endpoints(*aero, *back);
   EXPECT_EQ(aero->table->connection.device, "/dev/pts/9");
+
+  // Each protocol on the other transport: ACL on the simulator's second
+  // pty, AERO on its own TCP port; from an older simulator that serves
+  // neither, the configured link stays.
+  EXPECT_EQ(back->table_acl_device, "");
+  ep.table_acl_device = "/dev/pts/11";
+  ep.table_aero_port = 41000;
+  ASSERT_TRUE(write_sim_endpoints(path, ep).ok());
+  auto both = read_sim_endpoints(path);
+  ASSERT_TRUE(both.ok()) << both.error().message;
+  EXPECT_EQ(both->table_acl_device, "/dev/pts/11");
+  EXPECT_EQ(both->table_aero_port, 41000);
+  auto acl_serial = parse_station_config(
+      std::string(kMinimal) + "[table]\ntransport = \"serial\"\ndevice = \"/dev/ttyS1\"\n",
+      "s.toml");
+  ASSERT_TRUE(acl_serial.ok()) << acl_serial.error().message;
+  auto acl_serial_old = *acl_serial;
+  apply_sim_endpoints(*acl_serial, *both);
+  EXPECT_EQ(acl_serial->table->connection.device, "/dev/pts/11");
+  apply_sim_endpoints(acl_serial_old, *back);
+  EXPECT_EQ(acl_serial_old.table->connection.device, "/dev/ttyS1");
+  auto aero_tcp = parse_station_config(std::string(kMinimal) +
+                                           "[table]\nprofile = \"aero\"\ntransport = \"tcp\"\n"
+                                           "host = \"10.0.0.9\"\nport = 4001\n",
+                                       "a.toml");
+  ASSERT_TRUE(aero_tcp.ok()) << aero_tcp.error().message;
+  auto aero_tcp_old = *aero_tcp;
+  apply_sim_endpoints(*aero_tcp, *both);
+  EXPECT_EQ(aero_tcp->table->connection.host, "127.0.0.1");
+  EXPECT_EQ(aero_tcp->table->connection.port, 41000);
+  apply_sim_endpoints(aero_tcp_old, *back);
+  EXPECT_EQ(aero_tcp_old.table->connection.port, 4001);
 
   // An older simulator's file without table keys still reads.
   SimEndpoints old{"127.0.0.1", 40123, "/dev/pts/7", 4242, "", 0};

@@ -3,6 +3,10 @@
 // not from our simulator: the manual's `Close`, the remote lockout taken
 // for motion and handed back, an error query the firmware does not answer,
 // each reply framing and an unknown one, whole-number JOG/MOV and an echo.
+// Then each protocol over the other transport ([table] transport): ACL on a
+// serial line (a real pty: TM-9411's RS-232 interface) and AERO through a
+// TCP serial device server (loopback TCP).
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include <chrono>
@@ -15,6 +19,7 @@
 #include "gyrotherm/drivers/acl.h"
 #include "gyrotherm/drivers/acutrol_table.h"
 #include "gyrotherm/drivers/aero_table.h"
+#include "peer_end.h"
 #include "test_time.h"
 
 namespace gyrotherm::drivers {
@@ -269,6 +274,134 @@ TEST(AeroTableWithPeer, AnEchoedCommandLineIsSkipped) {
   EXPECT_EQ(s->fault, "STA 5");
   const std::vector<std::string> expected{"JOG12", "PVE", "PPO", "STA", "PVE", "PPO", "STA"};
   EXPECT_EQ(peer.commands(), expected);
+}
+
+// ------------------------------------------------- the other transport
+
+// ACL on a serial line (transport = "serial"): the same conversation as
+// over TCP, in every framing, on a real pty; the line is one session, so
+// the lockout taken for motion is handed back on it.
+TEST(AcutrolTableWithPeer, AclOnASerialLineSpeaksAsOverTcp) {
+  const std::vector<std::pair<AclPeer::Framing, std::string>> framings{
+      {AclPeer::Framing::kAscii, "ascii"},
+      {AclPeer::Framing::kBinaryLe, "binary-le"},
+      {AclPeer::Framing::kBinaryBe, "binary-be"},
+      {AclPeer::Framing::kLine, "line"}};
+  for (const auto& [framing, name] : framings) {
+    AclPeer::Options o;
+    o.transport = testing::PeerEnd::Transport::kPty;
+    o.framing = framing;
+    AclPeer peer(o);
+    TableConnection c;
+    c.profile = "acutrol";
+    c.transport = "serial";
+    c.device = peer.device();
+    c.reply_header = name;
+    AcutrolTable table(c, "turntable");
+    ASSERT_TRUE(table.connect().ok()) << name;
+    EXPECT_EQ(table.identity(), o.idn) << name;
+    ASSERT_TRUE(table.set_rate(20).ok()) << name;
+    auto s = table.read();
+    ASSERT_TRUE(s.ok()) << name << ": " << s.error().message;
+    EXPECT_EQ(s->mode, TableMode::kRate) << name;
+    EXPECT_DOUBLE_EQ(s->rate_dps, 20.0) << name;
+    ASSERT_TRUE(table.stop().ok()) << name;
+    ASSERT_TRUE(table.servo_off().ok()) << name;
+    ASSERT_TRUE(table.release_control().ok()) << name;
+    const std::vector<std::string> expected = {
+        "*IDN?",  ":L:R? R,1", ":L:A? R,1", ":L:V? R,1", ":U:L ON", ":I? 1",  ":I:C 1", ":D:R 1,20",
+        ":M:R 1", ":M? 1",     ":I? 1",     ":R:R? 1",   ":R:P? 1", ":M:O 1", ":I:O 1", ":U:L OFF"};
+    EXPECT_EQ(peer.commands(), expected) << name << ": " << joined(peer.commands());
+    EXPECT_FALSE(peer.state().lockout) << name;
+    EXPECT_TRUE(table.health().connected) << name;
+  }
+}
+
+// The framing check of `*IDN?` holds on a serial line too, and the error
+// names the device instead of a host and port.
+TEST(AcutrolTableWithPeer, OnASerialLineAFramingOtherThanConfiguredNamesTheDevice) {
+  AclPeer::Options o;
+  o.transport = testing::PeerEnd::Transport::kPty;
+  o.framing = AclPeer::Framing::kBinaryLe;
+  AclPeer peer(o);
+  TableConnection c;
+  c.profile = "acutrol";
+  c.transport = "serial";
+  c.device = peer.device();
+  AcutrolTable table(c, "turntable");
+  const Status st = table.connect();
+  ASSERT_FALSE(st.ok());
+  const std::string& m = st.error().message;
+  EXPECT_FALSE(st.error().transient) << m;
+  EXPECT_EQ(m.rfind(fmt::format("turntable ({}): `*IDN?`: ", peer.device()), 0), 0u) << m;
+  EXPECT_NE(m.find("frames its replies binary-le, not ascii"), std::string::npos) << m;
+  EXPECT_EQ(peer.commands(), std::vector<std::string>{"*IDN?"}) << "nothing sent after it";
+}
+
+TableConnection aero_over_tcp(const AeroPeer& peer, double timeout_s = 1.0) {
+  TableConnection c;
+  c.profile = "aero";
+  c.transport = "tcp";
+  c.host = "127.0.0.1";
+  c.port = peer.port();
+  c.timeout_s = timeout_s;
+  return c;
+}
+
+// AERO through a serial device server (transport = "tcp"): commands,
+// readings, and a JOG answer that comes late (taken before the next
+// command), as on the serial line; errors name host and port.
+TEST(AeroTableWithPeer, AeroThroughATcpSerialServer) {
+  AeroPeer::Options o;
+  o.transport = testing::PeerEnd::Transport::kTcp;
+  o.answer_motion_at_once = false;
+  AeroPeer peer(o);
+  AeroTable table(aero_over_tcp(peer, 0.2), TableLimits{300.0, 100.0, std::nullopt}, "aero table");
+  ASSERT_TRUE(table.connect().ok());
+  ASSERT_TRUE(table.set_rate(-100).ok());  // answer held back
+  ASSERT_TRUE(testing::wait_for_condition([&] { return peer.answer_held() == 1; }, 2000ms));
+  auto s = table.read();
+  ASSERT_TRUE(s.ok()) << s.error().message;
+  EXPECT_DOUBLE_EQ(s->rate_dps, -100.0);
+  EXPECT_EQ(s->mode, TableMode::kRate);
+  ASSERT_TRUE(table.set_position(90).ok());
+  EXPECT_EQ(peer.state().position_deg, 90.0);
+  const std::vector<std::string> expected{"JOG-100", "PVE", "PPO", "STA", "MOV90"};
+  EXPECT_EQ(peer.commands(), expected) << joined(peer.commands());
+  EXPECT_EQ(peer.connections(), 1);
+
+  const Status st = table.set_rate(7.5);
+  ASSERT_FALSE(st.ok());
+  EXPECT_EQ(st.error().message.rfind(
+                fmt::format("aero table (127.0.0.1:{}): `JOG7.5`: ", peer.port()), 0),
+            0u)
+      << st.error().message;
+}
+
+// The server dropping the session is a link failure like a hang-up of the
+// serial line: transient, the backoff runs, then a new connection.
+TEST(AeroTableWithPeer, ADroppedTcpSessionReconnectsAfterTheBackoff) {
+  AeroPeer::Options o;
+  o.transport = testing::PeerEnd::Transport::kTcp;
+  AeroPeer peer(o);
+  ManualWallClock clock(0);
+  AeroTable table(aero_over_tcp(peer), TableLimits{300.0, 100.0, std::nullopt}, "aero table",
+                  clock);
+  ASSERT_TRUE(table.read().ok());
+  peer.hang_up();
+  auto r = table.read();
+  ASSERT_FALSE(r.ok());
+  EXPECT_TRUE(r.error().transient) << r.error().message;
+  EXPECT_FALSE(table.health().connected);
+  r = table.read();  // within the backoff: not even tried
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("next attempt"), std::string::npos) << r.error().message;
+  EXPECT_EQ(peer.connections(), 1);
+  clock.advance(0.6);
+  r = table.read();
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_EQ(peer.connections(), 2);
+  EXPECT_EQ(table.health().reconnects, 1u);
 }
 
 }  // namespace

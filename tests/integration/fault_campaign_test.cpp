@@ -57,10 +57,16 @@ std::string replace_once(std::string text, const std::string& from, const std::s
 
 // PRAGMA integrity_check's answer ("ok" when the file is sound).
 // The file itself (plain SQLite, whatever its schema version: a kill
-// between two migrations at start-up leaves an older one).
+// between two migrations at start-up leaves an older one). Opened
+// read-write, as the next daemon opens it: a kill in the middle of a write
+// (at start-up, a hot rollback journal before the switch to WAL; later, a
+// write-ahead log index left half written) leaves what only a writer may
+// recover, and a read-only connection gets "attempt to write a readonly
+// database" (SQLITE_READONLY_ROLLBACK / _RECOVERY). The daemon is dead, so
+// nothing else writes.
 std::string integrity_check(const std::filesystem::path& db_path) {
   sqlite3* raw = nullptr;
-  if (sqlite3_open_v2(db_path.c_str(), &raw, SQLITE_OPEN_READONLY, nullptr) != SQLITE_OK) {
+  if (sqlite3_open_v2(db_path.c_str(), &raw, SQLITE_OPEN_READWRITE, nullptr) != SQLITE_OK) {
     const std::string why = raw ? sqlite3_errmsg(raw) : "out of memory";
     sqlite3_close(raw);
     return "cannot open: " + why;

@@ -1,5 +1,7 @@
 // The rate table end to end: the drivers against the simulator's table over
-// real TCP (ACL, each reply framing) and a real pty (AERO); a scale-factor
+// real TCP (ACL, each reply framing) and a real pty (AERO), and each
+// protocol on the other transport (ACL on a pty, AERO over TCP: the daemon
+// and `gyrotherm table` too); a scale-factor
 // campaign at two temperatures through gyrothermd and gyrotherm-sim that
 // recovers the simulator's scale-factor truth; an abort and a table fault
 // while the table spins (the station resets the fault, the run waits for
@@ -325,6 +327,78 @@ TEST_F(TurntableTest, AeroDriverAgainstTheSimulatorsPty) {
       << s.rate_dps;
 }
 
+// Each protocol on the other transport ([table] transport): ACL on the
+// simulator's serial line (a real pty) and AERO through its TCP port, the
+// drivers built by make_rate_table from the connection as the daemon's.
+// Over the serial line a hang drops the link and the driver reopens it
+// after the backoff: the reopened line starts clean (docs/table.md,
+// "Transport").
+TEST_F(TurntableTest, EachProtocolOnTheOtherTransportAgainstTheSimulator) {
+  ASSERT_NO_FATAL_FAILURE(start_sim_in_process());
+  const auto ep = in_process_sim_->endpoints();
+  ASSERT_FALSE(ep.table_acl_device.empty());
+  ASSERT_GT(ep.table_aero_port, 0);
+  drivers::TableConnection acl;
+  acl.profile = "acutrol";
+  acl.transport = "serial";
+  acl.device = ep.table_acl_device;
+  acl.timeout_s = 0.5;
+  drivers::TableConnection aero;
+  aero.profile = "aero";
+  aero.transport = "tcp";
+  aero.host = "127.0.0.1";
+  aero.port = ep.table_aero_port;
+  aero.timeout_s = 2.0;
+  for (const drivers::TableConnection& c : {acl, aero}) {
+    SCOPED_TRACE(c.profile + " over " + c.transport);
+    auto made = drivers::make_rate_table(c, {500, 1000, std::nullopt});
+    ASSERT_TRUE(made.ok()) << made.error().message;
+    drivers::RateTable& table = **made;
+    ASSERT_TRUE(table.connect().ok());
+    ASSERT_TRUE(table.set_rate(50.0).ok());
+    drivers::TableState s;
+    ASSERT_TRUE(wait_until(
+        [&] {
+          auto r = table.read();
+          if (r.ok()) s = *r;
+          return r.ok() && std::abs(s.rate_dps - 50.0) < 0.1;
+        },
+        10s))
+        << s.rate_dps << " " << s.fault;
+    EXPECT_EQ(s.mode, drivers::TableMode::kRate);
+    ASSERT_TRUE(table.stop().ok());
+    ASSERT_TRUE(wait_until(
+        [&] {
+          auto r = table.read();
+          if (r.ok()) s = *r;
+          return r.ok() && std::abs(s.rate_dps) < 0.01;
+        },
+        10s))
+        << s.rate_dps;
+  }
+  const sim::TableStatus t = in_process_sim_->status().table;
+  EXPECT_GT(t.acl_serial_requests, 0u);
+  EXPECT_GT(t.aero_tcp_requests, 0u);
+  EXPECT_EQ(t.acl_requests, 0u) << "ACL went over TCP";
+  EXPECT_EQ(t.aero_requests, 0u) << "AERO went over the pty";
+
+  // ACL on the serial line: a hang is a link failure, then a reopening.
+  auto made = drivers::make_rate_table(acl, {500, 1000, std::nullopt});
+  ASSERT_TRUE(made.ok()) << made.error().message;
+  drivers::RateTable& table = **made;
+  ASSERT_TRUE(table.read().ok());
+  in_process_sim_->table_hang(true);
+  auto r = table.read();
+  ASSERT_FALSE(r.ok());
+  EXPECT_TRUE(r.error().transient);
+  EXPECT_THAT(r.error().message,
+              ::testing::HasSubstr(fmt::format("table ({}): ", ep.table_acl_device)));
+  EXPECT_THAT(r.error().message, ::testing::HasSubstr("no reply within 0.5 s"));
+  in_process_sim_->table_hang(false);
+  ASSERT_TRUE(wait_until([&] { return table.read().ok(); }, 10s)) << table.health().last_error;
+  EXPECT_GE(table.health().reconnects, 1u);
+}
+
 // Commissioning: `gyrotherm table` against the simulated controller, with
 // the station's [table] limits.
 TEST_F(TurntableTest, TheTableCommandSpinsStopsAndRefusesBeyondTheLimits) {
@@ -379,6 +453,82 @@ TEST_F(TurntableTest, TheTableCommandSpinsStopsAndRefusesBeyondTheLimits) {
   ASSERT_TRUE(status.is_object()) << r.out;
   EXPECT_EQ(status["action"], "reset");
   EXPECT_EQ(status["interlock"], "open") << r.out;
+}
+
+// `gyrotherm table` with AERO through a TCP serial server (the simulator's
+// AERO port: [table] transport = "tcp", host and port from its endpoints).
+TEST_F(TurntableTest, TheTableCommandReachesAnAeroTableThroughATcpSerialServer) {
+  write(dir_ / "station.toml", testing::station_config(dir_, api_port_) + R"(
+[table]
+profile = "aero"
+transport = "tcp"
+max_rate_dps = 500
+max_accel_dps2 = 1000
+)");
+  start_sim();
+  const std::string cfg = (dir_ / "station.toml").string();
+  auto cli = [&](std::vector<std::string> args) {
+    std::string cmd = bin("gyrotherm");
+    for (const auto& a : args) cmd += " '" + a + "'";
+    cmd += " >" + (dir_ / "cli.out").string() + " 2>&1";
+    const int st = std::system(cmd.c_str());
+    return std::pair(WIFEXITED(st) ? WEXITSTATUS(st) : -1, testing::read_text(dir_ / "cli.out"));
+  };
+  auto [code, out] = cli({"table", "rate", "20", "--config", cfg});
+  ASSERT_EQ(code, 0) << out;
+  json status;
+  ASSERT_TRUE(wait_until(
+      [&] {
+        std::tie(code, out) = cli({"table", "status", "--config", cfg, "--json"});
+        status = json::parse(out, nullptr, false);
+        return code == 0 && status.is_object() && status["rate_dps"].is_number() &&
+               std::abs(status["rate_dps"].get<double>() - 20.0) < 0.1;
+      },
+      20s))
+      << out;
+  EXPECT_THAT(status["device"].get<std::string>(), ::testing::StartsWith("aero 127.0.0.1:")) << out;
+  std::tie(code, out) = cli({"table", "stop", "--config", cfg});
+  ASSERT_EQ(code, 0) << out;
+  const json sim = sim_status();
+  ASSERT_TRUE(sim.is_object());
+  EXPECT_GT(sim["table"]["requests"]["aero_tcp"].get<int>(), 0) << sim.dump();
+  EXPECT_EQ(sim["table"]["requests"]["aero"].get<int>(), 0) << sim.dump();
+}
+
+// gyrothermd driving an ACL table on a serial line ([table] transport =
+// "serial", the device from the simulator's endpoints): it spins up for the
+// step and comes to rest, servo off, on an abort; no request goes over TCP.
+TEST_F(TurntableTest, TheDaemonDrivesAnAclTableOnASerialLine) {
+  write(dir_ / "station.toml", testing::station_config(dir_, api_port_) + R"(
+[table]
+profile = "acutrol"
+transport = "serial"
+max_rate_dps = 500
+max_accel_dps2 = 1000
+[simulator.table]
+max_rate_dps = 1000
+max_accel_dps2 = 1000
+)");
+  write(dir_ / "schedule.toml", kSpin);
+  start_sim();
+  start_daemon();
+  ASSERT_TRUE(wait_json(
+      "/api/v1/status", [](const json& s) { return spinning_at(s, 100.0); }, 120s))
+      << diag();
+  auto r = call("POST", "/api/v1/control/abort", R"({"reason":"serial line checked"})");
+  ASSERT_TRUE(r && r->status == 200) << (r ? r->body : "");
+  ASSERT_TRUE(wait_json(
+      "/api/v1/status",
+      [](const json& s) {
+        return s["state"] == "idle" && s["table"]["interlock"] == "open" &&
+               std::abs(s["table"]["rate_dps"].get<double>()) < 0.01;
+      },
+      60s))
+      << diag();
+  const json sim = sim_status();
+  ASSERT_TRUE(sim.is_object());
+  EXPECT_GT(sim["table"]["requests"]["acl_serial"].get<int>(), 0) << sim.dump();
+  EXPECT_EQ(sim["table"]["requests"]["acl"].get<int>(), 0) << sim.dump();
 }
 
 // `gyrotherm table reset` on a station the daemon runs goes through the

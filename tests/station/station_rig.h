@@ -218,32 +218,41 @@ class FakeProbes final : public drivers::ShellProbes {
 };
 
 // Sends samples when the test says so (emit_until), on the test's thread.
-class FakeGyro final : public drivers::GyroSource {
+// The station's one DUT: a gyro whose channels are its rate (on `axis`, the
+// config's primary axis), status and internal temperature, in that raw[]
+// order.
+class FakeGyro final : public drivers::DutSource {
  public:
-  FakeGyro(std::shared_ptr<FakePlant> plant, double rate_hz)
-      : plant_(std::move(plant)), rate_hz_(rate_hz) {}
+  FakeGyro(std::shared_ptr<FakePlant> plant, double rate_hz, const std::string& axis = "z")
+      : plant_(std::move(plant)), rate_hz_(rate_hz) {
+    channels_ = {{"rate", "deg/h", ChannelKind::kRate, axis.empty() ? "z" : axis, 1.0},
+                 {"status", "", ChannelKind::kStatus, "", 1.0},
+                 {"temp_c", "degC", ChannelKind::kTemperature, "", 1.0}};
+  }
+  const std::vector<ChannelSpec>& channels() const override { return channels_; }
   void start(Sink sink) override { sink_ = std::move(sink); }
   void stop() override { sink_ = nullptr; }
   drivers::GyroReaderHealth health() const override { return {}; }
 
-  // Samples from the last one sent up to `t_s` (station seconds), unless
+  // Frames from the last one sent up to `t_s` (station seconds), unless
   // muted: then they are lost (the stream resumes at `t_s`).
   void emit_until(double t_s) {
     if (k_ < 0) {
       t0_s_ = t_s;
       k_ = 0;
     }
-    std::vector<GyroSample> batch;
+    std::vector<DutFrame> batch;
     const double shell_c = plant_->state().shell_c;
-    // Times as t0 + k / rate: no rounding accumulates, so the last sample of
+    // Times as t0 + k / rate: no rounding accumulates, so the last frame of
     // a tick lands exactly on the clock.
     for (; t0_s_ + static_cast<double>(k_) / rate_hz_ <= t_s; ++k_) {
-      GyroSample g;
-      g.t_s = t0_s_ + static_cast<double>(k_) / rate_hz_;
-      g.rate_dph = bias_dph + drift_dph_per_c * (shell_c - 23.0);
-      g.seq = static_cast<uint8_t>(seq_++ & 0x7f);
-      g.temp_c = static_cast<int16_t>(std::lround(shell_c));
-      batch.push_back(g);
+      DutFrame f;
+      f.t_s = t0_s_ + static_cast<double>(k_) / rate_hz_;
+      f.seq = static_cast<uint8_t>(seq_++ & 0x7f);
+      f.raw[0] = bias_dph + drift_dph_per_c * (shell_c - 23.0);
+      f.raw[1] = 0;
+      f.raw[2] = static_cast<double>(std::lround(shell_c));
+      batch.push_back(f);
     }
     if (muted) return;
     if (sink_ && !batch.empty()) sink_(batch);
@@ -256,6 +265,7 @@ class FakeGyro final : public drivers::GyroSource {
  private:
   std::shared_ptr<FakePlant> plant_;
   double rate_hz_;
+  std::vector<ChannelSpec> channels_;
   double t0_s_ = 0;
   int64_t k_ = -1;
   int seq_ = 0;
@@ -395,9 +405,10 @@ class StationRig {
     if (dut_plant) {
       devices.dut_probes.push_back(std::make_unique<FakeProbes>(dut_plant));
     }
-    auto gyro = std::make_unique<FakeGyro>(plant, cfg->gyro.format.rate_hz);
+    auto gyro =
+        std::make_unique<FakeGyro>(plant, cfg->gyro.format.rate_hz, cfg->duts.front().primary_axis);
     gyro_ = gyro.get();
-    devices.gyro = std::move(gyro);
+    devices.duts.push_back(std::move(gyro));
     if (cfg->table && make_table) {
       devices.table = make_table();
     } else if (cfg->table) {

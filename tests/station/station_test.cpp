@@ -640,6 +640,50 @@ acquire_min = 2
   EXPECT_EQ(cp.value("step_index", -1), 1) << run->resume_json;
 }
 
+// A run's end is written after its last step's end, in the same
+// transaction: a reader that sees the run completed (the turntable crash
+// test read /runs/1 so, on a loaded machine) never finds a step still
+// running. A trigger notes, at the moment the run's state becomes terminal,
+// how many of its segments are still "running".
+TEST_F(StationUnitTest, ARunsEndIsWrittenAfterItsLastStepsEnd) {
+  StationRig rig(dir_);
+  rig.open();
+  sqlite3* raw = nullptr;
+  ASSERT_EQ(sqlite3_open(rig.db_path().c_str(), &raw), SQLITE_OK);
+  sqlite3_busy_timeout(raw, 5000);
+  const auto exec = [&](const char* sql) {
+    char* err = nullptr;
+    const int rc = sqlite3_exec(raw, sql, nullptr, nullptr, &err);
+    EXPECT_EQ(rc, SQLITE_OK) << (err ? err : "");
+    sqlite3_free(err);
+  };
+  exec("CREATE TABLE test_run_ends(run_id INTEGER, state TEXT, running_segments INTEGER)");
+  exec(
+      "CREATE TRIGGER test_run_end AFTER UPDATE OF state ON runs "
+      "WHEN NEW.state IN ('completed', 'aborted', 'failed', 'interrupted') "
+      "BEGIN INSERT INTO test_run_ends SELECT NEW.id, NEW.state, "
+      "(SELECT count(*) FROM segments WHERE run_id = NEW.id AND state = 'running'); END");
+  rig.queue(kSoakRampSoak);
+  ASSERT_TRUE(rig.step_until([&] { return rig.station->status().run_id.has_value(); }, 5));
+  const int64_t run_id = *rig.station->status().run_id;
+  ASSERT_TRUE(rig.step_until([&] { return rig.station->idle() && !rig.station->status().run_id; },
+                             4 * 3600));
+  sqlite3_stmt* st = nullptr;
+  ASSERT_EQ(sqlite3_prepare_v2(raw, "SELECT run_id, state, running_segments FROM test_run_ends", -1,
+                               &st, nullptr),
+            SQLITE_OK);
+  int ends = 0;
+  while (sqlite3_step(st) == SQLITE_ROW) {
+    ++ends;
+    EXPECT_EQ(sqlite3_column_int64(st, 0), run_id);
+    EXPECT_STREQ(reinterpret_cast<const char*>(sqlite3_column_text(st, 1)), "completed");
+    EXPECT_EQ(sqlite3_column_int(st, 2), 0) << "the run was written completed with a step running";
+  }
+  sqlite3_finalize(st);
+  sqlite3_close(raw);
+  EXPECT_EQ(ends, 1);
+}
+
 TEST_F(StationUnitTest, ACheckpointOlderThanItsStepsEndDoesNotRunTheStepAgain) {
   constexpr const char* kTwoSoaks = R"(
 name = "two soaks"

@@ -227,7 +227,7 @@ TEST_F(StationStorageTest, DamagedDatabaseIsRefusedAtStart) {
   daemon::StationDevices devices;
   devices.chamber = std::make_unique<FakeChamber>(plant);
   devices.probes = std::make_unique<FakeProbes>(plant);
-  devices.gyro = std::make_unique<FakeGyro>(plant, 10.0);
+  devices.duts.push_back(std::make_unique<FakeGyro>(plant, 10.0));
   ManualClock clock{1000.0, 1.0};
   ManualWallClock wall{1.8e9};
   auto station = daemon::Station::create(*cfg, std::move(devices), {clock, wall}, {});

@@ -1,15 +1,9 @@
 #include "acl_peer.h"
 
-#include <netinet/in.h>
-#include <poll.h>
-#include <sys/socket.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <cctype>
 #include <charconv>
 #include <cstdio>
-#include <stdexcept>
 
 namespace gyrotherm::testing {
 namespace {
@@ -69,26 +63,14 @@ std::string format(double v) {
 
 AclPeer::AclPeer() : AclPeer(Options{}) {}
 
-AclPeer::AclPeer(Options options) : options_(std::move(options)) {
-  listen_fd_ = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
-  sockaddr_in a{};
-  a.sin_family = AF_INET;
-  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  a.sin_port = 0;
-  if (listen_fd_ < 0 || ::bind(listen_fd_, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0 ||
-      ::listen(listen_fd_, 4) != 0) {
-    throw std::runtime_error("AclPeer: cannot listen on 127.0.0.1");
-  }
-  socklen_t len = sizeof a;
-  ::getsockname(listen_fd_, reinterpret_cast<sockaddr*>(&a), &len);
-  port_ = ntohs(a.sin_port);
+AclPeer::AclPeer(Options options)
+    : options_(std::move(options)), end_(std::make_unique<PeerEnd>(options_.transport)) {
   thread_ = std::thread([this] { run(); });
 }
 
 AclPeer::~AclPeer() {
   stop_ = true;
   thread_.join();
-  ::close(listen_fd_);
 }
 
 std::vector<AclPeer::Entry> AclPeer::log() const {
@@ -131,41 +113,19 @@ void AclPeer::refuse(std::string prefix, uint32_t code, std::string text) {
 }
 
 void AclPeer::run() {
-  int client = -1;
   std::string buf;
   while (!stop_) {
-    pollfd fds[2] = {{listen_fd_, POLLIN, 0}, {client, POLLIN, 0}};
-    if (::poll(fds, client >= 0 ? 2 : 1, 10) <= 0) continue;
-    if (fds[0].revents & POLLIN) {
-      const int fd = ::accept4(listen_fd_, nullptr, nullptr, SOCK_CLOEXEC);
-      if (fd >= 0) {
-        if (client >= 0) ::close(client);
-        client = fd;
-        buf.clear();
-        ++connections_;
-      }
-      continue;
-    }
-    if (client < 0 || !(fds[1].revents & (POLLIN | POLLHUP | POLLERR))) continue;
-    char tmp[512];
-    const ssize_t n = ::recv(client, tmp, sizeof tmp, 0);
-    if (n <= 0) {
-      ::close(client);
-      client = -1;
-      continue;
-    }
-    buf.append(tmp, static_cast<std::size_t>(n));
+    PeerEnd::Received in = end_->receive(10);
+    if (in.new_connection) buf.clear();
+    buf += in.bytes;
     // TM-8004 §2.4: a message ends at LF (CR LF accepted).
     for (auto lf = buf.find('\n'); lf != std::string::npos; lf = buf.find('\n')) {
       std::string line = buf.substr(0, lf);
       buf.erase(0, lf + 1);
       if (!line.empty() && line.back() == '\r') line.pop_back();
-      if (auto out = answer_line(line, connections_.load())) {
-        ::send(client, out->data(), out->size(), MSG_NOSIGNAL);
-      }
+      if (auto out = answer_line(line, end_->connections())) end_->send(*out);
     }
   }
-  if (client >= 0) ::close(client);
 }
 
 std::string AclPeer::frame(uint32_t code, const std::string& payload) const {

@@ -6,7 +6,9 @@
 // `:U:L {ON|OFF}` §4.14.2), TM-9384C (TCP port) and TM-9389 (release
 // notes: commands without data answer CR/LF). It listens on 127.0.0.1, port
 // chosen by the system, one client at a time (a new connection replaces the
-// old one), and logs every command it receives, in order.
+// old one), or with Options::transport kPty answers on a pseudo-terminal
+// (TM-9411: ACL on RS-232; peer_end.h), and logs every command it receives,
+// in order.
 //
 // What the manuals leave open is a knob (Options): the reply framing, the
 // word for a closed interlock, the mode words, what a command without data
@@ -22,12 +24,15 @@
 #include <chrono>
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <mutex>
 #include <optional>
 #include <string>
 #include <string_view>
 #include <thread>
 #include <vector>
+
+#include "peer_end.h"
 
 namespace gyrotherm::testing {
 
@@ -48,6 +53,8 @@ class AclPeer {
   enum class Mode { kOff, kRate, kPosition };
 
   struct Options {
+    // kTcp: port(); kPty: device(), a serial line.
+    PeerEnd::Transport transport = PeerEnd::Transport::kTcp;
     Framing framing = Framing::kAscii;
     // How `:I? a` says closed: "Close" (TM-8004 §4.5.3) or "Closed".
     std::string closed_word = "Close";
@@ -94,8 +101,10 @@ class AclPeer {
   AclPeer(const AclPeer&) = delete;
   AclPeer& operator=(const AclPeer&) = delete;
 
-  int port() const { return port_; }
-  int connections() const { return connections_.load(); }
+  int port() const { return end_->port(); }              // kTcp
+  std::string device() const { return end_->device(); }  // kPty
+  // TCP connections accepted so far (a pty: 1).
+  int connections() const { return end_->connections(); }
 
   // Every command received so far, in order.
   std::vector<Entry> log() const;
@@ -128,9 +137,7 @@ class AclPeer {
   std::string frame(uint32_t code, const std::string& payload) const;
 
   Options options_;
-  int listen_fd_ = -1;
-  int port_ = 0;
-  std::atomic<int> connections_{0};
+  std::unique_ptr<PeerEnd> end_;
   std::atomic<bool> stop_{false};
   mutable std::mutex mu_;  // below
   State state_;

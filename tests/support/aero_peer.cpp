@@ -1,13 +1,9 @@
 #include "aero_peer.h"
 
-#include <poll.h>
-#include <unistd.h>
-
 #include <cctype>
 #include <charconv>
 #include <cmath>
 #include <cstdio>
-#include <stdexcept>
 
 namespace gyrotherm::testing {
 namespace {
@@ -22,10 +18,8 @@ std::string format(double v) {
 
 AeroPeer::AeroPeer() : AeroPeer(Options{}) {}
 
-AeroPeer::AeroPeer(Options options) : options_(options) {
-  auto pty = drivers::Pty::open(/*nonblocking_master=*/true);
-  if (!pty.ok()) throw std::runtime_error("AeroPeer: " + pty.error().message);
-  pty_.emplace(std::move(pty).value());
+AeroPeer::AeroPeer(Options options)
+    : options_(options), end_(std::make_unique<PeerEnd>(options_.transport)) {
   state_.rate_dps = 0;
   thread_ = std::thread([this] { run(); });
 }
@@ -66,20 +60,14 @@ int AeroPeer::answer_held() {
   return static_cast<int>(held.size());
 }
 
-void AeroPeer::send(const std::string& bytes) {
-  std::lock_guard lock(write_mu_);
-  (void)pty_->write_master(std::span(reinterpret_cast<const uint8_t*>(bytes.data()), bytes.size()));
-}
+void AeroPeer::send(const std::string& bytes) { end_->send(bytes); }
 
 void AeroPeer::run() {
   std::string buf;
   while (!stop_) {
-    pollfd p{pty_->master_fd(), POLLIN, 0};
-    if (::poll(&p, 1, 10) <= 0) continue;
-    char tmp[256];
-    const ssize_t n = ::read(pty_->master_fd(), tmp, sizeof tmp);
-    if (n <= 0) continue;
-    buf.append(tmp, static_cast<std::size_t>(n));
+    PeerEnd::Received in = end_->receive(10);
+    if (in.new_connection) buf.clear();
+    buf += in.bytes;
     // A command ends at CR (RateSweepGUI.py sends CR LF); the LF is skipped.
     for (auto end = buf.find_first_of("\r\n"); end != std::string::npos;
          end = buf.find_first_of("\r\n")) {

@@ -1,6 +1,8 @@
 // AeroPeer: an Ideal Aerosmith AERO-series rate table controller for
 // tests, on a real pseudo-terminal (drivers::Pty: the master side is the
-// controller, device() the serial line a driver opens). No manual of the
+// controller, device() the serial line a driver opens), or with
+// Options::transport kTcp behind a serial device server on 127.0.0.1
+// (port(); peer_end.h). No manual of the
 // family is public; the peer follows the one public driver,
 // actigraph/RateTableSweepGUI (`RateSweepGUI.py`, class
 // IdealAerosmithTable), not our simulator (sim/): a command is a
@@ -21,13 +23,14 @@
 
 #include <atomic>
 #include <chrono>
+#include <memory>
 #include <mutex>
 #include <optional>
 #include <string>
 #include <thread>
 #include <vector>
 
-#include "gyrotherm/drivers/pty.h"
+#include "peer_end.h"
 
 namespace gyrotherm::testing {
 
@@ -39,6 +42,8 @@ class AeroPeer {
     kRefuse,    // JOG7.5 is answered `?`
   };
   struct Options {
+    // kPty: device(), the serial line; kTcp: port(), a serial device server.
+    PeerEnd::Transport transport = PeerEnd::Transport::kPty;
     Decimals decimals = Decimals::kTruncate;
     bool echo = false;  // each command line comes back before its answer
     // False: JOG and STO answers are held until answer_held() (RateSweepGUI.py
@@ -61,7 +66,12 @@ class AeroPeer {
   AeroPeer(const AeroPeer&) = delete;
   AeroPeer& operator=(const AeroPeer&) = delete;
 
-  std::string device() const { return pty_->slave_path(); }
+  std::string device() const { return end_->device(); }  // kPty
+  int port() const { return end_->port(); }              // kTcp
+  int connections() const { return end_->connections(); }
+  // kTcp: ends the client's connection, as a device server whose session
+  // dropped.
+  void hang_up() { end_->hang_up(); }
   std::vector<Entry> log() const;
   std::vector<std::string> commands() const;
   State state() const;
@@ -75,13 +85,12 @@ class AeroPeer {
   void send(const std::string& bytes);
 
   Options options_;
-  std::optional<drivers::Pty> pty_;
+  std::unique_ptr<PeerEnd> end_;
   std::atomic<bool> stop_{false};
   mutable std::mutex mu_;  // below
   State state_;
   std::vector<Entry> log_;
   std::vector<std::string> held_;
-  std::mutex write_mu_;
   std::thread thread_;
 };
 

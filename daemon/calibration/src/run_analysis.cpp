@@ -270,6 +270,7 @@ nlohmann::json run_config_json(const StationConfig& config) {
   if (const auto& t = config.table) {
     const drivers::TableConnection& c = t->connection;
     table = {{"profile", c.profile},
+             {"transport", drivers::table_transport(c)},
              {"host", c.host},
              {"port", c.port},
              {"reply_header", c.reply_header},

@@ -856,20 +856,39 @@ GyroSection gyro_of(const DutSection& d) {
 
 // [table]: the rate table (docs/configuration.md, docs/table.md).
 // `simulated`: [simulator] endpoints_file is set (the simulator then names
-// the AERO device).
+// the table's TCP port or serial device).
 void read_table(TableReader t, TableSection& s, bool simulated) {
   drivers::TableConnection& c = s.connection;
   if (auto p = t.choice("profile", {"acutrol", "aero"}, std::nullopt)) c.profile = *p;
+  // The protocol and the link under it are separate choices; the default
+  // link is each controller's own port (ACUTROL3000: Ethernet, TM-9384C;
+  // AERO: RS-232).
+  const std::string profile_transport = c.profile == "aero" ? "serial" : "tcp";
+  const auto chosen = t.choice("transport", {"tcp", "serial"}, std::nullopt);
+  c.transport = chosen.value_or(profile_transport);
+  const std::string transport_said =
+      chosen ? fmt::format("transport = \"{}\"", c.transport)
+             : fmt::format("transport is \"{}\" (profile {}'s default)", c.transport, c.profile);
+  // A key of the other transport is refused: it would be ignored, and the
+  // station would talk to something other than what the file says.
+  const auto for_transport = [&](std::string_view key, std::string_view transport) {
+    if (c.transport == transport) return true;
+    t.error(key, fmt::format("given, but {}: {} is for transport = \"{}\"", transport_said, key,
+                             transport));
+    return false;
+  };
+  // Each key: a bad value is reported as such, a good one of the other
+  // transport as a contradiction.
   if (auto h = t.string("host")) {
     if (const std::string problem = drivers::tcp_host_problem(*h); !problem.empty())
       t.error("host", problem);
-    else
+    else if (for_transport("host", "tcp"))
       c.host = *h;
   }
   if (auto p = t.integer("port")) {
     if (*p < 1 || *p > 65535)
       t.error("port", fmt::format("{} is not a TCP port (1..65535)", *p));
-    else
+    else if (for_transport("port", "tcp"))
       c.port = static_cast<int>(*p);
   }
   if (auto r = t.choice("reply_header", {"ascii", "binary-le", "binary-be", "line"}, std::nullopt))
@@ -877,13 +896,13 @@ void read_table(TableReader t, TableSection& s, bool simulated) {
   if (auto d = t.string("device")) {
     if (d->empty())
       t.error("device", "must not be empty");
-    else
+    else if (for_transport("device", "serial"))
       c.device = *d;
   }
   if (auto b = t.integer("baud")) {
     if (*b <= 0)
       t.error("baud", "must be positive");
-    else
+    else if (for_transport("baud", "serial"))
       c.baud = static_cast<int>(*b);
   }
   if (auto a = t.integer("axis")) {
@@ -915,9 +934,22 @@ void read_table(TableReader t, TableSection& s, bool simulated) {
   if (auto a = t.choice("sensitive_axis", {"along_table", "radial"}, std::nullopt))
     s.sensitive_axis = *a;
   s.heading_at_zero_deg = t.number_in("heading_at_zero_deg", s.heading_at_zero_deg, -360.0, 360.0);
-  if (c.profile == "aero" && c.device.empty() && !simulated) {
-    t.error("device",
-            "missing (required for profile aero unless [simulator] endpoints_file is set)");
+  // What the link needs and has no default for: the serial device; for a
+  // TCP link to anything but an ACUTROL3000 (whose address TM-9384C gives),
+  // the serial server's host and port. The simulator names its own.
+  if (!simulated && c.transport == "serial" && c.device.empty() && !t.raw().contains("device")) {
+    t.error("device", fmt::format("missing: {} needs the serial device (unless [simulator] "
+                                  "endpoints_file is set)",
+                                  transport_said));
+  }
+  if (!simulated && c.transport == "tcp" && c.profile != "acutrol") {
+    for (const char* key : {"host", "port"}) {
+      if (!t.raw().contains(key)) {
+        t.error(key, fmt::format("missing: {} needs the serial server's {} (profile {} has no "
+                                 "default address; unless [simulator] endpoints_file is set)",
+                                 transport_said, key, c.profile));
+      }
+    }
   }
   t.finish();
 }
@@ -1574,6 +1606,13 @@ Result<SimEndpoints> read_sim_endpoints(const std::string& path) {
       ep.table_port = static_cast<int>(*p);
   }
   if (auto d = t.string("table_device")) ep.table_device = *d;
+  if (auto d = t.string("table_acl_device")) ep.table_acl_device = *d;
+  if (auto p = t.integer("table_aero_port")) {
+    if (*p < 0 || *p > 65535)
+      t.error("table_aero_port", fmt::format("{} is not a TCP port", *p));
+    else
+      ep.table_aero_port = static_cast<int>(*p);
+  }
   if (auto c = t.string("clock_file")) ep.clock_file = *c;
   if (auto s = t.number("time_scale")) {
     if (*s > 0)
@@ -1600,6 +1639,8 @@ Status write_sim_endpoints(const std::string& path, const SimEndpoints& ep) {
   if (!ep.clock_file.empty()) t.insert("clock_file", ep.clock_file);
   if (ep.table_port > 0) t.insert("table_port", ep.table_port);
   if (!ep.table_device.empty()) t.insert("table_device", ep.table_device);
+  if (!ep.table_acl_device.empty()) t.insert("table_acl_device", ep.table_acl_device);
+  if (ep.table_aero_port > 0) t.insert("table_aero_port", ep.table_aero_port);
   if (!ep.dut_devices.empty()) {
     toml::array list;
     for (const auto& [serial, device] : ep.dut_devices) {
@@ -1657,15 +1698,21 @@ void apply_sim_endpoints(StationConfig& config, const SimEndpoints& ep) {
   config.gyro.serial.device =
       config.duts.empty() ? ep.gyro_device : config.duts.front().link.serial.device;
   if (!config.duts.empty()) config.gyro.format.rate_hz = config.duts.front().link.rate_hz;
-  // The simulator's table, for a station that has one: ACL on loopback TCP,
-  // the AERO grammar on a pty.
+  // The simulator's table, for a station that has one, by protocol and
+  // transport: ACL on loopback TCP or a pty, the AERO grammar on a pty or
+  // loopback TCP. What an older simulator does not serve stays as
+  // configured.
   if (config.table) {
     drivers::TableConnection& c = config.table->connection;
-    if (c.profile == "acutrol" && ep.table_port > 0) {
-      c.host = "127.0.0.1";
-      c.port = ep.table_port;
-    } else if (c.profile == "aero" && !ep.table_device.empty()) {
-      c.device = ep.table_device;
+    const bool serial = drivers::table_transport(c) == "serial";
+    const bool acl = c.profile == "acutrol";
+    const std::string& device = acl ? ep.table_acl_device : ep.table_device;
+    const int port = acl ? ep.table_port : ep.table_aero_port;
+    if (serial && !device.empty()) {
+      c.device = device;
+    } else if (!serial && port > 0) {
+      c.host = ep.modbus_host;
+      c.port = port;
     }
   }
 }

@@ -25,71 +25,15 @@ namespace {
 
 using schedules::RunState;
 
-constexpr const char* kHoldKey = "queue_hold";
-
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 // How long (wall) a soak's Table I and a completed run's end wait for the
 // gyro samples of their last station seconds to come off the line.
 constexpr std::chrono::milliseconds kAwaitGyro{2000};
 
-std::vector<std::string> split_lines(const std::string& text) {
-  std::vector<std::string> out;
-  std::istringstream in(text);
-  for (std::string line; std::getline(in, line);) {
-    if (!line.empty()) out.push_back(line);
-  }
-  return out;
-}
-
-Reply db_failure(const Error& e) {
-  spdlog::error("{}", e.message);
-  return Reply::refused(Refusal::Kind::kUnavailable, e.message);
-}
-
-// A failed run lookup: "no such run" (permanent) or the database failing.
-Reply run_lookup_failure(const Error& e, int64_t id) {
-  if (e.transient) return db_failure(e);
-  return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no run {}", id));
-}
-
 // How a DUT is named in messages: its serial, or its position when unnamed.
 std::string dut_name(const DutSection& dut) {
   return dut.serial.empty() ? std::string("(no serial)") : dut.serial;
 }
-
-// A single GyroSource (the station tests' fake gyro) as the first DUT:
-// channels rate (its axis), status and temp_c.
-class GyroAsDut final : public drivers::DutSource {
- public:
-  GyroAsDut(std::unique_ptr<drivers::GyroSource> gyro, const std::string& axis)
-      : gyro_(std::move(gyro)) {
-    channels_ = {{"rate", "deg/h", ChannelKind::kRate, axis.empty() ? "z" : axis, 1.0},
-                 {"status", "", ChannelKind::kStatus, "", 1.0},
-                 {"temp_c", "degC", ChannelKind::kTemperature, "", 1.0}};
-  }
-  const std::vector<ChannelSpec>& channels() const override { return channels_; }
-  void start(Sink sink) override {
-    gyro_->start([sink = std::move(sink)](std::span<const GyroSample> samples) {
-      thread_local std::vector<DutFrame> frames;
-      frames.resize(samples.size());
-      for (std::size_t i = 0; i < samples.size(); ++i) {
-        frames[i] = DutFrame{};
-        frames[i].t_s = samples[i].t_s;
-        frames[i].seq = samples[i].seq;
-        frames[i].raw[0] = samples[i].rate_dph;
-        frames[i].raw[1] = samples[i].status;
-        frames[i].raw[2] = samples[i].temp_c;
-      }
-      sink(frames);
-    });
-  }
-  void stop() override { gyro_->stop(); }
-  drivers::GyroReaderHealth health() const override { return gyro_->health(); }
-
- private:
-  std::unique_ptr<drivers::GyroSource> gyro_;
-  std::vector<ChannelSpec> channels_;
-};
 
 }  // namespace
 
@@ -136,14 +80,10 @@ Result<StationDevices> devices_from_config(const StationConfig& config, const Cl
 Result<std::unique_ptr<Station>> Station::create(StationConfig config, StationDevices devices,
                                                  StationClocks clocks, StationHooks hooks,
                                                  std::unique_ptr<storage::SampleSink> samples) {
-  if (!devices.chamber || !devices.probes || (devices.duts.empty() && !devices.gyro)) {
-    return Error::Permanent("station: a chamber, a probe module and a gyro source are needed");
+  if (!devices.chamber || !devices.probes) {
+    return Error::Permanent("station: a chamber and a probe module are needed");
   }
   if (config.duts.empty()) return Error::Permanent("station: the config names no DUT");
-  if (devices.duts.empty()) {
-    devices.duts.push_back(
-        std::make_unique<GyroAsDut>(std::move(devices.gyro), config.duts.front().primary_axis));
-  }
   if (devices.duts.size() != config.duts.size()) {
     return Error::Permanent(fmt::format("station: {} DUT sources for {} [[dut]] entries",
                                         devices.duts.size(), config.duts.size()));
@@ -186,12 +126,21 @@ Station::Station(StationConfig config, StationDevices devices, StationClocks clo
       nightly_wall_(clocks.nightly ? *clocks.nightly : clocks.wall),
       hooks_(std::move(hooks)),
       db_(std::move(db)),
-      api_db_(std::move(api_db)),
       writer_(std::move(writer)),
       chamber_(std::move(devices.chamber)),
       probes_(std::move(devices.probes)),
       table_device_(std::move(devices.table)),
-      started_wall_s_(wall_.monotonic_s()) {
+      started_wall_s_(wall_.monotonic_s()),
+      queries_(config_, std::move(api_db),
+               StationQueries::Links{queue_length_, queue_held_, [this] { wake_.notify_all(); },
+                                     [this](int64_t run_id, const storage::RunMetadata& metadata) {
+                                       std::lock_guard lock(mu_);
+                                       if (snapshot_.run_id != run_id) return;
+                                       // The running run: the status shows the edit at once.
+                                       snapshot_.run_operator = metadata.operator_name;
+                                       snapshot_.run_comment = metadata.comment;
+                                       snapshot_.run_tags = metadata.tags;
+                                     }}) {
   for (std::size_t i = 0; i < devices.duts.size(); ++i) {
     auto live = std::make_unique<DutLive>();
     live->index = i;
@@ -331,7 +280,7 @@ void Station::start(ControlLoop loop) {
   }
   {
     std::lock_guard lock(run_mu_);
-    if (auto hold = db_.meta(kHoldKey); hold && *hold) {
+    if (auto hold = db_.meta(kQueueHoldKey); hold && *hold) {
       hold_reason_ = **hold;
       queue_held_.store(true);
       spdlog::info("queue held: {}", *hold_reason_);
@@ -1019,7 +968,7 @@ void Station::answer_failed_run() {
 void Station::hold_queue(const std::string& reason) {
   hold_reason_ = reason;
   queue_held_.store(true);
-  if (auto st = db_.set_meta(kHoldKey, reason); !st) spdlog::error("{}", st.error().message);
+  if (auto st = db_.set_meta(kQueueHoldKey, reason); !st) spdlog::error("{}", st.error().message);
   add_event("queue", "", "", "queue held: " + reason);
   spdlog::info("queue held: {}", reason);
 }
@@ -1027,7 +976,7 @@ void Station::hold_queue(const std::string& reason) {
 void Station::release_queue() {
   hold_reason_.reset();
   queue_held_.store(false);
-  if (auto st = db_.delete_meta(kHoldKey); !st) spdlog::error("{}", st.error().message);
+  if (auto st = db_.delete_meta(kQueueHoldKey); !st) spdlog::error("{}", st.error().message);
   add_event("queue", "", "", "queue released");
 }
 
@@ -1356,6 +1305,9 @@ void Station::end_run() {
   sequencer_.reset();
   entry_.reset();
   checkpoint_state_.clear();
+  // No checkpoint transaction comes for this run any more: what it left
+  // unwritten (its steps' last records, then its end) goes now if it can.
+  record_unrecorded();
   {
     std::lock_guard lock(mu_);
     snapshot_.run_id.reset();
@@ -1692,19 +1644,29 @@ void Station::record_unrecorded() {
     unrecorded_events_.pop_front();
     if (unrecorded_events_.empty()) spdlog::info("events kept while the database failed: written");
   }
-  if (unrecorded_run_state_) {
-    const auto& u = *unrecorded_run_state_;
-    if (auto st = db_.set_run_state(u.run_id, u.state, u.terminal); !st) {
-      if (!run_state_failing_) spdlog::error("run state not written yet: {}", st.error().message);
-      run_state_failing_ = true;
-      return;
-    }
-    run_state_failing_ = false;
-    unrecorded_run_state_.reset();
-  }
   if (!defer_segment_records_ && !(segments_with_checkpoint_ && sequencer_)) {
     (void)record_segments();
   }
+  // A run's end is written after its steps' last records (inside a
+  // sequencer tick, with them: tick_sequencer): neither a reader nor a crash
+  // finds a completed run with a step still running.
+  if (unrecorded_run_state_ && unrecorded_run_state_->terminal && !unrecorded_segments_.empty()) {
+    return;
+  }
+  (void)record_run_state();
+}
+
+bool Station::record_run_state() {
+  if (!unrecorded_run_state_) return true;
+  const auto& u = *unrecorded_run_state_;
+  if (auto st = db_.set_run_state(u.run_id, u.state, u.terminal); !st) {
+    if (!run_state_failing_) spdlog::error("run state not written yet: {}", st.error().message);
+    run_state_failing_ = true;
+    return false;
+  }
+  run_state_failing_ = false;
+  unrecorded_run_state_.reset();
+  return true;
 }
 
 bool Station::record_segments() {
@@ -1731,11 +1693,14 @@ void Station::tick_sequencer(double t_run_s, const schedules::Readings& r) {
   defer_segment_records_ = false;
   if (unrecorded_segments_.empty()) {
     segments_with_checkpoint_ = false;
+    record_unrecorded();  // a run's end the tick held back for its steps
     return;
   }
   const auto kept = unrecorded_segments_;
+  const auto kept_run_state = unrecorded_run_state_;
   const Status st = db_.atomically([&]() -> Status {
     if (!record_segments()) return Error::Transient("a segment was not written");
+    if (!record_run_state()) return Error::Transient("the run's state was not written");
     checkpoint(true);
     if (checkpoint_failing_) return Error::Transient("the checkpoint was not written");
     return Status::Ok();
@@ -1744,6 +1709,7 @@ void Station::tick_sequencer(double t_run_s, const schedules::Readings& r) {
   if (!st) {
     // Rolled back: tried again, together, next tick.
     unrecorded_segments_ = kept;
+    unrecorded_run_state_ = kept_run_state;
     checkpoint_state_.clear();
     if (!segment_failing_) spdlog::error("step change not written yet: {}", st.error().message);
     segment_failing_ = true;
@@ -1967,75 +1933,9 @@ void Station::on_step_finished(std::size_t index, const schedules::PlanStep& ste
 }
 
 // ---------------------------------------------------------------- StationControl
-
-Reply Station::queue_list() {
-  std::lock_guard lock(api_mu_);
-  auto entries = api_db_.queue_entries();
-  if (!entries) return db_failure(entries.error());
-  nlohmann::json current = nullptr;
-  nlohmann::json list = nlohmann::json::array();
-  for (const auto& e : *entries) {
-    auto plan = schedules::parse_schedule(e.toml_text, e.source_path, station_limits(config_));
-    const int steps = plan ? static_cast<int>(plan->steps.size()) : 0;
-    if (e.state == "running") {
-      current = to_json(e, steps);
-    } else {
-      list.push_back(to_json(e, steps));
-    }
-  }
-  const bool held = queue_held_.load();
-  std::string reason;
-  if (held) {
-    if (auto m = api_db_.meta(kHoldKey); m && *m) reason = **m;
-  }
-  return Reply::ok(
-      {{"held", held}, {"hold_reason", reason}, {"current", current}, {"entries", list}});
-}
-
-Reply Station::queue_add(const std::string& toml_text, const std::string& source,
-                         bool ignore_failures) {
-  return enqueue(QueueRequest{toml_text, source, ignore_failures, {}});
-}
-
-std::optional<Reply> Station::unless_queued(int64_t id, std::string_view when_running) {
-  auto entry = api_db_.queue_entry(id);
-  if (!entry) return db_failure(entry.error());
-  if (*entry && (*entry)->state == "queued") return std::nullopt;
-  if (*entry && (*entry)->state == "running") {
-    return Reply::refused(Refusal::Kind::kConflict,
-                          fmt::format("queue entry {} is running; {}", id, when_running));
-  }
-  return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no queued entry {}", id));
-}
-
-Reply Station::queue_remove(int64_t id) {
-  std::lock_guard lock(api_mu_);
-  if (auto refused = unless_queued(id, "abort the run instead")) return *refused;
-  auto removed = api_db_.queue_remove(id);
-  if (!removed) return db_failure(removed.error());
-  if (!*removed) {
-    return Reply::refused(
-        Refusal::Kind::kConflict,
-        fmt::format("queue entry {} has just started; abort the run instead", id));
-  }
-  queue_length_.fetch_sub(1);
-  spdlog::info("queue entry {} removed", id);
-  return Reply::ok({{"removed", id}});
-}
-
-Reply Station::queue_move(int64_t id, int position) {
-  {
-    std::lock_guard lock(api_mu_);
-    if (auto refused = unless_queued(id, "it cannot move")) return *refused;
-    auto moved = api_db_.queue_move(id, position);
-    if (!moved) return db_failure(moved.error());
-    if (!*moved) {
-      return Reply::refused(Refusal::Kind::kConflict,
-                            fmt::format("queue entry {} has just started", id));
-    }
-  }
-  return queue_list();
-}
+//
+// The reads and queue edits are StationQueries' (station_queries.h); the
+// run controls take the run's lock.
 
 Reply Station::control(std::string_view action, const std::string& reason_in) {
   const std::string reason = reason_in.empty() ? "operator" : reason_in;
@@ -2126,306 +2026,37 @@ Reply Station::control(std::string_view action, const std::string& reason_in) {
   return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no control action '{}'", action));
 }
 
-Reply Station::runs() {
-  std::lock_guard lock(api_mu_);
-  auto runs = api_db_.runs();
-  if (!runs) return db_failure(runs.error());
-  nlohmann::json out = nlohmann::json::array();
-  for (auto it = runs->rbegin(); it != runs->rend(); ++it) out.push_back(to_json(*it));
-  return Reply::ok(std::move(out));
+Reply Station::queue_list() { return queries_.queue_list(); }
+Reply Station::queue_add(const std::string& toml_text, const std::string& source,
+                         bool ignore_failures) {
+  return queries_.enqueue(QueueRequest{toml_text, source, ignore_failures, {}});
 }
-
-Reply Station::run(int64_t id) {
-  std::lock_guard lock(api_mu_);
-  auto run = api_db_.run(id);
-  if (!run) return run_lookup_failure(run.error(), id);
-  auto segs = api_db_.segments(id);
-  if (!segs) return db_failure(segs.error());
-  nlohmann::json j = to_json(*run);
-  nlohmann::json list = nlohmann::json::array();
-  for (const auto& s : *segs) list.push_back(to_json(s));
-  j["segments"] = std::move(list);
-  return Reply::ok(std::move(j));
-}
-
-// A run's records as a JSON array; 404 for an unknown run.
-template <class Fetch>
-Reply Station::run_records(int64_t id, Fetch fetch) {
-  std::lock_guard lock(api_mu_);
-  if (auto run = api_db_.run(id); !run) return run_lookup_failure(run.error(), id);
-  auto records = fetch(api_db_);
-  if (!records) return db_failure(records.error());
-  nlohmann::json out = nlohmann::json::array();
-  for (const auto& r : *records) out.push_back(to_json(r));
-  return Reply::ok(std::move(out));
-}
-
-Reply Station::run_events(int64_t id) {
-  return run_records(id, [id](storage::Database& db) { return db.events(id); });
-}
-
-Reply Station::run_stats(int64_t id) {
-  return run_records(id, [id](storage::Database& db) { return db.segment_stats(id); });
-}
-
-Reply Station::run_fits(int64_t id) {
-  return run_records(id, [id](storage::Database& db) { return db.fits(id); });
-}
-
-Reply Station::run_allan(int64_t id) {
-  return run_records(id, [id](storage::Database& db) { return db.allan(id); });
-}
-
-Reply Station::run_scale_factor(int64_t id) {
-  std::lock_guard lock(api_mu_);
-  if (auto run = api_db_.run(id); !run) return run_lookup_failure(run.error(), id);
-  auto points = api_db_.scale_factor_points(id);
-  if (!points) return db_failure(points.error());
-  auto fits = api_db_.scale_factor_fits(id);
-  if (!fits) return db_failure(fits.error());
-  auto over_t = api_db_.scale_factor_temperature_fit(id);
-  if (!over_t) return db_failure(over_t.error());
-  auto every_over_t = api_db_.scale_factor_temperature_fits(id);
-  if (!every_over_t) return db_failure(every_over_t.error());
-  nlohmann::json out = {{"points", nlohmann::json::array()},
-                        {"fits", nlohmann::json::array()},
-                        {"temperature_fit", nullptr},
-                        {"temperature_fits", nlohmann::json::array()}};
-  for (const auto& p : *points) out["points"].push_back(to_json(p));
-  for (const auto& f : *fits) out["fits"].push_back(to_json(f));
-  // temperature_fit: the first DUT's primary axis, as before several DUTs;
-  // temperature_fits: every DUT and axis.
-  if (*over_t) out["temperature_fit"] = to_json(**over_t);
-  for (const auto& t : *every_over_t) out["temperature_fits"].push_back(to_json(t));
-  return Reply::ok(std::move(out));
-}
-
-Reply Station::fit(int64_t id) {
-  std::lock_guard lock(api_mu_);
-  auto fit = api_db_.fit(id);
-  if (!fit) return db_failure(fit.error());
-  if (!*fit) return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no fit {}", id));
-  return Reply::ok(to_json(**fit));
-}
-
-Reply Station::exports() {
-  std::lock_guard lock(api_mu_);
-  auto exports = api_db_.exports();
-  if (!exports) return db_failure(exports.error());
-  nlohmann::json out = nlohmann::json::array();
-  for (const auto& e : *exports) out.push_back(to_json(e));
-  return Reply::ok(std::move(out));
-}
-
-Reply Station::run_samples(int64_t id, const SamplesQuery& query) {
-  return run_channel_samples(id, query);  // no dut/channel: the first DUT's primary axis
-}
-
-// ---------------------------------------------------------------- run metadata and DUT history
-//
-// The StationControl routes of schema v8 (docs/api.md "Run metadata", "DUT
-// history"): small functions over the HTTP thread's connection, each under
-// api_mu_, kept apart from the control loop.
-
-namespace {
-
-std::string joined(const std::vector<std::string>& items) {
-  std::string out;
-  for (const auto& i : items) out += fmt::format("{}'{}'", out.empty() ? "" : ", ", i);
-  return out.empty() ? std::string("none") : out;
-}
-
-// The first of `given` that is not in `known`, refused naming `field`.
-std::optional<Reply> unknown_serial(const std::vector<std::string>& given,
-                                    const std::vector<std::string>& known, std::string_view field,
-                                    std::string_view known_what) {
-  for (const auto& serial : given) {
-    if (std::find(known.begin(), known.end(), serial) == known.end()) {
-      return Reply::refused(Refusal::Kind::kBadRequest,
-                            fmt::format("field '{}': no DUT with serial '{}' ({}: {})", field,
-                                        serial, known_what, joined(known)));
-    }
-  }
-  return std::nullopt;
-}
-
-std::vector<std::string> configured_serials(const StationConfig& config) {
-  std::vector<std::string> out;
-  for (const auto& d : config.duts) out.push_back(d.serial);
-  return out;
-}
-
-// The run's DUT named `serial` ("" = its first), or a 404 naming it.
-Result<const storage::RunDutRecord*> find_run_dut(const std::vector<storage::RunDutRecord>& duts,
-                                                  int64_t run_id, const std::string& serial) {
-  std::vector<std::string> serials;
-  for (const auto& d : duts) {
-    if (serial.empty() || d.dut.serial == serial) return &d;
-    serials.push_back(d.dut.serial);
-  }
-  return Error::Permanent(serial.empty() ? fmt::format("run {} recorded no DUT", run_id)
-                                         : fmt::format("run {} has no DUT '{}' (its DUTs: {})",
-                                                       run_id, serial, joined(serials)));
-}
-
-}  // namespace
-
-Reply Station::enqueue(const QueueRequest& request) {
-  if (auto bad = unknown_serial(request.metadata.dut_serials, configured_serials(config_), "duts",
-                                "configured [[dut]] serials")) {
-    return *bad;
-  }
-  const std::string name = request.source.empty() ? std::string("schedule") : request.source;
-  auto plan = schedules::parse_schedule(request.toml_text, name, station_limits(config_));
-  if (!plan) {
-    return Reply::refused(Refusal::Kind::kInvalid, "schedule refused, nothing queued",
-                          split_lines(plan.error().message));
-  }
-  Result<storage::QueueEntry> entry = Error::Permanent("not added");
-  {
-    std::lock_guard lock(api_mu_);
-    entry = api_db_.queue_add(plan->name, request.source, request.toml_text,
-                              request.ignore_failures, request.metadata);
-    if (!entry) return db_failure(entry.error());
-    queue_length_.fetch_add(1);
-  }
-  spdlog::info("queued {} ({} steps) as entry {}{}", plan->name, plan->steps.size(), entry->id,
-               request.metadata.operator_name.empty()
-                   ? std::string()
-                   : fmt::format(" by {}", request.metadata.operator_name));
-  wake_.notify_all();
-  return Reply::ok(to_json(*entry, static_cast<int>(plan->steps.size())));
-}
-
-Reply Station::run_with_duts(int64_t id) {
-  std::lock_guard lock(api_mu_);
-  auto run = run_detail_json(api_db_, id);
-  if (!run) return run_lookup_failure(run.error(), id);
-  return Reply::ok(std::move(*run));
-}
-
+Reply Station::enqueue(const QueueRequest& request) { return queries_.enqueue(request); }
+Reply Station::queue_remove(int64_t id) { return queries_.queue_remove(id); }
+Reply Station::queue_move(int64_t id, int position) { return queries_.queue_move(id, position); }
+Reply Station::runs() { return queries_.runs(); }
+Reply Station::run(int64_t id) { return queries_.run(id); }
+Reply Station::run_with_duts(int64_t id) { return queries_.run_with_duts(id); }
 Reply Station::edit_run(int64_t id, const MetadataEdit& edit, const std::string& changed_by) {
-  std::lock_guard lock(api_mu_);
-  auto run = api_db_.run(id);
-  if (!run) return run_lookup_failure(run.error(), id);
-  storage::RunMetadata metadata = run->metadata;
-  if (edit.dut_serials) {
-    // Serials configured now or recorded in any run: a run's gyros may have
-    // left the station's config since.
-    std::vector<std::string> known = configured_serials(config_);
-    auto registered = api_db_.duts();
-    if (!registered) return db_failure(registered.error());
-    for (const auto& d : *registered) {
-      if (std::find(known.begin(), known.end(), d.serial) == known.end()) known.push_back(d.serial);
-    }
-    if (auto bad =
-            unknown_serial(*edit.dut_serials, known, "duts", "configured or recorded serials")) {
-      return *bad;
-    }
-    metadata.dut_serials = *edit.dut_serials;
-  }
-  if (edit.operator_name) metadata.operator_name = *edit.operator_name;
-  if (edit.comment) metadata.comment = *edit.comment;
-  if (edit.tags) metadata.tags = *edit.tags;
-  if (auto st = api_db_.set_run_metadata(id, metadata, changed_by); !st) {
-    return run_lookup_failure(st.error(), id);
-  }
-  {
-    std::lock_guard status_lock(mu_);
-    if (snapshot_.run_id == id) {  // the running run: the status shows the edit at once
-      snapshot_.run_operator = metadata.operator_name;
-      snapshot_.run_comment = metadata.comment;
-      snapshot_.run_tags = metadata.tags;
-    }
-  }
-  spdlog::info("run {}: metadata changed by {}", id, changed_by);
-  auto detail = run_detail_json(api_db_, id);
-  if (!detail) return db_failure(detail.error());
-  return Reply::ok(std::move(*detail));
+  return queries_.edit_run(id, edit, changed_by);
 }
-
+Reply Station::run_events(int64_t id) { return queries_.run_events(id); }
+Reply Station::run_stats(int64_t id) { return queries_.run_stats(id); }
 Reply Station::run_stats_filtered(int64_t id, const StatsQuery& query) {
-  std::lock_guard lock(api_mu_);
-  if (auto run = api_db_.run(id); !run) return run_lookup_failure(run.error(), id);
-  auto duts = api_db_.run_duts(id);
-  if (!duts) return db_failure(duts.error());
-  if (!query.dut.empty()) {
-    if (auto d = find_run_dut(*duts, id, query.dut); !d) {
-      return Reply::refused(Refusal::Kind::kNotFound, d.error().message);
-    }
-  }
-  auto rows = api_db_.segment_stats(id);
-  if (!rows) return db_failure(rows.error());
-  nlohmann::json out = nlohmann::json::array();
-  for (auto row : *rows) {
-    // Rows stored with "" are the run's first DUT and its primary axis.
-    if (!duts->empty()) {
-      if (row.dut_serial.empty()) row.dut_serial = duts->front().dut.serial;
-      if (row.axis.empty()) {
-        if (auto d = find_run_dut(*duts, id, row.dut_serial); d) row.axis = (*d)->primary_axis;
-      }
-    }
-    if (!query.dut.empty() && row.dut_serial != query.dut) continue;
-    if (!query.axis.empty() && row.axis != query.axis) continue;
-    out.push_back(to_json(row));
-  }
-  return Reply::ok(std::move(out));
+  return queries_.run_stats_filtered(id, query);
 }
-
+Reply Station::run_fits(int64_t id) { return queries_.run_fits(id); }
+Reply Station::run_allan(int64_t id) { return queries_.run_allan(id); }
+Reply Station::run_scale_factor(int64_t id) { return queries_.run_scale_factor(id); }
+Reply Station::run_samples(int64_t id, const SamplesQuery& query) {
+  return queries_.run_channel_samples(id, query);  // no dut/channel: the first DUT's primary axis
+}
 Reply Station::run_channel_samples(int64_t id, const SamplesQuery& query) {
-  std::lock_guard lock(api_mu_);
-  if (auto run = api_db_.run(id); !run) return run_lookup_failure(run.error(), id);
-  Result<storage::DecimatedSamples> samples = Error::Permanent("not read");
-  if (query.dut.empty() && query.channel.empty()) {
-    // The run's first DUT, its primary axis (also a run with no DUT yet).
-    samples = api_db_.decimated_samples(id, query.from_s, query.to_s, query.max_points);
-  } else {
-    auto duts = api_db_.run_duts(id);
-    if (!duts) return db_failure(duts.error());
-    auto dut = find_run_dut(*duts, id, query.dut);
-    if (!dut) return Reply::refused(Refusal::Kind::kNotFound, dut.error().message);
-    if (!query.channel.empty()) {
-      std::vector<std::string> names;
-      for (const auto& c : (*dut)->channels) names.push_back(c.spec.name);
-      if (std::find(names.begin(), names.end(), query.channel) == names.end()) {
-        return Reply::refused(
-            Refusal::Kind::kNotFound,
-            fmt::format("DUT '{}' of run {} has no channel '{}' (its channels: {})",
-                        (*dut)->dut.serial, id, query.channel, joined(names)));
-      }
-    }
-    samples = api_db_.decimated_samples(id, storage::StreamKey{(*dut)->dut.serial, ""},
-                                        query.channel, query.from_s, query.to_s, query.max_points);
-  }
-  if (!samples) {
-    if (samples.error().transient) return db_failure(samples.error());
-    return Reply::refused(Refusal::Kind::kInvalid, samples.error().message);
-  }
-  nlohmann::json j = to_json(*samples);
-  j["run_id"] = id;
-  j["max_points"] = query.max_points;
-  return Reply::ok(std::move(j));
+  return queries_.run_channel_samples(id, query);
 }
-
-Reply Station::duts() {
-  std::lock_guard lock(api_mu_);
-  auto out = duts_json(api_db_);
-  if (!out) return db_failure(out.error());
-  return Reply::ok(std::move(*out));
-}
-
-Reply Station::dut_history(const std::string& serial) {
-  std::lock_guard lock(api_mu_);
-  auto dut = api_db_.dut(serial);
-  if (!dut) return db_failure(dut.error());
-  if (!*dut) {
-    return Reply::refused(
-        Refusal::Kind::kNotFound,
-        fmt::format("no DUT with serial '{}' (GET /api/v1/duts lists them)", serial));
-  }
-  auto history = dut_history_json(api_db_, serial);
-  if (!history) return db_failure(history.error());
-  return Reply::ok(std::move(*history));
-}
+Reply Station::fit(int64_t id) { return queries_.fit(id); }
+Reply Station::exports() { return queries_.exports(); }
+Reply Station::duts() { return queries_.duts(); }
+Reply Station::dut_history(const std::string& serial) { return queries_.dut_history(serial); }
 
 }  // namespace gyrotherm::daemon

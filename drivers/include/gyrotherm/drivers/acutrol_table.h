@@ -1,12 +1,14 @@
-// AcutrolTable: an Acutronic ACUTROL3000 / ACT2000 axis over TCP, speaking
-// ACL (acl.h) to the controller's Ethernet port (TM-9384C: 192.168.53.1,
-// port 9878). The controller has no RS-232 port of its own: TM-9411 adds
-// one with an RS-232-to-Ethernet box that connects to that same port, for a
-// host that only has RS-232; this driver is the Ethernet host.
+// AcutrolTable: an Acutronic ACUTROL3000 / ACT2000 axis, speaking ACL
+// (acl.h) over a ByteLink (byte_link.h). By default TCP to the controller's
+// Ethernet port (TM-9384C: 192.168.53.1, port 9878); or a serial line
+// ([table] transport = "serial"): TM-9411's RS-232 interface, a box that
+// takes ACL on RS-232 (9600 8N1 by default) and carries it to that same
+// Ethernet port, for a host that only has RS-232.
 //
-// Each connection starts with `*IDN?`, whose reply shows how replies are
-// framed (acl::detect_first_reply): a framing other than reply_header's is
-// refused, naming the one seen and what was received. Remote control
+// Each connection (each opening of the link) starts with `*IDN?`, whose
+// reply shows how replies are framed (acl::detect_first_reply): a framing
+// other than reply_header's is refused, naming the one seen and what was
+// received. Remote control
 // (`:U:L ON`, TM-8004 §4.14.2: the operator panel is locked out) is taken
 // before the first motion command (set_rate, set_position) of a connection
 // and handed back by release_control() (`:U:L OFF`), which the station
@@ -35,18 +37,20 @@
 
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/drivers/acl.h"
+#include "gyrotherm/drivers/byte_link.h"
 #include "gyrotherm/drivers/rate_table.h"
 
 namespace gyrotherm::drivers {
 
-class TableLink;
+class LinkHealth;
 
 class AcutrolTable final : public RateTable {
  public:
   // Does not connect (connect() or the first call does). `clock` times the
   // reconnect backoff; it must outlive the table. A bad connection
-  // (reply_header unknown, axis < 1, port out of range) makes every call
-  // fail with a permanent error naming it.
+  // (reply_header unknown, axis < 1, a link make_table_link() refuses: a
+  // port out of range, no serial device) makes every call fail with a
+  // permanent error naming it.
   AcutrolTable(TableConnection connection, std::string name = "table",
                const WallClock& clock = system_wall_clock());
   ~AcutrolTable() override;
@@ -78,15 +82,17 @@ class AcutrolTable final : public RateTable {
   using Steady = std::chrono::steady_clock;
 
   // All below: mu_ held.
+  bool is_open() const;
+  Steady::time_point deadline() const;  // timeout_s from now
+  std::string where() const;            // "name (address)", for messages
   Status ensure_connected(bool ignore_backoff);
-  Status open_socket();
   // `*IDN?` on a new connection; checks the framing of its reply.
   Status first_contact();
-  void close_socket();
-  void drop(const std::string& why);  // close_socket() + a link failure
+  void close_link();
+  void drop(const std::string& why);  // close_link() + a link failure
   // Sends `command` and its line end; the reason when it cannot.
   std::optional<std::string> send_line(const std::string& command, Steady::time_point deadline);
-  // Appends what arrives (one recv) to `into`; the reason when nothing can.
+  // Appends what arrives (one read) to `into`; the reason when nothing does.
   std::optional<std::string> receive(Steady::time_point deadline, std::string& into);
   // One request/reply. A non-zero code: permanent error with the
   // controller's text; link trouble: transient, connection dropped.
@@ -106,8 +112,8 @@ class AcutrolTable final : public RateTable {
   acl::ReplyFraming framing_ = acl::ReplyFraming::kAscii;  // reply_header
   acl::ReplyDecoder decoder_;
   mutable std::mutex mu_;
-  std::unique_ptr<TableLink> link_;
-  int fd_ = -1;
+  std::unique_ptr<ByteLink> link_;  // null: config_error_ says why
+  std::unique_ptr<LinkHealth> health_;
   std::optional<TableLimits> limits_;
   std::string identity_;
   bool remote_on_connection_ = false;   // `:U:L ON` answered on this connection

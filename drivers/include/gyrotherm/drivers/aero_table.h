@@ -1,6 +1,7 @@
-// AeroTable: an Ideal Aerosmith AERO-series rate table controller on a
-// serial line (9600 8N1 by default), speaking the mnemonic grammar of
-// aero.h.
+// AeroTable: an Ideal Aerosmith AERO-series rate table controller, speaking
+// the mnemonic grammar of aero.h over a ByteLink (byte_link.h): by default
+// its serial line (9600 8N1), or ([table] transport = "tcp") a serial
+// device server that carries that line over TCP.
 //
 // Operations: read() sends PVE (rate, °/s), PPO (position, °) and STA
 // (status word: 0 is taken as healthy, anything else as a fault whose text
@@ -21,6 +22,7 @@
 // AcutrolTable (acutrol_table.h). Thread-safe.
 #pragma once
 
+#include <chrono>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -28,12 +30,12 @@
 
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/drivers/aero.h"
+#include "gyrotherm/drivers/byte_link.h"
 #include "gyrotherm/drivers/rate_table.h"
-#include "gyrotherm/drivers/serial_port.h"
 
 namespace gyrotherm::drivers {
 
-class TableLink;
+class LinkHealth;
 
 class AeroTable final : public RateTable {
  public:
@@ -42,7 +44,7 @@ class AeroTable final : public RateTable {
   ~AeroTable() override;
 
   const std::string& name() const override { return name_; }
-  Status connect() override;  // opens the serial line now
+  Status connect() override;  // opens the link now
   DeviceHealth health() const override;
 
   Result<TableState> read() override;
@@ -55,7 +57,11 @@ class AeroTable final : public RateTable {
   Result<TableLimits> limits() override;              // the declared limits
 
  private:
+  using Steady = std::chrono::steady_clock;
+
   // All below: mu_ held.
+  Steady::time_point deadline() const;  // timeout_s from now
+  std::string where() const;            // "name (address)", for messages
   Status ensure_open(bool ignore_backoff);
   void drop(const std::string& why);
   // Sends `mnemonic[number]` and waits for its reply. `late_ok`: no reply in
@@ -70,8 +76,9 @@ class AeroTable final : public RateTable {
   TableLimits declared_;
   std::string name_;
   mutable std::mutex mu_;
-  std::unique_ptr<TableLink> link_;
-  std::optional<SerialPort> port_;
+  std::optional<Error> config_error_;
+  std::unique_ptr<ByteLink> link_;  // null: config_error_ says why
+  std::unique_ptr<LinkHealth> health_;
   aero::ReplyDecoder decoder_;
   std::optional<std::string> pending_;  // a command whose reply may still come
   TableMode last_mode_ = TableMode::kUnknown;

@@ -1,14 +1,14 @@
 // The station's devices as the run controller sees them: the chamber's
-// temperature controller, the probe module on the gyro's shell, and the
-// gyro's stream of timestamped samples.
+// temperature controller, the probe module on the gyro's shell, and each
+// DUT's stream of timestamped frames.
 //
 // The Station takes its devices as these interfaces (StationDevices). The
 // real ones are ModbusChamber and ModbusProbes (modbus_devices.h: a vendor's
-// register map over libmodbus) and SerialGyro (gyro_reader.h: frames on a
-// serial line); the station's unit tests hand it fakes. A new kind of device
-// (a rate table) is one more interface here, one implementation beside the
-// others and one more member of StationDevices; several gyros are several
-// GyroSources.
+// register map over libmodbus) and the DUT readers (dut_reader.h: a protocol
+// on a serial line, one DutSource per [[dut]]); the station's unit tests hand
+// it fakes. A new kind of device (a rate table) is one more interface here,
+// one implementation beside the others and one more member of
+// StationDevices.
 #pragma once
 
 #include <cstdint>
@@ -95,21 +95,9 @@ struct GyroReaderHealth {
   std::string last_error;
 };
 
-// A gyro's samples, timestamped in station seconds, in batches.
-class GyroSource {
- public:
-  using Sink = std::function<void(std::span<const GyroSample>)>;
-  virtual ~GyroSource() = default;
-  // Starts delivering: `sink` is called with each batch, on the source's
-  // thread (or the caller's, for a fake); it must not block for long.
-  virtual void start(Sink sink) = 0;
-  virtual void stop() = 0;  // idempotent; no batch after it returns
-  virtual GyroReaderHealth health() const = 0;
-};
-
 // One device under test's frames (every channel), timestamped in station
-// seconds, in batches. Replaces GyroSource for the station (a DUT per
-// [[dut]] entry); health() counts frames as `samples`.
+// seconds, in batches (a DUT per [[dut]] entry); health() counts frames as
+// `samples`.
 class DutSource {
  public:
   using Sink = std::function<void(std::span<const DutFrame>)>;

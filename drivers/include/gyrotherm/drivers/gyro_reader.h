@@ -119,19 +119,4 @@ class GyroReader {
   std::unique_ptr<DutReader> reader_;
 };
 
-// The GyroSource of a gyro on a serial line: a GyroReader whose batches go
-// to the sink given at start().
-class SerialGyro final : public GyroSource {
- public:
-  SerialGyro(SerialOptions serial, GyroFormat format, std::unique_ptr<FrameParser> parser,
-             const Clock& clock);
-  void start(Sink sink) override;
-  void stop() override { reader_.stop(); }
-  GyroReaderHealth health() const override { return reader_.health(); }
-
- private:
-  Sink sink_;  // set before the reader's thread starts
-  GyroReader reader_;
-};
-
 }  // namespace gyrotherm::drivers

@@ -3,9 +3,10 @@
 // interlock and its limits.
 //
 // The real ones are AcutrolTable (acutrol_table.h: Acutronic ACUTROL3000 /
-// ACT2000 "ACL" over TCP, to the controller's Ethernet port) and
-// AeroTable (aero_table.h: Ideal Aerosmith AERO-series mnemonics on RS-232);
-// the station's unit tests hand the station a fake. Angles are degrees,
+// ACT2000 "ACL", by default over TCP to the controller's Ethernet port) and
+// AeroTable (aero_table.h: Ideal Aerosmith AERO-series mnemonics, by default
+// on RS-232), each over a TCP or serial ByteLink (byte_link.h); the
+// station's unit tests hand the station a fake. Angles are degrees,
 // rates °/s, accelerations °/s², positive counter-clockwise seen from above
 // (the controller's own sign convention: see docs/table.md).
 #pragma once
@@ -59,14 +60,20 @@ struct TableLimits {
 };
 
 // How to reach the controller ([table] in station.toml; docs/table.md).
+// The protocol (profile) and the transport under it (transport: a
+// ByteLink, byte_link.h) are separate choices.
 struct TableConnection {
-  // "acutrol": ACL (TM-8004) over TCP, to the controller (TM-9384C: port
-  // 9878). (TM-9411's RS-232 interface is the other way round: a box that
-  // takes RS-232 from the host and connects to that port; not used here.)
-  // "aero": Ideal Aerosmith mnemonics on a serial line (9600 8N1).
+  // "acutrol": ACL (TM-8004), by default over TCP to the controller
+  // (TM-9384C: port 9878). "aero": Ideal Aerosmith mnemonics, by default on
+  // a serial line (9600 8N1).
   std::string profile = "acutrol";
-  std::string host = "192.168.53.1";  // acutrol
-  int port = 9878;                    // acutrol
+  // "tcp" (host, port) or "serial" (device, baud, 8N1); "" = the profile's
+  // (acutrol: tcp; aero: serial). ACL on a serial line is TM-9411's RS-232
+  // interface; AERO over TCP is a serial device server in front of the
+  // controller's RS-232 port.
+  std::string transport;
+  std::string host = "192.168.53.1";  // tcp (the ACUTROL3000's address, TM-9384C)
+  int port = 9878;                    // tcp
   // acutrol: how each reply is framed. The manual (TM-8004 §2) says every
   // reply on a non-GPIB interface is prefixed by an error code and a message
   // length, without the layout; public drivers skip 8 bytes. "ascii": four
@@ -77,11 +84,15 @@ struct TableConnection {
   // connection (`*IDN?`) is checked against it: a controller that frames
   // otherwise is refused with the framing it uses (docs/table.md).
   std::string reply_header = "ascii";
-  std::string device;      // aero: serial device path
-  int baud = 9600;         // aero
+  std::string device;      // serial: the device path
+  int baud = 9600;         // serial
   int axis = 1;            // acutrol: the axis number commands name
-  double timeout_s = 1.0;  // per request, wall seconds
+  double timeout_s = 1.0;  // per request, wall seconds (and to connect)
 };
+
+// The transport `connection` names: its `transport`, or when that is empty
+// its profile's (acutrol: "tcp", TM-9384C; aero: "serial").
+std::string table_transport(const TableConnection& connection);
 
 class RateTable : public PolledDevice {
  public:

@@ -48,8 +48,10 @@ class SerialPort {
   Result<std::size_t> read(std::span<uint8_t> buf, std::chrono::milliseconds timeout);
   // Bytes received and not yet read (FIONREAD); 0 when it cannot tell.
   std::size_t pending_bytes() const;
-  // Writes all of `bytes` (for tests and commissioning).
-  Status write(std::span<const uint8_t> bytes);
+  // Writes all of `bytes`, waiting up to `timeout` in all while the line's
+  // output queue is full (a transient error after that).
+  Status write(std::span<const uint8_t> bytes,
+               std::chrono::milliseconds timeout = std::chrono::seconds(1));
 
   int fd() const { return fd_; }
   const std::string& device() const { return device_; }

@@ -40,9 +40,10 @@
 // With a rate table (config.table set, or options.serve_table), the
 // simulator also serves one table (RateTableModel, stepped with the plant)
 // two ways: ACL over TCP on loopback (TableServer, port options.table_port)
-// and the AERO grammar on a second pty (AeroServer); the gyro sees the
-// table's true rate and position through its scale factor
-// (GyroModel::enable_table).
+// and the AERO grammar on a second pty (AeroServer); and each on the other
+// transport too, for [table] transport (ACL on a third pty, AERO over TCP
+// on a port of its own); the gyro sees the table's true rate and position
+// through its scale factor (GyroModel::enable_table).
 //
 // Devices under test (dut_model.h; docs/simulator.md "Several DUTs"): every
 // [[dut]] of the config (simulated_duts()) gets its own pty, model, shell and
@@ -99,10 +100,14 @@ struct TableStatus {
   bool disconnected = false;  // table disconnect: ACL clients closed and refused
   int port = 0;               // ACL over TCP
   std::string device;         // AERO pty
+  std::string acl_device;     // ACL on a pty
+  int aero_port = 0;          // AERO over TCP
   uint64_t acl_requests = 0;
   uint64_t acl_unanswered = 0;  // dropped while hung
   uint64_t acl_refused_connections = 0;
   uint64_t aero_requests = 0;
+  uint64_t acl_serial_requests = 0;  // ACL on the pty
+  uint64_t aero_tcp_requests = 0;    // AERO over TCP
 };
 
 // The faults in force.
@@ -254,8 +259,9 @@ class Simulator {
   void table_fault();
   // Hang: the table answers no request (ACL or AERO); connections stay.
   void table_hang(bool hung);
-  // Disconnect: ACL clients are closed and new ones refused (accepted and
-  // closed), the AERO line goes silent, until false (`table connect`).
+  // Disconnect: TCP clients (ACL, and AERO over TCP) are closed and new
+  // ones refused (accepted and closed), the serial lines (AERO, and ACL on
+  // a pty) go silent, until false (`table connect`).
   void table_disconnect(bool disconnected);
   // Ends hang and disconnect. A latched interlock fault stays (:I:R).
   void table_clear();
@@ -263,6 +269,9 @@ class Simulator {
   AclReply table_acl(std::string_view line);
 
  private:
+  // The hang and disconnect faults onto every table server. life_mu_ held.
+  void apply_table_link_faults();
+
   // One DUT's moving parts.
   struct Dut {
     Dut(DutModel m, DutShell sh, std::size_t nominal_frame_bytes, std::size_t pending_limit)
@@ -350,8 +359,10 @@ class Simulator {
   mutable std::mutex life_mu_;  // start/stop against the hooks that reach server_
   std::unique_ptr<ModbusServer> server_;
   std::unique_ptr<ControlServer> control_;
-  std::unique_ptr<TableServer> table_server_;
-  std::unique_ptr<AeroServer> aero_server_;
+  std::unique_ptr<TableServer> table_server_;      // ACL over TCP
+  std::unique_ptr<AeroServer> aero_server_;        // AERO on a pty
+  std::unique_ptr<AeroServer> acl_serial_server_;  // ACL on a pty (a line server)
+  std::unique_ptr<TableServer> aero_tcp_server_;   // AERO over TCP (a line server)
   std::atomic<bool> table_hung_{false};
   std::atomic<bool> table_disconnected_{false};
   std::atomic<int> modbus_port_{0};

@@ -385,9 +385,12 @@ struct SimEndpoints {
   // (an older simulator, or one started with --scaled-clock).
   std::string clock_file{};
   // The rate table the simulator serves (0 / "" = none): ACL over TCP, and
-  // the AERO grammar on a pty.
+  // the AERO grammar on a pty; and for [table] transport, each on the other
+  // transport (absent from older simulators).
   int table_port = 0;
   std::string table_device{};
+  std::string table_acl_device{};  // ACL on a pty
+  int table_aero_port = 0;         // AERO over TCP, on modbus_host
   // Every simulated DUT's pty, by the DUT's serial number, in [[dut]]
   // order (gyro_device is the first's). Written as `dut_devices = [{serial =
   // "...", device = "..."}, ...]`.

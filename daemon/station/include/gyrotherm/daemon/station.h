@@ -3,8 +3,8 @@
 //
 // Threads: the control loop (Modbus polling, queue, sequencer ticks, set
 // point writes, temperature samples, checkpoints) runs on its own thread at
-// one tick per [control] tick_s of station time; the GyroReader thread
-// timestamps and hands samples to the SampleWriter; the writer commits on
+// one tick per [control] tick_s of station time; each DUT's reader thread
+// timestamps and hands frames to the SampleWriter; the writer commits on
 // its thread; the AnalysisWorker computes Table I rows when soaks end. The
 // HTTP thread calls status() (cheap) and the StationControl methods.
 //
@@ -15,9 +15,12 @@
 // a stop interrupted (Sequencer::restore), with the downtime converted to
 // station time by the time scale.
 //
+// The reads and queue edits of the control interface are StationQueries'
+// (station_queries.h), over the HTTP thread's own database connection.
+//
 // Locking: run_mu_ guards the sequencer, the control-thread database
-// connection and the queue hold; api_mu_ guards the HTTP thread's own
-// connection; mu_ guards the status snapshot. Order: run_mu_, api_mu_, mu_.
+// connection and the queue hold; StationQueries' lock its connection; mu_
+// guards the status snapshot. Order: run_mu_, the queries' lock, mu_.
 // The run's id and start time go to the gyro reader together (RunClock).
 // The count of waiting queue entries changes only by read-modify-write, by
 // the thread that changed the queue in the database (HTTP: add, remove;
@@ -47,6 +50,7 @@
 #include "gyrotherm/daemon/control.h"
 #include "gyrotherm/daemon/exporter.h"
 #include "gyrotherm/daemon/run_clock.h"
+#include "gyrotherm/daemon/station_queries.h"
 #include "gyrotherm/daemon/status.h"
 #include "gyrotherm/daemon/table_control.h"
 #include "gyrotherm/drivers/devices.h"
@@ -84,9 +88,6 @@ struct StationDevices {
   std::unique_ptr<drivers::ShellProbes> probes;
   // One source per [[dut]], in config order.
   std::vector<std::unique_ptr<drivers::DutSource>> duts;
-  // Tests: a single gyro source stands for the config's first DUT (its
-  // primary axis, status and temperature) when `duts` is empty.
-  std::unique_ptr<drivers::GyroSource> gyro;
   // Per-DUT shell probes, by DUT index ([[dut]] probes); missing = none.
   std::vector<std::unique_ptr<drivers::ShellProbes>> dut_probes;
   // The rate table; nullptr when the config has no [table].
@@ -199,6 +200,8 @@ class Station final : public StationControl, private schedules::SequencerObserve
   void record_unrecorded();
   // Segments only; false while one is left unwritten.
   bool record_segments();
+  // The run's state kept unwritten, if any; false when it is still unwritten.
+  bool record_run_state();
   // The sequencer's tick, with the segments it ends and starts written in
   // one transaction with the checkpoint that says so.
   void tick_sequencer(double t_run_s, const schedules::Readings& r);
@@ -304,11 +307,6 @@ class Station final : public StationControl, private schedules::SequencerObserve
   void add_event(const std::string& kind, const std::string& from, const std::string& to,
                  const std::string& message);
   int64_t segment_id(std::size_t index, const schedules::PlanStep& step, double t_s);
-  template <class Fetch>
-  Reply run_records(int64_t id, Fetch fetch);
-  // nullopt when queue entry `id` is waiting; else the refusal (404, or 409
-  // with `when_running` for the running entry). Needs api_mu_.
-  std::optional<Reply> unless_queued(int64_t id, std::string_view when_running);
 
   // SequencerObserver
   void on_state(schedules::RunState from, schedules::RunState to, double t_s,
@@ -328,8 +326,6 @@ class Station final : public StationControl, private schedules::SequencerObserve
   StationHooks hooks_;
   std::mutex run_mu_;
   storage::Database db_;  // control-thread connection (run_mu_)
-  std::mutex api_mu_;
-  storage::Database api_db_;  // HTTP-thread connection (api_mu_)
   std::unique_ptr<storage::SampleSink> writer_;
   std::unique_ptr<AnalysisWorker> analysis_;
   std::unique_ptr<NightlyExporter> nightly_;  // [export] nightly
@@ -440,6 +436,9 @@ class Station final : public StationControl, private schedules::SequencerObserve
   std::condition_variable wake_;
   bool stopping_ = false;
   std::thread control_thread_;
+
+  // Last: its links refer to the queue counters, wake_, mu_ and snapshot_.
+  StationQueries queries_;
 };
 
 }  // namespace gyrotherm::daemon

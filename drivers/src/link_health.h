@@ -1,6 +1,7 @@
-// What AcutrolTable and AeroTable share about their link: the reconnect
-// backoff and the health counters. Not thread-safe: the tables hold their
-// own mutex around it.
+// What AcutrolTable and AeroTable share about the state of their link (the
+// bytes go through a ByteLink, byte_link.h): the reconnect backoff and the
+// health counters. Not thread-safe: the tables hold their own mutex around
+// it.
 #pragma once
 
 #include <algorithm>
@@ -11,12 +12,12 @@
 
 namespace gyrotherm::drivers {
 
-class TableLink {
+class LinkHealth {
  public:
   static constexpr double kMinBackoffS = 0.5;
   static constexpr double kMaxBackoffS = 10.0;
 
-  explicit TableLink(const WallClock& clock) : clock_(clock) {}
+  explicit LinkHealth(const WallClock& clock) : clock_(clock) {}
 
   // Seconds before the next connection attempt is allowed; 0: now.
   double wait_s() const {
