@@ -168,6 +168,7 @@ struct Args {
   std::optional<double> earth_rate_dph;
   std::optional<double> latitude_deg;
   std::optional<std::string> orientation;
+  std::optional<double> heading_deg;  // --heading-deg, with --orientation horizontal
   // Allan.
   std::optional<std::string> taus;
   // Fits.
@@ -407,6 +408,7 @@ Result<double> earth_rate_dph(const Parsed& p, const storage::RunRecord* run) {
   }
   if (!lat) {
     if (p.orientation) return Error::Permanent("--orientation needs --latitude DEG");
+    if (p.heading_deg) return Error::Permanent("--heading-deg needs --latitude DEG");
     return 0.0;
   }
   if (orient.empty()) orient = "up";
@@ -418,7 +420,12 @@ Result<double> earth_rate_dph(const Parsed& p, const storage::RunRecord* run) {
                           orient, o.error().message)
             : fmt::format("--orientation: {}", o.error().message));
   }
-  return analysis::earth_rate_component_dph(*lat, *o);
+  if (p.heading_deg && *o != analysis::AxisOrientation::kHorizontal) {
+    return Error::Permanent(fmt::format(
+        "--heading-deg {:g}: only a horizontal axis has a heading (give --orientation horizontal)",
+        *p.heading_deg));
+  }
+  return analysis::earth_rate_component_dph(*lat, *o, p.heading_deg);
 }
 
 // An options struct's is_valid message names its field ("l0_window_s must be
@@ -752,7 +759,8 @@ int cmd_stats(const Parsed& p) {
                     o.ma_window, o.bin_s, o.earth_rate_dph));
   };
   if (in->db && p.stored) {
-    if (p.bin_s || p.ma_window || p.earth_rate_dph || p.latitude_deg || p.orientation) {
+    if (p.bin_s || p.ma_window || p.earth_rate_dph || p.latitude_deg || p.orientation ||
+        p.heading_deg) {
       return fail(
           "--stored prints the rows as the daemon stored them: --bin-s, --ma-window and the "
           "Earth-rate options do not apply",
@@ -1784,6 +1792,11 @@ AnalysisCommands::AnalysisCommands(CLI::App& app) : parsed_(std::make_unique<Par
   p.stats->add_option("--earth-rate-dph", p.earth_rate_dph, "Earth rate to remove, °/h");
   p.stats->add_option("--latitude", p.latitude_deg, "latitude, degrees (default: the run's)");
   p.stats->add_option("--orientation", p.orientation, "axis: up, down or horizontal");
+  p.stats
+      ->add_option("--heading-deg", p.heading_deg,
+                   "a horizontal axis's azimuth, degrees clockwise from true north (Earth "
+                   "rate Ω·cos φ·cos h; without it 0, the axis taken as east-west)")
+      ->check(CLI::Range(-360.0, 360.0));
   p.stats->add_flag("--stored", p.stored, "print the rows the daemon stored (no recomputation)");
   p.stats->add_flag("--by-setpoint", p.by_setpoint,
                     "one row per set point: mean and std of each column over its repetitions");

@@ -84,6 +84,7 @@ int main(int argc, char** argv) {
     std::cerr << "gyrothermd: bad config:\n" << config.error().message;
     return 2;
   }
+  for (const std::string& warning : config->warnings) spdlog::warn("config: {}", warning);
   if (!db_path.empty()) config->storage.db_path = db_path;
   if (auto dir = gd::check_database_directory(*config, db_path.empty() ? "" : "--db"); !dir) {
     std::cerr << "gyrothermd: bad config:\n" << dir.error().message << "\n";

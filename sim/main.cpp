@@ -8,6 +8,7 @@
 #include <signal.h>
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <cstring>
@@ -46,9 +47,11 @@ int run_ctl(int argc, char** argv) {
   app.add_option("--timeout", timeout_s, "seconds to wait for the reply")
       ->check(CLI::Range(0.1, 3600.0));
   app.footer("COMMAND is one of (send 'help' for the list as JSON):\n" + [] {
+    std::size_t width = 0;
+    for (const auto& h : sim::control_commands()) width = std::max(width, std::strlen(h.usage));
     std::string list;
     for (const auto& h : sim::control_commands()) {
-      list += fmt::format("  {:<24} {}\n", h.usage, h.description);
+      list += fmt::format("  {:<{}} {}\n", h.usage, width, h.description);
     }
     return list;
   }());
@@ -119,7 +122,7 @@ int main(int argc, char** argv) {
   std::string truth_file;
   std::string control_socket;
   uint64_t seed = 0;
-  double rate_hz = 0;
+  std::vector<std::string> rate_hz;
   int table_port = 0;
   app.add_option("--config", config_path, "station config (TOML) with a [simulator] section")
       ->required();
@@ -134,7 +137,10 @@ int main(int argc, char** argv) {
       app.add_option("--control-socket", control_socket,
                      "Unix socket for fault-injection commands ([simulator] control_socket)");
   auto* seed_opt = app.add_option("--seed", seed, "random seed ([simulator] seed)");
-  auto* rate_opt = app.add_option("--rate-hz", rate_hz, "gyro output rate, Hz ([gyro] rate_hz)");
+  app.add_option("--rate-hz", rate_hz,
+                 "output rate, Hz: HZ for every DUT, SERIAL=HZ for one (wins over HZ); "
+                 "repeatable ([[dut]] rate_hz)")
+      ->allow_extra_args(false);
   auto* table_port_opt =
       app.add_option("--table-port", table_port,
                      "the rate table's ACL TCP port, 0 = any free ([simulator] table_port)")
@@ -159,7 +165,10 @@ int main(int argc, char** argv) {
   if (*truth_opt) overrides.truth_file = truth_file;
   if (*control_opt) overrides.control_socket = control_socket;
   if (*seed_opt) overrides.seed = seed;
-  if (*rate_opt) overrides.rate_hz = rate_hz;
+  if (Status st = sim::parse_rate_hz_options(rate_hz, overrides); !st.ok()) {
+    std::fprintf(stderr, "gyrotherm-sim: %s\n", st.error().message.c_str());
+    return kExitUsage;
+  }
   if (*table_port_opt) overrides.table_port = table_port;
   overrides.serve_table = serve_table;
   overrides.scaled_clock = scaled_clock;
@@ -181,6 +190,16 @@ int main(int argc, char** argv) {
     }
     std::fprintf(stderr, "gyrotherm-sim: bad configuration:\n%s", message.c_str());
     return kExitUsage;
+  }
+  // A serial the station has no DUT for is a command-line error.
+  if (const std::string why =
+          sim::unknown_rate_hz_serial(overrides.dut_rate_hz, sim::simulated_duts(*config));
+      !why.empty()) {
+    std::fprintf(stderr, "gyrotherm-sim: %s\n", why.c_str());
+    return kExitUsage;
+  }
+  for (const std::string& warning : config->warnings) {
+    std::fprintf(stderr, "gyrotherm-sim: warning: %s\n", warning.c_str());
   }
   auto options = sim::read_simulator_options(*config, overrides);
   if (!options.ok()) {
@@ -213,6 +232,9 @@ int main(int argc, char** argv) {
   fmt::print("gyro {}\n", ep.gyro_device);
   if (ep.dut_devices.size() > 1) {
     for (const auto& [serial, device] : ep.dut_devices) fmt::print("dut {} {}\n", serial, device);
+  }
+  for (const auto& [serial, hz] : ep.dut_rates_hz) {
+    fmt::print("rate {} {:g} Hz\n", serial.empty() ? "(gyro)" : serial, hz);
   }
   if (ep.table_port != 0) fmt::print("table acl {}:{}\n", ep.modbus_host, ep.table_port);
   if (!ep.table_device.empty()) fmt::print("table aero {}\n", ep.table_device);

@@ -208,17 +208,26 @@ std::string_view to_string(AxisOrientation o) {
   return "unknown";
 }
 
-double earth_rate_component_dph(double latitude_deg, AxisOrientation orientation) {
-  const double vertical = units::kEarthRateDph * std::sin(units::deg_to_rad(latitude_deg));
+double earth_rate_component_dph(double latitude_deg, AxisOrientation orientation,
+                                std::optional<double> heading_deg) {
+  const double latitude_rad = units::deg_to_rad(latitude_deg);
   switch (orientation) {
     case AxisOrientation::kUp:
-      return vertical;
+      return units::kEarthRateDph * std::sin(latitude_rad);
     case AxisOrientation::kDown:
-      return -vertical;
+      return -units::kEarthRateDph * std::sin(latitude_rad);
     case AxisOrientation::kHorizontal:
-      return 0.0;
+      // The Earth's spin axis has Ω cos φ along the local north; a
+      // horizontal axis at azimuth h takes its cos h.
+      if (!heading_deg) return 0.0;
+      return units::kEarthRateDph * std::cos(latitude_rad) *
+             std::cos(units::deg_to_rad(*heading_deg));
   }
   return kNaN;
+}
+
+double earth_rate_component_dph(double latitude_deg, AxisOrientation orientation) {
+  return earth_rate_component_dph(latitude_deg, orientation, std::nullopt);
 }
 
 bool Table1Options::is_valid(std::string* why) const {

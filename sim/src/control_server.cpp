@@ -192,7 +192,7 @@ Result<ControlCommand> parse_probe(const Words& w) {
   } else if (sub == "release") {
     kind = Kind::kProbeRelease;
   } else if (sub.empty()) {
-    return bad("'probe' needs one of: stall top|side, release top|side");
+    return bad("'probe' needs one of: stall top|side [SN], release top|side [SN]");
   } else {
     return bad(
         fmt::format("unknown 'probe' subcommand {}; expected stall or release", quoted(sub)));
@@ -207,8 +207,8 @@ Result<ControlCommand> parse_probe(const Words& w) {
   } else {
     return bad(fmt::format("'{}': unknown probe {}; expected top or side", name, quoted(w[2])));
   }
-  if (auto e = expect_count(w, 3, fmt::format("{} {}", name, w[2]))) return *e;
-  return ControlCommand{kind, 0, role};
+  // probe stall|release top|side [SN]: SN's own probe, else the station's.
+  return for_dut(ControlCommand{kind, 0, role}, w, 3, fmt::format("{} {}", name, w[2]));
 }
 
 Result<ControlCommand> parse_chamber(const Words& w) {
@@ -333,8 +333,10 @@ const std::vector<ControlCommandHelp>& control_commands() {
        "as pty ..., for the DUT with serial SN (default the first; pty ... SN works too)"},
       {"gyro corrupt|drop [SN] P",
        "as frames ..., for the DUT with serial SN (default the first; frames ... P SN too)"},
-      {"probe stall top|side", "freeze the probe's register at its last value"},
-      {"probe release top|side", "let a stalled probe read again"},
+      {"probe stall top|side [SN]",
+       "freeze the probe's register at its last value (SN: that DUT's own probe; default the "
+       "station's)"},
+      {"probe release top|side [SN]", "let a stalled probe read again (SN: that DUT's own)"},
       {"chamber alarm on|off", "raise or clear the chamber controller's alarm register"},
       {"table fault", "put the rate table's interlock in fault now (latched until :I:R)"},
       {"table hang", "the rate table answers no request (ACL or AERO); connections stay"},
@@ -448,6 +450,8 @@ std::string status_json(const SimulatorStatus& s) {
     if (d.pty_held) active.push_back("pty_held");
     if (d.frame_corruption_rate > 0) active.push_back("frames_corrupt");
     if (d.frame_drop_rate > 0) active.push_back("frames_drop");
+    if (d.probe_top_stalled) active.push_back("probe_stall_top");
+    if (d.probe_side_stalled) active.push_back("probe_stall_side");
     nlohmann::ordered_json rates;
     for (std::size_t i = 0; i < 3; ++i) rates[kAxisNames[i]] = d.last_rates_dph[i];
     const GyroStreamStats& ds = d.stream;
@@ -468,7 +472,8 @@ std::string status_json(const SimulatorStatus& s) {
          {{"pty_open", d.pty_open},
           {"pty_held", d.pty_held},
           {"frame_corruption_rate", d.frame_corruption_rate},
-          {"frame_drop_rate", d.frame_drop_rate}}},
+          {"frame_drop_rate", d.frame_drop_rate},
+          {"probe_stalled", {{"top", d.probe_top_stalled}, {"side", d.probe_side_stalled}}}}},
         {"counters",
          {{"frames_generated", d.frames_generated},
           {"frames_fault_dropped", d.frames_fault_dropped},
@@ -502,6 +507,8 @@ std::string execute_control_command(Simulator& sim, const ControlCommand& c) {
     case Kind::kPtyReopen:
     case Kind::kFramesCorrupt:
     case Kind::kFramesDrop:
+    case Kind::kProbeStall:
+    case Kind::kProbeRelease:
       if (c.dut_given) {
         const auto found = sim.find_dut(c.dut);
         if (!found) {
@@ -554,6 +561,12 @@ std::string execute_control_command(Simulator& sim, const ControlCommand& c) {
       return "ok";
     case Kind::kProbeStall:
     case Kind::kProbeRelease:
+      if (c.dut_given) {
+        if (Status s = sim.stall_dut_probe(dut, c.probe, c.kind == Kind::kProbeStall); !s.ok()) {
+          return "error " + s.error().message;
+        }
+        return "ok";
+      }
       sim.stall_probe(c.probe, c.kind == Kind::kProbeStall);
       return "ok";
     case Kind::kChamberAlarmOn:

@@ -174,7 +174,11 @@ Result<DutModel> DutModel::create(const daemon::DutSection& dut, int position,
     const auto u = static_cast<std::size_t>(i);
     AxisSetup& s = setup[u];
     s.orientation = axis_orientation(dut, i, station.orientation);
-    s.earth_rate_dph = analysis::earth_rate_component_dph(station.latitude_deg, s.orientation);
+    if (s.orientation == analysis::AxisOrientation::kHorizontal) {
+      s.heading_deg = daemon::axis_heading_deg(dut, kAxisNames[u]);
+    }
+    s.earth_rate_dph =
+        analysis::earth_rate_component_dph(station.latitude_deg, s.orientation, s.heading_deg);
     s.gravity_g = gravity_g(s.orientation);
     drivers::GyroFormat format;
     format.unit = dut.link.unit;
@@ -183,8 +187,17 @@ Result<DutModel> DutModel::create(const daemon::DutSection& dut, int position,
     format.rate_hz = dut.link.rate_hz;
     axes.emplace_back(params.axes[u], format, s.earth_rate_dph, axis_seeds[u]);
     if (table && i == table_axis) {
-      axes.back().enable_table(scale_factor, *table);
+      // Every DUT is on the table, its table_axis along the spin axis.
+      TableMount mount = *table;
+      // A radial table axis turns from its own heading when it has one.
+      if (s.heading_deg) mount.heading_at_zero_deg = *s.heading_deg;
+      axes.back().enable_table(scale_factor, mount);
       s.on_table = true;
+    } else if (table && s.heading_deg) {
+      // A horizontal axis of a DUT on the table turns with it: no table
+      // rate, the Earth rate of its heading at each position.
+      axes.back().turn_with_table(station.latitude_deg, *s.heading_deg);
+      s.turns_with_table = true;
     }
   }
   return DutModel(dut, position, params, std::move(axes), setup, primary, std::move(channels),
@@ -282,7 +295,9 @@ nlohmann::json DutModel::truth(const DutShell& shell, const std::vector<double>&
     }
     json a = {
         {"orientation", std::string(analysis::to_string(s.orientation))},
+        {"heading_deg", s.heading_deg ? json(*s.heading_deg) : json(nullptr)},
         {"earth_rate_dph", s.earth_rate_dph},
+        {"turns_with_table", s.turns_with_table && table_served},
         {"gravity_g", s.gravity_g},
         {"bias_dph", p.bias_dph},
         {"bias_default", !params_.bias_given[i]},
@@ -325,9 +340,13 @@ nlohmann::json DutModel::truth(const DutShell& shell, const std::vector<double>&
         {"gradient_offset_c", tp.gradient_offset_c},
         {"gradient_tau_s", tp.gradient_tau_s}}},
       {"formula",
-       "per axis: rate_dph = earth_rate_dph(orientation) + bias_dph + sum_i temp_coeffs[i]*T^(i+1) "
+       "per axis: rate_dph = earth_rate_dph(orientation, heading) + bias_dph + "
+       "sum_i temp_coeffs[i]*T^(i+1) "
        "+ sum_j rate_coeffs[j]*(dT/dt)^(j+1) + sum_k gradient_coeffs[k]*dT_gradient^(k+1) + noise "
-       "(the table axis: through the scale factor); T, dT/dt, dT_gradient of this DUT's case; "
+       "(the table axis: through the scale factor); earth_rate_dph: up 15.041067*sin(lat), "
+       "down the negative, horizontal 15.041067*cos(lat)*cos(heading_deg) (no heading: 0), "
+       "at table position 0 (turns_with_table: cos(heading_deg + position)); "
+       "T, dT/dt, dT_gradient of this DUT's case; "
        "accel_g = gravity_g(orientation) + noise; internal temp = T + internal_temp_offset_c; "
        "static.mean_dph: dT/dt = 0, dT_gradient = case.gradient_offset_c"},
   };

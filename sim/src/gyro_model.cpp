@@ -89,6 +89,18 @@ void GyroModel::enable_table(ScaleFactorParams sf, TableMount mount) {
   mount_ = mount;
 }
 
+void GyroModel::turn_with_table(double latitude_deg, double heading_deg) {
+  turning_ = true;
+  turning_latitude_deg_ = latitude_deg;
+  turning_heading_deg_ = heading_deg;
+}
+
+double GyroModel::earth_rate_at_dph(double position_deg) const {
+  if (!turning_) return earth_rate_dph_;
+  return units::kEarthRateDph * std::cos(units::deg_to_rad(turning_latitude_deg_)) *
+         std::cos(units::deg_to_rad(turning_heading_deg_ + position_deg));
+}
+
 double GyroModel::scale_factor(double case_c, bool positive) const {
   const double k = 1.0 + (sf_.k_ppm + sf_.k_tc_ppm_per_c * (case_c - sf_.reference_temp_c)) * 1e-6;
   return k * (1.0 + (positive ? 0.5 : -0.5) * sf_.asymmetry_ppm * 1e-6);
@@ -117,9 +129,16 @@ double GyroModel::next_rate_dph(const ThermalTruth& truth, const TableInput& tab
   ++samples_;
   gm_bias_dph_ = gm_a_ * gm_bias_dph_ + gm_drive_dph_ * normal_(rng_);
   if (rrw_step_dph_ > 0) rrw_dph_ += rrw_step_dph_ * normal_(rng_);
-  const double model =
-      on_table_ ? model_rate_on_table_dph(truth, table)
-                : model_rate_dph(truth.case_c, truth.case_rate_c_per_s, truth.gradient_c);
+  double model = 0;
+  if (on_table_) {
+    model = model_rate_on_table_dph(truth, table);
+  } else if (turning_) {
+    // model_rate_dph() with the Earth rate at the table's position.
+    model = model_rate_dph(truth.case_c, truth.case_rate_c_per_s, truth.gradient_c) -
+            earth_rate_dph_ + earth_rate_at_dph(table.position_deg);
+  } else {
+    model = model_rate_dph(truth.case_c, truth.case_rate_c_per_s, truth.gradient_c);
+  }
   last_rate_dph_ = model + white_sample_std_dph_ * normal_(rng_) + gm_bias_dph_ + rrw_dph_;
   return last_rate_dph_;
 }

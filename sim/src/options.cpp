@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <charconv>
 #include <cmath>
 
 #include "gyrotherm/core/time_scale.h"
@@ -235,6 +236,69 @@ void GyroOverrides::apply(GyroParams& p) const {
   }
 }
 
+Status parse_rate_hz_options(const std::vector<std::string>& values,
+                             SimulatorOverrides& overrides) {
+  for (const std::string& value : values) {
+    const std::size_t eq = value.rfind('=');
+    const std::string serial = eq == std::string::npos ? "" : value.substr(0, eq);
+    const std::string_view hz_text =
+        eq == std::string::npos ? std::string_view(value) : std::string_view(value).substr(eq + 1);
+    if (eq != std::string::npos && serial.empty()) {
+      return Error::Permanent(fmt::format(
+          "--rate-hz '{}': no serial before '=' (HZ for every DUT, SERIAL=HZ for one)", value));
+    }
+    double hz = 0;
+    const auto [end, ec] = std::from_chars(hz_text.data(), hz_text.data() + hz_text.size(), hz);
+    if (hz_text.empty() || ec != std::errc() || end != hz_text.data() + hz_text.size() ||
+        !std::isfinite(hz)) {
+      return Error::Permanent(
+          fmt::format("--rate-hz '{}': '{}' is not a number of Hz (HZ for every DUT, SERIAL=HZ "
+                      "for one)",
+                      value, hz_text));
+    }
+    if (hz < kMinRateHz || hz > kMaxRateHz) {
+      return Error::Permanent(fmt::format("--rate-hz '{}': {:g} Hz is outside [{:g}, {:g}]", value,
+                                          hz, kMinRateHz, kMaxRateHz));
+    }
+    if (eq == std::string::npos) {
+      if (overrides.rate_hz) {
+        return Error::Permanent(
+            fmt::format("--rate-hz '{}': every DUT's rate is already given ({:g} Hz)", value,
+                        *overrides.rate_hz));
+      }
+      overrides.rate_hz = hz;
+      continue;
+    }
+    for (const auto& [s, given_hz] : overrides.dut_rate_hz) {
+      if (s == serial) {
+        return Error::Permanent(fmt::format("--rate-hz '{}': DUT '{}' is already given ({:g} Hz)",
+                                            value, serial, given_hz));
+      }
+    }
+    overrides.dut_rate_hz.emplace_back(serial, hz);
+  }
+  return Status::Ok();
+}
+
+std::string unknown_rate_hz_serial(const std::vector<std::pair<std::string, double>>& per_dut,
+                                   const std::vector<daemon::DutSection>& duts) {
+  for (const auto& [serial, hz] : per_dut) {
+    if (daemon::find_dut(duts, serial)) continue;
+    std::string list;
+    for (const auto& d : duts) list += (list.empty() ? "'" : ", '") + d.serial + "'";
+    return fmt::format("--rate-hz '{}={:g}': no [[dut]] with serial '{}' (the station's DUTs: {})",
+                       serial, hz, serial, list);
+  }
+  return "";
+}
+
+double dut_rate_hz(const SimulatorOptions& options, const daemon::DutSection& dut) {
+  for (const auto& [serial, hz] : options.dut_rate_hz) {
+    if (serial == dut.serial) return hz;
+  }
+  return options.rate_hz.value_or(dut.link.rate_hz);
+}
+
 DutSimParams resolve_dut_params(const SimulatorOptions& options, const daemon::DutSection& dut,
                                 int position) {
   DutSimParams r;
@@ -296,8 +360,19 @@ bool SimulatorOptions::is_valid(std::string* why) const {
                     "cannot keep up with the gyro stream; see docs/simulator.md)",
                     time_scale, kMinTimeScale, kMaxTimeScale, kMaxTimeScale));
   }
-  if (!(gyro_format.rate_hz >= 0.1 && gyro_format.rate_hz <= 10000)) {
-    return fail(fmt::format("gyro rate_hz = {} must be in [0.1, 10000]", gyro_format.rate_hz));
+  if (!(gyro_format.rate_hz >= kMinRateHz && gyro_format.rate_hz <= kMaxRateHz)) {
+    return fail(fmt::format("gyro rate_hz = {} must be in [{:g}, {:g}]", gyro_format.rate_hz,
+                            kMinRateHz, kMaxRateHz));
+  }
+  if (rate_hz && !(*rate_hz >= kMinRateHz && *rate_hz <= kMaxRateHz)) {
+    return fail(
+        fmt::format("--rate-hz {} must be in [{:g}, {:g}]", *rate_hz, kMinRateHz, kMaxRateHz));
+  }
+  for (const auto& [serial, hz] : dut_rate_hz) {
+    if (!(hz >= kMinRateHz && hz <= kMaxRateHz)) {
+      return fail(fmt::format("--rate-hz {}={} must be in [{:g}, {:g}]", serial, hz, kMinRateHz,
+                              kMaxRateHz));
+    }
   }
   if (control_socket.size() > kMaxControlSocketPath) {
     return fail(
@@ -362,12 +437,20 @@ Result<SimulatorOptions> read_simulator_options(const daemon::StationConfig& con
   if (overrides.truth_file) o.truth_file = *overrides.truth_file;
   if (overrides.control_socket) o.control_socket = *overrides.control_socket;
   if (overrides.seed) o.seed = *overrides.seed;
-  if (overrides.rate_hz) o.gyro_format.rate_hz = *overrides.rate_hz;
+  o.rate_hz = overrides.rate_hz;
+  o.dut_rate_hz = overrides.dut_rate_hz;
+  const std::vector<daemon::DutSection> duts = simulated_duts(config);
+  std::string message;
+  if (const std::string why = unknown_rate_hz_serial(o.dut_rate_hz, duts); !why.empty()) {
+    message += why + "\n";
+  }
+  // "The gyro" of the older interface: the first DUT, at the rate it is served.
+  if (!duts.empty()) o.gyro_format.rate_hz = dut_rate_hz(o, duts.front());
   if (overrides.table_port) o.table_port = *overrides.table_port;
   o.serve_table = overrides.serve_table || config.table.has_value();
   // Keys already reported above kept their defaults, so what is_valid() finds
   // now comes from the overrides or from combinations of keys.
-  std::string message = errors.joined();
+  message = errors.joined() + message;
   if (std::string why; !o.is_valid(&why)) message += fmt::format("simulator options: {}\n", why);
   if (!message.empty()) return Error::Permanent(message);
   return o;

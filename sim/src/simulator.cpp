@@ -139,8 +139,9 @@ Result<std::unique_ptr<Simulator>> Simulator::create(const daemon::StationConfig
   std::vector<drivers::RegisterSpec> probe_registers = {config.probes.top, config.probes.side};
   for (std::size_t p = 0; p < duts.size(); ++p) {
     daemon::DutSection dut = duts[p];
-    // --rate-hz (options.gyro_format) is the first DUT's rate.
-    if (p == 0) dut.link.rate_hz = honest.gyro_format.rate_hz;
+    // --rate-hz HZ for every DUT, SERIAL=HZ for one: the rate it is served
+    // at, which its truth and the endpoints name.
+    dut.link.rate_hz = dut_rate_hz(honest, dut);
     const int position = static_cast<int>(p);
     const DutSimParams params = resolve_dut_params(honest, dut, position);
     for (std::size_t i = 0; i < 3; ++i) {
@@ -169,6 +170,7 @@ Result<std::unique_ptr<Simulator>> Simulator::create(const daemon::StationConfig
     (void)copy.next_frame(shell.truth(), {}, sample);
     auto d = std::make_unique<Dut>(std::move(model).value(), std::move(shell), sample.size(),
                                    pending_frames_limit(honest, dut.link.rate_hz));
+    d->probe_readings = d->shell.readings();
     d->fault_rng.seed(p == 0 ? derive_seed(honest.seed, 3) : derive_seed(honest.seed, 2000 + p));
     if (!honest.gyro_link.empty()) {
       d->link =
@@ -497,6 +499,8 @@ daemon::SimEndpoints Simulator::endpoints() const {
     ep.gyro_device = device_locked(0);
     for (std::size_t i = 0; i < duts_.size(); ++i) {
       ep.dut_devices.emplace_back(duts_[i]->model.dut().serial, device_locked(i));
+      ep.dut_rates_hz.emplace_back(duts_[i]->model.dut().serial,
+                                   duts_[i]->model.dut().link.rate_hz);
     }
   }
   ep.pid = static_cast<long>(::getpid());
@@ -543,7 +547,11 @@ SimulatorStatus Simulator::status() const {
       DutSimStatus& ds = s.duts[i];
       ds.serial = d.model.dut().serial;
       ds.shell = d.shell.truth();
-      if (d.probe_top || d.probe_side) ds.probe_readings = d.shell.readings();
+      if (d.probe_top || d.probe_side) ds.probe_readings = d.probe_readings;
+      ds.has_probe_top = d.probe_top.has_value();
+      ds.has_probe_side = d.probe_side.has_value();
+      ds.probe_top_stalled = d.probe_stalled[0].load();
+      ds.probe_side_stalled = d.probe_stalled[1].load();
       ds.last_rates_dph = d.model.last().rate_dph;
       ds.frames_generated = d.frames_generated;
       ds.frames_fault_dropped = d.frames_fault_dropped;
@@ -777,6 +785,8 @@ void Simulator::advance_to(double target_s) {
     for (std::size_t i = 0; i < duts_.size(); ++i) {
       Dut& d = *duts_[i];
       d.shell.step(step_s, plant_.truth());
+      if (!d.probe_stalled[0].load()) d.probe_readings.top_c = d.shell.readings().top_c;
+      if (!d.probe_stalled[1].load()) d.probe_readings.side_c = d.shell.readings().side_c;
       const double period_s = d.model.sample_period_s();
       const bool ascii = d.model.ascii();
       while (static_cast<double>(d.next_frame) * period_s <= t_s + 1e-9) {
@@ -831,7 +841,7 @@ void Simulator::publish_registers() {
     air_c = status_.truth.air_c;
     top_c = status_.readings.top_c;
     side_c = status_.readings.side_c;
-    for (const auto& d : duts_) dut_readings.push_back(d->shell.readings());
+    for (const auto& d : duts_) dut_readings.push_back(d->probe_readings);
   }
   for (std::size_t i = 0; i < duts_.size(); ++i) {
     const Dut& d = *duts_[i];
@@ -976,6 +986,31 @@ Status Simulator::reopen_pty(std::size_t dut) {
 
 void Simulator::stall_probe(ProbeRole role, bool stalled) {
   stalled_[role == ProbeRole::kTop ? 0 : 1].store(stalled);
+}
+
+Status Simulator::stall_dut_probe(std::size_t dut, ProbeRole role, bool stalled) {
+  if (dut >= duts_.size()) {
+    return Error::Permanent(
+        fmt::format("no DUT number {} (the simulator has {})", dut + 1, duts_.size()));
+  }
+  Dut& d = *duts_[dut];
+  const bool top = role == ProbeRole::kTop;
+  const std::string& serial = d.model.dut().serial;
+  if (!(top ? d.probe_top : d.probe_side)) {
+    const auto& probes = d.model.dut().probes;
+    if (!probes) {
+      return Error::Permanent(fmt::format(
+          "DUT '{}' has no probes of its own (its [[dut]] has no probes = {{ top_channel, "
+          "side_channel }}); 'probe stall {}' without a serial stalls the station's",
+          serial, top ? "top" : "side"));
+    }
+    return Error::Permanent(fmt::format(
+        "the {} probe of DUT '{}' is channel {}, which another probe (the station's or an "
+        "earlier DUT's) serves: stall that one",
+        top ? "top" : "side", serial, top ? probes->top_channel : probes->side_channel));
+  }
+  d.probe_stalled[top ? 0 : 1].store(stalled);
+  return Status::Ok();
 }
 
 void Simulator::set_chamber_alarm(bool raised) {

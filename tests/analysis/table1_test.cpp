@@ -58,6 +58,52 @@ TEST(EarthRate, PaperLatitude) {
   EXPECT_NEAR(earth_rate_component_dph(-30.0, AxisOrientation::kUp), -15.041067 / 2, 1e-12);
 }
 
+// A horizontal axis with a heading: the projection of the Earth's rotation
+// vector on the axis, worked out independently in local east-north-up
+// coordinates (Ω along the Earth's axis = (0, Ω cos φ, Ω sin φ); the axis at
+// azimuth h, clockwise from north = (sin h, cos h, 0)), and against numpy's
+// numbers (15.041067 * np.cos(np.radians(lat)) * np.cos(np.radians(h))).
+TEST(EarthRate, HorizontalAxisWithAHeadingSeesCosLatitudeCosHeading) {
+  const auto projection_dph = [](double lat_deg, double heading_deg) {
+    const double lat = lat_deg * M_PI / 180.0, h = heading_deg * M_PI / 180.0;
+    const double omega[3] = {0.0, 15.041067 * std::cos(lat), 15.041067 * std::sin(lat)};
+    const double axis[3] = {std::sin(h), std::cos(h), 0.0};
+    return omega[0] * axis[0] + omega[1] * axis[1] + omega[2] * axis[2];
+  };
+  for (double lat : {31.9, 0.0, -33.9, 52.2, 89.0, -90.0}) {
+    for (double h : {0.0, 30.0, 90.0, 135.0, 180.0, 270.0, -45.0, 359.0, 360.0}) {
+      EXPECT_NEAR(earth_rate_component_dph(lat, AxisOrientation::kHorizontal, h),
+                  projection_dph(lat, h), 1e-12)
+          << "latitude " << lat << " heading " << h;
+    }
+  }
+  const struct {
+    double lat, heading, numpy_dph;
+  } numpy[] = {
+      {31.9, 0.0, 12.76944003473299},
+      {31.9, 180.0, -12.76944003473299},
+      {31.9, 30.0, 11.058659462180813},
+      {31.9, -45.0, 9.02935764051468},
+      {52.2, 300.0, 4.609388029383508},
+      {-33.9, 120.0, -6.242135195471259},
+      {0.0, 0.0, 15.041067},
+      {89.0, 10.0, 0.25851480694101653},
+  };
+  for (const auto& n : numpy) {
+    EXPECT_NEAR(earth_rate_component_dph(n.lat, AxisOrientation::kHorizontal, n.heading),
+                n.numpy_dph, 1e-12)
+        << n.lat << " " << n.heading;
+  }
+  // East–west: nothing; without a heading: 0 as before headings existed.
+  EXPECT_NEAR(earth_rate_component_dph(31.9, AxisOrientation::kHorizontal, 90.0), 0.0, 1e-12);
+  EXPECT_EQ(earth_rate_component_dph(31.9, AxisOrientation::kHorizontal, std::nullopt), 0.0);
+  // A vertical axis has no heading: it is ignored.
+  EXPECT_EQ(earth_rate_component_dph(31.9, AxisOrientation::kUp, 45.0),
+            earth_rate_component_dph(31.9, AxisOrientation::kUp));
+  EXPECT_EQ(earth_rate_component_dph(31.9, AxisOrientation::kDown, 45.0),
+            earth_rate_component_dph(31.9, AxisOrientation::kDown));
+}
+
 TEST(Table1Options, Validity) {
   std::string why;
   EXPECT_TRUE(Table1Options{}.is_valid(&why));

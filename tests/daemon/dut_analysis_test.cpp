@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -55,11 +56,26 @@ class DutAnalysisTest : public testing::TempDirTest {
  protected:
   DutAnalysisTest() : TempDirTest("gyrotherm-dut-analysis") {}
 
-  std::string db_path() const { return (dir_ / "station.db").string(); }
+  std::string db_path() const { return (dir_ / db_name_).string(); }
+  std::string db_name_ = "station.db";
+
+  // How SN-B's horizontal x axis sits: without a heading (east–west, no
+  // Earth rate), or at heading_deg; with a table at table_position_deg (the
+  // DUTs turn with it; the run then has a table, along_table).
+  struct Mount {
+    std::optional<double> heading_bx_deg;
+    std::optional<double> table_position_deg;
+  };
+  // The Earth rate on SN-B x, written out here: Ω cos φ cos(h + p).
+  static double earth_bx_dph(const Mount& m) {
+    if (!m.heading_bx_deg) return 0.0;
+    return 15.041067 * std::cos(kLatitudeDeg * M_PI / 180.0) *
+           std::cos((*m.heading_bx_deg + m.table_position_deg.value_or(0.0)) * M_PI / 180.0);
+  }
 
   // Two soaks (20 and 40 °C, 600 s each) of two DUTs: SN-A (z up) and SN-B
   // (z down, x horizontal), at 10 Hz.
-  int64_t make_run() {
+  int64_t make_run(const Mount& mount = {}) {
     auto db = storage::Database::open(db_path());
     EXPECT_TRUE(db.ok()) << db.error().message;
     storage::RunRecord run;
@@ -68,7 +84,11 @@ class DutAnalysisTest : public testing::TempDirTest {
     run.latitude_deg = kLatitudeDeg;
     run.orientation = "up";
     // A model the two soaks' temperatures can determine.
-    run.config_json = R"({"station": {"name": "bench-2"}, "analysis": {"model": "T1"}})";
+    run.config_json =
+        mount.table_position_deg
+            ? R"({"station": {"name": "bench-2"}, "analysis": {"model": "T1"}, )"
+              R"("table": {"sensitive_axis": "along_table", "heading_at_zero_deg": 0.0}})"
+            : R"({"station": {"name": "bench-2"}, "analysis": {"model": "T1"}})";
     auto id = db->create_run(run);
     EXPECT_TRUE(id.ok()) << id.error().message;
     // The run's metadata as queued (schema v8 columns of runs).
@@ -94,7 +114,11 @@ class DutAnalysisTest : public testing::TempDirTest {
     b.position = 1;
     b.dut = {0, "SN-B", "FOG-3", ""};
     b.axes = {"x", "z"};
-    b.config_json = R"({"serial": "SN-B", "orientation": {"z": "down", "x": "horizontal"}})";
+    b.config_json = R"({"serial": "SN-B", "orientation": {"z": "down", "x": "horizontal"})";
+    if (mount.heading_bx_deg) {
+      b.config_json += fmt::format(R"(, "heading_deg": {{"x": {}}})", *mount.heading_bx_deg);
+    }
+    b.config_json += "}";
     auto ra = db->add_run_dut(*id, a);
     auto rb = db->add_run_dut(*id, b);
     EXPECT_TRUE(ra.ok()) << ra.error().message;
@@ -136,7 +160,7 @@ class DutAnalysisTest : public testing::TempDirTest {
         f.raw[3] = setpoint;
         fa.push_back(f);
         DutFrame g = f;
-        g.raw[0] = kBiasBxDph + ripple;  // horizontal (east-west): no Earth rate
+        g.raw[0] = kBiasBxDph + earth_bx_dph(mount) + ripple;  // horizontal
         g.raw[2] = kBiasBzDph - earth_up + ripple;
         fb.push_back(g);
       }
@@ -149,6 +173,16 @@ class DutAnalysisTest : public testing::TempDirTest {
         temp.top_c = setpoint + 0.001 * (t - from_s);
         temp.side_c = temp.top_c - 0.1;
         (*writer)->push_temperature(*id, temp);
+        if (mount.table_position_deg) {
+          TableSample table;
+          table.t_s = t;
+          table.demand_mode = "position";
+          table.demand_position_deg = *mount.table_position_deg;
+          table.position_deg = *mount.table_position_deg;
+          table.mode = "position";
+          table.interlock = "closed";
+          (*writer)->push_table(*id, table);
+        }
       }
     }
     EXPECT_TRUE((*writer)->flush().ok());
@@ -207,6 +241,43 @@ TEST_F(DutAnalysisTest, EachDutAxisRecoversItsOwnBiasWithItsOwnEarthRate) {
     EXPECT_TRUE(truth.count(key)) << key.first << " " << key.second;
     EXPECT_EQ(count, fits_per_axis.begin()->second) << "each axis fitted alike";
   }
+}
+
+// A horizontal axis with a stored heading: Table I removes Ω cos φ cos h,
+// and with a table the DUT turns with it: cos(h + the table's position).
+TEST_F(DutAnalysisTest, HorizontalAxisWithAHeadingHasItsEarthRateRemoved) {
+  int case_number = 0;
+  for (const Mount& mount : {Mount{60.0, std::nullopt}, Mount{200.0, std::nullopt},
+                             Mount{60.0, 45.0}, Mount{std::nullopt, 45.0}}) {
+    const std::string what =
+        fmt::format("heading {} position {}", mount.heading_bx_deg.value_or(-1),
+                    mount.table_position_deg.value_or(-1));
+    db_name_ = fmt::format("station-{}.db", ++case_number);  // a database per case
+    const int64_t run_id = make_run(mount);
+    auto db = storage::Database::open(db_path());
+    ASSERT_TRUE(db.ok());
+    auto axes = daemon::analysed_axes(*db, run_id);
+    ASSERT_TRUE(axes.ok()) << axes.error().message;
+    ASSERT_EQ(axes->size(), 3u);
+    EXPECT_EQ((*axes)[2].heading_deg, mount.heading_bx_deg) << what;
+    daemon::AnalysisSettings settings;
+    settings.model = {.t_order = 1, .r_order = 0, .g_order = 0};
+    auto summary = daemon::analyse_run(*db, run_id, settings);
+    ASSERT_TRUE(summary.ok()) << summary.error().message;
+    EXPECT_EQ(summary->table1_rows, 6) << what;
+    auto rows = db->segment_stats(run_id);
+    ASSERT_TRUE(rows.ok());
+    int bx_rows = 0;
+    for (const auto& row : *rows) {
+      if (row.dut_serial != "SN-B" || row.axis != "x") continue;
+      ++bx_rows;
+      EXPECT_NEAR(row.earth_rate_dph, earth_bx_dph(mount), 1e-9) << what;
+      EXPECT_NEAR(row.bias_mean_earth_removed_dph, kBiasBxDph, kTolDph) << what;
+    }
+    EXPECT_EQ(bx_rows, 2) << what;
+  }
+  // 60° at latitude 48.1°: 5.0225 °/h (numpy), not the 0 an east–west axis has.
+  EXPECT_NEAR(earth_bx_dph({60.0, std::nullopt}), 5.022457105810615, 1e-12);
 }
 
 TEST_F(DutAnalysisTest, RunSeriesStreamsEachAxisOwnSamples) {

@@ -348,6 +348,72 @@ orientation = { z = "sideways", x = "up", w = "down", y = 1 }
               HasSubstr("s.toml:10: dut[0].orientation: expected a table, got string"));
 }
 
+// heading_deg: per horizontal axis, degrees from true north, clockwise.
+TEST(DutConfig, HeadingDegGivesHorizontalAxesTheirAzimuth) {
+  auto cfg = parse(R"([[dut]]
+serial = "A1"
+device = "/dev/ttyUSB0"
+heading_deg = { x = 90.0, y = -45 }
+)");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  const DutSection& d = cfg->duts[0];
+  EXPECT_THAT(d.heading_deg, ElementsAre(Pair("x", 90.0), Pair("y", -45.0)));
+  EXPECT_EQ(axis_heading_deg(d, "x"), 90.0);
+  EXPECT_EQ(axis_heading_deg(d, "z"), std::nullopt) << "z is up: no heading";
+  EXPECT_TRUE(cfg->warnings.empty()) << cfg->warnings.front();
+
+  // A horizontal axis without one loads, as before headings, with a warning
+  // naming the file, line, DUT key and axis.
+  auto bare = parse(R"([[dut]]
+serial = "A1"
+device = "/dev/ttyUSB0"
+orientation = { z = "up", x = "horizontal", y = "horizontal" }
+heading_deg = { y = 180 }
+)");
+  ASSERT_TRUE(bare.ok()) << bare.error().message;
+  ASSERT_EQ(bare->warnings.size(), 1u);
+  EXPECT_THAT(bare->warnings[0],
+              HasSubstr("s.toml:10: dut[0].heading_deg: axis x is horizontal without a heading: "
+                        "its Earth-rate component is taken as 0 (as if it pointed east or west)"));
+  EXPECT_THAT(bare->warnings[0], HasSubstr("heading_deg = { x = AZIMUTH }"));
+
+  const std::string m = errors_of(R"([[dut]]
+serial = "A1"
+device = "/dev/ttyUSB0"
+axes = ["x", "z"]
+heading_deg = { z = 10.0, x = 400.0, w = 1.0, y = 5.0 }
+[[dut]]
+serial = "A2"
+device = "/dev/ttyUSB1"
+heading_deg = { x = "north" }
+[[dut]]
+serial = "A3"
+device = "/dev/ttyUSB2"
+heading_deg = 90.0
+)");
+  EXPECT_THAT(m, HasSubstr("s.toml:11: dut[0].heading_deg.z: axis z is \"up\" (orientation): "
+                           "only a horizontal axis has a heading"));
+  EXPECT_THAT(m, HasSubstr("s.toml:11: dut[0].heading_deg.x: 400 is out of range: must be in "
+                           "[-360, 360] degrees"));
+  EXPECT_THAT(m, HasSubstr("s.toml:11: dut[0].heading_deg.w: is not an axis (x, y, z)"));
+  EXPECT_THAT(m, HasSubstr("s.toml:11: dut[0].heading_deg.y: \"y\" is not among axes (x, z)"));
+  EXPECT_THAT(m, HasSubstr("s.toml:15: dut[1].heading_deg.x: expected a number, got string"));
+  EXPECT_THAT(m, HasSubstr("s.toml:19: dut[2].heading_deg: expected a table, got float"));
+}
+
+TEST(DutConfig, OlderGyroSectionHorizontalIsWarnedAbout) {
+  std::string horizontal = kStation;
+  horizontal.insert(horizontal.find("[chamber]"), "orientation = \"horizontal\"\n");
+  auto cfg = parse_station_config(horizontal + "[gyro]\ndevice = \"/dev/ttyUSB0\"\n", "g.toml");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  ASSERT_EQ(cfg->warnings.size(), 1u);
+  EXPECT_THAT(cfg->warnings[0], HasSubstr("g.toml:3: station.orientation: the gyro's axis is "
+                                          "horizontal without a heading"));
+  auto up = parse("[gyro]\ndevice = \"/dev/ttyUSB0\"\n");
+  ASSERT_TRUE(up.ok());
+  EXPECT_TRUE(up->warnings.empty());
+}
+
 TEST(DutConfig, ProbesAreChannelsOfTheProbesModule) {
   const std::string dut = "[[dut]]\nserial = \"A1\"\ndevice = \"/dev/ttyUSB0\"\n";
   EXPECT_THAT(errors_of(dut + "probes = { top_channel = 300, side_channel = -1 }\n"),
@@ -649,6 +715,47 @@ TEST_F(DutEndpoints, RoundTripAndApplyBySerial) {
   auto no_gyro = read_sim_endpoints(path_);
   ASSERT_TRUE(no_gyro.ok()) << no_gyro.error().message;
   EXPECT_EQ(no_gyro->gyro_device, "/dev/pts/3");
+}
+
+// The rate each DUT is served at (gyrotherm-sim --rate-hz): written in its
+// dut_devices entry, read back, and given to the DUT's link.
+TEST_F(DutEndpoints, RatesRoundTripAndApplyBySerial) {
+  SimEndpoints ep{"127.0.0.1", 40123, "", 4242, "", 0};
+  ep.dut_devices = {{"17-0042", "/dev/pts/7"}, {"TS-7", "/dev/pts/8"}};
+  ep.dut_rates_hz = {{"17-0042", 250.0}, {"TS-7", 20.0}};
+  ASSERT_TRUE(write_sim_endpoints(path_, ep).ok());
+  const std::string text = testing::read_text(path_);
+  EXPECT_THAT(text, HasSubstr("{ device = '/dev/pts/8', rate_hz = 20.0, serial = 'TS-7' }"));
+  auto back = read_sim_endpoints(path_);
+  ASSERT_TRUE(back.ok()) << back.error().message;
+  EXPECT_EQ(back->dut_rates_hz, ep.dut_rates_hz);
+  auto cfg = parse(kTwoDuts);
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  ASSERT_EQ(cfg->duts[0].link.rate_hz, 1000.0);
+  apply_sim_endpoints(*cfg, *back);
+  EXPECT_EQ(cfg->duts[0].link.rate_hz, 250.0);
+  EXPECT_EQ(cfg->duts[1].link.rate_hz, 20.0);
+  EXPECT_EQ(cfg->gyro.format.rate_hz, 250.0) << "the first DUT's";
+
+  // Older simulators state none: the config's rates stay.
+  SimEndpoints old = ep;
+  old.dut_rates_hz.clear();
+  auto kept = parse(kTwoDuts);
+  ASSERT_TRUE(kept.ok());
+  apply_sim_endpoints(*kept, old);
+  EXPECT_EQ(kept->duts[0].link.rate_hz, 1000.0);
+  EXPECT_EQ(kept->duts[1].link.rate_hz, 100.0);
+
+  std::filesystem::create_directories(dir_);
+  {
+    std::ofstream out(path_);
+    out << "modbus_host = \"127.0.0.1\"\nmodbus_port = 1\n"
+           "dut_devices = [{serial = \"A\", device = \"/dev/pts/3\", rate_hz = 0.0}]\n";
+  }
+  auto bad = read_sim_endpoints(path_);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_THAT(bad.error().message,
+              HasSubstr(":3: dut_devices[0].rate_hz: 0 is out of range: must be in [0.1, 10000]"));
 }
 
 TEST_F(DutEndpoints, ADutTheSimulatorDoesNotServeIsNamed) {

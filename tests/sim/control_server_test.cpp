@@ -64,7 +64,26 @@ TEST(ParseControlCommand, AcceptsEveryCommand) {
     EXPECT_EQ(c->kind, g.kind) << g.line;
     EXPECT_DOUBLE_EQ(c->value, g.value) << g.line;
     EXPECT_EQ(c->probe, g.probe) << g.line;
+    EXPECT_FALSE(c->dut_given) << g.line;
   }
+}
+
+// A DUT's own probe: the serial after top|side; without one, the station's.
+TEST(ParseControlCommand, ProbeCommandsTakeADutSerial) {
+  auto stall = parse_control_command("probe stall side 17-0043");
+  ASSERT_TRUE(stall.ok()) << stall.error().message;
+  EXPECT_EQ(stall->kind, Kind::kProbeStall);
+  EXPECT_EQ(stall->probe, ProbeRole::kSide);
+  EXPECT_TRUE(stall->dut_given);
+  EXPECT_EQ(stall->dut, "17-0043");
+  auto release = parse_control_command("probe release top TS-7");
+  ASSERT_TRUE(release.ok()) << release.error().message;
+  EXPECT_EQ(release->kind, Kind::kProbeRelease);
+  EXPECT_EQ(release->probe, ProbeRole::kTop);
+  EXPECT_EQ(release->dut, "TS-7");
+  auto station = parse_control_command("probe stall top");
+  ASSERT_TRUE(station.ok());
+  EXPECT_FALSE(station->dut_given);
 }
 
 TEST(ParseControlCommand, RejectsWithAMessageNamingTheProblem) {
@@ -91,7 +110,8 @@ TEST(ParseControlCommand, RejectsWithAMessageNamingTheProblem) {
       {"frames flip 0.1", "unknown 'frames' subcommand 'flip'"},
       {"probe stall", "'probe stall' needs a probe: top or side"},
       {"probe stall bottom", "'probe stall': unknown probe 'bottom'"},
-      {"probe release top now", "unexpected 'now' after 'probe release top'"},
+      // An optional serial (a DUT's own probe), then nothing.
+      {"probe release top SN now", "unexpected 'now' after 'probe release top SN'"},
       {"probe freeze top", "unknown 'probe' subcommand 'freeze'"},
       {"chamber", "'chamber' needs one of"},
       {"chamber alarm", "'chamber alarm' needs on or off"},
@@ -126,9 +146,9 @@ TEST(ControlCommands, HelpListsEveryCommand) {
   for (const auto& h : control_commands()) all += std::string(h.usage) + "\n";
   for (const char* usage :
        {"modbus down", "modbus up", "modbus delay WALL_S", "pty close", "pty reopen", "pty hold",
-        "pty release", "frames corrupt P", "frames drop P", "probe stall top|side",
-        "probe release top|side", "chamber alarm on|off", "chamber force TEMP_C", "chamber release",
-        "status", "help"}) {
+        "pty release", "frames corrupt P", "frames drop P", "probe stall top|side [SN]",
+        "probe release top|side [SN]", "chamber alarm on|off", "chamber force TEMP_C",
+        "chamber release", "status", "help"}) {
     EXPECT_NE(all.find(std::string(usage) + "\n"), std::string::npos) << usage;
   }
 }
@@ -486,6 +506,89 @@ TEST_F(ControlSocketTest, EveryFaultCommandReachesItsHook) {
   const std::string help = command("help");
   ASSERT_EQ(help.rfind("ok {", 0), 0u) << help;
   EXPECT_EQ(nlohmann::json::parse(help.substr(3))["commands"].size(), control_commands().size());
+}
+
+// A DUT's own probe stalled over the socket: its register keeps its value
+// while the station's pair and its other probe read on; released, it
+// follows its shell again. The demo's DUTs get probes here: 17-0043 on
+// channels 4 and 5, TS-7 on channel 0 (the station's top: not its own).
+TEST_F(ControlSocketTest, DutProbeStallFreezesThatDutsRegisterOnly) {
+  config_.duts[1].probes = daemon::DutProbes{4, 5};
+  config_.duts[2].probes = daemon::DutProbes{0, 6};
+  options_.thermal.probe_noise_c = 0.5;  // every reading moves at every step
+  ASSERT_NO_FATAL_FAILURE(start(&manual_clock_));
+  ModbusClient client(port(), probes_unit());
+  const auto top4 = drivers::probe_channel_spec("generic", 4);
+  const auto side5 = drivers::probe_channel_spec("generic", 5);
+  ASSERT_TRUE(top4.ok() && side5.ok());
+  const auto advance = [&](double dt_s) {
+    manual_clock_.advance(dt_s);
+    const double target_s = manual_clock_.now_s() - 1e-6;
+    ASSERT_TRUE(wait_for([&] { return sim_->status().t_s >= target_s; }));
+  };
+  // The registers as published after the last step.
+  const auto published = [&](const DutSimStatus& d) {
+    return wait_for([&] {
+      return client.read(*top4) == d.probe_readings->top_c &&
+             client.read(*side5) == d.probe_readings->side_c;
+    });
+  };
+  ASSERT_NO_FATAL_FAILURE(advance(1.0));
+
+  EXPECT_EQ(command("probe stall top 17-0043"), "ok");
+  const SimulatorStatus at_stall = sim_->status();
+  ASSERT_TRUE(at_stall.duts[1].probe_readings);
+  const double frozen_c = at_stall.duts[1].probe_readings->top_c;
+  ASSERT_TRUE(published(at_stall.duts[1]));
+  int side_moves = 0, station_moves = 0;
+  double side_c = at_stall.duts[1].probe_readings->side_c;
+  double station_top_c = at_stall.readings.top_c;
+  for (int k = 0; k < 5; ++k) {
+    ASSERT_NO_FATAL_FAILURE(advance(3.0));
+    const SimulatorStatus st = sim_->status();
+    ASSERT_TRUE(published(st.duts[1]));
+    EXPECT_EQ(client.read(*top4), frozen_c) << "step " << k;
+    EXPECT_EQ(st.duts[1].probe_readings->top_c, frozen_c);
+    side_moves += st.duts[1].probe_readings->side_c != side_c;
+    station_moves += st.readings.top_c != station_top_c;
+    side_c = st.duts[1].probe_readings->side_c;
+    station_top_c = st.readings.top_c;
+  }
+  EXPECT_GE(side_moves, 3);  // 0.5 °C of noise read at 0.1 °C: the others move
+  EXPECT_GE(station_moves, 3);
+  const auto j = status_reply();
+  EXPECT_EQ(j["duts"][1]["faults_active"], (nlohmann::json{"probe_stall_top"}));
+  EXPECT_EQ(j["duts"][1]["faults"]["probe_stalled"]["top"], true);
+  EXPECT_EQ(j["duts"][1]["faults"]["probe_stalled"]["side"], false);
+  EXPECT_EQ(j["faults_active"], nlohmann::json::array());  // the station's pair reads on
+  EXPECT_EQ(j["faults"]["probe_stalled"]["top"], false);
+
+  EXPECT_EQ(command("probe release top 17-0043"), "ok");
+  int top_moves = 0;
+  for (int k = 0; k < 5; ++k) {
+    ASSERT_NO_FATAL_FAILURE(advance(3.0));
+    const SimulatorStatus st = sim_->status();
+    ASSERT_TRUE(published(st.duts[1]));
+    top_moves += st.duts[1].probe_readings->top_c != frozen_c;
+  }
+  EXPECT_GE(top_moves, 3);
+  EXPECT_FALSE(sim_->status().duts[1].probe_top_stalled);
+
+  // What cannot be stalled says why, and changes nothing.
+  EXPECT_EQ(command("probe stall side NOPE"),
+            "error no DUT with serial 'NOPE'; the simulator serves '17-0042', '17-0043', 'TS-7'");
+  const std::string no_probes = command("probe stall top 17-0042");
+  EXPECT_EQ(no_probes.rfind("error DUT '17-0042' has no probes of its own", 0), 0u) << no_probes;
+  const std::string shared = command("probe stall top TS-7");
+  EXPECT_EQ(shared.rfind("error the top probe of DUT 'TS-7' is channel 0, which another probe", 0),
+            0u)
+      << shared;
+  EXPECT_EQ(command("probe stall side TS-7"), "ok");  // channel 6: its own
+  const SimulatorStatus st = sim_->status();
+  EXPECT_FALSE(st.faults.top_stalled);
+  EXPECT_FALSE(st.duts[2].probe_top_stalled);
+  EXPECT_TRUE(st.duts[2].probe_side_stalled);
+  EXPECT_FALSE(st.duts[1].probe_side_stalled);
 }
 
 TEST_F(ControlSocketTest, GarbageAndOversizeLinesGetErrorsAndTheServerKeepsAnswering) {

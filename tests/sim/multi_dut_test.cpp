@@ -34,6 +34,10 @@ using test_util::wait_for;
 constexpr double kLatitudeDeg = 31.9;
 // Ω_E · sin φ, written out here rather than taken from the code under test.
 const double kVerticalEarthDph = 15.041067 * std::sin(kLatitudeDeg * M_PI / 180.0);
+// A horizontal axis at heading h (clockwise from north): Ω_E · cos φ · cos h.
+double horizontal_earth_dph(double heading_deg) {
+  return 15.041067 * std::cos(kLatitudeDeg * M_PI / 180.0) * std::cos(heading_deg * M_PI / 180.0);
+}
 
 // Two KVH 1750 (rad/s rate; deg delta angles) and an ASCII test set. A has
 // its own bias per axis and its own probes and case; B takes the defaults
@@ -60,6 +64,7 @@ output = "rate"
 rate_hz = 100
 axes = ["x", "y", "z"]
 orientation = { z = "up", x = "horizontal", y = "horizontal" }
+heading_deg = { x = 30.0, y = 300.0 }
 primary_axis = "z"
 probes = { top_channel = 4, side_channel = 5 }
 [[dut]]
@@ -78,6 +83,7 @@ model = "rate test set"
 protocol = "ascii"
 rate_hz = 50
 orientation = { y = "down" }
+heading_deg = { x = 180.0 }
 primary_axis = "y"
 [dut.ascii]
 delimiter = ","
@@ -117,11 +123,15 @@ bias_dph = 2.0
 bias_dph = 0.7
 )";
 
-// The expected mean of each rate axis, °/h: Earth projection + bias.
+// The expected mean of each rate axis, °/h: Earth projection + bias. B's y
+// and z are horizontal without a heading (not among its axes): east–west, 0.
 const std::map<std::string, std::map<std::string, double>> kExpectedRateDph = {
-    {"A-1", {{"x", 5.0}, {"y", -3.0}, {"z", kVerticalEarthDph + 2.0}}},
+    {"A-1",
+     {{"x", horizontal_earth_dph(30.0) + 5.0},
+      {"y", horizontal_earth_dph(300.0) - 3.0},
+      {"z", kVerticalEarthDph + 2.0}}},
     {"B-2", {{"x", kVerticalEarthDph + 1.0}, {"y", 1.25}, {"z", 1.5}}},
-    {"TS-7", {{"x", 0.7}, {"y", -kVerticalEarthDph + 0.7}}},
+    {"TS-7", {{"x", horizontal_earth_dph(180.0) + 0.7}, {"y", -kVerticalEarthDph + 0.7}}},
 };
 // Gravity per accelerometer (only the KVH carry them).
 const std::map<std::string, std::map<std::string, double>> kExpectedAccelG = {
@@ -225,6 +235,8 @@ class MultiDutTest : public ::testing::Test {
   daemon::StationConfig config_;
   SimulatorOptions options_;
   ScaledClock clock_{20};
+  // For tests that step time by hand; outlives the simulator's threads.
+  ManualClock manual_clock_;
   std::unique_ptr<Simulator> sim_;
   std::map<std::string, std::unique_ptr<Collected>> collected_;
   std::map<std::string, std::unique_ptr<drivers::DutSource>> sources_;
@@ -335,6 +347,73 @@ TEST_F(MultiDutTest, TruthFileHasEveryDutAndAxisAndTodaysKeysForTheFirst) {
   EXPECT_EQ(truth["duts"][1]["case"]["own"], false);
   EXPECT_EQ(truth["duts"][1]["axes"]["y"]["bias_default"], true);
   EXPECT_EQ(truth["duts"][2]["axes"]["y"]["orientation"], "down");
+  EXPECT_EQ(truth["duts"][0]["axes"]["x"]["heading_deg"], 30.0);
+  EXPECT_EQ(truth["duts"][2]["axes"]["x"]["heading_deg"], 180.0);
+  EXPECT_TRUE(truth["duts"][1]["axes"]["y"]["heading_deg"].is_null());
+  EXPECT_EQ(truth["duts"][0]["rate_hz"], 100.0);
+  EXPECT_EQ(truth["duts"][2]["rate_hz"], 50.0);
+}
+
+// --rate-hz 40 sets every DUT's rate, --rate-hz TS-7=20 the test set's: each
+// DUT's frames come at its rate (counted over 10 station seconds on a
+// manual clock), the truth file and the endpoints say so, and a reader set
+// up from the endpoints decodes B's delta angles (angle per sample: the
+// rate matters) to its truth.
+TEST_F(MultiDutTest, RateHzSetsEveryDutAndOneBySerial) {
+  SimulatorOverrides overrides;
+  ASSERT_TRUE(parse_rate_hz_options({"TS-7=20", "40"}, overrides).ok());
+  overrides.time_scale = 20;  // as SetUp's: the pending-frame limit is 5 wall s of frames
+  overrides.endpoints_file = options_.endpoints_file;
+  overrides.truth_file = options_.truth_file;
+  auto options = read_simulator_options(config_, overrides);
+  ASSERT_TRUE(options.ok()) << options.error().message;
+  const std::string link = options_.gyro_link;
+  options_ = *options;
+  options_.gyro_link = link;
+  EXPECT_DOUBLE_EQ(options_.gyro_format.rate_hz, 40.0);  // the first DUT's, as served
+  ManualClock& manual = manual_clock_;
+  auto sim = Simulator::create(config_, options_, &manual);
+  ASSERT_TRUE(sim.ok()) << sim.error().message;
+  sim_ = std::move(sim).value();
+  ASSERT_TRUE(sim_->start().ok());
+
+  // The endpoints name each DUT's rate; the daemon's config takes them.
+  auto ep = daemon::read_sim_endpoints(options_.endpoints_file);
+  ASSERT_TRUE(ep.ok()) << ep.error().message;
+  EXPECT_EQ(ep->dut_rates_hz, (std::vector<std::pair<std::string, double>>{
+                                  {"A-1", 40.0}, {"B-2", 40.0}, {"TS-7", 20.0}}));
+  daemon::StationConfig served = config_;
+  daemon::apply_sim_endpoints(served, *ep);
+  EXPECT_EQ(served.duts[0].link.rate_hz, 40.0);
+  EXPECT_EQ(served.duts[1].link.rate_hz, 40.0);
+  EXPECT_EQ(served.duts[2].link.rate_hz, 20.0);
+  EXPECT_EQ(served.gyro.format.rate_hz, 40.0);
+  std::ifstream in(options_.truth_file);
+  ASSERT_TRUE(in);
+  const auto truth = nlohmann::json::parse(in);
+  EXPECT_EQ(truth["rate_hz"], 40.0);
+  EXPECT_EQ(truth["duts"][1]["rate_hz"], 40.0);
+  EXPECT_EQ(truth["duts"][2]["rate_hz"], 20.0);
+
+  // B read as the daemon would read it: its line and rate from the endpoints.
+  config_ = served;
+  Collected& b = read_dut("B-2");
+  ASSERT_TRUE(wait_for([&] { return sim_->status().duts[1].stream.readers > 0; }));
+  for (int k = 1; k <= 10; ++k) {
+    manual.advance(1.0);
+    ASSERT_TRUE(wait_for([&] { return sim_->status().t_s >= k - 1e-6; }));
+  }
+  const SimulatorStatus st = sim_->status();
+  EXPECT_EQ(st.duts[0].frames_generated, 400u);
+  EXPECT_EQ(st.duts[1].frames_generated, 400u);
+  EXPECT_EQ(st.duts[2].frames_generated, 200u);
+  ASSERT_TRUE(wait_for([&] { return b.size() >= 400; }, 10s)) << b.size();
+  sources_["B-2"]->stop();
+  EXPECT_EQ(b.size(), 400u);
+  // 10 s of 0.1 °/h-per-√s white noise: σ of the mean 0.03 °/h. At a wrong
+  // rate (the config's 100 Hz) the delta angles would read 2.5 times too large.
+  EXPECT_NEAR(mean_of(b, channel_of(b, ChannelKind::kRate, "x")),
+              kExpectedRateDph.at("B-2").at("x"), 0.2);
 }
 
 TEST_F(MultiDutTest, FaultsHitOnlyTheirDut) {

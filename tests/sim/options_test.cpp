@@ -176,5 +176,86 @@ TEST(SimulatorOptions, ReadsTheTableAndScaleFactorSections) {
   EXPECT_NE(trip.error().message.find("trip_rate_dps"), std::string::npos) << trip.error().message;
 }
 
+// --rate-hz HZ (every DUT) and SERIAL=HZ (one DUT, winning), in any order.
+TEST(RateHzOption, ParsesEveryDutAndOneDutValues) {
+  SimulatorOverrides ov;
+  ASSERT_TRUE(parse_rate_hz_options({"TS-7=2.5", "20", "17-0043=1e3"}, ov).ok());
+  EXPECT_EQ(ov.rate_hz, 20.0);
+  EXPECT_EQ(ov.dut_rate_hz,
+            (std::vector<std::pair<std::string, double>>{{"TS-7", 2.5}, {"17-0043", 1000.0}}));
+  SimulatorOverrides none;
+  ASSERT_TRUE(parse_rate_hz_options({}, none).ok());
+  EXPECT_FALSE(none.rate_hz);
+  EXPECT_TRUE(none.dut_rate_hz.empty());
+  // A serial holding '=' splits at the last one.
+  SimulatorOverrides odd;
+  ASSERT_TRUE(parse_rate_hz_options({"A=B=5"}, odd).ok());
+  EXPECT_EQ(odd.dut_rate_hz, (std::vector<std::pair<std::string, double>>{{"A=B", 5.0}}));
+}
+
+TEST(RateHzOption, BadValuesAreErrorsNamingTheValue) {
+  const std::pair<std::vector<std::string>, std::string> bad[] = {
+      {{"fast"}, "--rate-hz 'fast': 'fast' is not a number of Hz"},
+      {{"20Hz"}, "--rate-hz '20Hz': '20Hz' is not a number of Hz"},
+      {{"nan"}, "--rate-hz 'nan': 'nan' is not a number of Hz"},
+      {{""}, "--rate-hz '': '' is not a number of Hz"},
+      {{"TS-7="}, "--rate-hz 'TS-7=': '' is not a number of Hz"},
+      {{"TS-7=x"}, "--rate-hz 'TS-7=x': 'x' is not a number of Hz"},
+      {{"=5"}, "--rate-hz '=5': no serial before '='"},
+      {{"0.05"}, "--rate-hz '0.05': 0.05 Hz is outside [0.1, 10000]"},
+      {{"TS-7=20000"}, "--rate-hz 'TS-7=20000': 20000 Hz is outside [0.1, 10000]"},
+      {{"-10"}, "--rate-hz '-10': -10 Hz is outside [0.1, 10000]"},
+      {{"20", "30"}, "--rate-hz '30': every DUT's rate is already given (20 Hz)"},
+      {{"A=1", "B=2", "A=3"}, "--rate-hz 'A=3': DUT 'A' is already given (1 Hz)"},
+  };
+  for (const auto& [values, expected] : bad) {
+    SimulatorOverrides ov;
+    const Status st = parse_rate_hz_options(values, ov);
+    ASSERT_FALSE(st.ok()) << expected;
+    EXPECT_EQ(st.error().message.rfind(expected, 0), 0u) << st.error().message;
+  }
+}
+
+TEST(RateHzOption, ResolvesEachDutsRateAndRefusesAnUnknownSerial) {
+  auto config = daemon::parse_station_config(demo_text(), "demo.toml");
+  ASSERT_TRUE(config.ok()) << config.error().message;
+  const auto& duts = config->duts;
+  ASSERT_EQ(duts.size(), 3u);
+  const auto rates = [&](const SimulatorOptions& o) {
+    std::vector<double> out;
+    for (const auto& d : duts) out.push_back(dut_rate_hz(o, d));
+    return out;
+  };
+  // Nothing given: each DUT's [[dut]] rate_hz.
+  auto plain = read_simulator_options(*config);
+  ASSERT_TRUE(plain.ok()) << plain.error().message;
+  EXPECT_EQ(rates(*plain), (std::vector<double>{10.0, 10.0, 10.0}));
+  // Every DUT, then one DUT over it; the first DUT's is "the gyro's".
+  SimulatorOverrides ov;
+  ASSERT_TRUE(parse_rate_hz_options({"25", "TS-7=5"}, ov).ok());
+  auto both = read_simulator_options(*config, ov);
+  ASSERT_TRUE(both.ok()) << both.error().message;
+  EXPECT_EQ(rates(*both), (std::vector<double>{25.0, 25.0, 5.0}));
+  EXPECT_EQ(both->gyro_format.rate_hz, 25.0);
+  // Only one DUT: the others keep their own.
+  SimulatorOverrides one;
+  ASSERT_TRUE(parse_rate_hz_options({"17-0042=50"}, one).ok());
+  auto first = read_simulator_options(*config, one);
+  ASSERT_TRUE(first.ok()) << first.error().message;
+  EXPECT_EQ(rates(*first), (std::vector<double>{50.0, 10.0, 10.0}));
+  EXPECT_EQ(first->gyro_format.rate_hz, 50.0);
+
+  SimulatorOverrides unknown;
+  ASSERT_TRUE(parse_rate_hz_options({"NOPE=5"}, unknown).ok());
+  EXPECT_EQ(unknown_rate_hz_serial(unknown.dut_rate_hz, duts),
+            "--rate-hz 'NOPE=5': no [[dut]] with serial 'NOPE' (the station's DUTs: '17-0042', "
+            "'17-0043', 'TS-7')");
+  auto refused = read_simulator_options(*config, unknown);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_NE(refused.error().message.find("no [[dut]] with serial 'NOPE'"), std::string::npos)
+      << refused.error().message;
+  EXPECT_EQ(unknown_rate_hz_serial(ov.dut_rate_hz, duts), "");
+}
+
 }  // namespace
 }  // namespace gyrotherm::sim

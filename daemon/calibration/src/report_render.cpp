@@ -1127,6 +1127,43 @@ std::string plots_json(const std::vector<Plot>& plots) {
   return text;
 }
 
+namespace {
+
+// The report's "Mounting" line: the axis's direction and the Earth rate its
+// Table I removes.
+std::string mounting_text(const RunReport& r, const AnalysisSettings& s) {
+  if (!r.stream.orientation) {
+    return fmt::format("latitude {:g}°, axis {}; Earth rate removed {:.4f} °/h", r.run.latitude_deg,
+                       text::html_escape(r.run.orientation), s.table1.earth_rate_dph);
+  }
+  const analysis::AxisOrientation o = *r.stream.orientation;
+  const std::string axis = text::html_escape(r.stream.axis);
+  if (o != analysis::AxisOrientation::kHorizontal) {
+    return fmt::format("latitude {:g}°, axis {} {}; Earth rate removed {:.4f} °/h",
+                       r.run.latitude_deg, axis, analysis::to_string(o),
+                       analysis::earth_rate_component_dph(r.run.latitude_deg, o));
+  }
+  if (!r.stream.heading_deg) {
+    return fmt::format(
+        "latitude {:g}°, axis {} horizontal, no heading given: taken as east–west, Earth rate "
+        "removed 0 °/h",
+        r.run.latitude_deg, axis);
+  }
+  const double dph =
+      analysis::earth_rate_component_dph(r.run.latitude_deg, o, r.stream.heading_deg);
+  if (read_run_config(r.run).table_present) {
+    return fmt::format(
+        "latitude {:g}°, axis {} horizontal, heading {:g}° at table position 0 (turning with the "
+        "table); Earth rate at position 0 {:.4f} °/h, removed per soak at the table's position",
+        r.run.latitude_deg, axis, *r.stream.heading_deg, dph);
+  }
+  return fmt::format(
+      "latitude {:g}°, axis {} horizontal, heading {:g}°; Earth rate removed {:.4f} °/h",
+      r.run.latitude_deg, axis, *r.stream.heading_deg, dph);
+}
+
+}  // namespace
+
 std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions& options) {
   const std::string dir = fmt::format("run-{:04}/", r.run.id);
   const std::string& sfx = r.file_suffix;  // "" for the unnamed gyro's one axis
@@ -1144,15 +1181,7 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
       {"Started / ended (UTC)",
        fmt::format("{} / {}", text::html_escape(r.run.started_utc),
                    text::html_escape(r.run.ended_utc.empty() ? kDash : r.run.ended_utc))},
-      {"Mounting",
-       r.stream.orientation
-           ? fmt::format(
-                 "latitude {:g}°, axis {} {}; Earth rate removed {:.4f} °/h", r.run.latitude_deg,
-                 text::html_escape(r.stream.axis), analysis::to_string(*r.stream.orientation),
-                 analysis::earth_rate_component_dph(r.run.latitude_deg, *r.stream.orientation))
-           : fmt::format("latitude {:g}°, axis {}; Earth rate removed {:.4f} °/h",
-                         r.run.latitude_deg, text::html_escape(r.run.orientation),
-                         s.table1.earth_rate_dph)},
+      {"Mounting", mounting_text(r, s)},
       {"Analysis",
        fmt::format("{:g} s bins, {}-point moving average, model {}, derivative window {:g} s, L0 "
                    "window {:g} s, Allan τ {}",

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <limits>
 #include <nlohmann/json.hpp>
+#include <numbers>
 #include <span>
 
 #include "gyrotherm/analysis/scale_factor.h"
@@ -387,6 +388,8 @@ nlohmann::json dut_config_json(const DutSection& dut) {
   const drivers::DutLink& link = dut.link;
   json orientation = json::object();
   for (const auto& [axis, o] : dut.orientation) orientation[axis] = analysis::to_string(o);
+  json heading = json::object();
+  for (const auto& [axis, h] : dut.heading_deg) heading[axis] = h;
   json ascii = nullptr;
   if (link.protocol == "ascii") {
     const drivers::AsciiLineOptions& a = link.ascii;
@@ -422,6 +425,7 @@ nlohmann::json dut_config_json(const DutSection& dut) {
               {"primary_axis", dut.primary_axis},
               {"table_axis", dut.table_axis.empty() ? dut.primary_axis : dut.table_axis},
               {"orientation", std::move(orientation)},
+              {"heading_deg", std::move(heading)},
               {"silent_timeout_s", dut.silent_timeout_s},
               {"probes", std::move(probes)},
               {"ascii", std::move(ascii)}};
@@ -524,6 +528,8 @@ namespace {
 // stored but not up/down/horizontal is an error.
 struct StoredDutConfig {
   std::vector<std::pair<std::string, std::string>> orientation;  // axis -> as stored
+  // axis -> heading, degrees; runs stored before headings have none.
+  std::vector<std::pair<std::string, double>> heading_deg;
   std::string table_axis;
   bool probes = false;
 };
@@ -546,6 +552,13 @@ StoredDutConfig read_dut_config(const std::string& text, const std::string& prim
         if (e.is_array() && e.size() == 2 && e[0].is_string() && e[1].is_string()) {
           c.orientation.emplace_back(e[0].get<std::string>(), e[1].get<std::string>());
         }
+      }
+    }
+  }
+  if (j.contains("heading_deg") && j["heading_deg"].is_object()) {
+    for (const auto& [axis, v] : j["heading_deg"].items()) {
+      if (v.is_number() && std::isfinite(v.get<double>())) {
+        c.heading_deg.emplace_back(axis, v.get<double>());
       }
     }
   }
@@ -622,6 +635,9 @@ Result<std::vector<AnalysedAxis>> analysed_axes(storage::Database& db, int64_t r
       // Not stored: the primary axis sits as the run says (the station's
       // orientation); another axis is horizontal ([[dut]] orientation).
       if (!s.orientation && !s.primary) s.orientation = analysis::AxisOrientation::kHorizontal;
+      for (const auto& [axis, heading] : cfg.heading_deg) {
+        if (axis == a) s.heading_deg = heading;
+      }
       out.push_back(std::move(s));
     }
   }
@@ -1009,29 +1025,48 @@ Result<double> soak_earth_rate_dph(storage::Database& db, const SoakWindow& soak
                                    const AnalysedAxis& axis, double default_dph) {
   auto run = db.run(soak.run_id);
   if (!run) return run.error();
-  const double axis_dph =
-      axis.orientation ? analysis::earth_rate_component_dph(run->latitude_deg, *axis.orientation)
-                       : default_dph;
+  const bool horizontal = axis.orientation == analysis::AxisOrientation::kHorizontal;
+  const std::optional<double> heading_deg = horizontal ? axis.heading_deg : std::nullopt;
+  const double axis_dph = axis.orientation ? analysis::earth_rate_component_dph(
+                                                 run->latitude_deg, *axis.orientation, heading_deg)
+                                           : default_dph;
   const RunConfig cfg = read_run_config(*run);
   // The table's rule is for the axis along the table's spin axis; the
-  // DUT's other axes keep their own orientation.
-  if (!axis.table_axis || !cfg.table_present ||
-      cfg.table_sensitive_axis.value_or("along_table") != "radial") {
-    return axis_dph;
-  }
+  // DUT's other axes keep their own orientation. A horizontal axis with a
+  // heading turns with the table (the DUTs are on it): its heading is at
+  // table position 0.
+  const bool radial = axis.table_axis && cfg.table_present &&
+                      cfg.table_sensitive_axis.value_or("along_table") == "radial";
+  const bool turning = !radial && cfg.table_present && heading_deg;
+  if (!radial && !turning) return axis_dph;
   auto means = db.mean_table_over_windows(soak.run_id, soak.windows);
   if (!means) {
     return Error::Transient(fmt::format("{}: {}", soak_name(soak, axis), means.error().message));
   }
-  if (!means->position_deg) {
-    return Error::Permanent(fmt::format(
-        "{}: no table position recorded over the soak: the Earth-rate projection of a radial "
-        "sensitive axis is unknown",
-        soak_name(soak, axis)));
+  if (radial) {
+    if (!means->position_deg) {
+      return Error::Permanent(fmt::format(
+          "{}: no table position recorded over the soak: the Earth-rate projection of a radial "
+          "sensitive axis is unknown",
+          soak_name(soak, axis)));
+    }
+    // The axis's own heading when its [[dut]] gives one, else the table's.
+    return analysis::earth_rate_projection_dph(
+        run->latitude_deg, analysis::SensitiveAxis::kRadial,
+        heading_deg.value_or(cfg.table_heading_at_zero_deg.value_or(0.0)), *means->position_deg);
   }
-  return analysis::earth_rate_projection_dph(run->latitude_deg, analysis::SensitiveAxis::kRadial,
-                                             cfg.table_heading_at_zero_deg.value_or(0.0),
-                                             *means->position_deg);
+  if (means->n == 0) {
+    return Error::Permanent(fmt::format(
+        "{}: no table position recorded over the soak: the Earth-rate component of a horizontal "
+        "axis turning with the table (heading {:g}° at position 0) is unknown",
+        soak_name(soak, axis), *heading_deg));
+  }
+  // The mean of Ω cos φ cos(h + p) over the table's positions: the circular
+  // mean p̄ weighted by the resultant length (1 at rest; 0 over whole turns).
+  const double horizontal_dph = analysis::earth_rate_component_dph(
+      run->latitude_deg, analysis::AxisOrientation::kHorizontal, 0.0);
+  return horizontal_dph * means->position_resultant *
+         std::cos((*heading_deg + means->position_deg.value_or(0.0)) * std::numbers::pi / 180.0);
 }
 
 }  // namespace

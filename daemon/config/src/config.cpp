@@ -565,7 +565,8 @@ std::vector<std::string> rate_axes(const std::vector<ChannelSpec>& channels) {
 // One [[dut]]. `station`: the primary axis's orientation when [[dut]]
 // orientation does not give it. Returns the DUT when nothing was reported.
 std::optional<DutSection> read_dut(TableReader& t, const StationSection& station,
-                                   const ProbesSection& station_probes, bool simulated) {
+                                   const ProbesSection& station_probes, bool simulated,
+                                   TomlErrors& warnings) {
   TomlErrors& errors = t.errors();
   const std::size_t before = error_count(errors);
   DutSection d;
@@ -715,6 +716,48 @@ std::optional<DutSection> read_dut(TableReader& t, const StationSection& station
                                            ? station.orientation
                                            : analysis::AxisOrientation::kHorizontal);
   }
+  // heading_deg = { x = 90.0, y = 0.0 }: where each horizontal axis's
+  // positive direction points (azimuth from true north, clockwise seen from
+  // above; at table position 0), for its Earth-rate component Ω cos φ cos h.
+  if (auto h = t.table("heading_deg")) {
+    for (const auto& entry : h->raw()) {
+      const std::string axis(entry.first.str());
+      const auto orientation = axis_orientation(d, axis);
+      if (!is_axis_name(axis)) {
+        h->skip(axis);
+        h->error(axis, "is not an axis (x, y, z)");
+      } else if (!orientation) {
+        h->skip(axis);
+        h->error(axis, fmt::format("\"{}\" is not among axes ({})", axis, fmt::join(d.axes, ", ")));
+      } else if (*orientation != analysis::AxisOrientation::kHorizontal) {
+        h->skip(axis);
+        h->error(axis, fmt::format("axis {} is \"{}\" (orientation): only a horizontal axis has a "
+                                   "heading",
+                                   axis, analysis::to_string(*orientation)));
+      } else if (auto v = h->number(axis)) {
+        if (!std::isfinite(*v) || *v < -360.0 || *v > 360.0) {
+          h->error(axis, fmt::format("{} is out of range: must be in [-360, 360] degrees", *v));
+        } else {
+          d.heading_deg.emplace_back(axis, *v);
+        }
+      }
+    }
+    h->finish();
+  }
+  // A horizontal axis without a heading keeps the meaning it had before
+  // headings existed (east–west: no Earth rate); say so, it is rarely true.
+  for (const auto& [axis, orientation] : d.orientation) {
+    if (orientation != analysis::AxisOrientation::kHorizontal || axis_heading_deg(d, axis)) {
+      continue;
+    }
+    warnings.add(t.line_of(t.raw().contains("orientation") ? "orientation" : "axes"),
+                 t.key_path("heading_deg"),
+                 fmt::format("axis {} is horizontal without a heading: its Earth-rate component "
+                             "is taken as 0 (as if it pointed east or west); give "
+                             "heading_deg = {{ {} = AZIMUTH }} (degrees from true north, "
+                             "clockwise)",
+                             axis, axis));
+  }
   t.finish();
   if (error_count(errors) != before) return std::nullopt;
   return d;
@@ -723,7 +766,7 @@ std::optional<DutSection> read_dut(TableReader& t, const StationSection& station
 // Every [[dut]], into `duts` (only those without errors); serials and lines
 // unique, at most kMaxDuts.
 void read_duts(TableReader& top, std::vector<DutSection>& duts, const StationSection& station,
-               const ProbesSection& station_probes, bool simulated) {
+               const ProbesSection& station_probes, bool simulated, TomlErrors& warnings) {
   TomlErrors& errors = top.errors();
   const toml::array* list = top.array("dut");
   if (!list) return;  // the reader reported the wrong type
@@ -752,7 +795,7 @@ void read_duts(TableReader& top, std::vector<DutSection>& duts, const StationSec
       continue;
     }
     TableReader t(*table, path, errors);
-    auto dut = read_dut(t, station, station_probes, simulated);
+    auto dut = read_dut(t, station, station_probes, simulated, warnings);
     // Duplicates, from the raw values: reported even when the entry has
     // other errors.
     const auto unique = [&](std::string_view key, auto& seen, std::string_view what) {
@@ -1373,6 +1416,7 @@ Result<StationConfig> build_config(std::optional<toml::table> root, TomlErrors& 
   if (!root) return Error::Permanent(errors.joined());
   StationConfig cfg;
   cfg.source_path = source;
+  TomlErrors warnings(source);
   TableReader top(*root, "", errors);
   auto section = [&](std::string_view name, bool required, auto&& fn) {
     if (auto t = top.table(name)) {
@@ -1393,9 +1437,9 @@ Result<StationConfig> build_config(std::optional<toml::table> root, TomlErrors& 
                                  "gyro as a [[dut]] and remove [gyro] (the older form of one DUT)",
                                  top.line_of("gyro")));
     top.skip("gyro");
-    read_duts(top, cfg.duts, cfg.station, cfg.probes, simulated);
+    read_duts(top, cfg.duts, cfg.station, cfg.probes, simulated, warnings);
   } else if (has_dut) {
-    read_duts(top, cfg.duts, cfg.station, cfg.probes, simulated);
+    read_duts(top, cfg.duts, cfg.station, cfg.probes, simulated, warnings);
   } else if (has_gyro) {
     section("gyro", true, [&](TableReader t) { read_gyro(t, cfg.gyro); });
     if (cfg.gyro.serial.device.empty() && !simulated) {
@@ -1403,6 +1447,14 @@ Result<StationConfig> build_config(std::optional<toml::table> root, TomlErrors& 
                  "missing (required unless [simulator] endpoints_file is set)");
     }
     cfg.duts.push_back(dut_from_gyro(cfg.gyro, cfg.station.orientation));
+    if (cfg.station.orientation == analysis::AxisOrientation::kHorizontal) {
+      const toml::node* given = root->at_path("station.orientation").node();
+      warnings.add(given ? static_cast<int>(given->source().begin.line) : top.line_of("station"),
+                   "station.orientation",
+                   "the gyro's axis is horizontal without a heading: its Earth-rate component is "
+                   "taken as 0 (as if it pointed east or west); describe it as a [[dut]] with "
+                   "heading_deg");
+    }
   } else {
     errors.add(0, "dut",
                "missing: give each device under test as a [[dut]] (or one gyro as the older "
@@ -1425,6 +1477,7 @@ Result<StationConfig> build_config(std::optional<toml::table> root, TomlErrors& 
   // toml++ keeps source positions (for error lines) only through a move.
   if (auto* sim = root->get_as<toml::table>("simulator")) cfg.simulator_table = std::move(*sim);
   if (!errors.empty()) return Error::Permanent(errors.joined());
+  cfg.warnings = warnings.messages();
   cfg.gyro = gyro_of(cfg.duts.front());
   cfg.interlocks.min_temp_c = cfg.station.min_temp_c;
   cfg.interlocks.max_temp_c = cfg.station.max_temp_c;
@@ -1598,8 +1651,17 @@ Result<SimEndpoints> read_sim_endpoints(const std::string& path) {
       auto serial = e.required_string("serial");  // "" = the unnamed gyro
       auto device = e.required_string("device");
       if (device && device->empty()) e.error("device", "must not be empty");
+      // The rate the DUT is served at (absent from older simulators).
+      double rate_hz = 0;  // 0 = not stated
+      if (auto r = e.number("rate_hz")) {
+        if (*r >= 0.1 && *r <= 10000.0)
+          rate_hz = *r;
+        else
+          e.error("rate_hz", fmt::format("{} is out of range: must be in [0.1, 10000]", *r));
+      }
       e.finish();
       if (serial && device && !device->empty()) ep.dut_devices.emplace_back(*serial, *device);
+      if (serial && rate_hz > 0) ep.dut_rates_hz.emplace_back(*serial, rate_hz);
     }
   }
   if (ep.dut_devices.empty() || t.raw().contains("gyro_device")) {
@@ -1655,6 +1717,9 @@ Status write_sim_endpoints(const std::string& path, const SimEndpoints& ep) {
     toml::array list;
     for (const auto& [serial, device] : ep.dut_devices) {
       toml::table entry{{"serial", serial}, {"device", device}};
+      for (const auto& [s, hz] : ep.dut_rates_hz) {
+        if (s == serial) entry.insert("rate_hz", hz);
+      }
       entry.is_inline(true);
       list.push_back(std::move(entry));
     }
@@ -1695,8 +1760,16 @@ void apply_sim_endpoints(StationConfig& config, const SimEndpoints& ep) {
       }
     }
   }
+  // The rate each DUT is served at (gyrotherm-sim --rate-hz): what its
+  // frames come at, and for a delta-angle output what turns them into rates.
+  for (auto& dut : config.duts) {
+    for (const auto& [serial, hz] : ep.dut_rates_hz) {
+      if (serial == dut.serial) dut.link.rate_hz = hz;
+    }
+  }
   config.gyro.serial.device =
       config.duts.empty() ? ep.gyro_device : config.duts.front().link.serial.device;
+  if (!config.duts.empty()) config.gyro.format.rate_hz = config.duts.front().link.rate_hz;
   // The simulator's table, for a station that has one, by protocol and
   // transport: ACL on loopback TCP or a pty, the AERO grammar on a pty or
   // loopback TCP. What an older simulator does not serve stays as
@@ -1755,6 +1828,13 @@ std::optional<analysis::AxisOrientation> axis_orientation(const DutSection& dut,
                                                           std::string_view axis) {
   for (const auto& [name, orientation] : dut.orientation) {
     if (name == axis) return orientation;
+  }
+  return std::nullopt;
+}
+
+std::optional<double> axis_heading_deg(const DutSection& dut, std::string_view axis) {
+  for (const auto& [name, heading] : dut.heading_deg) {
+    if (name == axis) return heading;
   }
   return std::nullopt;
 }

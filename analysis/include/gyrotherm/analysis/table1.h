@@ -12,6 +12,7 @@
 #pragma once
 
 #include <cstddef>
+#include <optional>
 #include <span>
 #include <string>
 #include <string_view>
@@ -26,9 +27,17 @@ enum class AxisOrientation { kUp, kDown, kHorizontal };
 Result<AxisOrientation> parse_orientation(std::string_view s);  // "up", "down", "horizontal"
 std::string_view to_string(AxisOrientation o);
 
-// Earth-rate component seen by the sensitive axis, °/h:
-// up: +15.041067 x sin(lat); down: the negative; horizontal: 0 (axis taken as
-// east-west; a north-pointing axis would see 15.041067 x cos(lat)).
+// Earth-rate component seen by the sensitive axis, °/h, Ω = 15.041067 °/h,
+// φ = latitude:
+//   up: +Ω sin φ; down: −Ω sin φ;
+//   horizontal with a heading h (the azimuth the axis's positive direction
+//   points to: clockwise from true north, seen from above): Ω cos φ cos h;
+//   horizontal without a heading: 0 (the axis taken as east–west; what
+//   configs and stored runs from before headings mean).
+// A heading given with up or down is ignored (a vertical axis has none).
+double earth_rate_component_dph(double latitude_deg, AxisOrientation orientation,
+                                std::optional<double> heading_deg);
+// The same without a heading (horizontal: 0).
 double earth_rate_component_dph(double latitude_deg, AxisOrientation orientation);
 
 // Plain statistics in double, accurate to ~1e-13 relative on well-scaled

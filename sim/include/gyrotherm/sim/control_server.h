@@ -40,8 +40,8 @@ struct ControlCommand {
     kPtyRelease,       // pty release
     kFramesCorrupt,    // frames corrupt P            value = probability
     kFramesDrop,       // frames drop P               value = probability
-    kProbeStall,       // probe stall top|side        probe
-    kProbeRelease,     // probe release top|side      probe
+    kProbeStall,       // probe stall top|side [SN]   probe (SN: that DUT's own)
+    kProbeRelease,     // probe release top|side [SN] probe
     kChamberAlarmOn,   // chamber alarm on
     kChamberAlarmOff,  // chamber alarm off
     kChamberForce,     // chamber force TEMP_C        value = °C
@@ -61,7 +61,8 @@ struct ControlCommand {
   double value = 0;
   ProbeRole probe = ProbeRole::kTop;
   // The DUT a gyro-line command (pty ..., frames ..., gyro ...) is for, by
-  // serial; not given: the first DUT.
+  // serial; not given: the first DUT. For probe ...: the DUT whose own probe
+  // it is; not given: the station's probe.
   std::string dut{};
   bool dut_given = false;
 };

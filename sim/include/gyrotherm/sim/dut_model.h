@@ -3,10 +3,15 @@
 // probes, and the bytes its line carries (KVH 1750 frames or ASCII lines).
 //
 // Each gyro axis is a GyroModel (gyro_model.h) with its own parameters, seed
-// and Earth-rate component: the axis's orientation in the DUT's config (up:
-// +Ω sin φ, down: −Ω sin φ, horizontal: 0, as analysis::
-// earth_rate_component_dph). The DUT's table_axis sees the rate table through
-// the scale factor (GyroModel::enable_table); the other axes do not. Each
+// and Earth-rate component: the axis's orientation and heading in the DUT's
+// config (up: +Ω sin φ, down: −Ω sin φ, horizontal with heading h:
+// Ω cos φ cos h, horizontal without one: 0, as analysis::
+// earth_rate_component_dph). With a table served every DUT is on it: its
+// table_axis sees the rate table through the scale factor
+// (GyroModel::enable_table; a radial one from its own heading when it has
+// one); its other axes are taken perpendicular to the spin axis, see no
+// table rate, and a horizontal one with a heading turns with the table
+// (GyroModel::turn_with_table: Ω cos φ cos(h + position)). Each
 // accelerometer reads gravity along its axis (up +1 g, down −1 g, horizontal
 // 0) plus white noise. Status: every channel valid. Internal temperature:
 // the shell ("case") temperature plus internal_temp_offset_c.
@@ -110,9 +115,11 @@ struct DutSample {
 
 struct AxisSetup {
   analysis::AxisOrientation orientation = analysis::AxisOrientation::kHorizontal;
-  double earth_rate_dph = 0;
+  std::optional<double> heading_deg;  // a horizontal axis's [[dut]] heading_deg
+  double earth_rate_dph = 0;          // at table position 0
   double gravity_g = 0;
-  bool on_table = false;
+  bool on_table = false;          // the table_axis, with a table served
+  bool turns_with_table = false;  // a horizontal axis with a heading, with a table served
 };
 
 class DutModel {

@@ -27,6 +27,11 @@
 // Ω_E · cos(latitude) · cos(heading_at_zero_deg + position) for a radial
 // one. Without a table the formula above (no scale factor) holds.
 //
+// An axis off the table's spin axis of a DUT on the table (turn_with_table())
+// is horizontal and turns with the table: no table rate reaches it, and its
+// Earth rate is Ω_E · cos(latitude) · cos(heading + position) at each sample
+// instead of the fixed earth_rate_dph (which is its value at position 0).
+//
 // Deterministic given the seed. Not thread-safe.
 #pragma once
 
@@ -96,6 +101,16 @@ class GyroModel {
   // Puts the gyro on a rate table: from now on next_rate_dph() and
   // next_frame() take a TableInput and apply the scale factor.
   void enable_table(ScaleFactorParams sf, TableMount mount);
+  // A horizontal sensitive axis pointing at azimuth `heading_deg` (clockwise
+  // from north) at table position 0, turning with the table but not along
+  // its spin axis: its Earth rate follows TableInput::position_deg (see
+  // above); the table's rate does not reach it. Not with enable_table().
+  void turn_with_table(double latitude_deg, double heading_deg);
+  bool turns_with_table() const { return turning_; }
+  // The Earth rate the sensitive axis sees at table position `position_deg`,
+  // °/h, off the table's spin axis: earth_rate_dph(), or for an axis that
+  // turns with the table its projection at that position.
+  double earth_rate_at_dph(double position_deg) const;
   bool on_table() const { return on_table_; }
   // K at case temperature `case_c` for an input of sign `positive`.
   double scale_factor(double case_c, bool positive) const;
@@ -146,6 +161,9 @@ class GyroModel {
   double rrw_dph_ = 0;
   double last_rate_dph_ = 0;
   bool on_table_ = false;
+  bool turning_ = false;  // turn_with_table()
+  double turning_latitude_deg_ = 0;
+  double turning_heading_deg_ = 0;
   ScaleFactorParams sf_;
   TableMount mount_;
   uint8_t seq_ = 0;

@@ -28,7 +28,9 @@
 // The table is served when the station config has a [table] section or
 // with `--table` (serve_table).
 //
-// The gyro output format (unit, rate/delta, axis, rate_hz) comes from [gyro].
+// The gyro output format (unit, rate/delta, axis, rate_hz) comes from [gyro]
+// (each DUT's from its [[dut]]); `--rate-hz HZ` sets every DUT's rate,
+// `--rate-hz SERIAL=HZ` one DUT's (that wins over HZ).
 #pragma once
 
 #include <array>
@@ -101,7 +103,11 @@ struct SimulatorOptions {
   bool shared_clock = true;
   ThermalParams thermal;
   GyroParams gyro;
-  drivers::GyroFormat gyro_format;  // from [gyro]; its rate_hz is the first DUT's
+  drivers::GyroFormat gyro_format;  // from [gyro]; its rate_hz is the first DUT's as served
+  // --rate-hz: every DUT's output rate (nullopt: each its [[dut]] rate_hz),
+  // and per DUT by serial (winning over rate_hz); see dut_rate_hz().
+  std::optional<double> rate_hz;
+  std::vector<std::pair<std::string, double>> dut_rate_hz;
   // Per-DUT overrides, by serial ([simulator.dut.SN]); DUTs without one get
   // [simulator.gyro] with the default bias offsets (dut_model.h).
   std::vector<DutOverrides> dut_overrides;
@@ -126,11 +132,31 @@ struct SimulatorOverrides {
   std::optional<std::string> truth_file;
   std::optional<std::string> control_socket;
   std::optional<uint64_t> seed;
-  std::optional<double> rate_hz;
+  std::optional<double> rate_hz;                                 // --rate-hz HZ: every DUT
+  std::vector<std::pair<std::string, double>> dut_rate_hz = {};  // --rate-hz SERIAL=HZ
   std::optional<int> table_port;
   bool serve_table = false;   // --table
   bool scaled_clock = false;  // --scaled-clock: no shared clock file
 };
+
+// The output rates a DUT may be served at, Hz (as [[dut]] rate_hz).
+inline constexpr double kMinRateHz = 0.1;
+inline constexpr double kMaxRateHz = 10000.0;
+
+// `--rate-hz` values, each "HZ" (every DUT) or "SERIAL=HZ" (the DUT with
+// that serial; split at the last '='), into `overrides` (rate_hz,
+// dut_rate_hz). Error naming the value: not a number, outside [kMinRateHz,
+// kMaxRateHz], no serial before '=', HZ or one serial given twice.
+Status parse_rate_hz_options(const std::vector<std::string>& values, SimulatorOverrides& overrides);
+
+// "" when every serial of `per_dut` names one of `duts`, else the error
+// naming the first that does not, and the station's serials.
+std::string unknown_rate_hz_serial(const std::vector<std::pair<std::string, double>>& per_dut,
+                                   const std::vector<daemon::DutSection>& duts);
+
+// The rate `dut` is served at: its --rate-hz SERIAL=HZ, else --rate-hz HZ,
+// else its [[dut]] rate_hz.
+double dut_rate_hz(const SimulatorOptions& options, const daemon::DutSection& dut);
 
 // The parameters of `dut` (at `position` in the station's DUT list):
 // options.gyro, then its overrides (if any) for every axis, then per axis;

@@ -50,7 +50,8 @@
 // faults; the first is "the gyro" of the older interface (gyro_link, the
 // endpoints' gyro_device, last_rate_dph, the fault hooks' default). A DUT
 // with probes (DutSection::probes) has its top and side channels served on
-// the probe module, reading its own shell plus probe_offset_c.
+// the probe module, reading its own shell plus probe_offset_c; each can be
+// stalled on its own (stall_dut_probe()).
 //
 // Fault hooks are plain methods, safe to call from any thread while running.
 // With options.control_socket set, start() also opens a ControlServer
@@ -130,7 +131,11 @@ struct DutSimStatus {
   std::string device;                           // what the endpoints name (its link, or the pty)
   ThermalTruth shell;                           // its case (the plant's unless it has its own)
   std::optional<ProbeReadings> probe_readings;  // its own probes' registers, if served
-  std::array<double, 3> last_rates_dph{};       // last sample per axis x, y, z, noise included
+  bool has_probe_top = false;                   // its own top probe is served
+  bool has_probe_side = false;
+  bool probe_top_stalled = false;  // stall_dut_probe()
+  bool probe_side_stalled = false;
+  std::array<double, 3> last_rates_dph{};  // last sample per axis x, y, z, noise included
   uint64_t frames_generated = 0;
   uint64_t frames_fault_dropped = 0;
   uint64_t frames_fault_corrupted = 0;
@@ -228,8 +233,12 @@ class Simulator {
   // its pending limit, and the line stays quiet; released (false), they go
   // out as one backlog, as from a reader that was descheduled.
   void hold_pty(bool held, std::size_t dut = 0);
-  // A stalled probe's register keeps its last value.
+  // A stalled probe's register keeps its last value (the station's pair).
   void stall_probe(ProbeRole role, bool stalled);
+  // The same for DUT `dut`'s own probe (DutSection::probes). Error naming
+  // the DUT when there is no such DUT, or it serves no such probe of its
+  // own (no probes, or its channel is another probe's).
+  Status stall_dut_probe(std::size_t dut, ProbeRole role, bool stalled);
   // Raises (true) or clears the chamber alarm. Without an alarm register in
   // the config (has_chamber_alarm() false) only the status shows it.
   void set_chamber_alarm(bool raised);
@@ -279,6 +288,10 @@ class Simulator {
     GyroStream stream;  // guarded by stream_mu_
     std::string link;   // its symlink ("" = none: the endpoints name the pty)
     std::optional<drivers::RegisterSpec> probe_top, probe_side;  // served on the probe module
+    // What its probe registers hold: the shell's readings, each kept while
+    // that probe is stalled (guarded by sim_mu_).
+    ProbeReadings probe_readings;
+    std::atomic<bool> probe_stalled[2] = {false, false};  // top, side
     // Frames of one tick, waiting for the stream (simulation thread only).
     std::vector<uint8_t> batch;
     std::vector<std::size_t> batch_sizes;

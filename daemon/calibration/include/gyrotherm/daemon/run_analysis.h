@@ -74,6 +74,7 @@ nlohmann::json run_config_json(const StationConfig& config);
 // {"serial", "model", "protocol", "device", "baud", "parity", "unit",
 // "output", "rate_hz", "axes": [..], "primary_axis", "table_axis",
 // "orientation": {"z": "up", "x": "horizontal", ...} (every analysed axis),
+// "heading_deg": {"x": 90.0, ...} (the horizontal axes given one),
 // "silent_timeout_s", "probes": {"top_channel", "side_channel"} | null,
 // "ascii": {...} | null}. What analysed_axes() reads back.
 nlohmann::json dut_config_json(const DutSection& dut);
@@ -121,6 +122,12 @@ struct AnalysedAxis {
   // config (run_duts.config_json "orientation"); nullopt: not stored, the
   // run's orientation applies (Table1Options::earth_rate_dph as given).
   std::optional<analysis::AxisOrientation> orientation;
+  // A horizontal axis's heading, degrees from true north, clockwise (the
+  // stored "heading_deg"; at table position 0 on a run with a table, where
+  // the axis turns with the table): its Earth-rate component is
+  // Ω·cos φ·cos(heading [+ the table's position]). nullopt (runs stored
+  // before headings, or none given): 0, the axis taken as east–west.
+  std::optional<double> heading_deg;
   // The axis along the rate table's spin axis (the DUT's table_axis; the
   // primary axis when not stored): the scale factor, and the table's
   // radial/along-table rule of Table I, are for this axis.

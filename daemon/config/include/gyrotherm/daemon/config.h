@@ -130,6 +130,13 @@ struct DutSection {
   // Each analysed axis's direction, for the Earth-rate removal: up, down,
   // horizontal. Default "up" for the primary axis, "horizontal" for others.
   std::vector<std::pair<std::string, analysis::AxisOrientation>> orientation;
+  // heading_deg = { x = 90.0 }: per horizontal axis, the azimuth its
+  // positive direction points to, degrees clockwise from true north seen
+  // from above (on a rate table: at table position 0; the axis turns with
+  // the table). Its Earth-rate component is Ω·cos φ·cos(heading). A
+  // horizontal axis without one is taken as east–west (component 0), as
+  // before headings existed, and the config's warnings say so.
+  std::vector<std::pair<std::string, double>> heading_deg;
   std::string primary_axis;  // shown first (status, dashboard); default the last of axes
   // The axis along the rate table's spin axis (scale factor); default primary_axis.
   std::string table_axis;
@@ -151,6 +158,8 @@ const DutSection* find_dut(const std::vector<DutSection>& duts, std::string_view
 // the axis is not analysed.
 std::optional<analysis::AxisOrientation> axis_orientation(const DutSection& dut,
                                                           std::string_view axis);
+// The heading `dut` gives `axis` (DutSection::heading_deg); nullopt when none.
+std::optional<double> axis_heading_deg(const DutSection& dut, std::string_view axis);
 
 // [table]: the rate table. Absent from station.toml: the station has no
 // table (schedules that ask for a rate are refused; static steps need none).
@@ -321,6 +330,10 @@ struct StationConfig {
   ControlSection control;
   SimulatorSection simulator;
   std::optional<LabSection> lab;  // nullopt: no [lab]
+  // What loads but is probably not what the station is: "file:line: key:
+  // message", one per entry (a horizontal axis without a heading). The
+  // daemon and the simulator log them at start-up.
+  std::vector<std::string> warnings;
   // Raw [simulator], for gyrotherm-sim. Keeps source lines only in the
   // StationConfig that load_station_config() returned (toml++ copies drop them).
   OptionalTomlTable simulator_table;
@@ -366,7 +379,8 @@ Result<StationConfig> parse_station_config(std::string_view toml_text,
 // What gyrotherm-sim writes for the daemon (TOML):
 //   modbus_host = "127.0.0.1"; modbus_port = N; gyro_device = "/dev/pts/N"; pid = N;
 //   control_socket = "PATH" (optional); time_scale = X (station seconds per
-//   wall second the simulator runs at; absent from older simulators)
+//   wall second the simulator runs at; absent from older simulators);
+//   dut_devices = [{serial = "...", device = "...", rate_hz = HZ}, ...]
 struct SimEndpoints {
   std::string modbus_host = "127.0.0.1";
   int modbus_port = 0;
@@ -388,6 +402,11 @@ struct SimEndpoints {
   // order (gyro_device is the first's). Written as `dut_devices = [{serial =
   // "...", device = "..."}, ...]`.
   std::vector<std::pair<std::string, std::string>> dut_devices{};
+  // Each DUT's output rate as served, Hz, by serial (gyrotherm-sim
+  // --rate-hz may differ from the config's rate_hz): `rate_hz` in its
+  // dut_devices entry. Empty from older simulators. apply_sim_endpoints()
+  // gives each DUT its served rate.
+  std::vector<std::pair<std::string, double>> dut_rates_hz{};
 };
 // "" when a daemon at `daemon_time_scale` may run against the simulator
 // that wrote `ep`, else why not (the two clocks would disagree: the
@@ -396,8 +415,9 @@ std::string sim_time_scale_mismatch(const SimEndpoints& ep, double daemon_time_s
                                     const std::string& endpoints_file);
 Result<SimEndpoints> read_sim_endpoints(const std::string& path);
 Status write_sim_endpoints(const std::string& path, const SimEndpoints& endpoints);
-// Applies endpoints to the chamber, probes, table and every DUT's line (by
-// serial; a DUT the simulator does not serve is an error at start-up).
+// Applies endpoints to the chamber, probes, table and every DUT's line and
+// output rate (by serial; a DUT the simulator does not serve is an error at
+// start-up).
 void apply_sim_endpoints(StationConfig& config, const SimEndpoints& endpoints);
 // "" when the simulator that wrote `ep` serves every DUT of `config`, else
 // which it does not serve (the daemon refuses to start: its line would be
