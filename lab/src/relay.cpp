@@ -320,8 +320,8 @@ void Relay::run() {
             cancelled ? "the lab rolled it back, it is sent again at the next start"
                       : "the lab commits it or rolls it back, and the station sends it again at "
                         "the next start either way (counted redelivered if it was committed)");
-        update([&](RelayStatus& s) { s.last_error = message.substr(5); });
         event(message);
+        update([&](RelayStatus& s) { s.last_error = message.substr(5); });
       }
       return false;
     }
@@ -330,12 +330,8 @@ void Relay::run() {
     const double wait_s = refused ? o.retry_max_s : delay_s;
     if (!refused) delay_s = std::min(o.retry_max_s, delay_s * 2);
     if (!outage_since) outage_since = steady::now();
-    update([&](RelayStatus& s) {
-      ++s.errors_total;
-      s.last_error = e.message;
-      s.state = state;
-      s.retry_in_s = wait_s;
-    });
+    // The event before the status that follows from it (as on success): a
+    // reader who sees the new state or count finds its event already said.
     if (announced != state) {
       const std::string retrying = fmt::format("retrying {} to {} apart", describe_s(o.retry_min_s),
                                                describe_s(o.retry_max_s));
@@ -361,6 +357,12 @@ void Relay::run() {
       }
       announced = state;
     }
+    update([&](RelayStatus& s) {
+      ++s.errors_total;
+      s.last_error = e.message;
+      s.state = state;
+      s.retry_in_s = wait_s;
+    });
     // A lost connection is reopened; a refusal's is kept when still usable
     // (and checked again at the next attempt).
     if (pg && (!refused || !pg->ok())) pg.reset();
@@ -489,7 +491,6 @@ void Relay::run() {
     // The lab kept newer versions of some records: said once per run of
     // such batches, counted always.
     if (pushed->stale > 0) {
-      update([&](RelayStatus& s) { s.stale_total += static_cast<uint64_t>(pushed->stale); });
       if (!stale_said) {
         event(fmt::format(
             "lab: the lab database holds newer versions of {} of the batch of {} (outbox seq {} "
@@ -500,6 +501,7 @@ void Relay::run() {
             batch->front().seq, batch->back().seq));
         stale_said = true;
       }
+      update([&](RelayStatus& s) { s.stale_total += static_cast<uint64_t>(pushed->stale); });
     } else {
       stale_said = false;
     }
