@@ -280,12 +280,16 @@ int main(int argc, char** argv) {
   // serves all three.
   gd::Metrics metrics;
   gd::Station* station_ptr = nullptr;
+  // The status's and the metrics' bodies, built from the station's snapshot
+  // at most every kBodyMaxAgeS of real time whatever the request rate, and
+  // shared by every reader (docs/api.md "Status").
+  constexpr double kBodyMaxAgeS = 0.05;
+  std::optional<gd::BodyCache> status_body;
+  std::optional<gd::BodyCache> metrics_body;
   gd::EventStreamOptions stream_options;
   stream_options.queue_bytes = static_cast<std::size_t>(config->api.stream_queue_bytes);
   stream_options.max_clients = config->api.max_stream_clients;
-  stream_options.status_json = [&station_ptr] {
-    return gd::json_text(gd::to_json(station_ptr->status()));
-  };
+  stream_options.status_json = [&status_body] { return *status_body->get(); };
   gd::EventStream stream(stream_options);
   gd::StationHooks hooks;
   hooks.observe_modbus = [&metrics](std::string_view device, double seconds) {
@@ -326,8 +330,11 @@ int main(int argc, char** argv) {
     std::cerr << "gyrothermd: " << auth_limiter.error().message << "\n";
     return 1;
   }
+  status_body.emplace([s = station_ptr] { return gd::json_text(gd::to_json(s->status())); },
+                      kBodyMaxAgeS);
   gd::ApiContext api;
   api.status = [s = station_ptr] { return s->status(); };
+  api.status_body = &*status_body;
   api.control = station_ptr;
   api.tokens = config->api.tokens;
   api.read_tokens = config->api.read_tokens;
@@ -347,6 +354,8 @@ int main(int argc, char** argv) {
     f.stream_clients_dropped = stream.dropped();
     return metrics.scrape(station_ptr->status(), f);
   };
+  metrics_body.emplace(api.metrics, kBodyMaxAgeS);
+  api.metrics_body = &*metrics_body;
   gd::HttpServerOptions http_options;
   http_options.bind = config->api.bind;
   http_options.port = config->api.port;

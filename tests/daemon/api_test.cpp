@@ -455,6 +455,44 @@ TEST(Api, TableResetIsAControlActionOfTheStation) {
   EXPECT_NE(unknown.body().find("table-reset"), std::string::npos) << "the actions are listed";
 }
 
+// With a body cache attached, the status is rendered once for many reads,
+// and a control request (whatever its answer) makes the next one new.
+TEST(Api, TheStatusIsServedFromItsCacheAndAControlRequestRendersItAnew) {
+  class StillWall final : public WallClock {
+   public:
+    double unix_now_s() const override { return 1000.0; }
+  } wall;
+  FakeControl control;
+  ApiContext ctx = fake_context(&control);
+  std::atomic<int> snapshots{0};
+  ctx.status = [&] {
+    StatusSnapshot s;
+    s.station_name = "cached";
+    s.state = snapshots++ == 0 ? "idle" : "paused";
+    return s;
+  };
+  BodyCache status_body([&] { return json_text(to_json(ctx.status())); }, 3600, wall);
+  ctx.status_body = &status_body;
+  for (int i = 0; i < 5; ++i) {
+    const auto res = handle_api_request(get("/api/v1/status"), ctx);
+    ASSERT_EQ(res.result(), http::status::ok);
+    EXPECT_EQ(nlohmann::json::parse(res.body())["state"], "idle") << res.body();
+  }
+  EXPECT_EQ(snapshots.load(), 1);
+  // A read of something else leaves it.
+  EXPECT_EQ(handle_api_request(get("/api/v1/queue"), ctx).result(), http::status::ok);
+  EXPECT_EQ(handle_api_request(get("/api/v1/status"), ctx).result(), http::status::ok);
+  EXPECT_EQ(snapshots.load(), 1);
+  // The fake refuses the pause (409); the status is rendered anew all the same.
+  EXPECT_EQ(handle_api_request(
+                request(http::verb::post, "/api/v1/control/pause", R"({"reason":"x"})"), ctx)
+                .result(),
+            http::status::conflict);
+  const auto res = handle_api_request(get("/api/v1/status"), ctx);
+  EXPECT_EQ(nlohmann::json::parse(res.body())["state"], "paused") << res.body();
+  EXPECT_EQ(snapshots.load(), 2);
+}
+
 TEST(Api, BadBodiesAre400NamingTheProblem) {
   FakeControl control;
   const ApiContext ctx = fake_context(&control);

@@ -388,10 +388,11 @@ constexpr Route kRoutes[] = {
      }},
     {http::verb::get, "/metrics", Access::kRead, false,
      [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
-       if (!ctx.metrics) {
+       if (!ctx.metrics && !ctx.metrics_body) {
          return error_response(req, http::status::service_unavailable, "no metrics attached");
        }
-       return text_response(req, "text/plain; version=0.0.4; charset=utf-8", ctx.metrics());
+       return text_response(req, "text/plain; version=0.0.4; charset=utf-8",
+                            ctx.metrics_body ? *ctx.metrics_body->get() : ctx.metrics());
      }},
     {http::verb::get, "/api/v1/openapi.json", Access::kRead, false,
      [](const HttpRequest& req, const ApiContext&, const Params&) {
@@ -399,6 +400,7 @@ constexpr Route kRoutes[] = {
      }},
     {http::verb::get, "/api/v1/status", Access::kRead, false,
      [](const HttpRequest& req, const ApiContext& ctx, const Params&) {
+       if (ctx.status_body) return json_response(req, http::status::ok, *ctx.status_body->get());
        return json_response(req, http::status::ok, json_text(to_json(ctx.status())));
      }},
     // Served by the HTTP server's event stream; reached here only when none
@@ -734,7 +736,10 @@ HttpResponse handle_api_request(const HttpRequest& req, const ApiContext& ctx,
   if (auto bad = check_params(req, f.route->path, f.params)) return *bad;
   if (auto denied = authorize(req, ctx, peer, f.route->access)) return *denied;
   if (f.route->station && !ctx.control) return no_station(req);
-  return f.route->handle(req, ctx, f.params);
+  HttpResponse response = f.route->handle(req, ctx, f.params);
+  // Whatever a control request changed, the next status shows it.
+  if (f.route->access == Access::kControl && ctx.status_body) ctx.status_body->invalidate();
+  return response;
 }
 
 }  // namespace gyrotherm::daemon

@@ -26,6 +26,7 @@
 #include <vector>
 
 #include "gyrotherm/daemon/auth_limiter.h"
+#include "gyrotherm/daemon/body_cache.h"
 #include "gyrotherm/daemon/control.h"
 #include "gyrotherm/daemon/http_server.h"
 #include "gyrotherm/daemon/status.h"
@@ -42,6 +43,11 @@ struct ApiContext {
   AuthLimiter* auth_limiter = nullptr;   // not owned; nullptr: no throttling
   std::function<std::string()> metrics;  // Prometheus text; nullptr: /metrics answers 503
   const WebAssets* web = nullptr;        // the dashboard; nullptr: / answers 404
+  // Not owned. When set, /api/v1/status (/metrics) serves this cache's body
+  // instead of rendering `status` (`metrics`) for every request; every
+  // control request invalidates the status's.
+  BodyCache* status_body = nullptr;
+  BodyCache* metrics_body = nullptr;
 };
 
 // `peer` is the client's address (as HttpServer passes it): the key of the
