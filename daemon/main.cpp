@@ -384,12 +384,8 @@ int main(int argc, char** argv) {
     relay_events_to = station_ptr;
     relay->start();
   }
-  (*http)->start();
-  station_lock->note_api(fmt::format("http://{}:{}", config->api.bind, (*http)->port()));
-  spdlog::info(
-      "gyrothermd: station \"{}\", database {}, API http://{}:{}/api/v1/status, time "
-      "scale {:g}",
-      config->station.name, config->storage.db_path, config->api.bind, (*http)->port(), time_scale);
+  // The command line's schedule is queued before the API serves anyone, so
+  // it comes before whatever a client queues as soon as the daemon answers.
   if (!schedule_path.empty()) {
     const auto added = (*station)->queue_add(schedule_text, schedule_path, false);
     if (added.refusal) {
@@ -397,6 +393,12 @@ int main(int argc, char** argv) {
       for (const auto& line : added.refusal->details) spdlog::error("  {}", line);
     }
   }
+  (*http)->start();
+  station_lock->note_api(fmt::format("http://{}:{}", config->api.bind, (*http)->port()));
+  spdlog::info(
+      "gyrothermd: station \"{}\", database {}, API http://{}:{}/api/v1/status, time "
+      "scale {:g}",
+      config->station.name, config->storage.db_path, config->api.bind, (*http)->port(), time_scale);
 
   sd_notifyf(0, "READY=1\nSTATUS=station \"%s\", API http://%s:%d/", config->station.name.c_str(),
              config->api.bind.c_str(), (*http)->port());
