@@ -282,7 +282,7 @@ int main(int argc, char** argv) {
   gd::Station* station_ptr = nullptr;
   // The status's and the metrics' bodies, built from the station's snapshot
   // at most every kBodyMaxAgeS of real time whatever the request rate, and
-  // shared by every reader (docs/api.md "Status").
+  // shared by every reader (docs/api.md "How fresh the status is").
   constexpr double kBodyMaxAgeS = 0.05;
   std::optional<gd::BodyCache> status_body;
   std::optional<gd::BodyCache> metrics_body;
