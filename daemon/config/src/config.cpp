@@ -331,13 +331,6 @@ std::size_t error_count(const TomlErrors& errors) {
   return errors.messages().size() + errors.dropped();
 }
 
-// The line of an array entry; `fallback` (the array's key line) when toml++
-// kept none.
-int node_line(const toml::node& node, int fallback) {
-  const int line = static_cast<int>(node.source().begin.line);
-  return line > 0 ? line : fallback;
-}
-
 // [dut.ascii] columns: one inline table {name, kind, unit, axis} per column,
 // in line order.
 void read_ascii_columns(TableReader& a, drivers::AsciiLineOptions& o) {
