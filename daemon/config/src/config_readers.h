@@ -1,7 +1,7 @@
 // The section readers that config.cpp's build_config() calls from the other
 // translation units of the config library: the devices under test
-// (dut_config.cpp). Private to daemon/config/src: not installed, not
-// included from outside it.
+// (dut_config.cpp) and [lab] (lab_config.cpp). Private to daemon/config/src:
+// not installed, not included from outside it.
 #pragma once
 
 #include <string>
@@ -23,5 +23,9 @@ void read_duts(TableReader& top, std::vector<DutSection>& duts, const StationSec
 // dut_config.cpp: [gyro] as one DUT, and back (StationConfig::gyro).
 DutSection dut_from_gyro(const GyroSection& g, analysis::AxisOrientation orientation);
 GyroSection gyro_of(const DutSection& d);
+
+// lab_config.cpp: [lab], its paths taken relative to `source` (the config
+// file's path).
+void read_lab(TableReader t, LabSection& l, const std::string& source);
 
 }  // namespace gyrotherm::daemon::internal
