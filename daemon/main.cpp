@@ -29,6 +29,7 @@
 #include "gyrotherm/daemon/http_message.h"
 #include "gyrotherm/daemon/http_server.h"
 #include "gyrotherm/daemon/metrics.h"
+#include "gyrotherm/daemon/sim_endpoints.h"
 #include "gyrotherm/daemon/station.h"
 #include "gyrotherm/daemon/station_lock.h"
 #include "gyrotherm/daemon/web_assets.h"

@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 #include <thread>
 
+#include "gyrotherm/daemon/sim_endpoints.h"
 #include "gyrotherm/storage/database.h"
 #include "station_fixture.h"
 #include "test_files.h"

@@ -16,6 +16,7 @@
 #include <nlohmann/json.hpp>
 #include <thread>
 
+#include "gyrotherm/daemon/sim_endpoints.h"
 #include "gyrotherm/drivers/kvh1750.h"
 #include "sim_test_util.h"
 #include "test_time.h"
