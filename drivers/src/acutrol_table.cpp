@@ -78,22 +78,10 @@ void AcutrolTable::drop(const std::string& why) {
 Status AcutrolTable::ensure_connected(bool ignore_backoff) {
   if (config_error_) return *config_error_;
   if (is_open()) return Status::Ok();
-  if (!ignore_backoff) {
-    if (const double wait = health_->wait_s(); wait > 0) {
-      return Error::Transient(
-          fmt::format("{}: not connected (last error: {}); next attempt in {:.1f} s", name_,
-                      health_->health().last_error, wait));
-    }
-  }
-  if (auto st = link_->open(deadline()); !st) {
-    Error e{fmt::format("{}: {}", where(), st.error().message), st.error().transient};
-    // A link that cannot work (no permission, an unsupported baud rate) is
-    // no failure to back off from: every call says so at once.
-    if (e.transient) health_->on_link_failure(e.message);
-    return e;
+  if (auto st = health_->open_link(*link_, deadline(), name_, where(), ignore_backoff); !st) {
+    return st;
   }
   decoder_.reset();
-  health_->on_connected();
   return first_contact();
 }
 

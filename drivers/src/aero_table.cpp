@@ -59,21 +59,11 @@ void AeroTable::drop(const std::string& why) {
 Status AeroTable::ensure_open(bool ignore_backoff) {
   if (config_error_) return *config_error_;
   if (link_->is_open()) return Status::Ok();
-  if (!ignore_backoff) {
-    if (const double wait = health_->wait_s(); wait > 0) {
-      return Error::Transient(
-          fmt::format("{}: not connected (last error: {}); next attempt in {:.1f} s", name_,
-                      health_->health().last_error, wait));
-    }
-  }
-  if (auto st = link_->open(deadline()); !st) {
-    Error e{fmt::format("{}: {}", where(), st.error().message), st.error().transient};
-    if (e.transient) health_->on_link_failure(e.message);
-    return e;
+  if (auto st = health_->open_link(*link_, deadline(), name_, where(), ignore_backoff); !st) {
+    return st;
   }
   decoder_.reset();
   pending_.reset();
-  health_->on_connected();
   return Status::Ok();
 }
 

@@ -4,10 +4,13 @@
 // it.
 #pragma once
 
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <string>
 
 #include "gyrotherm/core/clock.h"
+#include "gyrotherm/drivers/byte_link.h"
 #include "gyrotherm/drivers/devices.h"
 
 namespace gyrotherm::drivers {
@@ -63,6 +66,29 @@ class LinkHealth {
   void on_local_error(const std::string& message) {
     ++health_.errors;
     health_.last_error = message;
+  }
+  // Opens `link` by `deadline`, unless a backoff is pending (and not
+  // `ignore_backoff`): then a transient error saying when the next attempt
+  // is. A failure to open is counted and backed off from when transient; a
+  // link that cannot work (no permission, an unsupported baud rate) is no
+  // failure to back off from, and every call says so at once. `name` is the
+  // device's, `where` the link's description for the messages.
+  Status open_link(ByteLink& link, ByteLink::Deadline deadline, const std::string& name,
+                   const std::string& where, bool ignore_backoff) {
+    if (!ignore_backoff) {
+      if (const double wait = wait_s(); wait > 0) {
+        return Error::Transient(
+            fmt::format("{}: not connected (last error: {}); next attempt in {:.1f} s", name,
+                        health_.last_error, wait));
+      }
+    }
+    if (auto st = link.open(deadline); !st) {
+      Error e{fmt::format("{}: {}", where, st.error().message), st.error().transient};
+      if (e.transient) on_link_failure(e.message);
+      return e;
+    }
+    on_connected();
+    return Status::Ok();
   }
   double backoff_s() const { return backoff_s_; }
   double now_s() const { return clock_.monotonic_s(); }
