@@ -1,0 +1,108 @@
+// The gyro's noise model fitted to its Allan curve, with intervals, and the
+// uncertainty of a window's mean that the model projects (docs/analysis.md,
+// "Uncertainty of a mean").
+//
+// Model. The Allan variances of independent noises add; with white rate noise
+// (angle random walk N, °/√h), flicker rate noise (bias instability B, °/h)
+// and rate random walk (K, °/h/√h), in (°/h)² with tau in s:
+//   sigma²(tau) = q_n / tau + q_b + q_k * tau
+//   q_n = 3600 N²              (sigma(1 s) = 60 N: tau in h is tau_s / 3600)
+//   q_b = (2 ln 2 / pi) B²      (the flicker floor, 0.664 B; IEEE Std 952)
+//   q_k = K² / (3 * 3600)       (sigma(3 s) = K / 60)
+// The same conventions as the noise terms read off the curve (allan.h).
+//
+// Fit. Weighted least squares of the measured Allan variances on the model,
+// linear in q = (q_n, q_b, q_k). An Allan variance estimate with edf degrees
+// of freedom has variance 2 sigma⁴ / edf, so the weights are edf / (2 m⁴)
+// with m the model's value at that tau, iterated from the measured values
+// (iteratively reweighted; a fixed number of rounds). Every q is >= 0 (a
+// variance): each non-empty subset of the three terms is fitted, subsets
+// with a negative q are dropped, and the subset with the smallest weighted
+// chi² plus kTermPenalty per term wins. The penalty keeps a term only when
+// the curve shows it: on pure white noise the last, few-degree-of-freedom
+// points would otherwise hand a spurious rate random walk to one soak in
+// ten, and with it an uncertainty two or three times too large. The
+// covariance of q is the inverse of the weighted normal matrix; it ignores
+// the correlation between the overlapping Allan points, which the coverage
+// tests measure (tests/analysis/noise_model_test.cpp).
+//
+// Intervals of N, B, K (95 %): q ± 1.96 u(q), the lower end at 0, each end
+// through the square root. A term the fit left out is 0, with the upper
+// limit of the fit that adds it to the chosen ones: max(q, 0) + 1.96 u(q).
+//
+// Uncertainty of the mean of a window of length T (s): the Allan variance of
+// the model at tau = T,
+//   u²(T) = q_n / T + q_b + q_k * T.
+// For white rate noise that is exactly the variance of the mean of T seconds
+// (sigma² tau0 / T); for a rate random walk starting at the window's start it
+// is the variance of the walk's mean over T (q_k T); flicker noise puts a
+// floor under it, u_floor = sqrt(q_b). Its degrees of freedom
+// (Welch-Satterthwaite) are nu = 2 u⁴ / var(u²), var(u²) = g' C g with
+// g = (1/T, 1, T) and C the covariance of q; the expanded uncertainty is
+// U = k u with k the Student t quantile for nu. A window whose u² is mostly
+// rate random walk is flagged: one realisation of the walk shows its size
+// poorly, and the interval's coverage falls below its nominal level there
+// (measured in the tests).
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <span>
+#include <string>
+
+#include "gyrotherm/core/result.h"
+
+namespace gyrotherm::analysis {
+
+// A term of the fitted model with its 95 % interval, in the term's unit.
+struct NoiseModelTerm {
+  double value = 0;
+  double lo = 0;
+  double hi = 0;
+  bool fitted = false;  // false: the curve does not show it; value 0, hi its upper limit
+};
+
+struct NoiseModel {
+  // (q_n, q_b, q_k) in (°/h)² s, (°/h)², (°/h)² / s, and their covariance.
+  std::array<double, 3> q{};
+  std::array<std::array<double, 3>, 3> cov{};
+  NoiseModelTerm angle_random_walk_dprh;   // N, °/√h
+  NoiseModelTerm bias_instability_dph;     // B, °/h
+  NoiseModelTerm rate_random_walk_dphprh;  // K, °/h/√h
+  double chi2 = 0;         // weighted chi² of the chosen fit
+  std::size_t n_taus = 0;  // Allan points fitted
+
+  // The model's Allan deviation at tau (s), °/h.
+  double adev_dph(double tau_s) const;
+};
+
+// A term is kept when it lowers the weighted chi² by more than this.
+inline constexpr double kTermPenalty = 6.0;
+
+// Fits the model to an Allan curve: tau_s ascending, adev_dph and edf per
+// tau, as allan_deviation returns them. Errors (permanent): sizes differ;
+// fewer than 3 taus; a tau, deviation or edf that is not finite and > 0
+// (names the index; a constant series has a zero deviation).
+Result<NoiseModel> fit_noise_model(std::span<const double> tau_s, std::span<const double> adev_dph,
+                                   std::span<const double> edf);
+
+struct MeanUncertainty {
+  double window_s = 0;
+  double u_dph = 0;         // standard uncertainty of the window's mean
+  double dof = 0;           // its effective degrees of freedom (may be +inf)
+  double k = 0;             // coverage factor for `coverage`
+  double expanded_dph = 0;  // k * u_dph
+  double coverage = 0.95;
+  double floor_dph = 0;  // sqrt(q_b): what no window length gets below
+  // The share of u² that is rate random walk (q_k T / u²) is over one half:
+  // the interval covers less often than it says (see the top of this file).
+  bool random_walk_dominated = false;
+};
+
+// u(T) of the mean of a window of `window_s` seconds under `model`, with its
+// expanded uncertainty at `coverage` (0 < coverage < 1). Errors (permanent):
+// a window that is not finite and > 0, a coverage outside (0, 1).
+Result<MeanUncertainty> mean_uncertainty(const NoiseModel& model, double window_s,
+                                         double coverage = 0.95);
+
+}  // namespace gyrotherm::analysis
