@@ -18,6 +18,7 @@
 #include <iostream>
 #include <map>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <set>
 
 #include "control.h"
@@ -25,6 +26,7 @@
 #include "gyrotherm/analysis/comparison.h"
 #include "gyrotherm/analysis/csv_window.h"
 #include "gyrotherm/analysis/drift_model.h"
+#include "gyrotherm/analysis/noise_model.h"
 #include "gyrotherm/analysis/scale_factor.h"
 #include "gyrotherm/analysis/start_temperature.h"
 #include "gyrotherm/analysis/table1.h"
@@ -903,15 +905,45 @@ struct AllanView {
   std::vector<int64_t> n_terms;
   analysis::AllanNoiseTerms noise;
   std::string bi_method;
+  // The noise model fitted to the curve and the uncertainty it gives the
+  // mean of the whole record (analysis/noise_model.h); or why there is none.
+  std::optional<analysis::NoiseModel> model;
+  std::optional<analysis::MeanUncertainty> mean_u;
+  std::string model_error;
 };
 
+// Fits the noise model to v's curve and projects u of the record's mean.
+void add_noise_model(AllanView& v) {
+  auto model = analysis::fit_noise_model(v.tau_s, v.adev, v.edf);
+  if (!model) {
+    v.model_error = model.error().message;
+    return;
+  }
+  v.model = *model;
+  auto u = analysis::mean_uncertainty(*model, static_cast<double>(v.n_samples) * v.tau0_s);
+  if (u) {
+    v.mean_u = *u;
+  } else {
+    v.model_error = u.error().message;
+  }
+}
+
 AllanView view_of(const analysis::AllanResult& a) {
-  AllanView v{a.tau0_s,      static_cast<int64_t>(a.n_samples),
-              a.tau_s,       a.adev_dph,
-              a.adev_lo_dph, a.adev_hi_dph,
-              a.edf,         {},
-              a.noise,       a.bias_instability_method};
+  AllanView v{a.tau0_s,
+              static_cast<int64_t>(a.n_samples),
+              a.tau_s,
+              a.adev_dph,
+              a.adev_lo_dph,
+              a.adev_hi_dph,
+              a.edf,
+              {},
+              a.noise,
+              a.bias_instability_method,
+              {},
+              {},
+              {}};
   for (auto t : a.n_terms) v.n_terms.push_back(static_cast<int64_t>(t));
+  add_noise_model(v);
   return v;
 }
 
@@ -928,12 +960,16 @@ AllanView view_of(const storage::AllanRecord& a) {
               {},
               {},
               analysis::allan_noise_terms(n, a.tau0_s, a.tau_s, a.adev_dph),
-              a.bias_instability_method};
+              a.bias_instability_method,
+              {},
+              {},
+              {}};
   for (const double tau : a.tau_s) {
     const auto m = static_cast<std::size_t>(std::llround(a.tau0_s > 0 ? tau / a.tau0_s : 0));
     v.n_terms.push_back(2 * m <= n + 1 ? static_cast<int64_t>(n - 2 * m + 1) : 0);
     v.edf.push_back(analysis::allan_edf_white_fm(n, m));
   }
+  add_noise_model(v);
   return v;
 }
 
@@ -946,6 +982,33 @@ json noise_term_json(const analysis::NoiseTerm& t) {
           {"tau_s", num(t.tau_s)},
           {"tau_relation", t.tau_relation},
           {"note", t.note}};
+}
+
+json model_term_json(const analysis::NoiseModelTerm& t) {
+  return {{"value", num(t.value)}, {"lo", num(t.lo)}, {"hi", num(t.hi)}, {"fitted", t.fitted}};
+}
+
+// The noise model and the uncertainty of the record's mean; null when the
+// curve could not be fitted (noise_model_error says why).
+json noise_model_json(const AllanView& v) {
+  if (!v.model) return nullptr;
+  json j = {{"angle_random_walk_dprh", model_term_json(v.model->angle_random_walk_dprh)},
+            {"bias_instability_dph", model_term_json(v.model->bias_instability_dph)},
+            {"rate_random_walk_dphprh", model_term_json(v.model->rate_random_walk_dphprh)},
+            {"chi2", num(v.model->chi2)},
+            {"mean_uncertainty", nullptr}};
+  if (v.mean_u) {
+    const auto& u = *v.mean_u;
+    j["mean_uncertainty"] = {{"window_s", num(u.window_s)},
+                             {"u_dph", num(u.u_dph)},
+                             {"dof", num(u.dof)},
+                             {"k", num(u.k)},
+                             {"expanded_dph", num(u.expanded_dph)},
+                             {"coverage", num(u.coverage)},
+                             {"floor_dph", num(u.floor_dph)},
+                             {"random_walk_dominated", u.random_walk_dominated}};
+  }
+  return j;
 }
 
 json allan_json(const AllanView& v, std::string_view taus) {
@@ -975,7 +1038,16 @@ json allan_json(const AllanView& v, std::string_view taus) {
           {"noise_terms",
            {{"angle_random_walk_dprh", noise_term_json(v.noise.angle_random_walk_dprh)},
             {"bias_instability_dph", noise_term_json(bi)},
-            {"rate_random_walk_dphprh", noise_term_json(v.noise.rate_random_walk_dphprh)}}}};
+            {"rate_random_walk_dphprh", noise_term_json(v.noise.rate_random_walk_dphprh)}}},
+          {"noise_model", noise_model_json(v)},
+          {"noise_model_error", v.model_error.empty() ? json(nullptr) : json(v.model_error)}};
+}
+
+// "0.0157 [0.0155, 0.0159] °/√h", or "— (< 0.03 °/√h)" for a term the curve
+// does not show.
+std::string model_term_text(const analysis::NoiseModelTerm& t, std::string_view unit) {
+  if (!t.fitted) return fmt::format("{} (< {} {})", kDash, general(t.hi), unit);
+  return fmt::format("{} [{}, {}] {}", general(t.value), general(t.lo), general(t.hi), unit);
 }
 
 // A noise term for the text output: "0.0123 °/h", "< 0.0456 °/h", "—".
@@ -1029,6 +1101,23 @@ std::string allan_text(const std::string& title, const AllanView& v, std::string
   out +=
       "  (bounds: 68.3 % chi-squared, white rate noise edf; \"< x\": the curve does not reach "
       "the term's region, so the term is below x)\n";
+  if (v.model) {
+    out += fmt::format("  noise model (95 %)  ARW {}, bias instability {}, RRW {}\n",
+                       model_term_text(v.model->angle_random_walk_dprh, "°/√h"),
+                       model_term_text(v.model->bias_instability_dph, "°/h"),
+                       model_term_text(v.model->rate_random_walk_dphprh, "°/h/√h"));
+  }
+  if (v.mean_u) {
+    const auto& u = *v.mean_u;
+    out += fmt::format(
+        "  mean of the {} s record: u {} °/h, ±{} °/h at {:g} % (k {}, {} dof); floor {} °/h{}\n",
+        general(u.window_s), general(u.u_dph), general(u.expanded_dph), 100 * u.coverage,
+        general(u.k), std::isfinite(u.dof) ? general(u.dof) : std::string("∞"),
+        general(u.floor_dph),
+        u.random_walk_dominated ? " [rate random walk dominates: the interval is less sure]" : "");
+  } else if (!v.model_error.empty()) {
+    out += fmt::format("  noise model: {}\n", v.model_error);
+  }
   return out;
 }
 

@@ -22,6 +22,7 @@
 #include "gyrotherm/analysis/comparison.h"
 #include "gyrotherm/analysis/csv_window.h"
 #include "gyrotherm/analysis/drift_model.h"
+#include "gyrotherm/analysis/noise_model.h"
 #include "gyrotherm/analysis/scale_factor.h"
 #include "gyrotherm/analysis/start_temperature.h"
 #include "gyrotherm/analysis/table1.h"
@@ -525,6 +526,31 @@ void expect_allan(const json& w, const analysis::AllanResult& a) {
     EXPECT_EQ(j.at("tau_relation").get<std::string>(), t->tau_relation);
     EXPECT_EQ(j.at("note").get<std::string>(), t->note);
   }
+  // The noise model fitted to the curve, and u of the whole record's mean.
+  auto model = analysis::fit_noise_model(a.tau_s, a.adev_dph, a.edf);
+  ASSERT_TRUE(model.ok()) << model.error().message;
+  const json& m = w.at("noise_model");
+  EXPECT_TRUE(w.at("noise_model_error").is_null());
+  for (auto [key, t] : {std::pair{"angle_random_walk_dprh", &model->angle_random_walk_dprh},
+                        std::pair{"bias_instability_dph", &model->bias_instability_dph},
+                        std::pair{"rate_random_walk_dphprh", &model->rate_random_walk_dphprh}}) {
+    SCOPED_TRACE(key);
+    EXPECT_EQ(m.at(key).at("fitted").get<bool>(), t->fitted);
+    EXPECT_EQ(m.at(key).at("value").get<double>(), t->value);
+    EXPECT_EQ(m.at(key).at("lo").get<double>(), t->lo);
+    EXPECT_EQ(m.at(key).at("hi").get<double>(), t->hi);
+  }
+  auto u = analysis::mean_uncertainty(*model, static_cast<double>(a.n_samples) * a.tau0_s);
+  ASSERT_TRUE(u.ok());
+  const json& mu = m.at("mean_uncertainty");
+  EXPECT_EQ(mu.at("window_s").get<double>(), u->window_s);
+  EXPECT_EQ(mu.at("u_dph").get<double>(), u->u_dph);
+  EXPECT_EQ(mu.at("expanded_dph").get<double>(), u->expanded_dph);
+  EXPECT_EQ(mu.at("floor_dph").get<double>(), u->floor_dph);
+  EXPECT_EQ(mu.at("random_walk_dominated").get<bool>(), u->random_walk_dominated);
+  // The record's mean is known better than one sample's rate.
+  EXPECT_GT(u->u_dph, 0);
+  EXPECT_LT(u->u_dph, a.adev_dph.front());
 }
 
 TEST_F(CliAnalysisTest, AllanOnADatabaseUsesTheLongestWindowAsRecorded) {
@@ -568,6 +594,18 @@ TEST_F(CliAnalysisTest, AllanTextGivesBoundsAndACampaignGetsASummary) {
   EXPECT_THAT(r.out, HasSubstr(fmt::format("rate random walk   < {:.6g} °/h/√h at τ ≥",
                                            a->noise.rate_random_walk_dphprh.value)));
   EXPECT_EQ(r.out.find("Summary"), std::string::npos) << "one curve, no summary";
+  // The noise model's line and u of the record's mean, as the analysis has them.
+  auto model = analysis::fit_noise_model(a->tau_s, a->adev_dph, a->edf);
+  ASSERT_TRUE(model.ok()) << model.error().message;
+  auto u = analysis::mean_uncertainty(*model, static_cast<double>(a->n_samples) * a->tau0_s);
+  ASSERT_TRUE(u.ok());
+  EXPECT_THAT(r.out, HasSubstr(fmt::format("noise model (95 %)  ARW {:.6g} [{:.6g}, {:.6g}] °/√h",
+                                           model->angle_random_walk_dprh.value,
+                                           model->angle_random_walk_dprh.lo,
+                                           model->angle_random_walk_dprh.hi)));
+  EXPECT_THAT(
+      r.out, HasSubstr(fmt::format("mean of the {:.6g} s record: u {:.6g} °/h, ±{:.6g} °/h at 95 %",
+                                   u->window_s, u->u_dph, u->expanded_dph)));
 
   const std::string runs = fmt::format("{},{}", run_ids_[0], run_ids_[2]);
   r = cli({"allan", "--db", db_path_, "--runs", runs});
