@@ -121,14 +121,14 @@ double NoiseModel::adev_dph(double tau_s) const {
 Result<NoiseModel> fit_noise_model(std::span<const double> tau_s, std::span<const double> adev_dph,
                                    std::span<const double> edf) {
   if (tau_s.size() != adev_dph.size() || tau_s.size() != edf.size()) {
-    return Error::Permanent(fmt::format(
-        "fit_noise_model: {} taus, {} deviations and {} edf: one of each per tau", tau_s.size(),
-        adev_dph.size(), edf.size()));
+    return Error::Permanent(
+        fmt::format("fit_noise_model: {} taus, {} deviations and {} edf: one of each per tau",
+                    tau_s.size(), adev_dph.size(), edf.size()));
   }
   if (tau_s.size() < 3) {
-    return Error::Permanent(fmt::format(
-        "fit_noise_model: {} Allan point(s); the model's three terms need at least 3",
-        tau_s.size()));
+    return Error::Permanent(
+        fmt::format("fit_noise_model: {} Allan point(s); the model's three terms need at least 3",
+                    tau_s.size()));
   }
   std::vector<double> tau(tau_s.begin(), tau_s.end());
   std::vector<double> avar;

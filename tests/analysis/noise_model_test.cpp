@@ -71,8 +71,8 @@ TEST(NoiseModelReference, FitsAndUncertaintiesMatchNumpy) {
         }
       } else if (t[0] == "cov") {
         for (std::size_t i = 0; i < 3; ++i) {
-          expect_close(model->cov[static_cast<std::size_t>(cov_row)][i], std::stod(t[i + 1]),
-                       1e-6, 1e-20, "cov", std::to_string(cov_row * 3 + static_cast<int>(i)));
+          expect_close(model->cov[static_cast<std::size_t>(cov_row)][i], std::stod(t[i + 1]), 1e-6,
+                       1e-20, "cov", std::to_string(cov_row * 3 + static_cast<int>(i)));
         }
         ++cov_row;
       } else if (t[0] == "chi2") {
@@ -204,9 +204,10 @@ TEST(NoiseModelCoverage, WhiteNoiseSoaksAreCoveredNinetyFivePercentOfTheTime) {
   const double coverage = static_cast<double>(covered) / soaks;
   RecordProperty("coverage_percent", std::to_string(100.0 * coverage));
   RecordProperty("random_walk_flags", flagged);
-  std::printf("white-noise soaks: coverage %.2f %%, mean u / true standard error %.3f, %d of %d "
-              "flagged as random-walk dominated\n",
-              100.0 * coverage, sum_ratio / soaks, flagged, soaks);
+  std::printf(
+      "white-noise soaks: coverage %.2f %%, mean u / true standard error %.3f, %d of %d "
+      "flagged as random-walk dominated\n",
+      100.0 * coverage, sum_ratio / soaks, flagged, soaks);
   EXPECT_GE(coverage, 0.93);
   EXPECT_LE(coverage, 0.97);
   // On average u is near the true standard error (a spurious term would

@@ -69,8 +69,8 @@ struct NoiseModel {
   NoiseModelTerm angle_random_walk_dprh;   // N, °/√h
   NoiseModelTerm bias_instability_dph;     // B, °/h
   NoiseModelTerm rate_random_walk_dphprh;  // K, °/h/√h
-  double chi2 = 0;         // weighted chi² of the chosen fit
-  std::size_t n_taus = 0;  // Allan points fitted
+  double chi2 = 0;                         // weighted chi² of the chosen fit
+  std::size_t n_taus = 0;                  // Allan points fitted
 
   // The model's Allan deviation at tau (s), °/h.
   double adev_dph(double tau_s) const;
