@@ -12,12 +12,12 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
+#include "dut_acquisition.h"
 #include "gyrotherm/core/paced_clock.h"
 #include "gyrotherm/daemon/run_analysis.h"
 #include "gyrotherm/daemon/run_config.h"
 #include "gyrotherm/drivers/dut_link.h"
 #include "gyrotherm/drivers/gyro_reader.h"
-#include "gyrotherm/drivers/kvh1750.h"
 #include "gyrotherm/drivers/modbus_devices.h"
 #include "gyrotherm/drivers/rate_tables.h"
 
@@ -30,11 +30,6 @@ constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 // How long (wall) a soak's Table I and a completed run's end wait for the
 // gyro samples of their last station seconds to come off the line.
 constexpr std::chrono::milliseconds kAwaitGyro{2000};
-
-// How a DUT is named in messages: its serial, or its position when unnamed.
-std::string dut_name(const DutSection& dut) {
-  return dut.serial.empty() ? std::string("(no serial)") : dut.serial;
-}
 
 }  // namespace
 
@@ -147,34 +142,19 @@ Station::Station(StationConfig config, StationDevices devices, StationClocks clo
                                        snapshot_.run_comment = metadata.comment;
                                        snapshot_.run_tags = metadata.tags;
                                      }}) {
-  for (std::size_t i = 0; i < devices.duts.size(); ++i) {
-    auto live = std::make_unique<DutLive>();
-    live->index = i;
-    live->cfg = &config_.duts[i];
-    live->source = std::move(devices.duts[i]);
-    if (i < devices.dut_probes.size()) live->probes = std::move(devices.dut_probes[i]);
-    const auto& channels = live->source->channels();
-    for (std::size_t c = 0; c < channels.size(); ++c) {
-      if (channels[c].kind == ChannelKind::kRate && !channels[c].axis.empty()) {
-        live->rate_channels.push_back(c);
-      }
-      if (channels[c].kind == ChannelKind::kTemperature && live->temp_channel < 0) {
-        live->temp_channel = static_cast<int>(c);
-      }
-      if (channels[c].axis == live->cfg->primary_axis && channels[c].kind == ChannelKind::kRate) {
-        live->primary_channel = static_cast<int>(c);
-      }
-    }
-    live->window_sum.assign(live->rate_channels.size(), 0.0);
-    live->window_n.assign(live->rate_channels.size(), 0);
-    live->rates_dph.assign(live->rate_channels.size(), std::nullopt);
-    duts_.push_back(std::move(live));
-  }
-  for (const auto& d : duts_) publish_dut_status(*d);
+  duts_ = std::make_unique<DutAcquisition>(
+      config_, std::move(devices.duts), std::move(devices.dut_probes),
+      DutAcquisition::Links{clock_, wall_, run_clock_, *writer_, mu_, snapshot_,
+                            [this](const std::string& kind, const std::string& message) {
+                              add_event(kind, "", "", message);
+                            },
+                            [this](const std::string& kind, const std::string& message) {
+                              post_event(kind, message);
+                            }});
   if (table_device_) table_ = std::make_unique<TableControl>(*table_device_, *config_.table);
   AnalysisWorker::Callbacks callbacks;
   callbacks.await_gyro = [this](int64_t run_id, double until_s) {
-    if (!await_gyro(run_id, until_s, kAwaitGyro)) {
+    if (!duts_->await_gyro(run_id, until_s, kAwaitGyro)) {
       spdlog::warn(
           "run {}: Table I computed without the gyro samples after t = {:.1f} s (the stream had "
           "not reached the soak's end after {} ms)",
@@ -266,16 +246,7 @@ void Station::start(ControlLoop loop) {
   const double now_s = clock_.now_s();
   chamber_ok_s_ = probes_ok_s_ = storage_ok_s_ = now_s;
   chamber_ok_wall_s_ = probes_ok_wall_s_ = storage_ok_wall_s_ = wall_.monotonic_s();
-  for (auto& d : duts_) {
-    d->last_s.store(now_s);
-    d->last_wall_s.store(chamber_ok_wall_s_);
-    if (d->probes) {
-      if (auto st = d->probes->connect(); !st) {
-        spdlog::warn("DUT {} probes: {} (will keep retrying)", dut_name(*d->cfg),
-                     st.error().message);
-      }
-    }
-  }
+  duts_->prepare(now_s, chamber_ok_wall_s_);
   {
     std::lock_guard lock(run_mu_);
     if (auto hold = db_.meta(kQueueHoldKey); hold && *hold) {
@@ -287,10 +258,7 @@ void Station::start(ControlLoop loop) {
     resume_interrupted_run();
     submit_missing_analyses();
   }
-  for (auto& d : duts_) {
-    DutLive* live = d.get();
-    live->source->start([this, live](std::span<const DutFrame> f) { on_dut_frames(*live, f); });
-  }
+  duts_->start_sources();
   if (loop == ControlLoop::kOwnThread) control_thread_ = std::thread([this] { control_loop(); });
   start_nightly_export();
 }
@@ -386,7 +354,7 @@ void Station::stop(const std::string& reason) {
     }
   }
   if (table_owed) make_table_safe_now();
-  for (auto& d : duts_) d->source->stop();
+  duts_->stop_sources();
   if (nightly_) nightly_->stop();
   analysis_->stop();
   writer_->stop();
@@ -526,47 +494,7 @@ schedules::Readings Station::read_devices(double now_s) {
   };
   r.chamber_silent_s = silent(chamber_ok_s_, chamber_ok_wall_s_);
   r.probes_silent_s = silent(probes_ok_s_, probes_ok_wall_s_);
-  // The most silent required DUT speaks for the gyro_lost interlock (whose
-  // timeout is the smallest of the DUTs' silent_timeout_s), and its message
-  // names every required DUT silent past its own timeout. A DUT that is not
-  // required is marked lost instead, and the run goes on without it.
-  r.gyro_heard = true;
-  std::vector<std::string> silent_duts;
-  for (const auto& d : duts_) {
-    if (!d->in_run.load()) continue;  // not recorded in this run
-    const double silent_s = silent(d->last_s.load(), d->last_wall_s.load());
-    if (!d->cfg->required) {
-      const bool lost = silent_s > d->cfg->silent_timeout_s;
-      if (lost != d->lost.exchange(lost)) {
-        const std::string message =
-            lost ? fmt::format(
-                       "DUT {} lost: no frame for {:.1f} s (silent_timeout_s {:g}); it is "
-                       "not required: its acquisition ends here and the run goes on "
-                       "with the other DUTs",
-                       dut_name(*d->cfg), silent_s, d->cfg->silent_timeout_s)
-                 : fmt::format("DUT {} back: frames again; its acquisition goes on",
-                               dut_name(*d->cfg));
-        if (lost) {
-          spdlog::warn("{}", message);
-        } else {
-          spdlog::info("{}", message);
-        }
-        post_event("dut", message);
-      }
-      continue;
-    }
-    if (silent_s > d->cfg->silent_timeout_s) silent_duts.push_back(dut_name(*d->cfg));
-    if (silent_s > r.gyro_silent_s) {
-      r.gyro_silent_s = silent_s;
-      if (duts_.size() > 1) r.gyro_stream = fmt::format("DUT {} stream", dut_name(*d->cfg));
-    }
-    r.gyro_heard = r.gyro_heard && d->heard.load();
-  }
-  if (silent_duts.size() > 1) {
-    std::string names;
-    for (const auto& n : silent_duts) names += (names.empty() ? "" : ", ") + n;
-    r.gyro_stream = fmt::format("DUT streams {}", names);
-  }
+  duts_->read_silence(r, silent);
   if (table_) table_->read(now_s, wall_s, min_wall_s, r);
   {
     // For status(), which never waits on a device.
@@ -587,9 +515,11 @@ schedules::Readings Station::read_devices(double now_s) {
     storage_ok_s_ = now_s;
     storage_ok_wall_s_ = wall_s;
   }
-  r.data_covered_s = [this](double from_s, double to_s) { return data_covered_s(from_s, to_s); };
+  r.data_covered_s = [this](double from_s, double to_s) {
+    return duts_->data_covered_s(from_s, to_s);
+  };
   r.data_reached_at_s = [this](double from_s, double need_s) {
-    return data_reached_at_s(from_s, need_s);
+    return duts_->data_reached_at_s(from_s, need_s);
   };
   r.storage_failing_s = silent(storage_ok_s_, storage_ok_wall_s_);
   if (r.storage_failing_s > 0) {
@@ -624,7 +554,7 @@ void Station::note_storage_file() {
 void Station::tick() {
   const double now_s = clock_.now_s();
   const schedules::Readings r = read_devices(now_s);
-  const std::vector<std::string> probe_events = read_dut_probes(now_s);
+  const std::vector<std::string> probe_events = duts_->read_dut_probes(now_s);
   std::optional<double> shell_c;
   if (r.top_c && r.side_c) {
     shell_c = (*r.top_c + *r.side_c) / 2.0;
@@ -1022,7 +952,7 @@ void Station::start_next_run(double now_s) {
   queue_length_.fetch_sub(1);
   queue_scanned_length_ = -1;  // the queue's planned time: without this entry, at the next tick
   busy_.store(true);
-  register_run_duts(run_id, entry.metadata.dut_serials);
+  duts_->register_run_duts(db_, run_id, entry.metadata.dut_serials);
   run_clock_.publish(run_id, now_s);
   entry_ = entry;
   {
@@ -1190,9 +1120,9 @@ void Station::resume_interrupted_run() {
   }
   entry_ = **entry;
   busy_.store(true);
-  register_run_duts(run.id, entry_->metadata.dut_serials);
+  duts_->register_run_duts(db_, run.id, entry_->metadata.dut_serials);
   // A soak is credited for what each DUT stored: read back from the step's start.
-  seed_coverage(run.id, snap->times.start_s);
+  duts_->seed_coverage(db_, run.id, snap->times.start_s);
   run_clock_.publish(run.id, clock_.now_s() - t_resume_s);
   {
     std::lock_guard lock(mu_);
@@ -1279,7 +1209,7 @@ void Station::end_run() {
   // batch is stored under the run any more; the flush then holds all of its
   // samples before its analysis reads them.
   if (final_state == RunState::kCompleted && run_id != 0) {
-    if (!await_gyro(run_id, run_time_s(), kAwaitGyro)) {
+    if (!duts_->await_gyro(run_id, run_time_s(), kAwaitGyro)) {
       spdlog::warn("run {}: the gyro stream had not reached the run's end after {} ms", run_id,
                    kAwaitGyro.count());
     }
@@ -1347,221 +1277,6 @@ void Station::note_samples_not_committed(int64_t run_id, RunState final_state, c
 
 // ---------------------------------------------------------------- gyro, status, events
 
-void Station::on_dut_frames(DutLive& dut, std::span<const DutFrame> frames) {
-  dut.last_s.store(clock_.now_s());
-  dut.last_wall_s.store(wall_.monotonic_s());
-  dut.heard.store(true);
-  // One read of the pair: the batch is timed from the start of the run it
-  // is stored under, and handed to the writer before that run can end.
-  run_clock_.with_samples_run([&](const RunClock::Value& run) {
-    if (run.run_id == 0 || frames.empty()) return;
-    std::shared_ptr<const storage::RunDutRecord> layout;
-    {
-      std::lock_guard lock(dut.layout_mu);
-      layout = dut.layout;
-    }
-    // Registered before the run's clock was published; a mismatch means the
-    // registration failed (logged there): the frames cannot be stored.
-    if (!layout || layout->run_id != run.run_id) return;
-    thread_local std::vector<DutFrame> rel;
-    rel.assign(frames.begin(), frames.end());
-    for (auto& f : rel) f.t_s -= run.t0_s;
-    writer_->push_frames(*layout, rel);
-    {
-      std::lock_guard lock(dut.coverage_mu);
-      if (!dut.coverage || dut.coverage_run_id != run.run_id) {
-        dut.coverage.emplace(1.0 / dut.cfg->link.rate_hz);
-        dut.coverage_run_id = run.run_id;
-      }
-      for (const auto& f : rel) dut.coverage->add(f.t_s);
-    }
-    {
-      std::lock_guard handed(handed_mu_);
-      dut.handed_run_id = run.run_id;
-      dut.handed_until_s = rel.back().t_s;
-    }
-    handed_cv_.notify_all();
-  });
-  const auto& channels = dut.source->channels();
-  std::lock_guard lock(mu_);
-  for (const auto& f : frames) {
-    if (dut.window_start_s < 0 || f.t_s < dut.window_start_s) {
-      dut.window_start_s = std::floor(f.t_s);
-      std::fill(dut.window_sum.begin(), dut.window_sum.end(), 0.0);
-      std::fill(dut.window_n.begin(), dut.window_n.end(), 0);
-      dut.window_frames = 0;
-    }
-    if (f.t_s >= dut.window_start_s + 1.0) {
-      if (dut.window_frames > 0) {
-        for (std::size_t a = 0; a < dut.rate_channels.size(); ++a) {
-          dut.rates_dph[a] =
-              dut.window_n[a] > 0
-                  ? std::optional(dut.window_sum[a] / static_cast<double>(dut.window_n[a]))
-                  : std::nullopt;
-        }
-        dut.samples_per_s = static_cast<double>(dut.window_frames);
-      }
-      dut.window_start_s = std::floor(f.t_s);
-      std::fill(dut.window_sum.begin(), dut.window_sum.end(), 0.0);
-      std::fill(dut.window_n.begin(), dut.window_n.end(), 0);
-      dut.window_frames = 0;
-    }
-    for (std::size_t a = 0; a < dut.rate_channels.size(); ++a) {
-      const std::size_t c = dut.rate_channels[a];
-      const double v = f.raw[c] * channels[c].scale;
-      if (!std::isfinite(v)) continue;
-      dut.window_sum[a] += v;
-      ++dut.window_n[a];
-    }
-    ++dut.window_frames;
-    if (dut.temp_channel >= 0) {
-      const double t = f.raw[static_cast<std::size_t>(dut.temp_channel)] *
-                       channels[static_cast<std::size_t>(dut.temp_channel)].scale;
-      if (std::isfinite(t)) dut.temp_c = t;
-    }
-  }
-  publish_dut_status(dut);
-}
-
-// DUT `dut`'s live figures into the snapshot (mu_ held).
-void Station::publish_dut_status(const DutLive& dut) {
-  if (snapshot_.duts.size() != duts_.size()) snapshot_.duts.resize(duts_.size());
-  DutStatus& st = snapshot_.duts[dut.index];
-  st.serial = dut.cfg->serial;
-  st.model = dut.cfg->model;
-  st.primary_axis = dut.cfg->primary_axis;
-  const auto& channels = dut.source->channels();
-  st.rates_dph.clear();
-  for (std::size_t a = 0; a < dut.rate_channels.size(); ++a) {
-    st.rates_dph.emplace_back(channels[dut.rate_channels[a]].axis, dut.rates_dph[a]);
-  }
-  st.temp_c = dut.temp_c;
-  st.samples_per_s = dut.samples_per_s;
-  st.required = dut.cfg->required;
-  st.lost = dut.lost.load();
-  if (dut.index == 0) {
-    // The first DUT's primary axis is "the gyro" of the older status fields.
-    for (std::size_t a = 0; a < dut.rate_channels.size(); ++a) {
-      if (static_cast<int>(dut.rate_channels[a]) == dut.primary_channel) {
-        snapshot_.gyro_rate_dph = dut.rates_dph[a];
-      }
-    }
-    snapshot_.gyro_samples_per_s = dut.samples_per_s;
-  }
-}
-
-void Station::register_run_duts(int64_t run_id, const std::vector<std::string>& serials) {
-  for (auto& d : duts_) {
-    const DutSection& cfg = *d->cfg;
-    const bool named =
-        serials.empty() || std::find(serials.begin(), serials.end(), cfg.serial) != serials.end();
-    d->in_run.store(named);
-    if (!named) {
-      // Not asked for: its frames are not stored under this run.
-      std::lock_guard lock(d->layout_mu);
-      d->layout.reset();
-      d->probe_layout.reset();
-      continue;
-    }
-    storage::RunDutRecord rec;
-    rec.run_id = run_id;
-    rec.position = static_cast<int>(d->index);
-    rec.dut.serial = cfg.serial;
-    rec.dut.model = cfg.model;
-    rec.config_json = dut_config_json(cfg).dump();  // what the run analysis reads
-    rec.primary_axis = cfg.primary_axis;
-    rec.axes = cfg.axes;
-    rec.rate_hz = cfg.link.rate_hz;
-    rec.seq_modulo = cfg.link.protocol == "kvh1750"
-                         ? drivers::kKvh1750SeqModulo
-                         : (cfg.link.ascii.seq_column ? cfg.link.ascii.seq_modulo : 0);
-    const auto& channels = d->source->channels();
-    for (std::size_t c = 0; c < channels.size(); ++c) {
-      rec.channels.push_back({0, run_id, 0, static_cast<int>(c), channels[c]});
-    }
-    if (d->probes) {
-      const int n = static_cast<int>(channels.size());
-      rec.channels.push_back(
-          {0, run_id, 0, n, {"probe_top_c", "degC", ChannelKind::kTemperature, "", 1.0}});
-      rec.channels.push_back(
-          {0, run_id, 0, n + 1, {"probe_side_c", "degC", ChannelKind::kTemperature, "", 1.0}});
-    }
-    auto added = db_.add_run_dut(run_id, rec);
-    std::lock_guard lock(d->layout_mu);
-    if (!added) {
-      // Its frames cannot be stored under this run (on_dut_frames drops
-      // them): said in the run's events.
-      d->layout.reset();
-      d->probe_layout.reset();
-      add_event("error", "", "",
-                fmt::format("DUT {}: not registered in run {} ({}); its samples are not recorded",
-                            dut_name(cfg), run_id, added.error().message));
-      continue;
-    }
-    auto frames = std::make_shared<storage::RunDutRecord>(*added);
-    auto probes = std::make_shared<storage::RunDutRecord>(*added);
-    const std::size_t n = channels.size();
-    frames->channels.resize(std::min(n, frames->channels.size()));
-    probes->rate_hz = 1.0 / config_.control.tick_s;  // read once a control tick
-    probes->seq_modulo = 0;
-    probes->channels.erase(probes->channels.begin(),
-                           probes->channels.begin() +
-                               static_cast<std::ptrdiff_t>(std::min(n, probes->channels.size())));
-    d->layout = std::move(frames);
-    d->probe_layout =
-        d->probes ? std::shared_ptr<const storage::RunDutRecord>(std::move(probes)) : nullptr;
-  }
-}
-
-// Each DUT's own probes, once a control tick, into its probe channels (the
-// frame's raw[] at those channels' indices).
-std::vector<std::string> Station::read_dut_probes(double now_s) {
-  std::vector<std::string> events;
-  for (auto& d : duts_) {
-    if (!d->probes) continue;
-    auto top = d->probes->top_c();
-    auto side = top ? d->probes->side_c() : Result<double>(top.error());
-    if (!top || !side) {
-      if (!d->probes_failing) {
-        d->probes_failing = true;
-        events.push_back(
-            fmt::format("DUT {} probes: no answer ({}); its own shell temperatures "
-                        "are missing from now",
-                        dut_name(*d->cfg), (!top ? top.error() : side.error()).message));
-      }
-      continue;
-    }
-    if (d->probes_failing) {
-      d->probes_failing = false;
-      events.push_back(fmt::format("DUT {} probes: answer again", dut_name(*d->cfg)));
-    }
-    std::shared_ptr<const storage::RunDutRecord> layout;
-    {
-      std::lock_guard lock(d->layout_mu);
-      layout = d->probe_layout;
-    }
-    const RunClock::Value run = run_clock_.load();
-    if (!layout || run.run_id == 0 || layout->run_id != run.run_id || layout->channels.size() < 2) {
-      continue;
-    }
-    DutFrame f;
-    f.t_s = now_s - run.t0_s;
-    f.raw[static_cast<std::size_t>(layout->channels[0].index)] = *top;
-    f.raw[static_cast<std::size_t>(layout->channels[1].index)] = *side;
-    writer_->push_frames(*layout, std::span(&f, 1));
-  }
-  return events;
-}
-
-bool Station::await_gyro(int64_t run_id, double until_s, std::chrono::milliseconds max_wait) {
-  std::unique_lock lock(handed_mu_);
-  return handed_cv_.wait_for(lock, max_wait, [&] {
-    return std::all_of(duts_.begin(), duts_.end(), [&](const auto& d) {
-      return d->handed_run_id == run_id && d->handed_until_s >= until_s;
-    });
-  });
-}
-
 StatusSnapshot Station::status() const {
   StatusSnapshot s;
   {
@@ -1571,10 +1286,7 @@ StatusSnapshot Station::status() const {
   s.uptime_s = wall_.monotonic_s() - started_wall_s_;
   // The chamber's and probes' health are the snapshot's (read_devices()):
   // their drivers hold their lock through a Modbus request.
-  s.gyro = duts_.front()->source->health();
-  for (std::size_t i = 0; i < duts_.size() && i < s.duts.size(); ++i) {
-    s.duts[i].health = duts_[i]->source->health();
-  }
+  duts_->add_health(s);
   s.storage = writer_->stats();
   // The database's file system (a statvfs: microseconds, no disk access).
   std::filesystem::path dir = std::filesystem::path(config_.storage.db_path).parent_path();
@@ -1834,66 +1546,7 @@ int64_t Station::segment_id(std::size_t index, const schedules::PlanStep& step, 
 void Station::on_step_started(std::size_t index, const schedules::PlanStep& step, double t_s) {
   if (index < segment_ids_.size()) segment_ids_[index] = 0;  // a new execution of the step
   (void)segment_id(index, step, t_s);
-  for (auto& d : duts_) {
-    std::lock_guard lock(d->coverage_mu);
-    if (d->coverage) d->coverage->forget_before(t_s);
-  }
-}
-
-double Station::data_covered_s(double from_s, double to_s) {
-  const int64_t run_id = current_run_id();
-  double least = std::numeric_limits<double>::infinity();
-  for (auto& d : duts_) {
-    if (d->lost.load() || !d->in_run.load()) continue;
-    std::lock_guard lock(d->coverage_mu);
-    const double covered =
-        d->coverage && d->coverage_run_id == run_id ? d->coverage->covered_s(from_s, to_s) : 0.0;
-    least = std::min(least, covered);
-  }
-  return std::isinf(least) ? std::max(0.0, to_s - from_s) : least;
-}
-
-std::optional<double> Station::data_reached_at_s(double from_s, double need_s) {
-  const int64_t run_id = current_run_id();
-  double latest = from_s + need_s;  // no DUT: the clock's
-  for (auto& d : duts_) {
-    if (d->lost.load() || !d->in_run.load()) continue;
-    std::lock_guard lock(d->coverage_mu);
-    if (!d->coverage || d->coverage_run_id != run_id) return std::nullopt;
-    const auto at = d->coverage->reached_at(from_s, need_s);
-    if (!at) return std::nullopt;
-    latest = std::max(latest, *at);
-  }
-  return latest;
-}
-
-void Station::seed_coverage(int64_t run_id, double from_s) {
-  for (auto& d : duts_) {
-    std::shared_ptr<const storage::RunDutRecord> layout;
-    {
-      std::lock_guard lock(d->layout_mu);
-      layout = d->layout;
-    }
-    schedules::CoverageSpans coverage(1.0 / d->cfg->link.rate_hz);
-    if (layout && layout->run_id == run_id && !layout->channels.empty()) {
-      const Status st = db_.for_each_channel_block(
-          layout->channels.front().id, from_s, std::numeric_limits<double>::infinity(),
-          [&](std::span<const double> t_s, std::span<const double>, std::span<const uint32_t>) {
-            for (double t : t_s) coverage.add(t);
-            return true;
-          });
-      if (!st) {
-        spdlog::error(
-            "run {}: DUT {}: stored samples not read back ({}); its coverage starts "
-            "anew",
-            run_id, dut_name(*d->cfg), st.error().message);
-        coverage = schedules::CoverageSpans(1.0 / d->cfg->link.rate_hz);
-      }
-    }
-    std::lock_guard lock(d->coverage_mu);
-    d->coverage = std::move(coverage);
-    d->coverage_run_id = run_id;
-  }
+  duts_->forget_coverage_before(t_s);
 }
 
 void Station::on_step_changed(std::size_t index, const schedules::PlanStep& step,
