@@ -13,6 +13,7 @@
 #include <sstream>
 
 #include "dut_acquisition.h"
+#include "event_journal.h"
 #include "gyrotherm/core/paced_clock.h"
 #include "gyrotherm/daemon/run_analysis.h"
 #include "gyrotherm/daemon/run_config.h"
@@ -142,11 +143,14 @@ Station::Station(StationConfig config, StationDevices devices, StationClocks clo
                                        snapshot_.run_comment = metadata.comment;
                                        snapshot_.run_tags = metadata.tags;
                                      }}) {
+  journal_ = std::make_unique<EventJournal>(
+      EventJournal::Links{clock_, wall_, run_clock_, db_, hooks_.publish, mu_, snapshot_,
+                          [this] { return sequencer_ != nullptr; }});
   duts_ = std::make_unique<DutAcquisition>(
       config_, std::move(devices.duts), std::move(devices.dut_probes),
       DutAcquisition::Links{clock_, wall_, run_clock_, *writer_, mu_, snapshot_,
                             [this](const std::string& kind, const std::string& message) {
-                              add_event(kind, "", "", message);
+                              journal_->add_event(kind, "", "", message);
                             },
                             [this](const std::string& kind, const std::string& message) {
                               post_event(kind, message);
@@ -347,10 +351,11 @@ void Station::stop(const std::string& reason) {
     ++control_ticks_;  // a write of its own, whatever the last tick tried
     chamber_safe = write_setpoint(safe_c, true);
     if (!chamber_safe) {
-      add_event("error", "", "",
-                fmt::format("daemon stopping: the chamber did not take the safe set point {:g} °C "
-                            "({}); set it at the controller",
-                            safe_c, chamber_safe.error().message));
+      journal_->add_event(
+          "error", "", "",
+          fmt::format("daemon stopping: the chamber did not take the safe set point {:g} °C "
+                      "({}); set it at the controller",
+                      safe_c, chamber_safe.error().message));
     }
   }
   if (table_owed) make_table_safe_now();
@@ -542,7 +547,7 @@ void Station::note_storage_file() {
         "operations.md \"The database file deleted or replaced\"), then restart gyrothermd",
         *storage_file_error_);
     spdlog::error("{}", message);
-    add_event("error", "", "", message);
+    journal_->add_event("error", "", "", message);
   }
   if (Status st = db_.release_wal(); st) {
     storage_file_released_ = true;
@@ -567,9 +572,9 @@ void Station::tick() {
     if (stopping_) return;
   }
   ++control_ticks_;
-  record_unrecorded();
-  record_posted_events();
-  for (const auto& message : probe_events) add_event("device", "", "", message);
+  journal_->record_unrecorded();
+  journal_->record_posted_events();
+  for (const auto& message : probe_events) journal_->add_event("device", "", "", message);
   note_storage_file();
   note_link(*chamber_, chamber_ok_, chamber_lost_s_, now_s);
   note_link(*probes_, probes_ok_, probes_lost_s_, now_s);
@@ -812,7 +817,7 @@ Status Station::write_setpoint(double setpoint_c, bool force) {
                       setpoint_c, setpoint_failures_, setpoint_failures_ == 1 ? "" : "s",
                       now_s - setpoint_failing_since_s_);
       spdlog::info("{}", message);
-      add_event("device", "", "", message);
+      journal_->add_event("device", "", "", message);
     }
     setpoint_failures_ = 0;
     return st;
@@ -825,7 +830,7 @@ Status Station::write_setpoint(double setpoint_c, bool force) {
         "tick until the chamber takes it",
         setpoint_c, st.error().message);
     spdlog::warn("{}", message);
-    add_event("device", "", "", message);
+    journal_->add_event("device", "", "", message);
   }
   return st;
 }
@@ -842,11 +847,12 @@ void Station::keep_idle_safe() {
 void Station::tend_table(double t_run_s) {
   if (auto what = table_->take_interruption()) {
     const bool respin = config_.table->respin_after_fault;
-    add_event("table", "", "",
-              fmt::format("table: {}; {}", *what,
-                          respin ? "the station spins it up again ([table] respin_after_fault); "
-                                   "acquisition waits for the rate"
-                                 : "the run pauses with the table at rest"));
+    journal_->add_event(
+        "table", "", "",
+        fmt::format("table: {}; {}", *what,
+                    respin ? "the station spins it up again ([table] respin_after_fault); "
+                             "acquisition waits for the rate"
+                           : "the run pauses with the table at rest"));
     sequencer_->table_interrupted(t_run_s, "the table was taken off its demand");
     if (!respin && !sequencer_->paused()) {
       (void)sequencer_->pause(
@@ -864,7 +870,7 @@ void Station::tend_table(double t_run_s) {
   if (fault_holds) {
     if (auto message = table_->reset_latched_fault(clock_.now_s())) {
       spdlog::info("{}", *message);
-      add_event("table", "", "", *message);
+      journal_->add_event("table", "", "", *message);
     }
   }
 }
@@ -887,15 +893,16 @@ void Station::answer_failed_run() {
   queue_answered_ = true;
   const int64_t run_id = current_run_id();
   if (hold_reason_) {
-    add_event("queue", "", "",
-              fmt::format("run {} failed; the queue stays held ({})", run_id, *hold_reason_));
+    journal_->add_event(
+        "queue", "", "",
+        fmt::format("run {} failed; the queue stays held ({})", run_id, *hold_reason_));
   } else if (!entry_->ignore_failures) {
     hold_queue(fmt::format("run {} failed ({}); resume releases the queue", run_id, last_reason_));
   } else {
-    add_event("queue", "", "",
-              fmt::format("run {} failed; the queue goes on with the next entry "
-                          "(ignore_failures)",
-                          run_id));
+    journal_->add_event("queue", "", "",
+                        fmt::format("run {} failed; the queue goes on with the next entry "
+                                    "(ignore_failures)",
+                                    run_id));
   }
 }
 
@@ -903,7 +910,7 @@ void Station::hold_queue(const std::string& reason) {
   hold_reason_ = reason;
   queue_held_.store(true);
   if (auto st = db_.set_meta(kQueueHoldKey, reason); !st) spdlog::error("{}", st.error().message);
-  add_event("queue", "", "", "queue held: " + reason);
+  journal_->add_event("queue", "", "", "queue held: " + reason);
   spdlog::info("queue held: {}", reason);
 }
 
@@ -911,7 +918,7 @@ void Station::release_queue() {
   hold_reason_.reset();
   queue_held_.store(false);
   if (auto st = db_.delete_meta(kQueueHoldKey); !st) spdlog::error("{}", st.error().message);
-  add_event("queue", "", "", "queue released");
+  journal_->add_event("queue", "", "", "queue released");
 }
 
 void Station::start_next_run(double now_s) {
@@ -967,8 +974,9 @@ void Station::start_next_run(double now_s) {
   // Checked again: the station config may have changed since it was queued.
   auto plan = schedules::parse_schedule(entry.toml_text, source, station_limits(config_));
   if (!plan) {
-    add_event("error", "queued", "failed",
-              "schedule refused at start (station limits changed?):\n" + plan.error().message);
+    journal_->add_event(
+        "error", "queued", "failed",
+        "schedule refused at start (station limits changed?):\n" + plan.error().message);
     last_reason_ = "schedule refused at start";
     answer_failed_run();
     (void)db_.set_run_state(run_id, "failed", true);
@@ -977,7 +985,7 @@ void Station::start_next_run(double now_s) {
   }
   spdlog::info("run {}: {} ({} steps)", run_id, plan->name, plan->steps.size());
   if (table_) table_->begin_run();
-  segment_ids_.assign(plan->steps.size(), 0);
+  journal_->begin_segments(std::vector<int64_t>(plan->steps.size(), 0));
   const double start_sp = last_written_setpoint_c_.value_or(
       snapshot_.chamber_c.value_or(config_.station.safe_setpoint_c));
   make_sequencer(std::move(*plan));
@@ -1019,13 +1027,14 @@ void Station::resume_interrupted_run() {
   if (open.empty()) return;
   for (std::size_t i = 0; i + 1 < open.size(); ++i) {
     run_clock_.publish(open[i].id, 0.0);
-    add_event("state", open[i].state, "interrupted", "closed at start-up: a newer run exists");
+    journal_->add_event("state", open[i].state, "interrupted",
+                        "closed at start-up: a newer run exists");
     (void)db_.set_run_state(open[i].id, "interrupted", true);
   }
   const storage::RunRecord& run = open.back();
   run_clock_.publish(run.id, 0.0);  // for the events below; its start once known
   auto give_up = [&](const std::string& why) {
-    add_event("state", run.state, "interrupted", "not resumed: " + why);
+    journal_->add_event("state", run.state, "interrupted", "not resumed: " + why);
     (void)db_.set_run_state(run.id, "interrupted", true);
     if (run.queue_id) (void)db_.queue_finish(*run.queue_id, "interrupted");
     spdlog::warn("run {} not resumed: {}", run.id, why);
@@ -1084,13 +1093,13 @@ void Station::resume_interrupted_run() {
   if (auto last = db_.last_sample_t_s(run.id); last && *last) {
     t_resume_s = std::max(t_resume_s, **last + 1e-3);
   }
-  segment_ids_.assign(plan->steps.size(), 0);
+  std::vector<int64_t> segment_ids(plan->steps.size(), 0);
   std::vector<storage::SegmentRecord> segments;
   if (auto segs = db_.segments(run.id)) {
     segments = std::move(*segs);
     for (const auto& seg : segments) {
-      if (seg.index >= 0 && static_cast<std::size_t>(seg.index) < segment_ids_.size()) {
-        segment_ids_[static_cast<std::size_t>(seg.index)] = seg.id;
+      if (seg.index >= 0 && static_cast<std::size_t>(seg.index) < segment_ids.size()) {
+        segment_ids[static_cast<std::size_t>(seg.index)] = seg.id;
       }
     }
   }
@@ -1098,26 +1107,27 @@ void Station::resume_interrupted_run() {
   // the step was recorded finished and before the checkpoint said so. That
   // step is not run again; the run goes on with the next.
   const bool step_finished_already =
-      snap->step_index < segment_ids_.size() &&
+      snap->step_index < segment_ids.size() &&
       std::any_of(segments.begin(), segments.end(), [&](const storage::SegmentRecord& seg) {
-        return seg.id == segment_ids_[snap->step_index] && seg.state == "completed";
+        return seg.id == segment_ids[snap->step_index] && seg.state == "completed";
       });
   // Segments still "running" that are not the step resumed died with the
   // daemon (e.g. the next step's, started after that checkpoint).
   for (auto seg : segments) {
-    const bool resumed = !step_finished_already && snap->step_index < segment_ids_.size() &&
-                         seg.id == segment_ids_[snap->step_index];
+    const bool resumed = !step_finished_already && snap->step_index < segment_ids.size() &&
+                         seg.id == segment_ids[snap->step_index];
     if (seg.state != "running" || resumed) continue;
     seg.state = "aborted";
     if (!seg.t_end_s) seg.t_end_s = std::max(seg.t_start_s, snap->t_s);
     if (auto st = db_.update_segment(seg); !st) {
       spdlog::error("run {}: segment {} not closed: {}", run.id, seg.id, st.error().message);
     }
-    if (seg.index >= 0 && static_cast<std::size_t>(seg.index) < segment_ids_.size() &&
-        segment_ids_[static_cast<std::size_t>(seg.index)] == seg.id) {
-      segment_ids_[static_cast<std::size_t>(seg.index)] = 0;
+    if (seg.index >= 0 && static_cast<std::size_t>(seg.index) < segment_ids.size() &&
+        segment_ids[static_cast<std::size_t>(seg.index)] == seg.id) {
+      segment_ids[static_cast<std::size_t>(seg.index)] = 0;
     }
   }
+  journal_->begin_segments(std::move(segment_ids));
   entry_ = **entry;
   busy_.store(true);
   duts_->register_run_duts(db_, run.id, entry_->metadata.dut_serials);
@@ -1140,23 +1150,24 @@ void Station::resume_interrupted_run() {
   spdlog::info("run {}: {}", run.id, reason);
   make_sequencer(std::move(*plan));
   if (table_) table_->begin_run();
-  add_event("resume", "", "", reason);
+  journal_->add_event("resume", "", "", reason);
   last_written_setpoint_c_.reset();
   sequencer_->restore(*snap, t_resume_s, data_until_s, reason);
   if (step_finished_already) {
-    add_event("resume", "", "",
-              fmt::format("step {} had ended before the daemon stopped (its last checkpoint was "
-                          "older): it is not run again; the run goes on with the next step",
-                          snap->step_index + 1));
+    journal_->add_event(
+        "resume", "", "",
+        fmt::format("step {} had ended before the daemon stopped (its last checkpoint was "
+                    "older): it is not run again; the run goes on with the next step",
+                    snap->step_index + 1));
     sequencer_->continue_after_finished_step(t_resume_s);
     // restore() re-announced that step as running: its record stays as it
     // was written when it ended.
     for (const auto& seg : segments) {
       if (seg.index == static_cast<int>(snap->step_index) && seg.state == "completed") {
-        unrecorded_segments_[seg.id] = seg;
+        journal_->keep_segment(seg);
       }
     }
-    record_unrecorded();
+    journal_->record_unrecorded();
   }
   (void)db_.set_run_state(run.id, to_string(sequencer_->state()), false);
   checkpoint(true);
@@ -1199,10 +1210,11 @@ void Station::end_run() {
   const Status chamber_safe = write_setpoint(safe_c, true);
   safe_setpoint_owed_ = !chamber_safe;
   if (!chamber_safe && run_id != 0) {
-    add_event("error", "", "",
-              fmt::format("run {} ended without the chamber taking the safe set point {:g} °C "
-                          "({}); the station writes it every control tick until it does",
-                          run_id, safe_c, chamber_safe.error().message));
+    journal_->add_event(
+        "error", "", "",
+        fmt::format("run {} ended without the chamber taking the safe set point {:g} °C "
+                    "({}); the station writes it every control tick until it does",
+                    run_id, safe_c, chamber_safe.error().message));
   }
   // A completed run's last samples may still be on the line (a reader behind
   // on a loaded machine): they are waited for, a bounded time, before no
@@ -1241,7 +1253,7 @@ void Station::end_run() {
   checkpoint_state_.clear();
   // No checkpoint transaction comes for this run any more: what it left
   // unwritten (its steps' last records, then its end) goes now if it can.
-  record_unrecorded();
+  journal_->record_unrecorded();
   {
     std::lock_guard lock(mu_);
     snapshot_.run_id.reset();
@@ -1266,12 +1278,13 @@ void Station::note_samples_not_committed(int64_t run_id, RunState final_state, c
   const std::string why = fmt::format(
       "the final commit of its samples failed ({} samples not stored): {}", ws.pending, e.message);
   spdlog::error("run {}: {}", run_id, why);
-  add_event("error", "", "", fmt::format("run {}: {}", run_id, why));
+  journal_->add_event("error", "", "", fmt::format("run {}: {}", run_id, why));
   if (final_state == RunState::kCompleted) {
-    add_event("analysis", "", "",
-              fmt::format("analysis not run: the run's samples are incomplete ({}); analyse it "
-                          "offline once its data are checked (gyrotherm allan, fit)",
-                          why));
+    journal_->add_event(
+        "analysis", "", "",
+        fmt::format("analysis not run: the run's samples are incomplete ({}); analyse it "
+                    "offline once its data are checked (gyrotherm allan, fit)",
+                    why));
   }
 }
 
@@ -1300,29 +1313,7 @@ StatusSnapshot Station::status() const {
 }
 
 void Station::post_event(const std::string& kind, const std::string& message) {
-  std::lock_guard lock(posted_mu_);
-  if (posted_events_.size() >= kMaxPostedEvents) {
-    posted_events_.pop_front();
-    ++posted_events_dropped_;
-  }
-  posted_events_.emplace_back(kind, message);
-}
-
-// Control thread (run_mu_): the events post_event() queued, in order.
-void Station::record_posted_events() {
-  std::deque<std::pair<std::string, std::string>> events;
-  uint64_t dropped = 0;
-  {
-    std::lock_guard lock(posted_mu_);
-    events.swap(posted_events_);
-    std::swap(dropped, posted_events_dropped_);
-  }
-  if (dropped > 0) {
-    add_event("error", "", "",
-              fmt::format("{} posted events dropped (more than {} waited for the control loop)",
-                          dropped, kMaxPostedEvents));
-  }
-  for (const auto& [kind, message] : events) add_event(kind, "", "", message);
+  journal_->post_event(kind, message);
 }
 
 // A device's gap in the event log: when it stopped answering and how long
@@ -1331,135 +1322,29 @@ void Station::note_link(const drivers::PolledDevice& device, bool ok,
                         std::optional<double>& lost_since_s, double now_s) {
   if (!ok && !lost_since_s) {
     lost_since_s = now_s;
-    add_event("device", "", "",
-              fmt::format("{}: no answer ({}); its readings are missing from now", device.name(),
-                          device.health().last_error));
+    journal_->add_event("device", "", "",
+                        fmt::format("{}: no answer ({}); its readings are missing from now",
+                                    device.name(), device.health().last_error));
   } else if (ok && lost_since_s) {
-    add_event("device", "", "",
-              fmt::format("{}: answers again after {:.1f} s of station time without readings",
-                          device.name(), now_s - *lost_since_s));
+    journal_->add_event(
+        "device", "", "",
+        fmt::format("{}: answers again after {:.1f} s of station time without readings",
+                    device.name(), now_s - *lost_since_s));
     lost_since_s.reset();
   }
 }
 
-void Station::keep_unrecorded(const storage::EventRecord& ev) {
-  if (unrecorded_events_.size() >= kMaxUnrecordedEvents) {
-    ++unrecorded_events_dropped_;
-    spdlog::error("event dropped ({} so far): {} events already wait for the database",
-                  unrecorded_events_dropped_, unrecorded_events_.size());
-    return;
-  }
-  unrecorded_events_.push_back(ev);
-}
-
-// Writes, in order, what a failing database refused: events, the run's
-// state, segment updates. Stops at the first failure (tried again next tick).
-void Station::record_unrecorded() {
-  while (!unrecorded_events_.empty()) {
-    if (!db_.add_event(unrecorded_events_.front())) return;
-    unrecorded_events_.pop_front();
-    if (unrecorded_events_.empty()) spdlog::info("events kept while the database failed: written");
-  }
-  if (!defer_segment_records_ && !(segments_with_checkpoint_ && sequencer_)) {
-    (void)record_segments();
-  }
-  // A run's end is written after its steps' last records (inside a
-  // sequencer tick, with them: tick_sequencer): neither a reader nor a crash
-  // finds a completed run with a step still running.
-  if (unrecorded_run_state_ && unrecorded_run_state_->terminal && !unrecorded_segments_.empty()) {
-    return;
-  }
-  (void)record_run_state();
-}
-
-bool Station::record_run_state() {
-  if (!unrecorded_run_state_) return true;
-  const auto& u = *unrecorded_run_state_;
-  if (auto st = db_.set_run_state(u.run_id, u.state, u.terminal); !st) {
-    if (!run_state_failing_) spdlog::error("run state not written yet: {}", st.error().message);
-    run_state_failing_ = true;
-    return false;
-  }
-  run_state_failing_ = false;
-  unrecorded_run_state_.reset();
-  return true;
-}
-
-bool Station::record_segments() {
-  for (auto it = unrecorded_segments_.begin(); it != unrecorded_segments_.end();) {
-    if (auto st = db_.update_segment(it->second); !st) {
-      if (!segment_failing_) spdlog::error("segment not written yet: {}", st.error().message);
-      segment_failing_ = true;
-      return false;
-    }
-    segment_failing_ = false;
-    it = unrecorded_segments_.erase(it);
-  }
-  return true;
-}
-
 void Station::tick_sequencer(double t_run_s, const schedules::Readings& r) {
-  // A soak's end flushes the sample writer (on_step_finished) outside any
-  // transaction of ours; the step's end, the next step's start and the
-  // checkpoint are then written in one: a crash leaves all or none (the
-  // next step's row itself is created at its start, and a resume closes a
-  // stray one).
-  defer_segment_records_ = true;
-  sequencer_->tick(t_run_s, r);
-  defer_segment_records_ = false;
-  if (unrecorded_segments_.empty()) {
-    segments_with_checkpoint_ = false;
-    record_unrecorded();  // a run's end the tick held back for its steps
-    return;
-  }
-  const auto kept = unrecorded_segments_;
-  const auto kept_run_state = unrecorded_run_state_;
-  const Status st = db_.atomically([&]() -> Status {
-    if (!record_segments()) return Error::Transient("a segment was not written");
-    if (!record_run_state()) return Error::Transient("the run's state was not written");
-    checkpoint(true);
-    if (checkpoint_failing_) return Error::Transient("the checkpoint was not written");
-    return Status::Ok();
-  });
-  segments_with_checkpoint_ = !st;
-  if (!st) {
-    // Rolled back: tried again, together, next tick.
-    unrecorded_segments_ = kept;
-    unrecorded_run_state_ = kept_run_state;
-    checkpoint_state_.clear();
-    if (!segment_failing_) spdlog::error("step change not written yet: {}", st.error().message);
-    segment_failing_ = true;
-  }
-}
-
-void Station::add_event(const std::string& kind, const std::string& from, const std::string& to,
-                        const std::string& message) {
-  storage::EventRecord ev;
-  const int64_t run_id = current_run_id();
-  if (run_id != 0) ev.run_id = run_id;
-  ev.t_s = run_id != 0 ? run_time_s() : 0.0;
-  ev.wall_utc = utc_iso(wall_);
-  ev.kind = kind;
-  ev.from_state = from;
-  ev.to_state = to;
-  ev.message = message;
-  record_unrecorded();
-  if (!unrecorded_events_.empty()) {
-    keep_unrecorded(ev);
-  } else if (auto r = db_.add_event(ev); !r) {
-    spdlog::error("event not recorded yet (kept, written when the database takes writes): {}",
-                  r.error().message);
-    keep_unrecorded(ev);
-  } else {
-    ev.id = *r;
-  }
-  if (hooks_.publish) {
-    nlohmann::json j = to_json(ev);
-    j["run_id"] = ev.run_id ? nlohmann::json(*ev.run_id) : nlohmann::json(nullptr);
-    hooks_.publish("event", j);
-  }
-  std::lock_guard lock(mu_);
-  snapshot_.last_event = message;
+  const bool written =
+      journal_->tick_with_checkpoint([&] { sequencer_->tick(t_run_s, r); },
+                                     [&]() -> Status {
+                                       checkpoint(true);
+                                       if (checkpoint_failing_) {
+                                         return Error::Transient("the checkpoint was not written");
+                                       }
+                                       return Status::Ok();
+                                     });
+  if (!written) checkpoint_state_.clear();  // rolled back: checkpointed again next tick
 }
 
 void Station::on_state(RunState from, RunState to, double t_s, const std::string& reason) {
@@ -1474,11 +1359,11 @@ void Station::on_state(RunState from, RunState to, double t_s, const std::string
                              {"t_s", t_s},
                              {"reason", reason}});
   }
-  add_event("state", std::string(to_string(from)), std::string(to_string(to)), reason);
+  journal_->add_event("state", std::string(to_string(from)), std::string(to_string(to)), reason);
   if (to == RunState::kFailed) answer_failed_run();
-  unrecorded_run_state_ =
-      UnrecordedRunState{current_run_id(), std::string(to_string(to)), schedules::is_terminal(to)};
-  record_unrecorded();
+  journal_->keep_run_state(current_run_id(), std::string(to_string(to)),
+                           schedules::is_terminal(to));
+  journal_->record_unrecorded();
 }
 
 void Station::on_interlock(schedules::InterlockKind kind, bool tripped, double t_s,
@@ -1490,77 +1375,26 @@ void Station::on_interlock(schedules::InterlockKind kind, bool tripped, double t
   } else {
     spdlog::info("run {}: {}", current_run_id(), message);
   }
-  add_event("interlock", "", "", message);
-}
-
-namespace {
-storage::SegmentRecord segment_record(int64_t id, int64_t run_id, std::size_t index,
-                                      const schedules::PlanStep& step,
-                                      const schedules::StepTimes& times, std::string state) {
-  storage::SegmentRecord seg;
-  seg.id = id;
-  seg.run_id = run_id;
-  seg.index = static_cast<int>(index);
-  seg.kind = std::string(schedules::to_string(step.kind));
-  seg.label = step.label;
-  seg.setpoint_c = step.setpoint_c;
-  seg.ramp_rate_c_per_min = step.rate_c_per_min;
-  seg.t_start_s = times.start_s;
-  seg.t_settled_s = times.settled_s;
-  seg.t_acquire_start_s = times.acquire_start_s;
-  seg.t_acquire_end_s = times.acquire_end_s;
-  seg.t_end_s = times.end_s;
-  seg.paused_s = times.held_s;
-  seg.state = std::move(state);
-  for (const auto& w : times.windows) seg.windows.emplace_back(w.from_s, w.to_s);
-  seg.table_mode = std::string(schedules::to_string(step.table.mode));
-  if (step.table.mode == schedules::TableDemandMode::kRate) {
-    seg.table_rate_dps = step.table.rate_dps;
-  } else if (step.table.mode == schedules::TableDemandMode::kStatic) {
-    seg.table_rate_dps = 0.0;
-    seg.table_position_deg = step.table.position_deg;
-  }
-  seg.turns = step.turns;
-  seg.dwell_s = step.dwell_s;
-  seg.sf_sequence = step.sf_sequence;
-  seg.sf_repetition = step.sf_repetition;
-  return seg;
-}
-}  // namespace
-
-int64_t Station::segment_id(std::size_t index, const schedules::PlanStep& step, double t_s) {
-  if (index >= segment_ids_.size()) return 0;
-  if (segment_ids_[index] != 0) return segment_ids_[index];
-  schedules::StepTimes times;
-  times.start_s = t_s;
-  storage::SegmentRecord seg = segment_record(0, current_run_id(), index, step, times, "running");
-  auto id = db_.create_segment(seg);
-  if (!id) {
-    spdlog::error("{}", id.error().message);
-    return 0;
-  }
-  segment_ids_[index] = *id;
-  return *id;
+  journal_->add_event("interlock", "", "", message);
 }
 
 void Station::on_step_started(std::size_t index, const schedules::PlanStep& step, double t_s) {
-  if (index < segment_ids_.size()) segment_ids_[index] = 0;  // a new execution of the step
-  (void)segment_id(index, step, t_s);
+  journal_->start_segment(index, step, t_s);
   duts_->forget_coverage_before(t_s);
 }
 
 void Station::on_step_changed(std::size_t index, const schedules::PlanStep& step,
                               const schedules::StepTimes& times) {
-  const int64_t id = segment_id(index, step, times.start_s);
+  const int64_t id = journal_->segment_id(index, step, times.start_s);
   if (id == 0) return;
-  unrecorded_segments_[id] = segment_record(id, current_run_id(), index, step, times, "running");
-  record_unrecorded();
+  journal_->keep_segment(segment_record(id, current_run_id(), index, step, times, "running"));
+  journal_->record_unrecorded();
 }
 
 void Station::on_step_finished(std::size_t index, const schedules::PlanStep& step,
                                const schedules::StepTimes& times, bool completed) {
   const int64_t run_id = current_run_id();
-  const int64_t id = segment_id(index, step, times.start_s);
+  const int64_t id = journal_->segment_id(index, step, times.start_s);
   if (id == 0) return;
   // A soak's samples are committed before the step is recorded finished: a
   // crash after this never leaves a finished soak without its tail.
@@ -1570,9 +1404,9 @@ void Station::on_step_finished(std::size_t index, const schedules::PlanStep& ste
                     index + 1, st.error().message);
     }
   }
-  unrecorded_segments_[id] =
-      segment_record(id, run_id, index, step, times, completed ? "completed" : "aborted");
-  record_unrecorded();
+  journal_->keep_segment(
+      segment_record(id, run_id, index, step, times, completed ? "completed" : "aborted"));
+  journal_->record_unrecorded();
   // Table I is of static soaks only: a soak with the table spinning is not
   // a zero-bias measurement.
   if (completed && step.kind == schedules::StepKind::kSoak &&
@@ -1599,7 +1433,7 @@ Reply Station::control(std::string_view action, const std::string& reason_in) {
   std::lock_guard lock(run_mu_);
   const bool running = sequencer_ && !sequencer_->finished();
   auto log_command = [&](const std::string& message) {
-    add_event("operator", "", "", message);
+    journal_->add_event("operator", "", "", message);
     spdlog::info("{}", message);
   };
   if (action == "pause") {

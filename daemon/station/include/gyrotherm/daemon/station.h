@@ -22,7 +22,9 @@
 // connection and the queue hold; StationQueries' lock its connection; mu_
 // guards the status snapshot. Order: run_mu_, the queries' lock, mu_.
 // The DUTs' acquisition is DutAcquisition's (src/dut_acquisition.h), with
-// its own locks; their status figures are under mu_ too.
+// its own locks; their status figures are under mu_ too. The event journal
+// is EventJournal's (src/event_journal.h), under run_mu_ (its posted events
+// under its own lock).
 // The run's id and start time go to the gyro reader together (RunClock).
 // The count of waiting queue entries changes only by read-modify-write, by
 // the thread that changed the queue in the database (HTTP: add, remove;
@@ -68,6 +70,7 @@ class PacedClock;
 namespace gyrotherm::daemon {
 
 class DutAcquisition;
+class EventJournal;
 
 // What the station tells the rest of the daemon; each optional.
 struct StationHooks {
@@ -199,12 +202,6 @@ class Station final : public StationControl, private schedules::SequencerObserve
   void resume_interrupted_run();
   void note_link(const drivers::PolledDevice& device, bool ok, std::optional<double>& lost_since_s,
                  double now_s);
-  void keep_unrecorded(const storage::EventRecord& ev);
-  void record_unrecorded();
-  // Segments only; false while one is left unwritten.
-  bool record_segments();
-  // The run's state kept unwritten, if any; false when it is still unwritten.
-  bool record_run_state();
   // The sequencer's tick, with the segments it ends and starts written in
   // one transaction with the checkpoint that says so.
   void tick_sequencer(double t_run_s, const schedules::Readings& r);
@@ -244,9 +241,6 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // time, for it to come to rest and open its interlock: at shutdown, when
   // no control loop is left to finish the safe state.
   void make_table_safe_now();
-  void add_event(const std::string& kind, const std::string& from, const std::string& to,
-                 const std::string& message);
-  int64_t segment_id(std::size_t index, const schedules::PlanStep& step, double t_s);
 
   // SequencerObserver
   void on_state(schedules::RunState from, schedules::RunState to, double t_s,
@@ -281,8 +275,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // Run state (run_mu_).
   std::unique_ptr<schedules::Sequencer> sequencer_;
   std::optional<storage::QueueEntry> entry_;  // the queue entry being run
-  std::vector<int64_t> segment_ids_;
-  std::string last_reason_;  // of the last state change
+  std::string last_reason_;                   // of the last state change
   bool stop_after_current_ = false;
   bool queue_answered_ = false;             // answer_failed_run() spoke for the current run
   std::string stop_reason_;                 // the operator's, for the hold message
@@ -303,23 +296,10 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // A run ended and the chamber has not taken the safe set point yet: each
   // idle tick writes it again.
   bool safe_setpoint_owed_ = false;
-  // What the database refused (disk full): kept and written in order by
-  // record_unrecorded() once it takes writes again.
-  static constexpr std::size_t kMaxUnrecordedEvents = 10000;
-  std::deque<storage::EventRecord> unrecorded_events_;
-  uint64_t unrecorded_events_dropped_ = 0;
-  struct UnrecordedRunState {
-    int64_t run_id;
-    std::string state;
-    bool terminal;
-  };
-  std::optional<UnrecordedRunState> unrecorded_run_state_;
-  std::map<int64_t, storage::SegmentRecord> unrecorded_segments_;  // by segment id
-  bool checkpoint_failing_ = false, run_state_failing_ = false, segment_failing_ = false;
-  // Inside tick_sequencer(), and after its transaction failed while the
-  // run goes on: segment records wait for the next one (with a checkpoint).
-  bool defer_segment_records_ = false;
-  bool segments_with_checkpoint_ = false;
+  bool checkpoint_failing_ = false;
+  // Events, the run's state and its segment records (and what the
+  // database refused of them); made in the constructor.
+  std::unique_ptr<EventJournal> journal_;
 
   // Control-thread only.
   bool chamber_ok_ = true, probes_ok_ = true;
@@ -360,14 +340,6 @@ class Station final : public StationControl, private schedules::SequencerObserve
   RunClock run_clock_;
   // A plan has been taken from pending_ and its run is not over.
   std::atomic<bool> busy_{false};
-
-  // post_event(): events from other threads (the lab relay), recorded by
-  // the control loop at its next tick. Bounded: the oldest are dropped.
-  static constexpr std::size_t kMaxPostedEvents = 1000;
-  std::mutex posted_mu_;
-  std::deque<std::pair<std::string, std::string>> posted_events_;  // (kind, message)
-  uint64_t posted_events_dropped_ = 0;
-  void record_posted_events();
 
   mutable std::mutex mu_;  // guards the fields below
   StatusSnapshot snapshot_;
