@@ -12,12 +12,13 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
+#include "dut_acquisition.h"
+#include "event_journal.h"
 #include "gyrotherm/core/paced_clock.h"
 #include "gyrotherm/daemon/run_analysis.h"
 #include "gyrotherm/daemon/run_config.h"
 #include "gyrotherm/drivers/dut_link.h"
 #include "gyrotherm/drivers/gyro_reader.h"
-#include "gyrotherm/drivers/kvh1750.h"
 #include "gyrotherm/drivers/modbus_devices.h"
 #include "gyrotherm/drivers/rate_tables.h"
 
@@ -30,11 +31,6 @@ constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 // How long (wall) a soak's Table I and a completed run's end wait for the
 // gyro samples of their last station seconds to come off the line.
 constexpr std::chrono::milliseconds kAwaitGyro{2000};
-
-// How a DUT is named in messages: its serial, or its position when unnamed.
-std::string dut_name(const DutSection& dut) {
-  return dut.serial.empty() ? std::string("(no serial)") : dut.serial;
-}
 
 }  // namespace
 
@@ -147,34 +143,22 @@ Station::Station(StationConfig config, StationDevices devices, StationClocks clo
                                        snapshot_.run_comment = metadata.comment;
                                        snapshot_.run_tags = metadata.tags;
                                      }}) {
-  for (std::size_t i = 0; i < devices.duts.size(); ++i) {
-    auto live = std::make_unique<DutLive>();
-    live->index = i;
-    live->cfg = &config_.duts[i];
-    live->source = std::move(devices.duts[i]);
-    if (i < devices.dut_probes.size()) live->probes = std::move(devices.dut_probes[i]);
-    const auto& channels = live->source->channels();
-    for (std::size_t c = 0; c < channels.size(); ++c) {
-      if (channels[c].kind == ChannelKind::kRate && !channels[c].axis.empty()) {
-        live->rate_channels.push_back(c);
-      }
-      if (channels[c].kind == ChannelKind::kTemperature && live->temp_channel < 0) {
-        live->temp_channel = static_cast<int>(c);
-      }
-      if (channels[c].axis == live->cfg->primary_axis && channels[c].kind == ChannelKind::kRate) {
-        live->primary_channel = static_cast<int>(c);
-      }
-    }
-    live->window_sum.assign(live->rate_channels.size(), 0.0);
-    live->window_n.assign(live->rate_channels.size(), 0);
-    live->rates_dph.assign(live->rate_channels.size(), std::nullopt);
-    duts_.push_back(std::move(live));
-  }
-  for (const auto& d : duts_) publish_dut_status(*d);
+  journal_ = std::make_unique<EventJournal>(
+      EventJournal::Links{clock_, wall_, run_clock_, db_, hooks_.publish, mu_, snapshot_,
+                          [this] { return sequencer_ != nullptr; }});
+  duts_ = std::make_unique<DutAcquisition>(
+      config_, std::move(devices.duts), std::move(devices.dut_probes),
+      DutAcquisition::Links{clock_, wall_, run_clock_, *writer_, mu_, snapshot_,
+                            [this](const std::string& kind, const std::string& message) {
+                              journal_->add_event(kind, "", "", message);
+                            },
+                            [this](const std::string& kind, const std::string& message) {
+                              post_event(kind, message);
+                            }});
   if (table_device_) table_ = std::make_unique<TableControl>(*table_device_, *config_.table);
   AnalysisWorker::Callbacks callbacks;
   callbacks.await_gyro = [this](int64_t run_id, double until_s) {
-    if (!await_gyro(run_id, until_s, kAwaitGyro)) {
+    if (!duts_->await_gyro(run_id, until_s, kAwaitGyro)) {
       spdlog::warn(
           "run {}: Table I computed without the gyro samples after t = {:.1f} s (the stream had "
           "not reached the soak's end after {} ms)",
@@ -266,16 +250,7 @@ void Station::start(ControlLoop loop) {
   const double now_s = clock_.now_s();
   chamber_ok_s_ = probes_ok_s_ = storage_ok_s_ = now_s;
   chamber_ok_wall_s_ = probes_ok_wall_s_ = storage_ok_wall_s_ = wall_.monotonic_s();
-  for (auto& d : duts_) {
-    d->last_s.store(now_s);
-    d->last_wall_s.store(chamber_ok_wall_s_);
-    if (d->probes) {
-      if (auto st = d->probes->connect(); !st) {
-        spdlog::warn("DUT {} probes: {} (will keep retrying)", dut_name(*d->cfg),
-                     st.error().message);
-      }
-    }
-  }
+  duts_->prepare(now_s, chamber_ok_wall_s_);
   {
     std::lock_guard lock(run_mu_);
     if (auto hold = db_.meta(kQueueHoldKey); hold && *hold) {
@@ -287,10 +262,7 @@ void Station::start(ControlLoop loop) {
     resume_interrupted_run();
     submit_missing_analyses();
   }
-  for (auto& d : duts_) {
-    DutLive* live = d.get();
-    live->source->start([this, live](std::span<const DutFrame> f) { on_dut_frames(*live, f); });
-  }
+  duts_->start_sources();
   if (loop == ControlLoop::kOwnThread) control_thread_ = std::thread([this] { control_loop(); });
   start_nightly_export();
 }
@@ -379,14 +351,15 @@ void Station::stop(const std::string& reason) {
     ++control_ticks_;  // a write of its own, whatever the last tick tried
     chamber_safe = write_setpoint(safe_c, true);
     if (!chamber_safe) {
-      add_event("error", "", "",
-                fmt::format("daemon stopping: the chamber did not take the safe set point {:g} °C "
-                            "({}); set it at the controller",
-                            safe_c, chamber_safe.error().message));
+      journal_->add_event(
+          "error", "", "",
+          fmt::format("daemon stopping: the chamber did not take the safe set point {:g} °C "
+                      "({}); set it at the controller",
+                      safe_c, chamber_safe.error().message));
     }
   }
   if (table_owed) make_table_safe_now();
-  for (auto& d : duts_) d->source->stop();
+  duts_->stop_sources();
   if (nightly_) nightly_->stop();
   analysis_->stop();
   writer_->stop();
@@ -526,47 +499,7 @@ schedules::Readings Station::read_devices(double now_s) {
   };
   r.chamber_silent_s = silent(chamber_ok_s_, chamber_ok_wall_s_);
   r.probes_silent_s = silent(probes_ok_s_, probes_ok_wall_s_);
-  // The most silent required DUT speaks for the gyro_lost interlock (whose
-  // timeout is the smallest of the DUTs' silent_timeout_s), and its message
-  // names every required DUT silent past its own timeout. A DUT that is not
-  // required is marked lost instead, and the run goes on without it.
-  r.gyro_heard = true;
-  std::vector<std::string> silent_duts;
-  for (const auto& d : duts_) {
-    if (!d->in_run.load()) continue;  // not recorded in this run
-    const double silent_s = silent(d->last_s.load(), d->last_wall_s.load());
-    if (!d->cfg->required) {
-      const bool lost = silent_s > d->cfg->silent_timeout_s;
-      if (lost != d->lost.exchange(lost)) {
-        const std::string message =
-            lost ? fmt::format(
-                       "DUT {} lost: no frame for {:.1f} s (silent_timeout_s {:g}); it is "
-                       "not required: its acquisition ends here and the run goes on "
-                       "with the other DUTs",
-                       dut_name(*d->cfg), silent_s, d->cfg->silent_timeout_s)
-                 : fmt::format("DUT {} back: frames again; its acquisition goes on",
-                               dut_name(*d->cfg));
-        if (lost) {
-          spdlog::warn("{}", message);
-        } else {
-          spdlog::info("{}", message);
-        }
-        post_event("dut", message);
-      }
-      continue;
-    }
-    if (silent_s > d->cfg->silent_timeout_s) silent_duts.push_back(dut_name(*d->cfg));
-    if (silent_s > r.gyro_silent_s) {
-      r.gyro_silent_s = silent_s;
-      if (duts_.size() > 1) r.gyro_stream = fmt::format("DUT {} stream", dut_name(*d->cfg));
-    }
-    r.gyro_heard = r.gyro_heard && d->heard.load();
-  }
-  if (silent_duts.size() > 1) {
-    std::string names;
-    for (const auto& n : silent_duts) names += (names.empty() ? "" : ", ") + n;
-    r.gyro_stream = fmt::format("DUT streams {}", names);
-  }
+  duts_->read_silence(r, silent);
   if (table_) table_->read(now_s, wall_s, min_wall_s, r);
   {
     // For status(), which never waits on a device.
@@ -587,9 +520,11 @@ schedules::Readings Station::read_devices(double now_s) {
     storage_ok_s_ = now_s;
     storage_ok_wall_s_ = wall_s;
   }
-  r.data_covered_s = [this](double from_s, double to_s) { return data_covered_s(from_s, to_s); };
+  r.data_covered_s = [this](double from_s, double to_s) {
+    return duts_->data_covered_s(from_s, to_s);
+  };
   r.data_reached_at_s = [this](double from_s, double need_s) {
-    return data_reached_at_s(from_s, need_s);
+    return duts_->data_reached_at_s(from_s, need_s);
   };
   r.storage_failing_s = silent(storage_ok_s_, storage_ok_wall_s_);
   if (r.storage_failing_s > 0) {
@@ -612,7 +547,7 @@ void Station::note_storage_file() {
         "operations.md \"The database file deleted or replaced\"), then restart gyrothermd",
         *storage_file_error_);
     spdlog::error("{}", message);
-    add_event("error", "", "", message);
+    journal_->add_event("error", "", "", message);
   }
   if (Status st = db_.release_wal(); st) {
     storage_file_released_ = true;
@@ -624,7 +559,7 @@ void Station::note_storage_file() {
 void Station::tick() {
   const double now_s = clock_.now_s();
   const schedules::Readings r = read_devices(now_s);
-  const std::vector<std::string> probe_events = read_dut_probes(now_s);
+  const std::vector<std::string> probe_events = duts_->read_dut_probes(now_s);
   std::optional<double> shell_c;
   if (r.top_c && r.side_c) {
     shell_c = (*r.top_c + *r.side_c) / 2.0;
@@ -637,9 +572,9 @@ void Station::tick() {
     if (stopping_) return;
   }
   ++control_ticks_;
-  record_unrecorded();
-  record_posted_events();
-  for (const auto& message : probe_events) add_event("device", "", "", message);
+  journal_->record_unrecorded();
+  journal_->record_posted_events();
+  for (const auto& message : probe_events) journal_->add_event("device", "", "", message);
   note_storage_file();
   note_link(*chamber_, chamber_ok_, chamber_lost_s_, now_s);
   note_link(*probes_, probes_ok_, probes_lost_s_, now_s);
@@ -882,7 +817,7 @@ Status Station::write_setpoint(double setpoint_c, bool force) {
                       setpoint_c, setpoint_failures_, setpoint_failures_ == 1 ? "" : "s",
                       now_s - setpoint_failing_since_s_);
       spdlog::info("{}", message);
-      add_event("device", "", "", message);
+      journal_->add_event("device", "", "", message);
     }
     setpoint_failures_ = 0;
     return st;
@@ -895,7 +830,7 @@ Status Station::write_setpoint(double setpoint_c, bool force) {
         "tick until the chamber takes it",
         setpoint_c, st.error().message);
     spdlog::warn("{}", message);
-    add_event("device", "", "", message);
+    journal_->add_event("device", "", "", message);
   }
   return st;
 }
@@ -912,11 +847,12 @@ void Station::keep_idle_safe() {
 void Station::tend_table(double t_run_s) {
   if (auto what = table_->take_interruption()) {
     const bool respin = config_.table->respin_after_fault;
-    add_event("table", "", "",
-              fmt::format("table: {}; {}", *what,
-                          respin ? "the station spins it up again ([table] respin_after_fault); "
-                                   "acquisition waits for the rate"
-                                 : "the run pauses with the table at rest"));
+    journal_->add_event(
+        "table", "", "",
+        fmt::format("table: {}; {}", *what,
+                    respin ? "the station spins it up again ([table] respin_after_fault); "
+                             "acquisition waits for the rate"
+                           : "the run pauses with the table at rest"));
     sequencer_->table_interrupted(t_run_s, "the table was taken off its demand");
     if (!respin && !sequencer_->paused()) {
       (void)sequencer_->pause(
@@ -934,7 +870,7 @@ void Station::tend_table(double t_run_s) {
   if (fault_holds) {
     if (auto message = table_->reset_latched_fault(clock_.now_s())) {
       spdlog::info("{}", *message);
-      add_event("table", "", "", *message);
+      journal_->add_event("table", "", "", *message);
     }
   }
 }
@@ -957,15 +893,16 @@ void Station::answer_failed_run() {
   queue_answered_ = true;
   const int64_t run_id = current_run_id();
   if (hold_reason_) {
-    add_event("queue", "", "",
-              fmt::format("run {} failed; the queue stays held ({})", run_id, *hold_reason_));
+    journal_->add_event(
+        "queue", "", "",
+        fmt::format("run {} failed; the queue stays held ({})", run_id, *hold_reason_));
   } else if (!entry_->ignore_failures) {
     hold_queue(fmt::format("run {} failed ({}); resume releases the queue", run_id, last_reason_));
   } else {
-    add_event("queue", "", "",
-              fmt::format("run {} failed; the queue goes on with the next entry "
-                          "(ignore_failures)",
-                          run_id));
+    journal_->add_event("queue", "", "",
+                        fmt::format("run {} failed; the queue goes on with the next entry "
+                                    "(ignore_failures)",
+                                    run_id));
   }
 }
 
@@ -973,7 +910,7 @@ void Station::hold_queue(const std::string& reason) {
   hold_reason_ = reason;
   queue_held_.store(true);
   if (auto st = db_.set_meta(kQueueHoldKey, reason); !st) spdlog::error("{}", st.error().message);
-  add_event("queue", "", "", "queue held: " + reason);
+  journal_->add_event("queue", "", "", "queue held: " + reason);
   spdlog::info("queue held: {}", reason);
 }
 
@@ -981,7 +918,7 @@ void Station::release_queue() {
   hold_reason_.reset();
   queue_held_.store(false);
   if (auto st = db_.delete_meta(kQueueHoldKey); !st) spdlog::error("{}", st.error().message);
-  add_event("queue", "", "", "queue released");
+  journal_->add_event("queue", "", "", "queue released");
 }
 
 void Station::start_next_run(double now_s) {
@@ -1022,7 +959,7 @@ void Station::start_next_run(double now_s) {
   queue_length_.fetch_sub(1);
   queue_scanned_length_ = -1;  // the queue's planned time: without this entry, at the next tick
   busy_.store(true);
-  register_run_duts(run_id, entry.metadata.dut_serials);
+  duts_->register_run_duts(db_, run_id, entry.metadata.dut_serials);
   run_clock_.publish(run_id, now_s);
   entry_ = entry;
   {
@@ -1037,8 +974,9 @@ void Station::start_next_run(double now_s) {
   // Checked again: the station config may have changed since it was queued.
   auto plan = schedules::parse_schedule(entry.toml_text, source, station_limits(config_));
   if (!plan) {
-    add_event("error", "queued", "failed",
-              "schedule refused at start (station limits changed?):\n" + plan.error().message);
+    journal_->add_event(
+        "error", "queued", "failed",
+        "schedule refused at start (station limits changed?):\n" + plan.error().message);
     last_reason_ = "schedule refused at start";
     answer_failed_run();
     (void)db_.set_run_state(run_id, "failed", true);
@@ -1047,7 +985,7 @@ void Station::start_next_run(double now_s) {
   }
   spdlog::info("run {}: {} ({} steps)", run_id, plan->name, plan->steps.size());
   if (table_) table_->begin_run();
-  segment_ids_.assign(plan->steps.size(), 0);
+  journal_->begin_segments(std::vector<int64_t>(plan->steps.size(), 0));
   const double start_sp = last_written_setpoint_c_.value_or(
       snapshot_.chamber_c.value_or(config_.station.safe_setpoint_c));
   make_sequencer(std::move(*plan));
@@ -1089,13 +1027,14 @@ void Station::resume_interrupted_run() {
   if (open.empty()) return;
   for (std::size_t i = 0; i + 1 < open.size(); ++i) {
     run_clock_.publish(open[i].id, 0.0);
-    add_event("state", open[i].state, "interrupted", "closed at start-up: a newer run exists");
+    journal_->add_event("state", open[i].state, "interrupted",
+                        "closed at start-up: a newer run exists");
     (void)db_.set_run_state(open[i].id, "interrupted", true);
   }
   const storage::RunRecord& run = open.back();
   run_clock_.publish(run.id, 0.0);  // for the events below; its start once known
   auto give_up = [&](const std::string& why) {
-    add_event("state", run.state, "interrupted", "not resumed: " + why);
+    journal_->add_event("state", run.state, "interrupted", "not resumed: " + why);
     (void)db_.set_run_state(run.id, "interrupted", true);
     if (run.queue_id) (void)db_.queue_finish(*run.queue_id, "interrupted");
     spdlog::warn("run {} not resumed: {}", run.id, why);
@@ -1154,13 +1093,13 @@ void Station::resume_interrupted_run() {
   if (auto last = db_.last_sample_t_s(run.id); last && *last) {
     t_resume_s = std::max(t_resume_s, **last + 1e-3);
   }
-  segment_ids_.assign(plan->steps.size(), 0);
+  std::vector<int64_t> segment_ids(plan->steps.size(), 0);
   std::vector<storage::SegmentRecord> segments;
   if (auto segs = db_.segments(run.id)) {
     segments = std::move(*segs);
     for (const auto& seg : segments) {
-      if (seg.index >= 0 && static_cast<std::size_t>(seg.index) < segment_ids_.size()) {
-        segment_ids_[static_cast<std::size_t>(seg.index)] = seg.id;
+      if (seg.index >= 0 && static_cast<std::size_t>(seg.index) < segment_ids.size()) {
+        segment_ids[static_cast<std::size_t>(seg.index)] = seg.id;
       }
     }
   }
@@ -1168,31 +1107,32 @@ void Station::resume_interrupted_run() {
   // the step was recorded finished and before the checkpoint said so. That
   // step is not run again; the run goes on with the next.
   const bool step_finished_already =
-      snap->step_index < segment_ids_.size() &&
+      snap->step_index < segment_ids.size() &&
       std::any_of(segments.begin(), segments.end(), [&](const storage::SegmentRecord& seg) {
-        return seg.id == segment_ids_[snap->step_index] && seg.state == "completed";
+        return seg.id == segment_ids[snap->step_index] && seg.state == "completed";
       });
   // Segments still "running" that are not the step resumed died with the
   // daemon (e.g. the next step's, started after that checkpoint).
   for (auto seg : segments) {
-    const bool resumed = !step_finished_already && snap->step_index < segment_ids_.size() &&
-                         seg.id == segment_ids_[snap->step_index];
+    const bool resumed = !step_finished_already && snap->step_index < segment_ids.size() &&
+                         seg.id == segment_ids[snap->step_index];
     if (seg.state != "running" || resumed) continue;
     seg.state = "aborted";
     if (!seg.t_end_s) seg.t_end_s = std::max(seg.t_start_s, snap->t_s);
     if (auto st = db_.update_segment(seg); !st) {
       spdlog::error("run {}: segment {} not closed: {}", run.id, seg.id, st.error().message);
     }
-    if (seg.index >= 0 && static_cast<std::size_t>(seg.index) < segment_ids_.size() &&
-        segment_ids_[static_cast<std::size_t>(seg.index)] == seg.id) {
-      segment_ids_[static_cast<std::size_t>(seg.index)] = 0;
+    if (seg.index >= 0 && static_cast<std::size_t>(seg.index) < segment_ids.size() &&
+        segment_ids[static_cast<std::size_t>(seg.index)] == seg.id) {
+      segment_ids[static_cast<std::size_t>(seg.index)] = 0;
     }
   }
+  journal_->begin_segments(std::move(segment_ids));
   entry_ = **entry;
   busy_.store(true);
-  register_run_duts(run.id, entry_->metadata.dut_serials);
+  duts_->register_run_duts(db_, run.id, entry_->metadata.dut_serials);
   // A soak is credited for what each DUT stored: read back from the step's start.
-  seed_coverage(run.id, snap->times.start_s);
+  duts_->seed_coverage(db_, run.id, snap->times.start_s);
   run_clock_.publish(run.id, clock_.now_s() - t_resume_s);
   {
     std::lock_guard lock(mu_);
@@ -1210,23 +1150,24 @@ void Station::resume_interrupted_run() {
   spdlog::info("run {}: {}", run.id, reason);
   make_sequencer(std::move(*plan));
   if (table_) table_->begin_run();
-  add_event("resume", "", "", reason);
+  journal_->add_event("resume", "", "", reason);
   last_written_setpoint_c_.reset();
   sequencer_->restore(*snap, t_resume_s, data_until_s, reason);
   if (step_finished_already) {
-    add_event("resume", "", "",
-              fmt::format("step {} had ended before the daemon stopped (its last checkpoint was "
-                          "older): it is not run again; the run goes on with the next step",
-                          snap->step_index + 1));
+    journal_->add_event(
+        "resume", "", "",
+        fmt::format("step {} had ended before the daemon stopped (its last checkpoint was "
+                    "older): it is not run again; the run goes on with the next step",
+                    snap->step_index + 1));
     sequencer_->continue_after_finished_step(t_resume_s);
     // restore() re-announced that step as running: its record stays as it
     // was written when it ended.
     for (const auto& seg : segments) {
       if (seg.index == static_cast<int>(snap->step_index) && seg.state == "completed") {
-        unrecorded_segments_[seg.id] = seg;
+        journal_->keep_segment(seg);
       }
     }
-    record_unrecorded();
+    journal_->record_unrecorded();
   }
   (void)db_.set_run_state(run.id, to_string(sequencer_->state()), false);
   checkpoint(true);
@@ -1269,17 +1210,18 @@ void Station::end_run() {
   const Status chamber_safe = write_setpoint(safe_c, true);
   safe_setpoint_owed_ = !chamber_safe;
   if (!chamber_safe && run_id != 0) {
-    add_event("error", "", "",
-              fmt::format("run {} ended without the chamber taking the safe set point {:g} °C "
-                          "({}); the station writes it every control tick until it does",
-                          run_id, safe_c, chamber_safe.error().message));
+    journal_->add_event(
+        "error", "", "",
+        fmt::format("run {} ended without the chamber taking the safe set point {:g} °C "
+                    "({}); the station writes it every control tick until it does",
+                    run_id, safe_c, chamber_safe.error().message));
   }
   // A completed run's last samples may still be on the line (a reader behind
   // on a loaded machine): they are waited for, a bounded time, before no
   // batch is stored under the run any more; the flush then holds all of its
   // samples before its analysis reads them.
   if (final_state == RunState::kCompleted && run_id != 0) {
-    if (!await_gyro(run_id, run_time_s(), kAwaitGyro)) {
+    if (!duts_->await_gyro(run_id, run_time_s(), kAwaitGyro)) {
       spdlog::warn("run {}: the gyro stream had not reached the run's end after {} ms", run_id,
                    kAwaitGyro.count());
     }
@@ -1311,7 +1253,7 @@ void Station::end_run() {
   checkpoint_state_.clear();
   // No checkpoint transaction comes for this run any more: what it left
   // unwritten (its steps' last records, then its end) goes now if it can.
-  record_unrecorded();
+  journal_->record_unrecorded();
   {
     std::lock_guard lock(mu_);
     snapshot_.run_id.reset();
@@ -1336,231 +1278,17 @@ void Station::note_samples_not_committed(int64_t run_id, RunState final_state, c
   const std::string why = fmt::format(
       "the final commit of its samples failed ({} samples not stored): {}", ws.pending, e.message);
   spdlog::error("run {}: {}", run_id, why);
-  add_event("error", "", "", fmt::format("run {}: {}", run_id, why));
+  journal_->add_event("error", "", "", fmt::format("run {}: {}", run_id, why));
   if (final_state == RunState::kCompleted) {
-    add_event("analysis", "", "",
-              fmt::format("analysis not run: the run's samples are incomplete ({}); analyse it "
-                          "offline once its data are checked (gyrotherm allan, fit)",
-                          why));
+    journal_->add_event(
+        "analysis", "", "",
+        fmt::format("analysis not run: the run's samples are incomplete ({}); analyse it "
+                    "offline once its data are checked (gyrotherm allan, fit)",
+                    why));
   }
 }
 
 // ---------------------------------------------------------------- gyro, status, events
-
-void Station::on_dut_frames(DutLive& dut, std::span<const DutFrame> frames) {
-  dut.last_s.store(clock_.now_s());
-  dut.last_wall_s.store(wall_.monotonic_s());
-  dut.heard.store(true);
-  // One read of the pair: the batch is timed from the start of the run it
-  // is stored under, and handed to the writer before that run can end.
-  run_clock_.with_samples_run([&](const RunClock::Value& run) {
-    if (run.run_id == 0 || frames.empty()) return;
-    std::shared_ptr<const storage::RunDutRecord> layout;
-    {
-      std::lock_guard lock(dut.layout_mu);
-      layout = dut.layout;
-    }
-    // Registered before the run's clock was published; a mismatch means the
-    // registration failed (logged there): the frames cannot be stored.
-    if (!layout || layout->run_id != run.run_id) return;
-    thread_local std::vector<DutFrame> rel;
-    rel.assign(frames.begin(), frames.end());
-    for (auto& f : rel) f.t_s -= run.t0_s;
-    writer_->push_frames(*layout, rel);
-    {
-      std::lock_guard lock(dut.coverage_mu);
-      if (!dut.coverage || dut.coverage_run_id != run.run_id) {
-        dut.coverage.emplace(1.0 / dut.cfg->link.rate_hz);
-        dut.coverage_run_id = run.run_id;
-      }
-      for (const auto& f : rel) dut.coverage->add(f.t_s);
-    }
-    {
-      std::lock_guard handed(handed_mu_);
-      dut.handed_run_id = run.run_id;
-      dut.handed_until_s = rel.back().t_s;
-    }
-    handed_cv_.notify_all();
-  });
-  const auto& channels = dut.source->channels();
-  std::lock_guard lock(mu_);
-  for (const auto& f : frames) {
-    if (dut.window_start_s < 0 || f.t_s < dut.window_start_s) {
-      dut.window_start_s = std::floor(f.t_s);
-      std::fill(dut.window_sum.begin(), dut.window_sum.end(), 0.0);
-      std::fill(dut.window_n.begin(), dut.window_n.end(), 0);
-      dut.window_frames = 0;
-    }
-    if (f.t_s >= dut.window_start_s + 1.0) {
-      if (dut.window_frames > 0) {
-        for (std::size_t a = 0; a < dut.rate_channels.size(); ++a) {
-          dut.rates_dph[a] =
-              dut.window_n[a] > 0
-                  ? std::optional(dut.window_sum[a] / static_cast<double>(dut.window_n[a]))
-                  : std::nullopt;
-        }
-        dut.samples_per_s = static_cast<double>(dut.window_frames);
-      }
-      dut.window_start_s = std::floor(f.t_s);
-      std::fill(dut.window_sum.begin(), dut.window_sum.end(), 0.0);
-      std::fill(dut.window_n.begin(), dut.window_n.end(), 0);
-      dut.window_frames = 0;
-    }
-    for (std::size_t a = 0; a < dut.rate_channels.size(); ++a) {
-      const std::size_t c = dut.rate_channels[a];
-      const double v = f.raw[c] * channels[c].scale;
-      if (!std::isfinite(v)) continue;
-      dut.window_sum[a] += v;
-      ++dut.window_n[a];
-    }
-    ++dut.window_frames;
-    if (dut.temp_channel >= 0) {
-      const double t = f.raw[static_cast<std::size_t>(dut.temp_channel)] *
-                       channels[static_cast<std::size_t>(dut.temp_channel)].scale;
-      if (std::isfinite(t)) dut.temp_c = t;
-    }
-  }
-  publish_dut_status(dut);
-}
-
-// DUT `dut`'s live figures into the snapshot (mu_ held).
-void Station::publish_dut_status(const DutLive& dut) {
-  if (snapshot_.duts.size() != duts_.size()) snapshot_.duts.resize(duts_.size());
-  DutStatus& st = snapshot_.duts[dut.index];
-  st.serial = dut.cfg->serial;
-  st.model = dut.cfg->model;
-  st.primary_axis = dut.cfg->primary_axis;
-  const auto& channels = dut.source->channels();
-  st.rates_dph.clear();
-  for (std::size_t a = 0; a < dut.rate_channels.size(); ++a) {
-    st.rates_dph.emplace_back(channels[dut.rate_channels[a]].axis, dut.rates_dph[a]);
-  }
-  st.temp_c = dut.temp_c;
-  st.samples_per_s = dut.samples_per_s;
-  st.required = dut.cfg->required;
-  st.lost = dut.lost.load();
-  if (dut.index == 0) {
-    // The first DUT's primary axis is "the gyro" of the older status fields.
-    for (std::size_t a = 0; a < dut.rate_channels.size(); ++a) {
-      if (static_cast<int>(dut.rate_channels[a]) == dut.primary_channel) {
-        snapshot_.gyro_rate_dph = dut.rates_dph[a];
-      }
-    }
-    snapshot_.gyro_samples_per_s = dut.samples_per_s;
-  }
-}
-
-void Station::register_run_duts(int64_t run_id, const std::vector<std::string>& serials) {
-  for (auto& d : duts_) {
-    const DutSection& cfg = *d->cfg;
-    const bool named =
-        serials.empty() || std::find(serials.begin(), serials.end(), cfg.serial) != serials.end();
-    d->in_run.store(named);
-    if (!named) {
-      // Not asked for: its frames are not stored under this run.
-      std::lock_guard lock(d->layout_mu);
-      d->layout.reset();
-      d->probe_layout.reset();
-      continue;
-    }
-    storage::RunDutRecord rec;
-    rec.run_id = run_id;
-    rec.position = static_cast<int>(d->index);
-    rec.dut.serial = cfg.serial;
-    rec.dut.model = cfg.model;
-    rec.config_json = dut_config_json(cfg).dump();  // what the run analysis reads
-    rec.primary_axis = cfg.primary_axis;
-    rec.axes = cfg.axes;
-    rec.rate_hz = cfg.link.rate_hz;
-    rec.seq_modulo = cfg.link.protocol == "kvh1750"
-                         ? drivers::kKvh1750SeqModulo
-                         : (cfg.link.ascii.seq_column ? cfg.link.ascii.seq_modulo : 0);
-    const auto& channels = d->source->channels();
-    for (std::size_t c = 0; c < channels.size(); ++c) {
-      rec.channels.push_back({0, run_id, 0, static_cast<int>(c), channels[c]});
-    }
-    if (d->probes) {
-      const int n = static_cast<int>(channels.size());
-      rec.channels.push_back(
-          {0, run_id, 0, n, {"probe_top_c", "degC", ChannelKind::kTemperature, "", 1.0}});
-      rec.channels.push_back(
-          {0, run_id, 0, n + 1, {"probe_side_c", "degC", ChannelKind::kTemperature, "", 1.0}});
-    }
-    auto added = db_.add_run_dut(run_id, rec);
-    std::lock_guard lock(d->layout_mu);
-    if (!added) {
-      // Its frames cannot be stored under this run (on_dut_frames drops
-      // them): said in the run's events.
-      d->layout.reset();
-      d->probe_layout.reset();
-      add_event("error", "", "",
-                fmt::format("DUT {}: not registered in run {} ({}); its samples are not recorded",
-                            dut_name(cfg), run_id, added.error().message));
-      continue;
-    }
-    auto frames = std::make_shared<storage::RunDutRecord>(*added);
-    auto probes = std::make_shared<storage::RunDutRecord>(*added);
-    const std::size_t n = channels.size();
-    frames->channels.resize(std::min(n, frames->channels.size()));
-    probes->rate_hz = 1.0 / config_.control.tick_s;  // read once a control tick
-    probes->seq_modulo = 0;
-    probes->channels.erase(probes->channels.begin(),
-                           probes->channels.begin() +
-                               static_cast<std::ptrdiff_t>(std::min(n, probes->channels.size())));
-    d->layout = std::move(frames);
-    d->probe_layout =
-        d->probes ? std::shared_ptr<const storage::RunDutRecord>(std::move(probes)) : nullptr;
-  }
-}
-
-// Each DUT's own probes, once a control tick, into its probe channels (the
-// frame's raw[] at those channels' indices).
-std::vector<std::string> Station::read_dut_probes(double now_s) {
-  std::vector<std::string> events;
-  for (auto& d : duts_) {
-    if (!d->probes) continue;
-    auto top = d->probes->top_c();
-    auto side = top ? d->probes->side_c() : Result<double>(top.error());
-    if (!top || !side) {
-      if (!d->probes_failing) {
-        d->probes_failing = true;
-        events.push_back(
-            fmt::format("DUT {} probes: no answer ({}); its own shell temperatures "
-                        "are missing from now",
-                        dut_name(*d->cfg), (!top ? top.error() : side.error()).message));
-      }
-      continue;
-    }
-    if (d->probes_failing) {
-      d->probes_failing = false;
-      events.push_back(fmt::format("DUT {} probes: answer again", dut_name(*d->cfg)));
-    }
-    std::shared_ptr<const storage::RunDutRecord> layout;
-    {
-      std::lock_guard lock(d->layout_mu);
-      layout = d->probe_layout;
-    }
-    const RunClock::Value run = run_clock_.load();
-    if (!layout || run.run_id == 0 || layout->run_id != run.run_id || layout->channels.size() < 2) {
-      continue;
-    }
-    DutFrame f;
-    f.t_s = now_s - run.t0_s;
-    f.raw[static_cast<std::size_t>(layout->channels[0].index)] = *top;
-    f.raw[static_cast<std::size_t>(layout->channels[1].index)] = *side;
-    writer_->push_frames(*layout, std::span(&f, 1));
-  }
-  return events;
-}
-
-bool Station::await_gyro(int64_t run_id, double until_s, std::chrono::milliseconds max_wait) {
-  std::unique_lock lock(handed_mu_);
-  return handed_cv_.wait_for(lock, max_wait, [&] {
-    return std::all_of(duts_.begin(), duts_.end(), [&](const auto& d) {
-      return d->handed_run_id == run_id && d->handed_until_s >= until_s;
-    });
-  });
-}
 
 StatusSnapshot Station::status() const {
   StatusSnapshot s;
@@ -1571,10 +1299,7 @@ StatusSnapshot Station::status() const {
   s.uptime_s = wall_.monotonic_s() - started_wall_s_;
   // The chamber's and probes' health are the snapshot's (read_devices()):
   // their drivers hold their lock through a Modbus request.
-  s.gyro = duts_.front()->source->health();
-  for (std::size_t i = 0; i < duts_.size() && i < s.duts.size(); ++i) {
-    s.duts[i].health = duts_[i]->source->health();
-  }
+  duts_->add_health(s);
   s.storage = writer_->stats();
   // The database's file system (a statvfs: microseconds, no disk access).
   std::filesystem::path dir = std::filesystem::path(config_.storage.db_path).parent_path();
@@ -1588,29 +1313,7 @@ StatusSnapshot Station::status() const {
 }
 
 void Station::post_event(const std::string& kind, const std::string& message) {
-  std::lock_guard lock(posted_mu_);
-  if (posted_events_.size() >= kMaxPostedEvents) {
-    posted_events_.pop_front();
-    ++posted_events_dropped_;
-  }
-  posted_events_.emplace_back(kind, message);
-}
-
-// Control thread (run_mu_): the events post_event() queued, in order.
-void Station::record_posted_events() {
-  std::deque<std::pair<std::string, std::string>> events;
-  uint64_t dropped = 0;
-  {
-    std::lock_guard lock(posted_mu_);
-    events.swap(posted_events_);
-    std::swap(dropped, posted_events_dropped_);
-  }
-  if (dropped > 0) {
-    add_event("error", "", "",
-              fmt::format("{} posted events dropped (more than {} waited for the control loop)",
-                          dropped, kMaxPostedEvents));
-  }
-  for (const auto& [kind, message] : events) add_event(kind, "", "", message);
+  journal_->post_event(kind, message);
 }
 
 // A device's gap in the event log: when it stopped answering and how long
@@ -1619,135 +1322,29 @@ void Station::note_link(const drivers::PolledDevice& device, bool ok,
                         std::optional<double>& lost_since_s, double now_s) {
   if (!ok && !lost_since_s) {
     lost_since_s = now_s;
-    add_event("device", "", "",
-              fmt::format("{}: no answer ({}); its readings are missing from now", device.name(),
-                          device.health().last_error));
+    journal_->add_event("device", "", "",
+                        fmt::format("{}: no answer ({}); its readings are missing from now",
+                                    device.name(), device.health().last_error));
   } else if (ok && lost_since_s) {
-    add_event("device", "", "",
-              fmt::format("{}: answers again after {:.1f} s of station time without readings",
-                          device.name(), now_s - *lost_since_s));
+    journal_->add_event(
+        "device", "", "",
+        fmt::format("{}: answers again after {:.1f} s of station time without readings",
+                    device.name(), now_s - *lost_since_s));
     lost_since_s.reset();
   }
 }
 
-void Station::keep_unrecorded(const storage::EventRecord& ev) {
-  if (unrecorded_events_.size() >= kMaxUnrecordedEvents) {
-    ++unrecorded_events_dropped_;
-    spdlog::error("event dropped ({} so far): {} events already wait for the database",
-                  unrecorded_events_dropped_, unrecorded_events_.size());
-    return;
-  }
-  unrecorded_events_.push_back(ev);
-}
-
-// Writes, in order, what a failing database refused: events, the run's
-// state, segment updates. Stops at the first failure (tried again next tick).
-void Station::record_unrecorded() {
-  while (!unrecorded_events_.empty()) {
-    if (!db_.add_event(unrecorded_events_.front())) return;
-    unrecorded_events_.pop_front();
-    if (unrecorded_events_.empty()) spdlog::info("events kept while the database failed: written");
-  }
-  if (!defer_segment_records_ && !(segments_with_checkpoint_ && sequencer_)) {
-    (void)record_segments();
-  }
-  // A run's end is written after its steps' last records (inside a
-  // sequencer tick, with them: tick_sequencer): neither a reader nor a crash
-  // finds a completed run with a step still running.
-  if (unrecorded_run_state_ && unrecorded_run_state_->terminal && !unrecorded_segments_.empty()) {
-    return;
-  }
-  (void)record_run_state();
-}
-
-bool Station::record_run_state() {
-  if (!unrecorded_run_state_) return true;
-  const auto& u = *unrecorded_run_state_;
-  if (auto st = db_.set_run_state(u.run_id, u.state, u.terminal); !st) {
-    if (!run_state_failing_) spdlog::error("run state not written yet: {}", st.error().message);
-    run_state_failing_ = true;
-    return false;
-  }
-  run_state_failing_ = false;
-  unrecorded_run_state_.reset();
-  return true;
-}
-
-bool Station::record_segments() {
-  for (auto it = unrecorded_segments_.begin(); it != unrecorded_segments_.end();) {
-    if (auto st = db_.update_segment(it->second); !st) {
-      if (!segment_failing_) spdlog::error("segment not written yet: {}", st.error().message);
-      segment_failing_ = true;
-      return false;
-    }
-    segment_failing_ = false;
-    it = unrecorded_segments_.erase(it);
-  }
-  return true;
-}
-
 void Station::tick_sequencer(double t_run_s, const schedules::Readings& r) {
-  // A soak's end flushes the sample writer (on_step_finished) outside any
-  // transaction of ours; the step's end, the next step's start and the
-  // checkpoint are then written in one: a crash leaves all or none (the
-  // next step's row itself is created at its start, and a resume closes a
-  // stray one).
-  defer_segment_records_ = true;
-  sequencer_->tick(t_run_s, r);
-  defer_segment_records_ = false;
-  if (unrecorded_segments_.empty()) {
-    segments_with_checkpoint_ = false;
-    record_unrecorded();  // a run's end the tick held back for its steps
-    return;
-  }
-  const auto kept = unrecorded_segments_;
-  const auto kept_run_state = unrecorded_run_state_;
-  const Status st = db_.atomically([&]() -> Status {
-    if (!record_segments()) return Error::Transient("a segment was not written");
-    if (!record_run_state()) return Error::Transient("the run's state was not written");
-    checkpoint(true);
-    if (checkpoint_failing_) return Error::Transient("the checkpoint was not written");
-    return Status::Ok();
-  });
-  segments_with_checkpoint_ = !st;
-  if (!st) {
-    // Rolled back: tried again, together, next tick.
-    unrecorded_segments_ = kept;
-    unrecorded_run_state_ = kept_run_state;
-    checkpoint_state_.clear();
-    if (!segment_failing_) spdlog::error("step change not written yet: {}", st.error().message);
-    segment_failing_ = true;
-  }
-}
-
-void Station::add_event(const std::string& kind, const std::string& from, const std::string& to,
-                        const std::string& message) {
-  storage::EventRecord ev;
-  const int64_t run_id = current_run_id();
-  if (run_id != 0) ev.run_id = run_id;
-  ev.t_s = run_id != 0 ? run_time_s() : 0.0;
-  ev.wall_utc = utc_iso(wall_);
-  ev.kind = kind;
-  ev.from_state = from;
-  ev.to_state = to;
-  ev.message = message;
-  record_unrecorded();
-  if (!unrecorded_events_.empty()) {
-    keep_unrecorded(ev);
-  } else if (auto r = db_.add_event(ev); !r) {
-    spdlog::error("event not recorded yet (kept, written when the database takes writes): {}",
-                  r.error().message);
-    keep_unrecorded(ev);
-  } else {
-    ev.id = *r;
-  }
-  if (hooks_.publish) {
-    nlohmann::json j = to_json(ev);
-    j["run_id"] = ev.run_id ? nlohmann::json(*ev.run_id) : nlohmann::json(nullptr);
-    hooks_.publish("event", j);
-  }
-  std::lock_guard lock(mu_);
-  snapshot_.last_event = message;
+  const bool written =
+      journal_->tick_with_checkpoint([&] { sequencer_->tick(t_run_s, r); },
+                                     [&]() -> Status {
+                                       checkpoint(true);
+                                       if (checkpoint_failing_) {
+                                         return Error::Transient("the checkpoint was not written");
+                                       }
+                                       return Status::Ok();
+                                     });
+  if (!written) checkpoint_state_.clear();  // rolled back: checkpointed again next tick
 }
 
 void Station::on_state(RunState from, RunState to, double t_s, const std::string& reason) {
@@ -1762,11 +1359,11 @@ void Station::on_state(RunState from, RunState to, double t_s, const std::string
                              {"t_s", t_s},
                              {"reason", reason}});
   }
-  add_event("state", std::string(to_string(from)), std::string(to_string(to)), reason);
+  journal_->add_event("state", std::string(to_string(from)), std::string(to_string(to)), reason);
   if (to == RunState::kFailed) answer_failed_run();
-  unrecorded_run_state_ =
-      UnrecordedRunState{current_run_id(), std::string(to_string(to)), schedules::is_terminal(to)};
-  record_unrecorded();
+  journal_->keep_run_state(current_run_id(), std::string(to_string(to)),
+                           schedules::is_terminal(to));
+  journal_->record_unrecorded();
 }
 
 void Station::on_interlock(schedules::InterlockKind kind, bool tripped, double t_s,
@@ -1778,136 +1375,26 @@ void Station::on_interlock(schedules::InterlockKind kind, bool tripped, double t
   } else {
     spdlog::info("run {}: {}", current_run_id(), message);
   }
-  add_event("interlock", "", "", message);
-}
-
-namespace {
-storage::SegmentRecord segment_record(int64_t id, int64_t run_id, std::size_t index,
-                                      const schedules::PlanStep& step,
-                                      const schedules::StepTimes& times, std::string state) {
-  storage::SegmentRecord seg;
-  seg.id = id;
-  seg.run_id = run_id;
-  seg.index = static_cast<int>(index);
-  seg.kind = std::string(schedules::to_string(step.kind));
-  seg.label = step.label;
-  seg.setpoint_c = step.setpoint_c;
-  seg.ramp_rate_c_per_min = step.rate_c_per_min;
-  seg.t_start_s = times.start_s;
-  seg.t_settled_s = times.settled_s;
-  seg.t_acquire_start_s = times.acquire_start_s;
-  seg.t_acquire_end_s = times.acquire_end_s;
-  seg.t_end_s = times.end_s;
-  seg.paused_s = times.held_s;
-  seg.state = std::move(state);
-  for (const auto& w : times.windows) seg.windows.emplace_back(w.from_s, w.to_s);
-  seg.table_mode = std::string(schedules::to_string(step.table.mode));
-  if (step.table.mode == schedules::TableDemandMode::kRate) {
-    seg.table_rate_dps = step.table.rate_dps;
-  } else if (step.table.mode == schedules::TableDemandMode::kStatic) {
-    seg.table_rate_dps = 0.0;
-    seg.table_position_deg = step.table.position_deg;
-  }
-  seg.turns = step.turns;
-  seg.dwell_s = step.dwell_s;
-  seg.sf_sequence = step.sf_sequence;
-  seg.sf_repetition = step.sf_repetition;
-  return seg;
-}
-}  // namespace
-
-int64_t Station::segment_id(std::size_t index, const schedules::PlanStep& step, double t_s) {
-  if (index >= segment_ids_.size()) return 0;
-  if (segment_ids_[index] != 0) return segment_ids_[index];
-  schedules::StepTimes times;
-  times.start_s = t_s;
-  storage::SegmentRecord seg = segment_record(0, current_run_id(), index, step, times, "running");
-  auto id = db_.create_segment(seg);
-  if (!id) {
-    spdlog::error("{}", id.error().message);
-    return 0;
-  }
-  segment_ids_[index] = *id;
-  return *id;
+  journal_->add_event("interlock", "", "", message);
 }
 
 void Station::on_step_started(std::size_t index, const schedules::PlanStep& step, double t_s) {
-  if (index < segment_ids_.size()) segment_ids_[index] = 0;  // a new execution of the step
-  (void)segment_id(index, step, t_s);
-  for (auto& d : duts_) {
-    std::lock_guard lock(d->coverage_mu);
-    if (d->coverage) d->coverage->forget_before(t_s);
-  }
-}
-
-double Station::data_covered_s(double from_s, double to_s) {
-  const int64_t run_id = current_run_id();
-  double least = std::numeric_limits<double>::infinity();
-  for (auto& d : duts_) {
-    if (d->lost.load() || !d->in_run.load()) continue;
-    std::lock_guard lock(d->coverage_mu);
-    const double covered =
-        d->coverage && d->coverage_run_id == run_id ? d->coverage->covered_s(from_s, to_s) : 0.0;
-    least = std::min(least, covered);
-  }
-  return std::isinf(least) ? std::max(0.0, to_s - from_s) : least;
-}
-
-std::optional<double> Station::data_reached_at_s(double from_s, double need_s) {
-  const int64_t run_id = current_run_id();
-  double latest = from_s + need_s;  // no DUT: the clock's
-  for (auto& d : duts_) {
-    if (d->lost.load() || !d->in_run.load()) continue;
-    std::lock_guard lock(d->coverage_mu);
-    if (!d->coverage || d->coverage_run_id != run_id) return std::nullopt;
-    const auto at = d->coverage->reached_at(from_s, need_s);
-    if (!at) return std::nullopt;
-    latest = std::max(latest, *at);
-  }
-  return latest;
-}
-
-void Station::seed_coverage(int64_t run_id, double from_s) {
-  for (auto& d : duts_) {
-    std::shared_ptr<const storage::RunDutRecord> layout;
-    {
-      std::lock_guard lock(d->layout_mu);
-      layout = d->layout;
-    }
-    schedules::CoverageSpans coverage(1.0 / d->cfg->link.rate_hz);
-    if (layout && layout->run_id == run_id && !layout->channels.empty()) {
-      const Status st = db_.for_each_channel_block(
-          layout->channels.front().id, from_s, std::numeric_limits<double>::infinity(),
-          [&](std::span<const double> t_s, std::span<const double>, std::span<const uint32_t>) {
-            for (double t : t_s) coverage.add(t);
-            return true;
-          });
-      if (!st) {
-        spdlog::error(
-            "run {}: DUT {}: stored samples not read back ({}); its coverage starts "
-            "anew",
-            run_id, dut_name(*d->cfg), st.error().message);
-        coverage = schedules::CoverageSpans(1.0 / d->cfg->link.rate_hz);
-      }
-    }
-    std::lock_guard lock(d->coverage_mu);
-    d->coverage = std::move(coverage);
-    d->coverage_run_id = run_id;
-  }
+  journal_->start_segment(index, step, t_s);
+  duts_->forget_coverage_before(t_s);
 }
 
 void Station::on_step_changed(std::size_t index, const schedules::PlanStep& step,
                               const schedules::StepTimes& times) {
-  const int64_t id = segment_id(index, step, times.start_s);
+  const int64_t id = journal_->segment_id(index, step, times.start_s);
   if (id == 0) return;
-  unrecorded_segments_[id] = segment_record(id, current_run_id(), index, step, times, "running");
-  record_unrecorded();
+  journal_->keep_segment(segment_record(id, current_run_id(), index, step, times, "running"));
+  journal_->record_unrecorded();
 }
 
 void Station::on_step_finished(std::size_t index, const schedules::PlanStep& step,
                                const schedules::StepTimes& times, bool completed) {
   const int64_t run_id = current_run_id();
-  const int64_t id = segment_id(index, step, times.start_s);
+  const int64_t id = journal_->segment_id(index, step, times.start_s);
   if (id == 0) return;
   // A soak's samples are committed before the step is recorded finished: a
   // crash after this never leaves a finished soak without its tail.
@@ -1917,9 +1404,9 @@ void Station::on_step_finished(std::size_t index, const schedules::PlanStep& ste
                     index + 1, st.error().message);
     }
   }
-  unrecorded_segments_[id] =
-      segment_record(id, run_id, index, step, times, completed ? "completed" : "aborted");
-  record_unrecorded();
+  journal_->keep_segment(
+      segment_record(id, run_id, index, step, times, completed ? "completed" : "aborted"));
+  journal_->record_unrecorded();
   // Table I is of static soaks only: a soak with the table spinning is not
   // a zero-bias measurement.
   if (completed && step.kind == schedules::StepKind::kSoak &&
@@ -1946,7 +1433,7 @@ Reply Station::control(std::string_view action, const std::string& reason_in) {
   std::lock_guard lock(run_mu_);
   const bool running = sequencer_ && !sequencer_->finished();
   auto log_command = [&](const std::string& message) {
-    add_event("operator", "", "", message);
+    journal_->add_event("operator", "", "", message);
     spdlog::info("{}", message);
   };
   if (action == "pause") {

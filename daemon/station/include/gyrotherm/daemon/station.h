@@ -21,6 +21,10 @@
 // Locking: run_mu_ guards the sequencer, the control-thread database
 // connection and the queue hold; StationQueries' lock its connection; mu_
 // guards the status snapshot. Order: run_mu_, the queries' lock, mu_.
+// The DUTs' acquisition is DutAcquisition's (src/dut_acquisition.h), with
+// its own locks; their status figures are under mu_ too. The event journal
+// is EventJournal's (src/event_journal.h), under run_mu_ (its posted events
+// under its own lock).
 // The run's id and start time go to the gyro reader together (RunClock).
 // The count of waiting queue entries changes only by read-modify-write, by
 // the thread that changed the queue in the database (HTTP: add, remove;
@@ -54,7 +58,6 @@
 #include "gyrotherm/daemon/status.h"
 #include "gyrotherm/daemon/table_control.h"
 #include "gyrotherm/drivers/devices.h"
-#include "gyrotherm/schedules/coverage.h"
 #include "gyrotherm/schedules/progress.h"
 #include "gyrotherm/schedules/sequencer.h"
 #include "gyrotherm/storage/database.h"
@@ -65,6 +68,9 @@ class PacedClock;
 }
 
 namespace gyrotherm::daemon {
+
+class DutAcquisition;
+class EventJournal;
 
 // What the station tells the rest of the daemon; each optional.
 struct StationHooks {
@@ -196,12 +202,6 @@ class Station final : public StationControl, private schedules::SequencerObserve
   void resume_interrupted_run();
   void note_link(const drivers::PolledDevice& device, bool ok, std::optional<double>& lost_since_s,
                  double now_s);
-  void keep_unrecorded(const storage::EventRecord& ev);
-  void record_unrecorded();
-  // Segments only; false while one is left unwritten.
-  bool record_segments();
-  // The run's state kept unwritten, if any; false when it is still unwritten.
-  bool record_run_state();
   // The sequencer's tick, with the segments it ends and starts written in
   // one transaction with the checkpoint that says so.
   void tick_sequencer(double t_run_s, const schedules::Readings& r);
@@ -241,72 +241,6 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // time, for it to come to rest and open its interlock: at shutdown, when
   // no control loop is left to finish the safe state.
   void make_table_safe_now();
-  // One DUT: its source, its own probes, what the status shows of it, and
-  // its registration in the current run.
-  struct DutLive {
-    std::size_t index = 0;
-    const DutSection* cfg = nullptr;  // config_.duts[index]
-    std::unique_ptr<drivers::DutSource> source;
-    std::unique_ptr<drivers::ShellProbes> probes;  // nullptr: none of its own
-    bool probes_failing = false;                   // control thread: said in the events
-    std::vector<std::size_t> rate_channels;        // raw[] indices of its rate axes
-    int primary_channel = -1, temp_channel = -1;
-    std::atomic<double> last_s{0};  // station time of the last frame
-    std::atomic<double> last_wall_s{0};
-    // A frame has arrived since start(): only then can a gyro_lost trip
-    // restored from a checkpoint clear.
-    std::atomic<bool> heard{false};
-    // Not required and silent past its timeout: left out of the gyro_lost
-    // interlock and of the soaks' data accounting until it speaks again.
-    std::atomic<bool> lost{false};
-    // Recorded in the current run: the run's entry named it (`queue add
-    // --dut`) or named none. One that is not is left out of the run's
-    // storage, its soaks' data accounting and the gyro_lost interlock.
-    std::atomic<bool> in_run{true};
-    // The DUT in the current run (Database::add_run_dut), set by the control
-    // thread before the run's clock is published; the frames' channels, and
-    // apart the channels of its own probes (probe_top_c, probe_side_c).
-    std::mutex layout_mu;
-    std::shared_ptr<const storage::RunDutRecord> layout, probe_layout;
-    // coverage_mu: the run seconds its frames handed to the writer cover in
-    // run coverage_run_id (a soak is credited for those, not for the clock).
-    std::mutex coverage_mu;
-    int64_t coverage_run_id = 0;
-    std::optional<schedules::CoverageSpans> coverage;
-    // handed_mu_:
-    int64_t handed_run_id = 0;
-    double handed_until_s = 0;
-    // mu_: the status figures, means over whole station seconds.
-    double window_start_s = -1;
-    std::vector<double> window_sum;
-    std::vector<int64_t> window_n;
-    int64_t window_frames = 0;
-    std::vector<std::optional<double>> rates_dph;
-    std::optional<double> temp_c;
-    double samples_per_s = 0;
-  };
-  void on_dut_frames(DutLive& dut, std::span<const DutFrame> frames);
-  // The soak's data accounting (schedules::Readings::data_covered_s and
-  // data_reached_at_s) over the DUTs of the current run; run seconds.
-  double data_covered_s(double from_s, double to_s);
-  std::optional<double> data_reached_at_s(double from_s, double need_s);
-  // After a restart: each DUT's coverage of the run from `from_s` on, read
-  // back from its committed samples.
-  void seed_coverage(int64_t run_id, double from_s);
-  void publish_dut_status(const DutLive& dut);
-  // Registers every DUT in run `run_id` (run_duts, channels): before the
-  // run's clock is published, so no frame comes under a run without its DUTs.
-  // Registers in the run the DUTs `serials` names (empty: every one).
-  void register_run_duts(int64_t run_id, const std::vector<std::string>& serials);
-  // Reads them without run_mu_; the events to record (kind "device") are
-  // returned for the caller to add under run_mu_.
-  std::vector<std::string> read_dut_probes(double now_s);
-  // Waits, up to `max_wait` (wall), until every DUT's frames of `run_id` up to
-  // `until_s` (run seconds) have been handed to the writer. False on timeout.
-  bool await_gyro(int64_t run_id, double until_s, std::chrono::milliseconds max_wait);
-  void add_event(const std::string& kind, const std::string& from, const std::string& to,
-                 const std::string& message);
-  int64_t segment_id(std::size_t index, const schedules::PlanStep& step, double t_s);
 
   // SequencerObserver
   void on_state(schedules::RunState from, schedules::RunState to, double t_s,
@@ -331,7 +265,9 @@ class Station final : public StationControl, private schedules::SequencerObserve
   std::unique_ptr<NightlyExporter> nightly_;  // [export] nightly
   std::unique_ptr<drivers::Chamber> chamber_;
   std::unique_ptr<drivers::ShellProbes> probes_;
-  std::vector<std::unique_ptr<DutLive>> duts_;  // by [[dut]] index
+  // The DUTs (their frames, coverage, status figures and probes); made in
+  // the constructor.
+  std::unique_ptr<DutAcquisition> duts_;
   std::unique_ptr<drivers::RateTable> table_device_;
   std::unique_ptr<TableControl> table_;  // nullptr: no table
   const double started_wall_s_;          // wall_.monotonic_s() at create()
@@ -339,8 +275,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // Run state (run_mu_).
   std::unique_ptr<schedules::Sequencer> sequencer_;
   std::optional<storage::QueueEntry> entry_;  // the queue entry being run
-  std::vector<int64_t> segment_ids_;
-  std::string last_reason_;  // of the last state change
+  std::string last_reason_;                   // of the last state change
   bool stop_after_current_ = false;
   bool queue_answered_ = false;             // answer_failed_run() spoke for the current run
   std::string stop_reason_;                 // the operator's, for the hold message
@@ -361,23 +296,10 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // A run ended and the chamber has not taken the safe set point yet: each
   // idle tick writes it again.
   bool safe_setpoint_owed_ = false;
-  // What the database refused (disk full): kept and written in order by
-  // record_unrecorded() once it takes writes again.
-  static constexpr std::size_t kMaxUnrecordedEvents = 10000;
-  std::deque<storage::EventRecord> unrecorded_events_;
-  uint64_t unrecorded_events_dropped_ = 0;
-  struct UnrecordedRunState {
-    int64_t run_id;
-    std::string state;
-    bool terminal;
-  };
-  std::optional<UnrecordedRunState> unrecorded_run_state_;
-  std::map<int64_t, storage::SegmentRecord> unrecorded_segments_;  // by segment id
-  bool checkpoint_failing_ = false, run_state_failing_ = false, segment_failing_ = false;
-  // Inside tick_sequencer(), and after its transaction failed while the
-  // run goes on: segment records wait for the next one (with a checkpoint).
-  bool defer_segment_records_ = false;
-  bool segments_with_checkpoint_ = false;
+  bool checkpoint_failing_ = false;
+  // Events, the run's state and its segment records (and what the
+  // database refused of them); made in the constructor.
+  std::unique_ptr<EventJournal> journal_;
 
   // Control-thread only.
   bool chamber_ok_ = true, probes_ok_ = true;
@@ -416,20 +338,8 @@ class Station final : public StationControl, private schedules::SequencerObserve
 
   // Shared with the gyro reader thread.
   RunClock run_clock_;
-  // Each DUT's last batch handed to the writer: run and run time of its
-  // last frame (DutLive::handed_*, under handed_mu_; await_gyro).
-  std::mutex handed_mu_;
-  std::condition_variable handed_cv_;
   // A plan has been taken from pending_ and its run is not over.
   std::atomic<bool> busy_{false};
-
-  // post_event(): events from other threads (the lab relay), recorded by
-  // the control loop at its next tick. Bounded: the oldest are dropped.
-  static constexpr std::size_t kMaxPostedEvents = 1000;
-  std::mutex posted_mu_;
-  std::deque<std::pair<std::string, std::string>> posted_events_;  // (kind, message)
-  uint64_t posted_events_dropped_ = 0;
-  void record_posted_events();
 
   mutable std::mutex mu_;  // guards the fields below
   StatusSnapshot snapshot_;
