@@ -1,10 +1,12 @@
 #include "chunks.h"
 
 #include <fmt/format.h>
+#include <zstd.h>
 
 #include <bit>
 #include <cstring>
 #include <map>
+#include <memory>
 #include <tuple>
 
 #include "sqlite_util.h"
@@ -20,10 +22,23 @@ constexpr struct {
   Encoding e;
   const char* name;
   std::size_t size;
-} kEncodings[] = {{Encoding::kU8, "u8", 1},   {Encoding::kI8, "i8", 1},
-                  {Encoding::kU16, "u16", 2}, {Encoding::kI16, "i16", 2},
-                  {Encoding::kU32, "u32", 4}, {Encoding::kI32, "i32", 4},
-                  {Encoding::kF32, "f32", 4}, {Encoding::kF64, "f64", 8}};
+} kEncodings[] = {
+    {Encoding::kU8, "u8", 1},   {Encoding::kI8, "i8", 1},   {Encoding::kU16, "u16", 2},
+    {Encoding::kI16, "i16", 2}, {Encoding::kU32, "u32", 4}, {Encoding::kI32, "i32", 4},
+    {Encoding::kF32, "f32", 4}, {Encoding::kF64, "f64", 8}, {Encoding::kI64, "i64", 8}};
+
+constexpr std::string_view kPackedSuffix = "+shuffle+zstd";
+
+// 10^k, exact in double for k <= 22.
+constexpr double kPow10[] = {1e0, 1e1, 1e2,  1e3,  1e4,  1e5,  1e6,  1e7,
+                             1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15};
+static_assert(sizeof(kPow10) / sizeof(kPow10[0]) == kMaxDecimals + 1);
+constexpr double kTwo53 = 9007199254740992.0;
+
+bool same_bits(double a, double b) {
+  return std::bit_cast<uint64_t>(a) == std::bit_cast<uint64_t>(b);
+}
+bool is_the_nan(double v) { return same_bits(v, std::numeric_limits<double>::quiet_NaN()); }
 
 template <class T>
 void put_all(std::span<const double> raw, std::string& out) {
@@ -112,6 +127,8 @@ void encode(Encoding e, std::span<const double> raw, std::string& out) {
       return put_all<float>(raw, out);
     case Encoding::kF64:
       return put_all<double>(raw, out);
+    case Encoding::kI64:
+      return put_all<int64_t>(raw, out);
   }
 }
 
@@ -142,8 +159,210 @@ bool decode(Encoding e, const void* data, std::size_t bytes, std::size_t n, doub
     case Encoding::kF64:
       get_all<double>(data, n, out);
       break;
+    case Encoding::kI64:
+      get_all<int64_t>(data, n, out);
+      break;
   }
   return true;
+}
+
+// ---------------------------------------------------------------- chunk encodings
+
+std::string to_string(const ChunkEncoding& e) {
+  std::string s(to_string(e.base));
+  if (e.decimals > 0) s += fmt::format("/1e{}", e.decimals);
+  if (e.zstd) s += kPackedSuffix;
+  return s;
+}
+
+std::optional<ChunkEncoding> chunk_encoding_from_string(std::string_view s) {
+  ChunkEncoding e;
+  if (s.size() > kPackedSuffix.size() && s.ends_with(kPackedSuffix)) {
+    e.zstd = true;
+    s.remove_suffix(kPackedSuffix.size());
+  }
+  if (const auto slash = s.find("/1e"); slash != std::string_view::npos) {
+    const std::string_view k = s.substr(slash + 3);
+    if (k.empty() || k.size() > 2 || (k.size() == 2 && k[0] == '0')) return std::nullopt;
+    int d = 0;
+    for (char c : k) {
+      if (c < '0' || c > '9') return std::nullopt;
+      d = d * 10 + (c - '0');
+    }
+    if (d < 1 || d > kMaxDecimals) return std::nullopt;
+    e.decimals = d;
+    s = s.substr(0, slash);
+  }
+  const auto base = encoding_from_string(s);
+  if (!base) return std::nullopt;
+  if (e.decimals > 0 ? (*base != Encoding::kI32 && *base != Encoding::kI64)
+                     : *base == Encoding::kI64) {
+    return std::nullopt;  // decimals need i32 or i64; i64 is only a decimal's
+  }
+  e.base = *base;
+  return e;
+}
+
+std::optional<int> decimal_places(std::span<const double> raw) {
+  int k = 0;
+  for (double v : raw) {
+    if (is_the_nan(v)) continue;
+    if (!std::isfinite(v) || (v == 0 && std::signbit(v))) return std::nullopt;
+    // A value that is m / 10^k is also 10m / 10^(k+1) (both are the
+    // double nearest to the same number), so k only grows.
+    for (;; ++k) {
+      if (k > kMaxDecimals) return std::nullopt;
+      const double m = std::nearbyint(v * kPow10[k]);
+      if (std::abs(m) < kTwo53 && same_bits(m / kPow10[k], v)) break;
+    }
+  }
+  if (k == 0) return std::nullopt;
+  // Every value again at the final k (10m may pass 2^53).
+  for (double v : raw) {
+    if (is_the_nan(v)) continue;
+    const double m = std::nearbyint(v * kPow10[k]);
+    if (!(std::abs(m) < kTwo53) || !same_bits(m / kPow10[k], v)) return std::nullopt;
+  }
+  return k;
+}
+
+namespace {
+
+// The decimal's integers (the type's smallest value for NaN).
+template <class T>
+void put_decimals(std::span<const double> raw, int k, std::string& out) {
+  const std::size_t at = out.size();
+  out.resize(at + raw.size() * sizeof(T));
+  char* p = out.data() + at;
+  for (double v : raw) {
+    const T x = std::isnan(v) ? std::numeric_limits<T>::min()
+                              : static_cast<T>(std::nearbyint(v * kPow10[k]));
+    std::memcpy(p, &x, sizeof(T));
+    p += sizeof(T);
+  }
+}
+
+template <class T>
+void get_decimals(const char* p, std::size_t n, int k, double* out) {
+  for (std::size_t i = 0; i < n; ++i) {
+    T x;
+    std::memcpy(&x, p + i * sizeof(T), sizeof(T));
+    out[i] = x == std::numeric_limits<T>::min() ? std::numeric_limits<double>::quiet_NaN()
+                                                : static_cast<double>(x) / kPow10[k];
+  }
+}
+
+// Byte b of value i goes to b * n + i.
+void shuffle(const char* in, std::size_t n, std::size_t size, char* out) {
+  for (std::size_t i = 0; i < n; ++i) {
+    for (std::size_t b = 0; b < size; ++b) out[b * n + i] = in[i * size + b];
+  }
+}
+void unshuffle(const char* in, std::size_t n, std::size_t size, char* out) {
+  for (std::size_t i = 0; i < n; ++i) {
+    for (std::size_t b = 0; b < size; ++b) out[i * size + b] = in[b * n + i];
+  }
+}
+
+// The plain bytes of a chunk encoding (before packing).
+void encode_plain(const ChunkEncoding& e, std::span<const double> raw, std::string& out) {
+  if (e.decimals == 0) return encode(e.base, raw, out);
+  if (e.base == Encoding::kI32) return put_decimals<int32_t>(raw, e.decimals, out);
+  return put_decimals<int64_t>(raw, e.decimals, out);
+}
+
+bool decode_plain(const ChunkEncoding& e, const char* data, std::size_t bytes, std::size_t n,
+                  double* out) {
+  if (e.decimals == 0) return decode(e.base, data, bytes, n, out);
+  if (bytes != n * encoded_size(e.base)) return false;
+  if (e.base == Encoding::kI32) {
+    get_decimals<int32_t>(data, n, e.decimals, out);
+  } else {
+    get_decimals<int64_t>(data, n, e.decimals, out);
+  }
+  return true;
+}
+
+// The same values: bit for bit, or both NaN.
+bool same_values(std::span<const double> a, const std::vector<double>& b) {
+  if (a.size() != b.size()) return false;
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    if (!same_bits(a[i], b[i]) && !(std::isnan(a[i]) && std::isnan(b[i]))) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+ChunkEncoding encode_closed(Encoding plain, std::span<const double> raw, std::string& out) {
+  out.clear();
+  ChunkEncoding best{plain, 0, false};
+  encode(plain, raw, out);
+  // The candidates' plain forms: the narrowest plain encoding, and a
+  // decimal when the values are decimals with few enough digits to be
+  // narrower than f64 or to pack better.
+  std::vector<ChunkEncoding> candidates{best};
+  if (plain == Encoding::kF64) {
+    if (const auto k = decimal_places(raw)) {
+      double most = 0;
+      for (double v : raw) {
+        if (!std::isnan(v)) most = std::max(most, std::abs(std::nearbyint(v * kPow10[*k])));
+      }
+      const bool fits32 = most <= 2147483647.0;
+      candidates.push_back({fits32 ? Encoding::kI32 : Encoding::kI64, *k, false});
+    }
+  }
+  std::string plain_bytes, packed, shuffled;
+  std::vector<double> back(raw.size());
+  auto try_take = [&](const ChunkEncoding& e, const std::string& bytes) {
+    if (bytes.size() >= out.size()) return;
+    if (!decode(e, bytes.data(), bytes.size(), raw.size(), back.data()) ||
+        !same_values(raw, back)) {
+      return;  // never taken unless it reads back as it was given
+    }
+    best = e;
+    out = bytes;
+  };
+  for (const ChunkEncoding& c : candidates) {
+    plain_bytes.clear();
+    encode_plain(c, raw, plain_bytes);
+    if (c.decimals > 0) try_take(c, plain_bytes);
+    const std::size_t size = encoded_size(c.base);
+    shuffled.resize(plain_bytes.size());
+    shuffle(plain_bytes.data(), raw.size(), size, shuffled.data());
+    // With the frame's content size and checksum: a damaged BLOB is an
+    // error when read, not other numbers.
+    thread_local const std::unique_ptr<ZSTD_CCtx, size_t (*)(ZSTD_CCtx*)> cctx(ZSTD_createCCtx(),
+                                                                               ZSTD_freeCCtx);
+    if (!cctx) continue;
+    ZSTD_CCtx_reset(cctx.get(), ZSTD_reset_session_and_parameters);
+    ZSTD_CCtx_setParameter(cctx.get(), ZSTD_c_compressionLevel, kZstdLevel);
+    ZSTD_CCtx_setParameter(cctx.get(), ZSTD_c_checksumFlag, 1);
+    ZSTD_CCtx_setParameter(cctx.get(), ZSTD_c_contentSizeFlag, 1);
+    packed.resize(ZSTD_compressBound(shuffled.size()));
+    const std::size_t z =
+        ZSTD_compress2(cctx.get(), packed.data(), packed.size(), shuffled.data(), shuffled.size());
+    if (ZSTD_isError(z)) continue;
+    packed.resize(z);
+    try_take({c.base, c.decimals, true}, packed);
+  }
+  return best;
+}
+
+bool decode(const ChunkEncoding& e, const void* data, std::size_t bytes, std::size_t n,
+            double* out) {
+  const auto* p = static_cast<const char*>(data);
+  if (!e.zstd) return decode_plain(e, p, bytes, n, out);
+  const std::size_t size = encoded_size(e.base);
+  const unsigned long long content = ZSTD_getFrameContentSize(p, bytes);
+  if (content != n * size) return false;  // also ZSTD_CONTENTSIZE_ERROR / _UNKNOWN
+  thread_local std::string shuffled, plain;
+  shuffled.resize(n * size);
+  plain.resize(n * size);
+  const std::size_t got = ZSTD_decompress(shuffled.data(), shuffled.size(), p, bytes);
+  if (ZSTD_isError(got) || got != n * size) return false;
+  unshuffle(shuffled.data(), n, size, plain.data());
+  return decode_plain(e, plain.data(), plain.size(), n, out);
 }
 
 // ---------------------------------------------------------------- the clock
@@ -205,6 +424,7 @@ bool ChunkBuilder::add(double t_s, uint32_t seq, const double* raw) {
     close_open();
   }
   clock_.add(t_s, seq);
+  piece_clock_.add(t_s, seq);
   const auto block = static_cast<int64_t>(std::floor(t_s));
   if (!in_block_ || block != block_) {
     roll_block();
@@ -236,15 +456,14 @@ bool ChunkBuilder::add(double t_s, uint32_t seq, const double* raw) {
 
 void ChunkBuilder::close_open() {
   if (clock_.n == 0) return;
-  if (dirty_) {
-    Closed closed{clock_, std::vector<OpenChannel>(channels_.size())};
-    std::swap(closed.channels, open_);
-    closed_.push_back(std::move(closed));
-    for (OpenChannel& o : open_) o.raw.reserve(kChunkCapacity);
-  } else {
-    open_.assign(channels_.size(), OpenChannel{});
-  }
+  // Written whole by the next flush() (replacing the pieces written so far).
+  Closed closed{clock_, std::vector<OpenChannel>(channels_.size())};
+  std::swap(closed.channels, open_);
+  closed_.push_back(std::move(closed));
+  for (OpenChannel& o : open_) o.raw.reserve(kChunkCapacity);
   clock_ = ChunkClock{};
+  piece_clock_ = ChunkClock{};
+  piece_from_ = 0;
   dirty_ = false;
 }
 
@@ -264,51 +483,91 @@ Status ChunkBuilder::flush(sqlite3* db, const std::string& path) {
                               "encoding, vn, vmin, vmax, vsum, data) "
                               "VALUES(?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)");
   if (!insert) return insert.error();
-  auto update = Stmt::prepare(db, path,
-                              "UPDATE sample_chunks SET period_s = ?3, n = ?4, encoding = ?6, "
-                              "vn = ?7, vmin = ?8, vmax = ?9, vsum = ?10, data = ?11 "
-                              "WHERE id = ?12");
-  if (!update) return update.error();
+  auto remove = Stmt::prepare(db, path, "DELETE FROM sample_chunks WHERE id = ?1");
+  if (!remove) return remove.error();
 
-  auto write = [&](const ChunkClock& clock, std::vector<OpenChannel>& chans) -> Status {
-    for (std::size_t c = 0; c < chans.size(); ++c) {
-      OpenChannel& o = chans[c];
-      Stmt& st = o.row_id == 0 ? *insert : *update;
-      const Encoding e = o.need.encoding();
-      blob_.clear();
-      encode(e, o.raw, blob_);
-      st.bind(1, channels_[c].id);
-      st.bind(2, clock.t0_s);
-      st.bind(3, clock.period_s);
-      st.bind(4, clock.n);
-      st.bind(5, static_cast<int64_t>(clock.seq0));
-      st.bind(6, to_string(e));
-      st.bind(7, o.v_n);
-      if (o.v_n > 0) {
-        st.bind(8, o.v_min);
-        st.bind(9, o.v_max);
-        st.bind(10, o.v_sum);
-      } else {
-        for (int i : {8, 9, 10}) st.bind_null(i);
-      }
-      sqlite3_bind_blob(st.get(), 11, blob_.data(), static_cast<int>(blob_.size()), SQLITE_STATIC);
-      if (o.row_id != 0) st.bind(12, o.row_id);
-      if (st.step() != SQLITE_DONE) {
-        st.reset();
-        return sqlite_error(db, path, what);
-      }
-      st.reset();
-      if (o.row_id == 0) o.row_id = sqlite3_last_insert_rowid(db);
-      ++chunks_written_;
-    }
-    return Status::Ok();
+  struct Stats {
+    int64_t v_n = 0;
+    double v_sum = 0, v_min = 0, v_max = 0;
   };
+  auto insert_row = [&](int64_t channel_id, const ChunkClock& clock, const std::string& encoding,
+                        const Stats& s) -> Result<int64_t> {
+    Stmt& st = *insert;
+    st.bind(1, channel_id);
+    st.bind(2, clock.t0_s);
+    st.bind(3, clock.period_s);
+    st.bind(4, clock.n);
+    st.bind(5, static_cast<int64_t>(clock.seq0));
+    st.bind(6, std::string_view(encoding));
+    st.bind(7, s.v_n);
+    if (s.v_n > 0) {
+      st.bind(8, s.v_min);
+      st.bind(9, s.v_max);
+      st.bind(10, s.v_sum);
+    } else {
+      for (int i : {8, 9, 10}) st.bind_null(i);
+    }
+    sqlite3_bind_blob(st.get(), 11, blob_.data(), static_cast<int>(blob_.size()), SQLITE_STATIC);
+    if (st.step() != SQLITE_DONE) {
+      st.reset();
+      return sqlite_error(db, path, what);
+    }
+    st.reset();
+    ++chunks_written_;
+    return sqlite3_last_insert_rowid(db);
+  };
+
+  // Closed chunks: whole, in their smallest encoding, in place of their
+  // pieces.
   for (Closed& closed : closed_) {
-    if (Status s = write(closed.clock, closed.channels); !s) return s;
+    for (std::size_t c = 0; c < closed.channels.size(); ++c) {
+      OpenChannel& o = closed.channels[c];
+      for (int64_t id : o.pieces) {
+        remove->bind(1, id);
+        if (remove->step() != SQLITE_DONE) {
+          remove->reset();
+          return sqlite_error(db, path, what);
+        }
+        remove->reset();
+      }
+      const ChunkEncoding e = encode_closed(o.need.encoding(), o.raw, blob_);
+      auto id = insert_row(channels_[c].id, closed.clock, to_string(e),
+                           {o.v_n, o.v_sum, o.v_min, o.v_max});
+      if (!id) return id.error();
+    }
   }
   closed_.clear();
+  // The open chunk: the samples since the last flush, as a piece in the
+  // narrowest plain encoding.
   if (dirty_) {
-    if (Status s = write(clock_, open_); !s) return s;
+    for (std::size_t c = 0; c < open_.size(); ++c) {
+      OpenChannel& o = open_[c];
+      const auto piece =
+          std::span<const double>(o.raw).subspan(static_cast<std::size_t>(piece_from_));
+      EncodingNeed need;
+      Stats s;
+      for (double v : piece) {
+        need.add(v);
+        const double physical = v * channels_[c].scale;
+        if (!std::isfinite(physical)) continue;
+        if (s.v_n == 0) {
+          s.v_min = s.v_max = physical;
+        } else {
+          s.v_min = std::min(s.v_min, physical);
+          s.v_max = std::max(s.v_max, physical);
+        }
+        ++s.v_n;
+        s.v_sum += physical;
+      }
+      const Encoding e = need.encoding();
+      blob_.clear();
+      encode(e, piece, blob_);
+      auto id = insert_row(channels_[c].id, piece_clock_, std::string(to_string(e)), s);
+      if (!id) return id.error();
+      o.pieces.push_back(*id);
+    }
+    piece_from_ = clock_.n;
+    piece_clock_ = ChunkClock{};
     dirty_ = false;
   }
 
@@ -381,7 +640,7 @@ Status for_each_chunk(sqlite3* db, const std::string& path, int64_t channel_id, 
     v.clock.n = st->column_int64(2);
     v.clock.seq0 = static_cast<uint32_t>(st->column_int64(3));
     const std::string enc = st->column_text(4);
-    const auto e = encoding_from_string(enc);
+    const auto e = chunk_encoding_from_string(enc);
     if (!e) {
       return Error::Permanent(
           fmt::format("storage: {}: sample_chunks of channel {}: unknown encoding '{}'", path,
@@ -390,7 +649,7 @@ Status for_each_chunk(sqlite3* db, const std::string& path, int64_t channel_id, 
     v.encoding = *e;
     v.data = sqlite3_column_blob(st->get(), 5);
     v.bytes = static_cast<std::size_t>(sqlite3_column_bytes(st->get(), 5));
-    if (v.bytes != static_cast<std::size_t>(v.clock.n) * encoded_size(*e)) {
+    if (!e->zstd && v.bytes != static_cast<std::size_t>(v.clock.n) * encoded_size(e->base)) {
       return Error::Permanent(fmt::format(
           "storage: {}: sample_chunks of channel {} at t0_s {}: {} bytes of data for n {} '{}' "
           "values",

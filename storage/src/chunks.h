@@ -36,10 +36,51 @@ inline constexpr int kChannelRollupFirstLevel = 1;
 inline constexpr int kChannelRollupLastLevel = 4;
 inline constexpr double kChannelRollupBlockS[] = {0.1, 1.0, 10.0, 100.0, 1000.0};
 
-enum class Encoding : uint8_t { kU8, kI8, kU16, kI16, kU32, kI32, kF32, kF64 };
-std::string_view to_string(Encoding e);  // u8, i8, u16, i16, u32, i32, f32, f64
+// The type of each stored value. i64 is only written as the integer of a
+// decimal encoding (ChunkEncoding::decimals > 0).
+enum class Encoding : uint8_t { kU8, kI8, kU16, kI16, kU32, kI32, kF32, kF64, kI64 };
+std::string_view to_string(Encoding e);  // u8, i8, u16, i16, u32, i32, f32, f64, i64
 std::optional<Encoding> encoding_from_string(std::string_view s);
 std::size_t encoded_size(Encoding e);  // bytes per value
+
+// How a chunk's `data` holds its values: sample_chunks.encoding
+// (docs/storage.md "Encodings").
+//   <base>                 n values of base, little-endian (u8 ... f64)
+//   i32/1e<k>, i64/1e<k>   decimal: n integers m, the value is m / 10^k
+//                          (k = 1 ... 15) computed in double, which is the
+//                          same double as parsing the decimal; the type's
+//                          smallest value is NaN
+//   <either>+shuffle+zstd  the same n values with their bytes transposed
+//                          (byte 0 of every value, then byte 1, ...) in
+//                          one zstd frame
+struct ChunkEncoding {
+  Encoding base = Encoding::kF64;
+  int decimals = 0;  // > 0: base (i32 or i64) holds value × 10^decimals
+  bool zstd = false;
+  bool operator==(const ChunkEncoding&) const = default;
+};
+std::string to_string(const ChunkEncoding& e);
+std::optional<ChunkEncoding> chunk_encoding_from_string(std::string_view s);
+inline constexpr int kMaxDecimals = 15;
+inline constexpr int kZstdLevel = 6;
+
+// The fewest decimals k (1 ... kMaxDecimals) with which every value is
+// exactly (bit for bit) m / 10^k for an integer |m| < 2^53, the NaNs being
+// std::numeric_limits<double>::quiet_NaN(); nullopt when there is none
+// (a value that is not such a decimal, -0, an infinity, another NaN) or
+// when every value is an integer (k = 0: the integer encodings hold them).
+std::optional<int> decimal_places(std::span<const double> raw);
+
+// Encodes `raw` for a chunk that will not grow any more: the smallest of
+// the narrowest plain encoding (`plain`, which must hold every value), a
+// decimal one, and either packed with shuffle+zstd; a packed or decimal
+// encoding is taken only once it decoded back to the same values (bit for
+// bit; NaN as NaN). Replaces `out`.
+ChunkEncoding encode_closed(Encoding plain, std::span<const double> raw, std::string& out);
+// Decodes n values of any ChunkEncoding; false when `data` is not n values
+// of it (a wrong size, a damaged zstd frame).
+bool decode(const ChunkEncoding& e, const void* data, std::size_t bytes, std::size_t n,
+            double* out);
 
 // What a channel's values so far need, kept as values arrive; encoding()
 // is the narrowest encoding that stores every one of them exactly
@@ -132,9 +173,14 @@ struct RollupAcc {
 
 // Builds the chunks of one DUT's channels from its frames, in time order,
 // and writes them (and their rollups) with prepared statements on `db`.
-// Open chunks are kept in memory and written (inserted, then updated in
-// place) at each flush(), so a chunk's length does not depend on how often
-// the caller commits. Not thread-safe; the caller owns the transaction.
+// Open chunks are kept in memory; each flush() writes the samples added
+// since the last one as a piece: a chunk row of its own, in the narrowest
+// plain encoding. When the chunk closes (a gap, the cap, finish()) the next
+// flush() deletes its pieces and inserts the whole chunk in its smallest
+// encoding (encode_closed), in the same transaction, so a chunk's length
+// does not depend on how often the caller commits, and what a commit wrote
+// stays readable until the chunk replaces it. Not thread-safe; the caller
+// owns the transaction.
 class ChunkBuilder {
  public:
   ChunkBuilder(std::vector<ChannelInfo> channels, double rate_hz, uint32_t seq_modulo);
@@ -148,7 +194,14 @@ class ChunkBuilder {
   // not after the last sample), ignored.
   bool add(double t_s, uint32_t seq, const double* raw);
 
-  // Writes every chunk changed since the last flush, and the rollups of the
+  // Closes the open chunk (the writer stops, the run is closed): the next
+  // flush() writes it whole. Later samples start a new chunk.
+  void finish() { close_open(); }
+  // Whether finish() has something to close.
+  bool has_open_chunk() const { return clock_.n > 0; }
+
+  // Writes the samples added since the last flush (pieces), every chunk
+  // closed since (whole, replacing its pieces), and the rollups of the
   // samples added since, on `db` (inside the caller's transaction).
   Status flush(sqlite3* db, const std::string& path);
 
@@ -157,7 +210,7 @@ class ChunkBuilder {
 
  private:
   struct OpenChannel {
-    int64_t row_id = 0;  // 0: not yet inserted
+    std::vector<int64_t> pieces;  // row ids of the pieces written so far
     std::vector<double> raw;
     EncodingNeed need;
     int64_t v_n = 0;
@@ -170,7 +223,9 @@ class ChunkBuilder {
   double nominal_period_s_ = 0;
   uint32_t seq_modulo_ = 0;
   std::optional<double> last_t_s_;
-  ChunkClock clock_;
+  ChunkClock clock_;        // the open chunk
+  ChunkClock piece_clock_;  // its samples since the last flush (dirty_)
+  int64_t piece_from_ = 0;  // index of the first of them in raw
   bool dirty_ = false;
   std::vector<OpenChannel> open_;
   // Chunks closed since the last flush, waiting to be written.
@@ -198,7 +253,7 @@ class ChunkBuilder {
 // One stored chunk as read (the BLOB is valid during the callback only).
 struct ChunkView {
   ChunkClock clock;
-  Encoding encoding = Encoding::kF64;
+  ChunkEncoding encoding;
   const void* data = nullptr;
   std::size_t bytes = 0;
 };

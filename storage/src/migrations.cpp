@@ -607,6 +607,15 @@ ALTER TABLE scale_factor_points ADD COLUMN guard_s REAL NOT NULL DEFAULT 0;  -- 
 ALTER TABLE scale_factor_fits ADD COLUMN guard_s REAL NOT NULL DEFAULT 0;    -- its points' guard bands, station s
 )sql";
 
+// v12: packed sample chunks (docs/storage.md "Encodings"). No table
+// changes: closed chunks are now written in the encodings i32/1e<k>,
+// i64/1e<k> and <base>+shuffle+zstd beside the plain ones, which an older
+// build cannot read; the version keeps it from opening such a file (it
+// refuses a newer schema). Chunks already stored stay as they are.
+constexpr const char* kSchemaV12 = R"sql(
+SELECT 1;
+)sql";
+
 constexpr Migration kMigrations[] = {
     {1, "initial schema", kSchemaV1},
     {2, "queue, crash resume, acquisition windows", kSchemaV2},
@@ -620,6 +629,7 @@ constexpr Migration kMigrations[] = {
     {10, "run UUIDs, lab outbox", kSchemaV10, install_lab_triggers_step},
     {11, "result coverage and quality, rate-point guard bands", kSchemaV11,
      install_lab_triggers_step},
+    {12, "packed sample chunks", kSchemaV12},
 };
 
 static_assert(sizeof(kMigrations) / sizeof(kMigrations[0]) == kSchemaVersion,

@@ -135,7 +135,10 @@ struct SampleWriter::Impl {
     uint64_t channel_samples = 0;
     uint64_t chunks = 0;
   };
-  Outcome commit_batch();
+  // Commits the batch. The open chunks of the runs in `finishing` (closed
+  // runs with nothing more pending), or of every run when `finish_all`
+  // (stopping), are closed and written whole.
+  Outcome commit_batch(bool finish_all, const std::set<int64_t>& finishing);
 
   // The chunks of each DUT of each run written to (writer thread); dropped
   // after a failed commit (the next commit starts new chunks after what is
@@ -174,7 +177,12 @@ void SampleWriter::Impl::release_closed_runs_locked() {
   };
   for (auto it = closing.begin(); it != closing.end();) {
     const int64_t run_id = *it;
-    if (waits(run_id)) {
+    // A stream with an open chunk is kept until a commit wrote the chunk
+    // whole (the loop's next round: close_run asked for one).
+    const bool open_chunk = std::any_of(streams.begin(), streams.end(), [&](const auto& kv) {
+      return std::get<0>(kv.first) == run_id && kv.second.builder->has_open_chunk();
+    });
+    if (waits(run_id) || open_chunk) {
       ++it;
       continue;
     }
@@ -341,11 +349,20 @@ SampleWriter::Impl::Outcome SampleWriter::Impl::fail_batch(std::string_view what
   return {Status(std::move(e)), 0};
 }
 
-SampleWriter::Impl::Outcome SampleWriter::Impl::commit_batch() {
+SampleWriter::Impl::Outcome SampleWriter::Impl::commit_batch(bool finish_all,
+                                                             const std::set<int64_t>& finishing) {
   const std::size_t n_gyro = batch_gyro.size();
   const std::size_t n_temps = batch_temps.size();
   const std::size_t n_table = batch_table.size();
-  if (n_gyro + n_temps + n_table == 0) return {};
+  const auto finishes = [&](const auto& key) {
+    return finish_all || finishing.contains(std::get<0>(key));
+  };
+  if (n_gyro + n_temps + n_table == 0 &&
+      std::none_of(streams.begin(), streams.end(), [&](const auto& kv) {
+        return kv.second.builder->has_open_chunk() && finishes(kv.first);
+      })) {
+    return {};
+  }
   const std::string what = fmt::format("committing {} gyro, {} temperature and {} table samples",
                                        n_gyro, n_temps, n_table);
   sqlite3* h = db.handle();
@@ -409,6 +426,13 @@ SampleWriter::Impl::Outcome SampleWriter::Impl::commit_batch() {
       channel_samples += stream->builder->channels().size();
     } else {
       ++duplicates;
+    }
+  }
+  // The open chunks that close now, with this batch's samples.
+  for (auto& [key, st] : streams) {
+    if (st.builder->has_open_chunk() && finishes(key)) {
+      st.builder->finish();
+      st.touched = true;
     }
   }
   uint64_t chunks = 0;
@@ -488,11 +512,21 @@ void SampleWriter::Impl::loop() {
     const std::size_t n_table = batch_table.size();
     const std::size_t n_rows = n_gyro + n_temps + n_table;
     inflight = n_rows;
+    // Closed runs whose rows are all in this batch: their chunks close.
+    std::set<int64_t> finishing;
+    for (int64_t run_id : closing) {
+      const auto of_run = [run_id](const auto& r) { return r.run_id == run_id; };
+      const auto in = [&](const auto& p) {
+        return std::any_of(p.rows.begin() + static_cast<std::ptrdiff_t>(p.head), p.rows.end(),
+                           of_run);
+      };
+      if (!in(gyro) && !in(temps) && !in(table)) finishing.insert(run_id);
+    }
     const auto t0 = Clock::now();
     next_commit = t0 + options.commit_interval;
     lk.unlock();
 
-    Outcome out = commit_batch();
+    Outcome out = commit_batch(stopping, finishing);
     const double elapsed_ms = ms_since(t0);
     if (out.status.ok() && n_rows > 0 && on_commit) {
       on_commit(elapsed_ms / 1000.0);

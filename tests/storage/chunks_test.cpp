@@ -189,15 +189,16 @@ TEST(ChunkedWriter, KvhFramesStoredExactlyInTheNarrowestEncodings) {
                        "SELECT group_concat(DISTINCT encoding) FROM sample_chunks c "
                        "JOIN channels h ON h.id = c.channel_id WHERE h.kind != 'status' "
                        "AND h.kind != 'temperature'"),
-            "f32");
+            "f32+shuffle+zstd")
+      << "closed chunks are packed (the writer stopped: every chunk is closed)";
   EXPECT_EQ(query_text(db.handle(),
                        "SELECT group_concat(DISTINCT encoding) FROM sample_chunks c "
                        "JOIN channels h ON h.id = c.channel_id WHERE h.name = 'status'"),
-            "u8");
+            "u8+shuffle+zstd");
   EXPECT_EQ(query_text(db.handle(),
                        "SELECT group_concat(DISTINCT encoding) FROM sample_chunks c "
                        "JOIN channels h ON h.id = c.channel_id WHERE h.name = 'temp_c'"),
-            "u8");
+            "u8+shuffle+zstd");
   // Every channel back exactly: physical = raw * scale, NaN kept.
   for (const ChannelRecord& ch : dut.channels) {
     std::size_t k = 0;
