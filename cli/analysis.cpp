@@ -31,6 +31,7 @@
 #include "gyrotherm/core/files.h"
 #include "gyrotherm/daemon/report.h"
 #include "gyrotherm/daemon/run_analysis.h"
+#include "gyrotherm/daemon/run_config.h"
 #include "gyrotherm/storage/database.h"
 #include "output.h"
 

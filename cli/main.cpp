@@ -20,6 +20,7 @@
 #include "export.h"
 #include "gyrotherm/cli/http_client.h"
 #include "gyrotherm/daemon/config.h"
+#include "gyrotherm/daemon/sim_endpoints.h"
 #include "gyrotherm/daemon/station_lock.h"
 #include "gyrotherm/drivers/frame_parser.h"
 #include "gyrotherm/drivers/gyro_reader.h"

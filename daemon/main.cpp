@@ -29,6 +29,7 @@
 #include "gyrotherm/daemon/http_message.h"
 #include "gyrotherm/daemon/http_server.h"
 #include "gyrotherm/daemon/metrics.h"
+#include "gyrotherm/daemon/sim_endpoints.h"
 #include "gyrotherm/daemon/station.h"
 #include "gyrotherm/daemon/station_lock.h"
 #include "gyrotherm/daemon/web_assets.h"
@@ -282,7 +283,7 @@ int main(int argc, char** argv) {
   gd::Station* station_ptr = nullptr;
   // The status's and the metrics' bodies, built from the station's snapshot
   // at most every kBodyMaxAgeS of real time whatever the request rate, and
-  // shared by every reader (docs/api.md "Status").
+  // shared by every reader (docs/api.md "How fresh the status is").
   constexpr double kBodyMaxAgeS = 0.05;
   std::optional<gd::BodyCache> status_body;
   std::optional<gd::BodyCache> metrics_body;
@@ -384,12 +385,8 @@ int main(int argc, char** argv) {
     relay_events_to = station_ptr;
     relay->start();
   }
-  (*http)->start();
-  station_lock->note_api(fmt::format("http://{}:{}", config->api.bind, (*http)->port()));
-  spdlog::info(
-      "gyrothermd: station \"{}\", database {}, API http://{}:{}/api/v1/status, time "
-      "scale {:g}",
-      config->station.name, config->storage.db_path, config->api.bind, (*http)->port(), time_scale);
+  // The command line's schedule is queued before the API serves anyone, so
+  // it comes before whatever a client queues as soon as the daemon answers.
   if (!schedule_path.empty()) {
     const auto added = (*station)->queue_add(schedule_text, schedule_path, false);
     if (added.refusal) {
@@ -397,6 +394,12 @@ int main(int argc, char** argv) {
       for (const auto& line : added.refusal->details) spdlog::error("  {}", line);
     }
   }
+  (*http)->start();
+  station_lock->note_api(fmt::format("http://{}:{}", config->api.bind, (*http)->port()));
+  spdlog::info(
+      "gyrothermd: station \"{}\", database {}, API http://{}:{}/api/v1/status, time "
+      "scale {:g}",
+      config->station.name, config->storage.db_path, config->api.bind, (*http)->port(), time_scale);
 
   sd_notifyf(0, "READY=1\nSTATUS=station \"%s\", API http://%s:%d/", config->station.name.c_str(),
              config->api.bind.c_str(), (*http)->port());

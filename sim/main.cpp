@@ -17,6 +17,7 @@
 
 #include "gyrotherm/core/toml_reader.h"
 #include "gyrotherm/daemon/config.h"
+#include "gyrotherm/daemon/sim_endpoints.h"
 #include "gyrotherm/sim/control_server.h"
 #include "gyrotherm/sim/options.h"
 #include "gyrotherm/sim/simulator.h"

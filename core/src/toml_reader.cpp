@@ -129,6 +129,11 @@ std::string_view toml_type_name(const toml::node& node) {
   }
 }
 
+int node_line(const toml::node& node, int fallback) {
+  const int line = static_cast<int>(node.source().begin.line);
+  return line > 0 ? line : fallback;
+}
+
 TableReader::TableReader(const toml::table& table, std::string path, TomlErrors& errors)
     : table_(&table), path_(std::move(path)), errors_(&errors) {}
 

@@ -13,6 +13,7 @@
 
 #include "gyrotherm/analysis/table1.h"
 #include "gyrotherm/core/files.h"
+#include "gyrotherm/daemon/sim_endpoints.h"
 #include "gyrotherm/drivers/kvh1750.h"
 #include "gyrotherm/sim/aero_server.h"
 #include "gyrotherm/sim/control_server.h"

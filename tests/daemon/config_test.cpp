@@ -12,6 +12,8 @@
 #include <fstream>
 
 #include "gyrotherm/daemon/run_analysis.h"
+#include "gyrotherm/daemon/run_config.h"
+#include "gyrotherm/daemon/sim_endpoints.h"
 
 namespace gyrotherm::daemon {
 namespace {

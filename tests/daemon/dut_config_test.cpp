@@ -12,6 +12,7 @@
 #include <string>
 
 #include "gyrotherm/daemon/config.h"
+#include "gyrotherm/daemon/sim_endpoints.h"
 #include "test_files.h"
 
 namespace gyrotherm::daemon {

@@ -13,7 +13,7 @@
 #include <string>
 
 #include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/run_analysis.h"
+#include "gyrotherm/daemon/run_config.h"
 
 namespace gyrotherm::daemon {
 namespace {

@@ -2,6 +2,8 @@
 // force as JSON, laid out like the TOML file, tokens redacted; and how the
 // CLI and reports read it back (JSON, or the TOML text of runs stored before
 // schema v6).
+#include "gyrotherm/daemon/run_config.h"
+
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 #include <toml++/toml.h>

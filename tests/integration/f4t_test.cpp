@@ -15,6 +15,7 @@
 #include <cstdio>
 #include <string>
 
+#include "gyrotherm/daemon/sim_endpoints.h"
 #include "station_fixture.h"
 
 namespace gyrotherm::testing {

@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 #include <thread>
 
+#include "gyrotherm/daemon/sim_endpoints.h"
 #include "gyrotherm/storage/database.h"
 #include "station_fixture.h"
 #include "test_files.h"
@@ -223,6 +224,28 @@ TEST_F(QueueTest, QueuePauseResumeReorderAbortOverRest) {
 // `stop --reason TEXT` during a run: once the run completes, the queue's
 // hold message carries the reason (it said only "stopped after run N by the
 // operator") and says how to release it.
+// `--schedule` is queued before the API answers anyone: a client that
+// queues as soon as the daemon listens comes after it (the demo's
+// scale-factor run once went first on a busy machine).
+TEST_F(QueueTest, TheCommandLinesScheduleComesBeforeAClientsFirstEntry) {
+  write(dir_ / "schedule.toml", soak_schedule("command line", 23, 1, 1));
+  start_sim();
+  start_daemon();
+  const std::string body = queue_body(soak_schedule("client", 23, 1, 1), "client.toml").dump();
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  std::optional<cli::HttpResult> r;
+  // As fast as the daemon can answer: the first request that gets through.
+  while (std::chrono::steady_clock::now() < deadline) {
+    r = call("POST", "/api/v1/queue", body);
+    if (r && r->status == 201) break;
+    ASSERT_TRUE(daemon_->running()) << diag();
+  }
+  ASSERT_TRUE(r && r->status == 201) << (r ? r->body : "no answer") << diag();
+  ASSERT_TRUE(wait_json("/api/v1/runs/1", [](const json& run) { return run.is_object(); }))
+      << diag();
+  EXPECT_EQ(last_["schedule_name"], "command line") << last_.dump();
+}
+
 TEST_F(QueueTest, StopReasonReachesTheHoldMessage) {
   start_sim();
   start_daemon({}, false);

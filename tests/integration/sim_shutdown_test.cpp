@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "gyrotherm/daemon/config.h"
+#include "gyrotherm/daemon/sim_endpoints.h"
 #include "gyrotherm/drivers/modbus_device.h"
 #include "process.h"
 #include "temp_dir_test.h"

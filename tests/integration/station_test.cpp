@@ -16,6 +16,8 @@
 #include "gyrotherm/cli/http_client.h"
 #include "gyrotherm/daemon/config.h"
 #include "gyrotherm/daemon/run_analysis.h"
+#include "gyrotherm/daemon/run_config.h"
+#include "gyrotherm/daemon/sim_endpoints.h"
 #include "gyrotherm/drivers/modbus_device.h"
 #include "gyrotherm/sim/simulator.h"
 #include "gyrotherm/storage/database.h"

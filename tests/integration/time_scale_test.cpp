@@ -6,6 +6,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include "gyrotherm/daemon/sim_endpoints.h"
 #include "station_fixture.h"
 
 namespace gyrotherm::testing {

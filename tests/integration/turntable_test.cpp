@@ -142,7 +142,10 @@ class TurntableTest : public StationTest {
       // The truth at the plateau, through the same definitions, noise-free.
       std::vector<analysis::RatePoint> points;
       for (const json& p : result["points"]) {
-        if (p["sf_sequence"] != fit["sf_sequence"]) continue;
+        if (p["sf_sequence"] != fit["sf_sequence"] || p["dut_serial"] != fit["dut_serial"] ||
+            p["axis"] != fit["axis"]) {
+          continue;
+        }
         analysis::RatePoint r;
         r.rate_dps = p["rate_dps"].get<double>();
         r.output_dps = truth_output_dps(sf, t_c, r.rate_dps, earth_dph);
@@ -183,16 +186,21 @@ class TurntableTest : public StationTest {
           expected->nonlinearity_ppm, fit["nonlinearity_fs_ppm"].get<double>(),
           expected->nonlinearity_fs_ppm, fit["repeatability_ppm"].get<double>());
     }
-    const json& over_t = result["temperature_fit"];
-    const double truth_ppm_per_c =
-        sf["k_tc_ppm_per_c"].get<double>() /
-        (1.0 + (sf["k_ppm"].get<double>() +
-                sf["k_tc_ppm_per_c"].get<double>() *
-                    (over_t["t_centre_c"].get<double>() - sf["reference_temp_c"].get<double>())) *
-                   1e-6);
-    EXPECT_NEAR(over_t["k_ppm_per_c"].get<double>(), truth_ppm_per_c, 0.5) << over_t.dump();
-    std::printf("K(T): %.3f ppm/°C (truth %.3f)\n", over_t["k_ppm_per_c"].get<double>(),
-                truth_ppm_per_c);
+    // K(T) of every DUT axis on the table (the simulator gives them all the
+    // same scale-factor truth).
+    for (const json& over_t : result["temperature_fits"]) {
+      const double truth_ppm_per_c =
+          sf["k_tc_ppm_per_c"].get<double>() /
+          (1.0 + (sf["k_ppm"].get<double>() +
+                  sf["k_tc_ppm_per_c"].get<double>() *
+                      (over_t["t_centre_c"].get<double>() - sf["reference_temp_c"].get<double>())) *
+                     1e-6);
+      EXPECT_NEAR(over_t["k_ppm_per_c"].get<double>(), truth_ppm_per_c, 0.5) << over_t.dump();
+      std::printf("K(T) %s %s: %.3f ppm/°C (truth %.3f)\n",
+                  over_t["dut_serial"].get<std::string>().c_str(),
+                  over_t["axis"].get<std::string>().c_str(), over_t["k_ppm_per_c"].get<double>(),
+                  truth_ppm_per_c);
+    }
   }
   json last_;
 };
@@ -597,8 +605,9 @@ TEST_F(TurntableTest, ScaleFactorCampaignRecoversTheSimulatorsTruth) {
 
 // The same campaign with three DUTs at x200 beside two busy processes: on
 // the simulator's clock no rate window catches the previous rate (the issue
-// found K = 0.53 and asymmetry off by 1e5 ppm so, with two clocks), and the
-// first DUT's scale factor is as right as alone.
+// found K = 0.53 and asymmetry off by 1e5 ppm so, with two clocks), and
+// every DUT's table axis (each DUT turns with the table) gets a scale factor
+// as right as one DUT's alone.
 TEST_F(TurntableTest, ScaleFactorWithThreeDutsBesideTwoHogsRecoversTheTruth) {
   std::string text = testing::station_config(dir_, api_port_);
   ASSERT_TRUE(testing::with_three_duts(text));
@@ -613,11 +622,14 @@ TEST_F(TurntableTest, ScaleFactorWithThreeDutsBesideTwoHogsRecoversTheTruth) {
       << diag();
   ASSERT_TRUE(wait_json(
       "/api/v1/runs/1/scale-factor",
-      [](const json& sf) { return sf["fits"].size() == 2 && !sf["temperature_fit"].is_null(); },
+      [](const json& sf) {
+        return sf["fits"].size() == 3u * 2u && sf["temperature_fits"].size() == 3u;
+      },
       60s))
       << diag();
   const json result = last_;
-  ASSERT_EQ(result["points"].size(), 2u * 2u * 6u) << result.dump();
+  // Three DUT axes × two temperatures × two repetitions × six rates.
+  ASSERT_EQ(result["points"].size(), 3u * 2u * 2u * 6u) << result.dump();
   expect_recovers_the_truth(result);
   // K(T) for every DUT axis with rate points, the first DUT's primary axis
   // (temperature_fit) among them.

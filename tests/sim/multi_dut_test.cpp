@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "gyrotherm/daemon/config.h"
+#include "gyrotherm/daemon/sim_endpoints.h"
 #include "gyrotherm/drivers/dut_link.h"
 #include "gyrotherm/drivers/registers.h"
 #include "gyrotherm/sim/control_server.h"

@@ -16,6 +16,7 @@
 #include <nlohmann/json.hpp>
 #include <thread>
 
+#include "gyrotherm/daemon/sim_endpoints.h"
 #include "gyrotherm/drivers/kvh1750.h"
 #include "sim_test_util.h"
 #include "test_time.h"
@@ -346,11 +347,15 @@ TEST_F(SimulatorTest, KeepsUpAtTimeScale1000With10Hz) {
   EXPECT_LT(s.lag_s, 20.0);  // station s, i.e. 20 ms of wall time
   EXPECT_GE(s.frames_generated, 10000u);
   EXPECT_EQ(s.stream.frames_dropped_full, 0u);
+  EXPECT_LE(reader.frames().size(), s.stream.frames_queued);
+  // Everything queued by then arrives: nothing is lost between the simulator
+  // and the line. (How much is still in flight at that moment depends on how
+  // busy the machine is: a reader starved for 0.2 s is 2 000 frames behind.)
+  const uint64_t queued = s.stream.frames_queued;
+  EXPECT_TRUE(reader.read_until([&] { return reader.frames().size() >= queued; }, 10000ms))
+      << reader.frames().size() << " of " << queued << " frames arrived";
   EXPECT_EQ(reader.counters().crc_failures, 0u);
   EXPECT_EQ(reader.counters().sequence_gaps, 0u);
-  // Everything sent since the reader opened arrived, but what is still in flight.
-  EXPECT_GE(reader.frames().size() + 200, s.stream.frames_queued);
-  EXPECT_LE(reader.frames().size(), s.stream.frames_queued);
 }
 
 TEST_F(SimulatorTest, FramesWhileNobodyListensAreNotStored) {

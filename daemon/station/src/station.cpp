@@ -14,6 +14,7 @@
 
 #include "gyrotherm/core/paced_clock.h"
 #include "gyrotherm/daemon/run_analysis.h"
+#include "gyrotherm/daemon/run_config.h"
 #include "gyrotherm/drivers/dut_link.h"
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/drivers/kvh1750.h"

@@ -79,4 +79,8 @@ class TableReader {
 // "integer", "string", "table", ... for error messages.
 std::string_view toml_type_name(const toml::node& node);
 
+// The line of an array entry; `fallback` (the array's key line) when toml++
+// kept none.
+int node_line(const toml::node& node, int fallback);
+
 }  // namespace gyrotherm

@@ -75,6 +75,7 @@
 #include "gyrotherm/core/result.h"
 #include "gyrotherm/core/shared_clock.h"
 #include "gyrotherm/daemon/config.h"
+#include "gyrotherm/daemon/sim_endpoints.h"
 #include "gyrotherm/sim/dut_model.h"
 #include "gyrotherm/sim/gyro_model.h"
 #include "gyrotherm/sim/gyro_stream.h"
