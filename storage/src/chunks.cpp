@@ -72,6 +72,93 @@ double ulp(double x) {
 // floor(a / b) for integers, b > 0.
 int64_t floor_div(int64_t a, int64_t b) { return a / b - ((a % b != 0) && (a < 0)); }
 
+// The statistics of a chunk's finite physical values (raw × scale), summed
+// in sample order (as ChunkBuilder::add does).
+struct ChunkStats {
+  int64_t v_n = 0;
+  double v_sum = 0, v_min = 0, v_max = 0;
+  static ChunkStats of(std::span<const double> raw, double scale) {
+    ChunkStats s;
+    for (double v : raw) {
+      const double physical = v * scale;
+      if (!std::isfinite(physical)) continue;
+      if (s.v_n == 0) {
+        s.v_min = s.v_max = physical;
+      } else {
+        s.v_min = std::min(s.v_min, physical);
+        s.v_max = std::max(s.v_max, physical);
+      }
+      ++s.v_n;
+      s.v_sum += physical;
+    }
+    return s;
+  }
+};
+
+// Inserts and deletes sample_chunks rows. Without pieces the statements do
+// not name the `piece` column (the v9 migration's table has none yet).
+class ChunkRows {
+ public:
+  static Result<ChunkRows> prepare(sqlite3* db, const std::string& path, bool pieces) {
+    ChunkRows r(db, path);
+    auto insert = Stmt::prepare(
+        db, path,
+        pieces ? "INSERT INTO sample_chunks(channel_id, t0_s, period_s, n, seq0, encoding, vn, "
+                 "vmin, vmax, vsum, data, piece) "
+                 "VALUES(?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12)"
+               : "INSERT INTO sample_chunks(channel_id, t0_s, period_s, n, seq0, encoding, vn, "
+                 "vmin, vmax, vsum, data) VALUES(?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)");
+    if (!insert) return insert.error();
+    r.insert_ = std::move(*insert);
+    r.pieces_ = pieces;
+    auto remove = Stmt::prepare(db, path, "DELETE FROM sample_chunks WHERE id = ?1");
+    if (!remove) return remove.error();
+    r.remove_ = std::move(*remove);
+    return r;
+  }
+
+  // piece: 0 for a whole chunk, else its number within its chunk.
+  Result<int64_t> insert(int64_t channel_id, const ChunkClock& clock, std::string_view encoding,
+                         const ChunkStats& s, const std::string& blob, int64_t piece) {
+    Stmt& st = insert_;
+    st.bind(1, channel_id);
+    st.bind(2, clock.t0_s);
+    st.bind(3, clock.period_s);
+    st.bind(4, clock.n);
+    st.bind(5, static_cast<int64_t>(clock.seq0));
+    st.bind(6, encoding);
+    st.bind(7, s.v_n);
+    if (s.v_n > 0) {
+      st.bind(8, s.v_min);
+      st.bind(9, s.v_max);
+      st.bind(10, s.v_sum);
+    } else {
+      for (int i : {8, 9, 10}) st.bind_null(i);
+    }
+    sqlite3_bind_blob(st.get(), 11, blob.data(), static_cast<int>(blob.size()), SQLITE_STATIC);
+    if (pieces_) st.bind(12, piece);
+    const int rc = st.step();
+    st.reset();
+    if (rc != SQLITE_DONE) return sqlite_error(db_, path_, "writing sample chunks");
+    return sqlite3_last_insert_rowid(db_);
+  }
+
+  Status remove(int64_t id) {
+    remove_.bind(1, id);
+    const int rc = remove_.step();
+    remove_.reset();
+    if (rc != SQLITE_DONE) return sqlite_error(db_, path_, "writing sample chunks");
+    return Status::Ok();
+  }
+
+ private:
+  ChunkRows(sqlite3* db, const std::string& path) : db_(db), path_(path) {}
+  sqlite3* db_;
+  std::string path_;
+  Stmt insert_, remove_;
+  bool pieces_ = true;
+};
+
 }  // namespace
 
 std::string_view to_string(Encoding e) {
@@ -404,10 +491,12 @@ void ChunkClock::add(double t_s, uint32_t seq) {
 
 // ---------------------------------------------------------------- the builder
 
-ChunkBuilder::ChunkBuilder(std::vector<ChannelInfo> channels, double rate_hz, uint32_t seq_modulo)
+ChunkBuilder::ChunkBuilder(std::vector<ChannelInfo> channels, double rate_hz, uint32_t seq_modulo,
+                           bool write_pieces)
     : channels_(std::move(channels)),
       nominal_period_s_(rate_hz > 0 ? 1.0 / rate_hz : 0),
       seq_modulo_(seq_modulo),
+      write_pieces_(write_pieces),
       open_(channels_.size()),
       block_acc_(channels_.size()) {
   for (OpenChannel& o : open_) o.raw.reserve(kChunkCapacity);
@@ -456,8 +545,10 @@ bool ChunkBuilder::add(double t_s, uint32_t seq, const double* raw) {
 
 void ChunkBuilder::close_open() {
   if (clock_.n == 0) return;
-  // Written whole by the next flush() (replacing the pieces written so far).
-  Closed closed{clock_, std::vector<OpenChannel>(channels_.size())};
+  // Packed by a later flush() (replacing the pieces written so far); its
+  // samples since the last flush are its tail.
+  Closed closed{clock_, std::vector<OpenChannel>(channels_.size()), piece_clock_, piece_from_,
+                dirty_ && write_pieces_};
   std::swap(closed.channels, open_);
   closed_.push_back(std::move(closed));
   for (OpenChannel& o : open_) o.raw.reserve(kChunkCapacity);
@@ -476,95 +567,80 @@ void ChunkBuilder::roll_block() {
   }
 }
 
-Status ChunkBuilder::flush(sqlite3* db, const std::string& path) {
-  const std::string what = "writing sample chunks";
-  auto insert = Stmt::prepare(db, path,
-                              "INSERT INTO sample_chunks(channel_id, t0_s, period_s, n, seq0, "
-                              "encoding, vn, vmin, vmax, vsum, data) "
-                              "VALUES(?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)");
-  if (!insert) return insert.error();
-  auto remove = Stmt::prepare(db, path, "DELETE FROM sample_chunks WHERE id = ?1");
-  if (!remove) return remove.error();
+std::size_t ChunkBuilder::unpacked() const {
+  std::size_t n = 0;
+  for (const Closed& closed : closed_) {
+    for (const OpenChannel& o : closed.channels) n += o.packed ? 0 : 1;
+  }
+  return n;
+}
 
-  struct Stats {
-    int64_t v_n = 0;
-    double v_sum = 0, v_min = 0, v_max = 0;
-  };
-  auto insert_row = [&](int64_t channel_id, const ChunkClock& clock, const std::string& encoding,
-                        const Stats& s) -> Result<int64_t> {
-    Stmt& st = *insert;
-    st.bind(1, channel_id);
-    st.bind(2, clock.t0_s);
-    st.bind(3, clock.period_s);
-    st.bind(4, clock.n);
-    st.bind(5, static_cast<int64_t>(clock.seq0));
-    st.bind(6, std::string_view(encoding));
-    st.bind(7, s.v_n);
-    if (s.v_n > 0) {
-      st.bind(8, s.v_min);
-      st.bind(9, s.v_max);
-      st.bind(10, s.v_sum);
-    } else {
-      for (int i : {8, 9, 10}) st.bind_null(i);
+void ChunkBuilder::add_piece_ids(std::vector<int64_t>& ids) const {
+  for (const OpenChannel& o : open_) ids.insert(ids.end(), o.pieces.begin(), o.pieces.end());
+  for (const Closed& closed : closed_) {
+    for (const OpenChannel& o : closed.channels) {
+      if (!o.packed) ids.insert(ids.end(), o.pieces.begin(), o.pieces.end());
     }
-    sqlite3_bind_blob(st.get(), 11, blob_.data(), static_cast<int>(blob_.size()), SQLITE_STATIC);
-    if (st.step() != SQLITE_DONE) {
-      st.reset();
-      return sqlite_error(db, path, what);
-    }
-    st.reset();
+  }
+}
+
+Status ChunkBuilder::flush(sqlite3* db, const std::string& path, std::size_t* pack_budget) {
+  auto rows = ChunkRows::prepare(db, path, write_pieces_);
+  if (!rows) return rows.error();
+  // Writes raw[from...] of channel c as the next piece of `o`.
+  auto write_piece = [&](std::size_t c, OpenChannel& o, int64_t from,
+                         const ChunkClock& clock) -> Status {
+    const auto piece = std::span<const double>(o.raw).subspan(static_cast<std::size_t>(from));
+    EncodingNeed need;
+    for (double v : piece) need.add(v);
+    const Encoding e = need.encoding();
+    blob_.clear();
+    encode(e, piece, blob_);
+    auto id = rows->insert(channels_[c].id, clock, to_string(e),
+                           ChunkStats::of(piece, channels_[c].scale), blob_,
+                           static_cast<int64_t>(o.pieces.size()) + 1);
+    if (!id) return id.error();
     ++chunks_written_;
-    return sqlite3_last_insert_rowid(db);
+    o.pieces.push_back(*id);
+    return Status::Ok();
   };
 
-  // Closed chunks: whole, in their smallest encoding, in place of their
-  // pieces.
+  // Closed chunks, oldest first: whole, in their smallest encoding, in
+  // place of their pieces, as long as the budget lasts; the others get
+  // their tail written as a piece, so that what this commit took is
+  // stored.
   for (Closed& closed : closed_) {
     for (std::size_t c = 0; c < closed.channels.size(); ++c) {
       OpenChannel& o = closed.channels[c];
-      for (int64_t id : o.pieces) {
-        remove->bind(1, id);
-        if (remove->step() != SQLITE_DONE) {
-          remove->reset();
-          return sqlite_error(db, path, what);
+      if (o.packed) continue;
+      if (!pack_budget || *pack_budget > 0) {
+        for (int64_t id : o.pieces) {
+          if (Status s = rows->remove(id); !s) return s;
         }
-        remove->reset();
+        const ChunkEncoding e = encode_closed(o.need.encoding(), o.raw, blob_);
+        auto id = rows->insert(channels_[c].id, closed.clock, to_string(e),
+                               {o.v_n, o.v_sum, o.v_min, o.v_max}, blob_, 0);
+        if (!id) return id.error();
+        ++chunks_written_;
+        o.packed = true;
+        o.pieces.clear();
+        o.raw = {};
+        if (pack_budget) --*pack_budget;
+      } else if (closed.tail && !o.tail_written) {
+        if (Status s = write_piece(c, o, closed.tail_from, closed.tail_clock); !s) return s;
+        o.tail_written = true;
       }
-      const ChunkEncoding e = encode_closed(o.need.encoding(), o.raw, blob_);
-      auto id = insert_row(channels_[c].id, closed.clock, to_string(e),
-                           {o.v_n, o.v_sum, o.v_min, o.v_max});
-      if (!id) return id.error();
     }
   }
-  closed_.clear();
+  std::erase_if(closed_, [](const Closed& closed) {
+    return std::all_of(closed.channels.begin(), closed.channels.end(),
+                       [](const OpenChannel& o) { return o.packed; });
+  });
   // The open chunk: the samples since the last flush, as a piece in the
   // narrowest plain encoding.
-  if (dirty_) {
+  if (dirty_ && write_pieces_) {
     for (std::size_t c = 0; c < open_.size(); ++c) {
-      OpenChannel& o = open_[c];
-      const auto piece =
-          std::span<const double>(o.raw).subspan(static_cast<std::size_t>(piece_from_));
-      EncodingNeed need;
-      Stats s;
-      for (double v : piece) {
-        need.add(v);
-        const double physical = v * channels_[c].scale;
-        if (!std::isfinite(physical)) continue;
-        if (s.v_n == 0) {
-          s.v_min = s.v_max = physical;
-        } else {
-          s.v_min = std::min(s.v_min, physical);
-          s.v_max = std::max(s.v_max, physical);
-        }
-        ++s.v_n;
-        s.v_sum += physical;
-      }
-      const Encoding e = need.encoding();
-      blob_.clear();
-      encode(e, piece, blob_);
-      auto id = insert_row(channels_[c].id, piece_clock_, std::string(to_string(e)), s);
-      if (!id) return id.error();
-      o.pieces.push_back(*id);
+      if (Status s = write_piece(c, open_[c], piece_from_, piece_clock_); !s) return s;
     }
     piece_from_ = clock_.n;
     piece_clock_ = ChunkClock{};
@@ -615,6 +691,109 @@ Status ChunkBuilder::flush(sqlite3* db, const std::string& path) {
     }
   }
   return Status::Ok();
+}
+
+Result<std::size_t> pack_left_pieces(sqlite3* db, const std::string& path,
+                                     const std::vector<int64_t>& owned, std::size_t max_chunks,
+                                     bool* more) {
+  *more = false;
+  auto st = Stmt::prepare(db, path,
+                          "SELECT k.id, k.channel_id, k.t0_s, k.period_s, k.n, k.seq0, k.encoding, "
+                          "k.piece, k.data, coalesce(c.scale, 1) FROM sample_chunks k LEFT JOIN "
+                          "channels c ON c.id = k.channel_id WHERE k.piece > 0 "
+                          "ORDER BY k.channel_id, k.t0_s");
+  if (!st) return st.error();
+  auto rows = ChunkRows::prepare(db, path, true);
+  if (!rows) return rows.error();
+  // The run of pieces being gathered: one chunk's, in order.
+  struct Group {
+    int64_t channel_id = 0;
+    int64_t last_piece = 0;
+    double scale = 1;
+    ChunkClock clock;
+    double t_last_s = 0;
+    std::vector<int64_t> ids;
+    std::vector<double> raw;
+  } g;
+  std::size_t packed = 0;
+  std::string blob;
+  auto pack = [&]() -> Status {
+    if (g.ids.empty()) return Status::Ok();
+    g.clock.n = static_cast<int64_t>(g.raw.size());
+    g.clock.period_s =
+        g.clock.n > 1 ? (g.t_last_s - g.clock.t0_s) / static_cast<double>(g.clock.n - 1) : 0;
+    EncodingNeed need;
+    for (double v : g.raw) need.add(v);
+    const ChunkEncoding e = encode_closed(need.encoding(), g.raw, blob);
+    for (int64_t id : g.ids) {
+      if (Status s = rows->remove(id); !s) return s;
+    }
+    auto id =
+        rows->insert(g.channel_id, g.clock, to_string(e), ChunkStats::of(g.raw, g.scale), blob, 0);
+    if (!id) return id.error();
+    ++packed;
+    g.ids.clear();
+    g.raw.clear();
+    return Status::Ok();
+  };
+  // Read first, written after: the statement's rows are not changed under it.
+  struct Piece {
+    int64_t id, channel_id, piece;
+    ChunkClock clock;
+    double scale;
+    std::vector<double> raw;
+  };
+  std::vector<Piece> pieces;
+  int rc;
+  while ((rc = st->step()) == SQLITE_ROW) {
+    const int64_t id = st->column_int64(0);
+    if (std::binary_search(owned.begin(), owned.end(), id)) continue;
+    Piece p;
+    p.id = id;
+    p.channel_id = st->column_int64(1);
+    p.clock.t0_s = st->column_double(2);
+    p.clock.period_s = st->column_double(3);
+    p.clock.n = st->column_int64(4);
+    p.clock.seq0 = static_cast<uint32_t>(st->column_int64(5));
+    p.piece = st->column_int64(7);
+    p.scale = st->column_double(9);
+    const std::string enc = st->column_text(6);
+    const auto e = chunk_encoding_from_string(enc);
+    p.raw.resize(static_cast<std::size_t>(std::max<int64_t>(p.clock.n, 0)));
+    if (!e || p.clock.n <= 0 ||
+        !decode(*e, sqlite3_column_blob(st->get(), 8),
+                static_cast<std::size_t>(sqlite3_column_bytes(st->get(), 8)), p.raw.size(),
+                p.raw.data())) {
+      return Error::Permanent(fmt::format(
+          "storage: {}: sample_chunks piece {} of channel {} at t0_s {}: '{}' data that does not "
+          "decode",
+          path, id, p.channel_id, p.clock.t0_s, enc));
+    }
+    pieces.push_back(std::move(p));
+  }
+  if (rc != SQLITE_DONE) return sqlite_error(db, path, "reading the pieces of sample chunks");
+  st->reset();
+  for (Piece& p : pieces) {
+    const bool continues = !g.ids.empty() && p.channel_id == g.channel_id &&
+                           p.piece == g.last_piece + 1 &&
+                           static_cast<int64_t>(g.raw.size()) + p.clock.n <= kChunkCapacity;
+    if (!continues) {
+      if (Status s = pack(); !s) return s.error();
+      if (max_chunks > 0 && packed >= max_chunks) {
+        *more = true;
+        return packed;
+      }
+      g.channel_id = p.channel_id;
+      g.scale = p.scale;
+      g.clock = p.clock;
+    }
+    g.last_piece = p.piece;
+    g.t_last_s = p.clock.t_last_s();
+    g.ids.push_back(p.id);
+    g.raw.insert(g.raw.end(), p.raw.begin(), p.raw.end());
+  }
+  if (Status s = pack(); !s) return s.error();
+  return packed;
 }
 
 // ---------------------------------------------------------------- reading
@@ -758,7 +937,7 @@ Status migrate_gyro_samples_to_chunks(sqlite3* db, const std::string& path,
     if (!dut_id) return dut_id.error();
     auto channels = read_channels(db, path, run_id, *dut_id);
     if (!channels) return channels.error();
-    ChunkBuilder builder(std::move(*channels), 0, 128);
+    ChunkBuilder builder(std::move(*channels), 0, 128, /*write_pieces=*/false);
     rows->bind(1, run_id);
     std::array<double, kMaxChannels> raw{};
     int64_t since_flush = 0;
@@ -776,6 +955,8 @@ Status migrate_gyro_samples_to_chunks(sqlite3* db, const std::string& path,
       return sqlite_error(db, path, fmt::format("reading the gyro samples of run {}", run_id));
     }
     rows->reset();
+    // The run's last chunk is closed too: packed like the others.
+    builder.finish();
     if (Status s = builder.flush(db, path); !s) return s;
   }
   return exec(db, path, "DROP TABLE gyro_samples; DROP TABLE gyro_rollup;");

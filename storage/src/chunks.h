@@ -175,15 +175,23 @@ struct RollupAcc {
 // and writes them (and their rollups) with prepared statements on `db`.
 // Open chunks are kept in memory; each flush() writes the samples added
 // since the last one as a piece: a chunk row of its own, in the narrowest
-// plain encoding. When the chunk closes (a gap, the cap, finish()) the next
-// flush() deletes its pieces and inserts the whole chunk in its smallest
-// encoding (encode_closed), in the same transaction, so a chunk's length
-// does not depend on how often the caller commits, and what a commit wrote
-// stays readable until the chunk replaces it. Not thread-safe; the caller
-// owns the transaction.
+// plain encoding, numbered (sample_chunks.piece = 1, 2, ...) within its
+// chunk. When the chunk closes (a gap, the cap, finish()) a flush() deletes
+// its pieces and inserts the whole chunk in its smallest encoding
+// (encode_closed), in the same transaction, so a chunk's length does not
+// depend on how often the caller commits, and what a commit wrote stays
+// readable until the chunk replaces it. A flush packs at most the budget it
+// is given (channel-chunks, oldest first); a closed chunk left over gets
+// its last samples written as a piece (committed like every sample) and is
+// packed by a later flush. Not thread-safe; the caller owns the
+// transaction.
 class ChunkBuilder {
  public:
-  ChunkBuilder(std::vector<ChannelInfo> channels, double rate_hz, uint32_t seq_modulo);
+  // write_pieces false (the v9 migration, whose table has no `piece`
+  // column yet): the open chunk is kept in memory until it closes; flush()
+  // writes closed chunks only.
+  ChunkBuilder(std::vector<ChannelInfo> channels, double rate_hz, uint32_t seq_modulo,
+               bool write_pieces = true);
 
   // Where the stored samples end (restart: the last stored time of the
   // DUT's channels; samples at or before it are duplicates).
@@ -194,16 +202,23 @@ class ChunkBuilder {
   // not after the last sample), ignored.
   bool add(double t_s, uint32_t seq, const double* raw);
 
-  // Closes the open chunk (the writer stops, the run is closed): the next
-  // flush() writes it whole. Later samples start a new chunk.
+  // Closes the open chunk (the writer stops, the run is closed): a later
+  // flush() packs it. Later samples start a new chunk.
   void finish() { close_open(); }
   // Whether finish() has something to close.
   bool has_open_chunk() const { return clock_.n > 0; }
+  // Closed channel-chunks not packed yet (written as pieces or waiting for
+  // the next flush).
+  std::size_t unpacked() const;
+  // Adds the row ids of the pieces this builder owns (of its open chunk and
+  // of the closed chunks it has not packed yet).
+  void add_piece_ids(std::vector<int64_t>& ids) const;
 
-  // Writes the samples added since the last flush (pieces), every chunk
-  // closed since (whole, replacing its pieces), and the rollups of the
+  // Writes the samples added since the last flush (pieces), packs closed
+  // chunks (whole, replacing their pieces; at most *pack_budget of them,
+  // which is decreased; nullptr: every one), and writes the rollups of the
   // samples added since, on `db` (inside the caller's transaction).
-  Status flush(sqlite3* db, const std::string& path);
+  Status flush(sqlite3* db, const std::string& path, std::size_t* pack_budget = nullptr);
 
   uint64_t chunks_written() const { return chunks_written_; }
   const std::vector<ChannelInfo>& channels() const { return channels_; }
@@ -215,6 +230,8 @@ class ChunkBuilder {
     EncodingNeed need;
     int64_t v_n = 0;
     double v_sum = 0, v_min = 0, v_max = 0;
+    bool packed = false;        // closed chunks: written whole
+    bool tail_written = false;  // closed chunks: its last samples written as a piece
   };
   void close_open();
   void roll_block();
@@ -222,16 +239,21 @@ class ChunkBuilder {
   std::vector<ChannelInfo> channels_;
   double nominal_period_s_ = 0;
   uint32_t seq_modulo_ = 0;
+  bool write_pieces_ = true;
   std::optional<double> last_t_s_;
   ChunkClock clock_;        // the open chunk
   ChunkClock piece_clock_;  // its samples since the last flush (dirty_)
   int64_t piece_from_ = 0;  // index of the first of them in raw
   bool dirty_ = false;
   std::vector<OpenChannel> open_;
-  // Chunks closed since the last flush, waiting to be written.
+  // Chunks closed and not packed yet, oldest first; the samples each got
+  // after the last flush before it closed (its tail, not written yet).
   struct Closed {
     ChunkClock clock;
     std::vector<OpenChannel> channels;
+    ChunkClock tail_clock;
+    int64_t tail_from = 0;
+    bool tail = false;
   };
   std::vector<Closed> closed_;
   // Rollups: the current 1-s block per channel, and finished blocks of
@@ -249,6 +271,17 @@ class ChunkBuilder {
   uint64_t chunks_written_ = 0;
   std::string blob_;
 };
+
+// Packs pieces no builder owns (a chunk whose writer was killed, or whose
+// builder a failed commit dropped: it will not grow any more): each run of
+// pieces of one chunk (piece 1, 2, ... of a channel, at most kChunkCapacity
+// samples) becomes one chunk in its smallest encoding, in the caller's
+// transaction; pieces whose row id is in `owned` (sorted) are left alone.
+// At most `max_chunks` chunks (0: every one). Returns how many were packed
+// and sets *more when pieces to pack remain.
+Result<std::size_t> pack_left_pieces(sqlite3* db, const std::string& path,
+                                     const std::vector<int64_t>& owned, std::size_t max_chunks,
+                                     bool* more);
 
 // One stored chunk as read (the BLOB is valid during the callback only).
 struct ChunkView {

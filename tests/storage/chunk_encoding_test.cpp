@@ -5,6 +5,8 @@
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 #include <sqlite3.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
 #include <bit>
 #include <chrono>
@@ -13,6 +15,7 @@
 #include <limits>
 #include <random>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "chunks.h"
@@ -476,6 +479,169 @@ TEST(ChunkEncoding, Schema11FileMigratesAndReadsBesidePackedChunks) {
       EXPECT_EQ(bits(got[3000 + i]), bits(want)) << i;
     }
   }
+}
+
+// Polls `done` until it holds or `limit` passes (the writer's rounds are on
+// its own clock: there is nothing else to wait on from outside).
+template <class F>
+bool eventually(F done, std::chrono::milliseconds limit = 30s) {
+  const auto deadline = std::chrono::steady_clock::now() + limit;
+  while (!done()) {
+    if (std::chrono::steady_clock::now() > deadline) return false;
+    std::this_thread::sleep_for(5ms);
+  }
+  return true;
+}
+
+// A writer killed with a chunk open leaves its pieces; the next writer on
+// the file (the restarted daemon) merges them into one packed chunk, in a
+// transaction. The samples read the same before (pieces) and after
+// (packed), and the new writer's samples go into chunks of their own.
+TEST(ChunkEncoding, PiecesLeftByAKilledWriterArePackedByTheNextWriter) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  RunDutRecord dut;
+  {
+    Database db = open_ok(path);
+    dut = register_dut(db, 1);
+  }
+  const auto frames = frames_of(5000);
+  const pid_t pid = fork();
+  ASSERT_NE(pid, -1);
+  if (pid == 0) {
+    auto w = SampleWriter::start(path, {.commit_interval = std::chrono::hours(1)});
+    if (!w) _exit(2);
+    for (int part = 0; part < 3; ++part) {
+      (*w)->push_frames(dut,
+                        std::span(frames).subspan(static_cast<std::size_t>(part) * 1000, 1000));
+      if (!(*w)->flush().ok()) _exit(3);
+    }
+    _exit(0);  // no stop(), no destructors: as kill -9 after the third commit
+  }
+  int status = 0;
+  ASSERT_EQ(waitpid(pid, &status, 0), pid);
+  ASSERT_TRUE(WIFEXITED(status));
+  ASSERT_EQ(WEXITSTATUS(status), 0);
+  {
+    Database db = open_ok(path);
+    EXPECT_EQ(chunks_of(db, dut.channels[0].id), "1000:f32 1000:f32 1000:f32");
+    expect_stored(db, dut, frames, 3000);  // read as pieces
+  }
+  auto writer = testing::start_ok(path, {.commit_interval = 20ms});
+  {
+    Database db = open_ok(path);
+    const int64_t ch0 = dut.channels[0].id;
+    const int64_t ch1 = dut.channels[1].id;
+    EXPECT_TRUE(eventually([&] {
+      return chunks_of(db, ch0) == "3000:f32+shuffle+zstd" &&
+             chunks_of(db, ch1) == "3000:i32/1e2+shuffle+zstd";
+    })) << chunks_of(db, ch0)
+        << " / " << chunks_of(db, ch1);
+    expect_stored(db, dut, frames, 3000);  // read packed
+    EXPECT_EQ(query_int(db.handle(), fmt::format("SELECT vn FROM sample_chunks WHERE channel_id = "
+                                                 "{}",
+                                                 ch0)),
+              3000 - 6)
+        << "the merged chunk's statistics are the whole chunk's";
+  }
+  writer->push_frames(dut, std::span(frames).subspan(3000));
+  writer->stop();
+  Database db = open_ok(path);
+  EXPECT_EQ(chunks_of(db, dut.channels[0].id), "3000:f32+shuffle+zstd 2000:f32+shuffle+zstd");
+  expect_stored(db, dut, frames, 5000);
+  EXPECT_TRUE(testing::integrity_ok(db));
+}
+
+// A DUT with eight f32 channels (their chunks all close at the same frame).
+RunDutRecord register_wide_dut(Database& db, int64_t run_id) {
+  RunDutRecord r;
+  r.run_id = run_id;
+  r.dut.serial = "W-1";
+  r.primary_axis = "x";
+  r.rate_hz = 1000;
+  r.seq_modulo = 65536;
+  EXPECT_TRUE(db.exec(fmt::format("INSERT INTO runs(id, schedule_name, state, started_utc) "
+                                  "VALUES({}, 's', 'completed', 'x');"
+                                  "INSERT INTO duts(serial, model, first_seen_utc) VALUES('W-1', "
+                                  "'wide', 'x')",
+                                  run_id))
+                  .ok());
+  r.dut.id = sqlite3_last_insert_rowid(db.handle());
+  EXPECT_TRUE(db.exec(fmt::format("INSERT INTO run_duts(run_id, dut_id, position, primary_axis, "
+                                  "rate_hz, seq_modulo) VALUES({}, {}, 0, 'x', 1000, 65536)",
+                                  run_id, r.dut.id))
+                  .ok());
+  for (int idx = 0; idx < 8; ++idx) {
+    const ChannelSpec s{fmt::format("ch{}", idx), "deg/s", ChannelKind::kOther, "", 1};
+    EXPECT_TRUE(db.exec(fmt::format("INSERT INTO channels(run_id, dut_id, idx, name, unit, kind, "
+                                    "axis, scale) VALUES({}, {}, {}, '{}', '{}', '{}', '', 1)",
+                                    run_id, r.dut.id, idx, s.name, s.unit, to_string(s.kind)))
+                    .ok());
+    r.channels.push_back({sqlite3_last_insert_rowid(db.handle()), run_id, r.dut.id, idx, s});
+  }
+  return r;
+}
+
+// Chunks that close together (every channel of a DUT at 4096 samples) are
+// not all packed by the commit in which they close: each commit packs a
+// few and leaves the rest as pieces for the next ones, so no commit packs
+// them all. Every state between reads the same samples.
+TEST(ChunkEncoding, ChunksClosingTogetherArePackedOverSeveralCommits) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  RunDutRecord dut;
+  {
+    Database db = open_ok(path);
+    dut = register_wide_dut(db, 1);
+  }
+  std::vector<DutFrame> frames(4600);
+  for (std::size_t c = 0; c < 8; ++c) {
+    const auto v = f32_noise(frames.size(), 1e-3 * static_cast<double>(c), 1e-4,
+                             static_cast<unsigned>(c + 11));
+    for (std::size_t i = 0; i < frames.size(); ++i) {
+      frames[i].t_s = 5.0 + static_cast<double>(i) * 0.001;
+      frames[i].seq = static_cast<uint32_t>(i);
+      frames[i].raw[c] = v[i];
+    }
+  }
+  const auto packed = [&](Database& db) {
+    return query_int(db.handle(),
+                     "SELECT count(*) FROM sample_chunks WHERE n = 4096 AND "
+                     "encoding LIKE '%zstd'");
+  };
+  const auto rows = [&](Database& db) {
+    return query_int(db.handle(), "SELECT count(*) FROM sample_chunks");
+  };
+  auto writer = testing::start_ok(path, {.commit_interval = std::chrono::hours(1)});
+  writer->push_frames(dut, std::span(frames).first(2000));
+  ASSERT_TRUE(writer->flush().ok());
+  writer->push_frames(dut, std::span(frames).subspan(2000, 2500));  // every chunk closes at 4096
+  ASSERT_TRUE(writer->flush().ok());
+  {
+    Database db = open_ok(path);
+    const int64_t first = packed(db);
+    EXPECT_GT(first, 0) << "the commit in which they close packs some";
+    EXPECT_LT(first, 8) << "but not all eight";
+    expect_stored(db, dut, frames, 4500);
+  }
+  // The next commits (one frame each) pack the rest.
+  int commits = 0;
+  for (std::size_t i = 4500; i < frames.size(); ++i) {
+    writer->push_frames(dut, std::span(frames).subspan(i, 1));
+    ASSERT_TRUE(writer->flush().ok());
+    ++commits;
+    Database db = open_ok(path);
+    expect_stored(db, dut, frames, i + 1);
+    if (packed(db) == 8) break;
+  }
+  EXPECT_LE(commits, 7) << "every chunk packed within a few commits";
+  writer->push_frames(dut, std::span(frames).subspan(4500 + static_cast<std::size_t>(commits)));
+  writer->stop();
+  Database db = open_ok(path);
+  EXPECT_EQ(packed(db), 8);
+  EXPECT_EQ(rows(db), 16) << "eight packed chunks of 4096 and eight of 504";
+  expect_stored(db, dut, frames, frames.size());
+  EXPECT_TRUE(testing::integrity_ok(db));
 }
 
 TEST(ChunkEncoding, NewFilesHaveTwoKibPages) {

@@ -424,6 +424,13 @@ TEST(ChunkMigration, Schema5DatabaseKeepsEverySample) {
                       "SELECT count(*) FROM sample_chunks c JOIN channels h ON "
                       "h.id = c.channel_id WHERE h.run_id = 1 AND h.name = 'rate'"),
             2 + 2 + 2);
+  // Every chunk is closed and packed, the run's last one too (status 0x77
+  // throughout: packed is far smaller than plain u8).
+  EXPECT_EQ(query_text(db.handle(),
+                       "SELECT group_concat(DISTINCT encoding) FROM sample_chunks c JOIN "
+                       "channels h ON h.id = c.channel_id WHERE h.run_id = 1 AND h.name = "
+                       "'status'"),
+            "u8+shuffle+zstd");
   EXPECT_TRUE(testing::integrity_ok(db));
 }
 
