@@ -36,10 +36,51 @@ inline constexpr int kChannelRollupFirstLevel = 1;
 inline constexpr int kChannelRollupLastLevel = 4;
 inline constexpr double kChannelRollupBlockS[] = {0.1, 1.0, 10.0, 100.0, 1000.0};
 
-enum class Encoding : uint8_t { kU8, kI8, kU16, kI16, kU32, kI32, kF32, kF64 };
-std::string_view to_string(Encoding e);  // u8, i8, u16, i16, u32, i32, f32, f64
+// The type of each stored value. i64 is only written as the integer of a
+// decimal encoding (ChunkEncoding::decimals > 0).
+enum class Encoding : uint8_t { kU8, kI8, kU16, kI16, kU32, kI32, kF32, kF64, kI64 };
+std::string_view to_string(Encoding e);  // u8, i8, u16, i16, u32, i32, f32, f64, i64
 std::optional<Encoding> encoding_from_string(std::string_view s);
 std::size_t encoded_size(Encoding e);  // bytes per value
+
+// How a chunk's `data` holds its values: sample_chunks.encoding
+// (docs/storage.md "Encodings").
+//   <base>                 n values of base, little-endian (u8 ... f64)
+//   i32/1e<k>, i64/1e<k>   decimal: n integers m, the value is m / 10^k
+//                          (k = 1 ... 15) computed in double, which is the
+//                          same double as parsing the decimal; the type's
+//                          smallest value is NaN
+//   <either>+shuffle+zstd  the same n values with their bytes transposed
+//                          (byte 0 of every value, then byte 1, ...) in
+//                          one zstd frame
+struct ChunkEncoding {
+  Encoding base = Encoding::kF64;
+  int decimals = 0;  // > 0: base (i32 or i64) holds value × 10^decimals
+  bool zstd = false;
+  bool operator==(const ChunkEncoding&) const = default;
+};
+std::string to_string(const ChunkEncoding& e);
+std::optional<ChunkEncoding> chunk_encoding_from_string(std::string_view s);
+inline constexpr int kMaxDecimals = 15;
+inline constexpr int kZstdLevel = 6;
+
+// The fewest decimals k (1 ... kMaxDecimals) with which every value is
+// exactly (bit for bit) m / 10^k for an integer |m| < 2^53, the NaNs being
+// std::numeric_limits<double>::quiet_NaN(); nullopt when there is none
+// (a value that is not such a decimal, -0, an infinity, another NaN) or
+// when every value is an integer (k = 0: the integer encodings hold them).
+std::optional<int> decimal_places(std::span<const double> raw);
+
+// Encodes `raw` for a chunk that will not grow any more: the smallest of
+// the narrowest plain encoding (`plain`, which must hold every value), a
+// decimal one, and either packed with shuffle+zstd; a packed or decimal
+// encoding is taken only once it decoded back to the same values (bit for
+// bit; NaN as NaN). Replaces `out`.
+ChunkEncoding encode_closed(Encoding plain, std::span<const double> raw, std::string& out);
+// Decodes n values of any ChunkEncoding; false when `data` is not n values
+// of it (a wrong size, a damaged zstd frame).
+bool decode(const ChunkEncoding& e, const void* data, std::size_t bytes, std::size_t n,
+            double* out);
 
 // What a channel's values so far need, kept as values arrive; encoding()
 // is the narrowest encoding that stores every one of them exactly
@@ -132,12 +173,25 @@ struct RollupAcc {
 
 // Builds the chunks of one DUT's channels from its frames, in time order,
 // and writes them (and their rollups) with prepared statements on `db`.
-// Open chunks are kept in memory and written (inserted, then updated in
-// place) at each flush(), so a chunk's length does not depend on how often
-// the caller commits. Not thread-safe; the caller owns the transaction.
+// Open chunks are kept in memory; each flush() writes the samples added
+// since the last one as a piece: a chunk row of its own, in the narrowest
+// plain encoding, numbered (sample_chunks.piece = 1, 2, ...) within its
+// chunk. When the chunk closes (a gap, the cap, finish()) a flush() deletes
+// its pieces and inserts the whole chunk in its smallest encoding
+// (encode_closed), in the same transaction, so a chunk's length does not
+// depend on how often the caller commits, and what a commit wrote stays
+// readable until the chunk replaces it. A flush packs at most the budget it
+// is given (channel-chunks, oldest first); a closed chunk left over gets
+// its last samples written as a piece (committed like every sample) and is
+// packed by a later flush. Not thread-safe; the caller owns the
+// transaction.
 class ChunkBuilder {
  public:
-  ChunkBuilder(std::vector<ChannelInfo> channels, double rate_hz, uint32_t seq_modulo);
+  // write_pieces false (the v9 migration, whose table has no `piece`
+  // column yet): the open chunk is kept in memory until it closes; flush()
+  // writes closed chunks only.
+  ChunkBuilder(std::vector<ChannelInfo> channels, double rate_hz, uint32_t seq_modulo,
+               bool write_pieces = true);
 
   // Where the stored samples end (restart: the last stored time of the
   // DUT's channels; samples at or before it are duplicates).
@@ -148,20 +202,36 @@ class ChunkBuilder {
   // not after the last sample), ignored.
   bool add(double t_s, uint32_t seq, const double* raw);
 
-  // Writes every chunk changed since the last flush, and the rollups of the
+  // Closes the open chunk (the writer stops, the run is closed): a later
+  // flush() packs it. Later samples start a new chunk.
+  void finish() { close_open(); }
+  // Whether finish() has something to close.
+  bool has_open_chunk() const { return clock_.n > 0; }
+  // Closed channel-chunks not packed yet (written as pieces or waiting for
+  // the next flush).
+  std::size_t unpacked() const;
+  // Adds the row ids of the pieces this builder owns (of its open chunk and
+  // of the closed chunks it has not packed yet).
+  void add_piece_ids(std::vector<int64_t>& ids) const;
+
+  // Writes the samples added since the last flush (pieces), packs closed
+  // chunks (whole, replacing their pieces; at most *pack_budget of them,
+  // which is decreased; nullptr: every one), and writes the rollups of the
   // samples added since, on `db` (inside the caller's transaction).
-  Status flush(sqlite3* db, const std::string& path);
+  Status flush(sqlite3* db, const std::string& path, std::size_t* pack_budget = nullptr);
 
   uint64_t chunks_written() const { return chunks_written_; }
   const std::vector<ChannelInfo>& channels() const { return channels_; }
 
  private:
   struct OpenChannel {
-    int64_t row_id = 0;  // 0: not yet inserted
+    std::vector<int64_t> pieces;  // row ids of the pieces written so far
     std::vector<double> raw;
     EncodingNeed need;
     int64_t v_n = 0;
     double v_sum = 0, v_min = 0, v_max = 0;
+    bool packed = false;        // closed chunks: written whole
+    bool tail_written = false;  // closed chunks: its last samples written as a piece
   };
   void close_open();
   void roll_block();
@@ -169,14 +239,21 @@ class ChunkBuilder {
   std::vector<ChannelInfo> channels_;
   double nominal_period_s_ = 0;
   uint32_t seq_modulo_ = 0;
+  bool write_pieces_ = true;
   std::optional<double> last_t_s_;
-  ChunkClock clock_;
+  ChunkClock clock_;        // the open chunk
+  ChunkClock piece_clock_;  // its samples since the last flush (dirty_)
+  int64_t piece_from_ = 0;  // index of the first of them in raw
   bool dirty_ = false;
   std::vector<OpenChannel> open_;
-  // Chunks closed since the last flush, waiting to be written.
+  // Chunks closed and not packed yet, oldest first; the samples each got
+  // after the last flush before it closed (its tail, not written yet).
   struct Closed {
     ChunkClock clock;
     std::vector<OpenChannel> channels;
+    ChunkClock tail_clock;
+    int64_t tail_from = 0;
+    bool tail = false;
   };
   std::vector<Closed> closed_;
   // Rollups: the current 1-s block per channel, and finished blocks of
@@ -195,10 +272,21 @@ class ChunkBuilder {
   std::string blob_;
 };
 
+// Packs pieces no builder owns (a chunk whose writer was killed, or whose
+// builder a failed commit dropped: it will not grow any more): each run of
+// pieces of one chunk (piece 1, 2, ... of a channel, at most kChunkCapacity
+// samples) becomes one chunk in its smallest encoding, in the caller's
+// transaction; pieces whose row id is in `owned` (sorted) are left alone.
+// At most `max_chunks` chunks (0: every one). Returns how many were packed
+// and sets *more when pieces to pack remain.
+Result<std::size_t> pack_left_pieces(sqlite3* db, const std::string& path,
+                                     const std::vector<int64_t>& owned, std::size_t max_chunks,
+                                     bool* more);
+
 // One stored chunk as read (the BLOB is valid during the callback only).
 struct ChunkView {
   ChunkClock clock;
-  Encoding encoding = Encoding::kF64;
+  ChunkEncoding encoding;
   const void* data = nullptr;
   std::size_t bytes = 0;
 };

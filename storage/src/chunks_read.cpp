@@ -106,7 +106,13 @@ Status Database::for_each_channel_block(
       db_, path_, channel_id, t_from_s, t_to_s, [&](const internal::ChunkView& c) {
         const auto n = static_cast<std::size_t>(c.clock.n);
         raw.resize(n);
-        internal::decode(c.encoding, c.data, c.bytes, n, raw.data());
+        if (!internal::decode(c.encoding, c.data, c.bytes, n, raw.data())) {
+          decode_error = Error::Permanent(fmt::format(
+              "storage: {}: sample_chunks of channel {} at t0_s {}: {} bytes of data are not {} "
+              "'{}' values",
+              path_, channel_id, c.clock.t0_s, c.bytes, n, internal::to_string(c.encoding)));
+          return false;
+        }
         t.clear();
         v.clear();
         seq.clear();
@@ -121,7 +127,8 @@ Status Database::for_each_channel_block(
         if (t.empty()) return true;
         return block(t, v, seq);
       });
-  return s;
+  if (!s) return s;
+  return decode_error;
 }
 
 Result<int64_t> Database::count_channel_samples(int64_t channel_id) {

@@ -607,6 +607,19 @@ ALTER TABLE scale_factor_points ADD COLUMN guard_s REAL NOT NULL DEFAULT 0;  -- 
 ALTER TABLE scale_factor_fits ADD COLUMN guard_s REAL NOT NULL DEFAULT 0;    -- its points' guard bands, station s
 )sql";
 
+// v12: packed sample chunks (docs/storage.md "Encodings"). Closed chunks
+// are now written in the encodings i32/1e<k>, i64/1e<k> and
+// <base>+shuffle+zstd beside the plain ones, which an older build cannot
+// read; the version keeps it from opening such a file (it refuses a newer
+// schema). Chunks already stored stay as they are. An open chunk is
+// written in pieces, numbered within their chunk (`piece`; 0: a whole
+// chunk), so that pieces a killed writer left are found (the partial index)
+// and merged by the next writer.
+constexpr const char* kSchemaV12 = R"sql(
+ALTER TABLE sample_chunks ADD COLUMN piece INTEGER NOT NULL DEFAULT 0;
+CREATE INDEX sample_chunks_pieces ON sample_chunks(channel_id, t0_s) WHERE piece > 0;
+)sql";
+
 constexpr Migration kMigrations[] = {
     {1, "initial schema", kSchemaV1},
     {2, "queue, crash resume, acquisition windows", kSchemaV2},
@@ -620,6 +633,7 @@ constexpr Migration kMigrations[] = {
     {10, "run UUIDs, lab outbox", kSchemaV10, install_lab_triggers_step},
     {11, "result coverage and quality, rate-point guard bands", kSchemaV11,
      install_lab_triggers_step},
+    {12, "packed sample chunks", kSchemaV12},
 };
 
 static_assert(sizeof(kMigrations) / sizeof(kMigrations[0]) == kSchemaVersion,

@@ -83,6 +83,10 @@ struct Pending {
   }
 };
 
+// Closed channel-chunks a commit packs at least (docs/storage.md
+// "Writing"); a quarter of those waiting when more wait.
+constexpr std::size_t kPackPerCommit = 4;
+
 double ms_since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
@@ -134,8 +138,12 @@ struct SampleWriter::Impl {
     uint64_t duplicates = 0;
     uint64_t channel_samples = 0;
     uint64_t chunks = 0;
+    bool wrote = false;  // rows, or chunks packed
   };
-  Outcome commit_batch();
+  // Commits the batch. The open chunks of the runs in `finishing` (closed
+  // runs with nothing more pending), or of every run when `finish_all`
+  // (stopping), are closed and written whole.
+  Outcome commit_batch(bool finish_all, const std::set<int64_t>& finishing);
 
   // The chunks of each DUT of each run written to (writer thread); dropped
   // after a failed commit (the next commit starts new chunks after what is
@@ -151,6 +159,9 @@ struct SampleWriter::Impl {
   // channels it pushes at another rate (its own probes), are two streams.
   std::map<std::tuple<int64_t, int64_t, int64_t>, Stream> streams;
   std::map<int64_t, int64_t> first_dut;  // run -> its first DUT's id
+  // Pieces in the file no stream owns may be left (a killed writer's, or
+  // the streams a failed commit dropped): packed by the next commits.
+  bool left_pieces = true;
   // The DUT records push_frames was given (guarded by mu; FrameRow points
   // at them: erased only when no pending row is of their run).
   // By (run, DUT id, first channel id), as streams.
@@ -174,7 +185,13 @@ void SampleWriter::Impl::release_closed_runs_locked() {
   };
   for (auto it = closing.begin(); it != closing.end();) {
     const int64_t run_id = *it;
-    if (waits(run_id)) {
+    // A stream with an open chunk is kept until a commit wrote the chunk
+    // whole (the loop's next round: close_run asked for one).
+    const bool open_chunk = std::any_of(streams.begin(), streams.end(), [&](const auto& kv) {
+      return std::get<0>(kv.first) == run_id &&
+             (kv.second.builder->has_open_chunk() || kv.second.builder->unpacked() > 0);
+    });
+    if (waits(run_id) || open_chunk) {
       ++it;
       continue;
     }
@@ -333,6 +350,7 @@ SampleWriter::Impl::Outcome SampleWriter::Impl::fail_batch(std::string_view what
   insert_table.reset();
   streams.clear();
   first_dut.clear();
+  left_pieces = true;  // the dropped streams' pieces
   commit.reset();
   if (!sqlite3_get_autocommit(db.handle())) {
     rollback.step();
@@ -341,11 +359,21 @@ SampleWriter::Impl::Outcome SampleWriter::Impl::fail_batch(std::string_view what
   return {Status(std::move(e)), 0};
 }
 
-SampleWriter::Impl::Outcome SampleWriter::Impl::commit_batch() {
+SampleWriter::Impl::Outcome SampleWriter::Impl::commit_batch(bool finish_all,
+                                                             const std::set<int64_t>& finishing) {
   const std::size_t n_gyro = batch_gyro.size();
   const std::size_t n_temps = batch_temps.size();
   const std::size_t n_table = batch_table.size();
-  if (n_gyro + n_temps + n_table == 0) return {};
+  const auto finishes = [&](const auto& key) {
+    return finish_all || finishing.contains(std::get<0>(key));
+  };
+  if (n_gyro + n_temps + n_table == 0 && !left_pieces &&
+      std::none_of(streams.begin(), streams.end(), [&](const auto& kv) {
+        return (kv.second.builder->has_open_chunk() && finishes(kv.first)) ||
+               kv.second.builder->unpacked() > 0;
+      })) {
+    return {};
+  }
   const std::string what = fmt::format("committing {} gyro, {} temperature and {} table samples",
                                        n_gyro, n_temps, n_table);
   sqlite3* h = db.handle();
@@ -411,17 +439,46 @@ SampleWriter::Impl::Outcome SampleWriter::Impl::commit_batch() {
       ++duplicates;
     }
   }
+  // The open chunks that close now, with this batch's samples.
+  for (auto& [key, st] : streams) {
+    if (st.builder->has_open_chunk() && finishes(key)) {
+      st.builder->finish();
+      st.touched = true;
+    }
+  }
+  // Packing closed chunks is most of a commit's work, and every channel's
+  // chunk of a DUT closes at the same frame: a commit packs a few
+  // (kPackPerCommit, more when many wait) and leaves the rest as pieces for
+  // the next ones; stopping packs every one.
+  std::size_t backlog = 0;
+  for (const auto& kv : streams) backlog += kv.second.builder->unpacked();
+  std::size_t budget = std::max(kPackPerCommit, (backlog + 3) / 4);
+  std::size_t* const pack_budget = finish_all ? nullptr : &budget;
   uint64_t chunks = 0;
   for (auto& [key, st] : streams) {
-    if (!st.touched) continue;
+    if (!st.touched && st.builder->unpacked() == 0) continue;
     const uint64_t before = st.builder->chunks_written();
-    if (Status s = st.builder->flush(h, path); !s) {
+    if (Status s = st.builder->flush(h, path, pack_budget); !s) {
       Outcome out = fail_batch(what);
       out.status = s;
       return out;
     }
     chunks += st.builder->chunks_written() - before;
     st.touched = false;
+  }
+  if (left_pieces && (finish_all || budget > 0)) {
+    std::vector<int64_t> owned;
+    for (const auto& kv : streams) kv.second.builder->add_piece_ids(owned);
+    std::sort(owned.begin(), owned.end());
+    bool more = false;
+    auto packed = internal::pack_left_pieces(h, path, owned, finish_all ? 0 : budget, &more);
+    if (!packed) {
+      Outcome out = fail_batch(what);
+      out.status = Status(packed.error());
+      return out;
+    }
+    chunks += *packed;
+    left_pieces = more;
   }
   for (std::size_t i = batch_temps.head; i < batch_temps.rows.size(); ++i) {
     const TempRow& r = batch_temps.rows[i];
@@ -453,7 +510,7 @@ SampleWriter::Impl::Outcome SampleWriter::Impl::commit_batch() {
   }
   if (commit.step() != SQLITE_DONE) return fail_batch(what);
   commit.reset();
-  return {Status::Ok(), duplicates, channel_samples, chunks};
+  return {Status::Ok(), duplicates, channel_samples, chunks, chunks > 0};
 }
 
 void SampleWriter::Impl::trim_locked() {
@@ -488,13 +545,25 @@ void SampleWriter::Impl::loop() {
     const std::size_t n_table = batch_table.size();
     const std::size_t n_rows = n_gyro + n_temps + n_table;
     inflight = n_rows;
+    // Closed runs whose rows are all in this batch: their chunks close.
+    std::set<int64_t> finishing;
+    for (int64_t run_id : closing) {
+      const auto of_run = [run_id](const auto& r) { return r.run_id == run_id; };
+      const auto in = [&](const auto& p) {
+        return std::any_of(p.rows.begin() + static_cast<std::ptrdiff_t>(p.head), p.rows.end(),
+                           of_run);
+      };
+      if (!in(gyro) && !in(temps) && !in(table)) finishing.insert(run_id);
+    }
     const auto t0 = Clock::now();
     next_commit = t0 + options.commit_interval;
     lk.unlock();
 
-    Outcome out = commit_batch();
+    Outcome out = commit_batch(stopping, finishing);
     const double elapsed_ms = ms_since(t0);
-    if (out.status.ok() && n_rows > 0 && on_commit) {
+    // A round that only packed chunks is a commit too (its time counts).
+    const bool wrote = n_rows > 0 || out.wrote;
+    if (out.status.ok() && wrote && on_commit) {
       on_commit(elapsed_ms / 1000.0);
     }
 
@@ -503,7 +572,7 @@ void SampleWriter::Impl::loop() {
     if (out.status.ok()) {
       committed_through = batch;
       stats.consecutive_failures = 0;
-      if (n_rows > 0) {
+      if (wrote) {
         stats.gyro_rows += n_gyro;
         stats.temperature_rows += n_temps;
         stats.table_rows += n_table;
@@ -518,6 +587,13 @@ void SampleWriter::Impl::loop() {
       batch_temps.clear();
       batch_table.clear();
       release_closed_runs_locked();
+      // A closed run is released once its chunks are packed, a few per
+      // commit: the next round comes at once while some wait.
+      for (const auto& kv : streams) {
+        if (closing.contains(std::get<0>(kv.first)) && kv.second.builder->unpacked() > 0) {
+          flush_requested = true;
+        }
+      }
     } else {
       failed_through = batch;
       last_failure = out.status.error();

@@ -189,15 +189,16 @@ TEST(ChunkedWriter, KvhFramesStoredExactlyInTheNarrowestEncodings) {
                        "SELECT group_concat(DISTINCT encoding) FROM sample_chunks c "
                        "JOIN channels h ON h.id = c.channel_id WHERE h.kind != 'status' "
                        "AND h.kind != 'temperature'"),
-            "f32");
+            "f32+shuffle+zstd")
+      << "closed chunks are packed (the writer stopped: every chunk is closed)";
   EXPECT_EQ(query_text(db.handle(),
                        "SELECT group_concat(DISTINCT encoding) FROM sample_chunks c "
                        "JOIN channels h ON h.id = c.channel_id WHERE h.name = 'status'"),
-            "u8");
+            "u8+shuffle+zstd");
   EXPECT_EQ(query_text(db.handle(),
                        "SELECT group_concat(DISTINCT encoding) FROM sample_chunks c "
                        "JOIN channels h ON h.id = c.channel_id WHERE h.name = 'temp_c'"),
-            "u8");
+            "u8+shuffle+zstd");
   // Every channel back exactly: physical = raw * scale, NaN kept.
   for (const ChannelRecord& ch : dut.channels) {
     std::size_t k = 0;
@@ -423,6 +424,13 @@ TEST(ChunkMigration, Schema5DatabaseKeepsEverySample) {
                       "SELECT count(*) FROM sample_chunks c JOIN channels h ON "
                       "h.id = c.channel_id WHERE h.run_id = 1 AND h.name = 'rate'"),
             2 + 2 + 2);
+  // Every chunk is closed and packed, the run's last one too (status 0x77
+  // throughout: packed is far smaller than plain u8).
+  EXPECT_EQ(query_text(db.handle(),
+                       "SELECT group_concat(DISTINCT encoding) FROM sample_chunks c JOIN "
+                       "channels h ON h.id = c.channel_id WHERE h.run_id = 1 AND h.name = "
+                       "'status'"),
+            "u8+shuffle+zstd");
   EXPECT_TRUE(testing::integrity_ok(db));
 }
 

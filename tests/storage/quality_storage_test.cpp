@@ -184,7 +184,7 @@ TEST(ResultQualityMigration, Schema10DatabaseRelaysTheNewColumns) {
     sqlite3_close(raw);
   }
   Database db = open_ok(path);
-  EXPECT_EQ(*db.schema_version(), 11);
+  EXPECT_EQ(*db.schema_version(), kSchemaVersion);
   EXPECT_TRUE(integrity_ok(db));
   EXPECT_EQ(db.segment_stats(1)->front().quality.verdict, "unassessed");
   EXPECT_EQ((*db.fit(1))->quality.verdict, "unassessed");

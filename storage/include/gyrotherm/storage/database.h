@@ -37,7 +37,7 @@ struct FileGuard;
 // v10: run UUIDs and the lab outbox (runs.uuid, outbox; docs/lab.md).
 // v11: coverage and a quality verdict on every result; rate points' guard
 // bands.
-inline constexpr int kSchemaVersion = 11;
+inline constexpr int kSchemaVersion = 12;
 
 // Rollup blocks of the gyro rate (table gyro_rollup): block length of each
 // level, station seconds. A sample at t_s is in block floor(t_s / length).
