@@ -212,17 +212,17 @@ Result<SettlePrediction> predict_settle(std::span<const double> t_s,
         gate.setpoint_c, gate.tolerance_c, gate.stability_c_per_min, gate.window_s));
   }
   if (t_s.size() != shell_c.size()) {
-    return Error::Permanent(fmt::format("predict_settle: {} times and {} temperatures",
-                                        t_s.size(), shell_c.size()));
+    return Error::Permanent(
+        fmt::format("predict_settle: {} times and {} temperatures", t_s.size(), shell_c.size()));
   }
   for (std::size_t i = 0; i < t_s.size(); ++i) {
     if (!std::isfinite(t_s[i]) || !std::isfinite(shell_c[i])) {
-      return Error::Permanent(
-          fmt::format("predict_settle: sample {} is not finite ({} s, {} °C)", i, t_s[i], shell_c[i]));
+      return Error::Permanent(fmt::format("predict_settle: sample {} is not finite ({} s, {} °C)",
+                                          i, t_s[i], shell_c[i]));
     }
     if (i > 0 && !(t_s[i] > t_s[i - 1])) {
-      return Error::Permanent(fmt::format("predict_settle: time {} s at sample {} is not after {} s",
-                                          t_s[i], i, t_s[i - 1]));
+      return Error::Permanent(fmt::format(
+          "predict_settle: time {} s at sample {} is not after {} s", t_s[i], i, t_s[i - 1]));
     }
   }
   SettlePrediction p;
@@ -235,9 +235,8 @@ Result<SettlePrediction> predict_settle(std::span<const double> t_s,
   {
     GateWindow w(gate);
     for (std::size_t i = 0; i < t_s.size(); ++i) w.add(t_s[i], shell_c[i]);
-    const double step = t_s.size() > 1 ? (t_s.back() - t_s.front()) /
-                                             static_cast<double>(t_s.size() - 1)
-                                       : 0.0;
+    const double step =
+        t_s.size() > 1 ? (t_s.back() - t_s.front()) / static_cast<double>(t_s.size() - 1) : 0.0;
     if (w.holds(step)) {
       p.verdict = SettleVerdict::kHoldsNow;
       p.p10_s = p.p50_s = p.p90_s = t_s.back();
@@ -281,8 +280,10 @@ Result<SettlePrediction> predict_settle(std::span<const double> t_s,
   if (n_bins > steepest + 1) {
     const std::size_t span = n_bins - 1 - steepest;
     const auto min_pairs = static_cast<std::size_t>(options.min_bins);
-    if (span / 3 >= min_pairs) first = steepest + span * 2 / 3;
-    else if (span > min_pairs) first = n_bins - 1 - min_pairs;
+    if (span / 3 >= min_pairs)
+      first = steepest + span * 2 / 3;
+    else if (span > min_pairs)
+      first = n_bins - 1 - min_pairs;
   }
   // The bins fitted: filled ones from `first` on.
   std::vector<double> bt, bc;
@@ -360,8 +361,7 @@ Result<SettlePrediction> predict_settle(std::span<const double> t_s,
   // shell still following the air's lag can land far off): the gate will
   // not hold. Otherwise the draws say how likely it is.
   const bool decay_seen = bt.back() - bt.front() >= *p.tau_s;
-  if (decay_seen &&
-      std::fabs(*p.final_c - gate.setpoint_c) - gate.tolerance_c > 2 * *p.final_u_c) {
+  if (decay_seen && std::fabs(*p.final_c - gate.setpoint_c) - gate.tolerance_c > 2 * *p.final_u_c) {
     p.verdict = SettleVerdict::kNeverWithinTolerance;
     p.note = fmt::format(
         "the shell settles at {:.2f} ± {:.2f} °C, outside {:g} ± {:g} °C: the gate will not hold",

@@ -33,9 +33,10 @@ Series plant(double from_c, double to_c, double tau_air_s, double tau_shell_s, d
   for (int sec = 0; sec <= static_cast<int>(until_s); ++sec) {
     const double t = sec;
     const double shape =
-        tau_air_s > 0 ? (tau_shell_s * std::exp(-t / tau_shell_s) - tau_air_s * std::exp(-t / tau_air_s)) /
-                            (tau_shell_s - tau_air_s)
-                      : std::exp(-t / tau_shell_s);
+        tau_air_s > 0
+            ? (tau_shell_s * std::exp(-t / tau_shell_s) - tau_air_s * std::exp(-t / tau_air_s)) /
+                  (tau_shell_s - tau_air_s)
+            : std::exp(-t / tau_shell_s);
     s.t_s.push_back(t);
     s.c.push_back(end + (from_c - end) * shape + (noise_c > 0 ? noise_c * normal(rng) : 0.0));
   }
@@ -81,8 +82,8 @@ Series head(const Series& s, double until_s) {
   return h;
 }
 
-const SettleGate kGate{.setpoint_c = 40, .tolerance_c = 0.5, .stability_c_per_min = 0.02,
-                       .window_s = 600};
+const SettleGate kGate{
+    .setpoint_c = 40, .tolerance_c = 0.5, .stability_c_per_min = 0.02, .window_s = 600};
 
 TEST(SettlePrediction, FirstOrderPlantIsPredictedWithinItsBand) {
   std::mt19937_64 rng(7);
@@ -163,7 +164,8 @@ TEST(SettlePrediction, TheP10ToP90BandIsMeasuredOverFiftySeededPlants) {
     const Series truth = plant(20, 40, ta, ts, 40'000, 0, none);
     const double gate_s = gate_time_brute_force(truth, kGate);
     ASSERT_GT(gate_s, 0);
-    const Series data = head(plant(20, 40, ta, ts, 40'000, sd, rng), std::max(gate_s / 3, ta * 2 + 600));
+    const Series data =
+        head(plant(20, 40, ta, ts, 40'000, sd, rng), std::max(gate_s / 3, ta * 2 + 600));
     auto p = predict_settle(data.t_s, data.c, kGate);
     ASSERT_TRUE(p.ok()) << p.error().message;
     if (p->verdict != SettleVerdict::kPredicted || !p->p10_s) {
@@ -177,9 +179,10 @@ TEST(SettlePrediction, TheP10ToP90BandIsMeasuredOverFiftySeededPlants) {
     if (!p->p90_s) ++open;
   }
   const double share = predicted > 0 ? static_cast<double>(inside) / predicted : 0;
-  std::printf("settle prediction: %d of %d plants predicted at a third of their gate time, "
-              "truth inside P10-P90 in %.0f %% of them (%d with P90 beyond the horizon)\n",
-              predicted, plants, 100 * share, open);
+  std::printf(
+      "settle prediction: %d of %d plants predicted at a third of their gate time, "
+      "truth inside P10-P90 in %.0f %% of them (%d with P90 beyond the horizon)\n",
+      predicted, plants, 100 * share, open);
   EXPECT_GE(predicted, plants * 9 / 10);
   EXPECT_GE(share, 0.5);
   EXPECT_LE(share, 0.97);

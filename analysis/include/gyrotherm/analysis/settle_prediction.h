@@ -47,18 +47,18 @@ struct SettleGate {
 };
 
 struct SettleOptions {
-  double bin_s = 10;              // h, the recursion's step
-  int min_bins = 12;              // fitted bins needed past the steepest point
-  int draws = 400;                // Monte Carlo draws of (a, c)
-  double horizon_s = 48 * 3600;   // no draw looks further ahead than this
-  unsigned long long seed = 1;    // of the draws
+  double bin_s = 10;             // h, the recursion's step
+  int min_bins = 12;             // fitted bins needed past the steepest point
+  int draws = 400;               // Monte Carlo draws of (a, c)
+  double horizon_s = 48 * 3600;  // no draw looks further ahead than this
+  unsigned long long seed = 1;   // of the draws
 
   bool is_valid(std::string* why) const;
 };
 
 enum class SettleVerdict {
-  kPredicted,         // p10 set; p50, p90 unless beyond the horizon
-  kHoldsNow,          // the gate holds on the data's last window already
+  kPredicted,  // p10 set; p50, p90 unless beyond the horizon
+  kHoldsNow,   // the gate holds on the data's last window already
   kNotEnoughCurvature,
   kNeverWithinTolerance,  // the final value is outside the tolerance
 };
