@@ -30,10 +30,10 @@
 #include "gyrotherm/analysis/scale_factor.h"
 #include "gyrotherm/analysis/start_temperature.h"
 #include "gyrotherm/analysis/table1.h"
+#include "gyrotherm/calibration/report.h"
+#include "gyrotherm/calibration/run_analysis.h"
+#include "gyrotherm/config/run_config.h"
 #include "gyrotherm/core/files.h"
-#include "gyrotherm/daemon/report.h"
-#include "gyrotherm/daemon/run_analysis.h"
-#include "gyrotherm/daemon/run_config.h"
 #include "gyrotherm/storage/database.h"
 #include "output.h"
 
@@ -73,8 +73,8 @@ std::string now_utc_iso() {
   return buf;
 }
 
-using daemon::read_run_config;
-using daemon::RunConfig;
+using calibration::read_run_config;
+using config::RunConfig;
 
 }  // namespace
 
@@ -216,7 +216,7 @@ std::string quality_mark(const storage::ResultQuality& q) {
 // The run's quality rules (its stored [quality]; the defaults when its
 // settings do not parse).
 analysis::QualityRules quality_rules_of(const storage::RunRecord& run) {
-  auto s = daemon::analysis_settings_of_run(run);
+  auto s = calibration::analysis_settings_of_run(run);
   return s ? s->quality : analysis::QualityRules{};
 }
 
@@ -304,21 +304,21 @@ bool picked(const std::vector<std::string>& picks, const std::string& value) {
   return picks.empty() || std::find(picks.begin(), picks.end(), value) != picks.end();
 }
 
-bool same_stream(const daemon::AnalysedAxis& a, const daemon::AnalysedAxis& b) {
+bool same_stream(const calibration::AnalysedAxis& a, const calibration::AnalysedAxis& b) {
   return a.dut_serial == b.dut_serial && a.axis == b.axis;
 }
 
 // "SN 17-0042 z" for the text's block titles.
-std::string stream_title(const daemon::AnalysedAxis& a) { return a.name(); }
+std::string stream_title(const calibration::AnalysedAxis& a) { return a.name(); }
 
 // A run's DUT axes as --dut and --axis choose them; by default every
-// analysed axis of every DUT (daemon::analysed_axes order: DUTs by
+// analysed axis of every DUT (calibration::analysed_axes order: DUTs by
 // position, the primary axis first).
-Result<std::vector<daemon::AnalysedAxis>> chosen_axes(const Parsed& p, storage::Database& db,
-                                                      int64_t run_id) {
-  auto all = daemon::analysed_axes(db, run_id);
+Result<std::vector<calibration::AnalysedAxis>> chosen_axes(const Parsed& p, storage::Database& db,
+                                                           int64_t run_id) {
+  auto all = calibration::analysed_axes(db, run_id);
   if (!all) return Error::Permanent(fmt::format("run {}: {}", run_id, all.error().message));
-  std::vector<daemon::AnalysedAxis> out;
+  std::vector<calibration::AnalysedAxis> out;
   for (auto& a : *all) {
     if (picked(p.duts, a.dut_serial) && picked(p.axes, a.axis)) out.push_back(std::move(a));
   }
@@ -332,7 +332,7 @@ Status check_choice(const Parsed& p, DbInput& d) {
   std::set<std::string> serials, axes;
   std::vector<std::string> held;
   for (const auto& run : d.runs) {
-    auto all = daemon::analysed_axes(d.db, run.id);
+    auto all = calibration::analysed_axes(d.db, run.id);
     if (!all) return Error::Permanent(fmt::format("run {}: {}", run.id, all.error().message));
     for (const auto& a : *all) {
       serials.insert(a.dut_serial);
@@ -362,11 +362,11 @@ Status check_choice(const Parsed& p, DbInput& d) {
 // chosen axes of the first run that every run holds. One some run lacks is
 // left out, with a note, unless --dut or --axis asked for it by name: then
 // it is an error naming the run.
-Result<std::vector<daemon::AnalysedAxis>> common_axes(const Parsed& p, DbInput& d,
-                                                      std::vector<std::string>& notes) {
+Result<std::vector<calibration::AnalysedAxis>> common_axes(const Parsed& p, DbInput& d,
+                                                           std::vector<std::string>& notes) {
   if (auto st = check_choice(p, d); !st) return st.error();
-  std::vector<daemon::AnalysedAxis> out;
-  std::vector<std::vector<daemon::AnalysedAxis>> per_run;
+  std::vector<calibration::AnalysedAxis> out;
+  std::vector<std::vector<calibration::AnalysedAxis>> per_run;
   for (const auto& run : d.runs) {
     auto axes = chosen_axes(p, d.db, run.id);
     if (!axes) return axes.error();
@@ -496,11 +496,11 @@ struct SeriesSet {
 };
 
 // `stream`: the DUT axis read from each run (its own channel there).
-Result<SeriesSet> load_series(Input& in, double bin_s, const daemon::AnalysedAxis* stream) {
+Result<SeriesSet> load_series(Input& in, double bin_s, const calibration::AnalysedAxis* stream) {
   SeriesSet s;
   if (in.db) {
     for (const auto& r : in.db->runs) {
-      auto axes = daemon::analysed_axes(in.db->db, r.id);
+      auto axes = calibration::analysed_axes(in.db->db, r.id);
       if (!axes) return Error::Permanent(fmt::format("run {}: {}", r.id, axes.error().message));
       const auto axis = std::find_if(axes->begin(), axes->end(), [&](const auto& a) {
         return stream == nullptr || same_stream(a, *stream);
@@ -508,8 +508,8 @@ Result<SeriesSet> load_series(Input& in, double bin_s, const daemon::AnalysedAxi
       if (axis == axes->end()) {
         return Error::Permanent(fmt::format("run {}: no {}", r.id, stream->name()));
       }
-      daemon::RunSeriesCoverage coverage;
-      auto series = daemon::run_series(in.db->db, r.id, bin_s, *axis, &coverage);
+      calibration::RunSeriesCoverage coverage;
+      auto series = calibration::run_series(in.db->db, r.id, bin_s, *axis, &coverage);
       if (!series) return Error::Permanent(fmt::format("run {}: {}", r.id, series.error().message));
       s.series.push_back(std::move(*series));
       s.coverage.push_back(coverage.coverage);
@@ -543,7 +543,7 @@ Result<double> bin_s_of(const Parsed& p, const RunConfig& cfg) {
 // What the coefficient exports say of where they come from; `l0_window_s`:
 // the fit's L0 window.
 analysis::ExportInfo export_info(const Input& in, const RunConfig& cfg, double l0_window_s,
-                                 const daemon::AnalysedAxis* stream) {
+                                 const calibration::AnalysedAxis* stream) {
   analysis::ExportInfo info;
   info.station = cfg.station_name;
   info.l0_window_s = l0_window_s;
@@ -586,8 +586,8 @@ int write_exports(const Parsed& p, const std::function<std::string()>& json_text
 
 // A soak result's identity in the JSON of stats and allan: its run, step
 // (1-based), DUT axis, set point and the span of its windows.
-json soak_json(const daemon::SoakWindow& soak, const daemon::AnalysedAxis& axis, double from_s,
-               double to_s) {
+json soak_json(const calibration::SoakWindow& soak, const calibration::AnalysedAxis& axis,
+               double from_s, double to_s) {
   return {{"run_id", soak.run_id},
           {"segment", soak.segment_index + 1},
           {"dut_serial", axis.dut_serial},
@@ -644,7 +644,7 @@ std::string mean_spread_text(const analysis::MeanSpread& m, int decimals) {
 // A soak's Table I row, with the DUT axis it is of ({"", ""}: CSV input).
 struct StreamSoak {
   storage::StreamKey stream;
-  std::string name;  // daemon::AnalysedAxis::name(); "" for CSV input
+  std::string name;  // calibration::AnalysedAxis::name(); "" for CSV input
   analysis::Table1Soak soak;
   json id;  // {"run_id", "segment"}
 };
@@ -791,7 +791,7 @@ int cmd_stats(const Parsed& p) {
         j.update(stats_json(row, o));
         j["quality"] = quality_json(rec.quality);
         out.push_back(std::move(j));
-        daemon::AnalysedAxis named_axis;
+        calibration::AnalysedAxis named_axis;
         named_axis.dut_serial = rec.dut_serial;
         named_axis.axis = rec.axis;
         soaks_for_groups.push_back({{rec.dut_serial, rec.axis},
@@ -809,7 +809,7 @@ int cmd_stats(const Parsed& p) {
       const RunConfig cfg = read_run_config(run);
       auto opts = table1_options(p, cfg, &run);
       if (!opts) return fail(opts.error().message, kExitInput);
-      auto soaks = daemon::soak_windows(db, run.id);
+      auto soaks = calibration::soak_windows(db, run.id);
       if (!soaks)
         return fail(fmt::format("run {}: {}", run.id, soaks.error().message), kExitAnalysis);
       if (soaks->empty()) {
@@ -821,7 +821,7 @@ int cmd_stats(const Parsed& p) {
       const analysis::QualityRules rules = quality_rules_of(run);
       for (const auto& soak : *soaks) {
         for (const auto& axis : *axes) {
-          auto rec = daemon::soak_table1(db, soak, *opts, axis, rules);
+          auto rec = calibration::soak_table1(db, soak, *opts, axis, rules);
           if (!rec) return fail(rec.error().message, kExitAnalysis);
           named = named || !axis.dut_serial.empty();
           const auto row = row_of(*rec);
@@ -1170,7 +1170,7 @@ int cmd_allan(const Parsed& p) {
       auto taus = tau_set(read_run_config(run));
       if (!taus) return fail(taus.error().message, kExitInput);
       const std::string taus_name(analysis::to_string(*taus));
-      auto soaks = daemon::soak_windows(db, run.id);
+      auto soaks = calibration::soak_windows(db, run.id);
       if (!soaks)
         return fail(fmt::format("run {}: {}", run.id, soaks.error().message), kExitAnalysis);
       if (soaks->empty()) {
@@ -1181,7 +1181,7 @@ int cmd_allan(const Parsed& p) {
       const analysis::QualityRules rules = quality_rules_of(run);
       for (const auto& soak : *soaks) {
         for (const auto& axis : *axes) {
-          auto rec = daemon::soak_allan(db, soak, *taus, axis, rules);
+          auto rec = calibration::soak_allan(db, soak, *taus, axis, rules);
           if (!rec) return fail(rec.error().message, kExitAnalysis);
           const AllanView v = view_of(*rec);
           json j = soak_json(soak, axis, rec->t_from_s, rec->t_to_s);
@@ -1236,7 +1236,7 @@ int cmd_allan(const Parsed& p) {
 // DUTs. JSON: the object for one DUT axis, an array of them for several.
 // The coefficient files are for one DUT axis: with several, --dut and
 // --axis must choose one.
-using PerStream = int (*)(const Parsed&, Input&, const daemon::AnalysedAxis*, json&);
+using PerStream = int (*)(const Parsed&, Input&, const calibration::AnalysedAxis*, json&);
 
 int for_each_stream(const Parsed& p, RunsNeeded needed, PerStream one) {
   auto in = open_input(p, needed);
@@ -1301,7 +1301,8 @@ std::vector<std::string> ordered_keys(const std::map<std::string, V>& m) {
   return keys;
 }
 
-int fit_one(const Parsed& p, Input& input, const daemon::AnalysedAxis* stream, json& json_out) {
+int fit_one(const Parsed& p, Input& input, const calibration::AnalysedAxis* stream,
+            json& json_out) {
   Input* in = &input;
   const RunConfig cfg = first_run_config(*in);
   auto spec = model_spec(p, cfg);
@@ -1349,7 +1350,7 @@ int fit_one(const Parsed& p, Input& input, const daemon::AnalysedAxis* stream, j
                     {"inputs", inputs}};
 
   // Its quality: a flagged fit's C header only with --force.
-  const storage::ResultQuality quality = daemon::fit_quality(
+  const storage::ResultQuality quality = calibration::fit_quality(
       *fit, set->series, set->coverage,
       in->db ? quality_rules_of(in->db->runs.front()) : analysis::QualityRules{});
   json with_quality = out;
@@ -1372,7 +1373,7 @@ int fit_one(const Parsed& p, Input& input, const daemon::AnalysedAxis* stream, j
   if (int code = write_exports(
           p, [&] { return analysis::drift_fit_json(*fit, info); },
           [&] {
-            return daemon::forced_header_comment(quality) +
+            return calibration::forced_header_comment(quality) +
                    analysis::drift_fit_c_header(*fit, info);
           });
       code != 0) {
@@ -1427,7 +1428,8 @@ json compensated_json(const std::optional<analysis::CompensatedStats>& s) {
   return {{"n", s->n}, {"mean_dph", num(s->mean_dph)}, {"std_dph", num(s->std_dph)}};
 }
 
-int compare_one(const Parsed& p, Input& input, const daemon::AnalysedAxis* stream, json& json_out) {
+int compare_one(const Parsed& p, Input& input, const calibration::AnalysedAxis* stream,
+                json& json_out) {
   Input* in = &input;
   const RunConfig cfg = first_run_config(*in);
   analysis::ComparisonOptions options;
@@ -1528,7 +1530,7 @@ int cmd_compare(const Parsed& p) { return for_each_stream(p, RunsNeeded::kRequir
 
 // ---------------------------------------------------------------- start-model
 
-int start_model_one(const Parsed& p, Input& input, const daemon::AnalysedAxis* stream,
+int start_model_one(const Parsed& p, Input& input, const calibration::AnalysedAxis* stream,
                     json& json_out) {
   Input* in = &input;
   const RunConfig cfg = first_run_config(*in);

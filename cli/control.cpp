@@ -17,11 +17,11 @@
 #include <vector>
 
 #include "gyrotherm/cli/http_client.h"
+#include "gyrotherm/config/config.h"
 #include "gyrotherm/core/files.h"
 #include "gyrotherm/core/toml_errors.h"
-#include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/control.h"
 #include "gyrotherm/schedules/progress.h"
+#include "gyrotherm/station/control.h"
 #include "gyrotherm/storage/database.h"
 #include "output.h"
 
@@ -239,7 +239,7 @@ int offline_runs(const std::string& db_path, bool as_json) {
   auto runs = db->runs();
   if (!runs) return fail(runs.error().message);
   json out = json::array();
-  for (auto it = runs->rbegin(); it != runs->rend(); ++it) out.push_back(daemon::to_json(*it));
+  for (auto it = runs->rbegin(); it != runs->rend(); ++it) out.push_back(station::to_json(*it));
   std::cout << (as_json ? out.dump(2) + "\n" : format_runs(out));
   return 0;
 }
@@ -247,7 +247,7 @@ int offline_runs(const std::string& db_path, bool as_json) {
 int offline_run(const std::string& db_path, int64_t id, bool as_json) {
   auto db = storage::Database::open_read_only(db_path);
   if (!db) return fail(db.error().message, 2);
-  auto run = daemon::run_detail_json(*db, id);
+  auto run = station::run_detail_json(*db, id);
   if (!run) {
     return fail(run.error().transient ? run.error().message
                                       : fmt::format("no run {} in {}", id, db_path));
@@ -256,7 +256,7 @@ int offline_run(const std::string& db_path, int64_t id, bool as_json) {
   if (!events) return fail(events.error().message);
   json run_json = std::move(*run);
   json events_json = json::array();
-  for (const auto& e : *events) events_json.push_back(daemon::to_json(e));
+  for (const auto& e : *events) events_json.push_back(station::to_json(e));
   if (as_json) {
     run_json["events"] = std::move(events_json);
     std::cout << run_json.dump(2) << "\n";
@@ -316,7 +316,7 @@ std::string dut_path(const std::string& serial) {
 int offline_dut(const std::string& db_path, const std::string& serial, bool as_json) {
   auto db = storage::Database::open_read_only(db_path);
   if (!db) return fail(db.error().message, 2);
-  auto history = daemon::dut_history_json(*db, serial);
+  auto history = station::dut_history_json(*db, serial);
   if (!history) {
     return fail(history.error().transient
                     ? history.error().message
@@ -330,7 +330,7 @@ int offline_dut(const std::string& db_path, const std::string& serial, bool as_j
 int offline_duts(const std::string& db_path, bool as_json) {
   auto db = storage::Database::open_read_only(db_path);
   if (!db) return fail(db.error().message, 2);
-  auto duts = daemon::duts_json(*db);
+  auto duts = station::duts_json(*db);
   if (!duts) return fail(duts.error().message);
   std::cout << (as_json ? duts->dump(2) + "\n" : format_duts(*duts));
   return 0;
@@ -1104,7 +1104,7 @@ Result<DatabaseChoice> choose_database(const std::string& db_path, const std::st
   }
   DatabaseChoice choice;
   if (!config_path.empty()) {
-    auto cfg = daemon::load_station_config(config_path);
+    auto cfg = config::load_station_config(config_path);
     if (!cfg) return Error::Permanent("bad station config:\n" + cfg.error().message);
     choice.path = cfg->storage.db_path;
   } else {

@@ -9,8 +9,8 @@
 
 #include "analysis.h"
 #include "control.h"
+#include "gyrotherm/calibration/exporter.h"
 #include "gyrotherm/core/clock.h"
-#include "gyrotherm/daemon/exporter.h"
 #include "gyrotherm/schedules/sequencer.h"
 #include "gyrotherm/storage/database.h"
 #include "output.h"
@@ -131,13 +131,13 @@ std::optional<int> ExportCommand::run(bool json) {
         kExitInput, kWho);
   }
 
-  daemon::ExportRequest request;
+  calibration::ExportRequest request;
   request.kind = "manual";
   request.run_ids = ids;
   request.directory = fs::absolute(p.out_dir, ec).lexically_normal().string();
   request.report.export_label = fmt::format("on demand (gyrotherm export), {}", what);
   request.report.force_flagged = p.force;
-  auto out = daemon::write_export(*db, request);
+  auto out = calibration::write_export(*db, request);
   if (!out) return fail(out.error().message, kExitFailed, kWho);
   if (json) {
     std::cout << nlohmann::json({{"export_id", out->export_id},

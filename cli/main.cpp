@@ -19,9 +19,8 @@
 #include "control.h"
 #include "export.h"
 #include "gyrotherm/cli/http_client.h"
-#include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/sim_endpoints.h"
-#include "gyrotherm/daemon/station_lock.h"
+#include "gyrotherm/config/config.h"
+#include "gyrotherm/config/sim_endpoints.h"
 #include "gyrotherm/drivers/frame_parser.h"
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/drivers/modbus_devices.h"
@@ -30,6 +29,7 @@
 #include "gyrotherm/drivers/serial_port.h"
 #include "gyrotherm/schedules/progress.h"
 #include "gyrotherm/schedules/schedule.h"
+#include "gyrotherm/station/station_lock.h"
 #include "lab.h"
 #include "output.h"
 #include "samples.h"
@@ -115,9 +115,9 @@ int decode_kvh1750(const std::string& path, bool json) {
 // (shortest digits that read back exactly; nan: flagged invalid).
 int decode_dut(const std::string& protocol, const std::string& config_path,
                const std::string& serial, const std::string& path, bool json) {
-  auto cfg = daemon::load_station_config(config_path);
+  auto cfg = config::load_station_config(config_path);
   if (!cfg) return fail("bad station config:\n" + cfg.error().message, 2);
-  const daemon::DutSection* dut = daemon::find_dut(cfg->duts, serial);
+  const config::DutSection* dut = config::find_dut(cfg->duts, serial);
   if (!dut) {
     std::vector<std::string> serials;
     for (const auto& d : cfg->duts) serials.push_back(fmt::format("\"{}\"", d.serial));
@@ -176,18 +176,18 @@ int cmd_decode(const std::string& protocol, const std::string& path, const std::
 }
 
 // ---------------------------------------------------------------- station config helpers
-Result<daemon::StationConfig> load_config_for_tools(const std::string& path) {
-  auto cfg = daemon::load_station_config(path);
+Result<config::StationConfig> load_config_for_tools(const std::string& path) {
+  auto cfg = config::load_station_config(path);
   if (!cfg) return cfg;
   if (!cfg->simulator.endpoints_file.empty()) {
-    auto ep = daemon::read_sim_endpoints(cfg->simulator.endpoints_file);
+    auto ep = config::read_sim_endpoints(cfg->simulator.endpoints_file);
     if (!ep) {
       return Error::Transient(
           fmt::format("{}: simulator endpoints not readable (is gyrotherm-sim "
                       "running?): {}",
                       cfg->simulator.endpoints_file, ep.error().message));
     }
-    daemon::apply_sim_endpoints(*cfg, *ep);
+    config::apply_sim_endpoints(*cfg, *ep);
   }
   return cfg;
 }
@@ -197,10 +197,10 @@ Result<daemon::StationConfig> load_config_for_tools(const std::string& path) {
 // it. A daemon holds the station lock beside its database; a daemon started
 // on another database (--db) is still caught by the gyro line's lock, which
 // `gyro_port` tries to take (it is kept open, held, until the command ends).
-std::optional<int> refuse_if_station_owned(const daemon::StationConfig& cfg,
+std::optional<int> refuse_if_station_owned(const config::StationConfig& cfg,
                                            std::optional<drivers::SerialPort>& gyro_port,
                                            std::string& gyro_error) {
-  if (const auto owner = daemon::station_owner(cfg.storage.db_path)) {
+  if (const auto owner = station::station_owner(cfg.storage.db_path)) {
     std::string who = "gyrothermd";
     if (owner->pid > 0) who += fmt::format(" (pid {})", owner->pid);
     const std::string api = owner->api_url.empty() ? "" : fmt::format(" at {}", owner->api_url);
@@ -208,7 +208,7 @@ std::optional<int> refuse_if_station_owned(const daemon::StationConfig& cfg,
         fmt::format("the station is run by {}{} (station lock {}); commissioning commands talk to "
                     "the devices directly and would disturb it. Use `gyrotherm status` for live "
                     "readings and the queue for set points, or stop the daemon first.",
-                    who, api, daemon::station_lock_path(cfg.storage.db_path)),
+                    who, api, station::station_lock_path(cfg.storage.db_path)),
         2);
   }
   auto port = drivers::SerialPort::open(cfg.gyro.serial);
@@ -248,14 +248,14 @@ Result<double> chamber_c(const Result<double>& read, drivers::TemperatureUnit un
 // One DUT's reading for `gyrotherm devices`: its line, its protocol and the
 // frames heard.
 struct DutReading {
-  const daemon::DutSection* dut = nullptr;
+  const config::DutSection* dut = nullptr;
   std::optional<drivers::SerialPort> port;
   std::unique_ptr<drivers::DutProtocol> protocol;
   std::vector<DutFrame> frames;
   std::string error;  // the line could not be opened, or the protocol not made
 };
 
-std::string dut_name(const daemon::DutSection& dut) {
+std::string dut_name(const config::DutSection& dut) {
   std::string name = dut.serial.empty() ? std::string("(no serial)") : dut.serial;
   if (!dut.model.empty()) name += fmt::format(" ({})", dut.model);
   return name;
@@ -284,8 +284,8 @@ int cmd_devices(const std::string& config_path, bool json) {
   if (!cfg) return fail(cfg.error().message, 2);
   if (const std::string& file = cfg->simulator.endpoints_file; !file.empty()) {
     // load_config_for_tools read it already: it is there.
-    if (auto ep = daemon::read_sim_endpoints(file)) {
-      if (const std::string why = daemon::sim_dut_devices_mismatch(*cfg, *ep, file); !why.empty())
+    if (auto ep = config::read_sim_endpoints(file)) {
+      if (const std::string why = config::sim_dut_devices_mismatch(*cfg, *ep, file); !why.empty())
         return fail(why, 2);
     }
   }
@@ -352,7 +352,7 @@ int cmd_devices(const std::string& config_path, bool json) {
   nlohmann::json gyro_json;  // the first DUT's primary axis, as before [[dut]]
   std::string duts_text;
   for (const DutReading& r : readings) {
-    const daemon::DutSection& dut = *r.dut;
+    const config::DutSection& dut = *r.dut;
     nlohmann::json j = {{"serial", dut.serial},
                         {"model", dut.model},
                         {"device", dut.link.serial.device},
@@ -477,7 +477,7 @@ std::string table_endpoint(const drivers::TableConnection& c) {
 // `table reset` on a station gyrothermd runs: the daemon resets the fault
 // (POST /api/v1/control/table-reset), so the commissioning commands' rule
 // (stop the daemon first) does not apply to it.
-int table_reset_through_daemon(const daemon::StationOwner& owner, const std::string& reason,
+int table_reset_through_daemon(const station::StationOwner& owner, const std::string& reason,
                                const std::string& token, bool json) {
   std::string url = owner.api_url;
   if (url.empty()) {
@@ -515,7 +515,7 @@ int cmd_table(const std::string& config_path, const std::string& action, double 
     return fail(fmt::format("{}: no [table] section: this station has no rate table", config_path),
                 2);
   }
-  const daemon::TableSection& section = *cfg->table;
+  const config::TableSection& section = *cfg->table;
   if (action == "rate" && std::fabs(value) > section.max_rate_dps) {
     return fail(fmt::format("{:g} °/s is beyond the station's table limit ±{:g} °/s ([table] "
                             "max_rate_dps in {})",
@@ -523,7 +523,7 @@ int cmd_table(const std::string& config_path, const std::string& action, double 
                 2);
   }
   if (action == "reset") {
-    if (const auto owner = daemon::station_owner(cfg->storage.db_path)) {
+    if (const auto owner = station::station_owner(cfg->storage.db_path)) {
       return table_reset_through_daemon(*owner, reason, token, json);
     }
   }
@@ -607,11 +607,11 @@ int cmd_schedule_check(const std::string& config_path, const std::string& schedu
   // Without a station config: the default limits (no rate table) and a run
   // starting from the default safe set point.
   schedules::StationLimits limits;
-  double start_setpoint_c = daemon::StationSection{}.safe_setpoint_c;
+  double start_setpoint_c = config::StationSection{}.safe_setpoint_c;
   if (!config_path.empty()) {
-    auto cfg = daemon::load_station_config(config_path);
+    auto cfg = config::load_station_config(config_path);
     if (!cfg) return fail("bad station config:\n" + cfg.error().message, 2);
-    limits = daemon::station_limits(*cfg);
+    limits = config::station_limits(*cfg);
     start_setpoint_c = cfg->station.safe_setpoint_c;
   }
   auto plan = schedules::load_schedule(schedule_path, limits);

@@ -19,25 +19,23 @@
 #include <sstream>
 #include <thread>
 
+#include "gyrotherm/api/api.h"
+#include "gyrotherm/api/http_message.h"
+#include "gyrotherm/api/http_server.h"
+#include "gyrotherm/api/metrics.h"
+#include "gyrotherm/api/web_assets.h"
+#include "gyrotherm/config/config.h"
+#include "gyrotherm/config/sim_endpoints.h"
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/core/files.h"
 #include "gyrotherm/core/shared_clock.h"
 #include "gyrotherm/core/time_scale.h"
 #include "gyrotherm/core/toml_errors.h"
-#include "gyrotherm/daemon/api.h"
-#include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/http_message.h"
-#include "gyrotherm/daemon/http_server.h"
-#include "gyrotherm/daemon/metrics.h"
-#include "gyrotherm/daemon/sim_endpoints.h"
-#include "gyrotherm/daemon/station.h"
-#include "gyrotherm/daemon/station_lock.h"
-#include "gyrotherm/daemon/web_assets.h"
 #include "gyrotherm/lab/relay.h"
 #include "gyrotherm/schedules/schedule.h"
+#include "gyrotherm/station/station.h"
+#include "gyrotherm/station/station_lock.h"
 #include "gyrotherm/storage/database.h"
-
-namespace gd = gyrotherm::daemon;
 
 int main(int argc, char** argv) {
   CLI::App app{"gyrothermd: FOG thermal test station daemon"};
@@ -80,20 +78,22 @@ int main(int argc, char** argv) {
   spdlog::set_level(spdlog::level::from_str(log_level));
   spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %^%l%$ %v");
 
-  auto config = gd::load_station_config(config_path);
+  auto config = gyrotherm::config::load_station_config(config_path);
   if (!config) {
     std::cerr << "gyrothermd: bad config:\n" << config.error().message;
     return 2;
   }
   for (const std::string& warning : config->warnings) spdlog::warn("config: {}", warning);
   if (!db_path.empty()) config->storage.db_path = db_path;
-  if (auto dir = gd::check_database_directory(*config, db_path.empty() ? "" : "--db"); !dir) {
+  if (auto dir =
+          gyrotherm::config::check_database_directory(*config, db_path.empty() ? "" : "--db");
+      !dir) {
     std::cerr << "gyrothermd: bad config:\n" << dir.error().message << "\n";
     return 2;
   }
   // One daemon per station database; the CLI's commissioning commands look
   // at this lock and keep off the devices while it is held.
-  auto station_lock = gd::StationLock::acquire(config->storage.db_path);
+  auto station_lock = gyrotherm::station::StationLock::acquire(config->storage.db_path);
   if (!station_lock) {
     std::cerr << "gyrothermd: " << station_lock.error().message << "\n";
     return 1;
@@ -109,8 +109,9 @@ int main(int argc, char** argv) {
     const std::string& file = config->simulator.endpoints_file;
     const auto deadline = std::chrono::steady_clock::now() +
                           std::chrono::milliseconds(static_cast<int64_t>(endpoints_wait_s * 1000));
-    gyrotherm::Result<gd::SimEndpoints> ep = gyrotherm::Error::Transient("not read");
-    while (!(ep = gd::read_sim_endpoints(file)) && std::chrono::steady_clock::now() < deadline) {
+    gyrotherm::Result<gyrotherm::config::SimEndpoints> ep = gyrotherm::Error::Transient("not read");
+    while (!(ep = gyrotherm::config::read_sim_endpoints(file)) &&
+           std::chrono::steady_clock::now() < deadline) {
       std::this_thread::sleep_for(std::chrono::milliseconds(50));
     }
     if (!ep) {
@@ -153,12 +154,14 @@ int main(int argc, char** argv) {
           time_scale, gyrotherm::kMaxScaledSimTimeScale, gyrotherm::kMaxScaledSimTimeScale);
       return 2;
     }
-    if (const std::string why = gd::sim_time_scale_mismatch(*ep, time_scale, file); !why.empty()) {
+    if (const std::string why = gyrotherm::config::sim_time_scale_mismatch(*ep, time_scale, file);
+        !why.empty()) {
       std::cerr << "gyrothermd: " << why << "\n";
       return 2;
     }
-    gd::apply_sim_endpoints(*config, *ep);
-    if (const std::string why = gd::sim_dut_devices_mismatch(*config, *ep, file); !why.empty()) {
+    gyrotherm::config::apply_sim_endpoints(*config, *ep);
+    if (const std::string why = gyrotherm::config::sim_dut_devices_mismatch(*config, *ep, file);
+        !why.empty()) {
       std::cerr << "gyrothermd: " << why << "\n";
       return 2;
     }
@@ -170,7 +173,8 @@ int main(int argc, char** argv) {
   // starts anything; the queue checks it again when it is added.
   std::string schedule_text;
   if (!schedule_path.empty()) {
-    auto p = gyrotherm::schedules::load_schedule(schedule_path, gd::station_limits(*config));
+    auto p = gyrotherm::schedules::load_schedule(schedule_path,
+                                                 gyrotherm::config::station_limits(*config));
     if (!p) {
       std::cerr << "gyrothermd: schedule refused, nothing queued:\n" << p.error().message;
       return 2;
@@ -188,7 +192,7 @@ int main(int argc, char** argv) {
   // outbox (the first binding queues the history). One database, one id.
   // The relay's events go to the station's event log once it exists (the
   // relay starts after the station).
-  std::atomic<gd::Station*> relay_events_to{nullptr};
+  std::atomic<gyrotherm::station::Station*> relay_events_to{nullptr};
   std::unique_ptr<gyrotherm::lab::Relay> relay;
   if (const auto& lab = config->lab) {
     const std::string& db = config->storage.db_path;
@@ -219,7 +223,7 @@ int main(int argc, char** argv) {
     options.station_id = lab->station_id;
     options.db_path = db;
     if (lab->relay) {
-      auto conninfo = gd::lab_conninfo(*lab);
+      auto conninfo = gyrotherm::config::lab_conninfo(*lab);
       if (!conninfo) {
         std::cerr << "gyrothermd: " << conninfo.error().message << "\n";
         return 2;
@@ -236,7 +240,7 @@ int main(int argc, char** argv) {
     options.lock_timeout_s = lab->lock_timeout_s;
     options.on_event = [&relay_events_to](const std::string& message) {
       spdlog::info("{}", message);
-      if (gd::Station* s = relay_events_to.load()) s->post_event("lab", message);
+      if (gyrotherm::station::Station* s = relay_events_to.load()) s->post_event("lab", message);
     };
     auto created = gyrotherm::lab::Relay::create(std::move(options));
     if (!created) {
@@ -279,40 +283,40 @@ int main(int argc, char** argv) {
   // Declared in the order they may be torn down in reverse: the station
   // publishes into the stream and observes into the metrics; the server
   // serves all three.
-  gd::Metrics metrics;
-  gd::Station* station_ptr = nullptr;
+  gyrotherm::api::Metrics metrics;
+  gyrotherm::station::Station* station_ptr = nullptr;
   // The status's and the metrics' bodies, built from the station's snapshot
   // at most every kBodyMaxAgeS of real time whatever the request rate, and
   // shared by every reader (docs/api.md "How fresh the status is").
   constexpr double kBodyMaxAgeS = 0.05;
-  std::optional<gd::BodyCache> status_body;
-  std::optional<gd::BodyCache> metrics_body;
-  gd::EventStreamOptions stream_options;
+  std::optional<gyrotherm::api::BodyCache> status_body;
+  std::optional<gyrotherm::api::BodyCache> metrics_body;
+  gyrotherm::api::EventStreamOptions stream_options;
   stream_options.queue_bytes = static_cast<std::size_t>(config->api.stream_queue_bytes);
   stream_options.max_clients = config->api.max_stream_clients;
   stream_options.status_json = [&status_body] { return *status_body->get(); };
-  gd::EventStream stream(stream_options);
-  gd::StationHooks hooks;
+  gyrotherm::api::EventStream stream(stream_options);
+  gyrotherm::station::StationHooks hooks;
   hooks.observe_modbus = [&metrics](std::string_view device, double seconds) {
     metrics.observe_modbus(device, seconds);
   };
   hooks.observe_commit = [&metrics](double seconds) { metrics.observe_commit(seconds); };
   hooks.publish = [&stream, r = relay.get()](std::string_view event, const nlohmann::json& data) {
-    stream.publish(event, gd::json_text(data));
+    stream.publish(event, gyrotherm::api::json_text(data));
     // Something was committed that the lab relays: send it now, not at the next poll.
     if (r && event != "status") r->nudge();
   };
   if (relay) {
     hooks.lab_status = [r = relay.get()] { return std::optional(r->status()); };
   }
-  auto devices = gd::devices_from_config(*config, clock, hooks);
+  auto devices = gyrotherm::station::devices_from_config(*config, clock, hooks);
   if (!devices) {
     std::cerr << "gyrothermd: " << devices.error().message << "\n";
     return 1;
   }
-  const gd::StationClocks clocks{clock, gyrotherm::system_wall_clock(),
-                                 wall_clock ? &*wall_clock : nullptr};
-  auto station = gd::Station::create(*config, std::move(*devices), clocks, hooks);
+  const gyrotherm::station::StationClocks clocks{clock, gyrotherm::system_wall_clock(),
+                                                 wall_clock ? &*wall_clock : nullptr};
+  auto station = gyrotherm::station::Station::create(*config, std::move(*devices), clocks, hooks);
   if (!station) {
     std::cerr << "gyrothermd: " << station.error().message << "\n";
     return 1;
@@ -320,20 +324,24 @@ int main(int argc, char** argv) {
   station_ptr = station->get();
 
   const std::string web_root =
-      config->api.web_root.empty() ? gd::default_web_root() : config->api.web_root;
-  auto web = gd::WebAssets::load(web_root);
+      config->api.web_root.empty() ? gyrotherm::api::default_web_root() : config->api.web_root;
+  auto web = gyrotherm::api::WebAssets::load(web_root);
   if (!web) {
     spdlog::warn("dashboard not served: {}", web.error().message);
   }
-  gd::HttpServer* server_ptr = nullptr;
-  auto auth_limiter = gd::AuthLimiter::create({.max_failures = config->api.max_auth_failures});
+  gyrotherm::api::HttpServer* server_ptr = nullptr;
+  auto auth_limiter =
+      gyrotherm::api::AuthLimiter::create({.max_failures = config->api.max_auth_failures});
   if (!auth_limiter) {
     std::cerr << "gyrothermd: " << auth_limiter.error().message << "\n";
     return 1;
   }
-  status_body.emplace([s = station_ptr] { return gd::json_text(gd::to_json(s->status())); },
-                      kBodyMaxAgeS);
-  gd::ApiContext api;
+  status_body.emplace(
+      [s = station_ptr] {
+        return gyrotherm::api::json_text(gyrotherm::station::to_json(s->status()));
+      },
+      kBodyMaxAgeS);
+  gyrotherm::api::ApiContext api;
   api.status = [s = station_ptr] { return s->status(); };
   api.status_body = &*status_body;
   api.control = station_ptr;
@@ -343,7 +351,7 @@ int main(int argc, char** argv) {
   api.auth_limiter = auth_limiter->get();
   api.web = web ? &*web : nullptr;
   api.metrics = [&] {
-    gd::ServerFigures f;
+    gyrotherm::api::ServerFigures f;
     if (server_ptr) {
       const auto h = server_ptr->stats();
       f.http_requests = h.requests;
@@ -357,7 +365,7 @@ int main(int argc, char** argv) {
   };
   metrics_body.emplace(api.metrics, kBodyMaxAgeS);
   api.metrics_body = &*metrics_body;
-  gd::HttpServerOptions http_options;
+  gyrotherm::api::HttpServerOptions http_options;
   http_options.bind = config->api.bind;
   http_options.port = config->api.port;
   http_options.read_timeout =
@@ -366,13 +374,14 @@ int main(int argc, char** argv) {
   http_options.header_limit = static_cast<std::size_t>(config->api.max_header_bytes);
   http_options.body_limit = static_cast<std::size_t>(config->api.max_body_bytes);
   http_options.stream = &stream;
-  http_options.stream_gate = [&api](const gd::HttpRequest& r, std::string_view peer) {
-    return gd::check_access(r, api, peer);
+  http_options.stream_gate = [&api](const gyrotherm::api::HttpRequest& r, std::string_view peer) {
+    return gyrotherm::api::check_access(r, api, peer);
   };
-  if (auto warning = gd::api_exposure_warning(config->api)) spdlog::warn("{}", *warning);
-  auto http =
-      gd::HttpServer::create(http_options, [&api](const gd::HttpRequest& r, std::string_view peer) {
-        return gd::handle_api_request(r, api, peer);
+  if (auto warning = gyrotherm::config::api_exposure_warning(config->api))
+    spdlog::warn("{}", *warning);
+  auto http = gyrotherm::api::HttpServer::create(
+      http_options, [&api](const gyrotherm::api::HttpRequest& r, std::string_view peer) {
+        return gyrotherm::api::handle_api_request(r, api, peer);
       });
   if (!http) {
     std::cerr << "gyrothermd: " << http.error().message << "\n";

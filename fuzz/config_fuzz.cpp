@@ -6,9 +6,9 @@
 #include <string_view>
 
 #include "fuzz_check.h"
-#include "gyrotherm/daemon/config.h"
+#include "gyrotherm/config/config.h"
 
-using namespace gyrotherm::daemon;
+using namespace gyrotherm::config;
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const std::string_view text(reinterpret_cast<const char*>(data), size);

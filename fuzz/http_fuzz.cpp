@@ -20,9 +20,9 @@
 #include <string_view>
 
 #include "fuzz_check.h"
-#include "gyrotherm/daemon/api.h"
+#include "gyrotherm/api/api.h"
 
-using namespace gyrotherm::daemon;
+using namespace gyrotherm::api;
 namespace http = boost::beast::http;
 
 namespace {
@@ -33,58 +33,74 @@ constexpr std::size_t kHeaderLimit = 8 * 1024;  // [api] defaults (config.h)
 constexpr std::size_t kBodyLimit = 64 * 1024;
 
 // Small fixed replies; a few refusals so every status mapping is reached.
-class FakeControl : public StationControl {
+class FakeControl : public station::StationControl {
  public:
-  Reply queue_list() override { return Reply::ok({{"held", false}, {"entries", {}}}); }
-  Reply queue_add(const std::string& toml, const std::string&, bool) override {
-    if (toml.empty()) return Reply::refused(Refusal::Kind::kInvalid, "empty", {"fuzz.toml: x"});
-    return Reply::ok({{"id", 1}});
+  station::Reply queue_list() override {
+    return station::Reply::ok({{"held", false}, {"entries", {}}});
   }
-  Reply queue_remove(int64_t id) override {
-    if (id == 9) return Reply::refused(Refusal::Kind::kConflict, "running");
-    return Reply::ok({{"removed", id}});
+  station::Reply queue_add(const std::string& toml, const std::string&, bool) override {
+    if (toml.empty())
+      return station::Reply::refused(station::Refusal::Kind::kInvalid, "empty", {"fuzz.toml: x"});
+    return station::Reply::ok({{"id", 1}});
   }
-  Reply queue_move(int64_t id, int position) override {
-    if (position > 100) return Reply::refused(Refusal::Kind::kInvalid, "bad position");
-    return Reply::ok({{"id", id}, {"position", position}});
+  station::Reply queue_remove(int64_t id) override {
+    if (id == 9) return station::Reply::refused(station::Refusal::Kind::kConflict, "running");
+    return station::Reply::ok({{"removed", id}});
   }
-  Reply control(std::string_view action, const std::string&) override {
-    if (action == "pause") return Reply::refused(Refusal::Kind::kConflict, "no run to pause");
-    return Reply::ok({{"ok", true}});
+  station::Reply queue_move(int64_t id, int position) override {
+    if (position > 100)
+      return station::Reply::refused(station::Refusal::Kind::kInvalid, "bad position");
+    return station::Reply::ok({{"id", id}, {"position", position}});
   }
-  Reply runs() override { return Reply::ok(nlohmann::json::array()); }
-  Reply run(int64_t id) override {
-    if (id == 8) return Reply::refused(Refusal::Kind::kNotFound, "no run 8");
-    return Reply::ok({{"id", id}});
+  station::Reply control(std::string_view action, const std::string&) override {
+    if (action == "pause")
+      return station::Reply::refused(station::Refusal::Kind::kConflict, "no run to pause");
+    return station::Reply::ok({{"ok", true}});
   }
-  Reply run_events(int64_t) override { return Reply::ok(nlohmann::json::array()); }
-  Reply run_stats(int64_t) override {
-    return Reply::refused(Refusal::Kind::kUnavailable, "database failed");
+  station::Reply runs() override { return station::Reply::ok(nlohmann::json::array()); }
+  station::Reply run(int64_t id) override {
+    if (id == 8) return station::Reply::refused(station::Refusal::Kind::kNotFound, "no run 8");
+    return station::Reply::ok({{"id", id}});
   }
-  Reply run_samples(int64_t id, const SamplesQuery& q) override {
-    return Reply::ok({{"run_id", id}, {"from_s", q.from_s}, {"max_points", q.max_points}});
+  station::Reply run_events(int64_t) override {
+    return station::Reply::ok(nlohmann::json::array());
   }
-  Reply run_fits(int64_t) override { return Reply::ok(nlohmann::json::array()); }
-  Reply run_allan(int64_t) override { return Reply::ok(nlohmann::json::array()); }
-  Reply run_scale_factor(int64_t) override { return Reply::ok(nlohmann::json::object()); }
-  Reply fit(int64_t id) override { return Reply::ok({{"id", id}}); }
-  Reply exports() override { return Reply::ok(nlohmann::json::array()); }
-  Reply enqueue(const QueueRequest& q) override {
+  station::Reply run_stats(int64_t) override {
+    return station::Reply::refused(station::Refusal::Kind::kUnavailable, "database failed");
+  }
+  station::Reply run_samples(int64_t id, const station::SamplesQuery& q) override {
+    return station::Reply::ok({{"run_id", id}, {"from_s", q.from_s}, {"max_points", q.max_points}});
+  }
+  station::Reply run_fits(int64_t) override { return station::Reply::ok(nlohmann::json::array()); }
+  station::Reply run_allan(int64_t) override { return station::Reply::ok(nlohmann::json::array()); }
+  station::Reply run_scale_factor(int64_t) override {
+    return station::Reply::ok(nlohmann::json::object());
+  }
+  station::Reply fit(int64_t id) override { return station::Reply::ok({{"id", id}}); }
+  station::Reply exports() override { return station::Reply::ok(nlohmann::json::array()); }
+  station::Reply enqueue(const station::QueueRequest& q) override {
     if (q.metadata.dut_serials.size() > 1) {
-      return Reply::refused(Refusal::Kind::kBadRequest, "field 'duts': no DUT with serial 'x'");
+      return station::Reply::refused(station::Refusal::Kind::kBadRequest,
+                                     "field 'duts': no DUT with serial 'x'");
     }
     return queue_add(q.toml_text, q.source, q.ignore_failures);
   }
-  Reply run_with_duts(int64_t id) override { return run(id); }
-  Reply edit_run(int64_t id, const MetadataEdit&, const std::string&) override { return run(id); }
-  Reply run_stats_filtered(int64_t id, const StatsQuery&) override { return run_stats(id); }
-  Reply run_channel_samples(int64_t id, const SamplesQuery& q) override {
-    if (!q.channel.empty()) return Reply::refused(Refusal::Kind::kNotFound, "no channel");
+  station::Reply run_with_duts(int64_t id) override { return run(id); }
+  station::Reply edit_run(int64_t id, const station::MetadataEdit&, const std::string&) override {
+    return run(id);
+  }
+  station::Reply run_stats_filtered(int64_t id, const station::StatsQuery&) override {
+    return run_stats(id);
+  }
+  station::Reply run_channel_samples(int64_t id, const station::SamplesQuery& q) override {
+    if (!q.channel.empty())
+      return station::Reply::refused(station::Refusal::Kind::kNotFound, "no channel");
     return run_samples(id, q);
   }
-  Reply duts() override { return Reply::ok(nlohmann::json::array()); }
-  Reply dut_history(const std::string& serial) override {
-    return Reply::refused(Refusal::Kind::kNotFound, "no DUT with serial '" + serial + "'");
+  station::Reply duts() override { return station::Reply::ok(nlohmann::json::array()); }
+  station::Reply dut_history(const std::string& serial) override {
+    return station::Reply::refused(station::Refusal::Kind::kNotFound,
+                                   "no DUT with serial '" + serial + "'");
   }
 };
 
@@ -98,7 +114,7 @@ ApiContext& context(bool reads_need_token) {
   static ApiContext ctx = [] {
     ApiContext c;
     c.status = [] {
-      StatusSnapshot s;
+      station::StatusSnapshot s;
       s.station_name = "fuzz";
       s.run_id = 3;
       s.chamber_c = 20.5;

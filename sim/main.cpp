@@ -15,9 +15,9 @@
 #include <string>
 #include <vector>
 
+#include "gyrotherm/config/config.h"
+#include "gyrotherm/config/sim_endpoints.h"
 #include "gyrotherm/core/toml_reader.h"
-#include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/sim_endpoints.h"
 #include "gyrotherm/sim/control_server.h"
 #include "gyrotherm/sim/options.h"
 #include "gyrotherm/sim/simulator.h"
@@ -74,7 +74,7 @@ int run_ctl(int argc, char** argv) {
     return kExitUsage;
   }
   if (*endpoints_opt) {
-    auto ep = daemon::read_sim_endpoints(endpoints_path);
+    auto ep = config::read_sim_endpoints(endpoints_path);
     if (!ep.ok()) {
       std::fprintf(stderr, "gyrotherm-sim ctl: %s\n", ep.error().message.c_str());
       return kExitUsage;
@@ -174,14 +174,14 @@ int main(int argc, char** argv) {
   overrides.serve_table = serve_table;
   overrides.scaled_clock = scaled_clock;
 
-  auto config = daemon::load_station_config(config_path);
+  auto config = config::load_station_config(config_path);
   if (!config.ok()) {
     // Report the [simulator] problems too, so one run lists every error.
     std::string message = config.error().message;
     TomlErrors ignored(config_path);
     if (auto root = parse_toml_file(config_path, ignored)) {
       if (auto* table = root->get_as<toml::table>("simulator")) {
-        daemon::StationConfig partial;
+        config::StationConfig partial;
         partial.source_path = config_path;
         partial.simulator_table = std::move(*table);  // a move keeps source lines
         if (auto o = sim::read_simulator_options(partial, overrides); !o.ok()) {

@@ -39,7 +39,7 @@ double gravity_g(analysis::AxisOrientation o) {
 
 }  // namespace
 
-int primary_axis_index(const daemon::DutSection& dut) {
+int primary_axis_index(const config::DutSection& dut) {
   if (!dut.primary_axis.empty()) return axis_index(dut.primary_axis);
   if (!dut.axes.empty()) return axis_index(dut.axes.back());
   return 2;
@@ -52,7 +52,7 @@ int axis_index(std::string_view axis) {
   return -1;
 }
 
-analysis::AxisOrientation axis_orientation(const daemon::DutSection& dut, int axis,
+analysis::AxisOrientation axis_orientation(const config::DutSection& dut, int axis,
                                            analysis::AxisOrientation station_orientation) {
   for (const auto& [name, o] : dut.orientation) {
     if (axis_index(name) == axis) return o;
@@ -61,10 +61,10 @@ analysis::AxisOrientation axis_orientation(const daemon::DutSection& dut, int ax
                                          : analysis::AxisOrientation::kHorizontal;
 }
 
-std::vector<daemon::DutSection> simulated_duts(const daemon::StationConfig& config) {
+std::vector<config::DutSection> simulated_duts(const config::StationConfig& config) {
   if (!config.duts.empty()) return config.duts;
   // [gyro] as one unnamed DUT, as the config reads it (config.h).
-  daemon::DutSection dut;
+  config::DutSection dut;
   dut.serial = config.gyro.serial_number;
   dut.model = config.gyro.model;
   dut.link.serial = config.gyro.serial;
@@ -132,8 +132,8 @@ double DutShell::read_probe(double true_c) {
 
 // ------------------------------------------------------------------ DutModel
 
-Result<DutModel> DutModel::create(const daemon::DutSection& dut, int position,
-                                  const DutSimParams& params, const daemon::StationSection& station,
+Result<DutModel> DutModel::create(const config::DutSection& dut, int position,
+                                  const DutSimParams& params, const config::StationSection& station,
                                   const std::optional<TableMount>& table,
                                   const ScaleFactorParams& scale_factor,
                                   const std::array<uint64_t, 3>& axis_seeds, uint64_t accel_seed) {
@@ -175,7 +175,7 @@ Result<DutModel> DutModel::create(const daemon::DutSection& dut, int position,
     AxisSetup& s = setup[u];
     s.orientation = axis_orientation(dut, i, station.orientation);
     if (s.orientation == analysis::AxisOrientation::kHorizontal) {
-      s.heading_deg = daemon::axis_heading_deg(dut, kAxisNames[u]);
+      s.heading_deg = config::axis_heading_deg(dut, kAxisNames[u]);
     }
     s.earth_rate_dph =
         analysis::earth_rate_component_dph(station.latitude_deg, s.orientation, s.heading_deg);
@@ -204,7 +204,7 @@ Result<DutModel> DutModel::create(const daemon::DutSection& dut, int position,
                   accel_seed);
 }
 
-DutModel::DutModel(daemon::DutSection dut, int position, DutSimParams params,
+DutModel::DutModel(config::DutSection dut, int position, DutSimParams params,
                    std::vector<GyroModel> axes, std::array<AxisSetup, 3> setup, int primary,
                    std::vector<ChannelSpec> channels, uint64_t accel_seed)
     : dut_(std::move(dut)),

@@ -134,14 +134,14 @@ void read_dut_overrides(TableReader& t, DutOverrides& d) {
 
 // [simulator.dut.SN] tables, or [[simulator.dut]] entries with serial; each
 // must name a DUT of the station (the serials of `duts`), once.
-void read_duts(TableReader& simulator, const std::vector<daemon::DutSection>& duts,
+void read_duts(TableReader& simulator, const std::vector<config::DutSection>& duts,
                std::vector<DutOverrides>& out) {
   const toml::node* node = simulator.raw().get("dut");
   if (!node) return;
   simulator.skip("dut");
   auto known = [&](const std::string& serial) {
     return std::any_of(duts.begin(), duts.end(),
-                       [&](const daemon::DutSection& d) { return d.serial == serial; });
+                       [&](const config::DutSection& d) { return d.serial == serial; });
   };
   auto serial_list = [&] {
     std::string list;
@@ -281,9 +281,9 @@ Status parse_rate_hz_options(const std::vector<std::string>& values,
 }
 
 std::string unknown_rate_hz_serial(const std::vector<std::pair<std::string, double>>& per_dut,
-                                   const std::vector<daemon::DutSection>& duts) {
+                                   const std::vector<config::DutSection>& duts) {
   for (const auto& [serial, hz] : per_dut) {
-    if (daemon::find_dut(duts, serial)) continue;
+    if (config::find_dut(duts, serial)) continue;
     std::string list;
     for (const auto& d : duts) list += (list.empty() ? "'" : ", '") + d.serial + "'";
     return fmt::format("--rate-hz '{}={:g}': no [[dut]] with serial '{}' (the station's DUTs: {})",
@@ -292,14 +292,14 @@ std::string unknown_rate_hz_serial(const std::vector<std::pair<std::string, doub
   return "";
 }
 
-double dut_rate_hz(const SimulatorOptions& options, const daemon::DutSection& dut) {
+double dut_rate_hz(const SimulatorOptions& options, const config::DutSection& dut) {
   for (const auto& [serial, hz] : options.dut_rate_hz) {
     if (serial == dut.serial) return hz;
   }
   return options.rate_hz.value_or(dut.link.rate_hz);
 }
 
-DutSimParams resolve_dut_params(const SimulatorOptions& options, const daemon::DutSection& dut,
+DutSimParams resolve_dut_params(const SimulatorOptions& options, const config::DutSection& dut,
                                 int position) {
   DutSimParams r;
   r.serial = dut.serial;
@@ -383,7 +383,7 @@ bool SimulatorOptions::is_valid(std::string* why) const {
   return true;
 }
 
-Result<SimulatorOptions> read_simulator_options(const daemon::StationConfig& config,
+Result<SimulatorOptions> read_simulator_options(const config::StationConfig& config,
                                                 const SimulatorOverrides& overrides) {
   SimulatorOptions o;
   o.gyro_format = config.gyro.format;
@@ -439,7 +439,7 @@ Result<SimulatorOptions> read_simulator_options(const daemon::StationConfig& con
   if (overrides.seed) o.seed = *overrides.seed;
   o.rate_hz = overrides.rate_hz;
   o.dut_rate_hz = overrides.dut_rate_hz;
-  const std::vector<daemon::DutSection> duts = simulated_duts(config);
+  const std::vector<config::DutSection> duts = simulated_duts(config);
   std::string message;
   if (const std::string why = unknown_rate_hz_serial(o.dut_rate_hz, duts); !why.empty()) {
     message += why + "\n";

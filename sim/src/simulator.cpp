@@ -12,8 +12,8 @@
 #include <thread>
 
 #include "gyrotherm/analysis/table1.h"
+#include "gyrotherm/config/sim_endpoints.h"
 #include "gyrotherm/core/files.h"
-#include "gyrotherm/daemon/sim_endpoints.h"
 #include "gyrotherm/drivers/kvh1750.h"
 #include "gyrotherm/sim/aero_server.h"
 #include "gyrotherm/sim/control_server.h"
@@ -41,7 +41,7 @@ std::size_t pending_frames_limit(const SimulatorOptions& o, double rate_hz) {
 
 // The probe readings no finer than the probe registers can hold: an integer
 // register's resolution is its scale (0.1 °C for int16 x 0.1).
-SimulatorOptions honest_probe_quantum(SimulatorOptions o, const daemon::StationConfig& config) {
+SimulatorOptions honest_probe_quantum(SimulatorOptions o, const config::StationConfig& config) {
   for (const auto* spec : {&config.probes.top, &config.probes.side}) {
     if (spec->type != drivers::RegisterType::kFloat32) {
       o.thermal.probe_quantum_c = std::max(o.thermal.probe_quantum_c, std::abs(spec->scale));
@@ -74,7 +74,7 @@ std::string file_safe(std::string_view serial) {
 
 // The static soak temperatures the truth lists: every 5 °C over the
 // station's range.
-std::vector<double> static_temps_c(const daemon::StationSection& station) {
+std::vector<double> static_temps_c(const config::StationSection& station) {
   std::vector<double> temps;
   for (double t = std::ceil(station.min_temp_c / 5.0) * 5.0; t <= station.max_temp_c + 1e-9;
        t += 5.0) {
@@ -85,7 +85,7 @@ std::vector<double> static_temps_c(const daemon::StationSection& station) {
 
 // A DUT probe channel's register on the probe module: the profile's channel
 // register; with custom registers, the top register's layout at that address.
-Result<drivers::RegisterSpec> dut_probe_spec(const daemon::ProbesSection& probes, int channel) {
+Result<drivers::RegisterSpec> dut_probe_spec(const config::ProbesSection& probes, int channel) {
   if (probes.profile == "custom") {
     drivers::RegisterSpec spec = probes.top;
     spec.address = channel;
@@ -101,7 +101,7 @@ bool same_register(const drivers::RegisterSpec& a, const drivers::RegisterSpec& 
 
 }  // namespace
 
-Result<std::unique_ptr<Simulator>> Simulator::create(const daemon::StationConfig& config,
+Result<std::unique_ptr<Simulator>> Simulator::create(const config::StationConfig& config,
                                                      const SimulatorOptions& options,
                                                      const Clock* clock) {
   if (std::string why; !options.is_valid(&why)) return Error::Permanent(why);
@@ -122,7 +122,7 @@ Result<std::unique_ptr<Simulator>> Simulator::create(const daemon::StationConfig
                     config.source_path, config.table->sensitive_axis));
   }
   SimulatorOptions honest = honest_probe_quantum(options, config);
-  const std::vector<daemon::DutSection> duts = simulated_duts(config);
+  const std::vector<config::DutSection> duts = simulated_duts(config);
   if (duts.empty()) return Error::Permanent(config.source_path + ": no DUT to simulate");
   std::optional<TableMount> mount;
   if (honest.serve_table || config.table) {
@@ -139,7 +139,7 @@ Result<std::unique_ptr<Simulator>> Simulator::create(const daemon::StationConfig
   std::vector<std::unique_ptr<Dut>> sims;
   std::vector<drivers::RegisterSpec> probe_registers = {config.probes.top, config.probes.side};
   for (std::size_t p = 0; p < duts.size(); ++p) {
-    daemon::DutSection dut = duts[p];
+    config::DutSection dut = duts[p];
     // --rate-hz HZ for every DUT, SERIAL=HZ for one: the rate it is served
     // at, which its truth and the endpoints name.
     dut.link.rate_hz = dut_rate_hz(honest, dut);
@@ -208,7 +208,7 @@ Result<std::unique_ptr<Simulator>> Simulator::create(const daemon::StationConfig
       new Simulator(config, std::move(honest), clock, std::move(sims)));
 }
 
-Simulator::Simulator(daemon::StationConfig config, SimulatorOptions options, const Clock* clock,
+Simulator::Simulator(config::StationConfig config, SimulatorOptions options, const Clock* clock,
                      std::vector<std::unique_ptr<Dut>> duts)
     : config_(std::move(config)),
       options_(std::move(options)),
@@ -488,11 +488,11 @@ Status Simulator::point_gyro_link_locked(std::size_t i) {
 }
 
 Status Simulator::write_endpoints_file() {
-  return daemon::write_sim_endpoints(options_.endpoints_file, endpoints());
+  return config::write_sim_endpoints(options_.endpoints_file, endpoints());
 }
 
-daemon::SimEndpoints Simulator::endpoints() const {
-  daemon::SimEndpoints ep;
+config::SimEndpoints Simulator::endpoints() const {
+  config::SimEndpoints ep;
   ep.modbus_host = options_.modbus_host;
   ep.modbus_port = modbus_port_.load();
   {

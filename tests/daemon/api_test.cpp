@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/api.h"
+#include "gyrotherm/api/api.h"
 
 #include <arpa/inet.h>
 #include <fmt/format.h>
@@ -16,13 +16,13 @@
 #include <mutex>
 #include <nlohmann/json.hpp>
 
+#include "gyrotherm/api/auth_limiter.h"
+#include "gyrotherm/api/http_message.h"
+#include "gyrotherm/api/http_server.h"
 #include "gyrotherm/cli/http_client.h"
 #include "gyrotherm/core/clock.h"
-#include "gyrotherm/daemon/auth_limiter.h"
-#include "gyrotherm/daemon/http_message.h"
-#include "gyrotherm/daemon/http_server.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::api {
 namespace {
 
 namespace http = boost::beast::http;
@@ -36,148 +36,158 @@ HttpRequest get(std::string target, http::verb verb = http::verb::get) {
 constexpr const char* kToken = "test-token-0123456789abcdef";
 
 // Records what the API asked for and answers per the contract.
-class FakeControl : public StationControl {
+class FakeControl : public station::StationControl {
  public:
   std::vector<std::string> calls;
-  Reply queue_list() override {
+  station::Reply queue_list() override {
     calls.push_back("queue_list");
-    return Reply::ok({{"held", false}, {"entries", nlohmann::json::array()}});
+    return station::Reply::ok({{"held", false}, {"entries", nlohmann::json::array()}});
   }
-  Reply queue_add(const std::string& toml, const std::string& source, bool ignore) override {
+  station::Reply queue_add(const std::string& toml, const std::string& source,
+                           bool ignore) override {
     calls.push_back(fmt::format("queue_add {} {} {}", toml, source, ignore));
     if (toml == "bad") {
-      return Reply::refused(Refusal::Kind::kInvalid, "schedule refused, nothing queued",
-                            {"s.toml:3: step.setpoint_c: 70 °C is above 60 °C"});
+      return station::Reply::refused(station::Refusal::Kind::kInvalid,
+                                     "schedule refused, nothing queued",
+                                     {"s.toml:3: step.setpoint_c: 70 °C is above 60 °C"});
     }
-    return Reply::ok({{"id", 1}});
+    return station::Reply::ok({{"id", 1}});
   }
-  Reply queue_remove(int64_t id) override {
+  station::Reply queue_remove(int64_t id) override {
     calls.push_back(fmt::format("queue_remove {}", id));
-    if (id == 9) return Reply::refused(Refusal::Kind::kConflict, "entry 9 is running");
-    if (id == 8) return Reply::refused(Refusal::Kind::kNotFound, "no queued entry 8");
-    return Reply::ok({{"removed", id}});
+    if (id == 9)
+      return station::Reply::refused(station::Refusal::Kind::kConflict, "entry 9 is running");
+    if (id == 8)
+      return station::Reply::refused(station::Refusal::Kind::kNotFound, "no queued entry 8");
+    return station::Reply::ok({{"removed", id}});
   }
-  Reply queue_move(int64_t id, int position) override {
+  station::Reply queue_move(int64_t id, int position) override {
     calls.push_back(fmt::format("queue_move {} {}", id, position));
-    return Reply::ok({{"held", false}});
+    return station::Reply::ok({{"held", false}});
   }
-  Reply control(std::string_view action, const std::string& reason) override {
+  station::Reply control(std::string_view action, const std::string& reason) override {
     calls.push_back(fmt::format("control {} {}", action, reason));
-    if (action == "pause") return Reply::refused(Refusal::Kind::kConflict, "no run to pause");
-    return Reply::ok({{"ok", true}});
+    if (action == "pause")
+      return station::Reply::refused(station::Refusal::Kind::kConflict, "no run to pause");
+    return station::Reply::ok({{"ok", true}});
   }
-  Reply runs() override {
+  station::Reply runs() override {
     calls.push_back("runs");
-    return Reply::ok(nlohmann::json::array());
+    return station::Reply::ok(nlohmann::json::array());
   }
-  Reply run(int64_t id) override {
+  station::Reply run(int64_t id) override {
     calls.push_back(fmt::format("run {}", id));
-    return Reply::ok({{"id", id}});
+    return station::Reply::ok({{"id", id}});
   }
-  Reply run_events(int64_t id) override {
+  station::Reply run_events(int64_t id) override {
     calls.push_back(fmt::format("events {}", id));
-    return Reply::ok(nlohmann::json::array());
+    return station::Reply::ok(nlohmann::json::array());
   }
-  Reply run_stats(int64_t id) override {
+  station::Reply run_stats(int64_t id) override {
     calls.push_back(fmt::format("stats {}", id));
-    return Reply::ok(nlohmann::json::array());
+    return station::Reply::ok(nlohmann::json::array());
   }
-  Reply run_samples(int64_t id, const SamplesQuery& q) override {
+  station::Reply run_samples(int64_t id, const station::SamplesQuery& q) override {
     calls.push_back(fmt::format("samples {} {} {} {}", id, q.from_s,
                                 q.to_s ? fmt::format("{}", *q.to_s) : "last", q.max_points));
-    return Reply::ok({{"run_id", id}});
+    return station::Reply::ok({{"run_id", id}});
   }
-  Reply run_fits(int64_t id) override {
+  station::Reply run_fits(int64_t id) override {
     calls.push_back(fmt::format("fits {}", id));
-    return Reply::ok(nlohmann::json::array());
+    return station::Reply::ok(nlohmann::json::array());
   }
-  Reply run_allan(int64_t id) override {
+  station::Reply run_allan(int64_t id) override {
     calls.push_back(fmt::format("allan {}", id));
-    return Reply::ok(nlohmann::json::array());
+    return station::Reply::ok(nlohmann::json::array());
   }
-  Reply run_scale_factor(int64_t id) override {
+  station::Reply run_scale_factor(int64_t id) override {
     calls.push_back(fmt::format("scale-factor {}", id));
-    return Reply::ok({{"points", nlohmann::json::array()}});
+    return station::Reply::ok({{"points", nlohmann::json::array()}});
   }
-  Reply fit(int64_t id) override {
+  station::Reply fit(int64_t id) override {
     calls.push_back(fmt::format("fit {}", id));
-    if (id == 5) return Reply::refused(Refusal::Kind::kNotFound, "no fit 5");
-    return Reply::ok({{"id", id}});
+    if (id == 5) return station::Reply::refused(station::Refusal::Kind::kNotFound, "no fit 5");
+    return station::Reply::ok({{"id", id}});
   }
-  Reply exports() override {
+  station::Reply exports() override {
     calls.push_back("exports");
-    return Reply::ok(nlohmann::json::array());
+    return station::Reply::ok(nlohmann::json::array());
   }
   static std::string listed(const std::vector<std::string>& items) {
     return fmt::format("[{}]", fmt::join(items, "|"));
   }
-  Reply enqueue(const QueueRequest& q) override {
+  station::Reply enqueue(const station::QueueRequest& q) override {
     const auto& m = q.metadata;
     for (const auto& serial : m.dut_serials) {
       if (serial == "nope") {
-        return Reply::refused(Refusal::Kind::kBadRequest,
-                              "field 'duts': no DUT with serial 'nope' (configured [[dut]] "
-                              "serials: '17-0042')");
+        return station::Reply::refused(
+            station::Refusal::Kind::kBadRequest,
+            "field 'duts': no DUT with serial 'nope' (configured [[dut]] "
+            "serials: '17-0042')");
       }
     }
     calls.push_back(fmt::format("enqueue {} {} {} op={} comment={} tags={} duts={}", q.toml_text,
                                 q.source, q.ignore_failures, m.operator_name, m.comment,
                                 listed(m.tags), listed(m.dut_serials)));
     if (q.toml_text == "bad") {
-      return Reply::refused(Refusal::Kind::kInvalid, "schedule refused, nothing queued",
-                            {"s.toml:3: step.setpoint_c: 70 °C is above 60 °C"});
+      return station::Reply::refused(station::Refusal::Kind::kInvalid,
+                                     "schedule refused, nothing queued",
+                                     {"s.toml:3: step.setpoint_c: 70 °C is above 60 °C"});
     }
-    return Reply::ok({{"id", 1}});
+    return station::Reply::ok({{"id", 1}});
   }
-  Reply run_with_duts(int64_t id) override {
+  station::Reply run_with_duts(int64_t id) override {
     calls.push_back(fmt::format("run {}", id));
-    return Reply::ok({{"id", id}, {"duts", nlohmann::json::array()}});
+    return station::Reply::ok({{"id", id}, {"duts", nlohmann::json::array()}});
   }
-  Reply edit_run(int64_t id, const MetadataEdit& e, const std::string& changed_by) override {
+  station::Reply edit_run(int64_t id, const station::MetadataEdit& e,
+                          const std::string& changed_by) override {
     calls.push_back(fmt::format("edit_run {} op={} comment={} tags={} duts={} by {}", id,
                                 e.operator_name.value_or("(same)"), e.comment.value_or("(same)"),
                                 e.tags ? listed(*e.tags) : "(same)",
                                 e.dut_serials ? listed(*e.dut_serials) : "(same)", changed_by));
-    if (id == 8) return Reply::refused(Refusal::Kind::kNotFound, "no run 8");
-    return Reply::ok({{"id", id}});
+    if (id == 8) return station::Reply::refused(station::Refusal::Kind::kNotFound, "no run 8");
+    return station::Reply::ok({{"id", id}});
   }
-  Reply run_stats_filtered(int64_t id, const StatsQuery& q) override {
+  station::Reply run_stats_filtered(int64_t id, const station::StatsQuery& q) override {
     calls.push_back(fmt::format("stats {} dut={} axis={}", id, q.dut, q.axis));
     if (q.dut == "17-0099") {
-      return Reply::refused(Refusal::Kind::kNotFound,
-                            "run 12 has no DUT '17-0099' (its DUTs: '17-0042')");
+      return station::Reply::refused(station::Refusal::Kind::kNotFound,
+                                     "run 12 has no DUT '17-0099' (its DUTs: '17-0042')");
     }
-    return Reply::ok(nlohmann::json::array());
+    return station::Reply::ok(nlohmann::json::array());
   }
-  Reply run_channel_samples(int64_t id, const SamplesQuery& q) override {
+  station::Reply run_channel_samples(int64_t id, const station::SamplesQuery& q) override {
     calls.push_back(fmt::format("samples {} {} {} {}{}", id, q.from_s,
                                 q.to_s ? fmt::format("{}", *q.to_s) : "last", q.max_points,
                                 q.dut.empty() && q.channel.empty()
                                     ? std::string()
                                     : fmt::format(" dut={} channel={}", q.dut, q.channel)));
     if (q.channel == "nope") {
-      return Reply::refused(Refusal::Kind::kNotFound,
-                            "DUT '17-0042' of run 4 has no channel 'nope' (its channels: ...)");
+      return station::Reply::refused(
+          station::Refusal::Kind::kNotFound,
+          "DUT '17-0042' of run 4 has no channel 'nope' (its channels: ...)");
     }
-    return Reply::ok({{"run_id", id}});
+    return station::Reply::ok({{"run_id", id}});
   }
-  Reply duts() override {
+  station::Reply duts() override {
     calls.push_back("duts");
-    return Reply::ok(nlohmann::json::array());
+    return station::Reply::ok(nlohmann::json::array());
   }
-  Reply dut_history(const std::string& serial) override {
+  station::Reply dut_history(const std::string& serial) override {
     calls.push_back("dut " + serial);
     if (serial == "17-0043") {
-      return Reply::refused(Refusal::Kind::kNotFound, "no DUT with serial '17-0043'");
+      return station::Reply::refused(station::Refusal::Kind::kNotFound,
+                                     "no DUT with serial '17-0043'");
     }
-    return Reply::ok({{"serial", serial}});
+    return station::Reply::ok({{"serial", serial}});
   }
 };
 
-ApiContext fake_context(StationControl* control = nullptr) {
+ApiContext fake_context(station::StationControl* control = nullptr) {
   ApiContext ctx;
   ctx.status = [] {
-    StatusSnapshot s;
+    station::StatusSnapshot s;
     s.station_name = "test";
     s.state = "acquiring";
     s.run_id = 7;
@@ -466,7 +476,7 @@ TEST(Api, TheStatusIsServedFromItsCacheAndAControlRequestRendersItAnew) {
   ApiContext ctx = fake_context(&control);
   std::atomic<int> snapshots{0};
   ctx.status = [&] {
-    StatusSnapshot s;
+    station::StatusSnapshot s;
     s.station_name = "cached";
     s.state = snapshots++ == 0 ? "idle" : "paused";
     return s;
@@ -1095,4 +1105,4 @@ TEST(Api, StatsAndSamplesTakeTheDutAndItsAxisOrChannel) {
 }
 
 }  // namespace
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::api

@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/body_cache.h"
+#include "gyrotherm/api/body_cache.h"
 
 #include <gtest/gtest.h>
 
@@ -13,7 +13,7 @@
 
 #include "gyrotherm/core/clock.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::api {
 namespace {
 
 using namespace std::chrono_literals;
@@ -156,4 +156,4 @@ TEST(BodyCache, AFailedRenderingIsThrownAndTheNextGetTriesAgain) {
 }
 
 }  // namespace
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::api

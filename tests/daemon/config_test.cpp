@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/config.h"
+#include "gyrotherm/config/config.h"
 
 #include <fmt/format.h>
 #include <gmock/gmock.h>
@@ -11,11 +11,11 @@
 #include <filesystem>
 #include <fstream>
 
-#include "gyrotherm/daemon/run_analysis.h"
-#include "gyrotherm/daemon/run_config.h"
-#include "gyrotherm/daemon/sim_endpoints.h"
+#include "gyrotherm/calibration/run_analysis.h"
+#include "gyrotherm/config/run_config.h"
+#include "gyrotherm/config/sim_endpoints.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::config {
 namespace {
 
 using ::testing::AllOf;
@@ -90,11 +90,11 @@ TEST(Config, CompareSmoothPoints) {
   auto cfg = parse_station_config(kMinimal, "min.toml");
   ASSERT_TRUE(cfg.ok()) << cfg.error().message;
   EXPECT_EQ(cfg->analysis.compare_smooth_points, 101);
-  EXPECT_EQ(analysis_settings(*cfg).compare_smooth_points, 101u);
+  EXPECT_EQ(calibration::analysis_settings(*cfg).compare_smooth_points, 101u);
   cfg = parse_station_config(std::string(kMinimal) + "[analysis]\ncompare_smooth_points = 1\n",
                              "raw.toml");
   ASSERT_TRUE(cfg.ok()) << cfg.error().message;
-  EXPECT_EQ(analysis_settings(*cfg).compare_smooth_points, 1u);
+  EXPECT_EQ(calibration::analysis_settings(*cfg).compare_smooth_points, 1u);
   cfg = parse_station_config(std::string(kMinimal) + "[analysis]\ncompare_smooth_points = 100\n",
                              "even.toml");
   ASSERT_FALSE(cfg.ok());
@@ -914,4 +914,4 @@ TEST(Config, SequencerOptionCombinationsAreRefusedAtTheirKey) {
   EXPECT_DOUBLE_EQ(sequencer_options(*table).interlocks.table_timeout_s, 4);
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::config

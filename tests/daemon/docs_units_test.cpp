@@ -11,7 +11,7 @@
 // - every ```json example with "coefficients" (a FIT) parses, each key of its
 //   coefficients / standard_errors is one coefficient_names gives for its
 //   model and form, and its top-level and "inputs" keys are ones the
-//   daemon's stored fit (to_json(fit_record(...))) has.
+//   daemon's stored fit (station::to_json(fit_record(...))) has.
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -24,10 +24,10 @@
 #include <vector>
 
 #include "gyrotherm/analysis/drift_model.h"
-#include "gyrotherm/daemon/control.h"
-#include "gyrotherm/daemon/run_analysis.h"
+#include "gyrotherm/calibration/run_analysis.h"
+#include "gyrotherm/station/control.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::calibration {
 namespace {
 
 namespace fs = std::filesystem;
@@ -144,7 +144,7 @@ TEST(DocsUnits, FitExamplesUseKeysAFitProduces) {
   // What the daemon stores and serves for a fit.
   auto fit = analysis::DriftFit{};
   fit.spec = {.t_order = 1};
-  const json produced = to_json(fit_record(fit, {1}, {}, 1.0));
+  const json produced = station::to_json(fit_record(fit, {1}, {}, 1.0));
   int examples = 0;
   for (const Doc& d : docs()) {
     for (std::size_t i = 0; i < d.lines.size(); ++i) {
@@ -185,4 +185,4 @@ TEST(DocsUnits, FitExamplesUseKeysAFitProduces) {
 }
 
 }  // namespace
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::calibration

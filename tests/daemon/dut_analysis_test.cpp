@@ -18,10 +18,10 @@
 #include <vector>
 
 #include "gyrotherm/analysis/table1.h"
+#include "gyrotherm/calibration/exporter.h"
+#include "gyrotherm/calibration/report.h"
+#include "gyrotherm/calibration/run_analysis.h"
 #include "gyrotherm/core/units.h"
-#include "gyrotherm/daemon/exporter.h"
-#include "gyrotherm/daemon/report.h"
-#include "gyrotherm/daemon/run_analysis.h"
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
 #include "integration/temp_dir_test.h"
@@ -196,7 +196,7 @@ TEST_F(DutAnalysisTest, EachDutAxisRecoversItsOwnBiasWithItsOwnEarthRate) {
   const int64_t run_id = make_run();
   auto db = storage::Database::open(db_path());
   ASSERT_TRUE(db.ok());
-  auto axes = daemon::analysed_axes(*db, run_id);
+  auto axes = calibration::analysed_axes(*db, run_id);
   ASSERT_TRUE(axes.ok()) << axes.error().message;
   ASSERT_EQ(axes->size(), 3u);
   EXPECT_EQ((*axes)[0].dut_serial, "SN-A");
@@ -204,9 +204,9 @@ TEST_F(DutAnalysisTest, EachDutAxisRecoversItsOwnBiasWithItsOwnEarthRate) {
   EXPECT_EQ((*axes)[1].axis, "z") << "the primary axis first";
   EXPECT_EQ((*axes)[2].axis, "x");
 
-  daemon::AnalysisSettings settings;
+  calibration::AnalysisSettings settings;
   settings.model = {.t_order = 1, .r_order = 0, .g_order = 0};
-  auto summary = daemon::analyse_run(*db, run_id, settings);
+  auto summary = calibration::analyse_run(*db, run_id, settings);
   ASSERT_TRUE(summary.ok()) << summary.error().message;
   EXPECT_EQ(summary->streams, 3);
   EXPECT_EQ(summary->table1_rows, 6);
@@ -256,13 +256,13 @@ TEST_F(DutAnalysisTest, HorizontalAxisWithAHeadingHasItsEarthRateRemoved) {
     const int64_t run_id = make_run(mount);
     auto db = storage::Database::open(db_path());
     ASSERT_TRUE(db.ok());
-    auto axes = daemon::analysed_axes(*db, run_id);
+    auto axes = calibration::analysed_axes(*db, run_id);
     ASSERT_TRUE(axes.ok()) << axes.error().message;
     ASSERT_EQ(axes->size(), 3u);
     EXPECT_EQ((*axes)[2].heading_deg, mount.heading_bx_deg) << what;
-    daemon::AnalysisSettings settings;
+    calibration::AnalysisSettings settings;
     settings.model = {.t_order = 1, .r_order = 0, .g_order = 0};
-    auto summary = daemon::analyse_run(*db, run_id, settings);
+    auto summary = calibration::analyse_run(*db, run_id, settings);
     ASSERT_TRUE(summary.ok()) << summary.error().message;
     EXPECT_EQ(summary->table1_rows, 6) << what;
     auto rows = db->segment_stats(run_id);
@@ -284,10 +284,10 @@ TEST_F(DutAnalysisTest, RunSeriesStreamsEachAxisOwnSamples) {
   const int64_t run_id = make_run();
   auto db = storage::Database::open(db_path());
   ASSERT_TRUE(db.ok());
-  auto axes = daemon::analysed_axes(*db, run_id);
+  auto axes = calibration::analysed_axes(*db, run_id);
   ASSERT_TRUE(axes.ok());
   for (const auto& axis : *axes) {
-    auto s = daemon::run_series(*db, run_id, 1.0, axis);
+    auto s = calibration::run_series(*db, run_id, 1.0, axis);
     ASSERT_TRUE(s.ok()) << s.error().message;
     EXPECT_EQ(s->t_s.size(), 1200u) << axis.name();  // 2 soaks x 600 bins of 1 s
   }
@@ -297,16 +297,16 @@ TEST_F(DutAnalysisTest, ExportHasFilesPerDutAxisAndHeadersNameTheGyro) {
   const int64_t run_id = make_run();
   auto db = storage::Database::open(db_path());
   ASSERT_TRUE(db.ok());
-  daemon::AnalysisSettings settings;
+  calibration::AnalysisSettings settings;
   settings.model = {.t_order = 1, .r_order = 0, .g_order = 0};
-  auto summary = daemon::analyse_run(*db, run_id, settings);
+  auto summary = calibration::analyse_run(*db, run_id, settings);
   ASSERT_TRUE(summary.ok());
   EXPECT_EQ(summary->fit_ids.size(), 6u) << fmt::format("{}", fmt::join(summary->problems, "\n"));
-  daemon::ExportRequest request;
+  calibration::ExportRequest request;
   request.run_ids = {run_id};
   request.directory = (dir_ / "export").string();
   request.report.generated_utc = "2026-11-27T04:00:00Z";
-  auto out = daemon::write_export(*db, request);
+  auto out = calibration::write_export(*db, request);
   ASSERT_TRUE(out.ok()) << out.error().message;
   const fs::path root = dir_ / "export";
   const std::string run_dir = fmt::format("run-{:04}", run_id);

@@ -11,11 +11,11 @@
 #include <fstream>
 #include <string>
 
-#include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/sim_endpoints.h"
+#include "gyrotherm/config/config.h"
+#include "gyrotherm/config/sim_endpoints.h"
 #include "test_files.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::config {
 namespace {
 
 using ::testing::AllOf;
@@ -812,4 +812,4 @@ TEST_F(DutEndpoints, BadDutDevicesAreNamed) {
 }
 
 }  // namespace
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::config

@@ -19,11 +19,11 @@
 #include <utility>
 #include <vector>
 
-#include "gyrotherm/daemon/http_message.h"
-#include "gyrotherm/daemon/http_server.h"
+#include "gyrotherm/api/http_message.h"
+#include "gyrotherm/api/http_server.h"
 #include "test_time.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::api {
 namespace {
 
 using namespace std::chrono_literals;
@@ -330,4 +330,4 @@ TEST(HttpServerOptions, Validity) {
 }
 
 }  // namespace
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::api

@@ -2,7 +2,7 @@
 // across daylight-saving changes, downtime, restarts, empty slots,
 // interrupted and failed exports; manual exports; the atomic layout of an
 // export directory. The reference instants are computed by hand (commented).
-#include "gyrotherm/daemon/exporter.h"
+#include "gyrotherm/calibration/exporter.h"
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
@@ -33,15 +33,15 @@
 #include "test_time.h"
 #include "utc_time.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::calibration {
 namespace {
 
 namespace fs = std::filesystem;
 
 using test::utc;
 
-TimeZone berlin() {
-  auto z = TimeZone::posix("CET-1CEST,M3.5.0,M10.5.0/3");
+config::TimeZone berlin() {
+  auto z = config::TimeZone::posix("CET-1CEST,M3.5.0,M10.5.0/3");
   EXPECT_TRUE(z.ok()) << z.error().message;
   return *z;
 }
@@ -117,7 +117,7 @@ class ExporterTest : public ::testing::Test {
     return *id;
   }
 
-  NightlyOptions options(LocalTimeOfDay at, TimeZone zone) const {
+  NightlyOptions options(config::LocalTimeOfDay at, config::TimeZone zone) const {
     NightlyOptions o;
     o.at = at;
     o.zone = std::move(zone);
@@ -159,7 +159,7 @@ class ExporterTest : public ::testing::Test {
 
   // The record of a nightly export of `run_id` for Saturday 2026-11-21's
   // 02:00 slot, for a test to record as begun: what a crash during it leaves.
-  storage::ExportRecord crashed_export(int64_t run_id, const TimeZone& zone) const {
+  storage::ExportRecord crashed_export(int64_t run_id, const config::TimeZone& zone) const {
     storage::ExportRecord r;
     r.kind = "nightly";
     r.slot_unix_s = utc(2026, 11, 21, 2);
@@ -205,7 +205,7 @@ std::vector<Made> walk(NightlyExporter& e, ManualWallClock& clock, double from, 
 }
 
 TEST_F(ExporterTest, SpringForwardOneExportPerDayAtTheRightInstants) {
-  const TimeZone zone = berlin();
+  const config::TimeZone zone = berlin();
   const double start = utc(2026, 3, 27, 12);
   ManualWallClock clock(start);
   auto e = exporter(clock, options({2, 30}, zone));
@@ -268,7 +268,7 @@ TEST_F(ExporterTest, SpringForwardOneExportPerDayAtTheRightInstants) {
 }
 
 TEST_F(ExporterTest, FallBackExportsOnceAtTheEarlierInstant) {
-  const TimeZone zone = berlin();
+  const config::TimeZone zone = berlin();
   const double start = utc(2026, 10, 24, 12);
   ManualWallClock clock(start);
   auto e = exporter(clock, options({2, 30}, zone));
@@ -293,7 +293,7 @@ TEST_F(ExporterTest, FallBackExportsOnceAtTheEarlierInstant) {
 }
 
 TEST_F(ExporterTest, DowntimeOverTheSlotGivesOneCatchUpExport) {
-  const TimeZone zone = berlin();  // November: CET, UTC+1
+  const config::TimeZone zone = berlin();  // November: CET, UTC+1
   // Friday 2026-11-20 10:00 local; polled hourly until 23:00 local.
   ManualWallClock clock(utc(2026, 11, 20, 9));
   auto e = exporter(clock, options({2, 0}, zone));
@@ -341,7 +341,7 @@ TEST_F(ExporterTest, DowntimeOverTheSlotGivesOneCatchUpExport) {
 }
 
 TEST_F(ExporterTest, RestartAfterAnExportDoesNotExportAgain) {
-  const TimeZone zone = TimeZone::fixed(0);
+  const config::TimeZone zone = config::TimeZone::fixed(0);
   ManualWallClock clock(utc(2026, 11, 20, 12));
   auto e = exporter(clock, options({2, 0}, zone));
   EXPECT_FALSE(poll_ok(*e).has_value());
@@ -367,7 +367,7 @@ TEST_F(ExporterTest, RestartAfterAnExportDoesNotExportAgain) {
 }
 
 TEST_F(ExporterTest, FirstStartExportsFromTheFirstSlotAfterIt) {
-  const TimeZone zone = TimeZone::fixed(0);
+  const config::TimeZone zone = config::TimeZone::fixed(0);
   const int64_t old_run = complete_run();  // completed before the feature existed
   const double first_start = utc(2026, 11, 20, 12);
   ManualWallClock clock(first_start);
@@ -394,7 +394,7 @@ TEST_F(ExporterTest, FirstStartExportsFromTheFirstSlotAfterIt) {
 }
 
 TEST_F(ExporterTest, FirstStartDownOverTheFirstSlotCatchesUp) {
-  const TimeZone zone = TimeZone::fixed(0);
+  const config::TimeZone zone = config::TimeZone::fixed(0);
   ManualWallClock clock(utc(2026, 11, 20, 12));
   auto e = exporter(clock, options({2, 0}, zone));
   EXPECT_FALSE(poll_ok(*e).has_value());
@@ -411,7 +411,7 @@ TEST_F(ExporterTest, FirstStartDownOverTheFirstSlotCatchesUp) {
 }
 
 TEST_F(ExporterTest, SlotWithoutNewRunIsRecordedWithoutFiles) {
-  const TimeZone zone = TimeZone::fixed(0);
+  const config::TimeZone zone = config::TimeZone::fixed(0);
   ManualWallClock clock(utc(2026, 11, 20, 12));
   auto e = exporter(clock, options({2, 0}, zone));
   EXPECT_FALSE(poll_ok(*e).has_value());
@@ -447,7 +447,7 @@ TEST_F(ExporterTest, SlotWithoutNewRunIsRecordedWithoutFiles) {
 }
 
 TEST_F(ExporterTest, InterruptedExportNotWrittenIsWrittenOnTheNextPoll) {
-  const TimeZone zone = TimeZone::fixed(0);
+  const config::TimeZone zone = config::TimeZone::fixed(0);
   const int64_t a = complete_run();
   // The crash: recorded (state writing) for Saturday's slot, nothing on disk.
   const storage::ExportRecord crashed = crashed_export(a, zone);
@@ -483,7 +483,7 @@ TEST_F(ExporterTest, InterruptedExportNotWrittenIsWrittenOnTheNextPoll) {
 }
 
 TEST_F(ExporterTest, InterruptedExportAlreadyRenamedIsMarkedDone) {
-  const TimeZone zone = TimeZone::fixed(0);
+  const config::TimeZone zone = config::TimeZone::fixed(0);
   const int64_t a = complete_run();
   const storage::ExportRecord crashed = crashed_export(a, zone);
   auto id = db().begin_export(crashed);
@@ -510,7 +510,7 @@ TEST_F(ExporterTest, InterruptedExportAlreadyRenamedIsMarkedDone) {
 }
 
 TEST_F(ExporterTest, WriteFailureMarksTheExportFailedAndFreesItsRuns) {
-  const TimeZone zone = TimeZone::fixed(0);
+  const config::TimeZone zone = config::TimeZone::fixed(0);
   // The export root is under a regular file: it cannot be created.
   const fs::path blocker = dir_ / "blocker";
   std::ofstream(blocker) << "not a directory";
@@ -557,7 +557,7 @@ TEST_F(ExporterTest, WriteFailureMarksTheExportFailedAndFreesItsRuns) {
 // first, stays below it.
 TEST_F(ExporterTest, WriteFailureInsideTheTemporaryDirectoryLeavesNothing) {
   constexpr rlim_t kLimitBytes = 60'000;
-  const TimeZone zone = TimeZone::fixed(0);
+  const config::TimeZone zone = config::TimeZone::fixed(0);
   ManualWallClock clock(utc(2026, 11, 20, 12));
   rlimit saved{};
   ASSERT_EQ(::getrlimit(RLIMIT_FSIZE, &saved), 0);
@@ -607,7 +607,7 @@ TEST_F(ExporterTest, WriteFailureInsideTheTemporaryDirectoryLeavesNothing) {
 
 TEST_F(ExporterTest, DirectoryIsNamedByTheLocalDateAndNeverReused) {
   // UTC+05:30: 2026-11-21 02:00 local is 2026-11-20 20:30 UTC.
-  const TimeZone zone = TimeZone::fixed(19800);
+  const config::TimeZone zone = config::TimeZone::fixed(19800);
   // Someone's files already where the export would go.
   fs::create_directories(fs::path(root_) / "2026-11-21");
   std::ofstream(fs::path(root_) / "2026-11-21" / "notes.txt") << "someone's notes";
@@ -625,7 +625,7 @@ TEST_F(ExporterTest, DirectoryIsNamedByTheLocalDateAndNeverReused) {
 }
 
 TEST_F(ExporterTest, ManualExportsLeaveTheNightlySelectionAlone) {
-  const TimeZone zone = TimeZone::fixed(0);
+  const config::TimeZone zone = config::TimeZone::fixed(0);
   const int64_t a = complete_run(), b = complete_run();
   ExportRequest manual;
   manual.kind = "manual";
@@ -717,7 +717,7 @@ int64_t run_with_samples(storage::Database& db, const std::string& db_path) {
 }
 
 TEST_F(ExporterTest, ExportDirectoryLayoutMatchesTheRecord) {
-  const TimeZone zone = TimeZone::fixed(0);
+  const config::TimeZone zone = config::TimeZone::fixed(0);
   const int64_t with_samples = run_with_samples(db(), db_path_);
   const int64_t without = complete_run();
   ManualWallClock clock(utc(2026, 11, 20, 12));
@@ -825,7 +825,7 @@ TEST_F(ExporterTest, ScaleFactorFilesOnlyForARunWithScaleFactorRows) {
 }
 
 TEST_F(ExporterTest, ThreadExportsWhenTheClockReachesTheSlot) {
-  const TimeZone zone = TimeZone::fixed(0);
+  const config::TimeZone zone = config::TimeZone::fixed(0);
   ManualWallClock clock(utc(2026, 11, 20, 12));
   NightlyOptions o = options({2, 0}, zone);
   o.poll_wall_s = 0.005;
@@ -890,4 +890,4 @@ TEST(NightlyOptions, Validity) {
 }
 
 }  // namespace
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::calibration

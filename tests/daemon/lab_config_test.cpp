@@ -12,10 +12,10 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
-#include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/run_config.h"
+#include "gyrotherm/config/config.h"
+#include "gyrotherm/config/run_config.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::config {
 namespace {
 
 using ::testing::HasSubstr;
@@ -355,4 +355,4 @@ TEST_F(LabConfig, TheStoredConfigNamesTheFileOrVariableOnly) {
 }
 
 }  // namespace
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::config

@@ -8,9 +8,9 @@
 #include <sstream>
 #include <string>
 
-#include "gyrotherm/daemon/metrics.h"
+#include "gyrotherm/api/metrics.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::api {
 namespace {
 
 using ::testing::HasSubstr;
@@ -25,8 +25,8 @@ std::optional<double> sample(const std::string& text, const std::string& series)
   return std::nullopt;
 }
 
-StatusSnapshot station() {
-  StatusSnapshot s;
+station::StatusSnapshot station() {
+  station::StatusSnapshot s;
   s.state = "acquiring";
   s.interlocks.push_back({"probe_disagreement", "top and side differ"});
   s.interlocks.push_back({"chamber_alarm", "alarm"});
@@ -44,7 +44,7 @@ TEST(LabMetrics, EveryStationHasInterlocksAndStorageSpace) {
   EXPECT_THAT(text, Not(HasSubstr("gyrotherm_lab_")));
 
   // Unknown space (statvfs failed): no sample rather than a made-up 0.
-  StatusSnapshot unknown = station();
+  station::StatusSnapshot unknown = station();
   unknown.storage_free_bytes.reset();
   unknown.interlocks.clear();
   const std::string t2 = metrics.scrape(unknown, {});
@@ -54,7 +54,7 @@ TEST(LabMetrics, EveryStationHasInterlocksAndStorageSpace) {
 
 TEST(LabMetrics, LabSeriesOnlyWithALab) {
   const Metrics metrics;
-  StatusSnapshot s = station();
+  station::StatusSnapshot s = station();
   lab::RelayStatus r;
   r.station_id = "st-07";
   r.state = "connected";
@@ -98,4 +98,4 @@ TEST(LabMetrics, LabSeriesOnlyWithALab) {
 }
 
 }  // namespace
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::api

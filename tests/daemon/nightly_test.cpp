@@ -2,7 +2,7 @@
 // daylight-saving changes and downtime. References: hand-computed instants
 // (commented) and, for the POSIX rule, the system's tz database through
 // localtime_r with TZ set (tzdata).
-#include "gyrotherm/daemon/nightly.h"
+#include "gyrotherm/config/nightly.h"
 
 #include <gtest/gtest.h>
 
@@ -13,7 +13,7 @@
 
 #include "utc_time.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::config {
 namespace {
 
 using test::utc;
@@ -162,4 +162,4 @@ TEST(Nightly, DowntimeOverSeveralSlotsGivesOneCatchUpExport) {
 }
 
 }  // namespace
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::config

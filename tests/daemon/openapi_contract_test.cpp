@@ -10,18 +10,18 @@
 #include <nlohmann/json.hpp>
 #include <set>
 
+#include "gyrotherm/api/api.h"
+#include "gyrotherm/api/auth_limiter.h"
+#include "gyrotherm/api/http_message.h"
+#include "gyrotherm/api/metrics.h"
+#include "gyrotherm/api/web_assets.h"
 #include "gyrotherm/core/clock.h"
-#include "gyrotherm/daemon/api.h"
-#include "gyrotherm/daemon/auth_limiter.h"
-#include "gyrotherm/daemon/http_message.h"
-#include "gyrotherm/daemon/metrics.h"
-#include "gyrotherm/daemon/web_assets.h"
 
 #ifndef GYROTHERM_OPENAPI_PATH
 #define GYROTHERM_OPENAPI_PATH GYROTHERM_SOURCE_DIR "/daemon/api/openapi.json"
 #endif
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::api {
 namespace {
 
 namespace http = boost::beast::http;
@@ -171,8 +171,8 @@ void check_all_of_fields(const json& value, const json& schema_in, const std::st
 
 // ------------------------------------------------------------ the daemon side
 
-StatusSnapshot busy_station() {
-  StatusSnapshot s;
+station::StatusSnapshot busy_station() {
+  station::StatusSnapshot s;
   s.station_name = "contract";
   s.state = "acquiring";
   s.run_id = 1;
@@ -192,7 +192,7 @@ StatusSnapshot busy_station() {
   s.queue_length = 2;
   s.queue_held = true;
   s.queue_hold_reason = "stopped by the operator";
-  TableStatus table;
+  station::TableStatus table;
   table.connected = true;
   table.state = drivers::TableState{
       drivers::TableMode::kRate, "Rate", drivers::TableInterlock::kClosed, 100.0004, 123.4, ""};
@@ -200,7 +200,7 @@ StatusSnapshot busy_station() {
   s.table = table;
   // Three DUTs: one with all axes and its temperature, one before its first
   // full second (nulls), the unnamed gyro with one axis.
-  DutStatus imu;
+  station::DutStatus imu;
   imu.serial = "17-0042";
   imu.model = "KVH 1750";
   imu.primary_axis = "z";
@@ -208,12 +208,12 @@ StatusSnapshot busy_station() {
   imu.temp_c = 41.2;
   imu.samples_per_s = 1000;
   imu.health.connected = true;
-  DutStatus starting = imu;
+  station::DutStatus starting = imu;
   starting.serial = "17-0043";
   starting.rates_dph = {{"x", std::nullopt}, {"y", std::nullopt}, {"z", std::nullopt}};
   starting.temp_c = std::nullopt;
   starting.samples_per_s = 0;
-  DutStatus unnamed;
+  station::DutStatus unnamed;
   unnamed.primary_axis = "z";
   unnamed.rates_dph = {{"z", 8.0}};
   s.duts = {imu, starting, unnamed};
@@ -266,22 +266,22 @@ storage::QueueEntry queue_entry(int64_t id, std::string state) {
 
 // Answers every call with a body built by the daemon's own record
 // serializers, so the schemas are checked against what the daemon sends.
-class ContractControl : public StationControl {
+class ContractControl : public station::StationControl {
  public:
   json queue_json() {
     return {{"held", false},
             {"hold_reason", ""},
-            {"current", to_json(queue_entry(1, "running"), 32)},
-            {"entries", json::array({to_json(queue_entry(2, "queued"), 4)})}};
+            {"current", station::to_json(queue_entry(1, "running"), 32)},
+            {"entries", json::array({station::to_json(queue_entry(2, "queued"), 4)})}};
   }
-  Reply queue_list() override { return Reply::ok(queue_json()); }
-  Reply queue_add(const std::string&, const std::string&, bool) override {
-    return Reply::ok(to_json(queue_entry(3, "queued"), 4));
+  station::Reply queue_list() override { return station::Reply::ok(queue_json()); }
+  station::Reply queue_add(const std::string&, const std::string&, bool) override {
+    return station::Reply::ok(station::to_json(queue_entry(3, "queued"), 4));
   }
-  Reply queue_remove(int64_t id) override { return Reply::ok({{"removed", id}}); }
-  Reply queue_move(int64_t, int) override { return Reply::ok(queue_json()); }
-  Reply control(std::string_view action, const std::string&) override {
-    return Reply::ok({{"ok", true}, {"message", fmt::format("{} done", action)}});
+  station::Reply queue_remove(int64_t id) override { return station::Reply::ok({{"removed", id}}); }
+  station::Reply queue_move(int64_t, int) override { return station::Reply::ok(queue_json()); }
+  station::Reply control(std::string_view action, const std::string&) override {
+    return station::Reply::ok({{"ok", true}, {"message", fmt::format("{} done", action)}});
   }
   static storage::RunRecord run_record(int64_t id) {
     storage::RunRecord r;
@@ -292,14 +292,15 @@ class ContractControl : public StationControl {
     r.queue_id = 1;
     return r;
   }
-  Reply runs() override {
+  station::Reply runs() override {
     auto done = run_record(2);
     done.state = "completed";
     done.ended_utc = "2026-11-21T07:38:43.120Z";
     done.queue_id.reset();
-    return Reply::ok(json::array({to_json(done), to_json(run_record(1))}));
+    return station::Reply::ok(
+        json::array({station::to_json(done), station::to_json(run_record(1))}));
   }
-  Reply run(int64_t id) override {
+  station::Reply run(int64_t id) override {
     storage::SegmentRecord s;
     s.index = 0;
     s.kind = "soak";
@@ -309,11 +310,11 @@ class ContractControl : public StationControl {
     s.t_acquire_start_s = 600;
     s.state = "running";
     s.windows = {{600, 900}, {960, 1200}};
-    json j = to_json(run_record(id));
-    j["segments"] = json::array({to_json(s)});
-    return Reply::ok(j);
+    json j = station::to_json(run_record(id));
+    j["segments"] = json::array({station::to_json(s)});
+    return station::Reply::ok(j);
   }
-  Reply run_events(int64_t) override {
+  station::Reply run_events(int64_t) override {
     storage::EventRecord state;
     state.id = 1;
     state.t_s = 600;
@@ -327,18 +328,18 @@ class ContractControl : public StationControl {
     info.kind = "operator";
     info.from_state.clear();
     info.to_state.clear();
-    return Reply::ok(json::array({to_json(state), to_json(info)}));
+    return station::Reply::ok(json::array({station::to_json(state), station::to_json(info)}));
   }
-  Reply run_stats(int64_t id) override {
+  station::Reply run_stats(int64_t id) override {
     storage::SegmentStatsRecord s;
     s.segment_id = 1;
     s.run_id = id;
     s.n = 7200;
     s.bias_std_ma_dph = std::numeric_limits<double>::quiet_NaN();
     s.computed_utc = "2026-11-21T07:38:43.120Z";
-    return Reply::ok(json::array({to_json(s)}));
+    return station::Reply::ok(json::array({station::to_json(s)}));
   }
-  Reply run_samples(int64_t id, const SamplesQuery& query) override {
+  station::Reply run_samples(int64_t id, const station::SamplesQuery& query) override {
     storage::DecimatedSamples d;
     d.from_s = query.from_s;
     d.to_s = query.to_s.value_or(7200);
@@ -354,10 +355,10 @@ class ContractControl : public StationControl {
     d.temperature.chamber_c = {20.1};
     d.temperature.top_c = {20.02};
     d.temperature.side_c = {std::numeric_limits<double>::quiet_NaN()};
-    json j = to_json(d);  // what Station::run_samples adds:
+    json j = station::to_json(d);  // what Station::run_samples adds:
     j["run_id"] = id;
     j["max_points"] = query.max_points;
-    return Reply::ok(j);
+    return station::Reply::ok(j);
   }
   static storage::FitRecord fit_record(int64_t id) {
     storage::FitRecord f;
@@ -374,9 +375,13 @@ class ContractControl : public StationControl {
     f.computed_utc = "2026-11-21T07:38:43.120Z";
     return f;
   }
-  Reply run_fits(int64_t) override { return Reply::ok(json::array({to_json(fit_record(1))})); }
-  Reply fit(int64_t id) override { return Reply::ok(to_json(fit_record(id))); }
-  Reply run_allan(int64_t) override {
+  station::Reply run_fits(int64_t) override {
+    return station::Reply::ok(json::array({station::to_json(fit_record(1))}));
+  }
+  station::Reply fit(int64_t id) override {
+    return station::Reply::ok(station::to_json(fit_record(id)));
+  }
+  station::Reply run_allan(int64_t) override {
     storage::AllanRecord a;
     a.id = 4;
     a.run_id = 1;
@@ -395,9 +400,9 @@ class ContractControl : public StationControl {
     a.rate_random_walk_dphprh = std::nullopt;  // a null noise term must match the schema too
     a.inputs_json = R"({"run_id": 1, "segment": 1, "taus": "octave", "window": [600, 7800]})";
     a.computed_utc = "2026-11-21T07:38:43.120Z";
-    return Reply::ok(json::array({to_json(a)}));
+    return station::Reply::ok(json::array({station::to_json(a)}));
   }
-  Reply run_scale_factor(int64_t) override {
+  station::Reply run_scale_factor(int64_t) override {
     storage::ScaleFactorPointRecord p;
     p.segment_id = 7;
     p.sf_sequence = 1;
@@ -429,10 +434,10 @@ class ContractControl : public StationControl {
     t.k_ppm_per_c = 20.0;
     t.bias_dph_per_c = 0.0036;
     t.created_utc = "2026-11-21T07:38:43.120Z";
-    return Reply::ok({{"points", json::array({to_json(p)})},
-                      {"fits", json::array({to_json(f)})},
-                      {"temperature_fit", to_json(t)},
-                      {"temperature_fits", json::array({to_json(t)})}});
+    return station::Reply::ok({{"points", json::array({station::to_json(p)})},
+                               {"fits", json::array({station::to_json(f)})},
+                               {"temperature_fit", station::to_json(t)},
+                               {"temperature_fits", json::array({station::to_json(t)})}});
   }
   static storage::RunDutRecord run_dut() {
     storage::RunDutRecord d;
@@ -464,43 +469,43 @@ class ContractControl : public StationControl {
     d.rate_hz = 0;  // unknown: null must match the schema too
     return d;
   }
-  Reply enqueue(const QueueRequest&) override {
+  station::Reply enqueue(const station::QueueRequest&) override {
     auto e = queue_entry(3, "queued");
     e.metadata.operator_name = "ana";
     e.metadata.tags = {"campaign-7"};
     e.metadata.dut_serials = {"17-0042"};
-    return Reply::ok(to_json(e, 4));
+    return station::Reply::ok(station::to_json(e, 4));
   }
-  Reply run_with_duts(int64_t id) override {
-    Reply r = run(id);
-    r.body["metadata"] = to_json(storage::RunMetadata{"ana", "line 1\nline 2", {"a"}, {}});
-    r.body["duts"] = json::array({to_json(run_dut())});
+  station::Reply run_with_duts(int64_t id) override {
+    station::Reply r = run(id);
+    r.body["metadata"] = station::to_json(storage::RunMetadata{"ana", "line 1\nline 2", {"a"}, {}});
+    r.body["duts"] = json::array({station::to_json(run_dut())});
     return r;
   }
-  Reply edit_run(int64_t id, const MetadataEdit&, const std::string&) override {
+  station::Reply edit_run(int64_t id, const station::MetadataEdit&, const std::string&) override {
     return run_with_duts(id);
   }
-  Reply run_stats_filtered(int64_t id, const StatsQuery&) override {
-    Reply r = run_stats(id);
+  station::Reply run_stats_filtered(int64_t id, const station::StatsQuery&) override {
+    station::Reply r = run_stats(id);
     r.body[0]["dut_serial"] = "17-0042";
     r.body[0]["axis"] = "z";
     return r;
   }
-  Reply run_channel_samples(int64_t id, const SamplesQuery& query) override {
-    Reply r = run_samples(id, query);
+  station::Reply run_channel_samples(int64_t id, const station::SamplesQuery& query) override {
+    station::Reply r = run_samples(id, query);
     r.body["dut"] = "17-0042";
     r.body["channel"] = "gyro_z";
     r.body["unit"] = "deg/h";
     return r;
   }
-  Reply duts() override {
+  station::Reply duts() override {
     storage::DutRecord d = run_dut().dut;
     storage::DutRecord unnamed;
     unnamed.id = 2;
     unnamed.first_seen_utc = "2026-01-02T03:04:05.000Z";
-    return Reply::ok(json::array({to_json(unnamed, 3), to_json(d, 1)}));
+    return station::Reply::ok(json::array({station::to_json(unnamed, 3), station::to_json(d, 1)}));
   }
-  Reply dut_history(const std::string&) override {
+  station::Reply dut_history(const std::string&) override {
     storage::DutHistory h;
     h.dut = run_dut().dut;
     storage::DutHistory::Run r;
@@ -537,9 +542,9 @@ class ContractControl : public StationControl {
     fit.dut_serial = "17-0042";
     fit.axis = "z";
     h.fits = {fit};
-    return Reply::ok(to_json(h));
+    return station::Reply::ok(station::to_json(h));
   }
-  Reply exports() override {
+  station::Reply exports() override {
     storage::ExportRecord done;
     done.id = 2;
     done.kind = "nightly";
@@ -559,7 +564,7 @@ class ContractControl : public StationControl {
     writing.directory = "/tmp/reports";
     writing.run_ids = {4};
     writing.started_utc = "2026-11-21T09:12:00.000Z";
-    return Reply::ok(json::array({to_json(writing), to_json(done)}));
+    return station::Reply::ok(json::array({station::to_json(writing), station::to_json(done)}));
   }
 };
 
@@ -583,7 +588,7 @@ class WebRoot {
   std::optional<WebAssets> assets_;
 };
 
-ApiContext contract_context(StationControl* control, const WebAssets* web = nullptr,
+ApiContext contract_context(station::StationControl* control, const WebAssets* web = nullptr,
                             const Metrics* metrics = nullptr) {
   ApiContext ctx;
   ctx.status = busy_station;
@@ -919,7 +924,7 @@ TEST(OpenApi, ServedDocumentIsTheSourceFile) {
 // The checker itself finds what it is meant to find.
 TEST(OpenApi, SchemaCheckerCatchesMismatches) {
   const json& run = document().at("components").at("schemas").at("Run");
-  json good = to_json(ContractControl::run_record(4));
+  json good = station::to_json(ContractControl::run_record(4));
   std::vector<std::string> errors;
   check_schema(good, run, "run", errors);
   EXPECT_TRUE(errors.empty()) << fmt::format("{}", fmt::join(errors, "\n"));
@@ -933,4 +938,4 @@ TEST(OpenApi, SchemaCheckerCatchesMismatches) {
 }
 
 }  // namespace
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::api

@@ -1,6 +1,6 @@
 // Pieces of the calibration report (report.h): a stored fit read back for
 // export and compensation, the CSV of Table I rows, the plots' JSON.
-#include "gyrotherm/daemon/report.h"
+#include "gyrotherm/calibration/report.h"
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
@@ -20,7 +20,7 @@
 
 #include "test_files.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::calibration {
 namespace {
 
 // A run's analysis series with a known drift in T, dT/dt and dT.
@@ -498,4 +498,4 @@ TEST(Report, Figures4And6DrawTheMovingAverageOverAFaintRawOutput) {
 }
 
 }  // namespace
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::calibration

@@ -18,9 +18,9 @@
 #include <string>
 #include <vector>
 
-#include "gyrotherm/daemon/exporter.h"
-#include "gyrotherm/daemon/run_analysis.h"
-#include "gyrotherm/daemon/scale_factor_run.h"
+#include "gyrotherm/calibration/exporter.h"
+#include "gyrotherm/calibration/run_analysis.h"
+#include "gyrotherm/calibration/scale_factor_run.h"
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
 #include "integration/temp_dir_test.h"
@@ -172,10 +172,10 @@ TEST_F(ResultQualityTest, DriftSeriesLeavesOutEveryStretchTheTableWasNotAtRest) 
       {{"soak", "static", 0.0, 0, 1200}, {"soak", "none", 0.0, 1200, 2400}}, rec,
       R"({"station": {"name": "q"}, "gyro": {"rate_hz": 10}, "table": {"rest_rate_dps": 0.01}})");
   auto db = open();
-  auto axis = daemon::first_axis(db, run_id);
+  auto axis = calibration::first_axis(db, run_id);
   ASSERT_TRUE(axis.ok()) << axis.error().message;
-  daemon::RunSeriesCoverage coverage;
-  auto series = daemon::run_series(db, run_id, 1.0, *axis, &coverage);
+  calibration::RunSeriesCoverage coverage;
+  auto series = calibration::run_series(db, run_id, 1.0, *axis, &coverage);
   ASSERT_TRUE(series.ok()) << series.error().message;
   ASSERT_FALSE(series->t_s.empty());
   for (std::size_t i = 0; i < series->t_s.size(); ++i) {
@@ -241,7 +241,7 @@ TEST_F(RatePointTest, TheGuardBandCutsThePreviousRatesSamplesFromEachWindow) {
   // Half a second of the previous rate at the start of every window.
   const int64_t run_id = run([](double) { return 0.5; }, kGuard1s);
   auto db = open();
-  auto summary = daemon::analyse_scale_factor(db, run_id);
+  auto summary = calibration::analyse_scale_factor(db, run_id);
   ASSERT_TRUE(summary.ok()) << summary.error().message;
   EXPECT_TRUE(summary->problems.empty()) << summary->problems.front();
   EXPECT_TRUE(summary->flagged.empty()) << summary->flagged.front();
@@ -273,7 +273,7 @@ TEST_F(RatePointTest, APointThatIsNotFlatIsLeftOutAndNamed) {
   // starts with 3.5 s of the gap before it: 2.5 s remain after the guard.
   const int64_t run_id = run([](double t) { return t >= 382 && t < 418 ? 3.5 : 0.0; }, kGuard1s);
   auto db = open();
-  auto summary = daemon::analyse_scale_factor(db, run_id);
+  auto summary = calibration::analyse_scale_factor(db, run_id);
   ASSERT_TRUE(summary.ok()) << summary.error().message;
   ASSERT_EQ(summary->problems.size(), 1u);
   EXPECT_THAT(summary->problems[0], HasSubstr("segment 4"));
@@ -310,7 +310,7 @@ TEST_F(ResultQualityTest, ATableIRowOverAWindowWithA30PercentGapIsFlagged) {
   const int64_t run_id = make_run({{"soak", "none", 0.0, 0, 600}}, rec,
                                   R"({"station": {"name": "q"}, "gyro": {"rate_hz": 10}})");
   auto db = open();
-  auto summary = daemon::analyse_run(db, run_id, daemon::AnalysisSettings{});
+  auto summary = calibration::analyse_run(db, run_id, calibration::AnalysisSettings{});
   ASSERT_TRUE(summary.ok()) << summary.error().message;
   auto rows = db.segment_stats(run_id);
   ASSERT_TRUE(rows.ok());
@@ -389,7 +389,7 @@ TEST_F(ResultQualityTest, FlaggedResultsAreStoredFlaggedAndTheirHeadersNeedForce
 
   auto db = open();
   for (int64_t id : {run_a, run_b}) {
-    auto summary = daemon::analyse_run(db, id, daemon::AnalysisSettings{});
+    auto summary = calibration::analyse_run(db, id, calibration::AnalysisSettings{});
     ASSERT_TRUE(summary.ok()) << summary.error().message;
   }
   // Stored flagged.
@@ -414,10 +414,10 @@ TEST_F(ResultQualityTest, FlaggedResultsAreStoredFlaggedAndTheirHeadersNeedForce
   EXPECT_THAT((*sf)[1].quality.reasons, ::testing::Contains(HasSubstr("nonlinearity")));
 
   // The export leaves the headers out and says why.
-  daemon::ExportRequest request;
+  calibration::ExportRequest request;
   request.run_ids = {run_a, run_b};
   request.directory = (dir_ / "export").string();
-  auto out = daemon::write_export(db, request);
+  auto out = calibration::write_export(db, request);
   ASSERT_TRUE(out.ok()) << out.error().message;
   const fs::path run_a_dir = dir_ / "export" / fmt::format("run-{:04}", run_a);
   const fs::path run_b_dir = dir_ / "export" / fmt::format("run-{:04}", run_b);
@@ -439,7 +439,7 @@ TEST_F(ResultQualityTest, FlaggedResultsAreStoredFlaggedAndTheirHeadersNeedForce
   // Forced: written, and the header says it was forced and why.
   request.directory = (dir_ / "forced").string();
   request.report.force_flagged = true;
-  auto forced = daemon::write_export(db, request);
+  auto forced = calibration::write_export(db, request);
   ASSERT_TRUE(forced.ok()) << forced.error().message;
   const std::string drift = testing::read_text(dir_ / "forced" / fmt::format("run-{:04}", run_a) /
                                                "drift-fit-centered.h");

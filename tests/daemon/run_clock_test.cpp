@@ -1,6 +1,6 @@
 // RunClock: the run id and its start time are read as one pair while the
 // control thread publishes new runs.
-#include "gyrotherm/daemon/run_clock.h"
+#include "gyrotherm/station/run_clock.h"
 
 #include <gtest/gtest.h>
 
@@ -9,7 +9,7 @@
 #include <future>
 #include <thread>
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::station {
 namespace {
 
 // Run k starts at station time 10·k: a reader must never see run k with
@@ -77,4 +77,4 @@ TEST(RunClock, CloseSamplesWaitsForTheBatchBeingStored) {
 }
 
 }  // namespace
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::station

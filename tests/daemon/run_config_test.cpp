@@ -2,7 +2,7 @@
 // force as JSON, laid out like the TOML file, tokens redacted; and how the
 // CLI and reports read it back (JSON, or the TOML text of runs stored before
 // schema v6).
-#include "gyrotherm/daemon/run_config.h"
+#include "gyrotherm/config/run_config.h"
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
@@ -11,10 +11,10 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
-#include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/run_analysis.h"
+#include "gyrotherm/calibration/run_analysis.h"
+#include "gyrotherm/config/config.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::config {
 namespace {
 
 using json = nlohmann::json;
@@ -97,7 +97,7 @@ allan_taus = "decade"
   // The CLI and the reports read it back.
   storage::RunRecord run;
   run.config_json = text;
-  const RunConfig back = read_run_config(run);
+  const RunConfig back = calibration::read_run_config(run);
   EXPECT_EQ(back.station_name, "lab-3");
   EXPECT_EQ(back.ma_window, 51);
   EXPECT_EQ(back.model, "T2");
@@ -110,17 +110,17 @@ allan_taus = "decade"
 TEST(RunConfig, TomlOfOlderRunsIsStillRead) {
   storage::RunRecord run;
   run.config_toml = "[station]\nname = \"lab-1\"\n[analysis]\nma_window = 31\nbin_s = 2.0\n";
-  RunConfig c = read_run_config(run);
+  RunConfig c = calibration::read_run_config(run);
   EXPECT_EQ(c.station_name, "lab-1");
   EXPECT_EQ(c.ma_window, 31);
   EXPECT_EQ(c.bin_s, 2.0);
-  auto settings = analysis_settings_of_run(run);
+  auto settings = calibration::analysis_settings_of_run(run);
   ASSERT_TRUE(settings.ok()) << settings.error().message;
   EXPECT_EQ(settings->table1.ma_window, 31u);
   // A run with JSON reads the JSON.
   run.config_json = R"({"analysis":{"ma_window":41}})";
-  EXPECT_EQ(read_run_config(run).ma_window, 41);
+  EXPECT_EQ(calibration::read_run_config(run).ma_window, 41);
 }
 
 }  // namespace
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::config

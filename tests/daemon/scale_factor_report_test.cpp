@@ -19,11 +19,11 @@
 #include <sstream>
 #include <tuple>
 
-#include "gyrotherm/daemon/report.h"
+#include "gyrotherm/calibration/report.h"
 #include "scale_factor_rows.h"
 #include "test_files.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::calibration {
 namespace {
 
 namespace fs = std::filesystem;
@@ -473,4 +473,4 @@ TEST_F(ScaleFactorReportTest, CHeaderCompilesAndEvaluatesThePolynomials) {
 }
 
 }  // namespace
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::calibration

@@ -12,9 +12,9 @@
 #include <vector>
 
 #include "gyrotherm/analysis/scale_factor.h"
+#include "gyrotherm/calibration/run_analysis.h"
+#include "gyrotherm/calibration/scale_factor_run.h"
 #include "gyrotherm/core/units.h"
-#include "gyrotherm/daemon/run_analysis.h"
-#include "gyrotherm/daemon/scale_factor_run.h"
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
 #include "integration/temp_dir_test.h"
@@ -128,7 +128,7 @@ TEST_F(TableAnalysisTest, TableIOfStaticSoaksRemovesTheEarthRateOfTheRecordedPos
                                   position_deg);
   auto db = storage::Database::open((dir_ / "station.db").string());
   ASSERT_TRUE(db.ok());
-  auto soaks = daemon::soak_windows(*db, run_id);
+  auto soaks = calibration::soak_windows(*db, run_id);
   ASSERT_TRUE(soaks.ok()) << soaks.error().message;
   ASSERT_EQ(soaks->size(), 2u) << "the spinning soak is not a zero-bias soak";
   EXPECT_EQ((*soaks)[0].segment_index, 0);
@@ -136,7 +136,7 @@ TEST_F(TableAnalysisTest, TableIOfStaticSoaksRemovesTheEarthRateOfTheRecordedPos
 
   analysis::Table1Options options;  // the up-axis component, which a radial mount replaces
   options.earth_rate_dph = 7.95;
-  auto row = daemon::soak_table1(*db, (*soaks)[0], options);
+  auto row = calibration::soak_table1(*db, (*soaks)[0], options);
   ASSERT_TRUE(row.ok()) << row.error().message;
   const double expected_earth_dph = units::kEarthRateDph *
                                     std::cos(units::deg_to_rad(kLatitudeDeg)) *
@@ -160,7 +160,7 @@ TEST_F(TableAnalysisTest, ScaleFactorFromTheRatePointsWindows) {
   const int64_t run_id = make_run(segments, 0.0);
   auto db = storage::Database::open((dir_ / "station.db").string());
   ASSERT_TRUE(db.ok());
-  auto summary = daemon::analyse_scale_factor(*db, run_id);
+  auto summary = calibration::analyse_scale_factor(*db, run_id);
   ASSERT_TRUE(summary.ok()) << summary.error().message;
   EXPECT_EQ(summary->points, 8);
   EXPECT_EQ(summary->sequences, 1);

@@ -3,7 +3,7 @@
 
 #include <ctime>
 
-namespace gyrotherm::daemon::test {
+namespace gyrotherm::test {
 
 inline double utc(int y, int mo, int d, int h, int mi = 0) {
   std::tm tm{};
@@ -15,4 +15,4 @@ inline double utc(int y, int mo, int d, int h, int mi = 0) {
   return static_cast<double>(timegm(&tm));
 }
 
-}  // namespace gyrotherm::daemon::test
+}  // namespace gyrotherm::test

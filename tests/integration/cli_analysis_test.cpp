@@ -26,8 +26,8 @@
 #include "gyrotherm/analysis/scale_factor.h"
 #include "gyrotherm/analysis/start_temperature.h"
 #include "gyrotherm/analysis/table1.h"
+#include "gyrotherm/calibration/run_analysis.h"
 #include "gyrotherm/core/files.h"
-#include "gyrotherm/daemon/run_analysis.h"
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
 #include "process.h"
@@ -302,9 +302,9 @@ TEST_F(CliAnalysisTest, StatsOnADatabaseMatchesTheLibraryAndUsesTheRunsSettings)
   // The daemon's own path gives the same numbers.
   auto db = storage::Database::open_read_only(db_path_);
   ASSERT_TRUE(db);
-  auto soaks = daemon::soak_windows(*db, run_ids_[0]);
+  auto soaks = calibration::soak_windows(*db, run_ids_[0]);
   ASSERT_TRUE(soaks && soaks->size() == 2u);
-  auto rec = daemon::soak_table1(*db, (*soaks)[1], o);
+  auto rec = calibration::soak_table1(*db, (*soaks)[1], o);
   ASSERT_TRUE(rec) << rec.error().message;
   EXPECT_EQ(j[1].at("bias_std_ma101_dph").get<double>(), rec->bias_std_ma_dph);
   EXPECT_EQ(j[1].at("bias_mean_dph").get<double>(), rec->bias_mean_dph);
@@ -705,13 +705,13 @@ TEST_F(CliAnalysisTest, FitOnDatabaseRunsMatchesTheLibraryAndTheDaemonAndExports
   // The daemon's path: each run's whole series, fitted together, as a record.
   std::vector<analysis::AnalysisSeries> stored;
   for (int64_t id : {run_ids_[0], run_ids_[2]}) {
-    auto s = daemon::run_series(*db, id, 1.0);
+    auto s = calibration::run_series(*db, id, 1.0);
     ASSERT_TRUE(s) << s.error().message;
     stored.push_back(std::move(*s));
   }
   auto daemon_fit = analysis::fit_drift_model(stored, spec, analysis::DriftModelForm::kPaper);
   ASSERT_TRUE(daemon_fit) << daemon_fit.error().message;
-  const auto rec = daemon::fit_record(*daemon_fit, {run_ids_[0], run_ids_[2]}, {}, 1.0);
+  const auto rec = calibration::fit_record(*daemon_fit, {run_ids_[0], run_ids_[2]}, {}, 1.0);
   EXPECT_EQ(j["coefficients"], json::parse(rec.coefficients_json));
   EXPECT_EQ(j["standard_errors"], json::parse(rec.standard_errors_json));
 

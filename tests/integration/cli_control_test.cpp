@@ -19,9 +19,9 @@
 #include <nlohmann/json.hpp>
 
 #include "control.h"
-#include "gyrotherm/daemon/control.h"
-#include "gyrotherm/daemon/http_message.h"
-#include "gyrotherm/daemon/http_server.h"
+#include "gyrotherm/api/http_message.h"
+#include "gyrotherm/api/http_server.h"
+#include "gyrotherm/station/control.h"
 #include "gyrotherm/storage/database.h"
 #include "process.h"
 #include "station_fixture.h"
@@ -51,10 +51,10 @@ class FakeDaemon {
   };
 
   FakeDaemon() {
-    daemon::HttpServerOptions options;
+    api::HttpServerOptions options;
     options.port = 0;
-    auto server = daemon::HttpServer::create(
-        options, [this](const daemon::HttpRequest& req) { return handle(req); });
+    auto server = api::HttpServer::create(
+        options, [this](const api::HttpRequest& req) { return handle(req); });
     if (!server) throw std::runtime_error(server.error().message);
     server_ = std::move(*server);
     server_->start();
@@ -75,17 +75,17 @@ class FakeDaemon {
   std::string url() const { return fmt::format("http://127.0.0.1:{}", server_->port()); }
 
  private:
-  daemon::HttpResponse handle(const daemon::HttpRequest& req) {
+  api::HttpResponse handle(const api::HttpRequest& req) {
     std::lock_guard lock(mu_);
     Seen s{std::string(req.method_string()), std::string(req.target()), req.body(),
            std::string(req[http::field::authorization])};
     seen_.push_back(s);
     const auto it = canned_.find({s.method, s.target});
     if (it == canned_.end()) {
-      return daemon::error_response(req, http::status::not_found, "no such resource: " + s.target);
+      return api::error_response(req, http::status::not_found, "no such resource: " + s.target);
     }
     auto res =
-        daemon::json_response(req, static_cast<http::status>(it->second.first), it->second.second);
+        api::json_response(req, static_cast<http::status>(it->second.first), it->second.second);
     if (it->second.first == 401) res.set(http::field::www_authenticate, "Bearer");
     return res;
   }
@@ -93,7 +93,7 @@ class FakeDaemon {
   std::mutex mu_;
   std::map<std::pair<std::string, std::string>, std::pair<int, std::string>> canned_;
   std::vector<Seen> seen_;
-  std::unique_ptr<daemon::HttpServer> server_;
+  std::unique_ptr<api::HttpServer> server_;
 };
 
 // Canned answers, shaped as docs/api.md says.
@@ -1106,7 +1106,7 @@ TEST_F(CliControlTest, DutAndDutsReadTheDatabaseFileOffline) {
   {
     auto db = storage::Database::open_read_only(db_path);
     ASSERT_TRUE(db.ok()) << db.error().message;
-    auto expected = daemon::dut_history_json(*db, "17-0050");
+    auto expected = station::dut_history_json(*db, "17-0050");
     ASSERT_TRUE(expected.ok()) << expected.error().message;
     EXPECT_EQ(h, *expected);
   }

@@ -13,7 +13,7 @@
 #include <thread>
 #include <vector>
 
-#include "gyrotherm/daemon/config.h"
+#include "gyrotherm/config/config.h"
 #include "gyrotherm/drivers/ascii_line.h"
 #include "gyrotherm/drivers/kvh1750.h"
 #include "gyrotherm/drivers/pty.h"
@@ -87,7 +87,7 @@ valid_bits = {{ x = 1, y = 2 }}
 
 // The options kTestSet gives, as the config reads them.
 drivers::AsciiLineOptions test_set_options(const std::string& config_path) {
-  auto cfg = daemon::load_station_config(config_path);
+  auto cfg = config::load_station_config(config_path);
   EXPECT_TRUE(cfg.ok()) << cfg.error().message;
   return cfg.ok() ? cfg->duts.back().link.ascii : drivers::AsciiLineOptions{};
 }

@@ -15,7 +15,7 @@
 #include <cstdio>
 #include <string>
 
-#include "gyrotherm/daemon/sim_endpoints.h"
+#include "gyrotherm/config/sim_endpoints.h"
 #include "station_fixture.h"
 
 namespace gyrotherm::testing {
@@ -44,7 +44,7 @@ CommandResult run_command(const std::string& command) {
 class F4tTest : public StationTest {
  protected:
   int sim_port() {
-    auto ep = daemon::read_sim_endpoints((dir_ / "endpoints.toml").string());
+    auto ep = config::read_sim_endpoints((dir_ / "endpoints.toml").string());
     EXPECT_TRUE(ep.ok()) << (ep.ok() ? "" : ep.error().message);
     return ep.ok() ? ep->modbus_port : 0;
   }

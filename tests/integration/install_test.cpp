@@ -12,7 +12,7 @@
 #include <fstream>
 #include <regex>
 
-#include "gyrotherm/daemon/config.h"
+#include "gyrotherm/config/config.h"
 #include "station_fixture.h"
 #include "test_files.h"
 
@@ -69,7 +69,7 @@ TEST_F(InstallTest, InstallsBinariesUnitConfigAndWebAssets) {
   struct stat st {};
   ASSERT_EQ(::stat(config.c_str(), &st), 0);
   EXPECT_EQ(st.st_mode & 0777, 0640u);
-  auto loaded = daemon::load_station_config(config.string());
+  auto loaded = config::load_station_config(config.string());
   EXPECT_TRUE(loaded.ok()) << (loaded.ok() ? "" : loaded.error().message);
 
   // The unit: Type=notify with a watchdog and the sandbox, starting the

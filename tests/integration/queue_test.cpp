@@ -9,7 +9,7 @@
 #include <nlohmann/json.hpp>
 #include <thread>
 
-#include "gyrotherm/daemon/sim_endpoints.h"
+#include "gyrotherm/config/sim_endpoints.h"
 #include "gyrotherm/storage/database.h"
 #include "station_fixture.h"
 #include "test_files.h"
@@ -269,8 +269,8 @@ TEST_F(QueueTest, StopReasonReachesTheHoldMessage) {
 
 TEST_F(QueueTest, QueueSurvivesARestart) {
   // No simulator needed: the queue is held, so nothing starts.
-  daemon::SimEndpoints ep{"127.0.0.1", testing::free_tcp_port(), (dir_ / "no-pty").string(), 0, ""};
-  ASSERT_TRUE(daemon::write_sim_endpoints((dir_ / "endpoints.toml").string(), ep).ok());
+  config::SimEndpoints ep{"127.0.0.1", testing::free_tcp_port(), (dir_ / "no-pty").string(), 0, ""};
+  ASSERT_TRUE(config::write_sim_endpoints((dir_ / "endpoints.toml").string(), ep).ok());
   start_daemon({}, false);
   ASSERT_TRUE(wait_state("idle")) << diag();
   auto r = call("POST", "/api/v1/control/stop", R"({"reason":"weekend"})");

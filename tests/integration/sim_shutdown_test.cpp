@@ -14,8 +14,8 @@
 #include <thread>
 #include <vector>
 
-#include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/sim_endpoints.h"
+#include "gyrotherm/config/config.h"
+#include "gyrotherm/config/sim_endpoints.h"
 #include "gyrotherm/drivers/modbus_device.h"
 #include "process.h"
 #include "temp_dir_test.h"
@@ -53,7 +53,7 @@ class SimShutdownTest : public testing::TempDirTest {
 
 TEST_F(SimShutdownTest, SigtermWhileServingExitsCleanlyEveryTime) {
   const std::string cfg_path = write_config();
-  auto cfg = daemon::load_station_config(cfg_path);
+  auto cfg = config::load_station_config(cfg_path);
   ASSERT_TRUE(cfg.ok()) << cfg.error().message;
   constexpr int kRounds = 20;
   constexpr int kWriters = 4;
@@ -66,10 +66,10 @@ TEST_F(SimShutdownTest, SigtermWhileServingExitsCleanlyEveryTime) {
     ASSERT_TRUE(
         testing::wait_until([&] { return fs::exists(dir_ / "ep.toml"); }, std::chrono::seconds(20)))
         << sim.log();
-    auto ep = daemon::read_sim_endpoints((dir_ / "ep.toml").string());
+    auto ep = config::read_sim_endpoints((dir_ / "ep.toml").string());
     ASSERT_TRUE(ep.ok()) << ep.error().message;
-    daemon::StationConfig station = *cfg;
-    daemon::apply_sim_endpoints(station, *ep);
+    config::StationConfig station = *cfg;
+    config::apply_sim_endpoints(station, *ep);
 
     // Writers on their own connections, each write answered then handed
     // to the simulator's on-write hook; they run until the simulator is gone.

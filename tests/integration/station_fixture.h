@@ -17,7 +17,7 @@
 #include <vector>
 
 #include "gyrotherm/cli/http_client.h"
-#include "gyrotherm/daemon/config.h"
+#include "gyrotherm/config/config.h"
 #include "gyrotherm/sim/simulator.h"
 #include "gyrotherm/storage/database.h"
 #include "process.h"
@@ -208,7 +208,7 @@ class StationTest : public testing::TempDirTest {
   }
   // The simulator in this process, for its fault hooks.
   void start_sim_in_process() {
-    auto cfg = daemon::load_station_config((dir_ / "station.toml").string());
+    auto cfg = config::load_station_config((dir_ / "station.toml").string());
     ASSERT_TRUE(cfg.ok()) << cfg.error().message;
     sim::SimulatorOverrides overrides;
     overrides.time_scale = time_scale_;

@@ -13,11 +13,11 @@
 #include <iterator>
 #include <nlohmann/json.hpp>
 
+#include "gyrotherm/calibration/run_analysis.h"
 #include "gyrotherm/cli/http_client.h"
-#include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/run_analysis.h"
-#include "gyrotherm/daemon/run_config.h"
-#include "gyrotherm/daemon/sim_endpoints.h"
+#include "gyrotherm/config/config.h"
+#include "gyrotherm/config/run_config.h"
+#include "gyrotherm/config/sim_endpoints.h"
 #include "gyrotherm/drivers/modbus_device.h"
 #include "gyrotherm/sim/simulator.h"
 #include "gyrotherm/storage/database.h"
@@ -309,10 +309,10 @@ TEST_F(StationTest, StoredConfigIsTheOneInForceNotTheFileOnDisk) {
   ASSERT_EQ(stats->size(), 1u) << daemon_->log();
   EXPECT_EQ((*stats)[0].ma_window, 51);
   // And so do the CLI and the reports, which read the stored config.
-  const daemon::RunConfig back = daemon::read_run_config(*run);
+  const config::RunConfig back = calibration::read_run_config(*run);
   EXPECT_EQ(back.ma_window, 51);
   EXPECT_EQ(back.station_name, "integration");
-  auto settings = daemon::analysis_settings_of_run(*run);
+  auto settings = calibration::analysis_settings_of_run(*run);
   ASSERT_TRUE(settings.ok()) << settings.error().message;
   EXPECT_EQ(settings->table1.ma_window, 51u);
 }
@@ -344,11 +344,11 @@ TEST_F(StationTest, SigtermInterruptsTheRunAndLeavesTheChamberSafe) {
   EXPECT_TRUE(testing::integrity_ok(*db));
 
   // The chamber was left at the safe set point (23 °C).
-  auto cfg = daemon::load_station_config((dir_ / "station.toml").string());
+  auto cfg = config::load_station_config((dir_ / "station.toml").string());
   ASSERT_TRUE(cfg.ok()) << cfg.error().message;
-  auto ep = daemon::read_sim_endpoints(cfg->simulator.endpoints_file);
+  auto ep = config::read_sim_endpoints(cfg->simulator.endpoints_file);
   ASSERT_TRUE(ep.ok());
-  daemon::apply_sim_endpoints(*cfg, *ep);
+  config::apply_sim_endpoints(*cfg, *ep);
   drivers::ModbusDevice chamber("chamber", cfg->chamber.endpoint);
   auto sp = chamber.read(cfg->chamber.map.setpoint);
   ASSERT_TRUE(sp.ok()) << sp.error().message;
@@ -446,9 +446,9 @@ TEST_F(StationTest, BadConfigFailsFastWithFileLineKey) {
 
 TEST_F(StationTest, UnreachableDevicesDoNotKillTheDaemon) {
   // No simulator: endpoints point at a closed port and a missing pty.
-  daemon::SimEndpoints ep{"127.0.0.1", testing::free_tcp_port(), (dir_ / "no-such-pty").string(), 0,
+  config::SimEndpoints ep{"127.0.0.1", testing::free_tcp_port(), (dir_ / "no-such-pty").string(), 0,
                           ""};
-  ASSERT_TRUE(daemon::write_sim_endpoints((dir_ / "endpoints.toml").string(), ep).ok());
+  ASSERT_TRUE(config::write_sim_endpoints((dir_ / "endpoints.toml").string(), ep).ok());
   start_daemon();
   std::optional<nlohmann::json> s;
   ASSERT_TRUE(wait_until(

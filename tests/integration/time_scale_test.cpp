@@ -6,7 +6,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
-#include "gyrotherm/daemon/sim_endpoints.h"
+#include "gyrotherm/config/sim_endpoints.h"
 #include "station_fixture.h"
 
 namespace gyrotherm::testing {
@@ -18,7 +18,7 @@ class TimeScaleTest : public StationTest {};
 
 TEST_F(TimeScaleTest, DaemonRefusesASimulatorAtAnotherScale) {
   ASSERT_NO_FATAL_FAILURE(start_sim());  // at kTimeScale (200)
-  const auto ep = daemon::read_sim_endpoints((dir_ / "endpoints.toml").string());
+  const auto ep = config::read_sim_endpoints((dir_ / "endpoints.toml").string());
   ASSERT_TRUE(ep.ok()) << ep.error().message;
   EXPECT_DOUBLE_EQ(ep->time_scale, kTimeScale) << "the simulator publishes its time scale";
 

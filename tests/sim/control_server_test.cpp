@@ -513,8 +513,8 @@ TEST_F(ControlSocketTest, EveryFaultCommandReachesItsHook) {
 // follows its shell again. The demo's DUTs get probes here: 17-0043 on
 // channels 4 and 5, TS-7 on channel 0 (the station's top: not its own).
 TEST_F(ControlSocketTest, DutProbeStallFreezesThatDutsRegisterOnly) {
-  config_.duts[1].probes = daemon::DutProbes{4, 5};
-  config_.duts[2].probes = daemon::DutProbes{0, 6};
+  config_.duts[1].probes = config::DutProbes{4, 5};
+  config_.duts[2].probes = config::DutProbes{0, 6};
   options_.thermal.probe_noise_c = 0.5;  // every reading moves at every step
   ASSERT_NO_FATAL_FAILURE(start(&manual_clock_));
   ModbusClient client(port(), probes_unit());

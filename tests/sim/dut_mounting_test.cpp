@@ -14,7 +14,7 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
-#include "gyrotherm/daemon/config.h"
+#include "gyrotherm/config/config.h"
 #include "gyrotherm/sim/dut_model.h"
 #include "gyrotherm/sim/options.h"
 #include "gyrotherm/sim/simulator.h"
@@ -112,7 +112,7 @@ class DutMountingTest : public ::testing::Test {
     std::filesystem::remove_all(dir_);
   }
   void start(const std::string& text = kStation) {
-    auto config = daemon::parse_station_config(text, "mounting.toml");
+    auto config = config::parse_station_config(text, "mounting.toml");
     ASSERT_TRUE(config.ok()) << config.error().message;
     config_ = std::move(config).value();
     SimulatorOverrides overrides;
@@ -157,7 +157,7 @@ class DutMountingTest : public ::testing::Test {
   }
 
   std::string dir_;
-  daemon::StationConfig config_;
+  config::StationConfig config_;
   ManualClock clock_;
   std::unique_ptr<Simulator> sim_;
 };
@@ -212,11 +212,11 @@ TEST_F(DutMountingTest, TruthNamesEachAxisHeadingTableAndEarthRateAtPositionZero
 // frames' mean (noise on) carries Ω cos φ cos h.
 TEST(DutModelHeading, HorizontalAxisMeanCarriesCosLatitudeCosHeading) {
   const std::string station(kStation);
-  auto config = daemon::parse_station_config(
+  auto config = config::parse_station_config(
       station.substr(0, station.find("[table]")) + "[simulator]\nendpoints_file = \"unused\"\n",
       "mounting.toml");
   ASSERT_TRUE(config.ok()) << config.error().message;
-  const daemon::DutSection& dut = config->duts[0];
+  const config::DutSection& dut = config->duts[0];
   DutSimParams params;
   params.serial = dut.serial;
   for (auto& axis : params.axes) axis.white_noise_dph = 0.5;

@@ -17,8 +17,8 @@
 #include <string>
 #include <vector>
 
-#include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/sim_endpoints.h"
+#include "gyrotherm/config/config.h"
+#include "gyrotherm/config/sim_endpoints.h"
 #include "gyrotherm/drivers/dut_link.h"
 #include "gyrotherm/drivers/registers.h"
 #include "gyrotherm/sim/control_server.h"
@@ -146,7 +146,7 @@ class MultiDutTest : public ::testing::Test {
     char dir_template[] = "/tmp/gyrotherm-multidut-test-XXXXXX";
     ASSERT_NE(::mkdtemp(dir_template), nullptr);
     dir_ = dir_template;
-    auto config = daemon::parse_station_config(kStation, "multi.toml");
+    auto config = config::parse_station_config(kStation, "multi.toml");
     ASSERT_TRUE(config.ok()) << config.error().message;
     config_ = std::move(config).value();
     SimulatorOverrides overrides;
@@ -189,7 +189,7 @@ class MultiDutTest : public ::testing::Test {
       if (s == serial) device = d;
     }
     EXPECT_FALSE(device.empty()) << serial;
-    const daemon::DutSection* dut = daemon::find_dut(config_.duts, serial);
+    const config::DutSection* dut = config::find_dut(config_.duts, serial);
     EXPECT_NE(dut, nullptr);
     drivers::DutLink link = dut->link;
     link.serial.device = device;
@@ -233,7 +233,7 @@ class MultiDutTest : public ::testing::Test {
   }
 
   std::string dir_;
-  daemon::StationConfig config_;
+  config::StationConfig config_;
   SimulatorOptions options_;
   ScaledClock clock_{20};
   // For tests that step time by hand; outlives the simulator's threads.
@@ -256,7 +256,7 @@ TEST_F(MultiDutTest, EachDutOnItsOwnPtyDecodesToItsOwnTruth) {
     EXPECT_TRUE(std::filesystem::is_symlink(device)) << device;
   }
   // The endpoints file round-trips them (the daemon's reader).
-  auto file = daemon::read_sim_endpoints(options_.endpoints_file);
+  auto file = config::read_sim_endpoints(options_.endpoints_file);
   ASSERT_TRUE(file.ok()) << file.error().message;
   EXPECT_EQ(file->dut_devices, ep.dut_devices);
 
@@ -379,12 +379,12 @@ TEST_F(MultiDutTest, RateHzSetsEveryDutAndOneBySerial) {
   ASSERT_TRUE(sim_->start().ok());
 
   // The endpoints name each DUT's rate; the daemon's config takes them.
-  auto ep = daemon::read_sim_endpoints(options_.endpoints_file);
+  auto ep = config::read_sim_endpoints(options_.endpoints_file);
   ASSERT_TRUE(ep.ok()) << ep.error().message;
   EXPECT_EQ(ep->dut_rates_hz, (std::vector<std::pair<std::string, double>>{
                                   {"A-1", 40.0}, {"B-2", 40.0}, {"TS-7", 20.0}}));
-  daemon::StationConfig served = config_;
-  daemon::apply_sim_endpoints(served, *ep);
+  config::StationConfig served = config_;
+  config::apply_sim_endpoints(served, *ep);
   EXPECT_EQ(served.duts[0].link.rate_hz, 40.0);
   EXPECT_EQ(served.duts[1].link.rate_hz, 40.0);
   EXPECT_EQ(served.duts[2].link.rate_hz, 20.0);
@@ -520,7 +520,7 @@ TEST_F(MultiDutTest, DutProbesReadTheirOwnShellPlusAnOffset) {
 Result<SimulatorOptions> options_for(const std::string& simulator_part) {
   const std::string text =
       std::string(kStation).substr(0, std::string(kStation).find("[simulator]")) + simulator_part;
-  auto config = daemon::parse_station_config(text, "multi.toml");
+  auto config = config::parse_station_config(text, "multi.toml");
   if (!config.ok()) return config.error();
   return read_simulator_options(*config);
 }
@@ -541,7 +541,7 @@ white_noise_dph = 0.5
   EXPECT_EQ(o->dut_overrides[0].serial, "B-2");
   EXPECT_EQ(o->dut_overrides[0].all.bias_dph, 4.0);
   EXPECT_EQ(o->dut_overrides[0].axis[1].white_noise_dph, 0.5);
-  auto config = daemon::parse_station_config(kStation, "multi.toml");
+  auto config = config::parse_station_config(kStation, "multi.toml");
   ASSERT_TRUE(config.ok());
   const DutSimParams p = resolve_dut_params(*o, config->duts[1], 1);
   EXPECT_EQ(p.axes[0].bias_dph, 4.0);  // given: no default offset

@@ -25,7 +25,7 @@ std::string replace(std::string text, const std::string& from, const std::string
 
 Result<SimulatorOptions> options_from(const std::string& text,
                                       const SimulatorOverrides& overrides = {}) {
-  auto config = daemon::parse_station_config(text, "/nonexistent/demo.toml");
+  auto config = config::parse_station_config(text, "/nonexistent/demo.toml");
   if (!config.ok()) return config.error();
   return read_simulator_options(*config, overrides);
 }
@@ -117,7 +117,7 @@ TEST(SimulatorOptions, ErrorsFromAFileCarryLineNumbers) {
     std::ofstream out(path);
     out << replace(demo_text(), "case_tau_s = 900.0", "case_tau_s = 900.0\nunknown_knob = 3");
   }
-  auto config = daemon::load_station_config(path);
+  auto config = config::load_station_config(path);
   ASSERT_TRUE(config.ok()) << config.error().message;  // [simulator] is not the daemon's
   auto o = read_simulator_options(*config);
   std::filesystem::remove(path);
@@ -217,7 +217,7 @@ TEST(RateHzOption, BadValuesAreErrorsNamingTheValue) {
 }
 
 TEST(RateHzOption, ResolvesEachDutsRateAndRefusesAnUnknownSerial) {
-  auto config = daemon::parse_station_config(demo_text(), "demo.toml");
+  auto config = config::parse_station_config(demo_text(), "demo.toml");
   ASSERT_TRUE(config.ok()) << config.error().message;
   const auto& duts = config->duts;
   ASSERT_EQ(duts.size(), 3u);

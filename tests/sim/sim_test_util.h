@@ -78,7 +78,7 @@ class SimFixture : public ::testing::Test {
     char dir_template[] = "/tmp/gyrotherm-sim-test-XXXXXX";
     ASSERT_NE(::mkdtemp(dir_template), nullptr);
     dir_ = dir_template;
-    auto config = daemon::load_station_config(GYROTHERM_SOURCE_DIR "/config/demo.toml");
+    auto config = config::load_station_config(GYROTHERM_SOURCE_DIR "/config/demo.toml");
     ASSERT_TRUE(config.ok()) << config.error().message;
     config_ = *config;
     SimulatorOverrides overrides;
@@ -111,7 +111,7 @@ class SimFixture : public ::testing::Test {
   int probes_unit() const { return config_.probes.endpoint.unit_id; }
 
   std::string dir_;
-  daemon::StationConfig config_;
+  config::StationConfig config_;
   SimulatorOptions options_;
   // For tests that step time by hand: start(&manual_clock_). A member, not a
   // local of the test, so it outlives the simulator's threads (sim_ stops in

@@ -16,7 +16,7 @@
 #include <nlohmann/json.hpp>
 #include <thread>
 
-#include "gyrotherm/daemon/sim_endpoints.h"
+#include "gyrotherm/config/sim_endpoints.h"
 #include "gyrotherm/drivers/kvh1750.h"
 #include "sim_test_util.h"
 #include "test_time.h"
@@ -78,7 +78,7 @@ class SimulatorTest : public SimFixture {};
 
 TEST_F(SimulatorTest, WritesEndpointsAndTruthAndRemovesEndpointsOnStop) {
   ASSERT_NO_FATAL_FAILURE(start());
-  auto ep = daemon::read_sim_endpoints(options_.endpoints_file);
+  auto ep = config::read_sim_endpoints(options_.endpoints_file);
   ASSERT_TRUE(ep.ok()) << ep.error().message;
   EXPECT_EQ(ep->modbus_host, "127.0.0.1");
   EXPECT_EQ(ep->modbus_port, port());
@@ -248,7 +248,7 @@ TEST_F(SimulatorTest, ClosedPtyHangsUpAndReopenedPtyStreamsOnItsNewPath) {
   // The stable link follows the new pty, as /dev/serial/by-id/... would.
   EXPECT_EQ(path, options_.gyro_link);
   EXPECT_NE(std::filesystem::read_symlink(options_.gyro_link).string(), old_target);
-  auto ep = daemon::read_sim_endpoints(options_.endpoints_file);
+  auto ep = config::read_sim_endpoints(options_.endpoints_file);
   ASSERT_TRUE(ep.ok());
   EXPECT_EQ(ep->gyro_device, path);
   PtyReader reader(path);

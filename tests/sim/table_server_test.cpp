@@ -124,7 +124,7 @@ class AclClient {
 class TableServerTest : public SimFixture, public ::testing::WithParamInterface<std::string> {
  protected:
   void start_table(const std::string& framing = "ascii") {
-    config_.table = daemon::TableSection{};
+    config_.table = config::TableSection{};
     auto options = read_simulator_options(config_, {});
     ASSERT_TRUE(options.ok());
     options_.serve_table = options->serve_table;

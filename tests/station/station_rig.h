@@ -31,10 +31,10 @@
 #include <utility>
 #include <vector>
 
+#include "gyrotherm/config/config.h"
 #include "gyrotherm/core/clock.h"
-#include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/station.h"
 #include "gyrotherm/drivers/devices.h"
+#include "gyrotherm/station/station.h"
 #include "gyrotherm/storage/sample_writer.h"
 #include "integration/temp_dir_test.h"
 #include "station/fake_table.h"
@@ -395,9 +395,9 @@ class StationRig {
 
   // Creates and starts a station over the database (ControlLoop::kCaller).
   void open() {
-    auto cfg = daemon::parse_station_config(config_toml_, "rig.toml");
+    auto cfg = config::parse_station_config(config_toml_, "rig.toml");
     ASSERT_TRUE(cfg.ok()) << cfg.error().message;
-    daemon::StationDevices devices;
+    station::StationDevices devices;
     auto chamber = std::make_unique<FakeChamber>(plant);
     chamber_ = chamber.get();
     devices.chamber = std::move(chamber);
@@ -417,7 +417,7 @@ class StationRig {
       };
       devices.table = std::make_unique<FakeTableHandle>(table);
     }
-    daemon::StationHooks hooks;
+    station::StationHooks hooks;
     hooks.publish = [this](std::string_view event, const nlohmann::json& data) {
       {
         std::lock_guard lock(published_mu_);
@@ -432,11 +432,11 @@ class StationRig {
     ASSERT_TRUE(writer.ok()) << writer.error().message;
     auto sink = std::make_unique<FullDiskSink>(std::move(*writer));
     disk_ = sink.get();
-    auto st = daemon::Station::create(*cfg, std::move(devices), {clock, wall}, std::move(hooks),
-                                      std::move(sink));
+    auto st = station::Station::create(*cfg, std::move(devices), {clock, wall}, std::move(hooks),
+                                       std::move(sink));
     ASSERT_TRUE(st.ok()) << st.error().message;
     station = std::move(*st);
-    station->start(daemon::Station::ControlLoop::kCaller);
+    station->start(station::Station::ControlLoop::kCaller);
   }
   // Stops the station (a run in progress is interrupted) and drops it.
   void close() {
@@ -488,7 +488,7 @@ class StationRig {
     return r.refusal ? 0 : r.body.at("id").get<int64_t>();
   }
   std::string state() const { return station->status().state; }
-  nlohmann::json reply(const daemon::Reply& r) const {
+  nlohmann::json reply(const station::Reply& r) const {
     EXPECT_FALSE(r.refusal) << (r.refusal ? r.refusal->message : "");
     return r.body;
   }
@@ -526,7 +526,7 @@ class StationRig {
   std::function<void(double seconds)> on_commit;
   ManualClock clock{1000.0, 1.0};
   ManualWallClock wall{1.8e9};
-  std::unique_ptr<daemon::Station> station;
+  std::unique_ptr<station::Station> station;
 
  private:
   std::string db_path_;

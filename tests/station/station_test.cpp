@@ -512,13 +512,13 @@ TEST_F(StationUnitTest, StatusShowsTheRelayAndTheFreeSpace) {
   {
     StationRig rig(dir_);
     rig.open();
-    const daemon::StatusSnapshot s = rig.station->status();
+    const station::StatusSnapshot s = rig.station->status();
     EXPECT_FALSE(s.lab.has_value());
     ASSERT_TRUE(s.storage_free_bytes.has_value());
     ASSERT_TRUE(s.storage_size_bytes.has_value());
     EXPECT_GT(*s.storage_free_bytes, 0);
     EXPECT_GE(*s.storage_size_bytes, *s.storage_free_bytes);
-    const nlohmann::json j = daemon::to_json(s);
+    const nlohmann::json j = station::to_json(s);
     EXPECT_TRUE(j.at("lab").is_null());
     EXPECT_EQ(j.at("storage").at("free_bytes"), *s.storage_free_bytes);
   }
@@ -537,10 +537,10 @@ TEST_F(StationUnitTest, StatusShowsTheRelayAndTheFreeSpace) {
     return std::optional(r);
   };
   rig.open();
-  const daemon::StatusSnapshot s = rig.station->status();
+  const station::StatusSnapshot s = rig.station->status();
   ASSERT_TRUE(s.lab.has_value());
   EXPECT_GE(calls.load(), 1);
-  const nlohmann::json j = daemon::to_json(s).at("lab");
+  const nlohmann::json j = station::to_json(s).at("lab");
   EXPECT_EQ(j.at("station_id"), "st-07");
   EXPECT_EQ(j.at("state"), "backoff");
   EXPECT_EQ(j.at("pending"), 42);
@@ -849,7 +849,7 @@ TEST_F(StationUnitTest, StoppingSaysWhetherTheChamberTookTheSafeSetPoint) {
 TEST_F(StationUnitTest, DutProbeEventsAreRecordedUnderTheRunLock) {
   StationRig rig(dir_);
   rig.dut_plant = std::make_shared<FakePlant>();
-  std::future<daemon::Reply> command;
+  std::future<station::Reply> command;
   std::optional<bool> command_done_meanwhile;
   rig.on_publish = [&](std::string_view event, const nlohmann::json& data) {
     if (event != "event" || command_done_meanwhile) return;
@@ -865,7 +865,7 @@ TEST_F(StationUnitTest, DutProbeEventsAreRecordedUnderTheRunLock) {
   ASSERT_TRUE(command_done_meanwhile.has_value()) << "no probe event published";
   EXPECT_FALSE(*command_done_meanwhile)
       << "an operator command ran while the control loop recorded an event";
-  const daemon::Reply reply = command.get();
+  const station::Reply reply = command.get();
   ASSERT_TRUE(reply.refusal.has_value());
   EXPECT_EQ(reply.refusal->message, "no run in progress to pause");
 }
@@ -879,7 +879,7 @@ TEST_F(StationUnitTest, StatusDoesNotWaitForAChamberThatDoesNotAnswer) {
   rig.chamber().block();
   std::thread control([&] { rig.step(); });
   const bool blocked = wait_for_condition([&] { return rig.chamber().waiting(); }, 10s);
-  std::future<daemon::StatusSnapshot> status;
+  std::future<station::StatusSnapshot> status;
   if (blocked) {
     status = std::async(std::launch::async, [&] { return rig.station->status(); });
   }

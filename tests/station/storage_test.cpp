@@ -221,16 +221,16 @@ TEST_F(StationStorageTest, DamagedDatabaseIsRefusedAtStart) {
     const std::string garbage(64, '\xff');
     f.write(garbage.data(), static_cast<std::streamsize>(garbage.size()));
   }
-  auto cfg = daemon::parse_station_config(rig_config_toml(db), "rig.toml");
+  auto cfg = config::parse_station_config(rig_config_toml(db), "rig.toml");
   ASSERT_TRUE(cfg.ok()) << cfg.error().message;
   auto plant = std::make_shared<FakePlant>();
-  daemon::StationDevices devices;
+  station::StationDevices devices;
   devices.chamber = std::make_unique<FakeChamber>(plant);
   devices.probes = std::make_unique<FakeProbes>(plant);
   devices.duts.push_back(std::make_unique<FakeGyro>(plant, 10.0));
   ManualClock clock{1000.0, 1.0};
   ManualWallClock wall{1.8e9};
-  auto station = daemon::Station::create(*cfg, std::move(devices), {clock, wall}, {});
+  auto station = station::Station::create(*cfg, std::move(devices), {clock, wall}, {});
   ASSERT_FALSE(station.ok()) << "a damaged database was accepted";
   EXPECT_NE(station.error().message.find(db), std::string::npos) << station.error().message;
   EXPECT_NE(station.error().message.find("the database is damaged: PRAGMA quick_check"),

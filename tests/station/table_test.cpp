@@ -344,7 +344,7 @@ TEST_F(StationTableTest, TheOperatorResetsAFaultThroughTheStation) {
   rig.table.change([](FakeTable::State& s) { s.silent = true; });
   const auto silent = rig.station->control("table-reset", "bench");
   ASSERT_TRUE(silent.refusal.has_value());
-  EXPECT_EQ(silent.refusal->kind, daemon::Refusal::Kind::kUnavailable);
+  EXPECT_EQ(silent.refusal->kind, station::Refusal::Kind::kUnavailable);
   EXPECT_NE(silent.refusal->message.find("no answer"), std::string::npos);
   rig.table.change([](FakeTable::State& s) { s.silent = false; });
 
@@ -353,7 +353,7 @@ TEST_F(StationTableTest, TheOperatorResetsAFaultThroughTheStation) {
   no_table.open();
   const auto refused = no_table.station->control("table-reset", "bench");
   ASSERT_TRUE(refused.refusal.has_value());
-  EXPECT_EQ(refused.refusal->kind, daemon::Refusal::Kind::kConflict);
+  EXPECT_EQ(refused.refusal->kind, station::Refusal::Kind::kConflict);
   EXPECT_NE(refused.refusal->message.find("no rate table"), std::string::npos);
 }
 

@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/api.h"
+#include "gyrotherm/api/api.h"
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -10,9 +10,9 @@
 #include <nlohmann/json.hpp>
 #include <optional>
 
-#include "gyrotherm/daemon/http_message.h"
+#include "gyrotherm/api/http_message.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::api {
 
 namespace http = boost::beast::http;
 
@@ -27,25 +27,25 @@ std::optional<int64_t> parse_id(std::string_view s) {
   return v;
 }
 
-HttpResponse reply_response(const HttpRequest& req, const Reply& reply,
+HttpResponse reply_response(const HttpRequest& req, const station::Reply& reply,
                             http::status ok_status = http::status::ok) {
   if (!reply.refusal) return json_response(req, ok_status, json_text(reply.body));
-  const Refusal& r = *reply.refusal;
+  const station::Refusal& r = *reply.refusal;
   http::status status = http::status::unprocessable_entity;
   switch (r.kind) {
-    case Refusal::Kind::kNotFound:
+    case station::Refusal::Kind::kNotFound:
       status = http::status::not_found;
       break;
-    case Refusal::Kind::kConflict:
+    case station::Refusal::Kind::kConflict:
       status = http::status::conflict;
       break;
-    case Refusal::Kind::kInvalid:
+    case station::Refusal::Kind::kInvalid:
       status = http::status::unprocessable_entity;
       break;
-    case Refusal::Kind::kUnavailable:
+    case station::Refusal::Kind::kUnavailable:
       status = http::status::service_unavailable;
       break;
-    case Refusal::Kind::kBadRequest:
+    case station::Refusal::Kind::kBadRequest:
       status = http::status::bad_request;
       break;
   }
@@ -190,19 +190,20 @@ std::optional<std::vector<std::string>> bounded_list(Body& b, const HttpRequest&
 
 // The run metadata fields of a body (POST /queue, PATCH /runs/{id}): each
 // optional, checked against the limits of control.h.
-MetadataEdit metadata_fields(Body& b, const HttpRequest& req) {
-  MetadataEdit m;
+station::MetadataEdit metadata_fields(Body& b, const HttpRequest& req) {
+  station::MetadataEdit m;
   if (b.error) return m;
   if (b.json.contains("operator")) {
     m.operator_name =
-        bounded_text(b, req, b.json["operator"], "'operator'", kMaxOperatorChars, false);
+        bounded_text(b, req, b.json["operator"], "'operator'", station::kMaxOperatorChars, false);
   }
   if (b.json.contains("comment")) {
-    m.comment = bounded_text(b, req, b.json["comment"], "'comment'", kMaxCommentChars, true);
+    m.comment =
+        bounded_text(b, req, b.json["comment"], "'comment'", station::kMaxCommentChars, true);
   }
-  m.tags = bounded_list(b, req, "tags", kMaxTags, kMaxTagChars, "tags (strings)");
-  m.dut_serials =
-      bounded_list(b, req, "duts", kMaxDutSerials, kMaxSerialChars, "DUT serials (strings)");
+  m.tags = bounded_list(b, req, "tags", station::kMaxTags, station::kMaxTagChars, "tags (strings)");
+  m.dut_serials = bounded_list(b, req, "duts", station::kMaxDutSerials, station::kMaxSerialChars,
+                               "DUT serials (strings)");
   return m;
 }
 
@@ -420,13 +421,13 @@ constexpr Route kRoutes[] = {
        auto toml = field<std::string>(body, req, "schedule_toml", "a string (the schedule file)");
        auto source = field<std::string>(body, req, "source", "a string");
        auto ignore = field<bool>(body, req, "ignore_failures", "true or false");
-       const MetadataEdit metadata = metadata_fields(body, req);
+       const station::MetadataEdit metadata = metadata_fields(body, req);
        if (body.error) return *body.error;
        if (!toml) {
          return error_response(req, http::status::bad_request,
                                "field 'schedule_toml' is required (the schedule file's text)");
        }
-       QueueRequest q;
+       station::QueueRequest q;
        q.toml_text = std::move(*toml);
        q.source = source.value_or("");
        q.ignore_failures = ignore.value_or(false);
@@ -472,7 +473,7 @@ constexpr Route kRoutes[] = {
     {http::verb::patch, "/api/v1/runs/{id}", Access::kControl, true,
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        Body body = parse_body(req, {"operator", "comment", "tags", "duts"});
-       const MetadataEdit edit = metadata_fields(body, req);
+       const station::MetadataEdit edit = metadata_fields(body, req);
        if (body.error) return *body.error;
        if (!edit.operator_name && !edit.comment && !edit.tags && !edit.dut_serials) {
          return error_response(req, http::status::bad_request,
@@ -491,7 +492,7 @@ constexpr Route kRoutes[] = {
      [](const HttpRequest& req, const ApiContext& ctx, const Params& p) {
        const Query q = parse_query(req, {"dut", "axis"});
        if (q.error) return *q.error;
-       StatsQuery sq;
+       station::StatsQuery sq;
        if (const std::string* dut = q.find("dut")) sq.dut = *dut;
        if (const std::string* axis = q.find("axis")) sq.axis = *axis;
        return reply_response(req, ctx.control->run_stats_filtered(*parse_id(p[0]), sq));
@@ -518,7 +519,7 @@ constexpr Route kRoutes[] = {
        if (q.error) return *q.error;
        std::optional<HttpResponse> error;
        constexpr double kMaxS = 1e9;
-       SamplesQuery sq;
+       station::SamplesQuery sq;
        sq.from_s = number_param(q, error, req, "from", -kMaxS, kMaxS).value_or(0.0);
        sq.to_s = number_param(q, error, req, "to", -kMaxS, kMaxS);
        if (auto m = number_param(q, error, req, "max_points", 1, kMaxPoints)) {
@@ -594,11 +595,12 @@ std::optional<HttpResponse> check_params(const HttpRequest& req, std::string_vie
     }
     if (name == "serial") {
       const auto serial = url_decode(value, false);
-      if (!serial || serial->empty() || utf8_chars(*serial) > kMaxSerialChars) {
-        return error_response(req, http::status::not_found,
-                              fmt::format("'{}' is not a DUT serial (percent-encoded, 1 to {} "
-                                          "characters)",
-                                          value.substr(0, 2 * kMaxSerialChars), kMaxSerialChars));
+      if (!serial || serial->empty() || utf8_chars(*serial) > station::kMaxSerialChars) {
+        return error_response(
+            req, http::status::not_found,
+            fmt::format("'{}' is not a DUT serial (percent-encoded, 1 to {} "
+                        "characters)",
+                        value.substr(0, 2 * station::kMaxSerialChars), station::kMaxSerialChars));
       }
     }
     if (name == "action" && value != "pause" && value != "resume" && value != "abort" &&
@@ -742,4 +744,4 @@ HttpResponse handle_api_request(const HttpRequest& req, const ApiContext& ctx,
   return response;
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::api

@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/auth_limiter.h"
+#include "gyrotherm/api/auth_limiter.h"
 
 #include <fmt/format.h>
 
@@ -6,7 +6,7 @@
 #include <cmath>
 #include <utility>
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::api {
 
 bool AuthLimiterOptions::is_valid(std::string* why) const {
   const auto fail = [why](std::string msg) {
@@ -87,4 +87,4 @@ void AuthLimiter::make_room(double now_s) {
   }
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::api

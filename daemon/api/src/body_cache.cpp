@@ -1,8 +1,8 @@
-#include "gyrotherm/daemon/body_cache.h"
+#include "gyrotherm/api/body_cache.h"
 
 #include <utility>
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::api {
 
 BodyCache::BodyCache(std::function<std::string()> render, double max_age_s, const WallClock& wall)
     : render_(std::move(render)), max_age_s_(max_age_s), wall_(wall) {}
@@ -60,4 +60,4 @@ uint64_t BodyCache::renders() const {
   return renders_;
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::api

@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/http_server.h"
+#include "gyrotherm/api/http_server.h"
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -15,7 +15,7 @@
 #include <nlohmann/json.hpp>
 #include <type_traits>
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::api {
 
 namespace asio = boost::asio;
 namespace beast = boost::beast;
@@ -574,4 +574,4 @@ HttpServerStats HttpServer::stats() const {
           impl_->connections.load()};
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::api

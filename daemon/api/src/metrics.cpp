@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/metrics.h"
+#include "gyrotherm/api/metrics.h"
 
 #include <prometheus/histogram.h>
 #include <prometheus/metric_family.h>
@@ -8,7 +8,7 @@
 #include <cmath>
 #include <vector>
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::api {
 
 namespace {
 
@@ -88,7 +88,7 @@ void Metrics::observe_modbus(std::string_view device, double seconds) {
 
 void Metrics::observe_commit(double seconds) { commit_s_->Observe(seconds); }
 
-std::string Metrics::scrape(const StatusSnapshot& s, const ServerFigures& server) const {
+std::string Metrics::scrape(const station::StatusSnapshot& s, const ServerFigures& server) const {
   Families f;
   f.gauge("gyrotherm_up", "1 while the daemon serves", 1.0);
   f.gauge("gyrotherm_uptime_seconds", "Wall seconds since the daemon started", s.uptime_s);
@@ -132,7 +132,7 @@ std::string Metrics::scrape(const StatusSnapshot& s, const ServerFigures& server
 
   // Every DUT, labelled by serial (and axis for rates): the gyro_* families
   // above are the first DUT's primary axis, kept for older dashboards.
-  for (const DutStatus& d : s.duts) {
+  for (const station::DutStatus& d : s.duts) {
     const std::string serial = d.serial.empty() ? "(no serial)" : d.serial;
     for (const auto& [axis, rate] : d.rates_dph) {
       f.gauge("gyrotherm_dut_rate_dph",
@@ -259,4 +259,4 @@ std::string Metrics::scrape(const StatusSnapshot& s, const ServerFigures& server
   return prometheus::TextSerializer().Serialize(families);
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::api

@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/web_assets.h"
+#include "gyrotherm/api/web_assets.h"
 
 #include <fmt/format.h>
 
@@ -6,7 +6,7 @@
 
 #include "gyrotherm/core/files.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::api {
 
 namespace fs = std::filesystem;
 
@@ -58,4 +58,4 @@ std::string default_web_root() {
   return (exe.parent_path().parent_path() / "share" / "gyrotherm" / "web").string();
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::api

@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/analysis_worker.h"
+#include "gyrotherm/calibration/analysis_worker.h"
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -7,7 +7,7 @@
 
 #include "gyrotherm/core/clock.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::calibration {
 
 Result<storage::SegmentStatsRecord> compute_table1(storage::Database& db, const Table1Job& job,
                                                    const analysis::Table1Options& options,
@@ -135,4 +135,4 @@ void AnalysisWorker::run() {
   }
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::calibration

@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/exporter.h"
+#include "gyrotherm/calibration/exporter.h"
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -15,7 +15,7 @@
 
 #include "gyrotherm/core/files.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::calibration {
 
 namespace fs = std::filesystem;
 
@@ -23,7 +23,7 @@ namespace {
 
 constexpr const char* kSinceKey = "nightly_export_since_unix_s";
 
-std::tm local_tm(double unix_s, const TimeZone& zone) {
+std::tm local_tm(double unix_s, const config::TimeZone& zone) {
   const auto local_s = static_cast<std::time_t>(std::floor(unix_s) + zone.offset_s(unix_s));
   std::tm tm{};
   gmtime_r(&local_s, &tm);
@@ -103,7 +103,7 @@ Status write_files(const fs::path& target, const std::vector<ReportFile>& files)
 
 }  // namespace
 
-std::string local_time_label(double unix_s, const TimeZone& zone) {
+std::string local_time_label(double unix_s, const config::TimeZone& zone) {
   const std::tm tm = local_tm(unix_s, zone);
   const int offset_s = zone.offset_s(unix_s);
   const int a = std::abs(offset_s);
@@ -112,7 +112,8 @@ std::string local_time_label(double unix_s, const TimeZone& zone) {
                      a / 3600, a % 3600 / 60);
 }
 
-std::string nightly_directory(const std::string& root, double slot_unix_s, const TimeZone& zone) {
+std::string nightly_directory(const std::string& root, double slot_unix_s,
+                              const config::TimeZone& zone) {
   const std::tm tm = local_tm(slot_unix_s, zone);
   const std::string date =
       fmt::format("{:04}-{:02}-{:02}", tm.tm_year + 1900, tm.tm_mon + 1, tm.tm_mday);
@@ -253,7 +254,7 @@ Result<storage::Database*> NightlyExporter::database() {
 }
 
 double NightlyExporter::next_slot_unix_s() const {
-  return daemon::next_slot_unix_s(clock_.unix_now_s(), options_.at, options_.zone);
+  return config::next_slot_unix_s(clock_.unix_now_s(), options_.at, options_.zone);
 }
 
 Status NightlyExporter::finish_interrupted(storage::Database& db) {
@@ -317,7 +318,7 @@ Result<std::optional<ExportOutcome>> NightlyExporter::poll() {
       return st.error();
     }
   }
-  const auto slot = due_slot_unix_s(*last, since, now, options_.at, options_.zone);
+  const auto slot = config::due_slot_unix_s(*last, since, now, options_.at, options_.zone);
   if (!slot) return std::optional<ExportOutcome>();
 
   if (before_export_) before_export_();
@@ -370,4 +371,4 @@ void NightlyExporter::stop() {
   if (thread_.joinable()) thread_.join();
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::calibration

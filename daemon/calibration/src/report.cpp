@@ -1,6 +1,6 @@
 // What the calibration reports show: collected from the database and the
 // analysis library (report.h). Rendering is in report_render.cpp.
-#include "gyrotherm/daemon/report.h"
+#include "gyrotherm/calibration/report.h"
 
 #include <fmt/format.h>
 #include <sqlite3.h>
@@ -15,7 +15,7 @@
 
 #include "gyrotherm/core/clock.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::calibration {
 
 namespace {
 
@@ -927,4 +927,4 @@ std::vector<CampaignReport> collect_campaign_reports(std::vector<RunReport> runs
   return out;
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::calibration

@@ -4,11 +4,11 @@
 
 #include <string_view>
 
-namespace gyrotherm::daemon::report_assets {
+namespace gyrotherm::calibration::report_assets {
 
 std::string_view uplot_js();
 std::string_view uplot_css();
 std::string_view report_js();
 std::string_view report_css();
 
-}  // namespace gyrotherm::daemon::report_assets
+}  // namespace gyrotherm::calibration::report_assets

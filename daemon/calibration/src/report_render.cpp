@@ -11,12 +11,12 @@
 
 #include "gyrotherm/analysis/allan.h"
 #include "gyrotherm/analysis/start_temperature.h"
+#include "gyrotherm/calibration/report.h"
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/core/text.h"
-#include "gyrotherm/daemon/report.h"
 #include "report_assets.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::calibration {
 
 namespace {
 
@@ -1665,4 +1665,4 @@ std::vector<ReportFile> render_export_files(const std::vector<std::vector<RunRep
   return files;
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::calibration

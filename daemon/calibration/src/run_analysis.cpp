@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/run_analysis.h"
+#include "gyrotherm/calibration/run_analysis.h"
 
 #include <fmt/format.h>
 #include <sqlite3.h>
@@ -12,11 +12,11 @@
 #include <span>
 
 #include "gyrotherm/analysis/scale_factor.h"
+#include "gyrotherm/calibration/scale_factor_run.h"
+#include "gyrotherm/config/config.h"
 #include "gyrotherm/core/clock.h"
-#include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/scale_factor_run.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::calibration {
 namespace {
 
 // Station seconds of samples read at a time for a whole-run series: 600 s
@@ -51,7 +51,7 @@ std::string soak_name(const SoakWindow& soak) {
 
 }  // namespace
 
-AnalysisSettings analysis_settings(const StationConfig& config) {
+AnalysisSettings analysis_settings(const config::StationConfig& config) {
   AnalysisSettings s;
   s.table1.bin_s = config.analysis.bin_s;
   s.table1.ma_window = static_cast<std::size_t>(config.analysis.ma_window);
@@ -73,12 +73,12 @@ AnalysisSettings analysis_settings(const StationConfig& config) {
   return s;
 }
 
-RunConfig read_run_config(const storage::RunRecord& run) {
-  return read_run_config(run.config_json.empty() ? run.config_toml : run.config_json);
+config::RunConfig read_run_config(const storage::RunRecord& run) {
+  return config::read_run_config(run.config_json.empty() ? run.config_toml : run.config_json);
 }
 
 Result<AnalysisSettings> analysis_settings_of_run(const storage::RunRecord& run) {
-  const RunConfig cfg = read_run_config(run);
+  const config::RunConfig cfg = read_run_config(run);
   AnalysisSettings s;
   if (cfg.bin_s) s.table1.bin_s = *cfg.bin_s;
   if (cfg.ma_window) s.table1.ma_window = static_cast<std::size_t>(*cfg.ma_window);
@@ -565,7 +565,7 @@ Result<analysis::AnalysisSeries> run_series(storage::Database& db, int64_t run_i
   }
   auto run = db.run(run_id);
   if (!run) return run.error();
-  const RunConfig cfg = read_run_config(*run);
+  const config::RunConfig cfg = read_run_config(*run);
   auto spinning = spinning_spans(db, run_id, cfg.table_rest_rate_dps.value_or(kRestRateDps));
   if (!spinning) return spinning.error();
   // What the coverage expects: the spans of the run's steps (a step not
@@ -676,7 +676,7 @@ Result<double> soak_earth_rate_dph(storage::Database& db, const SoakWindow& soak
   const double axis_dph = axis.orientation ? analysis::earth_rate_component_dph(
                                                  run->latitude_deg, *axis.orientation, heading_deg)
                                            : default_dph;
-  const RunConfig cfg = read_run_config(*run);
+  const config::RunConfig cfg = read_run_config(*run);
   // The table's rule is for the axis along the table's spin axis; the
   // DUT's other axes keep their own orientation. A horizontal axis with a
   // heading turns with the table (the DUTs are on it): its heading is at
@@ -988,4 +988,4 @@ Result<RunAnalysisSummary> analyse_run(storage::Database& db, int64_t run_id,
   return summary;
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::calibration

@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/scale_factor_run.h"
+#include "gyrotherm/calibration/scale_factor_run.h"
 
 #include <fmt/format.h>
 
@@ -8,9 +8,9 @@
 #include <nlohmann/json.hpp>
 
 #include "gyrotherm/analysis/scale_factor.h"
-#include "gyrotherm/daemon/run_analysis.h"
+#include "gyrotherm/calibration/run_analysis.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::calibration {
 namespace {
 
 constexpr double kDphPerDps = 3600.0;
@@ -309,4 +309,4 @@ Result<ScaleFactorSummary> analyse_scale_factor(storage::Database& db, int64_t r
   return summary;
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::calibration

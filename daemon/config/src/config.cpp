@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/config.h"
+#include "gyrotherm/config/config.h"
 
 #include <fcntl.h>
 #include <fmt/format.h>
@@ -17,12 +17,12 @@
 #include "config_readers.h"
 #include "gyrotherm/analysis/allan.h"
 #include "gyrotherm/analysis/drift_model.h"
+#include "gyrotherm/config/nightly.h"
 #include "gyrotherm/core/toml_reader.h"
-#include "gyrotherm/daemon/nightly.h"
 
 static_assert(TOML_LIB_MAJOR == 3, "config.h declares toml::table as toml::v3::table");
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::config {
 
 // The readers of the other rooms (config_readers.h).
 using internal::dut_from_gyro;
@@ -804,4 +804,4 @@ Result<StationConfig> parse_station_config(std::string_view toml_text,
   return build_config(parse_toml_string(toml_text, errors), errors, source_name);
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::config

@@ -8,11 +8,11 @@
 #include <vector>
 
 #include "gyrotherm/analysis/table1.h"
+#include "gyrotherm/config/config.h"
 #include "gyrotherm/core/toml_errors.h"
 #include "gyrotherm/core/toml_reader.h"
-#include "gyrotherm/daemon/config.h"
 
-namespace gyrotherm::daemon::internal {
+namespace gyrotherm::config::internal {
 
 // dut_config.cpp: [gyro], the older form of one DUT.
 void read_gyro(TableReader t, GyroSection& g);
@@ -28,4 +28,4 @@ GyroSection gyro_of(const DutSection& d);
 // file's path).
 void read_lab(TableReader t, LabSection& l, const std::string& source);
 
-}  // namespace gyrotherm::daemon::internal
+}  // namespace gyrotherm::config::internal

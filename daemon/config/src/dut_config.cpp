@@ -9,10 +9,10 @@
 #include <cmath>
 
 #include "config_readers.h"
+#include "gyrotherm/config/config.h"
 #include "gyrotherm/core/toml_reader.h"
-#include "gyrotherm/daemon/config.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::config {
 namespace {
 
 // A DUT's serial number as given at `key`: 1..64 printable ASCII characters,
@@ -622,4 +622,4 @@ std::optional<double> axis_heading_deg(const DutSection& dut, std::string_view a
   return std::nullopt;
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::config

@@ -11,11 +11,11 @@
 #include <filesystem>
 
 #include "config_readers.h"
+#include "gyrotherm/config/config.h"
 #include "gyrotherm/core/files.h"
 #include "gyrotherm/core/toml_reader.h"
-#include "gyrotherm/daemon/config.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::config {
 namespace {
 
 // A path from the config file, relative to the file's directory (absolute
@@ -260,4 +260,4 @@ Result<std::string> lab_conninfo(const LabSection& lab) {
   return base;
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::config

@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/nightly.h"
+#include "gyrotherm/config/nightly.h"
 
 #include <fmt/format.h>
 
@@ -12,7 +12,7 @@
 #include <optional>
 #include <vector>
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::config {
 namespace {
 
 constexpr double kDayS = 86400.0;
@@ -230,4 +230,4 @@ std::optional<double> due_slot_unix_s(std::optional<double> last_slot_unix_s, do
   }
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::config

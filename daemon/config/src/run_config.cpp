@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/run_config.h"
+#include "gyrotherm/config/run_config.h"
 
 #include <fmt/format.h>
 #include <toml++/toml.h>
@@ -9,9 +9,9 @@
 #include <vector>
 
 #include "gyrotherm/analysis/table1.h"
-#include "gyrotherm/daemon/config.h"
+#include "gyrotherm/config/config.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::config {
 
 RunConfig read_run_config(const std::string& text) {
   using json = nlohmann::json;
@@ -366,4 +366,4 @@ nlohmann::json dut_config_json(const DutSection& dut) {
               {"ascii", std::move(ascii)}};
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::config

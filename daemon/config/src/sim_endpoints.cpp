@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/sim_endpoints.h"
+#include "gyrotherm/config/sim_endpoints.h"
 
 #include <fmt/format.h>
 #include <toml++/toml.h>
@@ -11,7 +11,7 @@
 #include "gyrotherm/core/toml_reader.h"
 #include "gyrotherm/drivers/rate_table.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::config {
 
 Result<SimEndpoints> read_sim_endpoints(const std::string& path) {
   TomlErrors errors(path);
@@ -207,4 +207,4 @@ std::string sim_dut_devices_mismatch(const StationConfig& config, const SimEndpo
       fmt::join(served, ", "));
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::config

@@ -8,16 +8,16 @@
 #include <limits>
 #include <nlohmann/json.hpp>
 
-#include "gyrotherm/daemon/run_config.h"
+#include "gyrotherm/config/run_config.h"
 #include "gyrotherm/drivers/kvh1750.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::station {
 
-std::string dut_name(const DutSection& dut) {
+std::string dut_name(const config::DutSection& dut) {
   return dut.serial.empty() ? std::string("(no serial)") : dut.serial;
 }
 
-DutAcquisition::DutAcquisition(const StationConfig& config,
+DutAcquisition::DutAcquisition(const config::StationConfig& config,
                                std::vector<std::unique_ptr<drivers::DutSource>> sources,
                                std::vector<std::unique_ptr<drivers::ShellProbes>> probes,
                                Links links)
@@ -238,7 +238,7 @@ void DutAcquisition::publish_dut_status(const DutLive& dut) {
 void DutAcquisition::register_run_duts(storage::Database& db, int64_t run_id,
                                        const std::vector<std::string>& serials) {
   for (auto& d : duts_) {
-    const DutSection& cfg = *d->cfg;
+    const config::DutSection& cfg = *d->cfg;
     const bool named =
         serials.empty() || std::find(serials.begin(), serials.end(), cfg.serial) != serials.end();
     d->in_run.store(named);
@@ -254,7 +254,7 @@ void DutAcquisition::register_run_duts(storage::Database& db, int64_t run_id,
     rec.position = static_cast<int>(d->index);
     rec.dut.serial = cfg.serial;
     rec.dut.model = cfg.model;
-    rec.config_json = dut_config_json(cfg).dump();  // what the run analysis reads
+    rec.config_json = config::dut_config_json(cfg).dump();  // what the run analysis reads
     rec.primary_axis = cfg.primary_axis;
     rec.axes = cfg.axes;
     rec.rate_hz = cfg.link.rate_hz;
@@ -406,4 +406,4 @@ void DutAcquisition::seed_coverage(storage::Database& db, int64_t run_id, double
   }
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::station

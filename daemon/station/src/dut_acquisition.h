@@ -32,20 +32,20 @@
 #include <string>
 #include <vector>
 
+#include "gyrotherm/config/config.h"
 #include "gyrotherm/core/clock.h"
-#include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/run_clock.h"
-#include "gyrotherm/daemon/status.h"
 #include "gyrotherm/drivers/devices.h"
 #include "gyrotherm/schedules/coverage.h"
 #include "gyrotherm/schedules/sequencer.h"
+#include "gyrotherm/station/run_clock.h"
+#include "gyrotherm/station/status.h"
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::station {
 
 // How a DUT is named in messages: its serial, or its position when unnamed.
-std::string dut_name(const DutSection& dut);
+std::string dut_name(const config::DutSection& dut);
 
 class DutAcquisition {
  public:
@@ -69,7 +69,7 @@ class DutAcquisition {
   // One source per [[dut]] of `config` (which must outlive this), in config
   // order; `probes`, by DUT index, its own probes (missing or nullptr:
   // none). Publishes each DUT's status.
-  DutAcquisition(const StationConfig& config,
+  DutAcquisition(const config::StationConfig& config,
                  std::vector<std::unique_ptr<drivers::DutSource>> sources,
                  std::vector<std::unique_ptr<drivers::ShellProbes>> probes, Links links);
 
@@ -114,7 +114,7 @@ class DutAcquisition {
   // its registration in the current run.
   struct DutLive {
     std::size_t index = 0;
-    const DutSection* cfg = nullptr;  // config_.duts[index]
+    const config::DutSection* cfg = nullptr;  // config_.duts[index]
     std::unique_ptr<drivers::DutSource> source;
     std::unique_ptr<drivers::ShellProbes> probes;  // nullptr: none of its own
     bool probes_failing = false;                   // control thread: said in the events
@@ -158,7 +158,7 @@ class DutAcquisition {
   void on_dut_frames(DutLive& dut, std::span<const DutFrame> frames);
   void publish_dut_status(const DutLive& dut);
 
-  const StationConfig& config_;
+  const config::StationConfig& config_;
   Links links_;
   std::vector<std::unique_ptr<DutLive>> duts_;  // by [[dut]] index
   // Each DUT's last batch handed to the writer: run and run time of its
@@ -167,4 +167,4 @@ class DutAcquisition {
   std::condition_variable handed_cv_;
 };
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::station

@@ -5,9 +5,9 @@
 
 #include <nlohmann/json.hpp>
 
-#include "gyrotherm/daemon/control.h"
+#include "gyrotherm/station/control.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::station {
 
 storage::SegmentRecord segment_record(int64_t id, int64_t run_id, std::size_t index,
                                       const schedules::PlanStep& step,
@@ -221,4 +221,4 @@ bool EventJournal::tick_with_checkpoint(const std::function<void()>& tick,
   return true;
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::station

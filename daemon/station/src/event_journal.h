@@ -28,12 +28,12 @@
 
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/core/result.h"
-#include "gyrotherm/daemon/run_clock.h"
-#include "gyrotherm/daemon/status.h"
 #include "gyrotherm/schedules/sequencer.h"
+#include "gyrotherm/station/run_clock.h"
+#include "gyrotherm/station/status.h"
 #include "gyrotherm/storage/database.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::station {
 
 // A step's segment record: row `id` of run `run_id`, step `index`, in `state`.
 storage::SegmentRecord segment_record(int64_t id, int64_t run_id, std::size_t index,
@@ -131,4 +131,4 @@ class EventJournal {
   uint64_t posted_events_dropped_ = 0;
 };
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::station

@@ -4,9 +4,9 @@
 #include <cmath>
 #include <map>
 
-#include "gyrotherm/daemon/control.h"
+#include "gyrotherm/station/control.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::station {
 namespace {
 
 nlohmann::json opt(const std::optional<double>& v) {
@@ -389,4 +389,4 @@ Result<nlohmann::json> dut_history_json(storage::Database& db, const std::string
   return to_json(*history);
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::station

@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/station.h"
+#include "gyrotherm/station/station.h"
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -14,15 +14,15 @@
 
 #include "dut_acquisition.h"
 #include "event_journal.h"
+#include "gyrotherm/calibration/run_analysis.h"
+#include "gyrotherm/config/run_config.h"
 #include "gyrotherm/core/paced_clock.h"
-#include "gyrotherm/daemon/run_analysis.h"
-#include "gyrotherm/daemon/run_config.h"
 #include "gyrotherm/drivers/dut_link.h"
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/drivers/modbus_devices.h"
 #include "gyrotherm/drivers/rate_tables.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::station {
 namespace {
 
 using schedules::RunState;
@@ -34,7 +34,7 @@ constexpr std::chrono::milliseconds kAwaitGyro{2000};
 
 }  // namespace
 
-Result<StationDevices> devices_from_config(const StationConfig& config, const Clock& clock,
+Result<StationDevices> devices_from_config(const config::StationConfig& config, const Clock& clock,
                                            const StationHooks& hooks) {
   auto chamber =
       std::make_unique<drivers::ModbusChamber>(config.chamber.endpoint, config.chamber.map);
@@ -47,7 +47,7 @@ Result<StationDevices> devices_from_config(const StationConfig& config, const Cl
   StationDevices devices;
   devices.chamber = std::move(chamber);
   devices.probes = std::move(probes);
-  for (const DutSection& dut : config.duts) {
+  for (const config::DutSection& dut : config.duts) {
     auto source = drivers::make_dut_source(dut.link, clock);
     if (!source) {
       return Error::Permanent(fmt::format("DUT {}: {}", dut_name(dut), source.error().message));
@@ -74,8 +74,9 @@ Result<StationDevices> devices_from_config(const StationConfig& config, const Cl
   return devices;
 }
 
-Result<std::unique_ptr<Station>> Station::create(StationConfig config, StationDevices devices,
-                                                 StationClocks clocks, StationHooks hooks,
+Result<std::unique_ptr<Station>> Station::create(config::StationConfig config,
+                                                 StationDevices devices, StationClocks clocks,
+                                                 StationHooks hooks,
                                                  std::unique_ptr<storage::SampleSink> samples) {
   if (!devices.chamber || !devices.probes) {
     return Error::Permanent("station: a chamber and a probe module are needed");
@@ -83,7 +84,7 @@ Result<std::unique_ptr<Station>> Station::create(StationConfig config, StationDe
   if (config.duts.empty()) return Error::Permanent("station: the config names no DUT");
   // Checked here, before any run: a run's sequencer is made mid-way through
   // starting it, where a refusal could only fail the run.
-  if (std::string why; !sequencer_options(config).is_valid(&why)) {
+  if (std::string why; !config::sequencer_options(config).is_valid(&why)) {
     return Error::Permanent("station: invalid sequencer options: " + why);
   }
   if (devices.duts.size() != config.duts.size()) {
@@ -119,7 +120,7 @@ Result<std::unique_ptr<Station>> Station::create(StationConfig config, StationDe
                                               std::move(samples)));
 }
 
-Station::Station(StationConfig config, StationDevices devices, StationClocks clocks,
+Station::Station(config::StationConfig config, StationDevices devices, StationClocks clocks,
                  StationHooks hooks, storage::Database db, storage::Database api_db,
                  std::unique_ptr<storage::SampleSink> writer)
     : config_(std::move(config)),
@@ -156,7 +157,7 @@ Station::Station(StationConfig config, StationDevices devices, StationClocks clo
                               post_event(kind, message);
                             }});
   if (table_device_) table_ = std::make_unique<TableControl>(*table_device_, *config_.table);
-  AnalysisWorker::Callbacks callbacks;
+  calibration::AnalysisWorker::Callbacks callbacks;
   callbacks.await_gyro = [this](int64_t run_id, double until_s) {
     if (!duts_->await_gyro(run_id, until_s, kAwaitGyro)) {
       spdlog::warn(
@@ -165,7 +166,7 @@ Station::Station(StationConfig config, StationDevices devices, StationClocks clo
           run_id, until_s, kAwaitGyro.count());
     }
   };
-  callbacks.table1_done = [publish = hooks_.publish](const Table1Job& job,
+  callbacks.table1_done = [publish = hooks_.publish](const calibration::Table1Job& job,
                                                      const Result<storage::SegmentStatsRecord>& r) {
     if (r && publish) publish("stats", to_json(*r));
     if (r) {
@@ -179,8 +180,8 @@ Station::Station(StationConfig config, StationDevices devices, StationClocks clo
     }
   };
   callbacks.run_done = [publish = hooks_.publish, &wall = wall_](
-                           storage::Database& db, const RunJob& job,
-                           const Result<RunAnalysisSummary>& r) {
+                           storage::Database& db, const calibration::RunJob& job,
+                           const Result<calibration::RunAnalysisSummary>& r) {
     storage::EventRecord ev;
     ev.run_id = job.run_id;
     if (auto last = db.last_sample_t_s(job.run_id); last && *last) ev.t_s = **last;
@@ -223,8 +224,9 @@ Station::Station(StationConfig config, StationDevices devices, StationClocks clo
       }
     }
   };
-  analysis_ = std::make_unique<AnalysisWorker>(
-      config_.storage.db_path, *writer_, analysis_settings(config_), std::move(callbacks), wall_);
+  analysis_ = std::make_unique<calibration::AnalysisWorker>(config_.storage.db_path, *writer_,
+                                                            calibration::analysis_settings(config_),
+                                                            std::move(callbacks), wall_);
   snapshot_.station_name = config_.station.name;
   snapshot_.time_scale = clock_.time_scale();
   snapshot_.clock = as_paced(clock_) ? "sim" : "scaled";
@@ -235,7 +237,7 @@ Station::~Station() { stop("daemon shutting down"); }
 void Station::make_sequencer(schedules::Plan plan) {
   // Valid: Station::create checked them.
   sequencer_ =
-      std::make_unique<schedules::Sequencer>(std::move(plan), sequencer_options(config_),
+      std::make_unique<schedules::Sequencer>(std::move(plan), config::sequencer_options(config_),
                                              static_cast<schedules::SequencerObserver&>(*this));
 }
 
@@ -268,19 +270,19 @@ void Station::start(ControlLoop loop) {
 }
 
 void Station::start_nightly_export() {
-  const ExportSection& e = config_.export_;
+  const config::ExportSection& e = config_.export_;
   if (!e.nightly) return;
-  NightlyOptions options;
-  if (auto at = parse_local_time_of_day(e.local_time)) options.at = *at;  // checked at load
+  calibration::NightlyOptions options;
+  if (auto at = config::parse_local_time_of_day(e.local_time)) options.at = *at;  // checked at load
   if (!e.time_zone.empty()) {
-    if (auto zone = TimeZone::posix(e.time_zone)) options.zone = *zone;
+    if (auto zone = config::TimeZone::posix(e.time_zone)) options.zone = *zone;
   }
   options.directory = e.directory;
   options.report.station_name = config_.station.name;
-  const TimeZone zone = options.zone;
+  const config::TimeZone zone = options.zone;
   const WallClock& wall = nightly_wall_;
-  auto done = [publish = hooks_.publish, &stamp = wall_](storage::Database& db,
-                                                         const Result<ExportOutcome>& r) {
+  auto done = [publish = hooks_.publish, &stamp = wall_](
+                  storage::Database& db, const Result<calibration::ExportOutcome>& r) {
     storage::EventRecord ev;
     ev.wall_utc = utc_iso(stamp);
     ev.kind = "export";
@@ -306,7 +308,7 @@ void Station::start_nightly_export() {
       }
     }
   };
-  auto nightly = NightlyExporter::create(
+  auto nightly = calibration::NightlyExporter::create(
       config_.storage.db_path, wall, std::move(options), [this] { analysis_->drain(); },
       std::move(done));
   if (!nightly) {
@@ -317,7 +319,7 @@ void Station::start_nightly_export() {
   nightly_ = std::move(*nightly);
   spdlog::info("nightly export at {} ({}) into {}; next {}", e.local_time,
                e.time_zone.empty() ? "system time zone" : e.time_zone, e.directory,
-               local_time_label(nightly_->next_slot_unix_s(), zone));
+               calibration::local_time_label(nightly_->next_slot_unix_s(), zone));
   nightly_->start();
 }
 
@@ -676,7 +678,7 @@ Progress Station::progress(double t_run_s) {
         }
       }
       // Each queued run starts where the one before left the chamber.
-      queue_planned_ = queue_durations_.update(waiting, station_limits(config_),
+      queue_planned_ = queue_durations_.update(waiting, config::station_limits(config_),
                                                config_.station.safe_setpoint_c);
     }
   }
@@ -946,7 +948,7 @@ void Station::start_next_run(double now_s) {
   rec.orientation = std::string(analysis::to_string(config_.station.orientation));
   // The configuration in force (loaded at start-up), not the file as it is
   // on disk now.
-  rec.config_json = run_config_json(config_).dump();
+  rec.config_json = config::run_config_json(config_).dump();
   // One transaction: an entry removed meanwhile starts no run and leaves no
   // run row behind.
   auto id = db_.queue_start_run(entry.id, rec);
@@ -972,7 +974,7 @@ void Station::start_next_run(double now_s) {
   }
 
   // Checked again: the station config may have changed since it was queued.
-  auto plan = schedules::parse_schedule(entry.toml_text, source, station_limits(config_));
+  auto plan = schedules::parse_schedule(entry.toml_text, source, config::station_limits(config_));
   if (!plan) {
     journal_->add_event(
         "error", "queued", "failed",
@@ -1007,7 +1009,7 @@ void Station::submit_missing_analyses() {
                     [](const storage::EventRecord& e) { return e.kind == "analysis"; });
     if (!done) {
       spdlog::info("run {}: completed without its analysis; computing it now", r.id);
-      analysis_->submit(RunJob{r.id});
+      analysis_->submit(calibration::RunJob{r.id});
     }
   }
 }
@@ -1047,7 +1049,7 @@ void Station::resume_interrupted_run() {
     return give_up("the daemon stopped before the run's first checkpoint");
   }
   auto plan = schedules::parse_schedule((*entry)->toml_text, (*entry)->source_path,
-                                        station_limits(config_));
+                                        config::station_limits(config_));
   if (!plan) return give_up("its schedule is refused now:\n" + plan.error().message);
   nlohmann::json j;
   try {
@@ -1238,7 +1240,7 @@ void Station::end_run() {
   }
   queue_answered_ = false;
   if (final_state == RunState::kCompleted && run_id != 0 && flushed) {
-    analysis_->submit(RunJob{run_id});
+    analysis_->submit(calibration::RunJob{run_id});
   }
   if (stop_after_current_ && final_state != RunState::kInterrupted) {
     stop_after_current_ = false;
@@ -1411,13 +1413,13 @@ void Station::on_step_finished(std::size_t index, const schedules::PlanStep& ste
   // a zero-bias measurement.
   if (completed && step.kind == schedules::StepKind::kSoak &&
       step.table.mode != schedules::TableDemandMode::kRate && !times.windows.empty()) {
-    Table1Job job{run_id,
-                  id,
-                  static_cast<int>(index),
-                  step.setpoint_c,
-                  times.windows.front().from_s,
-                  times.windows.back().to_s,
-                  {}};
+    calibration::Table1Job job{run_id,
+                               id,
+                               static_cast<int>(index),
+                               step.setpoint_c,
+                               times.windows.front().from_s,
+                               times.windows.back().to_s,
+                               {}};
     for (const auto& w : times.windows) job.windows.emplace_back(w.from_s, w.to_s);
     analysis_->submit(std::move(job));
   }
@@ -1550,4 +1552,4 @@ Reply Station::exports() { return queries_.exports(); }
 Reply Station::duts() { return queries_.duts(); }
 Reply Station::dut_history(const std::string& serial) { return queries_.dut_history(serial); }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::station

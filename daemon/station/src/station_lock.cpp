@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/station_lock.h"
+#include "gyrotherm/station/station_lock.h"
 
 #include <fcntl.h>
 #include <fmt/format.h>
@@ -12,7 +12,7 @@
 #include <sstream>
 #include <thread>
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::station {
 namespace {
 
 // The lock file's text: "pid N\n" and, once the API listens, "api URL\n".
@@ -121,4 +121,4 @@ std::optional<StationOwner> station_owner(const std::string& db_path) {
   return owner;
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::station

@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/station_queries.h"
+#include "gyrotherm/station/station_queries.h"
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -11,7 +11,7 @@
 
 #include "gyrotherm/schedules/schedule.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::station {
 namespace {
 
 std::vector<std::string> split_lines(const std::string& text) {
@@ -54,7 +54,7 @@ std::optional<Reply> unknown_serial(const std::vector<std::string>& given,
   return std::nullopt;
 }
 
-std::vector<std::string> configured_serials(const StationConfig& config) {
+std::vector<std::string> configured_serials(const config::StationConfig& config) {
   std::vector<std::string> out;
   for (const auto& d : config.duts) out.push_back(d.serial);
   return out;
@@ -75,7 +75,8 @@ Result<const storage::RunDutRecord*> find_run_dut(const std::vector<storage::Run
 
 }  // namespace
 
-StationQueries::StationQueries(const StationConfig& config, storage::Database db, Links links)
+StationQueries::StationQueries(const config::StationConfig& config, storage::Database db,
+                               Links links)
     : config_(config), links_(std::move(links)), db_(std::move(db)) {}
 
 Reply StationQueries::queue_list() {
@@ -85,7 +86,8 @@ Reply StationQueries::queue_list() {
   nlohmann::json current = nullptr;
   nlohmann::json list = nlohmann::json::array();
   for (const auto& e : *entries) {
-    auto plan = schedules::parse_schedule(e.toml_text, e.source_path, station_limits(config_));
+    auto plan =
+        schedules::parse_schedule(e.toml_text, e.source_path, config::station_limits(config_));
     const int steps = plan ? static_cast<int>(plan->steps.size()) : 0;
     if (e.state == "running") {
       current = to_json(e, steps);
@@ -244,7 +246,7 @@ Reply StationQueries::enqueue(const QueueRequest& request) {
     return *bad;
   }
   const std::string name = request.source.empty() ? std::string("schedule") : request.source;
-  auto plan = schedules::parse_schedule(request.toml_text, name, station_limits(config_));
+  auto plan = schedules::parse_schedule(request.toml_text, name, config::station_limits(config_));
   if (!plan) {
     return Reply::refused(Refusal::Kind::kInvalid, "schedule refused, nothing queued",
                           split_lines(plan.error().message));
@@ -390,4 +392,4 @@ Reply StationQueries::dut_history(const std::string& serial) {
   return Reply::ok(std::move(*history));
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::station

@@ -1,8 +1,8 @@
-#include "gyrotherm/daemon/status.h"
+#include "gyrotherm/station/status.h"
 
 #include <nlohmann/json.hpp>
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::station {
 namespace {
 
 template <class T>
@@ -184,4 +184,4 @@ Progress to_progress(const schedules::RunProgress& p) {
   return out;
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::station

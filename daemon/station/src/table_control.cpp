@@ -1,4 +1,4 @@
-#include "gyrotherm/daemon/table_control.h"
+#include "gyrotherm/station/table_control.h"
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -6,7 +6,7 @@
 #include <algorithm>
 #include <cmath>
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::station {
 
 namespace {
 
@@ -46,7 +46,7 @@ std::string describe(const TableDemand& demand) {
   return "?";
 }
 
-TableControl::TableControl(drivers::RateTable& table, const TableSection& config)
+TableControl::TableControl(drivers::RateTable& table, const config::TableSection& config)
     : table_(table), config_(config) {}
 
 void TableControl::read(double now_s, double wall_s, double min_silent_wall_s,
@@ -303,4 +303,4 @@ TableStatus TableControl::status() const {
   return s;
 }
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::station

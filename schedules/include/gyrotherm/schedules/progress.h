@@ -67,8 +67,8 @@ std::string format_duration(double s);
 // "5 h 20 min (+ 4 settles of unknown length)"; without settles just the time.
 std::string format_planned(const PlannedDuration& d);
 
-// Where a run and the queue are; the fields of daemon::Progress (see
-// gyrotherm/daemon/status.h and docs/api.md, "Progress").
+// Where a run and the queue are; the fields of station::Progress (see
+// gyrotherm/station/status.h and docs/api.md, "Progress").
 struct RunProgress {
   // ramping, settling, acquiring, holding, spinning_up; idle without a run;
   // aborting, completed, failed, interrupted once the steps are over.

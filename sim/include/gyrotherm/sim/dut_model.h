@@ -33,9 +33,9 @@
 #include <vector>
 
 #include "gyrotherm/analysis/table1.h"
+#include "gyrotherm/config/config.h"
 #include "gyrotherm/core/result.h"
 #include "gyrotherm/core/samples.h"
-#include "gyrotherm/daemon/config.h"
 #include "gyrotherm/sim/gyro_model.h"
 #include "gyrotherm/sim/thermal_plant.h"
 
@@ -128,8 +128,8 @@ class DutModel {
   // served (the DUT's table_axis goes on it). `axis_seeds` one per axis.
   // Permanent error: an unknown protocol or ASCII layout (dut_channels), a
   // primary or table axis that is not x, y or z.
-  static Result<DutModel> create(const daemon::DutSection& dut, int position,
-                                 const DutSimParams& params, const daemon::StationSection& station,
+  static Result<DutModel> create(const config::DutSection& dut, int position,
+                                 const DutSimParams& params, const config::StationSection& station,
                                  const std::optional<TableMount>& table,
                                  const ScaleFactorParams& scale_factor,
                                  const std::array<uint64_t, 3>& axis_seeds, uint64_t accel_seed);
@@ -141,7 +141,7 @@ class DutModel {
                        std::vector<uint8_t>& bytes);
 
   double sample_period_s() const { return 1.0 / dut_.link.rate_hz; }
-  const daemon::DutSection& dut() const { return dut_; }
+  const config::DutSection& dut() const { return dut_; }
   int position() const { return position_; }
   int primary_axis() const { return primary_; }
   bool ascii() const { return dut_.link.protocol == "ascii"; }
@@ -158,11 +158,11 @@ class DutModel {
                        bool table_served) const;
 
  private:
-  DutModel(daemon::DutSection dut, int position, DutSimParams params, std::vector<GyroModel> axes,
+  DutModel(config::DutSection dut, int position, DutSimParams params, std::vector<GyroModel> axes,
            std::array<AxisSetup, 3> setup, int primary, std::vector<ChannelSpec> channels,
            uint64_t accel_seed);
 
-  daemon::DutSection dut_;
+  config::DutSection dut_;
   int position_;
   DutSimParams params_;
   std::vector<GyroModel> axes_;  // x, y, z
@@ -177,15 +177,15 @@ class DutModel {
 
 // The DUTs the simulator serves: config.duts, or (a config loaded before
 // [[dut]] existed) one unnamed DUT made from [gyro] and [station].
-std::vector<daemon::DutSection> simulated_duts(const daemon::StationConfig& config);
+std::vector<config::DutSection> simulated_duts(const config::StationConfig& config);
 
 // The index of `dut`'s primary axis: primary_axis, else the last of axes,
 // else z; -1 when that names no axis x, y or z.
-int primary_axis_index(const daemon::DutSection& dut);
+int primary_axis_index(const config::DutSection& dut);
 
 // The orientation of `axis` (0..2) on `dut`: its orientation entry; else
 // `station_orientation` for the primary axis, horizontal for the others.
-analysis::AxisOrientation axis_orientation(const daemon::DutSection& dut, int axis,
+analysis::AxisOrientation axis_orientation(const config::DutSection& dut, int axis,
                                            analysis::AxisOrientation station_orientation);
 
 }  // namespace gyrotherm::sim

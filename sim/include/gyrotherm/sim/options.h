@@ -40,8 +40,8 @@
 #include <string>
 #include <vector>
 
+#include "gyrotherm/config/config.h"
 #include "gyrotherm/core/result.h"
-#include "gyrotherm/daemon/config.h"
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/sim/dut_model.h"
 #include "gyrotherm/sim/gyro_model.h"
@@ -152,25 +152,25 @@ Status parse_rate_hz_options(const std::vector<std::string>& values, SimulatorOv
 // "" when every serial of `per_dut` names one of `duts`, else the error
 // naming the first that does not, and the station's serials.
 std::string unknown_rate_hz_serial(const std::vector<std::pair<std::string, double>>& per_dut,
-                                   const std::vector<daemon::DutSection>& duts);
+                                   const std::vector<config::DutSection>& duts);
 
 // The rate `dut` is served at: its --rate-hz SERIAL=HZ, else --rate-hz HZ,
 // else its [[dut]] rate_hz.
-double dut_rate_hz(const SimulatorOptions& options, const daemon::DutSection& dut);
+double dut_rate_hz(const SimulatorOptions& options, const config::DutSection& dut);
 
 // The parameters of `dut` (at `position` in the station's DUT list):
 // options.gyro, then its overrides (if any) for every axis, then per axis;
 // an axis whose bias_dph no level above [simulator.gyro] set gets the
 // default offset (position × 1 °/h + 0.25 °/h × k, k = 0 for the primary
 // axis, 1 and 2 for the others in x, y, z order).
-DutSimParams resolve_dut_params(const SimulatorOptions& options, const daemon::DutSection& dut,
+DutSimParams resolve_dut_params(const SimulatorOptions& options, const config::DutSection& dut,
                                 int position);
 
 // Reads config.simulator_table strictly (unknown keys and out-of-range values
 // are errors "file:line: simulator.key: ..."), takes the gyro format from
 // config.gyro, then applies the overrides and validates. The error message
 // lists every problem, one per line. No [simulator] section: all defaults.
-Result<SimulatorOptions> read_simulator_options(const daemon::StationConfig& config,
+Result<SimulatorOptions> read_simulator_options(const config::StationConfig& config,
                                                 const SimulatorOverrides& overrides = {});
 
 }  // namespace gyrotherm::sim

@@ -71,11 +71,11 @@
 #include <thread>
 #include <vector>
 
+#include "gyrotherm/config/config.h"
+#include "gyrotherm/config/sim_endpoints.h"
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/core/result.h"
 #include "gyrotherm/core/shared_clock.h"
-#include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/sim_endpoints.h"
 #include "gyrotherm/sim/dut_model.h"
 #include "gyrotherm/sim/gyro_model.h"
 #include "gyrotherm/sim/gyro_stream.h"
@@ -182,7 +182,7 @@ class Simulator {
   // must outlive the simulator) defaults to an own ScaledClock with
   // options.time_scale. Permanent error on an inconsistent config (e.g.
   // chamber and probes with the same unit id).
-  static Result<std::unique_ptr<Simulator>> create(const daemon::StationConfig& config,
+  static Result<std::unique_ptr<Simulator>> create(const config::StationConfig& config,
                                                    const SimulatorOptions& options,
                                                    const Clock* clock = nullptr);
   ~Simulator();  // stop()
@@ -199,7 +199,7 @@ class Simulator {
   void stop();
 
   // What a client connects to (valid after start()).
-  daemon::SimEndpoints endpoints() const;
+  config::SimEndpoints endpoints() const;
   const std::string& truth_file() const { return options_.truth_file; }
   const std::string& endpoints_file() const { return options_.endpoints_file; }
   std::string truth_json() const { return truth_json_; }
@@ -298,7 +298,7 @@ class Simulator {
     std::vector<std::size_t> batch_sizes;
   };
 
-  Simulator(daemon::StationConfig config, SimulatorOptions options, const Clock* clock,
+  Simulator(config::StationConfig config, SimulatorOptions options, const Clock* clock,
             std::vector<std::unique_ptr<Dut>> duts);
   void run();
   void run_paced();
@@ -316,7 +316,7 @@ class Simulator {
   Status point_gyro_link_locked(std::size_t i);
   std::string device_locked(std::size_t i) const;  // needs stream_mu_
 
-  daemon::StationConfig config_;
+  config::StationConfig config_;
   SimulatorOptions options_;
   std::unique_ptr<Clock> own_clock_;
   const Clock* clock_;

@@ -35,7 +35,7 @@ class table;
 }  // namespace v3
 }  // namespace toml
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::config {
 
 // An optional toml::table held through a pointer, so that users of this
 // header need not see toml++: the part of std::optional's interface that
@@ -376,4 +376,4 @@ Result<StationConfig> load_station_config(const std::string& path);
 Result<StationConfig> parse_station_config(std::string_view toml_text,
                                            const std::string& source_name);
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::config

@@ -16,7 +16,7 @@
 #include "gyrotherm/core/result.h"
 #include "gyrotherm/storage/database.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::station {
 
 struct Refusal {
   enum class Kind {
@@ -164,4 +164,4 @@ Result<nlohmann::json> run_detail_json(storage::Database& db, int64_t run_id);
 Result<nlohmann::json> duts_json(storage::Database& db);
 Result<nlohmann::json> dut_history_json(storage::Database& db, const std::string& serial);
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::station

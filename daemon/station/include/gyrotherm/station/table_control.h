@@ -41,18 +41,18 @@
 #include <optional>
 #include <string>
 
+#include "gyrotherm/config/config.h"
 #include "gyrotherm/core/samples.h"
-#include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/status.h"
 #include "gyrotherm/drivers/rate_table.h"
 #include "gyrotherm/schedules/interlocks.h"
 #include "gyrotherm/schedules/schedule.h"
+#include "gyrotherm/station/status.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::station {
 
 class TableControl {
  public:
-  TableControl(drivers::RateTable& table, const TableSection& config);
+  TableControl(drivers::RateTable& table, const config::TableSection& config);
 
   // Reads the table at station time now_s (wall: monotonic wall seconds)
   // and fills the table fields of `r`. Silence counts in station time once
@@ -103,7 +103,7 @@ class TableControl {
   void watch_demand();
 
   drivers::RateTable& table_;
-  TableSection config_;
+  config::TableSection config_;
   std::optional<drivers::TableState> state_;  // last good reading
   bool ok_ = true;                            // the last read answered
   double ok_s_ = 0, ok_wall_s_ = 0;           // last good reading
@@ -133,4 +133,4 @@ class TableControl {
 // "static at 90.0°", "rate +10 °/s", "none".
 std::string describe(const schedules::TableDemand& demand);
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::station

@@ -33,13 +33,11 @@
 #include "gyrotherm/analysis/quality.h"
 #include "gyrotherm/analysis/scale_factor.h"
 #include "gyrotherm/analysis/table1.h"
+#include "gyrotherm/config/run_config.h"
 #include "gyrotherm/core/result.h"
-#include "gyrotherm/daemon/run_config.h"
 #include "gyrotherm/storage/database.h"
 
-namespace gyrotherm::daemon {
-
-struct StationConfig;
+namespace gyrotherm::calibration {
 
 // The [analysis] settings of a station (or the CLI's options).
 struct AnalysisSettings {
@@ -60,11 +58,11 @@ struct AnalysisSettings {
 };
 // From the config: [analysis] and the Earth rate of [station] latitude and
 // orientation. The model spec was checked when the config was loaded.
-AnalysisSettings analysis_settings(const StationConfig& config);
+AnalysisSettings analysis_settings(const config::StationConfig& config);
 
 // read_run_config() (run_config.h) of a stored run: its runs.config_json,
 // or for runs stored before schema v6 its runs.config_toml.
-RunConfig read_run_config(const storage::RunRecord& run);
+config::RunConfig read_run_config(const storage::RunRecord& run);
 
 // The settings a stored run is analysed with offline (reports, the CLI's
 // defaults): its own config's [analysis] over the defaults, and the Earth
@@ -245,4 +243,4 @@ struct RunAnalysisSummary {
 Result<RunAnalysisSummary> analyse_run(storage::Database& db, int64_t run_id,
                                        const AnalysisSettings& settings);
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::calibration

@@ -10,7 +10,7 @@
 #include <optional>
 #include <string>
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::config {
 
 struct StationConfig;
 struct DutSection;
@@ -55,4 +55,4 @@ struct RunConfig {
 };
 RunConfig read_run_config(const std::string& text);
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::config

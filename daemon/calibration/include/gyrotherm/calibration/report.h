@@ -22,11 +22,11 @@
 #include "gyrotherm/analysis/comparison.h"
 #include "gyrotherm/analysis/drift_model.h"
 #include "gyrotherm/analysis/start_temperature.h"
+#include "gyrotherm/calibration/run_analysis.h"
 #include "gyrotherm/core/result.h"
-#include "gyrotherm/daemon/run_analysis.h"
 #include "gyrotherm/storage/database.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::calibration {
 
 struct ReportOptions {
   int max_plot_points = 2000;  // per plotted series (bucket means over time)
@@ -250,4 +250,4 @@ storage::ResultQuality scale_factor_header_quality(const ReportScaleFactor& sf);
 // with (what the result is flagged for); "" for a result not flagged.
 std::string forced_header_comment(const storage::ResultQuality& quality);
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::calibration

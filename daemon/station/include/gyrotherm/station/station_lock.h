@@ -15,7 +15,7 @@
 
 #include "gyrotherm/core/result.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::station {
 
 // "<db_path>.lock", db_path resolved (symlinks, "..", relative): one lock
 // per database file whatever path names it.
@@ -48,4 +48,4 @@ struct StationOwner {
 // The process holding the station lock of `db_path`, if any.
 std::optional<StationOwner> station_owner(const std::string& db_path);
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::station

@@ -19,13 +19,13 @@
 #include <variant>
 #include <vector>
 
+#include "gyrotherm/calibration/run_analysis.h"
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/core/result.h"
-#include "gyrotherm/daemon/run_analysis.h"
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::calibration {
 
 struct Table1Job {
   int64_t run_id = 0;
@@ -98,4 +98,4 @@ class AnalysisWorker {
   std::thread thread_;
 };
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::calibration

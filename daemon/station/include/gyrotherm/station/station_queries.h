@@ -15,11 +15,11 @@
 #include <string>
 #include <string_view>
 
-#include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/control.h"
+#include "gyrotherm/config/config.h"
+#include "gyrotherm/station/control.h"
 #include "gyrotherm/storage/database.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::station {
 
 // The meta key whose value, when set, is why the queue is held.
 inline constexpr const char* kQueueHoldKey = "queue_hold";
@@ -38,7 +38,7 @@ class StationQueries {
   };
 
   // `config` must outlive the queries.
-  StationQueries(const StationConfig& config, storage::Database db, Links links);
+  StationQueries(const config::StationConfig& config, storage::Database db, Links links);
 
   Reply queue_list();
   Reply enqueue(const QueueRequest& request);
@@ -68,10 +68,10 @@ class StationQueries {
   // with `when_running` for the running entry). Needs mu_.
   std::optional<Reply> unless_queued(int64_t id, std::string_view when_running);
 
-  const StationConfig& config_;
+  const config::StationConfig& config_;
   Links links_;
   std::mutex mu_;
   storage::Database db_;  // the HTTP thread's connection (mu_)
 };
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::station

@@ -11,14 +11,14 @@
 #include <string>
 #include <string_view>
 
-#include "gyrotherm/daemon/status.h"
+#include "gyrotherm/station/status.h"
 
 namespace prometheus {
 class Histogram;
 class Registry;
 }  // namespace prometheus
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::api {
 
 // Figures of the HTTP side, read at scrape time.
 struct ServerFigures {
@@ -39,7 +39,7 @@ class Metrics {
   void observe_modbus(std::string_view device, double seconds);
   void observe_commit(double seconds);
 
-  std::string scrape(const StatusSnapshot& status, const ServerFigures& server) const;
+  std::string scrape(const station::StatusSnapshot& status, const ServerFigures& server) const;
 
  private:
   std::shared_ptr<prometheus::Registry> registry_;
@@ -57,4 +57,4 @@ inline constexpr std::string_view kStatesForMetrics[] = {
 inline constexpr std::string_view kLabRelayStates[] = {"disabled", "connecting", "connected",
                                                        "backoff",  "refused",    "stopped"};
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::api

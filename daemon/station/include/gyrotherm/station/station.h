@@ -47,19 +47,19 @@
 #include <vector>
 
 #include "gyrotherm/analysis/stability.h"
+#include "gyrotherm/calibration/analysis_worker.h"
+#include "gyrotherm/calibration/exporter.h"
+#include "gyrotherm/config/config.h"
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/core/result.h"
-#include "gyrotherm/daemon/analysis_worker.h"
-#include "gyrotherm/daemon/config.h"
-#include "gyrotherm/daemon/control.h"
-#include "gyrotherm/daemon/exporter.h"
-#include "gyrotherm/daemon/run_clock.h"
-#include "gyrotherm/daemon/station_queries.h"
-#include "gyrotherm/daemon/status.h"
-#include "gyrotherm/daemon/table_control.h"
 #include "gyrotherm/drivers/devices.h"
 #include "gyrotherm/schedules/progress.h"
 #include "gyrotherm/schedules/sequencer.h"
+#include "gyrotherm/station/control.h"
+#include "gyrotherm/station/run_clock.h"
+#include "gyrotherm/station/station_queries.h"
+#include "gyrotherm/station/status.h"
+#include "gyrotherm/station/table_control.h"
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
 
@@ -67,7 +67,7 @@ namespace gyrotherm {
 class PacedClock;
 }
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::station {
 
 class DutAcquisition;
 class EventJournal;
@@ -105,7 +105,7 @@ struct StationDevices {
 // own probes and, with a [table], its rate table. Request
 // latencies go to hooks.observe_modbus. Permanent error for an unknown gyro
 // protocol (the config loader has checked it).
-Result<StationDevices> devices_from_config(const StationConfig& config, const Clock& clock,
+Result<StationDevices> devices_from_config(const config::StationConfig& config, const Clock& clock,
                                            const StationHooks& hooks = {});
 
 // The clocks the station reads (not owned; they outlive it).
@@ -128,8 +128,8 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // `samples`: where samples go; nullptr (the daemon): a SampleWriter on
   // the config's database.
   static Result<std::unique_ptr<Station>> create(
-      StationConfig config, StationDevices devices, StationClocks clocks, StationHooks hooks = {},
-      std::unique_ptr<storage::SampleSink> samples = nullptr);
+      config::StationConfig config, StationDevices devices, StationClocks clocks,
+      StationHooks hooks = {}, std::unique_ptr<storage::SampleSink> samples = nullptr);
   ~Station() override;
 
   // Resumes an interrupted run (or closes it), starts the gyro source, the
@@ -159,7 +159,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // True when no run is active and nothing will start by itself (the queue
   // is empty or held).
   bool idle() const;
-  const StationConfig& config() const { return config_; }
+  const config::StationConfig& config() const { return config_; }
   // Counts the control loop's ticks (one per [control] tick_s of station
   // time): the service watchdog's liveness check.
   uint64_t heartbeat() const { return heartbeat_.load(std::memory_order_relaxed); }
@@ -191,8 +191,8 @@ class Station final : public StationControl, private schedules::SequencerObserve
   Reply dut_history(const std::string& serial) override;
 
  private:
-  Station(StationConfig config, StationDevices devices, StationClocks clocks, StationHooks hooks,
-          storage::Database db, storage::Database api_db,
+  Station(config::StationConfig config, StationDevices devices, StationClocks clocks,
+          StationHooks hooks, storage::Database db, storage::Database api_db,
           std::unique_ptr<storage::SampleSink> writer);
 
   void control_loop();
@@ -253,7 +253,7 @@ class Station final : public StationControl, private schedules::SequencerObserve
   void on_step_finished(std::size_t index, const schedules::PlanStep& step,
                         const schedules::StepTimes& times, bool completed) override;
 
-  StationConfig config_;
+  config::StationConfig config_;
   const Clock& clock_;
   const WallClock& wall_;
   const WallClock& nightly_wall_;
@@ -261,8 +261,8 @@ class Station final : public StationControl, private schedules::SequencerObserve
   std::mutex run_mu_;
   storage::Database db_;  // control-thread connection (run_mu_)
   std::unique_ptr<storage::SampleSink> writer_;
-  std::unique_ptr<AnalysisWorker> analysis_;
-  std::unique_ptr<NightlyExporter> nightly_;  // [export] nightly
+  std::unique_ptr<calibration::AnalysisWorker> analysis_;
+  std::unique_ptr<calibration::NightlyExporter> nightly_;  // [export] nightly
   std::unique_ptr<drivers::Chamber> chamber_;
   std::unique_ptr<drivers::ShellProbes> probes_;
   // The DUTs (their frames, coverage, status figures and probes); made in
@@ -351,4 +351,4 @@ class Station final : public StationControl, private schedules::SequencerObserve
   StationQueries queries_;
 };
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::station

@@ -39,7 +39,7 @@
 // forward-declaration headers; a declaration that no longer matches Beast's
 // fails to compile where both are seen, and http_server.cpp checks that the
 // aliases below are Beast's request and response. A file that builds or reads
-// a request or response includes gyrotherm/daemon/http_message.h.
+// a request or response includes gyrotherm/api/http_message.h.
 namespace boost::beast::http {
 template <bool isRequest, class Body, class Fields>
 class message;
@@ -50,7 +50,7 @@ class basic_fields;
 enum class status : unsigned;
 }  // namespace boost::beast::http
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::api {
 
 // boost::beast::http::request<string_body> and response<string_body>.
 using HttpRequest = boost::beast::http::message<
@@ -185,4 +185,4 @@ HttpResponse json_response(const HttpRequest& req, boost::beast::http::status st
 HttpResponse error_response(const HttpRequest& req, boost::beast::http::status status,
                             std::string_view message);
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::api

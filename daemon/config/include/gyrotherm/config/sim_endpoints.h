@@ -7,10 +7,10 @@
 #include <utility>
 #include <vector>
 
+#include "gyrotherm/config/config.h"
 #include "gyrotherm/core/result.h"
-#include "gyrotherm/daemon/config.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::config {
 
 // What gyrotherm-sim writes for the daemon (TOML):
 //   modbus_host = "127.0.0.1"; modbus_port = N; gyro_device = "/dev/pts/N"; pid = N;
@@ -62,4 +62,4 @@ void apply_sim_endpoints(StationConfig& config, const SimEndpoints& endpoints);
 std::string sim_dut_devices_mismatch(const StationConfig& config, const SimEndpoints& ep,
                                      const std::string& endpoints_file);
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::config

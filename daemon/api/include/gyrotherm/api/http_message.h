@@ -7,4 +7,4 @@
 #include <boost/beast/http/message.hpp>
 #include <boost/beast/http/string_body.hpp>
 
-#include "gyrotherm/daemon/http_server.h"
+#include "gyrotherm/api/http_server.h"

@@ -18,7 +18,7 @@
 
 #include "gyrotherm/core/clock.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::api {
 
 class BodyCache {
  public:
@@ -54,4 +54,4 @@ class BodyCache {
   uint64_t renders_ = 0;
 };
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::api

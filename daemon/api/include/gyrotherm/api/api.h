@@ -25,24 +25,24 @@
 #include <string_view>
 #include <vector>
 
-#include "gyrotherm/daemon/auth_limiter.h"
-#include "gyrotherm/daemon/body_cache.h"
-#include "gyrotherm/daemon/control.h"
-#include "gyrotherm/daemon/http_server.h"
-#include "gyrotherm/daemon/status.h"
-#include "gyrotherm/daemon/web_assets.h"
+#include "gyrotherm/api/auth_limiter.h"
+#include "gyrotherm/api/body_cache.h"
+#include "gyrotherm/api/http_server.h"
+#include "gyrotherm/api/web_assets.h"
+#include "gyrotherm/station/control.h"
+#include "gyrotherm/station/status.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::api {
 
 struct ApiContext {
-  std::function<StatusSnapshot()> status;
-  StationControl* control = nullptr;     // nullptr: control and record routes answer 503
-  std::vector<std::string> tokens;       // [api] tokens: may read and change
-  std::vector<std::string> read_tokens;  // [api] read_tokens: may read only
-  bool reads_need_token = false;         // [api] read_access = "token"
-  AuthLimiter* auth_limiter = nullptr;   // not owned; nullptr: no throttling
-  std::function<std::string()> metrics;  // Prometheus text; nullptr: /metrics answers 503
-  const WebAssets* web = nullptr;        // the dashboard; nullptr: / answers 404
+  std::function<station::StatusSnapshot()> status;
+  station::StationControl* control = nullptr;  // nullptr: control and record routes answer 503
+  std::vector<std::string> tokens;             // [api] tokens: may read and change
+  std::vector<std::string> read_tokens;        // [api] read_tokens: may read only
+  bool reads_need_token = false;               // [api] read_access = "token"
+  AuthLimiter* auth_limiter = nullptr;         // not owned; nullptr: no throttling
+  std::function<std::string()> metrics;        // Prometheus text; nullptr: /metrics answers 503
+  const WebAssets* web = nullptr;              // the dashboard; nullptr: / answers 404
   // Not owned. When set, /api/v1/status (/metrics) serves this cache's body
   // instead of rendering `status` (`metrics`) for every request; every
   // control request invalidates the status's.
@@ -84,4 +84,4 @@ TokenRole token_role(std::string_view presented, const std::vector<std::string>&
 // True when `presented` equals one of `tokens` (token_role with no read tokens).
 bool token_matches(std::string_view presented, const std::vector<std::string>& tokens);
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::api

@@ -26,7 +26,7 @@
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/core/result.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::api {
 
 struct AuthLimiterOptions {
   int max_failures = 10;   // [api] max_auth_failures
@@ -73,4 +73,4 @@ class AuthLimiter {
   std::map<std::string, Peer, std::less<>> peers_;
 };
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::api

@@ -15,7 +15,7 @@
 #include <cstdint>
 #include <mutex>
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::station {
 
 class RunClock {
  public:
@@ -51,4 +51,4 @@ class RunClock {
   bool samples_closed_ = false;
 };
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::station

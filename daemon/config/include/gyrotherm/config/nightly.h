@@ -21,7 +21,7 @@
 
 #include "gyrotherm/core/result.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::config {
 
 struct LocalTimeOfDay {
   int hour = 2;
@@ -63,4 +63,4 @@ double next_slot_unix_s(double after_unix_s, LocalTimeOfDay at, const TimeZone& 
 std::optional<double> due_slot_unix_s(std::optional<double> last_slot_unix_s, double since_unix_s,
                                       double now_unix_s, LocalTimeOfDay at, const TimeZone& zone);
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::config

@@ -11,7 +11,7 @@
 
 #include "gyrotherm/core/result.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::api {
 
 // The largest dashboard file read (the chart library is about 50 KiB).
 inline constexpr std::size_t kMaxWebFileBytes = 4 << 20;
@@ -42,4 +42,4 @@ class WebAssets {
 // build and `cmake --install` put the dashboard.
 std::string default_web_root();
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::api

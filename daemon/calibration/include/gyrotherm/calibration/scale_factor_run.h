@@ -11,11 +11,11 @@
 #include "gyrotherm/core/result.h"
 #include "gyrotherm/storage/database.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::calibration {
 struct AnalysisSettings;
 }
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::calibration {
 
 struct ScaleFactorSummary {
   int points = 0;
@@ -50,4 +50,4 @@ Result<ScaleFactorSummary> analyse_scale_factor(storage::Database& db, int64_t r
 
 inline constexpr double kMaxRateErrorPpm = 1000.0;
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::calibration

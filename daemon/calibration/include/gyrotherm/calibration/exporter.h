@@ -22,13 +22,13 @@
 #include <thread>
 #include <vector>
 
+#include "gyrotherm/calibration/report.h"
+#include "gyrotherm/config/nightly.h"
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/core/result.h"
-#include "gyrotherm/daemon/nightly.h"
-#include "gyrotherm/daemon/report.h"
 #include "gyrotherm/storage/database.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::calibration {
 
 struct ExportRequest {
   std::string kind = "manual";  // nightly, manual
@@ -54,13 +54,14 @@ Result<ExportOutcome> write_export(storage::Database& db, const ExportRequest& r
 
 // The export's directory for a nightly slot: <root>/<local date of the
 // slot>, with "-2", "-3"... when that exists already.
-std::string nightly_directory(const std::string& root, double slot_unix_s, const TimeZone& zone);
+std::string nightly_directory(const std::string& root, double slot_unix_s,
+                              const config::TimeZone& zone);
 // "2026-03-29 03:00 UTC+02:00": a slot as people read it.
-std::string local_time_label(double unix_s, const TimeZone& zone);
+std::string local_time_label(double unix_s, const config::TimeZone& zone);
 
 struct NightlyOptions {
-  LocalTimeOfDay at;
-  TimeZone zone = TimeZone::system_local();
+  config::LocalTimeOfDay at;
+  config::TimeZone zone = config::TimeZone::system_local();
   std::string directory = "reports";  // [export] directory
   ReportOptions report;
   double poll_wall_s = 1.0;  // how often the thread looks at the wall clock
@@ -117,4 +118,4 @@ class NightlyExporter {
   std::thread thread_;
 };
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::calibration

@@ -15,7 +15,7 @@
 #include "gyrotherm/schedules/schedule.h"
 #include "gyrotherm/storage/sample_writer.h"
 
-namespace gyrotherm::daemon {
+namespace gyrotherm::station {
 
 // What status() shows of the rate table.
 struct TableStatus {
@@ -117,4 +117,4 @@ nlohmann::json to_json(const StatusSnapshot& s);
 // The status's progress from the schedules' pure computation (progress.h).
 Progress to_progress(const schedules::RunProgress& p);
 
-}  // namespace gyrotherm::daemon
+}  // namespace gyrotherm::station
