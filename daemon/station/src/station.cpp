@@ -21,6 +21,7 @@
 #include "gyrotherm/drivers/gyro_reader.h"
 #include "gyrotherm/drivers/modbus_devices.h"
 #include "gyrotherm/drivers/rate_tables.h"
+#include "plant_io.h"
 
 namespace gyrotherm::station {
 namespace {
@@ -130,8 +131,6 @@ Station::Station(config::StationConfig config, StationDevices devices, StationCl
       hooks_(std::move(hooks)),
       db_(std::move(db)),
       writer_(std::move(writer)),
-      chamber_(std::move(devices.chamber)),
-      probes_(std::move(devices.probes)),
       table_device_(std::move(devices.table)),
       started_wall_s_(wall_.monotonic_s()),
       queries_(config_, std::move(api_db),
@@ -147,6 +146,12 @@ Station::Station(config::StationConfig config, StationDevices devices, StationCl
   journal_ = std::make_unique<EventJournal>(
       EventJournal::Links{clock_, wall_, run_clock_, db_, hooks_.publish, mu_, snapshot_,
                           [this] { return sequencer_ != nullptr; }});
+  plant_ = std::make_unique<PlantIo>(
+      std::move(devices.chamber), std::move(devices.probes),
+      PlantIo::Links{clock_, mu_, snapshot_,
+                     [this](const std::string& kind, const std::string& message) {
+                       journal_->add_event(kind, "", "", message);
+                     }});
   duts_ = std::make_unique<DutAcquisition>(
       config_, std::move(devices.duts), std::move(devices.dut_probes),
       DutAcquisition::Links{clock_, wall_, run_clock_, *writer_, mu_, snapshot_,
@@ -243,16 +248,18 @@ void Station::make_sequencer(schedules::Plan plan) {
 
 void Station::start(ControlLoop loop) {
   for (drivers::PolledDevice* dev : std::initializer_list<drivers::PolledDevice*>{
-           chamber_.get(), probes_.get(), table_device_.get()}) {
+           &plant_->chamber(), &plant_->probes(), table_device_.get()}) {
     if (!dev) continue;
     if (auto st = dev->connect(); !st) {
       spdlog::warn("{}: {} (will keep retrying)", dev->name(), st.error().message);
     }
   }
   const double now_s = clock_.now_s();
-  chamber_ok_s_ = probes_ok_s_ = storage_ok_s_ = now_s;
-  chamber_ok_wall_s_ = probes_ok_wall_s_ = storage_ok_wall_s_ = wall_.monotonic_s();
-  duts_->prepare(now_s, chamber_ok_wall_s_);
+  const double wall_s = wall_.monotonic_s();
+  plant_->prepare(now_s, wall_s);
+  storage_ok_s_ = now_s;
+  storage_ok_wall_s_ = wall_s;
+  duts_->prepare(now_s, wall_s);
   {
     std::lock_guard lock(run_mu_);
     if (auto hold = db_.meta(kQueueHoldKey); hold && *hold) {
@@ -351,7 +358,7 @@ void Station::stop(const std::string& reason) {
   {
     std::lock_guard lock(run_mu_);
     ++control_ticks_;  // a write of its own, whatever the last tick tried
-    chamber_safe = write_setpoint(safe_c, true);
+    chamber_safe = plant_->write_setpoint(safe_c, true, control_ticks_);
     if (!chamber_safe) {
       journal_->add_event(
           "error", "", "",
@@ -372,8 +379,8 @@ void Station::stop(const std::string& reason) {
         "stopped ({}); the chamber did NOT take the safe set point {:g} °C ({}); it holds what it "
         "had{}: set it at the controller",
         reason, safe_c, chamber_safe.error().message,
-        last_written_setpoint_c_
-            ? fmt::format(" (last written: {:g} °C)", *last_written_setpoint_c_)
+        plant_->last_written_setpoint_c()
+            ? fmt::format(" (last written: {:g} °C)", *plant_->last_written_setpoint_c())
             : std::string());
   }
 }
@@ -459,58 +466,16 @@ void Station::paced_control_loop(const PacedClock& clock) {
 
 schedules::Readings Station::read_devices(double now_s) {
   schedules::Readings r;
-  // A reading `v` of `dev`; `ok` follows whether it answers, logged on change.
-  auto read = [](const drivers::PolledDevice& dev, const auto& v, bool& ok, auto& out) {
-    if (v) {
-      out = *v;
-      if (!ok) spdlog::info("{}: readings back", dev.name());
-      ok = true;
-    } else {
-      if (ok) spdlog::warn("{}", v.error().message);
-      ok = false;
-    }
-  };
-  if (chamber_units_known()) {
-    read(*chamber_, chamber_->process_value(), chamber_ok_, r.chamber_c);
-    if (r.chamber_c) {
-      r.chamber_c = drivers::to_celsius(*r.chamber_c, *chamber_unit_);
-    } else {
-      chamber_unit_.reset();  // read again once the chamber answers
-    }
-  }
-  if (r.chamber_c && chamber_->has_alarm()) {
-    std::optional<bool> alarm;
-    read(*chamber_, chamber_->alarm(), chamber_ok_, alarm);
-    r.chamber_alarm = alarm.value_or(false);
-  }
-  read(*probes_, probes_->top_c(), probes_ok_, r.top_c);
-  if (r.top_c) read(*probes_, probes_->side_c(), probes_ok_, r.side_c);
+  plant_->read(r);
   const double wall_s = wall_.monotonic_s();
-  if (r.chamber_c) {
-    chamber_ok_s_ = now_s;
-    chamber_ok_wall_s_ = wall_s;
-  }
-  if (r.top_c && r.side_c) {
-    probes_ok_s_ = now_s;
-    probes_ok_wall_s_ = wall_s;
-  }
   // Silence in station time, once it is also min_silent_wall_s of wall time.
   const double min_wall_s = config_.control.min_silent_wall_s;
   auto silent = [&](double since_s, double since_wall_s) {
     return wall_s - since_wall_s >= min_wall_s ? std::max(0.0, now_s - since_s) : 0.0;
   };
-  r.chamber_silent_s = silent(chamber_ok_s_, chamber_ok_wall_s_);
-  r.probes_silent_s = silent(probes_ok_s_, probes_ok_wall_s_);
+  plant_->record_silence(now_s, wall_s, silent, r);
   duts_->read_silence(r, silent);
   if (table_) table_->read(now_s, wall_s, min_wall_s, r);
-  {
-    // For status(), which never waits on a device.
-    drivers::DeviceHealth chamber_health = chamber_->health();
-    drivers::DeviceHealth probes_health = probes_->health();
-    std::lock_guard lock(mu_);
-    snapshot_.chamber = std::move(chamber_health);
-    snapshot_.probes = std::move(probes_health);
-  }
   const storage::SampleWriterStats ws = writer_->stats();
   r.storage_committed = ws.commits > 0;
   // The database file deleted or replaced under the daemon: storage fails
@@ -578,8 +543,7 @@ void Station::tick() {
   journal_->record_posted_events();
   for (const auto& message : probe_events) journal_->add_event("device", "", "", message);
   note_storage_file();
-  note_link(*chamber_, chamber_ok_, chamber_lost_s_, now_s);
-  note_link(*probes_, probes_ok_, probes_lost_s_, now_s);
+  plant_->note_links(now_s);
   if (!sequencer_ && !storage_file_error_) start_next_run(now_s);  // no run into a lost file
   if (!sequencer_) keep_idle_safe();
 
@@ -589,7 +553,9 @@ void Station::tick() {
     if (sequencer_->state() == RunState::kAborting) {
       // The table stops before the chamber heads for its safe set point.
       if (table_) table_->make_safe(wall_.monotonic_s());
-      if (write_setpoint(sequencer_->setpoint_c(), true)) sequencer_->safe_state_reached(t_run_s);
+      if (plant_->write_setpoint(sequencer_->setpoint_c(), true, control_ticks_)) {
+        sequencer_->safe_state_reached(t_run_s);
+      }
     } else {
       if (table_) tend_table(t_run_s);
       tick_sequencer(t_run_s, r);
@@ -608,7 +574,8 @@ void Station::tick() {
       // At the run's end the table stops before the chamber heads for its
       // safe set point (its servo goes off once at rest, ticks later).
       if (table_ && sequencer_->finished()) table_->make_safe(wall_.monotonic_s());
-      (void)write_setpoint(sequencer_->setpoint_c(), false);  // failing: retried next tick
+      // Failing: retried next tick.
+      (void)plant_->write_setpoint(sequencer_->setpoint_c(), false, control_ticks_);
     }
     if (table_) {
       if (auto sample = table_->sample(t_run_s)) writer_->push_table(current_run_id(), *sample);
@@ -755,95 +722,11 @@ void Station::make_table_safe_now() {
   }
 }
 
-bool Station::chamber_units_known() {
-  // Read every time (each tick, before the process value): the units can
-  // be changed at the controller, and a set point written in the wrong unit
-  // would move the chamber far off. A controller without a units register
-  // serves °C (nothing is read).
-  auto v = chamber_->units();
-  if (!v) {
-    if (chamber_ok_) spdlog::warn("{}", v.error().message);
-    chamber_ok_ = false;
-    chamber_unit_.reset();
-    return false;
-  }
-  if (!v->unit) {
-    if (refused_units_code_ != v->code) {
-      spdlog::error("chamber: {}; the chamber's readings and set point are not used until it does",
-                    v->note);
-      refused_units_code_ = v->code;
-    }
-    chamber_unit_.reset();
-    return false;
-  }
-  refused_units_code_.reset();
-  const drivers::TemperatureUnit unit = *v->unit;
-  if (chamber_unit_ != unit && !v->note.empty()) {
-    spdlog::info("chamber: serves {} ({}){}", drivers::unit_symbol(unit), v->note,
-                 unit == drivers::TemperatureUnit::kCelsius
-                     ? ""
-                     : "; readings and set points are converted to and from °C");
-  }
-  chamber_unit_ = unit;
-  return true;
-}
-
-Status Station::write_setpoint(double setpoint_c, bool force) {
-  if (setpoint_attempt_tick_ == control_ticks_ && setpoint_attempt_c_ == setpoint_c) {
-    return setpoint_attempt_status_;  // tried in this tick already
-  }
-  ++ticks_since_setpoint_write_;
-  const bool changed =
-      !last_written_setpoint_c_ || std::abs(*last_written_setpoint_c_ - setpoint_c) > 1e-4;
-  // Re-assert the set point now and then: a controller that was power-cycled
-  // or changed by hand comes back to the schedule.
-  if (!force && !changed && ticks_since_setpoint_write_ < 30) return Status::Ok();
-  ticks_since_setpoint_write_ = 0;
-  setpoint_attempt_tick_ = control_ticks_;
-  setpoint_attempt_c_ = setpoint_c;
-  Status st;
-  if (!chamber_unit_ && !chamber_units_known()) {
-    st = Error::Transient(
-        "chamber: the unit it serves is not known (no answer, or its units register holds "
-        "neither °C nor °F)");
-  } else {
-    st = chamber_->write_setpoint(drivers::from_celsius(setpoint_c, *chamber_unit_));
-  }
-  setpoint_attempt_status_ = st;
-  const double now_s = clock_.now_s();
-  if (st) {
-    last_written_setpoint_c_ = setpoint_c;
-    if (setpoint_failures_ > 0) {
-      const std::string message =
-          fmt::format("chamber: set point {:g} °C taken after {} failed write{} over {:.0f} s",
-                      setpoint_c, setpoint_failures_, setpoint_failures_ == 1 ? "" : "s",
-                      now_s - setpoint_failing_since_s_);
-      spdlog::info("{}", message);
-      journal_->add_event("device", "", "", message);
-    }
-    setpoint_failures_ = 0;
-    return st;
-  }
-  last_written_setpoint_c_.reset();  // retry next tick
-  if (setpoint_failures_++ == 0) {
-    setpoint_failing_since_s_ = now_s;
-    const std::string message = fmt::format(
-        "chamber: set point {:g} °C not written ({}); written again every control "
-        "tick until the chamber takes it",
-        setpoint_c, st.error().message);
-    spdlog::warn("{}", message);
-    journal_->add_event("device", "", "", message);
-  }
-  return st;
-}
-
 void Station::keep_idle_safe() {
   if (table_ && !table_->safing() && table_->answering() && table_->owes_safe_state()) {
     table_->make_safe(wall_.monotonic_s());
   }
-  if (safe_setpoint_owed_ && write_setpoint(config_.station.safe_setpoint_c, true)) {
-    safe_setpoint_owed_ = false;
-  }
+  plant_->keep_safe(config_.station.safe_setpoint_c, control_ticks_);
 }
 
 void Station::tend_table(double t_run_s) {
@@ -988,7 +871,7 @@ void Station::start_next_run(double now_s) {
   spdlog::info("run {}: {} ({} steps)", run_id, plan->name, plan->steps.size());
   if (table_) table_->begin_run();
   journal_->begin_segments(std::vector<int64_t>(plan->steps.size(), 0));
-  const double start_sp = last_written_setpoint_c_.value_or(
+  const double start_sp = plant_->last_written_setpoint_c().value_or(
       snapshot_.chamber_c.value_or(config_.station.safe_setpoint_c));
   make_sequencer(std::move(*plan));
   sequencer_->start(0.0, start_sp);
@@ -1153,7 +1036,7 @@ void Station::resume_interrupted_run() {
   make_sequencer(std::move(*plan));
   if (table_) table_->begin_run();
   journal_->add_event("resume", "", "", reason);
-  last_written_setpoint_c_.reset();
+  plant_->forget_setpoint();
   sequencer_->restore(*snap, t_resume_s, data_until_s, reason);
   if (step_finished_already) {
     journal_->add_event(
@@ -1209,8 +1092,8 @@ void Station::end_run() {
   // The table stops first; its servo goes off once it is at rest (ticks).
   if (table_) table_->make_safe(wall_.monotonic_s());
   const double safe_c = config_.station.safe_setpoint_c;
-  const Status chamber_safe = write_setpoint(safe_c, true);
-  safe_setpoint_owed_ = !chamber_safe;
+  const Status chamber_safe = plant_->write_setpoint(safe_c, true, control_ticks_);
+  plant_->owe_safe_setpoint(!chamber_safe);
   if (!chamber_safe && run_id != 0) {
     journal_->add_event(
         "error", "", "",
@@ -1316,24 +1199,6 @@ StatusSnapshot Station::status() const {
 
 void Station::post_event(const std::string& kind, const std::string& message) {
   journal_->post_event(kind, message);
-}
-
-// A device's gap in the event log: when it stopped answering and how long
-// the readings were missing once it answers again.
-void Station::note_link(const drivers::PolledDevice& device, bool ok,
-                        std::optional<double>& lost_since_s, double now_s) {
-  if (!ok && !lost_since_s) {
-    lost_since_s = now_s;
-    journal_->add_event("device", "", "",
-                        fmt::format("{}: no answer ({}); its readings are missing from now",
-                                    device.name(), device.health().last_error));
-  } else if (ok && lost_since_s) {
-    journal_->add_event(
-        "device", "", "",
-        fmt::format("{}: answers again after {:.1f} s of station time without readings",
-                    device.name(), now_s - *lost_since_s));
-    lost_since_s.reset();
-  }
 }
 
 void Station::tick_sequencer(double t_run_s, const schedules::Readings& r) {

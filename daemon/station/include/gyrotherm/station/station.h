@@ -24,7 +24,9 @@
 // The DUTs' acquisition is DutAcquisition's (src/dut_acquisition.h), with
 // its own locks; their status figures are under mu_ too. The event journal
 // is EventJournal's (src/event_journal.h), under run_mu_ (its posted events
-// under its own lock).
+// under its own lock). The chamber and shell probes are PlantIo's
+// (src/plant_io.h), on the control thread; their health goes to the
+// snapshot under mu_.
 // The run's id and start time go to the gyro reader together (RunClock).
 // The count of waiting queue entries changes only by read-modify-write, by
 // the thread that changed the queue in the database (HTTP: add, remove;
@@ -36,9 +38,7 @@
 
 #include <atomic>
 #include <condition_variable>
-#include <deque>
 #include <functional>
-#include <map>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -71,6 +71,7 @@ namespace gyrotherm::station {
 
 class DutAcquisition;
 class EventJournal;
+class PlantIo;
 
 // What the station tells the rest of the daemon; each optional.
 struct StationHooks {
@@ -200,8 +201,6 @@ class Station final : public StationControl, private schedules::SequencerObserve
   schedules::Readings read_devices(double now_s);
   // Needs run_mu_.
   void resume_interrupted_run();
-  void note_link(const drivers::PolledDevice& device, bool ok, std::optional<double>& lost_since_s,
-                 double now_s);
   // The sequencer's tick, with the segments it ends and starts written in
   // one transaction with the checkpoint that says so.
   void tick_sequencer(double t_run_s, const schedules::Readings& r);
@@ -220,15 +219,8 @@ class Station final : public StationControl, private schedules::SequencerObserve
   void count_queue();
   int64_t current_run_id() const { return run_clock_.load().run_id; }
   double run_time_s() const;
-  // Sends `setpoint_c` to the chamber when it differs from the last one
-  // written, when `force`, or every 30th call (re-asserted: a controller
-  // changed by hand comes back); never twice in a control tick. Ok when
-  // the chamber took it (now or before), else the write's error (the next
-  // call tries again). A failing spell is logged and an event when it
-  // starts and when a write takes again.
-  Status write_setpoint(double setpoint_c, bool force);
   // Idle: the table's safe state once, and the safe set point until the
-  // chamber takes it (safe_setpoint_owed_).
+  // chamber takes it (PlantIo::keep_safe).
   void keep_idle_safe();
   // A run's table, before the sequencer's tick: an interruption holds the
   // acquisition (and pauses the run unless [table] respin_after_fault); a
@@ -263,8 +255,9 @@ class Station final : public StationControl, private schedules::SequencerObserve
   std::unique_ptr<storage::SampleSink> writer_;
   std::unique_ptr<calibration::AnalysisWorker> analysis_;
   std::unique_ptr<calibration::NightlyExporter> nightly_;  // [export] nightly
-  std::unique_ptr<drivers::Chamber> chamber_;
-  std::unique_ptr<drivers::ShellProbes> probes_;
+  // The chamber and shell probes (readings, set point, health); made in
+  // the constructor.
+  std::unique_ptr<PlantIo> plant_;
   // The DUTs (their frames, coverage, status figures and probes); made in
   // the constructor.
   std::unique_ptr<DutAcquisition> duts_;
@@ -282,38 +275,15 @@ class Station final : public StationControl, private schedules::SequencerObserve
   std::optional<std::string> hold_reason_;  // queue held
   std::string checkpoint_state_;
   double last_checkpoint_wall_s_ = -1e9;
-  std::optional<double> last_written_setpoint_c_;
-  int ticks_since_setpoint_write_ = 0;
   // Control ticks (and the stop) counted, so a set point is written at most
-  // once in each: the value and result of the last attempt.
+  // once in each (PlantIo::write_setpoint).
   uint64_t control_ticks_ = 0;
-  uint64_t setpoint_attempt_tick_ = 0;
-  double setpoint_attempt_c_ = 0;
-  Status setpoint_attempt_status_;
-  // Failed writes in a row, since when (station time).
-  int setpoint_failures_ = 0;
-  double setpoint_failing_since_s_ = 0;
-  // A run ended and the chamber has not taken the safe set point yet: each
-  // idle tick writes it again.
-  bool safe_setpoint_owed_ = false;
   bool checkpoint_failing_ = false;
   // Events, the run's state and its segment records (and what the
   // database refused of them); made in the constructor.
   std::unique_ptr<EventJournal> journal_;
 
   // Control-thread only.
-  bool chamber_ok_ = true, probes_ok_ = true;
-  // The unit the chamber serves temperatures in, from its units register
-  // (ChamberMap::units, read every tick; °C without one). Unknown until
-  // read, after a failed chamber read, and while the register holds neither
-  // °C nor °F (then the chamber is not used: no readings, no set point
-  // writes).
-  std::optional<drivers::TemperatureUnit> chamber_unit_;
-  std::optional<double> refused_units_code_;  // logged once per value
-  bool chamber_units_known();
-  // Station and wall (monotonic) time of the last good reading.
-  double chamber_ok_s_ = 0, probes_ok_s_ = 0;
-  double chamber_ok_wall_s_ = 0, probes_ok_wall_s_ = 0;
   // Station and wall time of the last moment the sample writer's commits
   // were not failing.
   double storage_ok_s_ = 0, storage_ok_wall_s_ = 0;
@@ -321,8 +291,6 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // happened; storage fails until a restart. Reported once; its WAL released.
   std::optional<std::string> storage_file_error_;
   bool storage_file_reported_ = false, storage_file_released_ = false;
-  // Station time a device stopped answering (its gap, in the event log).
-  std::optional<double> chamber_lost_s_, probes_lost_s_;
   analysis::StabilityWindow shell_rate_window_{60.0};
   // The queued entries' planned durations for the status's progress: read
   // again when their count changed, otherwise every few wall seconds.
