@@ -23,6 +23,7 @@
 #include "gyrotherm/api/api.h"
 
 using namespace gyrotherm::api;
+namespace station = gyrotherm::station;
 namespace http = boost::beast::http;
 
 namespace {
