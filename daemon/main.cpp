@@ -37,27 +37,56 @@
 #include "gyrotherm/station/station_lock.h"
 #include "gyrotherm/storage/database.h"
 
-int main(int argc, char** argv) {
-  CLI::App app{"gyrothermd: FOG thermal test station daemon"};
+namespace {
+
+// A start-up step that failed: the message for stderr and the exit code (2:
+// an option, the config or a file is wrong; 1: something at run time).
+struct Exit {
+  int code;
+  std::string message;
+};
+
+int fail(const Exit& exit) {
+  std::cerr << exit.message;
+  return exit.code;
+}
+
+// The parts streamed into one string, as std::cerr prints them.
+template <class... Parts>
+std::string text(const Parts&... parts) {
+  std::ostringstream os;
+  (os << ... << parts);
+  return os.str();
+}
+
+// The command line.
+struct Args {
   std::string config_path, db_path, schedule_path, wall_start, log_level = "info";
   double time_scale = 1.0;
+  bool time_scale_given = false;  // else the simulator's, when it has a clock file
   double endpoints_wait_s = 30.0;
   bool exit_when_done = false;
-  app.add_option("--config", config_path, "station config (TOML)")->required();
-  app.add_option("--db", db_path, "database file (overrides [storage] db)");
-  app.add_option("--schedule", schedule_path, "queue this schedule file at start-up");
+  std::string clock_mode = "auto";
+};
+
+// Parses the command line into `args`; an exit code when the daemon stops
+// there (--help: 0; a usage error: 2, as a bad config).
+std::optional<int> parse_args(int argc, char** argv, Args& args) {
+  CLI::App app{"gyrothermd: FOG thermal test station daemon"};
+  app.add_option("--config", args.config_path, "station config (TOML)")->required();
+  app.add_option("--db", args.db_path, "database file (overrides [storage] db)");
+  app.add_option("--schedule", args.schedule_path, "queue this schedule file at start-up");
   auto* time_scale_opt =
-      app.add_option("--time-scale", time_scale,
+      app.add_option("--time-scale", args.time_scale,
                      "station seconds per wall second (simulation; on the simulator's clock "
                      "its own unless given, and at most: a busy machine runs slower)")
           ->check(CLI::Range(gyrotherm::kMinTimeScale, gyrotherm::kMaxTimeScale));
-  app.add_option("--wall-start", wall_start,
+  app.add_option("--wall-start", args.wall_start,
                  "simulation: the nightly export's wall clock starts at this ISO-8601 instant "
                  "(e.g. 2026-03-29T00:40:00Z) and runs at --time-scale");
-  app.add_flag("--exit-when-done", exit_when_done,
+  app.add_flag("--exit-when-done", args.exit_when_done,
                "exit 0 once the queue is empty and no run is active (scripts, tests)");
-  std::string clock_mode = "auto";
-  app.add_option("--clock", clock_mode,
+  app.add_option("--clock", args.clock_mode,
                  "station time: 'auto' (default) is 'sim' when the simulator's endpoints name "
                  "a clock file, else 'scaled'; 'sim' reads it from the simulator's clock file "
                  "(one clock for both; the simulator waits for this daemon); 'scaled' scales "
@@ -65,9 +94,9 @@ int main(int argc, char** argv) {
                      fmt::format("{:g}", gyrotherm::kMaxScaledSimTimeScale) +
                      " against a simulator: a loaded machine misplaces samples)")
       ->check(CLI::IsMember({"auto", "sim", "scaled"}));
-  app.add_option("--endpoints-wait", endpoints_wait_s,
+  app.add_option("--endpoints-wait", args.endpoints_wait_s,
                  "seconds to wait for the simulator's endpoints file");
-  app.add_option("--log-level", log_level, "trace, debug, info, warn, error")
+  app.add_option("--log-level", args.log_level, "trace, debug, info, warn, error")
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}));
   try {
     app.parse(argc, argv);
@@ -75,149 +104,136 @@ int main(int argc, char** argv) {
     // --help exits 0; every usage error exits 2, as a bad config does.
     return app.exit(e) == 0 ? 0 : 2;
   }
-  spdlog::set_level(spdlog::level::from_str(log_level));
-  spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %^%l%$ %v");
+  args.time_scale_given = time_scale_opt->count() > 0;
+  return std::nullopt;
+}
 
-  auto config = gyrotherm::config::load_station_config(config_path);
-  if (!config) {
-    std::cerr << "gyrothermd: bad config:\n" << config.error().message;
-    return 2;
+// [simulator] endpoints_file: waits for the simulator's endpoints, points
+// the config's devices at them and picks the station clock: the simulator's
+// clock file (into `shared_clock_map`) unless --clock scaled, at the
+// simulator's time scale unless one was given (then they must agree).
+std::optional<Exit> connect_simulator(
+    Args& args, gyrotherm::config::StationConfig& config,
+    std::unique_ptr<gyrotherm::SharedClockMap>& shared_clock_map) {
+  if (args.clock_mode == "sim" && config.simulator.endpoints_file.empty()) {
+    return Exit{2, text("gyrothermd: --clock sim needs a simulator: ", args.config_path,
+                        " has no [simulator] endpoints_file\n")};
   }
-  for (const std::string& warning : config->warnings) spdlog::warn("config: {}", warning);
-  if (!db_path.empty()) config->storage.db_path = db_path;
-  if (auto dir =
-          gyrotherm::config::check_database_directory(*config, db_path.empty() ? "" : "--db");
-      !dir) {
-    std::cerr << "gyrothermd: bad config:\n" << dir.error().message << "\n";
-    return 2;
-  }
-  // One daemon per station database; the CLI's commissioning commands look
-  // at this lock and keep off the devices while it is held.
-  auto station_lock = gyrotherm::station::StationLock::acquire(config->storage.db_path);
-  if (!station_lock) {
-    std::cerr << "gyrothermd: " << station_lock.error().message << "\n";
-    return 1;
-  }
-
-  std::unique_ptr<gyrotherm::SharedClockMap> shared_clock_map;
-  if (clock_mode == "sim" && config->simulator.endpoints_file.empty()) {
-    std::cerr << "gyrothermd: --clock sim needs a simulator: " << config_path
-              << " has no [simulator] endpoints_file\n";
-    return 2;
-  }
-  if (!config->simulator.endpoints_file.empty()) {
-    const std::string& file = config->simulator.endpoints_file;
-    const auto deadline = std::chrono::steady_clock::now() +
-                          std::chrono::milliseconds(static_cast<int64_t>(endpoints_wait_s * 1000));
+  if (!config.simulator.endpoints_file.empty()) {
+    const std::string& file = config.simulator.endpoints_file;
+    const auto deadline =
+        std::chrono::steady_clock::now() +
+        std::chrono::milliseconds(static_cast<int64_t>(args.endpoints_wait_s * 1000));
     gyrotherm::Result<gyrotherm::config::SimEndpoints> ep = gyrotherm::Error::Transient("not read");
     while (!(ep = gyrotherm::config::read_sim_endpoints(file)) &&
            std::chrono::steady_clock::now() < deadline) {
       std::this_thread::sleep_for(std::chrono::milliseconds(50));
     }
     if (!ep) {
-      std::cerr << "gyrothermd: no simulator endpoints in " << file << " after " << endpoints_wait_s
-                << " s (is gyrotherm-sim running with the same config?):\n"
-                << ep.error().message << "\n";
-      return 1;
+      return Exit{
+          1,
+          text("gyrothermd: no simulator endpoints in ", file, " after ", args.endpoints_wait_s,
+               " s (is gyrotherm-sim running with the same config?):\n", ep.error().message, "\n")};
     }
-    if (clock_mode == "sim" && ep->clock_file.empty()) {
-      std::cerr << "gyrothermd: --clock sim, but the simulator's endpoints (" << file
-                << ") name no clock file (a simulator started with --scaled-clock?)\n";
-      return 2;
+    if (args.clock_mode == "sim" && ep->clock_file.empty()) {
+      return Exit{2, text("gyrothermd: --clock sim, but the simulator's endpoints (", file,
+                          ") name no clock file (a simulator started with --scaled-clock?)\n")};
     }
-    if (clock_mode != "scaled" && !ep->clock_file.empty()) {
+    if (args.clock_mode != "scaled" && !ep->clock_file.empty()) {
       auto map = gyrotherm::SharedClockMap::open(ep->clock_file);
       if (!map) {
-        std::cerr << "gyrothermd: " << map.error().message << "\n";
-        return 1;
+        return Exit{1, text("gyrothermd: ", map.error().message, "\n")};
       }
       // The simulator's scale unless one was given (then they must agree).
-      if (time_scale_opt->count() == 0) time_scale = ep->time_scale > 0 ? ep->time_scale : 1.0;
+      if (!args.time_scale_given) args.time_scale = ep->time_scale > 0 ? ep->time_scale : 1.0;
       shared_clock_map = std::move(*map);
-    } else if (time_scale > gyrotherm::kMaxScaledSimTimeScale && clock_mode != "scaled") {
+    } else if (args.time_scale > gyrotherm::kMaxScaledSimTimeScale && args.clock_mode != "scaled") {
       // A simulator without a clock file (started with --scaled-clock, or
       // an older one, or a test's in-process one): two clocks it asked for.
       spdlog::warn(
           "--time-scale {:g} against a simulator without a clock file: two clocks, and above "
           "x{:g} a loaded machine puts samples in the wrong windows; run the simulator without "
           "--scaled-clock",
-          time_scale, gyrotherm::kMaxScaledSimTimeScale);
-    } else if (time_scale > gyrotherm::kMaxScaledSimTimeScale) {
+          args.time_scale, gyrotherm::kMaxScaledSimTimeScale);
+    } else if (args.time_scale > gyrotherm::kMaxScaledSimTimeScale) {
       // Two clocks asked of the daemon: refused where a loaded machine
       // makes them wrong.
-      std::cerr << fmt::format(
-          "gyrothermd: --time-scale {:g} with a scaled clock against a simulator is refused: "
-          "above x{:g} a loaded machine puts samples in the wrong windows (reader latency in "
-          "wall seconds becomes station seconds). Run the simulator with its clock (without "
-          "--scaled-clock) and the daemon with --clock auto or sim, or use --time-scale {:g} "
-          "or less\n",
-          time_scale, gyrotherm::kMaxScaledSimTimeScale, gyrotherm::kMaxScaledSimTimeScale);
-      return 2;
+      return Exit{
+          2,
+          text(fmt::format(
+              "gyrothermd: --time-scale {:g} with a scaled clock against a simulator is refused: "
+              "above x{:g} a loaded machine puts samples in the wrong windows (reader latency in "
+              "wall seconds becomes station seconds). Run the simulator with its clock (without "
+              "--scaled-clock) and the daemon with --clock auto or sim, or use --time-scale {:g} "
+              "or less\n",
+              args.time_scale, gyrotherm::kMaxScaledSimTimeScale,
+              gyrotherm::kMaxScaledSimTimeScale))};
     }
-    if (const std::string why = gyrotherm::config::sim_time_scale_mismatch(*ep, time_scale, file);
+    if (const std::string why =
+            gyrotherm::config::sim_time_scale_mismatch(*ep, args.time_scale, file);
         !why.empty()) {
-      std::cerr << "gyrothermd: " << why << "\n";
-      return 2;
+      return Exit{2, text("gyrothermd: ", why, "\n")};
     }
-    gyrotherm::config::apply_sim_endpoints(*config, *ep);
-    if (const std::string why = gyrotherm::config::sim_dut_devices_mismatch(*config, *ep, file);
+    gyrotherm::config::apply_sim_endpoints(config, *ep);
+    if (const std::string why = gyrotherm::config::sim_dut_devices_mismatch(config, *ep, file);
         !why.empty()) {
-      std::cerr << "gyrothermd: " << why << "\n";
-      return 2;
+      return Exit{2, text("gyrothermd: ", why, "\n")};
     }
     spdlog::info("simulated station: modbus {}:{}, gyro {}", ep->modbus_host, ep->modbus_port,
                  ep->gyro_device);
   }
+  return std::nullopt;
+}
 
-  // --schedule is checked here too, so a bad file stops the daemon before it
-  // starts anything; the queue checks it again when it is added.
-  std::string schedule_text;
-  if (!schedule_path.empty()) {
-    auto p = gyrotherm::schedules::load_schedule(schedule_path,
-                                                 gyrotherm::config::station_limits(*config));
+// --schedule's file, checked against the station's limits; its text into
+// `text_out` (nothing without --schedule).
+std::optional<Exit> read_schedule(const Args& args, const gyrotherm::config::StationConfig& config,
+                                  std::string& text_out) {
+  if (!args.schedule_path.empty()) {
+    auto p = gyrotherm::schedules::load_schedule(args.schedule_path,
+                                                 gyrotherm::config::station_limits(config));
     if (!p) {
-      std::cerr << "gyrothermd: schedule refused, nothing queued:\n" << p.error().message;
-      return 2;
+      return Exit{2, text("gyrothermd: schedule refused, nothing queued:\n", p.error().message)};
     }
-    auto text = gyrotherm::read_bounded_file(schedule_path, gyrotherm::kMaxTomlFileBytes);
-    if (!text) {
-      std::cerr << "gyrothermd: " << text.error().message << "\n";
-      return 2;
+    auto file_text = gyrotherm::read_bounded_file(args.schedule_path, gyrotherm::kMaxTomlFileBytes);
+    if (!file_text) {
+      return Exit{2, text("gyrothermd: ", file_text.error().message, "\n")};
     }
-    schedule_text = std::move(*text);
+    text_out = std::move(*file_text);
   }
+  return std::nullopt;
+}
 
-  // [lab] (docs/lab.md): the database is bound to the station id before
-  // anything writes to it, so every result from now on is queued in its
-  // outbox (the first binding queues the history). One database, one id.
-  // The relay's events go to the station's event log once it exists (the
-  // relay starts after the station).
-  std::atomic<gyrotherm::station::Station*> relay_events_to{nullptr};
-  std::unique_ptr<gyrotherm::lab::Relay> relay;
-  if (const auto& lab = config->lab) {
-    const std::string& db = config->storage.db_path;
+// [lab] (docs/lab.md): the database is bound to the station id before
+// anything writes to it, so every result from now on is queued in its
+// outbox (the first binding queues the history). One database, one id.
+// The relay (into `relay`; none without [lab]) posts its events to the
+// station `relay_events_to` points at, once it does.
+std::optional<Exit> make_relay(const gyrotherm::config::StationConfig& config,
+                               std::atomic<gyrotherm::station::Station*>& relay_events_to,
+                               std::unique_ptr<gyrotherm::lab::Relay>& relay) {
+  if (const auto& lab = config.lab) {
+    const std::string& db = config.storage.db_path;
     auto database = gyrotherm::storage::Database::open(db);
     if (!database) {
-      std::cerr << "gyrothermd: " << database.error().message << "\n";
-      return 1;
+      return Exit{1, text("gyrothermd: ", database.error().message, "\n")};
     }
     auto bound = database->lab_station_id();
     if (!bound) {
-      std::cerr << "gyrothermd: " << bound.error().message << "\n";
-      return 1;
+      return Exit{1, text("gyrothermd: ", bound.error().message, "\n")};
     }
     if (*bound && **bound != lab->station_id) {
-      std::cerr << fmt::format(
-          "gyrothermd: [lab] station_id is \"{}\" but database {} belongs to lab station "
-          "\"{}\" (a database belongs to one station: fix station_id, or give this station "
-          "its own database)\n",
-          lab->station_id, db, **bound);
-      return 2;
+      return Exit{
+          2, text(fmt::format(
+                 "gyrothermd: [lab] station_id is \"{}\" but database {} belongs to lab station "
+                 "\"{}\" (a database belongs to one station: fix station_id, or give this station "
+                 "its own database)\n",
+                 lab->station_id, db, **bound))};
     }
     if (auto st = database->lab_bind(lab->station_id); !st) {
-      std::cerr << "gyrothermd: [lab] binding database " << db << " to station " << lab->station_id
-                << ": " << st.error().message << "\n";
-      return st.error().transient ? 1 : 2;
+      return Exit{st.error().transient ? 1 : 2,
+                  text("gyrothermd: [lab] binding database ", db, " to station ", lab->station_id,
+                       ": ", st.error().message, "\n")};
     }
     gyrotherm::lab::RelayOptions options;
     options.station_id = lab->station_id;
@@ -225,8 +241,7 @@ int main(int argc, char** argv) {
     if (lab->relay) {
       auto conninfo = gyrotherm::config::lab_conninfo(*lab);
       if (!conninfo) {
-        std::cerr << "gyrothermd: " << conninfo.error().message << "\n";
-        return 2;
+        return Exit{2, text("gyrothermd: ", conninfo.error().message, "\n")};
       }
       options.conninfo = std::move(*conninfo);
     }  // else "": the relay only counts the outbox (state "disabled")
@@ -244,11 +259,107 @@ int main(int argc, char** argv) {
     };
     auto created = gyrotherm::lab::Relay::create(std::move(options));
     if (!created) {
-      std::cerr << "gyrothermd: " << created.error().message << "\n";
-      return 2;
+      return Exit{2, text("gyrothermd: ", created.error().message, "\n")};
     }
     relay = std::move(*created);
   }
+  return std::nullopt;
+}
+
+// Waits for SIGINT or SIGTERM (blocked in every thread, taken here) or,
+// with `exit_when_done`, for the station to be idle; returns why it stopped.
+std::string run_until_stopped(gyrotherm::station::Station& station,
+                              const gyrotherm::config::StationConfig& config,
+                              const gyrotherm::Clock& clock, const sigset_t& signals,
+                              bool exit_when_done) {
+  // The watchdog is fed at half its interval while the control loop ticks.
+  // A loop that has not ticked for the interval (or three tick periods, if
+  // longer) is stalled: the pings stop and systemd restarts the daemon.
+  using steady = std::chrono::steady_clock;
+  uint64_t watchdog_usec = 0;
+  const bool watchdog = sd_watchdog_enabled(0, &watchdog_usec) > 0;
+  const auto watchdog_every = std::chrono::microseconds(watchdog_usec / 2);
+  const auto tick_period = std::chrono::duration<double>(
+      std::max(config.control.min_tick_wall_s, config.control.tick_s / clock.time_scale()));
+  const auto stall_after = std::max<std::chrono::duration<double>>(
+      std::chrono::microseconds(watchdog_usec), 3 * tick_period);
+  uint64_t heartbeat = station.heartbeat();
+  auto heartbeat_at = steady::now();
+  auto last_ping = steady::time_point{};
+  bool stalled = false;
+
+  for (;;) {
+    timespec wait{0, 100'000'000};
+    const int sig = sigtimedwait(&signals, nullptr, &wait);
+    if (sig == SIGINT || sig == SIGTERM) {
+      return sig == SIGINT ? "SIGINT" : "SIGTERM";
+    }
+    if (exit_when_done && station.idle()) {
+      return "queue done";
+    }
+    if (!watchdog) continue;
+    const auto now = steady::now();
+    if (const uint64_t h = station.heartbeat(); h != heartbeat) {
+      heartbeat = h;
+      heartbeat_at = now;
+      if (stalled) spdlog::warn("watchdog: the control loop ticks again; pings resumed");
+      stalled = false;
+    } else if (!stalled && now - heartbeat_at > stall_after) {
+      stalled = true;
+      spdlog::error(
+          "watchdog: the control loop has not ticked for {:.1f} s; no more watchdog pings, "
+          "systemd will restart the daemon",
+          std::chrono::duration<double>(now - heartbeat_at).count());
+    }
+    if (!stalled && now - last_ping >= watchdog_every) {
+      sd_notify(0, "WATCHDOG=1");
+      last_ping = now;
+    }
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Args args;
+  if (const std::optional<int> code = parse_args(argc, argv, args)) return *code;
+  spdlog::set_level(spdlog::level::from_str(args.log_level));
+  spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %^%l%$ %v");
+
+  auto config = gyrotherm::config::load_station_config(args.config_path);
+  if (!config) {
+    std::cerr << "gyrothermd: bad config:\n" << config.error().message;
+    return 2;
+  }
+  for (const std::string& warning : config->warnings) spdlog::warn("config: {}", warning);
+  if (!args.db_path.empty()) config->storage.db_path = args.db_path;
+  if (auto dir =
+          gyrotherm::config::check_database_directory(*config, args.db_path.empty() ? "" : "--db");
+      !dir) {
+    std::cerr << "gyrothermd: bad config:\n" << dir.error().message << "\n";
+    return 2;
+  }
+  // One daemon per station database; the CLI's commissioning commands look
+  // at this lock and keep off the devices while it is held.
+  auto station_lock = gyrotherm::station::StationLock::acquire(config->storage.db_path);
+  if (!station_lock) {
+    std::cerr << "gyrothermd: " << station_lock.error().message << "\n";
+    return 1;
+  }
+
+  std::unique_ptr<gyrotherm::SharedClockMap> shared_clock_map;
+  if (auto exit = connect_simulator(args, *config, shared_clock_map)) return fail(*exit);
+
+  // --schedule is checked here too, so a bad file stops the daemon before it
+  // starts anything; the queue checks it again when it is added.
+  std::string schedule_text;
+  if (auto exit = read_schedule(args, *config, schedule_text)) return fail(*exit);
+
+  // The relay's events go to the station's event log once it exists (the
+  // relay starts after the station).
+  std::atomic<gyrotherm::station::Station*> relay_events_to{nullptr};
+  std::unique_ptr<gyrotherm::lab::Relay> relay;
+  if (auto exit = make_relay(*config, relay_events_to, relay)) return fail(*exit);
 
   // Signals are taken by sigwait() below, never by the worker threads.
   sigset_t signals;
@@ -267,13 +378,13 @@ int main(int argc, char** argv) {
     spdlog::info("station time: the simulator's clock ({}), at most x{:g}", clock_path,
                  shared_clock->time_scale());
   } else {
-    scaled_clock.emplace(time_scale);
+    scaled_clock.emplace(args.time_scale);
   }
   const gyrotherm::Clock& clock =
       shared_clock ? static_cast<const gyrotherm::Clock&>(*shared_clock) : *scaled_clock;
   std::optional<gyrotherm::StationWallClock> wall_clock;
-  if (!wall_start.empty()) {
-    auto start = gyrotherm::parse_utc_iso(wall_start);
+  if (!args.wall_start.empty()) {
+    auto start = gyrotherm::parse_utc_iso(args.wall_start);
     if (!start) {
       std::cerr << "gyrothermd: --wall-start: " << start.error().message << "\n";
       return 2;
@@ -396,10 +507,10 @@ int main(int argc, char** argv) {
   }
   // The command line's schedule is queued before the API serves anyone, so
   // it comes before whatever a client queues as soon as the daemon answers.
-  if (!schedule_path.empty()) {
-    const auto added = (*station)->queue_add(schedule_text, schedule_path, false);
+  if (!args.schedule_path.empty()) {
+    const auto added = (*station)->queue_add(schedule_text, args.schedule_path, false);
     if (added.refusal) {
-      spdlog::error("--schedule {}: {}", schedule_path, added.refusal->message);
+      spdlog::error("--schedule {}: {}", args.schedule_path, added.refusal->message);
       for (const auto& line : added.refusal->details) spdlog::error("  {}", line);
     }
   }
@@ -408,58 +519,14 @@ int main(int argc, char** argv) {
   spdlog::info(
       "gyrothermd: station \"{}\", database {}, API http://{}:{}/api/v1/status, time "
       "scale {:g}",
-      config->station.name, config->storage.db_path, config->api.bind, (*http)->port(), time_scale);
+      config->station.name, config->storage.db_path, config->api.bind, (*http)->port(),
+      args.time_scale);
 
   sd_notifyf(0, "READY=1\nSTATUS=station \"%s\", API http://%s:%d/", config->station.name.c_str(),
              config->api.bind.c_str(), (*http)->port());
 
-  // The watchdog is fed at half its interval while the control loop ticks.
-  // A loop that has not ticked for the interval (or three tick periods, if
-  // longer) is stalled: the pings stop and systemd restarts the daemon.
-  using steady = std::chrono::steady_clock;
-  uint64_t watchdog_usec = 0;
-  const bool watchdog = sd_watchdog_enabled(0, &watchdog_usec) > 0;
-  const auto watchdog_every = std::chrono::microseconds(watchdog_usec / 2);
-  const auto tick_period = std::chrono::duration<double>(
-      std::max(config->control.min_tick_wall_s, config->control.tick_s / clock.time_scale()));
-  const auto stall_after = std::max<std::chrono::duration<double>>(
-      std::chrono::microseconds(watchdog_usec), 3 * tick_period);
-  uint64_t heartbeat = (*station)->heartbeat();
-  auto heartbeat_at = steady::now();
-  auto last_ping = steady::time_point{};
-  bool stalled = false;
-
-  std::string reason;
-  for (;;) {
-    timespec wait{0, 100'000'000};
-    const int sig = sigtimedwait(&signals, nullptr, &wait);
-    if (sig == SIGINT || sig == SIGTERM) {
-      reason = sig == SIGINT ? "SIGINT" : "SIGTERM";
-      break;
-    }
-    if (exit_when_done && (*station)->idle()) {
-      reason = "queue done";
-      break;
-    }
-    if (!watchdog) continue;
-    const auto now = steady::now();
-    if (const uint64_t h = (*station)->heartbeat(); h != heartbeat) {
-      heartbeat = h;
-      heartbeat_at = now;
-      if (stalled) spdlog::warn("watchdog: the control loop ticks again; pings resumed");
-      stalled = false;
-    } else if (!stalled && now - heartbeat_at > stall_after) {
-      stalled = true;
-      spdlog::error(
-          "watchdog: the control loop has not ticked for {:.1f} s; no more watchdog pings, "
-          "systemd will restart the daemon",
-          std::chrono::duration<double>(now - heartbeat_at).count());
-    }
-    if (!stalled && now - last_ping >= watchdog_every) {
-      sd_notify(0, "WATCHDOG=1");
-      last_ping = now;
-    }
-  }
+  const std::string reason =
+      run_until_stopped(**station, *config, clock, signals, args.exit_when_done);
   spdlog::info("gyrothermd: stopping ({})", reason);
   sd_notifyf(0, "STOPPING=1\nSTATUS=stopping (%s)", reason.c_str());
   (*http)->stop();
