@@ -1,7 +1,7 @@
-// Database: the run queue, station settings (meta) and crash-resume
-// checkpoints. Queue changes run in one IMMEDIATE transaction each, so the
-// HTTP thread and the control thread (each with its own connection) never
-// see a half-renumbered queue, and a claimed entry cannot be removed.
+// Database: the run queue and station settings (meta). Queue changes run in one
+// IMMEDIATE transaction each, so the HTTP thread and the control thread (each
+// with its own connection) never see a half-renumbered queue, and a claimed
+// entry cannot be removed.
 #include <fmt/format.h>
 #include <sqlite3.h>
 
@@ -71,24 +71,6 @@ Status renumber(sqlite3* db, const std::string& path, const std::vector<int64_t>
 }
 
 }  // namespace
-
-Status Database::atomically(const std::function<Status()>& body) {
-  Transaction tx(db_, path_);
-  if (Status s = tx.begin_immediate(); !s) return s;
-  if (Status s = body(); !s) return s;  // rolled back
-  return tx.commit();
-}
-
-Status Database::set_run_checkpoint(int64_t run_id, std::string_view resume_json,
-                                    double wall_unix_s) {
-  auto st = Stmt::prepare(
-      db_, path_, "UPDATE runs SET resume_json = ?, checkpoint_wall_unix_s = ? WHERE id = ?");
-  if (!st) return st.error();
-  st->bind(1, resume_json);
-  st->bind(2, wall_unix_s);
-  st->bind(3, run_id);
-  return expect_done(*st, db_, path_, fmt::format("checkpointing run {}", run_id));
-}
 
 Result<QueueEntry> Database::queue_add(const std::string& schedule_name,
                                        const std::string& source_path, const std::string& toml_text,

@@ -1,11 +1,9 @@
-// Database: the rate table's samples (reads, window means) and the stored
-// scale-factor analysis (schema v7; docs/storage.md).
+// Database: the stored scale-factor analysis (schema v7; docs/storage.md).
 #include <fmt/format.h>
 #include <sqlite3.h>
 
 #include <cmath>
 #include <nlohmann/json.hpp>
-#include <numbers>
 
 #include "duts_internal.h"
 #include "gyrotherm/storage/database.h"
@@ -19,23 +17,6 @@ using internal::Stmt;
 using internal::Transaction;
 
 namespace {
-
-constexpr const char* kTableSampleColumns =
-    "t_s, demand_mode, demand_rate_dps, demand_position_deg, rate_dps, position_deg, mode, "
-    "interlock";
-
-TableSample read_table_sample(const Stmt& st) {
-  TableSample t;
-  t.t_s = st.column_double(0);
-  t.demand_mode = st.column_text(1);
-  t.demand_rate_dps = st.column_double(2);
-  t.demand_position_deg = st.column_optional_double(3);
-  t.rate_dps = st.column_double(4);
-  t.position_deg = st.column_double(5);
-  t.mode = st.column_text(6);
-  t.interlock = st.column_text(7);
-  return t;
-}
 
 // The coefficients must be a JSON array of numbers ("" means none: "[]").
 Result<std::string> coefficients_json(const std::string& text, const char* field, int64_t run_id,
@@ -56,76 +37,6 @@ Result<std::string> coefficients_json(const std::string& text, const char* field
 }
 
 }  // namespace
-
-Result<std::vector<TableSample>> Database::table_samples(int64_t run_id, double t_from_s,
-                                                         double t_to_s) {
-  auto st = Stmt::prepare(db_, path_,
-                          fmt::format("SELECT {} FROM table_samples WHERE run_id = ? AND t_s >= ? "
-                                      "AND t_s < ? ORDER BY t_s",
-                                      kTableSampleColumns));
-  if (!st) return st.error();
-  st->bind(1, run_id);
-  st->bind(2, t_from_s);
-  st->bind(3, t_to_s);
-  std::vector<TableSample> out;
-  int rc;
-  while ((rc = st->step()) == SQLITE_ROW) out.push_back(read_table_sample(*st));
-  if (rc != SQLITE_DONE) {
-    return sqlite_error(db_, path_, fmt::format("reading table samples of run {}", run_id));
-  }
-  return out;
-}
-
-// The circular mean of angles θ_i is atan2(Σ sin θ_i, Σ cos θ_i); the mean
-// resultant length R = |Σ (cos θ_i, sin θ_i)| / n says how concentrated they
-// are (1: all equal, 0: spread evenly). sin and cos are taken here, not in
-// SQL: SQLite's math functions are optional in a build.
-Result<TableWindowMeans> Database::mean_table_over_windows(
-    int64_t run_id, const std::vector<std::pair<double, double>>& windows) {
-  auto st = Stmt::prepare(db_, path_,
-                          "SELECT rate_dps, position_deg FROM table_samples WHERE run_id = ? AND "
-                          "t_s >= ? AND t_s < ?");
-  if (!st) return st.error();
-  TableWindowMeans out;
-  int64_t rate_n = 0, position_n = 0;
-  double rate_sum = 0, sin_sum = 0, cos_sum = 0;
-  constexpr double kRadPerDeg = std::numbers::pi / 180.0;
-  for (const auto& [from_s, to_s] : windows) {
-    st->reset();
-    st->bind(1, run_id);
-    st->bind(2, from_s);
-    st->bind(3, to_s);
-    int rc;
-    while ((rc = st->step()) == SQLITE_ROW) {
-      ++out.n;
-      if (auto rate = st->column_optional_double(0)) {
-        ++rate_n;
-        rate_sum += *rate;
-      }
-      if (auto position = st->column_optional_double(1)) {
-        ++position_n;
-        sin_sum += std::sin(*position * kRadPerDeg);
-        cos_sum += std::cos(*position * kRadPerDeg);
-      }
-    }
-    if (rc != SQLITE_DONE) {
-      return sqlite_error(
-          db_, path_,
-          fmt::format("reading table samples of run {} in [{}, {}) s", run_id, from_s, to_s));
-    }
-  }
-  if (rate_n > 0) out.rate_dps = rate_sum / static_cast<double>(rate_n);
-  if (position_n > 0) {
-    out.position_resultant = std::hypot(sin_sum, cos_sum) / static_cast<double>(position_n);
-    if (out.position_resultant >= TableWindowMeans::kMinResultant) {
-      double deg = std::atan2(sin_sum, cos_sum) / kRadPerDeg;
-      if (deg < 0) deg += 360.0;
-      if (deg >= 360.0) deg -= 360.0;  // -tiny + 360 rounds to 360
-      out.position_deg = deg;
-    }
-  }
-  return out;
-}
 
 Status Database::store_scale_factor(
     int64_t run_id, const std::vector<ScaleFactorPointRecord>& points,
