@@ -8,6 +8,7 @@
 #include <charconv>
 #include <chrono>
 #include <thread>
+#include <type_traits>
 #include <utility>
 
 #include "gyrotherm/core/clock.h"
@@ -20,6 +21,19 @@ using internal::expect_done;
 using internal::sqlite_error;
 using internal::Stmt;
 using internal::Transaction;
+
+// The stores are parts of Database: no data of their own (what a Database
+// owns moves with it), never made, copied or moved apart from one.
+template <class Store>
+constexpr bool kIsPart =
+    std::is_empty_v<Store> && !std::is_default_constructible_v<Store> &&
+    !std::is_copy_constructible_v<Store> && !std::is_move_constructible_v<Store>;
+static_assert(kIsPart<RunStore> && kIsPart<DutStore> && kIsPart<QueueStore> &&
+              kIsPart<EventStore> && kIsPart<ResultStore> && kIsPart<SampleStore> &&
+              kIsPart<ExportStore> && kIsPart<OutboxStore>);
+static_assert(std::is_nothrow_move_constructible_v<Database> &&
+              std::is_nothrow_move_assignable_v<Database> &&
+              !std::is_copy_constructible_v<Database>);
 
 namespace {
 

@@ -1,5 +1,8 @@
-// Database: Table I rows (segment_stats), Allan deviations (schema v4) and
-// stored drift-model fits. The scale factor is in scale_factor.cpp.
+// ResultStore (results.h): Table I rows (segment_stats), Allan deviations
+// (schema v4) and stored drift-model fits. The scale factor is in
+// scale_factor.cpp.
+#include "gyrotherm/storage/results.h"
+
 #include <fmt/format.h>
 #include <sqlite3.h>
 
@@ -28,12 +31,16 @@ constexpr const char* kStatsColumns =
 
 }  // namespace
 
-Status Database::put_segment_stats(const SegmentStatsRecord& s) {
+Database& ResultStore::self() { return static_cast<Database&>(*this); }
+sqlite3* ResultStore::db() { return self().db_; }
+const std::string& ResultStore::path() { return self().path_; }
+
+Status ResultStore::put_segment_stats(const SegmentStatsRecord& s) {
   const std::string what = fmt::format("storing statistics of segment {}", s.segment_id);
-  auto key = internal::result_key(db_, path_, s.run_id, s.dut_serial, s.axis, what);
+  auto key = internal::result_key(db(), path(), s.run_id, s.dut_serial, s.axis, what);
   if (!key) return key.error();
   auto st =
-      Stmt::prepare(db_, path_,
+      Stmt::prepare(db(), path(),
                     fmt::format("INSERT OR REPLACE INTO segment_stats({}) "
                                 "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
                                 "?, ?, ?, ?, ?, ?)",
@@ -56,31 +63,31 @@ Status Database::put_segment_stats(const SegmentStatsRecord& s) {
   st->bind(i++, s.earth_rate_dph);
   st->bind(i++, s.t_from_s);
   st->bind(i++, s.t_to_s);
-  st->bind(i++, std::string_view(utc_or_now(s.computed_utc)));
+  st->bind(i++, std::string_view(self().utc_or_now(s.computed_utc)));
   st->bind(i++, std::string_view(key->serial));
   st->bind(i++, std::string_view(key->axis));
   internal::bind_quality(*st, i, s.quality);
-  internal::WriteScope tx(db_, path_, "put_segment_stats");
+  internal::WriteScope tx(db(), path(), "put_segment_stats");
   if (Status s = tx.begin(); !s) return s;
-  if (Status s = expect_done(*st, db_, path_, what); !s) return s;
+  if (Status s = expect_done(*st, db(), path(), what); !s) return s;
   if (key->primary && !key->axis.empty()) {
     // The row stored before v8 for this DUT (axis '' = its primary axis)
     // is this series: the new row replaces it.
-    auto legacy = Stmt::prepare(db_, path_,
+    auto legacy = Stmt::prepare(db(), path(),
                                 "DELETE FROM segment_stats WHERE segment_id = ? AND "
                                 "dut_serial = ? AND axis = ''");
     if (!legacy) return legacy.error();
     legacy->bind(1, s.segment_id);
     legacy->bind(2, std::string_view(key->serial));
-    if (Status e = expect_done(*legacy, db_, path_, what); !e) return e;
+    if (Status e = expect_done(*legacy, db(), path(), what); !e) return e;
   }
   return tx.commit();
 }
 
-Result<std::vector<SegmentStatsRecord>> Database::segment_stats(std::optional<int64_t> run_id) {
+Result<std::vector<SegmentStatsRecord>> ResultStore::segment_stats(std::optional<int64_t> run_id) {
   const std::string columns = internal::qualified(kStatsColumns, "s");
   auto st = Stmt::prepare(
-      db_, path_,
+      db(), path(),
       fmt::format("SELECT {} FROM segment_stats s {} WHERE ?1 IS NULL OR s.run_id = ?1 "
                   "ORDER BY s.run_id, s.segment_index, s.segment_id, {}, s.dut_serial, s.axis",
                   columns, internal::dut_position_join("s"), internal::kDutPositionOrder));
@@ -113,7 +120,7 @@ Result<std::vector<SegmentStatsRecord>> Database::segment_stats(std::optional<in
     r.quality = internal::read_quality(*st, c);
     out.push_back(std::move(r));
   }
-  if (rc != SQLITE_DONE) return sqlite_error(db_, path_, "reading segment statistics");
+  if (rc != SQLITE_DONE) return sqlite_error(db(), path(), "reading segment statistics");
   return out;
 }
 
@@ -230,21 +237,21 @@ Status read_allan_curve(AllanRecord& r, const std::string& text, const std::stri
 
 }  // namespace
 
-Result<int64_t> Database::put_allan(const AllanRecord& a) {
-  if (Status s = check_allan_scalars(a, path_); !s) return s.error();
-  auto curve = allan_curve_json(a, path_);
+Result<int64_t> ResultStore::put_allan(const AllanRecord& a) {
+  if (Status s = check_allan_scalars(a, path()); !s) return s.error();
+  auto curve = allan_curve_json(a, path());
   if (!curve) return curve.error();
   const std::string inputs = a.inputs_json.empty() ? "{}" : a.inputs_json;
   if (!nlohmann::json::accept(inputs)) {
     return Error::Permanent(fmt::format("storage: {}: storing {}: inputs_json is not valid JSON",
-                                        path_, allan_label(a)));
+                                        path(), allan_label(a)));
   }
-  auto key = internal::result_key(db_, path_, a.run_id, a.dut_serial, a.axis,
+  auto key = internal::result_key(db(), path(), a.run_id, a.dut_serial, a.axis,
                                   fmt::format("storing {}", allan_label(a)));
   if (!key) return key.error();
   // An upsert keeps the row's id when a recomputation replaces it.
   auto st = Stmt::prepare(
-      db_, path_,
+      db(), path(),
       "INSERT INTO allan(run_id, segment_id, segment_index, t_from_s, t_to_s, taus, tau0_s, "
       "n_samples, curve_json, angle_random_walk_dprh, bias_instability_dph, "
       "bias_instability_tau_s, rate_random_walk_dphprh, bias_instability_method, inputs_json, "
@@ -287,20 +294,20 @@ Result<int64_t> Database::put_allan(const AllanRecord& a) {
   st->bind(i++, a.rate_random_walk_dphprh);
   st->bind(i++, std::string_view(a.bias_instability_method));
   st->bind(i++, std::string_view(inputs));
-  st->bind(i++, std::string_view(utc_or_now(a.computed_utc)));
+  st->bind(i++, std::string_view(self().utc_or_now(a.computed_utc)));
   st->bind(i++, std::string_view(key->serial));
   st->bind(i++, std::string_view(key->axis));
   internal::bind_quality(*st, i, a.quality);
   const std::string what = fmt::format("storing {}", allan_label(a));
-  internal::WriteScope tx(db_, path_, "put_allan");
+  internal::WriteScope tx(db(), path(), "put_allan");
   if (Status s = tx.begin(); !s) return s.error();
-  if (st->step() != SQLITE_ROW) return sqlite_error(db_, path_, what);
+  if (st->step() != SQLITE_ROW) return sqlite_error(db(), path(), what);
   const int64_t id = st->column_int64(0);
-  if (Status s = expect_done(*st, db_, path_, what); !s) return s.error();
+  if (Status s = expect_done(*st, db(), path(), what); !s) return s.error();
   if (key->primary && !key->axis.empty()) {
     // The row stored before v8 for this DUT (axis '' = its primary axis)
     // is this series: the new row replaces it.
-    auto legacy = Stmt::prepare(db_, path_,
+    auto legacy = Stmt::prepare(db(), path(),
                                 "DELETE FROM allan WHERE run_id = ? AND segment_index = ? AND "
                                 "taus = ? AND dut_serial = ? AND axis = ''");
     if (!legacy) return legacy.error();
@@ -308,15 +315,15 @@ Result<int64_t> Database::put_allan(const AllanRecord& a) {
     legacy->bind(2, a.segment_index);
     legacy->bind(3, std::string_view(a.taus));
     legacy->bind(4, std::string_view(key->serial));
-    if (Status s = expect_done(*legacy, db_, path_, what); !s) return s.error();
+    if (Status s = expect_done(*legacy, db(), path(), what); !s) return s.error();
   }
   if (Status s = tx.commit(); !s) return s.error();
   return id;
 }
 
-Result<std::vector<AllanRecord>> Database::allan(int64_t run_id) {
+Result<std::vector<AllanRecord>> ResultStore::allan(int64_t run_id) {
   auto st =
-      Stmt::prepare(db_, path_,
+      Stmt::prepare(db(), path(),
                     fmt::format("SELECT {} FROM allan a {} WHERE a.run_id = ? "
                                 "ORDER BY a.segment_index, {}, a.dut_serial, a.axis, a.taus",
                                 internal::qualified(kAllanColumns, "a"),
@@ -348,11 +355,11 @@ Result<std::vector<AllanRecord>> Database::allan(int64_t run_id) {
     r.dut_serial = st->column_text(c++);
     r.axis = st->column_text(c++);
     r.quality = internal::read_quality(*st, c);
-    if (Status s = read_allan_curve(r, curve, path_); !s) return s.error();
+    if (Status s = read_allan_curve(r, curve, path()); !s) return s.error();
     out.push_back(std::move(r));
   }
   if (rc != SQLITE_DONE) {
-    return sqlite_error(db_, path_, fmt::format("reading Allan deviations of run {}", run_id));
+    return sqlite_error(db(), path(), fmt::format("reading Allan deviations of run {}", run_id));
   }
   return out;
 }
@@ -366,19 +373,19 @@ constexpr const char* kFitColumns =
 
 }  // namespace
 
-Result<int64_t> Database::add_fit(const FitRecord& fit) {
-  Transaction tx(db_, path_);
+Result<int64_t> ResultStore::add_fit(const FitRecord& fit) {
+  Transaction tx(db(), path());
   if (Status s = tx.begin_immediate(); !s) return s.error();
   // The DUT and axis as of the first run fitted ("" = its first DUT and
   // that DUT's primary axis); a fit of no run keeps what it is given.
   internal::ResultKey key{fit.dut_serial, fit.axis};
   if (!fit.run_ids.empty()) {
-    auto resolved = internal::result_key(db_, path_, fit.run_ids.front(), fit.dut_serial, fit.axis,
-                                         "storing a fit");
+    auto resolved = internal::result_key(db(), path(), fit.run_ids.front(), fit.dut_serial,
+                                         fit.axis, "storing a fit");
     if (!resolved) return resolved.error();
     key = std::move(*resolved);
   }
-  auto st = Stmt::prepare(db_, path_,
+  auto st = Stmt::prepare(db(), path(),
                           "INSERT INTO fits(model, form, n, coefficients_json, "
                           "standard_errors_json, residual_std_dph, r_squared, inputs_json, "
                           "computed_utc, dut_serial, axis, coverage_samples, coverage_expected, "
@@ -393,19 +400,19 @@ Result<int64_t> Database::add_fit(const FitRecord& fit) {
   st->bind(6, fit.residual_std_dph);
   st->bind(7, fit.r_squared);
   st->bind(8, fit.inputs_json.empty() ? std::string_view("{}") : fit.inputs_json);
-  st->bind(9, utc_or_now(fit.computed_utc));
+  st->bind(9, self().utc_or_now(fit.computed_utc));
   st->bind(10, std::string_view(key.serial));
   st->bind(11, std::string_view(key.axis));
   internal::bind_quality(*st, 12, fit.quality);
-  if (st->step() != SQLITE_DONE) return sqlite_error(db_, path_, "storing a fit");
-  const int64_t id = sqlite3_last_insert_rowid(db_);
+  if (st->step() != SQLITE_DONE) return sqlite_error(db(), path(), "storing a fit");
+  const int64_t id = sqlite3_last_insert_rowid(db());
   auto link =
-      Stmt::prepare(db_, path_, "INSERT OR IGNORE INTO fit_runs(run_id, fit_id) VALUES(?, ?)");
+      Stmt::prepare(db(), path(), "INSERT OR IGNORE INTO fit_runs(run_id, fit_id) VALUES(?, ?)");
   if (!link) return link.error();
   for (int64_t run_id : fit.run_ids) {
     link->bind(1, run_id);
     link->bind(2, id);
-    if (link->step() != SQLITE_DONE) return sqlite_error(db_, path_, "storing a fit's runs");
+    if (link->step() != SQLITE_DONE) return sqlite_error(db(), path(), "storing a fit's runs");
     link->reset();
   }
   if (Status s = tx.commit(); !s) return s.error();
@@ -464,21 +471,22 @@ Result<std::vector<FitRecord>> fits_of_dut(sqlite3* db, const std::string& path,
 
 }  // namespace internal
 
-Result<std::vector<FitRecord>> Database::fits(int64_t run_id) {
-  auto st = Stmt::prepare(db_, path_,
+Result<std::vector<FitRecord>> ResultStore::fits(int64_t run_id) {
+  auto st = Stmt::prepare(db(), path(),
                           fmt::format("SELECT {} FROM fits WHERE id IN (SELECT fit_id FROM "
                                       "fit_runs WHERE run_id = ?) ORDER BY id DESC",
                                       kFitColumns));
   if (!st) return st.error();
   st->bind(1, run_id);
-  return read_fits(db_, path_, *st);
+  return read_fits(db(), path(), *st);
 }
 
-Result<std::optional<FitRecord>> Database::fit(int64_t fit_id) {
-  auto st = Stmt::prepare(db_, path_, fmt::format("SELECT {} FROM fits WHERE id = ?", kFitColumns));
+Result<std::optional<FitRecord>> ResultStore::fit(int64_t fit_id) {
+  auto st =
+      Stmt::prepare(db(), path(), fmt::format("SELECT {} FROM fits WHERE id = ?", kFitColumns));
   if (!st) return st.error();
   st->bind(1, fit_id);
-  auto fits = read_fits(db_, path_, *st);
+  auto fits = read_fits(db(), path(), *st);
   if (!fits) return fits.error();
   if (fits->empty()) return std::optional<FitRecord>();
   return std::optional<FitRecord>(std::move(fits->front()));

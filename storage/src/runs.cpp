@@ -1,7 +1,9 @@
-// Database: runs, crash-resume checkpoints and segments, and run metadata
-// (schema v8; docs/storage.md "Run metadata"): who ran a run, why, its tags and
-// declared DUT serials, stored on the queue entry and copied into the run it
-// starts; edits afterwards leave an event.
+// RunStore (runs.h): runs, crash-resume checkpoints and segments, and run
+// metadata (schema v8; docs/storage.md "Run metadata"): who ran a run, why, its
+// tags and declared DUT serials, stored on the queue entry and copied into the
+// run it starts; edits afterwards leave an event.
+#include "gyrotherm/storage/runs.h"
+
 #include <fmt/format.h>
 #include <fmt/ranges.h>
 #include <sqlite3.h>
@@ -190,22 +192,26 @@ std::string listed(const std::vector<std::string>& values) {
 
 }  // namespace
 
-Result<int64_t> Database::create_run(const RunRecord& run) {
-  if (Status s = internal::check_metadata(run.metadata, path_, "creating a run"); !s) {
+Database& RunStore::self() { return static_cast<Database&>(*this); }
+sqlite3* RunStore::db() { return self().db_; }
+const std::string& RunStore::path() { return self().path_; }
+
+Result<int64_t> RunStore::create_run(const RunRecord& run) {
+  if (Status s = internal::check_metadata(run.metadata, path(), "creating a run"); !s) {
     return s.error();
   }
   std::string uuid = run.uuid;
   if (uuid.empty()) {
-    auto made = random_uuid(path_);
+    auto made = random_uuid(path());
     if (!made) return made.error();
     uuid = std::move(*made);
   } else if (!is_uuid_text(uuid)) {
     return Error::Permanent(
         fmt::format("storage: {}: creating a run: uuid '{}' is not a UUID in lower-case text "
                     "form (xxxxxxxx-xxxx-xxxx-xxxx-xxxxxxxxxxxx)",
-                    path_, uuid));
+                    path(), uuid));
   }
-  auto st = Stmt::prepare(db_, path_,
+  auto st = Stmt::prepare(db(), path(),
                           "INSERT INTO runs(schedule_name, state, started_utc, ended_utc, "
                           "time_scale, latitude_deg, orientation, config_json, queue_id, "
                           "schedule_id, config_toml, operator, comment, tags_json, "
@@ -214,7 +220,7 @@ Result<int64_t> Database::create_run(const RunRecord& run) {
   if (!st) return st.error();
   st->bind(1, std::string_view(run.schedule_name));
   st->bind(2, std::string_view(run.state));
-  st->bind(3, std::string_view(utc_or_now(run.started_utc)));
+  st->bind(3, std::string_view(self().utc_or_now(run.started_utc)));
   st->bind(4, run.time_scale);
   st->bind(5, run.latitude_deg);
   st->bind(6, std::string_view(run.orientation));
@@ -224,59 +230,61 @@ Result<int64_t> Database::create_run(const RunRecord& run) {
   st->bind_text_or_null(10, run.config_toml);
   internal::bind_metadata(*st, 11, run.metadata);
   st->bind(15, std::string_view(uuid));
-  if (Status s = expect_done(*st, db_, path_, "creating a run"); !s) return s.error();
-  return static_cast<int64_t>(sqlite3_last_insert_rowid(db_));
+  if (Status s = expect_done(*st, db(), path(), "creating a run"); !s) return s.error();
+  return static_cast<int64_t>(sqlite3_last_insert_rowid(db()));
 }
 
-Status Database::set_run_state(int64_t run_id, std::string_view state, bool ended) {
-  auto st = Stmt::prepare(db_, path_, "UPDATE runs SET state = ?, ended_utc = ? WHERE id = ?");
+Status RunStore::set_run_state(int64_t run_id, std::string_view state, bool ended) {
+  auto st = Stmt::prepare(db(), path(), "UPDATE runs SET state = ?, ended_utc = ? WHERE id = ?");
   if (!st) return st.error();
   st->bind(1, state);
   if (ended) {
-    st->bind(2, std::string_view(utc_now()));
+    st->bind(2, std::string_view(self().utc_now()));
   } else {
     st->bind_null(2);
   }
   st->bind(3, run_id);
   const std::string what = fmt::format("setting run {} state to '{}'", run_id, state);
-  if (Status s = expect_done(*st, db_, path_, what); !s) return s;
-  if (sqlite3_changes(db_) == 0) {
-    return Error::Permanent(fmt::format("storage: {}: {}: no such run", path_, what));
+  if (Status s = expect_done(*st, db(), path(), what); !s) return s;
+  if (sqlite3_changes(db()) == 0) {
+    return Error::Permanent(fmt::format("storage: {}: {}: no such run", path(), what));
   }
   return Status::Ok();
 }
 
-Result<std::vector<RunRecord>> Database::runs() {
-  auto st = Stmt::prepare(db_, path_, fmt::format("SELECT {} FROM runs ORDER BY id", kRunColumns));
+Result<std::vector<RunRecord>> RunStore::runs() {
+  auto st =
+      Stmt::prepare(db(), path(), fmt::format("SELECT {} FROM runs ORDER BY id", kRunColumns));
   if (!st) return st.error();
   std::vector<RunRecord> out;
   int rc;
   while ((rc = st->step()) == SQLITE_ROW) {
-    auto run = read_run(*st, path_);
+    auto run = read_run(*st, path());
     if (!run) return run.error();
     out.push_back(std::move(*run));
   }
-  if (rc != SQLITE_DONE) return sqlite_error(db_, path_, "reading runs");
+  if (rc != SQLITE_DONE) return sqlite_error(db(), path(), "reading runs");
   return out;
 }
 
-Result<RunRecord> Database::run(int64_t run_id) {
-  auto st = Stmt::prepare(db_, path_, fmt::format("SELECT {} FROM runs WHERE id = ?", kRunColumns));
+Result<RunRecord> RunStore::run(int64_t run_id) {
+  auto st =
+      Stmt::prepare(db(), path(), fmt::format("SELECT {} FROM runs WHERE id = ?", kRunColumns));
   if (!st) return st.error();
   st->bind(1, run_id);
   const int rc = st->step();
-  if (rc == SQLITE_ROW) return read_run(*st, path_);
+  if (rc == SQLITE_ROW) return read_run(*st, path());
   if (rc == SQLITE_DONE) {
-    return Error::Permanent(fmt::format("storage: {}: no run with id {}", path_, run_id));
+    return Error::Permanent(fmt::format("storage: {}: no run with id {}", path(), run_id));
   }
-  return sqlite_error(db_, path_, fmt::format("reading run {}", run_id));
+  return sqlite_error(db(), path(), fmt::format("reading run {}", run_id));
 }
 
-Status Database::set_run_metadata(int64_t run_id, const RunMetadata& md,
+Status RunStore::set_run_metadata(int64_t run_id, const RunMetadata& md,
                                   std::string_view changed_by) {
   const std::string what = fmt::format("editing the metadata of run {}", run_id);
-  if (Status s = internal::check_metadata(md, path_, what); !s) return s;
-  Transaction tx(db_, path_);
+  if (Status s = internal::check_metadata(md, path(), what); !s) return s;
+  Transaction tx(db(), path());
   if (Status s = tx.begin_immediate(); !s) return s;
   auto old = run(run_id);  // under the write lock: no edit in between
   if (!old) return old.error();
@@ -299,21 +307,21 @@ Status Database::set_run_metadata(int64_t run_id, const RunMetadata& md,
   }
   if (changes.empty()) return Status::Ok();  // nothing to record
 
-  auto st = Stmt::prepare(db_, path_,
+  auto st = Stmt::prepare(db(), path(),
                           "UPDATE runs SET operator = ?, comment = ?, tags_json = ?, "
                           "dut_serials_json = ? WHERE id = ?");
   if (!st) return st.error();
   internal::bind_metadata(*st, 1, md);
   st->bind(5, run_id);
-  if (Status s = expect_done(*st, db_, path_, what); !s) return s;
+  if (Status s = expect_done(*st, db(), path(), what); !s) return s;
 
   // The edit is filed after the run's latest event (t_s), so a time-ordered
   // event list shows it last; its wall_utc says when it happened.
   auto last =
-      Stmt::prepare(db_, path_, "SELECT coalesce(max(t_s), 0) FROM events WHERE run_id = ?");
+      Stmt::prepare(db(), path(), "SELECT coalesce(max(t_s), 0) FROM events WHERE run_id = ?");
   if (!last) return last.error();
   last->bind(1, run_id);
-  if (last->step() != SQLITE_ROW) return sqlite_error(db_, path_, what);
+  if (last->step() != SQLITE_ROW) return sqlite_error(db(), path(), what);
   EventRecord e;
   e.run_id = run_id;
   e.t_s = last->column_double(0);
@@ -321,23 +329,23 @@ Status Database::set_run_metadata(int64_t run_id, const RunMetadata& md,
   e.kind = "metadata";
   e.message = fmt::format("metadata changed by {}: {}", changed_by.empty() ? "?" : changed_by,
                           fmt::join(changes, "; "));
-  if (auto id = add_event(e); !id) return id.error();
+  if (auto id = self().add_event(e); !id) return id.error();
   return tx.commit();
 }
 
-Status Database::set_run_checkpoint(int64_t run_id, std::string_view resume_json,
+Status RunStore::set_run_checkpoint(int64_t run_id, std::string_view resume_json,
                                     double wall_unix_s) {
   auto st = Stmt::prepare(
-      db_, path_, "UPDATE runs SET resume_json = ?, checkpoint_wall_unix_s = ? WHERE id = ?");
+      db(), path(), "UPDATE runs SET resume_json = ?, checkpoint_wall_unix_s = ? WHERE id = ?");
   if (!st) return st.error();
   st->bind(1, resume_json);
   st->bind(2, wall_unix_s);
   st->bind(3, run_id);
-  return expect_done(*st, db_, path_, fmt::format("checkpointing run {}", run_id));
+  return expect_done(*st, db(), path(), fmt::format("checkpointing run {}", run_id));
 }
 
-Result<int64_t> Database::create_segment(const SegmentRecord& segment) {
-  auto st = Stmt::prepare(db_, path_,
+Result<int64_t> RunStore::create_segment(const SegmentRecord& segment) {
+  auto st = Stmt::prepare(db(), path(),
                           "INSERT INTO segments(run_id, idx, kind, label, setpoint_c, "
                           "ramp_rate_c_per_min, t_start_s, t_settled_s, t_acquire_start_s, "
                           "t_acquire_end_s, t_end_s, paused_s, state, table_mode, "
@@ -348,18 +356,18 @@ Result<int64_t> Database::create_segment(const SegmentRecord& segment) {
   if (!st) return st.error();
   bind_segment(*st, segment, 1);
   if (Status s =
-          expect_done(*st, db_, path_,
+          expect_done(*st, db(), path(),
                       fmt::format("creating segment {} of run {}", segment.index, segment.run_id));
       !s) {
     return s.error();
   }
-  return static_cast<int64_t>(sqlite3_last_insert_rowid(db_));
+  return static_cast<int64_t>(sqlite3_last_insert_rowid(db()));
 }
 
-Status Database::update_segment(const SegmentRecord& segment) {
-  Transaction tx(db_, path_);
+Status RunStore::update_segment(const SegmentRecord& segment) {
+  Transaction tx(db(), path());
   if (Status s = tx.begin_immediate(); !s) return s;
-  auto st = Stmt::prepare(db_, path_,
+  auto st = Stmt::prepare(db(), path(),
                           "UPDATE segments SET run_id = ?, idx = ?, kind = ?, label = ?, "
                           "setpoint_c = ?, ramp_rate_c_per_min = ?, t_start_s = ?, "
                           "t_settled_s = ?, t_acquire_start_s = ?, t_acquire_end_s = ?, "
@@ -371,15 +379,15 @@ Status Database::update_segment(const SegmentRecord& segment) {
   bind_segment(*st, segment, 1);
   st->bind(kSegmentBoundColumns + 1, segment.id);
   const std::string what = fmt::format("updating segment {}", segment.id);
-  if (Status s = expect_done(*st, db_, path_, what); !s) return s;
-  if (sqlite3_changes(db_) == 0) {
-    return Error::Permanent(fmt::format("storage: {}: {}: no such segment", path_, what));
+  if (Status s = expect_done(*st, db(), path(), what); !s) return s;
+  if (sqlite3_changes(db()) == 0) {
+    return Error::Permanent(fmt::format("storage: {}: {}: no such segment", path(), what));
   }
-  auto del = Stmt::prepare(db_, path_, "DELETE FROM acquisition_windows WHERE segment_id = ?");
+  auto del = Stmt::prepare(db(), path(), "DELETE FROM acquisition_windows WHERE segment_id = ?");
   if (!del) return del.error();
   del->bind(1, segment.id);
-  if (Status s = expect_done(*del, db_, path_, what); !s) return s;
-  auto ins = Stmt::prepare(db_, path_,
+  if (Status s = expect_done(*del, db(), path(), what); !s) return s;
+  auto ins = Stmt::prepare(db(), path(),
                            "INSERT OR REPLACE INTO acquisition_windows(segment_id, run_id, "
                            "t_from_s, t_to_s) VALUES(?, ?, ?, ?)");
   if (!ins) return ins.error();
@@ -389,14 +397,14 @@ Status Database::update_segment(const SegmentRecord& segment) {
     ins->bind(2, segment.run_id);
     ins->bind(3, from_s);
     ins->bind(4, to_s);
-    if (Status s = expect_done(*ins, db_, path_, what); !s) return s;
+    if (Status s = expect_done(*ins, db(), path(), what); !s) return s;
   }
   return tx.commit();
 }
 
-Result<std::vector<SegmentRecord>> Database::segments(int64_t run_id) {
+Result<std::vector<SegmentRecord>> RunStore::segments(int64_t run_id) {
   auto st = Stmt::prepare(
-      db_, path_,
+      db(), path(),
       fmt::format("SELECT {} FROM segments WHERE run_id = ? ORDER BY idx, id", kSegmentColumns));
   if (!st) return st.error();
   st->bind(1, run_id);
@@ -404,9 +412,9 @@ Result<std::vector<SegmentRecord>> Database::segments(int64_t run_id) {
   int rc;
   while ((rc = st->step()) == SQLITE_ROW) out.push_back(read_segment(*st));
   if (rc != SQLITE_DONE) {
-    return sqlite_error(db_, path_, fmt::format("reading segments of run {}", run_id));
+    return sqlite_error(db(), path(), fmt::format("reading segments of run {}", run_id));
   }
-  auto win = Stmt::prepare(db_, path_,
+  auto win = Stmt::prepare(db(), path(),
                            "SELECT t_from_s, t_to_s FROM acquisition_windows WHERE segment_id = ? "
                            "ORDER BY t_from_s");
   if (!win) return win.error();
@@ -417,7 +425,7 @@ Result<std::vector<SegmentRecord>> Database::segments(int64_t run_id) {
       seg.windows.emplace_back(win->column_double(0), win->column_double(1));
     }
     if (rc != SQLITE_DONE) {
-      return sqlite_error(db_, path_, fmt::format("reading windows of segment {}", seg.id));
+      return sqlite_error(db(), path(), fmt::format("reading windows of segment {}", seg.id));
     }
   }
   return out;

@@ -1,7 +1,9 @@
-// Database: the readers of a run's samples. The chunked samples (schema v9):
-// gyro_samples, for_each_channel_block, the counts and the last sample times;
-// the temperatures and the rate table's samples (reads, window means);
-// decimated reads for plots.
+// SampleStore (samples.h): the readers of a run's samples. The chunked samples
+// (schema v9): gyro_samples, for_each_channel_block, the counts and the last
+// sample times; the temperatures and the rate table's samples (reads, window
+// means); decimated reads for plots.
+#include "gyrotherm/storage/samples.h"
+
 #include <fmt/format.h>
 #include <sqlite3.h>
 
@@ -81,13 +83,16 @@ Result<std::optional<StreamChannels>> resolve_channels(sqlite3* db, const std::s
 }
 
 }  // namespace internal
+Database& SampleStore::self() { return static_cast<Database&>(*this); }
+sqlite3* SampleStore::db() { return self().db_; }
+const std::string& SampleStore::path() { return self().path_; }
 
-Status Database::for_each_channel_block(
+Status SampleStore::for_each_channel_block(
     int64_t channel_id, double t_from_s, double t_to_s,
     const std::function<bool(std::span<const double> t_s, std::span<const double> value,
                              std::span<const uint32_t> seq)>& block) {
   auto meta =
-      Stmt::prepare(db_, path_,
+      Stmt::prepare(db(), path(),
                     "SELECT c.scale, coalesce(rd.seq_modulo, 0) FROM channels c "
                     "LEFT JOIN run_duts rd ON rd.run_id = c.run_id AND rd.dut_id = c.dut_id "
                     "WHERE c.id = ?");
@@ -95,10 +100,10 @@ Status Database::for_each_channel_block(
   meta->bind(1, channel_id);
   const int rc = meta->step();
   if (rc == SQLITE_DONE) {
-    return Error::Permanent(fmt::format("storage: {}: no channel with id {}", path_, channel_id));
+    return Error::Permanent(fmt::format("storage: {}: no channel with id {}", path(), channel_id));
   }
   if (rc != SQLITE_ROW) {
-    return sqlite_error(db_, path_, fmt::format("reading channel {}", channel_id));
+    return sqlite_error(db(), path(), fmt::format("reading channel {}", channel_id));
   }
   const double scale = meta->column_double(0);
   const auto modulo = static_cast<uint64_t>(meta->column_int64(1));
@@ -106,14 +111,14 @@ Status Database::for_each_channel_block(
   std::vector<uint32_t> seq;
   Status decode_error = Status::Ok();
   Status s = internal::for_each_chunk(
-      db_, path_, channel_id, t_from_s, t_to_s, [&](const internal::ChunkView& c) {
+      db(), path(), channel_id, t_from_s, t_to_s, [&](const internal::ChunkView& c) {
         const auto n = static_cast<std::size_t>(c.clock.n);
         raw.resize(n);
         if (!internal::decode(c.encoding, c.data, c.bytes, n, raw.data())) {
           decode_error = Error::Permanent(fmt::format(
               "storage: {}: sample_chunks of channel {} at t0_s {}: {} bytes of data are not {} "
               "'{}' values",
-              path_, channel_id, c.clock.t0_s, c.bytes, n, internal::to_string(c.encoding)));
+              path(), channel_id, c.clock.t0_s, c.bytes, n, internal::to_string(c.encoding)));
           return false;
         }
         t.clear();
@@ -134,32 +139,33 @@ Status Database::for_each_channel_block(
   return decode_error;
 }
 
-Result<int64_t> Database::count_channel_samples(int64_t channel_id) {
-  auto st = Stmt::prepare(db_, path_,
+Result<int64_t> SampleStore::count_channel_samples(int64_t channel_id) {
+  auto st = Stmt::prepare(db(), path(),
                           "SELECT coalesce(sum(n), 0) FROM sample_chunks WHERE channel_id = ?");
   if (!st) return st.error();
   st->bind(1, channel_id);
   if (st->step() != SQLITE_ROW) {
-    return sqlite_error(db_, path_, fmt::format("counting the samples of channel {}", channel_id));
+    return sqlite_error(db(), path(),
+                        fmt::format("counting the samples of channel {}", channel_id));
   }
   return st->column_int64(0);
 }
 
-Result<int64_t> Database::count_gyro_samples(int64_t run_id) {
-  auto stream = internal::resolve_channels(db_, path_, run_id, "", "");
+Result<int64_t> SampleStore::count_gyro_samples(int64_t run_id) {
+  auto stream = internal::resolve_channels(db(), path(), run_id, "", "");
   if (!stream) return stream.error();
   if (!*stream) return int64_t{0};
   return count_channel_samples((*stream)->channels[(*stream)->rate].id);
 }
 
-Result<std::vector<GyroSample>> Database::gyro_samples(int64_t run_id, double t_from_s,
-                                                       double t_to_s) {
+Result<std::vector<GyroSample>> SampleStore::gyro_samples(int64_t run_id, double t_from_s,
+                                                          double t_to_s) {
   return gyro_samples(run_id, StreamKey{}, t_from_s, t_to_s);
 }
 
-Result<std::vector<GyroSample>> Database::gyro_samples(int64_t run_id, const StreamKey& key,
-                                                       double t_from_s, double t_to_s) {
-  auto stream = internal::resolve_channels(db_, path_, run_id, key.dut_serial, key.axis);
+Result<std::vector<GyroSample>> SampleStore::gyro_samples(int64_t run_id, const StreamKey& key,
+                                                          double t_from_s, double t_to_s) {
+  auto stream = internal::resolve_channels(db(), path(), run_id, key.dut_serial, key.axis);
   if (!stream) return stream.error();
   std::vector<GyroSample> out;
   if (!*stream) return out;
@@ -223,9 +229,9 @@ constexpr const char* kLastChunkSql =
 
 }  // namespace
 
-Result<std::optional<double>> Database::last_sample_t_s(int64_t run_id) {
+Result<std::optional<double>> SampleStore::last_sample_t_s(int64_t run_id) {
   auto st =
-      Stmt::prepare(db_, path_,
+      Stmt::prepare(db(), path(),
                     fmt::format("SELECT {}, "
                                 "(SELECT max(t_s) FROM temperature_samples WHERE run_id = ?1), "
                                 "(SELECT max(t_s) FROM table_samples WHERE run_id = ?1)",
@@ -233,7 +239,7 @@ Result<std::optional<double>> Database::last_sample_t_s(int64_t run_id) {
   if (!st) return st.error();
   st->bind(1, run_id);
   if (st->step() != SQLITE_ROW) {
-    return sqlite_error(db_, path_, fmt::format("reading the last sample of run {}", run_id));
+    return sqlite_error(db(), path(), fmt::format("reading the last sample of run {}", run_id));
   }
   // The largest of whichever exist (SQLite's scalar max() would be NULL when
   // any one is).
@@ -244,20 +250,21 @@ Result<std::optional<double>> Database::last_sample_t_s(int64_t run_id) {
   return last;
 }
 
-Result<std::optional<double>> Database::last_gyro_sample_t_s(int64_t run_id) {
-  auto st = Stmt::prepare(db_, path_, fmt::format("SELECT {}", kLastChunkSql));
+Result<std::optional<double>> SampleStore::last_gyro_sample_t_s(int64_t run_id) {
+  auto st = Stmt::prepare(db(), path(), fmt::format("SELECT {}", kLastChunkSql));
   if (!st) return st.error();
   st->bind(1, run_id);
   if (st->step() != SQLITE_ROW) {
-    return sqlite_error(db_, path_, fmt::format("reading the last gyro sample of run {}", run_id));
+    return sqlite_error(db(), path(),
+                        fmt::format("reading the last gyro sample of run {}", run_id));
   }
   return st->column_optional_double(0);
 }
 
-Result<std::vector<TemperatureSample>> Database::temperature_samples(int64_t run_id,
-                                                                     double t_from_s,
-                                                                     double t_to_s) {
-  auto st = Stmt::prepare(db_, path_,
+Result<std::vector<TemperatureSample>> SampleStore::temperature_samples(int64_t run_id,
+                                                                        double t_from_s,
+                                                                        double t_to_s) {
+  auto st = Stmt::prepare(db(), path(),
                           "SELECT t_s, setpoint_c, chamber_c, top_c, side_c FROM "
                           "temperature_samples WHERE run_id = ? AND t_s >= ? AND t_s < ? "
                           "ORDER BY t_s");
@@ -277,7 +284,7 @@ Result<std::vector<TemperatureSample>> Database::temperature_samples(int64_t run
     out.push_back(t);
   }
   if (rc != SQLITE_DONE) {
-    return sqlite_error(db_, path_, fmt::format("reading temperature samples of run {}", run_id));
+    return sqlite_error(db(), path(), fmt::format("reading temperature samples of run {}", run_id));
   }
   return out;
 }
@@ -303,9 +310,9 @@ TableSample read_table_sample(const Stmt& st) {
 
 }  // namespace
 
-Result<std::vector<TableSample>> Database::table_samples(int64_t run_id, double t_from_s,
-                                                         double t_to_s) {
-  auto st = Stmt::prepare(db_, path_,
+Result<std::vector<TableSample>> SampleStore::table_samples(int64_t run_id, double t_from_s,
+                                                            double t_to_s) {
+  auto st = Stmt::prepare(db(), path(),
                           fmt::format("SELECT {} FROM table_samples WHERE run_id = ? AND t_s >= ? "
                                       "AND t_s < ? ORDER BY t_s",
                                       kTableSampleColumns));
@@ -317,7 +324,7 @@ Result<std::vector<TableSample>> Database::table_samples(int64_t run_id, double 
   int rc;
   while ((rc = st->step()) == SQLITE_ROW) out.push_back(read_table_sample(*st));
   if (rc != SQLITE_DONE) {
-    return sqlite_error(db_, path_, fmt::format("reading table samples of run {}", run_id));
+    return sqlite_error(db(), path(), fmt::format("reading table samples of run {}", run_id));
   }
   return out;
 }
@@ -326,9 +333,9 @@ Result<std::vector<TableSample>> Database::table_samples(int64_t run_id, double 
 // resultant length R = |Σ (cos θ_i, sin θ_i)| / n says how concentrated they
 // are (1: all equal, 0: spread evenly). sin and cos are taken here, not in
 // SQL: SQLite's math functions are optional in a build.
-Result<TableWindowMeans> Database::mean_table_over_windows(
+Result<TableWindowMeans> SampleStore::mean_table_over_windows(
     int64_t run_id, const std::vector<std::pair<double, double>>& windows) {
-  auto st = Stmt::prepare(db_, path_,
+  auto st = Stmt::prepare(db(), path(),
                           "SELECT rate_dps, position_deg FROM table_samples WHERE run_id = ? AND "
                           "t_s >= ? AND t_s < ?");
   if (!st) return st.error();
@@ -356,7 +363,7 @@ Result<TableWindowMeans> Database::mean_table_over_windows(
     }
     if (rc != SQLITE_DONE) {
       return sqlite_error(
-          db_, path_,
+          db(), path(),
           fmt::format("reading table samples of run {} in [{}, {}) s", run_id, from_s, to_s));
     }
   }
@@ -416,19 +423,21 @@ int read_gyro_buckets(Stmt& st, DecimatedSamples::Gyro& g) {
 
 }  // namespace
 
-Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, double from_s,
-                                                     std::optional<double> to_s, int max_points) {
+Result<DecimatedSamples> SampleStore::decimated_samples(int64_t run_id, double from_s,
+                                                        std::optional<double> to_s,
+                                                        int max_points) {
   return decimated_samples(run_id, StreamKey{}, "", from_s, to_s, max_points);
 }
 
-Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, const StreamKey& dut,
-                                                     const std::string& channel, double from_s,
-                                                     std::optional<double> to_s, int max_points) {
+Result<DecimatedSamples> SampleStore::decimated_samples(int64_t run_id, const StreamKey& dut,
+                                                        const std::string& channel, double from_s,
+                                                        std::optional<double> to_s,
+                                                        int max_points) {
   DecimatedSamples out;
   if (max_points < 1) {
     return Error::Permanent(fmt::format("decimated samples: max_points {} < 1", max_points));
   }
-  auto stream = internal::resolve_channels(db_, path_, run_id, dut.dut_serial, dut.axis);
+  auto stream = internal::resolve_channels(db(), path(), run_id, dut.dut_serial, dut.axis);
   if (!stream) return stream.error();
   int64_t channel_id = 0;  // 0: the run has no DUT (no gyro points)
   if (*stream) {
@@ -477,7 +486,7 @@ Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, const Strea
       break;
     }
   }
-  auto count = Stmt::prepare(db_, path_,
+  auto count = Stmt::prepare(db(), path(),
                              "SELECT coalesce(sum(n), 0) FROM channel_rollup WHERE channel_id = ? "
                              "AND level = ? AND block BETWEEN ? AND ?");
   if (!count) return count.error();
@@ -485,7 +494,7 @@ Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, const Strea
   count->bind(2, count_level);
   count->bind(3, static_cast<int64_t>(std::floor(from_s / block_len_s[count_level])));
   count->bind(4, static_cast<int64_t>(std::floor(*to_s / block_len_s[count_level])));
-  if (count->step() != SQLITE_ROW) return sqlite_error(db_, path_, what);
+  if (count->step() != SQLITE_ROW) return sqlite_error(db(), path(), what);
   const int64_t raw_rows = count->column_int64(0);
 
   int level = -1;  // -1: raw samples
@@ -514,7 +523,7 @@ Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, const Strea
     out.from_s = static_cast<double>(first) * block_s;
     out.to_s = static_cast<double>(last + 1) * block_s;
     auto st = Stmt::prepare(
-        db_, path_,
+        db(), path(),
         "SELECT min((block - ?3) / ?5, ?6) AS b, sum(n), sum(t_sum_s), sum(v_n), "
         "sum(v_sum), min(v_min), max(v_max) FROM channel_rollup "
         "WHERE channel_id = ?1 AND level = ?2 AND block BETWEEN ?3 AND ?4 GROUP BY b ORDER BY b");
@@ -527,7 +536,7 @@ Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, const Strea
     // Widened to block edges, the range can span a block or two more than
     // max_points buckets: those go into the last bucket, as in the raw case.
     st->bind(6, static_cast<int64_t>(max_points - 1));
-    if (read_gyro_buckets(*st, g) != SQLITE_DONE) return sqlite_error(db_, path_, what);
+    if (read_gyro_buckets(*st, g) != SQLITE_DONE) return sqlite_error(db(), path(), what);
   } else if (channel_id != 0) {
     // Few enough: the samples as recorded; else exact buckets of want_s
     // from the decoded samples. [from_s, to_s] is closed.
@@ -581,7 +590,7 @@ Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, const Strea
   // bucket width when the gyro is decimated.
   const double temp_bucket_s = out.bucket_s > 0 ? out.bucket_s : want_s;
   auto st = Stmt::prepare(
-      db_, path_,
+      db(), path(),
       "SELECT min(CAST((t_s - ?2) / ?4 AS INTEGER), ?5) AS b, avg(t_s), avg(setpoint_c), "
       "avg(chamber_c), avg(top_c), avg(side_c) FROM temperature_samples "
       "WHERE run_id = ?1 AND t_s >= ?2 AND t_s <= ?3 GROUP BY b ORDER BY b");
@@ -600,12 +609,12 @@ Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, const Strea
     tp.top_c.push_back(st->column_double(4));
     tp.side_c.push_back(st->column_double(5));
   }
-  if (rc != SQLITE_DONE) return sqlite_error(db_, path_, what);
+  if (rc != SQLITE_DONE) return sqlite_error(db(), path(), what);
 
   // The rate table, on the temperatures' buckets: the rate's mean and
   // envelope, and the state of the bucket's last reading (found by its key).
   auto table = Stmt::prepare(
-      db_, path_,
+      db(), path(),
       "WITH buckets AS (SELECT min(CAST((t_s - ?2) / ?4 AS INTEGER), ?5) AS b, count(*) AS n, "
       "avg(t_s) AS t_mean_s, avg(rate_dps) AS mean_dps, min(rate_dps) AS min_dps, "
       "max(rate_dps) AS max_dps, max(t_s) AS t_last_s FROM table_samples "
@@ -633,7 +642,7 @@ Result<DecimatedSamples> Database::decimated_samples(int64_t run_id, const Strea
     tb.mode.push_back(table->column_text(c++));
     tb.interlock.push_back(table->column_text(c++));
   }
-  if (rc != SQLITE_DONE) return sqlite_error(db_, path_, what);
+  if (rc != SQLITE_DONE) return sqlite_error(db(), path(), what);
   return out;
 }
 
