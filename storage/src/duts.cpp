@@ -1,7 +1,9 @@
-// Database: devices under test (schema v8; docs/storage.md "Devices under
-// test"): the station's registry of gyros by serial number, the DUTs of each
-// run with their channels, and the resolution of a StreamKey to one DUT and
-// axis of a run.
+// DutStore (duts.h): devices under test (schema v8; docs/storage.md "Devices
+// under test"): the station's registry of gyros by serial number, the DUTs of
+// each run with their channels, and the resolution of a StreamKey to one DUT
+// and axis of a run.
+#include "gyrotherm/storage/duts.h"
+
 #include <fmt/format.h>
 #include <fmt/ranges.h>
 #include <sqlite3.h>
@@ -248,36 +250,40 @@ Status check_run_dut(const RunDutRecord& d, int64_t run_id, const std::string& w
 
 }  // namespace
 
-Result<RunDutRecord> Database::add_run_dut(int64_t run_id, const RunDutRecord& in) {
+Database& DutStore::self() { return static_cast<Database&>(*this); }
+sqlite3* DutStore::db() { return self().db_; }
+const std::string& DutStore::path() { return self().path_; }
+
+Result<RunDutRecord> DutStore::add_run_dut(int64_t run_id, const RunDutRecord& in) {
   const std::string what =
-      fmt::format("storage: {}: registering DUT '{}' in run {}", path_, in.dut.serial, run_id);
+      fmt::format("storage: {}: registering DUT '{}' in run {}", path(), in.dut.serial, run_id);
   if (Status s = check_run_dut(in, run_id, what); !s) return s.error();
 
-  WriteScope tx(db_, path_, "add_run_dut");
+  WriteScope tx(db(), path(), "add_run_dut");
   if (Status s = tx.begin(); !s) return s.error();
   {
-    auto st = Stmt::prepare(db_, path_, "SELECT 1 FROM runs WHERE id = ?");
+    auto st = Stmt::prepare(db(), path(), "SELECT 1 FROM runs WHERE id = ?");
     if (!st) return st.error();
     st->bind(1, run_id);
     const int rc = st->step();
     if (rc == SQLITE_DONE) return Error::Permanent(fmt::format("{}: no such run", what));
-    if (rc != SQLITE_ROW) return sqlite_error(db_, path_, what);
+    if (rc != SQLITE_ROW) return sqlite_error(db(), path(), what);
   }
   // The registry: created on first sight; a model given updates it (a
   // serial first seen in an old run without model gets one later).
-  auto dut = Stmt::prepare(db_, path_,
+  auto dut = Stmt::prepare(db(), path(),
                            "INSERT INTO duts(serial, model, first_seen_utc) VALUES(?, ?, ?) "
                            "ON CONFLICT(serial) DO UPDATE SET model = CASE WHEN excluded.model "
                            "!= '' THEN excluded.model ELSE duts.model END RETURNING id");
   if (!dut) return dut.error();
   dut->bind(1, std::string_view(in.dut.serial));
   dut->bind(2, std::string_view(in.dut.model));
-  dut->bind(3, std::string_view(utc_or_now(in.dut.first_seen_utc)));
-  if (dut->step() != SQLITE_ROW) return sqlite_error(db_, path_, what);
+  dut->bind(3, std::string_view(self().utc_or_now(in.dut.first_seen_utc)));
+  if (dut->step() != SQLITE_ROW) return sqlite_error(db(), path(), what);
   const int64_t dut_id = dut->column_int64(0);
-  if (Status s = expect_done(*dut, db_, path_, what); !s) return s.error();
+  if (Status s = expect_done(*dut, db(), path(), what); !s) return s.error();
 
-  auto taken = Stmt::prepare(db_, path_,
+  auto taken = Stmt::prepare(db(), path(),
                              "SELECT rd.dut_id, rd.position, d.serial FROM run_duts rd JOIN duts "
                              "d ON d.id = rd.dut_id WHERE rd.run_id = ? AND (rd.dut_id = ? OR "
                              "rd.position = ?)");
@@ -295,10 +301,10 @@ Result<RunDutRecord> Database::add_run_dut(int64_t run_id, const RunDutRecord& i
           fmt::format("{}: position {} is DUT '{}''s", what, in.position, taken->column_text(2)));
     }
   }
-  if (rc != SQLITE_DONE) return sqlite_error(db_, path_, what);
+  if (rc != SQLITE_DONE) return sqlite_error(db(), path(), what);
 
   if (!present) {
-    auto ins = Stmt::prepare(db_, path_,
+    auto ins = Stmt::prepare(db(), path(),
                              "INSERT INTO run_duts(run_id, dut_id, position, primary_axis, "
                              "axes_json, rate_hz, seq_modulo, config_json) "
                              "VALUES(?, ?, ?, ?, ?, ?, ?, ?)");
@@ -316,9 +322,9 @@ Result<RunDutRecord> Database::add_run_dut(int64_t run_id, const RunDutRecord& i
     }
     ins->bind(i++, static_cast<int64_t>(in.seq_modulo));
     ins->bind(i++, std::string_view(in.config_json.empty() ? "{}" : in.config_json));
-    if (Status s = expect_done(*ins, db_, path_, what); !s) return s.error();
+    if (Status s = expect_done(*ins, db(), path(), what); !s) return s.error();
 
-    auto ch = Stmt::prepare(db_, path_,
+    auto ch = Stmt::prepare(db(), path(),
                             "INSERT INTO channels(run_id, dut_id, idx, name, unit, kind, axis, "
                             "scale) VALUES(?, ?, ?, ?, ?, ?, ?, ?)");
     if (!ch) return ch.error();
@@ -334,48 +340,49 @@ Result<RunDutRecord> Database::add_run_dut(int64_t run_id, const RunDutRecord& i
       ch->bind(j++, to_string(spec.kind));
       ch->bind(j++, std::string_view(spec.axis));
       ch->bind(j++, spec.scale);
-      if (Status s = expect_done(*ch, db_, path_, fmt::format("{}: channel '{}'", what, spec.name));
+      if (Status s =
+              expect_done(*ch, db(), path(), fmt::format("{}: channel '{}'", what, spec.name));
           !s) {
         return s.error();
       }
     }
   }
 
-  auto st = Stmt::prepare(db_, path_,
+  auto st = Stmt::prepare(db(), path(),
                           std::string(kRunDutSelect) + "WHERE rd.run_id = ? AND rd.dut_id = ?");
   if (!st) return st.error();
   st->bind(1, run_id);
   st->bind(2, dut_id);
-  if (st->step() != SQLITE_ROW) return sqlite_error(db_, path_, what);
-  auto rec = read_run_dut(*st, path_);
+  if (st->step() != SQLITE_ROW) return sqlite_error(db(), path(), what);
+  auto rec = read_run_dut(*st, path());
   if (!rec) return rec.error();
   std::vector<RunDutRecord> one{std::move(*rec)};
-  if (Status s = read_channels(db_, path_, one); !s) return s.error();
+  if (Status s = read_channels(db(), path(), one); !s) return s.error();
   if (Status s = tx.commit(); !s) return s.error();
   return std::move(one.front());
 }
 
-Result<std::vector<RunDutRecord>> Database::run_duts(int64_t run_id) {
-  auto st = Stmt::prepare(db_, path_,
+Result<std::vector<RunDutRecord>> DutStore::run_duts(int64_t run_id) {
+  auto st = Stmt::prepare(db(), path(),
                           std::string(kRunDutSelect) + "WHERE rd.run_id = ? ORDER BY rd.position");
   if (!st) return st.error();
   st->bind(1, run_id);
   std::vector<RunDutRecord> out;
   int rc;
   while ((rc = st->step()) == SQLITE_ROW) {
-    auto rec = read_run_dut(*st, path_);
+    auto rec = read_run_dut(*st, path());
     if (!rec) return rec.error();
     out.push_back(std::move(*rec));
   }
   if (rc != SQLITE_DONE) {
-    return sqlite_error(db_, path_, fmt::format("reading the DUTs of run {}", run_id));
+    return sqlite_error(db(), path(), fmt::format("reading the DUTs of run {}", run_id));
   }
-  if (Status s = read_channels(db_, path_, out); !s) return s.error();
+  if (Status s = read_channels(db(), path(), out); !s) return s.error();
   return out;
 }
 
-Result<std::vector<DutRecord>> Database::duts() {
-  auto st = Stmt::prepare(db_, path_,
+Result<std::vector<DutRecord>> DutStore::duts() {
+  auto st = Stmt::prepare(db(), path(),
                           "SELECT id, serial, model, first_seen_utc FROM duts ORDER BY serial");
   if (!st) return st.error();
   std::vector<DutRecord> out;
@@ -384,28 +391,28 @@ Result<std::vector<DutRecord>> Database::duts() {
     out.push_back(
         DutRecord{st->column_int64(0), st->column_text(1), st->column_text(2), st->column_text(3)});
   }
-  if (rc != SQLITE_DONE) return sqlite_error(db_, path_, "reading the DUTs");
+  if (rc != SQLITE_DONE) return sqlite_error(db(), path(), "reading the DUTs");
   return out;
 }
 
-Result<std::optional<DutRecord>> Database::dut(std::string_view serial) {
-  auto st = Stmt::prepare(db_, path_,
+Result<std::optional<DutRecord>> DutStore::dut(std::string_view serial) {
+  auto st = Stmt::prepare(db(), path(),
                           "SELECT id, serial, model, first_seen_utc FROM duts WHERE serial = ?");
   if (!st) return st.error();
   st->bind(1, serial);
   const int rc = st->step();
   if (rc == SQLITE_DONE) return std::optional<DutRecord>();
-  if (rc != SQLITE_ROW) return sqlite_error(db_, path_, fmt::format("reading DUT '{}'", serial));
+  if (rc != SQLITE_ROW) return sqlite_error(db(), path(), fmt::format("reading DUT '{}'", serial));
   return std::optional<DutRecord>(
       DutRecord{st->column_int64(0), st->column_text(1), st->column_text(2), st->column_text(3)});
 }
 
-Result<std::pair<RunDutRecord, std::string>> Database::resolve_stream(int64_t run_id,
+Result<std::pair<RunDutRecord, std::string>> DutStore::resolve_stream(int64_t run_id,
                                                                       const StreamKey& key) {
   auto duts = run_duts(run_id);
   if (!duts) return duts.error();
   if (duts->empty()) {
-    return Error::Permanent(fmt::format("storage: {}: run {} has no DUTs", path_, run_id));
+    return Error::Permanent(fmt::format("storage: {}: run {} has no DUTs", path(), run_id));
   }
   auto it = duts->begin();
   if (!key.dut_serial.empty()) {
@@ -415,7 +422,8 @@ Result<std::pair<RunDutRecord, std::string>> Database::resolve_stream(int64_t ru
       std::vector<std::string> serials;
       for (const auto& d : *duts) serials.push_back(fmt::format("'{}'", d.dut.serial));
       return Error::Permanent(fmt::format("storage: {}: run {} has no DUT '{}' (its DUTs: {})",
-                                          path_, run_id, key.dut_serial, fmt::join(serials, ", ")));
+                                          path(), run_id, key.dut_serial,
+                                          fmt::join(serials, ", ")));
     }
   }
   if (key.axis.empty()) {
@@ -433,62 +441,62 @@ Result<std::pair<RunDutRecord, std::string>> Database::resolve_stream(int64_t ru
     return Error::Permanent(
         fmt::format("storage: {}: DUT '{}' of run {} has no rate axis '{}' "
                     "(its axes: {})",
-                    path_, it->dut.serial, run_id, key.axis, fmt::join(axes, ", ")));
+                    path(), it->dut.serial, run_id, key.axis, fmt::join(axes, ", ")));
   }
   std::string axis = key.axis;
   return std::make_pair(std::move(*it), std::move(axis));
 }
 
-Result<DutHistory> Database::dut_history(std::string_view serial) {
+Result<DutHistory> DutStore::dut_history(std::string_view serial) {
   auto known = dut(serial);
   if (!known) return known.error();
   if (!*known) {
-    return Error::Permanent(fmt::format("storage: {}: no DUT with serial '{}'", path_, serial));
+    return Error::Permanent(fmt::format("storage: {}: no DUT with serial '{}'", path(), serial));
   }
   DutHistory h;
   h.dut = **known;
   // Its runs through run_duts_by_dut; each run's rows through the run's
   // indexes (a run holds a few DUTs: filtering its rows here reads little).
-  auto st = Stmt::prepare(db_, path_,
+  auto st = Stmt::prepare(db(), path(),
                           std::string(kRunDutSelect) + "WHERE rd.dut_id = ? ORDER BY rd.run_id");
   if (!st) return st.error();
   st->bind(1, h.dut.id);
   std::vector<RunDutRecord> in_runs;
   int rc;
   while ((rc = st->step()) == SQLITE_ROW) {
-    auto rec = read_run_dut(*st, path_);
+    auto rec = read_run_dut(*st, path());
     if (!rec) return rec.error();
     in_runs.push_back(std::move(*rec));
   }
   if (rc != SQLITE_DONE) {
-    return sqlite_error(db_, path_, fmt::format("reading the runs of DUT '{}'", serial));
+    return sqlite_error(db(), path(), fmt::format("reading the runs of DUT '{}'", serial));
   }
-  if (Status s = read_channels(db_, path_, in_runs); !s) return s.error();
+  if (Status s = read_channels(db(), path(), in_runs); !s) return s.error();
 
   const auto mine = [&](const std::string& row_serial) { return row_serial == h.dut.serial; };
   for (RunDutRecord& in_run : in_runs) {
     DutHistory::Run r;
     const int64_t run_id = in_run.run_id;
-    auto rec = run(run_id);
+    auto rec = self().run(run_id);
     if (!rec) return rec.error();
     r.run = std::move(*rec);
     r.run.config_json.clear();
     r.run.config_toml.clear();
     r.run.resume_json.clear();
-    auto segs = segments(run_id);
+    auto segs = self().segments(run_id);
     if (!segs) return segs.error();
     r.segments = std::move(*segs);
-    auto stats = segment_stats(run_id);
+    auto stats = self().segment_stats(run_id);
     if (!stats) return stats.error();
     for (auto& row : *stats) {
       if (mine(row.dut_serial)) r.stats.push_back(std::move(row));
     }
-    auto allan_rows = allan(run_id);
+    auto allan_rows = self().allan(run_id);
     if (!allan_rows) return allan_rows.error();
     for (auto& row : *allan_rows) {
       if (mine(row.dut_serial)) r.allan.push_back(std::move(row));
     }
-    auto sf = scale_factor_fits(run_id);
+    auto sf = self().scale_factor_fits(run_id);
     if (!sf) return sf.error();
     for (auto& row : *sf) {
       if (mine(row.dut_serial)) r.scale_factor.push_back(std::move(row));
@@ -496,7 +504,7 @@ Result<DutHistory> Database::dut_history(std::string_view serial) {
     r.in_run = std::move(in_run);
     h.runs.push_back(std::move(r));
   }
-  auto fits = internal::fits_of_dut(db_, path_, h.dut.serial);
+  auto fits = internal::fits_of_dut(db(), path(), h.dut.serial);
   if (!fits) return fits.error();
   h.fits = std::move(*fits);
   return h;

@@ -1,5 +1,5 @@
-// Internal helpers shared by the record code (duts.cpp, database.cpp,
-// queue.cpp, scale_factor.cpp, plots.cpp): nesting write transactions, JSON
+// Internal helpers shared by the record code (duts.cpp, runs.cpp, queue.cpp,
+// results.cpp, scale_factor.cpp): nesting write transactions, JSON
 // string arrays, and the DUT/axis a result row is filed under.
 #pragma once
 

@@ -1,7 +1,9 @@
-// Database: the record of calibration exports (schema v5, tables `exports`
-// and `export_runs`). begin_export checks and inserts in one IMMEDIATE
-// transaction, so two exporters (the daemon's nightly job and a catch-up, or
-// two processes) cannot both take a slot or a run.
+// ExportStore (exports.h): the record of calibration exports (schema v5, tables
+// `exports` and `export_runs`). begin_export checks and inserts in one
+// IMMEDIATE transaction, so two exporters (the daemon's nightly job and a
+// catch-up, or two processes) cannot both take a slot or a run.
+#include "gyrotherm/storage/exports.h"
+
 #include <fmt/format.h>
 #include <sqlite3.h>
 
@@ -117,10 +119,14 @@ Result<std::vector<ExportRecord>> read_exports(sqlite3* db, const std::string& p
 
 }  // namespace
 
-Result<int64_t> Database::begin_export(const ExportRecord& record) {
+Database& ExportStore::self() { return static_cast<Database&>(*this); }
+sqlite3* ExportStore::db() { return self().db_; }
+const std::string& ExportStore::path() { return self().path_; }
+
+Result<int64_t> ExportStore::begin_export(const ExportRecord& record) {
   const std::string what = begin_label(record);
   const auto bad = [&](const std::string& why) {
-    return Error::Permanent(fmt::format("storage: {}: {}: {}", path_, what, why));
+    return Error::Permanent(fmt::format("storage: {}: {}: {}", path(), what, why));
   };
   const bool nightly = record.kind == "nightly";
   if (!nightly && record.kind != "manual") {
@@ -139,11 +145,11 @@ Result<int64_t> Database::begin_export(const ExportRecord& record) {
   std::sort(run_ids.begin(), run_ids.end());
   run_ids.erase(std::unique(run_ids.begin(), run_ids.end()), run_ids.end());
 
-  Transaction tx(db_, path_);
+  Transaction tx(db(), path());
   if (Status s = tx.begin_immediate(); !s) return s.error();
 
   if (nightly) {
-    auto taken = Stmt::prepare(db_, path_,
+    auto taken = Stmt::prepare(db(), path(),
                                "SELECT id, state FROM exports WHERE kind = 'nightly' AND "
                                "slot_unix_s = ?");
     if (!taken) return taken.error();
@@ -154,13 +160,13 @@ Result<int64_t> Database::begin_export(const ExportRecord& record) {
                              slot_name(*record.slot_unix_s, record.slot_local),
                              taken->column_int64(0), taken->column_text(1)));
     }
-    if (rc != SQLITE_DONE) return sqlite_error(db_, path_, what);
+    if (rc != SQLITE_DONE) return sqlite_error(db(), path(), what);
   }
 
-  auto exists = Stmt::prepare(db_, path_, "SELECT 1 FROM runs WHERE id = ?");
+  auto exists = Stmt::prepare(db(), path(), "SELECT 1 FROM runs WHERE id = ?");
   if (!exists) return exists.error();
   // A failed nightly export does not hold its runs: they go to the next one.
-  auto held = Stmt::prepare(db_, path_,
+  auto held = Stmt::prepare(db(), path(),
                             "SELECT e.id, e.state, e.slot_unix_s, e.slot_local FROM export_runs r "
                             "JOIN exports e ON e.id = r.export_id WHERE r.run_id = ? AND "
                             "e.kind = 'nightly' AND e.state IN ('writing', 'done') "
@@ -171,7 +177,7 @@ Result<int64_t> Database::begin_export(const ExportRecord& record) {
     exists->bind(1, run_id);
     int rc = exists->step();
     if (rc == SQLITE_DONE) return bad(fmt::format("no run with id {}", run_id));
-    if (rc != SQLITE_ROW) return sqlite_error(db_, path_, what);
+    if (rc != SQLITE_ROW) return sqlite_error(db(), path(), what);
     if (!nightly) continue;
     held->reset();
     held->bind(1, run_id);
@@ -183,10 +189,10 @@ Result<int64_t> Database::begin_export(const ExportRecord& record) {
           run_id, held->column_int64(0), slot_name(held->column_double(2), held->column_text(3)),
           held->column_text(1)));
     }
-    if (rc != SQLITE_DONE) return sqlite_error(db_, path_, what);
+    if (rc != SQLITE_DONE) return sqlite_error(db(), path(), what);
   }
 
-  auto ins = Stmt::prepare(db_, path_,
+  auto ins = Stmt::prepare(db(), path(),
                            "INSERT INTO exports(kind, slot_unix_s, slot_local, state, directory, "
                            "files_json, started_utc, finished_utc, message) "
                            "VALUES(?, ?, ?, 'writing', ?, '[]', ?, NULL, ?)");
@@ -195,28 +201,29 @@ Result<int64_t> Database::begin_export(const ExportRecord& record) {
   ins->bind(2, record.slot_unix_s);
   ins->bind(3, std::string_view(record.slot_local));
   ins->bind(4, std::string_view(record.directory));
-  ins->bind(5, std::string_view(utc_or_now(record.started_utc)));
+  ins->bind(5, std::string_view(self().utc_or_now(record.started_utc)));
   ins->bind(6, std::string_view(record.message));
-  if (Status s = expect_done(*ins, db_, path_, what); !s) return s.error();
-  const auto export_id = static_cast<int64_t>(sqlite3_last_insert_rowid(db_));
+  if (Status s = expect_done(*ins, db(), path(), what); !s) return s.error();
+  const auto export_id = static_cast<int64_t>(sqlite3_last_insert_rowid(db()));
 
-  auto link = Stmt::prepare(db_, path_, "INSERT INTO export_runs(export_id, run_id) VALUES(?, ?)");
+  auto link =
+      Stmt::prepare(db(), path(), "INSERT INTO export_runs(export_id, run_id) VALUES(?, ?)");
   if (!link) return link.error();
   for (int64_t run_id : run_ids) {
     link->reset();
     link->bind(1, export_id);
     link->bind(2, run_id);
-    if (Status s = expect_done(*link, db_, path_, what); !s) return s.error();
+    if (Status s = expect_done(*link, db(), path(), what); !s) return s.error();
   }
   if (Status s = tx.commit(); !s) return s.error();
   return export_id;
 }
 
-Status Database::finish_export(int64_t export_id, std::string_view state,
-                               const std::vector<std::string>& files, std::string_view message) {
+Status ExportStore::finish_export(int64_t export_id, std::string_view state,
+                                  const std::vector<std::string>& files, std::string_view message) {
   const std::string what = fmt::format("finishing export {} as '{}'", export_id, state);
   const auto bad = [&](const std::string& why) {
-    return Error::Permanent(fmt::format("storage: {}: {}: {}", path_, what, why));
+    return Error::Permanent(fmt::format("storage: {}: {}: {}", path(), what, why));
   };
   if (state != "done" && state != "failed") return bad("the state must be 'done' or 'failed'");
   nlohmann::json list = nlohmann::json::array();
@@ -236,55 +243,55 @@ Status Database::finish_export(int64_t export_id, std::string_view state,
     return bad("a file name is not valid UTF-8");
   }
 
-  Transaction tx(db_, path_);
+  Transaction tx(db(), path());
   if (Status s = tx.begin_immediate(); !s) return s;
   {
-    auto cur = Stmt::prepare(db_, path_, "SELECT state, finished_utc FROM exports WHERE id = ?");
+    auto cur = Stmt::prepare(db(), path(), "SELECT state, finished_utc FROM exports WHERE id = ?");
     if (!cur) return cur.error();
     cur->bind(1, export_id);
     const int rc = cur->step();
     if (rc == SQLITE_DONE) return bad("no such export");
-    if (rc != SQLITE_ROW) return sqlite_error(db_, path_, what);
+    if (rc != SQLITE_ROW) return sqlite_error(db(), path(), what);
     // Finishing twice could turn a failed export (whose runs another nightly
     // export may have taken since) into a done one: refused.
     if (const std::string current = cur->column_text(0); current != "writing") {
       return bad(fmt::format("it is already {} (finished {})", current, cur->column_text(1)));
     }
   }
-  auto st = Stmt::prepare(db_, path_,
+  auto st = Stmt::prepare(db(), path(),
                           "UPDATE exports SET state = ?, files_json = ?, message = ?, "
                           "finished_utc = ? WHERE id = ?");
   if (!st) return st.error();
   st->bind(1, state);
   st->bind(2, std::string_view(files_json));
   st->bind(3, message);
-  st->bind(4, std::string_view(utc_now()));
+  st->bind(4, std::string_view(self().utc_now()));
   st->bind(5, export_id);
-  if (Status s = expect_done(*st, db_, path_, what); !s) return s;
+  if (Status s = expect_done(*st, db(), path(), what); !s) return s;
   return tx.commit();
 }
 
-Result<std::vector<ExportRecord>> Database::exports() {
-  return read_exports(db_, path_, "", std::nullopt);
+Result<std::vector<ExportRecord>> ExportStore::exports() {
+  return read_exports(db(), path(), "", std::nullopt);
 }
 
-Result<std::optional<ExportRecord>> Database::export_record(int64_t export_id) {
-  auto rows = read_exports(db_, path_, "WHERE id = ?1", export_id);
+Result<std::optional<ExportRecord>> ExportStore::export_record(int64_t export_id) {
+  auto rows = read_exports(db(), path(), "WHERE id = ?1", export_id);
   if (!rows) return rows.error();
   if (rows->empty()) return std::optional<ExportRecord>();
   return std::optional<ExportRecord>(std::move(rows->front()));
 }
 
-Result<std::optional<double>> Database::last_nightly_slot_unix_s() {
+Result<std::optional<double>> ExportStore::last_nightly_slot_unix_s() {
   auto st =
-      Stmt::prepare(db_, path_, "SELECT max(slot_unix_s) FROM exports WHERE kind = 'nightly'");
+      Stmt::prepare(db(), path(), "SELECT max(slot_unix_s) FROM exports WHERE kind = 'nightly'");
   if (!st) return st.error();
-  if (st->step() != SQLITE_ROW) return sqlite_error(db_, path_, "reading the last nightly slot");
+  if (st->step() != SQLITE_ROW) return sqlite_error(db(), path(), "reading the last nightly slot");
   return st->column_optional_double(0);
 }
 
-Result<std::vector<int64_t>> Database::runs_not_exported() {
-  auto st = Stmt::prepare(db_, path_,
+Result<std::vector<int64_t>> ExportStore::runs_not_exported() {
+  auto st = Stmt::prepare(db(), path(),
                           "SELECT id FROM runs WHERE state = 'completed' AND id NOT IN ("
                           "SELECT r.run_id FROM export_runs r JOIN exports e ON e.id = "
                           "r.export_id WHERE e.kind = 'nightly' AND e.state IN ('writing', "
@@ -293,7 +300,7 @@ Result<std::vector<int64_t>> Database::runs_not_exported() {
   std::vector<int64_t> ids;
   int rc;
   while ((rc = st->step()) == SQLITE_ROW) ids.push_back(st->column_int64(0));
-  if (rc != SQLITE_DONE) return sqlite_error(db_, path_, "reading the runs not yet exported");
+  if (rc != SQLITE_DONE) return sqlite_error(db(), path(), "reading the runs not yet exported");
   return ids;
 }
 

@@ -7,6 +7,8 @@
 // written out in a migration: a later migration that adds a column to a
 // relayed table runs install_lab_triggers again and the payloads carry the
 // new column, with nothing to keep in step by hand.
+#include "gyrotherm/storage/outbox.h"
+
 #include <fmt/format.h>
 #include <sqlite3.h>
 
@@ -359,37 +361,44 @@ Status install_lab_triggers_step(sqlite3* db, const std::string& path,
 
 }  // namespace internal
 
-Result<std::optional<std::string>> Database::lab_station_id() { return meta("lab_station_id"); }
+Database& OutboxStore::self() { return static_cast<Database&>(*this); }
+sqlite3* OutboxStore::db() { return self().db_; }
+const std::string& OutboxStore::path() { return self().path_; }
 
-Status Database::lab_bind(std::string_view station_id) {
+Result<std::optional<std::string>> OutboxStore::lab_station_id() {
+  return self().meta("lab_station_id");
+}
+
+Status OutboxStore::lab_bind(std::string_view station_id) {
   if (!internal::valid_station_id(station_id)) {
     return Error::Permanent(
         fmt::format("storage: {}: lab station id '{}' is not valid: 1 to 64 letters, digits, "
                     "'.', '_' or '-', starting with a letter or digit",
-                    path_, station_id));
+                    path(), station_id));
   }
-  internal::WriteScope tx(db_, path_, "lab_bind");
+  internal::WriteScope tx(db(), path(), "lab_bind");
   if (Status s = tx.begin(); !s) return s;
-  auto bound = meta("lab_station_id");
+  auto bound = self().meta("lab_station_id");
   if (!bound) return bound.error();
   if (*bound) {
     if (**bound == station_id) return Status::Ok();  // rolls back the empty transaction
     return Error::Permanent(fmt::format(
         "storage: {}: the database is bound to lab station '{}', not '{}' (a station database "
         "belongs to one station; give [lab] station_id '{}' or use another database)",
-        path_, **bound, station_id, **bound));
+        path(), **bound, station_id, **bound));
   }
-  auto set = Stmt::prepare(db_, path_, "INSERT INTO meta(key, value) VALUES('lab_station_id', ?)");
+  auto set =
+      Stmt::prepare(db(), path(), "INSERT INTO meta(key, value) VALUES('lab_station_id', ?)");
   if (!set) return set.error();
   set->bind(1, station_id);
   const std::string what = fmt::format("binding the database to lab station '{}'", station_id);
-  if (Status s = expect_done(*set, db_, path_, what); !s) return s;
+  if (Status s = expect_done(*set, db(), path(), what); !s) return s;
   // The history, in the transaction that binds: every change from now on
   // is queued by the triggers, everything before it by this.
   for (const internal::RelayedTable& t : internal::kRelayed) {
-    auto sql = internal::table_sql(db_, path_, t);
+    auto sql = internal::table_sql(db(), path(), t);
     if (!sql) return sql.error();
-    if (Status s = internal::exec(db_, path_, internal::enqueue_all_sql(*sql)); !s) {
+    if (Status s = internal::exec(db(), path(), internal::enqueue_all_sql(*sql)); !s) {
       return Error{fmt::format("{} [{}: queueing table {}]", s.error().message, what, t.table),
                    s.error().transient};
     }
@@ -397,13 +406,13 @@ Status Database::lab_bind(std::string_view station_id) {
   return tx.commit();
 }
 
-Result<std::vector<OutboxRecord>> Database::outbox_batch(int64_t after_seq, int limit,
-                                                         int64_t max_bytes) {
+Result<std::vector<OutboxRecord>> OutboxStore::outbox_batch(int64_t after_seq, int limit,
+                                                            int64_t max_bytes) {
   if (limit < 1) {
     return Error::Permanent(
-        fmt::format("storage: {}: reading the outbox: limit {} (at least 1)", path_, limit));
+        fmt::format("storage: {}: reading the outbox: limit {} (at least 1)", path(), limit));
   }
-  auto st = Stmt::prepare(db_, path_,
+  auto st = Stmt::prepare(db(), path(),
                           "SELECT seq, kind, run_uuid, local_id, deleted, payload, "
                           "committed_unix_s FROM outbox WHERE seq > ? ORDER BY seq LIMIT ?");
   if (!st) return st.error();
@@ -426,52 +435,52 @@ Result<std::vector<OutboxRecord>> Database::outbox_batch(int64_t after_seq, int 
     out.push_back(std::move(r));
   }
   if (rc != SQLITE_DONE) {
-    return sqlite_error(db_, path_, fmt::format("reading the outbox after seq {}", after_seq));
+    return sqlite_error(db(), path(), fmt::format("reading the outbox after seq {}", after_seq));
   }
   return out;
 }
 
-Status Database::outbox_ack(int64_t up_to_seq) {
+Status OutboxStore::outbox_ack(int64_t up_to_seq) {
   const std::string what = fmt::format("acknowledging the outbox up to seq {}", up_to_seq);
-  internal::WriteScope tx(db_, path_, "outbox_ack");
+  internal::WriteScope tx(db(), path(), "outbox_ack");
   if (Status s = tx.begin(); !s) return s;
   // A seq the outbox never wrote would be a relay's bug; accepting it would
   // move the mark past rows still to come.
   auto last = Stmt::prepare(
-      db_, path_, "SELECT coalesce((SELECT seq FROM sqlite_sequence WHERE name = 'outbox'), 0)");
+      db(), path(), "SELECT coalesce((SELECT seq FROM sqlite_sequence WHERE name = 'outbox'), 0)");
   if (!last) return last.error();
-  if (last->step() != SQLITE_ROW) return sqlite_error(db_, path_, what);
+  if (last->step() != SQLITE_ROW) return sqlite_error(db(), path(), what);
   const int64_t written = last->column_int64(0);
   if (up_to_seq > written) {
     return Error::Permanent(fmt::format("storage: {}: {}: the outbox has written seq {} at most",
-                                        path_, what, written));
+                                        path(), what, written));
   }
-  auto del = Stmt::prepare(db_, path_, "DELETE FROM outbox WHERE seq <= ?");
+  auto del = Stmt::prepare(db(), path(), "DELETE FROM outbox WHERE seq <= ?");
   if (!del) return del.error();
   del->bind(1, up_to_seq);
-  if (Status s = expect_done(*del, db_, path_, what); !s) return s;
+  if (Status s = expect_done(*del, db(), path(), what); !s) return s;
   // The mark only moves forward (a late, smaller acknowledgement changes
   // nothing).
-  auto mark = Stmt::prepare(db_, path_,
+  auto mark = Stmt::prepare(db(), path(),
                             "INSERT INTO meta(key, value) VALUES('lab_last_acked_seq', ?1) "
                             "ON CONFLICT(key) DO UPDATE SET value = excluded.value "
                             "WHERE CAST(value AS INTEGER) < ?1");
   if (!mark) return mark.error();
   mark->bind(1, up_to_seq);
   if (up_to_seq > 0) {
-    if (Status s = expect_done(*mark, db_, path_, what); !s) return s;
+    if (Status s = expect_done(*mark, db(), path(), what); !s) return s;
   }
   return tx.commit();
 }
 
-Result<OutboxStats> Database::outbox_stats() {
+Result<OutboxStats> OutboxStore::outbox_stats() {
   // One statement: one snapshot, whatever the writers do meanwhile.
-  auto st = Stmt::prepare(db_, path_,
+  auto st = Stmt::prepare(db(), path(),
                           "SELECT count(*), coalesce(sum(length(CAST(payload AS BLOB))), 0), "
                           "(SELECT committed_unix_s FROM outbox ORDER BY seq LIMIT 1), "
                           "(SELECT value FROM meta WHERE key = 'lab_last_acked_seq') FROM outbox");
   if (!st) return st.error();
-  if (st->step() != SQLITE_ROW) return sqlite_error(db_, path_, "reading the outbox's state");
+  if (st->step() != SQLITE_ROW) return sqlite_error(db(), path(), "reading the outbox's state");
   OutboxStats out;
   out.pending = st->column_int64(0);
   out.pending_bytes = st->column_int64(1);
@@ -482,7 +491,7 @@ Result<OutboxStats> Database::outbox_stats() {
         std::from_chars(acked.data(), acked.data() + acked.size(), out.last_acked_seq);
     if (ec != std::errc() || end != acked.data() + acked.size()) {
       return Error::Permanent(fmt::format(
-          "storage: {}: meta 'lab_last_acked_seq' is not a sequence number: '{}'", path_, acked));
+          "storage: {}: meta 'lab_last_acked_seq' is not a sequence number: '{}'", path(), acked));
     }
   }
   return out;

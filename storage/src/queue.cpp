@@ -1,7 +1,9 @@
-// Database: the run queue, station settings (meta) and crash-resume
-// checkpoints. Queue changes run in one IMMEDIATE transaction each, so the
-// HTTP thread and the control thread (each with its own connection) never
-// see a half-renumbered queue, and a claimed entry cannot be removed.
+// QueueStore (queue.h): the run queue and station settings (meta). Queue
+// changes run in one IMMEDIATE transaction each, so the HTTP thread and the
+// control thread (each with its own connection) never see a half-renumbered
+// queue, and a claimed entry cannot be removed.
+#include "gyrotherm/storage/queue.h"
+
 #include <fmt/format.h>
 #include <sqlite3.h>
 
@@ -72,45 +74,32 @@ Status renumber(sqlite3* db, const std::string& path, const std::vector<int64_t>
 
 }  // namespace
 
-Status Database::atomically(const std::function<Status()>& body) {
-  Transaction tx(db_, path_);
-  if (Status s = tx.begin_immediate(); !s) return s;
-  if (Status s = body(); !s) return s;  // rolled back
-  return tx.commit();
-}
+Database& QueueStore::self() { return static_cast<Database&>(*this); }
+sqlite3* QueueStore::db() { return self().db_; }
+const std::string& QueueStore::path() { return self().path_; }
 
-Status Database::set_run_checkpoint(int64_t run_id, std::string_view resume_json,
-                                    double wall_unix_s) {
-  auto st = Stmt::prepare(
-      db_, path_, "UPDATE runs SET resume_json = ?, checkpoint_wall_unix_s = ? WHERE id = ?");
-  if (!st) return st.error();
-  st->bind(1, resume_json);
-  st->bind(2, wall_unix_s);
-  st->bind(3, run_id);
-  return expect_done(*st, db_, path_, fmt::format("checkpointing run {}", run_id));
-}
-
-Result<QueueEntry> Database::queue_add(const std::string& schedule_name,
-                                       const std::string& source_path, const std::string& toml_text,
-                                       bool ignore_failures, const RunMetadata& metadata) {
-  if (Status s = internal::check_metadata(metadata, path_, "adding to the queue"); !s) {
+Result<QueueEntry> QueueStore::queue_add(const std::string& schedule_name,
+                                         const std::string& source_path,
+                                         const std::string& toml_text, bool ignore_failures,
+                                         const RunMetadata& metadata) {
+  if (Status s = internal::check_metadata(metadata, path(), "adding to the queue"); !s) {
     return s.error();
   }
-  Transaction tx(db_, path_);
+  Transaction tx(db(), path());
   if (Status s = tx.begin_immediate(); !s) return s.error();
-  const std::string now = utc_now();
+  const std::string now = self().utc_now();
   auto sched = Stmt::prepare(
-      db_, path_,
+      db(), path(),
       "INSERT INTO schedules(name, source_path, toml_text, created_utc) VALUES(?, ?, ?, ?)");
   if (!sched) return sched.error();
   sched->bind(1, std::string_view(schedule_name));
   sched->bind_text_or_null(2, source_path);
   sched->bind(3, std::string_view(toml_text));
   sched->bind(4, std::string_view(now));
-  if (Status s = expect_done(*sched, db_, path_, "storing a schedule"); !s) return s.error();
-  const int64_t schedule_id = sqlite3_last_insert_rowid(db_);
+  if (Status s = expect_done(*sched, db(), path(), "storing a schedule"); !s) return s.error();
+  const int64_t schedule_id = sqlite3_last_insert_rowid(db());
   auto ins = Stmt::prepare(
-      db_, path_,
+      db(), path(),
       "INSERT INTO queue(schedule_id, position, state, added_utc, ignore_failures, operator, "
       "comment, tags_json, dut_serials_json) "
       "VALUES(?, (SELECT coalesce(max(position) + 1, 0) FROM queue WHERE state = 'queued'), "
@@ -120,16 +109,16 @@ Result<QueueEntry> Database::queue_add(const std::string& schedule_name,
   ins->bind(2, std::string_view(now));
   ins->bind(3, ignore_failures ? 1 : 0);
   internal::bind_metadata(*ins, 4, metadata);
-  if (Status s = expect_done(*ins, db_, path_, "adding to the queue"); !s) return s.error();
-  const int64_t id = sqlite3_last_insert_rowid(db_);
+  if (Status s = expect_done(*ins, db(), path(), "adding to the queue"); !s) return s.error();
+  const int64_t id = sqlite3_last_insert_rowid(db());
   if (Status s = tx.commit(); !s) return s.error();
   auto entry = queue_entry(id);
   if (!entry) return entry.error();
   return **entry;
 }
 
-Result<std::vector<QueueEntry>> Database::queue_entries() {
-  auto st = Stmt::prepare(db_, path_,
+Result<std::vector<QueueEntry>> QueueStore::queue_entries() {
+  auto st = Stmt::prepare(db(), path(),
                           std::string(kQueueSelect) +
                               "WHERE q.state IN ('running', 'queued') "
                               "ORDER BY q.state = 'queued', q.position, q.id");
@@ -137,86 +126,86 @@ Result<std::vector<QueueEntry>> Database::queue_entries() {
   std::vector<QueueEntry> out;
   int rc;
   while ((rc = st->step()) == SQLITE_ROW) {
-    auto entry = read_entry(*st, path_);
+    auto entry = read_entry(*st, path());
     if (!entry) return entry.error();
     out.push_back(std::move(*entry));
   }
-  if (rc != SQLITE_DONE) return sqlite_error(db_, path_, "reading the queue");
+  if (rc != SQLITE_DONE) return sqlite_error(db(), path(), "reading the queue");
   return out;
 }
 
-Result<std::optional<QueueEntry>> Database::queue_entry(int64_t id) {
-  auto st = Stmt::prepare(db_, path_, std::string(kQueueSelect) + "WHERE q.id = ?");
+Result<std::optional<QueueEntry>> QueueStore::queue_entry(int64_t id) {
+  auto st = Stmt::prepare(db(), path(), std::string(kQueueSelect) + "WHERE q.id = ?");
   if (!st) return st.error();
   st->bind(1, id);
   const int rc = st->step();
   if (rc == SQLITE_ROW) {
-    auto entry = read_entry(*st, path_);
+    auto entry = read_entry(*st, path());
     if (!entry) return entry.error();
     return std::optional<QueueEntry>(std::move(*entry));
   }
   if (rc == SQLITE_DONE) return std::optional<QueueEntry>();
-  return sqlite_error(db_, path_, fmt::format("reading queue entry {}", id));
+  return sqlite_error(db(), path(), fmt::format("reading queue entry {}", id));
 }
 
-Result<bool> Database::queue_remove(int64_t id) {
-  Transaction tx(db_, path_);
+Result<bool> QueueStore::queue_remove(int64_t id) {
+  Transaction tx(db(), path());
   if (Status s = tx.begin_immediate(); !s) return s.error();
   auto st = Stmt::prepare(
-      db_, path_,
+      db(), path(),
       "UPDATE queue SET state = 'removed', position = -1 WHERE id = ? AND state = 'queued'");
   if (!st) return st.error();
   st->bind(1, id);
-  if (Status s = expect_done(*st, db_, path_, "removing a queue entry"); !s) return s.error();
-  if (sqlite3_changes(db_) == 0) return false;
-  auto ids = queued_ids(db_, path_);
+  if (Status s = expect_done(*st, db(), path(), "removing a queue entry"); !s) return s.error();
+  if (sqlite3_changes(db()) == 0) return false;
+  auto ids = queued_ids(db(), path());
   if (!ids) return ids.error();
-  if (Status s = renumber(db_, path_, *ids); !s) return s.error();
+  if (Status s = renumber(db(), path(), *ids); !s) return s.error();
   if (Status s = tx.commit(); !s) return s.error();
   return true;
 }
 
-Result<bool> Database::queue_move(int64_t id, int position) {
-  Transaction tx(db_, path_);
+Result<bool> QueueStore::queue_move(int64_t id, int position) {
+  Transaction tx(db(), path());
   if (Status s = tx.begin_immediate(); !s) return s.error();
-  auto ids = queued_ids(db_, path_);
+  auto ids = queued_ids(db(), path());
   if (!ids) return ids.error();
   auto it = std::find(ids->begin(), ids->end(), id);
   if (it == ids->end()) return false;
   ids->erase(it);
   const auto at = static_cast<std::size_t>(std::clamp(position, 0, static_cast<int>(ids->size())));
   ids->insert(ids->begin() + static_cast<std::ptrdiff_t>(at), id);
-  if (Status s = renumber(db_, path_, *ids); !s) return s.error();
+  if (Status s = renumber(db(), path(), *ids); !s) return s.error();
   if (Status s = tx.commit(); !s) return s.error();
   return true;
 }
 
-Result<bool> Database::queue_claim(int64_t id, int64_t run_id) {
-  Transaction tx(db_, path_);
+Result<bool> QueueStore::queue_claim(int64_t id, int64_t run_id) {
+  Transaction tx(db(), path());
   if (Status s = tx.begin_immediate(); !s) return s.error();
-  auto st = Stmt::prepare(db_, path_,
+  auto st = Stmt::prepare(db(), path(),
                           "UPDATE queue SET state = 'running', position = -1, run_id = ? "
                           "WHERE id = ? AND state = 'queued'");
   if (!st) return st.error();
   st->bind(1, run_id);
   st->bind(2, id);
-  if (Status s = expect_done(*st, db_, path_, "taking a queue entry"); !s) return s.error();
-  if (sqlite3_changes(db_) == 0) return false;
-  auto ids = queued_ids(db_, path_);
+  if (Status s = expect_done(*st, db(), path(), "taking a queue entry"); !s) return s.error();
+  if (sqlite3_changes(db()) == 0) return false;
+  auto ids = queued_ids(db(), path());
   if (!ids) return ids.error();
-  if (Status s = renumber(db_, path_, *ids); !s) return s.error();
+  if (Status s = renumber(db(), path(), *ids); !s) return s.error();
   if (Status s = tx.commit(); !s) return s.error();
   return true;
 }
 
-Result<std::optional<int64_t>> Database::queue_start_run(int64_t id, const RunRecord& run) {
+Result<std::optional<int64_t>> QueueStore::queue_start_run(int64_t id, const RunRecord& run) {
   // One IMMEDIATE transaction: the claim and the run row commit together, or
   // neither does. Another connection's queue_remove either ran before (the
   // claim finds the entry removed: no run row) or waits for the commit (and
   // finds the entry running).
-  Transaction tx(db_, path_);
+  Transaction tx(db(), path());
   if (Status s = tx.begin_immediate(); !s) return s.error();
-  auto claim = Stmt::prepare(db_, path_,
+  auto claim = Stmt::prepare(db(), path(),
                              "UPDATE queue SET state = 'running', position = -1 "
                              "WHERE id = ? AND state = 'queued' RETURNING schedule_id, "
                              "operator, comment, tags_json, dut_serials_json");
@@ -224,84 +213,84 @@ Result<std::optional<int64_t>> Database::queue_start_run(int64_t id, const RunRe
   claim->bind(1, id);
   int rc = claim->step();
   if (rc == SQLITE_DONE) return std::optional<int64_t>();  // not queued: rolled back
-  if (rc != SQLITE_ROW) return sqlite_error(db_, path_, fmt::format("taking queue entry {}", id));
+  if (rc != SQLITE_ROW) return sqlite_error(db(), path(), fmt::format("taking queue entry {}", id));
   RunRecord rec = run;
   rec.queue_id = id;
   rec.schedule_id = claim->column_int64(0);
   // The entry's metadata goes to the run; a field the entry left empty
   // takes the caller's.
   auto queued =
-      internal::read_metadata(*claim, 1, fmt::format("storage: {}: queue entry {}", path_, id));
+      internal::read_metadata(*claim, 1, fmt::format("storage: {}: queue entry {}", path(), id));
   if (!queued) return queued.error();
   if (!queued->operator_name.empty()) rec.metadata.operator_name = queued->operator_name;
   if (!queued->comment.empty()) rec.metadata.comment = queued->comment;
   if (!queued->tags.empty()) rec.metadata.tags = queued->tags;
   if (!queued->dut_serials.empty()) rec.metadata.dut_serials = queued->dut_serials;
-  if (Status s = expect_done(*claim, db_, path_, fmt::format("taking queue entry {}", id)); !s) {
+  if (Status s = expect_done(*claim, db(), path(), fmt::format("taking queue entry {}", id)); !s) {
     return s.error();
   }
-  auto run_id = create_run(rec);
+  auto run_id = self().create_run(rec);
   if (!run_id) return run_id.error();
-  auto link = Stmt::prepare(db_, path_, "UPDATE queue SET run_id = ? WHERE id = ?");
+  auto link = Stmt::prepare(db(), path(), "UPDATE queue SET run_id = ? WHERE id = ?");
   if (!link) return link.error();
   link->bind(1, *run_id);
   link->bind(2, id);
-  if (Status s = expect_done(*link, db_, path_, fmt::format("starting queue entry {}", id)); !s) {
+  if (Status s = expect_done(*link, db(), path(), fmt::format("starting queue entry {}", id)); !s) {
     return s.error();
   }
-  auto ids = queued_ids(db_, path_);
+  auto ids = queued_ids(db(), path());
   if (!ids) return ids.error();
-  if (Status s = renumber(db_, path_, *ids); !s) return s.error();
+  if (Status s = renumber(db(), path(), *ids); !s) return s.error();
   if (Status s = tx.commit(); !s) return s.error();
   return std::optional<int64_t>(*run_id);
 }
 
-Status Database::queue_finish(int64_t id, std::string_view state) {
-  auto st = Stmt::prepare(db_, path_, "UPDATE queue SET state = ?, position = -1 WHERE id = ?");
+Status QueueStore::queue_finish(int64_t id, std::string_view state) {
+  auto st = Stmt::prepare(db(), path(), "UPDATE queue SET state = ?, position = -1 WHERE id = ?");
   if (!st) return st.error();
   st->bind(1, state);
   st->bind(2, id);
-  return expect_done(*st, db_, path_, fmt::format("closing queue entry {}", id));
+  return expect_done(*st, db(), path(), fmt::format("closing queue entry {}", id));
 }
 
-Status Database::queue_requeue(int64_t id) {
-  Transaction tx(db_, path_);
+Status QueueStore::queue_requeue(int64_t id) {
+  Transaction tx(db(), path());
   if (Status s = tx.begin_immediate(); !s) return s;
-  auto ids = queued_ids(db_, path_);
+  auto ids = queued_ids(db(), path());
   if (!ids) return ids.error();
   ids->insert(ids->begin(), id);
   auto st =
-      Stmt::prepare(db_, path_, "UPDATE queue SET state = 'queued', run_id = NULL WHERE id = ?");
+      Stmt::prepare(db(), path(), "UPDATE queue SET state = 'queued', run_id = NULL WHERE id = ?");
   if (!st) return st.error();
   st->bind(1, id);
-  if (Status s = expect_done(*st, db_, path_, "requeueing"); !s) return s;
-  if (Status s = renumber(db_, path_, *ids); !s) return s;
+  if (Status s = expect_done(*st, db(), path(), "requeueing"); !s) return s;
+  if (Status s = renumber(db(), path(), *ids); !s) return s;
   return tx.commit();
 }
 
-Result<std::optional<std::string>> Database::meta(std::string_view key) {
-  auto st = Stmt::prepare(db_, path_, "SELECT value FROM meta WHERE key = ?");
+Result<std::optional<std::string>> QueueStore::meta(std::string_view key) {
+  auto st = Stmt::prepare(db(), path(), "SELECT value FROM meta WHERE key = ?");
   if (!st) return st.error();
   st->bind(1, key);
   const int rc = st->step();
   if (rc == SQLITE_ROW) return std::optional<std::string>(st->column_text(0));
   if (rc == SQLITE_DONE) return std::optional<std::string>();
-  return sqlite_error(db_, path_, fmt::format("reading meta '{}'", key));
+  return sqlite_error(db(), path(), fmt::format("reading meta '{}'", key));
 }
 
-Status Database::set_meta(std::string_view key, std::string_view value) {
-  auto st = Stmt::prepare(db_, path_, "INSERT OR REPLACE INTO meta(key, value) VALUES(?, ?)");
+Status QueueStore::set_meta(std::string_view key, std::string_view value) {
+  auto st = Stmt::prepare(db(), path(), "INSERT OR REPLACE INTO meta(key, value) VALUES(?, ?)");
   if (!st) return st.error();
   st->bind(1, key);
   st->bind(2, value);
-  return expect_done(*st, db_, path_, fmt::format("writing meta '{}'", key));
+  return expect_done(*st, db(), path(), fmt::format("writing meta '{}'", key));
 }
 
-Status Database::delete_meta(std::string_view key) {
-  auto st = Stmt::prepare(db_, path_, "DELETE FROM meta WHERE key = ?");
+Status QueueStore::delete_meta(std::string_view key) {
+  auto st = Stmt::prepare(db(), path(), "DELETE FROM meta WHERE key = ?");
   if (!st) return st.error();
   st->bind(1, key);
-  return expect_done(*st, db_, path_, fmt::format("deleting meta '{}'", key));
+  return expect_done(*st, db(), path(), fmt::format("deleting meta '{}'", key));
 }
 
 }  // namespace gyrotherm::storage

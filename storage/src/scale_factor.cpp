@@ -1,14 +1,14 @@
-// Database: the rate table's samples (reads, window means) and the stored
-// scale-factor analysis (schema v7; docs/storage.md).
+// ResultStore (results.h): the stored scale-factor analysis (schema v7;
+// docs/storage.md).
 #include <fmt/format.h>
 #include <sqlite3.h>
 
 #include <cmath>
 #include <nlohmann/json.hpp>
-#include <numbers>
 
 #include "duts_internal.h"
 #include "gyrotherm/storage/database.h"
+#include "gyrotherm/storage/results.h"
 #include "sqlite_util.h"
 
 namespace gyrotherm::storage {
@@ -19,23 +19,6 @@ using internal::Stmt;
 using internal::Transaction;
 
 namespace {
-
-constexpr const char* kTableSampleColumns =
-    "t_s, demand_mode, demand_rate_dps, demand_position_deg, rate_dps, position_deg, mode, "
-    "interlock";
-
-TableSample read_table_sample(const Stmt& st) {
-  TableSample t;
-  t.t_s = st.column_double(0);
-  t.demand_mode = st.column_text(1);
-  t.demand_rate_dps = st.column_double(2);
-  t.demand_position_deg = st.column_optional_double(3);
-  t.rate_dps = st.column_double(4);
-  t.position_deg = st.column_double(5);
-  t.mode = st.column_text(6);
-  t.interlock = st.column_text(7);
-  return t;
-}
 
 // The coefficients must be a JSON array of numbers ("" means none: "[]").
 Result<std::string> coefficients_json(const std::string& text, const char* field, int64_t run_id,
@@ -57,77 +40,7 @@ Result<std::string> coefficients_json(const std::string& text, const char* field
 
 }  // namespace
 
-Result<std::vector<TableSample>> Database::table_samples(int64_t run_id, double t_from_s,
-                                                         double t_to_s) {
-  auto st = Stmt::prepare(db_, path_,
-                          fmt::format("SELECT {} FROM table_samples WHERE run_id = ? AND t_s >= ? "
-                                      "AND t_s < ? ORDER BY t_s",
-                                      kTableSampleColumns));
-  if (!st) return st.error();
-  st->bind(1, run_id);
-  st->bind(2, t_from_s);
-  st->bind(3, t_to_s);
-  std::vector<TableSample> out;
-  int rc;
-  while ((rc = st->step()) == SQLITE_ROW) out.push_back(read_table_sample(*st));
-  if (rc != SQLITE_DONE) {
-    return sqlite_error(db_, path_, fmt::format("reading table samples of run {}", run_id));
-  }
-  return out;
-}
-
-// The circular mean of angles θ_i is atan2(Σ sin θ_i, Σ cos θ_i); the mean
-// resultant length R = |Σ (cos θ_i, sin θ_i)| / n says how concentrated they
-// are (1: all equal, 0: spread evenly). sin and cos are taken here, not in
-// SQL: SQLite's math functions are optional in a build.
-Result<TableWindowMeans> Database::mean_table_over_windows(
-    int64_t run_id, const std::vector<std::pair<double, double>>& windows) {
-  auto st = Stmt::prepare(db_, path_,
-                          "SELECT rate_dps, position_deg FROM table_samples WHERE run_id = ? AND "
-                          "t_s >= ? AND t_s < ?");
-  if (!st) return st.error();
-  TableWindowMeans out;
-  int64_t rate_n = 0, position_n = 0;
-  double rate_sum = 0, sin_sum = 0, cos_sum = 0;
-  constexpr double kRadPerDeg = std::numbers::pi / 180.0;
-  for (const auto& [from_s, to_s] : windows) {
-    st->reset();
-    st->bind(1, run_id);
-    st->bind(2, from_s);
-    st->bind(3, to_s);
-    int rc;
-    while ((rc = st->step()) == SQLITE_ROW) {
-      ++out.n;
-      if (auto rate = st->column_optional_double(0)) {
-        ++rate_n;
-        rate_sum += *rate;
-      }
-      if (auto position = st->column_optional_double(1)) {
-        ++position_n;
-        sin_sum += std::sin(*position * kRadPerDeg);
-        cos_sum += std::cos(*position * kRadPerDeg);
-      }
-    }
-    if (rc != SQLITE_DONE) {
-      return sqlite_error(
-          db_, path_,
-          fmt::format("reading table samples of run {} in [{}, {}) s", run_id, from_s, to_s));
-    }
-  }
-  if (rate_n > 0) out.rate_dps = rate_sum / static_cast<double>(rate_n);
-  if (position_n > 0) {
-    out.position_resultant = std::hypot(sin_sum, cos_sum) / static_cast<double>(position_n);
-    if (out.position_resultant >= TableWindowMeans::kMinResultant) {
-      double deg = std::atan2(sin_sum, cos_sum) / kRadPerDeg;
-      if (deg < 0) deg += 360.0;
-      if (deg >= 360.0) deg -= 360.0;  // -tiny + 360 rounds to 360
-      out.position_deg = deg;
-    }
-  }
-  return out;
-}
-
-Status Database::store_scale_factor(
+Status ResultStore::store_scale_factor(
     int64_t run_id, const std::vector<ScaleFactorPointRecord>& points,
     const std::vector<ScaleFactorFitRecord>& fits,
     const std::optional<ScaleFactorTemperatureFitRecord>& temperature_fit) {
@@ -152,17 +65,17 @@ Status Database::store_scale_factor(
   if (temperature_fit) note(temperature_fit->dut_serial, temperature_fit->axis);
   if (!conflict.empty()) {
     return Error::Permanent(fmt::format("storage: {}: storing the scale factor of run {}: {}",
-                                        path_, run_id, conflict));
+                                        path(), run_id, conflict));
   }
   return store_scale_factor(run_id, named.value_or(StreamKey{}), points, fits, temperature_fit);
 }
 
-Status Database::store_scale_factor(
+Status ResultStore::store_scale_factor(
     int64_t run_id, const StreamKey& stream, const std::vector<ScaleFactorPointRecord>& points,
     const std::vector<ScaleFactorFitRecord>& fits,
     const std::optional<ScaleFactorTemperatureFitRecord>& temperature_fit) {
   std::string what = fmt::format("storing the scale factor of run {}", run_id);
-  auto key = internal::result_key(db_, path_, run_id, stream.dut_serial, stream.axis, what);
+  auto key = internal::result_key(db(), path(), run_id, stream.dut_serial, stream.axis, what);
   if (!key) return key.error();
   if (!key->serial.empty() || !key->axis.empty()) {
     what = fmt::format("storing the scale factor of run {} DUT '{}' axis '{}'", run_id, key->serial,
@@ -170,7 +83,7 @@ Status Database::store_scale_factor(
   }
   const auto wrong_run = [&](const char* record, int64_t other) {
     return Error::Permanent(
-        fmt::format("storage: {}: {}: a {} record belongs to run {}", path_, what, record, other));
+        fmt::format("storage: {}: {}: a {} record belongs to run {}", path(), what, record, other));
   };
   // A record naming its DUT or axis must name this series ("" takes it).
   const auto wrong_series = [&](const char* record, const std::string& serial,
@@ -179,7 +92,7 @@ Status Database::store_scale_factor(
     const bool axis_ok = axis.empty() || axis == key->axis;
     if (serial_ok && axis_ok) return std::nullopt;
     return Error::Permanent(fmt::format("storage: {}: {}: a {} record is for DUT '{}' axis '{}'",
-                                        path_, what, record, serial, axis));
+                                        path(), what, record, serial, axis));
   };
   for (const auto& p : points) {
     if (p.run_id != 0 && p.run_id != run_id) return wrong_run("point", p.run_id);
@@ -198,22 +111,22 @@ Status Database::store_scale_factor(
             wrong_series("temperature fit", temperature_fit->dut_serial, temperature_fit->axis)) {
       return *e;
     }
-    auto k = coefficients_json(temperature_fit->k_coeffs_json, "k_coeffs_json", run_id, path_);
+    auto k = coefficients_json(temperature_fit->k_coeffs_json, "k_coeffs_json", run_id, path());
     if (!k) return k.error();
     auto b =
-        coefficients_json(temperature_fit->bias_coeffs_json, "bias_coeffs_json", run_id, path_);
+        coefficients_json(temperature_fit->bias_coeffs_json, "bias_coeffs_json", run_id, path());
     if (!b) return b.error();
     k_coeffs = std::move(*k);
     bias_coeffs = std::move(*b);
   }
 
-  internal::WriteScope tx(db_, path_, "store_scale_factor");
+  internal::WriteScope tx(db(), path(), "store_scale_factor");
   if (Status s = tx.begin(); !s) return s;
   // This series' rows only (other DUTs and axes of the run stay), and the
   // rows stored before v8 of this DUT when this is its primary axis.
   for (const char* table :
        {"scale_factor_points", "scale_factor_fits", "scale_factor_temperature_fits"}) {
-    auto del = Stmt::prepare(db_, path_,
+    auto del = Stmt::prepare(db(), path(),
                              fmt::format("DELETE FROM {} WHERE run_id = ? AND dut_serial = ? AND "
                                          "(axis = ? OR (? AND axis = ''))",
                                          table));
@@ -222,11 +135,11 @@ Status Database::store_scale_factor(
     del->bind(2, std::string_view(key->serial));
     del->bind(3, std::string_view(key->axis));
     del->bind(4, key->primary ? 1 : 0);
-    if (Status s = expect_done(*del, db_, path_, what); !s) return s;
+    if (Status s = expect_done(*del, db(), path(), what); !s) return s;
   }
 
   auto ins_point = Stmt::prepare(
-      db_, path_,
+      db(), path(),
       "INSERT INTO scale_factor_points(run_id, segment_id, sf_sequence, repetition, rate_dps, "
       "measured_rate_dps, output_dps, n, temperature_c, duration_s, turns, dut_serial, axis, "
       "guard_s, coverage_samples, coverage_expected, coverage, longest_gap_s, quality, "
@@ -258,11 +171,11 @@ Status Database::store_scale_factor(
     const std::string point =
         fmt::format("{}: point of sequence {} repetition {} at {} °/s (segment {})", what,
                     p.sf_sequence, p.repetition, p.rate_dps, p.segment_id);
-    if (Status s = expect_done(st, db_, path_, point); !s) return s;
+    if (Status s = expect_done(st, db(), path(), point); !s) return s;
   }
 
   auto ins_fit = Stmt::prepare(
-      db_, path_,
+      db(), path(),
       "INSERT INTO scale_factor_fits(run_id, sf_sequence, temperature_c, k, k_se, bias_dps, "
       "nonlinearity_ppm, nonlinearity_fs_ppm, asymmetry_ppm, repeatability_ppm, n_points, "
       "created_utc, dut_serial, axis, guard_s, coverage_samples, coverage_expected, coverage, "
@@ -284,13 +197,13 @@ Status Database::store_scale_factor(
     st.bind(i++, f.asymmetry_ppm);
     st.bind(i++, f.repeatability_ppm);
     st.bind(i++, f.n_points);
-    st.bind(i++, std::string_view(utc_or_now(f.created_utc)));
+    st.bind(i++, std::string_view(self().utc_or_now(f.created_utc)));
     st.bind(i++, std::string_view(key->serial));
     st.bind(i++, std::string_view(key->axis));
     st.bind(i++, f.guard_s);
     internal::bind_quality(st, i, f.quality);
-    if (Status s =
-            expect_done(st, db_, path_, fmt::format("{}: fit of sequence {}", what, f.sf_sequence));
+    if (Status s = expect_done(st, db(), path(),
+                               fmt::format("{}: fit of sequence {}", what, f.sf_sequence));
         !s) {
       return s;
     }
@@ -299,7 +212,7 @@ Status Database::store_scale_factor(
   if (temperature_fit) {
     const auto& t = *temperature_fit;
     auto st = Stmt::prepare(
-        db_, path_,
+        db(), path(),
         "INSERT INTO scale_factor_temperature_fits(run_id, poly_order, t_centre_c, "
         "k_coeffs_json, bias_coeffs_json, k_ppm_per_c, bias_dph_per_c, created_utc, dut_serial, "
         "axis) VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
@@ -312,10 +225,10 @@ Status Database::store_scale_factor(
     st->bind(i++, std::string_view(bias_coeffs));
     st->bind(i++, t.k_ppm_per_c);
     st->bind(i++, t.bias_dph_per_c);
-    st->bind(i++, std::string_view(utc_or_now(t.created_utc)));
+    st->bind(i++, std::string_view(self().utc_or_now(t.created_utc)));
     st->bind(i++, std::string_view(key->serial));
     st->bind(i++, std::string_view(key->axis));
-    if (Status s = expect_done(*st, db_, path_, fmt::format("{}: temperature fit", what)); !s) {
+    if (Status s = expect_done(*st, db(), path(), fmt::format("{}: temperature fit", what)); !s) {
       return s;
     }
   }
@@ -421,37 +334,37 @@ Result<std::vector<Record>> read_rows(sqlite3* db, const std::string& path, cons
 
 }  // namespace
 
-Result<std::vector<ScaleFactorPointRecord>> Database::scale_factor_points(int64_t run_id) {
-  return read_rows(db_, path_, "scale_factor_points", kPointColumns,
+Result<std::vector<ScaleFactorPointRecord>> ResultStore::scale_factor_points(int64_t run_id) {
+  return read_rows(db(), path(), "scale_factor_points", kPointColumns,
                    ", x.sf_sequence, x.repetition, x.rate_dps, x.id", &read_point, run_id,
                    "scale-factor points");
 }
 
-Result<std::vector<ScaleFactorFitRecord>> Database::scale_factor_fits(int64_t run_id) {
-  return read_rows(db_, path_, "scale_factor_fits", kFitColumns, ", x.sf_sequence", &read_fit,
+Result<std::vector<ScaleFactorFitRecord>> ResultStore::scale_factor_fits(int64_t run_id) {
+  return read_rows(db(), path(), "scale_factor_fits", kFitColumns, ", x.sf_sequence", &read_fit,
                    run_id, "scale-factor fits");
 }
 
-Result<std::vector<ScaleFactorTemperatureFitRecord>> Database::scale_factor_temperature_fits(
+Result<std::vector<ScaleFactorTemperatureFitRecord>> ResultStore::scale_factor_temperature_fits(
     int64_t run_id) {
-  return read_rows(db_, path_, "scale_factor_temperature_fits", kTemperatureFitColumns, "",
+  return read_rows(db(), path(), "scale_factor_temperature_fits", kTemperatureFitColumns, "",
                    &read_temperature_fit, run_id, "scale-factor temperature fits");
 }
 
-Result<std::optional<ScaleFactorTemperatureFitRecord>> Database::scale_factor_temperature_fit(
+Result<std::optional<ScaleFactorTemperatureFitRecord>> ResultStore::scale_factor_temperature_fit(
     int64_t run_id) {
   return scale_factor_temperature_fit(run_id, StreamKey{});
 }
 
-Result<std::optional<ScaleFactorTemperatureFitRecord>> Database::scale_factor_temperature_fit(
+Result<std::optional<ScaleFactorTemperatureFitRecord>> ResultStore::scale_factor_temperature_fit(
     int64_t run_id, const StreamKey& stream) {
   const std::string what =
       fmt::format("reading the scale-factor temperature fit of run {}", run_id);
-  auto key = internal::result_key(db_, path_, run_id, stream.dut_serial, stream.axis, what);
+  auto key = internal::result_key(db(), path(), run_id, stream.dut_serial, stream.axis, what);
   if (!key) return key.error();
   // The series' row; a row stored before v8 (axis '') when the axis is
   // the DUT's primary one.
-  auto st = Stmt::prepare(db_, path_,
+  auto st = Stmt::prepare(db(), path(),
                           fmt::format("SELECT {} FROM scale_factor_temperature_fits WHERE run_id "
                                       "= ? AND dut_serial = ? AND (axis = ? OR (? AND axis = '')) "
                                       "ORDER BY axis = '' LIMIT 1",
@@ -463,7 +376,7 @@ Result<std::optional<ScaleFactorTemperatureFitRecord>> Database::scale_factor_te
   st->bind(4, key->primary ? 1 : 0);
   const int rc = st->step();
   if (rc == SQLITE_DONE) return std::optional<ScaleFactorTemperatureFitRecord>();
-  if (rc != SQLITE_ROW) return sqlite_error(db_, path_, what);
+  if (rc != SQLITE_ROW) return sqlite_error(db(), path(), what);
   return std::optional<ScaleFactorTemperatureFitRecord>(read_temperature_fit(*st));
 }
 
