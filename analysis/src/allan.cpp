@@ -388,6 +388,107 @@ double allan_edf_white_fm(std::size_t n_rate_samples, std::size_t m) {
          (4.0 * md * md + 5.0);
 }
 
+double allan_edf(int alpha, std::size_t n_rate_samples, std::size_t m) {
+  const double n = static_cast<double>(n_rate_samples) + 1.0;  // phase points
+  const double md = static_cast<double>(m);
+  double edf = 0;
+  switch (std::clamp(alpha, -2, 2)) {
+    case 2:
+      edf = (n + 1.0) * (n - 2.0 * md) / (2.0 * (n - md));
+      break;
+    case 1:
+      edf = std::exp(std::sqrt(std::max(
+          0.0, std::log((n - 1.0) / (2.0 * md)) * std::log((2.0 * md + 1.0) * (n - 1.0) / 4.0))));
+      break;
+    case 0:
+      edf = allan_edf_white_fm(n_rate_samples, m);
+      break;
+    case -1:
+      edf = m == 1 ? 2.0 * (n - 2.0) * (n - 2.0) / (2.3 * n - 4.9)
+                   : 5.0 * n * n / (4.0 * md * (n + 3.0 * md));
+      break;
+    default:  // -2
+      edf = (n - 2.0) / md * ((n - 1.0) * (n - 1.0) - 3.0 * md * (n - 1.0) + 4.0 * md * md) /
+            ((n - 3.0) * (n - 3.0));
+      break;
+  }
+  return std::isfinite(edf) ? std::max(1.0, edf) : 1.0;
+}
+
+namespace {
+
+// identify_noise_lag1 on the block means `x` (any common offset: a straight
+// line is removed first).
+std::optional<NoiseIdentification> identify_block_means(std::vector<double> x) {
+  const std::size_t k = x.size();
+  if (k < kMinNoiseIdAverages) return std::nullopt;
+  const double kd = static_cast<double>(k);
+  const double i_mean = (kd - 1.0) / 2.0;
+  double x_mean = 0;
+  for (const double v : x) x_mean += v;
+  x_mean /= kd;
+  double sxy = 0, sxx = 0;
+  for (std::size_t b = 0; b < k; ++b) {
+    const double di = static_cast<double>(b) - i_mean;
+    sxy += di * (x[b] - x_mean);
+    sxx += di * di;
+  }
+  const double slope = sxy / sxx;
+  for (std::size_t b = 0; b < k; ++b) {
+    x[b] -= x_mean + slope * (static_cast<double>(b) - i_mean);
+  }
+  NoiseIdentification id;
+  id.averages = k;
+  constexpr int kMaxDifferences = 2;  // the Allan variance's own order
+  for (int d = 0;; ++d) {
+    double mean = 0;
+    for (const double v : x) mean += v;
+    mean /= static_cast<double>(x.size());
+    double num = 0, den = 0;
+    for (std::size_t i = 0; i < x.size(); ++i) {
+      const double c = x[i] - mean;
+      den += c * c;
+      if (i + 1 < x.size()) num += c * (x[i + 1] - mean);
+    }
+    if (!(den > 0)) return std::nullopt;  // constant: no noise to identify
+    const double r1 = num / den;
+    const double delta = r1 / (1.0 + r1);
+    if (delta < 0.25 || d >= kMaxDifferences) {
+      id.differences = d;
+      id.delta = delta;
+      id.alpha_estimate = -2.0 * (delta + d);
+      id.alpha = std::clamp(static_cast<int>(std::lround(id.alpha_estimate)), -2, 2);
+      return id;
+    }
+    for (std::size_t i = 0; i + 1 < x.size(); ++i) x[i] = x[i + 1] - x[i];
+    x.pop_back();
+  }
+}
+
+// The block means of m rates from their prefix sums c (c[i]: the sum of the
+// first i rates less a common offset): O(n / m).
+std::vector<double> block_means_from_prefix(const double* c, std::size_t n, std::size_t m) {
+  std::vector<double> x(n / m);
+  for (std::size_t b = 0; b < x.size(); ++b) {
+    x[b] = (c[(b + 1) * m] - c[b * m]) / static_cast<double>(m);
+  }
+  return x;
+}
+
+}  // namespace
+
+std::optional<NoiseIdentification> identify_noise_lag1(std::span<const double> rate,
+                                                       std::size_t m) {
+  if (m == 0 || rate.size() / m < kMinNoiseIdAverages) return std::nullopt;
+  std::vector<double> x(rate.size() / m);
+  for (std::size_t b = 0; b < x.size(); ++b) {
+    double sum = 0;
+    for (std::size_t i = 0; i < m; ++i) sum += rate[b * m + i];
+    x[b] = sum / static_cast<double>(m);
+  }
+  return identify_block_means(std::move(x));
+}
+
 std::string_view to_string(NoiseTermKind kind) {
   switch (kind) {
     case NoiseTermKind::kValue:
@@ -546,10 +647,17 @@ Result<AllanResult> allan_deviation(std::span<const double> t_s, std::span<const
   if (!(r.tau0_s > 0)) r.tau0_s = median_spacing(t_s);
   const std::vector<std::size_t> ms = allan_cluster_sizes(n, options.taus);
   const std::vector<double> var = allan_variances(prefix.data(), n, ms);
+  int alpha = 0;  // white rate noise until one is identified
   for (std::size_t j = 0; j < ms.size(); ++j) {
     const std::size_t m = ms[j];
     const double adev = std::sqrt(var[j]);
-    const double edf = allan_edf_white_fm(n, m);
+    if (n / m >= kMinNoiseIdAverages) {
+      if (auto id = identify_block_means(block_means_from_prefix(prefix.data(), n, m))) {
+        alpha = id->alpha;
+      }
+    }
+    const double edf = allan_edf(alpha, n, m);
+    r.noise_alpha.push_back(alpha);
     r.tau_s.push_back(static_cast<double>(m) * r.tau0_s);
     r.m.push_back(m);
     r.adev_dph.push_back(adev);
@@ -559,7 +667,12 @@ Result<AllanResult> allan_deviation(std::span<const double> t_s, std::span<const
     r.edf.push_back(edf);
   }
 
-  r.noise = allan_noise_terms(r.tau_s, r.adev_dph, r.edf);
+  // The lines are read with white noise's edf as weights, whatever the noise:
+  // a stored curve (which keeps no edf) gives the same terms.
+  std::vector<double> line_weights;
+  line_weights.reserve(ms.size());
+  for (const std::size_t m : ms) line_weights.push_back(allan_edf_white_fm(n, m));
+  r.noise = allan_noise_terms(r.tau_s, r.adev_dph, line_weights);
   r.angle_random_walk_dprh = r.noise.angle_random_walk_dprh.value_if_read();
   r.rate_random_walk_dphprh = r.noise.rate_random_walk_dphprh.value_if_read();
   r.bias_instability_dph = r.noise.bias_instability_dph.value_if_read();

@@ -6,9 +6,11 @@ tests/analysis/allan_test.cpp. Computed here with numpy, independently of the
 C++ code (which uses sliding long-double cluster sums): for each cluster size
 m, the cluster means are np.mean over sliding_window_view(y - y[0], m), the
 differences c[m:] - c[:-m], and avar = mean(diff**2) / 2. tau0 = np.median of
-the time differences. The edf (white FM, Howe/Allan/Barnes) and the noise
-terms read off the curve (the rules documented in allan.h) are recomputed here
-too. numpy has no chi-squared quantile, so the bounds are checked in C++ by
+the time differences. The noise type at each tau (the lag-1 autocorrelation
+method of Riley & Greenhall: block means by reshape, a straight line removed
+by np.polyfit, differenced while r1 / (1 + r1) >= 0.25, at most twice), the
+edf for it (the simple formulas of NIST SP 1065) and the noise terms read off
+the curve (the rules documented in allan.h) are recomputed here too. numpy has no chi-squared quantile, so the bounds are checked in C++ by
 property.
 
 Inputs are stored in the file ("sample" lines) or, for the 20 000-sample
@@ -72,6 +74,43 @@ def edf_white_fm(n_rate, m):
     return (3 * (n - 1) / (2 * m) - 2 * (n - 2) / n) * 4 * m * m / (4 * m * m + 5)
 
 
+def edf_for(alpha, n_rate, m):
+    n = n_rate + 1.0  # phase points
+    a = max(-2, min(2, alpha))
+    if a == 2:
+        e = (n + 1) * (n - 2 * m) / (2 * (n - m))
+    elif a == 1:
+        e = math.exp(math.sqrt(max(0.0, math.log((n - 1) / (2 * m)) *
+                                   math.log((2 * m + 1) * (n - 1) / 4))))
+    elif a == 0:
+        e = edf_white_fm(n_rate, m)
+    elif a == -1:
+        e = 2 * (n - 2) ** 2 / (2.3 * n - 4.9) if m == 1 else 5 * n * n / (4 * m * (n + 3 * m))
+    else:
+        e = (n - 2) / m * ((n - 1) ** 2 - 3 * m * (n - 1) + 4 * m * m) / (n - 3) ** 2
+    return max(1.0, e) if math.isfinite(e) else 1.0
+
+
+def noise_alpha(y, m):
+    """Lag-1 autocorrelation noise id of rate (frequency) data y at cluster size m; None
+    with fewer than 30 block means."""
+    k = len(y) // m
+    if k < 30:
+        return None
+    x = np.asarray(y[:k * m], dtype=float).reshape(k, m).mean(axis=1)
+    idx = np.arange(k, dtype=float)
+    x = x - np.polyval(np.polyfit(idx, x, 1), idx)
+    d = 0
+    while True:
+        c = x - x.mean()
+        r1 = float(np.dot(c[:-1], c[1:]) / np.dot(c, c))
+        delta = r1 / (1 + r1)
+        if delta < 0.25 or d >= 2:
+            return max(-2, min(2, int(round(-2 * (delta + d)))))
+        x = np.diff(x)
+        d += 1
+
+
 def fixed_slope_line(tau, sig, edf, slope):
     """C of log sigma = log C + slope log tau over taus with local slope within 0.25."""
     if len(tau) < 3 or np.any(sig <= 0):
@@ -113,17 +152,21 @@ def write_case(name, comment, tau_set, gen=None, stored=None):
     lines.append(f"expect_n {n}")
     lines.append(f"expect_tau0_s {fmt(tau0)}")
     ms = cluster_sizes(n, tau_set)
-    taus, sigs, edfs = [], [], []
+    taus, sigs, weights = [], [], []
+    alpha = 0  # white rate noise until one is identified
     for m in ms:
         s, terms = adev(y, m)
-        e = edf_white_fm(n, m)
+        a = noise_alpha(y, m)
+        if a is not None:
+            alpha = a
+        e = edf_for(alpha, n, m)
         taus.append(m * tau0)
         sigs.append(s)
-        edfs.append(e)
-        lines.append(f"expect_point {m} {fmt(m * tau0)} {fmt(s)} {terms} {fmt(e)}")
-    taus, sigs, edfs = np.array(taus), np.array(sigs), np.array(edfs)
-    arw = fixed_slope_line(taus, sigs, edfs, -0.5)
-    rrw = fixed_slope_line(taus, sigs, edfs, 0.5)
+        weights.append(edf_white_fm(n, m))  # the lines' weights, whatever the noise
+        lines.append(f"expect_point {m} {fmt(m * tau0)} {fmt(s)} {terms} {fmt(e)} {alpha}")
+    taus, sigs, weights = np.array(taus), np.array(sigs), np.array(weights)
+    arw = fixed_slope_line(taus, sigs, weights, -0.5)
+    rrw = fixed_slope_line(taus, sigs, weights, 0.5)
     lines.append(f"expect_arw_dprh {fmt(None if arw is None else arw / 60.0)}")
     lines.append(f"expect_rrw_dphprh {fmt(None if rrw is None else 60.0 * rrw * math.sqrt(3.0))}")
     i = int(np.argmin(sigs))

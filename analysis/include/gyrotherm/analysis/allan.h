@@ -18,13 +18,17 @@
 // threads (the result changes only by rounding).
 //
 // Confidence bounds: 1 sigma (68.3 %), chi-squared with the equivalent degrees
-// of freedom for white FM noise, overlapping estimator (see allan_edf_white_fm).
+// of freedom of the overlapping estimator for the noise identified at that
+// tau (identify_noise_lag1, allan_edf): white rate noise, flicker, rate random
+// walk and white or flicker angle noise each have their own edf, and a random
+// walk's is about half of white noise's at long tau.
 //
 // Noise terms read off the curve (IEEE Std 952 conventions), each a value, an
 // upper bound or unavailable (NoiseTerm):
 // - A line of fixed log-log slope s is fitted as log sigma = log C + s log tau,
 //   C = the weighted mean of (log sigma_i - s log tau_i), weights edf_i (the
-//   inverse variance of log sigma_i is ~2 edf_i), over the taus whose local
+//   inverse variance of log sigma_i is ~2 edf_i; white noise's edf whatever
+//   the noise identified, so a stored curve gives the same terms), over the taus whose local
 //   slope is within ±0.25 of s. The local slope of point i is the log-log
 //   slope between its neighbours i-1 and i+1 (one-sided at the two ends).
 // - Angle random walk: the slope -½ line read at tau = 1 s (extrapolated when
@@ -78,6 +82,40 @@ std::vector<std::size_t> allan_cluster_sizes(std::size_t n, TauSet set);
 // where N is the number of *phase* points; n rate samples integrate to
 // N = n + 1 phase (angle) points. Positive for every m with 2m <= n.
 double allan_edf_white_fm(std::size_t n_rate_samples, std::size_t m);
+
+// A power-law noise S(f) ~ f^alpha of the rate, identified at one cluster
+// size by the lag-1 autocorrelation method of Riley & Greenhall ("Power law
+// noise identification using the lag 1 autocorrelation", EFTF 2004; NIST
+// SP 1065 section 5.6): the rates are averaged in blocks of m and a straight
+// line is removed; while delta = r1 / (1 + r1) (r1: the lag-1
+// autocorrelation) is 0.25 or more and fewer than 2 differences were taken,
+// the series is differenced. Then p = -2 (delta + d) estimates alpha.
+// For a gyro's rate: alpha 0 white rate noise (angle random walk), -1
+// flicker (bias instability), -2 rate random walk; +1 and +2 flicker and
+// white angle noise (quantization).
+struct NoiseIdentification {
+  int alpha = 0;              // the estimate rounded, within [-2, 2]
+  double alpha_estimate = 0;  // p = -2 (delta + d)
+  int differences = 0;        // d
+  double delta = 0;           // r1 / (1 + r1) of the last series
+  std::size_t averages = 0;   // block means the identification used
+};
+// At least kMinNoiseIdAverages block means of m rates are needed; nullopt
+// with fewer, or for a constant series.
+inline constexpr std::size_t kMinNoiseIdAverages = 30;
+std::optional<NoiseIdentification> identify_noise_lag1(std::span<const double> rate, std::size_t m);
+
+// Equivalent degrees of freedom of the overlapping Allan variance of n rate
+// samples (N = n + 1 phase points) at cluster size m, for noise alpha
+// (clamped to [-2, 2]), by the simple formulas of NIST SP 1065 (Table 5,
+// after Howe, Allan & Barnes 1981):
+//   alpha  2: (N + 1)(N - 2m) / (2 (N - m))
+//   alpha  1: exp(sqrt(ln((N - 1) / (2m)) ln((2m + 1)(N - 1) / 4)))
+//   alpha  0: allan_edf_white_fm
+//   alpha -1: 2 (N - 2)^2 / (2.3 N - 4.9) for m = 1, else 5 N^2 / (4m (N + 3m))
+//   alpha -2: (N - 2) / m * ((N - 1)^2 - 3m (N - 1) + 4m^2) / (N - 3)^2
+// Never below 1 (a formula taken beyond its range).
+double allan_edf(int alpha, std::size_t n_rate_samples, std::size_t m);
 
 struct AllanOptions {
   TauSet taus = TauSet::kOctave;
@@ -141,7 +179,11 @@ struct AllanResult {
   std::vector<double> adev_lo_dph;   // adev * sqrt(edf / chi2_{0.8415}(edf))
   std::vector<double> adev_hi_dph;   // adev * sqrt(edf / chi2_{0.1585}(edf))
   std::vector<std::size_t> n_terms;  // N - 2m + 1 overlapping differences
-  std::vector<double> edf;           // allan_edf_white_fm(N, m)
+  std::vector<double> edf;           // allan_edf(noise_alpha, N, m)
+  // The noise identified at each tau (identify_noise_lag1); a tau with too
+  // few block means for it takes the last identified one (white rate noise
+  // when none was).
+  std::vector<int> noise_alpha;
 
   // Noise terms (see the top of this file): value, bound or unavailable.
   AllanNoiseTerms noise;
