@@ -903,6 +903,9 @@ struct AllanView {
   int64_t n_samples = 0;
   std::vector<double> tau_s, adev, lo, hi, edf;
   std::vector<int64_t> n_terms;
+  // The noise identified at each tau (AllanResult::noise_alpha); empty for a
+  // stored curve, whose edf is then white rate noise's.
+  std::vector<int> noise_alpha;
   analysis::AllanNoiseTerms noise;
   std::string bi_method;
   // The noise model fitted to the curve and the uncertainty it gives the
@@ -937,6 +940,7 @@ AllanView view_of(const analysis::AllanResult& a) {
               a.adev_hi_dph,
               a.edf,
               {},
+              a.noise_alpha,
               a.noise,
               a.bias_instability_method,
               {},
@@ -959,6 +963,7 @@ AllanView view_of(const storage::AllanRecord& a) {
               a.adev_hi_dph,
               {},
               {},
+              a.noise_alpha.size() == a.tau_s.size() ? a.noise_alpha : std::vector<int>{},
               analysis::allan_noise_terms(n, a.tau0_s, a.tau_s, a.adev_dph),
               a.bias_instability_method,
               {},
@@ -969,6 +974,8 @@ AllanView view_of(const storage::AllanRecord& a) {
     v.n_terms.push_back(2 * m <= n + 1 ? static_cast<int64_t>(n - 2 * m + 1) : 0);
     v.edf.push_back(analysis::allan_edf_white_fm(n, m));
   }
+  // Computed just now (not read back): the bounds' own edf.
+  if (a.edf.size() == a.tau_s.size()) v.edf = a.edf;
   add_noise_model(v);
   return v;
 }
@@ -1030,6 +1037,7 @@ json allan_json(const AllanView& v, std::string_view taus) {
           {"adev_hi_dph", arr(v.hi)},
           {"n_terms", v.n_terms},
           {"edf", arr(v.edf)},
+          {"noise_alpha", v.noise_alpha.empty() ? json(nullptr) : json(v.noise_alpha)},
           {"angle_random_walk_dprh", value(v.noise.angle_random_walk_dprh)},
           {"bias_instability_dph", value(bi)},
           {"bias_instability_tau_s", bi.is_value() && bi.tau_s ? num(*bi.tau_s) : json(nullptr)},
@@ -1084,9 +1092,10 @@ std::string allan_text(const std::string& title, const AllanView& v, std::string
     rows.push_back({general(v.tau_s[i]), sci(v.adev[i]), i < v.lo.size() ? sci(v.lo[i]) : kDash,
                     i < v.hi.size() ? sci(v.hi[i]) : kDash,
                     i < v.n_terms.size() ? std::to_string(v.n_terms[i]) : kDash,
-                    i < v.edf.size() ? general(v.edf[i]) : kDash});
+                    i < v.edf.size() ? general(v.edf[i]) : kDash,
+                    i < v.noise_alpha.size() ? fmt::format("{:+d}", v.noise_alpha[i]) : kDash});
   }
-  out += table({"τ s", "σ °/h", "σ lo °/h", "σ hi °/h", "terms", "edf"}, rows, 0, "  ");
+  out += table({"τ s", "σ °/h", "σ lo °/h", "σ hi °/h", "terms", "edf", "α"}, rows, 0, "  ");
   out += fmt::format("  angle random walk  {}\n",
                      noise_term_line(v.noise.angle_random_walk_dprh, "°/√h"));
   // A value's note is the method; a bound or a dash names it too.
@@ -1098,9 +1107,12 @@ std::string allan_text(const std::string& title, const AllanView& v, std::string
           : fmt::format(" [method: {}]", v.bi_method.empty() ? "minimum / 0.664" : v.bi_method));
   out += fmt::format("  rate random walk   {}\n",
                      noise_term_line(v.noise.rate_random_walk_dphprh, "°/h/√h"));
-  out +=
-      "  (bounds: 68.3 % chi-squared, white rate noise edf; \"< x\": the curve does not reach "
-      "the term's region, so the term is below x)\n";
+  out += v.noise_alpha.empty()
+             ? "  (bounds: as stored; edf: white rate noise's; \"< x\": the curve does not reach "
+               "the term's region, so the term is below x)\n"
+             : "  (bounds: 68.3 % chi-squared with the edf of the noise identified at each τ, "
+               "α: 0 white rate noise, -1 flicker, -2 rate random walk, +1/+2 angle noise; "
+               "\"< x\": the curve does not reach the term's region, so the term is below x)\n";
   if (v.model) {
     out += fmt::format("  noise model (95 %)  ARW {}, bias instability {}, RRW {}\n",
                        model_term_text(v.model->angle_random_walk_dprh, "°/√h"),

@@ -490,6 +490,7 @@ void expect_allan(const json& w, const analysis::AllanResult& a) {
     EXPECT_EQ(w["adev_hi_dph"][i].get<double>(), a.adev_hi_dph[i]);
     EXPECT_EQ(w["n_terms"][i].get<std::size_t>(), a.n_terms[i]);
     EXPECT_EQ(w["edf"][i].get<double>(), a.edf[i]);
+    EXPECT_EQ(w.at("noise_alpha").at(i).get<int>(), a.noise_alpha[i]);
   }
   expect_number(w, "tau0_s", a.tau0_s);
   EXPECT_EQ(w.at("n_samples").get<std::size_t>(), a.n_samples);

@@ -797,6 +797,8 @@ Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow&
   rec.tau_s = adev->tau_s;
   rec.adev_dph = adev->adev_dph;
   rec.adev_lo_dph = adev->adev_lo_dph;
+  rec.edf = adev->edf;
+  rec.noise_alpha = adev->noise_alpha;
   rec.adev_hi_dph = adev->adev_hi_dph;
   rec.angle_random_walk_dprh = adev->angle_random_walk_dprh;
   rec.bias_instability_dph = adev->bias_instability_dph;

@@ -95,8 +95,13 @@ struct AllanRecord {
   double tau0_s = 0;
   int64_t n_samples = 0;
   std::vector<double> tau_s, adev_dph, adev_lo_dph, adev_hi_dph;  // same length
-  std::optional<double> angle_random_walk_dprh;                   // °/√h
-  std::optional<double> bias_instability_dph;                     // minimum / 0.664
+  // Per tau, from the computation that made the record; not stored (empty
+  // when read back): the edf of the bounds and the noise identified
+  // (analysis::AllanResult::edf, noise_alpha).
+  std::vector<double> edf;
+  std::vector<int> noise_alpha;
+  std::optional<double> angle_random_walk_dprh;  // °/√h
+  std::optional<double> bias_instability_dph;    // minimum / 0.664
   std::optional<double> bias_instability_tau_s;
   std::optional<double> rate_random_walk_dphprh;  // °/h/√h
   std::string bias_instability_method = "minimum / 0.664";
