@@ -15,6 +15,7 @@
 #include <atomic>
 #include <chrono>
 #include <condition_variable>
+#include <cstdint>
 #include <functional>
 #include <memory>
 #include <mutex>
@@ -22,6 +23,7 @@
 #include <span>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/core/samples.h"
@@ -49,7 +51,41 @@ class DutReader {
   GyroReaderHealth health() const;
 
  private:
+  // One opened line and the stamping of its stream (dut_reader.cpp).
+  struct Line;
+
+  // The thread: opens the line, reads it until it hangs up, waits the
+  // backoff, and again, until stop().
   void run();
+  // The rate checked; false (the error in health().last_error) when the
+  // settings forbid reading.
+  bool check_config();
+  // Opens the port and starts a new stream on it (the protocol reset, a new
+  // sample clock, the paced clock's slot), noted in health; nullopt when the
+  // port cannot be opened (the error in health).
+  std::optional<Line> open_line(bool reopened, double tolerance_s);
+  // Reads, stamps and publishes frames until a read fails (a hang-up, noted
+  // in health) or stop(); true when any read brought bytes. `buf` and
+  // `frames` are the thread's buffers.
+  bool read_until_hangup(Line& line, std::span<uint8_t> buf, std::vector<DutFrame>& frames);
+  void note_read_error(const std::string& message);
+  // A read that brought nothing: held frames that waited hold_max go out as a
+  // jump; the clock is marked if the line is empty.
+  void on_quiet_read(Line& line);
+  // Stamps one read's frames (read at station time `now_s`); returns how
+  // many carry a NaN value.
+  uint64_t stamp_frames(Line& line, double now_s, std::vector<DutFrame>& frames);
+  // Sets the stamps of one read's frames against the clock: kept until the
+  // line is first emptied (paced), moved forward when it is emptied (paced),
+  // held while the line lags (scaled clock). Leaves in `frames` what goes out
+  // now.
+  void anchor_frames(Line& line, bool drained, double now_s, std::vector<DutFrame>& frames);
+  void release_as_jump(Line& line, double now_s, std::vector<DutFrame>& also);
+  void mark_if_empty(Line& line);
+  // Counts `frames` in health and hands them to the sink (its exception
+  // noted in health).
+  void publish(std::span<const DutFrame> frames);
+  void publish_held(Line& line);
   // Waits `wall` or until stop(); returns false when stopping.
   bool wait_unless_stopped(std::chrono::milliseconds wall);
 
