@@ -71,8 +71,8 @@ bool DutReader::wait_unless_stopped(std::chrono::milliseconds wall) {
 }
 
 // One opened line and the stamping of its stream; the reader thread's own.
-// It lives until the backoff after the line hung up has passed: the port and
-// the clock's slot are held through it.
+// It lives until the line hangs up; its clock slot is released before its
+// port is closed (the members' order).
 struct DutReader::Line {
   SerialPort port;
   const PacedClock* paced;  // the clock's paced side, or null
@@ -123,6 +123,13 @@ void DutReader::run() {
       backoff = kMinBackoff;  // the port delivers data: a later hang-up starts afresh
     }
     publish_held(*line);
+    // The line is gone: its slot on a simulator's clock goes with it, so the
+    // simulated station's time runs on through the outage as a real one's
+    // would (the backoff and the reopen are a gap in station time too).
+    // Held through the backoff, the slot stopped the clock for as long as
+    // the reader waited: how much of an outage the samples showed depended
+    // on wall-clock timing.
+    line.reset();
     if (stop_) break;
     if (!wait_unless_stopped(backoff)) break;
     backoff = std::min(backoff * 2, kMaxBackoff);

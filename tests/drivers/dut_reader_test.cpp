@@ -7,12 +7,15 @@
 #include <cmath>
 #include <cstdlib>
 #include <functional>
+#include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
 
 #include "gyrotherm/core/clock.h"
+#include "gyrotherm/core/paced_clock.h"
 #include "gyrotherm/drivers/ascii_line.h"
 #include "gyrotherm/drivers/dut_link.h"
 #include "gyrotherm/drivers/kvh1750.h"
@@ -346,6 +349,86 @@ TEST(DutReader, HangUpIsSurvivedAndTheMissingDeviceNamed) {
     return !h.connected && h.read_errors >= 1;
   }));
   (*second)->stop();
+}
+
+// A simulator's clock as the reader sees it: station time runs on its own
+// (ManualClock); the test reads when each consumer slot was let go.
+class RecordingPacedClock final : public PacedClock {
+ public:
+  double now_s() const override { return clock_.now_s(); }
+  double time_scale() const override { return 1.0; }
+  std::unique_ptr<ClockConsumer> consumer(std::string_view) const override {
+    std::lock_guard lock(mu_);
+    ++live_;
+    return std::make_unique<Slot>(*this);
+  }
+  bool wait_until(double t_s, std::chrono::nanoseconds) const override {
+    return clock_.now_s() >= t_s;
+  }
+  uint64_t epoch() const override { return 1; }
+
+  int live() const {
+    std::lock_guard lock(mu_);
+    return live_;
+  }
+  std::optional<std::chrono::steady_clock::time_point> last_released() const {
+    std::lock_guard lock(mu_);
+    return last_released_;
+  }
+
+ private:
+  struct Slot final : ClockConsumer {
+    explicit Slot(const RecordingPacedClock& c) : clock(c) {}
+    ~Slot() override {
+      std::lock_guard lock(clock.mu_);
+      --clock.live_;
+      clock.last_released_ = std::chrono::steady_clock::now();
+    }
+    void consumed(double) override {}
+    const RecordingPacedClock& clock;
+  };
+  ManualClock clock_{0.0};
+  mutable std::mutex mu_;
+  mutable int live_ = 0;
+  mutable std::optional<std::chrono::steady_clock::time_point> last_released_;
+};
+
+// A reader whose line hung up lets go of the simulator's clock at once, not
+// after its backoff (at least 100 ms before it tries the line again): the
+// simulated station's time runs on through an outage, as a real one's does,
+// so the outage is in the samples' times whatever the wall-clock timing.
+TEST(DutReader, AHungUpLineLetsGoOfTheSimulatorsClockBeforeItsBackoff) {
+  RecordingPacedClock clock;
+  Pty pty = open_pty();
+  DutLink link;
+  link.serial.device = pty.slave_path();
+  link.protocol = "ascii";
+  link.ascii.columns = {col("rate", ChannelKind::kRate, "deg/h", "z")};
+  auto source = make_dut_source(link, clock);
+  ASSERT_TRUE(source.ok());
+  Collector got;
+  (*source)->start(got.sink());
+  ASSERT_TRUE(wait_for([&] { return (*source)->health().connected && clock.live() == 1; }));
+  send(pty, "1\n2\n");
+  ASSERT_TRUE(wait_for([&] { return got.size() >= 1; }));
+
+  pty.close_master();
+  std::string hang_up_error;
+  ASSERT_TRUE(wait_for([&] {
+    const auto h = (*source)->health();
+    hang_up_error = h.last_error;
+    return !h.connected && h.read_errors >= 1;
+  }));
+  // The next error is the reopen's (the pty is gone): it comes after the
+  // backoff; the slot was let go before the backoff began.
+  ASSERT_TRUE(wait_for([&] { return (*source)->health().last_error != hang_up_error; }));
+  const auto reopen_seen = std::chrono::steady_clock::now();
+  const auto released = clock.last_released();
+  ASSERT_TRUE(released.has_value());
+  EXPECT_GE(reopen_seen - *released, 90ms)
+      << "the slot was held through the backoff; last error: " << (*source)->health().last_error;
+  EXPECT_EQ(clock.live(), 0);
+  (*source)->stop();
 }
 
 TEST(DutReader, BadLinksAreRefusedByName) {
