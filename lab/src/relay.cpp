@@ -239,8 +239,8 @@ RelayStatus Relay::status() const {
 
 // run()'s state and its steps. A round is open_station_db,
 // refresh_stats_when_due, connect, check and send_batch in order; each step
-// either lets the round go on (Next::step) or ends it: a failure or an idle
-// poll waited out (Next::round), or stop() (Next::stop).
+// either lets the round go on (Next::kStep) or ends it: a failure or an idle
+// poll waited out (Next::kRound), or stop() (Next::kStop).
 class Relay::Loop {
  public:
   explicit Loop(Relay& relay)
@@ -255,9 +255,9 @@ class Relay::Loop {
  private:
   // What a step leaves the loop to do.
   enum class Next {
-    step,   // the round's next step
-    round,  // the next round
-    stop,   // stopping
+    kStep,   // the round's next step
+    kRound,  // the next round
+    kStop,   // stopping
   };
 
   // The steps of a round.
@@ -323,13 +323,13 @@ void Relay::run() {
 
 bool Relay::Loop::round() {
   Next next = open_station_db();
-  if (next == Next::step) next = refresh_stats_when_due();
+  if (next == Next::kStep) next = refresh_stats_when_due();
   // Disabled: the outbox's figures only, every poll_s.
-  if (next == Next::step && disabled_) next = wait(options_.poll_s, true, false);
-  if (next == Next::step) next = connect();
-  if (next == Next::step) next = check();
-  if (next == Next::step) next = send_batch();
-  return next != Next::stop;
+  if (next == Next::kStep && disabled_) next = wait(options_.poll_s, true, false);
+  if (next == Next::kStep) next = connect();
+  if (next == Next::kStep) next = check();
+  if (next == Next::kStep) next = send_batch();
+  return next != Next::kStop;
 }
 
 // --- The steps of a round ---------------------------------------------------
@@ -337,23 +337,23 @@ bool Relay::Loop::round() {
 // The station's database, opened again after a local failure (fail() drops
 // it); the seq to read after is then taken from the outbox again.
 Relay::Loop::Next Relay::Loop::open_station_db() {
-  if (db_) return Next::step;
+  if (db_) return Next::kStep;
   auto d = storage::Database::open(options_.db_path);
   if (!d) return fail(d.error(), true);
   db_.emplace(std::move(*d));
   after_seq_ = -1;
-  return Next::step;
+  return Next::kStep;
 }
 
 Relay::Loop::Next Relay::Loop::refresh_stats_when_due() {
   if (after_seq_ < 0 || steady::now() >= stats_due_) return read_stats();
-  return Next::step;
+  return Next::kStep;
 }
 
 // A connection to the lab database when there is none (the first round, or
 // after fail() dropped it).
 Relay::Loop::Next Relay::Loop::connect() {
-  if (pg_) return Next::step;
+  if (pg_) return Next::kStep;
   if (announced_ != "refused") update([](RelayStatus& s) { s.state = "connecting"; });
   auto c = PgConnection::connect(options_.conninfo, options_.connect_timeout_s);
   if (!c) return fail(c.error(), false);
@@ -361,13 +361,13 @@ Relay::Loop::Next Relay::Loop::connect() {
   pg_->set_interrupt(relay_.interrupt_);
   update([&](RelayStatus& s) { s.server = pg_->server(); });
   checked_ = false;
-  return Next::step;
+  return Next::kStep;
 }
 
 // Each connection limited (statement_timeout, lock_timeout) and its station
 // id checked before anything is sent.
 Relay::Loop::Next Relay::Loop::check() {
-  if (checked_) return Next::step;
+  if (checked_) return Next::kStep;
   Status ready = pg_->limit(options_.statement_timeout_s, options_.lock_timeout_s);
   if (ready.ok()) ready = check_station(*pg_, options_.station_id);
   if (!ready.ok()) {
@@ -375,7 +375,7 @@ Relay::Loop::Next Relay::Loop::check() {
     return fail(ready.error(), false);
   }
   checked_ = true;
-  return Next::step;
+  return Next::kStep;
 }
 
 // The next batch of the outbox pushed to the lab in one transaction and,
@@ -412,7 +412,7 @@ Relay::Loop::Next Relay::Loop::send_batch() {
 // Nothing to send: the outbox's figures read again, the connection watched,
 // and a wait of poll_s (nudge() ends it early).
 Relay::Loop::Next Relay::Loop::idle() {
-  if (const Next next = read_stats(); next != Next::step) return next;
+  if (const Next next = read_stats(); next != Next::kStep) return next;
   // Idle: a server that shut down or restarted has said so on the
   // socket (read without a round trip), so the status and the events
   // follow an outage even when nothing is to be sent. A link that died
@@ -484,7 +484,7 @@ Relay::Loop::Next Relay::Loop::acknowledge(const Sent& sent, int64_t waiting) {
     s.pending_bytes = std::max<int64_t>(0, s.pending_bytes - sent.bytes);
   });
   succeeded(waiting);
-  return Next::round;
+  return Next::kRound;
 }
 
 // --- Shared by the steps ----------------------------------------------------
@@ -521,12 +521,12 @@ bool Relay::Loop::refresh_stats() {
 
 // refresh_stats, or the backoff of its failure.
 Relay::Loop::Next Relay::Loop::read_stats() {
-  if (refresh_stats()) return Next::step;
+  if (refresh_stats()) return Next::kStep;
   return fail(Error::Transient("reading the outbox's figures failed"), true);
 }
 
 // Waits `wait_s` wall seconds, or less when stop() (or, `nudgeable`, nudge())
-// is called; Next::stop when stopping, else Next::round. Meanwhile
+// is called; Next::kStop when stopping, else Next::kRound. Meanwhile
 // retry_in_s counts down and the outbox's figures stay current (a lab down
 // for hours is when the pending count matters).
 Relay::Loop::Next Relay::Loop::wait(double wait_s, bool nudgeable, bool backoff) {
@@ -549,7 +549,7 @@ Relay::Loop::Next Relay::Loop::wait(double wait_s, bool nudgeable, bool backoff)
       if (done()) {
         r.nudged_ = false;
         r.status_.retry_in_s.reset();
-        return r.stop_requested_ ? Next::stop : Next::round;
+        return r.stop_requested_ ? Next::kStop : Next::kRound;
       }
     }
     if (db_ && steady::now() >= stats_due_) refresh_stats();
@@ -563,7 +563,7 @@ Relay::Loop::Next Relay::Loop::fail(const Error& e, bool local) {
   // anything else has nothing to tell.
   if (relay_.interrupt_->triggered()) {
     if (!in_flight_.empty()) report_interrupted_batch(e);
-    return Next::stop;
+    return Next::kStop;
   }
   const bool refused = !e.transient && !local;
   const std::string state = refused ? "refused" : disabled_ ? "disabled" : "backoff";
