@@ -37,6 +37,7 @@
 #include <regex>
 #include <string_view>
 #include <utility>
+#include <vector>
 
 #include "gyrotherm/lab/central.h"
 #include "gyrotherm/lab/pg.h"
@@ -236,310 +237,417 @@ RelayStatus Relay::status() const {
   return status_;
 }
 
-void Relay::run() {
-  const RelayOptions& o = options_;
-  const bool disabled = o.conninfo.empty();
-  std::optional<storage::Database> db;
-  std::optional<PgConnection> pg;
-  int64_t after_seq = -1;  // the last seq acknowledged (-1: read it from the outbox first)
-  double delay_s = o.retry_min_s;
+// run()'s state and its steps. A round is open_station_db,
+// refresh_stats_when_due, connect, check and send_batch in order; each step
+// either lets the round go on (Next::kStep) or ends it: a failure or an idle
+// poll waited out (Next::kRound), or stop() (Next::kStop).
+class Relay::Loop {
+ public:
+  explicit Loop(Relay& relay)
+      : relay_(relay),
+        options_(relay.options_),
+        disabled_(options_.conninfo.empty()),
+        delay_s_(options_.retry_min_s) {}
+
+  // One round; false when stopping.
+  bool round();
+
+ private:
+  // What a step leaves the loop to do.
+  enum class Next {
+    kStep,   // the round's next step
+    kRound,  // the next round
+    kStop,   // stopping
+  };
+
+  // The steps of a round.
+  Next open_station_db();
+  Next refresh_stats_when_due();
+  Next connect();
+  Next check();
+  Next send_batch();
+  // send_batch's parts.
+  Next idle();
+  void note_stale(const std::vector<storage::OutboxRecord>& batch, int64_t stale);
+  // What acknowledge needs of a committed batch once its records are freed.
+  struct Sent {
+    int64_t last_seq = 0;
+    int64_t count = 0;  // records
+    int64_t bytes = 0;  // their payloads
+  };
+  Sent record_sent(const std::vector<storage::OutboxRecord>& batch, const PushResult& pushed);
+  Next acknowledge(const Sent& sent, int64_t waiting);
+  // Shared by the steps.
+  template <typename Fn>
+  void update(Fn&& fn);
+  void event(const std::string& message);
+  bool refresh_stats();
+  Next read_stats();
+  Next wait(double wait_s, bool nudgeable, bool backoff);
+  Next fail(const Error& e, bool local);
+  void report_interrupted_batch(const Error& e);
+  void announce_failure(const Error& e, bool local, bool refused);
+  void succeeded(int64_t waiting);
+
+  Relay& relay_;
+  const RelayOptions& options_;
+  const bool disabled_;
+  std::optional<storage::Database> db_;
+  std::optional<PgConnection> pg_;
+  int64_t after_seq_ = -1;  // the last seq acknowledged (-1: read it from the outbox first)
+  double delay_s_;
   // What the events last said: "" (nothing yet), "connected", "backoff",
   // "refused"; and since when (steady) the relay has not been sending.
-  std::string announced;
-  std::optional<steady::time_point> outage_since;
-  steady::time_point stats_due{};
-  bool checked = false;             // this connection is limited and its station id registered
-  bool stale_said = false;          // the stale records of this run of batches have an event
-  bool refused_at_connect = false;  // the last refusal was the check's, not a batch's
-  std::string in_flight;            // "a batch of N records (outbox seq A to B)" while pushed
+  std::string announced_;
+  std::optional<steady::time_point> outage_since_;
+  steady::time_point stats_due_{};
+  bool checked_ = false;             // this connection is limited and its station id registered
+  bool stale_said_ = false;          // the stale records of this run of batches have an event
+  bool refused_at_connect_ = false;  // the last refusal was the check's, not a batch's
+  std::string in_flight_;            // "a batch of N records (outbox seq A to B)" while pushed
+};
 
-  const auto update = [&](auto&& fn) {
-    std::lock_guard lock(mutex_);
-    fn(status_);
-  };
-  const auto event = [&](const std::string& message) {
-    if (o.on_event) o.on_event(message);
-  };
-  // The outbox's figures (pending, bytes, oldest age), read again at most
-  // once a wall second, and less often when reading them takes long (a
-  // large outbox, e.g. a station that queues without relaying): the reads
-  // take at most 2 % of the time.
-  const auto refresh_stats = [&] {
-    const auto started = steady::now();
-    auto stats = db->outbox_stats();
-    stats_due = steady::now() + std::max<steady::duration>(1s, 50 * (steady::now() - started));
-    if (!stats) return false;
-    if (after_seq < 0) after_seq = stats->last_acked_seq;
-    const double now = unix_now_s();
-    update([&](RelayStatus& s) {
-      s.pending = stats->pending;
-      s.pending_bytes = stats->pending_bytes;
-      s.oldest_pending_age_s.reset();
-      if (stats->oldest_unix_s) s.oldest_pending_age_s = std::max(0.0, now - *stats->oldest_unix_s);
-    });
-    return true;
-  };
-  // Waits `s` wall seconds, or less when stop() (or, `nudgeable`, nudge())
-  // is called; false when stopping. Meanwhile retry_in_s counts down and
-  // the outbox's figures stay current (a lab down for hours is when the
-  // pending count matters).
-  const auto wait = [&](double s, bool nudgeable, bool backoff) {
-    const auto until = steady::now() + seconds(s);
-    for (;;) {
-      {
-        std::unique_lock lock(mutex_);
-        const auto done = [&] {
-          return stop_requested_ || (nudgeable && nudged_) || steady::now() >= until;
-        };
-        if (!done()) {
-          if (backoff) {
-            status_.retry_in_s = std::chrono::duration<double>(until - steady::now()).count();
-          }
-          const auto now = steady::now();
-          wake_.wait_until(lock, std::min(until, db ? std::max(stats_due, now + 10ms) : now + 1s));
-        }
-        if (done()) {
-          nudged_ = false;
-          status_.retry_in_s.reset();
-          return !stop_requested_;
-        }
-      }
-      if (db && steady::now() >= stats_due) refresh_stats();
-    }
-  };
-  // A failed attempt: backoff (transient: retry_min_s doubling up to
-  // retry_max_s) or refused (permanent: retry_max_s), one event per change.
-  const auto fail = [&](const Error& e, bool local) {
-    // Stopping: the call was interrupted. A batch says what became of it;
-    // anything else has nothing to tell.
-    if (interrupt_->triggered()) {
-      if (!in_flight.empty()) {
-        const bool cancelled = pg && pg->last_sqlstate() == "57014";
-        const std::string message = fmt::format(
-            "lab: relay stopped during {}: {}; {}", in_flight, clause(e.message),
-            cancelled ? "the lab rolled it back, it is sent again at the next start"
-                      : "the lab commits it or rolls it back, and the station sends it again at "
-                        "the next start either way (counted redelivered if it was committed)");
-        event(message);
-        update([&](RelayStatus& s) { s.last_error = message.substr(5); });
-      }
-      return false;
-    }
-    const bool refused = !e.transient && !local;
-    const std::string state = refused ? "refused" : disabled ? "disabled" : "backoff";
-    const double wait_s = refused ? o.retry_max_s : delay_s;
-    if (!refused) delay_s = std::min(o.retry_max_s, delay_s * 2);
-    if (!outage_since) outage_since = steady::now();
-    // The event before the status that follows from it (as on success): a
-    // reader who sees the new state or count finds its event already said.
-    if (announced != state) {
-      const std::string retrying = fmt::format("retrying {} to {} apart", describe_s(o.retry_min_s),
-                                               describe_s(o.retry_max_s));
-      if (refused) {
-        event(
-            fmt::format("lab: the lab database refused station {}'s records: {}; retried every {}",
-                        o.station_id, clause(e.message), describe_s(o.retry_max_s)));
-      } else if (local) {
-        event(fmt::format("lab: relay stalled on the station database: {}; {}", clause(e.message),
-                          retrying));
-      } else if (pg && pg->ok()) {
-        // The server answered and is still there: a lock or statement
-        // timeout, a conflict.
-        event(fmt::format("lab: the lab database did not take {}: {}; {}",
-                          in_flight.empty() ? "the relay's request" : in_flight, clause(e.message),
-                          retrying));
-      } else if (announced == "connected") {
-        event(fmt::format("lab: connection to the lab database lost: {}; {}", clause(e.message),
-                          retrying));
-      } else {
-        event(
-            fmt::format("lab: cannot reach the lab database: {}; {}", clause(e.message), retrying));
-      }
-      announced = state;
-    }
-    update([&](RelayStatus& s) {
-      ++s.errors_total;
-      s.last_error = e.message;
-      s.state = state;
-      s.retry_in_s = wait_s;
-    });
-    // A lost connection is reopened; a refusal's is kept when still usable
-    // (and checked again at the next attempt).
-    if (pg && (!refused || !pg->ok())) pg.reset();
-    checked = false;
-    if (local) db.reset();
-    return wait(wait_s, false, true);
-  };
-  // A round that reached the lab (a batch committed, or nothing to send).
-  // `waiting`: the records pending when the round began.
-  const auto succeeded = [&](int64_t waiting) {
-    delay_s = o.retry_min_s;
-    if (announced != "connected") {
-      const std::string server = pg ? pg->server() : server_of(o.conninfo);
-      if (outage_since) {
-        event(fmt::format(
-            "lab: relaying to {} again after {}; {} waiting", server,
-            describe_s(std::chrono::duration<double>(steady::now() - *outage_since).count()),
-            records(waiting)));
-      } else {
-        event(fmt::format("lab: connected to {} (station {}); {} to send", server, o.station_id,
-                          records(waiting)));
-      }
-      announced = "connected";
-    }
-    outage_since.reset();
-    update([&](RelayStatus& s) {
-      s.state = "connected";
-      s.last_error.clear();
-      s.retry_in_s.reset();
-    });
-  };
-
+void Relay::run() {
+  Loop loop(*this);
   for (;;) {
     {
       std::lock_guard lock(mutex_);
       if (stop_requested_) break;
     }
-    if (!db) {
-      auto d = storage::Database::open(o.db_path);
-      if (!d) {
-        if (!fail(d.error(), true)) break;
-        continue;
-      }
-      db.emplace(std::move(*d));
-      after_seq = -1;
-    }
-    if (after_seq < 0 || steady::now() >= stats_due) {
-      if (!refresh_stats()) {
-        if (!fail(Error::Transient("reading the outbox's figures failed"), true)) break;
-        continue;
-      }
-    }
-    if (disabled) {
-      if (!wait(o.poll_s, true, false)) break;
-      continue;
-    }
-    if (!pg) {
-      if (announced != "refused") update([](RelayStatus& s) { s.state = "connecting"; });
-      auto c = PgConnection::connect(o.conninfo, o.connect_timeout_s);
-      if (!c) {
-        if (!fail(c.error(), false)) break;
-        continue;
-      }
-      pg.emplace(std::move(*c));
-      pg->set_interrupt(interrupt_);
-      update([&](RelayStatus& s) { s.server = pg->server(); });
-      checked = false;
-    }
-    if (!checked) {
-      Status ready = pg->limit(o.statement_timeout_s, o.lock_timeout_s);
-      if (ready.ok()) ready = check_station(*pg, o.station_id);
-      if (!ready.ok()) {
-        refused_at_connect = true;
-        if (!fail(ready.error(), false)) break;
-        continue;
-      }
-      checked = true;
-    }
-    auto batch = db->outbox_batch(after_seq, o.batch_records, o.batch_bytes);
-    if (!batch) {
-      if (!fail(batch.error(), true)) break;
-      continue;
-    }
-    if (batch->empty()) {
-      if (!refresh_stats()) {
-        if (!fail(Error::Transient("reading the outbox's figures failed"), true)) break;
-        continue;
-      }
-      // Idle: a server that shut down or restarted has said so on the
-      // socket (read without a round trip), so the status and the events
-      // follow an outage even when nothing is to be sent. A link that died
-      // silently shows at the next batch (or the keepalives). A batch's
-      // refusal stays a refusal until a batch goes through; the check's
-      // ends when the check passes.
-      if (PQconsumeInput(pg->handle()) == 0 || !pg->ok()) {
-        if (!fail(
-                Error::Transient(fmt::format("lab database {}: connection lost while idle: {}",
-                                             pg->server(), one_line(PQerrorMessage(pg->handle())))),
-                false)) {
-          break;
-        }
-        continue;
-      }
-      if (announced != "refused" || refused_at_connect) succeeded(0);
-      if (!wait(o.poll_s, true, false)) break;
-      continue;
-    }
-    const double oldest_unix_s = batch->front().committed_unix_s;
-    int64_t waiting = 0;
-    update([&](RelayStatus& s) {
-      s.oldest_pending_age_s = std::max(0.0, unix_now_s() - oldest_unix_s);
-      s.pending = std::max<int64_t>(s.pending, static_cast<int64_t>(batch->size()));
-      waiting = s.pending;
-    });
-    in_flight = fmt::format("a batch of {} (outbox seq {} to {})",
-                            records(static_cast<int64_t>(batch->size())), batch->front().seq,
-                            batch->back().seq);
-    auto pushed = push_batch(*pg, o.station_id, *batch);
-    if (!pushed) {
-      refused_at_connect = false;
-      if (!fail(pushed.error(), false)) break;
-      in_flight.clear();
-      continue;
-    }
-    in_flight.clear();
-    // The lab kept newer versions of some records: said once per run of
-    // such batches, counted always.
-    if (pushed->stale > 0) {
-      if (!stale_said) {
-        event(fmt::format(
-            "lab: the lab database holds newer versions of {} of the batch of {} (outbox seq {} "
-            "to {}) and kept its own: the station's versions of them are not in the lab. The "
-            "station's database was re-created or restored from a backup (its outbox numbers "
-            "started again); see docs/lab.md \"Records the lab ignores as stale\"",
-            records(pushed->stale), records(static_cast<int64_t>(batch->size())),
-            batch->front().seq, batch->back().seq));
-        stale_said = true;
-      }
-      update([&](RelayStatus& s) { s.stale_total += static_cast<uint64_t>(pushed->stale); });
-    } else {
-      stale_said = false;
-    }
-    // Committed centrally: the lag is measured now, then acknowledged.
-    const double now_unix = unix_now_s();
-    double newest_unix_s = oldest_unix_s;
-    int64_t bytes = 0;
-    for (const auto& r : *batch) {
-      newest_unix_s = std::max(newest_unix_s, r.committed_unix_s);
-      bytes += static_cast<int64_t>(r.payload_json.size());
-    }
-    const double lag_s = std::max(0.0, now_unix - newest_unix_s);
-    const int64_t last_seq = batch->back().seq;
-    const auto count = static_cast<int64_t>(batch->size());
-    update([&](RelayStatus& s) {
-      ++s.batches_total;
-      s.sent_total += static_cast<uint64_t>(count);
-      s.redelivered_total += static_cast<uint64_t>(pushed->redelivered);
-      s.last_lag_s = lag_s;
-      s.max_lag_s = std::max(lag_s, s.max_lag_s.value_or(0.0));
-      s.last_sent_utc = utc_iso(now_unix);
-    });
-    batch->clear();
-    batch->shrink_to_fit();
-    if (auto acked = db->outbox_ack(last_seq); !acked) {
-      // The lab has the batch; it is sent again (counted redelivered).
-      if (!fail(acked.error(), true)) break;
-      continue;
-    }
-    after_seq = last_seq;
-    update([&](RelayStatus& s) {
-      s.pending = std::max<int64_t>(0, s.pending - count);
-      s.pending_bytes = std::max<int64_t>(0, s.pending_bytes - bytes);
-    });
-    succeeded(waiting);
+    if (!loop.round()) break;
   }
-  update([](RelayStatus& s) {
-    s.state = "stopped";
+  std::lock_guard lock(mutex_);
+  status_.state = "stopped";
+  status_.retry_in_s.reset();
+}
+
+bool Relay::Loop::round() {
+  Next next = open_station_db();
+  if (next == Next::kStep) next = refresh_stats_when_due();
+  // Disabled: the outbox's figures only, every poll_s.
+  if (next == Next::kStep && disabled_) next = wait(options_.poll_s, true, false);
+  if (next == Next::kStep) next = connect();
+  if (next == Next::kStep) next = check();
+  if (next == Next::kStep) next = send_batch();
+  return next != Next::kStop;
+}
+
+// --- The steps of a round ---------------------------------------------------
+
+// The station's database, opened again after a local failure (fail() drops
+// it); the seq to read after is then taken from the outbox again.
+Relay::Loop::Next Relay::Loop::open_station_db() {
+  if (db_) return Next::kStep;
+  auto d = storage::Database::open(options_.db_path);
+  if (!d) return fail(d.error(), true);
+  db_.emplace(std::move(*d));
+  after_seq_ = -1;
+  return Next::kStep;
+}
+
+Relay::Loop::Next Relay::Loop::refresh_stats_when_due() {
+  if (after_seq_ < 0 || steady::now() >= stats_due_) return read_stats();
+  return Next::kStep;
+}
+
+// A connection to the lab database when there is none (the first round, or
+// after fail() dropped it).
+Relay::Loop::Next Relay::Loop::connect() {
+  if (pg_) return Next::kStep;
+  if (announced_ != "refused") update([](RelayStatus& s) { s.state = "connecting"; });
+  auto c = PgConnection::connect(options_.conninfo, options_.connect_timeout_s);
+  if (!c) return fail(c.error(), false);
+  pg_.emplace(std::move(*c));
+  pg_->set_interrupt(relay_.interrupt_);
+  update([&](RelayStatus& s) { s.server = pg_->server(); });
+  checked_ = false;
+  return Next::kStep;
+}
+
+// Each connection limited (statement_timeout, lock_timeout) and its station
+// id checked before anything is sent.
+Relay::Loop::Next Relay::Loop::check() {
+  if (checked_) return Next::kStep;
+  Status ready = pg_->limit(options_.statement_timeout_s, options_.lock_timeout_s);
+  if (ready.ok()) ready = check_station(*pg_, options_.station_id);
+  if (!ready.ok()) {
+    refused_at_connect_ = true;
+    return fail(ready.error(), false);
+  }
+  checked_ = true;
+  return Next::kStep;
+}
+
+// The next batch of the outbox pushed to the lab in one transaction and,
+// once committed there, acknowledged locally; no batch: idle.
+Relay::Loop::Next Relay::Loop::send_batch() {
+  auto batch = db_->outbox_batch(after_seq_, options_.batch_records, options_.batch_bytes);
+  if (!batch) return fail(batch.error(), true);
+  if (batch->empty()) return idle();
+  const double oldest_unix_s = batch->front().committed_unix_s;
+  int64_t waiting = 0;
+  update([&](RelayStatus& s) {
+    s.oldest_pending_age_s = std::max(0.0, unix_now_s() - oldest_unix_s);
+    s.pending = std::max<int64_t>(s.pending, static_cast<int64_t>(batch->size()));
+    waiting = s.pending;
+  });
+  in_flight_ = fmt::format("a batch of {} (outbox seq {} to {})",
+                           records(static_cast<int64_t>(batch->size())), batch->front().seq,
+                           batch->back().seq);
+  auto pushed = push_batch(*pg_, options_.station_id, *batch);
+  if (!pushed) {
+    refused_at_connect_ = false;
+    const Next next = fail(pushed.error(), false);
+    in_flight_.clear();
+    return next;
+  }
+  in_flight_.clear();
+  note_stale(*batch, pushed->stale);
+  const Sent sent = record_sent(*batch, *pushed);
+  batch->clear();
+  batch->shrink_to_fit();
+  return acknowledge(sent, waiting);
+}
+
+// Nothing to send: the outbox's figures read again, the connection watched,
+// and a wait of poll_s (nudge() ends it early).
+Relay::Loop::Next Relay::Loop::idle() {
+  if (const Next next = read_stats(); next != Next::kStep) return next;
+  // Idle: a server that shut down or restarted has said so on the
+  // socket (read without a round trip), so the status and the events
+  // follow an outage even when nothing is to be sent. A link that died
+  // silently shows at the next batch (or the keepalives). A batch's
+  // refusal stays a refusal until a batch goes through; the check's
+  // ends when the check passes.
+  if (PQconsumeInput(pg_->handle()) == 0 || !pg_->ok()) {
+    return fail(
+        Error::Transient(fmt::format("lab database {}: connection lost while idle: {}",
+                                     pg_->server(), one_line(PQerrorMessage(pg_->handle())))),
+        false);
+  }
+  if (announced_ != "refused" || refused_at_connect_) succeeded(0);
+  return wait(options_.poll_s, true, false);
+}
+
+// The lab kept newer versions of some records: said once per run of
+// such batches, counted always.
+void Relay::Loop::note_stale(const std::vector<storage::OutboxRecord>& batch, int64_t stale) {
+  if (stale > 0) {
+    if (!stale_said_) {
+      event(fmt::format(
+          "lab: the lab database holds newer versions of {} of the batch of {} (outbox seq {} "
+          "to {}) and kept its own: the station's versions of them are not in the lab. The "
+          "station's database was re-created or restored from a backup (its outbox numbers "
+          "started again); see docs/lab.md \"Records the lab ignores as stale\"",
+          records(stale), records(static_cast<int64_t>(batch.size())), batch.front().seq,
+          batch.back().seq));
+      stale_said_ = true;
+    }
+    update([&](RelayStatus& s) { s.stale_total += static_cast<uint64_t>(stale); });
+  } else {
+    stale_said_ = false;
+  }
+}
+
+// Committed centrally: the lag is measured now, then acknowledged.
+Relay::Loop::Sent Relay::Loop::record_sent(const std::vector<storage::OutboxRecord>& batch,
+                                           const PushResult& pushed) {
+  const double now_unix = unix_now_s();
+  double newest_unix_s = batch.front().committed_unix_s;
+  int64_t bytes = 0;
+  for (const auto& r : batch) {
+    newest_unix_s = std::max(newest_unix_s, r.committed_unix_s);
+    bytes += static_cast<int64_t>(r.payload_json.size());
+  }
+  const double lag_s = std::max(0.0, now_unix - newest_unix_s);
+  const Sent sent{batch.back().seq, static_cast<int64_t>(batch.size()), bytes};
+  update([&](RelayStatus& s) {
+    ++s.batches_total;
+    s.sent_total += static_cast<uint64_t>(sent.count);
+    s.redelivered_total += static_cast<uint64_t>(pushed.redelivered);
+    s.last_lag_s = lag_s;
+    s.max_lag_s = std::max(lag_s, s.max_lag_s.value_or(0.0));
+    s.last_sent_utc = utc_iso(now_unix);
+  });
+  return sent;
+}
+
+// `waiting`: the records pending when the round began.
+Relay::Loop::Next Relay::Loop::acknowledge(const Sent& sent, int64_t waiting) {
+  if (auto acked = db_->outbox_ack(sent.last_seq); !acked) {
+    // The lab has the batch; it is sent again (counted redelivered).
+    return fail(acked.error(), true);
+  }
+  after_seq_ = sent.last_seq;
+  update([&](RelayStatus& s) {
+    s.pending = std::max<int64_t>(0, s.pending - sent.count);
+    s.pending_bytes = std::max<int64_t>(0, s.pending_bytes - sent.bytes);
+  });
+  succeeded(waiting);
+  return Next::kRound;
+}
+
+// --- Shared by the steps ----------------------------------------------------
+
+template <typename Fn>
+void Relay::Loop::update(Fn&& fn) {
+  std::lock_guard lock(relay_.mutex_);
+  fn(relay_.status_);
+}
+
+void Relay::Loop::event(const std::string& message) {
+  if (options_.on_event) options_.on_event(message);
+}
+
+// The outbox's figures (pending, bytes, oldest age), read again at most
+// once a wall second, and less often when reading them takes long (a
+// large outbox, e.g. a station that queues without relaying): the reads
+// take at most 2 % of the time.
+bool Relay::Loop::refresh_stats() {
+  const auto started = steady::now();
+  auto stats = db_->outbox_stats();
+  stats_due_ = steady::now() + std::max<steady::duration>(1s, 50 * (steady::now() - started));
+  if (!stats) return false;
+  if (after_seq_ < 0) after_seq_ = stats->last_acked_seq;
+  const double now = unix_now_s();
+  update([&](RelayStatus& s) {
+    s.pending = stats->pending;
+    s.pending_bytes = stats->pending_bytes;
+    s.oldest_pending_age_s.reset();
+    if (stats->oldest_unix_s) s.oldest_pending_age_s = std::max(0.0, now - *stats->oldest_unix_s);
+  });
+  return true;
+}
+
+// refresh_stats, or the backoff of its failure.
+Relay::Loop::Next Relay::Loop::read_stats() {
+  if (refresh_stats()) return Next::kStep;
+  return fail(Error::Transient("reading the outbox's figures failed"), true);
+}
+
+// Waits `wait_s` wall seconds, or less when stop() (or, `nudgeable`, nudge())
+// is called; Next::kStop when stopping, else Next::kRound. Meanwhile
+// retry_in_s counts down and the outbox's figures stay current (a lab down
+// for hours is when the pending count matters).
+Relay::Loop::Next Relay::Loop::wait(double wait_s, bool nudgeable, bool backoff) {
+  Relay& r = relay_;
+  const auto until = steady::now() + seconds(wait_s);
+  for (;;) {
+    {
+      std::unique_lock lock(r.mutex_);
+      const auto done = [&] {
+        return r.stop_requested_ || (nudgeable && r.nudged_) || steady::now() >= until;
+      };
+      if (!done()) {
+        if (backoff) {
+          r.status_.retry_in_s = std::chrono::duration<double>(until - steady::now()).count();
+        }
+        const auto now = steady::now();
+        r.wake_.wait_until(lock,
+                           std::min(until, db_ ? std::max(stats_due_, now + 10ms) : now + 1s));
+      }
+      if (done()) {
+        r.nudged_ = false;
+        r.status_.retry_in_s.reset();
+        return r.stop_requested_ ? Next::kStop : Next::kRound;
+      }
+    }
+    if (db_ && steady::now() >= stats_due_) refresh_stats();
+  }
+}
+
+// A failed attempt: backoff (transient: retry_min_s doubling up to
+// retry_max_s) or refused (permanent: retry_max_s), one event per change.
+Relay::Loop::Next Relay::Loop::fail(const Error& e, bool local) {
+  // Stopping: the call was interrupted. A batch says what became of it;
+  // anything else has nothing to tell.
+  if (relay_.interrupt_->triggered()) {
+    if (!in_flight_.empty()) report_interrupted_batch(e);
+    return Next::kStop;
+  }
+  const bool refused = !e.transient && !local;
+  const std::string state = refused ? "refused" : disabled_ ? "disabled" : "backoff";
+  const double wait_s = refused ? options_.retry_max_s : delay_s_;
+  if (!refused) delay_s_ = std::min(options_.retry_max_s, delay_s_ * 2);
+  if (!outage_since_) outage_since_ = steady::now();
+  // The event before the status that follows from it (as on success): a
+  // reader who sees the new state or count finds its event already said.
+  if (announced_ != state) {
+    announce_failure(e, local, refused);
+    announced_ = state;
+  }
+  update([&](RelayStatus& s) {
+    ++s.errors_total;
+    s.last_error = e.message;
+    s.state = state;
+    s.retry_in_s = wait_s;
+  });
+  // A lost connection is reopened; a refusal's is kept when still usable
+  // (and checked again at the next attempt).
+  if (pg_ && (!refused || !pg_->ok())) pg_.reset();
+  checked_ = false;
+  if (local) db_.reset();
+  return wait(wait_s, false, true);
+}
+
+// stop() interrupted the batch in flight: what became of it.
+void Relay::Loop::report_interrupted_batch(const Error& e) {
+  const bool cancelled = pg_ && pg_->last_sqlstate() == "57014";
+  const std::string message = fmt::format(
+      "lab: relay stopped during {}: {}; {}", in_flight_, clause(e.message),
+      cancelled ? "the lab rolled it back, it is sent again at the next start"
+                : "the lab commits it or rolls it back, and the station sends it again at "
+                  "the next start either way (counted redelivered if it was committed)");
+  event(message);
+  update([&](RelayStatus& s) { s.last_error = message.substr(5); });
+}
+
+// fail()'s event when the state changes (announced_ is still the old one).
+void Relay::Loop::announce_failure(const Error& e, bool local, bool refused) {
+  const std::string retrying =
+      fmt::format("retrying {} to {} apart", describe_s(options_.retry_min_s),
+                  describe_s(options_.retry_max_s));
+  if (refused) {
+    event(fmt::format("lab: the lab database refused station {}'s records: {}; retried every {}",
+                      options_.station_id, clause(e.message), describe_s(options_.retry_max_s)));
+  } else if (local) {
+    event(fmt::format("lab: relay stalled on the station database: {}; {}", clause(e.message),
+                      retrying));
+  } else if (pg_ && pg_->ok()) {
+    // The server answered and is still there: a lock or statement
+    // timeout, a conflict.
+    event(fmt::format("lab: the lab database did not take {}: {}; {}",
+                      in_flight_.empty() ? "the relay's request" : in_flight_, clause(e.message),
+                      retrying));
+  } else if (announced_ == "connected") {
+    event(fmt::format("lab: connection to the lab database lost: {}; {}", clause(e.message),
+                      retrying));
+  } else {
+    event(fmt::format("lab: cannot reach the lab database: {}; {}", clause(e.message), retrying));
+  }
+}
+
+// A round that reached the lab (a batch committed, or nothing to send).
+// `waiting`: the records pending when the round began.
+void Relay::Loop::succeeded(int64_t waiting) {
+  delay_s_ = options_.retry_min_s;
+  if (announced_ != "connected") {
+    const std::string server = pg_ ? pg_->server() : server_of(options_.conninfo);
+    if (outage_since_) {
+      event(fmt::format(
+          "lab: relaying to {} again after {}; {} waiting", server,
+          describe_s(std::chrono::duration<double>(steady::now() - *outage_since_).count()),
+          records(waiting)));
+    } else {
+      event(fmt::format("lab: connected to {} (station {}); {} to send", server,
+                        options_.station_id, records(waiting)));
+    }
+    announced_ = "connected";
+  }
+  outage_since_.reset();
+  update([&](RelayStatus& s) {
+    s.state = "connected";
+    s.last_error.clear();
     s.retry_in_s.reset();
   });
 }

@@ -80,6 +80,8 @@ class Relay {
   RelayStatus status() const;
 
  private:
+  class Loop;  // run()'s state and its steps (relay.cpp)
+
   explicit Relay(RelayOptions options);
   void run();
 
