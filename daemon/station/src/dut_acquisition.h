@@ -44,6 +44,11 @@
 
 namespace gyrotherm::station {
 
+// How long (wall) a soak's Table I and a completed run's end wait for the
+// gyro samples of their last station seconds to come off the line
+// (DutAcquisition::await_gyro).
+inline constexpr std::chrono::milliseconds kAwaitGyro{2000};
+
 // How a DUT is named in messages: its serial, or its position when unnamed.
 std::string dut_name(const config::DutSection& dut);
 

@@ -22,16 +22,86 @@
 #include "gyrotherm/drivers/modbus_devices.h"
 #include "gyrotherm/drivers/rate_tables.h"
 #include "plant_io.h"
+#include "run_lifecycle.h"
 
 namespace gyrotherm::station {
 namespace {
 
-using schedules::RunState;
-
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-// How long (wall) a soak's Table I and a completed run's end wait for the
-// gyro samples of their last station seconds to come off the line.
-constexpr std::chrono::milliseconds kAwaitGyro{2000};
+// What the analysis worker tells the station: it waits for a soak's last
+// gyro samples, logs and publishes each Table I row, and records each run's
+// analysis in its events.
+calibration::AnalysisWorker::Callbacks analysis_callbacks(
+    DutAcquisition& duts,
+    const std::function<void(std::string_view, const nlohmann::json&)>& publish,
+    const WallClock& wall) {
+  calibration::AnalysisWorker::Callbacks callbacks;
+  callbacks.await_gyro = [&duts](int64_t run_id, double until_s) {
+    if (!duts.await_gyro(run_id, until_s, kAwaitGyro)) {
+      spdlog::warn(
+          "run {}: Table I computed without the gyro samples after t = {:.1f} s (the stream had "
+          "not reached the soak's end after {} ms)",
+          run_id, until_s, kAwaitGyro.count());
+    }
+  };
+  callbacks.table1_done = [publish](const calibration::Table1Job& job,
+                                    const Result<storage::SegmentStatsRecord>& r) {
+    if (r && publish) publish("stats", to_json(*r));
+    if (r) {
+      spdlog::info(
+          "run {} segment {}: Table I row stored: n={} T={:.2f} °C bias={:.4f} °/h "
+          "std={:.4f} std(MA{})={:.4f}",
+          job.run_id, job.segment_index + 1, r->n, r->temp_mean_c, r->bias_mean_dph,
+          r->bias_std_dph, r->ma_window, r->bias_std_ma_dph);
+    } else {
+      spdlog::error("Table I row not computed: {}", r.error().message);
+    }
+  };
+  callbacks.run_done = [publish, &wall](storage::Database& db, const calibration::RunJob& job,
+                                        const Result<calibration::RunAnalysisSummary>& r) {
+    storage::EventRecord ev;
+    ev.run_id = job.run_id;
+    if (auto last = db.last_sample_t_s(job.run_id); last && *last) ev.t_s = **last;
+    ev.wall_utc = utc_iso(wall);
+    ev.kind = "analysis";
+    if (r) {
+      std::string fits;
+      for (int64_t id : r->fit_ids) fits += fmt::format("{}#{}", fits.empty() ? "" : ", ", id);
+      ev.message = fmt::format(
+          "analysis stored: {} Table I row(s), {} Allan deviation(s), {} fit(s){}{}",
+          r->table1_rows, r->allan_records, r->fit_ids.size(),
+          fits.empty() ? "" : " (" + fits + ")", r->problems.empty() ? "" : "; not computed: ");
+      for (std::size_t i = 0; i < r->problems.size(); ++i) {
+        ev.message += (i ? "; " : "") + r->problems[i];
+      }
+      if (!r->flagged.empty()) ev.message += "; FLAGGED: ";
+      for (std::size_t i = 0; i < r->flagged.size(); ++i) {
+        ev.message += (i ? "; " : "") + r->flagged[i];
+      }
+    } else {
+      ev.message = "analysis failed: " + r.error().message;
+    }
+    spdlog::info("run {}: {}", job.run_id, ev.message);
+    if (auto id = db.add_event(ev); !id) {
+      spdlog::error("event not recorded: {}", id.error().message);
+    } else {
+      ev.id = *id;
+    }
+    if (publish) {
+      nlohmann::json j = to_json(ev);
+      j["run_id"] = job.run_id;
+      publish("event", j);
+      if (r) {
+        publish("analysis", {{"run_id", job.run_id},
+                             {"table1_rows", r->table1_rows},
+                             {"allan_records", r->allan_records},
+                             {"fit_ids", r->fit_ids},
+                             {"problems", r->problems},
+                             {"flagged", r->flagged}});
+      }
+    }
+  };
+  return callbacks;
+}
 
 }  // namespace
 
@@ -145,7 +215,7 @@ Station::Station(config::StationConfig config, StationDevices devices, StationCl
                                      }}) {
   journal_ = std::make_unique<EventJournal>(
       EventJournal::Links{clock_, wall_, run_clock_, db_, hooks_.publish, mu_, snapshot_,
-                          [this] { return sequencer_ != nullptr; }});
+                          [this] { return run_ && run_->active(); }});
   plant_ = std::make_unique<PlantIo>(
       std::move(devices.chamber), std::move(devices.probes),
       PlantIo::Links{clock_, mu_, snapshot_,
@@ -162,89 +232,19 @@ Station::Station(config::StationConfig config, StationDevices devices, StationCl
                               post_event(kind, message);
                             }});
   if (table_device_) table_ = std::make_unique<TableControl>(*table_device_, *config_.table);
-  calibration::AnalysisWorker::Callbacks callbacks;
-  callbacks.await_gyro = [this](int64_t run_id, double until_s) {
-    if (!duts_->await_gyro(run_id, until_s, kAwaitGyro)) {
-      spdlog::warn(
-          "run {}: Table I computed without the gyro samples after t = {:.1f} s (the stream had "
-          "not reached the soak's end after {} ms)",
-          run_id, until_s, kAwaitGyro.count());
-    }
-  };
-  callbacks.table1_done = [publish = hooks_.publish](const calibration::Table1Job& job,
-                                                     const Result<storage::SegmentStatsRecord>& r) {
-    if (r && publish) publish("stats", to_json(*r));
-    if (r) {
-      spdlog::info(
-          "run {} segment {}: Table I row stored: n={} T={:.2f} °C bias={:.4f} °/h "
-          "std={:.4f} std(MA{})={:.4f}",
-          job.run_id, job.segment_index + 1, r->n, r->temp_mean_c, r->bias_mean_dph,
-          r->bias_std_dph, r->ma_window, r->bias_std_ma_dph);
-    } else {
-      spdlog::error("Table I row not computed: {}", r.error().message);
-    }
-  };
-  callbacks.run_done = [publish = hooks_.publish, &wall = wall_](
-                           storage::Database& db, const calibration::RunJob& job,
-                           const Result<calibration::RunAnalysisSummary>& r) {
-    storage::EventRecord ev;
-    ev.run_id = job.run_id;
-    if (auto last = db.last_sample_t_s(job.run_id); last && *last) ev.t_s = **last;
-    ev.wall_utc = utc_iso(wall);
-    ev.kind = "analysis";
-    if (r) {
-      std::string fits;
-      for (int64_t id : r->fit_ids) fits += fmt::format("{}#{}", fits.empty() ? "" : ", ", id);
-      ev.message = fmt::format(
-          "analysis stored: {} Table I row(s), {} Allan deviation(s), {} fit(s){}{}",
-          r->table1_rows, r->allan_records, r->fit_ids.size(),
-          fits.empty() ? "" : " (" + fits + ")", r->problems.empty() ? "" : "; not computed: ");
-      for (std::size_t i = 0; i < r->problems.size(); ++i) {
-        ev.message += (i ? "; " : "") + r->problems[i];
-      }
-      if (!r->flagged.empty()) ev.message += "; FLAGGED: ";
-      for (std::size_t i = 0; i < r->flagged.size(); ++i) {
-        ev.message += (i ? "; " : "") + r->flagged[i];
-      }
-    } else {
-      ev.message = "analysis failed: " + r.error().message;
-    }
-    spdlog::info("run {}: {}", job.run_id, ev.message);
-    if (auto id = db.add_event(ev); !id) {
-      spdlog::error("event not recorded: {}", id.error().message);
-    } else {
-      ev.id = *id;
-    }
-    if (publish) {
-      nlohmann::json j = to_json(ev);
-      j["run_id"] = job.run_id;
-      publish("event", j);
-      if (r) {
-        publish("analysis", {{"run_id", job.run_id},
-                             {"table1_rows", r->table1_rows},
-                             {"allan_records", r->allan_records},
-                             {"fit_ids", r->fit_ids},
-                             {"problems", r->problems},
-                             {"flagged", r->flagged}});
-      }
-    }
-  };
-  analysis_ = std::make_unique<calibration::AnalysisWorker>(config_.storage.db_path, *writer_,
-                                                            calibration::analysis_settings(config_),
-                                                            std::move(callbacks), wall_);
+  analysis_ = std::make_unique<calibration::AnalysisWorker>(
+      config_.storage.db_path, *writer_, calibration::analysis_settings(config_),
+      analysis_callbacks(*duts_, hooks_.publish, wall_), wall_);
+  run_ = std::make_unique<RunLifecycle>(
+      RunLifecycle::Links{config_, clock_, wall_, db_, *writer_, *analysis_, *plant_, *duts_,
+                          table_.get(), *journal_, run_clock_, hooks_.publish, queue_length_,
+                          queue_held_, busy_, control_ticks_, mu_, snapshot_});
   snapshot_.station_name = config_.station.name;
   snapshot_.time_scale = clock_.time_scale();
   snapshot_.clock = as_paced(clock_) ? "sim" : "scaled";
 }
 
 Station::~Station() { stop("daemon shutting down"); }
-
-void Station::make_sequencer(schedules::Plan plan) {
-  // Valid: Station::create checked them.
-  sequencer_ =
-      std::make_unique<schedules::Sequencer>(std::move(plan), config::sequencer_options(config_),
-                                             static_cast<schedules::SequencerObserver&>(*this));
-}
 
 void Station::start(ControlLoop loop) {
   for (drivers::PolledDevice* dev : std::initializer_list<drivers::PolledDevice*>{
@@ -262,14 +262,7 @@ void Station::start(ControlLoop loop) {
   duts_->prepare(now_s, wall_s);
   {
     std::lock_guard lock(run_mu_);
-    if (auto hold = db_.meta(kQueueHoldKey); hold && *hold) {
-      hold_reason_ = **hold;
-      queue_held_.store(true);
-      spdlog::info("queue held: {}", *hold_reason_);
-    }
-    count_queue();
-    resume_interrupted_run();
-    submit_missing_analyses();
+    run_->recover();
   }
   duts_->start_sources();
   if (loop == ControlLoop::kOwnThread) control_thread_ = std::thread([this] { control_loop(); });
@@ -341,11 +334,7 @@ void Station::stop(const std::string& reason) {
   {
     // The control thread is gone: finish the run and the chamber from here.
     std::lock_guard lock(run_mu_);
-    if (sequencer_ && !sequencer_->finished()) {
-      sequencer_->interrupt(run_time_s(), reason);
-      checkpoint(true);
-      end_run();
-    }
+    run_->interrupt(reason);
   }
   // The table stops before the chamber heads for its safe set point; its
   // servo goes off once it is at rest (make_table_safe_now(), after). A
@@ -388,8 +377,6 @@ void Station::stop(const std::string& reason) {
 bool Station::idle() const {
   return !busy_.load() && (queue_length_.load() <= 0 || queue_held_.load());
 }
-
-double Station::run_time_s() const { return clock_.now_s() - run_clock_.load().t0_s; }
 
 void Station::control_loop() {
   const double tick_s = config_.control.tick_s;
@@ -527,11 +514,7 @@ void Station::tick() {
   const double now_s = clock_.now_s();
   const schedules::Readings r = read_devices(now_s);
   const std::vector<std::string> probe_events = duts_->read_dut_probes(now_s);
-  std::optional<double> shell_c;
-  if (r.top_c && r.side_c) {
-    shell_c = (*r.top_c + *r.side_c) / 2.0;
-    shell_rate_window_.push(now_s, *shell_c);
-  }
+  if (r.top_c && r.side_c) shell_rate_window_.push(now_s, (*r.top_c + *r.side_c) / 2.0);
 
   std::lock_guard run_lock(run_mu_);
   {
@@ -544,127 +527,33 @@ void Station::tick() {
   for (const auto& message : probe_events) journal_->add_event("device", "", "", message);
   note_storage_file();
   plant_->note_links(now_s);
-  if (!sequencer_ && !storage_file_error_) start_next_run(now_s);  // no run into a lost file
-  if (!sequencer_) keep_idle_safe();
-
-  double t_run_s = 0;
-  if (sequencer_) {
-    t_run_s = now_s - run_clock_.load().t0_s;
-    if (sequencer_->state() == RunState::kAborting) {
-      // The table stops before the chamber heads for its safe set point.
-      if (table_) table_->make_safe(wall_.monotonic_s());
-      if (plant_->write_setpoint(sequencer_->setpoint_c(), true, control_ticks_)) {
-        sequencer_->safe_state_reached(t_run_s);
-      }
-    } else {
-      if (table_) tend_table(t_run_s);
-      tick_sequencer(t_run_s, r);
-      if (table_ && !sequencer_->finished()) {
-        const schedules::TableDemand demand = table_demand();
-        const bool moves =
-            demand.mode == schedules::TableDemandMode::kRate || demand.position_deg.has_value();
-        if (moves || !table_->safing()) {
-          if (!moves && !table_->at_rest()) {
-            table_->make_safe(wall_.monotonic_s());
-          } else {
-            table_->drive(demand, wall_.monotonic_s());
-          }
-        }
-      }
-      // At the run's end the table stops before the chamber heads for its
-      // safe set point (its servo goes off once at rest, ticks later).
-      if (table_ && sequencer_->finished()) table_->make_safe(wall_.monotonic_s());
-      // Failing: retried next tick.
-      (void)plant_->write_setpoint(sequencer_->setpoint_c(), false, control_ticks_);
-    }
-    if (table_) {
-      if (auto sample = table_->sample(t_run_s)) writer_->push_table(current_run_id(), *sample);
-    }
-    TemperatureSample ts;
-    ts.t_s = t_run_s;
-    ts.setpoint_c = sequencer_->setpoint_c();
-    ts.chamber_c = r.chamber_c.value_or(kNaN);
-    ts.top_c = r.top_c.value_or(kNaN);
-    ts.side_c = r.side_c.value_or(kNaN);
-    writer_->push_temperature(current_run_id(), ts);
-    checkpoint(false);
-  }
-
-  const Progress run_progress = progress(t_run_s);
-  {
-    std::lock_guard lock(mu_);
-    StatusSnapshot& s = snapshot_;
-    s.progress = run_progress;
-    s.t_station_s = now_s;
-    s.t_run_s = t_run_s;
-    s.chamber_c = r.chamber_c;
-    s.top_c = r.top_c;
-    s.side_c = r.side_c;
-    s.gradient_c =
-        (r.top_c && r.side_c) ? std::optional<double>(*r.top_c - *r.side_c) : std::nullopt;
-    const double rate = shell_rate_window_.slope_per_s();
-    s.temp_rate_c_per_min = std::isfinite(rate) ? std::optional<double>(rate * 60.0) : std::nullopt;
-    s.queue_length = std::max(0, queue_length_.load());
-    s.queue_held = hold_reason_.has_value();
-    s.queue_hold_reason = hold_reason_.value_or("");
-    s.interlocks.clear();
-    if (sequencer_) {
-      s.state = std::string(to_string(sequencer_->state()));
-      s.paused = sequencer_->paused();
-      for (const auto& c : sequencer_->tripped()) {
-        s.interlocks.push_back({std::string(to_string(c.kind)), c.message});
-      }
-      const auto idx = sequencer_->step_index();
-      const auto& steps = sequencer_->plan().steps;
-      s.step_index = static_cast<int>(idx);
-      s.step_count = static_cast<int>(steps.size());
-      s.step_label = idx < steps.size() ? steps[idx].label : "";
-      s.setpoint_c = sequencer_->setpoint_c();
-    }
-  }
+  if (!run_->active() && !storage_file_error_)
+    run_->start_next_run(now_s);  // no run into a lost file
+  if (!run_->active()) keep_idle_safe();
+  const double t_run_s = run_->active() ? run_->tick(now_s, r) : 0.0;
+  publish_status(now_s, t_run_s, r);
   if (table_) {
     table_->finish_safe_state(wall_.monotonic_s());
     std::lock_guard lock(mu_);
     snapshot_.table = table_->status();
   }
-  if (sequencer_ && sequencer_->finished()) end_run();
+  run_->end_if_finished();
 }
 
-Progress Station::progress(double t_run_s) {
-  constexpr double kQueueScanWallS = 5;
-  const int queued = queue_length_.load();
-  if (queued != queue_scanned_length_ || wall_.monotonic_s() >= queue_scan_due_wall_s_) {
-    queue_scanned_length_ = queued;
-    queue_scan_due_wall_s_ = wall_.monotonic_s() + kQueueScanWallS;
-    if (auto entries = db_.queue_entries()) {
-      std::vector<schedules::QueueDurations::Entry> waiting;
-      for (const auto& e : *entries) {
-        if (e.state == "queued") {
-          waiting.push_back(
-              {e.id, e.toml_text, e.source_path.empty() ? e.schedule_name : e.source_path});
-        }
-      }
-      // Each queued run starts where the one before left the chamber.
-      queue_planned_ = queue_durations_.update(waiting, config::station_limits(config_),
-                                               config_.station.safe_setpoint_c);
-    }
-  }
-  if (!sequencer_) {
-    schedules::RunProgress idle;
-    idle.queue_fixed_s = queue_planned_.fixed_s;
-    idle.queue_settles = queue_planned_.settles;
-    return to_progress(idle);
-  }
-  return to_progress(schedules::run_progress(sequencer_->plan(), sequencer_->snapshot(t_run_s),
-                                             sequencer_->gate_progress(t_run_s), queue_planned_));
-}
-
-schedules::TableDemand Station::table_demand() const {
-  if (!sequencer_ || sequencer_->finished() || sequencer_->paused() ||
-      !sequencer_->tripped().empty() || sequencer_->state() == RunState::kAborting) {
-    return {};
-  }
-  return sequencer_->table_demand();
+void Station::publish_status(double now_s, double t_run_s, const schedules::Readings& r) {
+  const Progress run_progress = run_->progress(t_run_s);
+  std::lock_guard lock(mu_);
+  StatusSnapshot& s = snapshot_;
+  s.progress = run_progress;
+  s.t_station_s = now_s;
+  s.t_run_s = t_run_s;
+  s.chamber_c = r.chamber_c;
+  s.top_c = r.top_c;
+  s.side_c = r.side_c;
+  s.gradient_c = (r.top_c && r.side_c) ? std::optional<double>(*r.top_c - *r.side_c) : std::nullopt;
+  const double rate = shell_rate_window_.slope_per_s();
+  s.temp_rate_c_per_min = std::isfinite(rate) ? std::optional<double>(rate * 60.0) : std::nullopt;
+  run_->fill_status(s);
 }
 
 void Station::make_table_safe_now() {
@@ -729,452 +618,6 @@ void Station::keep_idle_safe() {
   plant_->keep_safe(config_.station.safe_setpoint_c, control_ticks_);
 }
 
-void Station::tend_table(double t_run_s) {
-  if (auto what = table_->take_interruption()) {
-    const bool respin = config_.table->respin_after_fault;
-    journal_->add_event(
-        "table", "", "",
-        fmt::format("table: {}; {}", *what,
-                    respin ? "the station spins it up again ([table] respin_after_fault); "
-                             "acquisition waits for the rate"
-                           : "the run pauses with the table at rest"));
-    sequencer_->table_interrupted(t_run_s, "the table was taken off its demand");
-    if (!respin && !sequencer_->paused()) {
-      (void)sequencer_->pause(
-          t_run_s,
-          fmt::format("table: {}; it stays at rest until `gyrotherm resume` spins it up again "
-                      "([table] respin_after_fault = false)",
-                      *what));
-    }
-  }
-  const auto tripped = sequencer_->tripped();
-  const bool fault_holds =
-      std::any_of(tripped.begin(), tripped.end(), [](const schedules::InterlockCondition& c) {
-        return c.kind == schedules::InterlockKind::kTableFault;
-      });
-  if (fault_holds) {
-    if (auto message = table_->reset_latched_fault(clock_.now_s())) {
-      spdlog::info("{}", *message);
-      journal_->add_event("table", "", "", *message);
-    }
-  }
-}
-
-// ---------------------------------------------------------------- queue and runs
-
-void Station::count_queue() {
-  auto entries = db_.queue_entries();
-  if (!entries) return;
-  queue_length_.store(static_cast<int>(std::count_if(
-      entries->begin(), entries->end(), [](const auto& e) { return e.state == "queued"; })));
-}
-
-// Says what the queue does after the current run failed, once per run, and
-// before the run's failed state is recorded: whoever sees the run failed
-// sees the queue's answer too. An abort (or a stop) has already held it,
-// whatever ignore_failures says.
-void Station::answer_failed_run() {
-  if (queue_answered_ || !entry_) return;
-  queue_answered_ = true;
-  const int64_t run_id = current_run_id();
-  if (hold_reason_) {
-    journal_->add_event(
-        "queue", "", "",
-        fmt::format("run {} failed; the queue stays held ({})", run_id, *hold_reason_));
-  } else if (!entry_->ignore_failures) {
-    hold_queue(fmt::format("run {} failed ({}); resume releases the queue", run_id, last_reason_));
-  } else {
-    journal_->add_event("queue", "", "",
-                        fmt::format("run {} failed; the queue goes on with the next entry "
-                                    "(ignore_failures)",
-                                    run_id));
-  }
-}
-
-void Station::hold_queue(const std::string& reason) {
-  hold_reason_ = reason;
-  queue_held_.store(true);
-  if (auto st = db_.set_meta(kQueueHoldKey, reason); !st) spdlog::error("{}", st.error().message);
-  journal_->add_event("queue", "", "", "queue held: " + reason);
-  spdlog::info("queue held: {}", reason);
-}
-
-void Station::release_queue() {
-  hold_reason_.reset();
-  queue_held_.store(false);
-  if (auto st = db_.delete_meta(kQueueHoldKey); !st) spdlog::error("{}", st.error().message);
-  journal_->add_event("queue", "", "", "queue released");
-}
-
-void Station::start_next_run(double now_s) {
-  // queue_length_ > 0: an entry was added and not yet taken or removed. It
-  // may be a little behind the database (an add counted just after its
-  // commit), never ahead for long: the next tick sees it.
-  if (hold_reason_ || queue_length_.load() <= 0) return;
-  auto entries = db_.queue_entries();
-  if (!entries) {
-    spdlog::error("{}", entries.error().message);
-    return;
-  }
-  auto it = std::find_if(entries->begin(), entries->end(),
-                         [](const auto& e) { return e.state == "queued"; });
-  if (it == entries->end()) return;
-  storage::QueueEntry entry = *it;
-  const std::string source = entry.source_path.empty() ? entry.schedule_name : entry.source_path;
-
-  storage::RunRecord rec;
-  rec.schedule_name = entry.schedule_name;
-  rec.state = "queued";
-  rec.started_utc = utc_iso(wall_);
-  rec.time_scale = clock_.time_scale();
-  rec.latitude_deg = config_.station.latitude_deg;
-  rec.orientation = std::string(analysis::to_string(config_.station.orientation));
-  // The configuration in force (loaded at start-up), not the file as it is
-  // on disk now.
-  rec.config_json = config::run_config_json(config_).dump();
-  // One transaction: an entry removed meanwhile starts no run and leaves no
-  // run row behind.
-  auto id = db_.queue_start_run(entry.id, rec);
-  if (!id) {
-    spdlog::error("cannot start run of {}: {}", entry.schedule_name, id.error().message);
-    return;
-  }
-  if (!*id) return;  // removed (or moved on) since it was read; the next tick looks again
-  const int64_t run_id = **id;
-  queue_length_.fetch_sub(1);
-  queue_scanned_length_ = -1;  // the queue's planned time: without this entry, at the next tick
-  busy_.store(true);
-  duts_->register_run_duts(db_, run_id, entry.metadata.dut_serials);
-  run_clock_.publish(run_id, now_s);
-  entry_ = entry;
-  {
-    std::lock_guard lock(mu_);
-    snapshot_.run_id = run_id;
-    snapshot_.schedule_name = entry.schedule_name;
-    snapshot_.run_operator = entry.metadata.operator_name;
-    snapshot_.run_comment = entry.metadata.comment;
-    snapshot_.run_tags = entry.metadata.tags;
-  }
-
-  // Checked again: the station config may have changed since it was queued.
-  auto plan = schedules::parse_schedule(entry.toml_text, source, config::station_limits(config_));
-  if (!plan) {
-    journal_->add_event(
-        "error", "queued", "failed",
-        "schedule refused at start (station limits changed?):\n" + plan.error().message);
-    last_reason_ = "schedule refused at start";
-    answer_failed_run();
-    (void)db_.set_run_state(run_id, "failed", true);
-    end_run();
-    return;
-  }
-  spdlog::info("run {}: {} ({} steps)", run_id, plan->name, plan->steps.size());
-  if (table_) table_->begin_run();
-  journal_->begin_segments(std::vector<int64_t>(plan->steps.size(), 0));
-  const double start_sp = plant_->last_written_setpoint_c().value_or(
-      snapshot_.chamber_c.value_or(config_.station.safe_setpoint_c));
-  make_sequencer(std::move(*plan));
-  sequencer_->start(0.0, start_sp);
-  checkpoint(true);
-}
-
-// Completed runs whose analysis never ran (the daemon stopped between the end
-// of the run and its analysis) get it now.
-void Station::submit_missing_analyses() {
-  auto runs = db_.runs();
-  if (!runs) return;
-  for (const auto& r : *runs) {
-    if (r.state != "completed") continue;
-    auto events = db_.events(r.id);
-    if (!events) continue;
-    const bool done =
-        std::any_of(events->begin(), events->end(),
-                    [](const storage::EventRecord& e) { return e.kind == "analysis"; });
-    if (!done) {
-      spdlog::info("run {}: completed without its analysis; computing it now", r.id);
-      analysis_->submit(calibration::RunJob{r.id});
-    }
-  }
-}
-
-void Station::resume_interrupted_run() {
-  auto runs = db_.runs();
-  if (!runs) {
-    spdlog::error("{}", runs.error().message);
-    return;
-  }
-  // Runs that never reached an end: the newest resumes, older ones (there
-  // should be none) are closed.
-  std::vector<storage::RunRecord> open;
-  for (const auto& r : *runs) {
-    if (r.state != "completed" && r.state != "failed") open.push_back(r);
-  }
-  if (open.empty()) return;
-  for (std::size_t i = 0; i + 1 < open.size(); ++i) {
-    run_clock_.publish(open[i].id, 0.0);
-    journal_->add_event("state", open[i].state, "interrupted",
-                        "closed at start-up: a newer run exists");
-    (void)db_.set_run_state(open[i].id, "interrupted", true);
-  }
-  const storage::RunRecord& run = open.back();
-  run_clock_.publish(run.id, 0.0);  // for the events below; its start once known
-  auto give_up = [&](const std::string& why) {
-    journal_->add_event("state", run.state, "interrupted", "not resumed: " + why);
-    (void)db_.set_run_state(run.id, "interrupted", true);
-    if (run.queue_id) (void)db_.queue_finish(*run.queue_id, "interrupted");
-    spdlog::warn("run {} not resumed: {}", run.id, why);
-    run_clock_.publish(0, 0.0);
-  };
-  if (!run.queue_id) return give_up("it did not come from the queue");
-  auto entry = db_.queue_entry(*run.queue_id);
-  if (!entry || !*entry) return give_up("its queue entry is gone");
-  if (run.resume_json.empty() || !run.checkpoint_wall_unix_s) {
-    return give_up("the daemon stopped before the run's first checkpoint");
-  }
-  auto plan = schedules::parse_schedule((*entry)->toml_text, (*entry)->source_path,
-                                        config::station_limits(config_));
-  if (!plan) return give_up("its schedule is refused now:\n" + plan.error().message);
-  nlohmann::json j;
-  try {
-    j = nlohmann::json::parse(run.resume_json);
-  } catch (const nlohmann::json::exception& e) {
-    return give_up(fmt::format("its checkpoint is unreadable: {}", e.what()));
-  }
-  auto snap = schedules::snapshot_from_json(j);
-  if (!snap) return give_up(snap.error().message);
-
-  // The downtime in station time; never before a committed sample. On the
-  // simulator's clock that wrote the checkpoint it is exact; else from wall
-  // time at the time scale.
-  const double down_wall_s = std::max(0.0, wall_.unix_now_s() - *run.checkpoint_wall_unix_s);
-  double t_resume_s = snap->t_s + down_wall_s * clock_.time_scale();
-  if (const PacedClock* paced = as_paced(clock_);
-      paced && j.contains("clock_epoch") && j.contains("clock_at_checkpoint_s")) {
-    try {
-      if (j.at("clock_epoch").get<uint64_t>() == paced->epoch()) {
-        t_resume_s =
-            snap->t_s + std::max(0.0, clock_.now_s() - j.at("clock_at_checkpoint_s").get<double>());
-      }
-    } catch (const nlohmann::json::exception&) {
-      // An unreadable clock mark: the wall-time estimate stands.
-    }
-  }
-  // Acquisition is credited up to the last committed gyro sample only: the
-  // samples after it died uncommitted with the daemon, and Table I is made of
-  // gyro samples (the temperatures, committed each control tick, can reach
-  // well past a lagging gyro stream). Run seconds.
-  double data_until_s = -std::numeric_limits<double>::infinity();
-  if (auto last_gyro = db_.last_gyro_sample_t_s(run.id); !last_gyro) {
-    // Cannot tell: trust the checkpoint's clock rather than drop the run.
-    spdlog::error(
-        "run {}: last committed gyro sample unknown ({}); acquisition credited up to the "
-        "checkpoint",
-        run.id, last_gyro.error().message);
-    data_until_s = snap->t_s;
-  } else if (*last_gyro) {
-    data_until_s = **last_gyro;
-  }
-  // The run resumes after every committed sample, gyro or temperature.
-  if (auto last = db_.last_sample_t_s(run.id); last && *last) {
-    t_resume_s = std::max(t_resume_s, **last + 1e-3);
-  }
-  std::vector<int64_t> segment_ids(plan->steps.size(), 0);
-  std::vector<storage::SegmentRecord> segments;
-  if (auto segs = db_.segments(run.id)) {
-    segments = std::move(*segs);
-    for (const auto& seg : segments) {
-      if (seg.index >= 0 && static_cast<std::size_t>(seg.index) < segment_ids.size()) {
-        segment_ids[static_cast<std::size_t>(seg.index)] = seg.id;
-      }
-    }
-  }
-  // The checkpoint may be older than the step's end: the daemon died after
-  // the step was recorded finished and before the checkpoint said so. That
-  // step is not run again; the run goes on with the next.
-  const bool step_finished_already =
-      snap->step_index < segment_ids.size() &&
-      std::any_of(segments.begin(), segments.end(), [&](const storage::SegmentRecord& seg) {
-        return seg.id == segment_ids[snap->step_index] && seg.state == "completed";
-      });
-  // Segments still "running" that are not the step resumed died with the
-  // daemon (e.g. the next step's, started after that checkpoint).
-  for (auto seg : segments) {
-    const bool resumed = !step_finished_already && snap->step_index < segment_ids.size() &&
-                         seg.id == segment_ids[snap->step_index];
-    if (seg.state != "running" || resumed) continue;
-    seg.state = "aborted";
-    if (!seg.t_end_s) seg.t_end_s = std::max(seg.t_start_s, snap->t_s);
-    if (auto st = db_.update_segment(seg); !st) {
-      spdlog::error("run {}: segment {} not closed: {}", run.id, seg.id, st.error().message);
-    }
-    if (seg.index >= 0 && static_cast<std::size_t>(seg.index) < segment_ids.size() &&
-        segment_ids[static_cast<std::size_t>(seg.index)] == seg.id) {
-      segment_ids[static_cast<std::size_t>(seg.index)] = 0;
-    }
-  }
-  journal_->begin_segments(std::move(segment_ids));
-  entry_ = **entry;
-  busy_.store(true);
-  duts_->register_run_duts(db_, run.id, entry_->metadata.dut_serials);
-  // A soak is credited for what each DUT stored: read back from the step's start.
-  duts_->seed_coverage(db_, run.id, snap->times.start_s);
-  run_clock_.publish(run.id, clock_.now_s() - t_resume_s);
-  {
-    std::lock_guard lock(mu_);
-    snapshot_.run_id = run.id;
-    snapshot_.schedule_name = run.schedule_name;
-    snapshot_.run_operator = run.metadata.operator_name;
-    snapshot_.run_comment = run.metadata.comment;
-    snapshot_.run_tags = run.metadata.tags;
-  }
-  const std::string reason = fmt::format(
-      "daemon restarted: run resumes at step {} of {} after {:.1f} min of station time down "
-      "(was {})",
-      std::min(snap->step_index + 1, plan->steps.size()), plan->steps.size(),
-      (t_resume_s - snap->t_s) / 60.0, run.state);
-  spdlog::info("run {}: {}", run.id, reason);
-  make_sequencer(std::move(*plan));
-  if (table_) table_->begin_run();
-  journal_->add_event("resume", "", "", reason);
-  plant_->forget_setpoint();
-  sequencer_->restore(*snap, t_resume_s, data_until_s, reason);
-  if (step_finished_already) {
-    journal_->add_event(
-        "resume", "", "",
-        fmt::format("step {} had ended before the daemon stopped (its last checkpoint was "
-                    "older): it is not run again; the run goes on with the next step",
-                    snap->step_index + 1));
-    sequencer_->continue_after_finished_step(t_resume_s);
-    // restore() re-announced that step as running: its record stays as it
-    // was written when it ended.
-    for (const auto& seg : segments) {
-      if (seg.index == static_cast<int>(snap->step_index) && seg.state == "completed") {
-        journal_->keep_segment(seg);
-      }
-    }
-    journal_->record_unrecorded();
-  }
-  (void)db_.set_run_state(run.id, to_string(sequencer_->state()), false);
-  checkpoint(true);
-}
-
-void Station::checkpoint(bool force) {
-  if (!sequencer_) return;
-  const double wall_s = wall_.monotonic_s();
-  // A new state or a new step is checkpointed at once; the rest once a wall second.
-  const std::string state =
-      fmt::format("{}#{}", to_string(sequencer_->state()), sequencer_->step_index());
-  if (!force && state == checkpoint_state_ && wall_s - last_checkpoint_wall_s_ < 1.0) return;
-  const double t_run_s = run_time_s();
-  nlohmann::json snap = to_json(sequencer_->snapshot(t_run_s));
-  if (const PacedClock* paced = as_paced(clock_)) {
-    // A simulator's clock outlives this process: the downtime of a restart
-    // is then read off it exactly, not estimated from wall time.
-    snap["clock_epoch"] = paced->epoch();
-    snap["clock_at_checkpoint_s"] = clock_.now_s();
-  }
-  const std::string json = snap.dump();
-  if (auto st = db_.set_run_checkpoint(current_run_id(), json, wall_.unix_now_s()); !st) {
-    // Tried again next tick; logged once per failing spell.
-    if (!checkpoint_failing_) spdlog::error("run checkpoint not written: {}", st.error().message);
-    checkpoint_failing_ = true;
-    return;
-  }
-  if (checkpoint_failing_) spdlog::info("run checkpoint written again");
-  checkpoint_failing_ = false;
-  checkpoint_state_ = state;
-  last_checkpoint_wall_s_ = wall_s;
-}
-
-void Station::end_run() {
-  const RunState final_state = sequencer_ ? sequencer_->state() : RunState::kFailed;
-  const int64_t run_id = current_run_id();
-  // The table stops first; its servo goes off once it is at rest (ticks).
-  if (table_) table_->make_safe(wall_.monotonic_s());
-  const double safe_c = config_.station.safe_setpoint_c;
-  const Status chamber_safe = plant_->write_setpoint(safe_c, true, control_ticks_);
-  plant_->owe_safe_setpoint(!chamber_safe);
-  if (!chamber_safe && run_id != 0) {
-    journal_->add_event(
-        "error", "", "",
-        fmt::format("run {} ended without the chamber taking the safe set point {:g} °C "
-                    "({}); the station writes it every control tick until it does",
-                    run_id, safe_c, chamber_safe.error().message));
-  }
-  // A completed run's last samples may still be on the line (a reader behind
-  // on a loaded machine): they are waited for, a bounded time, before no
-  // batch is stored under the run any more; the flush then holds all of its
-  // samples before its analysis reads them.
-  if (final_state == RunState::kCompleted && run_id != 0) {
-    if (!duts_->await_gyro(run_id, run_time_s(), kAwaitGyro)) {
-      spdlog::warn("run {}: the gyro stream had not reached the run's end after {} ms", run_id,
-                   kAwaitGyro.count());
-    }
-  }
-  run_clock_.close_samples();
-  const Status flushed = writer_->flush();
-  if (!flushed && run_id != 0) note_samples_not_committed(run_id, final_state, flushed.error());
-  if (run_id != 0) writer_->close_run(run_id);
-  if (entry_ && final_state != RunState::kInterrupted) {
-    if (auto st = db_.queue_finish(entry_->id, to_string(final_state)); !st) {
-      spdlog::error("{}", st.error().message);
-    }
-    if (final_state == RunState::kFailed) answer_failed_run();
-  }
-  queue_answered_ = false;
-  if (final_state == RunState::kCompleted && run_id != 0 && flushed) {
-    analysis_->submit(calibration::RunJob{run_id});
-  }
-  if (stop_after_current_ && final_state != RunState::kInterrupted) {
-    stop_after_current_ = false;
-    if (!hold_reason_) {
-      hold_queue(fmt::format("stopped after run {} by the operator ({}); resume releases the queue",
-                             run_id, stop_reason_));
-    }
-  }
-  run_clock_.publish(0, 0.0);
-  sequencer_.reset();
-  entry_.reset();
-  checkpoint_state_.clear();
-  // No checkpoint transaction comes for this run any more: what it left
-  // unwritten (its steps' last records, then its end) goes now if it can.
-  journal_->record_unrecorded();
-  {
-    std::lock_guard lock(mu_);
-    snapshot_.run_id.reset();
-    snapshot_.run_operator.clear();
-    snapshot_.run_comment.clear();
-    snapshot_.run_tags.clear();
-    snapshot_.step_index.reset();
-    snapshot_.step_label.clear();
-    snapshot_.state = "idle";
-    snapshot_.paused = false;
-    snapshot_.interlocks.clear();
-  }
-  busy_.store(false);
-}
-
-// The run's last samples could not be committed at its end (the commit's
-// error, or the writer stopped): said in its events, and a completed run is
-// not analysed as if its data were whole. The "analysis" event also keeps a
-// restart from analysing it (submit_missing_analyses).
-void Station::note_samples_not_committed(int64_t run_id, RunState final_state, const Error& e) {
-  const storage::SampleWriterStats ws = writer_->stats();
-  const std::string why = fmt::format(
-      "the final commit of its samples failed ({} samples not stored): {}", ws.pending, e.message);
-  spdlog::error("run {}: {}", run_id, why);
-  journal_->add_event("error", "", "", fmt::format("run {}: {}", run_id, why));
-  if (final_state == RunState::kCompleted) {
-    journal_->add_event(
-        "analysis", "", "",
-        fmt::format("analysis not run: the run's samples are incomplete ({}); analyse it "
-                    "offline once its data are checked (gyrotherm allan, fit)",
-                    why));
-  }
-}
-
-// ---------------------------------------------------------------- gyro, status, events
-
 StatusSnapshot Station::status() const {
   StatusSnapshot s;
   {
@@ -1201,95 +644,6 @@ void Station::post_event(const std::string& kind, const std::string& message) {
   journal_->post_event(kind, message);
 }
 
-void Station::tick_sequencer(double t_run_s, const schedules::Readings& r) {
-  const bool written =
-      journal_->tick_with_checkpoint([&] { sequencer_->tick(t_run_s, r); },
-                                     [&]() -> Status {
-                                       checkpoint(true);
-                                       if (checkpoint_failing_) {
-                                         return Error::Transient("the checkpoint was not written");
-                                       }
-                                       return Status::Ok();
-                                     });
-  if (!written) checkpoint_state_.clear();  // rolled back: checkpointed again next tick
-}
-
-void Station::on_state(RunState from, RunState to, double t_s, const std::string& reason) {
-  spdlog::info("run {} t={:.0f} s: {} -> {}: {}", current_run_id(), t_s, to_string(from),
-               to_string(to), reason);
-  last_reason_ = reason;
-  if (hooks_.publish) {
-    const int64_t run_id = current_run_id();
-    hooks_.publish("state", {{"run_id", run_id != 0 ? nlohmann::json(run_id) : nlohmann::json()},
-                             {"from", to_string(from)},
-                             {"to", to_string(to)},
-                             {"t_s", t_s},
-                             {"reason", reason}});
-  }
-  journal_->add_event("state", std::string(to_string(from)), std::string(to_string(to)), reason);
-  if (to == RunState::kFailed) answer_failed_run();
-  journal_->keep_run_state(current_run_id(), std::string(to_string(to)),
-                           schedules::is_terminal(to));
-  journal_->record_unrecorded();
-}
-
-void Station::on_interlock(schedules::InterlockKind kind, bool tripped, double t_s,
-                           const std::string& message) {
-  (void)kind;
-  (void)t_s;
-  if (tripped) {
-    spdlog::warn("run {}: {}", current_run_id(), message);
-  } else {
-    spdlog::info("run {}: {}", current_run_id(), message);
-  }
-  journal_->add_event("interlock", "", "", message);
-}
-
-void Station::on_step_started(std::size_t index, const schedules::PlanStep& step, double t_s) {
-  journal_->start_segment(index, step, t_s);
-  duts_->forget_coverage_before(t_s);
-}
-
-void Station::on_step_changed(std::size_t index, const schedules::PlanStep& step,
-                              const schedules::StepTimes& times) {
-  const int64_t id = journal_->segment_id(index, step, times.start_s);
-  if (id == 0) return;
-  journal_->keep_segment(segment_record(id, current_run_id(), index, step, times, "running"));
-  journal_->record_unrecorded();
-}
-
-void Station::on_step_finished(std::size_t index, const schedules::PlanStep& step,
-                               const schedules::StepTimes& times, bool completed) {
-  const int64_t run_id = current_run_id();
-  const int64_t id = journal_->segment_id(index, step, times.start_s);
-  if (id == 0) return;
-  // A soak's samples are committed before the step is recorded finished: a
-  // crash after this never leaves a finished soak without its tail.
-  if (completed && step.kind == schedules::StepKind::kSoak) {
-    if (Status st = writer_->flush(); !st) {
-      spdlog::error("run {}: the samples of step {} not committed at its end: {}", run_id,
-                    index + 1, st.error().message);
-    }
-  }
-  journal_->keep_segment(
-      segment_record(id, run_id, index, step, times, completed ? "completed" : "aborted"));
-  journal_->record_unrecorded();
-  // Table I is of static soaks only: a soak with the table spinning is not
-  // a zero-bias measurement.
-  if (completed && step.kind == schedules::StepKind::kSoak &&
-      step.table.mode != schedules::TableDemandMode::kRate && !times.windows.empty()) {
-    calibration::Table1Job job{run_id,
-                               id,
-                               static_cast<int>(index),
-                               step.setpoint_c,
-                               times.windows.front().from_s,
-                               times.windows.back().to_s,
-                               {}};
-    for (const auto& w : times.windows) job.windows.emplace_back(w.from_s, w.to_s);
-    analysis_->submit(std::move(job));
-  }
-}
-
 // ---------------------------------------------------------------- StationControl
 //
 // The reads and queue edits are StationQueries' (station_queries.h); the
@@ -1298,90 +652,32 @@ void Station::on_step_finished(std::size_t index, const schedules::PlanStep& ste
 Reply Station::control(std::string_view action, const std::string& reason_in) {
   const std::string reason = reason_in.empty() ? "operator" : reason_in;
   std::lock_guard lock(run_mu_);
-  const bool running = sequencer_ && !sequencer_->finished();
-  auto log_command = [&](const std::string& message) {
-    journal_->add_event("operator", "", "", message);
-    spdlog::info("{}", message);
-  };
-  if (action == "pause") {
-    if (!running) return Reply::refused(Refusal::Kind::kConflict, "no run in progress to pause");
-    if (auto st = sequencer_->pause(run_time_s(), reason); !st) {
-      return Reply::refused(Refusal::Kind::kConflict, st.error().message);
-    }
-    checkpoint(true);
-    return Reply::ok({{"ok", true},
-                      {"message", fmt::format("run {} paused; set point held at {:.2f} °C",
-                                              current_run_id(), sequencer_->setpoint_c())}});
+  if (action == "table-reset") return reset_table_faults(reason);
+  Reply reply = run_->control(action, reason);
+  // A queue released: the control loop starts its next entry now.
+  if (action == "resume") wake_.notify_all();
+  return reply;
+}
+
+Reply Station::reset_table_faults(const std::string& reason) {
+  if (!table_device_) {
+    return Reply::refused(Refusal::Kind::kConflict,
+                          "this station has no rate table ([table] in the station config)");
   }
-  if (action == "resume") {
-    std::vector<std::string> done;
-    if (running && sequencer_->paused()) {
-      if (auto st = sequencer_->resume(run_time_s(), reason); !st) {
-        return Reply::refused(Refusal::Kind::kConflict, st.error().message);
-      }
-      checkpoint(true);
-      done.push_back(fmt::format("run {} resumed", current_run_id()));
-    }
-    if (hold_reason_) {
-      release_queue();
-      done.push_back("queue released");
-    }
-    if (done.empty()) {
-      return Reply::refused(Refusal::Kind::kConflict,
-                            "nothing is paused and the queue is not held");
-    }
-    std::string message = done[0];
-    if (done.size() > 1) message += "; " + done[1];
-    wake_.notify_all();
-    return Reply::ok({{"ok", true}, {"message", message}});
+  // The driver serialises its requests with the control loop's.
+  if (auto st = table_device_->reset_faults(); !st) {
+    return Reply::refused(Refusal::Kind::kUnavailable,
+                          fmt::format("table fault reset not done: {}", st.error().message));
   }
-  if (action == "abort") {
-    if (!running) return Reply::refused(Refusal::Kind::kConflict, "no run in progress to abort");
-    if (sequencer_->state() == RunState::kAborting) {
-      return Reply::refused(Refusal::Kind::kConflict, "the run is already aborting");
-    }
-    sequencer_->abort(run_time_s(), "aborted by the operator (" + reason + ")");
-    hold_queue(
-        fmt::format("run {} aborted by the operator; resume releases the queue", current_run_id()));
-    checkpoint(true);
-    return Reply::ok(
-        {{"ok", true},
-         {"message", fmt::format("run {} aborting; chamber to the safe set point {:g} °C",
-                                 current_run_id(), config_.station.safe_setpoint_c)}});
-  }
-  if (action == "stop") {
-    if (running) {
-      stop_after_current_ = true;
-      stop_reason_ = reason;
-      const std::string message =
-          fmt::format("the queue holds after run {} completes ({})", current_run_id(), reason);
-      log_command(message);
-      return Reply::ok({{"ok", true}, {"message", message}});
-    }
-    if (hold_reason_) return Reply::refused(Refusal::Kind::kConflict, "the queue is already held");
-    hold_queue("stopped by the operator (" + reason + "); resume releases the queue");
-    return Reply::ok({{"ok", true}, {"message", "queue held"}});
-  }
-  if (action == "table-reset") {
-    if (!table_device_) {
-      return Reply::refused(Refusal::Kind::kConflict,
-                            "this station has no rate table ([table] in the station config)");
-    }
-    // The driver serialises its requests with the control loop's.
-    if (auto st = table_device_->reset_faults(); !st) {
-      return Reply::refused(Refusal::Kind::kUnavailable,
-                            fmt::format("table fault reset not done: {}", st.error().message));
-    }
-    log_command(fmt::format("table: fault reset by the operator ({})", reason));
-    return Reply::ok(
-        {{"ok", true},
-         {"message",
-          fmt::format("{}: fault reset sent; the table_fault interlock clears at the "
-                      "next reading without a fault{}",
-                      table_device_->name(),
-                      running && sequencer_->paused() ? "; `gyrotherm resume` goes on" : "")}});
-  }
-  return Reply::refused(Refusal::Kind::kNotFound, fmt::format("no control action '{}'", action));
+  const std::string message = fmt::format("table: fault reset by the operator ({})", reason);
+  journal_->add_event("operator", "", "", message);
+  spdlog::info("{}", message);
+  return Reply::ok(
+      {{"ok", true},
+       {"message",
+        fmt::format("{}: fault reset sent; the table_fault interlock clears at the "
+                    "next reading without a fault{}",
+                    table_device_->name(), run_->paused() ? "; `gyrotherm resume` goes on" : "")}});
 }
 
 Reply Station::queue_list() { return queries_.queue_list(); }

@@ -1,12 +1,21 @@
 // Station: the daemon's wiring of devices, queue, sequencer, storage and
-// analysis.
+// analysis, and its control loop. Each part is a room of its own, which
+// the station makes, links and ticks:
+//   PlantIo         (src/plant_io.h)        the chamber and shell probes
+//   DutAcquisition  (src/dut_acquisition.h) the DUTs, their readers to the writer
+//   TableControl    (table_control.h)       the rate table's safe states
+//   EventJournal    (src/event_journal.h)   events, run states, segments
+//   RunLifecycle    (src/run_lifecycle.h)   a run from its queue entry to
+//                                           its end; the queue's hold
+//   StationQueries  (station_queries.h)     the reads and queue edits of
+//                                           the control interface
 //
-// Threads: the control loop (Modbus polling, queue, sequencer ticks, set
-// point writes, temperature samples, checkpoints) runs on its own thread at
-// one tick per [control] tick_s of station time; each DUT's reader thread
-// timestamps and hands frames to the SampleWriter; the writer commits on
-// its thread; the AnalysisWorker computes Table I rows when soaks end. The
-// HTTP thread calls status() (cheap) and the StationControl methods.
+// Threads: the control loop (device polling, the run's tick, the status)
+// runs on its own thread at one tick per [control] tick_s of station time;
+// each DUT's reader thread timestamps and hands frames to the SampleWriter;
+// the writer commits on its thread; the AnalysisWorker computes Table I
+// rows when soaks end. The HTTP thread calls status() (a copy of the
+// snapshot the control loop keeps) and the StationControl methods.
 //
 // The queue lives in the database (storage::Database queue_*), so it
 // survives restarts; whether it is held (after `stop`, an abort or a failed
@@ -15,22 +24,15 @@
 // a stop interrupted (Sequencer::restore), with the downtime converted to
 // station time by the time scale.
 //
-// The reads and queue edits of the control interface are StationQueries'
-// (station_queries.h), over the HTTP thread's own database connection.
-//
-// Locking: run_mu_ guards the sequencer, the control-thread database
-// connection and the queue hold; StationQueries' lock its connection; mu_
-// guards the status snapshot. Order: run_mu_, the queries' lock, mu_.
-// The DUTs' acquisition is DutAcquisition's (src/dut_acquisition.h), with
-// its own locks; their status figures are under mu_ too. The event journal
-// is EventJournal's (src/event_journal.h), under run_mu_ (its posted events
-// under its own lock). The chamber and shell probes are PlantIo's
-// (src/plant_io.h), on the control thread; their health goes to the
-// snapshot under mu_.
-// The run's id and start time go to the gyro reader together (RunClock).
-// The count of waiting queue entries changes only by read-modify-write, by
-// the thread that changed the queue in the database (HTTP: add, remove;
-// control: start), never by storing a count read earlier.
+// Locking: run_mu_ guards the run (RunLifecycle), the journal, the
+// control-thread database connection and the control tick count;
+// StationQueries' lock its connection; mu_ guards the status snapshot.
+// Order: run_mu_, the queries' lock, mu_. DutAcquisition has its own locks
+// (its header); its status figures are under mu_ too. The run's id and
+// start time go to the gyro reader together (RunClock). The count of
+// waiting queue entries changes only by read-modify-write, by the thread
+// that changed the queue in the database (HTTP: add, remove; control:
+// start), never by storing a count read earlier.
 //
 // Device errors after start-up are counted, logged on change and reported
 // in status(); they never stop the daemon.
@@ -53,7 +55,6 @@
 #include "gyrotherm/core/clock.h"
 #include "gyrotherm/core/result.h"
 #include "gyrotherm/drivers/devices.h"
-#include "gyrotherm/schedules/progress.h"
 #include "gyrotherm/schedules/sequencer.h"
 #include "gyrotherm/station/control.h"
 #include "gyrotherm/station/run_clock.h"
@@ -72,6 +73,7 @@ namespace gyrotherm::station {
 class DutAcquisition;
 class EventJournal;
 class PlantIo;
+class RunLifecycle;
 
 // What the station tells the rest of the daemon; each optional.
 struct StationHooks {
@@ -120,7 +122,7 @@ struct StationClocks {
   const WallClock* nightly = nullptr;
 };
 
-class Station final : public StationControl, private schedules::SequencerObserver {
+class Station final : public StationControl {
  public:
   // Opens the database (creating/migrating it) and the sample writer, and
   // takes the devices (all three are needed). Fails (permanent) when the
@@ -148,9 +150,6 @@ class Station final : public StationControl, private schedules::SequencerObserve
   // the chamber to the safe set point, commits everything and joins the
   // threads. Idempotent.
   void stop(const std::string& reason);
-
-  // The sequencer of a run starting or resuming, with the config in force.
-  void make_sequencer(schedules::Plan plan);
 
   StatusSnapshot status() const;
   // An event from another part of the daemon (the lab relay: kind "lab"):
@@ -199,51 +198,19 @@ class Station final : public StationControl, private schedules::SequencerObserve
   void control_loop();
   void paced_control_loop(const PacedClock& clock);
   schedules::Readings read_devices(double now_s);
-  // Needs run_mu_.
-  void resume_interrupted_run();
-  // The sequencer's tick, with the segments it ends and starts written in
-  // one transaction with the checkpoint that says so.
-  void tick_sequencer(double t_run_s, const schedules::Readings& r);
-  void submit_missing_analyses();
+  // The tick's figures in the status: the devices', the run's and the queue's.
+  void publish_status(double now_s, double t_run_s, const schedules::Readings& r);
   void start_nightly_export();
-  void start_next_run(double now_s);
-  void end_run();
-  void note_samples_not_committed(int64_t run_id, schedules::RunState final_state, const Error& e);
   void note_storage_file();
-  void checkpoint(bool force);
-  void answer_failed_run();
-  void hold_queue(const std::string& reason);
-  void release_queue();
-  // Counts the waiting entries into queue_length_; at start() only, before
-  // any other thread changes the queue.
-  void count_queue();
-  int64_t current_run_id() const { return run_clock_.load().run_id; }
-  double run_time_s() const;
   // Idle: the table's safe state once, and the safe set point until the
   // chamber takes it (PlantIo::keep_safe).
   void keep_idle_safe();
-  // A run's table, before the sequencer's tick: an interruption holds the
-  // acquisition (and pauses the run unless [table] respin_after_fault); a
-  // latched fault holding the run is reset.
-  void tend_table(double t_run_s);
-  // The table's demand now: the step's, or at rest while the run is held
-  // (paused, an interlock tripped) or aborting.
-  schedules::TableDemand table_demand() const;
   // Stops the table (the safe state's first move) and waits, a bounded wall
   // time, for it to come to rest and open its interlock: at shutdown, when
   // no control loop is left to finish the safe state.
   void make_table_safe_now();
-
-  // SequencerObserver
-  void on_state(schedules::RunState from, schedules::RunState to, double t_s,
-                const std::string& reason) override;
-  void on_step_started(std::size_t index, const schedules::PlanStep& step, double t_s) override;
-  void on_step_changed(std::size_t index, const schedules::PlanStep& step,
-                       const schedules::StepTimes& times) override;
-  void on_interlock(schedules::InterlockKind kind, bool tripped, double t_s,
-                    const std::string& message) override;
-  void on_step_finished(std::size_t index, const schedules::PlanStep& step,
-                        const schedules::StepTimes& times, bool completed) override;
+  // The operator's table-reset (run_mu_ held).
+  Reply reset_table_faults(const std::string& reason);
 
   config::StationConfig config_;
   const Clock& clock_;
@@ -265,23 +232,15 @@ class Station final : public StationControl, private schedules::SequencerObserve
   std::unique_ptr<TableControl> table_;  // nullptr: no table
   const double started_wall_s_;          // wall_.monotonic_s() at create()
 
-  // Run state (run_mu_).
-  std::unique_ptr<schedules::Sequencer> sequencer_;
-  std::optional<storage::QueueEntry> entry_;  // the queue entry being run
-  std::string last_reason_;                   // of the last state change
-  bool stop_after_current_ = false;
-  bool queue_answered_ = false;             // answer_failed_run() spoke for the current run
-  std::string stop_reason_;                 // the operator's, for the hold message
-  std::optional<std::string> hold_reason_;  // queue held
-  std::string checkpoint_state_;
-  double last_checkpoint_wall_s_ = -1e9;
   // Control ticks (and the stop) counted, so a set point is written at most
-  // once in each (PlantIo::write_setpoint).
+  // once in each (PlantIo::write_setpoint). run_mu_.
   uint64_t control_ticks_ = 0;
-  bool checkpoint_failing_ = false;
   // Events, the run's state and its segment records (and what the
   // database refused of them); made in the constructor.
   std::unique_ptr<EventJournal> journal_;
+  // The run: start, resume, ticks, checkpoints, controls, end; the queue's
+  // hold (run_mu_); made in the constructor.
+  std::unique_ptr<RunLifecycle> run_;
 
   // Control-thread only.
   // Station and wall time of the last moment the sample writer's commits
@@ -292,14 +251,6 @@ class Station final : public StationControl, private schedules::SequencerObserve
   std::optional<std::string> storage_file_error_;
   bool storage_file_reported_ = false, storage_file_released_ = false;
   analysis::StabilityWindow shell_rate_window_{60.0};
-  // The queued entries' planned durations for the status's progress: read
-  // again when their count changed, otherwise every few wall seconds.
-  schedules::QueueDurations queue_durations_;
-  schedules::PlannedDuration queue_planned_;
-  int queue_scanned_length_ = -1;
-  double queue_scan_due_wall_s_ = 0;
-  // The run's and the queue's progress now (docs/schedules.md).
-  Progress progress(double t_run_s);
   std::atomic<int> queue_length_{0};
   std::atomic<bool> queue_held_{false};
   std::atomic<uint64_t> heartbeat_{0};
