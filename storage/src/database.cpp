@@ -254,6 +254,13 @@ Status Database::atomically(const std::function<Status()>& body) {
   return tx.commit();
 }
 
+Status Database::read_consistently(const std::function<Status()>& body) {
+  Transaction tx(db_, path_);
+  if (Status s = tx.begin_deferred(); !s) return s;
+  if (Status s = body(); !s) return s;  // ended by the rollback
+  return tx.commit();
+}
+
 Status Database::exec(std::string_view sql) { return internal::exec(db_, path_, sql); }
 
 Status Database::verify_quick() {

@@ -104,6 +104,13 @@ class Transaction {
     open_ = s.ok();
     return s;
   }
+  // A read transaction: the reads until commit() see one committed state.
+  Status begin_deferred() {
+    nested_ = sqlite3_get_autocommit(db_) == 0;
+    Status s = internal::exec(db_, path_, nested_ ? "SAVEPOINT inner" : "BEGIN");
+    open_ = s.ok();
+    return s;
+  }
   Status commit() {
     Status s = internal::exec(db_, path_, nested_ ? "RELEASE SAVEPOINT inner" : "COMMIT");
     if (s.ok()) open_ = false;

@@ -201,6 +201,40 @@ TEST(Database, ReadOnlyConnectionReadsButDoesNotWrite) {
   EXPECT_NE(s.error().message.find("readonly"), std::string::npos) << s.error().message;
 }
 
+// Reads inside read_consistently() see one committed state: a write another
+// connection commits in between shows only after it (the HTTP thread's
+// answers of several reads while the analysis thread stores results).
+TEST(Database, ReadConsistentlySeesOneCommittedState) {
+  TempDir dir;
+  const std::string path = dir.file("station.db");
+  Database reader = open_ok(path);
+  Database writer = open_ok(path);
+  const int64_t first = *writer.create_run(sample_run());
+  std::size_t before = 0, inside = 0;
+  const Status read = reader.read_consistently([&]() -> Status {
+    auto runs = reader.runs();
+    if (!runs) return runs.error();
+    before = runs->size();
+    // Another connection commits a run between the two reads.
+    if (auto id = writer.create_run(sample_run()); !id) return id.error();
+    runs = reader.runs();
+    if (!runs) return runs.error();
+    inside = runs->size();
+    return Status::Ok();
+  });
+  ASSERT_TRUE(read.ok()) << read.error().message;
+  EXPECT_EQ(before, 1u);
+  EXPECT_EQ(inside, 1u) << "the second read saw the other connection's commit";
+  EXPECT_EQ(reader.runs()->size(), 2u);
+  EXPECT_EQ(reader.run(first)->id, first);
+  // A failing body's error comes back; the connection reads on.
+  const Status failed =
+      reader.read_consistently([]() -> Status { return Error::Transient("body failed"); });
+  ASSERT_FALSE(failed.ok());
+  EXPECT_EQ(failed.error().message, "body failed");
+  EXPECT_EQ(reader.runs()->size(), 2u);
+}
+
 TEST(Database, RunRoundTrip) {
   TempDir dir;
   Database db = open_ok(dir.file("station.db"));

@@ -153,29 +153,44 @@ Reply StationQueries::runs() {
   return Reply::ok(std::move(out));
 }
 
+template <class Answer>
+Reply StationQueries::consistently(Answer answer) {
+  std::optional<Reply> reply;
+  const Status read = db_.read_consistently([&]() -> Status {
+    reply.emplace(answer());
+    return Status::Ok();
+  });
+  if (!read) return db_failure(read.error());
+  return std::move(*reply);
+}
+
 Reply StationQueries::run(int64_t id) {
   std::lock_guard lock(mu_);
-  auto run = db_.run(id);
-  if (!run) return run_lookup_failure(run.error(), id);
-  auto segs = db_.segments(id);
-  if (!segs) return db_failure(segs.error());
-  nlohmann::json j = to_json(*run);
-  nlohmann::json list = nlohmann::json::array();
-  for (const auto& s : *segs) list.push_back(to_json(s));
-  j["segments"] = std::move(list);
-  return Reply::ok(std::move(j));
+  return consistently([&] {
+    auto run = db_.run(id);
+    if (!run) return run_lookup_failure(run.error(), id);
+    auto segs = db_.segments(id);
+    if (!segs) return db_failure(segs.error());
+    nlohmann::json j = to_json(*run);
+    nlohmann::json list = nlohmann::json::array();
+    for (const auto& s : *segs) list.push_back(to_json(s));
+    j["segments"] = std::move(list);
+    return Reply::ok(std::move(j));
+  });
 }
 
 // A run's records as a JSON array; 404 for an unknown run.
 template <class Fetch>
 Reply StationQueries::run_records(int64_t id, Fetch fetch) {
   std::lock_guard lock(mu_);
-  if (auto run = db_.run(id); !run) return run_lookup_failure(run.error(), id);
-  auto records = fetch(db_);
-  if (!records) return db_failure(records.error());
-  nlohmann::json out = nlohmann::json::array();
-  for (const auto& r : *records) out.push_back(to_json(r));
-  return Reply::ok(std::move(out));
+  return consistently([&] {
+    if (auto run = db_.run(id); !run) return run_lookup_failure(run.error(), id);
+    auto records = fetch(db_);
+    if (!records) return db_failure(records.error());
+    nlohmann::json out = nlohmann::json::array();
+    for (const auto& r : *records) out.push_back(to_json(r));
+    return Reply::ok(std::move(out));
+  });
 }
 
 Reply StationQueries::run_events(int64_t id) {
@@ -196,26 +211,29 @@ Reply StationQueries::run_allan(int64_t id) {
 
 Reply StationQueries::run_scale_factor(int64_t id) {
   std::lock_guard lock(mu_);
-  if (auto run = db_.run(id); !run) return run_lookup_failure(run.error(), id);
-  auto points = db_.scale_factor_points(id);
-  if (!points) return db_failure(points.error());
-  auto fits = db_.scale_factor_fits(id);
-  if (!fits) return db_failure(fits.error());
-  auto over_t = db_.scale_factor_temperature_fit(id);
-  if (!over_t) return db_failure(over_t.error());
-  auto every_over_t = db_.scale_factor_temperature_fits(id);
-  if (!every_over_t) return db_failure(every_over_t.error());
-  nlohmann::json out = {{"points", nlohmann::json::array()},
-                        {"fits", nlohmann::json::array()},
-                        {"temperature_fit", nullptr},
-                        {"temperature_fits", nlohmann::json::array()}};
-  for (const auto& p : *points) out["points"].push_back(to_json(p));
-  for (const auto& f : *fits) out["fits"].push_back(to_json(f));
-  // temperature_fit: the first DUT's primary axis, as before several DUTs;
-  // temperature_fits: every DUT and axis.
-  if (*over_t) out["temperature_fit"] = to_json(**over_t);
-  for (const auto& t : *every_over_t) out["temperature_fits"].push_back(to_json(t));
-  return Reply::ok(std::move(out));
+  // One read: the analysis stores a series' points and fits together.
+  return consistently([&] {
+    if (auto run = db_.run(id); !run) return run_lookup_failure(run.error(), id);
+    auto points = db_.scale_factor_points(id);
+    if (!points) return db_failure(points.error());
+    auto fits = db_.scale_factor_fits(id);
+    if (!fits) return db_failure(fits.error());
+    auto over_t = db_.scale_factor_temperature_fit(id);
+    if (!over_t) return db_failure(over_t.error());
+    auto every_over_t = db_.scale_factor_temperature_fits(id);
+    if (!every_over_t) return db_failure(every_over_t.error());
+    nlohmann::json out = {{"points", nlohmann::json::array()},
+                          {"fits", nlohmann::json::array()},
+                          {"temperature_fit", nullptr},
+                          {"temperature_fits", nlohmann::json::array()}};
+    for (const auto& p : *points) out["points"].push_back(to_json(p));
+    for (const auto& f : *fits) out["fits"].push_back(to_json(f));
+    // temperature_fit: the first DUT's primary axis, as before several DUTs;
+    // temperature_fits: every DUT and axis.
+    if (*over_t) out["temperature_fit"] = to_json(**over_t);
+    for (const auto& t : *every_over_t) out["temperature_fits"].push_back(to_json(t));
+    return Reply::ok(std::move(out));
+  });
 }
 
 Reply StationQueries::fit(int64_t id) {
@@ -310,30 +328,32 @@ Reply StationQueries::edit_run(int64_t id, const MetadataEdit& edit,
 
 Reply StationQueries::run_stats_filtered(int64_t id, const StatsQuery& query) {
   std::lock_guard lock(mu_);
-  if (auto run = db_.run(id); !run) return run_lookup_failure(run.error(), id);
-  auto duts = db_.run_duts(id);
-  if (!duts) return db_failure(duts.error());
-  if (!query.dut.empty()) {
-    if (auto d = find_run_dut(*duts, id, query.dut); !d) {
-      return Reply::refused(Refusal::Kind::kNotFound, d.error().message);
-    }
-  }
-  auto rows = db_.segment_stats(id);
-  if (!rows) return db_failure(rows.error());
-  nlohmann::json out = nlohmann::json::array();
-  for (auto row : *rows) {
-    // Rows stored with "" are the run's first DUT and its primary axis.
-    if (!duts->empty()) {
-      if (row.dut_serial.empty()) row.dut_serial = duts->front().dut.serial;
-      if (row.axis.empty()) {
-        if (auto d = find_run_dut(*duts, id, row.dut_serial); d) row.axis = (*d)->primary_axis;
+  return consistently([&] {
+    if (auto run = db_.run(id); !run) return run_lookup_failure(run.error(), id);
+    auto duts = db_.run_duts(id);
+    if (!duts) return db_failure(duts.error());
+    if (!query.dut.empty()) {
+      if (auto d = find_run_dut(*duts, id, query.dut); !d) {
+        return Reply::refused(Refusal::Kind::kNotFound, d.error().message);
       }
     }
-    if (!query.dut.empty() && row.dut_serial != query.dut) continue;
-    if (!query.axis.empty() && row.axis != query.axis) continue;
-    out.push_back(to_json(row));
-  }
-  return Reply::ok(std::move(out));
+    auto rows = db_.segment_stats(id);
+    if (!rows) return db_failure(rows.error());
+    nlohmann::json out = nlohmann::json::array();
+    for (auto row : *rows) {
+      // Rows stored with "" are the run's first DUT and its primary axis.
+      if (!duts->empty()) {
+        if (row.dut_serial.empty()) row.dut_serial = duts->front().dut.serial;
+        if (row.axis.empty()) {
+          if (auto d = find_run_dut(*duts, id, row.dut_serial); d) row.axis = (*d)->primary_axis;
+        }
+      }
+      if (!query.dut.empty() && row.dut_serial != query.dut) continue;
+      if (!query.axis.empty() && row.axis != query.axis) continue;
+      out.push_back(to_json(row));
+    }
+    return Reply::ok(std::move(out));
+  });
 }
 
 Reply StationQueries::run_channel_samples(int64_t id, const SamplesQuery& query) {

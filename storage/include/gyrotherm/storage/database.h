@@ -116,6 +116,11 @@ class Database : public RunStore,
   // returned). For what must not be seen half done after a crash: a step's
   // end, the next step's start and the checkpoint that says so.
   Status atomically(const std::function<Status()>& body);
+  // Runs `body` (reads of this Database) in one read transaction: every
+  // read sees the same committed state, whatever other connections commit
+  // meanwhile, so an answer made of several reads never shows half of a
+  // write (a run's scale-factor fits without their points).
+  Status read_consistently(const std::function<Status()>& body);
 
   // PRAGMA integrity_check (quick: PRAGMA quick_check, which skips the
   // index contents): its rows, exactly {"ok"} when the file is sound, one

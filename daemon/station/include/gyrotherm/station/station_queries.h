@@ -64,6 +64,11 @@ class StationQueries {
  private:
   template <class Fetch>
   Reply run_records(int64_t id, Fetch fetch);
+  // `answer` (reads of db_) in one read transaction, so an answer of
+  // several reads shows one committed state (Database::read_consistently):
+  // the analysis thread commits a run's results meanwhile. Needs mu_.
+  template <class Answer>
+  Reply consistently(Answer answer);
   // nullopt when queue entry `id` is waiting; else the refusal (404, or 409
   // with `when_running` for the running entry). Needs mu_.
   std::optional<Reply> unless_queued(int64_t id, std::string_view when_running);
