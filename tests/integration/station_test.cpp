@@ -404,7 +404,7 @@ TEST_F(StationTest, GyroLineClosedAndReopenedStreamResumes) {
     max_gap_s = std::max(max_gap_s, (*samples)[i].t_s - (*samples)[i - 1].t_s);
   }
   // Samples from both sides of the outage are stored: the series has its gap.
-  EXPECT_GT(max_gap_s, 3.0 / kRateHz) << "no outage inside the stored samples";
+  EXPECT_GT(max_gap_s, 3.0 / kRateHz) << "no outage inside the stored samples\n" << daemon_->log();
 }
 
 // Garbage on the serial line: every corrupted frame is rejected and counted,
