@@ -48,9 +48,9 @@ double RunLifecycle::run_time_s() const {
 
 void RunLifecycle::make_sequencer(schedules::Plan plan) {
   // Valid: Station::create checked them.
-  sequencer_ =
-      std::make_unique<schedules::Sequencer>(std::move(plan), config::sequencer_options(links_.config),
-                                             static_cast<schedules::SequencerObserver&>(*this));
+  sequencer_ = std::make_unique<schedules::Sequencer>(
+      std::move(plan), config::sequencer_options(links_.config),
+      static_cast<schedules::SequencerObserver&>(*this));
 }
 
 void RunLifecycle::recover() {
@@ -471,8 +471,7 @@ Result<RunLifecycle::ResumePoint> RunLifecycle::resume_point(const storage::RunR
   // The downtime in station time; never before a committed sample. On the
   // simulator's clock that wrote the checkpoint it is exact; else from wall
   // time at the time scale.
-  const double down_wall_s =
-      std::max(0.0, links_.wall.unix_now_s() - *run.checkpoint_wall_unix_s);
+  const double down_wall_s = std::max(0.0, links_.wall.unix_now_s() - *run.checkpoint_wall_unix_s);
   double t_resume_s = snap->t_s + down_wall_s * clock.time_scale();
   if (const PacedClock* paced = as_paced(clock);
       paced && j.contains("clock_epoch") && j.contains("clock_at_checkpoint_s")) {
@@ -513,8 +512,7 @@ Result<RunLifecycle::ResumePoint> RunLifecycle::resume_point(const storage::RunR
   return at;
 }
 
-std::vector<int64_t> RunLifecycle::reopen_segments(const storage::RunRecord& run,
-                                                   ResumePoint& at) {
+std::vector<int64_t> RunLifecycle::reopen_segments(const storage::RunRecord& run, ResumePoint& at) {
   const std::size_t step = at.snap.step_index;
   std::vector<int64_t> segment_ids(at.plan.steps.size(), 0);
   if (auto segs = links_.db.segments(run.id)) {
@@ -706,8 +704,7 @@ void RunLifecycle::on_interlock(schedules::InterlockKind kind, bool tripped, dou
   links_.journal.add_event("interlock", "", "", message);
 }
 
-void RunLifecycle::on_step_started(std::size_t index, const schedules::PlanStep& step,
-                                   double t_s) {
+void RunLifecycle::on_step_started(std::size_t index, const schedules::PlanStep& step, double t_s) {
   links_.journal.start_segment(index, step, t_s);
   links_.duts.forget_coverage_before(t_s);
 }

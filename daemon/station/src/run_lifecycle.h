@@ -125,8 +125,7 @@ class RunLifecycle final : private schedules::SequencerObserver {
   // The sequencer's tick, with the segments it ends and starts written in
   // one transaction with the checkpoint that says so.
   void tick_sequencer(double t_run_s, const schedules::Readings& r);
-  void note_samples_not_committed(int64_t run_id, schedules::RunState final_state,
-                                  const Error& e);
+  void note_samples_not_committed(int64_t run_id, schedules::RunState final_state, const Error& e);
   void answer_failed_run();
   void hold_queue(const std::string& reason);
   void release_queue();
