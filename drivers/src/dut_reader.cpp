@@ -71,8 +71,8 @@ bool DutReader::wait_unless_stopped(std::chrono::milliseconds wall) {
 }
 
 // One opened line and the stamping of its stream; the reader thread's own.
-// It lives until the line hangs up; its clock slot is released before its
-// port is closed (the members' order).
+// It lives until the backoff after the line hung up is over; its clock slot
+// is let go when the line hangs up (run()).
 struct DutReader::Line {
   SerialPort port;
   const PacedClock* paced;  // the clock's paced side, or null
@@ -123,13 +123,15 @@ void DutReader::run() {
       backoff = kMinBackoff;  // the port delivers data: a later hang-up starts afresh
     }
     publish_held(*line);
-    // The line is gone: its slot on a simulator's clock goes with it, so the
+    // The line is gone: its slot on a simulator's clock goes now, so the
     // simulated station's time runs on through the outage as a real one's
     // would (the backoff and the reopen are a gap in station time too).
     // Held through the backoff, the slot stopped the clock for as long as
     // the reader waited: how much of an outage the samples showed depended
-    // on wall-clock timing.
-    line.reset();
+    // on wall-clock timing. The port stays open until the backoff is over:
+    // closed at once, its pseudo-terminal's number was free for another
+    // process to take, and the reopen found that one's line at the path.
+    line->slot.reset();
     if (stop_) break;
     if (!wait_unless_stopped(backoff)) break;
     backoff = std::min(backoff * 2, kMaxBackoff);
