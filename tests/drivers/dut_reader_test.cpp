@@ -319,12 +319,18 @@ TEST(DutReader, ABacklogReadInPiecesKeepsItsCounterSlots) {
   dut.stop();
 }
 
-TEST(DutReader, HangUpIsSurvivedAndTheMissingDeviceNamed) {
-  ManualClock clock(0.0);
+// An ASCII line of one rate column (°/h, axis z) on `device`.
+DutLink rate_line(const std::string& device) {
   DutLink link;
-  link.serial.device = "/dev/gyrotherm-no-such-dut";
+  link.serial.device = device;
   link.protocol = "ascii";
   link.ascii.columns = {col("rate", ChannelKind::kRate, "deg/h", "z")};
+  return link;
+}
+
+TEST(DutReader, HangUpIsSurvivedAndTheMissingDeviceNamed) {
+  ManualClock clock(0.0);
+  DutLink link = rate_line("/dev/gyrotherm-no-such-dut");
   auto source = make_dut_source(link, clock);
   ASSERT_TRUE(source.ok());
   Collector got;
@@ -400,11 +406,7 @@ class RecordingPacedClock final : public PacedClock {
 TEST(DutReader, AHungUpLineLetsGoOfTheSimulatorsClockBeforeItsBackoff) {
   RecordingPacedClock clock;
   Pty pty = open_pty();
-  DutLink link;
-  link.serial.device = pty.slave_path();
-  link.protocol = "ascii";
-  link.ascii.columns = {col("rate", ChannelKind::kRate, "deg/h", "z")};
-  auto source = make_dut_source(link, clock);
+  auto source = make_dut_source(rate_line(pty.slave_path()), clock);
   ASSERT_TRUE(source.ok());
   Collector got;
   (*source)->start(got.sink());
