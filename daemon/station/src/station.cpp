@@ -8,9 +8,7 @@
 #include <chrono>
 #include <cmath>
 #include <filesystem>
-#include <limits>
 #include <nlohmann/json.hpp>
-#include <sstream>
 
 #include "dut_acquisition.h"
 #include "event_journal.h"
