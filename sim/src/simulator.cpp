@@ -959,6 +959,15 @@ void Simulator::set_modbus_reply_delay_s(double wall_s) {
 void Simulator::close_pty(std::size_t dut) {
   if (dut >= duts_.size()) return;
   std::lock_guard lock(stream_mu_);
+  // The stable link goes first, as udev's /dev/serial/by-id/... goes with an
+  // unplugged adapter: left in place it named a pseudo-terminal number that
+  // is free once the pty closes, and a reader reopening the link could get
+  // another process's line (another simulator's gyro) under the same number.
+  // reopen_pty() points it at the new pty.
+  if (const std::string& link = duts_[dut]->link; !link.empty()) {
+    std::error_code ec;
+    std::filesystem::remove(link, ec);
+  }
   duts_[dut]->stream.close();
 }
 

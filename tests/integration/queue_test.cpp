@@ -642,11 +642,11 @@ acquire_min = 3
   ASSERT_EQ(daemon_->wait(std::chrono::seconds(90)), std::optional<int>(0)) << daemon_->log();
   auto db = storage::Database::open_read_only((dir_ / "station.db").string());
   ASSERT_TRUE(db.ok());
-  EXPECT_EQ(db->run(1)->state, "completed");
   std::string events;
   const auto rows = db->events(1);
   ASSERT_TRUE(rows.ok());
   for (const auto& e : *rows) events += e.message + "\n";
+  EXPECT_EQ(db->run(1)->state, "completed") << events << daemon_->log();
   EXPECT_THAT(events, HasSubstr("not stable at 23 ± 0.5 °C within 3 min"));
   EXPECT_THAT(events, HasSubstr("interlock settle_timeout cleared"));
 }

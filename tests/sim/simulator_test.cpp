@@ -238,11 +238,15 @@ TEST_F(SimulatorTest, ClosedPtyHangsUpAndReopenedPtyStreamsOnItsNewPath) {
   ASSERT_NO_FATAL_FAILURE(start());
   PtyReader old_reader(sim_->endpoints().gyro_device);
   ASSERT_TRUE(old_reader.read_until([&] { return old_reader.frames().size() >= 5; }));
+  const std::string old_target = std::filesystem::read_symlink(options_.gyro_link).string();
   sim_->close_pty();
   EXPECT_TRUE(old_reader.read_until([&] { return old_reader.hung_up(); }));
   EXPECT_TRUE(wait_for([&] { return sim_->status().stream.frames_dropped_closed > 0; }));
+  // While the line is down the link names no device: the closed pty's
+  // number is free for any process to take, and a reader reopening the
+  // link must not find that one's line.
+  EXPECT_FALSE(std::filesystem::is_symlink(std::filesystem::symlink_status(options_.gyro_link)));
 
-  const std::string old_target = std::filesystem::read_symlink(options_.gyro_link).string();
   ASSERT_TRUE(sim_->reopen_pty().ok());
   const std::string path = sim_->endpoints().gyro_device;
   // The stable link follows the new pty, as /dev/serial/by-id/... would.
