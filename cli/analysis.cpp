@@ -607,12 +607,17 @@ json stats_json(const analysis::Table1Row& row, const analysis::Table1Options& o
             {"bias_mean_earth_removed_dph", num(row.bias_mean_earth_removed_dph)},
             {"earth_rate_dph", num(o.earth_rate_dph)},
             {"bin_s", o.bin_s},
-            {"ma_window", o.ma_window}};
+            {"ma_window", o.ma_window},
+            {"bias_u", calibration::mean_uncertainty_json(row.bias_u)},
+            {"bias_u_note", row.bias_u_note}};
   json warnings = json::array();
   if (row.n <= o.ma_window) {
     warnings.push_back(
         fmt::format("{} points, not more than the {}-point moving average: no moving-average std",
                     row.n, o.ma_window));
+  }
+  if (!row.bias_u && !row.bias_u_note.empty()) {
+    warnings.push_back("no uncertainty of the bias mean: " + row.bias_u_note);
   }
   j["warnings"] = warnings;
   return j;
@@ -627,7 +632,16 @@ analysis::Table1Row row_of(const storage::SegmentStatsRecord& r) {
   row.bias_std_dph = r.bias_std_dph;
   row.bias_std_ma_dph = r.bias_std_ma_dph;
   row.bias_mean_earth_removed_dph = r.bias_mean_earth_removed_dph;
+  row.bias_u = calibration::mean_uncertainty_of(r);
+  row.bias_u_note = r.bias_u_note;
   return row;
+}
+
+// The half-width of the bias mean's 95 % interval, "RW" when rate random walk
+// dominates it (it covers less than it says); a dash when there is none.
+std::string bias_u_text(const analysis::Table1Row& r) {
+  if (!r.bias_u) return std::string(kDash);
+  return fixed(r.bias_u->expanded_dph, 4) + (r.bias_u->random_walk_dominated ? " RW" : "");
 }
 
 json mean_spread_json(const analysis::MeanSpread& m) {
@@ -743,7 +757,7 @@ int cmd_stats(const Parsed& p) {
                      const analysis::Table1Options& o,
                      const storage::ResultQuality* quality = nullptr) {
     for (std::string v : {std::to_string(r.n), fixed(r.duration_s, 0), fixed(r.temp_mean_c, 2),
-                          fixed(r.bias_mean_dph, 4), fixed(r.bias_std_dph, 4),
+                          fixed(r.bias_mean_dph, 4), bias_u_text(r), fixed(r.bias_std_dph, 4),
                           fixed(r.bias_std_ma_dph, 4), fixed(r.bias_mean_earth_removed_dph, 4)}) {
       lead.push_back(std::move(v));
     }
@@ -760,6 +774,10 @@ int cmd_stats(const Parsed& p) {
         fmt::format("std MA: after a {}-point moving average ({:g} s bins); bias−Ω: "
                     "Earth rate {:.4f} °/h removed",
                     o.ma_window, o.bin_s, o.earth_rate_dph));
+    footer.insert(
+        "± U95: half-width of the bias mean's 95 % interval, from the soak's noise model "
+        "(docs/analysis.md \"Uncertainty of a mean\"); RW: rate random walk dominates it, the "
+        "interval covers less than it says");
   };
   if (in->db && p.stored) {
     if (p.bin_s || p.ma_window || p.earth_rate_dph || p.latitude_deg || p.orientation ||
@@ -868,8 +886,8 @@ int cmd_stats(const Parsed& p) {
     std::cout << "no Table I rows\n";
     return 0;
   }
-  std::vector<std::string> header = {"n",       "length s",   "temp °C",   "bias °/h",
-                                     "std °/h", "std MA °/h", "bias−Ω °/h"};
+  std::vector<std::string> header = {"n",         "length s", "temp °C",    "bias °/h",
+                                     "± U95 °/h", "std °/h",  "std MA °/h", "bias−Ω °/h"};
   const std::vector<std::string> lead =
       in->db ? std::vector<std::string>{"run", "seg", "setpt °C", "DUT", "axis"}
              : std::vector<std::string>{"file"};
@@ -1004,17 +1022,7 @@ json noise_model_json(const AllanView& v) {
             {"rate_random_walk_dphprh", model_term_json(v.model->rate_random_walk_dphprh)},
             {"chi2", num(v.model->chi2)},
             {"mean_uncertainty", nullptr}};
-  if (v.mean_u) {
-    const auto& u = *v.mean_u;
-    j["mean_uncertainty"] = {{"window_s", num(u.window_s)},
-                             {"u_dph", num(u.u_dph)},
-                             {"dof", num(u.dof)},
-                             {"k", num(u.k)},
-                             {"expanded_dph", num(u.expanded_dph)},
-                             {"coverage", num(u.coverage)},
-                             {"floor_dph", num(u.floor_dph)},
-                             {"random_walk_dominated", u.random_walk_dominated}};
-  }
+  j["mean_uncertainty"] = calibration::mean_uncertainty_json(v.mean_u);
   return j;
 }
 

@@ -393,16 +393,16 @@ std::string format_lab_run(const json& j) {
   if (const json& t1 = field(j, "table1"); t1.is_array() && !t1.empty()) {
     std::vector<std::vector<std::string>> rows;
     for (const auto& r : t1) {
-      rows.push_back({serial_text(field(r, "dut_serial")), axis_text(r),
-                      step_text(field(r, "segment_index")), fixed(field(r, "setpoint_c"), 2),
-                      fixed(field(r, "temp_mean_c"), 2), text(field(r, "n")),
-                      fixed(field(r, "bias_mean_dph"), 4), fixed(field(r, "bias_std_dph"), 4),
-                      fixed(field(r, "bias_std_ma_dph"), 4),
-                      fixed(field(r, "bias_mean_earth_removed_dph"), 4)});
+      rows.push_back(
+          {serial_text(field(r, "dut_serial")), axis_text(r), step_text(field(r, "segment_index")),
+           fixed(field(r, "setpoint_c"), 2), fixed(field(r, "temp_mean_c"), 2), text(field(r, "n")),
+           fixed(field(r, "bias_mean_dph"), 4), fixed(field(r, "bias_u_expanded_dph"), 4),
+           fixed(field(r, "bias_std_dph"), 4), fixed(field(r, "bias_std_ma_dph"), 4),
+           fixed(field(r, "bias_mean_earth_removed_dph"), 4)});
     }
-    out += "\nTable I\n";
-    out += table({"DUT", "axis", "#", "set °C", "T mean °C", "n", "bias °/h", "σ °/h", "σ MA °/h",
-                  "bias−Earth °/h"},
+    out += "\nTable I (± U95: the 95 % interval of the bias mean)\n";
+    out += table({"DUT", "axis", "#", "set °C", "T mean °C", "n", "bias °/h", "± U95 °/h", "σ °/h",
+                  "σ MA °/h", "bias−Earth °/h"},
                  rows, 2, "  ");
   }
 

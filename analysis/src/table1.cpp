@@ -8,6 +8,7 @@
 #include <cmath>
 #include <limits>
 
+#include "gyrotherm/analysis/allan.h"
 #include "gyrotherm/core/units.h"
 
 namespace gyrotherm::analysis {
@@ -310,7 +311,36 @@ Result<Table1Row> table1_row(const AnalysisSeries& series, const Table1Options& 
   row.bias_std_dph = st.bias_std_dph;
   row.bias_std_ma_dph = st.bias_std_ma_dph;
   row.bias_mean_earth_removed_dph = row.bias_mean_dph - options.earth_rate_dph;
+  row.bias_u = series_mean_uncertainty(series, row.duration_s, &row.bias_u_note);
   return row;
+}
+
+std::optional<MeanUncertainty> series_mean_uncertainty(const AnalysisSeries& series,
+                                                       double window_s, std::string* note) {
+  const std::size_t n = series.rate_dph.size();
+  std::vector<double> spaced;
+  std::span<const double> t_s = series.t_s;
+  if (t_s.size() != n) {
+    spaced.resize(n);
+    for (std::size_t i = 0; i < n; ++i) spaced[i] = static_cast<double>(i) * series.bin_s;
+    t_s = spaced;
+  }
+  auto allan = allan_deviation(t_s, series.rate_dph, {.taus = TauSet::kOctave});
+  if (!allan) {
+    *note = "no Allan curve: " + allan.error().message;
+    return std::nullopt;
+  }
+  auto model = fit_noise_model(allan->tau_s, allan->adev_dph, allan->edf);
+  if (!model) {
+    *note = "no noise model: " + model.error().message;
+    return std::nullopt;
+  }
+  auto u = mean_uncertainty(*model, window_s);
+  if (!u) {
+    *note = u.error().message;
+    return std::nullopt;
+  }
+  return *u;
 }
 
 namespace {

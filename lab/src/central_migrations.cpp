@@ -418,6 +418,45 @@ FROM lab.records k
 WHERE k.kind = 'sf_fit' AND NOT k.deleted;
 )sql";
 
+// v3: Table I's mean with its uncertainty (the station's schema v13,
+// docs/analysis.md "Uncertainty of a mean"): lab.table1 gains bias_u_dph,
+// bias_u_expanded_dph (95 %), bias_u_k, bias_u_dof, bias_u_floor_dph,
+// bias_u_random_walk and bias_u_note, appended to its columns; NULL (and
+// '') for rows relayed before the station's v13.
+constexpr const char* kCentralV3 = R"sql(
+CREATE OR REPLACE VIEW lab.table1 WITH (security_invoker = true) AS
+SELECT t.station_id,
+       NULLIF(t.run_uuid, '00000000-0000-0000-0000-000000000000') AS run_uuid,
+       t.payload->>'dut_serial' AS dut_serial,
+       t.payload->>'axis' AS axis,
+       lab.jsonb_int8(t.payload->'segment_id') AS segment_id,
+       lab.jsonb_int8(t.payload->'segment_index') AS segment_index,
+       lab.jsonb_float8(t.payload->'setpoint_c') AS setpoint_c,
+       lab.jsonb_int8(t.payload->'n') AS n,
+       lab.jsonb_float8(t.payload->'duration_s') AS duration_s,
+       lab.jsonb_float8(t.payload->'temp_mean_c') AS temp_mean_c,
+       lab.jsonb_float8(t.payload->'bias_mean_dph') AS bias_mean_dph,
+       lab.jsonb_float8(t.payload->'bias_std_dph') AS bias_std_dph,
+       lab.jsonb_float8(t.payload->'bias_std_ma_dph') AS bias_std_ma_dph,
+       lab.jsonb_float8(t.payload->'bias_mean_earth_removed_dph') AS bias_mean_earth_removed_dph,
+       lab.jsonb_float8(t.payload->'earth_rate_dph') AS earth_rate_dph,
+       lab.jsonb_int8(t.payload->'ma_window') AS ma_window,
+       t.payload->>'computed_utc' AS computed_utc,
+       lab.jsonb_float8(t.payload->'coverage') AS coverage,
+       lab.jsonb_float8(t.payload->'longest_gap_s') AS longest_gap_s,
+       coalesce(t.payload->>'quality', 'unassessed') AS quality,
+       coalesce(t.payload->'quality_reasons_json', '[]'::jsonb) AS quality_reasons,
+       lab.jsonb_float8(t.payload->'bias_u_dph') AS bias_u_dph,
+       lab.jsonb_float8(t.payload->'bias_u_expanded_dph') AS bias_u_expanded_dph,
+       lab.jsonb_float8(t.payload->'bias_u_k') AS bias_u_k,
+       lab.jsonb_float8(t.payload->'bias_u_dof') AS bias_u_dof,
+       lab.jsonb_float8(t.payload->'bias_u_floor_dph') AS bias_u_floor_dph,
+       (lab.jsonb_int8(t.payload->'bias_u_random_walk') = 1) AS bias_u_random_walk,
+       coalesce(t.payload->>'bias_u_note', '') AS bias_u_note
+FROM lab.records t
+WHERE t.kind = 'table1' AND NOT t.deleted;
+)sql";
+
 struct CentralMigration {
   int version;
   const char* description;
@@ -427,6 +466,7 @@ struct CentralMigration {
 constexpr CentralMigration kCentralMigrations[] = {
     {1, "stations, records, relay progress, roles, row-level security, views", kCentralV1},
     {2, "result quality in the views of results", kCentralV2},
+    {3, "Table I mean uncertainty in lab.table1", kCentralV3},
 };
 
 static_assert(sizeof(kCentralMigrations) / sizeof(kCentralMigrations[0]) == kCentralSchemaVersion,

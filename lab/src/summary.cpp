@@ -260,7 +260,7 @@ struct DutResults {
 std::string table1_html(const std::vector<json>& rows) {
   std::string h = "<table>\n";
   h += header({"set point (°C)", "station/run", "started (UTC)", "step", "T mean (°C)", "points",
-               "bias mean (°/h)", "std (°/h)", "std after MA (°/h)", "MA (points)",
+               "bias mean (°/h)", "± U95 (°/h)", "std (°/h)", "std after MA (°/h)", "MA (points)",
                "Earth rate removed (°/h)"});
   h += "<tbody>\n";
   for (const auto& r : rows) {
@@ -269,9 +269,10 @@ std::string table1_html(const std::vector<json>& rows) {
          time_cell(str(r, "run_started_utc")) +
          cell(step ? std::to_string(static_cast<int64_t>(*step) + 1) : "") +
          num(member(r, "temp_mean_c"), 2) + num(member(r, "n"), 0) +
-         num(member(r, "bias_mean_dph"), 4) + num(member(r, "bias_std_dph"), 4) +
-         num(member(r, "bias_std_ma_dph"), 4) + num(member(r, "ma_window"), 0) +
-         num(member(r, "bias_mean_earth_removed_dph"), 4) + "</tr>\n";
+         num(member(r, "bias_mean_dph"), 4) + num(member(r, "bias_u_expanded_dph"), 4) +
+         num(member(r, "bias_std_dph"), 4) + num(member(r, "bias_std_ma_dph"), 4) +
+         num(member(r, "ma_window"), 0) + num(member(r, "bias_mean_earth_removed_dph"), 4) +
+         "</tr>\n";
   }
   return h + "</tbody></table>\n";
 }

@@ -620,6 +620,22 @@ ALTER TABLE sample_chunks ADD COLUMN piece INTEGER NOT NULL DEFAULT 0;
 CREATE INDEX sample_chunks_pieces ON sample_chunks(channel_id, t0_s) WHERE piece > 0;
 )sql";
 
+// v13: Table I's mean with its uncertainty (docs/analysis.md "Uncertainty
+// of a mean"): the noise model's u(T) at the soak's duration, its expanded
+// form at 95 %, the coverage factor and degrees of freedom, the flicker
+// floor and the random-walk flag; NULL for rows stored before v13 or a soak
+// that gave no model (bias_u_note says why). The table is relayed: the data
+// step regenerates the lab outbox triggers from its new columns.
+constexpr const char* kSchemaV13 = R"sql(
+ALTER TABLE segment_stats ADD COLUMN bias_u_dph REAL;           -- standard uncertainty of bias_mean_dph, °/h; NULL: none
+ALTER TABLE segment_stats ADD COLUMN bias_u_expanded_dph REAL;  -- bias_u_k x bias_u_dph, 95 %
+ALTER TABLE segment_stats ADD COLUMN bias_u_k REAL;             -- coverage factor (Student t at bias_u_dof)
+ALTER TABLE segment_stats ADD COLUMN bias_u_dof REAL;           -- effective degrees of freedom (at most 1e6)
+ALTER TABLE segment_stats ADD COLUMN bias_u_floor_dph REAL;     -- the flicker floor no soak length gets below, °/h
+ALTER TABLE segment_stats ADD COLUMN bias_u_random_walk INTEGER;  -- 1: u is mostly rate random walk (covers less than it says)
+ALTER TABLE segment_stats ADD COLUMN bias_u_note TEXT NOT NULL DEFAULT '';  -- why there is no uncertainty
+)sql";
+
 constexpr Migration kMigrations[] = {
     {1, "initial schema", kSchemaV1},
     {2, "queue, crash resume, acquisition windows", kSchemaV2},
@@ -634,6 +650,7 @@ constexpr Migration kMigrations[] = {
     {11, "result coverage and quality, rate-point guard bands", kSchemaV11,
      install_lab_triggers_step},
     {12, "packed sample chunks", kSchemaV12},
+    {13, "Table I mean uncertainty", kSchemaV13, install_lab_triggers_step},
 };
 
 static_assert(sizeof(kMigrations) / sizeof(kMigrations[0]) == kSchemaVersion,

@@ -6,6 +6,7 @@
 #include <fmt/format.h>
 #include <sqlite3.h>
 
+#include <algorithm>
 #include <cmath>
 #include <nlohmann/json.hpp>
 #include <utility>
@@ -27,7 +28,39 @@ constexpr const char* kStatsColumns =
     "segment_id, run_id, segment_index, setpoint_c, n, duration_s, temp_mean_c, bias_mean_dph, "
     "bias_std_dph, bias_std_ma_dph, bias_mean_earth_removed_dph, bin_s, ma_window, "
     "earth_rate_dph, t_from_s, t_to_s, computed_utc, dut_serial, axis, coverage_samples, "
-    "coverage_expected, coverage, longest_gap_s, quality, quality_reasons_json";
+    "coverage_expected, coverage, longest_gap_s, quality, quality_reasons_json, bias_u_dph, "
+    "bias_u_expanded_dph, bias_u_k, bias_u_dof, bias_u_floor_dph, bias_u_random_walk, "
+    "bias_u_note";
+
+void bind_bias_u(Stmt& st, int& i, const SegmentStatsRecord& s) {
+  if (const auto& u = s.bias_u) {
+    st.bind(i++, u->u_dph);
+    st.bind(i++, u->expanded_dph);
+    st.bind(i++, u->k);
+    st.bind(i++, std::min(u->dof, kMaxStoredDof));
+    st.bind(i++, u->floor_dph);
+    st.bind(i++, static_cast<int64_t>(u->random_walk_dominated));
+  } else {
+    for (int k = 0; k < 6; ++k) st.bind_null(i++);
+  }
+  st.bind(i++, std::string_view(s.bias_u_note));
+}
+
+void read_bias_u(const Stmt& st, int& c, SegmentStatsRecord& r) {
+  const std::optional<double> u = st.column_optional_double(c);
+  if (u) {
+    BiasUncertainty b;
+    b.u_dph = *u;
+    b.expanded_dph = st.column_double(c + 1);
+    b.k = st.column_double(c + 2);
+    b.dof = st.column_double(c + 3);
+    b.floor_dph = st.column_double(c + 4);
+    b.random_walk_dominated = st.column_optional_int64(c + 5).value_or(0) != 0;
+    r.bias_u = b;
+  }
+  c += 6;
+  r.bias_u_note = st.column_text(c++);
+}
 
 }  // namespace
 
@@ -43,7 +76,7 @@ Status ResultStore::put_segment_stats(const SegmentStatsRecord& s) {
       Stmt::prepare(db(), path(),
                     fmt::format("INSERT OR REPLACE INTO segment_stats({}) "
                                 "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
-                                "?, ?, ?, ?, ?, ?)",
+                                "?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                                 kStatsColumns));
   if (!st) return st.error();
   int i = 1;
@@ -67,6 +100,8 @@ Status ResultStore::put_segment_stats(const SegmentStatsRecord& s) {
   st->bind(i++, std::string_view(key->serial));
   st->bind(i++, std::string_view(key->axis));
   internal::bind_quality(*st, i, s.quality);
+  i += internal::kQualityColumnCount;
+  bind_bias_u(*st, i, s);
   internal::WriteScope tx(db(), path(), "put_segment_stats");
   if (Status s = tx.begin(); !s) return s;
   if (Status s = expect_done(*st, db(), path(), what); !s) return s;
@@ -118,6 +153,8 @@ Result<std::vector<SegmentStatsRecord>> ResultStore::segment_stats(std::optional
     r.dut_serial = st->column_text(c++);
     r.axis = st->column_text(c++);
     r.quality = internal::read_quality(*st, c);
+    c += internal::kQualityColumnCount;
+    read_bias_u(*st, c, r);
     out.push_back(std::move(r));
   }
   if (rc != SQLITE_DONE) return sqlite_error(db(), path(), "reading segment statistics");

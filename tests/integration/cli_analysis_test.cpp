@@ -267,6 +267,22 @@ void expect_row(const json& j, const analysis::Table1Row& r) {
   expect_number(j, "bias_std_dph", r.bias_std_dph);
   expect_number(j, "bias_std_ma101_dph", r.bias_std_ma_dph);
   expect_number(j, "bias_mean_earth_removed_dph", r.bias_mean_earth_removed_dph);
+  // The bias mean's uncertainty: the library's, or its reason for none.
+  ASSERT_TRUE(j.contains("bias_u")) << j.dump();
+  if (!r.bias_u) {
+    EXPECT_TRUE(j["bias_u"].is_null());
+    EXPECT_EQ(j.at("bias_u_note").get<std::string>(), r.bias_u_note);
+    return;
+  }
+  ASSERT_TRUE(j["bias_u"].is_object()) << j.dump();
+  expect_number(j["bias_u"], "window_s", r.bias_u->window_s);
+  expect_number(j["bias_u"], "u_dph", r.bias_u->u_dph);
+  expect_number(j["bias_u"], "expanded_dph", r.bias_u->expanded_dph);
+  expect_number(j["bias_u"], "k", r.bias_u->k);
+  expect_number(j["bias_u"], "dof", r.bias_u->dof);
+  expect_number(j["bias_u"], "floor_dph", r.bias_u->floor_dph);
+  EXPECT_EQ(j["bias_u"].at("random_walk_dominated").get<bool>(), r.bias_u->random_walk_dominated);
+  EXPECT_EQ(j.at("bias_u_note").get<std::string>(), "");
 }
 
 // ---------------------------------------------------------------- stats
@@ -292,6 +308,7 @@ TEST_F(CliAnalysisTest, StatsOnADatabaseMatchesTheLibraryAndUsesTheRunsSettings)
       EXPECT_EQ(w.at("setpoint_c").get<double>(), kStartC[k] + (s == 0 ? 0 : 20));
       EXPECT_EQ(w.at("t_from_s").get<double>(), windows.front().first);
       EXPECT_EQ(w.at("t_to_s").get<double>(), windows.back().second);
+      ASSERT_TRUE(row->bias_u) << row->bias_u_note;
       expect_row(w, *row);
       EXPECT_EQ(w.at("ma_window").get<int>(), kStoredMaWindow);
       EXPECT_EQ(w.at("bin_s").get<double>(), 1.0);
@@ -425,8 +442,10 @@ TEST_F(CliAnalysisTest, StatsWithoutARunCoversEveryRunAndPrintsATable) {
   EXPECT_THAT(r.out, HasSubstr("bias °/h"));
   EXPECT_THAT(r.out, HasSubstr("std MA °/h"));
   EXPECT_THAT(r.out, HasSubstr(fmt::format("{}-point moving average", kStoredMaWindow)));
-  // Header, 8 rows, footnote.
-  EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1 + 2 * kRuns + 1) << r.out;
+  EXPECT_THAT(r.out, HasSubstr("± U95 °/h"));
+  EXPECT_THAT(r.out, HasSubstr("95 % interval"));
+  // Header, 8 rows, two footnotes.
+  EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1 + 2 * kRuns + 2) << r.out;
   EXPECT_EQ(r.out.find("nan"), std::string::npos);
 }
 

@@ -347,7 +347,8 @@ TEST_F(LabTest, ThreeStationsThroughAnOutageAndAKillArriveExactlyOnce) {
       ASSERT_TRUE(stats.ok());
       for (const auto& row : *stats) {
         auto there = admin_->exec_params(
-            "SELECT bias_mean_dph, bias_std_dph, bias_std_ma_dph, temp_mean_c FROM lab.table1 "
+            "SELECT bias_mean_dph, bias_std_dph, bias_std_ma_dph, temp_mean_c, bias_u_dph, "
+            "bias_u_expanded_dph FROM lab.table1 "
             "WHERE station_id = $1 AND run_uuid = $2 AND segment_id = $3 AND dut_serial = $4 AND "
             "axis = $5",
             {s->id, run.uuid, std::to_string(row.segment_id), row.dut_serial, row.axis});
@@ -358,6 +359,10 @@ TEST_F(LabTest, ThreeStationsThroughAnOutageAndAKillArriveExactlyOnce) {
         EXPECT_EQ(std::stod(r[1].value_or("nan")), row.bias_std_dph);
         EXPECT_EQ(std::stod(r[2].value_or("nan")), row.bias_std_ma_dph);
         EXPECT_EQ(std::stod(r[3].value_or("nan")), row.temp_mean_c);
+        // The bias mean's uncertainty arrives with the row (schema v13).
+        ASSERT_TRUE(row.bias_u) << row.bias_u_note;
+        EXPECT_EQ(std::stod(r[4].value_or("nan")), row.bias_u->u_dph);
+        EXPECT_EQ(std::stod(r[5].value_or("nan")), row.bias_u->expanded_dph);
       }
     }
   }

@@ -148,6 +148,13 @@ TEST_F(QueueTest, QueuePauseResumeReorderAbortOverRest) {
       << diag();
   EXPECT_GE(last_[0]["n"].get<int>(), 358) << "1 s bins of both windows, paused time left out";
   EXPECT_LE(last_[0]["n"].get<int>(), 360);
+  // The bias mean's uncertainty, over both windows' bins.
+  ASSERT_TRUE(last_[0]["bias_u"].is_object()) << last_[0].dump();
+  EXPECT_GT(last_[0]["bias_u"]["u_dph"].get<double>(), 0.0);
+  EXPECT_GT(last_[0]["bias_u"]["expanded_dph"].get<double>(),
+            last_[0]["bias_u"]["u_dph"].get<double>());
+  EXPECT_EQ(last_[0]["bias_u"]["window_s"], last_[0]["duration_s"]);
+  EXPECT_EQ(last_[0]["bias_u_note"], "");
   EXPECT_THAT(events_text(1), HasSubstr("paused (door opened)"));
 
   // The third schedule runs next (it was moved ahead); abort it.

@@ -182,13 +182,14 @@ void expect_integer(const Csv& csv, std::size_t row, const std::string& column, 
 
 // The CSV's Table I rows are the database's segment_stats, every column.
 void expect_table1(const Csv& csv, const std::vector<storage::SegmentStatsRecord>& stats) {
-  EXPECT_THAT(
-      csv.header,
-      ::testing::ElementsAre(
-          "run_id", "step", "segment_index", "setpoint_c", "temp_mean_c", "n", "duration_s",
-          "bias_mean_dph", "bias_mean_earth_removed_dph", "bias_std_dph", "bias_std_ma_dph",
-          "earth_rate_dph", "bin_s", "ma_window", "t_from_s", "t_to_s", "computed_utc", "coverage",
-          "coverage_samples", "coverage_expected", "longest_gap_s", "quality", "quality_reasons"));
+  EXPECT_THAT(csv.header,
+              ::testing::ElementsAre(
+                  "run_id", "step", "segment_index", "setpoint_c", "temp_mean_c", "n", "duration_s",
+                  "bias_mean_dph", "bias_mean_earth_removed_dph", "bias_std_dph", "bias_std_ma_dph",
+                  "earth_rate_dph", "bin_s", "ma_window", "t_from_s", "t_to_s", "computed_utc",
+                  "coverage", "coverage_samples", "coverage_expected", "longest_gap_s", "quality",
+                  "quality_reasons", "bias_u_dph", "bias_u_expanded_dph", "bias_u_k", "bias_u_dof",
+                  "bias_u_floor_dph", "bias_u_random_walk", "bias_u_note"));
   ASSERT_EQ(csv.rows.size(), stats.size());
   for (std::size_t i = 0; i < stats.size(); ++i) {
     const auto& s = stats[i];
@@ -214,6 +215,15 @@ void expect_table1(const Csv& csv, const std::vector<storage::SegmentStatsRecord
     expect_integer(csv, i, "coverage_samples", s.quality.samples);
     expect_exact(csv, i, "longest_gap_s", s.quality.longest_gap_s);
     EXPECT_EQ(csv.at(i, "quality"), s.quality.verdict);
+    // The bias mean's uncertainty, as stored: every soak of these runs has one.
+    ASSERT_TRUE(s.bias_u) << s.bias_u_note;
+    expect_exact(csv, i, "bias_u_dph", s.bias_u->u_dph);
+    expect_exact(csv, i, "bias_u_expanded_dph", s.bias_u->expanded_dph);
+    expect_exact(csv, i, "bias_u_k", s.bias_u->k);
+    expect_exact(csv, i, "bias_u_dof", s.bias_u->dof);
+    expect_exact(csv, i, "bias_u_floor_dph", s.bias_u->floor_dph);
+    EXPECT_EQ(csv.at(i, "bias_u_random_walk"), s.bias_u->random_walk_dominated ? "1" : "0");
+    EXPECT_EQ(csv.at(i, "bias_u_note"), "");
   }
 }
 

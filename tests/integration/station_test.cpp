@@ -105,6 +105,14 @@ TEST_F(StationTest, ShortScheduleEndToEnd) {
     EXPECT_LT(r.bias_std_ma_dph, r.bias_std_dph / 4.0) << "101-point average shrinks white noise";
     EXPECT_NEAR(r.bias_mean_earth_removed_dph, r.bias_mean_dph - earth_dph, 1e-9);
     EXPECT_NEAR(r.earth_rate_dph, earth_dph, 1e-9);
+    // The mean's uncertainty: white noise, so u is the standard error of
+    // the 360 bins' mean (within the spread of one soak's noise model), and
+    // the 95 % interval is about two of it.
+    ASSERT_TRUE(r.bias_u) << r.bias_u_note;
+    const double se_dph = r.bias_std_dph / std::sqrt(static_cast<double>(r.n));
+    EXPECT_NEAR(r.bias_u->u_dph, se_dph, 0.3 * se_dph);
+    EXPECT_NEAR(r.bias_u->expanded_dph / r.bias_u->u_dph, 1.96, 0.15);
+    EXPECT_FALSE(r.bias_u->random_walk_dominated);
   }
 
   // Every state change is an event row with a reason.

@@ -150,10 +150,10 @@ TEST_F(CentralTest, MigrateCreatesTheCurrentVersionAndTwiceIsANoOp) {
 
   auto v = migrate_central(pg);
   ASSERT_TRUE(v.ok()) << v.error().message;
-  EXPECT_EQ(*v, 2);
-  EXPECT_EQ(kCentralSchemaVersion, 2);
-  EXPECT_EQ(*central_schema_version(pg), 2);
-  EXPECT_EQ(scalar(pg, "SELECT count(*) FROM lab.schema_migrations"), "2");
+  EXPECT_EQ(*v, 3);
+  EXPECT_EQ(kCentralSchemaVersion, 3);
+  EXPECT_EQ(*central_schema_version(pg), 3);
+  EXPECT_EQ(scalar(pg, "SELECT count(*) FROM lab.schema_migrations"), "3");
   const std::string applied = scalar(pg, "SELECT max(applied_at) FROM lab.schema_migrations");
   EXPECT_EQ(scalar(pg,
                    "SELECT count(*) FROM pg_roles WHERE rolname IN "
@@ -162,8 +162,8 @@ TEST_F(CentralTest, MigrateCreatesTheCurrentVersionAndTwiceIsANoOp) {
 
   auto again = migrate_central(pg);
   ASSERT_TRUE(again.ok()) << again.error().message;
-  EXPECT_EQ(*again, 2);
-  EXPECT_EQ(scalar(pg, "SELECT count(*) FROM lab.schema_migrations"), "2");
+  EXPECT_EQ(*again, 3);
+  EXPECT_EQ(scalar(pg, "SELECT count(*) FROM lab.schema_migrations"), "3");
   EXPECT_EQ(scalar(pg, "SELECT max(applied_at) FROM lab.schema_migrations"), applied);
 }
 
@@ -178,10 +178,10 @@ TEST_F(CentralTest, NewerSchemaIsRefusedNamingBothVersions) {
   ASSERT_FALSE(v.ok());
   EXPECT_FALSE(v.error().transient);
   EXPECT_NE(v.error().message.find("version 99"), std::string::npos) << v.error().message;
-  EXPECT_NE(v.error().message.find("version 2 "), std::string::npos) << v.error().message;
+  EXPECT_NE(v.error().message.find("version 3 "), std::string::npos) << v.error().message;
   // Nothing was touched, and the connection is usable (the transaction ended):
-  // versions 1, 2 and 99.
-  EXPECT_EQ(scalar(pg, "SELECT count(*) FROM lab.schema_migrations"), "3");
+  // versions 1, 2, 3 and 99.
+  EXPECT_EQ(scalar(pg, "SELECT count(*) FROM lab.schema_migrations"), "4");
 }
 
 TEST_F(CentralTest, ConcurrentMigrationsBothSucceedOneApplies) {
@@ -209,9 +209,9 @@ TEST_F(CentralTest, ConcurrentMigrationsBothSucceedOneApplies) {
   t2.join();
   ASSERT_TRUE(r1.ok()) << r1.error().message;
   ASSERT_TRUE(r2.ok()) << r2.error().message;
-  EXPECT_EQ(*r1, 2);
-  EXPECT_EQ(*r2, 2);
-  EXPECT_EQ(scalar(watcher, "SELECT count(*) FROM lab.schema_migrations"), "2");
+  EXPECT_EQ(*r1, 3);
+  EXPECT_EQ(*r2, 3);
+  EXPECT_EQ(scalar(watcher, "SELECT count(*) FROM lab.schema_migrations"), "3");
   EXPECT_EQ(scalar(watcher, "SELECT count(*) FROM pg_views WHERE schemaname = 'lab'"), "11");
 }
 
@@ -512,7 +512,7 @@ TEST_F(CentralTest, ViewsHaveTheDocumentedColumnsAndTypes) {
   auto pg = connect();
   ASSERT_TRUE(migrate_central(pg).ok());
   const std::string t = "text", u = "uuid", i = "bigint", f = "double precision", j = "jsonb",
-                    ts = "timestamp with time zone";
+                    b = "boolean", ts = "timestamp with time zone";
   const std::vector<std::pair<std::string, std::vector<std::pair<std::string, std::string>>>>
       views = {
           {"runs",
@@ -552,17 +552,20 @@ TEST_F(CentralTest, ViewsHaveTheDocumentedColumnsAndTypes) {
             {"t_end_s", f},
             {"table_mode", t},
             {"table_rate_dps", f}}},
-          {"table1", {{"station_id", t},      {"run_uuid", u},
-                      {"dut_serial", t},      {"axis", t},
-                      {"segment_id", i},      {"segment_index", i},
-                      {"setpoint_c", f},      {"n", i},
-                      {"duration_s", f},      {"temp_mean_c", f},
-                      {"bias_mean_dph", f},   {"bias_std_dph", f},
-                      {"bias_std_ma_dph", f}, {"bias_mean_earth_removed_dph", f},
-                      {"earth_rate_dph", f},  {"ma_window", i},
-                      {"computed_utc", t},    {"coverage", f},
-                      {"longest_gap_s", f},   {"quality", t},
-                      {"quality_reasons", j}}},
+          {"table1", {{"station_id", t},          {"run_uuid", u},
+                      {"dut_serial", t},          {"axis", t},
+                      {"segment_id", i},          {"segment_index", i},
+                      {"setpoint_c", f},          {"n", i},
+                      {"duration_s", f},          {"temp_mean_c", f},
+                      {"bias_mean_dph", f},       {"bias_std_dph", f},
+                      {"bias_std_ma_dph", f},     {"bias_mean_earth_removed_dph", f},
+                      {"earth_rate_dph", f},      {"ma_window", i},
+                      {"computed_utc", t},        {"coverage", f},
+                      {"longest_gap_s", f},       {"quality", t},
+                      {"quality_reasons", j},     {"bias_u_dph", f},
+                      {"bias_u_expanded_dph", f}, {"bias_u_k", f},
+                      {"bias_u_dof", f},          {"bias_u_floor_dph", f},
+                      {"bias_u_random_walk", b},  {"bias_u_note", t}}},
           {"allan",
            {{"station_id", t},
             {"run_uuid", u},
@@ -771,7 +774,14 @@ TEST_F(CentralTest, ViewsReadRealisticPayloads) {
        {"earth_rate_dph", 10.0},
        {"t_from_s", 4000.0},
        {"t_to_s", 7200.0},
-       {"computed_utc", "2026-03-02T06:10:00Z"}});
+       {"computed_utc", "2026-03-02T06:10:00Z"},
+       {"bias_u_dph", 0.00031},
+       {"bias_u_expanded_dph", 0.00062},
+       {"bias_u_k", 2.01},
+       {"bias_u_dof", 48.5},
+       {"bias_u_floor_dph", 0.0001},
+       {"bias_u_random_walk", 1},
+       {"bias_u_note", ""}});
   add("allan", kRun1, "5",
       {{"id", 5},
        {"run_id", 7},
@@ -967,6 +977,16 @@ TEST_F(CentralTest, ViewsReadRealisticPayloads) {
   EXPECT_EQ(t1[0]["earth_rate_dph"], "10");
   EXPECT_EQ(t1[0]["ma_window"], "100");
   EXPECT_EQ(t1[0]["computed_utc"], "2026-03-02T06:10:00Z");
+  EXPECT_EQ(t1[0]["bias_u_dph"], "0.00031");
+  EXPECT_EQ(t1[0]["bias_u_expanded_dph"], "0.00062");
+  EXPECT_EQ(t1[0]["bias_u_k"], "2.01");
+  EXPECT_EQ(t1[0]["bias_u_dof"], "48.5");
+  EXPECT_EQ(t1[0]["bias_u_floor_dph"], "0.0001");
+  EXPECT_EQ(t1[0]["bias_u_random_walk"], "t");
+  EXPECT_EQ(t1[0]["bias_u_note"], "");
+  // A row relayed before the station's v13: no uncertainty.
+  EXPECT_EQ(t1[1]["bias_u_dph"], "<null>");
+  EXPECT_EQ(t1[1]["bias_u_note"], "");
   EXPECT_EQ(t1[1]["setpoint_c"], "<null>") << "text in a number column reads as NULL";
   EXPECT_EQ(t1[1]["bias_std_dph"], "Infinity");
   EXPECT_EQ(t1[1]["duration_s"], "<null>");

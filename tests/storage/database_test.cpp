@@ -46,7 +46,7 @@ TEST(Database, OpenCreatesTheCurrentSchemaInWalMode) {
   auto version = db.schema_version();
   ASSERT_TRUE(version.ok()) << version.error().message;
   EXPECT_EQ(*version, kSchemaVersion);
-  EXPECT_EQ(kSchemaVersion, 12);
+  EXPECT_EQ(kSchemaVersion, 13);
   EXPECT_EQ(query_text(db.handle(), "PRAGMA journal_mode"), "wal");
   EXPECT_EQ(query_int(db.handle(), "PRAGMA synchronous"), 1);  // NORMAL
   EXPECT_EQ(query_int(db.handle(), "PRAGMA foreign_keys"), 1);
@@ -451,13 +451,22 @@ TEST(Database, SegmentStatsRoundTripAndReplace) {
   row.t_from_s = 5000.0;
   row.t_to_s = 12200.0;
   row.computed_utc = "2026-11-21T09:00:00.000Z";
-  ASSERT_TRUE(db.put_segment_stats(row).ok());
+  row.bias_u = BiasUncertainty{.u_dph = 0.0123,
+                               .expanded_dph = 0.0246,
+                               .k = 2.0,
+                               .dof = std::numeric_limits<double>::infinity(),
+                               .floor_dph = 0.004,
+                               .random_walk_dominated = true};
+  const Status put = db.put_segment_stats(row);
+  ASSERT_TRUE(put.ok()) << put.error().message;
 
   SegmentStatsRecord short_window = row;  // fewer points than the MA window
   short_window.segment_id = seg1;
   short_window.segment_index = 1;
   short_window.n = 50;
   short_window.bias_std_ma_dph = kNaN;
+  short_window.bias_u.reset();
+  short_window.bias_u_note = "no noise model: too few taus";
   ASSERT_TRUE(db.put_segment_stats(short_window).ok());
 
   SegmentStatsRecord other_run = row;
@@ -472,7 +481,17 @@ TEST(Database, SegmentStatsRoundTripAndReplace) {
   EXPECT_EQ((*rows)[0].segment_id, seg1);  // ordered by segment index
   EXPECT_EQ((*rows)[0].n, 50);
   EXPECT_TRUE(std::isnan((*rows)[0].bias_std_ma_dph));
+  EXPECT_FALSE((*rows)[0].bias_u);
+  EXPECT_EQ((*rows)[0].bias_u_note, "no noise model: too few taus");
   const SegmentStatsRecord& r = (*rows)[1];
+  ASSERT_TRUE(r.bias_u);
+  EXPECT_EQ(r.bias_u->u_dph, 0.0123);
+  EXPECT_EQ(r.bias_u->expanded_dph, 0.0246);
+  EXPECT_EQ(r.bias_u->k, 2.0);
+  EXPECT_EQ(r.bias_u->dof, kMaxStoredDof);  // infinite dof is stored capped
+  EXPECT_EQ(r.bias_u->floor_dph, 0.004);
+  EXPECT_TRUE(r.bias_u->random_walk_dominated);
+  EXPECT_EQ(r.bias_u_note, "");
   EXPECT_EQ(r.segment_id, seg3);
   EXPECT_EQ(r.run_id, run1);
   EXPECT_EQ(r.segment_index, 3);

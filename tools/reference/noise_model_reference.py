@@ -11,7 +11,7 @@ documents: every non-empty subset of the terms (1/tau, 1, tau) fitted to the
 Allan variances by least squares with weights edf / (2 m^2), m the model's
 values (the measured ones in the first round, at least 0.05 of the measured
 value), 8 rounds; subsets with a negative coefficient dropped; the least
-chi^2 + 6 per term wins; covariance inv(A' W A) at the last weights;
+chi^2 + 10 per term wins; covariance inv(A' W A) at the last weights;
 u^2(T) = q_n / T + q_b + q_k T and its Welch-Satterthwaite dof.
 
 Run: /usr/bin/python3 tools/reference/noise_model_reference.py  (deterministic).
@@ -25,7 +25,7 @@ import numpy as np
 
 from refgen import OUT_DIR
 
-PENALTY = 6.0
+PENALTY = 10.0
 ROUNDS = 8
 WINDOWS_S = [1.0, 100.0, 2000.0, 1e5]
 

@@ -132,13 +132,24 @@ std::string flagged_html(const storage::ResultQuality& q) {
                      text::html_escape(fmt::format("{}", fmt::join(q.reasons, "; "))));
 }
 
+// The half-width of the bias mean's 95 % interval; "RW" when rate random
+// walk dominates it; a dash (with the reason as a tooltip) when there is none.
+std::string bias_u_cell(const storage::SegmentStatsRecord& r) {
+  if (!r.bias_u) {
+    return fmt::format("<td class=\"num\" title=\"{}\">—</td>", text::html_escape(r.bias_u_note));
+  }
+  return fmt::format("<td class=\"num\">{:.4f}{}</td>", r.bias_u->expanded_dph,
+                     r.bias_u->random_walk_dominated ? " RW" : "");
+}
+
 std::string table1_html(const std::vector<const storage::SegmentStatsRecord*>& rows,
                         bool with_run) {
   if (rows.empty()) return "<p class=\"problem\">No completed soak: no Table I row.</p>\n";
   std::string h = "<table class=\"numbers\">\n<thead><tr>";
   if (with_run) h += "<th>run</th>";
   h += "<th>step</th><th>set point (°C)</th><th>mean shell temperature (°C)</th><th>points "
-       "(bins)</th><th>duration (s)</th><th>mean zero bias (°/h)</th><th>mean, Earth rate "
+       "(bins)</th><th>duration (s)</th><th>mean zero bias (°/h)</th><th>± U95 (°/h)</th>"
+       "<th>mean, Earth rate "
        "removed (°/h)</th><th>std (°/h)</th><th>std after the moving average (°/h)</th>"
        "<th>quality</th></tr></thead>\n<tbody>\n";
   for (const auto* r : rows) {
@@ -147,9 +158,9 @@ std::string table1_html(const std::vector<const storage::SegmentStatsRecord*>& r
     h += fmt::format("<td class=\"num\">{}</td>", step_name(r->segment_index));
     h += num_cell(r->setpoint_c, 1) + num_cell(r->temp_mean_c, 3) +
          fmt::format("<td class=\"num\">{}</td>", r->n) + num_cell(r->duration_s, 0) +
-         num_cell(r->bias_mean_dph, 4) + num_cell(r->bias_mean_earth_removed_dph, 4) +
-         num_cell(r->bias_std_dph, 4) + num_cell(r->bias_std_ma_dph, 4) + quality_cell(r->quality) +
-         "</tr>\n";
+         num_cell(r->bias_mean_dph, 4) + bias_u_cell(*r) +
+         num_cell(r->bias_mean_earth_removed_dph, 4) + num_cell(r->bias_std_dph, 4) +
+         num_cell(r->bias_std_ma_dph, 4) + quality_cell(r->quality) + "</tr>\n";
   }
   h += "</tbody></table>\n";
   for (const auto* r : rows) {
@@ -163,7 +174,10 @@ std::string table1_html(const std::vector<const storage::SegmentStatsRecord*>& r
   h += fmt::format(
       "<p class=\"note\">Each soak's acquisition is averaged into {:g} s bins (pauses cut out); "
       "the std after the moving average uses a {}-point window. Earth rate removed: {:.4f} °/h. "
-      "The CSV files carry every value to 17 significant digits.</p>\n",
+      "± U95: the half-width of the mean's 95 % interval, from the soak's own noise model (white "
+      "noise, bias instability, rate random walk fitted to its Allan curve and projected to the "
+      "soak's duration); RW: rate random walk dominates it, and the interval covers less often "
+      "than it says. The CSV files carry every value to 17 significant digits.</p>\n",
       first->bin_s, first->ma_window, first->earth_rate_dph);
   return h;
 }
@@ -822,14 +836,20 @@ std::string table1_csv(const std::vector<storage::SegmentStatsRecord>& rows) {
       "run_id,step,segment_index,setpoint_c,temp_mean_c,n,duration_s,bias_mean_dph,"
       "bias_mean_earth_removed_dph,bias_std_dph,bias_std_ma_dph,earth_rate_dph,bin_s,ma_window,"
       "t_from_s,t_to_s,computed_utc," +
-      std::string(kQualityCsvColumns) + "\n";
+      std::string(kQualityCsvColumns) +
+      ",bias_u_dph,bias_u_expanded_dph,bias_u_k,bias_u_dof,bias_u_floor_dph,bias_u_random_walk,"
+      "bias_u_note\n";
   for (const auto& r : rows) {
+    const auto& u = r.bias_u;
     out += fmt::format(
-        "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", r.run_id, r.segment_index + 1,
-        r.segment_index, exact(r.setpoint_c), exact(r.temp_mean_c), r.n, exact(r.duration_s),
-        exact(r.bias_mean_dph), exact(r.bias_mean_earth_removed_dph), exact(r.bias_std_dph),
-        exact(r.bias_std_ma_dph), exact(r.earth_rate_dph), exact(r.bin_s), r.ma_window,
-        exact(r.t_from_s), exact(r.t_to_s), csv_field(r.computed_utc), quality_csv(r.quality));
+        "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", r.run_id,
+        r.segment_index + 1, r.segment_index, exact(r.setpoint_c), exact(r.temp_mean_c), r.n,
+        exact(r.duration_s), exact(r.bias_mean_dph), exact(r.bias_mean_earth_removed_dph),
+        exact(r.bias_std_dph), exact(r.bias_std_ma_dph), exact(r.earth_rate_dph), exact(r.bin_s),
+        r.ma_window, exact(r.t_from_s), exact(r.t_to_s), csv_field(r.computed_utc),
+        quality_csv(r.quality), u ? exact(u->u_dph) : "", u ? exact(u->expanded_dph) : "",
+        u ? exact(u->k) : "", u ? exact(u->dof) : "", u ? exact(u->floor_dph) : "",
+        u ? (u->random_walk_dominated ? "1" : "0") : "", csv_field(r.bias_u_note));
   }
   return out;
 }

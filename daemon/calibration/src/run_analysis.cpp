@@ -432,6 +432,43 @@ storage::ResultQuality result_quality(const analysis::Coverage& c,
   return q;
 }
 
+std::optional<storage::BiasUncertainty> bias_uncertainty_record(
+    const std::optional<analysis::MeanUncertainty>& u) {
+  if (!u) return std::nullopt;
+  return storage::BiasUncertainty{.u_dph = u->u_dph,
+                                  .expanded_dph = u->expanded_dph,
+                                  .k = u->k,
+                                  .dof = u->dof,
+                                  .floor_dph = u->floor_dph,
+                                  .random_walk_dominated = u->random_walk_dominated};
+}
+
+std::optional<analysis::MeanUncertainty> mean_uncertainty_of(const storage::SegmentStatsRecord& r) {
+  if (!r.bias_u) return std::nullopt;
+  analysis::MeanUncertainty u;
+  u.window_s = r.duration_s;
+  u.u_dph = r.bias_u->u_dph;
+  u.dof = r.bias_u->dof;
+  u.k = r.bias_u->k;
+  u.expanded_dph = r.bias_u->expanded_dph;
+  u.floor_dph = r.bias_u->floor_dph;
+  u.random_walk_dominated = r.bias_u->random_walk_dominated;
+  return u;
+}
+
+nlohmann::json mean_uncertainty_json(const std::optional<analysis::MeanUncertainty>& u) {
+  if (!u) return nullptr;
+  const auto num = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nullptr; };
+  return {{"window_s", num(u->window_s)},
+          {"u_dph", num(u->u_dph)},
+          {"dof", num(u->dof)},
+          {"k", num(u->k)},
+          {"expanded_dph", num(u->expanded_dph)},
+          {"coverage", num(u->coverage)},
+          {"floor_dph", num(u->floor_dph)},
+          {"random_walk_dominated", u->random_walk_dominated}};
+}
+
 std::vector<std::pair<double, double>> sorted_windows(std::vector<std::pair<double, double>> w) {
   std::sort(w.begin(), w.end());
   std::vector<std::pair<double, double>> out;
@@ -762,6 +799,8 @@ Result<storage::SegmentStatsRecord> soak_table1(storage::Database& db, const Soa
   rec.computed_utc = db.utc_now();
   const analysis::Coverage coverage = counter.result(axis.rate_hz > 0 ? axis.rate_hz : median_hz);
   rec.quality = result_quality(coverage, analysis::coverage_reasons(coverage, rules));
+  rec.bias_u = bias_uncertainty_record(row->bias_u);
+  rec.bias_u_note = row->bias_u_note;
   return rec;
 }
 

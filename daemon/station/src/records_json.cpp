@@ -4,6 +4,7 @@
 #include <cmath>
 #include <map>
 
+#include "gyrotherm/calibration/run_analysis.h"
 #include "gyrotherm/station/control.h"
 
 namespace gyrotherm::station {
@@ -180,7 +181,9 @@ nlohmann::json to_json(const storage::SegmentStatsRecord& s) {
           {"t_from_s", num(s.t_from_s)},
           {"t_to_s", num(s.t_to_s)},
           {"computed_utc", s.computed_utc},
-          {"quality", quality_json(s.quality)}};
+          {"quality", quality_json(s.quality)},
+          {"bias_u", calibration::mean_uncertainty_json(calibration::mean_uncertainty_of(s))},
+          {"bias_u_note", s.bias_u_note}};
 }
 
 nlohmann::json to_json(const storage::FitRecord& f) {

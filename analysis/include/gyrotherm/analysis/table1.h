@@ -8,7 +8,9 @@
 // ((top + side) / 2), zero-bias mean, sample standard deviation (ddof = 1),
 // and the standard deviation after a 101-point centred moving average (the
 // mean of each 101 consecutive points, the n - 100 full windows only, then
-// ddof = 1); and the bias with the Earth-rate component removed.
+// ddof = 1); and the bias with the Earth-rate component removed. The mean
+// carries its standard uncertainty from the noise model (noise_model.h)
+// fitted to the series' own Allan curve: u(T) at T = the row's duration.
 #pragma once
 
 #include <cstddef>
@@ -18,6 +20,7 @@
 #include <string_view>
 #include <vector>
 
+#include "gyrotherm/analysis/noise_model.h"
 #include "gyrotherm/core/result.h"
 #include "gyrotherm/core/samples.h"
 
@@ -134,7 +137,21 @@ struct Table1Row {
   double bias_std_dph = 0;
   double bias_std_ma_dph = 0;  // NaN when n <= ma_window
   double bias_mean_earth_removed_dph = 0;
+  // The uncertainty of bias_mean_dph (and of the Earth-removed mean, which
+  // differs by a constant): the noise model fitted to the octave Allan curve
+  // of the analysis series, projected to T = duration_s, at 95 %
+  // (mean_uncertainty). nullopt when the series does not give a model;
+  // bias_u_note then says why (fewer than 3 octave taus: under 8 points; a
+  // constant series).
+  std::optional<MeanUncertainty> bias_u;
+  std::string bias_u_note;
 };
+
+// The uncertainty of the mean of an analysis series of `window_s` seconds
+// (see Table1Row::bias_u); `note` gets the reason when there is none. A
+// series without times takes bin_s spacing.
+std::optional<MeanUncertainty> series_mean_uncertainty(const AnalysisSeries& series,
+                                                       double window_s, std::string* note);
 
 // Errors: invalid options (the is_valid message); n < 2; the series' vectors
 // of different lengths; a non-finite value in the series.

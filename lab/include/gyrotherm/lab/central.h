@@ -21,7 +21,7 @@
 
 namespace gyrotherm::lab {
 
-inline constexpr int kCentralSchemaVersion = 2;
+inline constexpr int kCentralSchemaVersion = 3;
 
 // The version of the lab schema in the database (0: none yet).
 Result<int> central_schema_version(PgConnection& pg);

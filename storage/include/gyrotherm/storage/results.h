@@ -37,6 +37,23 @@ struct ResultQuality {
   bool excluded() const { return verdict == "excluded"; }
 };
 
+// The standard uncertainty of a Table I row's mean (schema v13): the noise
+// model fitted to the soak's Allan curve, projected to the row's duration
+// (analysis::MeanUncertainty, docs/analysis.md "Uncertainty of a mean").
+// Columns bias_u_dph, bias_u_expanded_dph, bias_u_k, bias_u_dof (capped at
+// kMaxStoredDof), bias_u_floor_dph, bias_u_random_walk.
+struct BiasUncertainty {
+  double u_dph = 0;                    // standard uncertainty of bias_mean_dph
+  double expanded_dph = 0;             // k * u_dph, at 95 %
+  double k = 0;                        // coverage factor (Student t for dof)
+  double dof = 0;                      // effective degrees of freedom
+  double floor_dph = 0;                // what no soak length gets below (bias instability)
+  bool random_walk_dominated = false;  // the interval covers less than it says
+};
+// Degrees of freedom are stored up to this (white noise alone gives
+// infinitely many; k is then 1.960 to four figures).
+inline constexpr double kMaxStoredDof = 1e6;
+
 // One Table I row (docs/analysis.md) with the inputs it was computed with.
 struct SegmentStatsRecord {
   int64_t segment_id = 0;
@@ -60,6 +77,10 @@ struct SegmentStatsRecord {
   double t_from_s = 0, t_to_s = 0;  // window, station s since run start
   std::string computed_utc;         // ISO-8601 UTC; "" = now
   ResultQuality quality;            // schema v11: over the soak's windows
+  // Schema v13: nullopt for rows stored before it, or when the soak gave
+  // no noise model; bias_u_note then says why (column bias_u_note).
+  std::optional<BiasUncertainty> bias_u;
+  std::string bias_u_note;
 };
 
 // A stored drift-model fit (paper eq. 1) with what it was computed from.

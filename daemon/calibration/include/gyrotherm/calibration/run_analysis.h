@@ -22,6 +22,7 @@
 #pragma once
 
 #include <cstdint>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <span>
 #include <string>
@@ -215,6 +216,16 @@ Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow&
 // (none: verdict "ok").
 storage::ResultQuality result_quality(const analysis::Coverage& coverage,
                                       std::vector<std::string> reasons);
+// A Table I row's mean uncertainty as stored (nullopt stays nullopt), and
+// back (the CLI's --stored rows).
+std::optional<storage::BiasUncertainty> bias_uncertainty_record(
+    const std::optional<analysis::MeanUncertainty>& u);
+std::optional<analysis::MeanUncertainty> mean_uncertainty_of(const storage::SegmentStatsRecord& r);
+// Its JSON form wherever results are shown (REST, the CLI, exports):
+// {"window_s", "u_dph", "dof", "k", "expanded_dph", "coverage", "floor_dph",
+// "random_walk_dominated"}, a non-finite number (infinite dof) as null;
+// null for nullopt.
+nlohmann::json mean_uncertainty_json(const std::optional<analysis::MeanUncertainty>& u);
 // Windows sorted by start, overlapping ones merged.
 std::vector<std::pair<double, double>> sorted_windows(
     std::vector<std::pair<double, double>> windows);
