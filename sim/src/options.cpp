@@ -12,20 +12,30 @@
 namespace gyrotherm::sim {
 namespace {
 
-void read_coeffs(TableReader& t, std::string_view key, std::vector<double>& out) {
-  const toml::array* a = t.array(key);
-  if (!a) return;
+// The array's values, when every one is a finite number (integers too).
+std::optional<std::vector<double>> finite_numbers(const toml::array& a) {
   std::vector<double> values;
-  for (const auto& node : *a) {
+  for (const auto& node : a) {
     if (auto i = node.value_exact<int64_t>()) {
       values.push_back(static_cast<double>(*i));
     } else if (auto d = node.value_exact<double>(); d && std::isfinite(*d)) {
       values.push_back(*d);
     } else {
-      t.error(key, "must be an array of finite numbers");
-      return;
+      return std::nullopt;
     }
   }
+  return values;
+}
+
+void read_coeffs(TableReader& t, std::string_view key, std::vector<double>& out) {
+  const toml::array* a = t.array(key);
+  if (!a) return;
+  auto finite = finite_numbers(*a);
+  if (!finite) {
+    t.error(key, "must be an array of finite numbers");
+    return;
+  }
+  std::vector<double> values = std::move(*finite);
   if (values.size() > 8) {
     t.error(key, fmt::format("has {} entries (at most 8: orders 1..8)", values.size()));
     return;
@@ -76,25 +86,14 @@ std::optional<double> optional_in(TableReader& t, std::string_view key, double l
 
 std::optional<std::vector<double>> optional_coeffs(TableReader& t, std::string_view key) {
   if (!t.raw().contains(key)) return std::nullopt;
-  std::vector<double> values;
-  bool bad = false;
-  if (const toml::array* a = t.array(key)) {
-    for (const auto& node : *a) {
-      if (auto i = node.value_exact<int64_t>()) {
-        values.push_back(static_cast<double>(*i));
-      } else if (auto d = node.value_exact<double>(); d && std::isfinite(*d)) {
-        values.push_back(*d);
-      } else {
-        bad = true;
-      }
-    }
-  } else {
-    return std::nullopt;  // wrong type, reported
-  }
-  if (bad) {
+  const toml::array* a = t.array(key);
+  if (!a) return std::nullopt;  // wrong type, reported
+  auto finite = finite_numbers(*a);
+  if (!finite) {
     t.error(key, "must be an array of finite numbers");
     return std::nullopt;
   }
+  std::vector<double> values = std::move(*finite);
   if (values.size() > 8) {
     t.error(key, fmt::format("has {} entries (at most 8: orders 1..8)", values.size()));
     return std::nullopt;
@@ -113,6 +112,51 @@ void read_gyro_overrides(TableReader& t, GyroOverrides& g) {
   g.bias_instability_dph = optional_in(t, "bias_instability_dph", 0, 1e5);
   g.bias_instability_tau_s = optional_in(t, "bias_instability_tau_s", 1e-3, 1e8);
   g.rate_random_walk_dph_per_sqrt_h = optional_in(t, "rate_random_walk_dph_per_sqrt_h", 0, 1e5);
+}
+
+// A [lo, hi] range of [simulator.randomize]: two finite numbers, lo <= hi,
+// both in [min, max].
+std::optional<DrawRange> read_range(TableReader& t, std::string_view key, double min, double max) {
+  if (!t.raw().contains(key)) return std::nullopt;
+  const toml::array* a = t.array(key);
+  if (!a) return std::nullopt;  // wrong type, reported
+  const std::vector<double> v = finite_numbers(*a).value_or(std::vector<double>{});
+  if (v.size() != 2) {
+    t.error(key, "must be [lo, hi]: two finite numbers");
+    return std::nullopt;
+  }
+  if (v[0] < min || v[1] > max || v[0] > v[1]) {
+    t.error(key, fmt::format("[{}, {}] is not a range within [{}, {}] (lo <= hi)", v[0], v[1], min,
+                             max));
+    return std::nullopt;
+  }
+  return DrawRange{v[0], v[1]};
+}
+
+void read_randomize(TableReader t, RandomizeRanges& r) {
+  r.white_noise_dph = read_range(t, "white_noise_dph", 0, 1e5);
+  r.bias_instability_dph = read_range(t, "bias_instability_dph", 0, 1e5);
+  r.rate_random_walk_dph_per_sqrt_h = read_range(t, "rate_random_walk_dph_per_sqrt_h", 0, 1e5);
+  r.case_tau_s = read_range(t, "case_tau_s", 0, 1e6);
+  t.finish();
+}
+
+// A DUT's draws, always ten in the same order whichever ranges are set.
+void apply_randomize(const RandomizeRanges& ranges, uint64_t seed, int position, DutSimParams& r) {
+  std::mt19937_64 rng(derive_seed(seed, kRandomizeStream + static_cast<uint64_t>(position)));
+  const auto take = [&rng](const std::optional<DrawRange>& range, double& value) {
+    std::mt19937_64 copy = rng;
+    rng.discard(1);
+    if (range) value = range->draw(copy);
+  };
+  for (GyroParams& p : r.axes) {
+    take(ranges.white_noise_dph, p.white_noise_dph);
+    take(ranges.bias_instability_dph, p.bias_instability_dph);
+    take(ranges.rate_random_walk_dph_per_sqrt_h, p.rate_random_walk_dph_per_sqrt_h);
+  }
+  double case_tau_s = r.case_params.case_tau_s.value_or(0);
+  take(ranges.case_tau_s, case_tau_s);
+  if (ranges.case_tau_s) r.case_params.case_tau_s = case_tau_s;
 }
 
 void read_dut_overrides(TableReader& t, DutOverrides& d) {
@@ -336,7 +380,22 @@ DutSimParams resolve_dut_params(const SimulatorOptions& options, const config::D
     if (o->probe_offset_c) r.probe_offset_c = *o->probe_offset_c;
     r.case_params = o->case_params;
   }
+  apply_randomize(options.randomize, options.seed, position, r);
   return r;
+}
+
+uint64_t derive_seed(uint64_t seed, uint64_t stream) {
+  uint64_t z = seed + 0x9E3779B97F4A7C15ULL * (stream + 1);
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
+  return z ^ (z >> 31);
+}
+
+double DrawRange::draw(std::mt19937_64& rng) const {
+  // 53 random bits in [0, 1): the same on every standard library.
+  const double u = static_cast<double>(rng() >> 11) * 0x1.0p-53;
+  if (lo > 0) return lo * std::pow(hi / lo, u);
+  return lo + (hi - lo) * u;
 }
 
 bool SimulatorOptions::is_valid(std::string* why) const {
@@ -423,6 +482,7 @@ Result<SimulatorOptions> read_simulator_options(const config::StationConfig& con
     if (auto tb = t.table("table")) read_table(*tb, o.table);
     if (auto sf = t.table("scale_factor")) read_scale_factor(*sf, o.scale_factor);
     read_duts(t, simulated_duts(config), o.dut_overrides);
+    if (auto r = t.table("randomize")) read_randomize(*r, o.randomize);
     if (auto n = t.integer("pending_frames_limit")) {
       if (*n < 0 || *n > 10'000'000)
         t.error("pending_frames_limit", "must be in [0, 10000000]");

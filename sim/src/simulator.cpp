@@ -54,13 +54,6 @@ bool is_one_of(double v, std::initializer_list<uint16_t> values) {
   return std::any_of(values.begin(), values.end(), [&](uint16_t x) { return v == x; });
 }
 
-uint64_t derive_seed(uint64_t seed, uint64_t stream) {
-  uint64_t z = seed + 0x9E3779B97F4A7C15ULL * (stream + 1);
-  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
-  z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
-  return z ^ (z >> 31);
-}
-
 // A serial as a file-name part: what is not [A-Za-z0-9._-] becomes '_'.
 std::string file_safe(std::string_view serial) {
   std::string out(serial);
@@ -234,6 +227,17 @@ Simulator::Simulator(config::StationConfig config, SimulatorOptions options, con
   truth["static_temps_c"] = temps;
   for (const auto& d : duts_)
     truth["duts"].push_back(d->model.truth(d->shell, temps, table_served));
+  // [simulator.randomize]: the ranges; what was drawn is in "duts".
+  nlohmann::json ranges = nlohmann::json::object();
+  const RandomizeRanges& rr = options_.randomize;
+  for (const auto& [key, range] :
+       {std::pair{"white_noise_dph", &rr.white_noise_dph},
+        std::pair{"bias_instability_dph", &rr.bias_instability_dph},
+        std::pair{"rate_random_walk_dph_per_sqrt_h", &rr.rate_random_walk_dph_per_sqrt_h},
+        std::pair{"case_tau_s", &rr.case_tau_s}}) {
+    if (*range) ranges[key] = {(*range)->lo, (*range)->hi};
+  }
+  truth["randomize"] = ranges;
   truth_json_ = truth.dump(2) + "\n";
   status_.setpoint_c = options_.thermal.initial_temp_c;
   status_.truth = plant_.truth();

@@ -14,6 +14,9 @@
 #include <map>
 #include <mutex>
 #include <nlohmann/json.hpp>
+#include <random>
+#include <regex>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -575,6 +578,129 @@ white_noise_dph = 0.5
     EXPECT_NE(r.error().message.find(expected), std::string::npos)
         << part << " -> " << r.error().message;
     EXPECT_NE(r.error().message.find("multi.toml:"), std::string::npos) << r.error().message;
+  }
+}
+
+// [simulator.randomize]: each DUT axis's noise and each DUT's case drawn by
+// the seed, within the ranges, the same for the same seed, and listed in the
+// truth file as drawn.
+TEST(MultiDutOptions, RandomizeDrawsEachDutsNoiseAndCaseByTheSeed) {
+  const std::string ranges = R"([simulator]
+endpoints_file = "x"
+seed = 7
+[simulator.randomize]
+white_noise_dph = [0.01, 1.0]
+bias_instability_dph = [0, 0.05]
+rate_random_walk_dph_per_sqrt_h = [0.001, 0.01]
+case_tau_s = [600, 2400]
+)";
+  auto o = options_for(ranges);
+  ASSERT_TRUE(o.ok()) << o.error().message;
+  auto config = config::parse_station_config(kStation, "multi.toml");
+  ASSERT_TRUE(config.ok());
+  std::vector<DutSimParams> drawn;
+  for (int p = 0; p < 3; ++p) {
+    drawn.push_back(resolve_dut_params(*o, config->duts[static_cast<std::size_t>(p)], p));
+  }
+  std::set<double> whites;
+  for (const auto& d : drawn) {
+    for (const auto& a : d.axes) {
+      EXPECT_GE(a.white_noise_dph, 0.01);
+      EXPECT_LE(a.white_noise_dph, 1.0);
+      EXPECT_GE(a.bias_instability_dph, 0.0);
+      EXPECT_LE(a.bias_instability_dph, 0.05);
+      EXPECT_GE(a.rate_random_walk_dph_per_sqrt_h, 0.001);
+      EXPECT_LE(a.rate_random_walk_dph_per_sqrt_h, 0.01);
+      whites.insert(a.white_noise_dph);
+    }
+    ASSERT_TRUE(d.case_params.case_tau_s);
+    EXPECT_GE(*d.case_params.case_tau_s, 600.0);
+    EXPECT_LE(*d.case_params.case_tau_s, 2400.0);
+  }
+  EXPECT_EQ(whites.size(), 9u) << "every DUT axis draws its own";
+  // The same seed draws the same; another seed, others.
+  const DutSimParams again = resolve_dut_params(*o, config->duts[1], 1);
+  EXPECT_EQ(again.axes[2].white_noise_dph, drawn[1].axes[2].white_noise_dph);
+  EXPECT_EQ(again.case_params.case_tau_s, drawn[1].case_params.case_tau_s);
+  o->seed = 8;
+  const DutSimParams other = resolve_dut_params(*o, config->duts[1], 1);
+  EXPECT_NE(other.axes[2].white_noise_dph, drawn[1].axes[2].white_noise_dph);
+  // A DUT draws the same whatever other ranges are set (ten draws each).
+  auto white_only = options_for(
+      "[simulator]\nendpoints_file = \"x\"\nseed = 7\n[simulator.randomize]\n"
+      "white_noise_dph = [0.01, 1.0]\n");
+  ASSERT_TRUE(white_only.ok()) << white_only.error().message;
+  const DutSimParams w = resolve_dut_params(*white_only, config->duts[2], 2);
+  for (std::size_t i = 0; i < 3; ++i) {
+    EXPECT_EQ(w.axes[i].white_noise_dph, drawn[2].axes[i].white_noise_dph);
+    EXPECT_EQ(w.axes[i].rate_random_walk_dph_per_sqrt_h,
+              white_only->gyro.rate_random_walk_dph_per_sqrt_h);
+  }
+
+  const std::pair<std::string, std::string> bad[] = {
+      {"white_noise_dph = [1.0, 0.5]\n",
+       "simulator.randomize.white_noise_dph: [1, 0.5] is not a range"},
+      {"case_tau_s = [600]\n", "simulator.randomize.case_tau_s: must be [lo, hi]"},
+      {"bias_instability_dph = [-1, 2]\n", "simulator.randomize.bias_instability_dph: [-1, 2]"},
+      {"rate_random_walk_dph_per_sqrt_h = [0, \"a\"]\n",
+       "simulator.randomize.rate_random_walk_dph_per_sqrt_h: must be [lo, hi]"},
+      {"bias_dph = [0, 1]\n", "simulator.randomize.bias_dph: unknown key"},
+  };
+  for (const auto& [line, expected] : bad) {
+    auto r = options_for("[simulator]\nendpoints_file = \"x\"\n[simulator.randomize]\n" + line);
+    ASSERT_FALSE(r.ok()) << line;
+    EXPECT_NE(r.error().message.find(expected), std::string::npos)
+        << line << " -> " << r.error().message;
+    EXPECT_TRUE(std::regex_search(r.error().message,
+                                  std::regex(R"(multi\.toml:[0-9]+: simulator\.randomize\.)")))
+        << r.error().message;
+  }
+}
+
+// A range is log-uniform from lo > 0 (the median draw is the geometric
+// mean), uniform from 0 (the median is the middle), fixed when lo = hi.
+TEST(MultiDutOptions, ARangeDrawsLogUniformlyAboveZeroAndUniformlyFromZero) {
+  std::mt19937_64 rng(20261130);
+  const DrawRange log_range{0.001, 0.1}, linear{0.0, 2.0}, fixed{0.25, 0.25};
+  int below_geometric = 0, below_middle = 0;
+  const int n = 20'000;
+  for (int i = 0; i < n; ++i) {
+    const double a = log_range.draw(rng);
+    ASSERT_GE(a, 0.001);
+    ASSERT_LE(a, 0.1);
+    if (a < 0.01) ++below_geometric;
+    const double b = linear.draw(rng);
+    ASSERT_GE(b, 0.0);
+    ASSERT_LE(b, 2.0);
+    if (b < 1.0) ++below_middle;
+    ASSERT_EQ(fixed.draw(rng), 0.25);
+  }
+  // Binomial spread of the count: ±0.35 % at one sigma.
+  EXPECT_NEAR(static_cast<double>(below_geometric) / n, 0.5, 0.015);
+  EXPECT_NEAR(static_cast<double>(below_middle) / n, 0.5, 0.015);
+}
+
+TEST_F(MultiDutTest, TruthFileListsWhatTheRangesDrew) {
+  options_.randomize.white_noise_dph = DrawRange{0.02, 0.2};
+  options_.randomize.case_tau_s = DrawRange{600, 2400};
+  start();
+  std::ifstream in(options_.truth_file);
+  ASSERT_TRUE(in) << options_.truth_file;
+  const auto truth = nlohmann::json::parse(in);
+  EXPECT_EQ(truth["randomize"]["white_noise_dph"], nlohmann::json::array({0.02, 0.2}));
+  EXPECT_EQ(truth["randomize"]["case_tau_s"], nlohmann::json::array({600.0, 2400.0}));
+  EXPECT_FALSE(truth["randomize"].contains("bias_instability_dph"));
+  ASSERT_EQ(truth["duts"].size(), config_.duts.size());
+  for (std::size_t p = 0; p < config_.duts.size(); ++p) {
+    const DutSimParams want = resolve_dut_params(options_, config_.duts[p], static_cast<int>(p));
+    const auto& d = truth["duts"][p];
+    for (std::size_t i = 0; i < 3; ++i) {
+      EXPECT_EQ(d["axes"][kAxisNames[i]]["white_noise_dph"].get<double>(),
+                want.axes[i].white_noise_dph)
+          << p << " " << kAxisNames[i];
+    }
+    EXPECT_EQ(d["case"]["case_tau_s"].get<double>(), *want.case_params.case_tau_s);
+    EXPECT_EQ(d["case"]["own"], true);
   }
 }
 

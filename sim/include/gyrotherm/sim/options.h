@@ -18,6 +18,12 @@
 //   [simulator.gyro]     -> GyroParams (gyro_model.h), same key names
 //   [simulator.table]    -> TableParams (rate_table_model.h), same key names
 //   [simulator.scale_factor] -> ScaleFactorParams (gyro_model.h), same key names
+//   [simulator.randomize] -> RandomizeRanges: [lo, hi] ranges each DUT axis's
+//                           noise (white_noise_dph, bias_instability_dph,
+//                           rate_random_walk_dph_per_sqrt_h) and each DUT's
+//                           case_tau_s are drawn from, by the seed; they win
+//                           over every other table; the truth file lists
+//                           the values drawn
 //   [simulator.dut.SN]   -> DutOverrides (or [[simulator.dut]] with serial = "SN"):
 //                           GyroParams keys for every axis of DUT SN, accel_noise_g,
 //                           internal_temp_offset_c, probe_offset_c, case_tau_s,
@@ -37,6 +43,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <optional>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -75,6 +82,34 @@ struct DutOverrides {
   DutCaseParams case_params;
 };
 
+// A [lo, hi] range a parameter is drawn from: log-uniform when lo > 0 (a
+// noise spans decades), uniform when lo = 0; lo = hi fixes it.
+struct DrawRange {
+  double lo = 0;
+  double hi = 0;
+  double draw(std::mt19937_64& rng) const;
+};
+
+// [simulator.randomize]: the station's gyros and cases drawn by the seed, so
+// a test (or a bench over many seeds) is blind to the parameters it checks
+// the analysis against; the truth file says what was drawn. Each DUT draws
+// from its own stream (the seed and its position among the DUTs), axis x,
+// y, z in turn (white noise, bias instability, rate random walk), then its
+// case time constant: adding a DUT changes none of the others.
+struct RandomizeRanges {
+  std::optional<DrawRange> white_noise_dph;
+  std::optional<DrawRange> bias_instability_dph;
+  std::optional<DrawRange> rate_random_walk_dph_per_sqrt_h;
+  std::optional<DrawRange> case_tau_s;
+};
+
+// The seed of one of the simulator's random streams (SplitMix64, Steele,
+// Lea & Flood 2014): streams 1-4 the plant, chamber noise and table, 16 + 4
+// per DUT its axes and accelerometers, 1000 + p a DUT's shell probes,
+// kRandomizeStream + p a DUT's [simulator.randomize] draws.
+uint64_t derive_seed(uint64_t seed, uint64_t stream);
+inline constexpr uint64_t kRandomizeStream = 5000;
+
 // sizeof(sockaddr_un::sun_path) - 1 on Linux.
 inline constexpr std::size_t kMaxControlSocketPath = 107;
 
@@ -111,6 +146,7 @@ struct SimulatorOptions {
   // Per-DUT overrides, by serial ([simulator.dut.SN]); DUTs without one get
   // [simulator.gyro] with the default bias offsets (dut_model.h).
   std::vector<DutOverrides> dut_overrides;
+  RandomizeRanges randomize;  // [simulator.randomize]; applied last
   // Frames kept while the pty's reader is slow ([simulator]
   // pending_frames_limit); beyond that new frames are dropped (and counted).
   // 0 = five wall seconds of frames, at least 256.
