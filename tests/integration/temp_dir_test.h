@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <string>
 #include <utility>
@@ -18,9 +19,12 @@ class TempDirTest : public ::testing::Test {
   explicit TempDirTest(std::string prefix) : prefix_(std::move(prefix)) {}
 
   void SetUp() override {
+    // A parameterized test's name has a '/' ("Name/0"): one directory, not
+    // a parent that TearDown would leave behind.
+    std::string test_name = ::testing::UnitTest::GetInstance()->current_test_info()->name();
+    std::replace(test_name.begin(), test_name.end(), '/', '_');
     dir_ = std::filesystem::temp_directory_path() /
-           fmt::format("{}-{}-{}", prefix_, ::getpid(),
-                       ::testing::UnitTest::GetInstance()->current_test_info()->name());
+           fmt::format("{}-{}-{}", prefix_, ::getpid(), test_name);
     std::filesystem::remove_all(dir_);
     std::filesystem::create_directories(dir_);
   }
