@@ -44,8 +44,6 @@ using nlohmann::json;
 namespace {
 
 constexpr const char* kDash = "—";
-constexpr int kExitAnalysis = 1;
-constexpr int kExitInput = 2;
 
 json num(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
 json num(const std::optional<double>& v) { return v ? num(*v) : json(nullptr); }
@@ -571,12 +569,12 @@ int write_exports(const Parsed& p, const std::function<std::string()>& json_text
                   const std::function<std::string()>& header_text) {
   if (!p.coefficients_json.empty()) {
     if (auto st = write_file_atomically(p.coefficients_json, json_text()); !st) {
-      return fail(st.error().message, kExitAnalysis);
+      return fail(st.error().message, kExitFailed);
     }
   }
   if (!p.c_header.empty()) {
     if (auto st = write_file_atomically(p.c_header, header_text()); !st) {
-      return fail(st.error().message, kExitAnalysis);
+      return fail(st.error().message, kExitFailed);
     }
   }
   return 0;
@@ -684,7 +682,7 @@ int print_by_setpoint(const Parsed& p, const std::vector<StreamSoak>& soaks,
       members_of.push_back(&s);
     }
     auto groups = analysis::table1_by_setpoint(group_soaks);
-    if (!groups) return fail(fmt::format("{}: {}", name, groups.error().message), kExitAnalysis);
+    if (!groups) return fail(fmt::format("{}: {}", name, groups.error().message), kExitFailed);
     for (const auto& g : *groups) {
       json members = json::array();
       for (std::size_t i : g.soaks) members.push_back(members_of[i]->id);
@@ -789,7 +787,7 @@ int cmd_stats(const Parsed& p) {
     }
     for (const auto& run : in->db->runs) {
       auto stored = in->db->db.segment_stats(run.id);
-      if (!stored) return fail(stored.error().message, kExitAnalysis);
+      if (!stored) return fail(stored.error().message, kExitFailed);
       for (const auto& rec : *stored) {
         if (!picked(p.duts, rec.dut_serial) || !picked(p.axes, rec.axis)) continue;
         named = named || !rec.dut_serial.empty();
@@ -829,18 +827,18 @@ int cmd_stats(const Parsed& p) {
       if (!opts) return fail(opts.error().message, kExitInput);
       auto soaks = calibration::soak_windows(db, run.id);
       if (!soaks)
-        return fail(fmt::format("run {}: {}", run.id, soaks.error().message), kExitAnalysis);
+        return fail(fmt::format("run {}: {}", run.id, soaks.error().message), kExitFailed);
       if (soaks->empty()) {
         notes.push_back(
             fmt::format("run {}: no completed soak with an acquisition window", run.id));
       }
       auto axes = chosen_axes(p, db, run.id);
-      if (!axes) return fail(axes.error().message, kExitAnalysis);
+      if (!axes) return fail(axes.error().message, kExitFailed);
       const analysis::QualityRules rules = quality_rules_of(run);
       for (const auto& soak : *soaks) {
         for (const auto& axis : *axes) {
           auto rec = calibration::soak_table1(db, soak, *opts, axis, rules);
-          if (!rec) return fail(rec.error().message, kExitAnalysis);
+          if (!rec) return fail(rec.error().message, kExitFailed);
           named = named || !axis.dut_serial.empty();
           const auto row = row_of(*rec);
           json j = soak_json(soak, axis, rec->t_from_s, rec->t_to_s);
@@ -867,9 +865,9 @@ int cmd_stats(const Parsed& p) {
     for (const auto& w : in->csv) {
       auto series = analysis::csv_analysis_series(w, opts->bin_s);
       if (!series)
-        return fail(fmt::format("{}: {}", w.source, series.error().message), kExitAnalysis);
+        return fail(fmt::format("{}: {}", w.source, series.error().message), kExitFailed);
       auto row = analysis::table1_row(*series, *opts);
-      if (!row) return fail(fmt::format("{}: {}", w.source, row.error().message), kExitAnalysis);
+      if (!row) return fail(fmt::format("{}: {}", w.source, row.error().message), kExitFailed);
       json j = {{"source", w.source}};
       j.update(stats_json(*row, *opts));
       out.push_back(std::move(j));
@@ -1192,17 +1190,17 @@ int cmd_allan(const Parsed& p) {
       const std::string taus_name(analysis::to_string(*taus));
       auto soaks = calibration::soak_windows(db, run.id);
       if (!soaks)
-        return fail(fmt::format("run {}: {}", run.id, soaks.error().message), kExitAnalysis);
+        return fail(fmt::format("run {}: {}", run.id, soaks.error().message), kExitFailed);
       if (soaks->empty()) {
         text += fmt::format("run {}: no completed soak with an acquisition window\n", run.id);
       }
       auto axes = chosen_axes(p, db, run.id);
-      if (!axes) return fail(axes.error().message, kExitAnalysis);
+      if (!axes) return fail(axes.error().message, kExitFailed);
       const analysis::QualityRules rules = quality_rules_of(run);
       for (const auto& soak : *soaks) {
         for (const auto& axis : *axes) {
           auto rec = calibration::soak_allan(db, soak, *taus, axis, rules);
-          if (!rec) return fail(rec.error().message, kExitAnalysis);
+          if (!rec) return fail(rec.error().message, kExitFailed);
           const AllanView v = view_of(*rec);
           json j = soak_json(soak, axis, rec->t_from_s, rec->t_to_s);
           j.update(allan_json(v, taus_name));
@@ -1229,7 +1227,7 @@ int cmd_allan(const Parsed& p) {
     const std::string taus_name(analysis::to_string(taus));
     for (const auto& w : in->csv) {
       auto a = analysis::allan_deviation(w.t_s, w.rate_dph, {.taus = taus});
-      if (!a) return fail(fmt::format("{}: {}", w.source, a.error().message), kExitAnalysis);
+      if (!a) return fail(fmt::format("{}: {}", w.source, a.error().message), kExitFailed);
       const AllanView v = view_of(*a);
       json j = {{"source", w.source}};
       j.update(allan_json(v, taus_name));
@@ -1336,7 +1334,7 @@ int fit_one(const Parsed& p, Input& input, const calibration::AnalysedAxis* stre
   const double bin_s = *bin;
 
   auto set = load_series(*in, bin_s, stream);
-  if (!set) return fail(set.error().message, kExitAnalysis);
+  if (!set) return fail(set.error().message, kExitFailed);
   std::string what =
       in->db ? fmt::format("run{} {}", in->db->runs.size() == 1 ? "" : "s", join_ids(in->db->ids()))
              : fmt::format("{}", fmt::join(set->names, ", "));
@@ -1345,7 +1343,7 @@ int fit_one(const Parsed& p, Input& input, const calibration::AnalysedAxis* stre
   if (!fit) {
     return fail(fmt::format("fit of {} to {} ({} form): {}", what, analysis::to_string(*spec),
                             analysis::to_string(*form), fit.error().message),
-                kExitAnalysis);
+                kExitFailed);
   }
   json inputs = set->inputs;
   inputs["derivative_window_s"] = options->derivative_window_s;
@@ -1388,7 +1386,7 @@ int fit_one(const Parsed& p, Input& input, const calibration::AnalysedAxis* stre
         fmt::format("--c-header {}: not written: the fit is flagged: {} (--force writes it, "
                     "marked as forced)",
                     p.c_header, fmt::join(quality.reasons, "; ")),
-        kExitAnalysis);
+        kExitFailed);
   }
   if (int code = write_exports(
           p, [&] { return analysis::drift_fit_json(*fit, info); },
@@ -1472,9 +1470,9 @@ int compare_one(const Parsed& p, Input& input, const calibration::AnalysedAxis* 
   if (!bin) return fail(bin.error().message, kExitInput);
   const double bin_s = *bin;
   auto set = load_series(*in, bin_s, stream);
-  if (!set) return fail(set.error().message, kExitAnalysis);
+  if (!set) return fail(set.error().message, kExitFailed);
   auto cmp = analysis::compare_models(set->series, options);
-  if (!cmp) return fail("comparison: " + cmp.error().message, kExitAnalysis);
+  if (!cmp) return fail("comparison: " + cmp.error().message, kExitFailed);
 
   json inputs = set->inputs;
   inputs["derivative_window_s"] = options.fit.derivative_window_s;
@@ -1574,14 +1572,14 @@ int start_model_one(const Parsed& p, Input& input, const calibration::AnalysedAx
   if (!bin) return fail(bin.error().message, kExitInput);
   const double bin_s = *bin;
   auto set = load_series(*in, bin_s, stream);
-  if (!set) return fail(set.error().message, kExitAnalysis);
+  if (!set) return fail(set.error().message, kExitFailed);
   auto model = analysis::fit_start_temperature_model(set->series, options);
-  if (!model) return fail(model.error().message, kExitAnalysis);
+  if (!model) return fail(model.error().message, kExitFailed);
   std::optional<analysis::StartTemperatureCoefficients> at;
   if (p.t0_c) {
     auto c = analysis::coefficients_at(*model, *p.t0_c);
     if (!c)
-      return fail(fmt::format("at T0 = {:g} °C: {}", *p.t0_c, c.error().message), kExitAnalysis);
+      return fail(fmt::format("at T0 = {:g} °C: {}", *p.t0_c, c.error().message), kExitFailed);
     at = std::move(*c);
   }
 
@@ -1787,7 +1785,7 @@ int cmd_scale_factor(const Parsed& p) {
     auto fit = analysis::fit_scale_factor(g.points);
     const std::string where =
         g.temperature_c ? fmt::format("{} at {:g} °C", csv->source, *g.temperature_c) : csv->source;
-    if (!fit) return fail(fmt::format("{}: {}", where, fit.error().message), kExitAnalysis);
+    if (!fit) return fail(fmt::format("{}: {}", where, fit.error().message), kExitFailed);
     fits.push_back(sf_fit_json(g, *fit));
     text += "\n";
     text += g.temperature_c ? fmt::format("at {:g} °C: ", *g.temperature_c) : std::string();
@@ -1801,7 +1799,7 @@ int cmd_scale_factor(const Parsed& p) {
   if (plateaus.size() > 1) {
     auto tf = analysis::fit_scale_factor_over_temperature(plateaus, p.sf_order);
     if (!tf) {
-      return fail(fmt::format("{}: {}", csv->source, tf.error().message), kExitAnalysis);
+      return fail(fmt::format("{}: {}", csv->source, tf.error().message), kExitFailed);
     }
     json plateau_rows = json::array();
     std::vector<std::vector<std::string>> rows;
@@ -1977,7 +1975,7 @@ std::optional<int> AnalysisCommands::run(bool json) {
     if (*p.start_model) return cmd_start_model(p);
     if (*p.scale_factor) return cmd_scale_factor(p);
   } catch (const std::exception& e) {
-    return fail(e.what(), kExitAnalysis);
+    return fail(e.what(), kExitFailed);
   }
   return std::nullopt;
 }

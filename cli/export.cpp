@@ -19,8 +19,6 @@ namespace gyrotherm::cli {
 
 namespace {
 
-constexpr int kExitInput = 2;
-constexpr int kExitFailed = 1;
 constexpr std::string_view kWho = "gyrotherm export";
 
 }  // namespace

@@ -26,8 +26,6 @@ namespace {
 
 constexpr const char* kDash = "—";
 constexpr std::string_view kWho = "gyrotherm lab";
-constexpr int kExitFailed = 1;
-constexpr int kExitUsage = 2;
 constexpr double kConnectTimeoutS = 10;
 
 // ---------------------------------------------------------------- JSON access
@@ -638,12 +636,12 @@ std::optional<int> LabCommands::run(bool json_flag) {
   if (!p.filter.since_utc.empty()) {
     // Refused before connecting: a typo is not the server's problem.
     if (auto since = parse_utc_iso(p.filter.since_utc); !since) {
-      return fail(fmt::format("--since: {}", since.error().message), kExitUsage, kWho);
+      return fail(fmt::format("--since: {}", since.error().message), kExitInput, kWho);
     }
   }
   auto url = lab_url(p.pg);
   if (!url)
-    return fail(redact_lab_passwords(url.error().message, {"--pg", p.pg}), kExitUsage, kWho);
+    return fail(redact_lab_passwords(url.error().message, {"--pg", p.pg}), kExitInput, kWho);
   // Every message goes through this: no password of the URL reaches the
   // terminal, whatever a library put in its error.
   const std::vector<std::string> url_args = {"--pg", p.pg, "--pg", *url};
@@ -658,7 +656,7 @@ std::optional<int> LabCommands::run(bool json_flag) {
   // a server that cannot be reached or refuses the login is 1.
   if (!pg) {
     return fail(redact_lab_passwords(pg.error().message, url_args),
-                pg.error().transient ? kExitFailed : kExitUsage, kWho);
+                pg.error().transient ? kExitFailed : kExitInput, kWho);
   }
 
   if (*p.stations) {

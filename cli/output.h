@@ -9,6 +9,11 @@
 
 namespace gyrotherm::cli {
 
+// Exit statuses of the offline commands: 1 the command ran and failed (or
+// found what it checks for), 2 bad input (arguments, a file it cannot read).
+inline constexpr int kExitFailed = 1;
+inline constexpr int kExitInput = 2;
+
 // Prints "<who>: <message>" on stderr, with a newline unless the message ends
 // in one; returns `code`, the exit status to return. `who` names the command.
 int fail(const std::string& message, int code = 1, std::string_view who = "gyrotherm");

@@ -15,13 +15,13 @@
 #include <sys/mman.h>
 #endif
 
+#include "common.h"
 #include "compensated_sum.h"
 #include "target_clones.h"
 
 namespace gyrotherm::analysis {
 namespace {
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr double kBiasInstabilityFactor = 0.664;
 constexpr double kSlopeTolerance = 0.25;
 

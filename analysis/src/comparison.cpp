@@ -7,10 +7,10 @@
 #include <cmath>
 #include <utility>
 
+#include "common.h"
+
 namespace gyrotherm::analysis {
 namespace {
-
-constexpr int kMaxOrder = 4;
 
 // The means of every `points` consecutive values (the n - points + 1 full
 // windows; x itself when points <= 1): a running sum in long double,
@@ -191,14 +191,14 @@ bool ComparisonOptions::is_valid(std::string* why) const {
     if (why) *why = std::move(msg);
     return false;
   };
-  if (max_order < 1 || max_order > kMaxOrder) {
-    return fail(fmt::format("max_order must be 1..{} ({})", kMaxOrder, max_order));
+  if (max_order < 1 || max_order > kMaxTermOrder) {
+    return fail(fmt::format("max_order must be 1..{} ({})", kMaxTermOrder, max_order));
   }
-  if (g_order < 1 || g_order > kMaxOrder) {
-    return fail(fmt::format("g_order must be 1..{} ({})", kMaxOrder, g_order));
+  if (g_order < 1 || g_order > kMaxTermOrder) {
+    return fail(fmt::format("g_order must be 1..{} ({})", kMaxTermOrder, g_order));
   }
-  if (r_order < 1 || r_order > kMaxOrder) {
-    return fail(fmt::format("r_order must be 1..{} ({})", kMaxOrder, r_order));
+  if (r_order < 1 || r_order > kMaxTermOrder) {
+    return fail(fmt::format("r_order must be 1..{} ({})", kMaxTermOrder, r_order));
   }
   if (smooth_points < 1 || smooth_points > 100001 || smooth_points % 2 == 0) {
     return fail(fmt::format("smooth_points must be odd, 1..100001 ({})", smooth_points));

@@ -15,14 +15,13 @@
 #include <optional>
 #include <thread>
 
+#include "common.h"
 #include "compensated_sum.h"
 #include "target_clones.h"
 
 namespace gyrotherm::analysis {
 namespace {
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-constexpr int kMaxOrder = 4;
 constexpr double kWindowTol = 1e-9;  // relative to the derivative half width
 // A variable is "constant" when its std is below this times its size.
 constexpr double kConstantTol = 1e-10;
@@ -34,7 +33,7 @@ constexpr double kGramMaxCondition = 100.0;
 // ... and RSS is recomputed from the residuals when RSS < this x y'y.
 constexpr double kGramMinRssFraction = 1e-4;
 
-std::string_view trim(std::string_view s) {
+std::string_view trim_spaces(std::string_view s) {
   while (!s.empty() && s.front() == ' ') s.remove_prefix(1);
   while (!s.empty() && s.back() == ' ') s.remove_suffix(1);
   return s;
@@ -400,13 +399,13 @@ void fill_row(const std::vector<Column>& cols, const Scaling& sc, double temp, d
 }  // namespace
 
 Result<DriftModelSpec> parse_model_spec(std::string_view s) {
-  if (trim(s).empty()) return Error::Permanent("model spec is empty (e.g. \"T4+R1+G1\")");
+  if (trim_spaces(s).empty()) return Error::Permanent("model spec is empty (e.g. \"T4+R1+G1\")");
   DriftModelSpec spec;
   bool seen[3] = {false, false, false};
   std::string_view rest = s;
   while (true) {
     const std::size_t plus = rest.find('+');
-    const std::string_view term = trim(rest.substr(0, plus));
+    const std::string_view term = trim_spaces(rest.substr(0, plus));
     if (term.empty()) {
       return Error::Permanent(fmt::format("model spec \"{}\": empty term", s));
     }
@@ -415,8 +414,8 @@ Result<DriftModelSpec> parse_model_spec(std::string_view s) {
     if (slot < 0) {
       return Error::Permanent(fmt::format("{}: unknown term (T, R, G)", term));
     }
-    if (term.size() != 2 || term[1] < '0' || term[1] > '9' || term[1] - '0' > kMaxOrder) {
-      return Error::Permanent(fmt::format("{}: order must be 0..{}", term, kMaxOrder));
+    if (term.size() != 2 || term[1] < '0' || term[1] > '9' || term[1] - '0' > kMaxTermOrder) {
+      return Error::Permanent(fmt::format("{}: order must be 0..{}", term, kMaxTermOrder));
     }
     if (seen[slot]) {
       return Error::Permanent(fmt::format("{}: term {} given more than once", term, letter));
@@ -968,12 +967,12 @@ Result<DriftFit> fit_drift_model(std::span<const AnalysisSeries> runs, const Dri
                                  DriftModelForm form, const DriftFitOptions& options) {
   std::string why;
   if (!options.is_valid(&why)) return Error::Permanent("drift model options: " + why);
-  if (spec.t_order < 0 || spec.t_order > kMaxOrder || spec.r_order < 0 ||
-      spec.r_order > kMaxOrder || spec.g_order < 0 || spec.g_order > kMaxOrder ||
+  if (spec.t_order < 0 || spec.t_order > kMaxTermOrder || spec.r_order < 0 ||
+      spec.r_order > kMaxTermOrder || spec.g_order < 0 || spec.g_order > kMaxTermOrder ||
       spec.parameters() == 0) {
     return Error::Permanent(
         fmt::format("drift model spec T{} R{} G{}: orders must be 0..{}, not all 0", spec.t_order,
-                    spec.r_order, spec.g_order, kMaxOrder));
+                    spec.r_order, spec.g_order, kMaxTermOrder));
   }
   if (runs.empty()) return Error::Permanent("drift model: no series to fit");
   std::size_t n = 0;

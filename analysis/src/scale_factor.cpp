@@ -11,6 +11,7 @@
 #include <map>
 #include <tuple>
 
+#include "common.h"
 #include "compensated_sum.h"
 #include "gyrotherm/analysis/csv_window.h"
 #include "gyrotherm/analysis/table1.h"
@@ -19,7 +20,6 @@
 namespace gyrotherm::analysis {
 namespace {
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr double kPpm = 1e6;
 
 double mean_of(const std::vector<double>& v) {

@@ -4,9 +4,10 @@
 #include <cmath>
 #include <limits>
 
+#include "common.h"
+
 namespace gyrotherm::analysis {
 namespace {
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr double kRelTol = 1e-9;  // of window_s, to absorb rounding in time stamps
 }  // namespace
 

@@ -10,12 +10,12 @@
 #include <cmath>
 #include <nlohmann/json.hpp>
 
+#include "common.h"
 #include "gyrotherm/core/text.h"
 
 namespace gyrotherm::analysis {
 namespace {
 
-constexpr int kMaxOrder = 4;
 constexpr int kCubic = 4;  // A_0 .. A_3
 
 // 17 significant digits: reads back as the same double.
@@ -180,11 +180,11 @@ bool StartTemperatureOptions::is_valid(std::string* why) const {
     if (why) *why = std::move(msg);
     return false;
   };
-  if (spec.t_order < 0 || spec.t_order > kMaxOrder || spec.r_order < 0 ||
-      spec.r_order > kMaxOrder || spec.g_order < 0 || spec.g_order > kMaxOrder ||
+  if (spec.t_order < 0 || spec.t_order > kMaxTermOrder || spec.r_order < 0 ||
+      spec.r_order > kMaxTermOrder || spec.g_order < 0 || spec.g_order > kMaxTermOrder ||
       spec.parameters() == 0) {
     return fail(fmt::format("spec T{} R{} G{}: orders must be 0..{}, not all 0", spec.t_order,
-                            spec.r_order, spec.g_order, kMaxOrder));
+                            spec.r_order, spec.g_order, kMaxTermOrder));
   }
   std::string sub_why;
   if (!fit.is_valid(&sub_why)) return fail("fit: " + sub_why);

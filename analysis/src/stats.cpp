@@ -16,13 +16,13 @@
 #include <thread>
 #include <vector>
 
+#include "common.h"
 #include "compensated_sum.h"
 #include "gyrotherm/analysis/table1.h"
 
 namespace gyrotherm::analysis {
 namespace {
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr std::size_t kBlock = 4096;
 constexpr std::size_t kLanes = 4;  // independent running window sums per block
 // Series at least this long are summed on two threads (table1_statistics).

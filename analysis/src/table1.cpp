@@ -8,13 +8,13 @@
 #include <cmath>
 #include <limits>
 
+#include "common.h"
 #include "gyrotherm/analysis/allan.h"
 #include "gyrotherm/core/units.h"
 
 namespace gyrotherm::analysis {
 namespace {
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 // Relative to the bin width: how far short of a boundary a time stamp may be
 // and still count in the later bin.
 constexpr double kBoundaryTol = 1e-9;

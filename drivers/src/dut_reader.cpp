@@ -15,8 +15,8 @@
 namespace gyrotherm::drivers {
 namespace {
 
-constexpr std::chrono::milliseconds kMinBackoff{100};
-constexpr std::chrono::milliseconds kMaxBackoff{5000};
+constexpr std::chrono::milliseconds kMinReopenBackoff{100};
+constexpr std::chrono::milliseconds kMaxReopenBackoff{5000};
 constexpr std::chrono::milliseconds kReadTimeout{50};
 constexpr std::size_t kMaxUnanchored = 65536;
 constexpr std::chrono::milliseconds kPublishWait{5};
@@ -108,19 +108,19 @@ void DutReader::run() {
 
   std::array<uint8_t, 4096> buf{};
   std::vector<DutFrame> frames;
-  auto backoff = kMinBackoff;
+  auto backoff = kMinReopenBackoff;
   bool opened_before = false;
 
   while (!stop_) {
     std::optional<Line> line = open_line(opened_before, tolerance_s);
     if (!line) {
       if (!wait_unless_stopped(backoff)) break;
-      backoff = std::min(backoff * 2, kMaxBackoff);
+      backoff = std::min(backoff * 2, kMaxReopenBackoff);
       continue;
     }
     opened_before = true;
     if (read_until_hangup(*line, buf, frames)) {
-      backoff = kMinBackoff;  // the port delivers data: a later hang-up starts afresh
+      backoff = kMinReopenBackoff;  // the port delivers data: a later hang-up starts afresh
     }
     publish_held(*line);
     // The line is gone: its slot on a simulator's clock goes now, so the
@@ -134,7 +134,7 @@ void DutReader::run() {
     line->slot.reset();
     if (stop_) break;
     if (!wait_unless_stopped(backoff)) break;
-    backoff = std::min(backoff * 2, kMaxBackoff);
+    backoff = std::min(backoff * 2, kMaxReopenBackoff);
   }
   std::lock_guard lock(mu_);
   health_.connected = false;

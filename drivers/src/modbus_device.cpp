@@ -20,8 +20,8 @@ namespace gyrotherm::drivers {
 namespace {
 
 using Steady = std::chrono::steady_clock;
-constexpr std::chrono::milliseconds kMinBackoff{100};
-constexpr std::chrono::milliseconds kMaxBackoff{5000};
+constexpr std::chrono::milliseconds kMinReconnectBackoff{100};
+constexpr std::chrono::milliseconds kMaxReconnectBackoff{5000};
 
 const char* function_name(RegisterFunction f) {
   return f == RegisterFunction::kHolding ? "holding" : "input";
@@ -162,7 +162,7 @@ Status ModbusDevice::connect_locked(const std::string& op) {
     const std::string msg = fmt::format("{}: {}", where, connect_error_);
     record_error_locked(msg);
     next_attempt_ = Steady::now() + backoff_;
-    backoff_ = std::min(backoff_ * 2, kMaxBackoff);
+    backoff_ = std::min(backoff_ * 2, kMaxReconnectBackoff);
     return Error::Transient(msg);
   };
 
@@ -252,7 +252,7 @@ Status ModbusDevice::connected_locked(modbus_t* ctx) {
   health_.connected = true;
   if (ever_connected_) ++health_.reconnects;
   ever_connected_ = true;
-  backoff_ = kMinBackoff;
+  backoff_ = kMinReconnectBackoff;
   next_attempt_ = {};
   return Status::Ok();
 }

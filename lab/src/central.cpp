@@ -19,12 +19,6 @@ namespace {
 
 using json = nlohmann::json;
 
-// lab.stations' CHECK, tested here first for a message that names the id.
-bool valid_station_id(const std::string& id) {
-  static const std::regex pattern("^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$");
-  return std::regex_match(id, pattern);
-}
-
 Status check_role_name(const std::string& role) {
   // PostgreSQL truncates identifiers to 63 bytes and reserves pg_*.
   if (role.empty() || role.size() > 63 || role.rfind("pg_", 0) == 0 ||
@@ -197,6 +191,12 @@ FROM before
 )sql";
 
 }  // namespace
+
+// lab.stations' CHECK, tested here first for a message that names the id.
+bool valid_station_id(const std::string& id) {
+  static const std::regex pattern("^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$");
+  return std::regex_match(id, pattern);
+}
 
 Status add_station(PgConnection& pg, const std::string& station_id, const std::string& db_role,
                    const std::string& description) {

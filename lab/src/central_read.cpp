@@ -19,6 +19,12 @@ using nlohmann::json;
 
 namespace internal {
 
+std::string str(const nlohmann::json& row, const char* key) {
+  if (!row.is_object()) return "";
+  const auto it = row.find(key);
+  return it != row.end() && it->is_string() ? it->get<std::string>() : std::string();
+}
+
 Error read_error(const PgConnection& pg, std::string_view what, const Error& error) {
   const std::string& state = pg.last_sqlstate();
   std::string hint;
@@ -84,6 +90,7 @@ using internal::json_rows;
 using internal::Params;
 using internal::read_error;
 using internal::ReadSnapshot;
+using internal::str;
 using internal::utc_text;
 
 // Orders text ids ("12", "3/17-0042/x") by their first number, then as
@@ -253,13 +260,6 @@ WITH keys AS (
   UNION SELECT station_id, run_uuid FROM lab.fits WHERE dut_serial = $1
 )
 )sql";
-
-// A string member of a row; "" when missing or not a string.
-std::string str(const json& row, const char* key) {
-  if (!row.is_object()) return "";
-  const auto it = row.find(key);
-  return it != row.end() && it->is_string() ? it->get<std::string>() : std::string();
-}
 
 std::string run_key(const json& row) {
   return str(row, "station_id") + "\n" + str(row, "run_uuid");

@@ -17,6 +17,10 @@ namespace gyrotherm::lab::internal {
 
 using Params = std::vector<std::optional<std::string>>;
 
+// A string member of a row; "" when the row is no object, or the member is
+// missing or no string.
+std::string str(const nlohmann::json& row, const char* key);
+
 // The error of a failed read of `what` (a view), with a hint when the
 // server's SQLSTATE says the schema is missing or the role may not read.
 Error read_error(const PgConnection& pg, std::string_view what, const Error& error);

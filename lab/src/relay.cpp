@@ -34,7 +34,6 @@
 #include <cmath>
 #include <future>
 #include <optional>
-#include <regex>
 #include <string_view>
 #include <utility>
 #include <vector>
@@ -92,11 +91,6 @@ std::string one_line(std::string_view s) {
   }
   while (!out.empty() && out.back() == ' ') out.pop_back();
   return out;
-}
-
-bool valid_station_id(const std::string& id) {
-  static const std::regex kId("[A-Za-z0-9][A-Za-z0-9._-]{0,63}");
-  return std::regex_match(id, kId);
 }
 
 // "1 record", "12 records".

@@ -22,6 +22,7 @@ namespace {
 
 using internal::json_rows;
 using internal::Params;
+using internal::str;
 using nlohmann::json;
 
 constexpr const char* kDash = "—";
@@ -33,11 +34,6 @@ const json& member(const json& row, const char* key) {
   if (!row.is_object()) return kNull;
   const auto it = row.find(key);
   return it == row.end() ? kNull : *it;
-}
-
-std::string str(const json& row, const char* key) {
-  const json& v = member(row, key);
-  return v.is_string() ? v.get<std::string>() : std::string();
 }
 
 std::optional<double> number(const json& v) {

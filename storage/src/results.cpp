@@ -403,7 +403,7 @@ Result<std::vector<AllanRecord>> ResultStore::allan(int64_t run_id) {
 
 namespace {
 
-constexpr const char* kFitColumns =
+constexpr const char* kDriftFitColumns =
     "id, model, form, n, coefficients_json, standard_errors_json, residual_std_dph, r_squared, "
     "inputs_json, computed_utc, dut_serial, axis, coverage_samples, coverage_expected, coverage, "
     "longest_gap_s, quality, quality_reasons_json";
@@ -500,7 +500,7 @@ Result<std::vector<FitRecord>> fits_of_dut(sqlite3* db, const std::string& path,
                                            const std::string& serial) {
   auto st = Stmt::prepare(
       db, path,
-      fmt::format("SELECT {} FROM fits WHERE dut_serial = ? ORDER BY id DESC", kFitColumns));
+      fmt::format("SELECT {} FROM fits WHERE dut_serial = ? ORDER BY id DESC", kDriftFitColumns));
   if (!st) return st.error();
   st->bind(1, std::string_view(serial));
   return read_fits(db, path, *st);
@@ -512,15 +512,15 @@ Result<std::vector<FitRecord>> ResultStore::fits(int64_t run_id) {
   auto st = Stmt::prepare(db(), path(),
                           fmt::format("SELECT {} FROM fits WHERE id IN (SELECT fit_id FROM "
                                       "fit_runs WHERE run_id = ?) ORDER BY id DESC",
-                                      kFitColumns));
+                                      kDriftFitColumns));
   if (!st) return st.error();
   st->bind(1, run_id);
   return read_fits(db(), path(), *st);
 }
 
 Result<std::optional<FitRecord>> ResultStore::fit(int64_t fit_id) {
-  auto st =
-      Stmt::prepare(db(), path(), fmt::format("SELECT {} FROM fits WHERE id = ?", kFitColumns));
+  auto st = Stmt::prepare(db(), path(),
+                          fmt::format("SELECT {} FROM fits WHERE id = ?", kDriftFitColumns));
   if (!st) return st.error();
   st->bind(1, fit_id);
   auto fits = read_fits(db(), path(), *st);

@@ -241,7 +241,7 @@ constexpr const char* kPointColumns =
     "id, run_id, segment_id, sf_sequence, repetition, rate_dps, measured_rate_dps, output_dps, n, "
     "temperature_c, duration_s, turns, dut_serial, axis, guard_s, coverage_samples, "
     "coverage_expected, coverage, longest_gap_s, quality, quality_reasons_json";
-constexpr const char* kFitColumns =
+constexpr const char* kScaleFactorFitColumns =
     "run_id, sf_sequence, temperature_c, k, k_se, bias_dps, nonlinearity_ppm, "
     "nonlinearity_fs_ppm, asymmetry_ppm, repeatability_ppm, n_points, created_utc, dut_serial, "
     "axis, guard_s, coverage_samples, coverage_expected, coverage, longest_gap_s, quality, "
@@ -341,8 +341,8 @@ Result<std::vector<ScaleFactorPointRecord>> ResultStore::scale_factor_points(int
 }
 
 Result<std::vector<ScaleFactorFitRecord>> ResultStore::scale_factor_fits(int64_t run_id) {
-  return read_rows(db(), path(), "scale_factor_fits", kFitColumns, ", x.sf_sequence", &read_fit,
-                   run_id, "scale-factor fits");
+  return read_rows(db(), path(), "scale_factor_fits", kScaleFactorFitColumns, ", x.sf_sequence",
+                   &read_fit, run_id, "scale-factor fits");
 }
 
 Result<std::vector<ScaleFactorTemperatureFitRecord>> ResultStore::scale_factor_temperature_fits(

@@ -20,7 +20,7 @@ using testing::load_runs;
 using testing::read_reference_lines;
 using testing::Tokens;
 
-const char* const kScript = "tools/reference/multirun_reference.py";
+const char* const kComparisonScript = "tools/reference/multirun_reference.py";
 
 const ComparisonCell* find_cell(const Comparison& c, const std::string& spec) {
   for (const ComparisonCell& cell : c.cells) {
@@ -86,7 +86,7 @@ void expect_cells_match(const std::vector<Tokens>& lines, const Comparison& by_p
 }
 
 TEST(ComparisonReference, GridMatchesNumpy) {
-  const std::vector<Tokens> lines = read_reference_lines("comparison_grid.txt", kScript);
+  const std::vector<Tokens> lines = read_reference_lines("comparison_grid.txt", kComparisonScript);
   const std::vector<AnalysisSeries> runs = load_runs(lines);
   ASSERT_EQ(runs.size(), 3u);
   ComparisonOptions paper;  // the raw bins, as comparison_grid.txt
@@ -108,7 +108,8 @@ TEST(ComparisonReference, GridMatchesNumpy) {
 // row) by Table I's 101-point centred moving average before pooling, as the
 // paper's Table II std implies; against numpy (comparison_grid_smoothed.txt).
 TEST(ComparisonReference, SmoothedGridMatchesNumpy) {
-  const std::vector<Tokens> lines = read_reference_lines("comparison_grid_smoothed.txt", kScript);
+  const std::vector<Tokens> lines =
+      read_reference_lines("comparison_grid_smoothed.txt", kComparisonScript);
   const std::vector<AnalysisSeries> runs = load_runs(lines);
   ASSERT_EQ(runs.size(), 3u);
   ComparisonOptions centred;  // the defaults: smoothed
@@ -135,7 +136,7 @@ TEST(ComparisonReference, SmoothedGridMatchesNumpy) {
 // Paper form, raw bins: compensated = L0 + residual, so the in-sample std
 // equals the std of the fit's residuals around their mean; the grid's layout.
 TEST(Comparison, LayoutAndInSampleFit) {
-  const std::vector<Tokens> lines = read_reference_lines("comparison_grid.txt", kScript);
+  const std::vector<Tokens> lines = read_reference_lines("comparison_grid.txt", kComparisonScript);
   const std::vector<AnalysisSeries> runs = load_runs(lines);
   ComparisonOptions options;
   options.form = DriftModelForm::kPaper;
@@ -178,7 +179,7 @@ TEST(Comparison, LayoutAndInSampleFit) {
 }
 
 TEST(Comparison, OneRunHasNoCrossValidation) {
-  const std::vector<Tokens> lines = read_reference_lines("comparison_grid.txt", kScript);
+  const std::vector<Tokens> lines = read_reference_lines("comparison_grid.txt", kComparisonScript);
   const std::vector<AnalysisSeries> runs = load_runs(lines);
   auto c = compare_models(std::span<const AnalysisSeries>(runs.data(), 1));
   ASSERT_TRUE(c.ok()) << c.error().message;

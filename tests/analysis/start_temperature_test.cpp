@@ -26,10 +26,11 @@ using testing::load_runs;
 using testing::read_reference_lines;
 using testing::Tokens;
 
-const char* const kScript = "tools/reference/multirun_reference.py";
+const char* const kStartTemperatureScript = "tools/reference/multirun_reference.py";
 
 TEST(StartTemperatureReference, MatchesNumpy) {
-  const std::vector<Tokens> lines = read_reference_lines("start_temperature_cubic.txt", kScript);
+  const std::vector<Tokens> lines =
+      read_reference_lines("start_temperature_cubic.txt", kStartTemperatureScript);
   const std::vector<AnalysisSeries> runs = load_runs(lines);
   ASSERT_EQ(runs.size(), 5u);
   StartTemperatureOptions base;

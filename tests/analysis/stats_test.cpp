@@ -8,11 +8,12 @@
 #include <vector>
 
 #include "gyrotherm/analysis/table1.h"
+#include "numbers.h"
 
 namespace gyrotherm::analysis {
 namespace {
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+using gyrotherm::testing::kNaN;
 
 TEST(Mean, OneToFive) {
   const std::vector<double> x = {1, 2, 3, 4, 5};

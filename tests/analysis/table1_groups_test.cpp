@@ -22,7 +22,7 @@ struct Expected {
   MeanSpread columns[5];
 };
 
-double parse(const std::string& s) { return s == "nan" ? std::nan("") : std::stod(s); }
+double parse_number(const std::string& s) { return s == "nan" ? std::nan("") : std::stod(s); }
 
 void expect_close(double got, double want, double rel, const std::string& what) {
   if (std::isnan(want)) {
@@ -40,18 +40,19 @@ TEST(Table1BySetpoint, MatchesNumpyForTheFourRepetitionsOfEightSetpoints) {
     if (t[0] == "soak") {
       ASSERT_EQ(t.size(), 7u);
       Table1Soak s;
-      s.setpoint_c = parse(t[1]);
-      s.row.temp_mean_c = parse(t[2]);
-      s.row.bias_mean_dph = parse(t[3]);
-      s.row.bias_std_dph = parse(t[4]);
-      s.row.bias_std_ma_dph = parse(t[5]);
-      s.row.bias_mean_earth_removed_dph = parse(t[6]);
+      s.setpoint_c = parse_number(t[1]);
+      s.row.temp_mean_c = parse_number(t[2]);
+      s.row.bias_mean_dph = parse_number(t[3]);
+      s.row.bias_std_dph = parse_number(t[4]);
+      s.row.bias_std_ma_dph = parse_number(t[5]);
+      s.row.bias_mean_earth_removed_dph = parse_number(t[6]);
       soaks.push_back(s);
     } else if (t[0] == "group") {
       ASSERT_EQ(t.size(), 18u);
-      Expected e{parse(t[1]), std::stoul(t[2]), {}};
+      Expected e{parse_number(t[1]), std::stoul(t[2]), {}};
       for (int c = 0; c < 5; ++c) {
-        e.columns[c] = {parse(t[3 + 3 * c]), parse(t[4 + 3 * c]), std::stoul(t[5 + 3 * c])};
+        e.columns[c] = {parse_number(t[3 + 3 * c]), parse_number(t[4 + 3 * c]),
+                        std::stoul(t[5 + 3 * c])};
       }
       expected.push_back(e);
     }

@@ -11,10 +11,12 @@
 #include <random>
 #include <vector>
 
+#include "numbers.h"
+
 namespace gyrotherm::analysis {
 namespace {
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+using gyrotherm::testing::kNaN;
 
 std::vector<GyroSample> gyro_at(double t0, double dt, std::size_t n, double rate_dph = 8.0) {
   std::vector<GyroSample> out(n);

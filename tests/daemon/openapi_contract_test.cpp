@@ -27,7 +27,7 @@ namespace {
 namespace http = boost::beast::http;
 using nlohmann::json;
 
-constexpr const char* kToken = "contract-token-0123456789abcdef";
+constexpr const char* kContractToken = "contract-token-0123456789abcdef";
 constexpr const char* kMethods[] = {"get", "put", "post", "delete", "patch", "head", "options"};
 
 const json& document() {
@@ -593,7 +593,7 @@ ApiContext contract_context(station::StationControl* control, const WebAssets* w
   ApiContext ctx;
   ctx.status = busy_station;
   ctx.control = control;
-  ctx.tokens = {kToken};
+  ctx.tokens = {kContractToken};
   ctx.web = web;
   if (metrics) ctx.metrics = [metrics] { return metrics->scrape(busy_station(), {}); };
   return ctx;
@@ -772,7 +772,7 @@ TEST(OpenApi, EveryOperationAnswersAsDocumented) {
           const std::string name = upper(m) + " " + target;
           SCOPED_TRACE(name);
           HttpRequest req{http::string_to_verb(upper(m)), target, 11};
-          req.set(http::field::authorization, std::string("Bearer ") + kToken);
+          req.set(http::field::authorization, std::string("Bearer ") + kContractToken);
           if (!body.empty()) req.set(http::field::content_type, "application/json");
           req.body() = body;
           req.prepare_payload();

@@ -32,9 +32,9 @@ namespace {
 namespace fs = std::filesystem;
 using ::testing::HasSubstr;
 
-constexpr double kRateHz = 10.0;
-constexpr double kBiasDph = 2.0;
-constexpr double kK = 1.000123;
+constexpr double kQualityRateHz = 10.0;
+constexpr double kQualityBiasDph = 2.0;
+constexpr double kQualityK = 1.000123;
 
 struct Step {
   std::string kind;        // soak, rate
@@ -100,10 +100,10 @@ class ResultQualityTest : public testing::TempDirTest {
     auto writer = storage::SampleWriter::start(db_path());
     EXPECT_TRUE(writer.ok());
     std::vector<GyroSample> gyro;
-    const auto n = static_cast<int64_t>(std::llround(rec.end_s * kRateHz));
+    const auto n = static_cast<int64_t>(std::llround(rec.end_s * kQualityRateHz));
     for (int64_t i = 0; i < n; ++i) {
       GyroSample g;
-      g.t_s = static_cast<double>(i) / kRateHz;
+      g.t_s = static_cast<double>(i) / kQualityRateHz;
       g.rate_dph = rec.gyro_dph(g.t_s);
       if (std::isnan(g.rate_dph)) continue;
       gyro.push_back(g);
@@ -156,7 +156,7 @@ TEST_F(ResultQualityTest, DriftSeriesLeavesOutEveryStretchTheTableWasNotAtRest) 
   Recording rec;
   rec.end_s = 2400;
   rec.gyro_dph = [&](double t) {
-    double dph = kBiasDph + 0.01 * std::sin(1.7 * t);
+    double dph = kQualityBiasDph + 0.01 * std::sin(1.7 * t);
     if (spinning(t)) dph += 50.0 * 3600.0;
     if (moving(t)) dph += 9.0 * 3600.0;
     return dph;
@@ -182,7 +182,7 @@ TEST_F(ResultQualityTest, DriftSeriesLeavesOutEveryStretchTheTableWasNotAtRest) 
     const double t = series->t_s[i];
     EXPECT_FALSE(t >= 499 && t < 561) << "a bin of the spin at " << t << " s";
     EXPECT_FALSE(t >= 1499 && t < 1511) << "a bin of the move at " << t << " s";
-    EXPECT_LT(std::fabs(series->rate_dph[i] - kBiasDph), 0.1) << "at " << t << " s";
+    EXPECT_LT(std::fabs(series->rate_dph[i] - kQualityBiasDph), 0.1) << "at " << t << " s";
   }
   // The stretches left out: from the last reading at rest before to the
   // first after, 10 s wider each side; the rest of the run is kept.
@@ -226,7 +226,9 @@ class RatePointTest : public ResultQualityTest {
     };
     Recording rec;
     rec.end_s = s.back().to_s + 5;
-    rec.gyro_dph = [=](double t) { return kK * rate_at(t - lag_s(t)) * 3600.0 + kBiasDph; };
+    rec.gyro_dph = [=](double t) {
+      return kQualityK * rate_at(t - lag_s(t)) * 3600.0 + kQualityBiasDph;
+    };
     rec.table = [=](double t) {
       return std::optional(table_reading(rate_at(t), std::fmod(rate_at(t) * t, 360.0), "rate"));
     };
@@ -248,7 +250,7 @@ TEST_F(RatePointTest, TheGuardBandCutsThePreviousRatesSamplesFromEachWindow) {
   auto fits = db.scale_factor_fits(run_id);
   ASSERT_TRUE(fits.ok());
   ASSERT_EQ(fits->size(), 1u);
-  EXPECT_NEAR((*fits)[0].k, kK, 1e-12);  // the lagged samples are gone
+  EXPECT_NEAR((*fits)[0].k, kQualityK, 1e-12);  // the lagged samples are gone
   EXPECT_EQ((*fits)[0].guard_s, 1.0);
   EXPECT_EQ((*fits)[0].quality.verdict, "ok");
   auto points = db.scale_factor_points(run_id);
@@ -262,7 +264,7 @@ TEST_F(RatePointTest, TheGuardBandCutsThePreviousRatesSamplesFromEachWindow) {
     const double want_s = std::fabs(p.rate_dps) == 10.0 ? 34.0 : 32.4;
     EXPECT_NEAR(p.duration_s, want_s, 1e-9) << p.rate_dps;
     EXPECT_NEAR(p.turns, std::fabs(p.rate_dps) * want_s / 360.0, 1e-9);
-    EXPECT_NEAR(static_cast<double>(p.n), want_s * kRateHz, 1.0) << p.rate_dps;
+    EXPECT_NEAR(static_cast<double>(p.n), want_s * kQualityRateHz, 1.0) << p.rate_dps;
     ASSERT_TRUE(p.quality.coverage.has_value());
     EXPECT_NEAR(*p.quality.coverage, 1.0, 1.0 / 320);
   }
@@ -283,7 +285,7 @@ TEST_F(RatePointTest, APointThatIsNotFlatIsLeftOutAndNamed) {
   ASSERT_TRUE(fits.ok());
   ASSERT_EQ(fits->size(), 1u);
   EXPECT_EQ((*fits)[0].n_points, 7);
-  EXPECT_NEAR((*fits)[0].k, kK, 1e-12);
+  EXPECT_NEAR((*fits)[0].k, kQualityK, 1e-12);
   auto points = db.scale_factor_points(run_id);
   ASSERT_TRUE(points.ok());
   ASSERT_EQ(points->size(), 8u);  // stored, with why it was left out
@@ -305,7 +307,7 @@ TEST_F(ResultQualityTest, ATableIRowOverAWindowWithA30PercentGapIsFlagged) {
   Recording rec;
   rec.end_s = 600;
   rec.gyro_dph = [](double t) {
-    return t >= 200 && t < 380 ? std::nan("") : kBiasDph + 0.01 * std::sin(1.7 * t);
+    return t >= 200 && t < 380 ? std::nan("") : kQualityBiasDph + 0.01 * std::sin(1.7 * t);
   };
   const int64_t run_id = make_run({{"soak", "none", 0.0, 0, 600}}, rec,
                                   R"({"station": {"name": "q"}, "gyro": {"rate_hz": 10}})");
@@ -348,7 +350,7 @@ TEST_F(ResultQualityTest, FlaggedResultsAreStoredFlaggedAndTheirHeadersNeedForce
   a.gyro_dph = [](double t) {
     if (std::fmod(t, 1000.0) >= 60.0) return std::nan("");  // 60 s of every 1000
     const double temp_c = 20.0 + 0.001 * t;
-    return kBiasDph + 0.5 * (temp_c - 20.0) + 0.01 * std::sin(1.7 * t);
+    return kQualityBiasDph + 0.5 * (temp_c - 20.0) + 0.01 * std::sin(1.7 * t);
   };
   const int64_t run_a = make_run(
       {{"soak", "none", 0.0, 0, 10000}}, a,
@@ -375,10 +377,10 @@ TEST_F(ResultQualityTest, FlaggedResultsAreStoredFlaggedAndTheirHeadersNeedForce
   b.temperature_c = [](double time) { return time < 625 ? 20.0 : 40.0; };
   b.gyro_dph = [step_at](double time) {
     const Step* s = step_at(time);
-    if (s == nullptr) return kBiasDph;
-    double out_dps = (s->sf_sequence == 1 ? -kK : kK) * s->rate_dps;
+    if (s == nullptr) return kQualityBiasDph;
+    double out_dps = (s->sf_sequence == 1 ? -kQualityK : kQualityK) * s->rate_dps;
     if (s->sf_sequence == 2 && s->sf_repetition == 1 && s->rate_dps == 10.0) out_dps += 500.0;
-    return out_dps * 3600.0 + kBiasDph;
+    return out_dps * 3600.0 + kQualityBiasDph;
   };
   b.table = [step_at](double time) {
     const Step* s = step_at(time);

@@ -12,7 +12,8 @@
 namespace gyrotherm::drivers {
 namespace {
 
-AsciiColumn col(std::string name, ChannelKind kind, std::string unit, std::string axis = "") {
+AsciiColumn channel_col(std::string name, ChannelKind kind, std::string unit,
+                        std::string axis = "") {
   return AsciiColumn{std::move(name), kind, std::move(unit), std::move(axis)};
 }
 
@@ -20,10 +21,11 @@ AsciiColumn col(std::string name, ChannelKind kind, std::string unit, std::strin
 AsciiLineOptions gyr_options() {
   AsciiLineOptions o;
   o.prefix = "$GYR,";
-  o.columns = {col("seq", ChannelKind::kOther, ""), col("gyro_z", ChannelKind::kRate, "deg/s", "z"),
-               col("accel_z", ChannelKind::kAccel, "m/s^2", "z"),
-               col("temp_c", ChannelKind::kTemperature, "degC"),
-               col("status", ChannelKind::kStatus, "")};
+  o.columns = {channel_col("seq", ChannelKind::kOther, ""),
+               channel_col("gyro_z", ChannelKind::kRate, "deg/s", "z"),
+               channel_col("accel_z", ChannelKind::kAccel, "m/s^2", "z"),
+               channel_col("temp_c", ChannelKind::kTemperature, "degC"),
+               channel_col("status", ChannelKind::kStatus, "")};
   o.seq_column = 0;
   o.seq_modulo = 256;
   return o;
@@ -85,10 +87,12 @@ TEST(DutChannels, AsciiColumnsWithUnitScales) {
   // Per-sample angles become rates at rate_hz; mg to g.
   AsciiLineOptions o;
   o.delimiter = "whitespace";
-  o.columns = {
-      col("gx", ChannelKind::kRate, "rad", "x"), col("-", ChannelKind::kOther, ""),
-      col("gy", ChannelKind::kRate, "deg", "y"), col("gz", ChannelKind::kRate, "rad/s", "z"),
-      col("ax", ChannelKind::kAccel, "mg", "x"), col("v", ChannelKind::kOther, "V")};
+  o.columns = {channel_col("gx", ChannelKind::kRate, "rad", "x"),
+               channel_col("-", ChannelKind::kOther, ""),
+               channel_col("gy", ChannelKind::kRate, "deg", "y"),
+               channel_col("gz", ChannelKind::kRate, "rad/s", "z"),
+               channel_col("ax", ChannelKind::kAccel, "mg", "x"),
+               channel_col("v", ChannelKind::kOther, "V")};
   ch = dut_channels(ascii_link(o));
   ASSERT_TRUE(ch.ok()) << ch.error().message;
   ASSERT_EQ(ch->size(), 5u);
@@ -132,7 +136,7 @@ TEST(DutChannels, AsciiErrorsNameTheColumn) {
       {[](auto& o) {
          o.columns.clear();
          for (int i = 0; i < 17; ++i)
-           o.columns.push_back(col(fmt::format("c{}", i), ChannelKind::kOther, ""));
+           o.columns.push_back(channel_col(fmt::format("c{}", i), ChannelKind::kOther, ""));
          o.seq_column.reset();
          o.seq_modulo = 0;
        },
@@ -160,14 +164,16 @@ TEST(AsciiEncoder, WritesPrefixSeqAndChecksums) {
   EXPECT_EQ(crc16_ccitt_false("123456789"), 0x29B1);  // the catalogue's check value
   AsciiLineOptions o;
   o.prefix = "$GYR,";
-  o.columns = {col("seq", ChannelKind::kOther, ""), col("gyro_z", ChannelKind::kRate, "deg/h", "z"),
-               col("-", ChannelKind::kOther, ""), col("accel_z", ChannelKind::kAccel, "g", "z"),
-               col("status", ChannelKind::kStatus, "")};
+  o.columns = {channel_col("seq", ChannelKind::kOther, ""),
+               channel_col("gyro_z", ChannelKind::kRate, "deg/h", "z"),
+               channel_col("-", ChannelKind::kOther, ""),
+               channel_col("accel_z", ChannelKind::kAccel, "g", "z"),
+               channel_col("status", ChannelKind::kStatus, "")};
   o.seq_column = 0;
   o.seq_modulo = 100;
   const std::vector<double> v{1.5, 0.25, 7};
   EXPECT_EQ(encode_ascii_line(o, v, 112), "$GYR,12,1.5,0,0.25,7\r\n");
-  o.columns[2] = col("x", ChannelKind::kOther, "");  // now a channel: -2
+  o.columns[2] = channel_col("x", ChannelKind::kOther, "");  // now a channel: -2
   const std::vector<double> v2{1.5, -2, 0.25, 7};
   o.checksum = "crc16";
   EXPECT_EQ(encode_ascii_line(o, v2, 12), "$GYR,12,1.5,-2,0.25,7*A880\r\n");

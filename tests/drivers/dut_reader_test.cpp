@@ -68,7 +68,7 @@ class Collector {
   std::vector<DutFrame> frames_;
 };
 
-AsciiColumn col(std::string name, ChannelKind kind, std::string unit, std::string axis = "") {
+AsciiColumn ascii_col(std::string name, ChannelKind kind, std::string unit, std::string axis = "") {
   return AsciiColumn{std::move(name), kind, std::move(unit), std::move(axis)};
 }
 
@@ -141,8 +141,9 @@ TEST(DutReader, AsciiLinesWithACounter) {
   link.rate_hz = 100.0;
   AsciiLineOptions& o = link.ascii;
   o.prefix = "$GYR,";
-  o.columns = {col("seq", ChannelKind::kOther, ""), col("gyro_z", ChannelKind::kRate, "deg/s", "z"),
-               col("status", ChannelKind::kStatus, "")};
+  o.columns = {ascii_col("seq", ChannelKind::kOther, ""),
+               ascii_col("gyro_z", ChannelKind::kRate, "deg/s", "z"),
+               ascii_col("status", ChannelKind::kStatus, "")};
   o.seq_column = 0;
   o.seq_modulo = 100;
   o.checksum = "crc16";
@@ -197,8 +198,8 @@ TEST(DutReader, ALineWhoseCounterContradictsItsNeighboursIsNotStored) {
   link.rate_hz = 100.0;
   AsciiLineOptions& o = link.ascii;
   o.prefix = "$GYR,";
-  o.columns = {col("seq", ChannelKind::kOther, ""),
-               col("gyro_z", ChannelKind::kRate, "deg/s", "z")};
+  o.columns = {ascii_col("seq", ChannelKind::kOther, ""),
+               ascii_col("gyro_z", ChannelKind::kRate, "deg/s", "z")};
   o.seq_column = 0;
   o.seq_modulo = 65536;
   o.checksum = "nmea";
@@ -244,8 +245,8 @@ TEST(DutReader, AsciiLinesWithoutACounterUseTheClockRule) {
   link.protocol = "ascii";
   link.rate_hz = 10.0;
   link.ascii.delimiter = "whitespace";
-  link.ascii.columns = {col("rate", ChannelKind::kRate, "deg/h", "z"),
-                        col("temp_c", ChannelKind::kTemperature, "degC")};
+  link.ascii.columns = {ascii_col("rate", ChannelKind::kRate, "deg/h", "z"),
+                        ascii_col("temp_c", ChannelKind::kTemperature, "degC")};
   auto source = make_dut_source(link, clock);
   ASSERT_TRUE(source.ok()) << source.error().message;
   DutSource& dut = **source;
@@ -286,8 +287,8 @@ TEST(DutReader, ABacklogReadInPiecesKeepsItsCounterSlots) {
   link.protocol = "ascii";
   link.rate_hz = 10.0;
   link.ascii.delimiter = "whitespace";
-  link.ascii.columns = {col("seq", ChannelKind::kOther, ""),
-                        col("rate", ChannelKind::kRate, "deg/h", "z")};
+  link.ascii.columns = {ascii_col("seq", ChannelKind::kOther, ""),
+                        ascii_col("rate", ChannelKind::kRate, "deg/h", "z")};
   link.ascii.seq_column = 0;
   link.ascii.seq_modulo = 128;
   auto source = make_dut_source(link, clock);
@@ -324,7 +325,7 @@ DutLink rate_line(const std::string& device) {
   DutLink link;
   link.serial.device = device;
   link.protocol = "ascii";
-  link.ascii.columns = {col("rate", ChannelKind::kRate, "deg/h", "z")};
+  link.ascii.columns = {ascii_col("rate", ChannelKind::kRate, "deg/h", "z")};
   return link;
 }
 

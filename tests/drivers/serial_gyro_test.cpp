@@ -26,11 +26,11 @@ using namespace std::chrono_literals;
 
 // Polls `cond` until it holds or 5 s (wall, stretched by
 // GYROTHERM_TEST_TIME_FACTOR) pass.
-bool wait_for(const std::function<bool()>& cond, std::chrono::milliseconds limit = 5000ms) {
+bool wait_for_gyro(const std::function<bool()>& cond, std::chrono::milliseconds limit = 5000ms) {
   return testing::wait_for_condition(cond, limit);
 }
 
-Pty open_pty() {
+Pty open_gyro_pty() {
   auto pty = Pty::open(/*nonblocking_master=*/true);
   if (!pty.ok()) {
     ADD_FAILURE() << pty.error().message;
@@ -56,7 +56,7 @@ void send(Pty& pty, const GyroFrame& f) {
 }
 
 // Collects what the reader's sink receives.
-class Collector {
+class GyroCollector {
  public:
   GyroReader::Sink sink() {
     return [this](std::span<const GyroSample> batch) {
@@ -118,7 +118,7 @@ TEST(ToRateDph, Conversions) {
 }
 
 TEST(SerialPort, ReadsAndWritesThroughAPty) {
-  Pty pty = open_pty();
+  Pty pty = open_gyro_pty();
   auto port = SerialPort::open({pty.slave_path(), 921600, Parity::kNone});
   ASSERT_TRUE(port.ok()) << port.error().message;
 
@@ -131,7 +131,7 @@ TEST(SerialPort, ReadsAndWritesThroughAPty) {
   const std::vector<uint8_t> raw = {0x0D, 0x0A, 0x03, 0x11, 0x13, 0x7F, 0x00, 0xFF};
   ASSERT_TRUE(pty.write_master(raw).ok());
   std::vector<uint8_t> got;
-  ASSERT_TRUE(wait_for([&] {
+  ASSERT_TRUE(wait_for_gyro([&] {
     auto n = port->read(buf, 20ms);
     if (n.ok()) got.insert(got.end(), buf.begin(), buf.begin() + *n);
     return got.size() >= raw.size();
@@ -140,7 +140,7 @@ TEST(SerialPort, ReadsAndWritesThroughAPty) {
 
   ASSERT_TRUE(port->write(raw).ok());
   std::vector<uint8_t> back;
-  ASSERT_TRUE(wait_for([&] {
+  ASSERT_TRUE(wait_for_gyro([&] {
     const ssize_t n = ::read(pty.master_fd(), buf.data(), buf.size());
     if (n > 0) back.insert(back.end(), buf.begin(), buf.begin() + n);
     return back.size() >= raw.size();
@@ -154,7 +154,7 @@ TEST(SerialPort, OpenErrors) {
   EXPECT_TRUE(missing.error().transient);
   EXPECT_NE(missing.error().message.find("/dev/gyrotherm-no-such-tty"), std::string::npos);
 
-  Pty pty = open_pty();
+  Pty pty = open_gyro_pty();
   auto bad_baud = SerialPort::open({pty.slave_path(), 12345, Parity::kNone});
   ASSERT_FALSE(bad_baud.ok());
   EXPECT_FALSE(bad_baud.error().transient);
@@ -168,7 +168,7 @@ TEST(SerialPort, OpenErrors) {
 // Issue 15 item 13: a second reader of the gyro line took frames from the
 // daemon's. The line is held exclusively; the holder's close frees it.
 TEST(SerialPort, OneHolderPerLine) {
-  Pty pty = open_pty();
+  Pty pty = open_gyro_pty();
   std::optional<SerialPort> first;
   {
     auto port = SerialPort::open({pty.slave_path(), 921600, Parity::kNone});
@@ -187,13 +187,13 @@ TEST(SerialPort, OneHolderPerLine) {
 }
 
 TEST(SerialPort, HangUpIsATransientError) {
-  Pty pty = open_pty();
+  Pty pty = open_gyro_pty();
   auto port = SerialPort::open({pty.slave_path(), 921600, Parity::kNone});
   ASSERT_TRUE(port.ok());
   pty.close_master();
   std::array<uint8_t, 64> buf{};
   Result<std::size_t> r = std::size_t{0};
-  ASSERT_TRUE(wait_for([&] {
+  ASSERT_TRUE(wait_for_gyro([&] {
     r = port->read(buf, 20ms);
     return !r.ok();
   }));
@@ -211,22 +211,23 @@ GyroFormat deg_rate_10hz() {
 }
 
 TEST(GyroReader, TimestampsFromTheSampleCounter) {
-  Pty pty = open_pty();
+  Pty pty = open_gyro_pty();
   ManualClock clock(100.0);
-  Collector got;
+  GyroCollector got;
   auto parser = make_frame_parser("kvh1750");
   ASSERT_TRUE(parser.ok());
   GyroReader reader({pty.slave_path(), 921600, Parity::kNone}, deg_rate_10hz(),
                     std::move(parser).value(), clock, got.sink());
   reader.start();
-  ASSERT_TRUE(wait_for([&] { return reader.health().connected; }));
+  ASSERT_TRUE(wait_for_gyro([&] { return reader.health().connected; }));
 
   // 0.01 °/s = 36 °/h. Sequence 0..9, then 11 (10 lost), then an invalid Z.
   for (uint8_t s = 0; s < 10; ++s) send(pty, frame(s, 0.01f));
   send(pty, frame(11, 0.02f));
   send(pty, frame(12, 0.03f, /*status=*/0x73));  // Z gyro invalid
   send(pty, frame(13, 0.04f, /*status=*/0x04));  // only Z valid
-  ASSERT_TRUE(wait_for([&] { return got.size() >= 12 && reader.health().invalid_samples >= 1; }));
+  ASSERT_TRUE(
+      wait_for_gyro([&] { return got.size() >= 12 && reader.health().invalid_samples >= 1; }));
 
   const auto s = got.samples();
   ASSERT_EQ(s.size(), 12u);
@@ -248,7 +249,7 @@ TEST(GyroReader, TimestampsFromTheSampleCounter) {
   clock.set(500.0);
   std::this_thread::sleep_for(std::chrono::milliseconds(200));
   send(pty, frame(14, 0.01f));
-  ASSERT_TRUE(wait_for([&] { return got.size() >= 13; }));
+  ASSERT_TRUE(wait_for_gyro([&] { return got.size() >= 13; }));
   EXPECT_NEAR(got.samples()[12].t_s, 500.0, 1e-9);
 
   const GyroReaderHealth h = reader.health();
@@ -269,29 +270,29 @@ TEST(GyroReader, SurvivesHangUpAndReopensThroughASymlink) {
   TempDir dir;
   ASSERT_FALSE(dir.path().empty());
   const auto link = dir.path() / "gyro";
-  Pty first = open_pty();
+  Pty first = open_gyro_pty();
   point_symlink(link, first.slave_path());
 
   ManualClock clock(10.0);
-  Collector got;
+  GyroCollector got;
   GyroReader reader({link.string(), 921600, Parity::kNone}, deg_rate_10hz(),
                     std::make_unique<Kvh1750Parser>(), clock, got.sink());
   reader.start();
-  ASSERT_TRUE(wait_for([&] { return reader.health().connected; }));
+  ASSERT_TRUE(wait_for_gyro([&] { return reader.health().connected; }));
   send(first, frame(0, 0.01f));
   send(first, frame(1, 0.01f));
-  ASSERT_TRUE(wait_for([&] { return got.size() >= 2; }));
+  ASSERT_TRUE(wait_for_gyro([&] { return got.size() >= 2; }));
 
   first.close_master();
-  ASSERT_TRUE(wait_for([&] {
+  ASSERT_TRUE(wait_for_gyro([&] {
     const auto h = reader.health();
     return !h.connected && h.read_errors >= 1;
   }));
   EXPECT_FALSE(reader.health().last_error.empty());
 
-  Pty second = open_pty();
+  Pty second = open_gyro_pty();
   point_symlink(link, second.slave_path());
-  ASSERT_TRUE(wait_for([&] {
+  ASSERT_TRUE(wait_for_gyro([&] {
     const auto h = reader.health();
     return h.connected && h.reopens >= 1;
   }));
@@ -300,7 +301,7 @@ TEST(GyroReader, SurvivesHangUpAndReopensThroughASymlink) {
   clock.set(20.0);
   send(second, frame(90, 0.02f));
   send(second, frame(91, 0.02f));
-  ASSERT_TRUE(wait_for([&] { return got.size() >= 4; }));
+  ASSERT_TRUE(wait_for_gyro([&] { return got.size() >= 4; }));
   const auto s = got.samples();
   EXPECT_NEAR(s[2].t_s, 20.0, 1e-9);
   EXPECT_NEAR(s[3].t_s, 20.1, 1e-9);
@@ -312,11 +313,11 @@ TEST(GyroReader, SurvivesHangUpAndReopensThroughASymlink) {
 
 TEST(GyroReader, MissingDeviceKeepsRetryingAndStopsPromptly) {
   ManualClock clock;
-  Collector got;
+  GyroCollector got;
   GyroReader reader({"/dev/gyrotherm-no-such-tty", 921600, Parity::kNone}, deg_rate_10hz(),
                     std::make_unique<Kvh1750Parser>(), clock, got.sink());
   reader.start();
-  ASSERT_TRUE(wait_for([&] { return !reader.health().last_error.empty(); }));
+  ASSERT_TRUE(wait_for_gyro([&] { return !reader.health().last_error.empty(); }));
   const auto h = reader.health();
   EXPECT_FALSE(h.connected);
   EXPECT_NE(h.last_error.find("/dev/gyrotherm-no-such-tty"), std::string::npos);

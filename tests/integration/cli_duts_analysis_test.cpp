@@ -31,8 +31,8 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 using ::testing::HasSubstr;
 
-constexpr int kRuns = 4;
-constexpr double kStartC[kRuns] = {-10.0, 5.0, 20.0, 35.0};
+constexpr int kDutRuns = 4;
+constexpr double kDutRunStartC[kDutRuns] = {-10.0, 5.0, 20.0, 35.0};
 constexpr double kRateHz = 10.0;
 constexpr double kRunS = 1500.0;
 // A ±0.02 °/h ripple of period 20 s: zero mean over whole periods, so the
@@ -47,7 +47,7 @@ const std::map<std::pair<std::string, std::string>, Drift> kTruth = {
     {{"SN-A", "z"}, {1.5, 0.2}}, {{"SN-B", "z"}, {-0.7, -0.3}}, {{"SN-B", "x"}, {3.25, 0.1}}};
 
 // The shell: soak at T0 until 400 s, +20 °C by 1000 s, then soak.
-double shell_c(double t0_c, double t_s) {
+double dut_shell_c(double t0_c, double t_s) {
   if (t_s < 400) return t0_c;
   if (t_s < 1000) return t0_c + 20.0 * (t_s - 400) / 600;
   return t0_c + 20.0;
@@ -68,7 +68,7 @@ class CliDutsAnalysisTest : public ::testing::Test {
     ASSERT_TRUE(db.ok()) << db.error().message;
     auto writer = storage::SampleWriter::start(db_path_);
     ASSERT_TRUE(writer.ok()) << writer.error().message;
-    for (int k = 0; k < kRuns; ++k) {
+    for (int k = 0; k < kDutRuns; ++k) {
       storage::RunRecord run;
       run.schedule_name = fmt::format("two gyros {}", k);
       run.state = "acquiring";
@@ -110,7 +110,7 @@ class CliDutsAnalysisTest : public ::testing::Test {
         seg.index = index++;
         seg.kind = kind;
         seg.label = fmt::format("{} (step {})", kind, index);
-        seg.setpoint_c = shell_c(kStartC[k], to_s - 1);
+        seg.setpoint_c = dut_shell_c(kDutRunStartC[k], to_s - 1);
         seg.t_start_s = from_s;
         seg.t_end_s = to_s;
         if (!windows.empty()) {
@@ -128,7 +128,7 @@ class CliDutsAnalysisTest : public ::testing::Test {
       std::vector<DutFrame> fa, fb;
       for (int i = 0; i < static_cast<int>(kRunS * kRateHz); ++i) {
         const double t = i / kRateHz;
-        const double temp_c = shell_c(kStartC[k], t);
+        const double temp_c = dut_shell_c(kDutRunStartC[k], t);
         const double ripple = kRippleDph * std::sin(2 * M_PI * t / 20.0);
         auto drift = [&](const char* serial, const char* axis) {
           const Drift& d = kTruth.at({serial, axis});
@@ -150,7 +150,7 @@ class CliDutsAnalysisTest : public ::testing::Test {
       for (double t = 0; t < kRunS; t += 1.0) {
         TemperatureSample temp;
         temp.t_s = t;
-        temp.setpoint_c = temp.chamber_c = shell_c(kStartC[k], t);
+        temp.setpoint_c = temp.chamber_c = dut_shell_c(kDutRunStartC[k], t);
         temp.top_c = temp.setpoint_c + 0.05;
         temp.side_c = temp.setpoint_c - 0.05;
         (*writer)->push_temperature(*id, temp);
@@ -202,7 +202,7 @@ TEST_F(CliDutsAnalysisTest, StatsGivesEveryDutAxisItsOwnRowsUnlessNamed) {
     ++per_stream[stream];
     const Drift& d = kTruth.at(stream);
     // The soak's own temperature: T0 or T0 + 20 (run 1 starts at −10 °C).
-    const double temp_c = r["segment"] == 1 ? kStartC[0] : kStartC[0] + 20.0;
+    const double temp_c = r["segment"] == 1 ? kDutRunStartC[0] : kDutRunStartC[0] + 20.0;
     EXPECT_NEAR(r["bias_mean_dph"].get<double>(), d.a_dph + d.b_dph_per_c * temp_c, 1e-3)
         << r.dump();
   }

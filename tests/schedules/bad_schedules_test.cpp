@@ -24,7 +24,7 @@ namespace {
 namespace fs = std::filesystem;
 using testing::read_text;
 
-const StationLimits kLimits{-20.0, 60.0, 2.0, StationLimits::Table{500.0, 100.0}};
+const StationLimits kLimitsWithTable{-20.0, 60.0, 2.0, StationLimits::Table{500.0, 100.0}};
 const StationLimits kNoTableLimits{-20.0, 60.0, 2.0};
 
 fs::path corpus_dir() { return fs::path(GYROTHERM_SOURCE_DIR) / "tests/schedules/bad"; }
@@ -65,7 +65,7 @@ TEST(BadSchedules, EachIsRefusedWithExactlyTheExpectedErrors) {
     const auto expected = lines_of(read_text(fs::path(path).replace_extension(".expected")));
     EXPECT_FALSE(expected.empty());
     const bool no_table = name.rfind("no-table-", 0) == 0;
-    auto plan = parse_schedule(read_text(path), name, no_table ? kNoTableLimits : kLimits);
+    auto plan = parse_schedule(read_text(path), name, no_table ? kNoTableLimits : kLimitsWithTable);
     if (plan.ok()) {
       ADD_FAILURE() << "accepted, " << plan->steps.size() << " steps";
       continue;
@@ -78,7 +78,7 @@ TEST(BadSchedules, EachIsRefusedWithExactlyTheExpectedErrors) {
 // load_schedule names the file by the path it was given.
 TEST(BadSchedules, LoadNamesThePath) {
   const fs::path path = corpus_dir() / "ramp-rate.toml";
-  auto plan = load_schedule(path.string(), kLimits);
+  auto plan = load_schedule(path.string(), kLimitsWithTable);
   ASSERT_FALSE(plan.ok());
   const auto lines = lines_of(plan.error().message);
   ASSERT_FALSE(lines.empty());
@@ -86,7 +86,7 @@ TEST(BadSchedules, LoadNamesThePath) {
 }
 
 TEST(BadSchedules, MissingFileIsAnError) {
-  auto plan = load_schedule((corpus_dir() / "no-such-file.toml").string(), kLimits);
+  auto plan = load_schedule((corpus_dir() / "no-such-file.toml").string(), kLimitsWithTable);
   ASSERT_FALSE(plan.ok());
   EXPECT_NE(plan.error().message.find("cannot open file"), std::string::npos)
       << plan.error().message;
@@ -96,7 +96,7 @@ TEST(BadSchedules, MissingFileIsAnError) {
 // without bound (/dev/zero used to be read forever, a directory was "missing
 // [[step]]").
 TEST(BadSchedules, DirectoryIsRefusedAsADirectory) {
-  auto plan = load_schedule(corpus_dir().string(), kLimits);
+  auto plan = load_schedule(corpus_dir().string(), kLimitsWithTable);
   ASSERT_FALSE(plan.ok());
   EXPECT_NE(plan.error().message.find("is a directory, not a file"), std::string::npos)
       << plan.error().message;
@@ -104,7 +104,7 @@ TEST(BadSchedules, DirectoryIsRefusedAsADirectory) {
 }
 
 TEST(BadSchedules, DeviceAndFifoAreRefusedWithoutReading) {
-  auto zero = load_schedule("/dev/zero", kLimits);
+  auto zero = load_schedule("/dev/zero", kLimitsWithTable);
   ASSERT_FALSE(zero.ok());
   EXPECT_NE(zero.error().message.find("/dev/zero: is a character device, not a regular file"),
             std::string::npos)
@@ -113,7 +113,8 @@ TEST(BadSchedules, DeviceAndFifoAreRefusedWithoutReading) {
   const fs::path fifo = fs::temp_directory_path() / fmt::format("gyrotherm-fifo-{}", ::getpid());
   fs::remove(fifo);
   ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
-  auto piped = load_schedule(fifo.string(), kLimits);  // no writer: a plain open would block
+  auto piped =
+      load_schedule(fifo.string(), kLimitsWithTable);  // no writer: a plain open would block
   fs::remove(fifo);
   ASSERT_FALSE(piped.ok());
   EXPECT_NE(piped.error().message.find("is a FIFO (named pipe), not a regular file"),
@@ -128,7 +129,7 @@ TEST(BadSchedules, FileOverTheSizeLimitIsRefused) {
     const std::string comment = "# " + std::string(1021, 'x') + "\n";  // 1 KiB a line
     for (int i = 0; i < 1025; ++i) out << comment;
   }
-  auto plan = load_schedule(big.string(), kLimits);
+  auto plan = load_schedule(big.string(), kLimitsWithTable);
   fs::remove(big);
   ASSERT_FALSE(plan.ok());
   EXPECT_NE(plan.error().message.find("is 1049600 bytes, over the limit of 1 MiB"),
@@ -146,7 +147,7 @@ TEST(BadSchedules, ManyErrorsAreReportedUpToACap) {
     text += "[[step]]\ntype = \"soak\"\nsetpoint_c = 99\nacquire_min = -1\nbogus = 1\n";
     text += "tolerance_c = 50\n";
   }
-  auto plan = parse_schedule(text, "many.toml", kLimits);
+  auto plan = parse_schedule(text, "many.toml", kLimitsWithTable);
   ASSERT_FALSE(plan.ok());
   const auto lines = lines_of(plan.error().message);
   ASSERT_EQ(lines.size(), 51u) << plan.error().message.substr(0, 2000);
@@ -164,7 +165,7 @@ TEST(BadSchedules, ControlCharactersAreRefusedAndEscaped) {
       "name = \"\\u001b[2J\\u001b[31mowned\"\n"
       "[[step]]\ntype = \"hold\"\nsetpoint_c = 20\nduration_min = 5\n"
       "\"\\u001b]0;title\\u0007\" = 1\n";
-  auto plan = parse_schedule(text, "ctl.toml", kLimits);
+  auto plan = parse_schedule(text, "ctl.toml", kLimitsWithTable);
   ASSERT_FALSE(plan.ok());
   const std::string& m = plan.error().message;
   EXPECT_EQ(m.find('\x1b'), std::string::npos) << m;
@@ -181,7 +182,7 @@ TEST(BadSchedules, ControlCharactersAreRefusedAndEscaped) {
   auto described = parse_schedule(
       "description = \"two\\nlines\\tand a tab\"\n[[step]]\ntype = \"hold\"\n"
       "setpoint_c = 20\nduration_min = 5\n",
-      "desc.toml", kLimits);
+      "desc.toml", kLimitsWithTable);
   EXPECT_TRUE(described.ok()) << described.error().message;
 }
 

@@ -8,11 +8,10 @@
 
 #include <string>
 
+#include "station_limits.h"
+
 namespace gyrotherm::schedules {
 namespace {
-
-const StationLimits kNoTable{-20.0, 60.0, 2.0};
-const StationLimits kTable{-20.0, 60.0, 2.0, StationLimits::Table{500.0, 100.0}};
 
 // Fixed parts, by hand: soak 20 °C acquires 60 min (3600 s); ramp 20 -> 40
 // at 0.5 °C/min: 40 min (2400 s); soak 40 °C acquires 30 min (1800 s); hold
@@ -46,7 +45,7 @@ setpoint_c = 10
 acquire_min = 45
 )";
 
-Plan parse(const std::string& text, const StationLimits& limits = kNoTable) {
+Plan parse_plan(const std::string& text, const StationLimits& limits = kNoTable) {
   auto plan = parse_schedule(text, "t.toml", limits);
   if (!plan) {
     ADD_FAILURE() << plan.error().message;
@@ -56,7 +55,7 @@ Plan parse(const std::string& text, const StationLimits& limits = kNoTable) {
 }
 
 TEST(PlannedDuration, CountsRampsAcquisitionsHoldsAndSettles) {
-  const Plan plan = parse(kCampaign);
+  const Plan plan = parse_plan(kCampaign);
   const PlannedDuration d = planned_duration(plan, 23.0);
   EXPECT_DOUBLE_EQ(d.fixed_s, 13500.0);
   EXPECT_EQ(d.settles, 3);
@@ -66,7 +65,7 @@ TEST(PlannedDuration, CountsRampsAcquisitionsHoldsAndSettles) {
 // A first ramp starts where the chamber is: 23 -> 35 °C at 1.5 °C/min is
 // 8 min; from 11 °C, 16 min. A repeat counts each pass.
 TEST(PlannedDuration, FirstRampFromTheStartAndRepeats) {
-  const Plan plan = parse(R"(
+  const Plan plan = parse_plan(R"(
 [[step]]
 type = "ramp"
 target_c = 35
@@ -87,7 +86,7 @@ acquire_min = 5
   EXPECT_DOUBLE_EQ(planned_duration(plan, 11.0).fixed_s, 960.0 + 3 * (600.0 + 300.0));
   EXPECT_EQ(planned_duration(plan, 23.0).settles, 3);
   // Without settles: the time alone.
-  const Plan holds = parse("[[step]]\ntype = \"hold\"\nsetpoint_c = 30\nduration_min = 90\n");
+  const Plan holds = parse_plan("[[step]]\ntype = \"hold\"\nsetpoint_c = 30\nduration_min = 90\n");
   EXPECT_EQ(format_planned(planned_duration(holds, 23.0)), "1 h 30 min");
 }
 
@@ -95,7 +94,7 @@ acquire_min = 5
 // figures): dwells 36 + 36 + 3.6 + 3.6 s, spin-ups 0.1 + 0.2 + 1.1 + 2 s,
 // and the soak's 300 s: 382.6 s, one settle.
 TEST(PlannedDuration, RatePointsSpinUpAndDwell) {
-  const Plan plan = parse(
+  const Plan plan = parse_plan(
       "[[step]]\ntype = \"soak\"\nsetpoint_c = 20\nacquire_min = 5\n"
       "table = { mode = \"static\" }\n"
       "[[step]]\ntype = \"scale_factor\"\nsetpoint_c = 20\nrates_dps = [10, 100]\n"
@@ -136,7 +135,7 @@ SequencerSnapshot at_step(std::size_t index, RunState activity, double t_s) {
 // 600 of 2400 s; 1800 s left in it plus 7500 s after (1800 + 1200 + 1800 +
 // 2700); two soaks still to settle: no ETA.
 TEST(RunProgress, RampFromTheSetPointsTrajectory) {
-  const Plan plan = parse(kCampaign);
+  const Plan plan = parse_plan(kCampaign);
   SequencerSnapshot s = at_step(1, RunState::kRamping, 5000);
   s.ramp_from_c = 20;
   s.setpoint_c = 25;
@@ -156,7 +155,7 @@ TEST(RunProgress, RampFromTheSetPointsTrajectory) {
 // Hold of 20 min, 300 s of unheld time in it: 900 s left, then the ramp
 // (1800 s) and the last soak (2700 s) with its settle.
 TEST(RunProgress, HoldCountsUnheldTime) {
-  const Plan plan = parse(kCampaign);
+  const Plan plan = parse_plan(kCampaign);
   SequencerSnapshot s = at_step(3, RunState::kSettling, 9000);
   s.step_active_s = 300;
   s.times.held_s = 120;  // paused for a while: not counted
@@ -173,7 +172,7 @@ TEST(RunProgress, HoldCountsUnheldTime) {
 // an open one of 500 s) 1100 of 2700 s are done and the ETA is the 1600 s
 // left.
 TEST(RunProgress, SoakSettlingShowsTheGateThenAcquiringHasAnEta) {
-  const Plan plan = parse(kCampaign);
+  const Plan plan = parse_plan(kCampaign);
   SequencerSnapshot settling = at_step(5, RunState::kSettling, 20000);
   settling.step_active_s = 420;
   const RunProgress a = run_progress(plan, settling, GateProgress{240, 600, 420}, {});
@@ -205,7 +204,7 @@ TEST(RunProgress, SoakSettlingShowsTheGateThenAcquiringHasAnEta) {
 // (2 + 3.6 s): 36.3 s, no settle, so that is the ETA. Spinning up for 0.1 s
 // with the at-rate gate half held.
 TEST(RunProgress, RatePointSpinUpAndDwell) {
-  const Plan plan = parse(
+  const Plan plan = parse_plan(
       "[[step]]\ntype = \"soak\"\nsetpoint_c = 20\nacquire_min = 5\n"
       "table = { mode = \"static\" }\n"
       "[[step]]\ntype = \"scale_factor\"\nsetpoint_c = 20\nrates_dps = [10, 100]\n"
@@ -235,7 +234,7 @@ TEST(RunProgress, RatePointSpinUpAndDwell) {
 }
 
 TEST(RunProgress, EndedRunHasNothingLeft) {
-  const Plan plan = parse(kCampaign);
+  const Plan plan = parse_plan(kCampaign);
   SequencerSnapshot s = at_step(plan.steps.size(), RunState::kCompleted, 30000);
   const RunProgress p = run_progress(plan, s, std::nullopt, {100, 1});
   EXPECT_EQ(p.phase, "completed");
@@ -259,7 +258,7 @@ class NullObserver : public SequencerObserver {
 // tolerance starts it over, it never exceeds the window, and once the gate
 // holds the soak acquires and the progress has a fraction.
 TEST(RunProgress, RealSequencerGateWhileSettling) {
-  const Plan plan = parse(R"(
+  const Plan plan = parse_plan(R"(
 [[step]]
 type = "soak"
 setpoint_c = 30

@@ -102,7 +102,7 @@ PlanStep rate_point(double rate_dps, int turns, double setpoint_c = 30.0) {
   return s;
 }
 
-Plan make_plan(std::vector<PlanStep> steps) {
+Plan make_rate_plan(std::vector<PlanStep> steps) {
   Plan p;
   p.name = "rate";
   p.steps = std::move(steps);
@@ -137,7 +137,7 @@ struct Rig {
 TEST(RateSequencer, SpinsUpThenDwellsExactlyItsWholeTurns) {
   for (double dt_s : {1.0, 0.7, 0.25}) {
     SCOPED_TRACE(fmt::format("ticks every {} s", dt_s));
-    Rig rig(make_plan({rate_point(10, 1)}));  // 1 turn at 10 °/s: 36 s
+    Rig rig(make_rate_plan({rate_point(10, 1)}));  // 1 turn at 10 °/s: 36 s
     rig.dt_s = dt_s;
     rig.start();
     EXPECT_EQ(rig.seq.state(), RunState::kSettling);
@@ -164,7 +164,7 @@ TEST(RateSequencer, GateNeedsTheRateWithinToleranceForTheHoldTime) {
   SequencerOptions options;
   options.at_rate_tolerance_dps = 0.05;
   options.at_rate_hold_s = 5;
-  Rig rig(make_plan({rate_point(-20, 2)}), options);
+  Rig rig(make_rate_plan({rate_point(-20, 2)}), options);
   rig.start();
   // The table sits 0.06 °/s off the demand: never at rate.
   rig.run_until(30, [](Readings& r) { *r.table_rate_dps += 0.06; });
@@ -181,7 +181,7 @@ TEST(RateSequencer, GateNeedsTheRateWithinToleranceForTheHoldTime) {
 }
 
 TEST(RateSequencer, PauseMidDwellDiscardsThePartialWindowAndDwellsInFullAgain) {
-  Rig rig(make_plan({rate_point(10, 2)}));  // 72 s
+  Rig rig(make_rate_plan({rate_point(10, 2)}));  // 72 s
   rig.start();
   rig.run_until(40);
   ASSERT_EQ(rig.seq.state(), RunState::kAcquiring);
@@ -209,7 +209,7 @@ TEST(RateSequencer, PauseMidDwellDiscardsThePartialWindowAndDwellsInFullAgain) {
 }
 
 TEST(RateSequencer, InterlockMidDwellDiscardsThePartialWindowAndDwellsInFullAgain) {
-  Rig rig(make_plan({rate_point(10, 2)}));
+  Rig rig(make_rate_plan({rate_point(10, 2)}));
   rig.start();
   rig.run_until(40);
   ASSERT_EQ(rig.seq.state(), RunState::kAcquiring);
@@ -232,7 +232,7 @@ TEST(RateSequencer, InterlockMidDwellDiscardsThePartialWindowAndDwellsInFullAgai
 }
 
 TEST(RateSequencer, AbortMidDwellStoresNoWindow) {
-  Rig rig(make_plan({rate_point(10, 2)}));
+  Rig rig(make_rate_plan({rate_point(10, 2)}));
   rig.start();
   rig.run_until(40);
   rig.seq.abort(40, "operator");
@@ -245,7 +245,7 @@ TEST(RateSequencer, AbortMidDwellStoresNoWindow) {
 TEST(RateSequencer, NotAtRateWithinTheSpinUpTimeoutFailsTheRun) {
   SequencerOptions options;
   options.spin_up_timeout_s = 120;
-  Rig rig(make_plan({rate_point(10, 1)}), options);
+  Rig rig(make_rate_plan({rate_point(10, 1)}), options);
   rig.table.stuck = true;
   rig.table.stuck_at_dps = 3;
   rig.start();
@@ -283,7 +283,7 @@ TEST(RateSequencer, TableDemandAlongAPlan) {
   hold.setpoint_c = 30;
   hold.hold_s = 10;
   hold.label = "hold";
-  Rig rig(make_plan({soak, rate_point(50, 5), rate_point(-50, 5), hold}));
+  Rig rig(make_rate_plan({soak, rate_point(50, 5), rate_point(-50, 5), hold}));
   EXPECT_EQ(rig.seq.table_demand().mode, TableDemandMode::kNone) << "before the start";
   std::vector<std::pair<TableDemandMode, double>> seen;
   auto record = [&] {
@@ -316,7 +316,7 @@ TEST(RateSequencer, TableDemandAlongAPlan) {
 }
 
 TEST(RateSequencer, RestoreRestartsARatePointInProgressWithItsFullDwell) {
-  Rig rig(make_plan({rate_point(10, 1), rate_point(-10, 2)}));
+  Rig rig(make_rate_plan({rate_point(10, 1), rate_point(-10, 2)}));
   rig.start();
   rig.run_until(60);  // the first point done (3 + 36 s), the second dwelling
   ASSERT_EQ(rig.seq.step_index(), 1u);
@@ -327,7 +327,7 @@ TEST(RateSequencer, RestoreRestartsARatePointInProgressWithItsFullDwell) {
 
   // The daemon comes back 30 s later; the table kept turning.
   Observer obs;
-  Sequencer seq(make_plan({rate_point(10, 1), rate_point(-10, 2)}), {}, obs);
+  Sequencer seq(make_rate_plan({rate_point(10, 1), rate_point(-10, 2)}), {}, obs);
   seq.restore(*snapshot, 90, 59.5, "daemon restarted");
   EXPECT_EQ(seq.state(), RunState::kSuspended);
   EXPECT_EQ(seq.step_index(), 1u) << "the completed point stays completed";
@@ -365,7 +365,7 @@ TEST(RateSequencer, ASpinningSoakWaitsForTheTableAtRateAfterAHoldOrAnInterruptio
   soak.table.mode = TableDemandMode::kRate;
   soak.table.rate_dps = 10;
   soak.label = "soak 30 °C";
-  Rig rig(make_plan({soak}));
+  Rig rig(make_rate_plan({soak}));
   rig.start();
   // The station's rule: the table is brought to rest while the run is held.
   auto run_until = [&](double until_s) {
@@ -423,7 +423,7 @@ TEST(RateSequencer, ASpinningSoakWhoseTableDoesNotComeBackFailsTheRun) {
   hold.label = "hold 30 °C";
   SequencerOptions options;
   options.spin_up_timeout_s = 20;
-  Rig rig(make_plan({hold}), options);
+  Rig rig(make_rate_plan({hold}), options);
   rig.start();
   rig.run_until(50);
   rig.seq.table_interrupted(50.5, "the table left rate +10 °/s");

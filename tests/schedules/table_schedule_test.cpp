@@ -12,16 +12,13 @@
 #include <vector>
 
 #include "gyrotherm/schedules/schedule.h"
+#include "station_limits.h"
 
 namespace gyrotherm::schedules {
 namespace {
 
 using ::testing::ElementsAre;
 using ::testing::HasSubstr;
-
-// A station with a 500 °/s, 100 °/s² table, and the same without one.
-const StationLimits kTable{-20.0, 60.0, 2.0, StationLimits::Table{500.0, 100.0}};
-const StationLimits kNoTable{-20.0, 60.0, 2.0};
 
 Result<Plan> parse(const std::string& text, const StationLimits& limits = kTable) {
   return parse_schedule(text, "t.toml", limits);

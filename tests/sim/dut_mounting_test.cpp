@@ -26,16 +26,16 @@ namespace {
 using namespace std::chrono_literals;
 using test_util::wait_for;
 
-constexpr double kLatitudeDeg = 31.9;
+constexpr double kMountingLatitudeDeg = 31.9;
 constexpr double kDegToRad = M_PI / 180.0;
 // Ω_E's components in local north and up, written out rather than taken
 // from the code under test.
-const double kNorthEarthDph = 15.041067 * std::cos(kLatitudeDeg * kDegToRad);
-const double kUpEarthDph = 15.041067 * std::sin(kLatitudeDeg * kDegToRad);
+const double kNorthEarthDph = 15.041067 * std::cos(kMountingLatitudeDeg * kDegToRad);
+const double kUpEarthDph = 15.041067 * std::sin(kMountingLatitudeDeg * kDegToRad);
 
 // A: table axis z (up), x and y horizontal with headings. B: table axis x
 // (up), y horizontal with a heading, z horizontal without one.
-constexpr const char* kStation = R"([station]
+constexpr const char* kMountingStation = R"([station]
 latitude_deg = 31.9
 orientation = "up"
 [chamber]
@@ -111,7 +111,7 @@ class DutMountingTest : public ::testing::Test {
     sim_.reset();
     std::filesystem::remove_all(dir_);
   }
-  void start(const std::string& text = kStation) {
+  void start(const std::string& text = kMountingStation) {
     auto config = config::parse_station_config(text, "mounting.toml");
     ASSERT_TRUE(config.ok()) << config.error().message;
     config_ = std::move(config).value();
@@ -211,7 +211,7 @@ TEST_F(DutMountingTest, TruthNamesEachAxisHeadingTableAndEarthRateAtPositionZero
 // Without a table a horizontal axis keeps its heading's Earth rate; the
 // frames' mean (noise on) carries Ω cos φ cos h.
 TEST(DutModelHeading, HorizontalAxisMeanCarriesCosLatitudeCosHeading) {
-  const std::string station(kStation);
+  const std::string station(kMountingStation);
   auto config = config::parse_station_config(
       station.substr(0, station.find("[table]")) + "[simulator]\nendpoints_file = \"unused\"\n",
       "mounting.toml");

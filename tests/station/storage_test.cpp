@@ -32,7 +32,7 @@ settle_timeout_min = 30
 acquire_min = 2
 )";
 
-constexpr const char* kLongSoak = R"(
+constexpr const char* kLongSoakSchedule = R"(
 name = "long soak"
 [[step]]
 type = "soak"
@@ -92,8 +92,8 @@ TEST_F(StationStorageTest, DatabaseDeletedUnderTheStationTripsStorageFailing) {
   const std::string db = (dir_ / "station.db").string();
   StationRig rig(dir_, rig_config_toml(db) + "[interlocks]\nstorage_failing_grace_min = 1\n");
   rig.open();
-  rig.queue(kLongSoak);
-  rig.queue(kLongSoak);
+  rig.queue(kLongSoakSchedule);
+  rig.queue(kLongSoakSchedule);
   const int64_t run_id = until_acquiring(rig);
   ASSERT_NE(run_id, 0);
   ASSERT_TRUE(fs::remove(db));
@@ -134,7 +134,7 @@ TEST_F(StationStorageTest, DeadSampleWriterTripsStorageFailing) {
     if (kill) throw std::runtime_error("killed by the test");
   };
   rig.open();
-  rig.queue(kLongSoak);
+  rig.queue(kLongSoakSchedule);
   ASSERT_NE(until_acquiring(rig), 0);
   kill = true;
   rig.step();

@@ -12,6 +12,7 @@
 
 #include "gyrotherm/storage/database.h"
 #include "migrations.h"
+#include "numbers.h"
 #include "test_util.h"
 
 namespace gyrotherm::storage {
@@ -22,7 +23,7 @@ using testing::query_int;
 using testing::query_text;
 using testing::TempDir;
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+using gyrotherm::testing::kNaN;
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
 int64_t make_run(Database& db) {

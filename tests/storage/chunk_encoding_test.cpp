@@ -22,6 +22,7 @@
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
 #include "migrations.h"
+#include "numbers.h"
 #include "test_util.h"
 
 namespace gyrotherm::storage {
@@ -35,7 +36,7 @@ using testing::query_int;
 using testing::query_text;
 using testing::TempDir;
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+using gyrotherm::testing::kNaN;
 
 uint64_t bits(double v) { return std::bit_cast<uint64_t>(v); }
 

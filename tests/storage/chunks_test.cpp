@@ -18,6 +18,7 @@
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
 #include "migrations.h"
+#include "numbers.h"
 #include "test_time.h"
 #include "test_util.h"
 
@@ -30,7 +31,7 @@ using testing::query_int;
 using testing::query_text;
 using testing::TempDir;
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+using gyrotherm::testing::kNaN;
 
 internal::Encoding encoding_of(std::vector<double> v) {
   internal::EncodingNeed need;

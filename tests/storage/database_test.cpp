@@ -15,6 +15,7 @@
 
 #include "gyrotherm/storage/sample_writer.h"
 #include "migrations.h"
+#include "numbers.h"
 #include "test_util.h"
 
 namespace gyrotherm::storage {
@@ -26,7 +27,7 @@ using testing::query_int;
 using testing::query_text;
 using testing::TempDir;
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+using gyrotherm::testing::kNaN;
 
 RunRecord sample_run() {
   RunRecord r;

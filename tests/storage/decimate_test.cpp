@@ -24,6 +24,7 @@
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
 #include "migrations.h"
+#include "numbers.h"
 #include "test_util.h"
 
 namespace gyrotherm::storage {
@@ -34,7 +35,7 @@ using testing::open_ok;
 using testing::query_int;
 using testing::TempDir;
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+using gyrotherm::testing::kNaN;
 // Relative tolerance on sums and means, relative to the sum of magnitudes
 // (rates straddle zero, so relative to the mean itself would be meaningless).
 constexpr double kRelTol = 1e-12;

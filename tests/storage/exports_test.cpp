@@ -28,7 +28,7 @@ using testing::TempDir;
 constexpr double kSlot = 1774659600.0;
 constexpr double kSlotBefore = 1774573200.0;
 
-int64_t make_run(Database& db, const std::string& state = "completed") {
+int64_t make_export_run(Database& db, const std::string& state = "completed") {
   RunRecord r;
   r.schedule_name = "paper-table1";
   r.state = state;
@@ -106,7 +106,7 @@ TEST(Exports, RoundTripOfBothKinds) {
   TempDir dir;
   const std::string path = dir.file("station.db");
   Database db = open_ok(path);
-  const int64_t r1 = make_run(db), r2 = make_run(db), r3 = make_run(db);
+  const int64_t r1 = make_export_run(db), r2 = make_export_run(db), r3 = make_export_run(db);
 
   ExportRecord n = nightly(kSlot, {r3, r1, r3});  // unordered, a duplicate
   n.slot_local = "2026-03-28 02:00 CET";
@@ -201,7 +201,7 @@ TEST(Exports, ANightlySlotIsExportedOnce) {
   TempDir dir;
   const std::string path = dir.file("station.db");
   Database db = open_ok(path);
-  const int64_t r1 = make_run(db), r2 = make_run(db);
+  const int64_t r1 = make_export_run(db), r2 = make_export_run(db);
   ExportRecord first = nightly(kSlot, {r1});
   first.slot_local = "2026-03-28 02:00 CET";
   const int64_t id = begin_ok(db, first);
@@ -242,7 +242,7 @@ TEST(Exports, ARunIsInOneLiveNightlyExport) {
   TempDir dir;
   const std::string path = dir.file("station.db");
   Database db = open_ok(path);
-  const int64_t a = make_run(db), b = make_run(db), c = make_run(db);
+  const int64_t a = make_export_run(db), b = make_export_run(db), c = make_export_run(db);
 
   const int64_t held = begin_ok(db, nightly(kSlotBefore, {a, b}));
   // Writing: refused for another nightly export, naming the run and export.
@@ -259,7 +259,7 @@ TEST(Exports, ARunIsInOneLiveNightlyExport) {
   EXPECT_EQ(read_ok(db, c_nightly).run_ids, (std::vector<int64_t>{c}));
 
   // A failed nightly export lets go of its runs.
-  const int64_t d = make_run(db);
+  const int64_t d = make_export_run(db);
   const int64_t failed = begin_ok(db, nightly(kSlot + 86400, {d}));
   expect_error(db.begin_export(nightly(kSlot + 2 * 86400, {d})), path,
                {"run 4 is already in nightly export", std::to_string(failed)});
@@ -274,14 +274,14 @@ TEST(Exports, ARunIsInOneLiveNightlyExport) {
 TEST(Exports, RunsNotExported) {
   TempDir dir;
   Database db = open_ok(dir.file("station.db"));
-  const int64_t done_run = make_run(db);
-  const int64_t failed_run = make_run(db, "failed");
-  const int64_t running = make_run(db, "acquiring");
-  const int64_t writing_run = make_run(db);
-  const int64_t in_failed_export = make_run(db);
-  const int64_t manual_only = make_run(db);
-  const int64_t fresh = make_run(db);
-  const int64_t interrupted = make_run(db, "interrupted");
+  const int64_t done_run = make_export_run(db);
+  const int64_t failed_run = make_export_run(db, "failed");
+  const int64_t running = make_export_run(db, "acquiring");
+  const int64_t writing_run = make_export_run(db);
+  const int64_t in_failed_export = make_export_run(db);
+  const int64_t manual_only = make_export_run(db);
+  const int64_t fresh = make_export_run(db);
+  const int64_t interrupted = make_export_run(db, "interrupted");
   EXPECT_EQ(not_exported(db),
             (std::vector<int64_t>{done_run, writing_run, in_failed_export, manual_only, fresh}));
 
@@ -324,7 +324,7 @@ TEST(Exports, BeginExportRefusesBadRecords) {
   TempDir dir;
   const std::string path = dir.file("station.db");
   Database db = open_ok(path);
-  const int64_t run = make_run(db);
+  const int64_t run = make_export_run(db);
 
   ExportRecord e = nightly(kSlot, {run});
   e.kind = "weekly";
@@ -366,7 +366,7 @@ TEST(Exports, AFailedBeginExportLeavesNoRows) {
   TempDir dir;
   const std::string path = dir.file("station.db");
   Database db = open_ok(path);
-  const int64_t a = make_run(db), b = make_run(db);
+  const int64_t a = make_export_run(db), b = make_export_run(db);
   ASSERT_TRUE(db.exec("CREATE TEMP TRIGGER refuse_b BEFORE INSERT ON export_runs "
                       "WHEN NEW.run_id = 2 BEGIN SELECT RAISE(ABORT, 'no run 2 today'); END")
                   .ok());
@@ -390,7 +390,7 @@ TEST(Exports, FinishExportErrors) {
   TempDir dir;
   const std::string path = dir.file("station.db");
   Database db = open_ok(path);
-  const int64_t run = make_run(db);
+  const int64_t run = make_export_run(db);
   const int64_t id = begin_ok(db, nightly(kSlot, {run}));
 
   expect_error(db.finish_export(99, "done", {}, ""), path, {"export 99", "no such export"});
@@ -436,7 +436,7 @@ TEST(Exports, CorruptFilesJsonIsAnErrorNotACrash) {
 TEST(Exports, DocumentedQueryListsRunsPerExport) {
   TempDir dir;
   Database db = open_ok(dir.file("station.db"));
-  const int64_t a = make_run(db), b = make_run(db);
+  const int64_t a = make_export_run(db), b = make_export_run(db);
   ExportRecord n = nightly(kSlot, {a, b});
   n.slot_local = "2026-03-28 02:00 CET";
   finish_ok(db, begin_ok(db, n), "done", {"report.html"});
@@ -469,7 +469,7 @@ GROUP BY e.id ORDER BY e.id DESC;
                        "SELECT e.directory || '/' || f.value AS file FROM exports e, "
                        "json_each(e.files_json) f WHERE e.id = 1 ORDER BY f.key"),
             "/var/lib/gyrotherm/exports/nightly/report.html");
-  const int64_t c = make_run(db);
+  const int64_t c = make_export_run(db);
   EXPECT_EQ(query_int(db.handle(), R"sql(
 SELECT id FROM runs
 WHERE state = 'completed' AND id NOT IN (

@@ -306,7 +306,7 @@ std::map<std::string, int> kinds(const std::vector<OutboxRow>& rows, bool delete
 
 // ------------------------------------------------------------ fixtures
 
-RunRecord a_run(const std::string& name = "campaign") {
+RunRecord outbox_run(const std::string& name = "campaign") {
   RunRecord r;
   r.schedule_name = name;
   r.state = "ramping";
@@ -321,7 +321,7 @@ RunRecord a_run(const std::string& name = "campaign") {
   return r;
 }
 
-RunDutRecord kvh(const std::string& serial, int position) {
+RunDutRecord outbox_kvh(const std::string& serial, int position) {
   RunDutRecord d;
   d.position = position;
   d.dut.serial = serial;
@@ -464,10 +464,10 @@ ScaleFactor scale_factor_of(double k) {
 std::vector<int64_t> write_history(Database& db) {
   std::vector<int64_t> runs;
   for (int i = 0; i < 2; ++i) {
-    auto run = db.create_run(a_run(fmt::format("campaign-{}", i)));
+    auto run = db.create_run(outbox_run(fmt::format("campaign-{}", i)));
     EXPECT_TRUE(run.ok()) << run.error().message;
     runs.push_back(*run);
-    EXPECT_TRUE(db.add_run_dut(*run, kvh("17-0042", 0)).ok());
+    EXPECT_TRUE(db.add_run_dut(*run, outbox_kvh("17-0042", 0)).ok());
     std::vector<int64_t> segments;
     for (int k = 0; k < 2; ++k) {
       SegmentRecord s = a_segment(*run, k);
@@ -515,7 +515,7 @@ TEST(RunUuid, CreateRunGivesEachRunARandomVersion4Uuid) {
   Database db = open_ok(dir.file("station.db"));
   std::set<std::string> seen;
   for (int i = 0; i < 50; ++i) {
-    const int64_t id = *db.create_run(a_run());
+    const int64_t id = *db.create_run(outbox_run());
     auto run = db.run(id);
     ASSERT_TRUE(run.ok()) << run.error().message;
     EXPECT_TRUE(std::regex_match(run->uuid, kUuidV4)) << run->uuid;
@@ -528,7 +528,7 @@ TEST(RunUuid, CreateRunGivesEachRunARandomVersion4Uuid) {
 
   // A uuid given is kept (a run known elsewhere); another form is refused,
   // and so is a uuid already taken.
-  RunRecord given = a_run();
+  RunRecord given = outbox_run();
   given.uuid = "0f1e2d3c-4b5a-4978-8695-a4b3c2d1e0f9";
   const int64_t id = *db.create_run(given);
   EXPECT_EQ(db.run(id)->uuid, given.uuid);
@@ -598,7 +598,7 @@ TEST(Outbox, EveryResultWrittenThroughTheApiIsQueuedOnce) {
     }
   };
 
-  const int64_t run = *db.create_run(a_run());
+  const int64_t run = *db.create_run(outbox_run());
   const std::string uuid = db.run(run)->uuid;
   auto rows = cursor.take();
   ASSERT_EQ(rows.size(), 1u);
@@ -623,7 +623,7 @@ TEST(Outbox, EveryResultWrittenThroughTheApiIsQueuedOnce) {
   check_all(rows);
 
   // A metadata edit: the run and its audit event.
-  RunMetadata md = a_run().metadata;
+  RunMetadata md = outbox_run().metadata;
   md.comment = "re-run after the door was left open";
   ASSERT_TRUE(db.set_run_metadata(run, md, "cli").ok());
   rows = cursor.take();
@@ -631,7 +631,7 @@ TEST(Outbox, EveryResultWrittenThroughTheApiIsQueuedOnce) {
   check_all(rows);
 
   // A DUT: its registry row, its place in the run, its channels.
-  auto dut = db.add_run_dut(run, kvh("17-0042", 0));
+  auto dut = db.add_run_dut(run, outbox_kvh("17-0042", 0));
   ASSERT_TRUE(dut.ok()) << dut.error().message;
   rows = cursor.take();
   EXPECT_EQ(kinds(rows), (std::map<std::string, int>{{"dut", 1}, {"run_dut", 1}, {"channel", 4}}));
@@ -649,7 +649,7 @@ TEST(Outbox, EveryResultWrittenThroughTheApiIsQueuedOnce) {
   }
   // The same DUT again (crash resume): the registry's upsert updates the
   // DUT's row (to the same values): that update is queued, nothing else.
-  ASSERT_TRUE(db.add_run_dut(run, kvh("17-0042", 0)).ok());
+  ASSERT_TRUE(db.add_run_dut(run, outbox_kvh("17-0042", 0)).ok());
   rows = cursor.take();
   EXPECT_EQ(kinds(rows), (std::map<std::string, int>{{"dut", 1}}));
   check_all(rows);
@@ -940,7 +940,7 @@ TEST(Outbox, ARolledBackChangeLeavesNoRow) {
   TempDir dir;
   Database db = open_ok(dir.file("station.db"));
   ASSERT_TRUE(db.lab_bind("lab-3").ok());
-  const int64_t run = *db.create_run(a_run());
+  const int64_t run = *db.create_run(outbox_run());
   ScaleFactor sf = scale_factor_of(1.0000123);
   ASSERT_TRUE(db.store_scale_factor(run, sf.points, sf.fits, sf.temperature).ok());
   const auto before = outbox_rows(db.handle());
@@ -1151,7 +1151,7 @@ TEST(Outbox, SeveralConnectionsWriteWhileTheRelayReads) {
   std::vector<int64_t> segments;
   {
     Database db = open_ok(path);
-    run = *db.create_run(a_run());
+    run = *db.create_run(outbox_run());
     for (int i = 0; i < kPerWriter; ++i) segments.push_back(*db.create_segment(a_segment(run, i)));
     ASSERT_TRUE(db.lab_bind("lab-3").ok());  // queues the run and the segments
   }

@@ -21,7 +21,7 @@ using testing::query_int;
 using testing::query_text;
 using testing::TempDir;
 
-RunRecord a_run(const std::string& name = "campaign") {
+RunRecord a_run_record(const std::string& name = "campaign") {
   RunRecord r;
   r.schedule_name = name;
   r.state = "ramping";
@@ -123,7 +123,7 @@ TEST(RunMetadata, QueueEntryToRunAndBack) {
 
   // The run gets the entry's metadata; a field the entry left empty takes
   // the caller's.
-  RunRecord run = a_run();
+  RunRecord run = a_run_record();
   run.metadata.operator_name = "daemon default";
   auto run_id = db.queue_start_run(entry->id, run);
   ASSERT_TRUE(run_id.ok()) << run_id.error().message;
@@ -137,7 +137,7 @@ TEST(RunMetadata, QueueEntryToRunAndBack) {
   EXPECT_EQ(db.runs()->front().metadata.dut_serials, md.dut_serials);
 
   auto plain = db.queue_add("plain", "", "", false);
-  RunRecord caller = a_run();
+  RunRecord caller = a_run_record();
   caller.metadata.operator_name = "from caller";
   caller.metadata.tags = {"t"};
   auto plain_run = db.queue_start_run(plain->id, caller);
@@ -156,7 +156,7 @@ TEST(RunMetadata, QueueEntryToRunAndBack) {
 TEST(RunMetadata, EditsLeaveOneEventListingEachChange) {
   TempDir dir;
   Database db = open_ok(dir.file("station.db"));
-  RunRecord run = a_run();
+  RunRecord run = a_run_record();
   run.metadata.operator_name = "ana";
   run.metadata.tags = {"a"};
   const int64_t id = *db.create_run(run);
@@ -206,7 +206,7 @@ TEST(RunMetadata, EditsLeaveOneEventListingEachChange) {
 TEST(ResultsPerDut, SegmentStatsKeyedByDutAndAxis) {
   TempDir dir;
   Database db = open_ok(dir.file("station.db"));
-  const int64_t run = *db.create_run(a_run());
+  const int64_t run = *db.create_run(a_run_record());
   ASSERT_TRUE(db.add_run_dut(run, a_dut("B-2", 1, "x")).ok());
   ASSERT_TRUE(db.add_run_dut(run, a_dut("A-1", 0, "z")).ok());
   const int64_t seg0 = a_segment(db, run, 0);
@@ -245,7 +245,7 @@ TEST(ResultsPerDut, SegmentStatsKeyedByDutAndAxis) {
 TEST(ResultsPerDut, AllanAndFitsKeyedByDutAndAxis) {
   TempDir dir;
   Database db = open_ok(dir.file("station.db"));
-  const int64_t run = *db.create_run(a_run());
+  const int64_t run = *db.create_run(a_run_record());
   ASSERT_TRUE(db.add_run_dut(run, a_dut("A-1", 0, "y")).ok());
   ASSERT_TRUE(db.add_run_dut(run, a_dut("B-2", 1)).ok());
   const auto first = db.put_allan(allan_row(run, 0, "", "", 0.01));
@@ -287,7 +287,7 @@ TEST(ResultsPerDut, AllanAndFitsKeyedByDutAndAxis) {
 TEST(ResultsPerDut, ScaleFactorOfSeveralDutsInOneRun) {
   TempDir dir;
   Database db = open_ok(dir.file("station.db"));
-  const int64_t run = *db.create_run(a_run());
+  const int64_t run = *db.create_run(a_run_record());
   ASSERT_TRUE(db.add_run_dut(run, a_dut("A-1", 0)).ok());
   ASSERT_TRUE(db.add_run_dut(run, a_dut("B-2", 1)).ok());
   ScaleFactorPointRecord p;
@@ -361,7 +361,7 @@ TEST(ResultsPerDut, ScaleFactorOfSeveralDutsInOneRun) {
 TEST(ResultsPerDut, UnnamedGyroRowsAreReplacedByItsPrimaryAxis) {
   TempDir dir;
   Database db = open_ok(dir.file("station.db"));
-  const int64_t run = *db.create_run(a_run());
+  const int64_t run = *db.create_run(a_run_record());
   const int64_t seg = a_segment(db, run, 0);
   ASSERT_TRUE(db.put_segment_stats(stats(run, seg, 0, "", "", 1.0)).ok());
   ASSERT_TRUE(db.put_allan(allan_row(run, 0, "", "", 0.1)).ok());
@@ -485,12 +485,12 @@ struct HistoryFixture {
 
 HistoryFixture fill_history(Database& db) {
   HistoryFixture f;
-  RunRecord r1 = a_run("week 1");
+  RunRecord r1 = a_run_record("week 1");
   r1.metadata.operator_name = "ana";
   r1.resume_json = R"({"step":3})";
   f.run1 = *db.create_run(r1);
-  f.run2 = *db.create_run(a_run("week 2"));
-  f.run3 = *db.create_run(a_run("other gyros only"));
+  f.run2 = *db.create_run(a_run_record("week 2"));
+  f.run3 = *db.create_run(a_run_record("other gyros only"));
   EXPECT_TRUE(db.add_run_dut(f.run1, a_dut("17-0042", 0)).ok());
   EXPECT_TRUE(db.add_run_dut(f.run1, a_dut("17-0043", 1)).ok());
   EXPECT_TRUE(db.add_run_dut(f.run2, a_dut("17-0043", 0)).ok());

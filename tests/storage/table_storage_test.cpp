@@ -18,6 +18,7 @@
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
 #include "migrations.h"
+#include "numbers.h"
 #include "test_files.h"
 #include "test_util.h"
 
@@ -32,7 +33,7 @@ using testing::query_text;
 using testing::start_ok;
 using testing::TempDir;
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+using gyrotherm::testing::kNaN;
 
 // Deterministic table reading j: t = j * 0.5 s, a rate point at 10 °/s
 // whose position wraps through 0/360.
@@ -59,7 +60,7 @@ void expect_same(const TableSample& got, const TableSample& want, int j) {
   EXPECT_EQ(got.interlock, want.interlock) << j;
 }
 
-RunRecord a_run() {
+RunRecord table_run() {
   RunRecord r;
   r.schedule_name = "sf";
   r.state = "acquiring";
@@ -157,7 +158,7 @@ TEST(TableStorage, MigratesASchema6DatabaseWithItsData) {
 TEST(TableStorage, SegmentTableFieldsRoundTrip) {
   TempDir dir;
   Database db = open_ok(dir.file("station.db"));
-  const int64_t run_id = *db.create_run(a_run());
+  const int64_t run_id = *db.create_run(table_run());
   SegmentRecord s;
   s.run_id = run_id;
   s.index = 3;
@@ -508,8 +509,8 @@ TEST(TableStorage, ScaleFactorRowsStoreReplaceAndRead) {
   auto opened = Database::open(path, wall);
   ASSERT_TRUE(opened.ok()) << opened.error().message;
   Database& db = *opened;
-  const int64_t run_id = *db.create_run(a_run());
-  const int64_t other_run = *db.create_run(a_run());
+  const int64_t run_id = *db.create_run(table_run());
+  const int64_t other_run = *db.create_run(table_run());
   SegmentRecord seg;
   seg.run_id = run_id;
   seg.kind = "rate";
@@ -678,7 +679,7 @@ TEST(TableStorage, DocumentedQueriesRun) {
   TempDir dir;
   Database db = open_ok(dir.file("station.db"));
   int64_t run_id = 0;
-  for (int i = 0; i < 3; ++i) run_id = *db.create_run(a_run());  // run 3, the last
+  for (int i = 0; i < 3; ++i) run_id = *db.create_run(table_run());  // run 3, the last
   int64_t seg_id = 0;
   for (int idx = 0; idx <= 12; ++idx) {
     SegmentRecord seg;

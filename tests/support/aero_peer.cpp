@@ -8,7 +8,7 @@
 namespace gyrotherm::testing {
 namespace {
 
-std::string format(double v) {
+std::string aero_number(double v) {
   char buf[64];
   std::snprintf(buf, sizeof buf, "%.4f", v);
   return buf;
@@ -124,8 +124,8 @@ std::string AeroPeer::answer(const std::string& command) {
     state_.rate_dps = 0;
     return "";
   }
-  if (mnemonic == "PVE") return format(state_.rate_dps);
-  if (mnemonic == "PPO") return format(state_.position_deg);
+  if (mnemonic == "PVE") return aero_number(state_.rate_dps);
+  if (mnemonic == "PPO") return aero_number(state_.position_deg);
   if (mnemonic == "STA") return std::to_string(options_.status);
   return "?";
 }

@@ -23,6 +23,10 @@ namespace gyrotherm::lab {
 
 inline constexpr int kCentralSchemaVersion = 3;
 
+// A station id lab.stations accepts (its CHECK): a letter or digit, then up
+// to 63 letters, digits, '.', '_' or '-'.
+bool valid_station_id(const std::string& id);
+
 // The version of the lab schema in the database (0: none yet).
 Result<int> central_schema_version(PgConnection& pg);
 // Applies every migration the database lacks, one transaction each, under
