@@ -621,25 +621,11 @@ json stats_json(const analysis::Table1Row& row, const analysis::Table1Options& o
   return j;
 }
 
-analysis::Table1Row row_of(const storage::SegmentStatsRecord& r) {
-  analysis::Table1Row row;
-  row.n = static_cast<std::size_t>(std::max<int64_t>(r.n, 0));
-  row.duration_s = r.duration_s;
-  row.temp_mean_c = r.temp_mean_c;
-  row.bias_mean_dph = r.bias_mean_dph;
-  row.bias_std_dph = r.bias_std_dph;
-  row.bias_std_ma_dph = r.bias_std_ma_dph;
-  row.bias_mean_earth_removed_dph = r.bias_mean_earth_removed_dph;
-  row.bias_u = calibration::mean_uncertainty_of(r);
-  row.bias_u_note = r.bias_u_note;
-  return row;
-}
-
 // The half-width of the bias mean's 95 % interval, "RW" when rate random walk
 // dominates it (it covers less than it says); a dash when there is none.
-std::string bias_u_text(const analysis::Table1Row& r) {
-  if (!r.bias_u) return std::string(kDash);
-  return fixed(r.bias_u->expanded_dph, 4) + (r.bias_u->random_walk_dominated ? " RW" : "");
+std::string bias_u_text(const std::optional<analysis::MeanUncertainty>& u) {
+  if (!u) return std::string(kDash);
+  return fixed(u->expanded_dph, 4) + (u->random_walk_dominated ? " RW" : "");
 }
 
 json mean_spread_json(const analysis::MeanSpread& m) {
@@ -694,6 +680,8 @@ int print_by_setpoint(const Parsed& p, const std::vector<StreamSoak>& soaks,
            {"soaks", members},
            {"temp_mean_c", mean_spread_json(g.temp_mean_c)},
            {"bias_mean_dph", mean_spread_json(g.bias_mean_dph)},
+           {"bias_mean_u", calibration::mean_uncertainty_json(g.bias_mean_u)},
+           {"bias_mean_u_note", g.bias_mean_u_note},
            {"bias_std_dph", mean_spread_json(g.bias_std_dph)},
            {"bias_std_ma101_dph", mean_spread_json(g.bias_std_ma_dph)},
            {"bias_mean_earth_removed_dph", mean_spread_json(g.bias_mean_earth_removed_dph)}});
@@ -701,6 +689,7 @@ int print_by_setpoint(const Parsed& p, const std::vector<StreamSoak>& soaks,
                                       std::to_string(g.repetitions),
                                       mean_spread_text(g.temp_mean_c, 2),
                                       mean_spread_text(g.bias_mean_dph, 4),
+                                      bias_u_text(g.bias_mean_u),
                                       mean_spread_text(g.bias_std_dph, 4),
                                       mean_spread_text(g.bias_std_ma_dph, 4),
                                       mean_spread_text(g.bias_mean_earth_removed_dph, 4)};
@@ -724,12 +713,15 @@ int print_by_setpoint(const Parsed& p, const std::vector<StreamSoak>& soaks,
     std::cout << "no Table I rows\n";
     return 0;
   }
-  std::vector<std::string> header = {"setpt °C", "reps",       "temp °C",   "bias °/h",
-                                     "std °/h",  "std MA °/h", "bias−Ω °/h"};
+  std::vector<std::string> header = {"setpt °C",  "reps",    "temp °C",    "bias °/h",
+                                     "± U95 °/h", "std °/h", "std MA °/h", "bias−Ω °/h"};
   if (named) header.insert(header.begin(), {"DUT", "axis"});
   std::cout << table(header, rows, named ? 2 : 0);
   std::cout << "(each column: mean ± sample std over the soaks of the set point; soaks grouped by "
-               "their schedule set point)\n";
+               "their schedule set point)\n"
+               "(± U95: half-width of the 95 % interval of the mean bias from the noise within "
+               "the soaks, their own intervals combined; the spread between soaks is the ± "
+               "beside the bias; RW: rate random walk dominates)\n";
   for (const auto& f : footer) std::cout << "(" << f << ")\n";
   return 0;
 }
@@ -754,9 +746,10 @@ int cmd_stats(const Parsed& p) {
   auto add_row = [&](std::vector<std::string> lead, const analysis::Table1Row& r,
                      const analysis::Table1Options& o,
                      const storage::ResultQuality* quality = nullptr) {
-    for (std::string v : {std::to_string(r.n), fixed(r.duration_s, 0), fixed(r.temp_mean_c, 2),
-                          fixed(r.bias_mean_dph, 4), bias_u_text(r), fixed(r.bias_std_dph, 4),
-                          fixed(r.bias_std_ma_dph, 4), fixed(r.bias_mean_earth_removed_dph, 4)}) {
+    for (std::string v :
+         {std::to_string(r.n), fixed(r.duration_s, 0), fixed(r.temp_mean_c, 2),
+          fixed(r.bias_mean_dph, 4), bias_u_text(r.bias_u), fixed(r.bias_std_dph, 4),
+          fixed(r.bias_std_ma_dph, 4), fixed(r.bias_mean_earth_removed_dph, 4)}) {
       lead.push_back(std::move(v));
     }
     if (quality != nullptr) {
@@ -795,7 +788,7 @@ int cmd_stats(const Parsed& p) {
         o.bin_s = rec.bin_s;
         o.ma_window = static_cast<std::size_t>(std::max(rec.ma_window, 0));
         o.earth_rate_dph = rec.earth_rate_dph;
-        const auto row = row_of(rec);
+        const auto row = calibration::table1_row_of(rec);
         json j = {{"run_id", rec.run_id},
                   {"segment", rec.segment_index + 1},
                   {"dut_serial", rec.dut_serial},
@@ -840,7 +833,7 @@ int cmd_stats(const Parsed& p) {
           auto rec = calibration::soak_table1(db, soak, *opts, axis, rules);
           if (!rec) return fail(rec.error().message, kExitFailed);
           named = named || !axis.dut_serial.empty();
-          const auto row = row_of(*rec);
+          const auto row = calibration::table1_row_of(*rec);
           json j = soak_json(soak, axis, rec->t_from_s, rec->t_to_s);
           j.update(stats_json(row, *opts));
           j["quality"] = quality_json(rec->quality);

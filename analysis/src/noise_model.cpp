@@ -188,6 +188,21 @@ Result<NoiseModel> fit_noise_model(std::span<const double> tau_s, std::span<cons
   return model;
 }
 
+namespace {
+
+// The Student t quantile for `dof` at two-sided `coverage`; the normal one
+// for very large or infinite dof.
+double coverage_factor(double dof, double coverage) {
+  const double p = 0.5 + 0.5 * coverage;
+  if (std::isfinite(dof) && dof < 1e7) {
+    return boost::math::quantile(boost::math::students_t_distribution<double>(std::max(dof, 1.0)),
+                                 p);
+  }
+  return boost::math::quantile(boost::math::normal_distribution<double>(), p);
+}
+
+}  // namespace
+
 Result<MeanUncertainty> mean_uncertainty(const NoiseModel& model, double window_s,
                                          double coverage) {
   if (!std::isfinite(window_s) || window_s <= 0) {
@@ -213,13 +228,39 @@ Result<MeanUncertainty> mean_uncertainty(const NoiseModel& model, double window_
   r.floor_dph = std::sqrt(std::max(model.q[1], 0.0));
   r.random_walk_dominated = u2 > 0 && model.q[2] * window_s > 0.5 * u2;
   r.dof = var_u2 > 0 ? 2.0 * u2 * u2 / var_u2 : std::numeric_limits<double>::infinity();
-  const double p = 0.5 + 0.5 * coverage;
-  if (std::isfinite(r.dof) && r.dof < 1e7) {
-    r.k = boost::math::quantile(boost::math::students_t_distribution<double>(std::max(r.dof, 1.0)),
-                                p);
-  } else {
-    r.k = boost::math::quantile(boost::math::normal_distribution<double>(), p);
+  r.k = coverage_factor(r.dof, coverage);
+  r.expanded_dph = r.k * r.u_dph;
+  return r;
+}
+
+Result<MeanUncertainty> average_uncertainty(std::span<const MeanUncertainty> windows,
+                                            double coverage) {
+  if (windows.empty()) return Error::Permanent("average_uncertainty: no window");
+  if (!(coverage > 0 && coverage < 1)) {
+    return Error::Permanent(
+        fmt::format("average_uncertainty: coverage {}: must be between 0 and 1", coverage));
   }
+  const auto n = static_cast<double>(windows.size());
+  MeanUncertainty r;
+  r.coverage = coverage;
+  double u2 = 0, floor2 = 0, dof_denominator = 0;
+  for (std::size_t i = 0; i < windows.size(); ++i) {
+    const MeanUncertainty& w = windows[i];
+    if (!std::isfinite(w.u_dph) || w.u_dph < 0) {
+      return Error::Permanent(fmt::format(
+          "average_uncertainty: window {}: u {} °/h: must be finite and >= 0", i, w.u_dph));
+    }
+    const double share = w.u_dph / n;  // this window's part of the average's u
+    u2 += share * share;
+    floor2 += (w.floor_dph / n) * (w.floor_dph / n);
+    if (w.dof > 0 && std::isfinite(w.dof)) dof_denominator += share * share * share * share / w.dof;
+    r.window_s += w.window_s;
+    r.random_walk_dominated = r.random_walk_dominated || w.random_walk_dominated;
+  }
+  r.u_dph = std::sqrt(u2);
+  r.floor_dph = std::sqrt(floor2);
+  r.dof = dof_denominator > 0 ? u2 * u2 / dof_denominator : std::numeric_limits<double>::infinity();
+  r.k = coverage_factor(r.dof, coverage);
   r.expanded_dph = r.k * r.u_dph;
   return r;
 }

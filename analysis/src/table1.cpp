@@ -373,9 +373,19 @@ Result<std::vector<Table1SetpointRow>> table1_by_setpoint(std::span<const Table1
   for (std::size_t k = 0; k < order.size();) {
     const double first_c = soaks[order[k]].setpoint_c;
     std::vector<double> temp, bias, sd, sd_ma, bias_e;
+    std::vector<MeanUncertainty> bias_u;
+    std::string bias_u_missing;
     std::size_t j = k;
     for (; j < order.size() && soaks[order[j]].setpoint_c - first_c < kSetpointGroupTolC; ++j) {
       const Table1Row& r = soaks[order[j]].row;
+      if (!std::isnan(r.bias_mean_dph)) {
+        if (r.bias_u) {
+          bias_u.push_back(*r.bias_u);
+        } else if (bias_u_missing.empty()) {
+          bias_u_missing = fmt::format("soak {} has no uncertainty of its mean{}", order[j],
+                                       r.bias_u_note.empty() ? "" : ": " + r.bias_u_note);
+        }
+      }
       temp.push_back(r.temp_mean_c);
       bias.push_back(r.bias_mean_dph);
       sd.push_back(r.bias_std_dph);
@@ -393,6 +403,15 @@ Result<std::vector<Table1SetpointRow>> table1_by_setpoint(std::span<const Table1
     g.bias_std_dph = mean_spread(std::move(sd));
     g.bias_std_ma_dph = mean_spread(std::move(sd_ma));
     g.bias_mean_earth_removed_dph = mean_spread(std::move(bias_e));
+    if (!bias_u_missing.empty()) {
+      g.bias_mean_u_note = std::move(bias_u_missing);
+    } else if (bias_u.empty()) {
+      g.bias_mean_u_note = "no soak with a bias mean";
+    } else if (auto u = average_uncertainty(bias_u)) {
+      g.bias_mean_u = *u;
+    } else {
+      g.bias_mean_u_note = u.error().message;
+    }
     out.push_back(g);
     k = j;
   }

@@ -10,6 +10,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <numbers>
 #include <random>
 #include <string>
@@ -240,6 +241,51 @@ TEST(NoiseModelCoverage, ARandomWalkWidensTheIntervalAndIsFlagged) {
               100.0 * covered / soaks, flagged, soaks);
   EXPECT_EQ(wider, soaks);
   EXPECT_GE(flagged, soaks * 9 / 10);
+}
+
+TEST(AverageUncertainty, CombinesIndependentWindowsByHand) {
+  // One window: itself, with the same k as mean_uncertainty gives its dof.
+  MeanUncertainty a{.window_s = 3600, .u_dph = 0.03, .dof = 12, .floor_dph = 0.01};
+  auto one = average_uncertainty(std::vector<MeanUncertainty>{a});
+  ASSERT_TRUE(one.ok()) << one.error().message;
+  EXPECT_DOUBLE_EQ(one->u_dph, 0.03);
+  EXPECT_NEAR(one->dof, 12, 1e-12);
+  EXPECT_NEAR(one->k, 2.178813, 1e-6);  // t(0.975, 12)
+  EXPECT_DOUBLE_EQ(one->expanded_dph, one->k * 0.03);
+  EXPECT_DOUBLE_EQ(one->floor_dph, 0.01);
+
+  // Two: u = sqrt(0.03² + 0.04²) / 2 = 0.025; nu = u⁴ / ((0.015⁴ / 12) +
+  // (0.02⁴ / 30)); floors sqrt(0.01² + 0.02²) / 2; windows add up; one
+  // random-walk window flags the average.
+  MeanUncertainty b{
+      .window_s = 1800, .u_dph = 0.04, .dof = 30, .floor_dph = 0.02, .random_walk_dominated = true};
+  auto two = average_uncertainty(std::vector<MeanUncertainty>{a, b});
+  ASSERT_TRUE(two.ok()) << two.error().message;
+  EXPECT_NEAR(two->u_dph, 0.025, 1e-15);
+  const double nu = std::pow(0.025, 4) / (std::pow(0.015, 4) / 12 + std::pow(0.02, 4) / 30);
+  EXPECT_NEAR(two->dof, nu, 1e-9 * nu);
+  EXPECT_NEAR(two->floor_dph, std::sqrt(0.0001 + 0.0004) / 2, 1e-15);
+  EXPECT_DOUBLE_EQ(two->window_s, 5400);
+  EXPECT_TRUE(two->random_walk_dominated);
+  EXPECT_GT(two->k, 1.96);
+  EXPECT_LT(two->k, one->k);  // more degrees of freedom than either alone
+
+  // White noise alone (infinite dof): the normal quantile.
+  MeanUncertainty w{.window_s = 600, .u_dph = 0.1, .dof = std::numeric_limits<double>::infinity()};
+  auto white = average_uncertainty(std::vector<MeanUncertainty>{w, w, w, w});
+  ASSERT_TRUE(white.ok());
+  EXPECT_NEAR(white->u_dph, 0.05, 1e-15);
+  EXPECT_TRUE(std::isinf(white->dof));
+  EXPECT_NEAR(white->k, 1.959964, 1e-6);
+
+  // Errors name what is wrong.
+  EXPECT_FALSE(average_uncertainty(std::vector<MeanUncertainty>{}).ok());
+  EXPECT_FALSE(average_uncertainty(std::vector<MeanUncertainty>{a}, 1.0).ok());
+  MeanUncertainty bad = a;
+  bad.u_dph = std::nan("");
+  auto nan = average_uncertainty(std::vector<MeanUncertainty>{a, bad});
+  ASSERT_FALSE(nan.ok());
+  EXPECT_NE(nan.error().message.find("window 1"), std::string::npos) << nan.error().message;
 }
 
 TEST(NoiseModelErrors, BadCurvesAndArgumentsAreNamed) {

@@ -268,14 +268,35 @@ TEST(Report, RepeatedSetpointsGetThePapersTableIGroupedBySetpoint) {
   r.run.id = 5;
   r.table1 = {soak_row(5, 0, 20, 7.0), soak_row(5, 2, 40, 8.0), soak_row(5, 4, 20, 7.2),
               soak_row(5, 6, 20, 7.4)};
+  // The 20 °C soaks' own uncertainties (u, dof); the 40 °C soak has none.
+  r.table1[0].bias_u = storage::BiasUncertainty{.u_dph = 0.01, .dof = 10};
+  r.table1[2].bias_u = storage::BiasUncertainty{.u_dph = 0.02, .dof = 20};
+  r.table1[3].bias_u = storage::BiasUncertainty{.u_dph = 0.02, .dof = 1e6};
+  r.table1[1].bias_u_note = "no noise model: too short";
   const auto files = render_run_files(r, fixed_time());
   const ReportFile* csv = find_file(files, "run-0005/table1-by-setpoint.csv");
   ASSERT_NE(csv, nullptr) << "no run-0005/table1-by-setpoint.csv";
   const auto rows = csv_rows(csv->content);
   ASSERT_EQ(rows.size(), 3u) << csv->content;
   ASSERT_EQ(rows[0][0], "setpoint_c");
-  ASSERT_EQ(rows[0].size(), 17u);
-  ASSERT_EQ(rows[1].size(), 17u);
+  ASSERT_EQ(rows[0].size(), 23u);
+  ASSERT_EQ(rows[1].size(), 23u);
+  ASSERT_EQ(rows[2].size(), 23u);
+  EXPECT_EQ(rows[0][17], "bias_mean_u_dph");
+  EXPECT_EQ(rows[0][22], "bias_mean_u_note");
+  // The mean of the three 20 °C biases, by hand: u = sqrt(0.01² + 0.02² +
+  // 0.02²) / 3 = 0.01; Welch-Satterthwaite nu = u⁴ / sum((u_i / 3)⁴ / nu_i)
+  // = 81 / (0.1 + 0.8 + 1.6e-5) = 89.998...; k the Student t quantile for it.
+  EXPECT_NEAR(std::stod(rows[1][17]), 0.01, 1e-15);
+  EXPECT_NEAR(std::stod(rows[1][20]), 81 / 0.900016, 1e-9);
+  EXPECT_NEAR(std::stod(rows[1][19]), 1.98667, 1e-4);  // t(0.975, 90)
+  EXPECT_NEAR(std::stod(rows[1][18]), std::stod(rows[1][19]) * 0.01, 1e-15);
+  EXPECT_EQ(rows[1][21], "0");
+  EXPECT_EQ(rows[1][22], "");
+  // 40 °C: none, and why.
+  EXPECT_EQ(rows[2][17], "");
+  EXPECT_EQ(rows[2][18], "");
+  EXPECT_EQ(rows[2][22], "soak 1 has no uncertainty of its mean: no noise model: too short");
   // 20 °C: biases 7.0, 7.2, 7.4: mean 7.2, sample std 0.2 (by hand).
   EXPECT_EQ(rows[1][0], "20");
   EXPECT_EQ(rows[1][1], "3");
@@ -292,6 +313,10 @@ TEST(Report, RepeatedSetpointsGetThePapersTableIGroupedBySetpoint) {
   const ReportFile* html = find_file(files, "run-0005/report.html");
   ASSERT_NE(html, nullptr);
   EXPECT_NE(html->content.find("id=\"table1-by-setpoint\""), std::string::npos);
+  EXPECT_NE(
+      html->content.find(fmt::format("<td class=\"num\">{:.4f}</td>", std::stod(rows[1][18]))),
+      std::string::npos);
+  EXPECT_NE(html->content.find("title=\"soak 1 has no uncertainty of its mean"), std::string::npos);
 
   // Without a repeated set point a run's page keeps its one table.
   RunReport single;

@@ -400,12 +400,18 @@ TEST_F(CliAnalysisTest, StatsBySetpointGroupsTheSoaksOfEveryRunLikeThePapersTabl
   EXPECT_EQ(g40.at("setpoint_c").get<double>(), 40.0);
   EXPECT_EQ(g40.at("repetitions").get<int>(), 1);
   expect_col(g40, "bias_mean_dph", 8.0, nan, 1);
+  // These stored rows carry no uncertainty of their means: nor do their
+  // groups, and they say why.
+  EXPECT_TRUE(g20.at("bias_mean_u").is_null()) << g20.dump();
+  EXPECT_THAT(g20.at("bias_mean_u_note").get<std::string>(),
+              HasSubstr("has no uncertainty of its mean"));
 
   // Text: one line per set point, mean ± std.
   const Run text = cli({"stats", "--db", db_copy, "--runs", runs, "--stored", "--by-setpoint"});
   ASSERT_EQ(text.code, 0) << text.err;
   EXPECT_THAT(text.out, HasSubstr("reps"));
   EXPECT_THAT(text.out, HasSubstr("7.2000 ± 0.2000"));
+  EXPECT_THAT(text.out, HasSubstr("± U95 °/h"));
   EXPECT_THAT(text.out, HasSubstr("schedule set point"));
 
   // Recomputed rows group the same way (here every set point once).
@@ -413,6 +419,12 @@ TEST_F(CliAnalysisTest, StatsBySetpointGroupsTheSoaksOfEveryRunLikeThePapersTabl
   ASSERT_EQ(all.code, 0) << all.err;
   const json ja = all.parsed();
   ASSERT_EQ(ja.size(), 2u * kRuns) << all.out;
+  // Recomputed rows have their uncertainty, and so their groups: a single
+  // soak's group has that soak's (u_dph > 0, the same form as `bias_u`).
+  for (const json& g : ja) {
+    ASSERT_TRUE(g.at("bias_mean_u").is_object()) << g.dump();
+    EXPECT_GT(g.at("bias_mean_u").at("u_dph").get<double>(), 0) << g.dump();
+  }
   for (std::size_t i = 1; i < ja.size(); ++i) {
     EXPECT_LT(ja[i - 1].at("setpoint_c").get<double>(), ja[i].at("setpoint_c").get<double>());
   }

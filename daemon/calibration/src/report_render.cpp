@@ -190,16 +190,7 @@ std::vector<analysis::Table1Soak> table1_soaks(
     const std::vector<const storage::SegmentStatsRecord*>& rows) {
   std::vector<analysis::Table1Soak> soaks;
   for (const auto* r : rows) {
-    analysis::Table1Soak s;
-    s.setpoint_c = r->setpoint_c;
-    s.row.n = static_cast<std::size_t>(std::max<int64_t>(r->n, 0));
-    s.row.duration_s = r->duration_s;
-    s.row.temp_mean_c = r->temp_mean_c;
-    s.row.bias_mean_dph = r->bias_mean_dph;
-    s.row.bias_std_dph = r->bias_std_dph;
-    s.row.bias_std_ma_dph = r->bias_std_ma_dph;
-    s.row.bias_mean_earth_removed_dph = r->bias_mean_earth_removed_dph;
-    soaks.push_back(s);
+    soaks.push_back({r->setpoint_c, table1_row_of(*r)});
   }
   return soaks;
 }
@@ -213,27 +204,45 @@ std::string spread_cells(const analysis::MeanSpread& m, int decimals) {
   return num_cell(m.n == 0 ? std::nan("") : m.mean, decimals) + num_cell(m.std, decimals);
 }
 
+// The half-width of the 95 % interval of a set point's bias mean from the
+// noise within its soaks, as bias_u_cell shows a soak's.
+std::string group_u_cell(const analysis::Table1SetpointRow& g) {
+  if (!g.bias_mean_u) {
+    return fmt::format("<td class=\"num\" title=\"{}\">—</td>",
+                       text::html_escape(g.bias_mean_u_note));
+  }
+  return fmt::format("<td class=\"num\">{:.4f}{}</td>", g.bias_mean_u->expanded_dph,
+                     g.bias_mean_u->random_walk_dominated ? " RW" : "");
+}
+
 std::string table1_groups_html(const std::vector<analysis::Table1SetpointRow>& groups) {
   std::string h =
       "<table class=\"numbers\" id=\"table1-by-setpoint\">\n<thead><tr><th rowspan=\"2\">set "
       "point (°C)</th><th rowspan=\"2\">soaks</th><th colspan=\"2\">mean shell temperature "
-      "(°C)</th><th colspan=\"2\">mean zero bias (°/h)</th><th colspan=\"2\">std (°/h)</th>"
+      "(°C)</th><th colspan=\"3\">mean zero bias (°/h)</th><th colspan=\"2\">std (°/h)</th>"
       "<th colspan=\"2\">std after the moving average (°/h)</th><th colspan=\"2\">mean, Earth "
-      "rate removed (°/h)</th></tr>\n<tr>";
-  for (int i = 0; i < 5; ++i) h += "<th>mean</th><th>spread</th>";
+      "rate removed (°/h)</th></tr>\n<tr><th>mean</th><th>spread</th><th>mean</th><th>± "
+      "U95</th><th>spread</th>";
+  for (int i = 0; i < 3; ++i) h += "<th>mean</th><th>spread</th>";
   h += "</tr></thead>\n<tbody>\n";
   for (const auto& g : groups) {
     h += g.bias_std_ma_dph.n == g.repetitions ? "<tr>" : "<tr class=\"warn\">";
     h += num_cell(g.setpoint_c, 1) + fmt::format("<td class=\"num\">{}</td>", g.repetitions) +
-         spread_cells(g.temp_mean_c, 3) + spread_cells(g.bias_mean_dph, 4) +
-         spread_cells(g.bias_std_dph, 4) + spread_cells(g.bias_std_ma_dph, 4) +
-         spread_cells(g.bias_mean_earth_removed_dph, 4) + "</tr>\n";
+         spread_cells(g.temp_mean_c, 3) +
+         num_cell(g.bias_mean_dph.n == 0 ? std::nan("") : g.bias_mean_dph.mean, 4) +
+         group_u_cell(g) + num_cell(g.bias_mean_dph.std, 4) + spread_cells(g.bias_std_dph, 4) +
+         spread_cells(g.bias_std_ma_dph, 4) + spread_cells(g.bias_mean_earth_removed_dph, 4) +
+         "</tr>\n";
   }
   h += "</tbody></table>\n<p class=\"note\">The paper's form of Table I: the soaks are grouped "
        "by their schedule set point (set points within 0.001 °C are one), not by the measured "
        "temperature; each column is the mean over the soaks of a set point and its spread, the "
        "sample standard deviation (ddof = 1; — for a single soak). A soak too short for the "
-       "moving average is left out of that column (row marked).</p>\n";
+       "moving average is left out of that column (row marked). ± U95 is the half-width of "
+       "the 95 % interval of the mean zero bias from the noise within the soaks (their own "
+       "intervals combined, the soaks taken as independent; RW: rate random walk dominates, "
+       "the interval covers less than it says); how much the bias moves from one soak to the "
+       "next is the spread beside it.</p>\n";
   return h;
 }
 
@@ -243,12 +252,20 @@ std::string table1_groups_csv(const std::vector<analysis::Table1SetpointRow>& gr
                         "bias_mean_earth_removed_dph"}) {
     out += fmt::format(",{0}_mean,{0}_std,{0}_n", c);
   }
-  out += "\n";
+  out +=
+      ",bias_mean_u_dph,bias_mean_u_expanded_dph,bias_mean_u_k,bias_mean_u_dof,"
+      "bias_mean_u_random_walk,bias_mean_u_note\n";
   for (const auto& g : groups) {
     out += fmt::format("{},{}", exact(g.setpoint_c), g.repetitions);
     for (const auto* m : {&g.temp_mean_c, &g.bias_mean_dph, &g.bias_std_dph, &g.bias_std_ma_dph,
                           &g.bias_mean_earth_removed_dph}) {
       out += fmt::format(",{},{},{}", exact(m->mean), exact(m->std), m->n);
+    }
+    if (const auto& u = g.bias_mean_u) {
+      out += fmt::format(",{},{},{},{},{},", exact(u->u_dph), exact(u->expanded_dph), exact(u->k),
+                         exact(u->dof), u->random_walk_dominated ? 1 : 0);
+    } else {
+      out += ",,,,,," + csv_field(g.bias_mean_u_note);
     }
     out += "\n";
   }

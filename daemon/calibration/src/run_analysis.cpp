@@ -456,6 +456,20 @@ std::optional<analysis::MeanUncertainty> mean_uncertainty_of(const storage::Segm
   return u;
 }
 
+analysis::Table1Row table1_row_of(const storage::SegmentStatsRecord& r) {
+  analysis::Table1Row row;
+  row.n = static_cast<std::size_t>(std::max<int64_t>(r.n, 0));
+  row.duration_s = r.duration_s;
+  row.temp_mean_c = r.temp_mean_c;
+  row.bias_mean_dph = r.bias_mean_dph;
+  row.bias_std_dph = r.bias_std_dph;
+  row.bias_std_ma_dph = r.bias_std_ma_dph;
+  row.bias_mean_earth_removed_dph = r.bias_mean_earth_removed_dph;
+  row.bias_u = mean_uncertainty_of(r);
+  row.bias_u_note = r.bias_u_note;
+  return row;
+}
+
 nlohmann::json mean_uncertainty_json(const std::optional<analysis::MeanUncertainty>& u) {
   if (!u) return nullptr;
   const auto num = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nullptr; };

@@ -108,4 +108,18 @@ struct MeanUncertainty {
 Result<MeanUncertainty> mean_uncertainty(const NoiseModel& model, double window_s,
                                          double coverage = 0.95);
 
+// The uncertainty of the plain average of several windows' means (e.g. the
+// repetitions of a set point), from each window's own: the windows' noise
+// taken as independent (separate soaks),
+//   u = sqrt(sum u_i²) / n,   nu = u⁴ / sum((u_i / n)⁴ / nu_i)
+// (Welch-Satterthwaite; an infinite nu_i adds nothing), U = k u with k the
+// Student t quantile for nu. window_s is the windows' total, floor_dph the
+// floors combined the same way, random_walk_dominated set when any window's
+// is. It covers the noise within the windows only: how much the bias itself
+// moves from one soak to the next (repeatability) is the spread of the
+// means, which it does not include. Errors (permanent): no window, a
+// coverage outside (0, 1), a u_i that is not finite and >= 0.
+Result<MeanUncertainty> average_uncertainty(std::span<const MeanUncertainty> windows,
+                                            double coverage = 0.95);
+
 }  // namespace gyrotherm::analysis

@@ -194,6 +194,12 @@ struct Table1SetpointRow {
   MeanSpread bias_std_dph;
   MeanSpread bias_std_ma_dph;
   MeanSpread bias_mean_earth_removed_dph;
+  // The uncertainty of bias_mean_dph.mean from the noise within its soaks
+  // (average_uncertainty of the soaks' bias_u; not the spread between
+  // them, which bias_mean_dph.std shows). None when a soak with a bias mean
+  // has no bias_u; bias_mean_u_note then names it and says why.
+  std::optional<MeanUncertainty> bias_mean_u;
+  std::string bias_mean_u_note;
 };
 
 // Errors: a set point that is not finite (the message names the soak's index).

@@ -221,6 +221,9 @@ storage::ResultQuality result_quality(const analysis::Coverage& coverage,
 std::optional<storage::BiasUncertainty> bias_uncertainty_record(
     const std::optional<analysis::MeanUncertainty>& u);
 std::optional<analysis::MeanUncertainty> mean_uncertainty_of(const storage::SegmentStatsRecord& r);
+// A stored Table I row as the analysis' row (its numbers, bias_u and its
+// note; the series and MA window stay empty).
+analysis::Table1Row table1_row_of(const storage::SegmentStatsRecord& r);
 // Its JSON form wherever results are shown (REST, the CLI, exports):
 // {"window_s", "u_dph", "dof", "k", "expanded_dph", "coverage", "floor_dph",
 // "random_walk_dominated"}, a non-finite number (infinite dof) as null;
