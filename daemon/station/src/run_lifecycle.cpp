@@ -271,16 +271,19 @@ void RunLifecycle::answer_failed_run() {
 
 void RunLifecycle::hold_queue(const std::string& reason) {
   hold_reason_ = reason;
-  links_.queue_held.store(true);
+  // Stored before the flag rises: the queue's answer reads both.
   if (auto st = links_.db.set_meta(kQueueHoldKey, reason); !st) {
     spdlog::error("{}", st.error().message);
   }
+  links_.queue_held.store(true);
   links_.journal.add_event("queue", "", "", "queue held: " + reason);
   spdlog::info("queue held: {}", reason);
 }
 
 void RunLifecycle::release_queue() {
   hold_reason_.reset();
+  // The flag falls before the stored hold goes (the reverse of hold_queue):
+  // the queue's answer, which counts either, never says held without why.
   links_.queue_held.store(false);
   if (auto st = links_.db.delete_meta(kQueueHoldKey); !st) spdlog::error("{}", st.error().message);
   links_.journal.add_event("queue", "", "", "queue released");

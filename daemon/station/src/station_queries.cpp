@@ -95,11 +95,17 @@ Reply StationQueries::queue_list() {
       list.push_back(to_json(e, steps));
     }
   }
-  const bool held = links_.queue_held.load();
+  // The stored hold is what the answer reads, held and reason from one read:
+  // the control thread writes it before it raises queue_held, so a reader
+  // never sees "held" without its reason (it once did, between the two).
+  // queue_held alone still counts if the store failed.
   std::string reason;
-  if (held) {
-    if (auto m = db_.meta(kQueueHoldKey); m && *m) reason = **m;
+  bool held = false;
+  if (auto m = db_.meta(kQueueHoldKey); m && *m) {
+    held = true;
+    reason = **m;
   }
+  held = held || links_.queue_held.load();
   return Reply::ok(
       {{"held", held}, {"hold_reason", reason}, {"current", current}, {"entries", list}});
 }
