@@ -567,6 +567,30 @@ std::string fixed_and_settles(const json& fixed_s, const json& settles) {
   return out;
 }
 
+// A settling soak's forecast: ", gate in 42 min (P10 30 min – P90 1 h 5 min)",
+// ", gate holds now", ", gate forecast: not enough curvature yet"; "" without one.
+std::string format_settle(const json& f) {
+  if (!f.is_object()) return "";
+  const std::string verdict = text(field(f, "verdict"));
+  const auto p10 = number(field(f, "p10_s")), p50 = number(field(f, "p50_s")),
+             p90 = number(field(f, "p90_s"));
+  if (verdict == "predicted" && p10) {
+    const std::string hi = p90 ? schedules::format_duration(*p90) : "beyond 48 h";
+    if (!p50) {
+      return fmt::format(", gate likely beyond 48 h (P10 {})", schedules::format_duration(*p10));
+    }
+    return fmt::format(", gate in {} (P10 {} – P90 {})", schedules::format_duration(*p50),
+                       schedules::format_duration(*p10), hi);
+  }
+  if (verdict == "holds_now") return ", gate holds on the shell now";
+  if (verdict == "not_enough_curvature") return ", gate forecast: not enough curvature yet";
+  if (verdict == "never_within_tolerance") {
+    return ", gate forecast: the shell settles outside the tolerance (" + text(field(f, "note")) +
+           ")";
+  }
+  return "";
+}
+
 // The progress line (docs/schedules.md, "Planned duration and progress"):
 // "acquiring 42% · run ends in 2 h 10 min", "settling, gate 4 min of 10 min ·
 // run ≥ 2 h 10 min + 2 settles". Empty without a progress object.
@@ -581,8 +605,15 @@ std::string format_progress(const json& p) {
     step += fmt::format(", gate {} of {}", schedules::format_duration(*held),
                         schedules::format_duration(*needed));
   }
+  step += format_settle(field(p, "settle"));
   if (const auto eta = number(field(p, "run_eta_s"))) {
-    return fmt::format("{} · run ends in {}", step, schedules::format_duration(*eta));
+    std::string band;
+    if (const auto lo = number(field(p, "run_eta_p10_s"))) {
+      const auto hi = number(field(p, "run_eta_p90_s"));
+      band = fmt::format(" (P10 {} – P90 {})", schedules::format_duration(*lo),
+                         hi ? schedules::format_duration(*hi) : "beyond 48 h");
+    }
+    return fmt::format("{} · run ends in {}{}", step, schedules::format_duration(*eta), band);
   }
   return fmt::format(
       "{} · run ≥ {}", step,

@@ -83,6 +83,24 @@
   }
 
   // "2 h 10 min + 2 settles": fixed time plus settles of unknown length.
+  // A settling soak's forecast of its stability gate (progress.settle):
+  // "gate in 42 min (P10 30 min – P90 1 h 5 min)"; '' without one.
+  function fmtSettle(f) {
+    if (!f) return '';
+    if (f.verdict === 'predicted' && f.p10_s != null) {
+      const hi = f.p90_s != null ? fmtDuration(f.p90_s) : 'beyond 48 h';
+      return f.p50_s != null
+        ? `gate in ${fmtDuration(f.p50_s)} (P10 ${fmtDuration(f.p10_s)} – P90 ${hi})`
+        : `gate likely beyond 48 h (P10 ${fmtDuration(f.p10_s)})`;
+    }
+    if (f.verdict === 'holds_now') return 'gate holds on the shell now';
+    if (f.verdict === 'not_enough_curvature') return 'gate forecast: not enough curvature yet';
+    if (f.verdict === 'never_within_tolerance') {
+      return 'gate forecast: the shell settles outside the tolerance';
+    }
+    return '';
+  }
+
   function fmtFixed(fixedS, settles) {
     const n = settles || 0;
     return fmtDuration(fixedS) + (n > 0 ? ` + ${n} settle${n === 1 ? '' : 's'}` : '');
@@ -540,11 +558,18 @@
       const g = Math.min(1, p.gate_held_s / p.gate_needed_s);
       $('gate-fill').style.width = `${(100 * g).toFixed(1)}%`;
       $('gate-bar').setAttribute('aria-valuenow', Math.floor(100 * g));
+      const forecast = fmtSettle(p.settle);
       setText('gate-progress', `${p.phase === 'spinning_up' ? 'at rate' : 'stability gate'} ` +
-        `${fmtClock(p.gate_held_s)} of ${fmtClock(p.gate_needed_s)}`);
+        `${fmtClock(p.gate_held_s)} of ${fmtClock(p.gate_needed_s)}` +
+        (forecast ? ` · ${forecast}` : ''));
+      $('gate-progress').title = p.settle ? p.settle.note || '' : '';
     }
+    const etaBand = p.run_eta_p10_s != null
+      ? ` (P10 ${fmtDuration(p.run_eta_p10_s)} – P90 ` +
+        `${p.run_eta_p90_s != null ? fmtDuration(p.run_eta_p90_s) : 'beyond 48 h'})`
+      : '';
     setText('run-eta', !running ? 'no run'
-      : p.run_eta_s != null ? `run ends in ${fmtDuration(p.run_eta_s)}`
+      : p.run_eta_s != null ? `run ends in ${fmtDuration(p.run_eta_s)}${etaBand}`
         : `run ≥ ${fmtFixed(p.run_remaining_fixed_s, p.run_settles_remaining)}`);
     setText('queue-eta', queueLength > 0
       ? `queue ≥ ${fmtFixed(p.queue_fixed_s, p.queue_settles)}` : 'queue empty');

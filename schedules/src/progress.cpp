@@ -104,7 +104,8 @@ std::string format_planned(const PlannedDuration& d) {
 }
 
 RunProgress run_progress(const Plan& plan, const SequencerSnapshot& snap,
-                         const std::optional<GateProgress>& gate, const PlannedDuration& queue) {
+                         const std::optional<GateProgress>& gate, const PlannedDuration& queue,
+                         const std::optional<SettleForecast>& settle) {
   RunProgress p;
   p.queue_fixed_s = queue.fixed_s;
   p.queue_settles = queue.settles;
@@ -194,6 +195,15 @@ RunProgress run_progress(const Plan& plan, const SequencerSnapshot& snap,
   p.run_remaining_fixed_s = step_left_s + after.fixed_s;
   p.run_settles_remaining = after.settles + (settling ? 1 : 0);
   if (p.run_settles_remaining == 0) p.run_eta_s = p.run_remaining_fixed_s;
+  if (settling && settle) {
+    p.settle = settle;
+    // The current settle is the last one left: its forecast completes the ETA.
+    if (p.run_settles_remaining == 1 && settle->p50_s) {
+      p.run_eta_s = *settle->p50_s + p.run_remaining_fixed_s;
+      if (settle->p10_s) p.run_eta_p10_s = *settle->p10_s + p.run_remaining_fixed_s;
+      if (settle->p90_s) p.run_eta_p90_s = *settle->p90_s + p.run_remaining_fixed_s;
+    }
+  }
   return p;
 }
 

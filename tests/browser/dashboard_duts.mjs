@@ -93,12 +93,16 @@ function duts(thirdRateDph) {
 const SETTLING = {
   phase: 'settling', step_elapsed_s: 420, step_planned_s: 6000, step_fraction: null,
   gate_held_s: 240, gate_needed_s: 600, run_remaining_fixed_s: 7800, run_settles_remaining: 2,
-  run_eta_s: null, queue_fixed_s: 43200, queue_settles: 8,
+  run_eta_s: null, run_eta_p10_s: null, run_eta_p90_s: null, queue_fixed_s: 43200,
+  queue_settles: 8,
+  settle: { verdict: 'predicted', note: 'first-order fit', p10_s: 1200, p50_s: 1800, p90_s: 3000,
+    age_s: 20 },
 };
 const ACQUIRING = {
   phase: 'acquiring', step_elapsed_s: 2550, step_planned_s: 6000, step_fraction: 0.425,
   gate_held_s: null, gate_needed_s: null, run_remaining_fixed_s: 3000, run_settles_remaining: 0,
-  run_eta_s: 3000, queue_fixed_s: 43200, queue_settles: 8,
+  run_eta_s: 3000, run_eta_p10_s: null, run_eta_p90_s: null, queue_fixed_s: 43200,
+  queue_settles: 8, settle: null,
 };
 
 // A station snapshot as GET /api/v1/status gives it (docs/api.md), run 5.
@@ -344,7 +348,8 @@ try {
   expectFields(failures, '1 (progress, settling)', one, {
     progressHidden: false, stepBarHidden: false, stepWidth: '0%',
     stepText: 'settling for 7 min, then 1 h 40 min', gateHidden: false, gateWidth: '40%',
-    gateText: 'stability gate 0:04:00 of 0:10:00', runEta: 'run ≥ 2 h 10 min + 2 settles',
+    gateText: 'stability gate 0:04:00 of 0:10:00 · gate in 30 min (P10 20 min – P90 50 min)',
+    runEta: 'run ≥ 2 h 10 min + 2 settles',
     queueEta: 'queue ≥ 12 h + 8 settles' });
 
   // 2. The third DUT's rate channel.

@@ -737,6 +737,27 @@ TEST(CliFormat, StatusSummary) {
   EXPECT_THAT(cli::format_status(settling),
               HasSubstr("progress    settling, gate 4 min of 10 min · run ≥ 2 h 10 min + 2 "
                         "settles\n"));
+  // A forecast of the settle: the gate's time with its band; the last
+  // settle forecast: the run's end with its band, or an open one.
+  settling["progress"]["settle"] = {{"verdict", "predicted"}, {"note", "fit"},   {"p10_s", 1200.0},
+                                    {"p50_s", 1800.0},        {"p90_s", 3000.0}, {"age_s", 20.0}};
+  EXPECT_THAT(cli::format_status(settling),
+              HasSubstr("progress    settling, gate 4 min of 10 min, gate in 30 min (P10 20 min "
+                        "– P90 50 min) · run ≥ 2 h 10 min + 2 settles\n"));
+  settling["progress"]["run_settles_remaining"] = 1;
+  settling["progress"]["run_eta_s"] = 9600.0;
+  settling["progress"]["run_eta_p10_s"] = 9000.0;
+  settling["progress"]["run_eta_p90_s"] = nullptr;
+  EXPECT_THAT(cli::format_status(settling),
+              HasSubstr("· run ends in 2 h 40 min (P10 2 h 30 min – P90 beyond 48 h)\n"));
+  settling["progress"]["settle"] = {{"verdict", "not_enough_curvature"},
+                                    {"note", "3 bins"},
+                                    {"p10_s", nullptr},
+                                    {"p50_s", nullptr},
+                                    {"p90_s", nullptr},
+                                    {"age_s", 5.0}};
+  EXPECT_THAT(cli::format_status(settling),
+              HasSubstr(", gate forecast: not enough curvature yet ·"));
   json last = status_answer();
   last["progress"]["run_settles_remaining"] = 0;
   last["progress"]["run_eta_s"] = 3000.0;

@@ -199,6 +199,51 @@ TEST(RunProgress, SoakSettlingShowsTheGateThenAcquiringHasAnEta) {
   EXPECT_DOUBLE_EQ(*b.run_eta_s, 1600);
 }
 
+// The last soak settling with a forecast of its gate in 900 s (P10 600,
+// P90 1500): it is the only settle left, so the run ends after it and the
+// soak's 2700 s of acquisition: 3600 s (3300 - 4200). A soak earlier in the
+// plan (step 2; the last soak still settles later) shows its forecast but
+// gives no ETA; a P90 beyond the horizon leaves the band open; acquiring,
+// the forecast is dropped.
+TEST(RunProgress, TheCurrentSettlesForecastCompletesTheEtaWhenItIsTheLastSettle) {
+  const Plan plan = parse_plan(kCampaign);
+  const SettleForecast forecast{"predicted", "fitted", 600.0, 900.0, 1500.0};
+  SequencerSnapshot last = at_step(5, RunState::kSettling, 20000);
+  const RunProgress a = run_progress(plan, last, GateProgress{0, 600, 300}, {}, forecast);
+  ASSERT_TRUE(a.settle);
+  EXPECT_EQ(a.settle->verdict, "predicted");
+  EXPECT_DOUBLE_EQ(*a.settle->p50_s, 900);
+  ASSERT_TRUE(a.run_eta_s);
+  EXPECT_DOUBLE_EQ(*a.run_eta_s, 900 + 2700);
+  EXPECT_DOUBLE_EQ(*a.run_eta_p10_s, 600 + 2700);
+  EXPECT_DOUBLE_EQ(*a.run_eta_p90_s, 1500 + 2700);
+
+  SettleForecast open = forecast;
+  open.p90_s.reset();
+  const RunProgress b = run_progress(plan, last, std::nullopt, {}, open);
+  EXPECT_DOUBLE_EQ(*b.run_eta_s, 3600);
+  EXPECT_FALSE(b.run_eta_p90_s);
+
+  SequencerSnapshot earlier = at_step(2, RunState::kSettling, 6000);
+  const RunProgress c = run_progress(plan, earlier, std::nullopt, {}, forecast);
+  ASSERT_TRUE(c.settle);
+  EXPECT_EQ(c.run_settles_remaining, 2);
+  EXPECT_FALSE(c.run_eta_s);
+  EXPECT_FALSE(c.run_eta_p10_s);
+
+  const SettleForecast early{"not_enough_curvature", "too early", {}, {}, {}};
+  const RunProgress d = run_progress(plan, last, std::nullopt, {}, early);
+  ASSERT_TRUE(d.settle);
+  EXPECT_FALSE(d.run_eta_s);
+
+  SequencerSnapshot acquiring = at_step(5, RunState::kAcquiring, 25000);
+  acquiring.window_open_s = 24000;
+  const RunProgress e = run_progress(plan, acquiring, std::nullopt, {}, forecast);
+  EXPECT_FALSE(e.settle);
+  EXPECT_DOUBLE_EQ(*e.run_eta_s, 1700);
+  EXPECT_FALSE(e.run_eta_p10_s);
+}
+
 // Rate point -10 °/s after +10 °/s: spin-up 0.2 s + dwell 36 s. Dwelling
 // for 10 s: 10.2 of 36.2 s; left 26 s, then +100 (1.1 + 3.6 s) and -100
 // (2 + 3.6 s): 36.3 s, no settle, so that is the ETA. Spinning up for 0.1 s

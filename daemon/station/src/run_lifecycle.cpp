@@ -90,6 +90,7 @@ double RunLifecycle::tick(double now_s, const schedules::Readings& r) {
   } else {
     if (table) tend_table(t_run_s);
     tick_sequencer(t_run_s, r);
+    watch_settle(t_run_s, r);
     if (table && !sequencer_->finished()) drive_table();
     // At the run's end the table stops before the chamber heads for its
     // safe set point (its servo goes off once at rest, ticks later).
@@ -132,6 +133,26 @@ void RunLifecycle::tick_sequencer(double t_run_s, const schedules::Readings& r) 
         return Status::Ok();
       });
   if (!written) checkpoint_state_.clear();  // rolled back: checkpointed again next tick
+}
+
+void RunLifecycle::watch_settle(double t_run_s, const schedules::Readings& r) {
+  std::optional<std::size_t> settling;
+  analysis::SettleGate gate;
+  const std::size_t index = sequencer_->step_index();
+  const auto& steps = sequencer_->plan().steps;
+  if (!sequencer_->finished() && sequencer_->state() != RunState::kAborting &&
+      index < steps.size() && steps[index].kind == schedules::StepKind::kSoak &&
+      sequencer_->gate_progress(t_run_s)) {
+    const schedules::PlanStep& step = steps[index];
+    settling = index;
+    gate = {.setpoint_c = step.setpoint_c,
+            .tolerance_c = step.tolerance_c,
+            .stability_c_per_min = step.stability_c_per_min,
+            .window_s = step.stability_window_s};
+  }
+  std::optional<double> shell_c;
+  if (r.top_c && r.side_c) shell_c = (*r.top_c + *r.side_c) / 2;
+  settle_watch_.tick(t_run_s, settling, gate, shell_c);
 }
 
 void RunLifecycle::fill_status(StatusSnapshot& s) const {
@@ -180,7 +201,8 @@ Progress RunLifecycle::progress(double t_run_s) {
     return to_progress(idle);
   }
   return to_progress(schedules::run_progress(sequencer_->plan(), sequencer_->snapshot(t_run_s),
-                                             sequencer_->gate_progress(t_run_s), queue_planned_));
+                                             sequencer_->gate_progress(t_run_s), queue_planned_,
+                                             settle_watch_.forecast(t_run_s)));
 }
 
 // ---------------------------------------------------------------- the table
@@ -631,6 +653,7 @@ void RunLifecycle::end_run() {
     }
   }
   links_.run_clock.publish(0, 0.0);
+  settle_watch_.forget();
   sequencer_.reset();
   entry_.reset();
   checkpoint_state_.clear();

@@ -39,6 +39,7 @@
 #include "gyrotherm/station/table_control.h"
 #include "gyrotherm/storage/database.h"
 #include "gyrotherm/storage/sample_writer.h"
+#include "settle_watch.h"
 
 namespace gyrotherm::station {
 
@@ -125,6 +126,9 @@ class RunLifecycle final : private schedules::SequencerObserver {
   // The sequencer's tick, with the segments it ends and starts written in
   // one transaction with the checkpoint that says so.
   void tick_sequencer(double t_run_s, const schedules::Readings& r);
+  // Hands the tick's shell temperature to the settle watch while a soak
+  // waits for its gate.
+  void watch_settle(double t_run_s, const schedules::Readings& r);
   void note_samples_not_committed(int64_t run_id, schedules::RunState final_state, const Error& e);
   void answer_failed_run();
   void hold_queue(const std::string& reason);
@@ -181,6 +185,8 @@ class RunLifecycle final : private schedules::SequencerObserver {
   schedules::PlannedDuration queue_planned_;
   int queue_scanned_length_ = -1;
   double queue_scan_due_wall_s_ = 0;
+  // The forecast of the current soak's settle, for the progress.
+  SettleWatch settle_watch_;
 };
 
 }  // namespace gyrotherm::station

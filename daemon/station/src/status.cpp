@@ -43,6 +43,13 @@ nlohmann::json to_json(const DutStatus& d) {
           {"required", d.required}, {"lost", d.lost},          {"health", to_json(d.health)}};
 }
 
+// null unless a soak settles and has been forecast.
+nlohmann::json settle_json(const std::optional<schedules::SettleForecast>& f) {
+  if (!f) return nullptr;
+  return {{"verdict", f->verdict},  {"note", f->note},        {"p10_s", opt(f->p10_s)},
+          {"p50_s", opt(f->p50_s)}, {"p90_s", opt(f->p90_s)}, {"age_s", f->age_s}};
+}
+
 nlohmann::json to_json(const Progress& p) {
   return {{"phase", p.phase},
           {"step_elapsed_s", opt(p.step_elapsed_s)},
@@ -53,6 +60,9 @@ nlohmann::json to_json(const Progress& p) {
           {"run_remaining_fixed_s", p.run_remaining_fixed_s},
           {"run_settles_remaining", p.run_settles_remaining},
           {"run_eta_s", opt(p.run_eta_s)},
+          {"run_eta_p10_s", opt(p.run_eta_p10_s)},
+          {"run_eta_p90_s", opt(p.run_eta_p90_s)},
+          {"settle", settle_json(p.settle)},
           {"queue_fixed_s", p.queue_fixed_s},
           {"queue_settles", p.queue_settles}};
 }
@@ -179,6 +189,9 @@ Progress to_progress(const schedules::RunProgress& p) {
   out.run_remaining_fixed_s = p.run_remaining_fixed_s;
   out.run_settles_remaining = p.run_settles_remaining;
   out.run_eta_s = p.run_eta_s;
+  out.run_eta_p10_s = p.run_eta_p10_s;
+  out.run_eta_p90_s = p.run_eta_p90_s;
+  out.settle = p.settle;
   out.queue_fixed_s = p.queue_fixed_s;
   out.queue_settles = p.queue_settles;
   return out;

@@ -67,6 +67,20 @@ std::string format_duration(double s);
 // "5 h 20 min (+ 4 settles of unknown length)"; without settles just the time.
 std::string format_planned(const PlannedDuration& d);
 
+// What the station predicts of the current soak's settle (the daemon's
+// settle watch over analysis::predict_settle): station seconds from now until
+// the stability gate holds, P10/P50/P90. A P90 (or P50) beyond the
+// predictor's horizon is nullopt; no quantile at all unless the verdict is
+// "predicted".
+struct SettleForecast {
+  std::string verdict;  // predicted, holds_now, not_enough_curvature, never_within_tolerance
+  std::string note;     // one line: how, or why not
+  std::optional<double> p10_s, p50_s, p90_s;
+  // Station s since the last reading the forecast used (forecasts are made
+  // every minute of station time, on a thread of their own).
+  double age_s = 0;
+};
+
 // Where a run and the queue are; the fields of station::Progress (see
 // gyrotherm/station/status.h and docs/api.md, "Progress").
 struct RunProgress {
@@ -79,17 +93,25 @@ struct RunProgress {
   std::optional<double> gate_held_s;
   std::optional<double> gate_needed_s;
   double run_remaining_fixed_s = 0;
-  int run_settles_remaining = 0;    // the current settle included
-  std::optional<double> run_eta_s;  // only when no settle remains
+  int run_settles_remaining = 0;  // the current settle included
+  // Only when no settle remains, or the one left is the current soak's and
+  // its forecast has a P50: then P50 plus the fixed time, and the band from
+  // its P10 and P90 (run_eta_p90_s nullopt when the P90 is beyond the horizon).
+  std::optional<double> run_eta_s;
+  std::optional<double> run_eta_p10_s;
+  std::optional<double> run_eta_p90_s;
+  std::optional<SettleForecast> settle;  // while a soak settles and a forecast was given
   double queue_fixed_s = 0;
   int queue_settles = 0;
 };
 
 // The progress of the run the sequencer's `snapshot` describes (taken at
-// snapshot.t_s), with `gate` its gate_progress() at that time and `queue`
-// the planned duration of the queued entries.
+// snapshot.t_s), with `gate` its gate_progress() at that time, `queue`
+// the planned duration of the queued entries and `settle` the forecast of the
+// current soak's settle (used only while a soak settles).
 RunProgress run_progress(const Plan& plan, const SequencerSnapshot& snapshot,
-                         const std::optional<GateProgress>& gate, const PlannedDuration& queue);
+                         const std::optional<GateProgress>& gate, const PlannedDuration& queue,
+                         const std::optional<SettleForecast>& settle = std::nullopt);
 
 // The queued entries' planned durations, each entry's schedule text parsed
 // once (cached by entry id). An entry whose text does not parse (station

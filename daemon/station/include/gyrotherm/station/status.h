@@ -54,8 +54,15 @@ struct Progress {
   std::optional<double> gate_needed_s;
   double run_remaining_fixed_s = 0;  // the run's remaining fixed-length time, station s
   int run_settles_remaining = 0;     // settles ahead whose length is unknown
-  std::optional<double> run_eta_s;   // station s to the run's end; nullopt when a settle remains
-  double queue_fixed_s = 0;          // fixed-length time of the queued entries, station s
+  // Station s to the run's end: nullopt while a settle of unknown length
+  // remains; when the only one left is the current soak's and it is
+  // forecast, its P50 plus the fixed time, with the P10/P90 band.
+  std::optional<double> run_eta_s;
+  std::optional<double> run_eta_p10_s;
+  std::optional<double> run_eta_p90_s;
+  // While a soak settles: the forecast of its gate (schedules::SettleForecast).
+  std::optional<schedules::SettleForecast> settle;
+  double queue_fixed_s = 0;  // fixed-length time of the queued entries, station s
   int queue_settles = 0;
 };
 
