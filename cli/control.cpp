@@ -610,8 +610,11 @@ std::string format_progress(const json& p) {
     std::string band;
     if (const auto lo = number(field(p, "run_eta_p10_s"))) {
       const auto hi = number(field(p, "run_eta_p90_s"));
-      band = fmt::format(" (P10 {} – P90 {})", schedules::format_duration(*lo),
-                         hi ? schedules::format_duration(*hi) : "beyond 48 h");
+      std::string from;
+      const int past = static_cast<int>(number(field(p, "prior_settles")).value_or(0));
+      if (past > 0) from = fmt::format("; settles from the chamber's last {}", past);
+      band = fmt::format(" (P10 {} – P90 {}{})", schedules::format_duration(*lo),
+                         hi ? schedules::format_duration(*hi) : "beyond 48 h", from);
     }
     return fmt::format("{} · run ends in {}{}", step, schedules::format_duration(*eta), band);
   }
@@ -720,6 +723,13 @@ std::string format_status(const json& j) {
   if (const json& p = field(j, "progress");
       number(field(j, "queue_length")).value_or(0) > 0 && p.is_object()) {
     queue += ", ≥ " + fixed_and_settles(field(p, "queue_fixed_s"), field(p, "queue_settles"));
+    const auto eta = number(field(p, "queue_eta_s"));
+    const auto lo = number(field(p, "queue_eta_p10_s")), hi = number(field(p, "queue_eta_p90_s"));
+    if (eta && lo && hi && number(field(p, "queue_settles")).value_or(0) > 0) {
+      queue += fmt::format(", ~{} with the chamber's past settles (P10 {} – P90 {})",
+                           schedules::format_duration(*eta), schedules::format_duration(*lo),
+                           schedules::format_duration(*hi));
+    }
   }
   if (truthy(field(j, "queue_held"))) {
     const json& reason = field(j, "queue_hold_reason");

@@ -566,13 +566,18 @@
     }
     const etaBand = p.run_eta_p10_s != null
       ? ` (P10 ${fmtDuration(p.run_eta_p10_s)} – P90 ` +
-        `${p.run_eta_p90_s != null ? fmtDuration(p.run_eta_p90_s) : 'beyond 48 h'})`
+        `${p.run_eta_p90_s != null ? fmtDuration(p.run_eta_p90_s) : 'beyond 48 h'}` +
+        `${p.prior_settles > 0 ? `; settles from the chamber's last ${p.prior_settles}` : ''})`
       : '';
     setText('run-eta', !running ? 'no run'
       : p.run_eta_s != null ? `run ends in ${fmtDuration(p.run_eta_s)}${etaBand}`
         : `run ≥ ${fmtFixed(p.run_remaining_fixed_s, p.run_settles_remaining)}`);
+    const queuePrior = p.queue_settles > 0 && p.queue_eta_s != null
+      ? `, ~${fmtDuration(p.queue_eta_s)} with the chamber's past settles ` +
+        `(P10 ${fmtDuration(p.queue_eta_p10_s)} – P90 ${fmtDuration(p.queue_eta_p90_s)})`
+      : '';
     setText('queue-eta', queueLength > 0
-      ? `queue ≥ ${fmtFixed(p.queue_fixed_s, p.queue_settles)}` : 'queue empty');
+      ? `queue ≥ ${fmtFixed(p.queue_fixed_s, p.queue_settles)}${queuePrior}` : 'queue empty');
   }
 
   // One card per DUT: serial, model, live rate per axis, internal

@@ -103,12 +103,85 @@ std::string format_planned(const PlannedDuration& d) {
                      d.settles == 1 ? "" : "s");
 }
 
-RunProgress run_progress(const Plan& plan, const SequencerSnapshot& snap,
-                         const std::optional<GateProgress>& gate, const PlannedDuration& queue,
-                         const std::optional<SettleForecast>& settle) {
-  RunProgress p;
+std::optional<SettlePrior> settle_prior(std::vector<double> settles_s) {
+  std::erase_if(settles_s, [](double s) { return !std::isfinite(s) || s < 0; });
+  if (settles_s.size() < static_cast<std::size_t>(kMinPriorSettles)) return std::nullopt;
+  std::sort(settles_s.begin(), settles_s.end());
+  const auto quantile = [&](double q) {
+    const double pos = q * static_cast<double>(settles_s.size() - 1);
+    const auto lo = static_cast<std::size_t>(std::floor(pos));
+    const std::size_t hi = std::min(lo + 1, settles_s.size() - 1);
+    return settles_s[lo] + (pos - static_cast<double>(lo)) * (settles_s[hi] - settles_s[lo]);
+  };
+  return SettlePrior{static_cast<int>(settles_s.size()), quantile(0.1), quantile(0.5),
+                     quantile(0.9)};
+}
+
+namespace {
+
+// The settles' part of an ETA, station s: P10, P50 and P90 (nullopt: beyond
+// the forecast's horizon).
+struct SettleBand {
+  double p10_s = 0, p50_s = 0;
+  std::optional<double> p90_s = 0.0;
+
+  void add(double p10, double p50, std::optional<double> p90) {
+    p10_s += p10;
+    p50_s += p50;
+    p90_s = p90_s && p90 ? std::optional<double>(*p90_s + *p90) : std::nullopt;
+  }
+};
+
+void set_queue_eta(RunProgress& p, const PlannedDuration& queue,
+                   const std::optional<SettlePrior>& prior) {
   p.queue_fixed_s = queue.fixed_s;
   p.queue_settles = queue.settles;
+  if (queue.settles == 0) {
+    p.queue_eta_s = p.queue_eta_p10_s = p.queue_eta_p90_s = queue.fixed_s;
+  } else if (prior) {
+    p.queue_eta_s = queue.fixed_s + queue.settles * prior->p50_s;
+    p.queue_eta_p10_s = queue.fixed_s + queue.settles * prior->p10_s;
+    p.queue_eta_p90_s = queue.fixed_s + queue.settles * prior->p90_s;
+  }
+}
+
+// The run's ETA from its fixed time, the current settle's part (`current`:
+// nullopt when unknown; none when no soak settles) and `later` settles
+// from the prior.
+void set_run_eta(RunProgress& p, bool settling, const std::optional<SettleBand>& current,
+                 bool current_forecast, int later, const std::optional<SettlePrior>& prior) {
+  if (settling && !current) return;
+  if (later > 0 && !prior) return;
+  SettleBand band;
+  if (settling) band.add(current->p10_s, current->p50_s, current->p90_s);
+  if (later > 0) band.add(later * prior->p10_s, later * prior->p50_s, later * prior->p90_s);
+  const bool uses_prior = later > 0 || (settling && !current_forecast);
+  const double fixed = p.run_remaining_fixed_s;
+  p.run_eta_s = fixed + band.p50_s;
+  if (settling || later > 0) {
+    p.run_eta_p10_s = fixed + band.p10_s;
+    if (band.p90_s) p.run_eta_p90_s = fixed + *band.p90_s;
+  }
+  p.run_eta_basis = !settling && later == 0        ? "fixed"
+                    : current_forecast && settling ? (uses_prior ? "forecast+prior" : "forecast")
+                                                   : "prior";
+  if (uses_prior) p.prior_settles = prior->settles;
+}
+
+}  // namespace
+
+RunProgress queue_progress(const PlannedDuration& queue, const std::optional<SettlePrior>& prior) {
+  RunProgress p;
+  set_queue_eta(p, queue, prior);
+  return p;
+}
+
+RunProgress run_progress(const Plan& plan, const SequencerSnapshot& snap,
+                         const std::optional<GateProgress>& gate, const PlannedDuration& queue,
+                         const std::optional<SettleForecast>& settle,
+                         const std::optional<SettlePrior>& prior) {
+  RunProgress p;
+  set_queue_eta(p, queue, prior);
   const std::size_t index = snap.step_index;
   if (snap.state == RunState::kQueued) {
     // Not started: the whole plan lies ahead (from where the set point is).
@@ -116,12 +189,13 @@ RunProgress run_progress(const Plan& plan, const SequencerSnapshot& snap,
     p.phase = "queued";
     p.run_remaining_fixed_s = all.fixed_s;
     p.run_settles_remaining = all.settles;
-    if (all.settles == 0) p.run_eta_s = all.fixed_s;
+    set_run_eta(p, false, std::nullopt, false, all.settles, prior);
     return p;
   }
   if (index >= plan.steps.size() || snap.state == RunState::kAborting || is_terminal(snap.state)) {
     p.phase = std::string(to_string(snap.state));
     p.run_eta_s = 0;
+    p.run_eta_basis = "fixed";
     return p;
   }
 
@@ -194,16 +268,25 @@ RunProgress run_progress(const Plan& plan, const SequencerSnapshot& snap,
   const PlannedDuration after = planned_duration_after(plan, index);
   p.run_remaining_fixed_s = step_left_s + after.fixed_s;
   p.run_settles_remaining = after.settles + (settling ? 1 : 0);
-  if (p.run_settles_remaining == 0) p.run_eta_s = p.run_remaining_fixed_s;
-  if (settling && settle) {
-    p.settle = settle;
-    // The current settle is the last one left: its forecast completes the ETA.
-    if (p.run_settles_remaining == 1 && settle->p50_s) {
-      p.run_eta_s = *settle->p50_s + p.run_remaining_fixed_s;
-      if (settle->p10_s) p.run_eta_p10_s = *settle->p10_s + p.run_remaining_fixed_s;
-      if (settle->p90_s) p.run_eta_p90_s = *settle->p90_s + p.run_remaining_fixed_s;
+  // The current settle: its forecast when it has a P50; the prior less what
+  // it has settled when there is no forecast yet or it sees too little
+  // curvature; unknown otherwise (a shell heading outside the tolerance,
+  // a P50 beyond the horizon).
+  std::optional<SettleBand> current;
+  bool current_forecast = false;
+  if (settling) {
+    if (settle) p.settle = settle;
+    if (settle && settle->p50_s) {
+      current = SettleBand{settle->p10_s.value_or(*settle->p50_s), *settle->p50_s, settle->p90_s};
+      current_forecast = true;
+    } else if (prior && (!settle || settle->verdict == "not_enough_curvature")) {
+      const double done_s = snap.step_active_s;
+      current =
+          SettleBand{std::max(0.0, prior->p10_s - done_s), std::max(0.0, prior->p50_s - done_s),
+                     std::max(0.0, prior->p90_s - done_s)};
     }
   }
+  set_run_eta(p, settling, current, current_forecast, after.settles, prior);
   return p;
 }
 

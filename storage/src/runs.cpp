@@ -431,4 +431,17 @@ Result<std::vector<SegmentRecord>> RunStore::segments(int64_t run_id) {
   return out;
 }
 
+Result<std::vector<double>> RunStore::recent_settles_s(int limit) {
+  auto st = Stmt::prepare(db(), path(),
+                          "SELECT t_settled_s - t_start_s FROM segments WHERE kind = 'soak' AND "
+                          "t_settled_s IS NOT NULL AND paused_s = 0 ORDER BY id DESC LIMIT ?");
+  if (!st) return st.error();
+  st->bind(1, static_cast<int64_t>(limit));
+  std::vector<double> out;
+  int rc;
+  while ((rc = st->step()) == SQLITE_ROW) out.push_back(st->column_double(0));
+  if (rc != SQLITE_DONE) return sqlite_error(db(), path(), "reading the soaks' settle times");
+  return out;
+}
+
 }  // namespace gyrotherm::storage

@@ -93,16 +93,18 @@ function duts(thirdRateDph) {
 const SETTLING = {
   phase: 'settling', step_elapsed_s: 420, step_planned_s: 6000, step_fraction: null,
   gate_held_s: 240, gate_needed_s: 600, run_remaining_fixed_s: 7800, run_settles_remaining: 2,
-  run_eta_s: null, run_eta_p10_s: null, run_eta_p90_s: null, queue_fixed_s: 43200,
-  queue_settles: 8,
+  run_eta_s: null, run_eta_p10_s: null, run_eta_p90_s: null, run_eta_basis: null,
+  prior_settles: 0, queue_fixed_s: 43200, queue_settles: 8,
+  queue_eta_s: null, queue_eta_p10_s: null, queue_eta_p90_s: null,
   settle: { verdict: 'predicted', note: 'first-order fit', p10_s: 1200, p50_s: 1800, p90_s: 3000,
     age_s: 20 },
 };
 const ACQUIRING = {
   phase: 'acquiring', step_elapsed_s: 2550, step_planned_s: 6000, step_fraction: 0.425,
   gate_held_s: null, gate_needed_s: null, run_remaining_fixed_s: 3000, run_settles_remaining: 0,
-  run_eta_s: 3000, run_eta_p10_s: null, run_eta_p90_s: null, queue_fixed_s: 43200,
-  queue_settles: 8, settle: null,
+  run_eta_s: 3000, run_eta_p10_s: null, run_eta_p90_s: null, run_eta_basis: 'fixed',
+  prior_settles: 0, queue_fixed_s: 43200, queue_settles: 8, settle: null,
+  queue_eta_s: 50400, queue_eta_p10_s: 46800, queue_eta_p90_s: 57600,
 };
 
 // A station snapshot as GET /api/v1/status gives it (docs/api.md), run 5.
@@ -380,7 +382,9 @@ try {
   if (!seen.ok) failures.push(`3: the stream's status did not show: ${JSON.stringify(seen.last)}`);
   expectFields(failures, '3 (progress, acquiring)', seen.last, {
     stepText: 'step 42% · 42 min 30 s of 1 h 40 min', gateHidden: true,
-    runEta: 'run ends in 50 min', queueEta: 'queue ≥ 12 h + 8 settles' });
+    runEta: 'run ends in 50 min',
+    queueEta: 'queue ≥ 12 h + 8 settles, ~14 h with the chamber\'s past settles ' +
+      '(P10 13 h – P90 16 h)' });
   closing = true;
   if (failures.length === 0) {
     console.log(`dashboard DUTs ok: three cards, first DUT's primary axis highlighted, ` +

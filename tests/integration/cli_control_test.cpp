@@ -750,6 +750,19 @@ TEST(CliFormat, StatusSummary) {
   settling["progress"]["run_eta_p90_s"] = nullptr;
   EXPECT_THAT(cli::format_status(settling),
               HasSubstr("· run ends in 2 h 40 min (P10 2 h 30 min – P90 beyond 48 h)\n"));
+  // The chamber's prior completes it: the band says from how many settles;
+  // the queue's time too.
+  json prior = settling;
+  prior["progress"]["run_eta_p90_s"] = 11000.0;
+  prior["progress"]["prior_settles"] = 12;
+  prior["progress"]["queue_eta_s"] = 50400.0;
+  prior["progress"]["queue_eta_p10_s"] = 46800.0;
+  prior["progress"]["queue_eta_p90_s"] = 57600.0;
+  const std::string with_prior = cli::format_status(prior);
+  EXPECT_THAT(with_prior, HasSubstr("· run ends in 2 h 40 min (P10 2 h 30 min – P90 3 h 3 min; "
+                                    "settles from the chamber's last 12)\n"));
+  EXPECT_THAT(with_prior, HasSubstr("queue       2 waiting, ≥ 12 h + 8 settles, ~14 h with the "
+                                    "chamber's past settles (P10 13 h – P90 16 h)"));
   settling["progress"]["settle"] = {{"verdict", "not_enough_curvature"},
                                     {"note", "3 bins"},
                                     {"p10_s", nullptr},

@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <string>
 
 #include "station_limits.h"
@@ -242,6 +243,74 @@ TEST(RunProgress, TheCurrentSettlesForecastCompletesTheEtaWhenItIsTheLastSettle)
   EXPECT_FALSE(e.settle);
   EXPECT_DOUBLE_EQ(*e.run_eta_s, 1700);
   EXPECT_FALSE(e.run_eta_p10_s);
+}
+
+// The chamber's prior: numpy.percentile's default (linear) of the past
+// settles, the unusable ones dropped, none under three.
+TEST(SettlePrior, QuantilesOfThePastSettles) {
+  const auto prior = settle_prior({1000, 300, 100, 400, 200, std::nan(""), -5});
+  ASSERT_TRUE(prior);
+  EXPECT_EQ(prior->settles, 5);
+  EXPECT_DOUBLE_EQ(prior->p10_s, 140);  // 100 + 0.4 (200 - 100)
+  EXPECT_DOUBLE_EQ(prior->p50_s, 300);
+  EXPECT_DOUBLE_EQ(prior->p90_s, 760);  // 400 + 0.6 (1000 - 400)
+  EXPECT_FALSE(settle_prior({100, 200}));
+  EXPECT_FALSE(settle_prior({100, 200, std::nan("")}));
+  const auto one_value = settle_prior({50, 50, 50});
+  ASSERT_TRUE(one_value);
+  EXPECT_DOUBLE_EQ(one_value->p10_s, 50);
+  EXPECT_DOUBLE_EQ(one_value->p90_s, 50);
+}
+
+// The prior (P10 140, P50 300, P90 760 s from 5 settles) fills in the
+// settles not forecast. Soak 40 °C settling with its forecast (600/900/1500
+// s): 1800 s of its acquisition + 5700 s after (hold 1200, ramp 1800, soak
+// 2700) and one later settle: 7500 + 900 + 300 = 8700 s (P10 7500 + 600 +
+// 140, P90 7500 + 1500 + 760). Without a forecast, 200 s settled: the prior
+// less 200 s (0, 100, 560). A forecast that says the shell settles outside
+// the tolerance gives no ETA. Queued (from 23 °C): 13500 s + 3 settles. The
+// queue: 3600 s + 2 settles.
+TEST(RunProgress, TheChambersPriorCompletesTheEtaForSettlesNotForecast) {
+  const Plan plan = parse_plan(kCampaign);
+  const SettlePrior prior{5, 140, 300, 760};
+  const SettleForecast forecast{"predicted", "fitted", 600.0, 900.0, 1500.0};
+  SequencerSnapshot soak = at_step(2, RunState::kSettling, 6000);
+  soak.step_active_s = 200;
+  const RunProgress a = run_progress(plan, soak, std::nullopt, {}, forecast, prior);
+  EXPECT_DOUBLE_EQ(a.run_remaining_fixed_s, 7500);
+  ASSERT_TRUE(a.run_eta_s && a.run_eta_p10_s && a.run_eta_p90_s);
+  EXPECT_DOUBLE_EQ(*a.run_eta_s, 8700);
+  EXPECT_DOUBLE_EQ(*a.run_eta_p10_s, 8240);
+  EXPECT_DOUBLE_EQ(*a.run_eta_p90_s, 9760);
+  EXPECT_EQ(a.run_eta_basis, "forecast+prior");
+  EXPECT_EQ(a.prior_settles, 5);
+
+  const RunProgress b = run_progress(plan, soak, std::nullopt, {}, std::nullopt, prior);
+  EXPECT_DOUBLE_EQ(*b.run_eta_s, 7500 + 100 + 300);
+  EXPECT_DOUBLE_EQ(*b.run_eta_p10_s, 7500 + 0 + 140);
+  EXPECT_DOUBLE_EQ(*b.run_eta_p90_s, 7500 + 560 + 760);
+  EXPECT_EQ(b.run_eta_basis, "prior");
+
+  const SettleForecast outside{"never_within_tolerance", "final 41.2 °C", {}, {}, {}};
+  const RunProgress c = run_progress(plan, soak, std::nullopt, {}, outside, prior);
+  EXPECT_FALSE(c.run_eta_s);
+  EXPECT_EQ(c.run_eta_basis, "");
+  EXPECT_EQ(c.prior_settles, 0);
+
+  SequencerSnapshot queued = at_step(0, RunState::kQueued, 0);
+  queued.setpoint_c = 23;
+  const RunProgress d = run_progress(plan, queued, std::nullopt, {3600, 2}, std::nullopt, prior);
+  EXPECT_DOUBLE_EQ(*d.run_eta_s, 13500 + 3 * 300);
+  EXPECT_DOUBLE_EQ(*d.run_eta_p10_s, 13500 + 3 * 140);
+  EXPECT_DOUBLE_EQ(*d.run_eta_p90_s, 13500 + 3 * 760);
+  EXPECT_EQ(d.run_eta_basis, "prior");
+  EXPECT_DOUBLE_EQ(*d.queue_eta_s, 3600 + 2 * 300);
+  EXPECT_DOUBLE_EQ(*d.queue_eta_p10_s, 3600 + 2 * 140);
+  EXPECT_DOUBLE_EQ(*d.queue_eta_p90_s, 3600 + 2 * 760);
+
+  EXPECT_FALSE(queue_progress({3600, 2}, std::nullopt).queue_eta_s);
+  EXPECT_DOUBLE_EQ(*queue_progress({3600, 0}, std::nullopt).queue_eta_s, 3600);
+  EXPECT_FALSE(run_progress(plan, queued, std::nullopt, {}).run_eta_s);
 }
 
 // Rate point -10 °/s after +10 °/s: spin-up 0.2 s + dwell 36 s. Dwelling

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <sqlite3.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <future>
@@ -12,6 +13,7 @@
 #include <optional>
 #include <set>
 #include <thread>
+#include <vector>
 
 #include "gyrotherm/storage/database.h"
 #include "station/station_rig.h"
@@ -970,6 +972,63 @@ acquire_min = 5
       << *mid->settle->p50_s << " P90 " << *mid->settle->p90_s << " s from then";
   EXPECT_FALSE(rig.station->status().progress.settle);
   EXPECT_TRUE(rig.station->status().progress.run_eta_s);
+}
+
+// The chamber's prior (docs/schedules.md, "Planned duration and
+// progress"): the first run, ramping with a soak still to settle, has no
+// ETA; by the third, the soaks of the first two (and its own first) have
+// settled, and the ramp's ETA is the fixed time plus the median of those
+// settles (P10/P90 from theirs); the run ends inside that band. While run 1
+// runs, the two queued entries have no time either; later they do.
+TEST_F(StationUnitTest, PastSettlesGiveTheEtaOfSoaksNotYetForecast) {
+  StationRig rig(dir_);
+  rig.open();
+  for (int i = 0; i < 3; ++i) rig.queue(kSoakRampSoak);
+  const auto ramping_in = [&](int64_t run_id) {
+    std::optional<station::Progress> p;
+    EXPECT_TRUE(rig.step_until(
+        [&] {
+          const auto s = rig.station->status();
+          if (s.run_id == run_id && s.progress.phase == "ramping") p = s.progress;
+          return p.has_value();
+        },
+        4 * 3600))
+        << "run " << run_id << " never ramped";
+    return p;
+  };
+  const auto first = ramping_in(1);
+  ASSERT_TRUE(first);
+  EXPECT_FALSE(first->run_eta_s);
+  EXPECT_EQ(first->run_eta_basis, "");
+  EXPECT_FALSE(first->queue_eta_s);
+
+  const auto third = ramping_in(3);
+  ASSERT_TRUE(third);
+  const double ramp_s = rig.station->status().t_run_s;
+  std::vector<double> settles_s;
+  for (int64_t run_id = 1; run_id <= 3; ++run_id) {
+    const nlohmann::json run = rig.reply(rig.station->run(run_id));
+    for (const auto& seg : run.at("segments")) {
+      if (seg.at("kind") == "soak" && seg.at("t_settled_s").is_number()) {
+        settles_s.push_back(seg.at("t_settled_s").get<double>() -
+                            seg.at("t_start_s").get<double>());
+      }
+    }
+  }
+  ASSERT_EQ(settles_s.size(), 5u);
+  std::sort(settles_s.begin(), settles_s.end());
+  EXPECT_EQ(third->run_eta_basis, "prior");
+  EXPECT_EQ(third->prior_settles, 5);
+  ASSERT_TRUE(third->run_eta_s && third->run_eta_p10_s && third->run_eta_p90_s);
+  EXPECT_NEAR(*third->run_eta_s, third->run_remaining_fixed_s + settles_s[2], 1e-9);
+  EXPECT_LE(*third->run_eta_p10_s, *third->run_eta_s);
+  EXPECT_GE(*third->run_eta_p90_s, *third->run_eta_s);
+
+  ASSERT_TRUE(rig.step_until([&] { return !rig.station->status().run_id; }, 3600));
+  const auto run = rig.reply(rig.station->run(3));
+  const double ended_s = run.at("segments").back().at("t_end_s").get<double>();
+  EXPECT_GE(ended_s - ramp_s, *third->run_eta_p10_s - 2) << "ETA " << *third->run_eta_s;
+  EXPECT_LE(ended_s - ramp_s, *third->run_eta_p90_s + 2) << "ETA " << *third->run_eta_s;
 }
 
 }  // namespace

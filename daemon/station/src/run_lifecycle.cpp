@@ -193,16 +193,18 @@ Progress RunLifecycle::progress(double t_run_s) {
       queue_planned_ = queue_durations_.update(waiting, config::station_limits(links_.config),
                                                links_.config.station.safe_setpoint_c);
     }
+    // The chamber's prior, read with the queue: a settle ends a soak's
+    // settling, not often.
+    if (auto settles = links_.db.recent_settles_s(schedules::kMaxPriorSettles)) {
+      settle_prior_ = schedules::settle_prior(std::move(*settles));
+    } else {
+      spdlog::error("{}", settles.error().message);
+    }
   }
-  if (!sequencer_) {
-    schedules::RunProgress idle;
-    idle.queue_fixed_s = queue_planned_.fixed_s;
-    idle.queue_settles = queue_planned_.settles;
-    return to_progress(idle);
-  }
+  if (!sequencer_) return to_progress(schedules::queue_progress(queue_planned_, settle_prior_));
   return to_progress(schedules::run_progress(sequencer_->plan(), sequencer_->snapshot(t_run_s),
                                              sequencer_->gate_progress(t_run_s), queue_planned_,
-                                             settle_watch_.forecast(t_run_s)));
+                                             settle_watch_.forecast(t_run_s), settle_prior_));
 }
 
 // ---------------------------------------------------------------- the table

@@ -185,6 +185,8 @@ class RunLifecycle final : private schedules::SequencerObserver {
   schedules::PlannedDuration queue_planned_;
   int queue_scanned_length_ = -1;
   double queue_scan_due_wall_s_ = 0;
+  // The station's past settles, read with the queue (schedules::settle_prior).
+  std::optional<schedules::SettlePrior> settle_prior_;
   // The forecast of the current soak's settle, for the progress.
   SettleWatch settle_watch_;
 };

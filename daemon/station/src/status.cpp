@@ -62,9 +62,15 @@ nlohmann::json to_json(const Progress& p) {
           {"run_eta_s", opt(p.run_eta_s)},
           {"run_eta_p10_s", opt(p.run_eta_p10_s)},
           {"run_eta_p90_s", opt(p.run_eta_p90_s)},
+          {"run_eta_basis",
+           p.run_eta_basis.empty() ? nlohmann::json(nullptr) : nlohmann::json(p.run_eta_basis)},
+          {"prior_settles", p.prior_settles},
           {"settle", settle_json(p.settle)},
           {"queue_fixed_s", p.queue_fixed_s},
-          {"queue_settles", p.queue_settles}};
+          {"queue_settles", p.queue_settles},
+          {"queue_eta_s", opt(p.queue_eta_s)},
+          {"queue_eta_p10_s", opt(p.queue_eta_p10_s)},
+          {"queue_eta_p90_s", opt(p.queue_eta_p90_s)}};
 }
 
 // null when the station has no table.
@@ -192,6 +198,11 @@ Progress to_progress(const schedules::RunProgress& p) {
   out.run_eta_p10_s = p.run_eta_p10_s;
   out.run_eta_p90_s = p.run_eta_p90_s;
   out.settle = p.settle;
+  out.run_eta_basis = p.run_eta_basis;
+  out.prior_settles = p.prior_settles;
+  out.queue_eta_s = p.queue_eta_s;
+  out.queue_eta_p10_s = p.queue_eta_p10_s;
+  out.queue_eta_p90_s = p.queue_eta_p90_s;
   out.queue_fixed_s = p.queue_fixed_s;
   out.queue_settles = p.queue_settles;
   return out;

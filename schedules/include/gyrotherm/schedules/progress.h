@@ -81,6 +81,20 @@ struct SettleForecast {
   double age_s = 0;
 };
 
+// What the chamber's past soaks say a settle takes: P10/P50/P90 of the
+// station's last settles (station s each), the prior of every soak not yet
+// forecast. The same chamber, fixture and gate repeat, so its settles do.
+struct SettlePrior {
+  int settles = 0;  // how many past settles it comes from
+  double p10_s = 0, p50_s = 0, p90_s = 0;
+};
+inline constexpr int kMinPriorSettles = 3;
+inline constexpr int kMaxPriorSettles = 50;  // the newest this many
+// Empirical quantiles (linear between order statistics, as numpy's default
+// percentile) of the finite, non-negative durations; nullopt with fewer than
+// kMinPriorSettles of them.
+std::optional<SettlePrior> settle_prior(std::vector<double> settles_s);
+
 // Where a run and the queue are; the fields of station::Progress (see
 // gyrotherm/station/status.h and docs/api.md, "Progress").
 struct RunProgress {
@@ -94,24 +108,40 @@ struct RunProgress {
   std::optional<double> gate_needed_s;
   double run_remaining_fixed_s = 0;
   int run_settles_remaining = 0;  // the current settle included
-  // Only when no settle remains, or the one left is the current soak's and
-  // its forecast has a P50: then P50 plus the fixed time, and the band from
-  // its P10 and P90 (run_eta_p90_s nullopt when the P90 is beyond the horizon).
+  // When every settle left is known: none left ("fixed"), the current
+  // soak's forecast ("forecast"), the chamber's prior for the soaks not
+  // forecast ("prior", "forecast+prior"). The fixed time plus each settle's
+  // P50, and the band from their P10s and P90s: the prior is one chamber's,
+  // so its settles are taken to run long or short together (the band is not
+  // narrowed as for independent ones). A settling soak without a forecast
+  // takes the prior less what it has settled. run_eta_p90_s is nullopt when
+  // the forecast's P90 is beyond its horizon.
   std::optional<double> run_eta_s;
   std::optional<double> run_eta_p10_s;
   std::optional<double> run_eta_p90_s;
+  std::string run_eta_basis;  // fixed, forecast, prior, forecast+prior; "" without an ETA
+  int prior_settles = 0;      // past settles behind the prior (0 without one)
   std::optional<SettleForecast> settle;  // while a soak settles and a forecast was given
   double queue_fixed_s = 0;
   int queue_settles = 0;
+  // The queued entries' time with their settles from the prior (fixed only
+  // when they have none); nullopt when they have settles and there is no
+  // prior.
+  std::optional<double> queue_eta_s, queue_eta_p10_s, queue_eta_p90_s;
 };
 
 // The progress of the run the sequencer's `snapshot` describes (taken at
 // snapshot.t_s), with `gate` its gate_progress() at that time, `queue`
-// the planned duration of the queued entries and `settle` the forecast of the
-// current soak's settle (used only while a soak settles).
+// the planned duration of the queued entries, `settle` the forecast of the
+// current soak's settle (used only while a soak settles) and `prior` the
+// chamber's settles.
 RunProgress run_progress(const Plan& plan, const SequencerSnapshot& snapshot,
                          const std::optional<GateProgress>& gate, const PlannedDuration& queue,
-                         const std::optional<SettleForecast>& settle = std::nullopt);
+                         const std::optional<SettleForecast>& settle = std::nullopt,
+                         const std::optional<SettlePrior>& prior = std::nullopt);
+// The queue's part alone (no run): its fixed time and settles, with the
+// ETA from the prior.
+RunProgress queue_progress(const PlannedDuration& queue, const std::optional<SettlePrior>& prior);
 
 // The queued entries' planned durations, each entry's schedule text parsed
 // once (cached by entry id). An entry whose text does not parse (station

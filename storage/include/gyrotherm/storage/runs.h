@@ -129,6 +129,11 @@ class RunStore {
   Result<int64_t> create_segment(const SegmentRecord& segment);  // id ignored
   Status update_segment(const SegmentRecord& segment);           // by id
   Result<std::vector<SegmentRecord>> segments(int64_t run_id);
+  // How long the station's last soaks took to settle (t_settled_s −
+  // t_start_s, station s), newest first, at most `limit`: every run's soaks
+  // that settled without a pause or a suspension (held time cannot be told
+  // apart from settling in the record).
+  Result<std::vector<double>> recent_settles_s(int limit);
 
  private:
   friend class Database;

@@ -54,16 +54,20 @@ struct Progress {
   std::optional<double> gate_needed_s;
   double run_remaining_fixed_s = 0;  // the run's remaining fixed-length time, station s
   int run_settles_remaining = 0;     // settles ahead whose length is unknown
-  // Station s to the run's end: nullopt while a settle of unknown length
-  // remains; when the only one left is the current soak's and it is
-  // forecast, its P50 plus the fixed time, with the P10/P90 band.
+  // Station s to the run's end, with its band (schedules::RunProgress):
+  // nullopt while a settle remains that neither the current soak's forecast
+  // nor the chamber's past settles (the prior) can say.
   std::optional<double> run_eta_s;
   std::optional<double> run_eta_p10_s;
   std::optional<double> run_eta_p90_s;
+  std::string run_eta_basis;  // fixed, forecast, prior, forecast+prior; "" without an ETA
+  int prior_settles = 0;      // past settles behind the prior
   // While a soak settles: the forecast of its gate (schedules::SettleForecast).
   std::optional<schedules::SettleForecast> settle;
   double queue_fixed_s = 0;  // fixed-length time of the queued entries, station s
   int queue_settles = 0;
+  // Their time with the settles from the prior; nullopt without one.
+  std::optional<double> queue_eta_s, queue_eta_p10_s, queue_eta_p90_s;
 };
 
 struct StatusSnapshot {
