@@ -568,7 +568,9 @@ std::string fixed_and_settles(const json& fixed_s, const json& settles) {
 }
 
 // A settling soak's forecast: ", gate in 42 min (P10 30 min – P90 1 h 5 min)",
-// ", gate holds now", ", gate forecast: not enough curvature yet"; "" without one.
+// ", gate holds on the shell now", ", gate forecast: not enough curvature
+// yet"; a fit whose final value is still so uncertain that most draws never
+// pass is said so; "" without a forecast.
 std::string format_settle(const json& f) {
   if (!f.is_object()) return "";
   const std::string verdict = text(field(f, "verdict"));
@@ -577,7 +579,8 @@ std::string format_settle(const json& f) {
   if (verdict == "predicted" && p10) {
     const std::string hi = p90 ? schedules::format_duration(*p90) : "beyond 48 h";
     if (!p50) {
-      return fmt::format(", gate likely beyond 48 h (P10 {})", schedules::format_duration(*p10));
+      return fmt::format(", gate forecast too uncertain yet (P10 {}, median beyond 48 h)",
+                         schedules::format_duration(*p10));
     }
     return fmt::format(", gate in {} (P10 {} – P90 {})", schedules::format_duration(*p50),
                        schedules::format_duration(*p10), hi);

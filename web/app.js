@@ -91,7 +91,7 @@
       const hi = f.p90_s != null ? fmtDuration(f.p90_s) : 'beyond 48 h';
       return f.p50_s != null
         ? `gate in ${fmtDuration(f.p50_s)} (P10 ${fmtDuration(f.p10_s)} – P90 ${hi})`
-        : `gate likely beyond 48 h (P10 ${fmtDuration(f.p10_s)})`;
+        : `gate forecast too uncertain yet (P10 ${fmtDuration(f.p10_s)}, median beyond 48 h)`;
     }
     if (f.verdict === 'holds_now') return 'gate holds on the shell now';
     if (f.verdict === 'not_enough_curvature') return 'gate forecast: not enough curvature yet';

@@ -750,6 +750,11 @@ TEST(CliFormat, StatusSummary) {
   settling["progress"]["run_eta_p90_s"] = nullptr;
   EXPECT_THAT(cli::format_status(settling),
               HasSubstr("· run ends in 2 h 40 min (P10 2 h 30 min – P90 beyond 48 h)\n"));
+  json unsure = settling;
+  unsure["progress"]["settle"]["p50_s"] = nullptr;
+  unsure["progress"]["settle"]["p90_s"] = nullptr;
+  EXPECT_THAT(cli::format_status(unsure),
+              HasSubstr(", gate forecast too uncertain yet (P10 20 min, median beyond 48 h) ·"));
   // The chamber's prior completes it: the band says from how many settles;
   // the queue's time too.
   json prior = settling;
