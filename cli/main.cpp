@@ -30,6 +30,7 @@
 #include "gyrotherm/schedules/progress.h"
 #include "gyrotherm/schedules/schedule.h"
 #include "gyrotherm/station/station_lock.h"
+#include "gyrotherm/storage/database.h"
 #include "lab.h"
 #include "output.h"
 #include "samples.h"
@@ -603,7 +604,7 @@ int cmd_table(const std::string& config_path, const std::string& action, double 
 }
 
 int cmd_schedule_check(const std::string& config_path, const std::string& schedule_path,
-                       bool json) {
+                       const std::string& db_path, bool json) {
   // Without a station config: the default limits (no rate table) and a run
   // starting from the default safe set point.
   schedules::StationLimits limits;
@@ -635,7 +636,29 @@ int cmd_schedule_check(const std::string& config_path, const std::string& schedu
   // A queued run starts where the previous one left the chamber: the safe
   // set point (docs/schedules.md, "Planned duration and progress").
   const schedules::PlannedDuration planned = schedules::planned_duration(*plan, start_setpoint_c);
+  // --db: the station's own past settles stand for this schedule's
+  // (schedules::settle_prior, as the daemon's ETA takes them).
+  std::optional<schedules::SettlePrior> prior;
+  std::size_t past_settles = 0;
+  if (!db_path.empty()) {
+    auto db = storage::Database::open_read_only(db_path);
+    if (!db) return fail(db.error().message, 2);
+    auto settles = db->recent_settles_s(schedules::kMaxPriorSettles);
+    if (!settles) return fail(settles.error().message, 2);
+    past_settles = settles->size();
+    prior = schedules::settle_prior(std::move(*settles));
+  }
+  const auto with_prior = [&](double settle_s) {
+    return planned.fixed_s + planned.settles * settle_s;
+  };
   if (json) {
+    nlohmann::json estimate = nullptr;
+    if (prior && planned.settles > 0) {
+      estimate = {{"prior_settles", prior->settles},
+                  {"eta_s", with_prior(prior->p50_s)},
+                  {"eta_p10_s", with_prior(prior->p10_s)},
+                  {"eta_p90_s", with_prior(prior->p90_s)}};
+    }
     nlohmann::json steps = nlohmann::json::array();
     for (const auto& s : plan->steps) steps.push_back(s.label);
     std::cout << nlohmann::json({{"ok", true},
@@ -645,7 +668,8 @@ int cmd_schedule_check(const std::string& config_path, const std::string& schedu
                                   {{"fixed_s", planned.fixed_s},
                                    {"settles", planned.settles},
                                    {"start_setpoint_c", start_setpoint_c},
-                                   {"text", schedules::format_planned(planned)}}}})
+                                   {"text", schedules::format_planned(planned)},
+                                   {"with_past_settles", estimate}}}})
                      .dump(2)
               << "\n";
     return 0;
@@ -654,6 +678,18 @@ int cmd_schedule_check(const std::string& config_path, const std::string& schedu
                            plan->steps.size() == 1 ? "" : "s");
   for (const auto& s : plan->steps) std::cout << "  " << s.label << "\n";
   std::cout << fmt::format("planned duration: {}\n", schedules::format_planned(planned));
+  if (!db_path.empty() && planned.settles > 0) {
+    if (prior) {
+      std::cout << fmt::format("with the station's last {} settles: ~{} (P10 {} – P90 {})\n",
+                               prior->settles, schedules::format_duration(with_prior(prior->p50_s)),
+                               schedules::format_duration(with_prior(prior->p10_s)),
+                               schedules::format_duration(with_prior(prior->p90_s)));
+    } else {
+      std::cout << fmt::format(
+          "the database holds {} settle{} without a pause; {} are needed to estimate them\n",
+          past_settles, past_settles == 1 ? "" : "s", schedules::kMinPriorSettles);
+    }
+  }
   return 0;
 }
 
@@ -716,6 +752,9 @@ int main(int argc, char** argv) {
   check->add_option("file", schedule_path, "schedule file")->required();
   check->add_option("--config", config_path,
                     "station config (limits, table, safe set point); default limits without");
+  std::string check_db_path;
+  check->add_option("--db", check_db_path,
+                    "station database: estimate the settles from its past soaks");
   check->add_flag("--json", json);
 
   auto* samples = app.add_subcommand("samples", "a run's exact samples as CSV (docs/storage.md)");
@@ -754,7 +793,7 @@ int main(int argc, char** argv) {
     if (*decode) return cmd_decode(protocol, capture, decode_config, decode_dut, json);
     if (*devices) return cmd_devices(config_path, json);
     if (*set_point) return cmd_chamber_setpoint(config_path, setpoint_c);
-    if (*check) return cmd_schedule_check(config_path, schedule_path, json);
+    if (*check) return cmd_schedule_check(config_path, schedule_path, check_db_path, json);
     if (*samples) {
       if (*samples_from) samples_args.from_s = samples_from_s;
       if (*samples_to) samples_args.to_s = samples_to_s;

@@ -8,7 +8,9 @@
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <sstream>
+#include <vector>
 
 #include "gyrotherm/drivers/kvh1750.h"
 #include "gyrotherm/storage/database.h"
@@ -301,6 +303,65 @@ TEST_F(CliTest, ScheduleCheckCapsTheErrorReport) {
 
 // A name with control characters is refused with its line; nothing from
 // the file reaches the terminal raw.
+// --db: the station's past settles (600, 900, 1200, 1500 s; a paused soak
+// and one that never settled are left out) stand for the 32 soaks of the
+// paper's campaign: numpy.percentile gives 690, 1050, 1410 s, so 4048 min
+// of fixed time + 32 of them: 276 480 s (264 960 – 288 000). Two settles
+// are too few, and it says so.
+TEST_F(CliTest, ScheduleCheckEstimatesTheSettlesFromTheStationsPastSoaks) {
+  const auto make_db = [&](const std::string& name, const std::vector<double>& settles_s) {
+    const std::string path = (dir_ / name).string();
+    auto db = storage::Database::open(path);
+    EXPECT_TRUE(db.ok()) << db.error().message;
+    storage::RunRecord run;
+    run.schedule_name = "past";
+    run.state = "completed";
+    auto run_id = db->create_run(run);
+    EXPECT_TRUE(run_id.ok());
+    int index = 0;
+    const auto add = [&](std::optional<double> settled_s, double paused_s) {
+      storage::SegmentRecord seg;
+      seg.run_id = *run_id;
+      seg.index = index++;
+      seg.kind = "soak";
+      seg.setpoint_c = 20;
+      seg.t_start_s = 100.0 * index;
+      if (settled_s) seg.t_settled_s = seg.t_start_s + *settled_s;
+      seg.paused_s = paused_s;
+      seg.state = "completed";
+      EXPECT_TRUE(db->create_segment(seg).ok());
+    };
+    for (double s : settles_s) add(s, 0);
+    add(50, 30);           // paused: its settle cannot be told from its hold
+    add(std::nullopt, 0);  // never settled
+    return path;
+  };
+  const std::string paper =
+      std::string(GYROTHERM_SOURCE_DIR) + "/config/schedules/paper-table1.toml";
+  const std::string db = make_db("past.db", {1200, 600, 1500, 900});
+  const Run text = cli({"schedule", "check", paper, "--db", db});
+  ASSERT_EQ(text.code, 0) << text.err;
+  EXPECT_THAT(text.out, HasSubstr("planned duration: 2 d 19 h (+ 32 settles of unknown length)\n"
+                                  "with the station's last 4 settles: ~3 d 5 h (P10 3 d 2 h – "
+                                  "P90 3 d 8 h)\n"));
+  const Run json = cli({"--json", "schedule", "check", paper, "--db", db});
+  ASSERT_EQ(json.code, 0) << json.err;
+  const auto j = nlohmann::json::parse(json.out)["planned"]["with_past_settles"];
+  EXPECT_EQ(j["prior_settles"], 4);
+  EXPECT_DOUBLE_EQ(j["eta_s"].get<double>(), 4048 * 60.0 + 32 * 1050.0);
+  EXPECT_DOUBLE_EQ(j["eta_p10_s"].get<double>(), 4048 * 60.0 + 32 * 690.0);
+  EXPECT_DOUBLE_EQ(j["eta_p90_s"].get<double>(), 4048 * 60.0 + 32 * 1410.0);
+
+  const Run few = cli({"schedule", "check", paper, "--db", make_db("few.db", {600, 900})});
+  ASSERT_EQ(few.code, 0) << few.err;
+  EXPECT_THAT(few.out,
+              HasSubstr("the database holds 2 settles without a pause; 3 are needed to estimate "
+                        "them\n"));
+  const Run missing = cli({"schedule", "check", paper, "--db", (dir_ / "none.db").string()});
+  EXPECT_EQ(missing.code, 2);
+  EXPECT_THAT(missing.err, HasSubstr("none.db"));
+}
+
 TEST_F(CliTest, ScheduleCheckRefusesControlCharactersInTheName) {
   const std::string bad = (dir_ / "ctl.toml").string();
   std::ofstream(bad) << "name = \"\\u001b[2Jx\"\n[[step]]\ntype = \"hold\"\nsetpoint_c = 20\n"
