@@ -379,6 +379,16 @@ TEST_F(StationTest, GyroLineClosedAndReopenedStreamResumes) {
   };
   ASSERT_TRUE(wait_until([&] { return gyro("samples") > 500; }, std::chrono::seconds(30)))
       << daemon_->log();
+  // The run's samples before the outage are stored (committed), so the
+  // stored series can show the outage: the reader counts samples from its
+  // start, which on a busy machine may all come before the run's.
+  ASSERT_TRUE(wait_until(
+      [&] {
+        auto st = status();
+        return st && (*st)["storage"]["gyro_rows"].get<uint64_t>() > 50;
+      },
+      std::chrono::seconds(30)))
+      << daemon_->log();
 
   in_process_sim_->close_pty();
   ASSERT_TRUE(wait_until([&] { return !connected(); }, std::chrono::seconds(20))) << daemon_->log();
