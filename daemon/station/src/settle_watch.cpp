@@ -50,7 +50,6 @@ void SettleWatch::tick(double t_run_s, std::optional<std::size_t> settling_step,
     step_ = settling_step;
   }
   if (!step_) return;
-  gate_ = gate;
   if (shell_c && std::isfinite(*shell_c)) {
     if (pack_n_ > 0 && t_run_s - pack_start_s_ >= kPackS) {
       const double t = pack_t_sum_ / pack_n_;
@@ -72,7 +71,7 @@ void SettleWatch::tick(double t_run_s, std::optional<std::size_t> settling_step,
   pending_generation_ = generation_;
   pending_as_of_s_ = t_s_.back();
   try {
-    pending_ = std::async(std::launch::async, [t = t_s_, c = shell_c_, g = gate_] {
+    pending_ = std::async(std::launch::async, [t = t_s_, c = shell_c_, g = gate] {
       return analysis::predict_settle(t, c, g);
     });
   } catch (const std::system_error& e) {

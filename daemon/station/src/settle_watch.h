@@ -50,7 +50,6 @@ class SettleWatch {
   void take_result();
 
   std::optional<std::size_t> step_;
-  analysis::SettleGate gate_;
   std::vector<double> t_s_, shell_c_;  // kept means
   double pack_t_sum_ = 0, pack_c_sum_ = 0;
   int pack_n_ = 0;
