@@ -1,0 +1,136 @@
+#include "gyrotherm/analysis/acquisition_target.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <vector>
+
+#include "gyrotherm/analysis/allan.h"
+
+namespace gyrotherm::analysis {
+
+bool AcquisitionTarget::is_valid(std::string* why) const {
+  auto fail = [&](std::string message) {
+    if (why) *why = std::move(message);
+    return false;
+  };
+  if (!std::isfinite(target_u95_dph) || target_u95_dph <= 0) {
+    return fail(fmt::format("target_u95_dph {}: must be finite and > 0", target_u95_dph));
+  }
+  if (!std::isfinite(min_s) || min_s < 0) {
+    return fail(fmt::format("min_s {}: must be finite and >= 0", min_s));
+  }
+  if (!std::isfinite(max_s) || max_s <= 0) {
+    return fail(fmt::format("max_s {}: must be finite and > 0", max_s));
+  }
+  if (max_s < min_s) return fail(fmt::format("max_s {} is below min_s {}", max_s, min_s));
+  return true;
+}
+
+std::string_view to_string(AcquisitionVerdict v) {
+  switch (v) {
+    case AcquisitionVerdict::kContinue:
+      return "continue";
+    case AcquisitionVerdict::kReached:
+      return "reached";
+    case AcquisitionVerdict::kOutOfReach:
+      return "out_of_reach";
+    case AcquisitionVerdict::kNoModel:
+      return "no_model";
+  }
+  return "no_model";
+}
+
+namespace {
+
+// The projected U95 at T; +inf when the model gives none there.
+double projected_u95(const NoiseModel& model, double t_s) {
+  auto u = mean_uncertainty(model, t_s);
+  return u ? u->expanded_dph : std::numeric_limits<double>::infinity();
+}
+
+std::string format_min(double s) { return fmt::format("{:.0f} min", s / 60.0); }
+
+}  // namespace
+
+Result<AcquisitionProjection> project_acquisition(std::span<const double> t_s,
+                                                  std::span<const double> rate_dph,
+                                                  double acquired_s,
+                                                  const AcquisitionTarget& target) {
+  if (std::string why; !target.is_valid(&why)) {
+    return Error::Permanent("project_acquisition: " + why);
+  }
+  if (t_s.size() != rate_dph.size()) {
+    return Error::Permanent(
+        fmt::format("project_acquisition: {} times but {} rates", t_s.size(), rate_dph.size()));
+  }
+  if (!std::isfinite(acquired_s) || acquired_s <= 0) {
+    return Error::Permanent(
+        fmt::format("project_acquisition: acquired {} s: must be finite and > 0", acquired_s));
+  }
+  AcquisitionProjection p;
+  p.acquired_s = acquired_s;
+  auto allan = allan_deviation(t_s, rate_dph, {.taus = TauSet::kOctave});
+  if (!allan) {
+    p.note = "no Allan curve yet: " + allan.error().message;
+    return p;
+  }
+  auto model = fit_noise_model(allan->tau_s, allan->adev_dph, allan->edf);
+  if (!model) {
+    p.note = "no noise model yet: " + model.error().message;
+    return p;
+  }
+  auto now = mean_uncertainty(*model, acquired_s);
+  if (!now) {
+    p.note = now.error().message;
+    return p;
+  }
+  p.model = *model;
+  p.now = *now;
+  p.floor_u95_dph = now->k * now->floor_dph;
+
+  // The projection on a log grid from the length acquired to the cap (U95(T)
+  // is smooth: q_n / T falls, q_k T rises, k moves slowly with the dof).
+  constexpr int kGrid = 200;
+  const double from_s = acquired_s;
+  const double to_s = std::max(target.max_s, acquired_s);
+  p.best_u95_dph = now->expanded_dph;
+  for (int i = 0; i <= kGrid; ++i) {
+    const double t = from_s * std::pow(to_s / from_s, static_cast<double>(i) / kGrid);
+    const double u95 = projected_u95(*model, t);
+    p.best_u95_dph = std::min(p.best_u95_dph, u95);
+    if (!p.reach_s && u95 <= target.target_u95_dph) p.reach_s = t;
+  }
+
+  if (now->expanded_dph <= target.target_u95_dph) {
+    p.verdict = AcquisitionVerdict::kReached;
+    p.note = fmt::format("target reached: U95 {:.3g} °/h <= {:.3g} °/h after {}", now->expanded_dph,
+                         target.target_u95_dph, format_min(acquired_s));
+    return p;
+  }
+  if (p.best_u95_dph > target.target_u95_dph && now->expanded_dph <= kFlatRatio * p.best_u95_dph) {
+    p.verdict = AcquisitionVerdict::kOutOfReach;
+    const bool walk = model->q[2] * acquired_s > model->q[1];
+    p.note = fmt::format(
+        "target {:.3g} °/h out of reach: U95 {:.3g} °/h after {}, at best {:.3g} °/h within the "
+        "cap ({}); floor = {:.3g} °/h (U95 {:.3g}){}",
+        target.target_u95_dph, now->expanded_dph, format_min(acquired_s), p.best_u95_dph,
+        format_min(target.max_s), now->floor_dph, p.floor_u95_dph,
+        walk ? "; rate random walk grows it on longer soaks" : "");
+    return p;
+  }
+  p.verdict = AcquisitionVerdict::kContinue;
+  p.note = p.reach_s ? fmt::format("U95 {:.3g} °/h after {}; the target {:.3g} °/h projected at {}",
+                                   now->expanded_dph, format_min(acquired_s), target.target_u95_dph,
+                                   format_min(*p.reach_s))
+                     : fmt::format(
+                           "U95 {:.3g} °/h after {}; the target {:.3g} °/h not projected "
+                           "within the cap ({}): at best {:.3g} °/h",
+                           now->expanded_dph, format_min(acquired_s), target.target_u95_dph,
+                           format_min(target.max_s), p.best_u95_dph);
+  return p;
+}
+
+}  // namespace gyrotherm::analysis
