@@ -16,15 +16,10 @@ namespace {
 using Keys = std::vector<std::string_view>;
 
 const Keys kTopKeys{"name", "description", "step"};
-const Keys kSoakKeys{"type",
-                     "setpoint_c",
-                     "acquire_min",
-                     "tolerance_c",
-                     "stability_c_per_min",
-                     "stability_window_min",
-                     "settle_timeout_min",
-                     "table",
-                     "table_rate_dps"};
+const Keys kSoakKeys{
+    "type",        "setpoint_c",          "acquire_min",          "acquire",
+    "tolerance_c", "stability_c_per_min", "stability_window_min", "settle_timeout_min",
+    "table",       "table_rate_dps"};
 const Keys kRampKeys{"type", "target_c", "rate_c_per_min", "table", "table_rate_dps"};
 const Keys kHoldKeys{"type", "setpoint_c", "duration_min", "table", "table_rate_dps"};
 const Keys kScaleFactorKeys{"type",  "setpoint_c",  "rates_dps",   "directions",
@@ -32,6 +27,8 @@ const Keys kScaleFactorKeys{"type",  "setpoint_c",  "rates_dps",   "directions",
 const Keys kRepeatKeys{"type", "count", "steps"};
 // The inline table of a step's `table = { ... }`.
 const Keys kTableKeys{"mode", "position_deg", "rate_dps"};
+// The inline table of an adaptive soak's `acquire = { ... }`.
+const Keys kAcquireKeys{"target_u95_dph", "min_min", "max_min"};
 
 struct KindKeys {
   std::string_view kind;
@@ -367,6 +364,57 @@ class ScheduleReader {
     unknown_keys(tt, kTableKeys, "a table demand", false, true);
   }
 
+  // A soak's acquisition: a fixed `acquire_min`, or an adaptive `acquire =
+  // { target_u95_dph, min_min, max_min }` (it ends when the bias is known to
+  // the target; max_min caps it and is what a plan counts).
+  void read_acquisition(TableReader& t, PlanStep& s) {
+    const bool fixed = t.raw().contains("acquire_min");
+    const bool adaptive = t.raw().contains("acquire");
+    if (fixed && adaptive) {
+      t.error("acquire",
+              "give the acquisition once: acquire_min = M (fixed) or acquire = { target_u95_dph "
+              "= U, min_min = A, max_min = B } (adaptive)");
+      t.skip("acquire");
+      t.skip("acquire_min");
+      return;
+    }
+    if (!adaptive) {
+      Number acquire = minutes(t, "acquire_min", true, kMaxAcquireMin);
+      s.acquire_s = acquire.value.value_or(0) * 60.0;
+      return;
+    }
+    if (const toml::node* node = t.raw().get("acquire"); node && !node->is_table()) {
+      t.error("acquire",
+              "expected an adaptive acquisition { target_u95_dph = U, min_min = A, "
+              "max_min = B }; a fixed one is acquire_min = M");
+      t.skip("acquire");
+      return;
+    }
+    std::optional<TableReader> at = t.table("acquire");
+    if (!at) return;
+    const std::size_t errors_before = errors_.messages().size();
+    Number target = required(*at, "target_u95_dph", "°/h");
+    if (target.value && !(*target.value > 0)) {
+      at->error("target_u95_dph", fmt::format("{:g} °/h: must be > 0", *target.value));
+    }
+    Number min = minutes(*at, "min_min", false, kMaxAcquireMin);
+    Number max = minutes(*at, "max_min", true, kMaxAcquireMin);
+    if (max.value && !(*max.value > 0)) {
+      at->error("max_min",
+                fmt::format("{:g} min: must be > 0 (the cap of the acquisition)", *max.value));
+    }
+    if (min.value && max.value && *min.value > *max.value) {
+      at->error("min_min",
+                fmt::format("{:g} min is longer than max_min ({:g} min)", *min.value, *max.value));
+    }
+    unknown_keys(*at, kAcquireKeys, "an adaptive acquisition", false, true);
+    if (errors_.messages().size() != errors_before) return;
+    s.adaptive = analysis::AcquisitionTarget{.target_u95_dph = target.value.value_or(0),
+                                             .min_s = min.value.value_or(0) * 60.0,
+                                             .max_s = max.value.value_or(0) * 60.0};
+    s.acquire_s = s.adaptive->max_s;
+  }
+
   // The step's table demand, `table = {...}` or its short form
   // `table_rate_dps = R` (0: static). Refused on a station without a table.
   void read_table_demand(TableReader& t, TableDemand& out) {
@@ -593,8 +641,7 @@ class ScheduleReader {
     if (*type == "soak") {
       s.kind = StepKind::kSoak;
       s.setpoint_c = temperature(t, "setpoint_c").value.value_or(0);
-      Number acquire = minutes(t, "acquire_min", true, kMaxAcquireMin);
-      s.acquire_s = acquire.value.value_or(0) * 60.0;
+      read_acquisition(t, s);
       Number tolerance = number(t, "tolerance_c");
       check_range(t, "tolerance_c", tolerance, "°C", kMinToleranceC, false,
                   fmt::format("{:g} °C", kMaxToleranceC), kMaxToleranceC);

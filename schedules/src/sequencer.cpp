@@ -265,6 +265,13 @@ void Sequencer::continue_after_finished_step(double t_s) {
   }
 }
 
+std::string acquiring_for(const PlanStep& step) {
+  if (!step.adaptive) return fmt::format("acquiring for {:g} min", step.acquire_s / 60.0);
+  return fmt::format("acquiring until the bias is known to ± {:g} °/h (U95; {:g} to {:g} min)",
+                     step.adaptive->target_u95_dph, step.adaptive->min_s / 60.0,
+                     step.acquire_s / 60.0);
+}
+
 void Sequencer::advance(double t_s) {
   finish_step(t_s, true);
   if (index_ + 1 < plan_.steps.size()) {
@@ -463,9 +470,9 @@ void Sequencer::tick_soak(double t_s, const Readings& readings) {
       open_window(t_s);
       update_state(t_s,
                    fmt::format("{}: stable (shell {:.3f} °C, {:+.4f} °C/min over {:g} min); "
-                               "acquiring for {:g} min",
+                               "{}",
                                step.label, shell_window_.mean(), shell_window_.slope_per_s() * 60.0,
-                               step.stability_window_s / 60.0, step.acquire_s / 60.0));
+                               step.stability_window_s / 60.0, acquiring_for(step)));
       return;
     }
     if (!gate && step_active_s_ > step.settle_timeout_s &&
@@ -503,7 +510,21 @@ void Sequencer::tick_soak(double t_s, const Readings& readings) {
     for (const auto& w : times_.windows) closed_s += readings.data_covered_s(w.from_s, w.to_s);
     acquired_s = closed_s + (window_open_s_ ? readings.data_covered_s(*window_open_s_, t_s) : 0.0);
   }
+  if (step.adaptive && readings.acquisition_done && window_open_s_ &&
+      acquired_s >= step.adaptive->min_s && acquired_s < step.acquire_s) {
+    // An adaptive soak whose mean is known to its target (or cannot be):
+    // the station's verdict on the data so far ends it here.
+    times_.acquire_stop = *readings.acquisition_done;
+    close_window(t_s);
+    advance(t_s);
+    return;
+  }
   if (acquired_s >= step.acquire_s && window_open_s_) {
+    if (step.adaptive) {
+      times_.acquire_stop =
+          fmt::format("cap: max_min {:g} min acquired before the target {:g} °/h was reached",
+                      step.acquire_s / 60.0, step.adaptive->target_u95_dph);
+    }
     // The window ends when the acquisition time is complete (ticks are coarse).
     double end_s = *window_open_s_ + (step.acquire_s - closed_s);
     if (readings.data_reached_at_s) {
@@ -803,6 +824,7 @@ nlohmann::json to_json(const SequencerSnapshot& s) {
           {"start_s", s.times.start_s},
           {"settled_s", opt(s.times.settled_s)},
           {"acquire_start_s", opt(s.times.acquire_start_s)},
+          {"acquire_stop", s.times.acquire_stop},
           {"held_s", s.times.held_s},
           {"windows", windows},
           {"window_open_s", opt(s.window_open_s)},
@@ -831,6 +853,8 @@ Result<SequencerSnapshot> snapshot_from_json(const nlohmann::json& j) {
     s.times.start_s = j.at("start_s").get<double>();
     s.times.settled_s = opt("settled_s");
     s.times.acquire_start_s = opt("acquire_start_s");
+    // Checkpoints from before adaptive soaks have none.
+    s.times.acquire_stop = j.value("acquire_stop", std::string{});
     s.times.held_s = j.at("held_s").get<double>();
     for (const auto& w : j.at("windows")) {
       s.times.windows.push_back({w.at(0).get<double>(), w.at(1).get<double>()});

@@ -4,6 +4,8 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include "gyrotherm/schedules/sequencer.h"
+
 namespace gyrotherm::schedules {
 namespace {
 
@@ -84,6 +86,33 @@ duration_min = 5
   EXPECT_DOUBLE_EQ(plan->steps[1].rate_c_per_min, 1.5);
   EXPECT_DOUBLE_EQ(plan->steps[2].hold_s, 300.0);
   EXPECT_EQ(plan->name, "s.toml");
+}
+
+TEST(Schedule, AnAdaptiveSoakCarriesItsTargetAndIsPlannedAtItsCap) {
+  auto plan = parse_schedule(R"(
+[[step]]
+type = "soak"
+setpoint_c = 20
+acquire = { target_u95_dph = 0.05, min_min = 15, max_min = 90 }
+[[step]]
+type = "soak"
+setpoint_c = 40
+acquire = { target_u95_dph = 0.1, max_min = 30 }
+)",
+                             "a.toml", kLimits);
+  ASSERT_TRUE(plan.ok()) << plan.error().message;
+  ASSERT_EQ(plan->steps.size(), 2u);
+  const PlanStep& a = plan->steps[0];
+  ASSERT_TRUE(a.adaptive);
+  EXPECT_DOUBLE_EQ(a.adaptive->target_u95_dph, 0.05);
+  EXPECT_DOUBLE_EQ(a.adaptive->min_s, 900.0);
+  EXPECT_DOUBLE_EQ(a.adaptive->max_s, 5400.0);
+  EXPECT_DOUBLE_EQ(a.acquire_s, 5400.0) << "the cap is what a plan counts";
+  ASSERT_TRUE(plan->steps[1].adaptive);
+  EXPECT_DOUBLE_EQ(plan->steps[1].adaptive->min_s, 0.0) << "min_min defaults to 0";
+  EXPECT_DOUBLE_EQ(plan->nominal_duration_s(), 5400.0 + 1800.0);
+  EXPECT_EQ(acquiring_for(a),
+            "acquiring until the bias is known to ± 0.05 °/h (U95; 15 to 90 min)");
 }
 
 // Bad schedules are tested by the corpus in tests/schedules/bad/

@@ -143,6 +143,62 @@ TEST(Sequencer, DemoScheduleRunsThroughItsStates) {
   EXPECT_DOUBLE_EQ(*r.acquire_start_s, obs.finished[0].times.end_s.value());
 }
 
+PlanStep adaptive_soak(double sp, double target_u95_dph, double min_min, double max_min) {
+  PlanStep s = soak(sp, max_min);
+  s.adaptive = analysis::AcquisitionTarget{
+      .target_u95_dph = target_u95_dph, .min_s = min_min * 60.0, .max_s = max_min * 60.0};
+  return s;
+}
+
+TEST(Sequencer, AnAdaptiveSoakEndsOnTheStationsVerdictAfterItsMinimum) {
+  // The station says "done" from the first acquiring tick on: the soak still
+  // acquires its minimum (10 min), then ends at once with the verdict stored.
+  RecordingObserver obs;
+  Sequencer seq(make_plan({adaptive_soak(30, 0.05, 10, 60), soak(30, 5)}), {}, obs);
+  FakePlant plant;
+  seq.start(0.0, 23.0);
+  double t = 0;
+  while (obs.finished.empty() && t < 6 * 3600) {
+    t += 1.0;
+    plant.step(1.0, seq.setpoint_c());
+    Readings r = plant.readings();
+    if (seq.state() == RunState::kAcquiring) r.acquisition_done = "target reached: U95 0.04 °/h";
+    seq.tick(t, r);
+  }
+  ASSERT_EQ(obs.finished.size(), 1u);
+  const StepTimes& a = obs.finished[0].times;
+  EXPECT_TRUE(obs.finished[0].completed);
+  EXPECT_NEAR(a.acquired_s(), 600.0, 1.0) << "the minimum is acquired first";
+  EXPECT_EQ(a.acquire_stop, "target reached: U95 0.04 °/h");
+  EXPECT_THAT(obs.transitions.at(1).reason, HasSubstr("acquiring until the bias is known to ± "
+                                                      "0.05 °/h (U95; 10 to 60 min)"));
+
+  // A fixed soak ignores a verdict: it acquires its 5 min.
+  run(seq, plant, t + 6 * 3600.0, t);
+  ASSERT_EQ(obs.finished.size(), 2u);
+  EXPECT_DOUBLE_EQ(obs.finished[1].times.acquired_s(), 300.0);
+  EXPECT_EQ(obs.finished[1].times.acquire_stop, "");
+}
+
+TEST(Sequencer, AnAdaptiveSoakWithoutAVerdictStopsAtItsCapAndSaysSo) {
+  RecordingObserver obs;
+  Sequencer seq(make_plan({adaptive_soak(30, 0.05, 5, 20)}), {}, obs);
+  FakePlant plant;
+  seq.start(0.0, 23.0);
+  run(seq, plant, 8 * 3600.0);
+  ASSERT_TRUE(seq.finished());
+  ASSERT_EQ(obs.finished.size(), 1u);
+  const StepTimes& a = obs.finished[0].times;
+  EXPECT_DOUBLE_EQ(a.acquired_s(), 1200.0);
+  EXPECT_EQ(a.acquire_stop, "cap: max_min 20 min acquired before the target 0.05 °/h was reached");
+  // The reason survives a checkpoint.
+  SequencerSnapshot snap;
+  snap.times = a;
+  auto back = snapshot_from_json(to_json(snap));
+  ASSERT_TRUE(back) << back.error().message;
+  EXPECT_EQ(back->times.acquire_stop, a.acquire_stop);
+}
+
 TEST(Sequencer, AcquisitionStartsOnlyWhenShellIsStable) {
   RecordingObserver obs;
   Sequencer seq(make_plan({soak(40, 10)}), {}, obs);

@@ -82,6 +82,10 @@ struct Readings {
   // samples cover need_s from from_s (nullopt: not yet). coverage.h.
   std::function<double(double from_s, double to_s)> data_covered_s{};
   std::function<std::optional<double>(double from_s, double need_s)> data_reached_at_s{};
+  // An adaptive soak (PlanStep::adaptive) may end now: the station's verdict
+  // on every gated DUT axis of the data so far, why (target reached or out of
+  // reach). The sequencer ends the acquisition once min_s is acquired.
+  std::optional<std::string> acquisition_done{};
 };
 
 struct InterlockOptions;

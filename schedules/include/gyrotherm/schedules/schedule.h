@@ -17,6 +17,7 @@
 #include <string_view>
 #include <vector>
 
+#include "gyrotherm/analysis/acquisition_target.h"
 #include "gyrotherm/core/result.h"
 
 namespace gyrotherm::schedules {
@@ -53,7 +54,11 @@ struct PlanStep {
   double stability_c_per_min = 0.02;   // shell |dT/dt| limit for the gate
   double stability_window_s = 600;     // gate evaluated over this window
   double settle_timeout_s = 3 * 3600;  // gate must hold within this time
-  double acquire_s = 0;                // acquisition after the gate held
+  double acquire_s = 0;                // acquisition after the gate held (adaptive: its cap)
+  // An adaptive soak (`acquire = { ... }`): it ends once every gated DUT
+  // axis's mean is known to the target, or the target is out of reach, after
+  // at least min_s and at most max_s (== acquire_s). nullopt: fixed.
+  std::optional<analysis::AcquisitionTarget> adaptive;
   // ramp
   double rate_c_per_min = 0;
   // hold

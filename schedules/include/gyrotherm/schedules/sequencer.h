@@ -98,7 +98,10 @@ struct StepTimes {
   std::optional<double> acquire_end_s;    // last window's end, once acquisition is over
   std::optional<double> end_s;
   std::vector<AcquisitionWindow> windows;  // closed acquisition windows
-  double held_s = 0;                       // station s paused or suspended in this step
+  // An adaptive soak's acquisition ended: why (the target reached, out of
+  // reach with its floor, or the cap); empty for fixed soaks and until then.
+  std::string acquire_stop;
+  double held_s = 0;  // station s paused or suspended in this step
 
   double acquired_s() const;  // sum of the closed windows
 };
@@ -115,6 +118,10 @@ struct GateProgress {
   double needed_s = 0;
   double waited_s = 0;
 };
+
+// The acquisition a soak is told to make, for messages: "acquiring for 30
+// min" or, adaptive, its target and bounds.
+std::string acquiring_for(const PlanStep& step);
 
 class SequencerObserver {
  public:
