@@ -594,6 +594,40 @@ std::string format_settle(const json& f) {
   return "";
 }
 
+// An adaptive soak's judgement: ", U95 0.041 °/h → 0.03 (widest: 17-0042 z),
+// target in ~6 min", ", target reached on every axis", ", target out of reach
+// on 17-0042 z (floor = …)"; "" without one.
+std::string format_acquire(const json& a) {
+  if (!a.is_object() || !field(a, "axes").is_array() || field(a, "axes").empty()) return "";
+  const auto target = number(field(a, "target_u95_dph")).value_or(0);
+  const auto acquired = number(field(a, "acquired_s")).value_or(0);
+  std::optional<double> widest;
+  std::string widest_name, out_of_reach, no_model;
+  bool all_reached = true;
+  for (const json& axis : field(a, "axes")) {
+    const std::string verdict = text(field(axis, "verdict"));
+    const std::string name = text(field(axis, "name"));
+    if (verdict != "reached") all_reached = false;
+    if (verdict == "out_of_reach") out_of_reach += (out_of_reach.empty() ? "" : ", ") + name;
+    if (verdict == "no_model") no_model += (no_model.empty() ? "" : ", ") + name;
+    if (const auto u = number(field(axis, "u95_dph")); u && (!widest || *u > *widest)) {
+      widest = u;
+      widest_name = name;
+    }
+  }
+  if (all_reached) return fmt::format(", target U95 {:g} °/h reached on every axis", target);
+  std::string out =
+      widest ? fmt::format(", U95 {:.3g} → {:g} °/h (widest: {})", *widest, target, widest_name)
+             : fmt::format(", target U95 {:g} °/h", target);
+  if (!out_of_reach.empty()) return out + ", out of reach on " + out_of_reach;
+  if (!no_model.empty()) return out + ", no noise model yet for " + no_model;
+  if (const auto planned = number(field(a, "planned_s"))) {
+    return out + fmt::format(", target in ~{}",
+                             schedules::format_duration(std::max(0.0, *planned - acquired)));
+  }
+  return out + ", target not projected within the cap";
+}
+
 // The progress line (docs/schedules.md, "Planned duration and progress"):
 // "acquiring 42% · run ends in 2 h 10 min", "settling, gate 4 min of 10 min ·
 // run ≥ 2 h 10 min + 2 settles". Empty without a progress object.
@@ -609,6 +643,7 @@ std::string format_progress(const json& p) {
                         schedules::format_duration(*needed));
   }
   step += format_settle(field(p, "settle"));
+  step += format_acquire(field(p, "acquire"));
   if (const auto eta = number(field(p, "run_eta_s"))) {
     std::string band;
     if (const auto lo = number(field(p, "run_eta_p10_s"))) {

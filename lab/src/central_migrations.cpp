@@ -457,6 +457,29 @@ FROM lab.records t
 WHERE t.kind = 'table1' AND NOT t.deleted;
 )sql";
 
+// v4: adaptive soaks (the station's schema v14, docs/schedules.md
+// "Adaptive soaks"): lab.segments gains acquire_stop, why a soak's
+// acquisition ended, appended to its columns; '' for fixed soaks and rows
+// relayed before the station's v14.
+constexpr const char* kCentralV4 = R"sql(
+CREATE OR REPLACE VIEW lab.segments WITH (security_invoker = true) AS
+SELECT s.station_id,
+       NULLIF(s.run_uuid, '00000000-0000-0000-0000-000000000000') AS run_uuid,
+       lab.jsonb_int8(s.payload->'id') AS local_segment_id,
+       lab.jsonb_int8(s.payload->'idx') AS idx,
+       s.payload->>'kind' AS kind,
+       s.payload->>'label' AS label,
+       lab.jsonb_float8(s.payload->'setpoint_c') AS setpoint_c,
+       s.payload->>'state' AS state,
+       lab.jsonb_float8(s.payload->'t_start_s') AS t_start_s,
+       lab.jsonb_float8(s.payload->'t_end_s') AS t_end_s,
+       s.payload->>'table_mode' AS table_mode,
+       lab.jsonb_float8(s.payload->'table_rate_dps') AS table_rate_dps,
+       coalesce(s.payload->>'acquire_stop', '') AS acquire_stop
+FROM lab.records s
+WHERE s.kind = 'segment' AND NOT s.deleted;
+)sql";
+
 struct CentralMigration {
   int version;
   const char* description;
@@ -467,6 +490,7 @@ constexpr CentralMigration kCentralMigrations[] = {
     {1, "stations, records, relay progress, roles, row-level security, views", kCentralV1},
     {2, "result quality in the views of results", kCentralV2},
     {3, "Table I mean uncertainty in lab.table1", kCentralV3},
+    {4, "adaptive soaks' stop reasons in lab.segments", kCentralV4},
 };
 
 static_assert(sizeof(kCentralMigrations) / sizeof(kCentralMigrations[0]) == kCentralSchemaVersion,

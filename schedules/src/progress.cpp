@@ -179,7 +179,8 @@ RunProgress queue_progress(const PlannedDuration& queue, const std::optional<Set
 RunProgress run_progress(const Plan& plan, const SequencerSnapshot& snap,
                          const std::optional<GateProgress>& gate, const PlannedDuration& queue,
                          const std::optional<SettleForecast>& settle,
-                         const std::optional<SettlePrior>& prior) {
+                         const std::optional<SettlePrior>& prior,
+                         const std::optional<AcquireForecast>& acquire) {
   RunProgress p;
   set_queue_eta(p, queue, prior);
   const std::size_t index = snap.step_index;
@@ -215,9 +216,20 @@ RunProgress run_progress(const Plan& plan, const SequencerSnapshot& snap,
         step_left_s = step.acquire_s;
       } else {
         p.phase = "acquiring";
-        p.step_elapsed_s = std::min(acquired_s, step.acquire_s);
-        p.step_fraction = step.acquire_s > 0 ? clamp01(acquired_s / step.acquire_s) : 1.0;
-        step_left_s = std::max(0.0, step.acquire_s - acquired_s);
+        // An adaptive soak: its projected length once its axes are judged
+        // (the cap until then, and when an axis has no projection).
+        double planned_s = step.acquire_s;
+        if (step.adaptive && acquire) {
+          p.acquire = acquire;
+          if (acquire->planned_s) {
+            planned_s = std::clamp(*acquire->planned_s, step.adaptive->min_s, step.acquire_s);
+            planned_s = std::max(planned_s, std::min(acquired_s, step.acquire_s));
+          }
+          p.step_planned_s = planned_s;
+        }
+        p.step_elapsed_s = std::min(acquired_s, planned_s);
+        p.step_fraction = planned_s > 0 ? clamp01(acquired_s / planned_s) : 1.0;
+        step_left_s = std::max(0.0, planned_s - acquired_s);
       }
       break;
     }

@@ -636,6 +636,14 @@ ALTER TABLE segment_stats ADD COLUMN bias_u_random_walk INTEGER;  -- 1: u is mos
 ALTER TABLE segment_stats ADD COLUMN bias_u_note TEXT NOT NULL DEFAULT '';  -- why there is no uncertainty
 )sql";
 
+// v14: adaptive soaks (docs/schedules.md "Adaptive soaks"): why a soak's
+// acquisition ended, the target reached, out of reach (with the floor) or
+// the cap; empty for fixed soaks and older rows. Segments are relayed: the
+// data step regenerates the lab outbox triggers from the new column.
+constexpr const char* kSchemaV14 = R"sql(
+ALTER TABLE segments ADD COLUMN acquire_stop TEXT NOT NULL DEFAULT '';  -- adaptive soak: why its acquisition ended
+)sql";
+
 constexpr Migration kMigrations[] = {
     {1, "initial schema", kSchemaV1},
     {2, "queue, crash resume, acquisition windows", kSchemaV2},
@@ -651,6 +659,7 @@ constexpr Migration kMigrations[] = {
      install_lab_triggers_step},
     {12, "packed sample chunks", kSchemaV12},
     {13, "Table I mean uncertainty", kSchemaV13, install_lab_triggers_step},
+    {14, "adaptive soaks' stop reasons", kSchemaV14, install_lab_triggers_step},
 };
 
 static_assert(sizeof(kMigrations) / sizeof(kMigrations[0]) == kSchemaVersion,

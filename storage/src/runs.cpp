@@ -121,7 +121,7 @@ constexpr const char* kSegmentColumns =
     "id, run_id, idx, kind, label, setpoint_c, ramp_rate_c_per_min, t_start_s, t_settled_s, "
     "t_acquire_start_s, t_acquire_end_s, t_end_s, paused_s, state, table_mode, table_rate_dps, "
     "table_position_deg, table_mean_rate_dps, table_mean_position_deg, turns, dwell_s, "
-    "sf_sequence, sf_repetition";
+    "sf_sequence, sf_repetition, acquire_stop";
 
 SegmentRecord read_segment(const Stmt& st) {
   SegmentRecord s;
@@ -148,6 +148,7 @@ SegmentRecord read_segment(const Stmt& st) {
   s.dwell_s = st.column_double(20);
   s.sf_sequence = static_cast<int>(st.column_int64(21));
   s.sf_repetition = static_cast<int>(st.column_int64(22));
+  s.acquire_stop = st.column_text(23);
   return s;
 }
 
@@ -177,8 +178,9 @@ void bind_segment(Stmt& st, const SegmentRecord& s, int first) {
   st.bind(i++, s.dwell_s);
   st.bind(i++, s.sf_sequence);
   st.bind(i++, s.sf_repetition);
+  st.bind(i++, std::string_view(s.acquire_stop));
 }
-constexpr int kSegmentBoundColumns = 22;  // bind_segment's parameters
+constexpr int kSegmentBoundColumns = 23;  // bind_segment's parameters
 
 // '...' with the text as JSON would quote it (newlines and quotes escaped),
 // so a message stays one line whatever a comment holds.
@@ -350,9 +352,10 @@ Result<int64_t> RunStore::create_segment(const SegmentRecord& segment) {
                           "ramp_rate_c_per_min, t_start_s, t_settled_s, t_acquire_start_s, "
                           "t_acquire_end_s, t_end_s, paused_s, state, table_mode, "
                           "table_rate_dps, table_position_deg, table_mean_rate_dps, "
-                          "table_mean_position_deg, turns, dwell_s, sf_sequence, sf_repetition) "
+                          "table_mean_position_deg, turns, dwell_s, sf_sequence, sf_repetition, "
+                          "acquire_stop) "
                           "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
-                          "?)");
+                          "?, ?)");
   if (!st) return st.error();
   bind_segment(*st, segment, 1);
   if (Status s =
@@ -374,7 +377,7 @@ Status RunStore::update_segment(const SegmentRecord& segment) {
                           "t_end_s = ?, paused_s = ?, state = ?, table_mode = ?, "
                           "table_rate_dps = ?, table_position_deg = ?, table_mean_rate_dps = ?, "
                           "table_mean_position_deg = ?, turns = ?, dwell_s = ?, sf_sequence = ?, "
-                          "sf_repetition = ? WHERE id = ?");
+                          "sf_repetition = ?, acquire_stop = ? WHERE id = ?");
   if (!st) return st.error();
   bind_segment(*st, segment, 1);
   st->bind(kSegmentBoundColumns + 1, segment.id);

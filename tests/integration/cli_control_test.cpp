@@ -781,6 +781,29 @@ TEST(CliFormat, StatusSummary) {
   last["progress"]["run_eta_s"] = 3000.0;
   EXPECT_THAT(cli::format_status(last),
               HasSubstr("progress    acquiring 42% · run ends in 50 min\n"));
+  // An adaptive soak judged: the widest axis's U95 against the target and
+  // when it is projected to get there; out of reach; every axis there.
+  json adaptive = last;
+  const auto axis = [](const char* name, const char* verdict, json u95) {
+    return json{{"name", name},       {"verdict", verdict}, {"u95_dph", std::move(u95)},
+                {"reach_s", nullptr}, {"floor_dph", 0.0},   {"note", "n"}};
+  };
+  adaptive["progress"]["acquire"] = {{"target_u95_dph", 0.03},
+                                     {"min_s", 120.0},
+                                     {"max_s", 3600.0},
+                                     {"acquired_s", 240.0},
+                                     {"planned_s", 600.0},
+                                     {"axes", json::array({axis("17-0042 x", "reached", 0.02),
+                                                           axis("17-0042 z", "continue", 0.041)})},
+                                     {"age_s", 30.0}};
+  EXPECT_THAT(cli::format_status(adaptive),
+              HasSubstr("progress    acquiring 42%, U95 0.041 → 0.03 °/h (widest: 17-0042 z), "
+                        "target in ~6 min · run ends in 50 min\n"));
+  adaptive["progress"]["acquire"]["axes"][1]["verdict"] = "out_of_reach";
+  EXPECT_THAT(cli::format_status(adaptive), HasSubstr(", out of reach on 17-0042 z ·"));
+  adaptive["progress"]["acquire"]["axes"][1]["verdict"] = "reached";
+  EXPECT_THAT(cli::format_status(adaptive),
+              HasSubstr("acquiring 42%, target U95 0.03 °/h reached on every axis ·"));
   EXPECT_THAT(text, HasSubstr("time        station 1:03:20, run 1:01:40, time scale 1000×\n"));
 
   json without_since = status_answer();

@@ -151,8 +151,8 @@ TEST_F(CentralTest, MigrateCreatesTheCurrentVersionAndTwiceIsANoOp) {
   auto v = migrate_central(pg);
   ASSERT_TRUE(v.ok()) << v.error().message;
   EXPECT_EQ(*v, 3);
-  EXPECT_EQ(kCentralSchemaVersion, 3);
-  EXPECT_EQ(*central_schema_version(pg), 3);
+  EXPECT_EQ(kCentralSchemaVersion, 4);
+  EXPECT_EQ(*central_schema_version(pg), 4);
   EXPECT_EQ(scalar(pg, "SELECT count(*) FROM lab.schema_migrations"), "3");
   const std::string applied = scalar(pg, "SELECT max(applied_at) FROM lab.schema_migrations");
   EXPECT_EQ(scalar(pg,

@@ -25,6 +25,7 @@
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <optional>
+#include <random>
 #include <span>
 #include <string>
 #include <thread>
@@ -249,7 +250,9 @@ class FakeGyro final : public drivers::DutSource {
       DutFrame f;
       f.t_s = t0_s_ + static_cast<double>(k_) / rate_hz_;
       f.seq = static_cast<uint8_t>(seq_++ & 0x7f);
-      f.raw[0] = bias_dph + drift_dph_per_c * (shell_c - 23.0);
+      if (walk_dphprh > 0) walk_dph_ += walk_dphprh / 60.0 / std::sqrt(rate_hz_) * normal_(rng_);
+      f.raw[0] = bias_dph + drift_dph_per_c * (shell_c - 23.0) + walk_dph_ +
+                 (noise_dph > 0 ? noise_dph * normal_(rng_) : 0.0);
       f.raw[1] = 0;
       f.raw[2] = static_cast<double>(std::lround(shell_c));
       batch.push_back(f);
@@ -261,6 +264,10 @@ class FakeGyro final : public drivers::DutSource {
   bool muted = false;
   double bias_dph = 1.5;
   double drift_dph_per_c = 0.01;
+  // Seeded noise (0: none): white, std per frame, and a rate random walk of
+  // K °/h/√h.
+  double noise_dph = 0;
+  double walk_dphprh = 0;
 
  private:
   std::shared_ptr<FakePlant> plant_;
@@ -270,6 +277,9 @@ class FakeGyro final : public drivers::DutSource {
   int64_t k_ = -1;
   int seq_ = 0;
   Sink sink_;
+  std::mt19937_64 rng_{20261130};
+  std::normal_distribution<double> normal_;
+  double walk_dph_ = 0;
 };
 
 // The station's samples go to a real SampleWriter through this; while

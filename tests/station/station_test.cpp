@@ -974,6 +974,90 @@ acquire_min = 5
   EXPECT_TRUE(rig.station->status().progress.run_eta_s);
 }
 
+// Adaptive soaks (docs/schedules.md, "Adaptive soaks"). White noise of
+// 1 °/h per frame at 10 Hz is 0.316 °/h in 1 s means: U95(T) = 1.96 x 0.316 /
+// sqrt(T) reaches 0.03 °/h at T = 426 s; the axis is judged every 2 min of
+// acquiring, so the soak ends at the first judgement past that (480 s, or a
+// judgement later when the fit's own noise puts U95 above the target),
+// long before its 60 min cap; why is stored with the segment and in the
+// events, and while it acquires the status shows the axis's projection.
+TEST_F(StationUnitTest, AnAdaptiveSoakEndsWhenItsBiasIsKnownToTheTarget) {
+  StationRig rig(dir_);
+  rig.open();
+  rig.gyro().noise_dph = 1.0;
+  const int64_t run_id = rig.queue(R"(
+name = "adaptive"
+[[step]]
+type = "soak"
+setpoint_c = 23.0
+stability_window_min = 1
+acquire = { target_u95_dph = 0.03, min_min = 2, max_min = 60 }
+)");
+  ASSERT_TRUE(rig.step_until([&] { return rig.state() == "acquiring"; }, 600)) << rig.state();
+  const double acquiring_s = rig.station->status().t_run_s;
+  ASSERT_TRUE(rig.step_until(
+      [&] {
+        return rig.station->status().t_run_s - acquiring_s >= 250 || rig.state() != "acquiring";
+      },
+      600));
+  ASSERT_EQ(rig.state(), "acquiring");
+  const station::Progress mid = rig.station->status().progress;
+  ASSERT_TRUE(mid.acquire) << "no judgement after 250 s of acquiring";
+  ASSERT_EQ(mid.acquire->axes.size(), 1u);
+  const auto& axis = mid.acquire->axes.front();
+  EXPECT_EQ(axis.verdict, "continue") << axis.note;
+  ASSERT_TRUE(axis.reach_s && axis.u95_dph) << axis.note;
+  EXPECT_NEAR(*axis.reach_s, 426, 0.35 * 426) << axis.note;
+  EXPECT_GT(*axis.u95_dph, 0.03);
+  ASSERT_TRUE(mid.step_planned_s && mid.acquire->planned_s);
+  EXPECT_LT(*mid.step_planned_s, 3600) << "the projection, not the cap, is the step's plan";
+  const nlohmann::json j = station::to_json(rig.station->status());
+  EXPECT_EQ(j.at("progress").at("acquire").at("axes").at(0).at("verdict"), "continue")
+      << j.at("progress").dump();
+
+  ASSERT_TRUE(rig.step_until([&] { return rig.station->idle() && !rig.station->status().run_id; },
+                             3 * 3600));
+  const auto run = rig.reply(rig.station->run(run_id));
+  EXPECT_EQ(run.at("state"), "completed");
+  const nlohmann::json seg = run.at("segments").at(0);
+  const std::string stop = seg.at("acquire_stop").get<std::string>();
+  EXPECT_EQ(stop.rfind("target reached: U95 <= 0.03 °/h on every gated axis", 0), 0u) << stop;
+  const double acquired_s =
+      seg.at("t_acquire_end_s").get<double>() - seg.at("t_acquire_start_s").get<double>();
+  EXPECT_GE(acquired_s, 400) << stop;
+  EXPECT_LE(acquired_s, 1000) << stop;
+  EXPECT_TRUE(rig.has_event(run_id, "acquisition", "acquisition ended after")) << stop;
+}
+
+// A rate random walk (K = 6 °/h/√h) makes the mean's uncertainty grow with
+// the soak's length beyond a few seconds: 0.01 °/h is out of reach, and the
+// soak ends at its minimum with the floor said, not at its cap.
+TEST_F(StationUnitTest, AnAdaptiveSoakWhoseTargetIsOutOfReachEndsAndSaysWhy) {
+  StationRig rig(dir_);
+  rig.open();
+  rig.gyro().noise_dph = 0.5;
+  rig.gyro().walk_dphprh = 6.0;
+  const int64_t run_id = rig.queue(R"(
+name = "out of reach"
+[[step]]
+type = "soak"
+setpoint_c = 23.0
+stability_window_min = 1
+acquire = { target_u95_dph = 0.01, min_min = 10, max_min = 120 }
+)");
+  ASSERT_TRUE(rig.step_until([&] { return rig.station->idle() && !rig.station->status().run_id; },
+                             4 * 3600));
+  const auto run = rig.reply(rig.station->run(run_id));
+  EXPECT_EQ(run.at("state"), "completed");
+  const nlohmann::json seg = run.at("segments").at(0);
+  const std::string stop = seg.at("acquire_stop").get<std::string>();
+  EXPECT_NE(stop.find("out of reach"), std::string::npos) << stop;
+  EXPECT_NE(stop.find("floor = "), std::string::npos) << stop;
+  const double acquired_s =
+      seg.at("t_acquire_end_s").get<double>() - seg.at("t_acquire_start_s").get<double>();
+  EXPECT_NEAR(acquired_s, 600, 5) << "ends at its minimum: " << stop;
+}
+
 // The chamber's prior (docs/schedules.md, "Planned duration and
 // progress"): the first run, ramping with a soak still to settle, has no
 // ETA; by the third, the soaks of the first two (and its own first) have

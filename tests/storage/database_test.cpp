@@ -47,7 +47,7 @@ TEST(Database, OpenCreatesTheCurrentSchemaInWalMode) {
   auto version = db.schema_version();
   ASSERT_TRUE(version.ok()) << version.error().message;
   EXPECT_EQ(*version, kSchemaVersion);
-  EXPECT_EQ(kSchemaVersion, 13);
+  EXPECT_EQ(kSchemaVersion, 14);
   EXPECT_EQ(query_text(db.handle(), "PRAGMA journal_mode"), "wal");
   EXPECT_EQ(query_int(db.handle(), "PRAGMA synchronous"), 1);  // NORMAL
   EXPECT_EQ(query_int(db.handle(), "PRAGMA foreign_keys"), 1);

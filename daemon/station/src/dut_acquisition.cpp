@@ -43,6 +43,9 @@ DutAcquisition::DutAcquisition(const config::StationConfig& config,
     live->window_sum.assign(live->rate_channels.size(), 0.0);
     live->window_n.assign(live->rate_channels.size(), 0);
     live->rates_dph.assign(live->rate_channels.size(), std::nullopt);
+    live->bin_mean_dph.resize(live->rate_channels.size());
+    live->bin_sum.assign(live->rate_channels.size(), 0.0);
+    live->bin_n.assign(live->rate_channels.size(), 0);
     duts_.push_back(std::move(live));
   }
   for (const auto& d : duts_) publish_dut_status(*d);
@@ -127,9 +130,79 @@ void DutAcquisition::add_health(StatusSnapshot& s) const {
 
 void DutAcquisition::forget_coverage_before(double t_s) {
   for (auto& d : duts_) {
-    std::lock_guard lock(d->coverage_mu);
-    if (d->coverage) d->coverage->forget_before(t_s);
+    {
+      std::lock_guard lock(d->coverage_mu);
+      if (d->coverage) d->coverage->forget_before(t_s);
+    }
+    std::lock_guard lock(d->bins_mu);
+    const auto keep = std::lower_bound(d->bin_t_s.begin(), d->bin_t_s.end(), std::floor(t_s));
+    const auto drop = keep - d->bin_t_s.begin();
+    d->bin_t_s.erase(d->bin_t_s.begin(), keep);
+    for (auto& axis : d->bin_mean_dph) axis.erase(axis.begin(), axis.begin() + drop);
   }
+}
+
+void DutAcquisition::bin_seconds(DutLive& dut, int64_t run_id, std::span<const DutFrame> rel) {
+  const auto& channels = dut.source->channels();
+  std::lock_guard lock(dut.bins_mu);
+  if (dut.bins_run_id != run_id) {
+    dut.bins_run_id = run_id;
+    dut.bin_t_s.clear();
+    for (auto& axis : dut.bin_mean_dph) axis.clear();
+    dut.bin_open_s = -1;
+  }
+  auto close_open_second = [&] {
+    if (dut.bin_open_s < 0) return;
+    dut.bin_t_s.push_back(dut.bin_open_s);
+    for (std::size_t a = 0; a < dut.rate_channels.size(); ++a) {
+      dut.bin_mean_dph[a].push_back(dut.bin_n[a] > 0
+                                        ? dut.bin_sum[a] / static_cast<double>(dut.bin_n[a])
+                                        : std::numeric_limits<double>::quiet_NaN());
+      dut.bin_sum[a] = 0;
+      dut.bin_n[a] = 0;
+    }
+  };
+  for (const auto& f : rel) {
+    const double second_s = std::floor(f.t_s);
+    if (second_s < dut.bin_open_s) continue;  // out of order: its second is closed
+    if (second_s > dut.bin_open_s) {
+      close_open_second();
+      dut.bin_open_s = second_s;
+    }
+    for (std::size_t a = 0; a < dut.rate_channels.size(); ++a) {
+      const std::size_t c = dut.rate_channels[a];
+      const double v = f.raw[c] * channels[c].scale;
+      if (!std::isfinite(v)) continue;
+      dut.bin_sum[a] += v;
+      ++dut.bin_n[a];
+    }
+  }
+}
+
+std::vector<DutAcquisition::AxisSeconds> DutAcquisition::gated_seconds(
+    std::span<const std::pair<double, double>> windows) {
+  const int64_t run_id = links_.run_clock.load().run_id;
+  std::vector<AxisSeconds> out;
+  for (auto& d : duts_) {
+    if (!d->in_run.load() || !d->cfg->required || d->lost.load()) continue;
+    const auto& channels = d->source->channels();
+    std::lock_guard lock(d->bins_mu);
+    if (d->bins_run_id != run_id) continue;
+    for (std::size_t a = 0; a < d->rate_channels.size(); ++a) {
+      AxisSeconds axis{fmt::format("{} {}", dut_name(*d->cfg), channels[d->rate_channels[a]].axis),
+                       {}};
+      for (const auto& [from_s, to_s] : windows) {
+        // The seconds wholly inside the window.
+        auto it = std::lower_bound(d->bin_t_s.begin(), d->bin_t_s.end(), std::ceil(from_s));
+        for (; it != d->bin_t_s.end() && *it + 1.0 <= to_s; ++it) {
+          const double v = d->bin_mean_dph[a][static_cast<std::size_t>(it - d->bin_t_s.begin())];
+          if (std::isfinite(v)) axis.rate_dph.push_back(v);
+        }
+      }
+      out.push_back(std::move(axis));
+    }
+  }
+  return out;
 }
 
 void DutAcquisition::on_dut_frames(DutLive& dut, std::span<const DutFrame> frames) {
@@ -160,6 +233,7 @@ void DutAcquisition::on_dut_frames(DutLive& dut, std::span<const DutFrame> frame
       }
       for (const auto& f : rel) dut.coverage->add(f.t_s);
     }
+    bin_seconds(dut, run.run_id, rel);
     {
       std::lock_guard handed(handed_mu_);
       dut.handed_run_id = run.run_id;

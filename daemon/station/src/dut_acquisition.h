@@ -97,8 +97,17 @@ class DutAcquisition {
   // data_reached_at_s) over the DUTs of the current run; run seconds.
   double data_covered_s(double from_s, double to_s);
   std::optional<double> data_reached_at_s(double from_s, double need_s);
-  // A step started at `t_s`: the coverage before it is forgotten.
+  // A step started at `t_s`: the coverage (and the 1 s means) before it are
+  // forgotten.
   void forget_coverage_before(double t_s);
+  // The 1 s means (run seconds, whole seconds from the run's start) of each
+  // rate axis of the DUTs of the current run that are required and not lost,
+  // inside `windows` (from_s, to_s): the adaptive soaks' data (AcquireWatch).
+  struct AxisSeconds {
+    std::string name;  // "<serial> <axis>"
+    std::vector<double> rate_dph;
+  };
+  std::vector<AxisSeconds> gated_seconds(std::span<const std::pair<double, double>> windows);
   // After a restart: each DUT's coverage of the run from `from_s` on, read
   // back from its committed samples (`db`: the run lock's connection).
   void seed_coverage(storage::Database& db, int64_t run_id, double from_s);
@@ -147,6 +156,16 @@ class DutAcquisition {
     std::mutex coverage_mu;
     int64_t coverage_run_id = 0;
     std::optional<schedules::CoverageSpans> coverage;
+    // bins_mu: the run's 1 s means per rate axis from the current step's
+    // start (gated_seconds): bin_t_s the whole run second each starts at;
+    // the open second's sums apart.
+    std::mutex bins_mu;
+    int64_t bins_run_id = 0;
+    std::vector<double> bin_t_s;
+    std::vector<std::vector<double>> bin_mean_dph;  // per rate axis; NaN: no value that second
+    double bin_open_s = -1;
+    std::vector<double> bin_sum;
+    std::vector<int64_t> bin_n;
     // handed_mu_:
     int64_t handed_run_id = 0;
     double handed_until_s = 0;
@@ -161,6 +180,8 @@ class DutAcquisition {
     double samples_per_s = 0;
   };
   void on_dut_frames(DutLive& dut, std::span<const DutFrame> frames);
+  // The run's frames (run seconds) into the DUT's 1 s means.
+  void bin_seconds(DutLive& dut, int64_t run_id, std::span<const DutFrame> rel);
   void publish_dut_status(const DutLive& dut);
 
   const config::StationConfig& config_;

@@ -39,6 +39,7 @@ storage::SegmentRecord segment_record(int64_t id, int64_t run_id, std::size_t in
   seg.dwell_s = step.dwell_s;
   seg.sf_sequence = step.sf_sequence;
   seg.sf_repetition = step.sf_repetition;
+  seg.acquire_stop = times.acquire_stop;
   return seg;
 }
 

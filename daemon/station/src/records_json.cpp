@@ -96,7 +96,8 @@ nlohmann::json to_json(const storage::SegmentRecord& s) {
           {"turns", s.turns},
           {"dwell_s", num(s.dwell_s)},
           {"sf_sequence", s.sf_sequence},
-          {"sf_repetition", s.sf_repetition}};
+          {"sf_repetition", s.sf_repetition},
+          {"acquire_stop", s.acquire_stop}};
 }
 
 nlohmann::json to_json(const storage::ScaleFactorPointRecord& p) {

@@ -89,7 +89,14 @@ double RunLifecycle::tick(double now_s, const schedules::Readings& r) {
     }
   } else {
     if (table) tend_table(t_run_s);
-    tick_sequencer(t_run_s, r);
+    watch_acquisition(t_run_s);
+    if (acquire_watch_.done()) {
+      schedules::Readings judged = r;
+      judged.acquisition_done = acquire_watch_.done();
+      tick_sequencer(t_run_s, judged);
+    } else {
+      tick_sequencer(t_run_s, r);
+    }
     watch_settle(t_run_s, r);
     if (table && !sequencer_->finished()) drive_table();
     // At the run's end the table stops before the chamber heads for its
@@ -133,6 +140,27 @@ void RunLifecycle::tick_sequencer(double t_run_s, const schedules::Readings& r) 
         return Status::Ok();
       });
   if (!written) checkpoint_state_.clear();  // rolled back: checkpointed again next tick
+}
+
+void RunLifecycle::watch_acquisition(double t_run_s) {
+  const std::size_t index = sequencer_->step_index();
+  const auto& steps = sequencer_->plan().steps;
+  const bool running = !sequencer_->finished() && sequencer_->state() != RunState::kAborting;
+  const schedules::PlanStep* step =
+      running && index < steps.size() && steps[index].kind == schedules::StepKind::kSoak
+          ? &steps[index]
+          : nullptr;
+  const bool acquiring = step && step->adaptive && sequencer_->state() == RunState::kAcquiring;
+  std::vector<std::pair<double, double>> windows;
+  if (acquiring) {
+    const schedules::SequencerSnapshot snap = sequencer_->snapshot(t_run_s);
+    for (const auto& w : snap.times.windows) windows.emplace_back(w.from_s, w.to_s);
+    if (snap.window_open_s) windows.emplace_back(*snap.window_open_s, t_run_s);
+  }
+  acquire_watch_.tick(t_run_s, index, step, acquiring, windows,
+                      [this](std::span<const std::pair<double, double>> w) {
+                        return links_.duts.gated_seconds(w);
+                      });
 }
 
 void RunLifecycle::watch_settle(double t_run_s, const schedules::Readings& r) {
@@ -204,7 +232,8 @@ Progress RunLifecycle::progress(double t_run_s) {
   if (!sequencer_) return to_progress(schedules::queue_progress(queue_planned_, settle_prior_));
   return to_progress(schedules::run_progress(sequencer_->plan(), sequencer_->snapshot(t_run_s),
                                              sequencer_->gate_progress(t_run_s), queue_planned_,
-                                             settle_watch_.forecast(t_run_s), settle_prior_));
+                                             settle_watch_.forecast(t_run_s), settle_prior_,
+                                             acquire_watch_.forecast(t_run_s)));
 }
 
 // ---------------------------------------------------------------- the table
@@ -656,6 +685,7 @@ void RunLifecycle::end_run() {
   }
   links_.run_clock.publish(0, 0.0);
   settle_watch_.forget();
+  acquire_watch_.forget();
   sequencer_.reset();
   entry_.reset();
   checkpoint_state_.clear();
@@ -760,6 +790,13 @@ void RunLifecycle::on_step_finished(std::size_t index, const schedules::PlanStep
   }
   links_.journal.keep_segment(
       segment_record(id, run_id, index, step, times, completed ? "completed" : "aborted"));
+  if (!times.acquire_stop.empty()) {
+    const std::string message =
+        fmt::format("{} (step {}): acquisition ended after {:.1f} min: {}", step.label, index + 1,
+                    times.acquired_s() / 60.0, times.acquire_stop);
+    spdlog::info("run {}: {}", run_id, message);
+    links_.journal.add_event("acquisition", "", "", message);
+  }
   links_.journal.record_unrecorded();
   // Table I is of static soaks only: a soak with the table spinning is not
   // a zero-bias measurement.

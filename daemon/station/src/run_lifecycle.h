@@ -27,6 +27,7 @@
 #include <string>
 #include <string_view>
 
+#include "acquire_watch.h"
 #include "gyrotherm/calibration/analysis_worker.h"
 #include "gyrotherm/config/config.h"
 #include "gyrotherm/core/clock.h"
@@ -129,6 +130,9 @@ class RunLifecycle final : private schedules::SequencerObserver {
   // Hands the tick's shell temperature to the settle watch while a soak
   // waits for its gate.
   void watch_settle(double t_run_s, const schedules::Readings& r);
+  // An adaptive soak acquiring: its gated axes judged (AcquireWatch) before
+  // the sequencer's tick, which may end the soak on the judgement.
+  void watch_acquisition(double t_run_s);
   void note_samples_not_committed(int64_t run_id, schedules::RunState final_state, const Error& e);
   void answer_failed_run();
   void hold_queue(const std::string& reason);
@@ -189,6 +193,7 @@ class RunLifecycle final : private schedules::SequencerObserver {
   std::optional<schedules::SettlePrior> settle_prior_;
   // The forecast of the current soak's settle, for the progress.
   SettleWatch settle_watch_;
+  AcquireWatch acquire_watch_;
 };
 
 }  // namespace gyrotherm::station

@@ -50,6 +50,27 @@ nlohmann::json settle_json(const std::optional<schedules::SettleForecast>& f) {
           {"p50_s", opt(f->p50_s)}, {"p90_s", opt(f->p90_s)}, {"age_s", f->age_s}};
 }
 
+// null unless an adaptive soak acquires and its axes have been judged.
+nlohmann::json acquire_json(const std::optional<schedules::AcquireForecast>& f) {
+  if (!f) return nullptr;
+  nlohmann::json axes = nlohmann::json::array();
+  for (const auto& a : f->axes) {
+    axes.push_back({{"name", a.name},
+                    {"verdict", a.verdict},
+                    {"u95_dph", opt(a.u95_dph)},
+                    {"reach_s", opt(a.reach_s)},
+                    {"floor_dph", opt(a.floor_dph)},
+                    {"note", a.note}});
+  }
+  return {{"target_u95_dph", f->target_u95_dph},
+          {"min_s", f->min_s},
+          {"max_s", f->max_s},
+          {"acquired_s", f->acquired_s},
+          {"planned_s", opt(f->planned_s)},
+          {"axes", axes},
+          {"age_s", f->age_s}};
+}
+
 nlohmann::json to_json(const Progress& p) {
   return {{"phase", p.phase},
           {"step_elapsed_s", opt(p.step_elapsed_s)},
@@ -66,6 +87,7 @@ nlohmann::json to_json(const Progress& p) {
            p.run_eta_basis.empty() ? nlohmann::json(nullptr) : nlohmann::json(p.run_eta_basis)},
           {"prior_settles", p.prior_settles},
           {"settle", settle_json(p.settle)},
+          {"acquire", acquire_json(p.acquire)},
           {"queue_fixed_s", p.queue_fixed_s},
           {"queue_settles", p.queue_settles},
           {"queue_eta_s", opt(p.queue_eta_s)},
@@ -198,6 +220,7 @@ Progress to_progress(const schedules::RunProgress& p) {
   out.run_eta_p10_s = p.run_eta_p10_s;
   out.run_eta_p90_s = p.run_eta_p90_s;
   out.settle = p.settle;
+  out.acquire = p.acquire;
   out.run_eta_basis = p.run_eta_basis;
   out.prior_settles = p.prior_settles;
   out.queue_eta_s = p.queue_eta_s;

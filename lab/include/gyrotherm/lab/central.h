@@ -21,7 +21,7 @@
 
 namespace gyrotherm::lab {
 
-inline constexpr int kCentralSchemaVersion = 3;
+inline constexpr int kCentralSchemaVersion = 4;
 
 // A station id lab.stations accepts (its CHECK): a letter or digit, then up
 // to 63 letters, digits, '.', '_' or '-'.

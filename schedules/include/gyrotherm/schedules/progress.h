@@ -95,6 +95,27 @@ inline constexpr int kMaxPriorSettles = 50;  // the newest this many
 // kMinPriorSettles of them.
 std::optional<SettlePrior> settle_prior(std::vector<double> settles_s);
 
+// An adaptive soak's acquisition as the station projects it (the daemon's
+// acquisition watch over analysis::project_acquisition), per gated DUT axis
+// (docs/schedules.md, "Adaptive soaks").
+struct AcquireAxis {
+  std::string name;               // "<serial> <axis>"
+  std::string verdict;            // continue, reached, out_of_reach, no_model
+  std::optional<double> u95_dph;  // U95 of its mean so far
+  std::optional<double> reach_s;  // continue: the acquisition length projected to reach the target
+  std::optional<double> floor_dph;  // the flicker floor of its model
+  std::string note;                 // one line: how far, or why not
+};
+struct AcquireForecast {
+  double target_u95_dph = 0, min_s = 0, max_s = 0;
+  double acquired_s = 0;  // the acquisition the axes were judged on, station s
+  // The acquisition's projected length: the longest axis's reach (at least
+  // min_s, at most max_s); nullopt when an axis has no projection (the cap).
+  std::optional<double> planned_s;
+  std::vector<AcquireAxis> axes;
+  double age_s = 0;  // station s since that judgement
+};
+
 // Where a run and the queue are; the fields of station::Progress (see
 // gyrotherm/station/status.h and docs/api.md, "Progress").
 struct RunProgress {
@@ -122,6 +143,9 @@ struct RunProgress {
   std::string run_eta_basis;  // fixed, forecast, prior, forecast+prior; "" without an ETA
   int prior_settles = 0;      // past settles behind the prior (0 without one)
   std::optional<SettleForecast> settle;  // while a soak settles and a forecast was given
+  // While an adaptive soak acquires and its axes were judged: the step's
+  // planned time is then the projected acquisition (planned_s), not the cap.
+  std::optional<AcquireForecast> acquire;
   double queue_fixed_s = 0;
   int queue_settles = 0;
   // The queued entries' time with their settles from the prior (fixed only
@@ -138,7 +162,8 @@ struct RunProgress {
 RunProgress run_progress(const Plan& plan, const SequencerSnapshot& snapshot,
                          const std::optional<GateProgress>& gate, const PlannedDuration& queue,
                          const std::optional<SettleForecast>& settle = std::nullopt,
-                         const std::optional<SettlePrior>& prior = std::nullopt);
+                         const std::optional<SettlePrior>& prior = std::nullopt,
+                         const std::optional<AcquireForecast>& acquire = std::nullopt);
 // The queue's part alone (no run): its fixed time and settles, with the
 // ETA from the prior.
 RunProgress queue_progress(const PlannedDuration& queue, const std::optional<SettlePrior>& prior);

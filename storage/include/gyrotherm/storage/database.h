@@ -56,7 +56,7 @@ struct FileGuard;
 // v10: run UUIDs and the lab outbox (runs.uuid, outbox; docs/lab.md).
 // v11: coverage and a quality verdict on every result; rate points' guard
 // bands.
-inline constexpr int kSchemaVersion = 13;
+inline constexpr int kSchemaVersion = 14;
 
 // The file a connection opened: its device and inode when it was opened.
 struct FileIdentity {

@@ -103,6 +103,9 @@ struct SegmentRecord {
   double dwell_s = 0;
   int sf_sequence = 0;
   int sf_repetition = 0;
+  // An adaptive soak (schema v14): why its acquisition ended (the target
+  // reached, out of reach with its floor, or the cap); empty otherwise.
+  std::string acquire_stop;
 };
 
 // Part of Database (database.h): call these on a Database. Defined in

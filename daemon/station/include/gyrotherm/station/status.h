@@ -64,6 +64,9 @@ struct Progress {
   int prior_settles = 0;      // past settles behind the prior
   // While a soak settles: the forecast of its gate (schedules::SettleForecast).
   std::optional<schedules::SettleForecast> settle;
+  // While an adaptive soak acquires: its gated axes' last judgement
+  // (schedules::AcquireForecast).
+  std::optional<schedules::AcquireForecast> acquire;
   double queue_fixed_s = 0;  // fixed-length time of the queued entries, station s
   int queue_settles = 0;
   // Their time with the settles from the prior; nullopt without one.
