@@ -536,6 +536,81 @@
     setText('table-fault', t.fault || (up ? '' : h.last_error || ''));
   }
 
+  // An adaptive soak's judgement (progress.acquire, docs/api.md): each gated
+  // axis's projected U95(T) = k sqrt(q_n / T + q_b + q_k T) of its mean on
+  // log-log axes from the soak's minimum to its cap, the target dashed, the
+  // acquisition judged dotted with each axis's U95 there; and a line of text.
+  const ACQUIRE_COLOURS = ['#38bdf8', '#a3e635', '#f472b6', '#fbbf24', '#c084fc', '#2dd4bf'];
+  const SVG_NS = 'http://www.w3.org/2000/svg';
+  function svgEl(name, attrs, text) {
+    const e = document.createElementNS(SVG_NS, name);
+    for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
+    if (text != null) e.textContent = text;
+    return e;
+  }
+  function fmtU(v) {
+    return v == null || !Number.isFinite(v) ? '—' : Number(v.toPrecision(3)).toString();
+  }
+  function renderAcquire(a, running) {
+    const show = running && a != null && Array.isArray(a.axes) && a.axes.length > 0;
+    $('acquire').hidden = !show;
+    if (!show) return;
+    const u95 = (m, t) => m.k * Math.sqrt(Math.max(0, m.q_n / t + m.q_b + m.q_k * t));
+    const t0 = Math.max(1, Math.min(a.acquired_s || 60, a.min_s || 60, 60));
+    const t1 = Math.max(a.max_s, t0 * 2);
+    const grid = Array.from({ length: 61 }, (_, i) => t0 * Math.pow(t1 / t0, i / 60));
+    const curves = a.axes.map((axis) => (axis.model ? grid.map((t) => u95(axis.model, t)) : null));
+    let lo = a.target_u95_dph, hi = a.target_u95_dph;
+    for (const c of curves) {
+      if (!c) continue;
+      for (const v of c) if (v > 0 && Number.isFinite(v)) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
+    }
+    lo /= 1.5;
+    hi *= 1.5;
+    const W = 420, H = 150, L = 44, R = 8, T = 8, B = 22;
+    const x = (t) => L + (W - L - R) * Math.log(t / t0) / Math.log(t1 / t0);
+    const y = (v) => T + (H - T - B) * (1 - Math.log(v / lo) / Math.log(hi / lo));
+    const svg = $('acquire-plot');
+    svg.replaceChildren();
+    svg.appendChild(svgEl('rect', { class: 'frame', x: L, y: T, width: W - L - R, height: H - T - B }));
+    const yt = y(a.target_u95_dph);
+    svg.appendChild(svgEl('line', { class: 'target', x1: L, x2: W - R, y1: yt, y2: yt }));
+    svg.appendChild(svgEl('text', { x: L + 4, y: yt - 3 }, `target ${fmtU(a.target_u95_dph)} °/h`));
+    if (a.acquired_s > 0) {
+      const xn = x(Math.min(Math.max(a.acquired_s, t0), t1));
+      svg.appendChild(svgEl('line', { class: 'now', x1: xn, x2: xn, y1: T, y2: H - B }));
+    }
+    svg.appendChild(svgEl('text', { x: L, y: H - 6 }, fmtDuration(t0)));
+    svg.appendChild(svgEl('text', { x: W - R, y: H - 6, 'text-anchor': 'end' }, fmtDuration(t1)));
+    svg.appendChild(svgEl('text', { x: L - 4, y: T + 9, 'text-anchor': 'end' }, fmtU(hi)));
+    svg.appendChild(svgEl('text', { x: L - 4, y: T + 20, 'text-anchor': 'end' }, '°/h'));
+    svg.appendChild(svgEl('text', { x: L - 4, y: H - B, 'text-anchor': 'end' }, fmtU(lo)));
+    curves.forEach((c, i) => {
+      if (!c) return;
+      const colour = ACQUIRE_COLOURS[i % ACQUIRE_COLOURS.length];
+      const d = c.map((v, j) => `${j ? 'L' : 'M'}${x(grid[j]).toFixed(1)},${y(v).toFixed(1)}`).join('');
+      const path = svgEl('path', { class: 'curve', d, stroke: colour });
+      path.dataset.axis = a.axes[i].name;
+      path.appendChild(svgEl('title', {}, `${a.axes[i].name}: ${a.axes[i].note}`));
+      svg.appendChild(path);
+      svg.appendChild(svgEl('text', { x: W - R - 4, y: T + 11 + 11 * i, 'text-anchor': 'end',
+        fill: colour, style: `fill: ${colour}` }, `— ${a.axes[i].name}`));
+      if (a.axes[i].u95_dph > 0 && a.acquired_s > 0) {
+        svg.appendChild(svgEl('circle', { cx: x(Math.min(Math.max(a.acquired_s, t0), t1)),
+          cy: y(a.axes[i].u95_dph), r: 3, fill: colour }));
+      }
+    });
+    const widest = a.axes.reduce((w, axis) =>
+      (axis.u95_dph != null && (!w || axis.u95_dph > w.u95_dph) ? axis : w), null);
+    const verdicts = a.axes.map((axis) => `${axis.name} ${axis.verdict.replace(/_/g, ' ')}`);
+    const when = a.planned_s != null
+      ? `target in ~${fmtDuration(Math.max(0, a.planned_s - a.acquired_s))}`
+      : 'target not projected within the cap';
+    setText('acquire-text', `U95 ${widest ? fmtU(widest.u95_dph) : '—'} → ` +
+      `${fmtU(a.target_u95_dph)} °/h after ${fmtDuration(a.acquired_s)}, ${when} · ` +
+      verdicts.join(', '));
+  }
+
   // The step's progress bar, or the stability gate's while a soak settles
   // (no fraction then: settling has no fixed length), and the run's and the
   // queue's time left.
@@ -564,6 +639,7 @@
         (forecast ? ` · ${forecast}` : ''));
       $('gate-progress').title = p.settle ? p.settle.note || '' : '';
     }
+    renderAcquire(p.acquire, running);
     const etaBand = p.run_eta_p10_s != null
       ? ` (P10 ${fmtDuration(p.run_eta_p10_s)} – P90 ` +
         `${p.run_eta_p90_s != null ? fmtDuration(p.run_eta_p90_s) : 'beyond 48 h'}` +

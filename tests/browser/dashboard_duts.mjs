@@ -14,7 +14,9 @@
 //      ?dut=21-0007&channel=rate and plots what it answered;
 //   3. the stream (held until 2 was checked) brings the run acquiring: the
 //      step's bar at 42.5 %, no gate bar, the run's ETA, the chosen
-//      channel's live value on the plot.
+//      channel's live value on the plot; the adaptive soak's judgement: a
+//      U95(T) curve per axis with a model, the target and the text line
+//      (a second screenshot, OUT-acquiring.png).
 //
 //   node tests/browser/dashboard_duts.mjs --screenshot OUT.png
 //       [--timeout-s 30] [--chromium /usr/bin/chromium]
@@ -105,6 +107,19 @@ const ACQUIRING = {
   run_eta_s: 3000, run_eta_p10_s: null, run_eta_p90_s: null, run_eta_basis: 'fixed',
   prior_settles: 0, queue_fixed_s: 43200, queue_settles: 8, settle: null,
   queue_eta_s: 50400, queue_eta_p10_s: 46800, queue_eta_p90_s: 57600,
+  // An adaptive soak judged: two axes with a model (white noise; white noise
+  // and a flicker floor), one without yet.
+  acquire: {
+    target_u95_dph: 0.03, min_s: 600, max_s: 9000, acquired_s: 2550, planned_s: 6000, age_s: 40,
+    axes: [
+      { name: '17-0042 x', verdict: 'continue', u95_dph: 0.0389, reach_s: 4300, floor_dph: 0,
+        model: { q_n: 1.0, q_b: 0, q_k: 0, k: 1.97 }, note: 'U95 0.0389 °/h after 42 min' },
+      { name: '17-0042 z', verdict: 'continue', u95_dph: 0.0443, reach_s: 6000, floor_dph: 0.005,
+        model: { q_n: 1.2, q_b: 2.5e-5, q_k: 0, k: 1.98 }, note: 'U95 0.0443 °/h after 42 min' },
+      { name: '21-0007 x', verdict: 'no_model', u95_dph: null, reach_s: null, floor_dph: null,
+        model: null, note: 'no noise model yet' },
+    ],
+  },
 };
 
 // A station snapshot as GET /api/v1/status gives it (docs/api.md), run 5.
@@ -198,6 +213,10 @@ async function look(page) {
       gateWidth: el('gate-fill').style.width,
       gateText: text('gate-progress'),
       runEta: text('run-eta'),
+      acquireHidden: el('acquire').hidden,
+      acquireCurves: [...document.querySelectorAll('#acquire-plot path.curve')]
+        .map((c) => c.dataset.axis),
+      acquireText: text('acquire-text'),
       queueEta: text('queue-eta'),
       gyroMeans: window.dashboard ? [...window.dashboard.gyroPlot.data[1]] : [],
       station: text('t-station'),
@@ -350,6 +369,7 @@ try {
   expectFields(failures, '1 (progress, settling)', one, {
     progressHidden: false, stepBarHidden: false, stepWidth: '0%',
     stepText: 'settling for 7 min, then 1 h 40 min', gateHidden: false, gateWidth: '40%',
+    acquireHidden: true,
     gateText: 'stability gate 0:04:00 of 0:10:00 · gate in 30 min (P10 20 min – P90 50 min)',
     runEta: 'run ≥ 2 h 10 min + 2 settles',
     queueEta: 'queue ≥ 12 h + 8 settles' });
@@ -382,9 +402,16 @@ try {
   if (!seen.ok) failures.push(`3: the stream's status did not show: ${JSON.stringify(seen.last)}`);
   expectFields(failures, '3 (progress, acquiring)', seen.last, {
     stepText: 'step 42% · 42 min 30 s of 1 h 40 min', gateHidden: true,
+    acquireHidden: false,
+    acquireText: 'U95 0.0443 → 0.03 °/h after 42 min 30 s, target in ~57 min 30 s · ' +
+      '17-0042 x continue, 17-0042 z continue, 21-0007 x no model',
     runEta: 'run ends in 50 min',
     queueEta: 'queue ≥ 12 h + 8 settles, ~14 h with the chamber\'s past settles ' +
       '(P10 13 h – P90 16 h)' });
+  expectEqual(failures, '3', 'U95 curves drawn', seen.last.acquireCurves,
+    ['17-0042 x', '17-0042 z']);
+  await page.screenshot({ path: args.screenshot.replace(/\.png$/, '') + '-acquiring.png',
+    fullPage: true });
   closing = true;
   if (failures.length === 0) {
     console.log(`dashboard DUTs ok: three cards, first DUT's primary axis highlighted, ` +

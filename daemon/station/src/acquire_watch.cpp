@@ -70,6 +70,10 @@ void AcquireWatch::judge(double t_run_s, const schedules::PlanStep& step,
         axis.u95_dph = p->now->expanded_dph;
         axis.floor_dph = p->now->floor_dph;
       }
+      if (p->model && p->now) {
+        axis.model = schedules::AcquireAxis::Model{
+            .q_n = p->model->q[0], .q_b = p->model->q[1], .q_k = p->model->q[2], .k = p->now->k};
+      }
       axis.reach_s = p->reach_s;
       switch (p->verdict) {
         case analysis::AcquisitionVerdict::kReached:

@@ -60,6 +60,11 @@ nlohmann::json acquire_json(const std::optional<schedules::AcquireForecast>& f) 
                     {"u95_dph", opt(a.u95_dph)},
                     {"reach_s", opt(a.reach_s)},
                     {"floor_dph", opt(a.floor_dph)},
+                    {"model", a.model ? nlohmann::json{{"q_n", a.model->q_n},
+                                                       {"q_b", a.model->q_b},
+                                                       {"q_k", a.model->q_k},
+                                                       {"k", a.model->k}}
+                                      : nlohmann::json(nullptr)},
                     {"note", a.note}});
   }
   return {{"target_u95_dph", f->target_u95_dph},

@@ -105,6 +105,12 @@ struct AcquireAxis {
   std::optional<double> reach_s;  // continue: the acquisition length projected to reach the target
   std::optional<double> floor_dph;  // the flicker floor of its model
   std::string note;                 // one line: how far, or why not
+  // The fitted noise model, to draw the projection U95(T) = k sqrt(q_n / T
+  // + q_b + q_k T) (analysis::NoiseModel::q; k the coverage factor now).
+  struct Model {
+    double q_n = 0, q_b = 0, q_k = 0, k = 0;
+  };
+  std::optional<Model> model;
 };
 struct AcquireForecast {
   double target_u95_dph = 0, min_s = 0, max_s = 0;
