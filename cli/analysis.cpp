@@ -743,6 +743,21 @@ int cmd_stats(const Parsed& p) {
   // Database rows carry their quality: a column, and the reasons of each
   // flagged row after the table.
   std::vector<std::string> flagged;
+  // Adaptive soaks: why each one's acquisition ended (segments.acquire_stop),
+  // by run and segment index, in each row's JSON and after the table.
+  std::map<std::pair<int64_t, int>, std::string> acquire_stops;
+  auto read_acquire_stops = [&](storage::Database& db, int64_t run_id) -> Status {
+    auto segments = db.segments(run_id);
+    if (!segments) return segments.error();
+    for (const auto& seg : *segments) {
+      if (!seg.acquire_stop.empty()) acquire_stops[{run_id, seg.index}] = seg.acquire_stop;
+    }
+    return Status::Ok();
+  };
+  auto acquire_stop_of = [&](int64_t run_id, int index) -> json {
+    auto it = acquire_stops.find({run_id, index});
+    return it == acquire_stops.end() ? json(nullptr) : json(it->second);
+  };
   auto add_row = [&](std::vector<std::string> lead, const analysis::Table1Row& r,
                      const analysis::Table1Options& o,
                      const storage::ResultQuality* quality = nullptr) {
@@ -781,6 +796,9 @@ int cmd_stats(const Parsed& p) {
     for (const auto& run : in->db->runs) {
       auto stored = in->db->db.segment_stats(run.id);
       if (!stored) return fail(stored.error().message, kExitFailed);
+      if (auto st = read_acquire_stops(in->db->db, run.id); !st) {
+        return fail(st.error().message, kExitFailed);
+      }
       for (const auto& rec : *stored) {
         if (!picked(p.duts, rec.dut_serial) || !picked(p.axes, rec.axis)) continue;
         named = named || !rec.dut_serial.empty();
@@ -799,6 +817,7 @@ int cmd_stats(const Parsed& p) {
                   {"computed_utc", rec.computed_utc}};
         j.update(stats_json(row, o));
         j["quality"] = quality_json(rec.quality);
+        j["acquire_stop"] = acquire_stop_of(rec.run_id, rec.segment_index);
         out.push_back(std::move(j));
         calibration::AnalysedAxis named_axis;
         named_axis.dut_serial = rec.dut_serial;
@@ -821,6 +840,9 @@ int cmd_stats(const Parsed& p) {
       auto soaks = calibration::soak_windows(db, run.id);
       if (!soaks)
         return fail(fmt::format("run {}: {}", run.id, soaks.error().message), kExitFailed);
+      if (auto st = read_acquire_stops(db, run.id); !st) {
+        return fail(st.error().message, kExitFailed);
+      }
       if (soaks->empty()) {
         notes.push_back(
             fmt::format("run {}: no completed soak with an acquisition window", run.id));
@@ -837,6 +859,7 @@ int cmd_stats(const Parsed& p) {
           json j = soak_json(soak, axis, rec->t_from_s, rec->t_to_s);
           j.update(stats_json(row, *opts));
           j["quality"] = quality_json(rec->quality);
+          j["acquire_stop"] = acquire_stop_of(run.id, soak.segment_index);
           out.push_back(std::move(j));
           soaks_for_groups.push_back({axis.key(),
                                       axis.name(),
@@ -892,6 +915,10 @@ int cmd_stats(const Parsed& p) {
   std::cout << table(header, rows, in->db ? 0 : 1);
   for (const auto& f : footer) std::cout << "(" << f << ")\n";
   for (const auto& f : flagged) std::cout << f << "\n";
+  for (const auto& [key, stop] : acquire_stops) {
+    std::cout << fmt::format("run {} segment {}: adaptive soak: {}\n", key.first, key.second + 1,
+                             stop);
+  }
   for (const auto& j : out) {
     for (const auto& w : j["warnings"]) {
       const std::string who = j.contains("source")

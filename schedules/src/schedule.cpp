@@ -397,7 +397,10 @@ class ScheduleReader {
     if (target.value && !(*target.value > 0)) {
       at->error("target_u95_dph", fmt::format("{:g} °/h: must be > 0", *target.value));
     }
-    Number min = minutes(*at, "min_min", false, kMaxAcquireMin);
+    // Required: how long is enough to see the gyro's slow noises is the
+    // lab's knowledge, not the data's (docs/schedules.md, "Adaptive soaks").
+    Number min = required(*at, "min_min", "minutes");
+    check_range(*at, "min_min", min, "min", 0, false, format_min(kMaxAcquireMin), kMaxAcquireMin);
     Number max = minutes(*at, "max_min", true, kMaxAcquireMin);
     if (max.value && !(*max.value > 0)) {
       at->error("max_min",

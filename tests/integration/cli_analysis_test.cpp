@@ -47,6 +47,8 @@ constexpr int kRuns = 4;
 constexpr double kStartC[kRuns] = {-10.0, 5.0, 20.0, 35.0};
 constexpr int kGyroPerRun = 15000;  // 10 Hz over 1500 s
 constexpr int kTempsPerRun = 1500;  // 1 Hz
+constexpr const char* kAdaptiveStop =
+    "target reached: U95 <= 0.05 °/h on every gated axis (1 of them) after 6 min";
 
 // A run: soak at T0 for 400 s, a 600 s ramp of +20 °C, a soak for 500 s.
 // The second soak's acquisition is cut in two by a pause.
@@ -179,6 +181,8 @@ class CliAnalysisTest : public ::testing::Test {
           s.t_acquire_end_s = windows.back().second;
         }
         s.state = "completed";
+        // The second run's last soak was adaptive (docs/schedules.md).
+        if (k == 1 && index == 2) s.acquire_stop = kAdaptiveStop;
         auto sid = db->create_segment(s);
         ASSERT_TRUE(sid) << sid.error().message;
         s.id = *sid;
@@ -314,6 +318,12 @@ TEST_F(CliAnalysisTest, StatsOnADatabaseMatchesTheLibraryAndUsesTheRunsSettings)
       EXPECT_EQ(w.at("bin_s").get<double>(), 1.0);
       EXPECT_EQ(w.at("earth_rate_dph").get<double>(), earth_rate());
       EXPECT_TRUE(w.at("warnings").empty());
+      // Why an adaptive soak ended, null for the fixed ones.
+      if (k == 1 && s == 1) {
+        EXPECT_EQ(w.at("acquire_stop"), kAdaptiveStop);
+      } else {
+        EXPECT_TRUE(w.at("acquire_stop").is_null());
+      }
     }
   }
   // The daemon's own path gives the same numbers.
@@ -456,8 +466,10 @@ TEST_F(CliAnalysisTest, StatsWithoutARunCoversEveryRunAndPrintsATable) {
   EXPECT_THAT(r.out, HasSubstr(fmt::format("{}-point moving average", kStoredMaWindow)));
   EXPECT_THAT(r.out, HasSubstr("± U95 °/h"));
   EXPECT_THAT(r.out, HasSubstr("95 % interval"));
-  // Header, 8 rows, two footnotes.
-  EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1 + 2 * kRuns + 2) << r.out;
+  // Header, 8 rows, two footnotes, the adaptive soak's end.
+  EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1 + 2 * kRuns + 2 + 1) << r.out;
+  EXPECT_THAT(r.out, HasSubstr(fmt::format("run {} segment 3: adaptive soak: {}\n", run_ids_[1],
+                                           kAdaptiveStop)));
   EXPECT_EQ(r.out.find("nan"), std::string::npos);
 }
 

@@ -150,10 +150,10 @@ TEST_F(CentralTest, MigrateCreatesTheCurrentVersionAndTwiceIsANoOp) {
 
   auto v = migrate_central(pg);
   ASSERT_TRUE(v.ok()) << v.error().message;
-  EXPECT_EQ(*v, 3);
+  EXPECT_EQ(*v, 4);
   EXPECT_EQ(kCentralSchemaVersion, 4);
   EXPECT_EQ(*central_schema_version(pg), 4);
-  EXPECT_EQ(scalar(pg, "SELECT count(*) FROM lab.schema_migrations"), "3");
+  EXPECT_EQ(scalar(pg, "SELECT count(*) FROM lab.schema_migrations"), "4");
   const std::string applied = scalar(pg, "SELECT max(applied_at) FROM lab.schema_migrations");
   EXPECT_EQ(scalar(pg,
                    "SELECT count(*) FROM pg_roles WHERE rolname IN "
@@ -162,8 +162,8 @@ TEST_F(CentralTest, MigrateCreatesTheCurrentVersionAndTwiceIsANoOp) {
 
   auto again = migrate_central(pg);
   ASSERT_TRUE(again.ok()) << again.error().message;
-  EXPECT_EQ(*again, 3);
-  EXPECT_EQ(scalar(pg, "SELECT count(*) FROM lab.schema_migrations"), "3");
+  EXPECT_EQ(*again, 4);
+  EXPECT_EQ(scalar(pg, "SELECT count(*) FROM lab.schema_migrations"), "4");
   EXPECT_EQ(scalar(pg, "SELECT max(applied_at) FROM lab.schema_migrations"), applied);
 }
 
@@ -178,10 +178,10 @@ TEST_F(CentralTest, NewerSchemaIsRefusedNamingBothVersions) {
   ASSERT_FALSE(v.ok());
   EXPECT_FALSE(v.error().transient);
   EXPECT_NE(v.error().message.find("version 99"), std::string::npos) << v.error().message;
-  EXPECT_NE(v.error().message.find("version 3 "), std::string::npos) << v.error().message;
+  EXPECT_NE(v.error().message.find("version 4 "), std::string::npos) << v.error().message;
   // Nothing was touched, and the connection is usable (the transaction ended):
-  // versions 1, 2, 3 and 99.
-  EXPECT_EQ(scalar(pg, "SELECT count(*) FROM lab.schema_migrations"), "4");
+  // versions 1 to 4 and 99.
+  EXPECT_EQ(scalar(pg, "SELECT count(*) FROM lab.schema_migrations"), "5");
 }
 
 TEST_F(CentralTest, ConcurrentMigrationsBothSucceedOneApplies) {
@@ -209,9 +209,9 @@ TEST_F(CentralTest, ConcurrentMigrationsBothSucceedOneApplies) {
   t2.join();
   ASSERT_TRUE(r1.ok()) << r1.error().message;
   ASSERT_TRUE(r2.ok()) << r2.error().message;
-  EXPECT_EQ(*r1, 3);
-  EXPECT_EQ(*r2, 3);
-  EXPECT_EQ(scalar(watcher, "SELECT count(*) FROM lab.schema_migrations"), "3");
+  EXPECT_EQ(*r1, 4);
+  EXPECT_EQ(*r2, 4);
+  EXPECT_EQ(scalar(watcher, "SELECT count(*) FROM lab.schema_migrations"), "4");
   EXPECT_EQ(scalar(watcher, "SELECT count(*) FROM pg_views WHERE schemaname = 'lab'"), "11");
 }
 
@@ -551,7 +551,8 @@ TEST_F(CentralTest, ViewsHaveTheDocumentedColumnsAndTypes) {
             {"t_start_s", f},
             {"t_end_s", f},
             {"table_mode", t},
-            {"table_rate_dps", f}}},
+            {"table_rate_dps", f},
+            {"acquire_stop", t}}},
           {"table1", {{"station_id", t},          {"run_uuid", u},
                       {"dut_serial", t},          {"axis", t},
                       {"segment_id", i},          {"segment_index", i},

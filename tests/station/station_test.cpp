@@ -15,6 +15,7 @@
 #include <thread>
 #include <vector>
 
+#include "gyrotherm/calibration/report.h"
 #include "gyrotherm/storage/database.h"
 #include "station/station_rig.h"
 #include "test_time.h"
@@ -1027,6 +1028,20 @@ acquire = { target_u95_dph = 0.03, min_min = 2, max_min = 60 }
   EXPECT_GE(acquired_s, 400) << stop;
   EXPECT_LE(acquired_s, 1000) << stop;
   EXPECT_TRUE(rig.has_event(run_id, "acquisition", "acquisition ended after")) << stop;
+
+  // The run's report says it under its Table I.
+  auto db = storage::Database::open_read_only(rig.db_path());
+  ASSERT_TRUE(db) << db.error().message;
+  auto report = calibration::collect_run_report(*db, run_id, {});
+  ASSERT_TRUE(report) << report.error().message;
+  EXPECT_EQ(report->acquire_stops.at(0), stop);
+  bool said = false;
+  for (const auto& f : calibration::render_run_files(*report, {})) {
+    if (f.path.ends_with("report.html")) {
+      said = f.content.find("Adaptive soak, step 1: target reached") != std::string::npos;
+    }
+  }
+  EXPECT_TRUE(said) << "the report does not say why the adaptive soak ended";
 }
 
 // A rate random walk (K = 6 °/h/√h) makes the mean's uncertainty grow with

@@ -670,6 +670,11 @@ Result<RunReport> collect_run_report(storage::Database& db, int64_t run_id,
 
   auto soaks = soak_windows(db, run_id);
   if (!soaks) return soaks.error();
+  auto segments = db.segments(run_id);
+  if (!segments) return segments.error();
+  for (const auto& seg : *segments) {
+    if (!seg.acquire_stop.empty()) r.acquire_stops[seg.index] = seg.acquire_stop;
+  }
 
   // Table I: as stored after the run; computed only if the daemon never did.
   auto stats = db.segment_stats(run_id);

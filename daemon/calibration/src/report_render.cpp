@@ -1244,7 +1244,12 @@ std::vector<ReportFile> render_run_files(const RunReport& r, const ReportOptions
 
   std::vector<const storage::SegmentStatsRecord*> rows;
   for (const auto& row : r.table1) rows.push_back(&row);
-  add_section(page, "table1", "Table I — zero bias at each set point", table1_html(rows, false));
+  std::string table1 = table1_html(rows, false);
+  for (const auto& [index, stop] : r.acquire_stops) {
+    table1 += fmt::format("<p class=\"note\">Adaptive soak, step {}: {}</p>\n", step_name(index),
+                          text::html_escape(stop));
+  }
+  add_section(page, "table1", "Table I — zero bias at each set point", table1);
   files.push_back({dir + name("table1", "csv"), table1_csv(r.table1)});
   listed.emplace_back(name("table1", "csv"), "Table I rows");
   // A schedule that repeats set points: the paper's grouped form too.

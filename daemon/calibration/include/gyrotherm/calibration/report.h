@@ -15,6 +15,7 @@
 #pragma once
 
 #include <cstdint>
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
@@ -102,6 +103,9 @@ struct RunReport {
   std::string station_name;
   std::vector<storage::SegmentStatsRecord> table1;
   bool table1_stored = true;  // false: computed for the report
+  // Adaptive soaks: why each one's acquisition ended, by segment index
+  // (segments.acquire_stop; docs/schedules.md "Adaptive soaks").
+  std::map<int, std::string> acquire_stops;
   std::vector<storage::AllanRecord> allan;
   bool allan_stored = true;
   std::vector<ReportFit> fits;  // the configured model, centred (default) then paper form
