@@ -168,6 +168,213 @@ double percentile(const std::vector<double>& sorted, double p) {
   return sorted[lo] + (pos - static_cast<double>(lo)) * (sorted[hi] - sorted[lo]);
 }
 
+// Least-squares slope of y over the points of `v` (x = index).
+double index_slope(const std::vector<double>& v) {
+  const double n = static_cast<double>(v.size());
+  if (n < 3) return 0;
+  const double mx = (n - 1) / 2;
+  double my = 0;
+  for (double y : v) my += y;
+  my /= n;
+  double sxx = 0, sxy = 0;
+  for (std::size_t i = 0; i < v.size(); ++i) {
+    const double dx = static_cast<double>(i) - mx;
+    sxx += dx * dx;
+    sxy += dx * (v[i] - my);
+  }
+  return sxy / sxx;
+}
+
+// Lag-1 autocorrelation of residuals, clamped to [0, 0.95].
+double lag1(const std::vector<double>& r) {
+  double r0 = 0, r1 = 0;
+  for (std::size_t i = 0; i < r.size(); ++i) {
+    r0 += r[i] * r[i];
+    if (i + 1 < r.size()) r1 += r[i] * r[i + 1];
+  }
+  return std::clamp(r0 > 0 ? r1 / r0 : 0.0, 0.0, 0.95);
+}
+
+// The shell driven by the measured air (see predict_settle in the header).
+Result<SettlePrediction> predict_driven(const std::vector<Bin>& bins,
+                                        const std::vector<double>& air, const SettleGate& gate,
+                                        const SettleOptions& options) {
+  SettlePrediction p;
+  const double h = options.bin_s;
+  // Rows k -> k+1 of neighbouring filled bins.
+  std::vector<std::size_t> rows;
+  for (std::size_t k = 0; k + 1 < bins.size(); ++k) {
+    if (bins[k].filled && bins[k + 1].filled) rows.push_back(k);
+  }
+  p.fitted_bins = static_cast<int>(rows.size());
+  if (static_cast<int>(rows.size()) < options.min_bins) {
+    p.note = fmt::format("not enough curvature yet: {} bins of {:g} s, {} needed", rows.size(), h,
+                         options.min_bins);
+    return p;
+  }
+  const auto n = static_cast<Eigen::Index>(rows.size());
+  Eigen::MatrixXd x(n, 3);
+  Eigen::VectorXd y(n);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const std::size_t k = rows[static_cast<std::size_t>(i)];
+    x(i, 0) = bins[k].c;
+    x(i, 1) = (air[k] + air[k + 1]) / 2;
+    x(i, 2) = 1;
+    y(i) = bins[k + 1].c;
+  }
+  // Centred columns keep the normal equations well conditioned (the shell
+  // and air levels are large next to their changes).
+  const double mean_s = x.col(0).mean(), mean_a = x.col(1).mean();
+  Eigen::MatrixXd xc = x;
+  xc.col(0).array() -= mean_s;
+  xc.col(1).array() -= mean_a;
+  const Eigen::Matrix3d xtx = xc.transpose() * xc;
+  const Eigen::Vector3d beta_c = xtx.ldlt().solve(xc.transpose() * y);
+  if (!beta_c.allFinite()) {
+    p.note = "not enough curvature yet: the shell has not moved against the air";
+    return p;
+  }
+  const Eigen::VectorXd res = y - xc * beta_c;
+  std::vector<double> shell_res(res.data(), res.data() + res.size());
+  const double s2 = res.squaredNorm() / static_cast<double>(n - 3);
+  const double rho = lag1(shell_res);
+  Eigen::Matrix3d cov_c = s2 * (1 + rho) / (1 - rho) * xtx.inverse();
+  // Back to (a, b, c): c = c' - a mean_s - b mean_a.
+  Eigen::Matrix3d back = Eigen::Matrix3d::Identity();
+  back(2, 0) = -mean_s;
+  back(2, 1) = -mean_a;
+  const Eigen::Vector3d theta = back * beta_c;
+  const Eigen::Matrix3d cov = back * cov_c * back.transpose();
+  if (!cov.allFinite()) {
+    p.note = "not enough curvature yet: the fit has no covariance";
+    return p;
+  }
+  const double a = theta(0), b = theta(1), c = theta(2);
+
+  // The air ahead: its last stability window of bins.
+  std::vector<double> air_tail;
+  for (std::size_t k = 0; k < bins.size(); ++k) {
+    if (bins[k].filled && bins[k].t_s > bins.back().t_s - gate.window_s) air_tail.push_back(air[k]);
+  }
+  double air_level = 0;
+  for (double v : air_tail) air_level += v;
+  air_level /= static_cast<double>(air_tail.size());
+  const bool air_settled = std::fabs(index_slope(air_tail) / h * 60.0) < gate.stability_c_per_min;
+  // Its relaxation to the set point when it has not settled: alpha per bin.
+  double alpha = 0;
+  if (!air_settled) {
+    double sxx = 0, sxy = 0;
+    for (std::size_t k : rows) {
+      const double u = air[k] - gate.setpoint_c, v = air[k + 1] - gate.setpoint_c;
+      sxx += u * u;
+      sxy += u * v;
+    }
+    alpha = sxx > 0 ? std::clamp(sxy / sxx, 0.0, 0.999) : 0.0;
+  }
+  // Its fluctuations about its level over the tail: AR(1).
+  std::vector<double> air_res;
+  for (double v : air_tail) air_res.push_back(v - air_level);
+  const double air_rho = lag1(air_res);
+  double air_var = 0;
+  for (double v : air_res) air_var += v * v;
+  air_var /= std::max<std::size_t>(air_res.size() - 1, 1);
+  const double air_level_u =
+      std::sqrt(air_var / static_cast<double>(air_res.size()) * (1 + air_rho) / (1 - air_rho));
+  const double innovation_sd = std::sqrt(air_var * (1 - air_rho * air_rho));
+
+  const double steady = a < 1 ? (b * air_level + c) / (1 - a) : std::nan("");
+  if (a > 0 && a < 1) {
+    p.tau_s = -h / std::log(a);
+    p.final_c = steady;
+    // The final value's uncertainty by the delta method on (a, b, c).
+    const Eigen::Vector3d g(steady / (1 - a), air_level / (1 - a), 1 / (1 - a));
+    p.final_u_c = std::sqrt(std::max(0.0, g.dot(cov * g)) + std::pow(b / (1 - a) * air_level_u, 2));
+  }
+
+  const Eigen::LLT<Eigen::Matrix3d> llt(cov);
+  const Eigen::Matrix3d l =
+      llt.info() == Eigen::Success ? Eigen::Matrix3d(llt.matrixL()) : Eigen::Matrix3d::Zero();
+  std::mt19937_64 rng(options.seed);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  const double shell_sd = std::sqrt(s2);
+  std::vector<const Bin*> tail;
+  for (const auto& bin : bins) {
+    if (bin.filled && bin.t_s > bins.back().t_s - gate.window_s) tail.push_back(&bin);
+  }
+  const auto steps = static_cast<long>(std::ceil(options.horizon_s / h));
+  int invalid = 0;
+  std::vector<double> times;
+  times.reserve(static_cast<std::size_t>(options.draws));
+  const double last_air = air.back();
+  for (int d = 0; d < options.draws; ++d) {
+    const Eigen::Vector3d th = theta + l * Eigen::Vector3d(normal(rng), normal(rng), normal(rng));
+    if (!(th(0) > 0 && th(0) < 1)) {
+      ++invalid;
+      continue;
+    }
+    const double level = air_level + air_level_u * normal(rng);
+    GateWindow w(gate);
+    for (const Bin* bin : tail) w.add(bin->t_s, bin->c);
+    double t = bins.back().t_s;
+    double shell = bins.back().c;
+    double deviation = air_settled ? last_air - air_level : last_air - gate.setpoint_c;
+    double noise = 0;
+    double air_prev = last_air;
+    double when = kInf;
+    for (long k = 0; k < steps; ++k) {
+      t += h;
+      noise = air_rho * noise + innovation_sd * normal(rng);
+      double air_next;
+      if (air_settled) {
+        air_next = level + noise;
+      } else {
+        deviation *= alpha;
+        air_next = gate.setpoint_c + deviation + noise;
+      }
+      shell = th(0) * shell + th(1) * (air_prev + air_next) / 2 + th(2);
+      air_prev = air_next;
+      w.add(t, shell + shell_sd * normal(rng));
+      if (w.holds(h)) {
+        when = t - h / 2;
+        break;
+      }
+    }
+    times.push_back(when);
+  }
+  if (invalid * 10 > options.draws) {
+    p.note = fmt::format(
+        "not enough curvature yet: the shell's lag behind the air is not resolved ({} of {} draws "
+        "without a decay)",
+        invalid, options.draws);
+    return p;
+  }
+  const bool decay_seen = p.tau_s && bins.back().t_s - bins.front().t_s >= *p.tau_s;
+  if (decay_seen && p.final_c && p.final_u_c &&
+      std::fabs(*p.final_c - gate.setpoint_c) - gate.tolerance_c > 2 * *p.final_u_c) {
+    p.verdict = SettleVerdict::kNeverWithinTolerance;
+    p.note = fmt::format(
+        "the shell settles at {:.2f} ± {:.2f} °C, outside {:g} ± {:g} °C: the gate will not hold",
+        *p.final_c, *p.final_u_c, gate.setpoint_c, gate.tolerance_c);
+    return p;
+  }
+  std::sort(times.begin(), times.end());
+  p.verdict = SettleVerdict::kPredicted;
+  const auto finite_or_none = [](double v) {
+    return std::isfinite(v) ? std::optional<double>(v) : std::nullopt;
+  };
+  p.p10_s = finite_or_none(percentile(times, 0.10));
+  p.p50_s = finite_or_none(percentile(times, 0.50));
+  p.p90_s = finite_or_none(percentile(times, 0.90));
+  p.note = fmt::format(
+      "shell driven by the chamber air, fitted over {} bins of {:g} s: tau {:.0f} s, final "
+      "{:.3f} ± {:.3f} °C, air {}{}",
+      rows.size(), h, p.tau_s.value_or(std::nan("")), p.final_c.value_or(std::nan("")),
+      p.final_u_c.value_or(std::nan("")),
+      air_settled ? fmt::format("settled at {:.2f} °C", air_level) : "still approaching",
+      p.p90_s ? "" : "; P90 beyond the horizon (a final value outside the tolerance is likely)");
+  return p;
+}
+
 }  // namespace
 
 std::string_view to_string(SettleVerdict v) {
@@ -200,7 +407,8 @@ bool SettleOptions::is_valid(std::string* why) const {
 
 Result<SettlePrediction> predict_settle(std::span<const double> t_s,
                                         std::span<const double> shell_c, const SettleGate& gate,
-                                        const SettleOptions& options) {
+                                        const SettleOptions& options,
+                                        std::span<const double> air_c) {
   if (std::string why; !options.is_valid(&why)) {
     return Error::Permanent("predict_settle: invalid options: " + why);
   }
@@ -214,6 +422,16 @@ Result<SettlePrediction> predict_settle(std::span<const double> t_s,
   if (t_s.size() != shell_c.size()) {
     return Error::Permanent(
         fmt::format("predict_settle: {} times and {} temperatures", t_s.size(), shell_c.size()));
+  }
+  if (!air_c.empty() && air_c.size() != t_s.size()) {
+    return Error::Permanent(
+        fmt::format("predict_settle: {} times and {} air temperatures", t_s.size(), air_c.size()));
+  }
+  for (std::size_t i = 0; i < air_c.size(); ++i) {
+    if (!std::isfinite(air_c[i])) {
+      return Error::Permanent(
+          fmt::format("predict_settle: air sample {} is not finite ({} °C)", i, air_c[i]));
+    }
   }
   for (std::size_t i = 0; i < t_s.size(); ++i) {
     if (!std::isfinite(t_s[i]) || !std::isfinite(shell_c[i])) {
@@ -249,17 +467,23 @@ Result<SettlePrediction> predict_settle(std::span<const double> t_s,
   const double h = options.bin_s;
   const auto n_bins = static_cast<std::size_t>(std::floor((t_s.back() - t_s.front()) / h)) + 1;
   std::vector<Bin> bins(n_bins);
+  std::vector<double> air_bins(air_c.empty() ? 0 : n_bins, 0.0);
   std::vector<int> counts(n_bins, 0);
   for (std::size_t i = 0; i < t_s.size(); ++i) {
     const auto k = std::min(static_cast<std::size_t>((t_s[i] - t_s.front()) / h), n_bins - 1);
     bins[k].c += shell_c[i];
+    if (!air_c.empty()) air_bins[k] += air_c[i];
     ++counts[k];
   }
   for (std::size_t k = 0; k < n_bins; ++k) {
     bins[k].t_s = t_s.front() + (static_cast<double>(k) + 0.5) * h;
     bins[k].filled = counts[k] > 0;
-    if (bins[k].filled) bins[k].c /= counts[k];
+    if (bins[k].filled) {
+      bins[k].c /= counts[k];
+      if (!air_c.empty()) air_bins[k] /= counts[k];
+    }
   }
+  if (!air_c.empty()) return predict_driven(bins, air_bins, gate, options);
   // The steepest point: the largest |difference| of neighbouring bins,
   // averaged over three differences against the noise.
   std::size_t steepest = 0;

@@ -180,7 +180,7 @@ void RunLifecycle::watch_settle(double t_run_s, const schedules::Readings& r) {
   }
   std::optional<double> shell_c;
   if (r.top_c && r.side_c) shell_c = (*r.top_c + *r.side_c) / 2;
-  settle_watch_.tick(t_run_s, settling, gate, shell_c);
+  settle_watch_.tick(t_run_s, settling, gate, shell_c, r.chamber_c);
 }
 
 void RunLifecycle::fill_status(StatusSnapshot& s) const {

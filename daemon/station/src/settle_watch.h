@@ -35,9 +35,11 @@ class SettleWatch {
   // One control tick of a run at t_run_s. `settling_step`: the index of the
   // soak whose gate is awaited, nullopt otherwise (the watch forgets its
   // series); `gate` that soak's; `shell_c` the tick's shell temperature when
-  // both probes read.
+  // both probes read; `air_c` the chamber air's reading (the forecast
+  // models the shell as driven by it: analysis::predict_settle).
   void tick(double t_run_s, std::optional<std::size_t> settling_step,
-            const analysis::SettleGate& gate, std::optional<double> shell_c);
+            const analysis::SettleGate& gate, std::optional<double> shell_c,
+            std::optional<double> air_c = std::nullopt);
 
   // The last prediction for the soak settling now, its times counted from
   // t_run_s (never below 0); nullopt when none has been made for it yet.
@@ -50,9 +52,9 @@ class SettleWatch {
   void take_result();
 
   std::optional<std::size_t> step_;
-  std::vector<double> t_s_, shell_c_;  // kept means
-  double pack_t_sum_ = 0, pack_c_sum_ = 0;
-  int pack_n_ = 0;
+  std::vector<double> t_s_, shell_c_, air_c_;  // kept means (air: NaN when none read)
+  double pack_t_sum_ = 0, pack_c_sum_ = 0, pack_air_sum_ = 0;
+  int pack_n_ = 0, pack_air_n_ = 0;
   double pack_start_s_ = 0;
   std::optional<double> due_s_;  // the next prediction's station time
   // A prediction in flight, and the series position (generation) it is for.

@@ -76,10 +76,31 @@ struct SettlePrediction {
 };
 
 // Predicts from the shell series (t_s strictly increasing, both finite) of
-// the current settling step. Errors (permanent): sizes differ, a value not
-// finite or times not increasing (names the index), invalid gate or options.
+// the current settling step. With `air_c` (the chamber air at the same
+// times; empty: none) the shell is modelled as driven by the measured air
+// (below); without, as the first-order lag above. Errors (permanent): sizes
+// differ, a value not finite or times not increasing (names the index),
+// invalid gate or options.
+//
+// Driven by the air. The shell follows the chamber air through one lag,
+// with a gain and an offset for the fixture and self-heating:
+//   S[k+1] = a S[k] + b (A[k] + A[k+1]) / 2 + c        (bins of bin_s)
+// fitted by least squares over every bin since the soak began (the input
+// is measured, so the S curve of the lag on a lag needs no modelling), with
+// the covariance widened for correlated residuals as above. The air ahead:
+// if it has settled (its least-squares slope over the last stability window
+// below the gate's limit) it stays at its mean over that window, else it
+// relaxes to the set point with its own time constant fitted to its bins
+// (A[k+1] - SP = alpha (A[k] - SP)). Each draw takes (a, b, c) from the
+// fit's normal distribution, the air's level from its mean's uncertainty,
+// the air's fluctuations as an AR(1) process with the lag-1 correlation and
+// spread of its residuals, and the shell's misfit as white noise of the
+// fit's residual spread; the gate is evaluated on that trajectory as on
+// data. No prediction while a draw in ten has no decay (a >= 1) or the
+// fitted bins are fewer than min_bins.
 Result<SettlePrediction> predict_settle(std::span<const double> t_s,
                                         std::span<const double> shell_c, const SettleGate& gate,
-                                        const SettleOptions& options = {});
+                                        const SettleOptions& options = {},
+                                        std::span<const double> air_c = {});
 
 }  // namespace gyrotherm::analysis
