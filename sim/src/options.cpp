@@ -138,6 +138,8 @@ void read_randomize(TableReader t, RandomizeRanges& r) {
   r.bias_instability_dph = read_range(t, "bias_instability_dph", 0, 1e5);
   r.rate_random_walk_dph_per_sqrt_h = read_range(t, "rate_random_walk_dph_per_sqrt_h", 0, 1e5);
   r.case_tau_s = read_range(t, "case_tau_s", 0, 1e6);
+  r.air_tau_s = read_range(t, "air_tau_s", 0, 1e6);
+  r.control_noise_c = read_range(t, "control_noise_c", 0, 20);
   t.finish();
 }
 
@@ -158,6 +160,23 @@ void apply_randomize(const RandomizeRanges& ranges, uint64_t seed, int position,
   take(ranges.case_tau_s, case_tau_s);
   if (ranges.case_tau_s) r.case_params.case_tau_s = case_tau_s;
 }
+
+}  // namespace
+
+ThermalParams resolve_thermal_params(const SimulatorOptions& options) {
+  ThermalParams p = options.thermal;
+  std::mt19937_64 rng(derive_seed(options.seed, kChamberRandomizeStream));
+  const auto take = [&rng](const std::optional<DrawRange>& range, double& value) {
+    std::mt19937_64 copy = rng;
+    rng.discard(1);
+    if (range) value = range->draw(copy);
+  };
+  take(options.randomize.air_tau_s, p.air_tau_s);
+  take(options.randomize.control_noise_c, p.control_noise_c);
+  return p;
+}
+
+namespace {
 
 void read_dut_overrides(TableReader& t, DutOverrides& d) {
   read_gyro_overrides(t, d.all);

@@ -209,7 +209,7 @@ Simulator::Simulator(config::StationConfig config, SimulatorOptions options, con
       clock_(clock ? clock : own_clock_.get()),
       chamber_unit_(config_.chamber.endpoint.unit_id),
       probes_unit_(config_.probes.endpoint.unit_id),
-      plant_(options_.thermal, derive_seed(options_.seed, 1)),
+      plant_(resolve_thermal_params(options_), derive_seed(options_.seed, 1)),
       duts_(std::move(duts)),
       setpoint_c_(options_.thermal.initial_temp_c),
       forced_chamber_c_(std::numeric_limits<double>::quiet_NaN()) {
@@ -234,10 +234,17 @@ Simulator::Simulator(config::StationConfig config, SimulatorOptions options, con
        {std::pair{"white_noise_dph", &rr.white_noise_dph},
         std::pair{"bias_instability_dph", &rr.bias_instability_dph},
         std::pair{"rate_random_walk_dph_per_sqrt_h", &rr.rate_random_walk_dph_per_sqrt_h},
-        std::pair{"case_tau_s", &rr.case_tau_s}}) {
+        std::pair{"case_tau_s", &rr.case_tau_s}, std::pair{"air_tau_s", &rr.air_tau_s},
+        std::pair{"control_noise_c", &rr.control_noise_c}}) {
     if (*range) ranges[key] = {(*range)->lo, (*range)->hi};
   }
   truth["randomize"] = ranges;
+  // The chamber's plant as it runs (drawn values included).
+  const ThermalParams& plant = plant_.params();
+  truth["chamber"] = {{"air_tau_s", plant.air_tau_s},
+                      {"control_noise_c", plant.control_noise_c},
+                      {"control_noise_tau_s", plant.control_noise_tau_s},
+                      {"max_ramp_c_per_min", plant.max_ramp_c_per_min}};
   truth_json_ = truth.dump(2) + "\n";
   status_.setpoint_c = options_.thermal.initial_temp_c;
   status_.truth = plant_.truth();

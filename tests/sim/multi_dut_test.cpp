@@ -637,7 +637,25 @@ case_tau_s = [600, 2400]
               white_only->gyro.rate_random_walk_dph_per_sqrt_h);
   }
 
+  // The chamber's plant: its air lag and control noise, from a stream of
+  // their own (the DUTs' draws above did not move).
+  auto chamber = options_for(ranges + "air_tau_s = [60, 300]\ncontrol_noise_c = [0.1, 0.5]\n");
+  ASSERT_TRUE(chamber.ok()) << chamber.error().message;
+  const ThermalParams plant = resolve_thermal_params(*chamber);
+  EXPECT_GE(plant.air_tau_s, 60.0);
+  EXPECT_LE(plant.air_tau_s, 300.0);
+  EXPECT_GE(plant.control_noise_c, 0.1);
+  EXPECT_LE(plant.control_noise_c, 0.5);
+  EXPECT_EQ(resolve_thermal_params(*chamber).air_tau_s, plant.air_tau_s);
+  EXPECT_EQ(resolve_dut_params(*chamber, config->duts[1], 1).axes[2].white_noise_dph,
+            drawn[1].axes[2].white_noise_dph);
+  chamber->seed = 8;
+  EXPECT_NE(resolve_thermal_params(*chamber).air_tau_s, plant.air_tau_s);
+  EXPECT_EQ(resolve_thermal_params(*o).air_tau_s, o->thermal.air_tau_s)
+      << "no range: as configured";
+
   const std::pair<std::string, std::string> bad[] = {
+      {"air_tau_s = [300, 60]\n", "simulator.randomize.air_tau_s: [300, 60] is not a range"},
       {"white_noise_dph = [1.0, 0.5]\n",
        "simulator.randomize.white_noise_dph: [1, 0.5] is not a range"},
       {"case_tau_s = [600]\n", "simulator.randomize.case_tau_s: must be [lo, hi]"},
@@ -683,13 +701,17 @@ TEST(MultiDutOptions, ARangeDrawsLogUniformlyAboveZeroAndUniformlyFromZero) {
 TEST_F(MultiDutTest, TruthFileListsWhatTheRangesDrew) {
   options_.randomize.white_noise_dph = DrawRange{0.02, 0.2};
   options_.randomize.case_tau_s = DrawRange{600, 2400};
+  options_.randomize.air_tau_s = DrawRange{60, 300};
   start();
   std::ifstream in(options_.truth_file);
   ASSERT_TRUE(in) << options_.truth_file;
   const auto truth = nlohmann::json::parse(in);
   EXPECT_EQ(truth["randomize"]["white_noise_dph"], nlohmann::json::array({0.02, 0.2}));
   EXPECT_EQ(truth["randomize"]["case_tau_s"], nlohmann::json::array({600.0, 2400.0}));
+  EXPECT_EQ(truth["randomize"]["air_tau_s"], nlohmann::json::array({60.0, 300.0}));
   EXPECT_FALSE(truth["randomize"].contains("bias_instability_dph"));
+  EXPECT_EQ(truth["chamber"]["air_tau_s"].get<double>(),
+            resolve_thermal_params(options_).air_tau_s);
   ASSERT_EQ(truth["duts"].size(), config_.duts.size());
   for (std::size_t p = 0; p < config_.duts.size(); ++p) {
     const DutSimParams want = resolve_dut_params(options_, config_.duts[p], static_cast<int>(p));

@@ -101,6 +101,10 @@ struct RandomizeRanges {
   std::optional<DrawRange> bias_instability_dph;
   std::optional<DrawRange> rate_random_walk_dph_per_sqrt_h;
   std::optional<DrawRange> case_tau_s;
+  // The chamber's, from a stream of their own (kChamberRandomizeStream),
+  // two draws in this order: the air's lag and the control noise.
+  std::optional<DrawRange> air_tau_s;
+  std::optional<DrawRange> control_noise_c;
 };
 
 // The seed of one of the simulator's random streams (SplitMix64, Steele,
@@ -109,6 +113,7 @@ struct RandomizeRanges {
 // kRandomizeStream + p a DUT's [simulator.randomize] draws.
 uint64_t derive_seed(uint64_t seed, uint64_t stream);
 inline constexpr uint64_t kRandomizeStream = 5000;
+inline constexpr uint64_t kChamberRandomizeStream = 4999;
 
 // sizeof(sockaddr_un::sun_path) - 1 on Linux.
 inline constexpr std::size_t kMaxControlSocketPath = 107;
@@ -199,6 +204,10 @@ double dut_rate_hz(const SimulatorOptions& options, const config::DutSection& du
 // an axis whose bias_dph no level above [simulator.gyro] set gets the
 // default offset (position × 1 °/h + 0.25 °/h × k, k = 0 for the primary
 // axis, 1 and 2 for the others in x, y, z order).
+// The chamber's plant: [simulator.thermal] with what [simulator.randomize]
+// draws for it by the seed (air_tau_s, control_noise_c).
+ThermalParams resolve_thermal_params(const SimulatorOptions& options);
+
 DutSimParams resolve_dut_params(const SimulatorOptions& options, const config::DutSection& dut,
                                 int position);
 
