@@ -112,13 +112,20 @@ Result<AcquisitionProjection> project_acquisition(std::span<const double> t_s,
   }
   if (p.best_u95_dph > target.target_u95_dph && now->expanded_dph <= kFlatRatio * p.best_u95_dph) {
     p.verdict = AcquisitionVerdict::kOutOfReach;
+    // What stands in the way: the flicker floor, or a rate random walk whose
+    // share of u grows with the soak (K = sqrt(3 * 3600 q_k), noise_model.h).
     const bool walk = model->q[2] * acquired_s > model->q[1];
+    const std::string floor = model->q[1] > 0 ? fmt::format("floor = {:.3g} °/h (U95 {:.3g})",
+                                                            now->floor_dph, p.floor_u95_dph)
+                                              : std::string("floor = 0 °/h (no flicker term)");
     p.note = fmt::format(
         "target {:.3g} °/h out of reach: U95 {:.3g} °/h after {}, at best {:.3g} °/h within the "
-        "cap ({}); floor = {:.3g} °/h (U95 {:.3g}){}",
+        "cap ({}); {}{}",
         target.target_u95_dph, now->expanded_dph, format_min(acquired_s), p.best_u95_dph,
-        format_min(target.max_s), now->floor_dph, p.floor_u95_dph,
-        walk ? "; rate random walk grows it on longer soaks" : "");
+        format_min(target.max_s), floor,
+        walk ? fmt::format("; a rate random walk (K {:.3g} °/h/√h) grows it on longer soaks",
+                           std::sqrt(3.0 * 3600.0 * model->q[2]))
+             : "");
     return p;
   }
   p.verdict = AcquisitionVerdict::kContinue;
