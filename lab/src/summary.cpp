@@ -257,7 +257,7 @@ std::string table1_html(const std::vector<json>& rows) {
   std::string h = "<table>\n";
   h += header({"set point (°C)", "station/run", "started (UTC)", "step", "T mean (°C)", "points",
                "bias mean (°/h)", "± U95 (°/h)", "std (°/h)", "std after MA (°/h)", "MA (points)",
-               "Earth rate removed (°/h)"});
+               "Earth rate removed (°/h)", "adaptive soak ended"});
   h += "<tbody>\n";
   for (const auto& r : rows) {
     const auto step = number(member(r, "segment_index"));
@@ -268,7 +268,7 @@ std::string table1_html(const std::vector<json>& rows) {
          num(member(r, "bias_mean_dph"), 4) + num(member(r, "bias_u_expanded_dph"), 4) +
          num(member(r, "bias_std_dph"), 4) + num(member(r, "bias_std_ma_dph"), 4) +
          num(member(r, "ma_window"), 0) + num(member(r, "bias_mean_earth_removed_dph"), 4) +
-         "</tr>\n";
+         cell(str(r, "acquire_stop")) + "</tr>\n";
   }
   return h + "</tbody></table>\n";
 }
@@ -398,7 +398,11 @@ Result<std::string> lab_summary_html(PgConnection& pg, const LabSummaryOptions& 
   };
   const Query queries[] = {
       {"lab.table1",
-       dut_rows_sql("lab.table1", "", "t.setpoint_c, " + run_order + ", t.segment_index"),
+       dut_rows_sql("lab.table1",
+                    ", 'acquire_stop', (SELECT s.acquire_stop FROM lab.segments s "
+                    "WHERE s.station_id = t.station_id AND s.run_uuid = t.run_uuid "
+                    "AND s.idx = t.segment_index LIMIT 1)",
+                    "t.setpoint_c, " + run_order + ", t.segment_index"),
        &AxisResults::table1},
       {"lab.allan",
        dut_rows_sql("lab.allan",

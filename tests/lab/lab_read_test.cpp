@@ -309,6 +309,9 @@ TEST_F(LabReadTest, TheSummaryPageHasTheNumbersAndEscapesEveryText) {
     EXPECT_TRUE(has(s)) << s;
   }
   EXPECT_TRUE(has("<svg")) << "the bias against set point plot";
+  // Why lab-b's adaptive soak ended, in its Table I row.
+  EXPECT_TRUE(has("adaptive soak ended"));
+  EXPECT_TRUE(has("target reached: U95 &lt;= 0.05 °/h on every gated axis")) << "the stop";
   // The comment escaped: no script, no request anywhere.
   EXPECT_TRUE(has("&lt;script&gt;alert(&#39;x&#39;)&lt;/script&gt; &amp; after")) << h;
   EXPECT_FALSE(has("<script"));

@@ -31,6 +31,10 @@ namespace gyrotherm::testing {
 inline constexpr const char* kUuidA1 = "6f1c2a4e-8b7d-4c1e-9a3f-0d2b5e7c9a11";
 inline constexpr const char* kUuidA2 = "0a9b8c7d-6e5f-4a3b-8c1d-2e3f4a5b6c22";
 inline constexpr const char* kUuidB1 = "c3d4e5f6-a7b8-4c9d-8e0f-1a2b3c4d5e33";
+// Lab-b's second soak was adaptive (docs/schedules.md, "Adaptive soaks").
+inline constexpr const char* kAdaptiveStopB =
+    "target reached: U95 <= 0.05 °/h on every gated axis (1 of them) after 31 min (widest: "
+    "17-0042 z, U95 0.0481 °/h)";
 inline constexpr const char* kComment = "<script>alert('x')</script> & after the re-splice";
 
 // The outbox of one station, in seq order.
@@ -105,7 +109,7 @@ class StationOutbox {
          {"config_json", nlohmann::json::object({{"serial", "configured"}})}});
   }
   void segment(int64_t id, int64_t run_id, const std::string& uuid, int64_t idx,
-               const std::string& kind, double setpoint_c) {
+               const std::string& kind, double setpoint_c, const std::string& acquire_stop = "") {
     add("segment", uuid, std::to_string(id),
         {{"id", id},
          {"run_id", run_id},
@@ -129,7 +133,8 @@ class StationOutbox {
          {"turns", 0},
          {"dwell_s", 0.0},
          {"sf_sequence", 0},
-         {"sf_repetition", 0}});
+         {"sf_repetition", 0},
+         {"acquire_stop", acquire_stop}});
   }
   void table1(int64_t segment_id, int64_t run_id, const std::string& uuid,
               const std::string& serial, const std::string& axis, int64_t segment_index,
@@ -271,7 +276,7 @@ inline StationOutbox station_b_outbox() {
         json::array({"17-0042"}));
   o.run_dut(1, kUuidB1, 1, 0, "z");
   o.segment(1, 1, kUuidB1, 0, "soak", -10);
-  o.segment(2, 1, kUuidB1, 1, "soak", 20);
+  o.segment(2, 1, kUuidB1, 1, "soak", 20, kAdaptiveStopB);
   o.table1(1, 1, kUuidB1, "17-0042", "z", 0, -10, 0.9876, 0.0144);
   o.table1(2, 1, kUuidB1, "17-0042", "z", 1, 20, 1.2105, 0.0119);
   o.event(1, 1, kUuidB1, 0, "state", "queued", "ramping", "run started");
