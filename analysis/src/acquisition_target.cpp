@@ -110,11 +110,21 @@ Result<AcquisitionProjection> project_acquisition(std::span<const double> t_s,
                          target.target_u95_dph, format_min(acquired_s));
     return p;
   }
-  if (p.best_u95_dph > target.target_u95_dph && now->expanded_dph <= kFlatRatio * p.best_u95_dph) {
+  // What stands in the way: the flicker floor, or a rate random walk whose
+  // share of u grows with the soak (K = sqrt(3 * 3600 q_k), noise_model.h).
+  // Out of reach only when that term is there beyond doubt (kOutOfReachZ).
+  // A term the curve's last few-dof points put in by chance (a bump at long
+  // tau) would otherwise end a soak of a white-noise axis; more data settles
+  // it.
+  const bool walk = model->q[2] * acquired_s > model->q[1];
+  const NoiseModelTerm& blocker =
+      walk ? model->rate_random_walk_dphprh : model->bias_instability_dph;
+  const std::size_t term = walk ? 2 : 1;
+  const double term_z = model->q[term] / std::sqrt(std::max(model->cov[term][term], 0.0));
+  const bool flat =
+      p.best_u95_dph > target.target_u95_dph && now->expanded_dph <= kFlatRatio * p.best_u95_dph;
+  if (flat && term_z > kOutOfReachZ) {
     p.verdict = AcquisitionVerdict::kOutOfReach;
-    // What stands in the way: the flicker floor, or a rate random walk whose
-    // share of u grows with the soak (K = sqrt(3 * 3600 q_k), noise_model.h).
-    const bool walk = model->q[2] * acquired_s > model->q[1];
     const std::string floor = model->q[1] > 0 ? fmt::format("floor = {:.3g} °/h (U95 {:.3g})",
                                                             now->floor_dph, p.floor_u95_dph)
                                               : std::string("floor = 0 °/h (no flicker term)");
@@ -129,6 +139,15 @@ Result<AcquisitionProjection> project_acquisition(std::span<const double> t_s,
     return p;
   }
   p.verdict = AcquisitionVerdict::kContinue;
+  if (flat) {
+    p.note = fmt::format(
+        "U95 {:.3g} °/h after {}: a {} ({:.3g} [{:.3g}, {:.3g}] {}) would keep it above the target "
+        "{:.3g} °/h, but it is not certain yet ({:.1f} standard uncertainties): acquiring on",
+        now->expanded_dph, format_min(acquired_s), walk ? "rate random walk" : "flicker floor",
+        blocker.value, blocker.lo, blocker.hi, walk ? "°/h/√h" : "°/h", target.target_u95_dph,
+        term_z);
+    return p;
+  }
   p.note = p.reach_s ? fmt::format("U95 {:.3g} °/h after {}; the target {:.3g} °/h projected at {}",
                                    now->expanded_dph, format_min(acquired_s), target.target_u95_dph,
                                    format_min(*p.reach_s))

@@ -14,10 +14,11 @@
 // seconds of the soak's windows):
 //   - kReached: U95(acquired_s) <= target.
 //   - kOutOfReach: the smallest U95(T) over T in [acquired_s, max_s] is above
-//     the target, and U95(acquired_s) is within kFlatRatio of it: going on
-//     would gain at most that ratio. The flicker floor (sqrt(q_b), k times
-//     for U95) or rate random walk is what stands in the way; the note says
-//     which, with the floor.
+//     the target, U95(acquired_s) is within kFlatRatio of it (going on
+//     would gain at most that ratio), and the term in the way, the flicker
+//     floor (sqrt(q_b), k times for U95) or the rate random walk, is there
+//     beyond doubt (kOutOfReachZ); the note says which, with the floor.
+//     Flat on a doubtful term: kContinue, the note says so.
 //   - kContinue: otherwise; reach_s is the shortest T <= max_s at which the
 //     projected U95 reaches the target, nullopt when none does.
 //   - kNoModel: the data give no noise model yet (fewer than 8 points, a
@@ -49,6 +50,13 @@ std::string_view to_string(AcquisitionVerdict v);  // continue, reached, out_of_
 // Going on must promise to lower U95 by more than this factor, or a target
 // out of reach ends the soak.
 inline constexpr double kFlatRatio = 1.1;
+// ... and the term in the way (flicker or random walk) must stand this many
+// of its standard uncertainties above 0 (two-sided 99.9 %). The covariance
+// of the fit ignores the correlation of the overlapping Allan points and is
+// too narrow: at 1.96 (95 %), 14 of 400 white-noise axes of 14 min were
+// called out of reach on a chance term; at 3.29 none
+// (AcquisitionTarget.AWhiteNoiseAxisIsNotCalledOutOfReachOnAChanceTerm).
+inline constexpr double kOutOfReachZ = 3.29;
 
 struct AcquisitionProjection {
   AcquisitionVerdict verdict = AcquisitionVerdict::kNoModel;
