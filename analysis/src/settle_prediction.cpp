@@ -168,6 +168,32 @@ double percentile(const std::vector<double>& sorted, double p) {
   return sorted[lo] + (pos - static_cast<double>(lo)) * (sorted[hi] - sorted[lo]);
 }
 
+// The draws' verdict, shared by both models: a final value outside the
+// tolerance by more than twice its uncertainty (the decay seen over at least
+// one time constant) says the gate will not hold (note set, false);
+// otherwise P10/P50/P90 of the gate times (true; the caller writes the
+// note).
+bool settle_quantiles(SettlePrediction& p, std::vector<double> times, const SettleGate& gate,
+                      bool decay_seen) {
+  if (decay_seen && p.final_c && p.final_u_c &&
+      std::fabs(*p.final_c - gate.setpoint_c) - gate.tolerance_c > 2 * *p.final_u_c) {
+    p.verdict = SettleVerdict::kNeverWithinTolerance;
+    p.note = fmt::format(
+        "the shell settles at {:.2f} ± {:.2f} °C, outside {:g} ± {:g} °C: the gate will not hold",
+        *p.final_c, *p.final_u_c, gate.setpoint_c, gate.tolerance_c);
+    return false;
+  }
+  std::sort(times.begin(), times.end());
+  p.verdict = SettleVerdict::kPredicted;
+  const auto finite_or_none = [](double v) {
+    return std::isfinite(v) ? std::optional<double>(v) : std::nullopt;
+  };
+  p.p10_s = finite_or_none(percentile(times, 0.10));
+  p.p50_s = finite_or_none(percentile(times, 0.50));
+  p.p90_s = finite_or_none(percentile(times, 0.90));
+  return true;
+}
+
 // Least-squares slope of y over the points of `v` (x = index).
 double index_slope(const std::vector<double>& v) {
   const double n = static_cast<double>(v.size());
@@ -349,22 +375,7 @@ Result<SettlePrediction> predict_driven(const std::vector<Bin>& bins,
     return p;
   }
   const bool decay_seen = p.tau_s && bins.back().t_s - bins.front().t_s >= *p.tau_s;
-  if (decay_seen && p.final_c && p.final_u_c &&
-      std::fabs(*p.final_c - gate.setpoint_c) - gate.tolerance_c > 2 * *p.final_u_c) {
-    p.verdict = SettleVerdict::kNeverWithinTolerance;
-    p.note = fmt::format(
-        "the shell settles at {:.2f} ± {:.2f} °C, outside {:g} ± {:g} °C: the gate will not hold",
-        *p.final_c, *p.final_u_c, gate.setpoint_c, gate.tolerance_c);
-    return p;
-  }
-  std::sort(times.begin(), times.end());
-  p.verdict = SettleVerdict::kPredicted;
-  const auto finite_or_none = [](double v) {
-    return std::isfinite(v) ? std::optional<double>(v) : std::nullopt;
-  };
-  p.p10_s = finite_or_none(percentile(times, 0.10));
-  p.p50_s = finite_or_none(percentile(times, 0.50));
-  p.p90_s = finite_or_none(percentile(times, 0.90));
+  if (!settle_quantiles(p, std::move(times), gate, decay_seen)) return p;
   p.note = fmt::format(
       "shell driven by the chamber air, fitted over {} bins of {:g} s: tau {:.0f} s, final "
       "{:.3f} ± {:.3f} °C, air {}{}",
@@ -585,21 +596,7 @@ Result<SettlePrediction> predict_settle(std::span<const double> t_s,
   // shell still following the air's lag can land far off): the gate will
   // not hold. Otherwise the draws say how likely it is.
   const bool decay_seen = bt.back() - bt.front() >= *p.tau_s;
-  if (decay_seen && std::fabs(*p.final_c - gate.setpoint_c) - gate.tolerance_c > 2 * *p.final_u_c) {
-    p.verdict = SettleVerdict::kNeverWithinTolerance;
-    p.note = fmt::format(
-        "the shell settles at {:.2f} ± {:.2f} °C, outside {:g} ± {:g} °C: the gate will not hold",
-        *p.final_c, p.final_u_c.value_or(0), gate.setpoint_c, gate.tolerance_c);
-    return p;
-  }
-  std::sort(times.begin(), times.end());
-  p.verdict = SettleVerdict::kPredicted;
-  const auto finite_or_none = [](double v) {
-    return std::isfinite(v) ? std::optional<double>(v) : std::nullopt;
-  };
-  p.p10_s = finite_or_none(percentile(times, 0.10));
-  p.p50_s = finite_or_none(percentile(times, 0.50));
-  p.p90_s = finite_or_none(percentile(times, 0.90));
+  if (!settle_quantiles(p, std::move(times), gate, decay_seen)) return p;
   p.note = fmt::format(
       "first-order fit over {} bins of {:g} s: tau {:.0f} s, final {:.3f} ± {:.3f} °C{}", bt.size(),
       h, *p.tau_s, *p.final_c, *p.final_u_c,
