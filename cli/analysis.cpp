@@ -1038,6 +1038,8 @@ json noise_model_json(const AllanView& v) {
   json j = {{"angle_random_walk_dprh", model_term_json(v.model->angle_random_walk_dprh)},
             {"bias_instability_dph", model_term_json(v.model->bias_instability_dph)},
             {"rate_random_walk_dphprh", model_term_json(v.model->rate_random_walk_dphprh)},
+            {"gauss_markov_dph", model_term_json(v.model->gauss_markov_dph)},
+            {"gauss_markov_tc_s", v.model->gm_tc_s > 0 ? num(v.model->gm_tc_s) : json(nullptr)},
             {"chi2", num(v.model->chi2)},
             {"mean_uncertainty", nullptr}};
   j["mean_uncertainty"] = calibration::mean_uncertainty_json(v.mean_u);
@@ -1144,6 +1146,10 @@ std::string allan_text(const std::string& title, const AllanView& v, std::string
                        model_term_text(v.model->angle_random_walk_dprh, "°/√h"),
                        model_term_text(v.model->bias_instability_dph, "°/h"),
                        model_term_text(v.model->rate_random_walk_dphprh, "°/h/√h"));
+    if (v.model->gauss_markov_dph.fitted) {
+      out += fmt::format("  a wandering bias (Gauss-Markov) {}, correlation time {:.0f} s\n",
+                         model_term_text(v.model->gauss_markov_dph, "°/h"), v.model->gm_tc_s);
+    }
   }
   if (v.mean_u) {
     const auto& u = *v.mean_u;

@@ -537,9 +537,9 @@
   }
 
   // An adaptive soak's judgement (progress.acquire, docs/api.md): each gated
-  // axis's projected U95(T) = k sqrt(q_n / T + q_b + q_k T) of its mean on
-  // log-log axes from the soak's minimum to its cap, the target dashed, the
-  // acquisition judged dotted with each axis's U95 there; and a line of text.
+  // axis's projected U95(T) of its mean (the station's points, `projection`)
+  // on log-log axes up to the soak's cap, the target dashed, the acquisition
+  // judged dotted with each axis's U95 there; and a line of text.
   const ACQUIRE_COLOURS = ['#38bdf8', '#a3e635', '#f472b6', '#fbbf24', '#c084fc', '#2dd4bf'];
   const SVG_NS = 'http://www.w3.org/2000/svg';
   function svgEl(name, attrs, text) {
@@ -555,15 +555,17 @@
     const show = running && a != null && Array.isArray(a.axes) && a.axes.length > 0;
     $('acquire').hidden = !show;
     if (!show) return;
-    const u95 = (m, t) => m.k * Math.sqrt(Math.max(0, m.q_n / t + m.q_b + m.q_k * t));
-    const t0 = Math.max(1, Math.min(a.acquired_s || 60, a.min_s || 60, 60));
-    const t1 = Math.max(a.max_s, t0 * 2);
-    const grid = Array.from({ length: 61 }, (_, i) => t0 * Math.pow(t1 / t0, i / 60));
-    const curves = a.axes.map((axis) => (axis.model ? grid.map((t) => u95(axis.model, t)) : null));
+    const curves = a.axes.map((axis) => {
+      const pts = Array.isArray(axis.projection) ? axis.projection.filter(
+        (p) => Array.isArray(p) && p[0] > 0 && p[1] > 0 && Number.isFinite(p[1])) : [];
+      return pts.length > 1 ? pts : null;
+    });
+    let t0 = 60, t1 = Math.max(a.max_s || 0, 120);
+    for (const c of curves) if (c) { t0 = Math.min(t0, c[0][0]); t1 = Math.max(t1, c[c.length - 1][0]); }
     let lo = a.target_u95_dph, hi = a.target_u95_dph;
     for (const c of curves) {
       if (!c) continue;
-      for (const v of c) if (v > 0 && Number.isFinite(v)) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
+      for (const [, v] of c) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
     }
     lo /= 1.5;
     hi *= 1.5;
@@ -588,7 +590,7 @@
     curves.forEach((c, i) => {
       if (!c) return;
       const colour = ACQUIRE_COLOURS[i % ACQUIRE_COLOURS.length];
-      const d = c.map((v, j) => `${j ? 'L' : 'M'}${x(grid[j]).toFixed(1)},${y(v).toFixed(1)}`).join('');
+      const d = c.map(([t, v], j) => `${j ? 'L' : 'M'}${x(t).toFixed(1)},${y(v).toFixed(1)}`).join('');
       const path = svgEl('path', { class: 'curve', d, stroke: colour });
       path.dataset.axis = a.axes[i].name;
       path.appendChild(svgEl('title', {}, `${a.axes[i].name}: ${a.axes[i].note}`));

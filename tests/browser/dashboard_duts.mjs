@@ -101,6 +101,14 @@ const SETTLING = {
   settle: { verdict: 'predicted', note: 'first-order fit', p10_s: 1200, p50_s: 1800, p90_s: 3000,
     age_s: 20 },
 };
+// An axis's projection as the station gives it: [T, U95(T)] at 41 lengths
+// from 60 s to the cap (9000 s), here of white noise and a flicker floor.
+function projection(qN, qB, k) {
+  return Array.from({ length: 41 }, (_, i) => {
+    const t = 60 * Math.pow(9000 / 60, i / 40);
+    return [t, k * Math.sqrt(qN / t + qB)];
+  });
+}
 const ACQUIRING = {
   phase: 'acquiring', step_elapsed_s: 2550, step_planned_s: 6000, step_fraction: 0.425,
   gate_held_s: null, gate_needed_s: null, run_remaining_fixed_s: 3000, run_settles_remaining: 0,
@@ -113,11 +121,13 @@ const ACQUIRING = {
     target_u95_dph: 0.03, min_s: 600, max_s: 9000, acquired_s: 2550, planned_s: 6000, age_s: 40,
     axes: [
       { name: '17-0042 x', verdict: 'continue', u95_dph: 0.0389, reach_s: 4300, floor_dph: 0,
-        model: { q_n: 1.0, q_b: 0, q_k: 0, k: 1.97 }, note: 'U95 0.0389 °/h after 42 min' },
+        model: { q_n: 1.0, q_b: 0, q_k: 0, q_g: 0, gm_tc_s: 0, k: 1.97 },
+        projection: projection(1.0, 0, 1.97), note: 'U95 0.0389 °/h after 42 min' },
       { name: '17-0042 z', verdict: 'continue', u95_dph: 0.0443, reach_s: 6000, floor_dph: 0.005,
-        model: { q_n: 1.2, q_b: 2.5e-5, q_k: 0, k: 1.98 }, note: 'U95 0.0443 °/h after 42 min' },
+        model: { q_n: 1.2, q_b: 2.5e-5, q_k: 0, q_g: 0, gm_tc_s: 0, k: 1.98 },
+        projection: projection(1.2, 2.5e-5, 1.98), note: 'U95 0.0443 °/h after 42 min' },
       { name: '21-0007 x', verdict: 'no_model', u95_dph: null, reach_s: null, floor_dph: null,
-        model: null, note: 'no noise model yet' },
+        model: null, projection: [], note: 'no noise model yet' },
     ],
   },
 };

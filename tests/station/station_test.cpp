@@ -1015,6 +1015,22 @@ acquire = { target_u95_dph = 0.03, min_min = 2, max_min = 60 }
   const nlohmann::json j = station::to_json(rig.station->status());
   EXPECT_EQ(j.at("progress").at("acquire").at("axes").at(0).at("verdict"), "continue")
       << j.at("progress").dump();
+  // The projection judged, from 60 s to the cap: falling through the target
+  // at the reach (white noise: U95 ∝ 1/√T), its value now the axis's U95.
+  ASSERT_EQ(axis.projection.size(), 41u);
+  EXPECT_DOUBLE_EQ(axis.projection.front().t_s, 60);
+  EXPECT_NEAR(axis.projection.back().t_s, 3600, 1e-6);
+  for (std::size_t i = 1; i < axis.projection.size(); ++i) {
+    EXPECT_LT(axis.projection[i].u95_dph, axis.projection[i - 1].u95_dph) << i;
+    const auto& p = axis.projection[i];
+    if (p.t_s < *axis.reach_s / 1.2) {
+      EXPECT_GT(p.u95_dph, 0.03) << p.t_s;
+    }
+    if (p.t_s > *axis.reach_s * 1.2) {
+      EXPECT_LT(p.u95_dph, 0.03) << p.t_s;
+    }
+  }
+  EXPECT_EQ(j.at("progress").at("acquire").at("axes").at(0).at("projection").size(), 41u);
 
   ASSERT_TRUE(rig.step_until([&] { return rig.station->idle() && !rig.station->status().run_id; },
                              3 * 3600));

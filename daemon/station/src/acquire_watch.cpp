@@ -37,6 +37,25 @@ void AcquireWatch::tick(double t_run_s, std::size_t index, const schedules::Plan
   judge(t_run_s, *step, seconds(windows));
 }
 
+namespace {
+
+// U95(T) of `model` at kProjectionPoints log-spaced lengths from kFromS to
+// the cap (at least twice kFromS).
+std::vector<schedules::AcquireAxis::Point> projection(const analysis::NoiseModel& model,
+                                                      double max_s) {
+  constexpr int kProjectionPoints = 41;
+  constexpr double kFromS = 60;
+  const double to_s = std::max(max_s, 2 * kFromS);
+  std::vector<schedules::AcquireAxis::Point> points;
+  for (int i = 0; i < kProjectionPoints; ++i) {
+    const double t = kFromS * std::pow(to_s / kFromS, i / (kProjectionPoints - 1.0));
+    if (auto u = analysis::mean_uncertainty(model, t)) points.push_back({t, u->expanded_dph});
+  }
+  return points;
+}
+
+}  // namespace
+
 void AcquireWatch::judge(double t_run_s, const schedules::PlanStep& step,
                          std::vector<DutAcquisition::AxisSeconds> axes) {
   const analysis::AcquisitionTarget& target = *step.adaptive;
@@ -71,8 +90,14 @@ void AcquireWatch::judge(double t_run_s, const schedules::PlanStep& step,
         axis.floor_dph = p->now->floor_dph;
       }
       if (p->model && p->now) {
-        axis.model = schedules::AcquireAxis::Model{
-            .q_n = p->model->q[0], .q_b = p->model->q[1], .q_k = p->model->q[2], .k = p->now->k};
+        const analysis::NoiseModel& m = *p->model;
+        axis.model = schedules::AcquireAxis::Model{.q_n = m.q[0],
+                                                   .q_b = m.q[1],
+                                                   .q_k = m.q[2],
+                                                   .q_g = m.q[analysis::kGaussMarkov],
+                                                   .gm_tc_s = m.gm_tc_s,
+                                                   .k = p->now->k};
+        axis.projection = projection(m, target.max_s);
       }
       axis.reach_s = p->reach_s;
       switch (p->verdict) {

@@ -50,6 +50,13 @@ nlohmann::json settle_json(const std::optional<schedules::SettleForecast>& f) {
           {"p50_s", opt(f->p50_s)}, {"p90_s", opt(f->p90_s)}, {"age_s", f->age_s}};
 }
 
+// [[t_s, u95_dph], ...]
+nlohmann::json projection_json(const std::vector<schedules::AcquireAxis::Point>& points) {
+  nlohmann::json out = nlohmann::json::array();
+  for (const auto& p : points) out.push_back({p.t_s, p.u95_dph});
+  return out;
+}
+
 // null unless an adaptive soak acquires and its axes have been judged.
 nlohmann::json acquire_json(const std::optional<schedules::AcquireForecast>& f) {
   if (!f) return nullptr;
@@ -63,8 +70,11 @@ nlohmann::json acquire_json(const std::optional<schedules::AcquireForecast>& f) 
                     {"model", a.model ? nlohmann::json{{"q_n", a.model->q_n},
                                                        {"q_b", a.model->q_b},
                                                        {"q_k", a.model->q_k},
+                                                       {"q_g", a.model->q_g},
+                                                       {"gm_tc_s", a.model->gm_tc_s},
                                                        {"k", a.model->k}}
                                       : nlohmann::json(nullptr)},
+                    {"projection", projection_json(a.projection)},
                     {"note", a.note}});
   }
   return {{"target_u95_dph", f->target_u95_dph},

@@ -105,12 +105,18 @@ struct AcquireAxis {
   std::optional<double> reach_s;  // continue: the acquisition length projected to reach the target
   std::optional<double> floor_dph;  // the flicker floor of its model
   std::string note;                 // one line: how far, or why not
-  // The fitted noise model, to draw the projection U95(T) = k sqrt(q_n / T
-  // + q_b + q_k T) (analysis::NoiseModel::q; k the coverage factor now).
+  // The fitted noise model (analysis::NoiseModel::q and gm_tc_s, 0 without
+  // a Gauss-Markov term; k the coverage factor now).
   struct Model {
-    double q_n = 0, q_b = 0, q_k = 0, k = 0;
+    double q_n = 0, q_b = 0, q_k = 0, q_g = 0, gm_tc_s = 0, k = 0;
   };
   std::optional<Model> model;
+  // The projection judged, U95(T) at log-spaced T from the soak's start to
+  // its cap (analysis::mean_uncertainty; what the dashboard draws).
+  struct Point {
+    double t_s = 0, u95_dph = 0;
+  };
+  std::vector<Point> projection;
 };
 struct AcquireForecast {
   double target_u95_dph = 0, min_s = 0, max_s = 0;
