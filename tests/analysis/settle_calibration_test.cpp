@@ -20,11 +20,12 @@
 
 #include "gyrotherm/analysis/settle_prediction.h"
 #include "gyrotherm/sim/thermal_plant.h"
+#include "test_trials.h"
 
 namespace gyrotherm::analysis {
 namespace {
 
-constexpr int kPlants = 50;
+constexpr int kPlants = gyrotherm::testing::trials(50);
 constexpr double kFractions[] = {0.25, 0.5, 0.75};
 
 // The sequencer's gate over 1 s readings: the shell's least-squares slope
@@ -170,6 +171,7 @@ TEST(SettleCalibration, TheBandHoldsTheGateOnSeededPlants) {
   // About 80 % is the band's nominal coverage; a band that holds the truth
   // far less often is not calibrated, one that holds it always is too wide
   // to plan with.
+  if (!gyrotherm::testing::statistics_checked()) return;
   EXPECT_GE(all.made, kPlants);  // a forecast at least at half the soaks' checks
   EXPECT_GE(coverage, 0.65);
   EXPECT_LE(coverage, 0.95);
