@@ -123,7 +123,44 @@ Result<AcquisitionProjection> project_acquisition(std::span<const double> t_s,
   const double term_z = model->q[term] / std::sqrt(std::max(model->cov[term][term], 0.0));
   const bool flat =
       p.best_u95_dph > target.target_u95_dph && now->expanded_dph <= kFlatRatio * p.best_u95_dph;
+  // A record cannot tell a rate random walk, or a flicker floor, from a
+  // wandering bias whose correlation time is near its own length or longer
+  // (its curve rises like a walk below T_c and tops out near 1.9 T_c). The
+  // term is in the way beyond doubt only if white noise and a wandering bias
+  // alone (noise_model.h) either fit the curve clearly worse or cannot reach
+  // the target within the cap either. On the simulator's gyros (a wandering
+  // bias of T_c 300 s), 11 of 100 10-min soaks were otherwise ended out of
+  // reach on a walk or a floor that was not there.
+  std::optional<double> unturned_reach_s;
   if (flat && term_z > kOutOfReachZ) {
+    constexpr unsigned kWhiteAndWandering = (1u << 0) | (1u << kGaussMarkov);
+    auto wandering = fit_noise_model(allan->tau_s, allan->adev_dph, allan->edf, kWhiteAndWandering);
+    if (wandering && wandering->gauss_markov_dph.fitted &&
+        wandering->deviance <= model->deviance + kTermPenalty) {
+      // Its correlation time is poorly known from a curve that has not
+      // turned: any the curve cannot rule out (the fit's alternatives) will
+      // do. Each is projected on its own (mean_uncertainty would take the
+      // largest over them).
+      std::vector<NoiseModel> candidates{*wandering};
+      for (const NoiseModel::Alternative& alt : wandering->gm_alternatives) {
+        NoiseModel m = *wandering;
+        m.q = alt.q;
+        m.cov = alt.cov;
+        m.gm_tc_s = alt.gm_tc_s;
+        candidates.push_back(m);
+      }
+      for (NoiseModel& m : candidates) {
+        m.gm_alternatives.clear();
+        for (int i = 0; i <= kGrid; ++i) {
+          const double t = from_s * std::pow(to_s / from_s, static_cast<double>(i) / kGrid);
+          if (projected_u95(m, t) > target.target_u95_dph) continue;
+          if (!unturned_reach_s || t < *unturned_reach_s) unturned_reach_s = t;
+          break;
+        }
+      }
+    }
+  }
+  if (flat && term_z > kOutOfReachZ && !unturned_reach_s) {
     p.verdict = AcquisitionVerdict::kOutOfReach;
     const std::string floor = model->q[1] > 0 ? fmt::format("floor = {:.3g} °/h (U95 {:.3g})",
                                                             now->floor_dph, p.floor_u95_dph)
@@ -139,6 +176,18 @@ Result<AcquisitionProjection> project_acquisition(std::span<const double> t_s,
     return p;
   }
   p.verdict = AcquisitionVerdict::kContinue;
+  if (unturned_reach_s) {
+    p.note = fmt::format(
+        "U95 {:.3g} °/h after {}: a {} would keep it above the target {:.3g} °/h, but a "
+        "wandering bias that has not turned yet fits the curve as well and would reach it at {}: "
+        "acquiring on",
+        now->expanded_dph, format_min(acquired_s),
+        walk ? fmt::format("rate random walk (K {:.3g} °/h/√h)",
+                           std::sqrt(3.0 * 3600.0 * model->q[2]))
+             : fmt::format("flicker floor ({:.3g} °/h)", now->floor_dph),
+        target.target_u95_dph, format_min(*unturned_reach_s));
+    return p;
+  }
   if (flat) {
     p.note = fmt::format(
         "U95 {:.3g} °/h after {}: a {} ({:.3g} [{:.3g}, {:.3g}] {}) would keep it above the target "

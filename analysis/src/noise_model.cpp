@@ -204,7 +204,7 @@ double NoiseModel::adev_dph(double tau_s) const {
 }
 
 Result<NoiseModel> fit_noise_model(std::span<const double> tau_s, std::span<const double> adev_dph,
-                                   std::span<const double> edf) {
+                                   std::span<const double> edf, unsigned allowed) {
   if (tau_s.size() != adev_dph.size() || tau_s.size() != edf.size()) {
     return Error::Permanent(
         fmt::format("fit_noise_model: {} taus, {} deviations and {} edf: one of each per tau",
@@ -247,6 +247,7 @@ Result<NoiseModel> fit_noise_model(std::span<const double> tau_s, std::span<cons
   std::optional<SubsetFit> best;
   double best_score = std::numeric_limits<double>::infinity();
   for (int mask = 1; mask < (1 << kNoiseTerms); ++mask) {
+    if ((static_cast<unsigned>(mask) & ~allowed) != 0) continue;
     Active active{};
     for (int i = 0; i < kNoiseTerms; ++i) active[static_cast<std::size_t>(i)] = (mask >> i) & 1;
     const int p = parameters(active);
@@ -267,6 +268,7 @@ Result<NoiseModel> fit_noise_model(std::span<const double> tau_s, std::span<cons
   NoiseModel model;
   model.n_taus = tau.size();
   model.chi2 = best->chi2;
+  model.deviance = best->deviance;
   model.gm_tc_s = best->active[kGaussMarkov] ? best->tc_s : 0.0;
   for (int a = 0; a < kNoiseTerms; ++a) {
     model.q[static_cast<std::size_t>(a)] = best->q(a);

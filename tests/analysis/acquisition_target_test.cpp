@@ -143,6 +143,51 @@ TEST(AcquisitionTarget, AWhiteNoiseAxisIsNotCalledOutOfReachOnAChanceTerm) {
   EXPECT_GT(flat_by_chance, 0) << "no chance term met: the test no longer tests the guard";
 }
 
+// A wandering bias (Gauss-Markov, sigma_g 0.01 °/h, T_c 300 s; white noise
+// 0.02 °/h at 1 s) judged after 10 min: its curve still rises like a rate
+// random walk, but the mean's uncertainty falls past T_c, and a 2-h cap
+// reaches 0.006 °/h (the variance of a 2-h mean, 2 sigma_g² T_c / T, gives
+// U95 0.0056). The soak must not be ended out of reach on a walk that is
+// not there; a real walk far steeper than any wandering bias that reaches
+// the target still is.
+TEST(AcquisitionTarget, AWanderingBiasThatHasNotTurnedIsNotCalledOutOfReach) {
+  const AcquisitionTarget target{.target_u95_dph = 0.006, .min_s = 600, .max_s = 7200};
+  const int soaks = gyrotherm::testing::trials(100);
+  std::mt19937_64 rng(20261201);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  const double phi = std::exp(-1.0 / 300.0);
+  int out_of_reach = 0, unturned = 0;
+  for (int i = 0; i < soaks; ++i) {
+    std::vector<double> t, r;
+    double gm = 0.01 * normal(rng);
+    for (int k = 0; k < 600; ++k) {
+      t.push_back(k);
+      r.push_back(0.3 + 0.02 * normal(rng) + gm);
+      gm = phi * gm + 0.01 * std::sqrt(1 - phi * phi) * normal(rng);
+    }
+    auto p = project_acquisition(t, r, 600, target);
+    ASSERT_TRUE(p) << p.error().message;
+    out_of_reach += p->verdict == AcquisitionVerdict::kOutOfReach;
+    unturned += p->note.find("has not turned yet") != std::string::npos;
+  }
+  std::printf("wandering-bias axes after 10 min: %d of %d out of reach, %d kept on as unturned\n",
+              out_of_reach, soaks, unturned);
+  // Before the rule, 11 of the 100 were out of reach; with it, 1.
+  if (gyrotherm::testing::statistics_checked()) {
+    EXPECT_LE(out_of_reach, soaks / 20);
+    EXPECT_GT(unturned, 0) << "no walk-like curve met: the test no longer tests the rule";
+  }
+
+  // A walk whose rise the 2-h cap cannot undo: K = 2 °/h/√h (the walk's
+  // mean over 2 h alone has U95 ~1.9 °/h, far above 0.05).
+  std::mt19937_64 walk_rng(7);
+  const Series s = make_series(600, 0.02, 2.0, walk_rng);
+  auto p = project_acquisition(s.t_s, s.rate_dph, 600,
+                               {.target_u95_dph = 0.05, .min_s = 600, .max_s = 7200});
+  ASSERT_TRUE(p) << p.error().message;
+  EXPECT_EQ(p->verdict, AcquisitionVerdict::kOutOfReach) << p->note;
+}
+
 TEST(AcquisitionTarget, NoModelYetIsSaidNotGuessed) {
   const AcquisitionTarget target{.target_u95_dph = 0.1, .min_s = 0, .max_s = 600};
   const std::vector<double> t{0, 1, 2, 3, 4}, r{1, 2, 1, 2, 1};

@@ -17,7 +17,10 @@
 //     the target, U95(acquired_s) is within kFlatRatio of it (going on
 //     would gain at most that ratio), and the term in the way, the flicker
 //     floor (sqrt(q_b), k times for U95) or the rate random walk, is there
-//     beyond doubt (kOutOfReachZ); the note says which, with the floor.
+//     beyond doubt (kOutOfReachZ), and white noise with a wandering bias
+//     that has not turned yet (at any correlation time the curve cannot
+//     rule out) fits clearly worse or does not reach the target within the
+//     cap either; the note says which, with the floor.
 //     Flat on a doubtful term: kContinue, the note says so.
 //   - kContinue: otherwise; reach_s is the shortest T <= max_s at which the
 //     projected U95 reaches the target, nullopt when none does.

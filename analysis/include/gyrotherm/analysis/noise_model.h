@@ -102,6 +102,7 @@ struct NoiseModel {
   NoiseModelTerm rate_random_walk_dphprh;  // K, °/h/√h
   NoiseModelTerm gauss_markov_dph;         // sigma_g, °/h (T_c in gm_tc_s)
   double chi2 = 0;                         // weighted chi² of the chosen fit
+  double deviance = 0;                     // its deviance (the selection's measure)
   std::size_t n_taus = 0;                  // Allan points fitted
   // The same terms fitted at the other correlation times of the grid that
   // the curve cannot tell from gm_tc_s (deviance within kGmProfileDeviance
@@ -129,8 +130,12 @@ inline constexpr double kGmProfileDeviance = 3.84;
 // fewer than 3 taus; a tau, deviation or edf that is not finite and > 0
 // (names the index; a constant series has a zero deviation); taus that do
 // not ascend.
+// `allowed` limits the terms tried (bit i: the term of q[i]; default all):
+// e.g. without the rate random walk, to ask whether a wandering bias that has
+// not turned yet explains the curve as well (acquisition_target.h).
 Result<NoiseModel> fit_noise_model(std::span<const double> tau_s, std::span<const double> adev_dph,
-                                   std::span<const double> edf);
+                                   std::span<const double> edf,
+                                   unsigned allowed = (1u << kNoiseTerms) - 1);
 
 struct MeanUncertainty {
   double window_s = 0;
