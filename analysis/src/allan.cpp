@@ -11,10 +11,8 @@
 #include <memory>
 #include <thread>
 #include <vector>
-#if defined(__linux__)
-#include <sys/mman.h>
-#endif
 
+#include "allan_detail.h"
 #include "common.h"
 #include "compensated_sum.h"
 #include "target_clones.h"
@@ -36,34 +34,6 @@ double median_spacing(std::span<const double> t) {
   return lower + (upper - lower) / 2;
 }
 
-constexpr std::size_t kBlock = 4096;
-constexpr std::size_t kLanes = 4;
-// Series at least this long sweep the taus on two threads.
-constexpr std::size_t kParallelSamples = std::size_t{1} << 18;
-
-// A large scratch array of doubles. Fresh 4 KiB pages cost a page fault each
-// (80 MB: ~20k faults, tens of ms), so on Linux the buffer is 2 MiB aligned
-// and transparent huge pages are requested for it.
-class ScratchBuffer {
- public:
-  explicit ScratchBuffer(std::size_t n) {
-    constexpr std::size_t kHuge = std::size_t{2} << 20;
-    const std::size_t bytes = (n * sizeof(double) + kHuge - 1) / kHuge * kHuge;
-    data_ = static_cast<double*>(std::aligned_alloc(kHuge, bytes));
-    if (data_ == nullptr) throw std::bad_alloc();
-#if defined(__linux__) && defined(MADV_HUGEPAGE)
-    madvise(data_, bytes, MADV_HUGEPAGE);
-#endif
-  }
-  ~ScratchBuffer() { std::free(data_); }
-  ScratchBuffer(const ScratchBuffer&) = delete;
-  ScratchBuffer& operator=(const ScratchBuffer&) = delete;
-  double* data() { return data_; }
-
- private:
-  double* data_ = nullptr;
-};
-
 // What one pass over (t, y) tells: whether the input is clean (finite,
 // strictly increasing), and the counts that locate the median spacing between
 // the sample bounds lo <= hi (the spacings inside [lo, hi] are collected when
@@ -75,20 +45,16 @@ struct ScanResult {
 };
 
 // One pass over (t, y): the checks and median counts of ScanResult, and
-// C[k] = sum_{j<k} (y_j - shift), k = 0 .. n, into c. The shift is any value
-// near the mean: a wrong shift adds a linear term to C, which the second
-// differences of the Allan variance cancel exactly. Per block, kLanes local
-// prefix sums run interleaved from 0 (independent add chains), then each lane
-// gets its offset, a compensated running total: every C[k] is rounded about
-// once, so its error stays ~eps |C[k]| however long the series.
+// C[k] = sum_{j<k} (y_j - shift), k = 0 .. n, into c, a block of kBlock at a
+// time (prefix_block).
 ScanResult scan_and_prefix(std::span<const double> t, std::span<const double> y, double lo,
                            double hi, double shift, double* c) {
   ScanResult out;
   CompensatedSum offset;
   const std::size_t n = t.size();
   c[0] = 0;
-  for (std::size_t b = 0; b < n; b += kBlock) {
-    const std::size_t e = std::min(b + kBlock, n);
+  for (std::size_t b = 0; b < n; b += allan_detail::kBlock) {
+    const std::size_t e = std::min(b + allan_detail::kBlock, n);
     double zero = t[b] * 0.0 + y[b] * 0.0;  // NaN for a NaN or infinite value
     double bad = 0, below = 0, above = 0;
     for (std::size_t i = std::max<std::size_t>(b, 1); i < e; ++i) {
@@ -111,34 +77,14 @@ ScanResult scan_and_prefix(std::span<const double> t, std::span<const double> y,
       }
     }
 
-    const std::size_t nb = e - b;
-    const std::size_t len = nb / kLanes;
-    double s[kLanes] = {0, 0, 0, 0};
-    for (std::size_t i = 0; i < len; ++i) {
-      for (std::size_t l = 0; l < kLanes; ++l) {
-        const std::size_t k = b + l * len + i;
-        s[l] += y[k] - shift;
-        c[k + 1] = s[l];
-      }
-    }
-    for (std::size_t k = b + kLanes * len; k < e; ++k) {  // the rest, on the last lane
-      s[kLanes - 1] += y[k] - shift;
-      c[k + 1] = s[kLanes - 1];
-    }
-    for (std::size_t l = 0; l < kLanes; ++l) {
-      const std::size_t k0 = b + l * len;
-      const std::size_t k1 = l + 1 == kLanes ? e : k0 + len;
-      const double off_hi = offset.sum, off_lo = offset.comp;
-      for (std::size_t k = k0; k < k1; ++k) c[k + 1] = off_hi + (off_lo + c[k + 1]);
-      offset.add(s[l]);
-    }
+    allan_detail::prefix_block(y.data() + b, e - b, shift, offset, c + b + 1);
   }
   return out;
 }
 
 // The sample bounds for scan(): about the 45 % and 55 % quantiles of an even
-// sample of 2048 spacings (all of them for short series); and the mean of the
-// rates at the same points (the prefix-sum shift).
+// sample of 2048 spacings (all of them for short series); and the prefix-sum
+// shift (first_block_mean: what a streamed pass knows before it starts).
 struct Sample {
   double lo, hi, shift;
 };
@@ -146,15 +92,12 @@ Sample sample_series(std::span<const double> t, std::span<const double> y) {
   const std::size_t nd = t.size() - 1;
   const std::size_t k = std::min<std::size_t>(nd, 2048);
   std::vector<double> sample(k);
-  double sum_y = 0;
   for (std::size_t j = 0; j < k; ++j) {
     const std::size_t i = 1 + j * nd / k;
     sample[j] = t[i] - t[i - 1];
-    sum_y += y[i];
   }
   std::sort(sample.begin(), sample.end());
-  double shift = sum_y / static_cast<double>(k);
-  if (!std::isfinite(shift)) shift = 0;
+  const double shift = allan_detail::first_block_mean(y);
   return {sample[k * 45 / 100], sample[std::min(k - 1, (k * 55 + 99) / 100)], shift};
 }
 
@@ -177,14 +120,12 @@ std::optional<double> median_from_scan(const ScanResult& s, std::size_t nd, doub
   return lower + (upper - lower) / 2;
 }
 
-// sum_{k=k0}^{k1-1} (C[k+2m] - 2 C[k+m] + C[k])^2: m^2 times the squared
-// difference of adjacent cluster means. Cloned for AVX2/FMA where available.
-GYROTHERM_AVX2_CLONES double cluster_diff_squares(const double* c, std::size_t m, std::size_t k0,
-                                                  std::size_t k1) {
-  const double* c0 = c + k0;
-  const double* c1 = c + k0 + m;
-  const double* c2 = c + k0 + 2 * m;
-  const std::size_t n = k1 - k0;
+}  // namespace
+
+namespace allan_detail {
+
+GYROTHERM_AVX2_CLONES double cluster_diff_squares(const double* c0, const double* c1,
+                                                  const double* c2, std::size_t n) {
   double a[8] = {0, 0, 0, 0, 0, 0, 0, 0};
   std::size_t i = 0;
   for (; i + 8 <= n; i += 8) {
@@ -200,6 +141,38 @@ GYROTHERM_AVX2_CLONES double cluster_diff_squares(const double* c, std::size_t m
   return ((a[0] + a[1]) + (a[2] + a[3])) + ((a[4] + a[5]) + (a[6] + a[7]));
 }
 
+void prefix_block(const double* y, std::size_t nb, double shift, CompensatedSum& offset,
+                  double* c) {
+  const std::size_t len = nb / kLanes;
+  double s[kLanes] = {0, 0, 0, 0};
+  for (std::size_t i = 0; i < len; ++i) {
+    for (std::size_t l = 0; l < kLanes; ++l) {
+      const std::size_t k = l * len + i;
+      s[l] += y[k] - shift;
+      c[k] = s[l];
+    }
+  }
+  for (std::size_t k = kLanes * len; k < nb; ++k) {  // the rest, on the last lane
+    s[kLanes - 1] += y[k] - shift;
+    c[k] = s[kLanes - 1];
+  }
+  for (std::size_t l = 0; l < kLanes; ++l) {
+    const std::size_t k0 = l * len;
+    const std::size_t k1 = l + 1 == kLanes ? nb : k0 + len;
+    const double off_hi = offset.sum, off_lo = offset.comp;
+    for (std::size_t k = k0; k < k1; ++k) c[k] = off_hi + (off_lo + c[k]);
+    offset.add(s[l]);
+  }
+}
+
+double first_block_mean(std::span<const double> y) {
+  const std::size_t k = std::min(y.size(), kBlock);
+  double sum = 0;
+  for (std::size_t i = 0; i < k; ++i) sum += y[i];
+  const double mean = k == 0 ? 0.0 : sum / static_cast<double>(k);
+  return std::isfinite(mean) ? mean : 0.0;
+}
+
 // Overlapping Allan variances for the cluster sizes ms (ascending), from the
 // prefix sums c of n points, in two sweeps that each read C from memory
 // about once:
@@ -212,6 +185,8 @@ GYROTHERM_AVX2_CLONES double cluster_diff_squares(const double* c, std::size_t m
 //   (<= 256 chunks, in cache). Other tau sets sweep the large m like the small.
 std::vector<double> allan_variances(const double* c, std::size_t n,
                                     const std::vector<std::size_t>& ms) {
+  // Series at least this long sweep the taus on two threads.
+  constexpr std::size_t kParallelSamples = std::size_t{1} << 18;
   constexpr std::size_t kChunk = 1024;
   constexpr std::size_t kLarge = std::size_t{1} << 15;
   std::vector<CompensatedSum> ss(ms.size());
@@ -235,7 +210,8 @@ std::vector<double> allan_variances(const double* c, std::size_t n,
     for (std::size_t k0 = k_begin; k0 < k_end; k0 += kChunk) {
       for (std::size_t j = 0; j < sequential_end; ++j) {
         if (k0 >= terms(j)) break;  // larger m have fewer terms still
-        acc[j].add(cluster_diff_squares(c, ms[j], k0, std::min(k0 + kChunk, terms(j))));
+        const std::size_t k1 = std::min(k0 + kChunk, terms(j));
+        acc[j].add(cluster_diff_squares(c + k0, c + k0 + ms[j], c + k0 + 2 * ms[j], k1 - k0));
       }
     }
     if (!strided || first_large == ms.size()) return;
@@ -248,7 +224,8 @@ std::vector<double> allan_variances(const double* c, std::size_t n,
           if (x < 2 * ms[j]) break;
           const std::size_t k0 = x - 2 * ms[j];
           if (k0 >= terms(j)) continue;
-          acc[j].add(cluster_diff_squares(c, ms[j], k0, std::min(k0 + kChunk, terms(j))));
+          const std::size_t k1 = std::min(k0 + kChunk, terms(j));
+          acc[j].add(cluster_diff_squares(c + k0, c + k0 + ms[j], c + k0 + 2 * ms[j], k1 - k0));
         }
       }
     }
@@ -273,6 +250,10 @@ std::vector<double> allan_variances(const double* c, std::size_t n,
   }
   return var;
 }
+
+}  // namespace allan_detail
+
+namespace {
 
 // C of the fixed-slope line log sigma = log C + slope log tau (allan.h), over
 // a curve whose sigmas are all positive and finite and that has >= 3 taus.
@@ -415,10 +396,8 @@ double allan_edf(int alpha, std::size_t n_rate_samples, std::size_t m) {
   return std::isfinite(edf) ? std::max(1.0, edf) : 1.0;
 }
 
-namespace {
+namespace allan_detail {
 
-// identify_noise_lag1 on the block means `x` (any common offset: a straight
-// line is removed first).
 std::optional<NoiseIdentification> identify_block_means(std::vector<double> x) {
   const std::size_t k = x.size();
   if (k < kMinNoiseIdAverages) return std::nullopt;
@@ -465,8 +444,7 @@ std::optional<NoiseIdentification> identify_block_means(std::vector<double> x) {
   }
 }
 
-// The block means of m rates from their prefix sums c (c[i]: the sum of the
-// first i rates less a common offset): O(n / m).
+// c[i]: the sum of the first i rates less a common offset; O(n / m).
 std::vector<double> block_means_from_prefix(const double* c, std::size_t n, std::size_t m) {
   std::vector<double> x(n / m);
   for (std::size_t b = 0; b < x.size(); ++b) {
@@ -475,7 +453,7 @@ std::vector<double> block_means_from_prefix(const double* c, std::size_t n, std:
   return x;
 }
 
-}  // namespace
+}  // namespace allan_detail
 
 std::optional<NoiseIdentification> identify_noise_lag1(std::span<const double> rate,
                                                        std::size_t m) {
@@ -486,7 +464,7 @@ std::optional<NoiseIdentification> identify_noise_lag1(std::span<const double> r
     for (std::size_t i = 0; i < m; ++i) sum += rate[b * m + i];
     x[b] = sum / static_cast<double>(m);
   }
-  return identify_block_means(std::move(x));
+  return allan_detail::identify_block_means(std::move(x));
 }
 
 std::string_view to_string(NoiseTermKind kind) {
@@ -615,7 +593,7 @@ Result<AllanResult> allan_deviation(std::span<const double> t_s, std::span<const
     return Error::Permanent(fmt::format("allan_deviation: {} sample(s), at least 2 are needed", n));
   }
   const Sample sample = sample_series(t_s, rate_dph);
-  ScratchBuffer prefix(n + 1);
+  allan_detail::ScratchBuffer prefix(n + 1);
   const ScanResult scanned =
       scan_and_prefix(t_s, rate_dph, sample.lo, sample.hi, sample.shift, prefix.data());
   if (!scanned.clean) {
@@ -641,21 +619,33 @@ Result<AllanResult> allan_deviation(std::span<const double> t_s, std::span<const
     return Error::Permanent("allan_deviation: the rates are too large (their sum overflows)");
   }
 
+  double tau0_s = median_from_scan(scanned, n - 1, sample.lo, sample.hi).value_or(0.0);
+  if (!(tau0_s > 0)) tau0_s = median_spacing(t_s);
+  const std::vector<std::size_t> ms = allan_cluster_sizes(n, options.taus);
+  const std::vector<double> var = allan_detail::allan_variances(prefix.data(), n, ms);
+  std::vector<std::optional<NoiseIdentification>> ids(ms.size());
+  for (std::size_t j = 0; j < ms.size(); ++j) {
+    if (n / ms[j] >= kMinNoiseIdAverages) {
+      ids[j] = allan_detail::identify_block_means(
+          allan_detail::block_means_from_prefix(prefix.data(), n, ms[j]));
+    }
+  }
+  return allan_detail::assemble_allan(n, tau0_s, ms, var, ids);
+}
+
+namespace allan_detail {
+
+AllanResult assemble_allan(std::size_t n, double tau0_s, const std::vector<std::size_t>& ms,
+                           const std::vector<double>& var,
+                           const std::vector<std::optional<NoiseIdentification>>& ids) {
   AllanResult r;
   r.n_samples = n;
-  r.tau0_s = median_from_scan(scanned, n - 1, sample.lo, sample.hi).value_or(0.0);
-  if (!(r.tau0_s > 0)) r.tau0_s = median_spacing(t_s);
-  const std::vector<std::size_t> ms = allan_cluster_sizes(n, options.taus);
-  const std::vector<double> var = allan_variances(prefix.data(), n, ms);
+  r.tau0_s = tau0_s;
   int alpha = 0;  // white rate noise until one is identified
   for (std::size_t j = 0; j < ms.size(); ++j) {
     const std::size_t m = ms[j];
     const double adev = std::sqrt(var[j]);
-    if (n / m >= kMinNoiseIdAverages) {
-      if (auto id = identify_block_means(block_means_from_prefix(prefix.data(), n, m))) {
-        alpha = id->alpha;
-      }
-    }
+    if (ids[j]) alpha = ids[j]->alpha;
     const double edf = allan_edf(alpha, n, m);
     r.noise_alpha.push_back(alpha);
     r.tau_s.push_back(static_cast<double>(m) * r.tau0_s);
@@ -679,5 +669,7 @@ Result<AllanResult> allan_deviation(std::span<const double> t_s, std::span<const
   if (r.bias_instability_dph) r.bias_instability_tau_s = r.noise.bias_instability_dph.tau_s;
   return r;
 }
+
+}  // namespace allan_detail
 
 }  // namespace gyrotherm::analysis

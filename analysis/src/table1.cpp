@@ -7,6 +7,7 @@
 #include <cctype>
 #include <cmath>
 #include <limits>
+#include <optional>
 
 #include "common.h"
 #include "gyrotherm/analysis/allan.h"
@@ -142,48 +143,107 @@ AnalysisSeries as_is(std::span<const GyroSample> gyro, std::span<const Temperatu
 // 116 days of 1 s bins; the per-bin temperature sums then take ~400 MB.
 constexpr double kMaxBins = 1e7;
 
-AnalysisSeries binned(std::span<const GyroSample> gyro, std::span<const TemperatureSample> temps,
-                      double bin_s, double tau) {
+// The bin means of gyro samples fed in time order: bin k = floor((t - t0) /
+// bin_s + kBoundaryTol), t0 the first sample; a bin's mean is emitted when
+// a sample of a later bin arrives (or at the end). Which bins are complete
+// is decided afterwards (series_of_bins).
+class BinMeans {
+ public:
+  BinMeans(double bin_s, double t0) : bin_s_(bin_s), t0_(t0) {}
+  void reserve(std::size_t bins) {
+    k_.reserve(bins);
+    mean_.reserve(bins);
+  }
+  void add(double t_s, double rate_dph) {
+    // Times increase: a sample before check_s is in the bin of the last
+    // one (check_s lies 1e-6 bins short of its end), so the bin is computed
+    // only near a boundary, by the same formula.
+    if (!(t_s < check_s_)) {
+      const double k = std::floor((t_s - t0_) / bin_s_ + kBoundaryTol);
+      if (k != bin_) emit();
+      bin_ = k;
+      check_s_ = t0_ + (k + 1.0 - 1e-6) * bin_s_;
+    }
+    rates_.push_back(rate_dph);
+  }
+  // The bins from k = 0 on, ascending, with their means.
+  const std::vector<double>& bins() {
+    emit();
+    return k_;
+  }
+  const std::vector<double>& means() const { return mean_; }
+  double t0() const { return t0_; }
+
+ private:
+  void emit() {
+    if (rates_.empty()) return;
+    k_.push_back(bin_);
+    mean_.push_back(mean(rates_));
+    rates_.clear();
+  }
+  double bin_s_, t0_;
+  double bin_ = -1;
+  double check_s_ = -std::numeric_limits<double>::infinity();
+  std::vector<double> rates_, k_, mean_;
+};
+
+// The analysis series of the bin means below nbins (the complete bins), with
+// the temperatures over the same bins.
+AnalysisSeries series_of_bins(BinMeans& b, std::size_t nbins,
+                              std::span<const TemperatureSample> temps, double bin_s) {
+  const double t0 = b.t0();
+  TempAccumulator acc(nbins);
+  for (const TemperatureSample& s : temps) {
+    const double k = std::floor((s.t_s - t0) / bin_s + kBoundaryTol);
+    if (k >= 0 && k < static_cast<double>(nbins)) acc.add(static_cast<std::size_t>(k), s);
+  }
+  const std::vector<double>& ks = b.bins();
+  const std::vector<double>& means = b.means();
   AnalysisSeries out;
   out.binned = true;
   out.bin_s = bin_s;
-  const double t0 = gyro.front().t_s;
-  const double covered_bins = ((gyro.back().t_s - t0) + tau) / bin_s + kBoundaryTol;
-  const auto nbins = static_cast<std::size_t>(std::floor(covered_bins));
-  // The bin of time t, or -1 before t0 / nbins and beyond past the last complete bin.
-  auto bin_of = [&](double t) -> std::ptrdiff_t {
-    const double k = std::floor((t - t0) / bin_s + kBoundaryTol);
-    if (k < 0) return -1;
-    if (k >= static_cast<double>(nbins)) return static_cast<std::ptrdiff_t>(nbins);
-    return static_cast<std::ptrdiff_t>(k);
-  };
-
-  TempAccumulator acc(nbins);
-  for (const TemperatureSample& s : temps) {
-    const std::ptrdiff_t k = bin_of(s.t_s);
-    if (k >= 0 && static_cast<std::size_t>(k) < nbins) acc.add(static_cast<std::size_t>(k), s);
-  }
-
-  const std::size_t reserve = std::min(nbins, gyro.size());
-  out.t_s.reserve(reserve);
-  out.rate_dph.reserve(reserve);
-  out.top_c.reserve(reserve);
-  out.side_c.reserve(reserve);
-  std::vector<double> rates;
-  std::size_t i = 0;
-  while (i < gyro.size()) {
-    const std::ptrdiff_t k = bin_of(gyro[i].t_s);
-    if (static_cast<std::size_t>(k) >= nbins) break;  // the partial last bin
-    rates.clear();
-    while (i < gyro.size() && bin_of(gyro[i].t_s) == k) rates.push_back(gyro[i++].rate_dph);
+  std::size_t count = 0;
+  while (count < ks.size() && ks[count] < static_cast<double>(nbins)) ++count;
+  out.t_s.reserve(count);
+  out.rate_dph.reserve(count);
+  out.top_c.reserve(count);
+  out.side_c.reserve(count);
+  for (std::size_t i = 0; i < count; ++i) {
+    const auto k = static_cast<std::size_t>(ks[i]);
     const double start_s = t0 + static_cast<double>(k) * bin_s;
-    const TopSide ts = acc.get(static_cast<std::size_t>(k), temps, start_s + bin_s / 2);
+    const TopSide ts = acc.get(k, temps, start_s + bin_s / 2);
     out.t_s.push_back(start_s);
-    out.rate_dph.push_back(mean(rates));
+    out.rate_dph.push_back(means[i]);
     out.top_c.push_back(ts.top_c);
     out.side_c.push_back(ts.side_c);
   }
   return out;
+}
+
+std::size_t complete_bins(double t0, double t_last, double tau, double bin_s) {
+  return static_cast<std::size_t>(std::floor(((t_last - t0) + tau) / bin_s + kBoundaryTol));
+}
+
+AnalysisSeries binned(std::span<const GyroSample> gyro, std::span<const TemperatureSample> temps,
+                      double bin_s, double tau) {
+  const std::size_t nbins = complete_bins(gyro.front().t_s, gyro.back().t_s, tau, bin_s);
+  BinMeans b(bin_s, gyro.front().t_s);
+  b.reserve(std::min(nbins, gyro.size()));
+  for (const GyroSample& g : gyro) b.add(g.t_s, g.rate_dph);
+  return series_of_bins(b, nbins, temps, bin_s);
+}
+
+Status check_bin_count(double t_first_s, double t_last_s, double bin_s) {
+  // Bins are indexed over the whole span: a time column with a far outlier
+  // would ask for more bins than memory holds.
+  const double span_s = t_last_s - t_first_s;
+  if (span_s / bin_s > kMaxBins) {
+    return Error::Permanent(fmt::format(
+        "the gyro samples span {:g} s (t_s {:g} to {:g}): more than {:g} bins of {:g} s; check the "
+        "time column",
+        span_s, t_first_s, t_last_s, kMaxBins, bin_s));
+  }
+  return Status::Ok();
 }
 
 }  // namespace
@@ -262,16 +322,83 @@ Result<AnalysisSeries> make_analysis_series(std::span<const GyroSample> gyro,
 
   const double tau = gyro.size() > 1 ? median_spacing(gyro) : bin_s;
   if (tau >= bin_s * (1 - kBoundaryTol)) return as_is(gyro, temps, tau);
-  // Bins are indexed over the whole span: a time column with a far outlier
-  // would ask for more bins than memory holds.
-  const double span_s = gyro.back().t_s - gyro.front().t_s;
-  if (span_s / bin_s > kMaxBins) {
-    return Error::Permanent(fmt::format(
-        "the gyro samples span {:g} s (t_s {:g} to {:g}): more than {:g} bins of {:g} s; check the "
-        "time column",
-        span_s, gyro.front().t_s, gyro.back().t_s, kMaxBins, bin_s));
+  if (Status st = check_bin_count(gyro.front().t_s, gyro.back().t_s, bin_s); !st) {
+    return st.error();
   }
   return binned(gyro, temps, bin_s, tau);
+}
+
+Result<AnalysisSeries> make_analysis_series(const SampleSource& gyro,
+                                            std::span<const TemperatureSample> temps, double bin_s,
+                                            SeriesScan* scanned) {
+  if (!(bin_s > 0) || !std::isfinite(bin_s)) {
+    return Error::Permanent(
+        fmt::format("bin_s must be a positive number of seconds, got {}", bin_s));
+  }
+  // One pass: the checks and spacings, the bin means, and the samples
+  // themselves while they are sparse enough to be used as is (a median
+  // spacing >= bin_s puts half the spacings at >= bin_s: then n - 1 <=
+  // 2 span / bin_s, about twice the bins). A dense stretch before a sparse
+  // series drops them; a second pass then reads them back.
+  SeriesScanner scanner;
+  std::optional<BinMeans> bins;
+  std::vector<GyroSample> sparse;
+  bool keep_sparse = true;
+  Status st = gyro([&](std::span<const double> t, std::span<const double> rate) {
+    if (!scanner.add(t, rate)) return false;
+    if (!t.empty() && !bins) bins.emplace(bin_s, t.front());
+    for (std::size_t i = 0; i < t.size(); ++i) {
+      bins->add(t[i], rate[i]);
+      if (!keep_sparse) continue;
+      GyroSample g;
+      g.t_s = t[i];
+      g.rate_dph = rate[i];
+      sparse.push_back(g);
+      if (static_cast<double>(sparse.size()) > 2.0 * (t[i] - bins->t0()) / bin_s + 3.0) {
+        keep_sparse = false;
+        std::vector<GyroSample>().swap(sparse);
+      }
+    }
+    return true;
+  });
+  if (!st) return st.error();
+  auto scan = scanner.finish(gyro);
+  if (!scan) {
+    Error e = scan.error();
+    if (!e.transient) e.message = "gyro " + e.message;
+    return e;
+  }
+  if (scanned != nullptr) *scanned = *scan;
+  if (scan->n == 0) return Error::Permanent("no gyro samples in the window");
+  if (temps.empty()) return Error::Permanent("no temperature samples in the window");
+  if (Status ok = check_temps(temps); !ok.ok()) return ok.error();
+
+  const double tau = scan->n > 1 ? (scan->spacing_lower_s + scan->spacing_upper_s) / 2 : bin_s;
+  if (tau >= bin_s * (1 - kBoundaryTol)) {
+    if (!keep_sparse) {
+      sparse.reserve(scan->n);
+      st = gyro([&](std::span<const double> t, std::span<const double> rate) {
+        for (std::size_t i = 0; i < t.size() && sparse.size() < scan->n; ++i) {
+          GyroSample g;
+          g.t_s = t[i];
+          g.rate_dph = rate[i];
+          sparse.push_back(g);
+        }
+        return sparse.size() < scan->n;
+      });
+      if (!st) return st.error();
+    }
+    if (sparse.size() != scan->n) {
+      return Error::Transient(fmt::format("the gyro samples changed between two passes: {} then {}",
+                                          scan->n, sparse.size()));
+    }
+    return as_is(sparse, temps, tau);
+  }
+  if (Status ok = check_bin_count(scan->t_first_s, scan->t_last_s, bin_s); !ok) {
+    return ok.error();
+  }
+  return series_of_bins(*bins, complete_bins(scan->t_first_s, scan->t_last_s, tau, bin_s), temps,
+                        bin_s);
 }
 
 Result<Table1Row> table1_row(const AnalysisSeries& series, const Table1Options& options) {

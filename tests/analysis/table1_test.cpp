@@ -274,7 +274,7 @@ TEST(AnalysisSeries, AsIsSamplesTakeTemperaturesFromTheirInterval) {
 TEST(AnalysisSeries, Errors) {
   const auto gyro = gyro_at(0.0, 0.1, 100);
   const auto temps = temps_at(0, 1, 10, 20, 20);
-  auto no_gyro = make_analysis_series({}, temps, 1.0);
+  auto no_gyro = make_analysis_series(std::span<const GyroSample>{}, temps, 1.0);
   ASSERT_FALSE(no_gyro.ok());
   EXPECT_NE(no_gyro.error().message.find("no gyro"), std::string::npos);
   auto no_temps = make_analysis_series(gyro, {}, 1.0);

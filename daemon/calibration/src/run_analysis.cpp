@@ -7,6 +7,7 @@
 #include <cctype>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <nlohmann/json.hpp>
 #include <numbers>
 #include <span>
@@ -316,6 +317,71 @@ Result<std::vector<GyroSample>> stream_samples(storage::Database& db, int64_t ru
   return gyro;
 }
 
+// Rows of a run without DUT records read at a time (at 1 kHz: 0.6 M samples).
+constexpr double kLegacySliceS = 600.0;
+
+// One stream's rate samples in [from_s, to_s) as a source the analysis can
+// read more than once (analysis/sample_source.h), a storage block at a time:
+// the DUT axis's channel, or the first-DUT rows of a run without DUT records
+// a slice at a time. A value the frame flagged invalid is NaN: not a sample.
+analysis::SampleSource axis_source(storage::Database& db, int64_t run_id, const AnalysedAxis& axis,
+                                   double from_s, double to_s) {
+  return [&db, run_id, channel_id = axis.channel_id, from_s,
+          to_s](const analysis::SampleBlock& block) -> Status {
+    std::vector<double> t, v;
+    bool stopped = false;
+    const auto deliver = [&] {
+      if (!t.empty() && !block(t, v)) stopped = true;
+      t.clear();
+      v.clear();
+      return !stopped;
+    };
+    if (channel_id != 0) {
+      return db.for_each_channel_block(
+          channel_id, from_s, to_s,
+          [&](std::span<const double> t_s, std::span<const double> value,
+              std::span<const uint32_t>) {
+            bool all_finite = true;
+            for (const double x : value) all_finite &= std::isfinite(x);
+            if (all_finite) return t_s.empty() || block(t_s, value);
+            for (std::size_t i = 0; i < t_s.size(); ++i) {
+              if (!std::isfinite(value[i])) continue;
+              t.push_back(t_s[i]);
+              v.push_back(value[i]);
+            }
+            return deliver();
+          });
+    }
+    for (double a = from_s; a < to_s && !stopped; a += kLegacySliceS) {
+      auto rows = db.gyro_samples(run_id, a, std::min(a + kLegacySliceS, to_s));
+      if (!rows) return rows.error();
+      for (const GyroSample& g : *rows) {
+        if (!std::isfinite(g.rate_dph)) continue;
+        t.push_back(g.t_s);
+        v.push_back(g.rate_dph);
+      }
+      deliver();
+    }
+    return Status::Ok();
+  };
+}
+
+// `source` whose first pass also feeds `counter` (when given): the
+// analysis's first pass is its scan, every sample once, in order.
+analysis::SampleSource counting_first_pass(analysis::SampleSource source,
+                                           analysis::CoverageCounter* counter) {
+  return [source = std::move(source), counter,
+          pass = std::make_shared<int>(0)](const analysis::SampleBlock& block) {
+    const bool count = counter != nullptr && (*pass)++ == 0;
+    return source([&](std::span<const double> t_s, std::span<const double> rate) {
+      if (count) {
+        for (const double t : t_s) counter->add(t);
+      }
+      return block(t_s, rate);
+    });
+  };
+}
+
 }  // namespace
 
 // The temperature rows of [from_s, to_s) that carry both shell probes. A row
@@ -396,19 +462,21 @@ Result<analysis::AnalysisSeries> soak_series_counted(storage::Database& db, cons
   analysis::AnalysisSeries joined;
   joined.bin_s = bin_s;
   for (const auto& [from_s, to_s] : soak.windows) {
-    auto gyro = stream_samples(db, soak.run_id, axis, from_s, to_s);
-    if (!gyro) return Error::Transient(fmt::format("{}: {}", where, gyro.error().message));
-    if (counter != nullptr) {
-      std::vector<double> t_s;
-      t_s.reserve(gyro->size());
-      for (const GyroSample& g : *gyro) t_s.push_back(g.t_s);
-      for (double t : t_s) counter->add(t);
-      if (median_hz != nullptr && *median_hz <= 0) *median_hz = analysis::median_rate_hz(t_s);
-    }
-    if (gyro->empty() && soak.windows.size() > 1) continue;  // a window shorter than a sample
     auto temps = dut_shell_readings(db, soak.run_id, axis, from_s, to_s);
     if (!temps) return Error::Transient(fmt::format("{}: {}", where, temps.error().message));
-    auto part = analysis::make_analysis_series(*gyro, *temps, bin_s);
+    analysis::SeriesScan scan;
+    auto part = analysis::make_analysis_series(
+        counting_first_pass(analysis::prefetched(axis_source(db, soak.run_id, axis, from_s, to_s)),
+                            counter),
+        *temps, bin_s, &scan);
+    if (median_hz != nullptr && *median_hz <= 0 && scan.n >= 2) {
+      *median_hz = 2.0 / (scan.spacing_lower_s + scan.spacing_upper_s);
+    }
+    if (!part && part.error().transient) {
+      return Error::Transient(fmt::format("{}: {}", where, part.error().message));
+    }
+    if (!part && scan.n == 0 && soak.windows.size() > 1)
+      continue;  // a window shorter than a sample
     if (!part) {
       return Error::Permanent(fmt::format("{} window [{:.1f}, {:.1f}) s: {}", where, from_s, to_s,
                                           part.error().message));
@@ -828,13 +896,25 @@ Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow&
 Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow& soak,
                                         analysis::TauSet taus, const AnalysedAxis& axis,
                                         const analysis::QualityRules& rules) {
-  auto samples = soak_recorded_samples(db, soak, axis);
-  if (!samples) return samples.error();
-  auto adev = analysis::allan_deviation(samples->t_s, samples->rate_dph, {.taus = taus});
+  if (soak.windows.empty()) {
+    return Error::Permanent(fmt::format("{}: no acquisition window", soak_name(soak, axis)));
+  }
+  // The longest window, streamed: the prefix sums spill to a scratch file
+  // past analysis::StreamLimits, so any soak length fits in bounded memory.
+  const auto [from_s, to_s] = *std::max_element(
+      soak.windows.begin(), soak.windows.end(),
+      [](const auto& a, const auto& b) { return a.second - a.first < b.second - b.first; });
+  analysis::CoverageCounter counter({{from_s, to_s}});
+  auto adev = analysis::allan_deviation(
+      counting_first_pass(analysis::prefetched(axis_source(db, soak.run_id, axis, from_s, to_s)),
+                          &counter),
+      {.taus = taus});
+  if (!adev && adev.error().transient) {
+    return Error::Transient(fmt::format("{}: {}", soak_name(soak, axis), adev.error().message));
+  }
   if (!adev) {
     return Error::Permanent(fmt::format("{} window [{:.1f}, {:.1f}) s: Allan deviation: {}",
-                                        soak_name(soak, axis), samples->t_from_s, samples->t_to_s,
-                                        adev.error().message));
+                                        soak_name(soak, axis), from_s, to_s, adev.error().message));
   }
   storage::AllanRecord rec;
   rec.run_id = soak.run_id;
@@ -842,8 +922,8 @@ Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow&
   rec.axis = axis.axis;
   rec.segment_id = soak.segment_id;
   rec.segment_index = soak.segment_index;
-  rec.t_from_s = samples->t_from_s;
-  rec.t_to_s = samples->t_to_s;
+  rec.t_from_s = from_s;
+  rec.t_to_s = to_s;
   rec.taus = std::string(analysis::to_string(taus));
   rec.tau0_s = adev->tau0_s;
   rec.n_samples = static_cast<int64_t>(adev->n_samples);
@@ -862,7 +942,7 @@ Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow&
                            {"segment", soak.segment_index + 1},
                            {"taus", rec.taus},
                            {"samples", "as recorded"},
-                           {"window", {samples->t_from_s, samples->t_to_s}},
+                           {"window", {from_s, to_s}},
                            {"windows", windows_json(soak.windows)},
                            {"window_rule", "the longest acquisition window"}};
   if (!axis.dut_serial.empty() || !axis.axis.empty()) {
@@ -871,9 +951,8 @@ Result<storage::AllanRecord> soak_allan(storage::Database& db, const SoakWindow&
   }
   rec.inputs_json = inputs.dump();
   rec.computed_utc = db.utc_now();
-  const analysis::Coverage coverage = analysis::coverage_of(
-      samples->t_s, {{samples->t_from_s, samples->t_to_s}},
-      axis.rate_hz > 0 ? axis.rate_hz : analysis::median_rate_hz(samples->t_s));
+  const analysis::Coverage coverage =
+      counter.result(axis.rate_hz > 0 ? axis.rate_hz : 1.0 / adev->tau0_s);
   rec.quality = result_quality(coverage, analysis::coverage_reasons(coverage, rules));
   return rec;
 }

@@ -58,6 +58,7 @@
 #include <string_view>
 #include <vector>
 
+#include "gyrotherm/analysis/sample_source.h"
 #include "gyrotherm/core/result.h"
 
 namespace gyrotherm::analysis {
@@ -200,5 +201,23 @@ struct AllanResult {
 // index and both times).
 Result<AllanResult> allan_deviation(std::span<const double> t_s, std::span<const double> rate_dph,
                                     const AllanOptions& options = {});
+
+// The same over a streamed series (sample_source.h), in memory bounded
+// whatever its length: one pass checks it and finds the median spacing
+// (scan_series), a second builds the prefix sums C. Up to
+// limits.prefix_in_memory samples C stays in memory and the result is
+// exactly the in-memory one's (same C, same sweep). A longer series spills
+// C to an unnamed scratch file (8 bytes a sample, deleted when done) and
+// sweeps it in windows of limits.window: the variances then differ from the
+// in-memory sweep by rounding only (each tau's sum is compensated), and the
+// noise is identified from running sums of the block means fed as C is
+// built (the same lag-1 statistic, rounding apart). Peak memory about
+// 12 bytes x limits.window + 8 bytes x min(n, prefix_in_memory) + what the
+// source holds. Errors: those of the span form (the message names the
+// sample's index and time), the source's, the scratch file's (it names the
+// directory), and tau set "all" on a series too long for memory (O(N^2)
+// anyway).
+Result<AllanResult> allan_deviation(const SampleSource& source, const AllanOptions& options = {},
+                                    const StreamLimits& limits = {});
 
 }  // namespace gyrotherm::analysis

@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "gyrotherm/analysis/noise_model.h"
+#include "gyrotherm/analysis/sample_source.h"
 #include "gyrotherm/core/result.h"
 #include "gyrotherm/core/samples.h"
 
@@ -128,6 +129,15 @@ struct Table1Options {
 // Allocates O(gyro.size() + temps.size() + number of bins).
 Result<AnalysisSeries> make_analysis_series(std::span<const GyroSample> gyro,
                                             std::span<const TemperatureSample> temps, double bin_s);
+// The same over a streamed window (sample_source.h; its values are the
+// rates), in memory of the output series, not of the samples: one pass
+// checks the samples and finds the median spacing (scan_series), a second
+// bins them. The result is exactly the span form's on the same samples.
+// `scanned`, when given, receives the first pass's SeriesScan. Errors: the
+// span form's, and the source's (transient, as it gave them).
+Result<AnalysisSeries> make_analysis_series(const SampleSource& gyro,
+                                            std::span<const TemperatureSample> temps, double bin_s,
+                                            SeriesScan* scanned = nullptr);
 
 struct Table1Row {
   std::size_t n = 0;
