@@ -96,9 +96,12 @@ Result<AcquisitionProjection> project_acquisition(std::span<const double> t_s,
   constexpr int kGrid = 200;
   const double from_s = acquired_s;
   const double to_s = std::max(target.max_s, acquired_s);
+  const auto grid_s = [&](int i) {
+    return from_s * std::pow(to_s / from_s, static_cast<double>(i) / kGrid);
+  };
   p.best_u95_dph = now->expanded_dph;
   for (int i = 0; i <= kGrid; ++i) {
-    const double t = from_s * std::pow(to_s / from_s, static_cast<double>(i) / kGrid);
+    const double t = grid_s(i);
     const double u95 = projected_u95(*model, t);
     p.best_u95_dph = std::min(p.best_u95_dph, u95);
     if (!p.reach_s && u95 <= target.target_u95_dph) p.reach_s = t;
@@ -152,7 +155,7 @@ Result<AcquisitionProjection> project_acquisition(std::span<const double> t_s,
       for (NoiseModel& m : candidates) {
         m.gm_alternatives.clear();
         for (int i = 0; i <= kGrid; ++i) {
-          const double t = from_s * std::pow(to_s / from_s, static_cast<double>(i) / kGrid);
+          const double t = grid_s(i);
           if (projected_u95(m, t) > target.target_u95_dph) continue;
           if (!unturned_reach_s || t < *unturned_reach_s) unturned_reach_s = t;
           break;

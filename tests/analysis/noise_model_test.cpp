@@ -424,6 +424,20 @@ TEST(NoiseModelErrors, BadCurvesAndArgumentsAreNamed) {
   ASSERT_FALSE(bad.ok());
   EXPECT_NE(bad.error().message.find("point 4"), std::string::npos) << bad.error().message;
 
+  // Taus out of order (a curve stored by hand, or two joined): named, with
+  // the point and both taus.
+  auto swapped = c.tau_s;
+  std::swap(swapped[5], swapped[6]);
+  auto unordered = fit_noise_model(swapped, c.adev_dph, c.edf);
+  ASSERT_FALSE(unordered.ok());
+  EXPECT_NE(unordered.error().message.find("point 6"), std::string::npos)
+      << unordered.error().message;
+  EXPECT_NE(unordered.error().message.find("taus must ascend"), std::string::npos)
+      << unordered.error().message;
+  auto repeated = c.tau_s;
+  repeated[3] = repeated[2];
+  EXPECT_FALSE(fit_noise_model(repeated, c.adev_dph, c.edf).ok());
+
   auto m = fit_noise_model(c.tau_s, c.adev_dph, c.edf);
   ASSERT_TRUE(m.ok());
   EXPECT_FALSE(mean_uncertainty(*m, 0).ok());

@@ -371,7 +371,6 @@ class Simulator {
   std::mutex wake_mu_;
   std::condition_variable wake_cv_;
   bool stopping_ = false;  // guarded by wake_mu_
-  bool running_ = false;
   bool wrote_endpoints_ = false;
 };
 
