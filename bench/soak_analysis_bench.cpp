@@ -235,6 +235,8 @@ int main(int argc, char** argv) {
       }
     } else if (a == "--bin" && i + 1 < argc) {
       bin = argv[++i];
+    } else if (a.starts_with("--benchmark")) {
+      // scripts/bench passes Google Benchmark's options to every binary
     } else {
       die("usage: gyrotherm_bench_soak [--samples N,N...] [--bin DIR]");
     }
