@@ -267,8 +267,8 @@ TEST(SettlePrior, QuantilesOfThePastSettles) {
 // s): 1800 s of its acquisition + 5700 s after (hold 1200, ramp 1800, soak
 // 2700) and one later settle: 7500 + 900 + 300 = 8700 s (P10 7500 + 600 +
 // 140, P90 7500 + 1500 + 760). Without a forecast, 200 s settled: the prior
-// less 200 s (0, 100, 560). A forecast that says the shell settles outside
-// the tolerance gives no ETA. Queued (from 23 °C): 13500 s + 3 settles. The
+// less 200 s (0, 100, 560), and the same with a forecast that has no P50.
+// Queued (from 23 °C): 13500 s + 3 settles. The
 // queue: 3600 s + 2 settles.
 TEST(RunProgress, TheChambersPriorCompletesTheEtaForSettlesNotForecast) {
   const Plan plan = parse_plan(kCampaign);
@@ -291,11 +291,25 @@ TEST(RunProgress, TheChambersPriorCompletesTheEtaForSettlesNotForecast) {
   EXPECT_DOUBLE_EQ(*b.run_eta_p90_s, 7500 + 560 + 760);
   EXPECT_EQ(b.run_eta_basis, "prior");
 
+  // A forecast without a P50 (a final value outside the tolerance, or
+  // beyond its horizon) leaves the current settle to the prior, as before a
+  // forecast; the forecast's verdict is still shown.
   const SettleForecast outside{"never_within_tolerance", "final 41.2 °C", {}, {}, {}};
   const RunProgress c = run_progress(plan, soak, std::nullopt, {}, outside, prior);
-  EXPECT_FALSE(c.run_eta_s);
-  EXPECT_EQ(c.run_eta_basis, "");
-  EXPECT_EQ(c.prior_settles, 0);
+  ASSERT_TRUE(c.run_eta_s);
+  EXPECT_DOUBLE_EQ(*c.run_eta_s, *b.run_eta_s);
+  EXPECT_DOUBLE_EQ(*c.run_eta_p90_s, *b.run_eta_p90_s);
+  EXPECT_EQ(c.run_eta_basis, "prior");
+  EXPECT_EQ(c.prior_settles, 5);
+  ASSERT_TRUE(c.settle);
+  EXPECT_EQ(c.settle->verdict, "never_within_tolerance");
+  const SettleForecast far{"predicted", "beyond 48 h", 600.0, {}, {}};
+  const RunProgress far_eta = run_progress(plan, soak, std::nullopt, {}, far, prior);
+  ASSERT_TRUE(far_eta.run_eta_s);
+  EXPECT_DOUBLE_EQ(*far_eta.run_eta_s, *b.run_eta_s);
+  EXPECT_EQ(far_eta.run_eta_basis, "prior");
+  // Without a prior, such a settle leaves the run without an ETA.
+  EXPECT_FALSE(run_progress(plan, soak, std::nullopt, {}, outside).run_eta_s);
 
   SequencerSnapshot queued = at_step(0, RunState::kQueued, 0);
   queued.setpoint_c = 23;

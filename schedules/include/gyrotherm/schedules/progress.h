@@ -146,8 +146,10 @@ struct RunProgress {
   // forecast ("prior", "forecast+prior"). The fixed time plus each settle's
   // P50, and the band from their P10s and P90s: the prior is one chamber's,
   // so its settles are taken to run long or short together (the band is not
-  // narrowed as for independent ones). A settling soak without a forecast
-  // takes the prior less what it has settled. run_eta_p90_s is nullopt when
+  // narrowed as for independent ones). A settling soak whose forecast has
+  // no P50 (none yet, too little curvature, beyond the horizon, a final
+  // value outside the tolerance) takes the prior less what it has settled.
+  // run_eta_p90_s is nullopt when
   // the forecast's P90 is beyond its horizon.
   std::optional<double> run_eta_s;
   std::optional<double> run_eta_p10_s;
