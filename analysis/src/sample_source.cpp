@@ -16,6 +16,8 @@
 #include <thread>
 #include <vector>
 
+#include "allan_detail.h"
+
 namespace gyrotherm::analysis {
 
 // The distinct spacings of a pass and how often each occurs, in an open
@@ -85,8 +87,10 @@ class SpacingCounts {
 
 namespace {
 
-// The values whose mean is the Allan prefix sums' shift (SeriesScan).
-constexpr std::size_t kShiftBlock = 4096;
+// The values whose mean is the Allan prefix sums' shift (SeriesScan): the
+// prefix sums' first block, so a streamed pass shifts them as the in-memory
+// path does (allan_detail::first_block_mean).
+constexpr std::size_t kShiftBlock = allan_detail::kBlock;
 
 // The spacing of rank r among all spacings of a clean series, by four
 // passes over its times: a positive double orders as its bit pattern, so

@@ -330,7 +330,7 @@ Result<AnalysisSeries> make_analysis_series(std::span<const GyroSample> gyro,
 
 Result<AnalysisSeries> make_analysis_series(const SampleSource& gyro,
                                             std::span<const TemperatureSample> temps, double bin_s,
-                                            SeriesScan* scanned) {
+                                            std::optional<SeriesScan>* scanned) {
   if (!(bin_s > 0) || !std::isfinite(bin_s)) {
     return Error::Permanent(
         fmt::format("bin_s must be a positive number of seconds, got {}", bin_s));
@@ -362,6 +362,7 @@ Result<AnalysisSeries> make_analysis_series(const SampleSource& gyro,
     return true;
   });
   if (!st) return st.error();
+  if (scanned != nullptr) scanned->reset();
   auto scan = scanner.finish(gyro);
   if (!scan) {
     Error e = scan.error();

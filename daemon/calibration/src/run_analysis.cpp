@@ -464,15 +464,13 @@ Result<analysis::AnalysisSeries> soak_series_counted(storage::Database& db, cons
   for (const auto& [from_s, to_s] : soak.windows) {
     auto temps = dut_shell_readings(db, soak.run_id, axis, from_s, to_s);
     if (!temps) return Error::Transient(fmt::format("{}: {}", where, temps.error().message));
-    // The scan is written only when the samples scanned clean: a window
-    // with a bad sample is an error below, not an empty window.
-    std::optional<analysis::SeriesScan> scan{analysis::SeriesScan{}};
-    scan->n = std::numeric_limits<std::size_t>::max();
+    // No scan when the samples did not scan clean: a window with a bad
+    // sample is an error below, not an empty window.
+    std::optional<analysis::SeriesScan> scan;
     auto part = analysis::make_analysis_series(
         counting_first_pass(analysis::prefetched(axis_source(db, soak.run_id, axis, from_s, to_s)),
                             counter),
-        *temps, bin_s, &*scan);
-    if (scan->n == std::numeric_limits<std::size_t>::max()) scan.reset();
+        *temps, bin_s, &scan);
     if (median_hz != nullptr && *median_hz <= 0 && scan && scan->n >= 2) {
       *median_hz = 2.0 / (scan->spacing_lower_s + scan->spacing_upper_s);
     }

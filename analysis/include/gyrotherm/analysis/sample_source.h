@@ -3,8 +3,9 @@
 //
 // A SampleSource streams every sample of one series, in time order, in
 // blocks of any size, to the callback it is given; it can be called again
-// and streams the same samples again (the analysis makes two to four passes:
-// see scan_series, allan_deviation and make_analysis_series). A callback
+// and streams the same samples again (the analysis makes one or two passes, a
+// few more to find a median among thousands of distinct spacings: see
+// scan_series, allan_deviation and make_analysis_series). A callback
 // that returns false stops the pass; the source then returns Ok. Errors of
 // the source (a database that cannot be read) come back as its Status.
 #pragma once

@@ -131,13 +131,15 @@ Result<AnalysisSeries> make_analysis_series(std::span<const GyroSample> gyro,
                                             std::span<const TemperatureSample> temps, double bin_s);
 // The same over a streamed window (sample_source.h; its values are the
 // rates), in memory of the output series, not of the samples: one pass
-// checks the samples and finds the median spacing (scan_series), a second
-// bins them. The result is exactly the span form's on the same samples.
-// `scanned`, when given, receives the first pass's SeriesScan. Errors: the
+// checks the samples, finds the median spacing (SeriesScanner) and takes the
+// bin means; which bins are complete is decided at the end (a second pass
+// only for samples used as is after a dense stretch). The result is exactly
+// the span form's on the same samples. `scanned`, when given, receives the
+// SeriesScan when the samples scanned clean (nullopt otherwise). Errors: the
 // span form's, and the source's (transient, as it gave them).
 Result<AnalysisSeries> make_analysis_series(const SampleSource& gyro,
                                             std::span<const TemperatureSample> temps, double bin_s,
-                                            SeriesScan* scanned = nullptr);
+                                            std::optional<SeriesScan>* scanned = nullptr);
 
 struct Table1Row {
   std::size_t n = 0;
